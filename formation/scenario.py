@@ -1,0 +1,341 @@
+"""Scenario files: TOML, validated with errors that name the offending field.
+
+A scenario fixes everything about a run: robots and their start poses, robot parameters, the
+virtual leader's trajectory, the formation, the assignment rule, the plant's sensor and link
+models and scheduled disturbances. ``formation sim`` and ``formation up`` both read it, so the
+in-process and the distributed runs are the same experiment.
+
+Built-in scenarios live in ``formation/scenarios/*.toml`` and are named without the extension.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from robot_agent.params import (
+    AgentConfig,
+    RepulsionParams,
+    RobotGeometry,
+    SafetyParams,
+    TrackingGains,
+)
+
+SCENARIO_DIR = Path(__file__).parent / "scenarios"
+ROBOT_ID_RE = re.compile(r"^[a-z0-9_-]+$")
+
+
+class ScenarioError(ValueError):
+    """A scenario file is malformed; the message names the field and what is wrong."""
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    rate_hz: float = 30.0
+    pos_std_m: float = 0.003
+    theta_std_rad: float = 0.01
+    latency_s: float = 0.03
+
+
+@dataclass(frozen=True)
+class LinkModel:
+    latency_s: float = 0.01
+    jitter_s: float = 0.005
+    loss_prob: float = 0.01
+
+
+@dataclass(frozen=True)
+class PlantModel:
+    motor_tau_s: float = 0.05
+
+
+@dataclass(frozen=True)
+class AssignmentConfig:
+    method: str = "greedy"
+    hysteresis_m: float = 0.05
+    tie_tol_m: float = 0.01
+
+
+@dataclass(frozen=True)
+class Disturbance:
+    t_s: float
+    robot: str
+    kind: str  # "drag" | "teleport"
+    dx: float = 0.0
+    dy: float = 0.0
+    duration_s: float = 1.0
+    x: float | None = None
+    y: float | None = None
+    theta: float | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    duration_s: float
+    dt_s: float
+    seed: int
+    settle_s: float
+    settle_tol_m: float
+    robot_ids: tuple[str, ...]
+    initial: tuple[tuple[float, float, float], ...]
+    agent: AgentConfig
+    trajectory: dict[str, Any]
+    formation: dict[str, Any]
+    assignment: AssignmentConfig
+    plant: PlantModel
+    camera: CameraModel
+    link: LinkModel
+    disturbances: tuple[Disturbance, ...] = field(default_factory=tuple)
+    source: str = ""
+
+    def with_overrides(self, **changes: Any) -> Scenario:
+        return dataclasses.replace(self, **changes)
+
+
+def builtin_names() -> list[str]:
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+
+
+def resolve(name_or_path: str) -> Path:
+    """A built-in scenario name or a path to a TOML file."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" and p.exists():
+        return p
+    builtin = SCENARIO_DIR / f"{name_or_path}.toml"
+    if builtin.exists():
+        return builtin
+    raise ScenarioError(
+        f"no scenario {name_or_path!r}: not a file, and not one of {', '.join(builtin_names())}"
+    )
+
+
+def load(name_or_path: str) -> Scenario:
+    path = resolve(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    return parse(data, source=str(path))
+
+
+# --------------------------------------------------------------------------------------------
+# validation helpers
+
+
+def _num(d: dict[str, Any], key: str, where: str, default: float | None = None, *,
+         lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
+    if key not in d:
+        if default is None:
+            raise ScenarioError(f"{where}.{key}: required")
+        return default
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise ScenarioError(f"{where}.{key}: expected a number, got {type(v).__name__} {v!r}")
+    fv = float(v)
+    if not math.isfinite(fv):
+        raise ScenarioError(f"{where}.{key}: must be finite, got {v!r}")
+    if fv < lo or fv > hi or (lo_open and fv <= lo):
+        bound = f"> {lo}" if lo_open else f">= {lo}"
+        raise ScenarioError(f"{where}.{key}: {fv} out of range (must be {bound} and <= {hi})")
+    return fv
+
+
+def _table(d: dict[str, Any], key: str, where: str) -> dict[str, Any]:
+    v = d.get(key, {})
+    if not isinstance(v, dict):
+        raise ScenarioError(f"{where}{key}: expected a table, got {type(v).__name__}")
+    return v
+
+
+def _only(d: dict[str, Any], allowed: set[str], where: str) -> None:
+    unknown = set(d) - allowed
+    if unknown:
+        raise ScenarioError(
+            f"{where}: unknown key(s) {', '.join(sorted(unknown))}; allowed: "
+            f"{', '.join(sorted(allowed))}"
+        )
+
+
+def _dataclass_from(cls: Any, d: dict[str, Any], where: str) -> Any:
+    """Build a frozen params dataclass from a TOML table, checking names and types."""
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    _only(d, set(names), where)
+    kwargs: dict[str, Any] = {}
+    for k, v in d.items():
+        default = getattr(cls(), k)
+        if isinstance(default, bool):
+            if not isinstance(v, bool):
+                raise ScenarioError(f"{where}.{k}: expected true/false, got {v!r}")
+            kwargs[k] = v
+        elif isinstance(default, int | float):
+            kwargs[k] = _num(d, k, where, lo=0.0)
+        else:
+            kwargs[k] = v
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(f"{where}: {exc}") from exc
+
+
+TOP_KEYS = {
+    "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
+    "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
+    "camera", "link", "disturbance",
+}  # fmt: skip
+
+
+def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
+    """Validate a scenario dictionary (as read from TOML)."""
+    _only(data, TOP_KEYS, "scenario")
+    name = data.get("name", Path(source).stem)
+    if not isinstance(name, str) or not name:
+        raise ScenarioError("name: expected a non-empty string")
+    duration = _num(data, "duration_s", "scenario", lo=0.0, hi=1e6, lo_open=True)
+    dt = _num(data, "dt_s", "scenario", 0.02, lo=0.0, hi=1.0, lo_open=True)
+    seed_v = data.get("seed", 0)
+    if isinstance(seed_v, bool) or not isinstance(seed_v, int) or seed_v < 0:
+        raise ScenarioError(f"seed: expected a non-negative integer, got {seed_v!r}")
+    settle = _num(data, "settle_s", "scenario", min(duration / 2, 60.0), lo=0.0, hi=duration)
+    settle_tol = _num(data, "settle_tol_m", "scenario", 0.05, lo=0.0, lo_open=True)
+
+    robots = _table(data, "robots", "")
+    _only(robots, {"ids", "count", "initial"}, "robots")
+    if "ids" in robots:
+        ids = robots["ids"]
+        if not isinstance(ids, list) or not ids or not all(isinstance(i, str) for i in ids):
+            raise ScenarioError("robots.ids: expected a non-empty list of strings")
+    elif "count" in robots:
+        count = robots["count"]
+        if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= 10000:
+            raise ScenarioError(f"robots.count: expected an integer 1..10000, got {count!r}")
+        ids = [f"r{i + 1}" for i in range(count)]
+    else:
+        raise ScenarioError("robots: give either ids = [...] or count = N")
+    for rid in ids:
+        if not ROBOT_ID_RE.match(rid):
+            raise ScenarioError(f"robots.ids: {rid!r} does not match [a-z0-9_-]+")
+    if len(set(ids)) != len(ids):
+        raise ScenarioError("robots.ids: duplicate robot id")
+    initial_raw = robots.get("initial")
+    if initial_raw is None:
+        # default: a row behind the origin, spaced 0.4 m
+        initial = tuple((-0.4 * (i // 3), 0.4 * ((i % 3) - 1), 0.0) for i in range(len(ids)))
+    else:
+        if not isinstance(initial_raw, list) or len(initial_raw) != len(ids):
+            raise ScenarioError(
+                f"robots.initial: expected {len(ids)} entries [x, y, theta], one per robot"
+            )
+        rows = []
+        for j, row in enumerate(initial_raw):
+            if (
+                not isinstance(row, list)
+                or len(row) != 3
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in row)
+                or not all(math.isfinite(float(v)) for v in row)
+            ):
+                raise ScenarioError(f"robots.initial[{j}]: expected [x, y, theta] finite numbers")
+            rows.append((float(row[0]), float(row[1]), float(row[2])))
+        initial = tuple(rows)
+
+    agent = AgentConfig(
+        geometry=_dataclass_from(RobotGeometry, _table(data, "geometry", ""), "geometry"),
+        gains=_dataclass_from(TrackingGains, _table(data, "gains", ""), "gains"),
+        repulsion=_dataclass_from(RepulsionParams, _table(data, "repulsion", ""), "repulsion"),
+        safety=_dataclass_from(SafetyParams, _table(data, "safety", ""), "safety"),
+    )
+
+    trajectory = _table(data, "trajectory", "")
+    if "kind" not in trajectory:
+        raise ScenarioError("trajectory.kind: required (line, circle, figure8, waypoints)")
+    formation = _table(data, "formation", "")
+    if "kind" not in formation and "slots" not in formation:
+        raise ScenarioError("formation.kind: required (triangle, chevron, lattice) or slots")
+
+    a = _table(data, "assignment", "")
+    _only(a, {"method", "hysteresis_m", "tie_tol_m"}, "assignment")
+    method = a.get("method", "greedy")
+    if method not in ("greedy", "optimal"):
+        raise ScenarioError(f"assignment.method: {method!r} is not 'greedy' or 'optimal'")
+    assignment = AssignmentConfig(
+        method=method,
+        hysteresis_m=_num(a, "hysteresis_m", "assignment", 0.05, lo=0.0),
+        tie_tol_m=_num(a, "tie_tol_m", "assignment", 0.01, lo=0.0),
+    )
+
+    p = _table(data, "plant", "")
+    _only(p, {"motor_tau_s"}, "plant")
+    plant = PlantModel(motor_tau_s=_num(p, "motor_tau_s", "plant", 0.05, lo=0.0, hi=10.0))
+    c = _table(data, "camera", "")
+    _only(c, {f.name for f in dataclasses.fields(CameraModel)}, "camera")
+    camera = CameraModel(
+        rate_hz=_num(c, "rate_hz", "camera", 30.0, lo=0.0, hi=1000.0, lo_open=True),
+        pos_std_m=_num(c, "pos_std_m", "camera", 0.003, lo=0.0, hi=1.0),
+        theta_std_rad=_num(c, "theta_std_rad", "camera", 0.01, lo=0.0, hi=1.0),
+        latency_s=_num(c, "latency_s", "camera", 0.03, lo=0.0, hi=5.0),
+    )
+    ln = _table(data, "link", "")
+    _only(ln, {f.name for f in dataclasses.fields(LinkModel)}, "link")
+    link = LinkModel(
+        latency_s=_num(ln, "latency_s", "link", 0.01, lo=0.0, hi=5.0),
+        jitter_s=_num(ln, "jitter_s", "link", 0.005, lo=0.0, hi=5.0),
+        loss_prob=_num(ln, "loss_prob", "link", 0.01, lo=0.0, hi=1.0),
+    )
+
+    dist_raw = data.get("disturbance", [])
+    if not isinstance(dist_raw, list):
+        raise ScenarioError("disturbance: expected an array of tables [[disturbance]]")
+    disturbances = []
+    for j, d in enumerate(dist_raw):
+        where = f"disturbance[{j}]"
+        if not isinstance(d, dict):
+            raise ScenarioError(f"{where}: expected a table")
+        _only(d, {"t_s", "robot", "kind", "dx", "dy", "duration_s", "x", "y", "theta"}, where)
+        kind = d.get("kind")
+        if kind not in ("drag", "teleport"):
+            raise ScenarioError(f"{where}.kind: {kind!r} is not 'drag' or 'teleport'")
+        robot = d.get("robot")
+        if robot not in ids:
+            raise ScenarioError(f"{where}.robot: {robot!r} is not one of the scenario's robots")
+        disturbances.append(
+            Disturbance(
+                t_s=_num(d, "t_s", where, lo=0.0, hi=duration),
+                robot=str(robot),
+                kind=kind,
+                dx=_num(d, "dx", where, 0.0),
+                dy=_num(d, "dy", where, 0.0),
+                duration_s=_num(d, "duration_s", where, 1.0, lo=0.0),
+                x=_num(d, "x", where) if "x" in d else None,
+                y=_num(d, "y", where) if "y" in d else None,
+                theta=_num(d, "theta", where) if "theta" in d else None,
+            )
+        )
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise ScenarioError("description: expected a string")
+    return Scenario(
+        name=name,
+        description=description,
+        duration_s=duration,
+        dt_s=dt,
+        seed=int(seed_v),
+        settle_s=settle,
+        settle_tol_m=settle_tol,
+        robot_ids=tuple(ids),
+        initial=initial,
+        agent=agent,
+        trajectory=dict(trajectory),
+        formation=dict(formation),
+        assignment=assignment,
+        plant=plant,
+        camera=camera,
+        link=link,
+        disturbances=tuple(sorted(disturbances, key=lambda x: x.t_s)),
+        source=source,
+    )
