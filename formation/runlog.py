@@ -15,7 +15,7 @@ import numpy.typing as npt
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
-MODE_CODES = {"IDLE": 0, "TRACKING": 1, "HOLD": 2, "ESTOP": 3}
+MODE_CODES = {"idle": 0, "tracking": 1, "hold": 2, "estop": 3}
 
 
 @dataclass

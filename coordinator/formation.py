@@ -1,0 +1,548 @@
+"""Formation geometry: a staged tree of slots around the virtual leader (paper eqs 3-5, Fig 2).
+
+Slot 0 is the virtual leader. Every other slot ``i`` hangs off a parent slot ``p`` (the leader or
+a sub-leader of an earlier stage) at distance ``b_i`` (m) and angle ``phi_i`` (rad), and its
+position follows eqs 3-5 (corrected, see shared/notes/paper-math.md)::
+
+    gamma_i = phi_i + theta_p - pi/2
+    x_i = x_p - b_i cos(gamma_i)
+    y_i = y_p - b_i sin(gamma_i)
+
+With the parent heading +x, ``phi = pi/3`` puts the slot behind-left, ``pi/2`` straight behind and
+``2 pi/3`` behind-right. The formation is rigid: every slot's heading is the leader's, so
+``gammadot = omega`` and the feed-forward velocity used by the tracking law (eqs 21-22) is::
+
+    vx_i = vx_p + b_i omega sin(gamma_i)
+    vy_i = vy_p - b_i omega cos(gamma_i)
+
+Roles: slot 0 is ``"leader"``; a slot with children is a ``"subleader"`` (the paper's first-stage
+followers that lead the second stage); a leaf is a ``"follower"``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+from coordinator.trajectory import LeaderState, wrap_angle
+
+__all__ = [
+    "FORMATION_KINDS",
+    "LEADER_SLOT",
+    "ROLES",
+    "FormationSpec",
+    "SlotSpec",
+    "SlotState",
+    "slot_arrays",
+    "slot_states",
+]
+
+ROLES: Final = ("leader", "subleader", "follower")
+LEADER_SLOT: Final = 0
+FORMATION_KINDS: Final = ("triangle", "chevron", "lattice", "explicit")
+
+_SQRT3_2: Final = math.sqrt(3.0) / 2.0
+
+FloatArray = npt.NDArray[np.float64]
+
+
+def _is_int(v: object) -> bool:
+    return isinstance(v, int | np.integer) and not isinstance(v, bool)
+
+
+def _finite(owner: str, name: str, v: object) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating):
+        raise ValueError(f"{owner}: {name} must be a number, got {v!r}")
+    f = float(v)
+    if not math.isfinite(f):
+        raise ValueError(f"{owner}: {name} must be finite, got {v!r}")
+    return f
+
+
+@dataclass(frozen=True, slots=True)
+class SlotSpec:
+    """One slot of a formation.
+
+    ``slot``: id (>= 0; 0 = virtual leader). ``parent``: the slot it hangs off (None for slot 0).
+    ``b_m``: distance to the parent, m (> 0; 0 for the leader). ``phi_rad``: the angle phi of eq 3.
+    ``stage``: depth in the tree (0 for the leader). ``role``: one of :data:`ROLES`.
+    """
+
+    slot: int
+    parent: int | None
+    b_m: float
+    phi_rad: float
+    stage: int
+    role: str
+
+    def __post_init__(self) -> None:
+        owner = f"SlotSpec(slot={self.slot!r})"
+        if not _is_int(self.slot) or self.slot < 0:
+            raise ValueError(f"{owner}: slot must be an int >= 0")
+        if self.parent is not None and (not _is_int(self.parent) or self.parent < 0):
+            raise ValueError(f"{owner}: parent must be None or an int >= 0, got {self.parent!r}")
+        if not _is_int(self.stage) or self.stage < 0:
+            raise ValueError(f"{owner}: stage must be an int >= 0, got {self.stage!r}")
+        if self.role not in ROLES:
+            raise ValueError(f"{owner}: role must be one of {ROLES}, got {self.role!r}")
+        object.__setattr__(self, "slot", int(self.slot))
+        object.__setattr__(self, "parent", None if self.parent is None else int(self.parent))
+        object.__setattr__(self, "stage", int(self.stage))
+        object.__setattr__(self, "b_m", _finite(owner, "b_m", self.b_m))
+        object.__setattr__(self, "phi_rad", _finite(owner, "phi_rad", self.phi_rad))
+
+
+@dataclass(frozen=True, slots=True)
+class SlotState:
+    """Where a slot is at one instant: the setpoint of the robot assigned to it.
+
+    ``x``, ``y`` (m) are where that robot's reference point (eqs 10-11) should be; ``theta`` (rad)
+    is the formation heading; ``vx``, ``vy`` (m/s) the feed-forward velocity.
+    """
+
+    slot: int
+    role: str
+    stage: int
+    parent: int | None
+    x: float
+    y: float
+    theta: float
+    vx: float
+    vy: float
+
+
+class FormationSpec:
+    """A validated staged tree of slots, immutable.
+
+    ``slots`` must start with slot 0 (parent None, stage 0, ``b_m = phi_rad = 0``, role
+    ``"leader"``), list every parent before its children (so there are no cycles), use unique
+    ids, ``b_m > 0`` for non-leader slots, ``stage = parent's stage + 1`` and the role implied by
+    the tree. :meth:`from_tree` derives stage and role for you.
+    """
+
+    __slots__ = (
+        "_by_id",
+        "_children",
+        "_index",
+        "_offsets",
+        "_parent_index",
+        "_priority",
+        "_slots",
+    )
+
+    def __init__(self, slots: Sequence[SlotSpec]) -> None:
+        owner = "FormationSpec"
+        slots_t = tuple(slots)
+        if not slots_t:
+            raise ValueError(f"{owner}: needs at least the leader slot 0")
+        for s in slots_t:
+            if not isinstance(s, SlotSpec):
+                raise ValueError(f"{owner}: slots must be SlotSpec, got {s!r}")
+        root = slots_t[0]
+        if root.slot != LEADER_SLOT or root.parent is not None:
+            raise ValueError(
+                f"{owner}: the first slot must be the leader slot 0 with parent None, "
+                f"got slot {root.slot} with parent {root.parent}"
+            )
+        if root.stage != 0 or root.b_m != 0.0 or root.phi_rad != 0.0:
+            raise ValueError(f"{owner}: leader slot 0 must have stage 0, b_m 0 and phi_rad 0")
+        index: dict[int, int] = {}
+        children: dict[int, list[int]] = {s.slot: [] for s in slots_t}
+        for i, s in enumerate(slots_t):
+            if s.slot in index:
+                raise ValueError(f"{owner}: duplicate slot id {s.slot}")
+            if i > 0:
+                if s.parent is None:
+                    raise ValueError(
+                        f"{owner}: slot {s.slot} has no parent; only slot 0 may be the root"
+                    )
+                if s.parent == s.slot:
+                    raise ValueError(f"{owner}: slot {s.slot} is its own parent (a cycle)")
+                if s.parent not in index:
+                    where = "later" if s.parent in children else "nowhere"
+                    raise ValueError(
+                        f"{owner}: slot {s.slot} has parent {s.parent}, which is defined "
+                        f"{where}; parents must come before their children (no cycles)"
+                    )
+                if s.b_m <= 0.0:
+                    raise ValueError(f"{owner}: slot {s.slot} needs b_m > 0, got {s.b_m}")
+                parent_stage = slots_t[index[s.parent]].stage
+                if s.stage != parent_stage + 1:
+                    raise ValueError(
+                        f"{owner}: slot {s.slot} has stage {s.stage} but its parent {s.parent} "
+                        f"is stage {parent_stage}; expected {parent_stage + 1}"
+                    )
+                children[s.parent].append(s.slot)
+            index[s.slot] = i
+        for s in slots_t:
+            expected = _role(s.slot, bool(children[s.slot]))
+            if s.role != expected:
+                raise ValueError(
+                    f"{owner}: slot {s.slot} must have role {expected!r}, not {s.role!r}"
+                )
+        # Body-frame offset of every slot from the leader (theta = 0), accumulated down the tree:
+        # eqs 4-5 with theta_p = 0 give (dx, dy) = (-b sin(phi), b cos(phi)).
+        offsets = np.zeros((len(slots_t), 2), dtype=np.float64)
+        parent_index = np.full(len(slots_t), -1, dtype=np.int64)
+        for i, s in enumerate(slots_t[1:], start=1):
+            assert s.parent is not None
+            p = index[s.parent]
+            parent_index[i] = p
+            offsets[i, 0] = offsets[p, 0] - s.b_m * math.sin(s.phi_rad)
+            offsets[i, 1] = offsets[p, 1] + s.b_m * math.cos(s.phi_rad)
+        offsets.setflags(write=False)
+        self._slots = slots_t
+        self._index = index
+        self._by_id = {s.slot: s for s in slots_t}
+        self._children = {k: tuple(v) for k, v in children.items()}
+        self._offsets = offsets
+        self._parent_index = parent_index
+        self._priority = tuple(
+            s.slot for s in sorted(slots_t, key=lambda s: (s.slot != LEADER_SLOT, s.stage, s.slot))
+        )
+
+    # -- construction helpers ------------------------------------------------------------------
+
+    @classmethod
+    def from_tree(cls, entries: Iterable[tuple[int, int | None, float, float]]) -> FormationSpec:
+        """Build from ``(slot, parent, b_m, phi_rad)`` entries (parents first, slot 0 first with
+        parent None); stages and roles are derived."""
+        rows = list(entries)
+        stage: dict[int, int] = {}
+        has_child: set[int] = set()
+        for slot, parent, _b, _phi in rows:
+            if parent is not None:
+                has_child.add(parent)
+                if parent not in stage:
+                    raise ValueError(
+                        f"FormationSpec: slot {slot} has parent {parent}, which is not defined "
+                        "before it; parents must come before their children (no cycles)"
+                    )
+                stage[slot] = stage[parent] + 1
+            else:
+                stage[slot] = 0
+        return cls(
+            [
+                SlotSpec(slot, parent, b, phi, stage[slot], _role(slot, slot in has_child))
+                for slot, parent, b, phi in rows
+            ]
+        )
+
+    @classmethod
+    def triangle(
+        cls, b_m: float = 0.4, phi: tuple[float, float] = (math.pi / 3.0, 2.0 * math.pi / 3.0)
+    ) -> FormationSpec:
+        """The paper's Fig 2a: slots 1 and 2 follow the leader at ``b_m`` (m) and angles ``phi``
+        (rad; default behind-left and behind-right, an equilateral triangle of side ``b_m``)."""
+        b = _finite("FormationSpec.triangle", "b_m", b_m)
+        if len(phi) != 2:
+            raise ValueError(f"FormationSpec.triangle: phi must be a pair, got {phi!r}")
+        return cls.from_tree([(0, None, 0.0, 0.0), (1, 0, b, phi[0]), (2, 0, b, phi[1])])
+
+    @classmethod
+    def chevron(cls, n: int, b_m: float = 0.4) -> FormationSpec:
+        """A filled chevron (wedge) of ``n`` slots, leader included, neighbours ``b_m`` (m) apart.
+
+        Stage 1 is the paper's triangle (slots 1, 2 at phi = pi/3, 2 pi/3). Stage ``s >= 2`` is a
+        row of ``2 s`` slots one ``b_m`` behind the previous row, ``b_m`` apart across: each slot
+        of stage ``s - 1`` has a child straight behind (phi = pi/2, ``b_m``) and the two outermost
+        also an outer child that widens the V (phi = pi/4 left, 3 pi/4 right, ``sqrt(2) b_m``).
+        So ``n = 7`` is two stages, slots 1, 2 then 3..6, two children per stage-1 slot. Within a
+        stage slots are numbered from the centre out, left before right, so a partial last stage
+        stays centred. No two slots are closer than ``b_m``.
+        """
+        owner = "FormationSpec.chevron"
+        n_i = _count(owner, n)
+        b = _finite(owner, "b_m", b_m)
+        rows: list[tuple[int, int | None, float, float]] = [(0, None, 0.0, 0.0)]
+        ids: dict[tuple[int, int, int], int] = {}  # (stage, side +1 left / -1 right, k) -> slot
+        stage = 1
+        while len(rows) < n_i:
+            for k in range(1, stage + 1):
+                for side in (1, -1):
+                    if len(rows) >= n_i:
+                        break
+                    slot = len(rows)
+                    if stage == 1:
+                        parent, bb = LEADER_SLOT, b
+                        phi = math.pi / 3.0 if side > 0 else 2.0 * math.pi / 3.0
+                    elif k < stage:
+                        parent, bb, phi = ids[(stage - 1, side, k)], b, math.pi / 2.0
+                    else:
+                        parent, bb = ids[(stage - 1, side, k - 1)], math.sqrt(2.0) * b
+                        phi = math.pi / 4.0 if side > 0 else 3.0 * math.pi / 4.0
+                    ids[(stage, side, k)] = slot
+                    rows.append((slot, parent, bb, phi))
+            stage += 1
+        return cls.from_tree(rows)
+
+    @classmethod
+    def lattice(cls, n: int, b_m: float = 0.4) -> FormationSpec:
+        """A triangular lattice of ``n`` slots, leader included, nearest neighbours ``b_m`` apart.
+
+        Stage ``s`` is a row of ``s + 1`` slots ``s sqrt(3)/2 b_m`` behind the leader (the last
+        stage may be partial). Each slot hangs off the neighbour ahead of it on the centre side
+        (phi = pi/3 on the left half, 2 pi/3 on the right half and the centre), so the tree
+        spreads out from the leader. Within a stage slots are numbered from the centre out, left
+        before right. ``lattice(3)`` is the triangle.
+        """
+        owner = "FormationSpec.lattice"
+        n_i = _count(owner, n)
+        b = _finite(owner, "b_m", b_m)
+        rows: list[tuple[int, int | None, float, float]] = [(0, None, 0.0, 0.0)]
+        ids: dict[tuple[int, int], int] = {(0, 0): LEADER_SLOT}  # (stage, 2 y / b) -> slot
+        stage = 1
+        while len(rows) < n_i:
+            # 2 y / b for the s + 1 slots of the row, ordered centre out, left (+y) first.
+            keys = sorted(range(-stage, stage + 1, 2), key=lambda q: (abs(q), -q))
+            for q in keys:
+                if len(rows) >= n_i:
+                    break
+                slot = len(rows)
+                if q > 0:  # left half: behind-left of the neighbour ahead on the centre side
+                    parent, phi = ids[(stage - 1, q - 1)], math.pi / 3.0
+                else:  # right half and centre: behind-right of the neighbour ahead on its left
+                    parent, phi = ids[(stage - 1, q + 1)], 2.0 * math.pi / 3.0
+                ids[(stage, q)] = slot
+                rows.append((slot, parent, b, phi))
+            stage += 1
+        return cls.from_tree(rows)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> FormationSpec:
+        """Build from a scenario table.
+
+        Either a builder: ``{"kind": "triangle" | "chevron" | "lattice", ...params}`` (params
+        inline or under ``"params"``: triangle ``b_m``, ``phi``; chevron and lattice ``n``,
+        ``b_m``), or an explicit tree: ``{"kind": "explicit", "slots": [{"slot": 0}, {"slot": 1,
+        "parent": 0, "b_m": 0.4, "phi_rad": 1.047}, ...]}`` (``kind`` may be omitted when
+        ``slots`` is given; ``stage`` and ``role`` are derived, and checked if given).
+        """
+        owner = "formation"
+        if not isinstance(d, Mapping):
+            raise ValueError(f"{owner}: expected a table/mapping, got {d!r}")
+        kind = d.get("kind", "explicit" if "slots" in d else None)
+        if kind is None:
+            raise ValueError(f"{owner}: missing 'kind' (one of {', '.join(FORMATION_KINDS)})")
+        if kind not in FORMATION_KINDS:
+            raise ValueError(
+                f"{owner}: unknown kind {kind!r}; expected one of {', '.join(FORMATION_KINDS)}"
+            )
+        if "params" in d:
+            extra = sorted(str(k) for k in d if k not in ("kind", "params"))
+            if extra:
+                raise ValueError(f"{owner}: unexpected key(s) {', '.join(extra)} beside 'params'")
+            params = d["params"]
+            if not isinstance(params, Mapping):
+                raise ValueError(f"{owner}: 'params' must be a table, got {params!r}")
+        else:
+            params = {k: v for k, v in d.items() if k != "kind"}
+        if kind == "explicit":
+            return cls._from_slot_list(params)
+        allowed = {"triangle": ("b_m", "phi"), "chevron": ("n", "b_m"), "lattice": ("n", "b_m")}
+        unknown = sorted(str(k) for k in params if k not in allowed[kind])
+        if unknown:
+            raise ValueError(
+                f"{owner} {kind}: unknown parameter(s) {', '.join(unknown)}; "
+                f"allowed: {', '.join(allowed[kind])}"
+            )
+        if kind == "triangle":
+            kw: dict[str, Any] = dict(params)
+            if "phi" in kw:
+                phi = kw["phi"]
+                if isinstance(phi, str) or not isinstance(phi, Sequence) or len(phi) != 2:
+                    raise ValueError(f"{owner} triangle: phi must be a pair of angles, got {phi!r}")
+                kw["phi"] = (
+                    _finite(f"{owner} triangle", "phi[0]", phi[0]),
+                    _finite(f"{owner} triangle", "phi[1]", phi[1]),
+                )
+            return cls.triangle(**kw)
+        if "n" not in params:
+            raise ValueError(f"{owner} {kind}: missing required parameter n (number of slots)")
+        builder = cls.chevron if kind == "chevron" else cls.lattice
+        return builder(**dict(params))
+
+    @classmethod
+    def _from_slot_list(cls, params: Mapping[str, Any]) -> FormationSpec:
+        owner = "formation explicit"
+        unknown = sorted(str(k) for k in params if k != "slots")
+        if unknown:
+            raise ValueError(f"{owner}: unknown key(s) {', '.join(unknown)}; allowed: slots")
+        items = params.get("slots")
+        if isinstance(items, str) or not isinstance(items, Sequence) or not items:
+            raise ValueError(f"{owner}: 'slots' must be a non-empty list of tables, got {items!r}")
+        keys = ("slot", "parent", "b_m", "phi_rad", "stage", "role")
+        rows: list[tuple[int, int | None, float, float]] = []
+        given: list[Mapping[str, Any]] = []
+        for i, item in enumerate(items):
+            if not isinstance(item, Mapping):
+                raise ValueError(f"{owner}: slots[{i}] must be a table, got {item!r}")
+            bad = sorted(str(k) for k in item if k not in keys)
+            if bad:
+                raise ValueError(
+                    f"{owner}: slots[{i}] has unknown key(s) {', '.join(bad)}; "
+                    f"allowed: {', '.join(keys)}"
+                )
+            if "slot" not in item:
+                raise ValueError(f"{owner}: slots[{i}] is missing 'slot'")
+            slot, parent = item["slot"], item.get("parent")
+            if not _is_int(slot) or (parent is not None and not _is_int(parent)):
+                raise ValueError(f"{owner}: slots[{i}]: slot and parent must be integers")
+            if parent is not None:
+                for k in ("b_m", "phi_rad"):
+                    if k not in item:
+                        raise ValueError(f"{owner}: slots[{i}] (slot {slot}) is missing {k!r}")
+            rows.append(
+                (
+                    int(slot),
+                    None if parent is None else int(parent),
+                    _finite(owner, f"slots[{i}].b_m", item.get("b_m", 0.0)),
+                    _finite(owner, f"slots[{i}].phi_rad", item.get("phi_rad", 0.0)),
+                )
+            )
+            given.append(item)
+        spec = cls.from_tree(rows)
+        for item, s in zip(given, spec.slots, strict=True):
+            for k in ("stage", "role"):
+                if k in item and item[k] != getattr(s, k):
+                    raise ValueError(
+                        f"{owner}: slot {s.slot} has {k} {item[k]!r} but the tree gives "
+                        f"{getattr(s, k)!r}"
+                    )
+        return spec
+
+    def to_dict(self) -> dict[str, Any]:
+        """The explicit form accepted by :meth:`from_dict` (the root's parent key is omitted)."""
+        out: list[dict[str, Any]] = []
+        for s in self._slots:
+            row: dict[str, Any] = {"slot": s.slot}
+            if s.parent is not None:
+                row.update(parent=s.parent, b_m=s.b_m, phi_rad=s.phi_rad)
+            row.update(stage=s.stage, role=s.role)
+            out.append(row)
+        return {"kind": "explicit", "slots": out}
+
+    # -- queries ---------------------------------------------------------------------------------
+
+    @property
+    def slots(self) -> tuple[SlotSpec, ...]:
+        """Slots in definition order (parents before children)."""
+        return self._slots
+
+    @property
+    def slot_ids(self) -> tuple[int, ...]:
+        return tuple(s.slot for s in self._slots)
+
+    @property
+    def n_stages(self) -> int:
+        """Number of stages including the leader's stage 0."""
+        return 1 + max(s.stage for s in self._slots)
+
+    @property
+    def body_offsets_m(self) -> FloatArray:
+        """(n, 2) read-only offsets (m) of the slots from the leader with the leader heading +x,
+        in definition order."""
+        return self._offsets
+
+    def __len__(self) -> int:
+        return len(self._slots)
+
+    def __iter__(self) -> Iterator[SlotSpec]:
+        return iter(self._slots)
+
+    def __getitem__(self, slot: int) -> SlotSpec:
+        try:
+            return self._by_id[slot]
+        except KeyError:
+            raise KeyError(f"no slot {slot} in this formation") from None
+
+    def __contains__(self, slot: object) -> bool:
+        return slot in self._by_id
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, FormationSpec) and self._slots == other._slots
+
+    def __hash__(self) -> int:
+        return hash(self._slots)
+
+    def __repr__(self) -> str:
+        return f"FormationSpec(n={len(self)}, stages={self.n_stages})"
+
+    def children(self, slot: int) -> tuple[int, ...]:
+        """Slots whose parent is ``slot``."""
+        return self._children[self[slot].slot]
+
+    def priority_order(self) -> list[int]:
+        """Slot ids in fill priority: the leader first, then by stage, then by slot id."""
+        return list(self._priority)
+
+    def index_of(self, slot: int) -> int:
+        """Row of ``slot`` in definition order (and in :func:`slot_arrays`)."""
+        return self._index[slot]
+
+
+def _role(slot: int, has_children: bool) -> str:
+    if slot == LEADER_SLOT:
+        return "leader"
+    return "subleader" if has_children else "follower"
+
+
+def _count(owner: str, n: int) -> int:
+    if not _is_int(n) or int(n) < 1:
+        raise ValueError(
+            f"{owner}: n (number of slots, leader included) must be an int >= 1, got {n!r}"
+        )
+    return int(n)
+
+
+def slot_states(spec: FormationSpec, leader: LeaderState) -> list[SlotState]:
+    """States of every slot (definition order) for a virtual-leader state.
+
+    Eqs 1-5 applied recursively from each slot's parent, plus the rigid-formation feed-forward
+    velocity. Positions in m, velocities in m/s, every ``theta`` equal to the leader's.
+    """
+    theta = wrap_angle(leader.theta)
+    omega = leader.omega_radps
+    out: list[SlotState] = []
+    pos: list[tuple[float, float, float, float]] = []  # x, y, vx, vy by definition index
+    for s in spec.slots:
+        if s.parent is None:
+            x, y = leader.x, leader.y
+            vx = leader.v_mps * math.cos(theta)  # eq 1
+            vy = leader.v_mps * math.sin(theta)  # eq 2
+        else:
+            xp, yp, vxp, vyp = pos[spec.index_of(s.parent)]
+            gamma = s.phi_rad + theta - math.pi / 2.0  # eq 3
+            cg, sg = math.cos(gamma), math.sin(gamma)
+            x = xp - s.b_m * cg  # eq 4 (corrected)
+            y = yp - s.b_m * sg  # eq 5 (corrected)
+            vx = vxp + s.b_m * omega * sg  # d/dt of eq 4 with gammadot = omega
+            vy = vyp - s.b_m * omega * cg  # d/dt of eq 5
+        pos.append((x, y, vx, vy))
+        out.append(SlotState(s.slot, s.role, s.stage, s.parent, x, y, theta, vx, vy))
+    return out
+
+
+def slot_arrays(spec: FormationSpec, leader: LeaderState) -> tuple[FloatArray, FloatArray]:
+    """Vectorised :func:`slot_states`: ``(xy, vxy)``, each (n, 2), rows in definition order.
+
+    The tree offsets are precomputed in the leader's body frame, so every slot is the leader plus
+    a rotated offset: ``p_i = p_L + R(theta) d_i`` and ``v_i = v_L + omega J R(theta) d_i``
+    (``J`` = rotation by +pi/2), which is eqs 3-5 and their derivative summed down the tree.
+    """
+    c, s = math.cos(leader.theta), math.sin(leader.theta)
+    d = spec.body_offsets_m
+    rx = c * d[:, 0] - s * d[:, 1]
+    ry = s * d[:, 0] + c * d[:, 1]
+    xy = np.empty((len(spec), 2), dtype=np.float64)
+    xy[:, 0] = leader.x + rx
+    xy[:, 1] = leader.y + ry
+    vxy = np.empty((len(spec), 2), dtype=np.float64)
+    vxy[:, 0] = leader.v_mps * c - leader.omega_radps * ry
+    vxy[:, 1] = leader.v_mps * s + leader.omega_radps * rx
+    return xy, vxy

@@ -1,0 +1,54 @@
+"""Firmware of one differential-drive robot (standard library only).
+
+The pure core: parameters, kinematics (eqs 7-16), the reference-point tracking law (eqs 21-22),
+potential-field repulsion and the ``Firmware`` mode machine. No I/O, no clock reads, no numpy:
+it could be ported to a microcontroller loop. The I/O shell lives in separate modules.
+"""
+
+from .firmware import Firmware, FirmwareStatus, Mode, Pose, Setpoint, WheelCommand
+from .kinematics import (
+    ref_point_velocity,
+    reference_point,
+    saturate_wheels,
+    twist_from_ref_velocity,
+    twist_from_wheels,
+    wheels_from_twist,
+    wrap_angle,
+)
+from .params import (
+    DEFAULT_K_REP,
+    AgentConfig,
+    RepulsionParams,
+    RobotGeometry,
+    SafetyParams,
+    TrackingGains,
+)
+from .repulsion import repulsion_velocity, repulsion_velocity_counted
+from .tracking import AxisPID, PIDInfo, TrackingController
+
+__all__ = [
+    "DEFAULT_K_REP",
+    "AgentConfig",
+    "AxisPID",
+    "Firmware",
+    "FirmwareStatus",
+    "Mode",
+    "PIDInfo",
+    "Pose",
+    "RepulsionParams",
+    "RobotGeometry",
+    "SafetyParams",
+    "Setpoint",
+    "TrackingController",
+    "TrackingGains",
+    "WheelCommand",
+    "ref_point_velocity",
+    "reference_point",
+    "repulsion_velocity",
+    "repulsion_velocity_counted",
+    "saturate_wheels",
+    "twist_from_ref_velocity",
+    "twist_from_wheels",
+    "wheels_from_twist",
+    "wrap_angle",
+]

@@ -1,0 +1,600 @@
+"""Firmware of one robot: a table-driven mode machine around the reference-point controller.
+
+Theory of operation
+===================
+
+The shell (I/O) calls ``Firmware.step(now_s, pose=..., setpoint=..., ...)`` once per control
+tick with the latest pose (axle centre, from localization), the latest setpoint (where the
+robot's *reference point* should be, with its velocity as feed-forward), the local receive time
+of each, and the other robots' axle-centre positions. ``step`` returns one ``WheelCommand``. The
+core reads no clock: ``now_s`` and the ``*_rx_s`` stamps come from the shell's one local clock,
+so staleness never compares two hosts' clocks, and ``dt_s`` is the difference of successive
+``now_s``.
+
+Modes::
+
+    IDLE      no valid setpoint received yet. Wheels exactly 0.
+    TRACKING  fresh, finite pose and setpoint: run the controller.
+    HOLD      we have (had) a setpoint but cannot track safely now: the pose or setpoint is
+              older than its staleness limit (``|now_s - *_rx_s|``), missing, or was rejected
+              (non-finite field, slot not an int >= 0). Wheels exactly 0. The integrators
+              are frozen (not updated) and the derivative state is reset on entry, so
+              resuming gives no kick.
+    ESTOP     latched emergency stop. Wheels exactly 0. Only ``release_estop()`` leaves it,
+              to IDLE (never had a setpoint) or HOLD; the next fresh tick then goes TRACKING.
+
+Each tick is classified into one event (first match wins): ESTOP (latch set), INVALID (a
+non-finite clock value), NO_SETPOINT (no setpoint, or a rejected one before any valid one),
+INVALID (rejected setpoint or pose), STALE (pose missing, or pose / setpoint too old), FRESH.
+The next mode is ``_TRANSITIONS[mode][event]``; on-entry actions run when the mode changes:
+HOLD and TRACKING reset the derivative state, IDLE and ESTOP (and IDLE -> TRACKING) reset the
+whole PID.
+In TRACKING the controller can still fail (overflow from absurd but finite input): that tick
+outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
+counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
+
+Pipeline in TRACKING (one tick)::
+
+    reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
+    -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
+    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (safety, last
+       Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
+    -> saturation keeping the turn -> power = omega / max_wheel_radps in [-1, 1]
+
+The integrators are frozen (may only shrink) on a tick after one whose wheels saturated: the
+PID cannot see this tick's saturation before it has computed this tick's command (the usual
+one-tick-lag anti-windup of a cascaded loop). A change of the setpoint's slot (a role
+change) resets the PID: the old integral and derivative belong to another target.
+
+Time: the first tick has no dt; ``dt_s <= 0`` (duplicate or backwards ``now_s``) or
+``dt_s > safety.max_dt_s`` (a stalled loop) integrates nothing and restarts the derivative; the
+command is then P + stored I + FF.
+
+Counting: ``rejected_count`` counts bad inputs. A rejected ``Pose`` / ``Setpoint`` object is
+counted once however many ticks the shell presents it again (identity); non-finite scalar
+arguments and neighbour entries are counted on every tick they appear; ``reject(reason)`` lets
+the shell add messages it dropped while decoding to the same counter.
+
+Data types are ``NamedTuple``s: immutable, positional, and cheap to build on the hot path
+(a frozen dataclass costs several times more per instance in CPython).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import Enum, StrEnum
+from typing import Any, Final, NamedTuple
+
+from .kinematics import saturate_wheels
+from .params import AgentConfig
+from .repulsion import repulsion_velocity_counted
+from .tracking import PIDInfo, TrackingController
+
+__all__ = [
+    "Firmware",
+    "FirmwareStatus",
+    "Mode",
+    "Pose",
+    "Setpoint",
+    "WheelCommand",
+]
+
+_isfinite = math.isfinite
+_cos = math.cos
+_sin = math.sin
+
+
+class Mode(StrEnum):
+    """Firmware mode; the value is what the status message carries."""
+
+    IDLE = "idle"
+    TRACKING = "tracking"
+    HOLD = "hold"
+    ESTOP = "estop"
+
+
+class Pose(NamedTuple):
+    """Pose of the robot's axle centre: x, y (m), theta (rad), t = source timestamp (s)."""
+
+    x: float
+    y: float
+    theta: float
+    t: float
+
+
+class Setpoint(NamedTuple):
+    """Where the robot's REFERENCE POINT should be (x, y in m), with its velocity (vx, vy in m/s,
+    feed-forward), the slot's heading theta (rad), the slot number and the source time t (s)."""
+
+    x: float
+    y: float
+    vx: float
+    vy: float
+    theta: float
+    slot: int
+    t: float
+
+
+class WheelCommand(NamedTuple):
+    """One tick's output.
+
+    Attributes:
+        omega_r, omega_l: wheel speeds (rad/s), ``|omega| <= max_wheel_radps``.
+        power_r, power_l: the same as a fraction of ``max_wheel_radps``, in [-1, 1].
+        mode: the firmware mode after this tick.
+        pose_t: ``t`` of the pose the command was computed from (the last valid pose seen,
+            also in HOLD / ESTOP), or None if no valid pose was ever received.
+        saturated: the wheel saturation stage limited this command.
+    """
+
+    omega_r: float
+    omega_l: float
+    power_r: float
+    power_l: float
+    mode: Mode
+    pose_t: float | None
+    saturated: bool
+
+
+@dataclass(frozen=True, slots=True)
+class FirmwareStatus:
+    """Snapshot of the firmware for the status message and logs.
+
+    Attributes:
+        mode: current mode.
+        slot: slot of the last valid setpoint (None before the first).
+        ex, ey: last tracking error of the reference point (m); NaN before the first tick in
+            TRACKING.
+        saturated_count: ticks whose wheel command saturated.
+        rejected_count: bad inputs rejected (see the module docstring for how they count).
+        last_pose_t: ``t`` of the last valid pose, or None.
+        steps: calls to ``step``.
+        reason: why the firmware is in its mode (e.g. ``"pose stale"``).
+        last_reject_reason: reason of the last rejection ("" if none).
+        estop_latched: the emergency stop is latched.
+        role_changes: setpoint slot changes seen (each reset the PID).
+        dt_faults: ticks whose dt was <= 0 or > max_dt_s (not counting the first tick).
+        pose_age_s, setpoint_age_s: receive ages at the last tick (s); NaN if unknown.
+        pid_x, pid_y: last PID snapshots per axis.
+    """
+
+    mode: Mode
+    slot: int | None
+    ex: float
+    ey: float
+    saturated_count: int
+    rejected_count: int
+    last_pose_t: float | None
+    steps: int
+    reason: str
+    last_reject_reason: str
+    estop_latched: bool
+    role_changes: int
+    dt_faults: int
+    pose_age_s: float
+    setpoint_age_s: float
+    pid_x: PIDInfo
+    pid_y: PIDInfo
+
+    def as_dict(self) -> dict[str, Any]:
+        """msgpack-friendly dict (the status message carries ``mode``, ``slot``, ``pid``,
+        ``rejected``; the rest are extra fields)."""
+        return {
+            "mode": str(self.mode),
+            "slot": self.slot,
+            "ex": self.ex,
+            "ey": self.ey,
+            "saturated": self.saturated_count,
+            "rejected": self.rejected_count,
+            "last_pose_t": self.last_pose_t,
+            "steps": self.steps,
+            "reason": self.reason,
+            "last_reject_reason": self.last_reject_reason,
+            "estop": self.estop_latched,
+            "role_changes": self.role_changes,
+            "dt_faults": self.dt_faults,
+            "pose_age_s": self.pose_age_s,
+            "setpoint_age_s": self.setpoint_age_s,
+            "pid": {"x": self.pid_x.as_dict(), "y": self.pid_y.as_dict()},
+        }
+
+
+class _Event(Enum):
+    """What a tick (or an estop call) says about the inputs."""
+
+    FRESH = "fresh"
+    STALE = "stale"
+    INVALID = "invalid"
+    NO_SETPOINT = "no_setpoint"
+    ESTOP = "estop"
+    RELEASE = "release"  # release_estop() after a valid setpoint was seen
+    RELEASE_UNCONFIGURED = "release_unconfigured"  # release_estop() before any setpoint
+
+
+_M = Mode
+_E = _Event
+
+#: The whole mode logic: next mode = _TRANSITIONS[mode][event]. Missing entries mean "stay".
+_TRANSITIONS: Final[dict[Mode, dict[_Event, Mode]]] = {
+    _M.IDLE: {
+        _E.FRESH: _M.TRACKING,
+        _E.STALE: _M.HOLD,
+        _E.INVALID: _M.HOLD,
+        _E.NO_SETPOINT: _M.IDLE,
+        _E.ESTOP: _M.ESTOP,
+    },
+    _M.TRACKING: {
+        _E.FRESH: _M.TRACKING,
+        _E.STALE: _M.HOLD,
+        _E.INVALID: _M.HOLD,
+        _E.NO_SETPOINT: _M.HOLD,
+        _E.ESTOP: _M.ESTOP,
+    },
+    _M.HOLD: {
+        _E.FRESH: _M.TRACKING,
+        _E.STALE: _M.HOLD,
+        _E.INVALID: _M.HOLD,
+        _E.NO_SETPOINT: _M.HOLD,
+        _E.ESTOP: _M.ESTOP,
+    },
+    _M.ESTOP: {
+        _E.FRESH: _M.ESTOP,
+        _E.STALE: _M.ESTOP,
+        _E.INVALID: _M.ESTOP,
+        _E.NO_SETPOINT: _M.ESTOP,
+        _E.ESTOP: _M.ESTOP,
+        _E.RELEASE: _M.HOLD,
+        _E.RELEASE_UNCONFIGURED: _M.IDLE,
+    },
+}
+
+_NAN = math.nan
+_TRACKING: Final = Mode.TRACKING
+_ESTOP: Final = Mode.ESTOP
+_EV_FRESH: Final = _Event.FRESH
+_EV_STALE: Final = _Event.STALE
+_EV_INVALID: Final = _Event.INVALID
+_EV_NO_SETPOINT: Final = _Event.NO_SETPOINT
+_EV_ESTOP: Final = _Event.ESTOP
+
+
+def _new_command(
+    omega_r: float,
+    omega_l: float,
+    power_r: float,
+    power_l: float,
+    mode: Mode,
+    pose_t: float | None,
+    saturated: bool,
+) -> WheelCommand:
+    """Build a WheelCommand without the NamedTuple ``__new__`` frame (hot path)."""
+    return _tuple_new(WheelCommand, (omega_r, omega_l, power_r, power_l, mode, pose_t, saturated))
+
+
+_tuple_new = tuple.__new__
+
+
+class Firmware:
+    """One robot's controller: call ``step`` once per tick (see the module docstring)."""
+
+    __slots__ = (
+        "_cfg",
+        "_dt_faults",
+        "_ex",
+        "_ey",
+        "_geom",
+        "_half_track",
+        "_have_setpoint",
+        "_l",
+        "_last_now",
+        "_last_pose_t",
+        "_last_rejected_pose",
+        "_last_rejected_setpoint",
+        "_last_saturated",
+        "_max_dt",
+        "_mode",
+        "_pose_age",
+        "_reason",
+        "_rej_reason",
+        "_rejected",
+        "_rep",
+        "_rep_on",
+        "_role_changes",
+        "_saturated",
+        "_setpoint_age",
+        "_slot",
+        "_stale_pose",
+        "_stale_sp",
+        "_steps",
+        "_tracker",
+        "_wheel_r",
+        "_wmax",
+    )
+
+    def __init__(self, config: AgentConfig | None = None) -> None:
+        cfg = config if config is not None else AgentConfig()
+        if not isinstance(cfg, AgentConfig):
+            raise TypeError(f"config must be an AgentConfig, got {type(cfg).__name__}")
+        self._cfg = cfg
+        self._geom = cfg.geometry
+        self._half_track = cfg.geometry.half_track_m
+        self._wheel_r = cfg.geometry.wheel_radius_m
+        self._l = cfg.geometry.ref_offset_m
+        self._wmax = cfg.geometry.max_wheel_radps
+        self._rep = cfg.repulsion
+        self._rep_on = cfg.repulsion.enabled
+        self._stale_pose = cfg.safety.stale_pose_s
+        self._stale_sp = cfg.safety.stale_setpoint_s
+        self._max_dt = cfg.safety.max_dt_s
+        self._tracker = TrackingController(cfg.gains)
+        self._mode = Mode.IDLE
+        self._reason = "no setpoint yet"
+        self._have_setpoint = False
+        self._slot: int | None = None
+        self._last_now: float | None = None
+        self._last_pose_t: float | None = None
+        self._last_saturated = False
+        self._last_rejected_pose: Pose | None = None
+        self._last_rejected_setpoint: Setpoint | None = None
+        self._ex = _NAN
+        self._ey = _NAN
+        self._pose_age = _NAN
+        self._setpoint_age = _NAN
+        self._steps = 0
+        self._saturated = 0
+        self._rejected = 0
+        self._rej_reason = ""
+        self._role_changes = 0
+        self._dt_faults = 0
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def config(self) -> AgentConfig:
+        """The configuration this firmware runs with."""
+        return self._cfg
+
+    @property
+    def mode(self) -> Mode:
+        """Current mode."""
+        return self._mode
+
+    @property
+    def tracker(self) -> TrackingController:
+        """The tracking controller (for inspection in tests and logs)."""
+        return self._tracker
+
+    def reject(self, reason: str) -> None:
+        """Count one bad input (e.g. a message the shell could not decode) with its reason."""
+        self._rejected += 1
+        self._rej_reason = reason
+
+    def engage_estop(self) -> None:
+        """Latch the emergency stop: wheels are zero from now until ``release_estop()``."""
+        self._transition(_Event.ESTOP, "estop")
+
+    def release_estop(self) -> None:
+        """Release a latched emergency stop, to HOLD (or IDLE if no setpoint was ever valid).
+
+        The next ``step`` with fresh data resumes TRACKING. No-op when not latched.
+        """
+        if self._mode is not Mode.ESTOP:
+            return
+        if self._have_setpoint:
+            self._transition(_Event.RELEASE, "estop released")
+        else:
+            self._transition(_Event.RELEASE_UNCONFIGURED, "estop released, no setpoint yet")
+
+    def status(self) -> FirmwareStatus:
+        """Snapshot for the status message."""
+        pid_x, pid_y = self._tracker.snapshot()
+        return FirmwareStatus(
+            mode=self._mode,
+            slot=self._slot,
+            ex=self._ex,
+            ey=self._ey,
+            saturated_count=self._saturated,
+            rejected_count=self._rejected,
+            last_pose_t=self._last_pose_t,
+            steps=self._steps,
+            reason=self._reason,
+            last_reject_reason=self._rej_reason,
+            estop_latched=self._mode is Mode.ESTOP,
+            role_changes=self._role_changes,
+            dt_faults=self._dt_faults,
+            pose_age_s=self._pose_age,
+            setpoint_age_s=self._setpoint_age,
+            pid_x=pid_x,
+            pid_y=pid_y,
+        )
+
+    def step(
+        self,
+        now_s: float,
+        *,
+        pose: Pose | None,
+        pose_rx_s: float,
+        setpoint: Setpoint | None,
+        setpoint_rx_s: float,
+        neighbours: Sequence[tuple[float, float]] = (),
+        obstacles: Sequence[tuple[float, float, float]] = (),
+    ) -> WheelCommand:
+        """Run one control tick.
+
+        Args:
+            now_s: the shell's clock now (s), same clock as the ``*_rx_s``.
+            pose: latest pose of this robot's axle centre, or None if none yet.
+            pose_rx_s: local time the pose was received (s); ignored when ``pose`` is None.
+            setpoint: latest setpoint for this robot, or None (none yet / unassigned).
+            setpoint_rx_s: local time the setpoint was received (s).
+            neighbours: other robots' axle-centre positions (m), for repulsion.
+            obstacles: static circles ``(x, y, radius_m)`` (m), for repulsion.
+
+        Returns:
+            The wheel command; exactly zero wheels in every mode but TRACKING. Never raises.
+        """
+        self._steps += 1
+        # The whole tick runs inside one try (zero-cost in CPython 3.11 unless it raises): a
+        # firmware loop must not die, it stops the wheels instead.
+        try:
+            # --- time -----------------------------------------------------------------------
+            if not _isfinite(now_s):
+                self.reject("non-finite now_s")
+                return self._hold(_EV_INVALID, "non-finite clock")
+            last = self._last_now
+            self._last_now = now_s
+            if last is None:
+                dt = 0.0
+            else:
+                dt = now_s - last
+                if not 0.0 < dt <= self._max_dt:  # duplicate, backwards or stalled tick
+                    self._dt_faults += 1
+                    self._tracker.reset_derivative()
+                    dt = 0.0
+
+            if self._mode is _ESTOP:
+                return self._hold(_EV_ESTOP, "estop")
+
+            # --- setpoint -------------------------------------------------------------------
+            if setpoint is None:
+                self._setpoint_age = _NAN
+                return self._hold(_EV_NO_SETPOINT, "no setpoint")
+            spx, spy, spvx, spvy, spth, slot, spt = setpoint
+            if not _isfinite(spx + spy + spvx + spvy + spth + spt + setpoint_rx_s) or not (
+                type(slot) is int and slot >= 0
+            ):
+                self._reject_setpoint(setpoint, "non-finite setpoint or bad slot")
+                if self._have_setpoint:
+                    return self._hold(_EV_INVALID, "setpoint rejected")
+                return self._hold(_EV_NO_SETPOINT, "setpoint rejected, none valid yet")
+            self._have_setpoint = True
+            if slot != self._slot:  # role change: the old PID state belongs to another target
+                if self._slot is not None:
+                    self._role_changes += 1
+                self._slot = slot
+                self._tracker.reset()
+            sp_age = now_s - setpoint_rx_s
+            self._setpoint_age = sp_age
+
+            # --- pose -----------------------------------------------------------------------
+            if pose is None:
+                self._pose_age = _NAN
+                return self._hold(_EV_STALE, "no pose")
+            x, y, th, pose_t = pose
+            if not _isfinite(x + y + th + pose_t + pose_rx_s):
+                self._reject_pose(pose, "non-finite pose")
+                return self._hold(_EV_INVALID, "pose rejected")
+            self._last_pose_t = pose_t
+            pose_age = now_s - pose_rx_s
+            self._pose_age = pose_age
+
+            # --- staleness (|age|: a receive time in the future is as wrong as an old one) --
+            lim = self._stale_pose
+            if not -lim <= pose_age <= lim:
+                return self._hold(_EV_STALE, "pose stale")
+            lim = self._stale_sp
+            if not -lim <= sp_age <= lim:
+                return self._hold(_EV_STALE, "setpoint stale")
+
+            if self._mode is not _TRACKING:
+                self._transition(_EV_FRESH, "tracking")
+
+            # --- eqs 10-11 (reference point), 17-18 (error), 21-22 (PID + FF, speed cap) ----
+            l_m = self._l
+            c = _cos(th)
+            s = _sin(th)
+            ex = spx - (x + l_m * c)
+            ey = spy - (y + l_m * s)
+            self._ex = ex
+            self._ey = ey
+            tracker = self._tracker
+            vx, vy = tracker.update(ex, ey, spvx, spvy, dt, self._last_saturated)
+            if not tracker.last_valid:
+                self.reject("controller overflow")
+                return self._hold(_EV_INVALID, "controller overflow")
+
+            # --- safety: repulsion at the axle centre, added to the ref-point velocity ------
+            if self._rep_on and (neighbours or obstacles):
+                rvx, rvy, skipped = repulsion_velocity_counted(
+                    x, y, neighbours, obstacles, self._rep
+                )
+                if skipped:
+                    self._rejected += skipped
+                    self._rej_reason = "non-finite neighbour or obstacle"
+                vx += rvx
+                vy += rvy
+
+            # --- eq 16, then eq 8: inlined copies of twist_from_ref_velocity and
+            # wheels_from_twist (same operations, bit-identical; tested), saving two calls ---
+            v = c * vx + s * vy
+            w = (c * vy - s * vx) / l_m
+            turn = self._half_track * w
+            r = self._wheel_r
+            wr = (v + turn) / r
+            wl = (v - turn) / r
+
+            # --- saturation keeping the turn (fast path: inside limits, also False for NaN) -
+            wmax = self._wmax
+            if -wmax <= wr <= wmax and -wmax <= wl <= wmax:
+                sat = False
+            else:
+                wr, wl, sat = saturate_wheels(wr, wl, wmax)
+                if sat:
+                    self._saturated += 1
+            self._last_saturated = sat
+            return _new_command(wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat)
+        except Exception as exc:
+            self.reject(f"internal error: {type(exc).__name__}")
+            self._last_saturated = False
+            if self._mode is not _ESTOP:
+                self._set_mode(Mode.HOLD, "internal error")
+            return self._zero(self._last_pose_t)
+
+    # ------------------------------------------------------------------ internals
+
+    def _set_mode(self, new: Mode, reason: str) -> None:
+        """Enter ``new`` (running its on-entry action if it differs from the current mode)."""
+        self._reason = reason
+        old = self._mode
+        if new is old:
+            return
+        self._mode = new
+        tracker = self._tracker
+        if new is Mode.HOLD:
+            # Integrators are frozen simply by not being updated; a fresh derivative means
+            # the first tick after resuming has edot = 0 (no kick).
+            tracker.reset_derivative()
+        elif new is Mode.TRACKING:
+            tracker.reset_derivative()
+            if old is Mode.IDLE:
+                tracker.reset()
+        else:  # IDLE or ESTOP: start again from scratch
+            tracker.reset()
+        self._last_saturated = False
+
+    def _transition(self, event: _Event, reason: str) -> Mode:
+        new = _TRANSITIONS[self._mode].get(event, self._mode)
+        self._set_mode(new, reason)
+        return new
+
+    def _zero(self, pose_t: float | None) -> WheelCommand:
+        """Zero command in the current mode."""
+        return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, pose_t, False)
+
+    def _reject_pose(self, pose: Pose, reason: str) -> None:
+        if pose is not self._last_rejected_pose:
+            self._last_rejected_pose = pose
+            self.reject(reason)
+
+    def _reject_setpoint(self, setpoint: Setpoint, reason: str) -> None:
+        if setpoint is not self._last_rejected_setpoint:
+            self._last_rejected_setpoint = setpoint
+            self.reject(reason)
+
+    def _hold(self, event: _Event, reason: str) -> WheelCommand:
+        """Non-tracking tick: apply the event, zero wheels."""
+        self._transition(event, reason)
+        self._last_saturated = False
+        return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, self._last_pose_t, False)

@@ -1,0 +1,295 @@
+"""Reference-point tracking law: PID with feed-forward, per axis (paper eqs 21-22).
+
+Per axis ``u = ff + Kp * (e + (1/Ti) * I + Td * edot)`` where ``e = p_v - p_r`` is the error of
+the reference point (m), ``I`` its integral (m*s), ``edot`` its derivative (m/s) and ``ff`` the
+velocity of the setpoint (m/s). Substituting into ``edot = pdot_v - pdot_r`` gives the ideal
+closed loop ``(1 + Kp Td) s^2 + Kp s + Kp/Ti`` per axis: poles -0.2 and -0.01 with the paper's
+gains (the printed eqs 23-24 drop the Kp factors).
+
+Firmware habits (PX4 ``PID.cpp``, ArduPilot ``AC_PID``):
+
+* The derivative is the error difference quotient through a first-order low-pass (time
+  constant ``d_filter_tau_s``); the first sample after a reset has ``edot = 0``, so a fresh
+  start or a resume gives no derivative kick. (The law is implicit in ``edot``; a discrete
+  controller must use the previous error.)
+* The integral is clamped to ``+-integral_limit_ms``. While the caller says the actuators are
+  saturated (``freeze_integrator=True``), and while the controller's own speed cap bound the
+  previous output, the integral may only shrink in magnitude (anti-windup).
+* A tick with ``dt_s <= 0`` or non-finite ``dt_s`` updates no state and returns
+  ``P + I + FF`` from the stored integral (no integration, no derivative).
+* New state is committed only if it is finite; a non-finite error returns a safe 0.0 and
+  leaves the state untouched.
+* ``snapshot()`` returns a ``PIDInfo`` of the last update for logging; it is built on demand
+  so the control loop allocates nothing for it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .params import TrackingGains
+
+__all__ = ["AxisPID", "PIDInfo", "TrackingController"]
+
+_isfinite = math.isfinite
+_INF = math.inf
+_hypot = math.hypot
+
+
+@dataclass(frozen=True, slots=True)
+class PIDInfo:
+    """Snapshot of one axis after its last update (for logs and the status message).
+
+    Attributes:
+        error: last error e (m).
+        p_term: Kp * e (m/s).
+        i_term: Kp * I / Ti (m/s).
+        d_term: Kp * Td * edot (m/s).
+        output: p_term + i_term + d_term (m/s), without feed-forward.
+        integral_ms: stored integral I (m*s).
+        edot_filtered: stored filtered derivative (m/s).
+        dt_s: dt of the last update (s); <= 0 or NaN means it integrated nothing.
+        frozen: the integrator was frozen (may only shrink) on the last update.
+        limited: the integral hit its clamp on the last update.
+    """
+
+    error: float = 0.0
+    p_term: float = 0.0
+    i_term: float = 0.0
+    d_term: float = 0.0
+    output: float = 0.0
+    integral_ms: float = 0.0
+    edot_filtered: float = 0.0
+    dt_s: float = 0.0
+    frozen: bool = False
+    limited: bool = False
+
+    def as_dict(self) -> dict[str, float | bool]:
+        """Plain dict (msgpack-friendly) of the snapshot."""
+        return {
+            "error": self.error,
+            "p": self.p_term,
+            "i": self.i_term,
+            "d": self.d_term,
+            "out": self.output,
+            "integral": self.integral_ms,
+            "edot": self.edot_filtered,
+            "dt": self.dt_s,
+            "frozen": self.frozen,
+            "limited": self.limited,
+        }
+
+
+class AxisPID:
+    """One axis of eqs 21-22 without the feed-forward: ``Kp*(e + I/Ti + Td*edot_filtered)``."""
+
+    __slots__ = (
+        "_edot",
+        "_has_prev",
+        "_ilim",
+        "_integral",
+        "_inv_ti",
+        "_kp",
+        "_kp_inv_ti",
+        "_kp_td",
+        "_last_d",
+        "_last_dt",
+        "_last_error",
+        "_last_frozen",
+        "_last_limited",
+        "_prev_error",
+        "_tau",
+    )
+
+    def __init__(self, gains: TrackingGains) -> None:
+        self._kp = float(gains.kp)
+        self._inv_ti = 1.0 / gains.ti_s
+        self._kp_inv_ti = self._kp * self._inv_ti
+        self._kp_td = self._kp * gains.td_s
+        self._tau = float(gains.d_filter_tau_s)
+        self._ilim = float(gains.integral_limit_ms)
+        self._integral = 0.0
+        self._edot = 0.0
+        self._prev_error = 0.0
+        self._has_prev = False
+        self._last_error = 0.0
+        self._last_d = 0.0
+        self._last_dt = 0.0
+        self._last_frozen = False
+        self._last_limited = False
+
+    @property
+    def integral_ms(self) -> float:
+        """Stored error integral I (m*s), within +-integral_limit_ms."""
+        return self._integral
+
+    def reset(self) -> None:
+        """Forget everything: integral, derivative filter, previous error and the snapshot."""
+        self._integral = 0.0
+        self._last_error = 0.0
+        self._last_d = 0.0
+        self._last_dt = 0.0
+        self._last_frozen = False
+        self._last_limited = False
+        self.reset_derivative()
+
+    def reset_derivative(self) -> None:
+        """Forget the derivative state only; the next update has edot = 0 (no kick)."""
+        self._edot = 0.0
+        self._prev_error = 0.0
+        self._has_prev = False
+
+    def update(self, error: float, dt_s: float, freeze_integrator: bool = False) -> float:
+        """Advance one tick with error ``error`` (m) after ``dt_s`` (s); return the PID part (m/s).
+
+        ``freeze_integrator=True`` lets the integral only shrink in magnitude this tick.
+        """
+        if not _isfinite(error):
+            return 0.0
+        kp = self._kp
+        integ = self._integral
+        if not (0.0 < dt_s < _INF):  # zero, negative, NaN or inf: no state update
+            self._last_error = error
+            self._last_d = 0.0
+            self._last_dt = dt_s
+            self._last_frozen = freeze_integrator
+            self._last_limited = False
+            return kp * error + self._kp_inv_ti * integ
+
+        if self._has_prev:
+            raw = (error - self._prev_error) / dt_s
+            edot = self._edot + (dt_s / (self._tau + dt_s)) * (raw - self._edot)
+        else:
+            edot = 0.0
+
+        cand = integ + error * dt_s
+        ilim = self._ilim
+        limited = False
+        if cand > ilim:
+            cand = ilim
+            limited = True
+        elif cand < -ilim:
+            cand = -ilim
+            limited = True
+        if freeze_integrator and abs(cand) > abs(integ):
+            cand = integ
+
+        d = self._kp_td * edot
+        out = kp * error + self._kp_inv_ti * cand + d
+        if _isfinite(out + edot):  # commit only finite state (PX4 PID.cpp)
+            self._integral = cand
+            self._edot = edot
+            self._prev_error = error
+            self._has_prev = True
+        else:  # overflow somewhere: keep the old state, fall back to P + stored I
+            d = 0.0
+            out = kp * error + self._kp_inv_ti * integ
+        self._last_error = error
+        self._last_d = d
+        self._last_dt = dt_s
+        self._last_frozen = freeze_integrator
+        self._last_limited = limited
+        return out
+
+    def snapshot(self) -> PIDInfo:
+        """``PIDInfo`` of the last update."""
+        # The I term of the last update always used the integral as stored after it.
+        p = self._kp * self._last_error
+        i = self._kp_inv_ti * self._integral
+        return PIDInfo(
+            error=self._last_error,
+            p_term=p,
+            i_term=i,
+            d_term=self._last_d,
+            output=p + i + self._last_d,
+            integral_ms=self._integral,
+            edot_filtered=self._edot,
+            dt_s=self._last_dt,
+            frozen=self._last_frozen,
+            limited=self._last_limited,
+        )
+
+
+class TrackingController:
+    """Eqs 21-22 on both axes with feed-forward and a cap on the commanded speed.
+
+    ``update`` returns the commanded reference-point velocity ``(xdot_r, ydot_r)`` in m/s, its
+    norm capped at ``max_ref_speed_mps`` (direction kept). When the cap bound the previous
+    output the integrators are frozen on this tick (anti-windup with a one-tick lag, as the
+    integrator can only know about saturation it has already seen).
+    """
+
+    __slots__ = ("_limited", "_vmax", "_x", "_y", "last_valid")
+
+    def __init__(self, gains: TrackingGains) -> None:
+        self._x = AxisPID(gains)
+        self._y = AxisPID(gains)
+        self._vmax = float(gains.max_ref_speed_mps)
+        self._limited = False
+        #: False if the last update had non-finite input or output and returned (0, 0).
+        self.last_valid = True
+
+    @property
+    def x(self) -> AxisPID:
+        """The x-axis PID."""
+        return self._x
+
+    @property
+    def y(self) -> AxisPID:
+        """The y-axis PID."""
+        return self._y
+
+    @property
+    def speed_limited(self) -> bool:
+        """True if the speed cap bound the last output."""
+        return self._limited
+
+    def reset(self) -> None:
+        """Reset both axes (integral and derivative) and the speed-cap flag."""
+        self._x.reset()
+        self._y.reset()
+        self._limited = False
+
+    def reset_derivative(self) -> None:
+        """Reset the derivative state of both axes only (keeps the integrals)."""
+        self._x.reset_derivative()
+        self._y.reset_derivative()
+
+    def update(
+        self,
+        ex: float,
+        ey: float,
+        ff_vx: float,
+        ff_vy: float,
+        dt_s: float,
+        freeze_integrator: bool = False,
+    ) -> tuple[float, float]:
+        """One tick: errors (m), feed-forward (m/s), ``dt_s`` (s) -> ``(xdot_r, ydot_r)`` (m/s).
+
+        Non-finite input (or values so large, ~1e308, that their sum overflows) returns
+        ``(0.0, 0.0)`` with ``last_valid = False`` and leaves the state untouched; a non-finite
+        output (overflow) also returns ``(0.0, 0.0)``, the stored state staying finite.
+        """
+        if not _isfinite(ex + ey + ff_vx + ff_vy):
+            self.last_valid = False
+            return 0.0, 0.0
+        freeze = freeze_integrator or self._limited
+        ux = ff_vx + self._x.update(ex, dt_s, freeze)
+        uy = ff_vy + self._y.update(ey, dt_s, freeze)
+        speed = _hypot(ux, uy)
+        if not _isfinite(speed):
+            self.last_valid = False
+            return 0.0, 0.0
+        self.last_valid = True
+        vmax = self._vmax
+        if speed > vmax:
+            k = vmax / speed
+            self._limited = True
+            return ux * k, uy * k
+        self._limited = False
+        return ux, uy
+
+    def snapshot(self) -> tuple[PIDInfo, PIDInfo]:
+        """``(PIDInfo x, PIDInfo y)`` of the last update."""
+        return self._x.snapshot(), self._y.snapshot()

@@ -1,0 +1,306 @@
+"""Sensor and link emulation: an overhead camera and a lossy, delayed command link.
+
+Both are pure cores: time is passed in (``t_s``, sim seconds) and every random draw comes from the
+``numpy.random.Generator`` given at construction, so a seed reproduces a run exactly (for the same
+sequence of calls). A generator is only required when some randomness is configured.
+
+Camera
+------
+The paper's camera hangs above the arena and reports each robot's pose. Here frames are exposed
+on the camera's own clock at ``k / rate_hz`` (k = 0, 1, 2, ...). The caller calls
+:meth:`Camera.capture` every sim tick with the true poses; the first call at or after a frame
+time takes that frame. The measurement is the truth *at that call* plus Gaussian noise, and its
+stamp is the time of that call (the instant the truth was sampled), so a stamp never lies about
+which pose it describes. When the tick divides the frame period (e.g. 1/300 s ticks for 30 Hz)
+the stamps are exactly ``k / rate_hz``; otherwise a stamp is the first tick after the nominal
+frame time and the frame count over a long run is still ``rate_hz`` per second. If ticks are
+coarser than the frame period, frames that fell between two calls are lost (counted in
+:attr:`Camera.frames_missed`); the camera cannot see the past. Each measurement is delivered at
+``stamp + latency_s`` by :meth:`Camera.poll`.
+
+CommandLink
+-----------
+A one-way radio link coordinator -> robots: each message is lost with ``loss_prob``, otherwise
+delivered at ``t + latency_s + U(0, jitter_s)``. With ``fifo=True`` (default) a message to robot
+``i`` is never delivered before an earlier message to the same robot (a serial stream: a late
+packet holds up the ones behind it); ``fifo=False`` lets jitter reorder them, as UDP can.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+import numpy as np
+import numpy.typing as npt
+
+from sim_plant.plant import wrap_angles
+
+__all__ = ["Camera", "CameraFrame", "CommandLink"]
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+CmdT = TypeVar("CmdT")
+
+# Sim times come from sums of float steps; treat anything within this of a deadline as due.
+_TIME_EPS_S = 1e-9
+
+
+def _check_prob(name: str, p: float) -> float:
+    x = float(p)
+    if not (0.0 <= x <= 1.0):
+        raise ValueError(f"{name} must be in [0, 1], got {p!r}")
+    return x
+
+
+def _check_nonneg(name: str, value: float) -> float:
+    x = float(value)
+    if not math.isfinite(x) or x < 0.0:
+        raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    return x
+
+
+@dataclass(frozen=True, slots=True)
+class CameraFrame:
+    """One camera frame as delivered: robots seen and their measured poses.
+
+    ``ids`` is ``(m,)`` robot indices, ``poses`` ``(m, 3)`` ``[x_m, y_m, theta_rad]`` with theta in
+    (-pi, pi]; ``stamp_t`` is the exposure time and ``deliver_t`` the delivery time, seconds.
+    """
+
+    stamp_t: float
+    deliver_t: float
+    ids: IntArray
+    poses: FloatArray
+
+
+class Camera:
+    """Overhead pose camera: frame clock, Gaussian noise, dropouts, fixed latency.
+
+    Args:
+        n: number of robots in view (rows of the truth passed to :meth:`capture`).
+        rate_hz: frame rate, frames exposed at ``k / rate_hz`` seconds.
+        pos_std_m: standard deviation of the x and y noise, metres.
+        theta_std_rad: standard deviation of the heading noise, rad.
+        latency_s: delay from exposure to delivery, seconds.
+        rng: source of all randomness; may be ``None`` only if no noise or dropout is configured.
+        frame_drop_prob: probability that a whole frame is lost.
+        miss_prob: probability that one robot is missing from a frame (occlusion, failed detection).
+        t0_s: time of frame 0 in seconds.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        rate_hz: float = 30.0,
+        pos_std_m: float = 0.003,
+        theta_std_rad: float = 0.01,
+        latency_s: float = 0.03,
+        rng: np.random.Generator | None = None,
+        *,
+        frame_drop_prob: float = 0.0,
+        miss_prob: float = 0.0,
+        t0_s: float = 0.0,
+    ) -> None:
+        if int(n) < 0:
+            raise ValueError(f"n must be >= 0, got {n}")
+        rate = float(rate_hz)
+        if not math.isfinite(rate) or rate <= 0.0:
+            raise ValueError(f"rate_hz must be finite and > 0, got {rate_hz!r}")
+        self._n = int(n)
+        self.rate_hz = rate
+        self.pos_std_m = _check_nonneg("pos_std_m", pos_std_m)
+        self.theta_std_rad = _check_nonneg("theta_std_rad", theta_std_rad)
+        self.latency_s = _check_nonneg("latency_s", latency_s)
+        self.frame_drop_prob = _check_prob("frame_drop_prob", frame_drop_prob)
+        self.miss_prob = _check_prob("miss_prob", miss_prob)
+        self._t0_s = float(t0_s)
+        random_needed = (
+            self.pos_std_m > 0.0
+            or self.theta_std_rad > 0.0
+            or self.frame_drop_prob > 0.0
+            or self.miss_prob > 0.0
+        )
+        if rng is None and random_needed:
+            raise ValueError("rng is required when noise or dropout is configured")
+        self._rng = rng
+        self._next_k = 0
+        self._queue: deque[CameraFrame] = deque()
+        self.frames_taken = 0
+        self.frames_dropped = 0
+        self.frames_missed = 0
+        self.measurements_missed = 0
+        self.measurements_delivered = 0
+
+    @property
+    def n(self) -> int:
+        """Number of robots the camera expects in each truth array."""
+        return self._n
+
+    def resize(self, n: int) -> None:
+        """Change the number of robots (after ``Plant.add_robot`` / ``remove_robot``).
+
+        Frames already in flight keep the indices they were taken with.
+        """
+        if int(n) < 0:
+            raise ValueError(f"n must be >= 0, got {n}")
+        self._n = int(n)
+
+    @property
+    def next_frame_t(self) -> float:
+        """Nominal exposure time of the next frame, seconds."""
+        return self._t0_s + self._next_k / self.rate_hz
+
+    @property
+    def in_flight(self) -> int:
+        """Frames taken but not yet delivered."""
+        return len(self._queue)
+
+    def capture(self, t_s: float, truth: npt.ArrayLike) -> bool:
+        """Take a frame of ``truth`` (``(n, 3)``) if one is due at ``t_s``; True if one was taken.
+
+        A frame counts as taken even if it is then dropped (``frame_drop_prob``).
+        """
+        t = float(t_s)
+        if t + _TIME_EPS_S < self.next_frame_t:
+            return False
+        pose = np.asarray(truth, dtype=np.float64)
+        if pose.shape != (self._n, 3):
+            raise ValueError(f"truth must have shape ({self._n}, 3), got {pose.shape}")
+        # Index of the latest nominal frame time <= t; the ones between were never exposed.
+        k_now = math.floor((t - self._t0_s) * self.rate_hz + _TIME_EPS_S * self.rate_hz)
+        k_now = max(k_now, self._next_k)
+        self.frames_missed += k_now - self._next_k
+        self._next_k = k_now + 1
+        self.frames_taken += 1
+
+        rng = self._rng
+        if self.frame_drop_prob > 0.0:
+            assert rng is not None
+            if rng.random() < self.frame_drop_prob:
+                self.frames_dropped += 1
+                return True
+        meas = pose.copy()
+        if self.pos_std_m > 0.0 or self.theta_std_rad > 0.0:
+            assert rng is not None
+            noise = rng.standard_normal((self._n, 3))
+            meas[:, 0:2] += self.pos_std_m * noise[:, 0:2]
+            meas[:, 2] += self.theta_std_rad * noise[:, 2]
+        meas[:, 2] = wrap_angles(meas[:, 2])
+        ids = np.arange(self._n, dtype=np.int64)
+        if self.miss_prob > 0.0:
+            assert rng is not None
+            seen = rng.random(self._n) >= self.miss_prob
+            self.measurements_missed += int(self._n - np.count_nonzero(seen))
+            ids = ids[seen]
+            meas = meas[seen]
+        self._queue.append(CameraFrame(t, t + self.latency_s, ids, meas))
+        return True
+
+    def poll_frames(self, t_s: float) -> list[CameraFrame]:
+        """Frames whose delivery time is <= ``t_s``, oldest first (array form, for large n)."""
+        t = float(t_s) + _TIME_EPS_S
+        out: list[CameraFrame] = []
+        # Constant latency and increasing stamps: the deque is sorted by delivery time.
+        while self._queue and self._queue[0].deliver_t <= t:
+            frame = self._queue.popleft()
+            self.measurements_delivered += len(frame.ids)
+            out.append(frame)
+        return out
+
+    def poll(self, t_s: float) -> list[tuple[int, float, float, float, float]]:
+        """Due measurements as ``(i, stamp_t, x_m, y_m, theta_rad)``, oldest frame first."""
+        out: list[tuple[int, float, float, float, float]] = []
+        for frame in self.poll_frames(t_s):
+            stamp = frame.stamp_t
+            rows = frame.poses.tolist()
+            out.extend(
+                (i, stamp, row[0], row[1], row[2])
+                for i, row in zip(frame.ids.tolist(), rows, strict=True)
+            )
+        return out
+
+
+class CommandLink(Generic[CmdT]):
+    """Delayed, jittered, lossy delivery of commands to robots (one-way link).
+
+    Args:
+        latency_s: fixed part of the delay, seconds.
+        jitter_s: extra delay drawn uniformly from ``[0, jitter_s)`` per message, seconds.
+        loss_prob: probability that a message is lost.
+        rng: source of all randomness; may be ``None`` only if jitter and loss are zero.
+        fifo: keep per-robot order (a message never overtakes an earlier one to the same robot).
+
+    Counters: ``sent`` (every :meth:`send`), ``dropped`` (lost), ``delivered`` (returned by
+    :meth:`poll`); ``in_flight`` = sent - dropped - delivered.
+    """
+
+    def __init__(
+        self,
+        latency_s: float = 0.01,
+        jitter_s: float = 0.0,
+        loss_prob: float = 0.0,
+        rng: np.random.Generator | None = None,
+        *,
+        fifo: bool = True,
+    ) -> None:
+        self.latency_s = _check_nonneg("latency_s", latency_s)
+        self.jitter_s = _check_nonneg("jitter_s", jitter_s)
+        self.loss_prob = _check_prob("loss_prob", loss_prob)
+        if rng is None and (self.jitter_s > 0.0 or self.loss_prob > 0.0):
+            raise ValueError("rng is required when jitter or loss is configured")
+        self._rng = rng
+        self.fifo = bool(fifo)
+        # Heap of (deliver_t, seq, i, cmd); seq breaks ties in send order and never compares cmd.
+        self._heap: list[tuple[float, int, int, CmdT]] = []
+        self._seq = itertools.count()
+        self._last_deliver: dict[int, float] = {}
+        self.sent = 0
+        self.dropped = 0
+        self.delivered = 0
+
+    @property
+    def in_flight(self) -> int:
+        """Messages queued and not yet delivered."""
+        return len(self._heap)
+
+    def send(self, t_s: float, i: int, cmd: CmdT) -> float | None:
+        """Send ``cmd`` to robot ``i`` at ``t_s``; returns its delivery time, or None if lost."""
+        t = float(t_s)
+        if not math.isfinite(t):
+            raise ValueError(f"t_s must be finite, got {t_s!r}")
+        self.sent += 1
+        rng = self._rng
+        # Draw loss then jitter for every message so the random stream does not depend on outcome.
+        lost = False
+        if self.loss_prob > 0.0:
+            assert rng is not None
+            lost = bool(rng.random() < self.loss_prob)
+        extra = 0.0
+        if self.jitter_s > 0.0:
+            assert rng is not None
+            extra = float(rng.random()) * self.jitter_s
+        if lost:
+            self.dropped += 1
+            return None
+        deliver = t + self.latency_s + extra
+        if self.fifo:
+            deliver = max(deliver, self._last_deliver.get(i, -math.inf))
+            self._last_deliver[i] = deliver
+        heapq.heappush(self._heap, (deliver, next(self._seq), int(i), cmd))
+        return deliver
+
+    def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
+        """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
+        t = float(t_s) + _TIME_EPS_S
+        out: list[tuple[int, CmdT]] = []
+        heap = self._heap
+        while heap and heap[0][0] <= t:
+            _, _, i, cmd = heapq.heappop(heap)
+            out.append((i, cmd))
+        self.delivered += len(out)
+        return out

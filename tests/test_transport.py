@@ -1,0 +1,604 @@
+"""bus_schemas.transport and formation.router: real Zenoh sessions and real processes on loopback.
+
+No mocks: every session goes through a `formation router` subprocess on a free port (conftest
+fixtures), multicast scouting off. Timings are asserted with a margin for a loaded 2-core CI box;
+the bench (bench/bench_zenoh_rtt.py) measures, these tests only bound.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import zenoh
+from conftest import Child, RouterHandle, Spawner, free_port
+
+from bus_schemas import transport as tp
+
+EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of the signal; 0.5 s margin for CI noise
+
+# A client holding one liveliness token; prints "ready" then idles (killed by the test).
+HOLDER = """
+import sys, time
+from bus_schemas import transport as tp
+endpoint, key = sys.argv[1], sys.argv[2]
+lease = int(sys.argv[3]) if len(sys.argv) > 3 else None
+session = tp.open_session(tp.ZenohSettings(connect=(endpoint,), lease_ms=lease))
+token = tp.declare_token(session, key)
+print("ready", flush=True)
+while True:
+    time.sleep(1)
+"""
+
+# A node written the documented way (run_node + session in try/finally), with misbehaviours.
+NODE = """
+import asyncio, sys, time
+from bus_schemas import transport as tp
+endpoint, behaviour = sys.argv[1], sys.argv[2]
+opened = []
+
+async def main(stop):
+    loop = asyncio.get_running_loop()
+    session = await tp.open_session_async(tp.ZenohSettings(connect=(endpoint,)))
+    opened.append(session)
+    try:
+        token = tp.declare_token(session, "test/alive/node")
+        tp.subscribe(session, "test/data/**", loop, tp.Inbox("latest"))
+        print("ready", flush=True)
+        if behaviour == "ignore-stop":
+            await asyncio.sleep(3600)
+        elif behaviour == "block":
+            time.sleep(30)
+        else:
+            await stop.wait()
+        return 0
+    finally:
+        if behaviour != "forget-close":
+            session.close()
+
+code = tp.run_node(main)
+print(f"run_node returned {code}; session closed: {opened[0].is_closed()}", flush=True)
+raise SystemExit(code)
+"""
+
+
+async def wait_until(predicate: Callable[[], bool], timeout_s: float = 5.0) -> float:
+    """Yield to the loop until ``predicate()``; return the seconds waited (fails on timeout)."""
+    start = time.monotonic()
+    while not predicate():
+        if time.monotonic() - start > timeout_s:
+            raise AssertionError(f"condition not met within {timeout_s} s")
+        await asyncio.sleep(0.001)
+    return time.monotonic() - start
+
+
+def ready_holder(spawn: Spawner, router: RouterHandle, key: str, *extra: str) -> Child:
+    return spawn.python(HOLDER, router.endpoint, key, *extra, ready="ready")
+
+
+# ---------------------------------------------------------------------------------------------
+# Settings and config (no network)
+# ---------------------------------------------------------------------------------------------
+
+
+def cfg(config: zenoh.Config, key: str) -> object:
+    return json.loads(config.get_json(key))
+
+
+def test_default_config_is_a_loopback_client_without_multicast() -> None:
+    config = tp.make_config(tp.ZenohSettings())
+    assert cfg(config, "mode") == "client"
+    assert cfg(config, "connect/endpoints") == [tp.DEFAULT_ENDPOINT]
+    assert cfg(config, "listen/endpoints") == []
+    assert cfg(config, "scouting/multicast/enabled") is False
+    assert cfg(config, "transport/link/tx/lease") == 10000  # Zenoh's default left alone
+    assert cfg(config, "scouting/delay") is None  # a client waits for its router as usual
+    router = tp.make_config(tp.ZenohSettings(mode="router", connect=(), listen=("tcp/[::1]:1",)))
+    assert cfg(router, "scouting/delay") == 0  # nothing to scout: open() at once
+
+
+def test_lease_sets_lease_and_keep_alive() -> None:
+    config = tp.make_config(tp.ZenohSettings(lease_ms=1000))
+    assert cfg(config, "transport/link/tx/lease") == 1000
+    assert cfg(config, "transport/link/tx/keep_alive") == 4
+
+
+def test_config_file_is_loaded_first_and_cannot_enable_multicast(tmp_path: Path) -> None:
+    path = tmp_path / "zenoh.json5"
+    path.write_text(
+        """{
+          mode: "peer",
+          connect: { endpoints: ["tcp/10.0.0.1:7447"] },
+          listen: { endpoints: ["tcp/127.0.0.1:0"] },
+          scouting: { multicast: { enabled: true } },
+          namespace: "fromfile",
+        }"""
+    )
+    ns = tp.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(["--zenoh-config", str(path)])
+    settings = tp.settings_from_args(ns)
+    assert settings.mode is None and settings.connect == () and settings.listen == ()
+    config = tp.make_config(settings)
+    assert cfg(config, "mode") == "peer"
+    assert cfg(config, "connect/endpoints") == ["tcp/10.0.0.1:7447"]
+    assert cfg(config, "listen/endpoints") == ["tcp/127.0.0.1:0"]
+    assert cfg(config, "namespace") == "fromfile"
+    assert cfg(config, "scouting/multicast/enabled") is False  # only an explicit flag enables it
+
+    ns = tp.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(
+        ["--zenoh-config", str(path), "--endpoint", "tcp/127.0.0.1:1", "--multicast-scouting"]
+    )
+    config = tp.make_config(tp.settings_from_args(ns))
+    assert cfg(config, "connect/endpoints") == ["tcp/127.0.0.1:1"]
+    assert cfg(config, "scouting/multicast/enabled") is True
+
+
+def test_settings_from_args() -> None:
+    parser = tp.add_zenoh_arguments(argparse.ArgumentParser())
+    s = tp.settings_from_args(parser.parse_args([]))
+    assert s == tp.ZenohSettings()
+    s = tp.settings_from_args(
+        parser.parse_args(
+            [
+                *("--endpoint", "tcp/a:1", "--endpoint", "tcp/b:2", "--mode", "peer"),
+                *("--listen", "tcp/127.0.0.1:9", "--lease-ms", "1000", "--zenoh-namespace", "run7"),
+            ]
+        )
+    )
+    assert s.connect == ("tcp/a:1", "tcp/b:2") and s.listen == ("tcp/127.0.0.1:9",)
+    assert (s.mode, s.lease_ms, s.namespace, s.multicast_scouting) == ("peer", 1000, "run7", False)
+    assert tp.settings_from_args(parser.parse_args(["--mode", "router"])).connect == ()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error"),
+    [
+        ({"connect": "tcp/127.0.0.1:7447"}, TypeError),
+        ({"connect": ("127.0.0.1:7447",)}, ValueError),
+        ({"mode": "server"}, ValueError),
+        ({"lease_ms": 10}, ValueError),
+        ({"namespace": "a/*"}, ValueError),
+        ({"open_timeout_s": -1.0}, ValueError),
+    ],
+)
+def test_settings_reject_bad_values(kwargs: dict[str, object], error: type[Exception]) -> None:
+    with pytest.raises(error):
+        tp.ZenohSettings(**kwargs)  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------------------------------
+# Inbox: the thread -> loop handoff itself (no network, deterministic)
+# ---------------------------------------------------------------------------------------------
+
+
+def push_from_thread(inbox: tp.Inbox, items: list[tp.Received]) -> None:
+    def run() -> None:
+        for i in items:
+            inbox.push(i)
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+
+
+def item(key: str, n: int) -> tp.Received:
+    return tp.Received(key=key, payload=str(n).encode(), rx_s=time.monotonic())
+
+
+async def test_latest_inbox_coalesces_a_burst_into_one_wake_with_newest_values() -> None:
+    inbox = tp.Inbox("latest")
+    inbox.bind(asyncio.get_running_loop())
+    # The loop is not running callbacks while this thread pushes: everything lands in one drain.
+    push_from_thread(inbox, [item(k, n) for n in range(500) for k in ("a", "b")])
+    assert await inbox.wait(timeout_s=1.0)
+    assert not await inbox.wait(timeout_s=0.01)  # one wake for the whole burst
+    assert {k: r.payload for k, r in inbox.snapshot().items()} == {"a": b"499", "b": b"499"}
+    assert set(inbox.take_updates()) == {"a", "b"} and inbox.take_updates() == {}
+    assert inbox.received == 1000 and inbox.dropped == 0
+    push_from_thread(inbox, [tp.Received("a", b"", time.monotonic(), deleted=True)])
+    assert await inbox.wait(timeout_s=1.0)
+    assert inbox.latest("a") is None and inbox.latest("b") is not None
+
+
+async def test_queue_inbox_keeps_order_and_drops_oldest_beyond_maxlen() -> None:
+    inbox = tp.Inbox("queue", maxlen=100)
+    inbox.bind(asyncio.get_running_loop())
+    push_from_thread(inbox, [item("e", n) for n in range(250)])
+    first = await asyncio.wait_for(inbox.get(), timeout=1.0)
+    rest = inbox.drain()
+    assert [int(r.payload) for r in [first, *rest]] == list(range(150, 250))
+    assert inbox.dropped == 150 and inbox.get_nowait() is None
+
+
+def test_inbox_latest_mode_bounds_distinct_keys() -> None:
+    async def run() -> tp.Inbox:
+        inbox = tp.Inbox("latest", maxlen=3)
+        inbox.bind(asyncio.get_running_loop())
+        push_from_thread(inbox, [item(f"k{n}", n) for n in range(10)])
+        await inbox.wait(timeout_s=1.0)
+        return inbox
+
+    inbox = asyncio.run(run())
+    assert len(inbox.snapshot()) == 3 and inbox.dropped == 7
+
+
+# ---------------------------------------------------------------------------------------------
+# Pub/sub through a router subprocess
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.zenoh
+async def test_pub_sub_round_trip_through_the_asyncio_bridge(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    loop = asyncio.get_running_loop()
+    sub_session, pub_session = session(), session()
+    got: list[tuple[tp.Received, bool]] = []
+    queue = tp.Inbox("queue")
+    tp.subscribe(
+        sub_session,
+        "test/rt/**",
+        loop,
+        lambda r: got.append((r, threading.current_thread() is threading.main_thread())),
+    )
+    tp.subscribe(sub_session, "test/rt/**", loop, queue)
+    await asyncio.sleep(0.05)  # let the subscriptions reach the router
+    pubs = tp.Publishers(pub_session)
+    payloads = [bytes([n]) * 100 for n in range(50)]
+    before = time.monotonic()
+    for p in payloads:
+        pubs.put("test/rt/x", p, tp.QOS_CONTROL)
+    await wait_until(lambda: len(got) == 50)
+    assert [r.payload for r, _ in got] == payloads  # every sample, in order, intact
+    assert all(on_loop_thread for _, on_loop_thread in got)  # delivered on the loop thread
+    assert all(r.key == "test/rt/x" and not r.deleted and r.rx_s >= before for r, _ in got)
+    await wait_until(lambda: queue.received == 50)
+    assert [r.payload for r in queue.drain()] == payloads
+    assert len(pubs) == 1  # one publisher declared, reused
+
+
+@pytest.mark.zenoh
+async def test_latest_inbox_over_zenoh_keeps_only_the_newest(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    sub_session, pub_session = session(), session()
+    inbox = tp.Inbox("latest")
+    tp.subscribe(sub_session, "test/pose/*", asyncio.get_running_loop(), inbox)
+    await asyncio.sleep(0.05)
+    # BLOCK, so that this burst of 400 puts is delivered whole (DROP may shed some of it).
+    pubs = tp.Publishers(pub_session, default_qos=tp.QOS_CRITICAL)
+    for n in range(200):  # published without yielding: the loop sees one backlog
+        for robot in ("r1", "r2"):
+            pubs.put(f"test/pose/{robot}", str(n).encode())
+    await wait_until(lambda: inbox.received == 400)
+    await inbox.wait(timeout_s=1.0)
+    snap = inbox.snapshot()
+    assert {k: r.payload for k, r in snap.items()} == {
+        "test/pose/r1": b"199",
+        "test/pose/r2": b"199",
+    }
+
+
+@pytest.mark.zenoh
+async def test_publisher_qos_reaches_the_wire(session: Callable[..., zenoh.Session]) -> None:
+    sub_session, pub_session = session(), session()
+    samples: list[zenoh.Sample] = []
+    sub_session.declare_subscriber("test/qos/**", samples.append)
+    await asyncio.sleep(0.05)
+    pubs = tp.Publishers(pub_session)
+    pubs.put("test/qos/wheels", b"w", tp.QOS_CONTROL)
+    pubs.put("test/qos/status", b"s")  # default: telemetry
+    await wait_until(lambda: len(samples) == 2)
+    by_key = {str(s.key_expr): s for s in samples}
+    wheels, status = by_key["test/qos/wheels"], by_key["test/qos/status"]
+    assert wheels.priority == zenoh.Priority.REAL_TIME and wheels.express
+    assert status.priority == zenoh.Priority.DATA and not status.express
+    with pytest.raises(ValueError, match="already declared"):
+        pubs.put("test/qos/wheels", b"w", tp.QOS_TELEMETRY)
+
+
+@pytest.mark.zenoh
+async def test_namespace_isolates_sessions_on_one_router(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    loop = asyncio.get_running_loop()
+    same, other = tp.Inbox("queue"), tp.Inbox("queue")
+    tp.subscribe(session(namespace="runA"), "test/ns", loop, same)
+    tp.subscribe(session(namespace="runB"), "test/ns", loop, other)
+    await asyncio.sleep(0.05)
+    session(namespace="runA").put("test/ns", b"hello")
+    await wait_until(lambda: same.received == 1)
+    await asyncio.sleep(0.1)
+    received = same.drain()
+    assert [(r.key, r.payload) for r in received] == [("test/ns", b"hello")]  # prefix stripped
+    assert other.received == 0
+
+
+@pytest.mark.zenoh
+async def test_two_isolated_routers_do_not_see_each_other(
+    start_router: Callable[..., RouterHandle],
+) -> None:
+    loop = asyncio.get_running_loop()
+    a, b = start_router(), start_router()
+    settings_a = tp.ZenohSettings(connect=(a.endpoint,))
+    settings_b = tp.ZenohSettings(connect=(b.endpoint,))
+    with (
+        tp.open_session(settings_a) as on_a,
+        tp.open_session(settings_b) as on_b,
+        tp.open_session(settings_b) as pub_b,
+    ):
+        seen_a, seen_b = tp.Inbox("queue"), tp.Inbox("queue")
+        tp.subscribe(on_a, "test/iso/**", loop, seen_a)
+        tp.subscribe(on_b, "test/iso/**", loop, seen_b)
+        await asyncio.sleep(0.1)
+        for n in range(10):
+            pub_b.put("test/iso/x", str(n).encode())
+            await asyncio.sleep(0.02)
+        await wait_until(lambda: seen_b.received == 10)  # positive control on router B
+        await asyncio.sleep(0.1)
+        assert seen_a.received == 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Sessions: open/retry
+# ---------------------------------------------------------------------------------------------
+
+
+def test_client_open_without_router_fails_clearly_after_timeout() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    start = time.monotonic()
+    with pytest.raises(tp.TransportError, match=endpoint.replace(".", r"\.")):
+        tp.open_session(tp.ZenohSettings(connect=(endpoint,)), timeout_s=0.3)
+    assert 0.3 <= time.monotonic() - start < 1.5
+
+
+@pytest.mark.zenoh
+def test_client_open_retries_until_the_router_is_up(spawn: Spawner) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    result: list[zenoh.Session | BaseException] = []
+
+    def opener() -> None:
+        try:
+            result.append(tp.open_session(tp.ZenohSettings(connect=(endpoint,)), timeout_s=15))
+        except BaseException as exc:
+            result.append(exc)
+
+    thread = threading.Thread(target=opener)
+    thread.start()
+    time.sleep(0.3)  # the client is retrying now
+    assert not result
+    spawn("router", "--listen", endpoint, ready="router listening on")
+    thread.join(timeout=15)
+    assert len(result) == 1 and isinstance(result[0], zenoh.Session), result
+    result[0].close()
+
+
+@pytest.mark.zenoh
+async def test_open_session_async_is_cancellable() -> None:
+    settings = tp.ZenohSettings(connect=(f"tcp/127.0.0.1:{free_port()}",))
+    task = asyncio.ensure_future(tp.open_session_async(settings, timeout_s=30))
+    await asyncio.sleep(0.25)
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await asyncio.wait_for(task, timeout=1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Liveliness
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.zenoh
+async def test_liveliness_token_disappears_when_its_process_is_sigkilled(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    holder = ready_holder(spawn, router, "test/alive/holder")
+    events: list[tuple[str, bool, float]] = []
+    # Declared after the token exists: history=True must report it.
+    tp.watch_liveliness(
+        session(),
+        "test/alive/**",
+        asyncio.get_running_loop(),
+        lambda key, alive: events.append((key, alive, time.monotonic())),
+    )
+    await wait_until(lambda: len(events) == 1)
+    assert events[0][:2] == ("test/alive/holder", True)
+    killed = time.monotonic()
+    holder.send_signal(signal.SIGKILL)
+    await wait_until(lambda: len(events) == 2, timeout_s=2.0)
+    assert events[1][:2] == ("test/alive/holder", False)
+    gone_s = events[1][2] - killed
+    print(f"token gone {gone_s * 1e3:.1f} ms after SIGKILL")
+    assert gone_s < 0.5  # field notes: ~3 ms
+    holder.proc.wait(timeout=2)
+
+
+@pytest.mark.zenoh
+async def test_short_lease_detects_a_hung_process_in_about_a_second(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    holder = ready_holder(spawn, router, "test/alive/hung", "1000")
+    events: list[tuple[bool, float]] = []
+    tp.watch_liveliness(
+        session(),
+        "test/alive/hung",
+        asyncio.get_running_loop(),
+        lambda key, alive: events.append((alive, time.monotonic())),
+    )
+    await wait_until(lambda: len(events) == 1)
+    stopped = time.monotonic()
+    holder.send_signal(signal.SIGSTOP)
+    try:
+        await wait_until(lambda: len(events) == 2, timeout_s=4.0)
+    finally:
+        holder.send_signal(signal.SIGKILL)  # a stopped process would not act on SIGTERM
+        holder.proc.wait(timeout=2)
+    gone_s = events[1][1] - stopped
+    print(f"hung token gone {gone_s:.3f} s after SIGSTOP (lease 1000 ms)")
+    assert events[1][0] is False
+    assert 0.5 < gone_s < 2.5  # Zenoh's default lease would take ~10 s
+
+
+# ---------------------------------------------------------------------------------------------
+# Process lifecycle: router and nodes exit promptly on signals
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.zenoh
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_router_exits_cleanly_within_a_second_of_a_signal(
+    start_router: Callable[..., RouterHandle], sig: signal.Signals
+) -> None:
+    router = start_router()
+    with tp.open_session(tp.ZenohSettings(connect=(router.endpoint,))) as client:
+        token = tp.declare_token(client, "test/alive/client")  # a connected, declaring client
+        elapsed = router.child.stop(sig)
+        del token
+    print(f"router exit {elapsed * 1e3:.0f} ms after {sig.name}")
+    assert router.proc.returncode == 0, router.child.describe()
+    assert elapsed < EXIT_BOUND_S
+    assert router.child.stdout().splitlines() == [f"router listening on {router.endpoint}"]
+
+
+@pytest.mark.zenoh
+def test_router_reports_a_port_in_use(spawn: Spawner, router: RouterHandle) -> None:
+    second = spawn("router", "--listen", router.endpoint)
+    assert second.proc.wait(timeout=10) == 1
+    assert "could not open" in second.stderr()
+
+
+async def node_exit(
+    spawn: Spawner,
+    router: RouterHandle,
+    watcher: zenoh.Session,
+    behaviour: str,
+) -> tuple[Child, float, list[bool]]:
+    """Start NODE with ``behaviour``, SIGTERM it once ready; (child, seconds to exit, token log)."""
+    alive: list[bool] = []
+    tp.watch_liveliness(
+        watcher, "test/alive/node", asyncio.get_running_loop(), lambda k, a: alive.append(a)
+    )
+    node = spawn.python(NODE, router.endpoint, behaviour, ready="ready")
+    await wait_until(lambda: alive == [True])
+    elapsed = node.stop(signal.SIGTERM, timeout_s=5.0)
+    await wait_until(lambda: alive == [True, False], timeout_s=2.0)
+    print(f"node ({behaviour}) exit {elapsed * 1e3:.0f} ms after SIGTERM")
+    return node, elapsed, alive
+
+
+@pytest.mark.zenoh
+async def test_node_exits_within_a_second_of_sigterm_with_its_session_closed(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    node, elapsed, _ = await node_exit(spawn, router, session(), "well-behaved")
+    assert node.proc.returncode == 0, node.describe()
+    assert elapsed < EXIT_BOUND_S
+    assert "run_node returned 0; session closed: True" in node.stdout()
+    assert node.stderr() == ""
+
+
+@pytest.mark.zenoh
+async def test_run_node_closes_a_session_main_forgot(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    node, elapsed, _ = await node_exit(spawn, router, session(), "forget-close")
+    assert node.proc.returncode == 0, node.describe()
+    assert elapsed < EXIT_BOUND_S
+    assert "session closed: True" in node.stdout()
+    assert "closed 1 session(s) main left open" in node.stderr()
+
+
+@pytest.mark.zenoh
+async def test_run_node_cancels_a_main_that_ignores_stop(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    node, elapsed, _ = await node_exit(spawn, router, session(), "ignore-stop")
+    assert node.proc.returncode == 1, node.describe()
+    assert elapsed < EXIT_BOUND_S
+    assert "session closed: True" in node.stdout()
+    assert "cancelling" in node.stderr()
+
+
+@pytest.mark.zenoh
+async def test_watchdog_forces_out_a_node_blocked_in_sync_code(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    node, elapsed, _ = await node_exit(spawn, router, session(), "block")
+    assert node.proc.returncode == tp.FORCED_EXIT_CODE, node.describe()
+    assert elapsed < EXIT_BOUND_S
+    assert "forcing exit" in node.stderr()
+
+
+@pytest.mark.zenoh
+async def test_a_second_signal_forces_an_immediate_exit(
+    spawn: Spawner, router: RouterHandle
+) -> None:
+    node = spawn.python(NODE, router.endpoint, "ignore-stop", ready="ready")
+    node.send_signal(signal.SIGTERM)
+    await asyncio.sleep(0.05)  # inside the 0.4 s grace period
+    elapsed = node.stop(signal.SIGTERM)
+    assert node.proc.returncode == tp.FORCED_EXIT_CODE, node.describe()
+    assert elapsed < 0.3  # not the grace period nor the watchdog deadline
+    assert "second stop signal" in node.stderr()
+
+
+def test_run_node_must_run_on_the_main_thread() -> None:
+    async def main(stop: asyncio.Event) -> int:
+        return 0
+
+    errors: list[BaseException | None] = []
+    thread = threading.Thread(target=lambda: errors.append(_catch(lambda: tp.run_node(main))))
+    thread.start()
+    thread.join()
+    assert isinstance(errors[0], RuntimeError)
+
+
+def _catch(fn: Callable[[], object]) -> BaseException | None:
+    try:
+        fn()
+    except BaseException as exc:
+        return exc
+    return None
+
+
+def test_run_node_in_process_returns_main_status_and_restores_signals() -> None:
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    async def main(stop: asyncio.Event) -> int:
+        assert not stop.is_set()
+        assert signal.getsignal(signal.SIGTERM) != before[signal.SIGTERM]  # installed
+        return 3
+
+    assert tp.run_node(main) == 3
+    assert {sig: signal.getsignal(sig) for sig in before} == before
+
+
+@pytest.mark.zenoh
+def test_run_node_closes_only_the_sessions_its_main_opened(
+    router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    outside = session()
+    inside: list[zenoh.Session] = []
+
+    async def main(stop: asyncio.Event) -> int:
+        inside.append(await tp.open_session_async(tp.ZenohSettings(connect=(router.endpoint,))))
+        return 0  # and "forgets" to close it
+
+    assert tp.run_node(main) == 0
+    assert inside[0].is_closed()
+    assert not outside.is_closed()
+
+
+def test_run_node_propagates_main_exceptions_after_cleanup() -> None:
+    async def main(stop: asyncio.Event) -> int:
+        raise KeyError("boom")
+
+    with pytest.raises(KeyError, match="boom"):
+        tp.run_node(main)
