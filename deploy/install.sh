@@ -1,0 +1,207 @@
+#!/usr/bin/env bash
+# Install the formation robot agent on a robot (Raspberry Pi class Linux board, systemd).
+#
+# What it does (each step is idempotent: running it again upgrades in place):
+#   1. builds a wheel of this project (`python -m build` if available, else
+#      `python -m pip wheel --no-deps`), or uses the one given with --wheel;
+#   2. creates the virtualenv /opt/formation/venv (kept if it exists) and installs the
+#      wheel with the `agent` extra only (eclipse-zenoh, msgpack, pyserial; no numpy);
+#   3. creates the unprivileged system user `formation` (group `formation`, member of
+#      `dialout` for the serial port);
+#   4. installs the systemd unit formation-agent@.service, the udev rule for /dev/roboclaw,
+#      the Zenoh configurations (/etc/formation/zenoh/), the example robot config, the
+#      certificate script and the deployment guide; creates /etc/formation/certs (0750);
+#      with --robot-id ID, creates /etc/formation/ID.toml from the example if it is absent
+#      (an existing robot config is never overwritten);
+#   5. reloads systemd and udev. It does not enable or start the unit.
+#
+# usage: sudo deploy/install.sh [--prefix DIR] [--dry-run] [--robot-id ID] [--files-only]
+#                               [--wheel FILE] [--python PYTHON]
+#   --prefix DIR   stage everything under DIR instead of / (paths inside the files stay the
+#                  final ones, like DESTDIR); no user is created and nothing is reloaded.
+#   --dry-run      print every command instead of running it; changes nothing.
+#   --robot-id ID  also create /etc/formation/ID.toml from the example (if absent).
+#   --files-only   skip the wheel, the virtualenv and pip (configuration files only).
+#   --wheel FILE   install this wheel instead of building one.
+#   --python PY    the interpreter for the virtualenv (default: python3; needs >= 3.11).
+set -euo pipefail
+
+script_dir="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+repo_dir="$(cd "$script_dir/.." && pwd)"
+
+prefix=""
+dry_run=0
+robot_id=""
+files_only=0
+wheel=""
+python="python3"
+
+usage() {
+    sed -n '2,/^set -euo/p' "$0" | sed -e '$d' -e 's/^# \{0,1\}//'
+}
+
+while [[ $# -gt 0 ]]; do
+    case "$1" in
+        --prefix) prefix="${2:?--prefix needs a directory}"; shift 2 ;;
+        --dry-run) dry_run=1; shift ;;
+        --robot-id) robot_id="${2:?--robot-id needs an id}"; shift 2 ;;
+        --files-only) files_only=1; shift ;;
+        --wheel) wheel="${2:?--wheel needs a file}"; shift 2 ;;
+        --python) python="${2:?--python needs an interpreter}"; shift 2 ;;
+        -h|--help) usage; exit 0 ;;
+        *) echo "install.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
+    esac
+done
+
+if [[ -n "$robot_id" && ! "$robot_id" =~ ^[a-z0-9_-]+$ ]]; then
+    echo "install.sh: --robot-id '$robot_id' must match [a-z0-9_-]+" >&2
+    exit 2
+fi
+if [[ -n "$prefix" ]]; then
+    prefix="$(realpath -m "$prefix")"
+    [[ "$prefix" == "/" ]] && prefix=""
+fi
+system_install=0
+[[ -z "$prefix" ]] && system_install=1
+
+venv_dir="/opt/formation/venv"
+share_dir="/opt/formation/share"
+etc_dir="/etc/formation"
+unit_dir="/etc/systemd/system"
+udev_dir="/etc/udev/rules.d"
+
+say() { echo "install.sh: $*"; }
+
+# run CMD...: execute, or print it under --dry-run.
+run() {
+    if [[ $dry_run -eq 1 ]]; then
+        printf '+'
+        printf ' %q' "$@"
+        printf '\n'
+    else
+        "$@"
+    fi
+}
+
+# put MODE SRC DEST: install one file (DEST is a final path; the prefix is added here).
+put() {
+    run install -D -m "$1" "$2" "$prefix$3"
+}
+
+if [[ $system_install -eq 1 && $dry_run -eq 0 && $EUID -ne 0 ]]; then
+    echo "install.sh: a system install needs root (sudo), or use --prefix/--dry-run" >&2
+    exit 1
+fi
+
+# ---------------------------------------------------------------- 1-2. wheel and venv
+if [[ $files_only -eq 0 ]]; then
+    if ! "$python" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+        echo "install.sh: $python is missing or older than Python 3.11" >&2
+        exit 1
+    fi
+    build_dir=""
+    if [[ -z "$wheel" ]]; then
+        if [[ $dry_run -eq 1 ]]; then
+            build_dir="<temporary directory>"
+        else
+            build_dir="$(mktemp -d)"
+            trap 'rm -rf "$build_dir"' EXIT
+        fi
+        if "$python" -c 'import build' 2>/dev/null; then
+            say "building the wheel with python -m build"
+            run "$python" -m build --wheel --outdir "$build_dir" "$repo_dir"
+        else
+            say "building the wheel with pip wheel (python -m build is not installed)"
+            run "$python" -m pip wheel --no-deps --wheel-dir "$build_dir" "$repo_dir"
+        fi
+        if [[ $dry_run -eq 1 ]]; then
+            wheel="$build_dir/formation_control-<version>-py3-none-any.whl"
+        else
+            wheel="$(ls -t "$build_dir"/formation_control-*.whl | head -n 1)"
+        fi
+    elif [[ ! -f "$wheel" ]]; then
+        echo "install.sh: wheel $wheel not found" >&2
+        exit 1
+    fi
+    venv="$prefix$venv_dir"
+    if [[ -x "$venv/bin/python" ]]; then
+        say "keeping the existing virtualenv $venv"
+    else
+        run "$python" -m venv "$venv"
+    fi
+    # the agent extra pulls the robot's dependencies; the second call replaces this
+    # project's code even when the version number did not change
+    run "$venv/bin/python" -m pip install --upgrade "$wheel[agent]"
+    run "$venv/bin/python" -m pip install --force-reinstall --no-deps "$wheel"
+else
+    say "--files-only: skipping the wheel and the virtualenv"
+fi
+
+# ---------------------------------------------------------------- 3. user
+if [[ $system_install -eq 1 ]]; then
+    if getent passwd formation >/dev/null; then
+        say "user formation exists"
+    else
+        run useradd --system --user-group --no-create-home --home-dir /nonexistent \
+            --shell /usr/sbin/nologin --comment "formation robot agent" formation
+    fi
+    if getent group dialout >/dev/null; then
+        run usermod --append --groups dialout formation
+    else
+        say "warning: no dialout group on this system; the serial port needs another group"
+    fi
+else
+    say "prefix install: not creating the user formation (done by a system install)"
+fi
+
+# ---------------------------------------------------------------- 4. files
+put 0644 "$script_dir/systemd/formation-agent@.service" "$unit_dir/formation-agent@.service"
+put 0644 "$script_dir/udev/99-formation-roboclaw.rules" "$udev_dir/99-formation-roboclaw.rules"
+for f in client.json5 robot-mtls.json5 coordinator-mtls.json5 router-mtls.json5; do
+    put 0644 "$script_dir/zenoh/$f" "$etc_dir/zenoh/$f"
+done
+put 0644 "$script_dir/config/r1.example.toml" "$etc_dir/r1.example.toml"
+put 0755 "$script_dir/security/gen-certs.sh" "$share_dir/gen-certs.sh"
+put 0644 "$script_dir/install.sh" "$share_dir/install.sh"
+if [[ -f "$repo_dir/docs/deploy.md" ]]; then
+    put 0644 "$repo_dir/docs/deploy.md" "$share_dir/docs/deploy.md"
+fi
+run install -d -m 0750 "$prefix$etc_dir/certs"
+if [[ $system_install -eq 1 ]]; then
+    run chown root:formation "$etc_dir/certs"
+fi
+
+if [[ -n "$robot_id" ]]; then
+    target="$prefix$etc_dir/$robot_id.toml"
+    if [[ -e "$target" ]]; then
+        say "keeping the existing $etc_dir/$robot_id.toml"
+    elif [[ $dry_run -eq 1 ]]; then
+        printf '+ sed s/^robot_id = "r1"/robot_id = "%s"/ %q > %q\n' \
+            "$robot_id" "$script_dir/config/r1.example.toml" "$target"
+    else
+        sed "s/^robot_id = \"r1\"/robot_id = \"$robot_id\"/" \
+            "$script_dir/config/r1.example.toml" >"$target"
+        chmod 0640 "$target"
+        if [[ $system_install -eq 1 ]]; then chown root:formation "$target"; fi
+        say "created $etc_dir/$robot_id.toml: edit it, then check it (see below)"
+    fi
+fi
+
+# ---------------------------------------------------------------- 5. reload
+if [[ $system_install -eq 1 ]]; then
+    if command -v systemctl >/dev/null && [[ -d /run/systemd/system ]]; then
+        run systemctl daemon-reload
+    fi
+    if command -v udevadm >/dev/null; then
+        run udevadm control --reload-rules
+        run udevadm trigger --subsystem-match=tty --action=add
+    fi
+fi
+
+id_hint="${robot_id:-<id>}"
+say "done. Next steps:"
+echo "  1. certificates: copy robots/$id_hint/{ca,cert,key}.pem from gen-certs.sh into $etc_dir/certs/"
+echo "  2. config:       $etc_dir/$id_hint.toml (template: $etc_dir/r1.example.toml)"
+echo "  3. check:        $venv_dir/bin/formation agent --check-config $etc_dir/$id_hint.toml"
+echo "  4. start:        systemctl enable --now formation-agent@$id_hint"
+echo "  5. watch:        journalctl -u formation-agent@$id_hint -f"
