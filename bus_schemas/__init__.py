@@ -1,0 +1,92 @@
+"""The bus contract (version 1) as code: messages, key expressions, codec. Stdlib + msgpack only.
+
+Typical use::
+
+    from bus_schemas import Pose, decode, encode, DecodeError, keys
+
+    payload = encode(Pose(t=now_s, seq=n, x=0.1, y=0.2, theta=0.0))
+    session.put(keys.pose_key("demo", "r1"), payload)
+    ...
+    msg = decode(sample_bytes, Pose)
+    if isinstance(msg, DecodeError):
+        rejected += 1          # msg.reason, msg.detail, msg.field say why
+    else:
+        use(msg.x, msg.y, msg.theta)
+
+docs/bus.md is rendered from the same tables (`python -m bus_schemas.docs`).
+"""
+
+from bus_schemas import keys
+from bus_schemas.codec import decode, decode_or_raise, encode, from_map, to_map, validate
+from bus_schemas.errors import DecodeError, Reason, SchemaError
+from bus_schemas.messages import (
+    MESSAGE_TYPES,
+    Assignment,
+    Clock,
+    Disturbance,
+    DisturbanceKind,
+    Estop,
+    Heartbeat,
+    Leader,
+    Message,
+    Mode,
+    Pose,
+    PoseBatch,
+    Role,
+    Setpoint,
+    Slot,
+    Status,
+    Truth,
+    Wheels,
+    message_type,
+    message_type_for_key,
+)
+from bus_schemas.spec import (
+    MAX_LIST_LEN,
+    MAX_MAP_LEN,
+    MAX_PAYLOAD_BYTES,
+    MAX_STR_LEN,
+    VERSION,
+    MessageSpec,
+    spec_of,
+)
+
+__all__ = [
+    "MAX_LIST_LEN",
+    "MAX_MAP_LEN",
+    "MAX_PAYLOAD_BYTES",
+    "MAX_STR_LEN",
+    "MESSAGE_TYPES",
+    "VERSION",
+    "Assignment",
+    "Clock",
+    "DecodeError",
+    "Disturbance",
+    "DisturbanceKind",
+    "Estop",
+    "Heartbeat",
+    "Leader",
+    "Message",
+    "MessageSpec",
+    "Mode",
+    "Pose",
+    "PoseBatch",
+    "Reason",
+    "Role",
+    "SchemaError",
+    "Setpoint",
+    "Slot",
+    "Status",
+    "Truth",
+    "Wheels",
+    "decode",
+    "decode_or_raise",
+    "encode",
+    "from_map",
+    "keys",
+    "message_type",
+    "message_type_for_key",
+    "spec_of",
+    "to_map",
+    "validate",
+]

@@ -1,0 +1,409 @@
+"""The messages of the bus contract, version 1: one declarative table per message type.
+
+Each class below is that table: the decorator gives the message's name (= key leaf), publisher and
+whether it is periodic; each field gives its wire type, unit, range or enum, presence and meaning.
+bus_schemas.spec compiles encode/decode from it and bus_schemas.docs renders docs/bus.md from it.
+
+Common fields: `v` (schema version, 1), `t` (float s: sim time in lockstep, the publisher's
+``time.monotonic()`` in realtime), and on periodic messages `seq` (+1 per message of that key).
+Units: m, s, rad, rad/s; angles wrapped to (-pi, pi]. Construct with keywords:
+``Pose(t=1.5, seq=7, x=0.1, y=0.2, theta=0.0)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from bus_schemas import keys
+from bus_schemas.spec import (
+    RequiredWhen,
+    SameLength,
+    f_angle,
+    f_angle_list,
+    f_bool,
+    f_count_map,
+    f_enum,
+    f_float,
+    f_float_list,
+    f_int,
+    f_name,
+    f_robot_id,
+    f_robot_id_list,
+    f_slot,
+    f_str,
+    message,
+    spec_of,
+)
+
+
+class Role(StrEnum):
+    """Role of a formation slot."""
+
+    LEADER = "leader"
+    SUBLEADER = "subleader"
+    FOLLOWER = "follower"
+
+
+class Mode(StrEnum):
+    """Mode of a robot agent's firmware state machine."""
+
+    IDLE = "idle"
+    TRACKING = "tracking"
+    HOLD = "hold"
+    ESTOP = "estop"
+
+
+class DisturbanceKind(StrEnum):
+    """What a disturbance does to a simulated robot."""
+
+    DRAG = "drag"
+    TELEPORT = "teleport"
+
+
+# Field specs shared by several messages.
+_V = f_int("schema version; a decoder rejects any other value", lo=1, hi=1)
+_T = f_float(
+    "timestamp: sim time in lockstep, the publisher's time.monotonic() in realtime",
+    "s",
+    lo=0.0,
+)
+_SEQ = f_int("sequence number, +1 per message on this key (per publisher)")
+_X = f_float("x position, world frame", "m")
+_Y = f_float("y position, world frame", "m")
+_SLOT = f_slot("slot number, 0 = virtual leader")
+_ROLE = f_enum("role of the slot", Role)
+_STAGE = f_int("stage of the slot in the formation tree (0 = leader, 1 = first stage, ...)", hi=255)
+_PARENT = f_slot("slot number of the (sub-)leader this slot follows; nil for slot 0", nullable=True)
+_SLOT_X = f_float(
+    "x where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)", "m"
+)
+_SLOT_Y = f_float(
+    "y where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)", "m"
+)
+_SLOT_THETA = f_angle("heading of the slot (= its parent's heading, rigid formation)")
+_SLOT_VX = f_float("feed-forward velocity of the slot point along x (eqs 21-22)", "m/s")
+_SLOT_VY = f_float("feed-forward velocity of the slot point along y (eqs 21-22)", "m/s")
+_POSE_X = f_float("x of the robot's axle centre, world frame", "m")
+_POSE_Y = f_float("y of the robot's axle centre, world frame", "m")
+_POSE_THETA = f_angle("heading of the robot, world frame, counter-clockwise from +x")
+
+
+@message(name=keys.LEADER, publisher="coordinator", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Leader:
+    """State of the virtual leader (a unicycle, eqs 1-3), sampled from its trajectory at `t`."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    x: float = field(metadata=_X)
+    y: float = field(metadata=_Y)
+    theta: float = field(metadata=f_angle("heading of the virtual leader"))
+    v_mps: float = field(metadata=f_float("forward speed of the virtual leader", "m/s"))
+    omega_radps: float = field(metadata=f_float("turn rate of the virtual leader", "rad/s"))
+
+
+@message(name=keys.SLOT, publisher="coordinator", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Slot:
+    """State of one formation slot (eqs 1-5 with feed-forward), whoever is assigned to it."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    slot: int = field(metadata=_SLOT)
+    role: str = field(metadata=_ROLE)
+    stage: int = field(metadata=_STAGE)
+    parent: int | None = field(metadata=_PARENT)
+    x: float = field(metadata=_SLOT_X)
+    y: float = field(metadata=_SLOT_Y)
+    theta: float = field(metadata=_SLOT_THETA)
+    vx: float = field(metadata=_SLOT_VX)
+    vy: float = field(metadata=_SLOT_VY)
+
+
+@message(name=keys.SETPOINT, publisher="coordinator", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Setpoint:
+    """The slot assigned to one robot: the slot's fields plus the robot's id.
+
+    `(x, y)` is where the robot's reference point (eqs 10-11, offset l ahead of the axle) should
+    be, `(vx, vy)` its feed-forward velocity for the tracking law (eqs 21-22).
+    """
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    robot: str = field(metadata=f_robot_id("robot this setpoint is for (= the key's id)"))
+    slot: int = field(metadata=_SLOT)
+    role: str = field(metadata=_ROLE)
+    stage: int = field(metadata=_STAGE)
+    parent: int | None = field(metadata=_PARENT)
+    x: float = field(metadata=_SLOT_X)
+    y: float = field(metadata=_SLOT_Y)
+    theta: float = field(metadata=_SLOT_THETA)
+    vx: float = field(metadata=_SLOT_VX)
+    vy: float = field(metadata=_SLOT_VY)
+
+
+@message(name=keys.ASSIGNMENT, publisher="coordinator", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Assignment:
+    """The current role assignment: which robot holds which slot."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    leader: str | None = field(
+        metadata=f_robot_id("robot holding slot 0 (the leader), nil if none", nullable=True)
+    )
+    robots: Mapping[str, int] = field(
+        metadata=f_count_map(
+            "robot id -> slot number, for every assigned robot (encoded sorted by id)",
+            key_pattern=keys.ROBOT_ID_PATTERN,
+            value_hi=keys.MAX_SLOT,
+        )
+    )
+
+
+@message(
+    name=keys.POSE,
+    publisher="localization (the plant's camera emulation or a tracker)",
+    periodic=True,
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Pose:
+    """Measured pose of a robot's axle centre. `t` is the measurement (capture) time."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    x: float = field(metadata=_POSE_X)
+    y: float = field(metadata=_POSE_Y)
+    theta: float = field(metadata=_POSE_THETA)
+    robot: str | None = field(default=None, metadata=f_robot_id("robot measured (= the key's id)"))
+
+
+@message(name=keys.TRUTH, publisher="plant only", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Truth:
+    """True pose of a simulated robot's axle centre (for metrics; controllers must not use it)."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    x: float = field(metadata=_POSE_X)
+    y: float = field(metadata=_POSE_Y)
+    theta: float = field(metadata=_POSE_THETA)
+    robot: str | None = field(default=None, metadata=f_robot_id("robot (= the key's id)"))
+
+
+@message(name=keys.WHEELS, publisher="agent", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Wheels:
+    """Wheel command of one robot (eq 8 after saturation); power = omega / max wheel speed."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    omega_r: float = field(metadata=f_float("right wheel angular speed command", "rad/s"))
+    omega_l: float = field(metadata=f_float("left wheel angular speed command", "rad/s"))
+    power_r: float = field(
+        metadata=f_float("right wheel command as a fraction of max speed", "1", lo=-1.0, hi=1.0)
+    )
+    power_l: float = field(
+        metadata=f_float("left wheel command as a fraction of max speed", "1", lo=-1.0, hi=1.0)
+    )
+    pose_t: float | None = field(
+        metadata=f_float(
+            "`t` of the pose this command was computed from; nil if no pose was used (idle)",
+            "s",
+            lo=0.0,
+            nullable=True,
+        )
+    )
+    tick: int | None = field(
+        default=None, metadata=f_int("lockstep: the clock `tick` this command answers")
+    )
+    saturated: bool | None = field(
+        default=None, metadata=f_bool("the wheel speeds were scaled down to the limit")
+    )
+
+
+@message(name=keys.STATUS, publisher="agent", periodic=True, rate=">= 5 Hz")
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Status:
+    """Health of one robot agent."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    mode: str = field(metadata=f_enum("firmware mode", Mode))
+    slot: int | None = field(metadata=f_slot("assigned slot, nil if none", nullable=True))
+    pid: int = field(metadata=f_int("OS process id of the agent (0 if none)", hi=2**31 - 1))
+    host: str = field(metadata=f_str("host name the agent runs on"))
+    rejected: int = field(metadata=f_int("count of received messages rejected by decode"))
+    ex: float | None = field(
+        default=None, metadata=f_float("tracking error along x (eq 17), setpoint - ref. point", "m")
+    )
+    ey: float | None = field(
+        default=None, metadata=f_float("tracking error along y (eq 18), setpoint - ref. point", "m")
+    )
+    role: str | None = field(default=None, metadata=f_enum("role of the assigned slot", Role))
+    rx: Mapping[str, int] | None = field(
+        default=None, metadata=f_count_map("message name -> count of messages received")
+    )
+    robot: str | None = field(default=None, metadata=f_robot_id("robot (= the key's id)"))
+
+
+@message(name=keys.ESTOP, publisher="operator / tools", periodic=False)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Estop:
+    """Engage or release the emergency stop of the whole fleet or of one robot."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    engage: bool = field(metadata=f_bool("true: stop (wheels zero, latched); false: release"))
+    robot: str | None = field(
+        metadata=f_robot_id("robot to stop; nil = every robot of the fleet", nullable=True)
+    )
+
+
+@message(name=keys.CLOCK, publisher="plant, lockstep only", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Clock:
+    """Lockstep tick: the plant advanced to sim time `t`; agents answer with Wheels(tick=...)."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    tick: int = field(metadata=f_int("step number of the simulation"))
+
+
+@message(
+    name=keys.DISTURBANCE,
+    publisher="operator / tools (the plant subscribes)",
+    periodic=False,
+    rules=(RequiredWhen("kind", DisturbanceKind.TELEPORT.value, ("x", "y", "theta")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Disturbance:
+    """Push a simulated robot: drag it by (dx, dy) over duration_s, or teleport it to (x, y, theta).
+
+    Only the plant acts on it (a real robot cannot be teleported).
+    """
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    robot: str = field(metadata=f_robot_id("robot to disturb"))
+    kind: str = field(
+        metadata=f_enum("drag: move by (dx, dy); teleport: jump to (x, y, theta)", DisturbanceKind)
+    )
+    dx: float = field(metadata=f_float("drag displacement along x, world frame", "m"))
+    dy: float = field(metadata=f_float("drag displacement along y, world frame", "m"))
+    duration_s: float = field(
+        metadata=f_float("time over which the drag is applied (0 = at once)", "s", lo=0.0)
+    )
+    x: float | None = field(default=None, metadata=f_float("teleport target x", "m"))
+    y: float | None = field(default=None, metadata=f_float("teleport target y", "m"))
+    theta: float | None = field(default=None, metadata=f_angle("teleport target heading"))
+
+
+@message(
+    name=keys.HEARTBEAT, publisher="coordinator (each instance, active or standby)", periodic=True
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Heartbeat:
+    """Application heartbeat of a coordinator instance, for standby takeover."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    name: str = field(metadata=f_name("coordinator instance name (= the key's name)"))
+    active: bool = field(metadata=f_bool("this instance is the one publishing setpoints"))
+    epoch: int = field(metadata=f_int("leadership epoch, +1 at every takeover"))
+    leader_t0: float = field(
+        metadata=f_float("time origin of the virtual-leader trajectory (same clock as t)", "s")
+    )
+
+
+@message(
+    name=keys.POSES,
+    publisher="localization (batched frame)",
+    periodic=True,
+    rules=(SameLength(("robots", "x", "y", "theta")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PoseBatch:
+    """Poses of many robots measured at one instant `stamp`, as parallel arrays (one frame).
+
+    `t` is when the frame was published. A fleet larger than the list bound is sent as several
+    frames with the same `stamp`.
+    """
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
+    x: tuple[float, ...] = field(metadata=f_float_list("x of each axle centre", "m"))
+    y: tuple[float, ...] = field(metadata=f_float_list("y of each axle centre", "m"))
+    theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
+    stamp: float = field(
+        metadata=f_float("measurement (capture) time of the frame, same clock as t", "s", lo=0.0)
+    )
+
+
+Message = (
+    Leader
+    | Slot
+    | Setpoint
+    | Assignment
+    | Pose
+    | Truth
+    | Wheels
+    | Status
+    | Estop
+    | Clock
+    | Disturbance
+    | Heartbeat
+    | PoseBatch
+)
+"""Any bus message."""
+
+MESSAGE_TYPES: tuple[type[Message], ...] = (
+    Leader,
+    Slot,
+    Setpoint,
+    Assignment,
+    Pose,
+    Truth,
+    Wheels,
+    Status,
+    Estop,
+    Clock,
+    Disturbance,
+    Heartbeat,
+    PoseBatch,
+)
+
+_BY_NAME: dict[str, type[Message]] = {spec_of(cls).name: cls for cls in MESSAGE_TYPES}
+
+
+def message_type(name: str) -> type[Message] | None:
+    """The message type of a key leaf / message name (``"pose"`` -> Pose), or None."""
+    return _BY_NAME.get(name)
+
+
+def message_type_for_key(key: str) -> type[Message] | None:
+    """The message type published on a concrete key, or None (liveliness token, unknown key)."""
+    info = keys.parse_key(key)
+    if info is None:
+        return None
+    cls = _BY_NAME.get(info.leaf)
+    if cls is None:
+        return None
+    # A robot leaf must be a robot key and vice versa (e.g. formation/f/pose is not a key).
+    is_robot_key = info.robot is not None
+    return cls if is_robot_key == ("{robot}" in spec_of(cls).key) else None

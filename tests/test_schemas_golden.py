@@ -1,0 +1,263 @@
+"""Golden bytes: the version-1 wire format is frozen.
+
+Each fixed message below must encode to exactly the pinned bytes, and the pinned bytes must decode
+back to the message. If this test fails, the wire format changed: that is a new schema version
+(bus-contract.md), not a test to update.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import msgpack
+import pytest
+
+from bus_schemas import (
+    MESSAGE_TYPES,
+    Assignment,
+    Clock,
+    Disturbance,
+    Estop,
+    Heartbeat,
+    Leader,
+    Pose,
+    PoseBatch,
+    Setpoint,
+    Slot,
+    Status,
+    Truth,
+    Wheels,
+    decode,
+    encode,
+)
+
+GOLDEN_MESSAGES: dict[str, Any] = {
+    "leader": Leader(
+        t=12.5, seq=250, x=1.25, y=-0.5, theta=math.pi / 4, v_mps=0.1, omega_radps=-0.05
+    ),
+    "slot": Slot(
+        t=12.5,
+        seq=250,
+        slot=2,
+        role="follower",
+        stage=1,
+        parent=0,
+        x=0.9,
+        y=-0.75,
+        theta=math.pi,
+        vx=0.1,
+        vy=-0.002,
+    ),
+    "slot0": Slot(
+        t=12.5,
+        seq=250,
+        slot=0,
+        role="leader",
+        stage=0,
+        parent=None,
+        x=1.25,
+        y=-0.5,
+        theta=0.0,
+        vx=0.0,
+        vy=0.0,
+    ),
+    "setpoint": Setpoint(
+        t=12.5,
+        seq=251,
+        robot="r2",
+        slot=1,
+        role="subleader",
+        stage=1,
+        parent=0,
+        x=0.9,
+        y=-0.25,
+        theta=-1.5,
+        vx=0.07,
+        vy=0.07,
+    ),
+    "assignment": Assignment(t=12.5, seq=3, leader="r1", robots={"r3": 2, "r1": 0, "r2": 1}),
+    "assignment_empty": Assignment(t=0.0, seq=0, leader=None, robots={}),
+    "pose": Pose(t=12.48, seq=624, x=0.123, y=-0.456, theta=1.2, robot="r1"),
+    "pose_min": Pose(t=12.48, seq=624, x=0.123, y=-0.456, theta=1.2),
+    "truth": Truth(t=12.5, seq=625, x=0.125, y=-0.455, theta=1.19),
+    "wheels": Wheels(
+        t=12.51,
+        seq=1250,
+        omega_r=4.5,
+        omega_l=-1.25,
+        power_r=0.45,
+        power_l=-0.125,
+        pose_t=12.48,
+        tick=625,
+        saturated=False,
+    ),
+    "wheels_idle": Wheels(
+        t=0.5, seq=0, omega_r=0.0, omega_l=0.0, power_r=0.0, power_l=0.0, pose_t=None
+    ),
+    "status": Status(
+        t=12.5,
+        seq=62,
+        mode="tracking",
+        slot=1,
+        pid=4242,
+        host="pi-r2",
+        rejected=3,
+        ex=0.01,
+        ey=-0.02,
+        role="subleader",
+        rx={"setpoint": 600, "pose": 620},
+        robot="r2",
+    ),
+    "status_min": Status(t=1.0, seq=1, mode="idle", slot=None, pid=0, host="", rejected=0),
+    "estop": Estop(t=30.0, engage=True, robot=None),
+    "estop_robot": Estop(t=31.0, engage=False, robot="r3"),
+    "clock": Clock(t=0.02, seq=1, tick=1),
+    "disturbance_drag": Disturbance(
+        t=20.0, robot="r1", kind="drag", dx=-0.4, dy=0.0, duration_s=2.0
+    ),
+    "disturbance_teleport": Disturbance(
+        t=21.0,
+        robot="r1",
+        kind="teleport",
+        dx=0.0,
+        dy=0.0,
+        duration_s=0.0,
+        x=0.5,
+        y=0.5,
+        theta=-math.pi,
+    ),
+    "heartbeat": Heartbeat(t=100.25, seq=401, name="primary", active=True, epoch=2, leader_t0=3.5),
+    "poses": PoseBatch(
+        t=12.49,
+        seq=624,
+        robots=("r1", "r2"),
+        x=(0.123, 0.9),
+        y=(-0.456, -0.25),
+        theta=(1.2, -1.5),
+        stamp=12.48,
+    ),
+}
+
+# fmt: off
+GOLDEN_HEX: dict[str, str] = {
+    "leader": (
+        "88a17601a174cb4029000000000000a3736571ccfaa178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb3fe921fb54442d18a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfa999999999999a"
+    ),
+    "slot": (
+        "8ca17601a174cb4029000000000000a3736571ccfaa4736c6f7402a4726f6c65a8666f6c6c6f776572a5737461676501a6706172656e7400a178cb3feccccccccccccda179cbbfe8000000000000a57468657461cb400921fb54442d18a27678cb3fb999999999999aa27679cbbf60624dd2f1a9fc"
+    ),
+    "slot0": (
+        "8ca17601a174cb4029000000000000a3736571ccfaa4736c6f7400a4726f6c65a66c6561646572a5737461676500a6706172656e74c0a178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb0000000000000000a27678cb0000000000000000a27679cb0000000000000000"
+    ),
+    "setpoint": (
+        "8da17601a174cb4029000000000000a3736571ccfba5726f626f74a27232a4736c6f7401a4726f6c65a97375626c6561646572a5737461676501a6706172656e7400a178cb3feccccccccccccda179cbbfd0000000000000a57468657461cbbff8000000000000a27678cb3fb1eb851eb851eca27679cb3fb1eb851eb851ec"
+    ),
+    "assignment": (
+        "85a17601a174cb4029000000000000a373657103a66c6561646572a27231a6726f626f747383a2723100a2723201a2723302"
+    ),
+    "assignment_empty": (
+        "85a17601a174cb0000000000000000a373657100a66c6561646572c0a6726f626f747380"
+    ),
+    "pose": (
+        "87a17601a174cb4028f5c28f5c28f6a3736571cd0270a178cb3fbf7ced916872b0a179cbbfdd2f1a9fbe76c9a57468657461cb3ff3333333333333a5726f626f74a27231"
+    ),
+    "pose_min": (
+        "86a17601a174cb4028f5c28f5c28f6a3736571cd0270a178cb3fbf7ced916872b0a179cbbfdd2f1a9fbe76c9a57468657461cb3ff3333333333333"
+    ),
+    "truth": (
+        "86a17601a174cb4029000000000000a3736571cd0271a178cb3fc0000000000000a179cbbfdd1eb851eb851fa57468657461cb3ff30a3d70a3d70a"
+    ),
+    "wheels": (
+        "8aa17601a174cb4029051eb851eb85a3736571cd04e2a76f6d6567615f72cb4012000000000000a76f6d6567615f6ccbbff4000000000000a7706f7765725f72cb3fdccccccccccccda7706f7765725f6ccbbfc0000000000000a6706f73655f74cb4028f5c28f5c28f6a47469636bcd0271a9736174757261746564c2"
+    ),
+    "wheels_idle": (
+        "88a17601a174cb3fe0000000000000a373657100a76f6d6567615f72cb0000000000000000a76f6d6567615f6ccb0000000000000000a7706f7765725f72cb0000000000000000a7706f7765725f6ccb0000000000000000a6706f73655f74c0"
+    ),
+    "status": (
+        "8da17601a174cb4029000000000000a37365713ea46d6f6465a8747261636b696e67a4736c6f7401a3706964cd1092a4686f7374a570692d7232a872656a656374656403a26578cb3f847ae147ae147ba26579cbbf947ae147ae147ba4726f6c65a97375626c6561646572a2727882a4706f7365cd026ca8736574706f696e74cd0258a5726f626f74a27232"
+    ),
+    "status_min": (
+        "88a17601a174cb3ff0000000000000a373657101a46d6f6465a469646c65a4736c6f74c0a370696400a4686f7374a0a872656a656374656400"
+    ),
+    "estop": (
+        "84a17601a174cb403e000000000000a6656e67616765c3a5726f626f74c0"
+    ),
+    "estop_robot": (
+        "84a17601a174cb403f000000000000a6656e67616765c2a5726f626f74a27233"
+    ),
+    "clock": (
+        "84a17601a174cb3f947ae147ae147ba373657101a47469636b01"
+    ),
+    "disturbance_drag": (
+        "87a17601a174cb4034000000000000a5726f626f74a27231a46b696e64a464726167a26478cbbfd999999999999aa26479cb0000000000000000aa6475726174696f6e5f73cb4000000000000000"
+    ),
+    "disturbance_teleport": (
+        "8aa17601a174cb4035000000000000a5726f626f74a27231a46b696e64a874656c65706f7274a26478cb0000000000000000a26479cb0000000000000000aa6475726174696f6e5f73cb0000000000000000a178cb3fe0000000000000a179cb3fe0000000000000a57468657461cbc00921fb54442d18"
+    ),
+    "heartbeat": (
+        "87a17601a174cb4059100000000000a3736571cd0191a46e616d65a77072696d617279a6616374697665c3a565706f636802a96c65616465725f7430cb400c000000000000"
+    ),
+    "poses": (
+        "88a17601a174cb4028fae147ae147ba3736571cd0270a6726f626f747392a27231a27232a17892cb3fbf7ced916872b0cb3feccccccccccccda17992cbbfdd2f1a9fbe76c9cbbfd0000000000000a5746865746192cb3ff3333333333333cbbff8000000000000a57374616d70cb4028f5c28f5c28f6"
+    ),
+}
+# fmt: on
+
+
+@pytest.mark.parametrize("name", list(GOLDEN_MESSAGES))
+def test_encode_matches_golden_bytes(name: str) -> None:
+    assert encode(GOLDEN_MESSAGES[name]).hex() == GOLDEN_HEX[name]
+
+
+@pytest.mark.parametrize("name", list(GOLDEN_MESSAGES))
+def test_golden_bytes_decode_to_the_message(name: str) -> None:
+    msg = GOLDEN_MESSAGES[name]
+    assert decode(bytes.fromhex(GOLDEN_HEX[name]), type(msg)) == msg
+
+
+def test_golden_covers_every_type() -> None:
+    assert {type(m) for m in GOLDEN_MESSAGES.values()} == set(MESSAGE_TYPES)
+    assert set(GOLDEN_HEX) == set(GOLDEN_MESSAGES)
+
+
+def test_wire_map_as_a_generic_decoder_sees_it() -> None:
+    assert msgpack.unpackb(bytes.fromhex(GOLDEN_HEX["pose"])) == {
+        "v": 1,
+        "t": 12.48,
+        "seq": 624,
+        "x": 0.123,
+        "y": -0.456,
+        "theta": 1.2,
+        "robot": "r1",
+    }
+    assert list(msgpack.unpackb(bytes.fromhex(GOLDEN_HEX["status"]))["rx"]) == ["pose", "setpoint"]
+    assert msgpack.unpackb(bytes.fromhex(GOLDEN_HEX["estop"])) == {
+        "v": 1,
+        "t": 30.0,
+        "engage": True,
+        "robot": None,
+    }
+
+
+def test_clock_bytes_assembled_from_the_msgpack_spec() -> None:
+    """The Clock golden, built by hand from the MessagePack spec (no msgpack library involved)."""
+
+    def fixstr(s: str) -> bytes:
+        return bytes([0xA0 | len(s)]) + s.encode()
+
+    expected = (
+        b"\x84"  # fixmap, 4 entries
+        + fixstr("v")
+        + b"\x01"  # positive fixint 1
+        + fixstr("t")
+        + b"\xcb"
+        + struct.pack(">d", 0.02)  # float 64, big endian
+        + fixstr("seq")
+        + b"\x01"
+        + fixstr("tick")
+        + b"\x01"
+    )
+    assert encode(GOLDEN_MESSAGES["clock"]) == expected
+    assert expected.hex() == GOLDEN_HEX["clock"]
