@@ -2,43 +2,186 @@
 
 One call per control tick, time passed in. The in-process simulator and the Zenoh coordinator
 process both run exactly this, so they make the same decisions from the same poses.
+
+The tick is on the simulator's hot path (one call per 20 ms tick of sim time, and the sim runs
+some thousand times faster than real time), so it works on plain floats and tuples: the slots are
+computed by :func:`~coordinator.formation.slot_rows`, the assignment by
+:meth:`RoleAssigner.update_ordered`, and the :class:`SlotState` objects of
+:attr:`CoordinatorOutput.slots` are only built if someone asks for them.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
 from typing import Any
 
 from coordinator.assignment import RoleAssigner
-from coordinator.formation import FormationSpec, SlotState, slot_states
-from coordinator.trajectory import LeaderState, Trajectory, make_trajectory
+from coordinator.formation import (
+    FormationSpec,
+    SlotRow,
+    SlotState,
+    slot_rows,
+    states_from_rows,
+)
+from coordinator.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
+
+__all__ = ["CoordinatorCore", "CoordinatorOutput"]
+
+_new = object.__new__
 
 
-@dataclass(frozen=True)
 class CoordinatorOutput:
-    leader: LeaderState
-    slots: list[SlotState]
-    assignment: dict[str, int]  # robot id -> slot
-    changed: bool  # assignment differs from the previous tick's
+    """One tick's decisions (read-only).
+
+    ``leader``: the virtual leader's state; ``slots``: every slot's :class:`SlotState` in the
+    formation's definition order; ``assignment``: robot id -> slot; ``changed``: the assignment
+    differs from the previous tick's. The same numbers without objects: ``theta`` (rad, the
+    formation heading shared by every slot) and ``rows``, ``(x, y, vx, vy)`` (m, m/s) per slot in
+    definition order; ``slot_ids`` gives the slot of each row.
+    """
+
+    __slots__ = (
+        "_assignment",
+        "_by_id",
+        "_changed",
+        "_leader",
+        "_rows",
+        "_slot_ids",
+        "_slots",
+        "_spec",
+        "_theta",
+    )
+
+    _assignment: dict[str, int]
+    _by_id: Mapping[int, SlotState] | None
+    _changed: bool
+    _leader: LeaderState
+    _rows: list[SlotRow]
+    _slot_ids: tuple[int, ...]
+    _slots: list[SlotState] | None
+    _spec: FormationSpec | None
+    _theta: float
+
+    def __init__(
+        self,
+        leader: LeaderState,
+        slots: Sequence[SlotState],
+        assignment: dict[str, int],
+        changed: bool,
+    ) -> None:
+        slot_list = list(slots)
+        self._leader = leader
+        self._slots = slot_list
+        self._spec = None
+        self._theta = slot_list[0].theta if slot_list else wrap_angle(leader.theta)
+        self._rows = [(s.x, s.y, s.vx, s.vy) for s in slot_list]
+        self._slot_ids = tuple(s.slot for s in slot_list)
+        self._assignment = assignment
+        self._changed = changed
+        self._by_id = None
+
+    @classmethod
+    def from_rows(
+        cls,
+        leader: LeaderState,
+        spec: FormationSpec,
+        theta: float,
+        rows: list[SlotRow],
+        assignment: dict[str, int],
+        changed: bool,
+    ) -> CoordinatorOutput:
+        """Build from :func:`~coordinator.formation.slot_rows` output without making the
+        :class:`SlotState` objects (they are made on first access to :attr:`slots`)."""
+        out: CoordinatorOutput = _new(cls)
+        out._leader = leader
+        out._slots = None
+        out._spec = spec
+        out._theta = theta
+        out._rows = rows
+        out._slot_ids = spec.slot_ids
+        out._assignment = assignment
+        out._changed = changed
+        out._by_id = None
+        return out
+
+    @property
+    def leader(self) -> LeaderState:
+        return self._leader
+
+    @property
+    def slots(self) -> list[SlotState]:
+        """Every slot's state, definition order (built once, on first access)."""
+        slots = self._slots
+        if slots is None:
+            assert self._spec is not None
+            slots = self._slots = states_from_rows(self._spec, self._theta, self._rows)
+        return slots
+
+    @property
+    def assignment(self) -> dict[str, int]:
+        """Robot id -> slot id."""
+        return self._assignment
+
+    @property
+    def changed(self) -> bool:
+        """The assignment differs from the previous tick's."""
+        return self._changed
+
+    @property
+    def theta(self) -> float:
+        """Formation heading (rad, wrapped), the ``theta`` of every slot."""
+        return self._theta
+
+    @property
+    def rows(self) -> list[SlotRow]:
+        """``(x, y, vx, vy)`` (m, m/s) of every slot, definition order (do not modify)."""
+        return self._rows
+
+    @property
+    def slot_ids(self) -> tuple[int, ...]:
+        """Slot id of each entry of :attr:`rows` / :attr:`slots`."""
+        return self._slot_ids
 
     def setpoint_for(self, robot: str) -> SlotState | None:
-        slot = self.assignment.get(robot)
+        slot = self._assignment.get(robot)
         if slot is None:
             return None
         return self.slots_by_id[slot]
 
     @property
-    def slots_by_id(self) -> dict[int, SlotState]:
-        return {s.slot: s for s in self.slots}
+    def slots_by_id(self) -> Mapping[int, SlotState]:
+        """Slot id -> state (a read-only view, built once)."""
+        by_id = self._by_id
+        if by_id is None:
+            by_id = self._by_id = MappingProxyType({s.slot: s for s in self.slots})
+        return by_id
 
     @property
     def leader_robot(self) -> str | None:
-        for rid, slot in self.assignment.items():
+        for rid, slot in self._assignment.items():
             if slot == 0:
                 return rid
         return None
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CoordinatorOutput):
+            return NotImplemented
+        return (
+            self._leader == other._leader
+            and self.slots == other.slots
+            and self._assignment == other._assignment
+            and self._changed == other._changed
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable assignment dict inside
+
+    def __repr__(self) -> str:
+        return (
+            f"CoordinatorOutput(leader={self._leader!r}, slots={self.slots!r}, "
+            f"assignment={self._assignment!r}, changed={self._changed!r})"
+        )
 
 
 class CoordinatorCore:
@@ -81,24 +224,39 @@ class CoordinatorCore:
             t0_s=t0_s,
         )
 
+    def _ref_points(
+        self, poses: Mapping[str, tuple[float, float, float]]
+    ) -> tuple[list[str], list[tuple[float, float]]]:
+        """Reference points (eqs 10-11) of the finite poses: (ids, (x, y) in m), input order."""
+        l_m = self.ref_offset_m
+        cos, sin, isfinite = math.cos, math.sin, math.isfinite
+        ids: list[str] = []
+        xy: list[tuple[float, float]] = []
+        for rid, (x, y, th) in poses.items():
+            xr = x + l_m * cos(th)
+            yr = y + l_m * sin(th)
+            if isfinite(xr) and isfinite(yr):
+                ids.append(rid)
+                xy.append((xr, yr))
+        return ids, xy
+
     def reference_points(
         self, poses: Mapping[str, tuple[float, float, float]]
     ) -> dict[str, tuple[float, float]]:
         """Robot axle-centre poses -> reference points (eqs 10-11), skipping non-finite ones."""
-        l_m = self.ref_offset_m
-        out: dict[str, tuple[float, float]] = {}
-        for rid, (x, y, th) in poses.items():
-            xr, yr = x + l_m * math.cos(th), y + l_m * math.sin(th)
-            if math.isfinite(xr) and math.isfinite(yr):
-                out[rid] = (xr, yr)
-        return out
+        ids, xy = self._ref_points(poses)
+        return dict(zip(ids, xy, strict=True))
 
     def tick(
         self, now_s: float, poses: Mapping[str, tuple[float, float, float]]
     ) -> CoordinatorOutput:
         """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta)."""
         leader = self.trajectory.sample(now_s - self.t0_s)
-        slots = slot_states(self.formation, leader)
-        assignment, changed = self.assigner.update(self.reference_points(poses), slots)
-        self.assignment = dict(assignment)
-        return CoordinatorOutput(leader, slots, self.assignment, changed)
+        spec = self.formation
+        theta, rows = slot_rows(spec, leader)
+        ids, xy = self._ref_points(poses)
+        assignment, changed = self.assigner.update_ordered(
+            ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))
+        )
+        self.assignment = assignment
+        return CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed)

@@ -39,7 +39,9 @@ __all__ = [
     "SlotSpec",
     "SlotState",
     "slot_arrays",
+    "slot_rows",
     "slot_states",
+    "states_from_rows",
 ]
 
 ROLES: Final = ("leader", "subleader", "follower")
@@ -47,8 +49,11 @@ LEADER_SLOT: Final = 0
 FORMATION_KINDS: Final = ("triangle", "chevron", "lattice", "explicit")
 
 _SQRT3_2: Final = math.sqrt(3.0) / 2.0
+_HALF_PI: Final = math.pi / 2.0
 
 FloatArray = npt.NDArray[np.float64]
+SlotRow = tuple[float, float, float, float]
+"""One slot's ``(x, y, vx, vy)``: position (m) and feed-forward velocity (m/s)."""
 
 
 def _is_int(v: object) -> bool:
@@ -132,7 +137,10 @@ class FormationSpec:
         "_offsets",
         "_parent_index",
         "_priority",
+        "_priority_rows",
+        "_slot_ids",
         "_slots",
+        "_tree",
     )
 
     def __init__(self, slots: Sequence[SlotSpec]) -> None:
@@ -205,6 +213,13 @@ class FormationSpec:
         self._priority = tuple(
             s.slot for s in sorted(slots_t, key=lambda s: (s.slot != LEADER_SLOT, s.stage, s.slot))
         )
+        # Hot-path tables (plain tuples, no per-tick attribute lookups): per slot in definition
+        # order (parent row or -1, b_m, phi_rad), and the definition rows in priority order.
+        self._tree = tuple(
+            (-1 if s.parent is None else index[s.parent], s.b_m, s.phi_rad) for s in slots_t
+        )
+        self._priority_rows = tuple(index[sid] for sid in self._priority)
+        self._slot_ids = tuple(s.slot for s in slots_t)
 
     # -- construction helpers ------------------------------------------------------------------
 
@@ -436,7 +451,8 @@ class FormationSpec:
 
     @property
     def slot_ids(self) -> tuple[int, ...]:
-        return tuple(s.slot for s in self._slots)
+        """Slot ids in definition order."""
+        return self._slot_ids
 
     @property
     def n_stages(self) -> int:
@@ -485,6 +501,16 @@ class FormationSpec:
         """Row of ``slot`` in definition order (and in :func:`slot_arrays`)."""
         return self._index[slot]
 
+    @property
+    def priority_slots(self) -> tuple[int, ...]:
+        """Slot ids in fill priority (as :meth:`priority_order`, as a shared tuple)."""
+        return self._priority
+
+    @property
+    def priority_rows(self) -> tuple[int, ...]:
+        """Definition-order rows (as in :func:`slot_rows`) of the slots in fill priority."""
+        return self._priority_rows
+
 
 def _role(slot: int, has_children: bool) -> str:
     if slot == LEADER_SLOT:
@@ -500,32 +526,56 @@ def _count(owner: str, n: int) -> int:
     return int(n)
 
 
+def slot_rows(spec: FormationSpec, leader: LeaderState) -> tuple[float, list[SlotRow]]:
+    """The numbers of :func:`slot_states` without the objects: ``(theta, rows)``.
+
+    ``theta`` (rad) is the formation heading (the leader's, wrapped), shared by every slot;
+    ``rows[i]`` is ``(x, y, vx, vy)`` (m, m/s) of the slot in definition row ``i``. Eqs 1-5
+    applied recursively from each slot's parent, plus the rigid-formation feed-forward velocity.
+    This is the per-tick hot path of the coordinator: plain floats and tuples, and exactly the
+    arithmetic of :func:`slot_states` (which is built on it), so both give the same bits.
+    """
+    theta = wrap_angle(leader.theta)
+    omega = leader.omega_radps
+    v = leader.v_mps
+    cos, sin = math.cos, math.sin
+    rows: list[SlotRow] = []
+    append = rows.append
+    for parent, b, phi in spec._tree:
+        if parent < 0:
+            append((leader.x, leader.y, v * cos(theta), v * sin(theta)))  # eqs 1-2
+        else:
+            xp, yp, vxp, vyp = rows[parent]
+            gamma = phi + theta - _HALF_PI  # eq 3
+            cg, sg = cos(gamma), sin(gamma)
+            append(
+                (
+                    xp - b * cg,  # eq 4 (corrected)
+                    yp - b * sg,  # eq 5 (corrected)
+                    vxp + b * omega * sg,  # d/dt of eq 4 with gammadot = omega
+                    vyp - b * omega * cg,  # d/dt of eq 5
+                )
+            )
+    return theta, rows
+
+
 def slot_states(spec: FormationSpec, leader: LeaderState) -> list[SlotState]:
     """States of every slot (definition order) for a virtual-leader state.
 
     Eqs 1-5 applied recursively from each slot's parent, plus the rigid-formation feed-forward
-    velocity. Positions in m, velocities in m/s, every ``theta`` equal to the leader's.
+    velocity (computed by :func:`slot_rows`). Positions in m, velocities in m/s, every ``theta``
+    equal to the leader's.
     """
-    theta = wrap_angle(leader.theta)
-    omega = leader.omega_radps
-    out: list[SlotState] = []
-    pos: list[tuple[float, float, float, float]] = []  # x, y, vx, vy by definition index
-    for s in spec.slots:
-        if s.parent is None:
-            x, y = leader.x, leader.y
-            vx = leader.v_mps * math.cos(theta)  # eq 1
-            vy = leader.v_mps * math.sin(theta)  # eq 2
-        else:
-            xp, yp, vxp, vyp = pos[spec.index_of(s.parent)]
-            gamma = s.phi_rad + theta - math.pi / 2.0  # eq 3
-            cg, sg = math.cos(gamma), math.sin(gamma)
-            x = xp - s.b_m * cg  # eq 4 (corrected)
-            y = yp - s.b_m * sg  # eq 5 (corrected)
-            vx = vxp + s.b_m * omega * sg  # d/dt of eq 4 with gammadot = omega
-            vy = vyp - s.b_m * omega * cg  # d/dt of eq 5
-        pos.append((x, y, vx, vy))
-        out.append(SlotState(s.slot, s.role, s.stage, s.parent, x, y, theta, vx, vy))
-    return out
+    theta, rows = slot_rows(spec, leader)
+    return states_from_rows(spec, theta, rows)
+
+
+def states_from_rows(spec: FormationSpec, theta: float, rows: Sequence[SlotRow]) -> list[SlotState]:
+    """:class:`SlotState` objects for the output of :func:`slot_rows` (definition order)."""
+    return [
+        SlotState(s.slot, s.role, s.stage, s.parent, x, y, theta, vx, vy)
+        for s, (x, y, vx, vy) in zip(spec.slots, rows, strict=True)
+    ]
 
 
 def slot_arrays(spec: FormationSpec, leader: LeaderState) -> tuple[FloatArray, FloatArray]:

@@ -6,7 +6,10 @@ the same structure, so both are measured by one piece of code (``formation.metri
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from itertools import chain
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -59,6 +62,82 @@ class RunLog:
             leader=np.full((ticks, 3), nan),
             power=np.zeros((ticks, n, 2)),
             mode=np.zeros((ticks, n), dtype=np.int64),
+        )
+
+    @classmethod
+    def from_ticks(
+        cls,
+        robot_ids: list[str],
+        slot_ids: list[int],
+        dt_s: float,
+        truth: Sequence[Sequence[Sequence[float]]],
+        leader: Sequence[tuple[float, float, float]],
+        slot_rows: Sequence[Sequence[Sequence[float]]],
+        slot_of_changes: Sequence[tuple[int, Sequence[int]]],
+        power_mode: Sequence[Sequence[Sequence[Any]]],
+        ref_offset_m: float,
+    ) -> RunLog:
+        """Build the arrays at the end of a run from what a loop kept per tick (plain lists are
+        much cheaper to append to than numpy element writes are to make, tick by tick).
+
+        Tick ``k`` is at ``t = k * dt_s``. Per tick: ``truth[k]`` the ``n`` rows ``(x, y,
+        theta)``; ``leader[k]`` ``(x, y, theta)``; ``slot_rows[k]`` the ``m`` slots' rows whose
+        first two entries are ``(x, y)``, in ``slot_ids`` order; ``power_mode[k]`` per robot a
+        sequence whose entries 2, 3 and 4 are power right, power left and the mode (a
+        ``WheelCommand``). ``slot_of_changes``: ``(k, row)`` whenever the robots' slots (``-1``
+        unassigned, robots in ``robot_ids`` order) changed, from ``k`` on, in tick order; before
+        the first entry no robot has a slot. The reference point (eqs 10-11, ``ref_offset_m``)
+        and the assigned slot's position (``target``) are derived here in one vectorised pass.
+        """
+        n, m, ticks = len(robot_ids), len(slot_ids), len(truth)
+        flat = chain.from_iterable
+        f64 = np.float64
+        t_s = np.arange(ticks, dtype=f64) * dt_s  # == k * dt_s, tick by tick
+        # np.fromiter over flattened tuples: C-level iteration, several times faster than
+        # np.array's nested-sequence discovery.
+        tr = np.fromiter(flat(flat(truth)), f64, ticks * n * 3).reshape(ticks, n, 3)
+        ref = np.empty((ticks, n, 2))
+        ref[:, :, 0] = tr[:, :, 0] + ref_offset_m * np.cos(tr[:, :, 2])  # eq 10
+        ref[:, :, 1] = tr[:, :, 1] + ref_offset_m * np.sin(tr[:, :, 2])  # eq 11
+        width = len(slot_rows[0][0]) if ticks and m else 2
+        slot_xy = np.ascontiguousarray(
+            np.fromiter(flat(flat(slot_rows)), f64, ticks * m * width).reshape(ticks, m, width)[
+                :, :, :2
+            ]
+        )
+        slot_of = np.full((ticks, n), -1, dtype=np.int64)
+        for j, (k, row) in enumerate(slot_of_changes):
+            end = slot_of_changes[j + 1][0] if j + 1 < len(slot_of_changes) else ticks
+            slot_of[k:end] = row
+        target = np.full((ticks, n, 2), np.nan)
+        if m:
+            row_of = np.full(max(slot_ids) + 2, -1, dtype=np.int64)  # slot id -> row; -1 -> -1
+            row_of[np.asarray(slot_ids, dtype=np.int64)] = np.arange(m)
+            rows_idx = row_of[slot_of]  # slot_of == -1 reads the last entry, which is -1
+            kk, ii = np.nonzero(rows_idx >= 0)
+            target[kk, ii] = slot_xy[kk, rows_idx[kk, ii]]
+        cmds = list(flat(power_mode))
+        power = np.fromiter(flat(map(itemgetter(2, 3), cmds)), f64, 2 * len(cmds))
+        power = power.reshape(ticks, n, 2)
+        # Mode objects -> codes keyed by identity (C-level hashing of ints; few distinct modes).
+        mode_ids = list(map(id, map(itemgetter(4), cmds)))
+        distinct = dict(zip(mode_ids, map(itemgetter(4), cmds), strict=True))
+        code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
+        mode = np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(cmds))
+        mode = mode.reshape(ticks, n)
+        leader_arr = np.fromiter(flat(leader), f64, ticks * 3).reshape(ticks, 3)
+        return cls(
+            robot_ids=list(robot_ids),
+            slot_ids=list(slot_ids),
+            t_s=t_s,
+            truth=tr,
+            ref=ref,
+            target=target,
+            slot_of=slot_of,
+            slot_xy=slot_xy,
+            leader=leader_arr,
+            power=power,
+            mode=mode,
         )
 
     def truncate(self, ticks: int) -> None:

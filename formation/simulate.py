@@ -10,6 +10,15 @@ Per control tick (``dt_s``), in this order:
 5. wheel commands go through the lossy, delayed command link;
 6. the plant integrates the wheel speeds that arrived (truth).
 
+The separation monitor (collisions, minimum separation) only reads the truth, so it runs over the
+whole logged truth at the end (``SeparationMonitor.update_many``, the same result as one update
+per tick).
+
+Speed: the loop runs each component's small-fleet path (plain Python on tuples where numpy's
+per-call overhead would dominate; bit-identical to the vectorised paths, which large fleets use),
+keeps per-tick records in lists and builds the log arrays once at the end
+(``RunLog.from_ticks``). ``bench/bench_sim.py`` measures it.
+
 Everything random comes from one seeded generator, so a seed gives the same run.
 """
 
@@ -18,17 +27,23 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
 
-from coordinator.core import CoordinatorCore
-from formation.runlog import MODE_CODES, RunLog
+from coordinator.core import CoordinatorCore, CoordinatorOutput
+from formation.runlog import RunLog
 from formation.scenario import Scenario
-from robot_agent.firmware import Firmware, Pose, Setpoint
+from robot_agent.firmware import Firmware, Pose, Setpoint, WheelCommand
 from sim_plant.accounting import SeparationMonitor
 from sim_plant.plant import Plant
 from sim_plant.sensors import Camera, CommandLink
+
+# Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
+# firmware builds its WheelCommand the same way).
+_tuple_new = tuple.__new__
+_xy_of = itemgetter(0, 1)  # the first two fields of a tuple, as a tuple (C-level)
 
 
 @dataclass
@@ -44,6 +59,11 @@ class SimResult:
 
 
 def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = None) -> SimResult:
+    """Run ``scenario`` in-process for ``duration_s`` (default: the scenario's) of sim time.
+
+    ``seed`` overrides the scenario's seed. The returned ``wall_s`` is the wall-clock time of the
+    loop and of building the log arrays at the end.
+    """
     seed = scenario.seed if seed is None else seed
     duration = scenario.duration_s if duration_s is None else duration_s
     rng = np.random.default_rng(seed)
@@ -61,7 +81,9 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
         scenario.assignment.tie_tol_m,
         ref_offset_m=l_m,
     )
-    plant = Plant(np.array(scenario.initial, dtype=float), geom, motor_tau_s=scenario.plant.motor_tau_s)
+    plant = Plant(
+        np.array(scenario.initial, dtype=float), geom, motor_tau_s=scenario.plant.motor_tau_s
+    )
     cam = scenario.camera
     camera = Camera(
         n,
@@ -72,22 +94,39 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
         rng=rng,
     )
     lk = scenario.link
-    link = CommandLink(latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=rng)
+    link: CommandLink[tuple[float, float]] = CommandLink(
+        latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=rng
+    )
     monitor = SeparationMonitor(geom.body_radius_m)
     firmwares = [Firmware(scenario.agent) for _ in ids]
 
     dt = scenario.dt_s
-    ticks = int(round(duration / dt)) + 1
-    slot_ids = [s.slot for s in coord.formation.slots]
+    ticks = round(duration / dt) + 1
+    slot_ids = list(coord.formation.slot_ids)
     slot_row = {s: k for k, s in enumerate(slot_ids)}
-    log = RunLog.allocate(ids, slot_ids, ticks)
+    stale = scenario.agent.safety.stale_pose_s
 
+    # Per-robot state of the loop. poses[i] is robot i's latest measured pose, as its firmware
+    # sees it; xyt[i] the same (x, y, theta) as the coordinator sees it.
     poses: list[Pose | None] = [None] * n
+    xyt: list[tuple[float, float, float] | None] = [None] * n
     pose_rx = [-math.inf] * n
-    applied = np.zeros((n, 2))
+    applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
+    neighbours: list[list[tuple[float, float]]] = [[] for _ in ids]
     pending = list(scenario.disturbances)
-    prev_out = None  # the coordinator output of the previous tick
+    fresh: dict[str, tuple[float, float, float]] = {}
+    oldest_rx = math.inf  # earliest receive time among the poses in `fresh`
+    prev_out: CoordinatorOutput | None = None  # the coordinator output of the previous tick
 
+    # What the log keeps per tick (converted to arrays once, at the end).
+    log_truth: list[tuple[tuple[float, float, float], ...]] = []
+    log_leader: list[tuple[float, float, float]] = []
+    log_slots: list[list[tuple[float, float, float, float]]] = []
+    log_cmds: list[list[WheelCommand]] = []
+    slot_of_changes: list[tuple[int, list[int]]] = []
+
+    steps = [fw.step for fw in firmwares]
+    robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
     for k in range(ticks):
         t = k * dt
@@ -98,68 +137,91 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
             if d.kind == "drag":
                 plant.drag(i, d.dx, d.dy, d.duration_s)
             else:
-                truth_i = plant.truth[i]
+                x_i, y_i, _ = plant.truth_rows()[i]
                 plant.teleport(
                     i,
-                    d.x if d.x is not None else float(truth_i[0]) + d.dx,
-                    d.y if d.y is not None else float(truth_i[1]) + d.dy,
+                    d.x if d.x is not None else x_i + d.dx,
+                    d.y if d.y is not None else y_i + d.dy,
                     d.theta,
                 )
-        truth = plant.truth
+        truth = plant.truth_rows()
         # 2. camera
         camera.capture(t, truth)
-        for i, stamp, x, y, th in camera.poll(t):
-            poses[i] = Pose(float(x), float(y), float(th), float(stamp))
-            pose_rx[i] = t
-        # 3. coordinator on the measured poses that are fresh
-        stale = scenario.agent.safety.stale_pose_s
-        fresh = {
-            ids[i]: (p.x, p.y, p.theta)
-            for i, p in enumerate(poses)
-            if p is not None and t - pose_rx[i] <= stale
-        }
+        delivered = camera.poll(t)
+        if delivered:
+            for i, stamp, x, y, th in delivered:
+                poses[i] = _tuple_new(Pose, (x, y, th, stamp))
+                xyt[i] = (x, y, th)
+                pose_rx[i] = t
+            # every other robot's latest measured position, for repulsion
+            if None in xyt:
+                for i in range(n):
+                    neighbours[i] = [
+                        (p[0], p[1]) for j, p in enumerate(poses) if j != i and p is not None
+                    ]
+            else:
+                pts = [(p[0], p[1]) for p in poses if p is not None]
+                for i in range(n):
+                    neighbours[i] = pts[:i] + pts[i + 1 :]
+        # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
+        # arrives or one goes stale)
+        if delivered or t - oldest_rx > stale:
+            fresh = {}
+            oldest_rx = math.inf
+            for i, q in enumerate(xyt):
+                if q is not None and t - pose_rx[i] <= stale:
+                    fresh[ids[i]] = q
+                    if pose_rx[i] < oldest_rx:
+                        oldest_rx = pose_rx[i]
         out = coord.tick(t, fresh)
-        by_slot = out.slots_by_id
-        prev_by_slot = prev_out.slots_by_id if prev_out is not None else {}
         # 4. firmware, on the setpoints of the previous tick
-        for i, rid in enumerate(ids):
+        t_prev = t - dt
+        cmds: list[WheelCommand] = []
+        if prev_out is not None:
+            prev_asg = prev_out.assignment
+            prev_rows = prev_out.rows
+            prev_theta = prev_out.theta
+        else:
+            prev_asg = {}
+        for i, rid, step in robots:
             sp = None
-            if prev_out is not None and rid in prev_out.assignment:
-                ps = prev_by_slot[prev_out.assignment[rid]]
-                sp = Setpoint(ps.x, ps.y, ps.vx, ps.vy, ps.theta, ps.slot, t - dt)
-            slot = out.assignment.get(rid)
-            neighbours = [(p.x, p.y) for j, p in enumerate(poses) if j != i and p is not None]
-            cmd = firmwares[i].step(
-                t,
-                pose=poses[i],
-                pose_rx_s=pose_rx[i],
-                setpoint=sp,
-                setpoint_rx_s=t - dt,
-                neighbours=neighbours,
-            )
-            # 5. command link
-            link.send(t, i, (cmd.omega_r, cmd.omega_l))
-            log.power[k, i, 0] = cmd.power_r
-            log.power[k, i, 1] = cmd.power_l
-            log.mode[k, i] = MODE_CODES.get(str(cmd.mode), 0)
-            log.slot_of[k, i] = -1 if slot is None else slot
+            slot = prev_asg.get(rid)
             if slot is not None:
-                s = by_slot[slot]
-                log.target[k, i] = (s.x, s.y)
+                x, y, vx, vy = prev_rows[slot_row[slot]]
+                sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
+            cmds.append(
+                step(
+                    t,
+                    pose=poses[i],
+                    pose_rx_s=pose_rx[i],
+                    setpoint=sp,
+                    setpoint_rx_s=t_prev,
+                    neighbours=neighbours[i],
+                )
+            )
+        # 5. command link
+        link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
         for i, wheels in link.poll(t):
             applied[i] = wheels
-        # record truth at t (before integrating to t + dt)
-        log.t_s[k] = t
-        log.truth[k] = truth
-        log.ref[k, :, 0] = truth[:, 0] + l_m * np.cos(truth[:, 2])
-        log.ref[k, :, 1] = truth[:, 1] + l_m * np.sin(truth[:, 2])
-        log.leader[k] = (out.leader.x, out.leader.y, out.leader.theta)
-        for s in out.slots:
-            log.slot_xy[k, slot_row[s.slot]] = (s.x, s.y)
-        monitor.update(t, truth)
+        # record the tick (truth at t, before integrating to t + dt)
+        log_truth.append(truth)
+        leader = out.leader
+        log_leader.append((leader.x, leader.y, leader.theta))
+        log_slots.append(out.rows)
+        log_cmds.append(cmds)
+        if out.changed or k == 0:
+            asg = out.assignment
+            slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
         prev_out = out
         # 6. plant
         plant.step(dt, applied)
+    log = RunLog.from_ticks(
+        ids, slot_ids, dt, log_truth, log_leader, log_slots, slot_of_changes, log_cmds, l_m
+    )
+    # The separation accounting reads only the truth and feeds nothing back into the loop, so it
+    # runs once over the logged truth, vectorised over ticks (the same events and minimum as
+    # one update per tick).
+    monitor.update_many(log.t_s, log.truth)
     wall = time.perf_counter() - wall0
 
     log.min_separation_m = float(monitor.min_separation_m)

@@ -12,8 +12,11 @@ starts, with the time and the ids, however many ticks the contact lasts; the pai
 minimum centre distance over all robot pairs, over all updates.
 
 For up to ``brute_force_max_n`` robots the pairwise distances are computed directly (numpy,
-O(N^2) but tiny). Above that a k-d tree (``scipy.spatial.cKDTree``) gives the nearest neighbour of
-every robot and the pairs in contact in about O(N log N), so N = 1000 stays cheap.
+O(N^2) but tiny); up to :data:`PY_MAX_N` robots that is done in plain Python, where numpy's
+per-call overhead would cost more than the arithmetic (same formula as ``pdist``,
+``sqrt(dx*dx + dy*dy)``, so the same bits). Above that a k-d tree (``scipy.spatial.cKDTree``)
+gives the nearest neighbour of every robot and the pairs in contact in about O(N log N), so
+N = 1000 stays cheap. :meth:`SeparationMonitor.update_many` accounts a whole run's ticks at once.
 
 BoundsMonitor
 -------------
@@ -24,6 +27,7 @@ centre alone) is not entirely inside. Leaving counts one event; coming back in r
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -42,6 +46,10 @@ __all__ = [
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+
+#: Largest fleet whose pairs are checked in plain Python (n (n - 1) / 2 pairs; numpy's pdist
+#: wins above about a dozen robots, see bench/bench_sim.py).
+PY_MAX_N = 10
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,6 +182,10 @@ class SeparationMonitor:
 
     def update(self, t_s: float, truth: npt.ArrayLike) -> list[CollisionEvent]:
         """Account the poses ``truth`` (``(n, 3)`` or ``(n, 2)``) at ``t_s``; returns new events."""
+        if isinstance(truth, list | tuple) and 2 <= len(truth) <= PY_MAX_N:
+            small = self._update_rows(t_s, truth)
+            if small is not None:
+                return small
         xy = _positions(truth)
         self.updates += 1
         pairs, dists, min_dist = contacts_and_min_distance(
@@ -192,6 +204,112 @@ class SeparationMonitor:
             if (a, b) not in self._in_contact:
                 new.append(CollisionEvent(float(t_s), a, b, d))
         self._in_contact = {(a, b) for a, b in pair_list}
+        self._events.extend(new)
+        return new
+
+    def _update_rows(
+        self, t_s: float, rows: Sequence[Sequence[float]]
+    ) -> list[CollisionEvent] | None:
+        """:meth:`update` for 2..PY_MAX_N robots given as rows ``(x, y, ...)`` in plain Python.
+
+        Returns None, having changed nothing, for input the array path must judge: a distance
+        that is not finite (so a non-finite position; that path raises) or entries that are not
+        numbers. Only the first two entries of each row are read.
+        """
+        sqrt = math.sqrt
+        inf = math.inf
+        contact = self.contact_dist_m
+        min_dist = inf
+        close: list[tuple[int, int, float]] = []
+        n = len(rows)
+        try:
+            for i in range(n - 1):
+                ri = rows[i]
+                xi = ri[0]
+                yi = ri[1]
+                for j in range(i + 1, n):
+                    rj = rows[j]
+                    dx = xi - rj[0]
+                    dy = yi - rj[1]
+                    d = sqrt(dx * dx + dy * dy)  # pdist's euclidean, bit for bit
+                    if not d < inf:  # a NaN or inf coordinate (or an overflow): array path
+                        return None
+                    if d < min_dist:
+                        min_dist = d
+                    if d < contact:
+                        close.append((i, j, d))
+        except (TypeError, IndexError):
+            return None
+        self.updates += 1
+        self._last_min_sep_m = min_dist
+        if min_dist < self._min_sep_m:
+            self._min_sep_m = min_dist
+            self._min_sep_t_s = float(t_s)
+        new: list[CollisionEvent] = []
+        if not close:
+            if self._in_contact:
+                self._in_contact = set()
+            return new
+        for a, b, d in close:
+            if (a, b) not in self._in_contact:
+                new.append(CollisionEvent(float(t_s), a, b, d))
+        self._in_contact = {(a, b) for a, b, _ in close}
+        self._events.extend(new)
+        return new
+
+    def update_many(self, t_s: npt.ArrayLike, truth: npt.ArrayLike) -> list[CollisionEvent]:
+        """Account a whole sequence of ticks: the same as ``update(t_s[k], truth[k])`` for
+        k = 0, 1, ... in turn (same events, minimum, state and counters afterwards).
+
+        ``t_s`` is ``(T,)`` seconds, ``truth`` ``(T, n, 3)`` or ``(T, n, 2)``. Up to
+        ``brute_force_max_n`` robots this is vectorised over ticks (the distances are pdist's,
+        ``sqrt(dx*dx + dy*dy)``, bit for bit), in blocks of ticks to bound memory; above that,
+        and for input that the per-tick path would reject part-way, it is a loop of
+        :meth:`update`. Returns the new events in time order.
+        """
+        times = np.asarray(t_s, dtype=np.float64)
+        arr = np.asarray(truth, dtype=np.float64)
+        if arr.ndim != 3 or arr.shape[2] < 2 or times.shape != arr.shape[:1]:
+            raise ValueError(
+                f"update_many: need t_s (T,) and truth (T, n, 2 or 3), got {times.shape} and "
+                f"{arr.shape}"
+            )
+        ticks, n = arr.shape[0], arr.shape[1]
+        if n < 2 or n > self.brute_force_max_n or not np.isfinite(arr[:, :, :2]).all():
+            out: list[CollisionEvent] = []
+            for k in range(ticks):
+                out.extend(self.update(float(times[k]), arr[k]))
+            return out
+        pairs = _upper_pairs(n)
+        ii, jj = pairs[:, 0], pairs[:, 1]
+        contact = self.contact_dist_m
+        block = max(1, (1 << 20) // len(pairs))  # ~8 MB of distances per block
+        new: list[CollisionEvent] = []
+        in_contact = self._in_contact
+        for k0 in range(0, ticks, block):
+            xy = arr[k0 : k0 + block, :, :2]
+            dx = xy[:, ii, 0] - xy[:, jj, 0]
+            dy = xy[:, ii, 1] - xy[:, jj, 1]
+            d = np.sqrt(dx * dx + dy * dy)  # (ticks, pairs), pdist's order of pairs
+            dmin = d.min(axis=1)
+            kmin = int(np.argmin(dmin))  # the first tick that reaches the block's minimum
+            if dmin[kmin] < self._min_sep_m:
+                self._min_sep_m = float(dmin[kmin])
+                self._min_sep_t_s = float(times[k0 + kmin])
+            self._last_min_sep_m = float(dmin[-1])
+            touching = d < contact
+            prev = np.zeros((1, len(pairs)), dtype=np.bool_)
+            for a, b in in_contact:
+                if b < n:
+                    prev[0, a * n - a * (a + 1) // 2 + (b - a - 1)] = True  # condensed index
+            starts = touching & ~np.concatenate([prev, touching[:-1]], axis=0)
+            for k, p in zip(*(x.tolist() for x in np.nonzero(starts)), strict=True):
+                new.append(
+                    CollisionEvent(float(times[k0 + k]), int(ii[p]), int(jj[p]), float(d[k, p]))
+                )
+            in_contact = {(int(ii[p]), int(jj[p])) for p in np.flatnonzero(touching[-1])}
+        self.updates += ticks
+        self._in_contact = in_contact
         self._events.extend(new)
         return new
 

@@ -39,22 +39,61 @@ Disturbances model a person interfering with the arena:
 
 The core is pure: no clock is read (time only advances by the ``dt_s`` passed in) and there is no
 randomness.
+
+Small fleets
+------------
+For a handful of robots numpy's per-call overhead (~1 us per ufunc) costs far more than the
+arithmetic, so up to :data:`SMALL_N` robots the common step (no drag, every command finite and
+within the wheel limit) runs in plain Python on tuples (:meth:`Plant._step_small`), with exactly
+the operations of the vectorised path in the same order (``math.sin``/``cos`` give the same bits
+as ``np.sin``/``cos``, float ``%`` the same as ``np.mod``), so both paths give bit-identical
+states; the tests check it. The tuples are then the current state and the arrays are rebuilt only
+when something asks for them (:attr:`Plant.truth`, a drag, a teleport, ...).
+:meth:`Plant.truth_rows` reads the state without building an array.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Protocol
+import sys
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["GeometryLike", "Plant", "unicycle_integrate", "wrap_angles"]
+__all__ = [
+    "SMALL_N",
+    "GeometryLike",
+    "Plant",
+    "PoseRows",
+    "unicycle_integrate",
+    "wrap_angle",
+    "wrap_angles",
+]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
+PoseRow = tuple[float, float, float]
+WheelRow = tuple[float, float]
+
+
+class PoseRows(tuple[PoseRow, ...]):
+    """Poses as the plant hands them out: an immutable tuple of ``(x_m, y_m, theta_rad)`` float
+    triples, theta in (-pi, pi]. Only the plant builds these, so a consumer that sees this exact
+    type (the camera) can skip re-validating it."""
+
+    __slots__ = ()
+
+
+#: Largest fleet stepped in plain Python; larger fleets use the vectorised path. The camera uses
+#: the same bound. Measured on the 2.5 GHz Xeon of this project (CPython 3.11): a plant step
+#: costs 11 us (Python) vs 90 us (numpy) for 4 robots, 125 vs 137 us for 64, 250 vs 176 us for
+#: 128; a camera frame 82 vs 94 us for 64 robots, 157 vs 124 us for 128.
+SMALL_N = 64
 
 _TWO_PI = 2.0 * math.pi
+_PI = math.pi
+_MAX_FLOAT = sys.float_info.max
 # Sim time is a float sum of steps; events this close to a step boundary happen at it.
 _TIME_EPS_S = 1e-9
 
@@ -86,6 +125,14 @@ def wrap_angles(a: npt.ArrayLike) -> FloatArray:
     r = np.mod(math.pi - arr, _TWO_PI)
     r = np.where(r < _TWO_PI, r, 0.0)
     return np.asarray(math.pi - r, dtype=np.float64)
+
+
+def wrap_angle(a: float) -> float:
+    """Scalar :func:`wrap_angles`: ``a`` (rad) to (-pi, pi], the same bits for the same input."""
+    r = (_PI - a) % _TWO_PI  # float % is fmod adjusted to the divisor's sign, as np.mod
+    if not r < _TWO_PI:
+        r = 0.0
+    return _PI - r
 
 
 def unicycle_integrate(
@@ -181,8 +228,18 @@ class Plant:
         self._carried: BoolArray = np.zeros(n, dtype=np.bool_)
         self._any_drag = False  # cache of np.isfinite(self._drag_t0).any()
         self._saturated: BoolArray = np.zeros(n, dtype=np.bool_)
+        self._sat_any = False  # cache of self._saturated.any()
         self._clamp_counts: npt.NDArray[np.int64] = np.zeros(n, dtype=np.int64)
         self._nonfinite_counts: npt.NDArray[np.int64] = np.zeros(n, dtype=np.int64)
+        # Small-fleet state as tuples (see the module docstring). Invariant: when _np_stale the
+        # tuples are the state and _pose/_wheels are outdated; otherwise the arrays are the
+        # state and the tuples, if not None, a copy of them.
+        self._rows: PoseRows | None = None
+        self._wrows: tuple[WheelRow, ...] | None = None
+        self._np_stale = False
+        self._lag_dt = math.nan  # dt the cached lag factors below are for (NaN: none yet)
+        self._lag_factor = 0.0
+        self._lag_decay = 0.0
 
     # ------------------------------------------------------------------ properties
 
@@ -209,16 +266,26 @@ class Plant:
     @property
     def truth(self) -> FloatArray:
         """Copy of the true poses, ``(n, 3)`` ``[x_m, y_m, theta_rad]``, theta in (-pi, pi]."""
+        self._sync_arrays()
         return self._pose.copy()
+
+    def truth_rows(self) -> PoseRows:
+        """The true poses as ``(x_m, y_m, theta_rad)`` tuples (immutable; no array is built)."""
+        rows = self._rows
+        if rows is None:
+            rows = self._rows = PoseRows((x, y, th) for x, y, th in self._pose.tolist())
+        return rows
 
     @property
     def wheel_speeds(self) -> FloatArray:
         """Copy of the true wheel speeds, ``(n, 2)`` ``[omega_r, omega_l]`` in rad/s."""
+        self._sync_arrays()
         return self._wheels.copy()
 
     @property
     def body_twist(self) -> FloatArray:
         """``(n, 2)`` ``[v_mps, omega_radps]`` from the current wheel speeds (eq. 7 corrected)."""
+        self._sync_arrays()
         v, w = self._twist(self._wheels)
         return np.stack([v, w], axis=1)
 
@@ -252,6 +319,22 @@ class Plant:
         """Per-robot non-finite command counts, ``(n,)``."""
         return self._nonfinite_counts.copy()
 
+    # ------------------------------------------------------------------ state representation
+
+    def _sync_arrays(self) -> None:
+        """Make ``_pose``/``_wheels`` current (after small-fleet steps ran on tuples)."""
+        if self._np_stale:
+            assert self._rows is not None and self._wrows is not None
+            n = len(self._rows)
+            self._pose = np.array(self._rows, dtype=np.float64).reshape(n, 3)
+            self._wheels = np.array(self._wrows, dtype=np.float64).reshape(n, 2)
+            self._np_stale = False
+
+    def _arrays_changed(self) -> None:
+        """The arrays were modified in place or replaced: the tuples are outdated."""
+        self._rows = None
+        self._wrows = None
+
     # ------------------------------------------------------------------ dynamics
 
     def _twist(self, wheels: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -279,8 +362,10 @@ class Plant:
                 np.clip(cmd, -lim, lim, out=cmd)
                 self._clamp_counts += sat
                 self._saturated = sat
-            elif self._saturated.any():
+                self._sat_any = True
+            elif self._sat_any:
                 self._saturated = np.zeros(self.n, dtype=np.bool_)
+                self._sat_any = False
         return cmd
 
     def _mean_wheels(self, cmd: FloatArray, a_s: FloatArray | float, b_s: FloatArray) -> FloatArray:
@@ -310,6 +395,10 @@ class Plant:
             raise ValueError(f"dt_s must be finite and >= 0, got {dt_s!r}")
         if dt == 0.0:
             return
+        small = not self._any_drag and self._pose.shape[0] <= SMALL_N
+        if small and self._step_small(dt, wheel_cmd):
+            return
+        self._sync_arrays()
         cmd = self._sanitise(wheel_cmd)
         ta = self._t_s
         tb = ta + dt
@@ -333,6 +422,81 @@ class Plant:
         else:
             self._wheels = cmd
         self._t_s = tb
+        self._arrays_changed()
+
+    def _step_small(self, dt: float, wheel_cmd: npt.ArrayLike) -> bool:
+        """The no-drag step of :meth:`step` in plain Python, for small fleets.
+
+        Same operations in the same order as the vectorised path (``_sanitise`` with nothing to
+        clamp or zero, the lag's mean-speed factor, ``_twist``, :func:`unicycle_integrate`,
+        :func:`wrap_angles`), so the same bits. Returns False, having changed nothing, when the
+        command needs the general path: not ``n`` pairs of real numbers, or a wheel that is
+        non-finite or over the limit (to be zeroed / clamped and counted there).
+        """
+        rows = self._rows
+        if rows is None:
+            rows = self.truth_rows()
+        wrows = self._wrows
+        if wrows is None:
+            wrows = self._wrows = tuple(tuple(w) for w in self._wheels.tolist())  # type: ignore[misc]
+        cmds: Any = wheel_cmd.tolist() if isinstance(wheel_cmd, np.ndarray) else wheel_cmd
+        try:
+            if len(cmds) != len(rows):
+                return False
+        except TypeError:
+            return False
+        # Without a wheel limit the largest finite float: the test below then still sends
+        # NaN and +-inf the general way.
+        lim = self._max_wheel_radps if self._wheel_limit else _MAX_FLOAT
+        tau = self._motor_tau_s
+        lag = tau > 0.0
+        if dt != self._lag_dt:  # the loop's dt is constant: compute the lag factors once
+            self._lag_dt = dt
+            # mean of the lag over the step, and its decay over the step
+            self._lag_factor = -tau * math.expm1(-dt / tau) / dt if lag else 0.0
+            self._lag_decay = math.exp(-dt / tau) if lag else 0.0
+        factor = self._lag_factor
+        decay = self._lag_decay
+        kv = 0.5 * self._radius_m
+        radius = self._radius_m
+        track = 2.0 * self._half_track_m
+        half_dt = 0.5 * dt
+        sin, cos = math.sin, math.cos
+        new_rows: list[PoseRow] = []
+        new_w: list[WheelRow] = []
+        try:
+            for (x, y, th), (w0r, w0l), (cr, cl) in zip(rows, wrows, cmds, strict=True):
+                # False for NaN, for +-inf and beyond the limit: those go the general way to be
+                # zeroed or clamped and counted. (Nothing is committed before the loop ends.)
+                if not (-lim <= cr <= lim and -lim <= cl <= lim):
+                    return False
+                if lag:
+                    mr = cr + (w0r - cr) * factor
+                    ml = cl + (w0l - cl) * factor
+                    new_w.append((cr + (w0r - cr) * decay, cl + (w0l - cl) * decay))
+                else:
+                    mr = cr = float(cr)  # the wheel state holds floats, as the arrays do
+                    ml = cl = float(cl)
+                    new_w.append((cr, cl))
+                v = kv * (mr + ml)  # eq 7 (corrected), as _twist
+                half_turn = radius * (mr - ml) / track * half_dt
+                ratio = sin(half_turn) / half_turn if half_turn != 0.0 else 1.0
+                chord = v * dt * ratio  # eq 9, exact arc, as unicycle_integrate
+                mid = th + half_turn
+                r = (_PI - (mid + half_turn)) % _TWO_PI  # wrap_angles
+                new_rows.append(
+                    (x + chord * cos(mid), y + chord * sin(mid), _PI - (r if r < _TWO_PI else 0.0))
+                )
+        except (TypeError, ValueError):  # not pairs of real numbers
+            return False
+        if self._sat_any:
+            self._saturated = np.zeros(len(rows), dtype=np.bool_)
+            self._sat_any = False
+        self._rows = PoseRows(new_rows)
+        self._wrows = tuple(new_w)
+        self._np_stale = True
+        self._t_s += dt
+        return True
 
     def _step_with_drags(self, cmd: FloatArray, ta: float, tb: float, dt: float) -> None:
         has = np.isfinite(self._drag_t0)
@@ -390,10 +554,15 @@ class Plant:
         Cancels any drag of robot ``i`` (the person let go). Wheel speeds are unchanged.
         """
         idx = self._index(i)
-        self._pose[idx, 0] = _check_finite_scalar("x", x)
-        self._pose[idx, 1] = _check_finite_scalar("y", y)
-        if theta is not None:
-            self._pose[idx, 2] = float(wrap_angles(_check_finite_scalar("theta", theta)))
+        fx = _check_finite_scalar("x", x)
+        fy = _check_finite_scalar("y", y)
+        fth = None if theta is None else float(wrap_angles(_check_finite_scalar("theta", theta)))
+        self._sync_arrays()
+        self._pose[idx, 0] = fx
+        self._pose[idx, 1] = fy
+        if fth is not None:
+            self._pose[idx, 2] = fth
+        self._arrays_changed()
         self._clear_drag(idx)
 
     def drag(
@@ -436,6 +605,8 @@ class Plant:
         if not np.all(np.isfinite(row)):
             raise ValueError("pose must be finite")
         row[2] = float(wrap_angles(row[2]))
+        self._sync_arrays()
+        self._arrays_changed()
         self._pose = np.vstack([self._pose, row[None, :]])
         self._wheels = np.vstack([self._wheels, np.zeros((1, 2))])
         self._drag_t0 = np.append(self._drag_t0, np.inf)
@@ -452,6 +623,8 @@ class Plant:
     def remove_robot(self, i: int) -> None:
         """Remove robot ``i``; the robots after it move down one index."""
         idx = self._index(i)
+        self._sync_arrays()
+        self._arrays_changed()
         self._pose = np.delete(self._pose, idx, axis=0)
         self._wheels = np.delete(self._wheels, idx, axis=0)
         self._drag_t0 = np.delete(self._drag_t0, idx)
@@ -464,3 +637,4 @@ class Plant:
         self._clamp_counts = np.delete(self._clamp_counts, idx)
         self._nonfinite_counts = np.delete(self._nonfinite_counts, idx)
         self._any_drag = bool(np.isfinite(self._drag_t0).any())
+        self._sat_any = bool(self._saturated.any())

@@ -24,6 +24,13 @@ A one-way radio link coordinator -> robots: each message is lost with ``loss_pro
 delivered at ``t + latency_s + U(0, jitter_s)``. With ``fifo=True`` (default) a message to robot
 ``i`` is never delivered before an earlier message to the same robot (a serial stream: a late
 packet holds up the ones behind it); ``fifo=False`` lets jitter reorder them, as UDP can.
+
+Small fleets
+------------
+Up to ``sim_plant.plant.SMALL_N`` robots a camera frame is processed in plain Python (numpy's
+per-call overhead dominates there), with the same random draws and the same arithmetic as the
+vectorised path, so the same bits. :meth:`CommandLink.send_all` sends one command per robot with
+one draw of all the tick's random numbers, the same stream as the equivalent :meth:`send` calls.
 """
 
 from __future__ import annotations
@@ -32,19 +39,25 @@ import heapq
 import itertools
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
-from sim_plant.plant import wrap_angles
+from sim_plant.plant import SMALL_N, PoseRows, wrap_angles
 
 __all__ = ["Camera", "CameraFrame", "CommandLink"]
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 CmdT = TypeVar("CmdT")
+PoseRow = tuple[float, float, float]
+
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+_tuple_new = tuple.__new__  # a NamedTuple without its generated __new__ frame (hot path)
 
 # Sim times come from sums of float steps; treat anything within this of a deadline as due.
 _TIME_EPS_S = 1e-9
@@ -76,6 +89,16 @@ class CameraFrame:
     deliver_t: float
     ids: IntArray
     poses: FloatArray
+
+
+class _RowFrame(NamedTuple):
+    """A frame taken on the small-fleet path: :class:`CameraFrame` with lists instead of arrays
+    (a tuple: built once per frame on the hot path)."""
+
+    stamp_t: float
+    deliver_t: float
+    ids: Sequence[int]
+    poses: list[PoseRow]
 
 
 class Camera:
@@ -129,7 +152,8 @@ class Camera:
             raise ValueError("rng is required when noise or dropout is configured")
         self._rng = rng
         self._next_k = 0
-        self._queue: deque[CameraFrame] = deque()
+        self._next_t = self._t0_s  # == next_frame_t, kept current with _next_k
+        self._queue: deque[CameraFrame | _RowFrame] = deque()
         self.frames_taken = 0
         self.frames_dropped = 0
         self.frames_missed = 0
@@ -153,7 +177,7 @@ class Camera:
     @property
     def next_frame_t(self) -> float:
         """Nominal exposure time of the next frame, seconds."""
-        return self._t0_s + self._next_k / self.rate_hz
+        return self._next_t
 
     @property
     def in_flight(self) -> int:
@@ -166,16 +190,23 @@ class Camera:
         A frame counts as taken even if it is then dropped (``frame_drop_prob``).
         """
         t = float(t_s)
-        if t + _TIME_EPS_S < self.next_frame_t:
+        if t + _TIME_EPS_S < self._next_t:
             return False
-        pose = np.asarray(truth, dtype=np.float64)
-        if pose.shape != (self._n, 3):
-            raise ValueError(f"truth must have shape ({self._n}, 3), got {pose.shape}")
+        n = self._n
+        rows: Sequence[PoseRow] | None = None
+        pose: FloatArray | None = None
+        if n <= SMALL_N:
+            rows = self._rows_of(truth)
+        else:
+            pose = np.asarray(truth, dtype=np.float64)
+            if pose.shape != (n, 3):
+                raise ValueError(f"truth must have shape ({n}, 3), got {pose.shape}")
         # Index of the latest nominal frame time <= t; the ones between were never exposed.
         k_now = math.floor((t - self._t0_s) * self.rate_hz + _TIME_EPS_S * self.rate_hz)
         k_now = max(k_now, self._next_k)
         self.frames_missed += k_now - self._next_k
         self._next_k = k_now + 1
+        self._next_t = self._t0_s + self._next_k / self.rate_hz
         self.frames_taken += 1
 
         rng = self._rng
@@ -184,44 +215,107 @@ class Camera:
             if rng.random() < self.frame_drop_prob:
                 self.frames_dropped += 1
                 return True
+        if rows is not None:
+            self._capture_rows(t, rows)
+            return True
+        assert pose is not None
         meas = pose.copy()
         if self.pos_std_m > 0.0 or self.theta_std_rad > 0.0:
             assert rng is not None
-            noise = rng.standard_normal((self._n, 3))
+            noise = rng.standard_normal((n, 3))
             meas[:, 0:2] += self.pos_std_m * noise[:, 0:2]
             meas[:, 2] += self.theta_std_rad * noise[:, 2]
         meas[:, 2] = wrap_angles(meas[:, 2])
-        ids = np.arange(self._n, dtype=np.int64)
+        ids = np.arange(n, dtype=np.int64)
         if self.miss_prob > 0.0:
             assert rng is not None
-            seen = rng.random(self._n) >= self.miss_prob
-            self.measurements_missed += int(self._n - np.count_nonzero(seen))
+            seen = rng.random(n) >= self.miss_prob
+            self.measurements_missed += int(n - np.count_nonzero(seen))
             ids = ids[seen]
             meas = meas[seen]
         self._queue.append(CameraFrame(t, t + self.latency_s, ids, meas))
         return True
 
-    def poll_frames(self, t_s: float) -> list[CameraFrame]:
-        """Frames whose delivery time is <= ``t_s``, oldest first (array form, for large n)."""
+    def _rows_of(self, truth: npt.ArrayLike) -> Sequence[PoseRow]:
+        """``truth`` as ``n`` float triples, or the ValueError of the array path."""
+        n = self._n
+        if type(truth) is PoseRows and len(truth) == n:
+            return truth  # the plant's own float triples, immutable
+        if isinstance(truth, np.ndarray) and truth.shape == (n, 3):
+            truth = truth.astype(np.float64, copy=False).tolist()
+        seq: Any = truth
+        try:
+            rows = [(float(x), float(y), float(th)) for x, y, th in seq]
+        except (TypeError, ValueError):
+            rows = []
+        if len(rows) != n:
+            shape = np.shape(truth) if isinstance(truth, np.ndarray) else "not (n, 3) numbers"
+            raise ValueError(f"truth must have shape ({n}, 3), got {shape}")
+        return rows
+
+    def _capture_rows(self, t: float, rows: Sequence[PoseRow]) -> None:
+        """Noise, wrap and dropouts of one frame in plain Python (the small-fleet path).
+
+        The arithmetic of the array path element by element; the wrap is
+        :func:`~sim_plant.plant.wrap_angle` inlined (float ``%`` is ``np.mod`` bit for bit).
+        """
+        rng = self._rng
+        ps, ts = self.pos_std_m, self.theta_std_rad
+        n = self._n
+        meas: list[PoseRow] = []
+        append = meas.append
+        if ps > 0.0 or ts > 0.0:
+            assert rng is not None
+            noise = rng.standard_normal((n, 3)).tolist()
+            for (x, y, th), (nx, ny, nt) in zip(rows, noise, strict=True):
+                r = (_PI - (th + ts * nt)) % _TWO_PI
+                append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
+        else:
+            for x, y, th in rows:
+                r = (_PI - th) % _TWO_PI
+                append((x, y, _PI - (r if r < _TWO_PI else 0.0)))
+        ids: Sequence[int] = range(n)  # immutable, shared by the frames
+        if self.miss_prob > 0.0:
+            assert rng is not None
+            seen = (rng.random(n) >= self.miss_prob).tolist()
+            self.measurements_missed += n - sum(seen)
+            ids = [i for i, ok in zip(ids, seen, strict=True) if ok]
+            meas = [m for m, ok in zip(meas, seen, strict=True) if ok]
+        self._queue.append(_tuple_new(_RowFrame, (t, t + self.latency_s, ids, meas)))
+
+    def _due(self, t_s: float) -> list[CameraFrame | _RowFrame]:
         t = float(t_s) + _TIME_EPS_S
-        out: list[CameraFrame] = []
+        out: list[CameraFrame | _RowFrame] = []
+        queue = self._queue
         # Constant latency and increasing stamps: the deque is sorted by delivery time.
-        while self._queue and self._queue[0].deliver_t <= t:
-            frame = self._queue.popleft()
+        while queue and queue[0].deliver_t <= t:
+            frame = queue.popleft()
             self.measurements_delivered += len(frame.ids)
             out.append(frame)
+        return out
+
+    def poll_frames(self, t_s: float) -> list[CameraFrame]:
+        """Frames whose delivery time is <= ``t_s``, oldest first (array form, for large n)."""
+        out: list[CameraFrame] = []
+        for f in self._due(t_s):
+            if isinstance(f, _RowFrame):
+                ids = np.array(f.ids, dtype=np.int64)
+                poses = np.array(f.poses, dtype=np.float64).reshape(len(f.poses), 3)
+                out.append(CameraFrame(f.stamp_t, f.deliver_t, ids, poses))
+            else:
+                out.append(f)
         return out
 
     def poll(self, t_s: float) -> list[tuple[int, float, float, float, float]]:
         """Due measurements as ``(i, stamp_t, x_m, y_m, theta_rad)``, oldest frame first."""
         out: list[tuple[int, float, float, float, float]] = []
-        for frame in self.poll_frames(t_s):
+        for frame in self._due(t_s):
             stamp = frame.stamp_t
-            rows = frame.poses.tolist()
-            out.extend(
-                (i, stamp, row[0], row[1], row[2])
-                for i, row in zip(frame.ids.tolist(), rows, strict=True)
-            )
+            if isinstance(frame, _RowFrame):
+                ids, rows = frame.ids, frame.poses
+            else:
+                ids, rows = frame.ids.tolist(), frame.poses.tolist()
+            out.extend([(i, stamp, x, y, th) for i, (x, y, th) in zip(ids, rows, strict=True)])
         return out
 
 
@@ -293,6 +387,49 @@ class CommandLink(Generic[CmdT]):
             self._last_deliver[i] = deliver
         heapq.heappush(self._heap, (deliver, next(self._seq), int(i), cmd))
         return deliver
+
+    def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
+        """Send ``cmds[i]`` to robot ``i`` for every ``i``, at ``t_s``.
+
+        The same as ``send(t_s, i, cmds[i])`` for i = 0, 1, ... in turn (same random stream,
+        same delivery times, same order), with one draw of the random numbers for all of them.
+        """
+        t = float(t_s)
+        if not math.isfinite(t):
+            raise ValueError(f"t_s must be finite, got {t_s!r}")
+        m = len(cmds)
+        self.sent += m
+        loss_p = self.loss_prob
+        jitter = self.jitter_s
+        loss_u: list[float] | None = None  # per message: the loss draw, then the jitter draw
+        jitter_u: list[float] | None = None
+        if (loss_p > 0.0 or jitter > 0.0) and m:
+            rng = self._rng
+            assert rng is not None
+            if loss_p > 0.0 and jitter > 0.0:
+                u = rng.random(2 * m).tolist()
+                loss_u, jitter_u = u[0::2], u[1::2]
+            elif loss_p > 0.0:
+                loss_u = rng.random(m).tolist()
+            else:
+                jitter_u = rng.random(m).tolist()
+        base = t + self.latency_s
+        heap = self._heap
+        seq = self._seq
+        last = self._last_deliver
+        fifo = self.fifo
+        push = heapq.heappush
+        for i in range(m):
+            if loss_u is not None and loss_u[i] < loss_p:
+                self.dropped += 1
+                continue
+            deliver = base if jitter_u is None else base + jitter_u[i] * jitter
+            if fifo:
+                prev = last.get(i)
+                if prev is not None and prev > deliver:
+                    deliver = prev
+                last[i] = deliver
+            push(heap, (deliver, next(seq), i, cmds[i]))
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""

@@ -1,0 +1,122 @@
+"""Lockstep speed of the distributed runtime: sim seconds per wall second (goal >= 20x, 3 robots).
+
+Runs ``formation up --lockstep`` (router, plant, coordinator, one agent per robot, the launcher's
+collector) as a subprocess tree for ``--duration`` sim seconds of paper-exp2 and reports:
+
+* speed: sim seconds / wall seconds between the first and the last truth frame the launcher
+  received (start-up and shutdown excluded; they are printed separately);
+* CPU seconds of every process of the run over the whole run (from ``/proc/<pid>/stat``
+  utime + stime, sampled until each process exits) and the launcher's own;
+* the in-process simulator on the same scenario and duration, for reference.
+
+Usage: ``python bench/bench_lockstep.py [--duration 60] [--robots 3 ...]``. Prints; asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from common import REPO_ROOT, free_port
+
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def proc_table() -> dict[int, tuple[int, float, str]]:
+    """pid -> (ppid, cpu seconds, short command) of every process, from /proc."""
+    out: dict[int, tuple[int, float, str]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            raw = Path(f"/proc/{entry}/stat").read_text(errors="replace")
+            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        f = raw[raw.rfind(")") + 2 :].split()
+        cpu = (int(f[11]) + int(f[12])) / CLK_TCK
+        args = [a.decode(errors="replace") for a in cmd if a]
+        name = " ".join(args[3:5]) if len(args) > 4 and args[1:3] == ["-m", "formation"] else "?"
+        if name.startswith("agent"):
+            name = f"agent {args[args.index('--id') + 1]}" if "--id" in args else "agent"
+        out[int(entry)] = (int(f[1]), cpu, name.split(" --")[0])
+    return out
+
+
+def descendants(root: int, table: dict[int, tuple[int, float, str]]) -> list[int]:
+    found, frontier = [], [root]
+    while frontier:
+        p = frontier.pop()
+        kids = [pid for pid, (ppid, _, _) in table.items() if ppid == p]
+        found += kids
+        frontier += kids
+    return found
+
+
+def run_lockstep(robots: int, duration_s: float, out: Path) -> None:
+    argv = [
+        sys.executable, "-m", "formation", "up", "--scenario", "paper-exp2", "--lockstep",
+        "--duration", str(duration_s), "--robots", str(robots), "--quiet", "--no-figures",
+        "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet", "bench", "--out", str(out),
+    ]  # fmt: skip
+    env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
+    wall0 = time.monotonic()
+    proc = subprocess.Popen(argv, cwd=REPO_ROOT, env=env)
+    cpu: dict[int, tuple[str, float]] = {}
+    launcher_cpu = 0.0
+    while proc.poll() is None:
+        table = proc_table()
+        if proc.pid in table:
+            launcher_cpu = table[proc.pid][1]
+        for pid in descendants(proc.pid, table):
+            name = cpu[pid][0] if pid in cpu else table[pid][2]  # a zombie has no cmdline
+            cpu[pid] = (name, max(table[pid][1], cpu.get(pid, ("", 0.0))[1]))
+        time.sleep(0.2)
+    wall = time.monotonic() - wall0
+    if proc.returncode != 0:
+        print(f"  formation up failed with status {proc.returncode}; see {out}/logs/")
+        return
+    m = json.loads((out / "metrics.json").read_text())
+    meta = m["meta"]
+    sim_s = m["run"]["duration_s"]
+    run_wall = meta["run_wall_s"]
+    print(
+        f"  {robots} robots: {sim_s:.1f} sim s in {run_wall:.2f} wall s = "
+        f"{sim_s / run_wall:.1f}x real time  (whole command {wall:.1f} s: start-up "
+        f"{meta['wall_s'] - run_wall - (meta['stop_s'] or 0):.1f} s, stop {meta['stop_s']:.2f} s)"
+    )
+    print(f"    ticks {m['run']['ticks']} truth frames; final leader {m['run']['final_leader']}")
+    by_name: dict[str, float] = {}
+    for name, seconds in cpu.values():
+        key = "agents (sum)" if name.startswith("agent") else name
+        by_name[key] = by_name.get(key, 0.0) + seconds
+    by_name["launcher (collector)"] = launcher_cpu
+    row = ", ".join(f"{k} {v:.1f}" for k, v in sorted(by_name.items(), key=lambda kv: -kv[1]))
+    print(f"    CPU seconds (2 cores, {2 * wall:.0f} core-s available): {row}")
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--duration", type=float, default=60.0, help="sim seconds per run")
+    p.add_argument("--robots", type=int, nargs="+", default=[3], help="robot counts")
+    args = p.parse_args()
+    from formation import scenario, simulate
+
+    print(f"lockstep speed, paper-exp2, {args.duration:g} sim s per run, {os.cpu_count()} CPUs")
+    scn = scenario.load("paper-exp2")
+    ref = simulate.run(scn, duration_s=args.duration)
+    print(f"  in-process simulator (reference, one process): {ref.realtime_factor:.1f}x real time")
+    with tempfile.TemporaryDirectory(prefix="bench-lockstep-") as tmp:
+        for n in args.robots:
+            run_lockstep(n, args.duration, Path(tmp) / f"r{n}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

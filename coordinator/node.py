@@ -1,0 +1,535 @@
+"""``formation coordinator``: virtual leader, slots, role assignment and setpoints as a process.
+
+Usage::
+
+    formation coordinator --scenario NAME|FILE [--name main] [--fleet demo] [--rate-hz 50]
+                          [--lockstep] [zenoh options]
+
+A thin asyncio shell over :class:`coordinator.core.CoordinatorCore`, built from the scenario
+exactly like ``formation/simulate.py`` builds it. It prints exactly one line
+``coordinator ready`` on stdout once its session is open, its subscriptions and its liveliness
+token ``formation/<fleet>/alive/coordinator/<name>`` are declared, and exits 0 within a second
+of SIGINT/SIGTERM.
+
+Theory of operation
+-------------------
+Inputs: liveliness of the agents (``alive/robot/*``: a robot is *alive* while its token is
+present), measured poses ``robot/*/pose`` (decoded on the event loop; a bad one is counted in
+``rejected`` and ignored; so is a pose whose ``robot`` field disagrees with its key, or farther
+than :data:`POSITION_LIMIT_M` from the origin), and in
+lockstep ``clock``. The robots offered to the assignment are the alive ones whose latest pose is
+*fresh*: received within the scenario's ``safety.stale_pose_s`` of the tick (receive times are
+local: this host's ``time.monotonic()`` in realtime, the clock's sim time in lockstep). They are
+passed in the scenario's robot order (then any other id, sorted), so ties break the same way as
+in the in-process simulator.
+
+Realtime (default): a fixed-rate loop (``--rate-hz``). The trajectory's time origin ``t0`` is
+this process's ``time.monotonic()`` at its first tick (published as ``leader_t0`` in the 1 Hz
+heartbeat), so the virtual leader starts at the trajectory's t = 0 when the coordinator starts
+ticking. Each tick publishes the setpoint of every assigned robot (``robot/<id>/setpoint``: the
+slot's fields plus ``robot``), ``leader``, every ``slot/<k>``, and ``assignment`` when it changed
+and at least once a second.
+
+Lockstep (``--lockstep``, docs/runtime.md): on ``clock`` k the core ticks at ``clock.t`` (t0 = 0,
+as in the simulator) on the poses received so far (a pose received since the previous clock
+counts as received at this clock's t); it publishes every slot and the setpoints with the extra
+field ``tick: k`` (see ``robot_agent.node.encode_ticked``), the assignment if it changed (or
+>= 1 s of sim time since the last), then ``leader`` with ``tick: k`` LAST, all at the clock's
+priority (Zenoh keeps order only within one priority, and zenoh-python only within one
+subscriber unless ``robot_agent.node.subscribe_ordered`` is used): the plant waits for it,
+and because setpoints and leader share one session and one priority, every setpoint of tick k
+reaches the router before the plant can start tick k+1. A repeated clock k is answered by
+re-sending the same messages.
+
+Also published (not part of bus contract v1, plain msgpack maps readable by any decoder):
+``formation/<fleet>/coordinator/<name>/status`` at 5 Hz with ``v``, ``t``, ``seq``, ``rejected``
+(messages rejected), ``rx`` (received per input), ``ticks``, ``alive`` (robot ids), ``assignment``
+(robot -> slot), ``leader`` (robot id or nil), ``mode`` and ``internal_errors``. Role changes are
+logged to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import sys
+import time
+from collections.abc import Iterable, Mapping
+from typing import Any, Final
+
+import msgpack
+
+from bus_schemas import (
+    Assignment,
+    Clock,
+    DecodeError,
+    Heartbeat,
+    Leader,
+    Pose,
+    Setpoint,
+    Slot,
+    decode,
+    encode,
+    keys,
+)
+from bus_schemas import transport as tp
+from coordinator.core import CoordinatorCore, CoordinatorOutput
+from formation.scenario import Scenario, ScenarioError, load
+from robot_agent.node import NodeLog, encode_ticked, subscribe_ordered
+
+__all__ = ["CoordinatorNode", "build_parser", "coordinator_status_key", "main"]
+
+STATUS_PERIOD_S: Final = 0.2
+HEARTBEAT_PERIOD_S: Final = 1.0
+ASSIGNMENT_REPEAT_S: Final = 1.0
+"""The assignment is re-published at least this often (s; sim time in lockstep)."""
+MAX_ROBOTS: Final = 1024
+"""Distinct robot ids tracked (made-up ids cannot grow memory without bound)."""
+POSITION_LIMIT_M: Final = 1.0e4
+"""A pose farther than this from the origin (m, per axis) is rejected: it can only be garbage,
+and squared distances of absurd positions overflow the assignment's costs."""
+
+
+def coordinator_status_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/coordinator/<name>/status``: this node's status map."""
+    return f"{keys.ROOT}/{keys.check_fleet(fleet)}/coordinator/{keys.check_name(name)}/status"
+
+
+def core_from_scenario(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
+    """The coordinator core of ``scenario``, built exactly as ``formation/simulate.py`` does."""
+    return CoordinatorCore.from_config(
+        scenario.trajectory,
+        scenario.formation,
+        scenario.assignment.method,
+        scenario.assignment.hysteresis_m,
+        scenario.assignment.tie_tol_m,
+        ref_offset_m=scenario.agent.geometry.ref_offset_m,
+        t0_s=t0_s,
+    )
+
+
+class CoordinatorNode:
+    """State and handlers of the coordinator; Zenoh-free apart from the ``publish`` callable.
+
+    Handlers run on the event loop and never raise.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        name: str,
+        fleet: str,
+        publish: Any,
+        *,
+        lockstep: bool = False,
+        log: NodeLog | None = None,
+    ) -> None:
+        self.scenario = scenario
+        self.name = keys.check_name(name)
+        self.fleet = keys.check_fleet(fleet)
+        self.lockstep = lockstep
+        self.core = core_from_scenario(scenario)
+        self.stale_pose_s = scenario.agent.safety.stale_pose_s
+        self.log = log if log is not None else NodeLog(f"coordinator {name}")
+        self._publish = publish
+        self._order = {rid: i for i, rid in enumerate(scenario.robot_ids)}
+
+        self.leader_key = keys.leader_key(fleet)
+        self.assignment_key = keys.assignment_key(fleet)
+        self.clock_key = keys.clock_key(fleet)
+        self.status_key = coordinator_status_key(fleet, name)
+        self.heartbeat_key = keys.heartbeat_key(fleet, name)
+        self.alive_key = keys.alive_coordinator_key(fleet, name)
+        self.poses_pattern = keys.all_poses_pattern(fleet)
+        self.alive_pattern = keys.alive_robots_pattern(fleet)
+        # Lockstep: setpoints and leader are what the plant and the agents wait for, so they
+        # must arrive (BLOCK) and keep their order (one priority, the clock's).
+        # Slots and assignment too: a lower priority would let the leader overtake them, and a
+        # recorder would see tick k's slots after the plant moved on.
+        self.sp_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_CONTROL
+        self.leader_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_TELEMETRY
+        self.data_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_TELEMETRY
+
+        self.alive: set[str] = set()
+        # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
+        self.poses: dict[str, list[Any]] = {}
+        self._pending: list[str] = []
+        self.rejected = 0
+        self.internal_errors = 0
+        self.rx: dict[str, int] = {"pose": 0, "clock": 0, "alive": 0}
+        self.ticks = 0
+        self.t0_s: float | None = 0.0 if lockstep else None
+        self.last: CoordinatorOutput | None = None
+        self._last_assignment_t = -math.inf
+        self._last_tick: int | None = None
+        self._last_outputs: list[tuple[str, bytes, tp.QoS]] = []
+        self._seq: dict[str, int] = {}
+        self.sim_t = 0.0
+
+    # -- bookkeeping ---------------------------------------------------------------------------
+
+    def _next_seq(self, key: str) -> int:
+        n = self._seq.get(key, 0) + 1
+        self._seq[key] = n
+        return n
+
+    def _reject(self, what: str, why: DecodeError | str) -> None:
+        self.rejected += 1
+        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+
+    def _internal(self, where: str, exc: BaseException) -> None:
+        self.internal_errors += 1
+        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def on_alive(self, key: str, alive: bool) -> None:
+        """Liveliness of an agent token appeared (``alive``) or vanished."""
+        try:
+            self.rx["alive"] += 1
+            parsed = keys.parse_alive_key(key)
+            if parsed is None or parsed[1] != "robot" or parsed[2] is None:
+                return
+            rid = parsed[2]
+            if alive:
+                if rid not in self.alive and len(self.alive) < MAX_ROBOTS:
+                    self.alive.add(rid)
+                    self.log.info(f"robot {rid} alive")
+            elif rid in self.alive:
+                self.alive.discard(rid)
+                self.poses.pop(rid, None)  # its last pose must not be reused if it comes back
+                self.log.info(f"robot {rid} gone")
+        except Exception as exc:
+            self._internal("on_alive", exc)
+
+    def on_pose(self, rx: tp.Received) -> None:
+        """A measured pose ``robot/<id>/pose``."""
+        try:
+            self.rx["pose"] += 1
+            parsed = keys.parse_robot_key(rx.key)
+            if parsed is None or parsed[2] != keys.POSE:
+                self._reject("pose", f"not a pose key: {rx.key[:100]!r}")
+                return
+            rid = parsed[1]
+            msg = decode(rx.payload, Pose)
+            if isinstance(msg, DecodeError):
+                self._reject("pose", msg)
+                return
+            if msg.robot is not None and msg.robot != rid:
+                self._reject("pose", f"robot {msg.robot!r} on {rid}'s key")
+                return
+            if abs(msg.x) > POSITION_LIMIT_M or abs(msg.y) > POSITION_LIMIT_M:
+                self._reject("pose", f"position beyond {POSITION_LIMIT_M:g} m")
+                return
+            rx_s: float | None = None if self.lockstep else rx.rx_s
+            if rid not in self.poses and len(self.poses) >= MAX_ROBOTS:
+                self._reject("pose", "too many robots")
+                return
+            # The newest arrival wins (no stamp comparison: one bogus future stamp must not
+            # lock the real poses out).
+            self.poses[rid] = [msg.x, msg.y, msg.theta, msg.t, rx_s]
+            if rx_s is None:
+                self._pending.append(rid)
+        except Exception as exc:
+            self._internal("on_pose", exc)
+
+    def on_clock(self, rx: tp.Received) -> None:
+        """Lockstep clock k: tick at clock.t and publish, leader last."""
+        try:
+            self.rx["clock"] += 1
+            msg = decode(rx.payload, Clock)
+            if isinstance(msg, DecodeError):
+                self._reject("clock", msg)
+                return
+            if msg.tick == self._last_tick:  # the plant re-announced: answer again
+                for key, payload, qos in self._last_outputs:
+                    self._publish(key, payload, qos)
+                return
+            t_k = msg.t
+            self.sim_t = t_k
+            if self._pending:
+                for rid in self._pending:
+                    entry = self.poses.get(rid)
+                    if entry is not None and entry[4] is None:
+                        entry[4] = t_k
+                self._pending = []
+            self._last_tick = msg.tick
+            self.tick(t_k, tick=msg.tick)
+        except Exception as exc:
+            self._internal("on_clock", exc)
+
+    # -- the tick ------------------------------------------------------------------------------
+
+    def fresh_poses(self, now_s: float) -> dict[str, tuple[float, float, float]]:
+        """Poses of alive robots received within ``stale_pose_s`` of ``now_s``, in robot order."""
+        lim = self.stale_pose_s
+        big = len(self._order)
+        out: dict[str, tuple[float, float, float]] = {}
+        for rid in sorted(self.alive, key=lambda r: (self._order.get(r, big), r)):
+            e = self.poses.get(rid)
+            if e is not None and e[4] is not None and -lim <= now_s - e[4] <= lim:
+                out[rid] = (e[0], e[1], e[2])
+        return out
+
+    def tick(self, now_s: float, tick: int | None = None) -> CoordinatorOutput | None:
+        """Run the core at ``now_s`` and publish its outputs (see the module docstring)."""
+        try:
+            if self.t0_s is None:
+                self.t0_s = now_s
+                self.core.t0_s = now_s
+            out = self.core.tick(now_s, self.fresh_poses(now_s))
+            self.ticks += 1
+            self.last = out
+            outputs = self._outputs(out, now_s, tick)
+            for key, payload, qos in outputs:
+                self._publish(key, payload, qos)
+            self._last_outputs = outputs
+            return out
+        except Exception as exc:
+            self._internal("tick", exc)
+            return None
+
+    def _outputs(
+        self, out: CoordinatorOutput, now_s: float, tick: int | None
+    ) -> list[tuple[str, bytes, tp.QoS]]:
+        t = max(now_s, 0.0)
+        fleet = self.fleet
+        setpoints: list[tuple[str, bytes, tp.QoS]] = []
+        by_slot = out.slots_by_id
+        for rid, slot_id in out.assignment.items():
+            s = by_slot[slot_id]
+            key = keys.setpoint_key(fleet, rid)
+            sp = Setpoint(
+                t=t,
+                seq=self._next_seq(key),
+                robot=rid,
+                slot=s.slot,
+                role=s.role,
+                stage=s.stage,
+                parent=s.parent,
+                x=s.x,
+                y=s.y,
+                theta=s.theta,
+                vx=s.vx,
+                vy=s.vy,
+            )
+            setpoints.append((key, encode_ticked(sp, tick), self.sp_qos))
+        slots: list[tuple[str, bytes, tp.QoS]] = []
+        for s in out.slots:
+            key = keys.slot_key(fleet, s.slot)
+            msg = Slot(
+                t=t,
+                seq=self._next_seq(key),
+                slot=s.slot,
+                role=s.role,
+                stage=s.stage,
+                parent=s.parent,
+                x=s.x,
+                y=s.y,
+                theta=s.theta,
+                vx=s.vx,
+                vy=s.vy,
+            )
+            slots.append((key, encode_ticked(msg, tick), self.data_qos))
+        extra: list[tuple[str, bytes, tp.QoS]] = []
+        if out.changed or now_s - self._last_assignment_t >= ASSIGNMENT_REPEAT_S:
+            self._last_assignment_t = now_s
+            amsg = Assignment(
+                t=t,
+                seq=self._next_seq(self.assignment_key),
+                leader=out.leader_robot,
+                robots=dict(out.assignment),
+            )
+            extra.append((self.assignment_key, encode(amsg), self.data_qos))
+            if out.changed:
+                t_traj = now_s - (self.t0_s or 0.0)
+                self.log.info(f"t={t_traj:.3f} s: assignment {_describe(out.assignment)}")
+        ld = out.leader
+        leader = Leader(
+            t=t,
+            seq=self._next_seq(self.leader_key),
+            x=ld.x,
+            y=ld.y,
+            theta=ld.theta,
+            v_mps=ld.v_mps,
+            omega_radps=ld.omega_radps,
+        )
+        leader_out = (self.leader_key, encode_ticked(leader, tick), self.leader_qos)
+        if self.lockstep:  # slots, setpoints, assignment, then the leader LAST
+            return [*slots, *setpoints, *extra, leader_out]
+        return [*setpoints, leader_out, *slots, *extra]  # realtime: setpoints first (latency)
+
+    # -- periodic ------------------------------------------------------------------------------
+
+    def status_map(self, now_s: float) -> dict[str, Any]:
+        """The status map (see the module docstring)."""
+        last = self.last
+        return {
+            "v": 1,
+            "t": max(now_s, 0.0),
+            "seq": self._next_seq(self.status_key),
+            "name": self.name,
+            "mode": "lockstep" if self.lockstep else "realtime",
+            "rejected": self.rejected,
+            "internal_errors": self.internal_errors,
+            "rx": dict(self.rx),
+            "ticks": self.ticks,
+            "alive": sorted(self.alive),
+            "assignment": dict(sorted(last.assignment.items())) if last is not None else {},
+            "leader": last.leader_robot if last is not None else None,
+        }
+
+    def publish_status(self) -> None:
+        """Publish the status map and (every call) nothing else; never raises."""
+        try:
+            now = self.sim_t if self.lockstep else time.monotonic()
+            payload: bytes = msgpack.packb(self.status_map(now), use_bin_type=True)
+            self._publish(self.status_key, payload, tp.QOS_TELEMETRY)
+        except Exception as exc:
+            self._internal("status", exc)
+
+    def publish_heartbeat(self) -> None:
+        """Publish the heartbeat (``leader_t0`` = the trajectory's time origin); never raises."""
+        try:
+            now = self.sim_t if self.lockstep else time.monotonic()
+            hb = Heartbeat(
+                t=max(now, 0.0),
+                seq=self._next_seq(self.heartbeat_key),
+                name=self.name,
+                active=True,
+                epoch=0,
+                leader_t0=self.t0_s if self.t0_s is not None else 0.0,
+            )
+            self._publish(self.heartbeat_key, encode(hb), tp.QOS_TELEMETRY)
+        except Exception as exc:
+            self._internal("heartbeat", exc)
+
+    async def run(self, stop: asyncio.Event, rate_hz: float) -> None:
+        """Until ``stop``: the realtime tick loop (not in lockstep), status and heartbeat."""
+        period = 1.0 / rate_hz
+        now = time.monotonic()
+        next_tick = now
+        next_status = now
+        next_hb = now
+        while not stop.is_set():
+            now = time.monotonic()
+            if not self.lockstep and now >= next_tick:
+                self.tick(now)
+                next_tick += period
+                if next_tick <= now:  # fell behind: resynchronise
+                    next_tick = now + period
+            if now >= next_status:
+                self.publish_status()
+                next_status = max(next_status + STATUS_PERIOD_S, now)
+            if now >= next_hb:
+                self.publish_heartbeat()
+                next_hb = max(next_hb + HEARTBEAT_PERIOD_S, now)
+            wake = min(next_status, next_hb)
+            if not self.lockstep:
+                wake = min(wake, next_tick)
+            await asyncio.sleep(max(0.0, wake - time.monotonic()))
+
+
+def _describe(assignment: Mapping[str, int]) -> str:
+    parts: Iterable[str] = (f"{rid}->{slot}" for rid, slot in sorted(assignment.items()))
+    leader = next((rid for rid, slot in assignment.items() if slot == 0), None)
+    return f"{' '.join(parts) or '(none)'}; leader {leader or '-'}"
+
+
+# ---------------------------------------------------------------------------------------------
+# CLI
+# ---------------------------------------------------------------------------------------------
+
+
+def _rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.5 <= value <= 1000.0:
+        raise argparse.ArgumentTypeError(f"rate must be in [0.5, 1000] Hz, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation coordinator`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog="formation coordinator",
+        description="Run the coordinator (virtual leader, slots, roles, setpoints) as a node.",
+    )
+    parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
+    parser.add_argument("--name", default="main", help="coordinator instance name (main)")
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
+    parser.add_argument(
+        "--rate-hz", type=_rate, default=50.0, metavar="HZ", help="realtime tick rate (50)"
+    )
+    parser.add_argument(
+        "--lockstep", action="store_true", help="tick on the plant's clock (docs/runtime.md)"
+    )
+    tp.add_zenoh_arguments(parser)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation coordinator``; returns the exit status."""
+    ns = build_parser().parse_args(argv)
+    log = NodeLog(f"coordinator {ns.name}")
+    if not keys.is_name(ns.name) or not keys.is_name(ns.fleet):
+        log.info(f"invalid --name {ns.name!r} or --fleet {ns.fleet!r}: {keys.NAME_PATTERN}")
+        return 2
+    try:
+        scenario = load(ns.scenario)
+        core_from_scenario(scenario)  # fail now, before the ready line, on a bad trajectory
+    except (ScenarioError, OSError, ValueError, KeyError, TypeError) as exc:
+        log.info(f"scenario: {exc}")
+        return 2
+    try:
+        settings = tp.settings_from_args(ns)
+    except (TypeError, ValueError) as exc:
+        log.info(f"zenoh settings: {exc}")
+        return 2
+    return tp.run_node(
+        lambda stop: _node(stop, scenario, ns.name, ns.fleet, settings, ns.lockstep, ns.rate_hz)
+    )
+
+
+async def _node(
+    stop: asyncio.Event,
+    scenario: Scenario,
+    name: str,
+    fleet: str,
+    settings: tp.ZenohSettings,
+    lockstep: bool,
+    rate_hz: float,
+) -> int:
+    loop = asyncio.get_running_loop()
+    log = NodeLog(f"coordinator {name}")
+    try:
+        session = await tp.open_session_async(settings)
+    except (tp.TransportError, ValueError) as exc:
+        log.info(str(exc))
+        return 1
+    try:
+        pubs = tp.Publishers(session)
+        node = CoordinatorNode(scenario, name, fleet, pubs.put, lockstep=lockstep, log=log)
+        pubs.get(node.leader_key, node.leader_qos)
+        for rid in scenario.robot_ids:
+            pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
+        tp.watch_liveliness(session, node.alive_pattern, loop, node.on_alive)
+        subscribe_ordered(session, node.poses_pattern, loop, node.on_pose)
+        if lockstep:
+            subscribe_ordered(session, node.clock_key, loop, node.on_clock)
+        token = tp.declare_token(session, node.alive_key)
+        print("coordinator ready", flush=True)
+        mode = "lockstep" if lockstep else f"realtime at {rate_hz:g} Hz"
+        log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}")
+        await node.run(stop, rate_hz)
+        del token
+        return 0
+    finally:
+        session.close()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,518 @@
+"""Bus traffic -> :class:`~formation.runlog.RunLog`: the same record the in-process simulator keeps.
+
+A :class:`RunCollector` is fed the samples of one fleet (``feed(key, payload)``: Zenoh key and
+msgpack bytes, exactly as received) and builds, at the end, a ``RunLog`` that
+``formation.metrics`` and ``formation.figures`` measure like any in-process run. It has no Zenoh
+and no clock of its own, so a live subscriber (``formation up``), a recording replay or a test can
+all drive it.
+
+What it listens to (the bus contract, docs/bus.md): ``robot/<id>/truth`` (rows), ``leader``,
+``slot/<k>``, ``assignment``, ``robot/<id>/wheels`` (motor power), ``robot/<id>/status`` (mode,
+live view) and ``clock``. Every payload is decoded with the strict ``bus_schemas`` decoder; a bad
+one is counted (``rejected``) and otherwise ignored.
+
+Rows
+----
+One row per plant tick of truth:
+
+* **lockstep** (``dt_s`` given): every message is placed on its tick ``k = round(t / dt_s)``
+  (``t`` is sim time; ``Wheels.tick`` is used when present). Row ``k`` holds the truth of every
+  robot at ``t_k`` and the coordinator's leader, slots and assignment of tick ``k`` and the wheel
+  commands answering tick ``k``: the same quantities, from the same cores, as row ``k`` of
+  ``formation.simulate.run``. Ticks after the last one the coordinator answered are dropped
+  (the plant may publish a final truth it no longer waits on).
+* **realtime** (``dt_s=None``): one row per truth frame (every truth message with the same ``t``);
+  ``t`` is the publishers' ``time.monotonic()`` (one host), shifted so the first frame is at 0 s.
+  The other series are sampled as "latest with ``t`` <= the frame's ``t``".
+
+A robot missing from a row (a dropped truth sample) keeps its previous pose (counted in
+``stats["truth_gaps"]``); rows before every robot has been seen once are skipped. Reference
+points are computed from truth with the geometry's ``ref_offset_m`` (eqs 10-11); separation and
+collisions come from :class:`sim_plant.accounting.SeparationMonitor` fed with the truth rows in
+order, exactly as in the simulator.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+from bus_schemas import (
+    Assignment,
+    Clock,
+    DecodeError,
+    Leader,
+    Slot,
+    Status,
+    Truth,
+    Wheels,
+    decode,
+    keys,
+)
+from formation.runlog import MODE_CODES, RunLog
+from formation.scenario import Scenario
+from sim_plant.accounting import SeparationMonitor
+
+__all__ = ["LiveRobot", "LiveView", "RunCollector", "key_patterns", "slot_ids_of"]
+
+F64 = npt.NDArray[np.float64]
+
+_LEAVES: Final = frozenset(
+    {keys.TRUTH, keys.LEADER, keys.SLOT, keys.ASSIGNMENT, keys.WHEELS, keys.STATUS, keys.CLOCK}
+)
+
+
+def key_patterns(fleet: str) -> list[str]:
+    """The key expressions a collector of ``fleet`` must subscribe to."""
+    return [
+        keys.all_truth_pattern(fleet),
+        keys.leader_key(fleet),
+        keys.all_slots_pattern(fleet),
+        keys.assignment_key(fleet),
+        keys.all_wheels_pattern(fleet),
+        keys.all_status_pattern(fleet),
+        keys.clock_key(fleet),
+    ]
+
+
+def slot_ids_of(scn: Scenario) -> list[int]:
+    """Slot numbers of a scenario's formation, in definition order (as the simulator logs them)."""
+    from coordinator.formation import FormationSpec
+
+    return [s.slot for s in FormationSpec.from_dict(dict(scn.formation)).slots]
+
+
+@dataclass(frozen=True)
+class LiveRobot:
+    """One robot as last seen on the bus (for a status display)."""
+
+    robot: str
+    alive: bool | None  # liveliness token present (None: not watched)
+    slot: int | None  # from the latest assignment
+    role: str | None  # from the latest status
+    mode: str | None  # from the latest status
+    error_m: float | None  # |reference point (truth) - assigned slot|, metres
+    rejected: int | None  # the agent's own count of rejected messages
+    power: tuple[float, float] | None  # latest wheel command (right, left), fraction of max
+
+
+@dataclass(frozen=True)
+class LiveView:
+    """Snapshot of a run in progress."""
+
+    t_s: float | None  # time of the latest truth frame (sim time / since the first frame), s
+    tick: int | None  # latest clock tick (lockstep)
+    leader: str | None  # robot holding slot 0
+    min_distance_m: float | None  # smallest centre distance, latest truth of each robot, m
+    robots: list[LiveRobot]
+    rejected: int  # payloads the collector itself rejected
+
+
+@dataclass
+class _Series:
+    """Time-stamped values of one quantity, appended in arrival order."""
+
+    keys: list[float] = field(default_factory=list)
+    values: list[Any] = field(default_factory=list)
+
+    def add(self, key: float, value: Any) -> None:
+        self.keys.append(key)
+        self.values.append(value)
+
+    def sorted(self) -> tuple[F64, list[Any]]:
+        order = sorted(range(len(self.keys)), key=self.keys.__getitem__)  # stable: arrival order
+        return np.array([self.keys[i] for i in order], dtype=float), [self.values[i] for i in order]
+
+    def latest(self) -> Any:
+        return self.values[-1] if self.values else None
+
+
+def _sample_at(series: _Series, rows: F64) -> list[Any]:
+    """For every row key, the latest value with key <= the row key (None before the first)."""
+    k, v = series.sorted()
+    if k.size == 0:
+        return [None] * rows.size
+    idx = np.searchsorted(k, rows, side="right") - 1
+    return [v[i] if i >= 0 else None for i in idx.tolist()]
+
+
+class RunCollector:
+    """Builds a :class:`RunLog` from the bus traffic of one fleet (see the module docstring).
+
+    Args:
+        robot_ids: the robots of the run, in the order of the log's robot axis.
+        slot_ids: the formation's slot numbers in the order of the log's slot axis; ``None``
+            takes every slot seen on the bus, sorted.
+        fleet: the fleet name; samples of other fleets are ignored.
+        dt_s: the plant tick in lockstep (sim time), ``None`` in realtime.
+        ref_offset_m: distance ``l`` of the reference point ahead of the axle (eqs 10-11), m.
+        body_radius_m: robot body radius for the separation monitor, m.
+        t0_s: realtime only: bus time that becomes 0 s in the log (default: the first frame's).
+    """
+
+    def __init__(
+        self,
+        robot_ids: Sequence[str],
+        *,
+        slot_ids: Sequence[int] | None = None,
+        fleet: str = keys.DEFAULT_FLEET,
+        dt_s: float | None = None,
+        ref_offset_m: float,
+        body_radius_m: float,
+        t0_s: float | None = None,
+    ) -> None:
+        if not robot_ids:
+            raise ValueError("a run needs at least one robot")
+        for rid in robot_ids:
+            keys.check_robot_id(rid)
+        if len(set(robot_ids)) != len(robot_ids):
+            raise ValueError("duplicate robot id")
+        if dt_s is not None and not (dt_s > 0.0 and math.isfinite(dt_s)):
+            raise ValueError(f"dt_s must be positive and finite, got {dt_s!r}")
+        self.fleet = keys.check_fleet(fleet)
+        self.robot_ids = list(robot_ids)
+        self.slot_ids = None if slot_ids is None else [int(s) for s in slot_ids]
+        self.dt_s = dt_s
+        self.ref_offset_m = float(ref_offset_m)
+        self.body_radius_m = float(body_radius_m)
+        self.t0_s = t0_s
+        self._index = {rid: i for i, rid in enumerate(self.robot_ids)}
+        # truth rows: row key -> {robot index: (x, y, theta)}
+        self._truth: dict[float, dict[int, tuple[float, float, float]]] = {}
+        self._leader = _Series()
+        self._slots: dict[int, _Series] = {}
+        self._assignment = _Series()
+        self._wheels = [_Series() for _ in self.robot_ids]
+        self._modes = [_Series() for _ in self.robot_ids]
+        self._status: list[Status | None] = [None] * len(self.robot_ids)
+        self._latest_truth: list[tuple[float, float, float] | None] = [None] * len(robot_ids)
+        self._alive: dict[str, bool] = {}
+        self._last_truth_key: float | None = None
+        self._last_clock: Clock | None = None
+        # Counters: per message name, plus rejected (bad payload), ignored (not ours / unknown).
+        self.received: dict[str, int] = {}
+        self.rejected = 0
+        self.ignored = 0
+        self.reject_reasons: dict[str, int] = {}
+
+    @classmethod
+    def for_scenario(
+        cls, scn: Scenario, *, fleet: str = keys.DEFAULT_FLEET, lockstep: bool
+    ) -> RunCollector:
+        """A collector for a run of ``scn`` (robots, slots, dt and geometry from the scenario)."""
+        geom = scn.agent.geometry
+        return cls(
+            scn.robot_ids,
+            slot_ids=slot_ids_of(scn),
+            fleet=fleet,
+            dt_s=scn.dt_s if lockstep else None,
+            ref_offset_m=geom.ref_offset_m,
+            body_radius_m=geom.body_radius_m,
+        )
+
+    @property
+    def lockstep(self) -> bool:
+        return self.dt_s is not None
+
+    # ------------------------------------------------------------------------------------------
+    # Input
+    # ------------------------------------------------------------------------------------------
+
+    def _row_key(self, t: float, tick: int | None = None) -> float:
+        if self.dt_s is None:
+            return t
+        return float(tick if tick is not None else round(t / self.dt_s))
+
+    def _reject(self, reason: str) -> bool:
+        self.rejected += 1
+        self.reject_reasons[reason] = self.reject_reasons.get(reason, 0) + 1
+        return False
+
+    def feed(self, key: str, payload: bytes | bytearray | memoryview) -> bool:
+        """Take one sample of the bus. Returns True if it was used, False if it was ignored
+        (another fleet, an unknown robot, a key the collector does not need) or rejected (bad
+        payload: counted in ``rejected``)."""
+        info = keys.parse_key(key)
+        if info is None or info.fleet != self.fleet or info.leaf not in _LEAVES:
+            self.ignored += 1
+            return False
+        leaf = info.leaf
+        i: int | None = None
+        if info.robot is not None:
+            i = self._index.get(info.robot)
+            if i is None:
+                self.ignored += 1
+                return False
+        self.received[leaf] = self.received.get(leaf, 0) + 1
+        if leaf == keys.TRUTH:
+            assert i is not None
+            truth = decode(payload, Truth)
+            if isinstance(truth, DecodeError):
+                return self._reject(f"truth: {truth.reason}")
+            row = self._row_key(truth.t)
+            pose = (truth.x, truth.y, truth.theta)
+            self._truth.setdefault(row, {})[i] = pose
+            self._latest_truth[i] = pose
+            if self._last_truth_key is None or row > self._last_truth_key:
+                self._last_truth_key = row
+        elif leaf == keys.LEADER:
+            leader = decode(payload, Leader)
+            if isinstance(leader, DecodeError):
+                return self._reject(f"leader: {leader.reason}")
+            self._leader.add(self._row_key(leader.t), (leader.x, leader.y, leader.theta))
+        elif leaf == keys.SLOT:
+            slot = decode(payload, Slot)
+            if isinstance(slot, DecodeError):
+                return self._reject(f"slot: {slot.reason}")
+            if slot.slot != info.slot:
+                return self._reject("slot: field does not match the key")
+            series = self._slots.setdefault(slot.slot, _Series())
+            series.add(self._row_key(slot.t), (slot.x, slot.y))
+        elif leaf == keys.ASSIGNMENT:
+            assignment = decode(payload, Assignment)
+            if isinstance(assignment, DecodeError):
+                return self._reject(f"assignment: {assignment.reason}")
+            self._assignment.add(self._row_key(assignment.t), dict(assignment.robots))
+        elif leaf == keys.WHEELS:
+            assert i is not None
+            wheels = decode(payload, Wheels)
+            if isinstance(wheels, DecodeError):
+                return self._reject(f"wheels: {wheels.reason}")
+            self._wheels[i].add(
+                self._row_key(wheels.t, wheels.tick), (wheels.power_r, wheels.power_l)
+            )
+        elif leaf == keys.STATUS:
+            assert i is not None
+            status = decode(payload, Status)
+            if isinstance(status, DecodeError):
+                return self._reject(f"status: {status.reason}")
+            self._status[i] = status
+            self._modes[i].add(self._row_key(status.t), MODE_CODES.get(status.mode, 0))
+        else:  # clock
+            clock = decode(payload, Clock)
+            if isinstance(clock, DecodeError):
+                return self._reject(f"clock: {clock.reason}")
+            self._last_clock = clock
+        return True
+
+    def feed_alive(self, key: str, alive: bool) -> None:
+        """A liveliness token of this fleet appeared (``alive``) or vanished."""
+        parsed = keys.parse_alive_key(key)
+        if parsed is None or parsed[0] != self.fleet:
+            return
+        _, kind, ident = parsed
+        self._alive[f"{kind}/{ident}" if ident is not None else kind] = alive
+
+    def feed_all(self, samples: Iterable[tuple[str, bytes]]) -> int:
+        """Feed ``(key, payload)`` pairs in order; return how many were used."""
+        return sum(self.feed(k, p) for k, p in samples)
+
+    # ------------------------------------------------------------------------------------------
+    # Live view
+    # ------------------------------------------------------------------------------------------
+
+    @property
+    def frames(self) -> int:
+        """Truth rows (ticks or frames) seen so far."""
+        return len(self._truth)
+
+    @property
+    def first_tick(self) -> int | None:
+        """Lockstep: the first tick whose truth arrived (0 unless the collector joined late)."""
+        if not self._truth or self.dt_s is None:
+            return None
+        return int(min(self._truth))
+
+    @property
+    def last_clock_tick(self) -> int | None:
+        return None if self._last_clock is None else self._last_clock.tick
+
+    def alive(self, kind: str, ident: str | None = None) -> bool | None:
+        """Whether the token ``alive/<kind>[/<ident>]`` is present (None: never seen)."""
+        return self._alive.get(f"{kind}/{ident}" if ident is not None else kind)
+
+    def _key_time(self, key: float) -> float:
+        if self.dt_s is not None:
+            return key * self.dt_s
+        t0 = self.t0_s if self.t0_s is not None else min(self._truth, default=key)
+        return key - t0
+
+    def live(self) -> LiveView:
+        """What the run looks like now, from the latest samples (cheap; call it at a few Hz)."""
+        latest = self._latest_truth
+        assignment: dict[str, int] = self._assignment.latest() or {}
+        slot_xy = {s: series.latest() for s, series in self._slots.items()}
+        l_m = self.ref_offset_m
+        robots: list[LiveRobot] = []
+        for i, rid in enumerate(self.robot_ids):
+            st = self._status[i]
+            slot = assignment.get(rid)
+            err: float | None = None
+            pose = latest[i]
+            target = slot_xy.get(slot) if slot is not None else None
+            if pose is not None and target is not None:
+                xr = pose[0] + l_m * math.cos(pose[2])
+                yr = pose[1] + l_m * math.sin(pose[2])
+                err = math.hypot(target[0] - xr, target[1] - yr)
+            robots.append(
+                LiveRobot(
+                    robot=rid,
+                    alive=self._alive.get(f"robot/{rid}"),
+                    slot=slot,
+                    role=st.role if st is not None else None,
+                    mode=st.mode if st is not None else None,
+                    error_m=err,
+                    rejected=st.rejected if st is not None else None,
+                    power=self._wheels[i].latest(),
+                )
+            )
+        min_d: float | None = None
+        known = [p for p in latest if p is not None]
+        if len(known) >= 2:
+            xy = np.array([p[:2] for p in known])
+            diff = xy[:, None, :] - xy[None, :, :]
+            d = np.hypot(diff[..., 0], diff[..., 1])
+            d[np.diag_indices_from(d)] = np.inf
+            min_d = float(d.min())
+        leader = next((rid for rid, s in assignment.items() if s == 0), None)
+        return LiveView(
+            t_s=None if self._last_truth_key is None else self._key_time(self._last_truth_key),
+            tick=self.last_clock_tick,
+            leader=leader,
+            min_distance_m=min_d,
+            robots=robots,
+            rejected=self.rejected,
+        )
+
+    # ------------------------------------------------------------------------------------------
+    # Output
+    # ------------------------------------------------------------------------------------------
+
+    def _row_keys(self) -> tuple[F64, dict[str, Any]]:
+        """Sorted row keys and what was dropped: leading rows before every robot appeared,
+        trailing lockstep ticks the coordinator did not answer."""
+        info: dict[str, Any] = {
+            "leading_incomplete": 0,
+            "trailing_unanswered": 0,
+            "missing_ticks": 0,
+        }
+        all_keys = sorted(self._truth)
+        n = len(self.robot_ids)
+        seen: set[int] = set()
+        start = len(all_keys)
+        for j, k in enumerate(all_keys):
+            seen.update(self._truth[k])
+            if len(seen) == n:
+                start = j
+                break
+        info["leading_incomplete"] = start
+        kept = all_keys[start:]
+        if self.dt_s is not None and kept:
+            answered = max(self._leader.keys, default=-math.inf)
+            while kept and kept[-1] > answered:
+                kept.pop()
+                info["trailing_unanswered"] += 1
+            if kept:
+                info["missing_ticks"] = int(kept[-1] - kept[0] + 1) - len(kept)
+        return np.array(kept, dtype=float), info
+
+    def build(self, meta: Mapping[str, Any] | None = None) -> RunLog:
+        """The run so far as a :class:`RunLog` (can be called again later; it is rebuilt)."""
+        rows, info = self._row_keys()
+        slot_ids = (
+            self.slot_ids if self.slot_ids is not None else sorted(self._slots)  # seen on the bus
+        )
+        n, T = len(self.robot_ids), rows.size
+        log = RunLog.allocate(self.robot_ids, slot_ids, T)
+        if T == 0:
+            log.meta = {**dict(meta or {}), "collector": self.stats(info)}
+            return log
+
+        # truth, holding a robot's previous pose across a dropped sample
+        gaps = 0
+        last: list[tuple[float, float, float] | None] = [None] * n
+        for r, k in enumerate(rows.tolist()):
+            frame = self._truth[k]
+            for i in range(n):
+                pose = frame.get(i)
+                if pose is None:
+                    gaps += last[i] is not None
+                    pose = last[i]
+                if pose is not None:
+                    log.truth[r, i] = pose
+                    last[i] = pose
+        info["truth_gaps"] = gaps
+        if self.dt_s is not None:
+            log.t_s[:] = rows * self.dt_s
+        else:
+            t0 = self.t0_s if self.t0_s is not None else float(rows[0])
+            log.t_s[:] = rows - t0
+        l_m = self.ref_offset_m
+        log.ref[:, :, 0] = log.truth[:, :, 0] + l_m * np.cos(log.truth[:, :, 2])
+        log.ref[:, :, 1] = log.truth[:, :, 1] + l_m * np.sin(log.truth[:, :, 2])
+
+        for r, v in enumerate(_sample_at(self._leader, rows)):
+            if v is not None:
+                log.leader[r] = v
+        slot_row = {s: m for m, s in enumerate(slot_ids)}
+        for s, series in self._slots.items():
+            m = slot_row.get(s)
+            if m is None:
+                continue
+            for r, v in enumerate(_sample_at(series, rows)):
+                if v is not None:
+                    log.slot_xy[r, m] = v
+        for r, a in enumerate(_sample_at(self._assignment, rows)):
+            if a is None:
+                continue
+            for rid, slot in a.items():
+                j = self._index.get(rid)
+                if j is None:
+                    continue
+                log.slot_of[r, j] = slot
+                m = slot_row.get(slot)
+                if m is not None:
+                    log.target[r, j] = log.slot_xy[r, m]
+        for i in range(n):
+            for r, v in enumerate(_sample_at(self._wheels[i], rows)):
+                if v is not None:
+                    log.power[r, i] = v
+            for r, v in enumerate(_sample_at(self._modes[i], rows)):
+                if v is not None:
+                    log.mode[r, i] = v
+
+        monitor = SeparationMonitor(self.body_radius_m)
+        for r in range(T):
+            monitor.update(float(log.t_s[r]), log.truth[r])
+        log.min_separation_m = float(monitor.min_separation_m)
+        log.collisions = [
+            {
+                "t_s": float(e.t_s),
+                "i": self.robot_ids[e.i],
+                "j": self.robot_ids[e.j],
+                "distance_m": float(e.distance_m),
+            }
+            for e in monitor.collisions
+        ]
+        log.meta = {**dict(meta or {}), "collector": self.stats(info)}
+        return log
+
+    def stats(self, rows_info: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """Counters for the run's metadata: messages received per name, rejected, ignored, and
+        (after :meth:`build`) rows dropped or patched."""
+        out: dict[str, Any] = {
+            "received": dict(sorted(self.received.items())),
+            "rejected": self.rejected,
+            "reject_reasons": dict(self.reject_reasons),
+            "ignored": self.ignored,
+            "frames": self.frames,
+            "first_tick": self.first_tick,
+        }
+        if rows_info is not None:
+            out.update(rows_info)
+        return out

@@ -1,0 +1,688 @@
+"""``formation report``: metrics and the paper's figures from an MCAP recording.
+
+Usage::
+
+    formation report FILE.mcap [--out DIR] [--settle S] [--tol M] [--scenario NAME|FILE]
+                     [--no-figures] [--quiet]
+
+The recording (``formation record`` or ``formation up --record``) is read back in the order the
+recorder received it, and every bus sample is fed to the same
+:class:`formation.collector.RunCollector` that ``formation up`` feeds live, so the RunLog, and
+``formation.metrics.compute`` on it, are those of the live run. On top of those metrics:
+
+* ``leader_loss``: for every leader whose liveliness token vanished while the run went on, the
+  recovery time: from the token's DELETE to the moment after which the formation error (eqs
+  17-18, reference point to assigned slot, from truth) of every remaining robot stays within
+  ``--tol`` until the end of the run or the next loss (the settling-time rule of
+  ``formation.metrics``); ``null`` if it never comes back within the band.
+* ``latency``: per wheel command, ``rx_latency_ms`` (recorder receive time of the wheels minus
+  recorder receive time of the pose it was computed from: bus + agent, one clock) and
+  ``pose_age_ms`` (realtime: wheels receive time minus the pose's capture time ``pose_t``, which
+  adds the camera latency; lockstep: wheels ``t`` minus ``pose_t`` in sim time); p50/p99/max,
+  overall and per robot.
+* ``power_peaks``: per robot and wheel, the peak |motor power| (fraction of max) and when.
+
+Writes ``metrics.json`` and the figures of ``formation.figures.write_all`` (trajectories with
+the virtual trajectories, motor power per wheel, formation error over time, role timeline) to
+``--out`` (default: ``<FILE stem>-report/`` next to the file). A recording cut short (recorder
+killed, no MCAP footer) is read up to its last complete chunk.
+
+Which run: the ``formation.run`` metadata record written by the recorder (the scenario's TOML
+text, lockstep, the settling time the live run used); ``--scenario`` overrides it. Without
+either, robots and slots are those seen on the bus, the geometry is the default one and lockstep
+is detected from the ``clock`` key.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tomllib
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from mcap.records import Channel, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+
+from bus_schemas import (
+    Assignment,
+    Clock,
+    DecodeError,
+    Pose,
+    Truth,
+    Wheels,
+    decode,
+    encode,
+    from_map,
+    keys,
+    message_type_for_key,
+)
+from formation import metrics as metrics_mod
+from formation import scenario as scenario_mod
+from formation.collector import RunCollector
+from formation.record import (
+    METADATA_NAME,
+    RAW_PREFIX,
+    RUN_METADATA_NAME,
+    STATS_METADATA_NAME,
+    LatencySample,
+    LatencyTracker,
+)
+from formation.runlog import RunLog
+from robot_agent.params import RobotGeometry
+
+MIN_RUN_AFTER_LOSS_S: Final = 1.0
+"""A leader's token loss counts only if the run went on at least this long after it (s): the
+tokens that vanish while ``formation up`` shuts everything down are not losses."""
+SATURATED_POWER: Final = 0.999
+
+
+class ReportError(ValueError):
+    """The file is not a usable recording (not MCAP, no fleet traffic, no truth)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Reading a recording
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """One observation, in the recorder's arrival order: a sample or a liveliness change."""
+
+    log_ns: int
+    key: str
+    payload: bytes | None = None  # msgpack bytes of a sample
+    alive: bool | None = None  # liveliness change
+
+
+@dataclass
+class Recording:
+    """The bus traffic of one MCAP recording."""
+
+    path: Path
+    info: dict[str, str]  # formation.recording metadata
+    run: dict[str, str]  # formation.run metadata (empty if none)
+    stats: dict[str, str]  # formation.recording.stats (empty if the recorder was killed)
+    events: list[Event]
+    topics: dict[str, int]  # messages per topic
+    complete: bool  # the file has its footer
+    source: str  # "raw" (msgpack payloads) or "json" (re-encoded from the JSON channels)
+    bad_json: int = 0  # JSON messages that did not validate (should be 0)
+
+    @property
+    def fleet(self) -> str | None:
+        """The fleet recorded (from the metadata, else from the keys)."""
+        fleet = self.info.get("fleet")
+        if fleet:
+            return fleet
+        for ev in self.events:
+            info = keys.parse_key(ev.key)
+            if info is not None:
+                return info.fleet
+        return None
+
+    def mono_s(self, log_ns: int) -> float | None:
+        """A log time as the recorder host's ``time.monotonic()`` (None without anchors)."""
+        try:
+            wall0 = int(self.info["wall_anchor_ns"])
+            mono0 = int(self.info["monotonic_anchor_ns"])
+        except (KeyError, ValueError):
+            return None
+        return (log_ns - wall0 + mono0) / 1e9
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read an MCAP recording sequentially (works on a file without footer).
+
+    Samples come from the ``/raw/`` msgpack channels when the file has them, else from the JSON
+    channels, re-encoded with ``bus_schemas.encode`` (lossless for every known field).
+    Raises ``ReportError`` if the file is not MCAP, ``OSError`` if it cannot be read.
+    """
+    path = Path(path)
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    metadata: dict[str, dict[str, str]] = {}
+    topics: dict[str, int] = {}
+    raw_msgs: list[tuple[int, str, bytes]] = []
+    json_msgs: list[tuple[int, str, bytes, str]] = []  # log_ns, topic, data, schema name
+    complete = False
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False).records:
+                if isinstance(record, Message):
+                    ch = channels.get(record.channel_id)
+                    if ch is None:
+                        continue
+                    topics[ch.topic] = topics.get(ch.topic, 0) + 1
+                    if ch.message_encoding == "msgpack" and ch.topic.startswith(RAW_PREFIX):
+                        raw_msgs.append((record.log_time, ch.topic[len(RAW_PREFIX) :], record.data))
+                    elif ch.message_encoding == "json":
+                        sch = schemas.get(ch.schema_id)
+                        name = sch.name if sch is not None else ""
+                        json_msgs.append((record.log_time, ch.topic, record.data, name))
+                elif isinstance(record, Channel):
+                    channels.setdefault(record.id, record)
+                elif isinstance(record, Schema):
+                    schemas.setdefault(record.id, record)
+                elif isinstance(record, Metadata):
+                    metadata[record.name] = dict(record.metadata)
+                elif isinstance(record, Footer):
+                    complete = True
+        except Exception as exc:  # McapError, EOFError, struct.error... on a torn or alien file
+            if not channels and not metadata:
+                raise ReportError(f"{path}: not an MCAP recording ({exc})") from exc
+            # else: cut short (recorder killed): keep what was read
+
+    events: list[Event] = []
+    bad = 0
+    use_raw = bool(raw_msgs)
+    for log_ns, key, data in raw_msgs:
+        events.append(Event(log_ns, key, payload=data))
+    for log_ns, topic, data, schema_name in json_msgs:
+        key = topic[1:]
+        if schema_name == "formation.Liveliness":
+            try:
+                body = json.loads(data)
+                events.append(Event(log_ns, key, alive=bool(body["alive"])))
+            except (ValueError, KeyError, TypeError):
+                bad += 1
+            continue
+        if use_raw:
+            continue
+        cls = message_type_for_key(key)
+        if cls is None:
+            continue  # derived, rejected, unknown keys: not bus messages the collector reads
+        try:
+            obj = json.loads(data)
+        except ValueError:
+            bad += 1
+            continue
+        msg = from_map(obj, cls) if isinstance(obj, dict) else None
+        if msg is None or isinstance(msg, DecodeError):
+            bad += 1
+            continue
+        events.append(Event(log_ns, key, payload=encode(msg)))
+    # Arrival order: the recorder wrote in arrival order with non-decreasing log times; a stable
+    # sort keeps file order among equal times and interleaves the raw and liveliness channels.
+    events.sort(key=lambda e: e.log_ns)
+    return Recording(
+        path=path,
+        info=metadata.get(METADATA_NAME, {}),
+        run=metadata.get(RUN_METADATA_NAME, {}),
+        stats=metadata.get(STATS_METADATA_NAME, {}),
+        events=events,
+        topics=topics,
+        complete=complete,
+        source="raw" if use_raw else "json",
+        bad_json=bad,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Replaying it into the collector
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class LivenessChange:
+    """A liveliness change, placed on the run's bus clock."""
+
+    key: str
+    alive: bool
+    bus_t: float | None  # sim time (lockstep) or publisher monotonic (realtime); None: before
+    leader: str | None  # robot holding slot 0 (latest assignment) when it happened
+    alive_after: frozenset[str]  # liveliness keys present right after it
+
+
+@dataclass
+class Replay:
+    """What feeding a recording to a collector produced besides the collector's own state."""
+
+    lockstep: bool
+    changes: list[LivenessChange] = field(default_factory=list)
+    latency: list[LatencySample] = field(default_factory=list)
+    truth_t: dict[float, set[str]] = field(default_factory=dict)  # bus t -> robots with truth
+
+
+def _natural(rid: str) -> tuple[str, int, str]:
+    head = rid.rstrip("0123456789")
+    tail = rid[len(head) :]
+    return (head, int(tail) if tail else -1, rid)
+
+
+def _dt_from_clock(rec: Recording) -> float | None:
+    """The lockstep tick from the clock messages (``t / tick``), or None without them."""
+    ratios: list[float] = []
+    for ev in rec.events:
+        if ev.payload is None or not ev.key.endswith("/" + keys.CLOCK):
+            continue
+        clock = decode(ev.payload, Clock)
+        if not isinstance(clock, DecodeError) and clock.tick > 0:
+            ratios.append(clock.t / clock.tick)
+            if len(ratios) >= 50:
+                break
+    return float(np.median(ratios)) if ratios else None
+
+
+def _has_clock(rec: Recording, fleet: str) -> bool:
+    clock_key = keys.clock_key(fleet)
+    return any(ev.key == clock_key for ev in rec.events)
+
+
+def scenario_of(rec: Recording, override: str | None = None) -> scenario_mod.Scenario | None:
+    """The run's scenario: ``override`` (name or file), else the one embedded by the recorder."""
+    if override is not None:
+        return scenario_mod.load(override)
+    text = rec.run.get("scenario_toml")
+    if text:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ReportError(f"embedded scenario is not valid TOML: {exc}") from exc
+        return scenario_mod.parse(data, source=f"{rec.path} (embedded)")
+    return None
+
+
+def make_collector(
+    rec: Recording, fleet: str, scn: scenario_mod.Scenario | None, lockstep: bool
+) -> RunCollector:
+    """The collector ``formation up`` would have built for this run."""
+    if scn is not None:
+        return RunCollector.for_scenario(scn, fleet=fleet, lockstep=lockstep)
+    robots: set[str] = set()
+    for ev in rec.events:
+        parsed = keys.parse_robot_key(ev.key)
+        if parsed is not None and parsed[2] == keys.TRUTH and parsed[0] == fleet:
+            robots.add(parsed[1])
+    if not robots:
+        raise ReportError(f"{rec.path}: no truth of fleet {fleet!r} in the recording")
+    dt = _dt_from_clock(rec) if lockstep else None
+    if lockstep and dt is None:
+        raise ReportError(f"{rec.path}: lockstep run but no clock tick > 0 to get dt from")
+    geom = RobotGeometry()
+    return RunCollector(
+        sorted(robots, key=_natural),
+        slot_ids=None,
+        fleet=fleet,
+        dt_s=dt,
+        ref_offset_m=geom.ref_offset_m,
+        body_radius_m=geom.body_radius_m,
+    )
+
+
+def replay(rec: Recording, collector: RunCollector, lockstep: bool) -> Replay:
+    """Feed every event to ``collector`` in arrival order; track liveliness, leader, latency."""
+    out = Replay(lockstep=lockstep)
+    fleet = collector.fleet
+    clock_key = keys.clock_key(fleet)
+    assignment_key = keys.assignment_key(fleet)
+    tracker = LatencyTracker()
+    if lockstep:
+        tracker.on_clock()
+    alive: set[str] = set()
+    leader: str | None = None
+    last_clock_t: float | None = None
+    last_truth: tuple[float, int] | None = None  # (bus t, log_ns)
+    for ev in rec.events:
+        if ev.alive is not None:
+            collector.feed_alive(ev.key, ev.alive)
+            if ev.alive:
+                alive.add(ev.key)
+            else:
+                alive.discard(ev.key)
+            bus_t: float | None
+            if lockstep:
+                bus_t = last_clock_t
+            elif last_truth is not None:
+                bus_t = last_truth[0] + (ev.log_ns - last_truth[1]) / 1e9
+            else:
+                bus_t = None
+            out.changes.append(LivenessChange(ev.key, ev.alive, bus_t, leader, frozenset(alive)))
+            continue
+        if ev.payload is None:
+            continue
+        collector.feed(ev.key, ev.payload)
+        parsed = keys.parse_robot_key(ev.key)
+        if parsed is not None:
+            if parsed[0] != fleet:
+                continue
+            rid, leaf = parsed[1], parsed[2]
+            rx_s = rec.mono_s(ev.log_ns)
+            rx = ev.log_ns / 1e9 if rx_s is None else rx_s
+            if leaf == keys.TRUTH:
+                truth = decode(ev.payload, Truth)
+                if not isinstance(truth, DecodeError):
+                    out.truth_t.setdefault(truth.t, set()).add(rid)
+                    if last_truth is None or truth.t >= last_truth[0]:
+                        last_truth = (truth.t, ev.log_ns)
+            elif leaf == keys.POSE:
+                pose = decode(ev.payload, Pose)
+                if not isinstance(pose, DecodeError):
+                    tracker.on_pose(rid, pose.t, rx)
+            elif leaf == keys.WHEELS:
+                wheels = decode(ev.payload, Wheels)
+                if not isinstance(wheels, DecodeError):
+                    sample = tracker.on_wheels(rid, wheels, rx)
+                    if sample is not None:
+                        if rx_s is None and not lockstep:  # no anchors: the age is meaningless
+                            sample = LatencySample(
+                                sample.robot, sample.t, sample.pose_t, sample.rx_latency_s, math.nan
+                            )
+                        out.latency.append(sample)
+        elif ev.key == clock_key:
+            clock = decode(ev.payload, Clock)
+            if not isinstance(clock, DecodeError):
+                last_clock_t = clock.t
+        elif ev.key == assignment_key:
+            assignment = decode(ev.payload, Assignment)
+            if not isinstance(assignment, DecodeError):
+                leader = assignment.leader
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Extra metrics
+# --------------------------------------------------------------------------------------------
+
+
+def _percentiles(values: Sequence[float]) -> dict[str, Any]:
+    arr = np.asarray([v for v in values if math.isfinite(v)], dtype=float)
+    if arr.size == 0:
+        return {"n": 0, "p50": None, "p99": None, "max": None, "mean": None}
+    return {
+        "n": int(arr.size),
+        "p50": float(np.percentile(arr, 50)),
+        "p99": float(np.percentile(arr, 99)),
+        "max": float(arr.max()),
+        "mean": float(arr.mean()),
+    }
+
+
+def latency_stats(samples: Iterable[LatencySample], lockstep: bool) -> dict[str, Any]:
+    """p50/p99/max/mean of ``rx_latency_ms`` and ``pose_age_ms``, overall and per robot."""
+    by_robot: dict[str, list[LatencySample]] = {}
+    for s in samples:
+        by_robot.setdefault(s.robot, []).append(s)
+
+    def block(items: list[LatencySample]) -> dict[str, Any]:
+        rx = [s.rx_latency_s * 1e3 for s in items if s.rx_latency_s is not None]
+        age = [s.pose_age_s * 1e3 for s in items]
+        return {
+            "rx_latency_ms": _percentiles(rx),
+            "pose_age_ms": _percentiles(age),
+            "commands": len(items),
+            "unmatched": sum(s.rx_latency_s is None for s in items),
+        }
+
+    every = [s for items in by_robot.values() for s in items]
+    return {
+        "clock": "lockstep: pose_age in sim time" if lockstep else "realtime: monotonic",
+        **block(every),
+        "robots": {rid: block(by_robot[rid]) for rid in sorted(by_robot, key=_natural)},
+    }
+
+
+def power_peaks(log: RunLog) -> dict[str, Any]:
+    """Per robot and wheel: peak |power| (fraction of max), its time (s), share of saturated
+    ticks (|power| >= 0.999)."""
+    out: dict[str, Any] = {}
+    if log.t_s.size == 0:
+        return out
+    for j, rid in enumerate(log.robot_ids):
+        wheels: dict[str, Any] = {}
+        for w, name in enumerate(("right", "left")):
+            p = np.abs(log.power[:, j, w])
+            k = int(np.argmax(p))
+            wheels[name] = {
+                "peak": float(p[k]),
+                "t_s": float(log.t_s[k]),
+                "saturated_fraction": float(np.mean(p >= SATURATED_POWER)),
+            }
+        out[rid] = wheels
+    return out
+
+
+def _t0_bus(rp: Replay, robot_ids: Sequence[str]) -> float | None:
+    """Realtime: the bus time of the log's first row (first frame after which every robot has
+    been seen), the collector's default origin."""
+    seen: set[str] = set()
+    for t in sorted(rp.truth_t):
+        seen |= rp.truth_t[t]
+        if seen.issuperset(robot_ids):
+            return t
+    return None
+
+
+def leader_losses(
+    log: RunLog, rp: Replay, fleet: str, tol_m: float, dt_s: float | None
+) -> list[dict[str, Any]]:
+    """Every loss of the leader's liveliness token during the run, with its recovery time.
+
+    Recovery: from the loss to the moment after which the formation error of every remaining
+    (alive) robot stays <= ``tol_m`` until the next loss or the end of the log (None: never).
+    """
+    if log.t_s.size == 0:
+        return []
+    if rp.lockstep:
+        origin = 0.0
+    else:
+        t0 = _t0_bus(rp, log.robot_ids)
+        if t0 is None:
+            return []
+        origin = t0
+    robot_alive_prefix = keys.alive_robots_pattern(fleet)[:-1]  # ".../alive/robot/"
+    plant_key = keys.alive_plant_key(fleet)
+    losses: list[tuple[float, str, LivenessChange]] = []
+    for ch in rp.changes:
+        if ch.alive or ch.bus_t is None or not ch.key.startswith(robot_alive_prefix):
+            continue
+        robot = ch.key[len(robot_alive_prefix) :]
+        if robot != ch.leader:
+            continue
+        t_loss = ch.bus_t - origin
+        if float(log.t_s[-1]) - t_loss < MIN_RUN_AFTER_LOSS_S or plant_key not in ch.alive_after:
+            continue  # shutdown, not a loss during the run
+        losses.append((t_loss, robot, ch))
+    err = metrics_mod.formation_error(log)
+    out: list[dict[str, Any]] = []
+    for n, (t_loss, robot, ch) in enumerate(losses):
+        t_end = losses[n + 1][0] if n + 1 < len(losses) else math.inf
+        rows = (log.t_s >= t_loss - 1e-9) & (log.t_s < t_end)
+        remaining = [
+            j
+            for j, rid in enumerate(log.robot_ids)
+            if rid != robot and (robot_alive_prefix + rid) in ch.alive_after
+        ]
+        entry: dict[str, Any] = {
+            "robot": robot,
+            "t_s": round(t_loss, 6),
+            "remaining": [log.robot_ids[j] for j in remaining],
+            "recovery_s": None,
+            "recovered_at_s": None,
+            "peak_error_m": None,
+            "new_leader": None,
+        }
+        if rows.any() and remaining:
+            seg = err[rows][:, remaining]
+            finite = np.isfinite(seg)
+            worst = np.where(
+                finite.any(axis=1), np.nanmax(np.where(finite, seg, -np.inf), 1), np.nan
+            )
+            t_seg = log.t_s[rows]
+            settled = metrics_mod.settling_time(t_seg, worst, tol_m)
+            if settled is not None:
+                entry["recovered_at_s"] = round(settled, 6)
+                entry["recovery_s"] = round(settled - t_loss, 6)
+            if np.isfinite(worst).any():
+                entry["peak_error_m"] = float(np.nanmax(worst))
+            last = np.flatnonzero(rows)[-1]
+            holders = np.flatnonzero(log.slot_of[last] == 0)
+            entry["new_leader"] = log.robot_ids[int(holders[0])] if holders.size else None
+        if dt_s is not None:
+            entry["tick"] = round(t_loss / dt_s)
+        out.append(entry)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The report
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Report:
+    """A recording measured: the RunLog and the metrics dictionary written as metrics.json."""
+
+    recording: Recording
+    log: RunLog
+    metrics: dict[str, Any]
+    settle_s: float
+    tol_m: float
+    title: str
+
+
+def analyze(
+    rec: Recording,
+    *,
+    scenario: str | None = None,
+    settle_s: float | None = None,
+    tol_m: float | None = None,
+) -> Report:
+    """Build the RunLog through the collector and compute every metric (see module docstring).
+
+    ``settle_s`` defaults to the live run's (``formation.run`` metadata), else the scenario's
+    (half the run if that is longer than the run), else half the run; ``tol_m`` to the
+    scenario's ``settle_tol_m``, else 0.05 m.
+    """
+    fleet = rec.fleet
+    if fleet is None:
+        raise ReportError(f"{rec.path}: no fleet traffic in the recording")
+    scn = scenario_of(rec, scenario)
+    lockstep_meta = rec.run.get("lockstep")
+    lockstep = lockstep_meta == "true" if lockstep_meta else _has_clock(rec, fleet)
+    collector = make_collector(rec, fleet, scn, lockstep)
+    rp = replay(rec, collector, lockstep)
+    meta: dict[str, Any] = {
+        "scenario": scn.name if scn is not None else None,
+        "mode": "lockstep" if lockstep else "realtime",
+        "dt_s": collector.dt_s if lockstep else (scn.dt_s if scn is not None else None),
+        "fleet": fleet,
+        "source": "recording",
+    }
+    for name in ("seed", "duration_s"):
+        if name in rec.run:
+            meta[name] = rec.run[name]
+    log = collector.build(meta)
+    if log.t_s.size == 0:
+        raise ReportError(f"{rec.path}: no complete truth frame of fleet {fleet!r}")
+    duration = float(log.t_s[-1] - log.t_s[0])
+    if settle_s is None:
+        if "settle_s" in rec.run:
+            settle_s = float(rec.run["settle_s"])
+        elif scn is not None:
+            settle_s = scn.settle_s if scn.settle_s < duration else duration / 2.0
+        else:
+            settle_s = duration / 2.0
+    if tol_m is None:
+        tol_m = scn.settle_tol_m if scn is not None else 0.05
+    m = metrics_mod.compute(log, settle_s, tol_m)
+    m["leader_loss"] = leader_losses(log, rp, fleet, tol_m, collector.dt_s)
+    m["latency"] = latency_stats(rp.latency, lockstep)
+    m["power_peaks"] = power_peaks(log)
+    m["recording"] = {
+        "file": str(rec.path),
+        "complete": rec.complete,
+        "source": rec.source,
+        "events": len(rec.events),
+        "topics": len(rec.topics),
+        "messages": sum(rec.topics.values()),
+        "bad_json": rec.bad_json,
+        "recorder": dict(rec.stats),
+        "liveliness_changes": len(rp.changes),
+    }
+    name = scn.name if scn is not None else rec.path.stem
+    title = f"{name} (recording, {meta['mode']}): reference points (solid), virtual (dashed)"
+    return Report(rec, log, m, settle_s, tol_m, title)
+
+
+def write(report: Report, out_dir: Path, *, figures: bool = True) -> list[Path]:
+    """Write metrics.json (and the figures) to ``out_dir``; return the files written."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "metrics.json"
+    path.write_text(json.dumps(report.metrics, indent=2, sort_keys=True) + "\n")
+    written = [path]
+    if figures:
+        from formation import figures as fig_mod
+
+        written += fig_mod.write_all(report.log, out_dir, report.title, report.settle_s)
+    return written
+
+
+def summary(m: dict[str, Any]) -> str:
+    """Human-readable summary: the simulator's table plus leader loss and latency lines."""
+    from formation.sim_cli import summary as sim_summary
+
+    lines = [sim_summary(m)]
+    for loss in m.get("leader_loss", []):
+        rec = loss["recovery_s"]
+        lines.append(
+            f"leader {loss['robot']} lost at {loss['t_s']:.2f} s: "
+            + (f"recovered in {rec:.2f} s" if rec is not None else "never recovered")
+            + f", new leader {loss['new_leader']}"
+        )
+    lat = m.get("latency", {})
+    rx, age = lat.get("rx_latency_ms", {}), lat.get("pose_age_ms", {})
+    if rx.get("n"):
+        lines.append(
+            f"pose->wheels latency p50 {rx['p50']:.2f} ms, p99 {rx['p99']:.2f} ms "
+            f"({rx['n']} commands); pose age p50 {age['p50']:.1f} ms, p99 {age['p99']:.1f} ms"
+        )
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation report`` argument parser."""
+    p = argparse.ArgumentParser(
+        prog="formation report",
+        description="Metrics (formation error, settling, leader-loss recovery, latency, motor "
+        "power) and the paper's figures from an MCAP recording.",
+    )
+    p.add_argument("file", type=Path, help="MCAP file from `formation record` / `up --record`")
+    p.add_argument("--out", type=Path, default=None, help="output folder (<file>-report/)")
+    p.add_argument("--settle", type=float, default=None, metavar="S", help="settling time (s)")
+    p.add_argument("--tol", type=float, default=None, metavar="M", help="error band (m)")
+    p.add_argument("--scenario", default=None, help="scenario of the run (overrides the file's)")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    return p
+
+
+def main(argv: list[str]) -> int:
+    """``formation report``: 0 on success, 1 if the file cannot be used, 2 for bad arguments."""
+    args = build_parser().parse_args(argv)
+    if args.settle is not None and not (args.settle >= 0 and math.isfinite(args.settle)):
+        print("formation report: --settle must be >= 0", file=sys.stderr)
+        return 2
+    if args.tol is not None and not (args.tol > 0 and math.isfinite(args.tol)):
+        print("formation report: --tol must be > 0", file=sys.stderr)
+        return 2
+    try:
+        rec = read_recording(args.file)
+        report = analyze(rec, scenario=args.scenario, settle_s=args.settle, tol_m=args.tol)
+    except (OSError, ReportError, scenario_mod.ScenarioError) as exc:
+        print(f"formation report: {exc}", file=sys.stderr)
+        return 1
+    out = args.out if args.out is not None else args.file.with_name(args.file.stem + "-report")
+    write(report, out, figures=not args.no_figures)
+    if not args.quiet:
+        print(summary(report.metrics))
+        if not rec.complete:
+            print("note: the recording has no footer (recorder killed?); read what was complete")
+        print(f"metrics{'' if args.no_figures else ' and figures'} in {out}/")
+    return 0

@@ -1,0 +1,290 @@
+"""``formation top``: live status table of a fleet, from any machine that reaches its Zenoh.
+
+Usage::
+
+    formation top [--fleet demo] [--once] [--period S] [--endpoint tcp/HOST:7447 ...]
+
+One row per robot (every robot seen in a key or a liveliness token): liveliness, assigned slot
+and role (the coordinator's ``assignment`` and ``slot/<k>``), firmware mode and tracking error
+(the agent's ``status``: hypot(ex, ey), eqs 17-18), message rates per key over the last
+``--window`` seconds (pose, setpoint, wheels, status, truth), the agent's count of rejected
+messages, and the age of its last message. A header says who is alive (plant, coordinators),
+who leads, and the latest clock tick (lockstep). Redrawn every ``--period`` seconds (0.5) on a
+terminal; ``--once`` prints one table after ``--wait`` seconds (1.5) and exits 0, for scripts
+and tests. Only subscribes: it never publishes, so it is safe on a live fleet.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import math
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Final
+
+from bus_schemas import (
+    Assignment,
+    Clock,
+    DecodeError,
+    Slot,
+    Status,
+    keys,
+)
+from bus_schemas import transport as tp
+from formation.record import BusItem, BusTap, alive_kind, decode_sample
+
+RATE_LEAVES: Final = (keys.POSE, keys.SETPOINT, keys.WHEELS, keys.STATUS, keys.TRUTH)
+"""Per-robot keys whose message rate is shown, in column order."""
+_RATE_HEAD: Final = {
+    keys.POSE: "pose",
+    keys.SETPOINT: "setp",
+    keys.WHEELS: "whl",
+    keys.STATUS: "stat",
+    keys.TRUTH: "truth",
+}
+CLEAR: Final = "\x1b[H\x1b[2J"
+
+
+def _natural(rid: str) -> tuple[str, int, str]:
+    head = rid.rstrip("0123456789")
+    tail = rid[len(head) :]
+    return (head, int(tail) if tail else -1, rid)
+
+
+@dataclass
+class RobotState:
+    """What the bus said last about one robot (receive times in monotonic ns)."""
+
+    alive: bool | None = None
+    status: Status | None = None
+    last_rx_ns: int | None = None
+    arrivals: dict[str, deque[int]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RobotRow:
+    """One line of the table."""
+
+    robot: str
+    alive: bool | None
+    slot: int | None
+    role: str | None
+    mode: str | None
+    error_m: float | None
+    rates_hz: dict[str, float]
+    rejected: int | None
+    age_s: float | None
+
+
+class FleetStatus:
+    """The fleet as seen on the bus: fed :class:`BusItem` s, read as :class:`RobotRow` s.
+
+    Thread-safe: :meth:`observe` runs on the tap's worker thread, :meth:`rows` / :meth:`render`
+    on the display's. No clock reads: times come with the items and the callers.
+    """
+
+    def __init__(self, fleet: str = keys.DEFAULT_FLEET, window_s: float = 2.0) -> None:
+        self.fleet = keys.check_fleet(fleet)
+        self.window_ns = int(window_s * 1e9)
+        self.robots: dict[str, RobotState] = {}
+        self.assignment: Assignment | None = None
+        self.slot_roles: dict[int, str] = {}
+        self.tick: int | None = None
+        self.others: dict[str, bool] = {}  # "plant", "coordinator/<name>" -> alive
+        self.samples = 0
+        self.rejected = 0
+        self._first_rx_ns: int | None = None  # rates over min(window, time listened)
+        self._lock = threading.Lock()
+
+    def _robot(self, rid: str) -> RobotState:
+        st = self.robots.get(rid)
+        if st is None:
+            st = self.robots[rid] = RobotState()
+        return st
+
+    def observe(self, item: BusItem) -> None:
+        """Take one bus observation."""
+        with self._lock:
+            if item.kind in ("alive", "dead"):
+                kind, ident = alive_kind(item.key)
+                alive = item.kind == "alive"
+                if kind == "robot" and ident is not None:
+                    self._robot(ident).alive = alive
+                elif kind != "other":
+                    self.others[kind if ident is None else f"{kind}/{ident}"] = alive
+                return
+            if item.kind != "put":
+                return
+            self.samples += 1
+            if self._first_rx_ns is None:
+                self._first_rx_ns = item.rx_ns
+            parsed = keys.parse_robot_key(item.key)
+            if parsed is not None:
+                st = self._robot(parsed[1])
+                st.last_rx_ns = item.rx_ns
+                q = st.arrivals.setdefault(parsed[2], deque())
+                q.append(item.rx_ns)
+                while q and item.rx_ns - q[0] > self.window_ns:
+                    q.popleft()
+                if parsed[2] != keys.STATUS:
+                    return  # rates only: no need to decode poses, wheels, ...
+            decoded = decode_sample(item.key, item.payload)
+            if decoded is None:
+                return
+            if isinstance(decoded, DecodeError):
+                self.rejected += 1
+                return
+            msg = decoded.msg
+            if isinstance(msg, Status) and parsed is not None:
+                self._robot(parsed[1]).status = msg
+            elif isinstance(msg, Assignment):
+                self.assignment = msg
+            elif isinstance(msg, Slot):
+                self.slot_roles[msg.slot] = msg.role
+            elif isinstance(msg, Clock):
+                self.tick = msg.tick
+
+    def rows(self, now_ns: int) -> list[RobotRow]:
+        """The table's rows at ``now_ns`` (monotonic ns), robots in natural order."""
+        with self._lock:
+            out: list[RobotRow] = []
+            robots_slots = dict(self.assignment.robots) if self.assignment is not None else {}
+            listened_ns = now_ns - (self._first_rx_ns if self._first_rx_ns is not None else now_ns)
+            span_s = min(self.window_ns, max(listened_ns, 1)) / 1e9
+            for rid in sorted(self.robots, key=_natural):
+                st = self.robots[rid]
+                s = st.status
+                slot = robots_slots.get(rid, s.slot if s is not None else None)
+                role = self.slot_roles.get(slot) if slot is not None else None
+                if role is None and s is not None:
+                    role = s.role
+                err = None
+                if s is not None and s.ex is not None and s.ey is not None:
+                    err = math.hypot(s.ex, s.ey)
+                rates: dict[str, float] = {}
+                for leaf in RATE_LEAVES:
+                    q = st.arrivals.get(leaf)
+                    recent = [t for t in q if now_ns - t <= self.window_ns] if q else []
+                    rates[leaf] = len(recent) / span_s
+                out.append(
+                    RobotRow(
+                        robot=rid,
+                        alive=st.alive,
+                        slot=slot,
+                        role=role,
+                        mode=s.mode if s is not None else None,
+                        error_m=err,
+                        rates_hz=rates,
+                        rejected=s.rejected if s is not None else None,
+                        age_s=None if st.last_rx_ns is None else (now_ns - st.last_rx_ns) / 1e9,
+                    )
+                )
+            return out
+
+    def header(self) -> str:
+        """One line: fleet, plant/coordinators alive, leader, tick, samples."""
+        with self._lock:
+            parts = [f"fleet {self.fleet}"]
+            for name in sorted(self.others):
+                parts.append(f"{name} {'up' if self.others[name] else 'DOWN'}")
+            leader = self.assignment.leader if self.assignment is not None else None
+            parts.append(f"leader {leader or '-'}")
+            if self.tick is not None:
+                parts.append(f"tick {self.tick}")
+            parts.append(f"{self.samples} samples")
+            if self.rejected:
+                parts.append(f"{self.rejected} rejected here")
+            return ", ".join(parts)
+
+    def render(self, now_ns: int) -> str:
+        """The whole table as text."""
+        rows = self.rows(now_ns)
+        rate_cols = "".join(f"{_RATE_HEAD[leaf]:>7}" for leaf in RATE_LEAVES)
+        lines = [
+            self.header(),
+            f"{'robot':<8}{'alive':<7}{'slot':>5} {'role':<10}{'mode':<9}{'err cm':>8}"
+            f"{rate_cols}{'rej':>6}{'age s':>7}",
+        ]
+        for r in rows:
+            alive = {True: "yes", False: "LOST", None: "?"}[r.alive]
+            slot = "-" if r.slot is None else str(r.slot)
+            err = "-" if r.error_m is None else f"{r.error_m * 100:.1f}"
+            rates = "".join(f"{r.rates_hz[leaf]:>7.1f}" for leaf in RATE_LEAVES)
+            rej = "-" if r.rejected is None else str(r.rejected)
+            age = "-" if r.age_s is None else f"{r.age_s:.1f}"
+            lines.append(
+                f"{r.robot:<8}{alive:<7}{slot:>5} {r.role or '-':<10}{r.mode or '-':<9}{err:>8}"
+                f"{rates}{rej:>6}{age:>7}"
+            )
+        if not rows:
+            lines.append("(no robots seen yet)")
+        lines.append(f"rates in Hz over the last {self.window_ns / 1e9:g} s")
+        return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation top`` argument parser."""
+    p = argparse.ArgumentParser(
+        prog="formation top",
+        description="Live status table of a fleet (robots, roles, modes, tracking error, "
+        "message rates, rejects, liveliness) from anywhere on its Zenoh network.",
+    )
+    p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (default demo)")
+    p.add_argument("--once", action="store_true", help="print one table after --wait s, exit")
+    p.add_argument("--wait", type=float, default=1.5, metavar="S", help="--once: listen S s")
+    p.add_argument("--period", type=float, default=0.5, metavar="S", help="redraw period (s)")
+    p.add_argument("--window", type=float, default=2.0, metavar="S", help="rate window (s)")
+    tp.add_zenoh_arguments(p)
+    return p
+
+
+def main(argv: Sequence[str]) -> int:
+    """``formation top``: 0 on a clean stop, 1 if the session cannot open, 2 on bad args."""
+    args = build_parser().parse_args(list(argv))
+    try:
+        keys.check_fleet(args.fleet)
+    except ValueError as exc:
+        print(f"formation top: {exc}", file=sys.stderr)
+        return 2
+    for name in ("wait", "period", "window"):
+        value = getattr(args, name)
+        if not (value > 0 and math.isfinite(value)):
+            print(f"formation top: --{name} must be > 0", file=sys.stderr)
+            return 2
+    settings = tp.settings_from_args(args)
+    interactive = sys.stdout.isatty() and not args.once
+
+    async def node(stop: asyncio.Event) -> int:
+        try:
+            session = await tp.open_session_async(settings)
+        except tp.TransportError as exc:
+            print(f"formation top: {exc}", file=sys.stderr)
+            return 1
+        status = FleetStatus(args.fleet, args.window)
+        tap: BusTap | None = None
+        try:
+            tap = BusTap(session, args.fleet, status.observe, name="top")
+            if args.once:
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), timeout=args.wait)
+                print(status.render(time.monotonic_ns()), flush=True)
+                return 0
+            while not stop.is_set():
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), timeout=args.period)
+                text = status.render(time.monotonic_ns())
+                sys.stdout.write((CLEAR if interactive else "\n") + text + "\n")
+                sys.stdout.flush()
+            return 0
+        finally:
+            if tap is not None:
+                await asyncio.to_thread(tap.close)
+            session.close()
+
+    return tp.run_node(node)

@@ -1,0 +1,793 @@
+"""``formation plant``: the simulated robots, camera and radio link as a process.
+
+Usage::
+
+    formation plant --scenario NAME|FILE [--fleet demo] [--seed N] [--lockstep]
+                    [--lockstep-timeout 2.0] [--physics-hz 100] [--duration S] [--wait-robots]
+                    [zenoh options]
+
+A thin asyncio shell over :class:`sim_plant.plant.Plant`, :class:`sim_plant.sensors.Camera`,
+:class:`sim_plant.sensors.CommandLink` and :class:`sim_plant.accounting.SeparationMonitor`, built
+from the scenario exactly like ``formation/simulate.py`` builds them (one
+``numpy.random.default_rng(seed)`` shared by camera and link, the same order of random draws), so
+a lockstep run over the bus reproduces the in-process run. It prints exactly one line
+``plant ready`` once its session is open, its subscriptions and its liveliness token
+``formation/<fleet>/alive/plant`` are declared, and exits 0 within a second of SIGINT/SIGTERM,
+or after ``--duration`` (sim time in lockstep, wall time in realtime).
+
+Theory of operation
+-------------------
+Outputs, per camera frame: one ``poses`` batch (``PoseBatch``, published first, so an agent that
+steps on its own pose already has its neighbours of the same frame), then ``robot/<id>/pose`` per
+robot (``t`` = capture time, ``robot`` set), each delivered after the camera latency; at every
+capture, ``robot/<id>/truth`` of every robot (truth decimated to the camera rate); every key has
+its own ``seq``. In lockstep also ``clock``.
+
+Inputs (decoded on the event loop; a bad message is counted in ``rejected`` and ignored):
+``robot/*/wheels`` of the scenario's robots, ``disturbance`` (drag / teleport a robot by id, at
+the next physics step; targets beyond :data:`ARENA_LIMIT_M` are rejected), liveliness of agents
+and coordinators, and in lockstep ``leader``. Every wheel command goes through the link model
+(latency, jitter, loss) before it acts. A robot whose agent token disappears has its wheels set to
+zero at once (a dead robot's motors stop) and commands still in flight for it are discarded;
+otherwise a robot keeps its last command (zero if none ever came).
+
+Realtime (default): ``t`` is ``time.monotonic()``; physics steps at ``--physics-hz`` and also
+whenever a camera frame is due to be taken or delivered, so frames keep the camera's rate and
+latency exactly; scheduled disturbances fire at start + ``t_s``; commands enter the link at their
+receive time.
+
+Lockstep (``--lockstep``, docs/runtime.md), per tick k at ``t_k = k * dt``: disturbances due;
+capture; publish truth and the poses due; publish ``clock {tick: k, t: t_k}``; wait until every
+live agent answered ``wheels`` with ``tick: k`` and, if a coordinator is alive, the ``leader``
+with ``tick: k`` (the clock is re-announced every :data:`REANNOUNCE_S` while waiting, for a
+participant that joined late; after ``--lockstep-timeout`` the tick goes on and the timeout is
+counted); then every robot's latest command goes through the link in robot order (which is what
+keeps the random stream identical to the simulator's); deliveries are applied; the plant
+integrates ``dt``.
+
+``--wait-robots``: the clock / physics start only once every scenario robot's token and a
+coordinator's token are present; the plant logs what it waits for and gives up with exit status 1
+after :data:`WAIT_ROBOTS_S`.
+
+Also published (not part of bus contract v1; a plain msgpack map any decoder reads):
+``formation/<fleet>/plant/status`` at 5 Hz: ``v``, ``t``, ``seq``, ``rejected``, ``rx`` (per
+input), ``mode``, ``state`` (``waiting`` / ``running`` / ``done``), ``tick``, ``sim_t``,
+``timeouts`` (lockstep), ``alive`` (robot ids), ``coordinators``, ``link_sent``,
+``link_dropped``, ``min_separation_m`` (nil before two robots), ``collisions``,
+``internal_errors``. A final one with ``state: done`` is sent when ``--duration`` ends the run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Final
+
+import msgpack
+import numpy as np
+import numpy.typing as npt
+
+from bus_schemas import (
+    MAX_LIST_LEN,
+    Clock,
+    DecodeError,
+    Disturbance,
+    Leader,
+    Pose,
+    PoseBatch,
+    Truth,
+    Wheels,
+    decode,
+    encode,
+    keys,
+)
+from bus_schemas import transport as tp
+from formation.scenario import Scenario, ScenarioError, load
+from robot_agent.node import NodeLog, payload_tick, subscribe_ordered
+from sim_plant.accounting import SeparationMonitor
+from sim_plant.plant import Plant
+from sim_plant.sensors import Camera, CommandLink
+
+__all__ = ["ARENA_LIMIT_M", "PlantNode", "build_parser", "main", "plant_status_key"]
+
+STATUS_PERIOD_S: Final = 0.2
+REANNOUNCE_S: Final = 0.25
+"""Lockstep: while waiting for answers the clock is published again this often (s)."""
+WAIT_ROBOTS_S: Final = 30.0
+"""--wait-robots gives up after this long (s)."""
+ARENA_LIMIT_M: Final = 1000.0
+"""A disturbance moving a robot (or by) more than this (m) is rejected as absurd."""
+MAX_DRAG_S: Final = 3600.0
+_DRAG: Final = "drag"
+
+# Per-robot command in the link: (generation, omega_r, omega_l). The generation of a robot is
+# bumped when its agent dies, so commands sent before that are discarded on delivery.
+LinkCmd = tuple[int, float, float]
+
+
+def plant_status_key(fleet: str) -> str:
+    """``formation/<fleet>/plant/status``: the plant's status map."""
+    return f"{keys.ROOT}/{keys.check_fleet(fleet)}/plant/status"
+
+
+@dataclass
+class _Sim:
+    """The numpy cores of one run (built when the run starts: realtime needs its t0)."""
+
+    plant: Plant
+    camera: Camera
+    link: CommandLink[LinkCmd]
+    monitor: SeparationMonitor
+    t0_s: float
+
+
+class PlantNode:
+    """State and handlers of the plant; Zenoh-free apart from the ``publish`` callable.
+
+    Handlers run on the event loop and never raise.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        fleet: str,
+        publish: Any,
+        *,
+        seed: int | None = None,
+        lockstep: bool = False,
+        lockstep_timeout_s: float = 2.0,
+        physics_hz: float = 100.0,
+        duration_s: float | None = None,
+        log: NodeLog | None = None,
+    ) -> None:
+        self.scenario = scenario
+        self.fleet = keys.check_fleet(fleet)
+        self.seed = scenario.seed if seed is None else seed
+        self.lockstep = lockstep
+        self.lockstep_timeout_s = lockstep_timeout_s
+        self.physics_period_s = 1.0 / physics_hz
+        self.duration_s = duration_s
+        self.log = log if log is not None else NodeLog("plant")
+        self._publish = publish
+
+        self.ids: list[str] = list(scenario.robot_ids)
+        self.n = len(self.ids)
+        self.index = {rid: i for i, rid in enumerate(self.ids)}
+        self.rng = np.random.default_rng(self.seed)
+        self.sim: _Sim | None = None
+
+        self.clock_key = keys.clock_key(fleet)
+        self.leader_key = keys.leader_key(fleet)
+        self.poses_key = keys.poses_key(fleet)
+        self.disturbance_key = keys.disturbance_key(fleet)
+        self.wheels_pattern = keys.all_wheels_pattern(fleet)
+        self.alive_robots_pattern = keys.alive_robots_pattern(fleet)
+        self.alive_coordinators_pattern = keys.alive_coordinators_pattern(fleet)
+        self.status_key = plant_status_key(fleet)
+        self.alive_key = keys.alive_plant_key(fleet)
+        self.pose_keys = [keys.pose_key(fleet, r) for r in self.ids]
+        self.truth_keys = [keys.truth_key(fleet, r) for r in self.ids]
+        # Lockstep: poses must precede the clock (same session, same priority) and arrive.
+        self.data_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_CONTROL
+        self.truth_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_TELEMETRY
+
+        self.alive: set[str] = set()
+        self.coordinators: set[str] = set()
+        self.last_cmd: npt.NDArray[np.float64] = np.zeros((self.n, 2))
+        self.applied: npt.NDArray[np.float64] = np.zeros((self.n, 2))
+        self.generation = [0] * self.n
+        self.answer_tick: list[int | None] = [None] * self.n
+        self.leader_tick: int | None = None
+        self.scheduled = deque(scenario.disturbances)
+        self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
+        self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
+
+        self.rejected = 0
+        self.internal_errors = 0
+        self.ignored = 0  # valid messages for robots this plant does not simulate
+        self.rx: dict[str, int] = {"wheels": 0, "disturbance": 0, "leader": 0, "alive": 0}
+        self.timeouts = 0
+        self.state = "waiting"
+        self.tick = -1
+        self.sim_t = 0.0
+        self._seq: dict[str, int] = {}
+
+    # -- bookkeeping ---------------------------------------------------------------------------
+
+    def _next_seq(self, key: str) -> int:
+        n = self._seq.get(key, 0) + 1
+        self._seq[key] = n
+        return n
+
+    def _reject(self, what: str, why: DecodeError | str) -> None:
+        self.rejected += 1
+        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+
+    def _internal(self, where: str, exc: BaseException) -> None:
+        self.internal_errors += 1
+        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+
+    def _now(self) -> float:
+        return self.sim_t if self.lockstep else time.monotonic()
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def on_alive_robot(self, key: str, alive: bool) -> None:
+        """An agent token appeared or vanished; a vanished agent's wheels stop at once."""
+        try:
+            self.rx["alive"] += 1
+            parsed = keys.parse_alive_key(key)
+            if parsed is None or parsed[2] is None or parsed[2] not in self.index:
+                return
+            rid = parsed[2]
+            i = self.index[rid]
+            if alive:
+                self.alive.add(rid)
+            elif rid in self.alive:
+                self.alive.discard(rid)
+                self.generation[i] += 1  # commands in flight for it are discarded
+                self.last_cmd[i] = 0.0
+                self.applied[i] = 0.0
+                self.answer_tick[i] = None
+                self.log.info(f"robot {rid}'s agent is gone: its wheels stop")
+            self.changed.set()
+        except Exception as exc:
+            self._internal("on_alive_robot", exc)
+
+    def on_alive_coordinator(self, key: str, alive: bool) -> None:
+        """A coordinator token appeared or vanished."""
+        try:
+            self.rx["alive"] += 1
+            parsed = keys.parse_alive_key(key)
+            if parsed is None or parsed[1] != "coordinator" or parsed[2] is None:
+                return
+            if alive:
+                self.coordinators.add(parsed[2])
+            else:
+                self.coordinators.discard(parsed[2])
+            self.changed.set()
+        except Exception as exc:
+            self._internal("on_alive_coordinator", exc)
+
+    def on_wheels(self, rx: tp.Received) -> None:
+        """A wheel command: into the link now (realtime) or at the tick's end (lockstep)."""
+        try:
+            self.rx["wheels"] += 1
+            parsed = keys.parse_robot_key(rx.key)
+            if parsed is None or parsed[2] != keys.WHEELS:
+                self._reject("wheels", f"not a wheels key: {rx.key[:100]!r}")
+                return
+            msg = decode(rx.payload, Wheels)
+            if isinstance(msg, DecodeError):
+                self._reject("wheels", msg)
+                return
+            i = self.index.get(parsed[1])
+            if i is None:
+                self.ignored += 1
+                return
+            self.last_cmd[i] = (msg.omega_r, msg.omega_l)
+            if self.lockstep:
+                if msg.tick is not None:
+                    self.answer_tick[i] = msg.tick
+                    if msg.tick == self.tick:
+                        self.changed.set()
+            elif self.sim is not None:
+                self.sim.link.send(rx.rx_s, i, (self.generation[i], msg.omega_r, msg.omega_l))
+        except Exception as exc:
+            self._internal("on_wheels", exc)
+
+    def on_leader(self, rx: tp.Received) -> None:
+        """Lockstep: the coordinator's leader message closes its answer to a tick."""
+        try:
+            self.rx["leader"] += 1
+            msg = decode(rx.payload, Leader)
+            if isinstance(msg, DecodeError):
+                self._reject("leader", msg)
+                return
+            tick = payload_tick(rx.payload)
+            if tick is None:
+                self._reject("leader", "lockstep leader without a valid tick")
+                return
+            self.leader_tick = tick
+            if tick == self.tick:
+                self.changed.set()
+        except Exception as exc:
+            self._internal("on_leader", exc)
+
+    def on_disturbance(self, rx: tp.Received) -> None:
+        """Drag or teleport a robot at the next physics step."""
+        try:
+            self.rx["disturbance"] += 1
+            msg = decode(rx.payload, Disturbance)
+            if isinstance(msg, DecodeError):
+                self._reject("disturbance", msg)
+                return
+            if msg.robot not in self.index:
+                self.ignored += 1
+                return
+            lim = ARENA_LIMIT_M
+            values = (msg.dx, msg.dy, msg.x or 0.0, msg.y or 0.0)
+            if any(abs(v) > lim for v in values) or msg.duration_s > MAX_DRAG_S:
+                self._reject("disturbance", f"beyond {lim} m or {MAX_DRAG_S} s")
+                return
+            self.bus_disturbances.append(msg)
+        except Exception as exc:
+            self._internal("on_disturbance", exc)
+
+    # -- the simulation ------------------------------------------------------------------------
+
+    def build(self, t0_s: float) -> _Sim:
+        """Build plant, camera, link and monitor as ``formation/simulate.py`` does, at ``t0_s``."""
+        sc = self.scenario
+        geom = sc.agent.geometry
+        plant = Plant(
+            np.array(sc.initial, dtype=float), geom, motor_tau_s=sc.plant.motor_tau_s, t0_s=t0_s
+        )
+        cam = sc.camera
+        camera = Camera(
+            self.n,
+            rate_hz=cam.rate_hz,
+            pos_std_m=cam.pos_std_m,
+            theta_std_rad=cam.theta_std_rad,
+            latency_s=cam.latency_s,
+            rng=self.rng,
+            t0_s=t0_s,
+        )
+        lk = sc.link
+        link: CommandLink[LinkCmd] = CommandLink(
+            latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=self.rng
+        )
+        self.sim = _Sim(plant, camera, link, SeparationMonitor(geom.body_radius_m), t0_s)
+        return self.sim
+
+    def _apply_disturbances(self, sim: _Sim, t_s: float) -> None:
+        """Scheduled disturbances due at ``t_s`` (simulator's rule), then those from the bus."""
+        plant = sim.plant
+        elapsed = t_s - sim.t0_s
+        while self.scheduled and self.scheduled[0].t_s <= elapsed + 1e-9:
+            d = self.scheduled.popleft()
+            i = self.index[d.robot]
+            try:
+                if d.kind == _DRAG:
+                    plant.drag(i, d.dx, d.dy, d.duration_s)
+                else:
+                    truth_i = plant.truth[i]
+                    plant.teleport(
+                        i,
+                        d.x if d.x is not None else float(truth_i[0]) + d.dx,
+                        d.y if d.y is not None else float(truth_i[1]) + d.dy,
+                        d.theta,
+                    )
+                self.log.info(f"t={t_s:.3f} s: scheduled {d.kind} of {d.robot}")
+            except (ValueError, IndexError) as exc:
+                self._internal("scheduled disturbance", exc)
+        while self.bus_disturbances:
+            m = self.bus_disturbances.popleft()
+            i = self.index[m.robot]
+            try:
+                if m.kind == _DRAG:
+                    plant.drag(i, m.dx, m.dy, m.duration_s)
+                else:
+                    assert m.x is not None and m.y is not None  # the schema's RequiredWhen rule
+                    plant.teleport(i, m.x, m.y, m.theta)
+                self.log.info(f"t={t_s:.3f} s: {m.kind} of {m.robot} from the bus")
+            except (ValueError, IndexError) as exc:
+                self._reject("disturbance", str(exc))
+
+    def _publish_truth(self, t_s: float, truth: npt.NDArray[np.float64]) -> None:
+        t = max(t_s, 0.0)
+        for i, row in enumerate(truth.tolist()):
+            key = self.truth_keys[i]
+            msg = Truth(
+                t=t, seq=self._next_seq(key), x=row[0], y=row[1], theta=row[2], robot=self.ids[i]
+            )
+            self._publish(key, encode(msg), self.truth_qos)
+
+    def _publish_frame(
+        self, t_s: float, stamp_t: float, rows: list[tuple[int, float, float, float, float]]
+    ) -> None:
+        """One camera frame: the batch first, then each robot's pose (``t`` = capture time)."""
+        stamp = max(stamp_t, 0.0)
+        for start in range(0, len(rows), MAX_LIST_LEN):
+            chunk = rows[start : start + MAX_LIST_LEN]
+            batch = PoseBatch(
+                t=max(t_s, 0.0),
+                seq=self._next_seq(self.poses_key),
+                robots=tuple(self.ids[r[0]] for r in chunk),
+                x=tuple(r[2] for r in chunk),
+                y=tuple(r[3] for r in chunk),
+                theta=tuple(r[4] for r in chunk),
+                stamp=stamp,
+            )
+            self._publish(self.poses_key, encode(batch), self.data_qos)
+        for i, _, x, y, theta in rows:
+            key = self.pose_keys[i]
+            msg = Pose(t=stamp, seq=self._next_seq(key), x=x, y=y, theta=theta, robot=self.ids[i])
+            self._publish(key, encode(msg), self.data_qos)
+
+    def publish_due_frames(self, sim: _Sim, t_s: float) -> None:
+        """Publish every camera frame delivered by ``t_s`` (``Camera.poll``, as the simulator)."""
+        due = sim.camera.poll(t_s)
+        start = 0
+        while start < len(due):  # oldest frame first; the entries of one frame share a stamp
+            stamp = due[start][1]
+            end = start + 1
+            while end < len(due) and due[end][1] == stamp:
+                end += 1
+            self._publish_frame(t_s, stamp, due[start:end])
+            start = end
+
+    def sense(self, sim: _Sim, t_s: float) -> npt.NDArray[np.float64]:
+        """Capture a frame if due (publishing truth), publish the frames due; returns truth."""
+        truth = sim.plant.truth
+        if sim.camera.capture(t_s, truth):
+            self._publish_truth(t_s, truth)
+        self.publish_due_frames(sim, t_s)
+        return truth
+
+    def _deliver(self, sim: _Sim, t_s: float) -> None:
+        gen = self.generation
+        for i, (g, wr, wl) in sim.link.poll(t_s):
+            if g == gen[i]:
+                self.applied[i, 0] = wr
+                self.applied[i, 1] = wl
+
+    # -- lockstep ------------------------------------------------------------------------------
+
+    def answered(self, k: int) -> bool:
+        """Every live agent answered tick ``k`` and, if a coordinator is alive, its leader."""
+        for rid in self.alive:
+            if self.answer_tick[self.index[rid]] != k:
+                return False
+        return not self.coordinators or self.leader_tick == k
+
+    def _publish_clock(self, k: int, t_s: float) -> None:
+        msg = Clock(t=t_s, seq=self._next_seq(self.clock_key), tick=k)
+        self._publish(self.clock_key, encode(msg), tp.QOS_CRITICAL)
+
+    async def _wait_answers(self, stop: asyncio.Event, k: int, t_s: float) -> None:
+        start = time.monotonic()
+        deadline = start + self.lockstep_timeout_s
+        next_announce = start + REANNOUNCE_S
+        while not self.answered(k):
+            if stop.is_set():
+                return
+            now = time.monotonic()
+            if now >= deadline:
+                self.timeouts += 1
+                missing = [r for r in sorted(self.alive) if self.answer_tick[self.index[r]] != k]
+                if self.coordinators and self.leader_tick != k:
+                    missing.append("coordinator")
+                self.log.limited(
+                    "timeout",
+                    f"tick {k}: no answer from {', '.join(missing)} within "
+                    f"{self.lockstep_timeout_s:g} s; going on ({self.timeouts} timeouts)",
+                )
+                return
+            if now >= next_announce:
+                self._publish_clock(k, t_s)
+                next_announce = now + REANNOUNCE_S
+            self.changed.clear()
+            try:
+                async with asyncio.timeout(min(deadline, next_announce) - now):
+                    await self.changed.wait()
+            except TimeoutError:
+                pass
+
+    async def run_lockstep(self, stop: asyncio.Event) -> bool:
+        """The lockstep loop; True when ``--duration`` ended it."""
+        sim = self.build(0.0)
+        dt = self.scenario.dt_s
+        ticks = None if self.duration_s is None else round(self.duration_s / dt) + 1
+        k = 0
+        while not stop.is_set() and (ticks is None or k < ticks):
+            try:
+                t = k * dt
+                self.tick = k
+                self.sim_t = t
+                self._apply_disturbances(sim, t)
+                truth = self.sense(sim, t)
+                self._publish_clock(k, t)
+                await self._wait_answers(stop, k, t)
+                if stop.is_set():
+                    break
+                gen = self.generation
+                for i in range(self.n):
+                    sim.link.send(
+                        t, i, (gen[i], float(self.last_cmd[i, 0]), float(self.last_cmd[i, 1]))
+                    )
+                self._deliver(sim, t)
+                sim.monitor.update(t, truth)
+                sim.plant.step(dt, self.applied)
+            except Exception as exc:  # a bug: log it, keep the clock going
+                self._internal("lockstep tick", exc)
+                await asyncio.sleep(0)
+            k += 1
+        return ticks is not None and k >= ticks
+
+    # -- realtime ------------------------------------------------------------------------------
+
+    async def run_realtime(self, stop: asyncio.Event) -> bool:
+        """The realtime loop; True when ``--duration`` ended it."""
+        t0 = time.monotonic()
+        sim = self.build(t0)
+        end = math.inf if self.duration_s is None else t0 + self.duration_s
+        period = self.physics_period_s
+        next_phys = t0
+        latency = sim.camera.latency_s
+        deliveries: deque[float] = deque()
+        while not stop.is_set():
+            now = time.monotonic()
+            if now >= end:
+                return True
+            try:
+                self.sim_t = now
+                if now > sim.plant.t_s:
+                    sim.plant.step(now - sim.plant.t_s, self.applied)
+                self._apply_disturbances(sim, now)
+                self._deliver(sim, now)
+                truth = sim.plant.truth
+                if sim.camera.capture(now, truth):
+                    self._publish_truth(now, truth)
+                    deliveries.append(now + latency)
+                self.publish_due_frames(sim, now)
+                while deliveries and deliveries[0] <= now + 1e-9:
+                    deliveries.popleft()
+                if now >= next_phys:
+                    sim.monitor.update(now, truth)
+                    self.tick += 1
+                    next_phys += period
+                    if next_phys <= now:
+                        next_phys = now + period
+            except Exception as exc:
+                self._internal("realtime step", exc)
+                next_phys = time.monotonic() + period
+            wake = min(next_phys, sim.camera.next_frame_t, end)
+            if deliveries:
+                wake = min(wake, deliveries[0])
+            await asyncio.sleep(max(0.0, wake - time.monotonic()))
+        return False
+
+    # -- start, status -------------------------------------------------------------------------
+
+    async def wait_for_fleet(self, stop: asyncio.Event, timeout_s: float = WAIT_ROBOTS_S) -> bool:
+        """Until every scenario robot's token and a coordinator's are present; False on timeout."""
+        start = time.monotonic()
+        said = ""
+        while not stop.is_set():
+            missing = [r for r in self.ids if r not in self.alive]
+            if not self.coordinators:
+                missing.append("a coordinator")
+            if not missing:
+                self.log.info("every robot and a coordinator are alive: starting")
+                return True
+            text = ", ".join(missing)
+            if text != said:
+                self.log.info(f"waiting for {text} (up to {timeout_s:g} s)")
+                said = text
+            remaining = start + timeout_s - time.monotonic()
+            if remaining <= 0:
+                self.log.info(f"gave up after {timeout_s:g} s: still no {text}")
+                return False
+            self.changed.clear()
+            try:
+                async with asyncio.timeout(min(remaining, 0.5)):
+                    await self.changed.wait()
+            except TimeoutError:
+                pass
+        return False
+
+    def status_map(self) -> dict[str, Any]:
+        """The status map (see the module docstring)."""
+        sim = self.sim
+        min_sep = sim.monitor.min_separation_m if sim is not None else math.inf
+        return {
+            "v": 1,
+            "t": max(self._now(), 0.0),
+            "seq": self._next_seq(self.status_key),
+            "mode": "lockstep" if self.lockstep else "realtime",
+            "state": self.state,
+            "rejected": self.rejected,
+            "ignored": self.ignored,
+            "internal_errors": self.internal_errors,
+            "rx": dict(self.rx),
+            "tick": max(self.tick, 0),
+            "sim_t": self.sim_t - (sim.t0_s if sim is not None else 0.0),
+            "timeouts": self.timeouts,
+            "alive": sorted(self.alive),
+            "coordinators": sorted(self.coordinators),
+            "link_sent": sim.link.sent if sim is not None else 0,
+            "link_dropped": sim.link.dropped if sim is not None else 0,
+            "min_separation_m": min_sep if math.isfinite(min_sep) else None,
+            "collisions": sim.monitor.collision_count if sim is not None else 0,
+        }
+
+    def publish_status(self) -> None:
+        """Publish the status map; never raises."""
+        try:
+            payload: bytes = msgpack.packb(self.status_map(), use_bin_type=True)
+            self._publish(self.status_key, payload, tp.QOS_TELEMETRY)
+        except Exception as exc:
+            self._internal("status", exc)
+
+    async def status_loop(self, stop: asyncio.Event) -> None:
+        """Publish the status at 5 Hz until ``stop``."""
+        while not stop.is_set():
+            self.publish_status()
+            await asyncio.sleep(STATUS_PERIOD_S)
+
+    async def run(self, stop: asyncio.Event, wait_robots: bool) -> int:
+        """Wait for the fleet (optionally), run until stop or the duration; exit status."""
+        status = asyncio.ensure_future(self.status_loop(stop))
+        relay = asyncio.ensure_future(self._wake_on_stop(stop))
+        try:
+            if wait_robots and not await self.wait_for_fleet(stop):
+                return 0 if stop.is_set() else 1
+            if stop.is_set():
+                return 0
+            self.state = "running"
+            self.log.info(
+                f"running {'lockstep' if self.lockstep else 'realtime'}, "
+                f"{self.n} robots, seed {self.seed}"
+            )
+            finished = (
+                await self.run_lockstep(stop) if self.lockstep else await self.run_realtime(stop)
+            )
+            if finished:
+                self.state = "done"
+                self.publish_status()
+                self.log.info(
+                    f"done: {self.tick + 1} ticks, {self.timeouts} lockstep timeouts, "
+                    f"{self.rejected} rejected"
+                )
+            return 0
+        finally:
+            status.cancel()
+            relay.cancel()
+
+    async def _wake_on_stop(self, stop: asyncio.Event) -> None:
+        """Wake the waits (answers, fleet) at once on SIGINT/SIGTERM."""
+        await stop.wait()
+        self.changed.set()
+
+
+# ---------------------------------------------------------------------------------------------
+# CLI
+# ---------------------------------------------------------------------------------------------
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"seed must be >= 0, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation plant`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog="formation plant",
+        description="Run the plant simulator (robots, camera, command link) as a Zenoh node.",
+    )
+    parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
+    parser.add_argument("--seed", type=_seed, help="random seed (default: the scenario's)")
+    parser.add_argument("--lockstep", action="store_true", help="lockstep (docs/runtime.md)")
+    parser.add_argument(
+        "--lockstep-timeout",
+        type=_positive,
+        default=2.0,
+        metavar="S",
+        help="lockstep: go on after this long without every answer (2.0 s, counted)",
+    )
+    parser.add_argument(
+        "--physics-hz",
+        type=_positive,
+        default=100.0,
+        metavar="HZ",
+        help="realtime physics rate (100 Hz); lockstep uses the scenario's dt_s",
+    )
+    parser.add_argument(
+        "--duration",
+        type=_positive,
+        metavar="S",
+        help="stop after this much sim time (lockstep) or wall time (realtime) and exit 0",
+    )
+    parser.add_argument(
+        "--wait-robots",
+        action="store_true",
+        help=f"start only once every robot's and a coordinator's token are present "
+        f"(gives up after {WAIT_ROBOTS_S:g} s)",
+    )
+    tp.add_zenoh_arguments(parser)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation plant``; returns the exit status."""
+    ns = build_parser().parse_args(argv)
+    log = NodeLog("plant")
+    if not keys.is_name(ns.fleet):
+        log.info(f"invalid --fleet {ns.fleet!r}: must match {keys.NAME_PATTERN}")
+        return 2
+    if ns.physics_hz > 10000.0:
+        log.info(f"--physics-hz {ns.physics_hz:g} is above 10000")
+        return 2
+    try:
+        scenario = load(ns.scenario)
+    except (ScenarioError, OSError) as exc:
+        log.info(f"scenario: {exc}")
+        return 2
+    try:
+        settings = tp.settings_from_args(ns)
+    except (TypeError, ValueError) as exc:
+        log.info(f"zenoh settings: {exc}")
+        return 2
+    return tp.run_node(lambda stop: _node(stop, scenario, ns, settings))
+
+
+async def _node(
+    stop: asyncio.Event, scenario: Scenario, ns: argparse.Namespace, settings: tp.ZenohSettings
+) -> int:
+    loop = asyncio.get_running_loop()
+    log = NodeLog("plant")
+    try:
+        session = await tp.open_session_async(settings)
+    except (tp.TransportError, ValueError) as exc:
+        log.info(str(exc))
+        return 1
+    try:
+        pubs = tp.Publishers(session)
+        node = PlantNode(
+            scenario,
+            ns.fleet,
+            pubs.put,
+            seed=ns.seed,
+            lockstep=ns.lockstep,
+            lockstep_timeout_s=ns.lockstep_timeout,
+            physics_hz=ns.physics_hz,
+            duration_s=ns.duration,
+            log=log,
+        )
+        pubs.get(node.poses_key, node.data_qos)
+        for key in node.pose_keys:
+            pubs.get(key, node.data_qos)
+        if ns.lockstep:
+            pubs.get(node.clock_key, tp.QOS_CRITICAL)
+        tp.watch_liveliness(session, node.alive_robots_pattern, loop, node.on_alive_robot)
+        tp.watch_liveliness(
+            session, node.alive_coordinators_pattern, loop, node.on_alive_coordinator
+        )
+        subscribe_ordered(session, node.wheels_pattern, loop, node.on_wheels)
+        subscribe_ordered(session, node.disturbance_key, loop, node.on_disturbance)
+        if ns.lockstep:
+            subscribe_ordered(session, node.leader_key, loop, node.on_leader)
+        token = tp.declare_token(session, node.alive_key)
+        print("plant ready", flush=True)
+        code = await node.run(stop, ns.wait_robots)
+        del token
+        return code
+    finally:
+        session.close()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

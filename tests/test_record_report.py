@@ -1,0 +1,691 @@
+"""formation.record and formation.report: MCAP recording of the bus, and metrics from it.
+
+The recorder is exercised three ways: fed directly with a synthetic lockstep stream (exact
+checks of channels, schemas, times, derived channels, raw vs JSON, a torn file); as the
+``formation record`` command on a real router (ready line, SIGINT, finalized file); and next to
+a real ``formation up --lockstep`` run, whose own live collector's metrics.json the report must
+reproduce exactly from the recording.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+from conftest import RouterHandle, Spawner, free_port
+from mcap.reader import make_reader
+
+from bus_schemas import (
+    MESSAGE_TYPES,
+    Assignment,
+    Clock,
+    Leader,
+    Pose,
+    Slot,
+    Status,
+    Truth,
+    Wheels,
+    encode,
+    keys,
+    to_map,
+)
+from bus_schemas import transport as tp
+from bus_schemas.messages import Disturbance, Estop, Heartbeat, PoseBatch, Setpoint
+from formation import report as report_mod
+from formation.record import (
+    LIVELINESS_SCHEMA,
+    READY_PREFIX,
+    BusItem,
+    BusTap,
+    Recorder,
+    json_schema,
+    schema_name,
+    start_recorder,
+)
+from formation.report import LivenessChange, Replay, leader_losses, read_recording
+from formation.runlog import RunLog
+
+FLEET = "demo"
+DT = 0.02
+EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of SIGINT; 0.5 s margin for a loaded CI box
+
+
+# ---------------------------------------------------------------------------------------------
+# A tiny JSON Schema checker (the subset json_schema emits), so recorded JSON is validated
+# ---------------------------------------------------------------------------------------------
+
+_JSON_TYPES: dict[str, Callable[[Any], bool]] = {
+    "number": lambda v: isinstance(v, int | float) and not isinstance(v, bool),
+    "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "boolean": lambda v: isinstance(v, bool),
+    "string": lambda v: isinstance(v, str),
+    "array": lambda v: isinstance(v, list),
+    "object": lambda v: isinstance(v, dict),
+    "null": lambda v: v is None,
+}
+
+
+def schema_errors(schema: dict[str, Any], value: Any, path: str = "$") -> list[str]:
+    """Violations of ``schema`` by ``value`` (empty list: valid)."""
+    t = schema.get("type")
+    types = t if isinstance(t, list) else ([t] if t else [])
+    if types and not any(_JSON_TYPES[name](value) for name in types):
+        return [f"{path}: {value!r} is not {types}"]
+    errs: list[str] = []
+    if "enum" in schema and value not in schema["enum"]:
+        errs.append(f"{path}: {value!r} not in {schema['enum']}")
+    if _JSON_TYPES["number"](value):
+        if "minimum" in schema and value < schema["minimum"]:
+            errs.append(f"{path}: {value} < {schema['minimum']}")
+        if "maximum" in schema and value > schema["maximum"]:
+            errs.append(f"{path}: {value} > {schema['maximum']}")
+    if isinstance(value, str):
+        if "maxLength" in schema and len(value) > schema["maxLength"]:
+            errs.append(f"{path}: longer than {schema['maxLength']}")
+        if "pattern" in schema and re.search(schema["pattern"], value) is None:
+            errs.append(f"{path}: {value!r} does not match {schema['pattern']}")
+    if isinstance(value, list):
+        if "maxItems" in schema and len(value) > schema["maxItems"]:
+            errs.append(f"{path}: more than {schema['maxItems']} items")
+        for i, v in enumerate(value):
+            errs += schema_errors(schema.get("items", {}), v, f"{path}[{i}]")
+    if isinstance(value, dict):
+        for name in schema.get("required", []):
+            if name not in value:
+                errs.append(f"{path}: missing {name!r}")
+        props = schema.get("properties", {})
+        extra = schema.get("additionalProperties", True)
+        for name, v in value.items():
+            if name in props:
+                errs += schema_errors(props[name], v, f"{path}.{name}")
+            elif isinstance(extra, dict):
+                errs += schema_errors(extra, v, f"{path}.{name}")
+            names = schema.get("propertyNames")
+            if names is not None:
+                errs += schema_errors({"type": "string", **names}, name, f"{path} key")
+    return errs
+
+
+# ---------------------------------------------------------------------------------------------
+# JSON Schemas from the bus_schemas tables
+# ---------------------------------------------------------------------------------------------
+
+EXAMPLES = [
+    Leader(t=1.0, seq=1, x=0.1, y=0.2, theta=math.pi, v_mps=0.02, omega_radps=0.0),
+    Slot(
+        t=1.0,
+        seq=1,
+        slot=1,
+        role="follower",
+        stage=1,
+        parent=0,
+        x=0.1,
+        y=0.2,
+        theta=0.0,
+        vx=0.02,
+        vy=0.0,
+    ),
+    Setpoint(
+        t=1.0,
+        seq=1,
+        robot="r1",
+        slot=0,
+        role="leader",
+        stage=0,
+        parent=None,
+        x=0.1,
+        y=0.2,
+        theta=-1.0,
+        vx=0.02,
+        vy=0.0,
+    ),
+    Assignment(t=1.0, seq=1, leader="r1", robots={"r1": 0, "r2": 1}),
+    Pose(t=1.0, seq=1, x=0.1, y=0.2, theta=0.3, robot="r1"),
+    Truth(t=1.0, seq=1, x=0.1, y=0.2, theta=0.3),
+    Wheels(
+        t=1.0,
+        seq=1,
+        omega_r=3.0,
+        omega_l=-3.0,
+        power_r=0.3,
+        power_l=-0.3,
+        pose_t=0.96,
+        tick=50,
+        saturated=False,
+    ),
+    Status(
+        t=1.0,
+        seq=1,
+        mode="tracking",
+        slot=None,
+        pid=123,
+        host="h",
+        rejected=0,
+        ex=0.01,
+        ey=-0.02,
+        role="follower",
+        rx={"pose": 30},
+    ),
+    Estop(t=1.0, engage=True, robot=None),
+    Clock(t=1.0, seq=50, tick=50),
+    Disturbance(
+        t=1.0, robot="r1", kind="teleport", dx=0.0, dy=0.0, duration_s=0.0, x=1.0, y=2.0, theta=0.0
+    ),
+    Heartbeat(t=1.0, seq=1, name="main", active=True, epoch=1, leader_t0=0.5),
+    PoseBatch(
+        t=1.0, seq=1, robots=("r1", "r2"), x=(0.1, 0.2), y=(0.3, 0.4), theta=(0.0, 1.0), stamp=0.97
+    ),
+]
+
+
+def test_every_message_type_has_an_example() -> None:
+    assert {type(m) for m in EXAMPLES} == set(MESSAGE_TYPES)
+
+
+@pytest.mark.parametrize("msg", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_json_schema_follows_the_message_table_and_accepts_the_wire_map(msg: Any) -> None:
+    cls = type(msg)
+    schema = json_schema(cls)
+    assert schema["title"] == schema_name(cls) == f"formation.{cls.__name__}"
+    fields = [f for f in cls.__dataclass_fields__]
+    assert list(schema["properties"]) == fields
+    for name in schema["required"]:  # v, t (and seq) are always required
+        assert cls.__dataclass_fields__[name].default is not None or name == "v"
+    assert {"v", "t"} <= set(schema["required"])
+    wire = json.loads(json.dumps(to_map(msg)))
+    assert schema_errors(schema, wire) == []
+    # and it rejects what the codec rejects: a wrong version, a missing required field
+    assert schema_errors(schema, {**wire, "v": 2}) != []
+    assert schema_errors(schema, {k: v for k, v in wire.items() if k != "t"}) != []
+
+
+def test_json_schema_carries_ranges_enums_and_patterns() -> None:
+    wheels = json_schema(Wheels)["properties"]
+    assert (wheels["power_r"]["minimum"], wheels["power_r"]["maximum"]) == (-1.0, 1.0)
+    assert wheels["pose_t"]["type"] == ["number", "null"]  # required, nil allowed
+    assert "rad/s" in wheels["omega_r"]["description"]
+    slot = json_schema(Slot)["properties"]
+    assert slot["role"]["enum"] == ["leader", "subleader", "follower"]
+    assert slot["theta"]["maximum"] == pytest.approx(math.pi, abs=1e-8)
+    pose = json_schema(Pose)
+    assert schema_errors(pose, {"v": 1, "t": 1.0, "seq": 0, "x": 0, "y": 0, "theta": 4.0}) != []
+    assert (
+        schema_errors(
+            pose, {"v": 1, "t": 1.0, "seq": 0, "x": 0, "y": 0, "theta": 0.0, "robot": "R1!"}
+        )
+        != []
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# The recorder fed directly: a synthetic lockstep stream
+# ---------------------------------------------------------------------------------------------
+
+
+def synthetic_stream(ticks: int = 100) -> list[BusItem]:
+    """Two robots in lockstep: clock, truth, pose, slots, leader, setpoints, wheels, status,
+    assignment, liveliness (r2 lost at the end), one malformed payload, one unknown key."""
+    items: list[BusItem] = []
+    rx = 1_000_000_000_000
+
+    def put(key: str, msg: Any) -> None:
+        nonlocal rx
+        rx += 200_000  # 0.2 ms apart
+        items.append(BusItem("put", key, encode(msg), rx))
+
+    for name in ("robot/r1", "robot/r2", "plant"):
+        rx += 1000
+        items.append(BusItem("alive", f"formation/{FLEET}/alive/{name}", b"", rx))
+    for k in range(ticks):
+        t = k * DT
+        for j, rid in enumerate(("r1", "r2")):
+            x, y = 0.1 + 0.02 * t - 0.3 * j, 0.2 * j
+            put(keys.truth_key(FLEET, rid), Truth(t=t, seq=k, x=x, y=y, theta=0.0))
+            put(keys.pose_key(FLEET, rid), Pose(t=t, seq=k, x=x, y=y, theta=0.0, robot=rid))
+        put(keys.clock_key(FLEET), Clock(t=t, seq=k, tick=k))
+        for s in (0, 1):
+            put(
+                keys.slot_key(FLEET, s),
+                Slot(
+                    t=t,
+                    seq=k,
+                    slot=s,
+                    role="leader" if s == 0 else "follower",
+                    stage=s,
+                    parent=None if s == 0 else 0,
+                    x=0.15 + 0.02 * t - 0.3 * s,
+                    y=0.2 * s,
+                    theta=0.0,
+                    vx=0.02,
+                    vy=0.0,
+                ),
+            )
+        if k % 25 == 0:
+            put(
+                keys.assignment_key(FLEET),
+                Assignment(t=t, seq=k, leader="r1", robots={"r1": 0, "r2": 1}),
+            )
+        put(
+            keys.leader_key(FLEET),
+            Leader(t=t, seq=k, x=0.15 + 0.02 * t, y=0.0, theta=0.0, v_mps=0.02, omega_radps=0.0),
+        )
+        for rid in ("r1", "r2"):
+            put(
+                keys.wheels_key(FLEET, rid),
+                Wheels(
+                    t=t,
+                    seq=k,
+                    omega_r=1.0,
+                    omega_l=0.5,
+                    power_r=0.1 + k / 1000,
+                    power_l=0.05,
+                    pose_t=t,
+                    tick=k,
+                ),
+            )
+            if k % 10 == 0:
+                put(
+                    keys.status_key(FLEET, rid),
+                    Status(
+                        t=t,
+                        seq=k // 10,
+                        mode="tracking",
+                        slot=0 if rid == "r1" else 1,
+                        pid=1,
+                        host="h",
+                        rejected=0,
+                        ex=0.03,
+                        ey=0.04,
+                    ),
+                )
+    rx += 1000
+    items.append(BusItem("put", keys.pose_key(FLEET, "r1"), b"\xc1", rx))  # malformed
+    rx += 1000
+    items.append(
+        BusItem("put", f"formation/{FLEET}/plant/status", msgpack.packb({"v": 1, "t": 2.0}), rx)
+    )
+    rx += 1000
+    items.append(BusItem("dead", f"formation/{FLEET}/alive/robot/r2", b"", rx))
+    return items
+
+
+def record_items(path: Path, items: list[BusItem], **kwargs: Any) -> Recorder:
+    rec = Recorder(path, FLEET, **kwargs)
+    for item in items:
+        rec.write(item)
+    rec.close()
+    return rec
+
+
+def test_recorder_writes_one_json_channel_per_key_with_schemas_and_times(tmp_path: Path) -> None:
+    items = synthetic_stream()
+    path = tmp_path / "run.mcap"
+    rec = record_items(path, items)
+    assert rec.stats.rejected == 1 and rec.stats.unknown == 1 and rec.stats.liveliness == 4
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        by_topic = {ch.topic: ch for ch in summary.channels.values()}
+        counts = {
+            summary.channels[cid].topic: n
+            for cid, n in summary.statistics.channel_message_counts.items()
+        }
+        for rid in ("r1", "r2"):
+            for leaf, n in (("truth", 100), ("pose", 100), ("wheels", 100), ("status", 10)):
+                topic = f"/formation/{FLEET}/robot/{rid}/{leaf}"
+                assert counts[topic] == n, topic
+                ch = by_topic[topic]
+                sch = summary.schemas[ch.schema_id]
+                assert ch.message_encoding == "json" and sch.encoding == "jsonschema"
+                assert sch.name == f"formation.{leaf.capitalize()}"
+                assert ch.metadata["key"] == topic[1:]
+        assert counts[f"/formation/{FLEET}/clock"] == 100
+        assert counts[f"/formation/{FLEET}/alive/robot/r2"] == 2  # alive, then lost
+        assert counts["/recorder/rejected"] == 1
+        assert counts[f"/formation/{FLEET}/plant/status"] == 1  # unknown key: schemaless
+        assert counts["/derived/robot/r1/tracking_error"] == 10
+        assert counts["/derived/robot/r2/latency"] == 100
+        assert counts["/scene"] > 0 and counts["/tf"] > 0
+        assert summary.schemas[by_topic["/scene"].schema_id].name == "foxglove.SceneUpdate"
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert meta["formation.recording"]["fleet"] == FLEET
+        assert meta["formation.recording.stats"]["rejected"] == "1"
+
+        # Every JSON message validates against its channel's schema; times are right.
+        schemas = {
+            sid: json.loads(s.data)
+            for sid, s in summary.schemas.items()
+            if s.encoding == "jsonschema"
+        }
+        first_rx = items[0].rx_ns
+        first_log: int | None = None
+        checked = 0
+        for _, ch, msg in reader.iter_messages():
+            if ch.message_encoding != "json":
+                continue
+            body = json.loads(msg.data)
+            if ch.schema_id:
+                assert schema_errors(schemas[ch.schema_id], body) == [], ch.topic
+            if first_log is None:
+                first_log = msg.log_time
+            if ch.topic.endswith("/robot/r1/wheels"):
+                assert msg.publish_time == round(body["t"] * 1e9)
+                checked += 1
+        assert checked == 100 and first_log is not None
+    # log_time = recorder's receive time: differences are the monotonic differences exactly
+    with open(path, "rb") as f:
+        alive_r2_dead = [
+            m
+            for _, _, m in make_reader(f).iter_messages(
+                topics=[f"/formation/{FLEET}/alive/robot/r2"]
+            )
+        ]
+    assert alive_r2_dead[-1].log_time - first_log == items[-1].rx_ns - first_rx
+    assert json.loads(alive_r2_dead[-1].data) == {
+        "alive": False,
+        "kind": "robot",
+        "id": "r2",
+        "key": f"formation/{FLEET}/alive/robot/r2",
+    }
+    assert schema_errors(LIVELINESS_SCHEMA, json.loads(alive_r2_dead[0].data)) == []
+
+
+def test_derived_channels_hold_tracking_error_and_latency(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    record_items(path, synthetic_stream(20))
+    msgs: dict[str, list[dict[str, Any]]] = {}
+    for topic in ("/derived/robot/r1/tracking_error", "/derived/robot/r1/latency"):
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            msgs[topic] = [json.loads(m.data) for _, _, m in reader.iter_messages(topics=[topic])]
+    err = msgs["/derived/robot/r1/tracking_error"][0]
+    assert err["norm_m"] == pytest.approx(0.05) and err["slot"] == 0 and err["mode"] == "tracking"
+    lat = msgs["/derived/robot/r1/latency"]
+    assert len(lat) == 20
+    # r1's wheels come 7 messages (0.2 ms apart) after r1's pose of the same tick (r2's truth
+    # and pose, clock, 2 slots, leader); pose_age is sim time (lockstep, clock seen): 0 here
+    assert all(x["pose_age_ms"] == pytest.approx(0.0) for x in lat)
+    assert {round(x["rx_latency_ms"], 6) for x in lat[1:]} == {round(0.2 * 7, 6)}
+
+
+def test_raw_and_json_recordings_replay_the_same_payloads_and_metrics(tmp_path: Path) -> None:
+    items = synthetic_stream()
+    record_items(tmp_path / "json.mcap", items)
+    record_items(tmp_path / "raw.mcap", items, raw=True)
+    a, b = read_recording(tmp_path / "json.mcap"), read_recording(tmp_path / "raw.mcap")
+    assert (a.source, b.source) == ("json", "raw")
+    assert a.complete and b.complete and a.bad_json == 0
+    # JSON re-encoded with bus_schemas.encode gives the exact bytes that were on the wire
+    valid = [
+        it
+        for it in items
+        if it.kind == "put" and it.payload != b"\xc1" and "plant/status" not in it.key
+    ]
+    assert [e.payload for e in a.events if e.payload is not None] == [it.payload for it in valid]
+    ma = report_mod.analyze(a).metrics
+    mb = report_mod.analyze(b).metrics
+    assert ma["robots"] == mb["robots"] and ma["run"] == mb["run"]
+    assert ma["run"]["ticks"] == 100 and ma["meta"]["mode"] == "lockstep"
+    assert ma["meta"]["dt_s"] == pytest.approx(DT)
+    assert ma["robots"]["r1"]["final_slot"] == 0 and ma["run"]["final_leader"] == "r1"
+    assert ma["robots"]["r1"]["peak_motor_power"] == pytest.approx(0.1 + 99 / 1000)
+    peaks = ma["power_peaks"]["r1"]["right"]
+    assert peaks["peak"] == pytest.approx(0.199) and peaks["t_s"] == pytest.approx(99 * DT)
+    # r2's token vanished at the very end, and r2 was not the leader: no leader loss
+    assert ma["leader_loss"] == []
+    assert ma["latency"]["rx_latency_ms"]["n"] == 200
+
+
+def test_a_recording_cut_short_is_read_up_to_its_last_chunk(tmp_path: Path) -> None:
+    path = tmp_path / "live.mcap"
+    rec = Recorder(path, FLEET, chunk_bytes=4096)
+    items = synthetic_stream(60)
+    for item in items:
+        rec.write(item)
+    torn = tmp_path / "torn.mcap"
+    shutil.copyfile(path, torn)  # what a SIGKILLed recorder leaves: no summary, no footer
+    rec.close()
+    cut = read_recording(torn)
+    full = read_recording(path)
+    assert not cut.complete and full.complete
+    assert 0 < len(cut.events) < len(full.events)
+    assert [e.payload for e in cut.events] == [e.payload for e in full.events[: len(cut.events)]]
+
+
+def test_report_rejects_a_file_that_is_not_mcap(tmp_path: Path) -> None:
+    bad = tmp_path / "x.mcap"
+    bad.write_bytes(b"not an mcap file at all" * 10)
+    with pytest.raises(report_mod.ReportError):
+        read_recording(bad)
+    assert report_mod.main([str(bad), "--quiet"]) == 1
+
+
+# ---------------------------------------------------------------------------------------------
+# Leader-loss recovery
+# ---------------------------------------------------------------------------------------------
+
+
+def test_leader_loss_recovery_is_the_settling_time_after_the_token_vanished() -> None:
+    ids = ["r1", "r2", "r3"]
+    ticks = 101  # 0 .. 10 s
+    log = RunLog.allocate(ids, [0, 1, 2], ticks)
+    log.t_s[:] = np.arange(ticks) * 0.1
+    log.ref[:] = 0.0
+    err = np.full((ticks, 3), 0.01)
+    loss_k = 40  # r1 (leader) lost at 4.0 s; r2 takes slot 0, 0.3 m away, converges by 6.5 s
+    err[loss_k:, 0] = np.nan
+    err[loss_k:, 1] = np.interp(log.t_s[loss_k:], [4.0, 6.5], [0.3, 0.01])
+    err[loss_k + 5, 2] = 0.08  # r3 disturbed a little at 4.5 s
+    log.target[:, :, 0] = err
+    log.target[:, :, 1] = 0.0
+    log.slot_of[:] = [0, 1, 2]
+    log.slot_of[loss_k:] = [-1, 0, 1]
+    alive_after = frozenset(
+        {f"formation/{FLEET}/alive/plant", *(f"formation/{FLEET}/alive/robot/{r}" for r in ids[1:])}
+    )
+    rp = Replay(lockstep=True)
+    rp.changes.append(
+        LivenessChange(f"formation/{FLEET}/alive/robot/r1", False, 4.0, "r1", alive_after)
+    )
+    # a follower lost later is not a leader loss; a leader lost during shutdown is not either
+    rp.changes.append(
+        LivenessChange(f"formation/{FLEET}/alive/robot/r3", False, 9.95, "r2", frozenset())
+    )
+    (loss,) = leader_losses(log, rp, FLEET, tol_m=0.05, dt_s=0.1)
+    # worst remaining error <= 0.05 from t where 0.3 - 0.29 * (t - 4) / 2.5 <= 0.05: t >= 6.155
+    assert loss["robot"] == "r1" and loss["t_s"] == 4.0 and loss["tick"] == 40
+    assert loss["remaining"] == ["r2", "r3"]
+    assert loss["recovered_at_s"] == pytest.approx(6.2) and loss["recovery_s"] == pytest.approx(2.2)
+    assert loss["peak_error_m"] == pytest.approx(0.3) and loss["new_leader"] == "r2"
+
+
+def test_a_leader_that_never_recovers_reports_none() -> None:
+    log = RunLog.allocate(["r1", "r2"], [0, 1], 50)
+    log.t_s[:] = np.arange(50) * 0.1
+    log.ref[:] = 0.0
+    log.target[:, :, 0] = 0.5
+    log.target[:, :, 1] = 0.0
+    rp = Replay(lockstep=True)
+    alive = frozenset({f"formation/{FLEET}/alive/plant", f"formation/{FLEET}/alive/robot/r2"})
+    rp.changes.append(LivenessChange(f"formation/{FLEET}/alive/robot/r1", False, 1.0, "r1", alive))
+    (loss,) = leader_losses(log, rp, FLEET, tol_m=0.05, dt_s=0.1)
+    assert loss["recovery_s"] is None and loss["peak_error_m"] == pytest.approx(0.5)
+
+
+def test_bus_tap_survives_handler_errors_and_bounds_its_close(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    handled: list[str] = []
+
+    def slow_and_fragile(item: BusItem) -> None:
+        if item.key.endswith("/bad"):
+            raise ValueError("boom")
+        time.sleep(0.02)
+        handled.append(item.key)
+
+    tap = BusTap(session(), FLEET, slow_and_fragile, name="test-tap")
+    tap.feed(BusItem("put", f"formation/{FLEET}/bad", b"", 0))
+    for k in range(100):  # 2 s of work queued
+        tap.feed(BusItem("put", f"formation/{FLEET}/k{k}", b"", k))
+    start = time.monotonic()
+    tap.close(timeout_s=0.3)
+    took = time.monotonic() - start
+    assert took < 1.0, f"close took {took:.2f} s"
+    assert tap.errors == 1 and 0 < len(handled) < 100
+    assert tap.received == 101 and tap.dropped == 100 - len(handled)
+    n = len(handled)
+    time.sleep(0.05)
+    assert len(handled) == n  # the worker has stopped
+
+
+# ---------------------------------------------------------------------------------------------
+# formation record on a real router
+# ---------------------------------------------------------------------------------------------
+
+
+def test_record_command_finalizes_the_file_within_a_second_of_sigint(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session], tmp_path: Path
+) -> None:
+    out = tmp_path / "rec.mcap"
+    child = spawn("record", "--out", str(out), "--endpoint", router.endpoint, ready=READY_PREFIX)
+    assert f"formation/{FLEET}/**" in child.stdout()
+    pub = session()
+    token = tp.declare_token(pub, keys.alive_robot_key(FLEET, "r1"))
+    t0 = 100.0
+    for k in range(20):
+        pub.put(
+            keys.pose_key(FLEET, "r1"), encode(Pose(t=t0 + k * 0.1, seq=k, x=0.1, y=0.2, theta=0.0))
+        )
+    pub.put(keys.pose_key(FLEET, "r1"), b"\x92\x01\x02")  # valid msgpack, not a map
+    time.sleep(0.3)
+    token.undeclare()
+    time.sleep(0.3)
+    exit_s = child.stop(signal.SIGINT, timeout_s=5.0)
+    assert child.proc.returncode == 0, child.describe()
+    assert exit_s < EXIT_BOUND_S, f"exit took {exit_s:.2f} s"
+    assert "recorded 20 samples (1 rejected, 2 liveliness changes)" in child.stdout()
+    with open(out, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()  # present only in a finalized file
+        assert summary is not None and summary.statistics is not None
+        poses = [
+            m for _, _, m in reader.iter_messages(topics=[f"/formation/{FLEET}/robot/r1/pose"])
+        ]
+        assert [m.publish_time for m in poses] == [round((t0 + k * 0.1) * 1e9) for k in range(20)]
+        assert abs(poses[0].log_time - time.time_ns()) < 60e9  # wall clock
+        rejected = [
+            json.loads(m.data) for _, _, m in reader.iter_messages(topics=["/recorder/rejected"])
+        ]
+        assert [r["reason"] for r in rejected] == ["not_a_map"]
+        alive = [
+            json.loads(m.data)["alive"]
+            for _, _, m in reader.iter_messages(topics=[f"/formation/{FLEET}/alive/robot/r1"])
+        ]
+        assert alive == [True, False]
+
+
+def test_record_command_rejects_bad_arguments(tmp_path: Path) -> None:
+    from formation import record
+
+    assert record.main(["--out", str(tmp_path / "x.mcap"), "--fleet", "a/b"]) == 2
+    assert record.main(["--out", str(tmp_path / "x.mcap"), "--duration", "0"]) == 2
+    assert record.main(["--out", str(tmp_path / "x.mcap"), "--scenario", "nope"]) == 2
+
+
+# ---------------------------------------------------------------------------------------------
+# Round trip on a real distributed run
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
+    spawn: Spawner, tmp_path: Path
+) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up_out = tmp_path / "up"
+    duration = 4.0
+    up = spawn(
+        "up",
+        "--lockstep",
+        "--scenario",
+        "paper-exp1",
+        "--duration",
+        str(duration),
+        "--endpoint",
+        endpoint,
+        "--out",
+        str(up_out),
+        "--no-figures",
+        "--quiet",
+    )
+    # The recorder joins as soon as up's router listens, before the plant starts its clock
+    # (the plant waits for every agent's token; each agent takes a Python start).
+    handle = start_recorder(
+        tp.ZenohSettings(connect=(endpoint,), open_timeout_s=30.0), FLEET, tmp_path / "run.mcap"
+    )
+    try:
+        assert up.proc.wait(timeout=120) == 0, up.describe()
+    finally:
+        stats = handle.close()
+    assert stats.dropped == 0 and stats.handler_errors == 0 and stats.rejected == 0
+    live = json.loads((up_out / "metrics.json").read_text())
+
+    rep_out = tmp_path / "report"
+    settle = live["run"]["settle_s"]
+    code = report_mod.main(
+        [
+            str(tmp_path / "run.mcap"),
+            "--out",
+            str(rep_out),
+            "--scenario",
+            "paper-exp1",
+            "--settle",
+            str(settle),
+            "--quiet",
+        ]
+    )
+    assert code == 0
+    for name in ("trajectories", "motor_power", "formation_error", "roles"):
+        assert (rep_out / f"{name}.png").stat().st_size > 10_000
+    rep = json.loads((rep_out / "metrics.json").read_text())
+    assert rep["meta"]["collector"]["first_tick"] == 0, "the recorder joined late"
+    assert rep["robots"] == live["robots"]
+    assert rep["run"] == live["run"]
+    assert rep["run"]["ticks"] > 0 and rep["run"]["collisions"] == 0
+    assert rep["latency"]["rx_latency_ms"]["n"] > 0
+    assert 0.0 < rep["latency"]["rx_latency_ms"]["p50"] < 100.0
+    assert rep["leader_loss"] == []  # the run was not disturbed
+
+    # The file itself: a channel per key, schemas present, counts > 0, JSON decodes.
+    with open(tmp_path / "run.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        counts = {
+            summary.channels[c].topic: n
+            for c, n in summary.statistics.channel_message_counts.items()
+        }
+        for rid in ("r1", "r2", "r3"):
+            for leaf in ("truth", "pose", "wheels", "setpoint", "status"):
+                assert counts[f"/formation/{FLEET}/robot/{rid}/{leaf}"] > 0
+        for key in ("clock", "leader", "assignment", "slot/0", "slot/1", "slot/2"):
+            assert counts[f"/formation/{FLEET}/{key}"] > 0
+        assert counts[f"/formation/{FLEET}/alive/plant"] >= 1
+        for ch in summary.channels.values():
+            if ch.topic.startswith("/formation/") and ch.schema_id:
+                assert summary.schemas[ch.schema_id].encoding == "jsonschema"
+        for _, _, msg in reader.iter_messages(topics=[f"/formation/{FLEET}/robot/r2/wheels"]):
+            body = json.loads(msg.data)
+            assert set(body) >= {"v", "t", "seq", "omega_r", "power_r", "pose_t"}
