@@ -232,7 +232,7 @@ def _declare_fast_publisher(session: zenoh.Session, key: str) -> zenoh.Publisher
     # dropped ping would only cost a timeout.
     return session.declare_publisher(
         key,
-        express=True,
+        express=False,
         priority=zenoh.Priority.REAL_TIME,
         congestion_control=zenoh.CongestionControl.BLOCK,
     )

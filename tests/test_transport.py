@@ -297,7 +297,7 @@ async def test_publisher_qos_reaches_the_wire(session: Callable[..., zenoh.Sessi
     await wait_until(lambda: len(samples) == 2)
     by_key = {str(s.key_expr): s for s in samples}
     wheels, status = by_key["test/qos/wheels"], by_key["test/qos/status"]
-    assert wheels.priority == zenoh.Priority.REAL_TIME and wheels.express
+    assert wheels.priority == zenoh.Priority.REAL_TIME and not wheels.express
     assert status.priority == zenoh.Priority.DATA and not status.express
     with pytest.raises(ValueError, match="already declared"):
         pubs.put("test/qos/wheels", b"w", tp.QOS_TELEMETRY)
