@@ -8,11 +8,11 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from formation.metrics import formation_error  # noqa: E402
-from formation.runlog import RunLog  # noqa: E402
+from formation.metrics import formation_error
+from formation.runlog import RunLog
 
 COLORS = ["tab:red", "tab:green", "tab:blue", "tab:orange", "tab:purple", "tab:brown",
           "tab:pink", "tab:gray", "tab:olive", "tab:cyan"]  # fmt: skip
@@ -97,7 +97,9 @@ def plot_roles(log: RunLog, path: Path) -> None:
     plt.close(fig)
 
 
-def write_all(log: RunLog, out_dir: Path, title: str = "", settle_s: float | None = None) -> list[Path]:
+def write_all(
+    log: RunLog, out_dir: Path, title: str = "", settle_s: float | None = None
+) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [
         out_dir / "trajectories.png",

@@ -58,7 +58,7 @@ def role_changes(log: RunLog) -> list[dict[str, Any]]:
 def leader_timeline(log: RunLog) -> list[dict[str, Any]]:
     """Who held slot 0 and from when: [{t_s, leader}] (leader None when nobody)."""
     out: list[dict[str, Any]] = []
-    prev: str | None | int = -1
+    prev: str | int | None = -1
     for k in range(log.slot_of.shape[0]):
         row = log.slot_of[k]
         holders = np.flatnonzero(row == 0)

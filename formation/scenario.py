@@ -129,8 +129,16 @@ def load(name_or_path: str) -> Scenario:
 # validation helpers
 
 
-def _num(d: dict[str, Any], key: str, where: str, default: float | None = None, *,
-         lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
+def _num(
+    d: dict[str, Any],
+    key: str,
+    where: str,
+    default: float | None = None,
+    *,
+    lo: float = -math.inf,
+    hi: float = math.inf,
+    lo_open: bool = False,
+) -> float:
     if key not in d:
         if default is None:
             raise ScenarioError(f"{where}.{key}: required")

@@ -49,7 +49,12 @@ def run_and_write(
     if figures:
         from formation import figures as fig_mod
 
-        fig_mod.write_all(result.log, out, title=f"{scn.name}: reference points (solid), virtual trajectories (dashed)", settle_s=scn.settle_s)
+        fig_mod.write_all(
+            result.log,
+            out,
+            title=f"{scn.name}: reference points (solid), virtual trajectories (dashed)",
+            settle_s=scn.settle_s,
+        )
     return m
 
 
