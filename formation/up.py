@@ -4,7 +4,7 @@ Usage::
 
     formation up [--scenario NAME|FILE] [--robots N] [--duration S] [--lockstep]
                  [--endpoint tcp/127.0.0.1:7447] [--fleet F] [--out DIR] [--seed N]
-                 [--no-figures] [--quiet]
+                 [--no-figures] [--quiet] [--record FILE.mcap] [--foxglove [PORT]]
 
 Theory of operation
 -------------------
@@ -36,6 +36,13 @@ Theory of operation
 5. **Stop.** SIGTERM to plant, coordinator and agents, at most 2 s wait, then SIGKILL (said on
    stderr); the launcher's session is closed; then the router gets the same treatment. SIGINT or
    SIGTERM to the launcher starts this at once; a second one kills everything immediately.
+   With ``--record FILE`` a :mod:`formation.record` recorder subscribes on the launcher's session
+   right after the collector (so before the plant's clock starts) and writes every key of the
+   fleet and its liveliness changes to the MCAP file, with the run's scenario, mode and settling
+   time as metadata; ``formation report FILE`` rebuilds this run's metrics from it. With
+   ``--foxglove [PORT]`` (default 8765) a :mod:`formation.live` Foxglove WebSocket server is fed
+   from the same session (line ``foxglove live view on ws://HOST:PORT``). Both are closed before
+   the launcher's session (the recording is finalized even after an interrupt).
 6. **Results.** ``metrics.json`` (``formation.metrics.compute`` on the RunLog built from truth),
    ``run.npz`` and the figures (``formation.figures.write_all``) in ``--out``. Exit status: 0,
    1 if a child failed (did not start, died, exited non-zero, had to be killed), 130 after an
@@ -125,6 +132,9 @@ class UpConfig:
     quiet: bool = False
     ready_timeout_s: float = 30.0
     display: str = "auto"  # "auto" (table on a TTY, lines otherwise), "table", "lines", "none"
+    record: Path | None = None  # MCAP file to record the run's bus traffic to
+    foxglove_port: int | None = None  # serve a live Foxglove WebSocket on this port (0: any)
+    foxglove_host: str = "127.0.0.1"
 
 
 @dataclass(frozen=True)
@@ -618,6 +628,9 @@ class _Launcher:
         self.display = display
         self._table_lines = 0
         self.stop_s: float | None = None
+        self.recorder: Any = None  # formation.record.RecorderHandle with --record
+        self.live: Any = None  # formation.live.LiveHandle with --foxglove
+        self.record_stats: Any = None
 
     # -- output ---------------------------------------------------------------------------------
 
@@ -766,6 +779,64 @@ class _Launcher:
         tp.watch_liveliness(
             self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive
         )
+        self._start_observers()
+
+    def _start_observers(self) -> None:
+        """``--record`` and ``--foxglove``: recorder and live server on the launcher's session."""
+        if self.cfg.record is not None:
+            from formation.record import run_info, start_recorder
+
+            run = run_info(
+                self.plan.scenario_arg,
+                lockstep=self.cfg.lockstep,
+                settle_s=self.plan.settle_s,
+                seed=self.plan.seed,
+                duration_s=self.plan.duration_s,
+                endpoint=self.cfg.endpoint,
+            )
+            try:
+                self.recorder = start_recorder(
+                    self.session, self.cfg.fleet, self.cfg.record, run=run
+                )
+            except OSError as exc:
+                raise LaunchError(f"--record {self.cfg.record}: {exc}") from exc
+            self.say(f"  recording    {keys.fleet_pattern(self.cfg.fleet)} to {self.cfg.record}")
+        if self.cfg.foxglove_port is not None:
+            from formation.live import start_live
+
+            geom = self.scn.agent.geometry
+            try:
+                self.live = start_live(
+                    self.session,
+                    self.cfg.fleet,
+                    host=self.cfg.foxglove_host,
+                    port=self.cfg.foxglove_port,
+                    ref_offset_m=geom.ref_offset_m,
+                    body_radius_m=geom.body_radius_m,
+                )
+            except RuntimeError as exc:
+                raise LaunchError(f"--foxglove {self.cfg.foxglove_port}: {exc}") from exc
+            # printed even with --quiet: a client needs the address
+            print(f"foxglove live view on {self.live.url}", flush=True)
+
+    async def _stop_observers(self) -> None:
+        """Close the live server and finalize the recording (before the session closes)."""
+        live, self.live = self.live, None
+        if live is not None:
+            await asyncio.to_thread(live.close)
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            stats = await asyncio.to_thread(recorder.close)
+            self.record_stats = stats
+            if stats.dropped or stats.handler_errors:
+                self.warn(
+                    f"recording {recorder.path}: {stats.dropped} samples dropped, "
+                    f"{stats.handler_errors} write errors"
+                )
+            self.say(
+                f"recorded {stats.samples} samples ({stats.rejected} rejected, "
+                f"{stats.liveliness} liveliness changes) to {recorder.path}"
+            )
 
     def _drain_subscribers(self) -> None:
         """Feed every sample buffered by Zenoh to the collector."""
@@ -859,6 +930,7 @@ class _Launcher:
         if self.session is not None:
             self._drain_subscribers()  # what arrived before the nodes stopped
             self._subscribers = []
+            await self._stop_observers()
             with contextlib.suppress(Exception):
                 self.session.close()
         if self.router is not None:
@@ -950,6 +1022,7 @@ class _Launcher:
             "stop_s": self.stop_s,
             "endpoint": self.cfg.endpoint,
             "fleet": self.cfg.fleet,
+            "record": None if self.cfg.record is None else str(self.cfg.record),
             "interrupted": interrupted,
             "failures": list(self.failures),
             "children": {
@@ -1045,6 +1118,30 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="seconds each process gets to print its ready line (default 30)",
     )
+    p.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        metavar="FILE.mcap",
+        help="record every key of the fleet and its liveliness to this MCAP file "
+        "(then: formation report FILE.mcap)",
+    )
+    p.add_argument(
+        "--foxglove",
+        type=int,
+        nargs="?",
+        const=8765,
+        default=None,
+        metavar="PORT",
+        help="serve a live Foxglove WebSocket (default port 8765; 0: any free port)",
+    )
+    p.add_argument(
+        "--foxglove-host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="address the Foxglove server binds (default 127.0.0.1; 0.0.0.0: every interface, "
+        "no authentication)",
+    )
     return p
 
 
@@ -1061,12 +1158,18 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         figures=not ns.no_figures,
         quiet=ns.quiet,
         ready_timeout_s=ns.ready_timeout,
+        record=ns.record,
+        foxglove_port=ns.foxglove,
+        foxglove_host=ns.foxglove_host,
     )
 
 
 def main(argv: list[str]) -> int:
     """Entry point of ``formation up`` (dispatched by ``formation.cli``)."""
     cfg = config_from_args(build_parser().parse_args(argv))
+    if cfg.foxglove_port is not None and not 0 <= cfg.foxglove_port <= 65535:
+        print(f"formation up: --foxglove: bad port {cfg.foxglove_port}", file=sys.stderr)
+        return 2
     try:
         plan = plan_run(cfg)
     except (scenario_mod.ScenarioError, ValueError) as exc:
