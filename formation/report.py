@@ -36,6 +36,7 @@ is detected from the ``clock`` key.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -611,6 +612,85 @@ def analyze(
     return Report(rec, log, m, settle_s, tol_m, title)
 
 
+LOG_ARRAYS: Final = (
+    "t_s",
+    "truth",
+    "ref",
+    "target",
+    "slot_of",
+    "slot_xy",
+    "leader",
+    "power",
+    "mode",
+)
+
+
+def at_instants(log: RunLog, t_s: np.ndarray) -> tuple[RunLog, int]:
+    """The rows of ``log`` at the times ``t_s`` (matched to the microsecond), and their count.
+
+    A bus run logs the plant's truth frames (the camera rate, 30 Hz in the built-in scenarios),
+    the simulator every tick (50 Hz): this puts the simulator's log on the bus run's instants.
+    """
+    ka = np.round(np.asarray(t_s) * 1e6).astype(np.int64)
+    kb = np.round(log.t_s * 1e6).astype(np.int64)
+    _, _, ib = np.intersect1d(ka, kb, assume_unique=True, return_indices=True)
+    rows = {name: getattr(log, name)[ib] for name in LOG_ARRAYS}
+    return dataclasses.replace(log, **rows), int(ib.size)
+
+
+def _differences(a: Any, b: Any, path: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out: list[str] = []
+        for k in sorted(set(a) | set(b), key=str):
+            out += _differences(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))
+        return out
+    return [] if a == b else [f"{path}: {a!r} != {b!r}"]
+
+
+def compare_with_simulator(
+    report: Report, scenario: str | None = None
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Run the in-process simulator (``formation.simulate``) on this recording's scenario, seed
+    and duration and compute its metrics at the recording's instants with the report's settling
+    time and band. Returns (the simulator's metrics, a comparison: ``instants`` matched,
+    ``recording_rows``, ``simulator_ticks``, ``robots_equal``, ``run_equal``, ``differences``).
+
+    Only a lockstep recording is comparable (realtime timing is not reproducible); raises
+    ReportError otherwise or when the scenario is unknown. Lockstep reproduces the simulator
+    tick for tick (docs/runtime.md), so ``robots`` and ``run`` are expected to be equal.
+    """
+    from formation import simulate
+
+    if report.metrics["meta"].get("mode") != "lockstep":
+        raise ReportError("only a lockstep recording can be compared with the simulator")
+    scn = scenario_of(report.recording, scenario)
+    if scn is None:
+        raise ReportError("no scenario in the recording: give --scenario")
+    run = report.recording.run
+    seed = int(run["seed"]) if "seed" in run else None
+    duration = float(run["duration_s"]) if "duration_s" in run else None
+    if duration is None:
+        duration = round(float(report.log.t_s[-1]) / scn.dt_s) * scn.dt_s
+    sim = simulate.run(scn, seed=seed, duration_s=duration)
+    sub, n = at_instants(sim.log, report.log.t_s)
+    m = metrics_mod.compute(sub, report.settle_s, report.tol_m)
+    diffs = _differences(
+        {"robots": report.metrics["robots"], "run": report.metrics["run"]},
+        {"robots": m["robots"], "run": m["run"]},
+    )
+    cmp = {
+        "instants": n,
+        "recording_rows": int(report.log.t_s.size),
+        "simulator_ticks": int(sim.log.t_s.size),
+        "seed": seed if seed is not None else scn.seed,
+        "duration_s": duration,
+        "robots_equal": report.metrics["robots"] == m["robots"],
+        "run_equal": report.metrics["run"] == m["run"],
+        "differences": diffs[:20],
+    }
+    return m, cmp
+
+
 def write(report: Report, out_dir: Path, *, figures: bool = True) -> list[Path]:
     """Write metrics.json (and the figures) to ``out_dir``; return the files written."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -646,6 +726,17 @@ def summary(m: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def comparison_line(cmp: dict[str, Any]) -> str:
+    """One line on :func:`compare_with_simulator`'s result."""
+    same = cmp["robots_equal"] and cmp["run_equal"]
+    verdict = "equal" if same else f"DIFFER ({len(cmp['differences'])}+ fields)"
+    return (
+        f"in-process simulator (seed {cmp['seed']}, {cmp['duration_s']:g} s) at the "
+        f"{cmp['instants']} recorded instants ({cmp['simulator_ticks']} ticks simulated): "
+        f"metrics {verdict}"
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``formation report`` argument parser."""
     p = argparse.ArgumentParser(
@@ -659,6 +750,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tol", type=float, default=None, metavar="M", help="error band (m)")
     p.add_argument("--scenario", default=None, help="scenario of the run (overrides the file's)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument(
+        "--compare-sim",
+        action="store_true",
+        help="lockstep recordings: also run the in-process simulator (same scenario, seed, "
+        "duration), compare its metrics at the recorded instants (metrics.json "
+        "'simulator_comparison'); exit 3 if they differ",
+    )
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return p
 
@@ -679,10 +777,25 @@ def main(argv: list[str]) -> int:
         print(f"formation report: {exc}", file=sys.stderr)
         return 1
     out = args.out if args.out is not None else args.file.with_name(args.file.stem + "-report")
+    cmp: dict[str, Any] | None = None
+    if args.compare_sim:
+        try:
+            _, cmp = compare_with_simulator(report, args.scenario)
+        except (ReportError, scenario_mod.ScenarioError) as exc:
+            print(f"formation report: --compare-sim: {exc}", file=sys.stderr)
+            return 1
+        report.metrics["simulator_comparison"] = cmp
     write(report, out, figures=not args.no_figures)
     if not args.quiet:
         print(summary(report.metrics))
+        if cmp is not None:
+            print(comparison_line(cmp))
         if not rec.complete:
             print("note: the recording has no footer (recorder killed?); read what was complete")
         print(f"metrics{'' if args.no_figures else ' and figures'} in {out}/")
+    if cmp is not None and not (cmp["robots_equal"] and cmp["run_equal"]):
+        print("formation report: metrics differ from the simulator's:", file=sys.stderr)
+        for d in cmp["differences"]:
+            print(f"  {d}", file=sys.stderr)
+        return 3
     return 0
