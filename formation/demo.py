@@ -3,15 +3,19 @@
 Usage::
 
     formation demo [--out runs/demo] [--endpoint tcp/127.0.0.1:PORT] [--duration S]
-                   [--no-figures]
+                   [--no-figures] [--no-record]
 
 1. ``paper-exp2`` as separate processes (router, plant, coordinator, one agent per robot) over an
    embedded Zenoh router, in lockstep: exactly what ``formation up --scenario paper-exp2
-   --lockstep`` runs (the same function, :func:`formation.up.run_up`). Output in
-   ``<out>/paper-exp2-zenoh/``.
-2. The same scenario and seed in one process (``formation sim``), output in
+   --lockstep --record <out>/paper-exp2-zenoh/run.mcap`` runs (the same function,
+   :func:`formation.up.run_up`). Output in ``<out>/paper-exp2-zenoh/``, the MCAP recording of
+   every bus message of the run in ``<out>/paper-exp2-zenoh/run.mcap`` (open it in Foxglove).
+2. ``formation report`` on that recording: metrics.json and the paper's figures rebuilt from the
+   MCAP file alone, in ``<out>/paper-exp2-zenoh/report/``, checked against the live run's
+   metrics and against the in-process simulator's at the recorded instants.
+3. The same scenario and seed in one process (``formation sim``), output in
    ``<out>/paper-exp2-inprocess/``.
-3. A comparison of the two: lockstep makes the distributed run reproduce the in-process one
+4. A comparison of the two: lockstep makes the distributed run reproduce the in-process one
    tick for tick (docs/runtime.md), so the truth trajectories should agree to the last bit.
 
 Without ``--endpoint`` the router listens on a free loopback port, so the demo does not clash
@@ -30,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from formation import report as report_mod
 from formation import scenario as scenario_mod
 from formation.sim_cli import run_and_write, summary
 
@@ -114,6 +119,28 @@ def _comparison_text(ma: dict[str, Any], mb: dict[str, Any], cmp: dict[str, Any]
     return "\n".join(lines)
 
 
+def report_recording(path: Path, live: dict[str, Any], figures: bool = True) -> bool:
+    """``formation report PATH --out <dir>/report --compare-sim`` in-process, printed; True when
+    the report's metrics equal the live run's and the simulator's at the recorded instants."""
+    out = path.parent / "report"
+    print(f"\n== formation report {path} --out {out} --compare-sim")
+    try:
+        rep = report_mod.analyze(report_mod.read_recording(path))
+        _, cmp = report_mod.compare_with_simulator(rep)
+    except (OSError, ValueError) as exc:  # ReportError, ScenarioError
+        print(f"formation demo: report of {path}: {exc}", file=sys.stderr)
+        return False
+    rep.metrics["simulator_comparison"] = cmp
+    report_mod.write(rep, out, figures=figures)
+    print(report_mod.summary(rep.metrics))
+    same_live = rep.metrics["robots"] == live["robots"] and rep.metrics["run"] == live["run"]
+    verdict = "equal" if same_live else "DIFFER"
+    print(f"metrics from the MCAP file vs the live run's metrics.json: {verdict}")
+    print(report_mod.comparison_line(cmp))
+    print(f"metrics.json{' and figures' if figures else ''} in {out}/")
+    return same_live and cmp["robots_equal"] and cmp["run_equal"]
+
+
 def main(argv: list[str]) -> int:
     """Entry point of ``formation demo`` (``make demo``)."""
     p = argparse.ArgumentParser(prog="formation demo", description=__doc__.splitlines()[0])
@@ -123,6 +150,9 @@ def main(argv: list[str]) -> int:
     )
     p.add_argument("--duration", type=float, default=None, help="sim seconds (scenario's)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument(
+        "--no-record", action="store_true", help="do not record the run to MCAP (no report)"
+    )
     args = p.parse_args(argv)
 
     from formation import up
@@ -137,13 +167,21 @@ def main(argv: list[str]) -> int:
         endpoint=args.endpoint or free_endpoint(),
         out=zenoh_out,
         figures=not args.no_figures,
+        record=None if args.no_record else zenoh_out / "run.mcap",
     )
-    print(f"== {SCENARIO} over Zenoh, lockstep (formation up --scenario {SCENARIO} --lockstep)")
+    rec_arg = "" if cfg.record is None else f" --record {cfg.record}"
+    print(
+        f"== {SCENARIO} over Zenoh, lockstep "
+        f"(formation up --scenario {SCENARIO} --lockstep{rec_arg})"
+    )
     print(f"   {scn.description}")
     result = asyncio.run(up.run_up(cfg))
     if result.metrics is None:
         print("formation demo: the distributed run produced no metrics", file=sys.stderr)
         return result.exit_code or 1
+    report_ok = True
+    if cfg.record is not None:
+        report_ok = report_recording(cfg.record, result.metrics, figures=not args.no_figures)
 
     print(f"\n== {SCENARIO} in-process (formation sim --scenario {SCENARIO}): the reference")
     ref = run_and_write(scn, ref_out, duration=args.duration, figures=not args.no_figures)
@@ -154,4 +192,8 @@ def main(argv: list[str]) -> int:
     cmp = compare_runs(zenoh_out, ref_out)
     print(_comparison_text(result.metrics, ref, cmp))
     print(f"\nfigures and metrics.json: {zenoh_out}/ (over Zenoh), {ref_out}/ (in-process)")
-    return result.exit_code
+    if cfg.record is not None:
+        print(
+            f"recording: {cfg.record} (Foxglove: open local file); its report: {zenoh_out}/report/"
+        )
+    return result.exit_code or (0 if report_ok else 1)
