@@ -38,6 +38,7 @@ from bus_schemas import (
     Wheels,
     encode,
     keys,
+    message_type_for_key,
     to_map,
 )
 from bus_schemas import transport as tp
@@ -689,3 +690,119 @@ def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
         for _, _, msg in reader.iter_messages(topics=[f"/formation/{FLEET}/robot/r2/wheels"]):
             body = json.loads(msg.data)
             assert set(body) >= {"v", "t", "seq", "omega_r", "power_r", "pose_t"}
+
+
+# ---------------------------------------------------------------------------------------------
+# formation up --record, then formation report: the file, the figures, the simulator's metrics
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_up_record_then_report_reproduces_the_in_process_simulator(
+    spawn: Spawner, tmp_path: Path
+) -> None:
+    """``formation up --lockstep --record`` on 4 s of paper-exp2: the MCAP file read back by the
+    mcap library (one channel per key, JSON Schemas, the run's metadata), ``formation report
+    --compare-sim`` on it (metrics.json, the four figures), and its metrics equal both the live
+    run's and ``formation.simulate``'s for the same scenario and seed at the recorded instants
+    (the bus carries truth at the camera rate, 30 of the 50 ticks per second)."""
+    from formation import metrics, scenario, simulate
+
+    fleet, seed, duration = "rec1", 3, 4.0
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up_out, mcap_path, rep_out = tmp_path / "up", tmp_path / "run.mcap", tmp_path / "report"
+    up = spawn(
+        "up", "--lockstep", "--scenario", "paper-exp2", "--duration", str(duration),
+        "--seed", str(seed), "--endpoint", endpoint, "--fleet", fleet, "--out", str(up_out),
+        "--no-figures", "--quiet", "--record", str(mcap_path),
+    )  # fmt: skip
+    assert up.proc.wait(timeout=120) == 0, up.describe()
+    live = json.loads((up_out / "metrics.json").read_text())
+    assert live["meta"]["record"] == str(mcap_path)
+
+    # The file, read back by the mcap library.
+    with open(mcap_path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        topics = [ch.topic for ch in summary.channels.values()]
+        assert len(topics) == len(set(topics)), "one channel per key"
+        counts = {
+            summary.channels[c].topic: n
+            for c, n in summary.statistics.channel_message_counts.items()
+        }
+        expected = [f"robot/{r}/{leaf}" for r in ("r1", "r2", "r3")
+                    for leaf in ("truth", "pose", "wheels", "setpoint", "status")]  # fmt: skip
+        expected += ["clock", "leader", "assignment", "slot/0", "slot/1", "slot/2"]
+        expected += ["alive/plant", "alive/coordinator/main", "alive/robot/r1"]
+        for key in expected:
+            assert counts.get(f"/formation/{fleet}/{key}", 0) > 0, key
+        ticks = round(duration / DT) + 1
+        assert counts[f"/formation/{fleet}/clock"] == ticks
+        assert counts[f"/formation/{fleet}/robot/r2/wheels"] == ticks
+        schemas: dict[str, dict[str, Any]] = {}
+        for ch in summary.channels.values():
+            if ch.topic.startswith(f"/formation/{fleet}/"):
+                assert ch.message_encoding == "json", ch.topic
+                if "/alive/" not in ch.topic and message_type_for_key(ch.topic[1:]) is None:
+                    continue  # a node's extra key outside the bus contract: schemaless JSON
+                assert ch.schema_id != 0, ch.topic
+                schema = summary.schemas[ch.schema_id]
+                assert schema.encoding == "jsonschema" and schema.name.startswith("formation.")
+                schemas[ch.topic] = json.loads(schema.data)
+        assert (
+            summary.schemas[
+                next(
+                    c.schema_id for c in summary.channels.values() if c.topic.endswith("r1/wheels")
+                )
+            ].name
+            == "formation.Wheels"
+        )
+        assert {"/scene", "/tf", "/derived/robot/r1/tracking_error"} <= set(topics)
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert meta["formation.run"]["lockstep"] == "true"
+        assert meta["formation.run"]["seed"] == str(seed)
+        assert meta["formation.recording"]["fleet"] == fleet
+        truth_r1: dict[int, tuple[float, float, float]] = {}
+        for _, channel, msg in reader.iter_messages(
+            topics=[f"/formation/{fleet}/robot/r1/wheels", f"/formation/{fleet}/robot/r1/truth"]
+        ):
+            body = json.loads(msg.data)
+            assert schema_errors(schemas[channel.topic], body) == [], channel.topic
+            assert msg.publish_time == round(body["t"] * 1e9)
+            if channel.topic.endswith("/truth"):
+                truth_r1[round(body["t"] * 1e6)] = (body["x"], body["y"], body["theta"])
+
+    # formation report on it, as a subprocess.
+    rep = spawn("report", str(mcap_path), "--out", str(rep_out), "--compare-sim", "--quiet")
+    assert rep.proc.wait(timeout=120) == 0, rep.describe()
+    for name in ("trajectories", "motor_power", "formation_error", "roles"):
+        assert (rep_out / f"{name}.png").stat().st_size > 10_000, name
+    m_rep = json.loads((rep_out / "metrics.json").read_text())
+    assert m_rep["robots"] == live["robots"] and m_rep["run"] == live["run"]
+    assert m_rep["meta"]["collector"]["first_tick"] == 0
+    assert m_rep["recording"]["complete"] is True
+    assert m_rep["latency"]["rx_latency_ms"]["n"] > 0
+    assert set(m_rep["power_peaks"]) == {"r1", "r2", "r3"}
+    cmp = m_rep["simulator_comparison"]
+    assert cmp["robots_equal"] and cmp["run_equal"] and cmp["differences"] == []
+
+    # The same comparison done here, independently of report.compare_with_simulator.
+    scn = scenario.load("paper-exp2")
+    sim = simulate.run(scn, seed=seed, duration_s=duration).log
+    assert sim.t_s.size == ticks
+    keep = np.isin(np.round(sim.t_s * 1e6).astype(np.int64), sorted(truth_r1))
+    assert 0.5 * ticks < keep.sum() < ticks  # the camera rate: 3 of every 5 ticks
+    for k in np.flatnonzero(keep):  # the recorded truth is the simulator's, bit for bit
+        assert truth_r1[round(float(sim.t_s[k]) * 1e6)] == tuple(float(v) for v in sim.truth[k, 0])
+    arrays = ("t_s", "truth", "ref", "target", "slot_of", "slot_xy", "leader", "power", "mode")
+    sub = RunLog(
+        robot_ids=sim.robot_ids, slot_ids=sim.slot_ids,
+        **{a: getattr(sim, a)[keep] for a in arrays},
+        min_separation_m=sim.min_separation_m, collisions=sim.collisions,
+    )  # fmt: skip
+    m_sim = metrics.compute(sub, m_rep["run"]["settle_s"], scn.settle_tol_m)
+    assert m_rep["robots"] == m_sim["robots"]
+    assert m_rep["run"] == m_sim["run"]
+    assert m_rep["run"]["ticks"] == int(keep.sum()) and m_rep["run"]["collisions"] == 0
