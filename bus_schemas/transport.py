@@ -111,6 +111,8 @@ _MODES: Final = ("client", "peer", "router")
 _KEEP_ALIVES_PER_LEASE: Final = 4
 _MIN_LEASE_MS: Final = 100
 _RETRY_PERIOD_S: Final = 0.1
+_CONNECT_RETRY: Final = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
+"""Client reconnection to its router after the link was lost (see :func:`make_config`)."""
 
 
 class TransportError(ConnectionError):
@@ -302,6 +304,13 @@ def make_config(settings: ZenohSettings) -> zenoh.Config:
         # multicast off a router (or a peer that connects nowhere) has nobody to wait for: skip
         # it, so `formation router` is ready in ~2 ms instead of ~500 ms.
         put("scouting/delay", 0)
+    if settings.mode in (None, "client") and json.loads(config.get_json("connect/retry")) is None:
+        # A client whose router goes away keeps its session and reconnects by itself, then
+        # re-declares its subscribers and liveliness tokens (measured with zenoh 1.10). Zenoh's
+        # default retry period starts at 1 s and doubles up to 4 s: a router restart would
+        # cost the loop 1-4 s. Retry every 100 ms, at most every 500 ms (measured here: the loop
+        # is back ~40 ms after the router is), which on loopback costs nothing.
+        put("connect/retry", dict(_CONNECT_RETRY))
     if settings.lease_ms is not None:
         put("transport/link/tx/lease", int(settings.lease_ms))
         put("transport/link/tx/keep_alive", _KEEP_ALIVES_PER_LEASE)

@@ -471,6 +471,12 @@ class RoleAssigner:
         slot_ids, sxy = _slots(slots)
         return self._commit(robot_ids, rxy, slot_ids, sxy)
 
+    def seed_incumbent(self, assignment: Mapping[str, int]) -> None:
+        """Take ``assignment`` (robot id -> slot id) as the incumbent of the next update, e.g.
+        the assignment of the coordinator this one takes over from, so hysteresis keeps the
+        same roles instead of re-deciding them from scratch."""
+        self._assignment = {str(r): int(s) for r, s in assignment.items()}
+
     def update_ordered(
         self,
         robot_ids: Sequence[str],

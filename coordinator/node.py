@@ -41,18 +41,39 @@ and because setpoints and leader share one session and one priority, every setpo
 reaches the router before the plant can start tick k+1. A repeated clock k is answered by
 re-sending the same messages.
 
+Standby (``--standby``, docs/faults.md)
+----------------------------------------
+Several instances may run; exactly one is *active* (ticks and publishes), the others are hot
+standbys. Every instance publishes a ``heartbeat`` (``active``, ``epoch``, ``leader_t0``) every
+:data:`HEARTBEAT_PERIOD_S` and watches the others' tokens ``alive/coordinator/*`` and heartbeats.
+A standby remembers the active's ``leader_t0`` and its last ``assignment``. Election, re-run when
+a coordinator token vanishes and on every loop turn: a standby takes over only when no live
+instance is active or of unknown role (token present, no heartbeat yet), and no live standby
+comes before it (``main`` first, then by name); it then takes ``epoch`` = the highest seen + 1,
+the previous active's ``leader_t0`` (so the virtual leader continues without a jump), seeds the
+role assigner's incumbents with the previous assignment (no role chatter) and ticks at once.
+Never two actives: a standby needs the active's token gone, which happens ~3 ms after it dies or
+one lease after it hangs; an instance resuming from a hang (its loop late by more than
+``hang_gap_s``, half the lease) steps down before it publishes anything; and if two actives ever
+meet (two instances started without ``--standby``), the one with the lower epoch, then the later
+name, steps down on the other's heartbeat. An instance without ``--standby`` starts active.
+
 Also published (not part of bus contract v1, plain msgpack maps readable by any decoder):
 ``formation/<fleet>/coordinator/<name>/status`` at 5 Hz with ``v``, ``t``, ``seq``, ``rejected``
 (messages rejected), ``rx`` (received per input), ``ticks``, ``alive`` (robot ids), ``assignment``
-(robot -> slot), ``leader`` (robot id or nil), ``mode`` and ``internal_errors``. Role changes are
-logged to stderr.
+(robot -> slot), ``leader`` (robot id or nil), ``mode``, ``internal_errors``, ``role``
+(``active``/``standby``), ``epoch``, ``takeovers``, ``stepdowns``, ``pid`` and ``host``. Role
+changes are logged to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import math
+import os
+import socket
 import sys
 import time
 from collections.abc import Iterable, Mapping
@@ -81,9 +102,20 @@ from robot_agent.node import NodeLog, encode_ticked, subscribe_ordered
 __all__ = ["CoordinatorNode", "build_parser", "coordinator_status_key", "main"]
 
 STATUS_PERIOD_S: Final = 0.2
-HEARTBEAT_PERIOD_S: Final = 1.0
+HEARTBEAT_PERIOD_S: Final = 0.1
+"""Heartbeat period (s): a standby learns the active's state (``leader_t0``, epoch) from it, and
+an instance resuming from a hang learns from it that it was replaced."""
+HANG_GAP_S: Final = 0.3
+"""Realtime: a loop iteration this much later than planned (s) means this process was stopped
+(SIGSTOP, a swapped-out VM); an active instance then steps down instead of ticking: its token
+may have expired and a standby taken over (see *Standby* in the module docstring)."""
+STANDBY_SETTLE_S: Final = 0.3
+"""A standby decides nothing during this long after its liveliness subscriptions were declared
+(s), so the tokens and heartbeats of the instances already running have arrived."""
 ASSIGNMENT_REPEAT_S: Final = 1.0
 """The assignment is re-published at least this often (s; sim time in lockstep)."""
+MAX_PEERS: Final = 64
+"""Distinct coordinator instance names tracked."""
 MAX_ROBOTS: Final = 1024
 """Distinct robot ids tracked (made-up ids cannot grow memory without bound)."""
 POSITION_LIMIT_M: Final = 1.0e4
@@ -123,6 +155,7 @@ class CoordinatorNode:
         publish: Any,
         *,
         lockstep: bool = False,
+        standby: bool = False,
         log: NodeLog | None = None,
     ) -> None:
         self.scenario = scenario
@@ -131,6 +164,7 @@ class CoordinatorNode:
         self.lockstep = lockstep
         self.core = core_from_scenario(scenario)
         self.stale_pose_s = scenario.agent.safety.stale_pose_s
+        self.hang_gap_s = HANG_GAP_S
         self.log = log if log is not None else NodeLog(f"coordinator {name}")
         self._publish = publish
         self._order = {rid: i for i, rid in enumerate(scenario.robot_ids)}
@@ -167,6 +201,20 @@ class CoordinatorNode:
         self._seq: dict[str, int] = {}
         self.sim_t = 0.0
 
+        # -- election (module docstring, *Standby*) ------------------------------------------
+        self.active = not standby
+        self.epoch = 0
+        self.takeovers = 0
+        self.stepdowns = 0
+        self._started_s: float | None = None  # set by run(): when subscriptions were declared
+        self._last_loop_s: float | None = None
+        # other instance name -> {"alive": bool, "active": bool | None, "epoch": int,
+        #                         "leader_t0": float | None}
+        self.peers: dict[str, dict[str, Any]] = {}
+        self.peer_assignment: dict[str, int] = {}  # the last assignment seen on the bus
+        self.heartbeats_pattern = keys.all_heartbeats_pattern(fleet)
+        self.coordinators_pattern = keys.alive_coordinators_pattern(fleet)
+
     # -- bookkeeping ---------------------------------------------------------------------------
 
     def _next_seq(self, key: str) -> int:
@@ -189,6 +237,9 @@ class CoordinatorNode:
         try:
             self.rx["alive"] += 1
             parsed = keys.parse_alive_key(key)
+            if parsed is not None and parsed[1] == "coordinator" and parsed[2] is not None:
+                self.on_peer_alive(parsed[2], alive)
+                return
             if parsed is None or parsed[1] != "robot" or parsed[2] is None:
                 return
             rid = parsed[2]
@@ -200,8 +251,132 @@ class CoordinatorNode:
                 self.alive.discard(rid)
                 self.poses.pop(rid, None)  # its last pose must not be reused if it comes back
                 self.log.info(f"robot {rid} gone")
+                if self.active and not self.lockstep and self.t0_s is not None:
+                    # Re-assign now, not at the next tick (up to 1/rate later): the robots
+                    # left must learn their new slots within the 50 ms of issue 4.
+                    self.tick(time.monotonic())
         except Exception as exc:
             self._internal("on_alive", exc)
+
+    # -- election (standby) ---------------------------------------------------------------------
+
+    def _peer(self, name: str) -> dict[str, Any] | None:
+        peer = self.peers.get(name)
+        if peer is None and len(self.peers) < MAX_PEERS:
+            peer = self.peers[name] = {
+                "alive": False, "active": None, "epoch": 0, "leader_t0": None,
+            }  # fmt: skip
+        return peer
+
+    def on_peer_alive(self, name: str, alive: bool) -> None:
+        """The liveliness token of coordinator instance ``name`` appeared or vanished."""
+        if name == self.name:
+            return
+        peer = self._peer(name)
+        if peer is None:
+            return
+        was = peer["alive"]
+        peer["alive"] = alive
+        if alive and not was:
+            # a (re)started instance: unknown role until its first heartbeat
+            peer["active"] = None
+            self.log.info(f"coordinator {name} alive")
+        elif not alive and was:
+            self.log.info(f"coordinator {name} gone")
+            if not self.lockstep:
+                self.elect(time.monotonic())
+
+    def on_heartbeat(self, rx: tp.Received) -> None:
+        """Another instance's heartbeat: its role, epoch and trajectory origin."""
+        try:
+            msg = decode(rx.payload, Heartbeat)
+            if isinstance(msg, DecodeError):
+                self._reject("heartbeat", msg)
+                return
+            if msg.name == self.name:
+                return  # our own
+            peer = self._peer(msg.name)
+            if peer is None:
+                return
+            peer["active"] = msg.active
+            peer["epoch"] = msg.epoch
+            if msg.active:
+                peer["leader_t0"] = msg.leader_t0
+                if self.active and (msg.epoch, _rank(self.name)) > (self.epoch, _rank(msg.name)):
+                    # Two actives (a split brain, or two instances started without --standby):
+                    # the higher epoch wins, then the name first in order. The loser stops at
+                    # once, so the robots get one coordinator's setpoints again within one
+                    # heartbeat period.
+                    self.step_down(f"coordinator {msg.name} is active with epoch {msg.epoch}")
+        except Exception as exc:
+            self._internal("on_heartbeat", exc)
+
+    def on_assignment(self, rx: tp.Received) -> None:
+        """The active instance's assignment: a standby keeps it to seed its hysteresis."""
+        try:
+            if self.active:
+                return
+            msg = decode(rx.payload, Assignment)
+            if isinstance(msg, DecodeError):
+                self._reject("assignment", msg)
+                return
+            if len(msg.robots) <= MAX_ROBOTS:
+                self.peer_assignment = dict(msg.robots)
+        except Exception as exc:
+            self._internal("on_assignment", exc)
+
+    def elect(self, now_s: float) -> bool:
+        """A standby takes over when no live instance is (or may be) active and no live standby
+        comes before it in name order; returns True if it did. Never raises."""
+        try:
+            if self.active or self._started_s is None:
+                return False
+            if now_s - self._started_s < STANDBY_SETTLE_S:
+                return False
+            live = {n: p for n, p in self.peers.items() if p["alive"]}
+            if any(p["active"] is not False for p in live.values()):
+                return False  # an active one, or one whose role we do not know yet
+            if any(_rank(n) < _rank(self.name) for n in live):
+                return False  # a standby before us in order goes first
+            self._take_over(now_s)
+            return True
+        except Exception as exc:
+            self._internal("elect", exc)
+            return False
+
+    def _take_over(self, now_s: float) -> None:
+        known = [p for p in self.peers.values() if p["leader_t0"] is not None]
+        self.epoch = max([self.epoch, *(p["epoch"] for p in self.peers.values())]) + 1
+        if known and not self.lockstep:
+            # Continue the same trajectory: the virtual leader is a pure function of time and
+            # t0 is on the same clock (time.monotonic() of this host, see docs/faults.md).
+            t0 = max(known, key=lambda p: p["epoch"])["leader_t0"]
+            self.t0_s = t0
+            self.core.t0_s = t0
+        seed = {rid: slot for rid, slot in self.peer_assignment.items() if rid in self.alive}
+        self.core.assigner.seed_incumbent(seed)
+        self.core.assignment = dict(seed)
+        self.active = True
+        self.takeovers += 1
+        self.log.info(
+            f"active (epoch {self.epoch}): took over with the trajectory origin "
+            f"{'of the previous instance' if known else 'at this tick'} and "
+            f"{len(seed)} incumbents"
+        )
+        self.publish_heartbeat()
+        if not self.lockstep:
+            self.tick(now_s)
+
+    def step_down(self, why: str) -> None:
+        """Stop publishing (become a standby); never raises."""
+        if not self.active:
+            return
+        self.active = False
+        self.stepdowns += 1
+        self._started_s = time.monotonic() if not self.lockstep else self.sim_t
+        self.log.info(f"standby: {why}")
+        with contextlib.suppress(Exception):
+            self.publish_heartbeat()
 
     def on_pose(self, rx: tp.Received) -> None:
         """A measured pose ``robot/<id>/pose``."""
@@ -242,6 +417,9 @@ class CoordinatorNode:
             if isinstance(msg, DecodeError):
                 self._reject("clock", msg)
                 return
+            if not self.active:
+                self.sim_t = msg.t
+                return
             if msg.tick == self._last_tick:  # the plant re-announced: answer again
                 for key, payload, qos in self._last_outputs:
                     self._publish(key, payload, qos)
@@ -273,8 +451,18 @@ class CoordinatorNode:
         return out
 
     def tick(self, now_s: float, tick: int | None = None) -> CoordinatorOutput | None:
-        """Run the core at ``now_s`` and publish its outputs (see the module docstring)."""
+        """Run the core at ``now_s`` and publish its outputs (see the module docstring).
+
+        Only the active instance ticks. In realtime a tick that finds the loop stalled for more
+        than ``hang_gap_s`` steps down instead (the token may have expired meanwhile)."""
         try:
+            if not self.active:
+                return None
+            if not self.lockstep and self._last_loop_s is not None:
+                stalled = time.monotonic() - self._last_loop_s
+                if stalled > self.hang_gap_s:
+                    self.step_down(f"this process was stopped for {stalled:.2f} s")
+                    return None
             if self.t0_s is None:
                 self.t0_s = now_s
                 self.core.t0_s = now_s
@@ -378,6 +566,12 @@ class CoordinatorNode:
             "alive": sorted(self.alive),
             "assignment": dict(sorted(last.assignment.items())) if last is not None else {},
             "leader": last.leader_robot if last is not None else None,
+            "role": "active" if self.active else "standby",
+            "epoch": self.epoch,
+            "takeovers": self.takeovers,
+            "stepdowns": self.stepdowns,
+            "pid": os.getpid(),
+            "host": _HOST,
         }
 
     def publish_status(self) -> None:
@@ -397,8 +591,8 @@ class CoordinatorNode:
                 t=max(now, 0.0),
                 seq=self._next_seq(self.heartbeat_key),
                 name=self.name,
-                active=True,
-                epoch=0,
+                active=self.active,
+                epoch=self.epoch,
                 leader_t0=self.t0_s if self.t0_s is not None else 0.0,
             )
             self._publish(self.heartbeat_key, encode(hb), tp.QOS_TELEMETRY)
@@ -412,8 +606,12 @@ class CoordinatorNode:
         next_tick = now
         next_status = now
         next_hb = now
+        self._started_s = self.sim_t if self.lockstep else now
+        self._last_loop_s = now
         while not stop.is_set():
             now = time.monotonic()
+            if not self.active:
+                self.elect(self.sim_t if self.lockstep else now)
             if not self.lockstep and now >= next_tick:
                 self.tick(now)
                 next_tick += period
@@ -428,7 +626,16 @@ class CoordinatorNode:
             wake = min(next_status, next_hb)
             if not self.lockstep:
                 wake = min(wake, next_tick)
-            await asyncio.sleep(max(0.0, wake - time.monotonic()))
+            self._last_loop_s = time.monotonic()
+            await asyncio.sleep(max(0.0, wake - self._last_loop_s))
+
+
+_HOST: Final = socket.gethostname()[:255] or "unknown"
+
+
+def _rank(name: str) -> tuple[int, str]:
+    """Election order of instance names: ``main`` first, then by name."""
+    return (0 if name == "main" else 1, name)
 
 
 def _describe(assignment: Mapping[str, int]) -> str:
@@ -467,6 +674,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--lockstep", action="store_true", help="tick on the plant's clock (docs/runtime.md)"
     )
+    parser.add_argument(
+        "--standby",
+        action="store_true",
+        help="start as a hot standby: take over when the active instance is gone (docs/faults.md)",
+    )
     tp.add_zenoh_arguments(parser)
     return parser
 
@@ -490,7 +702,9 @@ def main(argv: list[str]) -> int:
         log.info(f"zenoh settings: {exc}")
         return 2
     return tp.run_node(
-        lambda stop: _node(stop, scenario, ns.name, ns.fleet, settings, ns.lockstep, ns.rate_hz)
+        lambda stop: _node(
+            stop, scenario, ns.name, ns.fleet, settings, ns.lockstep, ns.rate_hz, ns.standby
+        )
     )
 
 
@@ -502,6 +716,7 @@ async def _node(
     settings: tp.ZenohSettings,
     lockstep: bool,
     rate_hz: float,
+    standby: bool = False,
 ) -> int:
     loop = asyncio.get_running_loop()
     log = NodeLog(f"coordinator {name}")
@@ -512,18 +727,30 @@ async def _node(
         return 1
     try:
         pubs = tp.Publishers(session)
-        node = CoordinatorNode(scenario, name, fleet, pubs.put, lockstep=lockstep, log=log)
+        node = CoordinatorNode(
+            scenario, name, fleet, pubs.put, lockstep=lockstep, standby=standby, log=log
+        )
+        if settings.lease_ms is not None:
+            # A stall shorter than half the lease cannot have let the token expire (the far end
+            # waits a whole lease), so it cannot have let a standby take over.
+            node.hang_gap_s = max(HANG_GAP_S, 0.5 * settings.lease_ms / 1000.0)
+        else:
+            node.hang_gap_s = 5.0  # Zenoh's default lease is 10 s
         pubs.get(node.leader_key, node.leader_qos)
         for rid in scenario.robot_ids:
             pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
         tp.watch_liveliness(session, node.alive_pattern, loop, node.on_alive)
+        tp.watch_liveliness(session, node.coordinators_pattern, loop, node.on_alive)
+        subscribe_ordered(session, node.heartbeats_pattern, loop, node.on_heartbeat)
+        subscribe_ordered(session, node.assignment_key, loop, node.on_assignment)
         subscribe_ordered(session, node.poses_pattern, loop, node.on_pose)
         if lockstep:
             subscribe_ordered(session, node.clock_key, loop, node.on_clock)
         token = tp.declare_token(session, node.alive_key)
         print("coordinator ready", flush=True)
         mode = "lockstep" if lockstep else f"realtime at {rate_hz:g} Hz"
-        log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}")
+        role = "standby" if standby else "active"
+        log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}, {role}")
         await node.run(stop, rate_hz)
         del token
         return 0

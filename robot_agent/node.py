@@ -116,6 +116,14 @@ NEIGHBOUR_STALE_S: Final = 1.0
 """A neighbour's batched pose older than this (s, receive time) no longer repels."""
 MAX_NEIGHBOURS: Final = 1024
 """Distinct neighbour ids kept (a flood of made-up ids cannot grow memory without bound)."""
+HANG_GAP_S: Final = 0.3
+"""Realtime: the event loop idle for longer than this (s) means the process was stopped
+(SIGSTOP, a swapped-out VM). Its loop turns at least every 1/rate_hz (20 ms at 50 Hz)."""
+RESUME_QUARANTINE_S: Final = 0.25
+"""After such a stop, setpoints and poses received during this long (s) are dropped: they are the
+backlog queued while the process was stopped, stamped with fresh receive times on delivery, and
+the setpoint may be for a slot another robot took meanwhile (issue 4: a resumed robot must not
+fight the one that took its slot). The firmware holds until fresh data arrives."""
 TICK_FIELD: Final = "tick"
 """Extra wire field carrying the lockstep tick on setpoint, slot and leader messages."""
 _TICK_MAX: Final = 2**64 - 1
@@ -413,6 +421,9 @@ class AgentNode:
         self._last_wheels: bytes | None = None
         self._seq_wheels = 0
         self._seq_status = 0
+        self._last_loop_s: float | None = None  # realtime: last turn of run()'s loop
+        self.quarantine_until_s = -math.inf
+        self.resumes = 0
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -429,12 +440,29 @@ class AgentNode:
         """Messages rejected so far (decode errors and misaddressed messages)."""
         return self.firmware.status().rejected_count
 
+    def _resumed(self, now_s: float) -> bool:
+        """Realtime: detect a resume after a stop (see :data:`RESUME_QUARANTINE_S`) and return
+        True while the quarantine lasts."""
+        if self.lockstep:
+            return False
+        last = self._last_loop_s
+        if last is not None and now_s - last > HANG_GAP_S:
+            self._last_loop_s = now_s
+            self.quarantine_until_s = now_s + RESUME_QUARANTINE_S
+            self.resumes += 1
+            self.setpoint = None
+            self.pose = None
+            self.log.info(f"resumed after {now_s - last:.2f} s stopped: holding until fresh data")
+        return now_s < self.quarantine_until_s
+
     # -- input handlers (event loop) -----------------------------------------------------------
 
     def on_pose(self, rx: tp.Received) -> None:
         """Own pose: keep it; realtime on-pose: step now."""
         try:
             self.rx["pose"] += 1
+            if self._resumed(rx.rx_s):
+                return
             msg = decode(rx.payload, Pose)
             if isinstance(msg, DecodeError):
                 self._reject("pose", msg)
@@ -456,6 +484,8 @@ class AgentNode:
         """Own setpoint: keep the newest (realtime) or the last two with their ticks (lockstep)."""
         try:
             self.rx["setpoint"] += 1
+            if self._resumed(rx.rx_s):
+                return
             msg = decode(rx.payload, Setpoint)
             if isinstance(msg, DecodeError):
                 self._reject("setpoint", msg)
@@ -661,6 +691,7 @@ class AgentNode:
         next_wd = now
         while not stop.is_set():
             now = time.monotonic()
+            self._resumed(now)
             if now >= next_ctrl:
                 if not self.lockstep and (
                     self.loop_mode == "fixed" or now - self.last_step_s >= period * 0.999
@@ -677,7 +708,8 @@ class AgentNode:
                 next_status += STATUS_PERIOD_S
                 if next_status <= now:
                     next_status = now + STATUS_PERIOD_S
-            await asyncio.sleep(max(0.0, min(next_ctrl, next_status) - time.monotonic()))
+            self._last_loop_s = time.monotonic()
+            await asyncio.sleep(max(0.0, min(next_ctrl, next_status) - self._last_loop_s))
 
 
 # ---------------------------------------------------------------------------------------------
