@@ -13,15 +13,18 @@ import asyncio
 import contextlib
 import json
 import math
+import signal
 import struct
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 import websockets
 import zenoh
+from conftest import Spawner, free_port
 
 from bus_schemas import Assignment, Leader, Pose, Slot, Status, Truth, encode, keys
 from bus_schemas import transport as tp
@@ -352,3 +355,60 @@ def test_scene_model_draws_the_tree_and_tracking_lines() -> None:
     assert (robot_to_slot[1][1], robot_to_slot[1].get(2, 0.0)) == pytest.approx((1.0, 0.0))
     tf = model.transforms(0).encode()
     assert b"world" in tf and b"r1" in tf
+
+
+# ---------------------------------------------------------------------------------------------
+# formation up --foxglove PORT: the launcher's live server, a real run, a real client
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_up_foxglove_serves_a_running_fleet_over_websocket(spawn: Spawner, tmp_path: Path) -> None:
+    """``formation up --lockstep --foxglove PORT``: a WebSocket client subscribes to bus
+    channels, a derived channel and the 3D scene of the running fleet, then SIGINT ends it."""
+    fleet, port = "live1", free_port()
+    up = spawn(
+        "up", "--lockstep", "--scenario", "paper-exp1", "--duration", "600",
+        "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet", fleet,
+        "--out", str(tmp_path / "up"), "--no-figures", "--quiet", "--foxglove", str(port),
+        ready="foxglove live view on ",
+    )  # fmt: skip
+    url = up.wait_for_line("foxglove live view on ").split()[-1]
+    assert url == f"ws://127.0.0.1:{port}"
+    pose, wheels = f"/formation/{fleet}/robot/r3/pose", f"/formation/{fleet}/robot/r1/wheels"
+    status = f"/formation/{fleet}/robot/r2/status"
+
+    def scene_with_robots(topic: str, data: bytes) -> bool:
+        if topic != "/scene":
+            return True
+        return {"robot/r1", "robot/r2", "robot/r3"} <= set(scene_entities(data))
+
+    got = asyncio.run(
+        receive(url, [pose, wheels, status, "/scene", "/tf"], 30.0, accept=scene_with_robots)
+    )
+    ch, data = got[pose]
+    assert ch["schemaName"] == "formation.Pose" and ch["schemaEncoding"] == "jsonschema"
+    body = json.loads(data)
+    assert body["v"] == 1 and all(math.isfinite(body[k]) for k in ("x", "y", "theta"))
+    ch, data = got[wheels]
+    assert ch["schemaName"] == "formation.Wheels"
+    assert -1.0 <= json.loads(data)["power_r"] <= 1.0
+    ch, data = got[status]
+    assert ch["schemaName"] == "formation.Status"
+    assert json.loads(data)["rejected"] == 0
+    entities = scene_entities(got["/scene"][1])
+    assert {"slots", "links", "virtual_leader"} <= set(entities)
+    lines = [pb_fields(v) for n, v in entities["links"] if n == 11]
+    assert len(lines) == 4  # the leader-follower tree (one line list) + one line per robot
+    assert len([v for n, v in lines[0] if n == 5]) == 4  # triangle: 2 edges slot 0 -> 1, 2
+    assert got["/tf"][0]["schemaName"] == "foxglove.FrameTransforms"
+
+    start = time.monotonic()
+    up.send_signal(signal.SIGINT)
+    up.proc.wait(timeout=10.0)
+    elapsed = time.monotonic() - start
+    assert up.proc.returncode == 130, up.describe()
+    assert elapsed < 3.0, elapsed  # the bound of test_up's Ctrl-C test; measured ~0.5 s
+    with pytest.raises(OSError):  # the server is gone with the launcher
+        asyncio.run(receive(url, ["/scene"], 2.0))
