@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import json
 import math
+import re
 import signal
 import struct
 import threading
@@ -367,10 +368,10 @@ def test_scene_model_draws_the_tree_and_tracking_lines() -> None:
 def test_up_foxglove_serves_a_running_fleet_over_websocket(spawn: Spawner, tmp_path: Path) -> None:
     """``formation up --lockstep --foxglove PORT``: a WebSocket client subscribes to bus
     channels, a derived channel and the 3D scene of the running fleet, then SIGINT ends it."""
-    fleet, port = "live1", free_port()
+    fleet, port, endpoint = "live1", free_port(), f"tcp/127.0.0.1:{free_port()}"
     up = spawn(
         "up", "--lockstep", "--scenario", "paper-exp1", "--duration", "600",
-        "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet", fleet,
+        "--endpoint", endpoint, "--fleet", fleet,
         "--out", str(tmp_path / "up"), "--no-figures", "--quiet", "--foxglove", str(port),
         ready="foxglove live view on ",
     )  # fmt: skip
@@ -403,6 +404,18 @@ def test_up_foxglove_serves_a_running_fleet_over_websocket(spawn: Spawner, tmp_p
     assert len(lines) == 4  # the leader-follower tree (one line list) + one line per robot
     assert len([v for n, v in lines[0] if n == 5]) == 4  # triangle: 2 edges slot 0 -> 1, 2
     assert got["/tf"][0]["schemaName"] == "foxglove.FrameTransforms"
+
+    # formation top, from another process on the same router: every robot, rates, rejects
+    top = spawn("top", "--once", "--wait", "1.5", "--fleet", fleet, "--endpoint", endpoint)
+    assert top.proc.wait(timeout=30) == 0, top.describe()
+    text = top.stdout()
+    assert re.search(r"^fleet live1, coordinator/main up, plant up, leader r\d", text, re.M), text
+    for rid in ("r1", "r2", "r3"):
+        row = re.search(
+            rf"^{rid}\s+yes\s+\d\s+\w+\s+\w+\s+\S+\s+(\S+)\s+(?:\S+\s+){{4}}(\d+)", text, re.M
+        )
+        assert row, text
+        assert float(row.group(1)) > 1.0 and int(row.group(2)) == 0, text  # pose Hz, rejected
 
     start = time.monotonic()
     up.send_signal(signal.SIGINT)
