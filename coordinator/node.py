@@ -54,7 +54,7 @@ the previous active's ``leader_t0`` (so the virtual leader continues without a j
 role assigner's incumbents with the previous assignment (no role chatter) and ticks at once.
 Never two actives: a standby needs the active's token gone, which happens ~3 ms after it dies or
 one lease after it hangs; an instance resuming from a hang (its loop late by more than
-``hang_gap_s``, half the lease) steps down before it publishes anything; and if two actives ever
+``hang_gap_s``, 0.9 lease) steps down before it publishes anything; and if two actives ever
 meet (two instances started without ``--standby``), the one with the lower epoch, then the later
 name, steps down on the other's heartbeat. An instance without ``--standby`` starts active.
 
@@ -731,9 +731,11 @@ async def _node(
             scenario, name, fleet, pubs.put, lockstep=lockstep, standby=standby, log=log
         )
         if settings.lease_ms is not None:
-            # A stall shorter than half the lease cannot have let the token expire (the far end
-            # waits a whole lease), so it cannot have let a standby take over.
-            node.hang_gap_s = max(HANG_GAP_S, 0.5 * settings.lease_ms / 1000.0)
+            # Only a stop of the whole process lets the token expire (keep-alives come from
+            # Zenoh's own threads, not this loop), after a whole lease of silence: a shorter
+            # stall cannot have let a standby take over. 0.9: margin for the lease timer. (0.5
+            # was measured to trip on a loaded 2-core box when processes were being spawned.)
+            node.hang_gap_s = max(HANG_GAP_S, 0.9 * settings.lease_ms / 1000.0)
         else:
             node.hang_gap_s = 5.0  # Zenoh's default lease is 10 s
         pubs.get(node.leader_key, node.leader_qos)

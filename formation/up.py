@@ -5,6 +5,7 @@ Usage::
     formation up [--scenario NAME|FILE] [--robots N] [--duration S] [--lockstep]
                  [--endpoint tcp/127.0.0.1:7447] [--fleet F] [--out DIR] [--seed N]
                  [--no-figures] [--quiet] [--record FILE.mcap] [--foxglove [PORT]]
+                 [--standby] [--respawn S] [--lease-ms MS]
 
 Theory of operation
 -------------------
@@ -31,8 +32,12 @@ Theory of operation
    realtime, when the plant exits after ``--duration`` wall seconds from its clock start (the
    launcher stops it itself 1.5 s later if it has not).
    A live table (robot, slot, role, mode, tracking error, rejected) is redrawn at 2 Hz on a
-   terminal; otherwise a one-line summary every 5 s; nothing with ``--quiet``. A child that
-   exits during the run is a failure and ends it.
+   terminal; otherwise a one-line summary every 5 s; nothing with ``--quiet``. An agent that
+   exits during the run (e.g. ``formation fault kill r2``) is an *event*, printed and kept in
+   ``metrics.json`` (``meta.events``): the fleet re-forms without it, and with ``--respawn S`` it
+   is started again S s later and rejoins. So is a coordinator while another one runs
+   (``--standby``; it is respawned as a standby). Any other child that exits ends the run as a
+   failure. Every node gets ``--lease-ms`` (default 700): a hung node's tokens vanish within 1 s.
 5. **Stop.** SIGTERM to plant, coordinator and agents, at most 2 s wait, then SIGKILL (said on
    stderr); the launcher's session is closed; then the router gets the same treatment. SIGINT or
    SIGTERM to the launcher starts this at once; a second one kills everything immediately.
@@ -101,6 +106,10 @@ CONSUME_PERIOD_S: Final = 0.02
 TABLE_PERIOD_S: Final = 0.5
 LINE_PERIOD_S: Final = 5.0
 EXIT_INTERRUPTED: Final = 130
+DEFAULT_LEASE_MS: Final = 700
+"""Zenoh lease every node announces: a hung (SIGSTOPped) node's tokens vanish ~0.7 s after it
+stopped, inside issue 4's 1 s (keep-alives every lease/4 = 175 ms, sent by Zenoh's own threads,
+so a busy Python loop does not expire it)."""
 
 
 class LaunchError(RuntimeError):
@@ -135,6 +144,9 @@ class UpConfig:
     record: Path | None = None  # MCAP file to record the run's bus traffic to
     foxglove_port: int | None = None  # serve a live Foxglove WebSocket on this port (0: any)
     foxglove_host: str = "127.0.0.1"
+    lease_ms: int | None = DEFAULT_LEASE_MS  # Zenoh lease of every node (hang detection)
+    standby: bool = False  # run a second, hot-standby coordinator
+    respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
 
 
 @dataclass(frozen=True)
@@ -384,12 +396,16 @@ def _tail(path: Path, lines: int = 12) -> str:
 class _Child:
     """One node process: spawn, ready line, stdout drain, stop."""
 
-    def __init__(self, name: str, args: Sequence[str], ready: str, log_dir: Path) -> None:
+    def __init__(
+        self, name: str, args: Sequence[str], ready: str, log_dir: Path, generation: int = 0
+    ) -> None:
         self.name = name
+        self.generation = generation  # respawns of this node (--respawn)
         self.argv = [sys.executable, "-m", "formation", *args]
         self.ready_prefix = ready
-        self.log_path = log_dir / f"{name}.log"
-        self.out_path = log_dir / f"{name}.out"
+        suffix = f".{generation}" if generation else ""
+        self.log_path = log_dir / f"{name}{suffix}.log"
+        self.out_path = log_dir / f"{name}{suffix}.out"
         self.proc: asyncio.subprocess.Process | None = None
         self.ready_s: float | None = None
         self.started_s = 0.0
@@ -616,6 +632,8 @@ class _Launcher:
         self.collector = RunCollector.for_scenario(self.scn, fleet=cfg.fleet, lockstep=cfg.lockstep)
         self.router: _Child | None = None
         self.nodes: list[_Child] = []
+        self.retired: list[_Child] = []  # dead nodes replaced by a respawn
+        self.events: list[dict[str, Any]] = []  # deaths and respawns during the run
         self.session: Any = None
         self.first_truth_rx: float | None = None
         self.last_truth_rx: float | None = None
@@ -714,13 +732,15 @@ class _Launcher:
         return task.result()
 
     def _all_children(self) -> list[_Child]:
-        return [*self.nodes, *([self.router] if self.router is not None else [])]
+        return [*self.retired, *self.nodes, *([self.router] if self.router is not None else [])]
 
     # -- start ----------------------------------------------------------------------------------
 
     def _node_args(self) -> list[tuple[str, list[str], str]]:
         ep, fleet, scn_arg = self.cfg.endpoint, self.cfg.fleet, self.plan.scenario_arg
         common = ["--endpoint", ep, "--fleet", fleet]
+        if self.cfg.lease_ms is not None:
+            common += ["--lease-ms", str(self.cfg.lease_ms)]
         lock = ["--lockstep"] if self.cfg.lockstep else []
         plant = [
             "plant", "--scenario", scn_arg, "--seed", str(self.plan.seed),
@@ -728,6 +748,12 @@ class _Launcher:
         ]  # fmt: skip
         coord = ["coordinator", "--scenario", scn_arg, "--name", "main", *lock, *common]
         out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
+        if self.cfg.standby:
+            standby = [
+                "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",
+                *lock, *common,
+            ]  # fmt: skip
+            out.append(("coordinator-standby", standby, "coordinator ready"))
         for rid in self.scn.robot_ids:
             agent = ["agent", "--id", rid, "--scenario", scn_arg, *lock, *common]
             out.append((f"agent-{rid}", agent, f"agent {rid} ready"))
@@ -862,6 +888,43 @@ class _Launcher:
         while self.first_truth_rx is None:
             await asyncio.sleep(0.02)
 
+    def _survivable(self, child: _Child) -> bool:
+        """An agent's death is an event of the run (issue 4: the fleet re-forms without it); a
+        coordinator's too while another coordinator process is running (``--standby``)."""
+        if child.name.startswith("agent-"):
+            return True
+        if child.name.startswith("coordinator"):
+            return any(
+                c is not child and c.name.startswith("coordinator") and c.returncode is None
+                for c in self.nodes
+            )
+        return False
+
+    def _event(self, text: str) -> None:
+        self.events.append({"t": time.monotonic(), "event": text})
+        self.say(f"formation up: {text}")
+
+    async def _respawn(self, old: _Child) -> _Child:
+        """Start ``old``'s command again after ``--respawn`` seconds (a coordinator always as a
+        standby: the survivor took over and must not be fought)."""
+        assert self.cfg.respawn_s is not None and self.router is not None
+        await asyncio.sleep(self.cfg.respawn_s)
+        args = list(old.argv[3:])
+        if old.name.startswith("coordinator") and "--standby" not in args:
+            args.append("--standby")
+        child = _Child(
+            old.name, args, old.ready_prefix, self.log_dir, generation=old.generation + 1
+        )
+        # fork+exec of a fresh interpreter: the child never runs this process's Zenoh state
+        # (the fork hazard of the field notes is a forked child *using* it).
+        assert self.router.pid is not None
+        await child.spawn(_child_env(), process_group=self.router.pid)
+        self.retired.append(old)
+        self.nodes[self.nodes.index(old)] = child
+        await child.wait_ready(self.cfg.ready_timeout_s)
+        self._event(f"{child.name} respawned (pid {child.pid}), ready in {child.ready_s:.2f} s")
+        return child
+
     async def _run(self) -> None:
         plant = self.nodes[0]
         assert plant.proc is not None
@@ -870,8 +933,9 @@ class _Launcher:
         }
         assert self.router is not None and self.router.proc is not None
         waits[asyncio.ensure_future(self.router.proc.wait())] = self.router
-        pending: set[asyncio.Future[Any]] = set(waits)
+        respawns: set[asyncio.Future[Any]] = set()
         timer: asyncio.Future[Any] | None = None
+        stopper: asyncio.Future[Any] | None = None
         try:
             if not self.cfg.lockstep:
                 # realtime: the duration counts from the first truth frame
@@ -889,28 +953,46 @@ class _Launcher:
                 timer = asyncio.ensure_future(
                     asyncio.sleep(self.plan.duration_s + REALTIME_END_GRACE_S)
                 )
-                pending.add(timer)
             stopper = asyncio.ensure_future(self.stop.wait())
-            pending.add(stopper)
-            done, _ = await asyncio.wait(pending, return_when=asyncio.FIRST_COMPLETED)
-            if stopper in done:
-                raise _Interrupted
-            if timer is not None and timer in done:
-                return
-            for fut in done:
-                child = waits.get(fut)
-                if child is None:
-                    continue
-                rc = child.returncode
-                if child is plant and rc == 0:
-                    return  # the plant ran its duration
-                raise LaunchError(
-                    f"{child.name} (pid {child.pid}) exited with status {rc} during the run; "
-                    f"stderr ({child.log_path}):\n{_tail(child.log_path)}"
-                )
+            while True:
+                pending = {*waits, *respawns, stopper, *([timer] if timer is not None else [])}
+                done, _ = await asyncio.wait(pending, return_when=asyncio.FIRST_COMPLETED)
+                if stopper in done:
+                    raise _Interrupted
+                if timer is not None and timer in done:
+                    return
+                for fut in done:
+                    if fut in respawns:
+                        respawns.discard(fut)
+                        if fut.exception() is not None:
+                            self._event(f"respawn failed: {fut.exception()}")
+                            continue
+                        new: _Child = fut.result()
+                        assert new.proc is not None
+                        waits[asyncio.ensure_future(new.proc.wait())] = new
+                        continue
+                    child = waits.pop(fut, None)
+                    if child is None:
+                        continue
+                    rc = child.returncode
+                    if child is plant and rc == 0:
+                        return  # the plant ran its duration
+                    if self._survivable(child):
+                        what = "killed by SIGKILL" if rc == -signal.SIGKILL else f"status {rc}"
+                        self._event(f"{child.name} (pid {child.pid}) exited ({what})")
+                        if self.cfg.respawn_s is not None:
+                            respawns.add(asyncio.ensure_future(self._respawn(child)))
+                        continue
+                    raise LaunchError(
+                        f"{child.name} (pid {child.pid}) exited with status {rc} during the "
+                        f"run; stderr ({child.log_path}):\n{_tail(child.log_path)}"
+                    )
         finally:
-            for fut in pending:
-                fut.cancel()
+            leftovers: list[asyncio.Future[Any] | None] = [*waits, *respawns, stopper, timer]
+            for pending_fut in leftovers:
+                if pending_fut is not None:
+                    pending_fut.cancel()
+            await asyncio.gather(*respawns, return_exceptions=True)
 
     # -- stop -----------------------------------------------------------------------------------
 
@@ -1025,8 +1107,9 @@ class _Launcher:
             "record": None if self.cfg.record is None else str(self.cfg.record),
             "interrupted": interrupted,
             "failures": list(self.failures),
+            "events": list(self.events),
             "children": {
-                c.name: {
+                f"{c.name}.{c.generation}" if c.generation else c.name: {
                     "pid": c.pid,
                     "returncode": c.returncode,
                     "ready_s": c.ready_s,
@@ -1119,6 +1202,24 @@ def build_parser() -> argparse.ArgumentParser:
         help="seconds each process gets to print its ready line (default 30)",
     )
     p.add_argument(
+        "--standby", action="store_true", help="also run a hot-standby coordinator (docs/faults.md)"
+    )
+    p.add_argument(
+        "--respawn",
+        type=float,
+        default=None,
+        metavar="S",
+        help="restart a dead agent (or coordinator, as a standby) S seconds after it died",
+    )
+    p.add_argument(
+        "--lease-ms",
+        type=int,
+        default=DEFAULT_LEASE_MS,
+        metavar="MS",
+        help=f"Zenoh lease of every node: a hung node is dead after this (default "
+        f"{DEFAULT_LEASE_MS}; 0: Zenoh's own, 10 s)",
+    )
+    p.add_argument(
         "--record",
         type=Path,
         default=None,
@@ -1161,6 +1262,9 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         record=ns.record,
         foxglove_port=ns.foxglove,
         foxglove_host=ns.foxglove_host,
+        lease_ms=ns.lease_ms or None,
+        standby=ns.standby,
+        respawn_s=ns.respawn,
     )
 
 

@@ -116,9 +116,10 @@ NEIGHBOUR_STALE_S: Final = 1.0
 """A neighbour's batched pose older than this (s, receive time) no longer repels."""
 MAX_NEIGHBOURS: Final = 1024
 """Distinct neighbour ids kept (a flood of made-up ids cannot grow memory without bound)."""
-HANG_GAP_S: Final = 0.3
+HANG_GAP_S: Final = 0.5
 """Realtime: the event loop idle for longer than this (s) means the process was stopped
-(SIGSTOP, a swapped-out VM). Its loop turns at least every 1/rate_hz (20 ms at 50 Hz)."""
+(SIGSTOP, a swapped-out VM). Its loop turns at least every 1/rate_hz (20 ms at 50 Hz). With
+``--lease-ms`` the limit is 0.9 lease: a shorter stop cannot have cost the robot its slot."""
 RESUME_QUARANTINE_S: Final = 0.25
 """After such a stop, setpoints and poses received during this long (s) are dropped: they are the
 backlog queued while the process was stopped, stamped with fresh receive times on delivery, and
@@ -423,6 +424,7 @@ class AgentNode:
         self._seq_status = 0
         self._last_loop_s: float | None = None  # realtime: last turn of run()'s loop
         self.quarantine_until_s = -math.inf
+        self.hang_gap_s = HANG_GAP_S
         self.resumes = 0
 
     # -- bookkeeping ---------------------------------------------------------------------------
@@ -446,7 +448,7 @@ class AgentNode:
         if self.lockstep:
             return False
         last = self._last_loop_s
-        if last is not None and now_s - last > HANG_GAP_S:
+        if last is not None and now_s - last > self.hang_gap_s:
             self._last_loop_s = now_s
             self.quarantine_until_s = now_s + RESUME_QUARANTINE_S
             self.resumes += 1
@@ -891,6 +893,8 @@ async def _node(
             motor=motor,
             log=log,
         )
+        if setup.settings.lease_ms is not None:
+            node.hang_gap_s = max(0.3, 0.9 * setup.settings.lease_ms / 1000.0)
         if motor is not None:
             motor.start()
         # Declare the publishers first, so the first command is not delayed by a declaration.
