@@ -425,3 +425,19 @@ def test_up_foxglove_serves_a_running_fleet_over_websocket(spawn: Spawner, tmp_p
     assert elapsed < 3.0, elapsed  # the bound of test_up's Ctrl-C test; measured ~0.5 s
     with pytest.raises(OSError):  # the server is gone with the launcher
         asyncio.run(receive(url, ["/scene"], 2.0))
+
+
+def test_up_parses_record_and_foxglove_options(tmp_path: Path) -> None:
+    from formation import up
+
+    parse = up.build_parser().parse_args
+    cfg = up.config_from_args(parse(["--foxglove", "--record", str(tmp_path / "a.mcap")]))
+    assert (cfg.foxglove_port, cfg.foxglove_host, cfg.record) == (
+        8765,
+        "127.0.0.1",
+        tmp_path / "a.mcap",
+    )
+    cfg = up.config_from_args(parse(["--foxglove", "0", "--foxglove-host", "0.0.0.0"]))
+    assert (cfg.foxglove_port, cfg.foxglove_host, cfg.record) == (0, "0.0.0.0", None)
+    assert up.config_from_args(parse([])).foxglove_port is None
+    assert up.main(["--foxglove", "70000"]) == 2  # before anything starts
