@@ -89,14 +89,19 @@ class Observer:
         if len(self.truth) > 200_000:
             del self.truth[:100_000]
 
-    def formed(self, robots: set[str]) -> bool:
+    def formed(self, robots: set[str], since: float = -math.inf) -> bool:
+        """The latest assignment holds ``robots`` and each one's status, received after
+        ``since``, is TRACKING its assigned slot within TOL_M."""
         now = time.monotonic()
         with self.lock:
             if not self.assign or not robots <= set(self.assign[-1][1].robots):
                 return False
+            slots = self.assign[-1][1].robots
             for r in robots:
                 rx, st = self.status.get(r, (-math.inf, None))
-                if now - rx > 0.5 or st.mode != "tracking":
+                if now - rx > 0.5 or rx < since or st.mode != "tracking":
+                    return False
+                if st.slot != slots[r]:
                     return False
                 if math.hypot(st.ex or 0.0, st.ey or 0.0) >= TOL_M:
                     return False
@@ -194,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
                 rx_re = next(
                     (rx for rx, m in obs.assign if rx >= t_kill and leader not in m.robots), None
                 )
-            t_rec = wait(lambda s=survivors: obs.formed(s), 30.0)
+            since = rx_re if rx_re is not None else t_kill
+            t_rec = wait(lambda s=survivors, since=since: obs.formed(s, since), 30.0)
             t_back = wait(lambda: obs.formed(set(ROBOTS)), 60.0) or time.monotonic()
             sep = obs.min_sep(t_kill, t_back)
             with obs.lock:

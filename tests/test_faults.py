@@ -165,7 +165,11 @@ def formed(obs: Observer, robots: set[str], tol_m: float = 0.06) -> bool:
         a is not None
         and robots <= set(a.robots)
         and all(
-            r in st and st[r].mode == "tracking" and tracking_err(st[r]) < tol_m for r in robots
+            r in st
+            and st[r].mode == "tracking"
+            and st[r].slot == a.robots[r]
+            and tracking_err(st[r]) < tol_m
+            for r in robots
         )
     )
 
