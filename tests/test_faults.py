@@ -365,13 +365,15 @@ async def test_paused_agent_is_dropped_within_1s_and_does_not_fight_on_resume(
         await asyncio.sleep(1.0)
     finally:
         _, t_resume = fleet.fault("resume", victim)
-    holder_before = dict(obs.latest_assignment().robots)  # type: ignore[union-attr]
     await asyncio.sleep(1.5)
-    # the others kept their slots: the resumed agent does not take one back by force
-    after = obs.latest_assignment()
-    assert after is not None
-    for r, s in holder_before.items():
-        assert after.robots.get(r) == s, (holder_before, after.robots)
+    # It tracks nothing until the coordinator assigns it again (its backlog of setpoints for the
+    # slot another robot took is dropped), so it never drives to a slot held by another robot.
+    regiven = [rx for rx, _, a in obs.get("assignment", t_resume) if victim in a.robots]
+    tracking = [
+        rx for rx, who, s in obs.get("status", t_resume) if who == victim and s.mode == "tracking"
+    ]
+    if tracking:
+        assert regiven and regiven[0] <= tracking[0], (regiven[:1], tracking[:1])
     # while quarantined after the resume it commands no motion toward its old slot
     early = [
         w for rx, who, w in obs.get("wheels", t_resume) if who == victim and rx < t_resume + 0.2
