@@ -20,6 +20,7 @@ from bus_schemas import keys
 from bus_schemas.codec import decode, decode_or_raise, encode, from_map, to_map, validate
 from bus_schemas.errors import DecodeError, Reason, SchemaError
 from bus_schemas.messages import (
+    BATCH_CHUNK,
     MESSAGE_TYPES,
     Assignment,
     Clock,
@@ -34,10 +35,14 @@ from bus_schemas.messages import (
     PoseBatch,
     Role,
     Setpoint,
+    SetpointBatch,
     Slot,
     Status,
+    StatusBatch,
     Truth,
+    TruthBatch,
     Wheels,
+    WheelsBatch,
     message_type,
     message_type_for_key,
 )
@@ -52,6 +57,7 @@ from bus_schemas.spec import (
 )
 
 __all__ = [
+    "BATCH_CHUNK",
     "MAX_LIST_LEN",
     "MAX_MAP_LEN",
     "MAX_PAYLOAD_BYTES",
@@ -75,10 +81,14 @@ __all__ = [
     "Role",
     "SchemaError",
     "Setpoint",
+    "SetpointBatch",
     "Slot",
     "Status",
+    "StatusBatch",
     "Truth",
+    "TruthBatch",
     "Wheels",
+    "WheelsBatch",
     "decode",
     "decode_or_raise",
     "encode",

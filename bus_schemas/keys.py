@@ -37,6 +37,10 @@ CLOCK = "clock"
 DISTURBANCE = "disturbance"
 HEARTBEAT = "heartbeat"
 POSES = "poses"
+SETPOINTS = "setpoints"
+TRUTHS = "truths"
+HOST_WHEELS = "host_wheels"
+HOST_STATUS = "host_status"
 ALIVE_ROBOT = "alive_robot"
 ALIVE_COORDINATOR = "alive_coordinator"
 ALIVE_PLANT = "alive_plant"
@@ -56,13 +60,19 @@ KEY_TEMPLATES: dict[str, str] = {
     DISTURBANCE: "formation/{fleet}/disturbance",
     HEARTBEAT: "formation/{fleet}/coordinator/{name}/heartbeat",
     POSES: "formation/{fleet}/poses",
+    SETPOINTS: "formation/{fleet}/setpoints",
+    TRUTHS: "formation/{fleet}/truths",
+    HOST_WHEELS: "formation/{fleet}/host/{name}/wheels",
+    HOST_STATUS: "formation/{fleet}/host/{name}/status",
     ALIVE_ROBOT: "formation/{fleet}/alive/robot/{robot}",
     ALIVE_COORDINATOR: "formation/{fleet}/alive/coordinator/{name}",
     ALIVE_PLANT: "formation/{fleet}/alive/plant",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
-_FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES})
+_FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS})
+# formation/<fleet>/host/<name>/<leaf> -> message name
+_HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 
 
 class KeyInfo(NamedTuple):
@@ -192,6 +202,26 @@ def poses_key(fleet: str) -> str:
     return f"{_fleet_prefix(fleet)}/{POSES}"
 
 
+def setpoints_key(fleet: str) -> str:
+    """``formation/<fleet>/setpoints``: batched setpoints of many robots (coordinator)."""
+    return f"{_fleet_prefix(fleet)}/{SETPOINTS}"
+
+
+def truths_key(fleet: str) -> str:
+    """``formation/<fleet>/truths``: batched true poses of many robots (plant only)."""
+    return f"{_fleet_prefix(fleet)}/{TRUTHS}"
+
+
+def host_wheels_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/host/<name>/wheels``: wheel commands of an agent host's robots."""
+    return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{WHEELS}"
+
+
+def host_status_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/host/<name>/status``: status of an agent host's robots."""
+    return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{STATUS}"
+
+
 # --- liveliness tokens ----------------------------------------------------------------------
 
 
@@ -257,6 +287,16 @@ def all_status_pattern(fleet: str) -> str:
     return _all_robots(fleet, STATUS)
 
 
+def all_host_wheels_pattern(fleet: str) -> str:
+    """``formation/<fleet>/host/*/wheels``: batched wheel commands of every agent host."""
+    return f"{_fleet_prefix(fleet)}/host/*/{WHEELS}"
+
+
+def all_host_status_pattern(fleet: str) -> str:
+    """``formation/<fleet>/host/*/status``: batched status of every agent host."""
+    return f"{_fleet_prefix(fleet)}/host/*/{STATUS}"
+
+
 def all_heartbeats_pattern(fleet: str) -> str:
     """``formation/<fleet>/coordinator/*/heartbeat``."""
     return f"{_fleet_prefix(fleet)}/coordinator/*/{HEARTBEAT}"
@@ -306,6 +346,10 @@ def parse_key(key: str) -> KeyInfo | None:
             return None
         slot = int(parts[3])
         return KeyInfo(fleet, SLOT, slot=slot) if slot <= MAX_SLOT else None
+    if kind == "host" and n == 5 and parts[4] in _HOST_LEAVES:
+        if _NAME_MATCH(parts[3]) is None:
+            return None
+        return KeyInfo(fleet, _HOST_LEAVES[parts[4]], name=parts[3])
     if kind == "coordinator" and n == 5 and parts[4] == HEARTBEAT:
         return KeyInfo(fleet, HEARTBEAT, name=parts[3]) if _NAME_MATCH(parts[3]) else None
     if kind == "alive":

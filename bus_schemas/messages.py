@@ -25,9 +25,11 @@ from bus_schemas.spec import (
     f_bool,
     f_count_map,
     f_enum,
+    f_enum_list,
     f_float,
     f_float_list,
     f_int,
+    f_int_list,
     f_name,
     f_robot_id,
     f_robot_id_list,
@@ -355,6 +357,147 @@ class PoseBatch:
     )
 
 
+@message(
+    name=keys.TRUTHS,
+    publisher="plant only (batched frame)",
+    periodic=True,
+    rules=(SameLength(("robots", "x", "y", "theta")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TruthBatch:
+    """True poses of many simulated robots at one instant `stamp`, as parallel arrays.
+
+    The batched form of `robot/<id>/truth` for large fleets; a fleet larger than the list bound
+    (or than :data:`BATCH_CHUNK`) is sent as several messages with the same `stamp`.
+    """
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
+    x: tuple[float, ...] = field(metadata=f_float_list("x of each axle centre", "m"))
+    y: tuple[float, ...] = field(metadata=f_float_list("y of each axle centre", "m"))
+    theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
+    stamp: float = field(
+        metadata=f_float("sim time of these true poses, same clock as t", "s", lo=0.0)
+    )
+
+
+@message(
+    name=keys.SETPOINTS,
+    publisher="coordinator (batched)",
+    periodic=True,
+    rules=(SameLength(("robots", "slot", "role", "stage", "x", "y", "vx", "vy")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SetpointBatch:
+    """The setpoints of many robots of one coordinator tick, as parallel arrays.
+
+    The batched form of `robot/<id>/setpoint` for large fleets (agent hosts read it); the
+    meaning of each entry is that of `Setpoint` (where the reference point should be, eqs 10-11,
+    and the feed-forward velocity). Every slot of a formation shares one heading, `theta`. Sent
+    as several messages (same `t`, consecutive `seq`) when the fleet exceeds one batch.
+    """
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per setpoint"))
+    slot: tuple[int, ...] = field(
+        metadata=f_int_list("assigned slot of each robot", hi=keys.MAX_SLOT)
+    )
+    role: tuple[str, ...] = field(metadata=f_enum_list("role of each robot's slot", Role))
+    stage: tuple[int, ...] = field(
+        metadata=f_int_list("formation stage of each slot (0 = leader)", hi=keys.MAX_SLOT)
+    )
+    x: tuple[float, ...] = field(metadata=f_float_list("x of each slot (reference point)", "m"))
+    y: tuple[float, ...] = field(metadata=f_float_list("y of each slot (reference point)", "m"))
+    theta: float = field(metadata=f_angle("heading of the formation (every slot's)"))
+    vx: tuple[float, ...] = field(
+        metadata=f_float_list("feed-forward velocity x of each slot", "m/s")
+    )
+    vy: tuple[float, ...] = field(
+        metadata=f_float_list("feed-forward velocity y of each slot", "m/s")
+    )
+    tick: int | None = field(
+        default=None, metadata=f_int("lockstep: the clock `tick` these setpoints were computed on")
+    )
+
+
+@message(
+    name=keys.HOST_WHEELS,
+    publisher="agent host (batched)",
+    periodic=True,
+    rules=(SameLength(("robots", "omega_r", "omega_l", "power_r", "power_l", "pose_t")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WheelsBatch:
+    """Wheel commands of the robots an agent host runs, from one control step, parallel arrays.
+
+    The batched form of `robot/<id>/wheels` (same meaning per entry). `pose_t` of an entry is
+    negative when no pose was used (the robot is idle): `Wheels.pose_t` nil.
+    """
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per command"))
+    omega_r: tuple[float, ...] = field(
+        metadata=f_float_list("right wheel angular speed command", "rad/s")
+    )
+    omega_l: tuple[float, ...] = field(
+        metadata=f_float_list("left wheel angular speed command", "rad/s")
+    )
+    power_r: tuple[float, ...] = field(
+        metadata=f_float_list("right wheel command as a fraction of max", "1", lo=-1.0, hi=1.0)
+    )
+    power_l: tuple[float, ...] = field(
+        metadata=f_float_list("left wheel command as a fraction of max", "1", lo=-1.0, hi=1.0)
+    )
+    pose_t: tuple[float, ...] = field(
+        metadata=f_float_list(
+            "`t` of the pose each command was computed from; -1 if none was used (idle)",
+            "s",
+            lo=-1.0,
+        )
+    )
+    tick: int | None = field(
+        default=None, metadata=f_int("lockstep: the clock `tick` these commands answer")
+    )
+
+
+@message(
+    name=keys.HOST_STATUS,
+    publisher="agent host (batched), >= 5 Hz",
+    periodic=True,
+    rate=">= 5 Hz",
+    rules=(SameLength(("robots", "mode", "slot", "rejected", "ex", "ey")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class StatusBatch:
+    """Health of the robots an agent host runs (the batched form of `robot/<id>/status`)."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    pid: int = field(metadata=f_int("OS process id of the agent host", hi=2**31 - 1))
+    host: str = field(metadata=f_str("host name the agent host runs on"))
+    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids"))
+    mode: tuple[str, ...] = field(metadata=f_enum_list("firmware mode of each robot", Mode))
+    slot: tuple[int, ...] = field(
+        metadata=f_int_list("assigned slot of each robot, -1 if none", lo=-1, hi=keys.MAX_SLOT)
+    )
+    rejected: tuple[int, ...] = field(
+        metadata=f_int_list("messages rejected by each robot's firmware")
+    )
+    ex: tuple[float, ...] = field(
+        metadata=f_float_list("tracking error along x (eq 17), 0 without a setpoint", "m")
+    )
+    ey: tuple[float, ...] = field(
+        metadata=f_float_list("tracking error along y (eq 18), 0 without a setpoint", "m")
+    )
+
+
 Message = (
     Leader
     | Slot
@@ -369,6 +512,10 @@ Message = (
     | Disturbance
     | Heartbeat
     | PoseBatch
+    | TruthBatch
+    | SetpointBatch
+    | WheelsBatch
+    | StatusBatch
 )
 """Any bus message."""
 
@@ -386,7 +533,15 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     Disturbance,
     Heartbeat,
     PoseBatch,
+    TruthBatch,
+    SetpointBatch,
+    WheelsBatch,
+    StatusBatch,
 )
+
+BATCH_CHUNK = 256
+"""Entries per batched message that publishers send (a larger fleet takes several messages):
+keeps every payload far below the 64 KiB limit (a 256-robot setpoint batch is ~16 KB)."""
 
 _BY_NAME: dict[str, type[Message]] = {spec_of(cls).name: cls for cls in MESSAGE_TYPES}
 

@@ -56,6 +56,7 @@ class Kind(StrEnum):
     ENUM = "enum"  # str from a fixed set
     FLOAT_LIST = "list[float]"  # array of float64
     STR_LIST = "list[str]"  # array of str
+    INT_LIST = "list[int]"  # array of int (never bool)
     STR_INT_MAP = "map[str, int]"  # map str -> int
 
 
@@ -91,6 +92,7 @@ class FieldSpec:
             Kind.ENUM: str,
             Kind.FLOAT_LIST: tuple[float, ...],
             Kind.STR_LIST: tuple[str, ...],
+            Kind.INT_LIST: tuple[int, ...],
             Kind.STR_INT_MAP: Mapping[str, int],
         }[self.kind]
 
@@ -101,13 +103,14 @@ class FieldSpec:
         if self.kind is Kind.ENUM:
             return " \\| ".join(f"`{c}`" for c in self.choices)
         parts: list[str] = []
-        if self.kind in (Kind.FLOAT, Kind.INT, Kind.FLOAT_LIST):
-            if self.kind is Kind.FLOAT_LIST:
+        if self.kind in (Kind.FLOAT, Kind.INT, Kind.FLOAT_LIST, Kind.INT_LIST):
+            if self.kind in (Kind.FLOAT_LIST, Kind.INT_LIST):
                 parts.append(f"len <= {self.max_len}")
-            bounds = _fmt_range(self.lo, self.hi, self.kind)
+            elem = Kind.INT if self.kind is Kind.INT_LIST else self.kind
+            bounds = _fmt_range(self.lo, self.hi, elem)
             if bounds:
                 parts.append(bounds)
-            if self.kind is not Kind.INT:
+            if self.kind not in (Kind.INT, Kind.INT_LIST):
                 parts.append("finite")
         elif self.kind in (Kind.STR, Kind.STR_LIST):
             if self.kind is Kind.STR_LIST:
@@ -250,6 +253,28 @@ def f_angle_list(description: str) -> dict[str, FieldSpec]:
             hi=ANGLE_HI,
             max_len=MAX_LIST_LEN,
             range_text=f"len <= {MAX_LIST_LEN}, each in (-pi, pi] (+-1e-9), finite",
+        )
+    )
+
+
+def f_int_list(
+    description: str, *, unit: str = "", lo: int = 0, hi: int = UINT64_MAX
+) -> dict[str, FieldSpec]:
+    """An array of at most MAX_LIST_LEN ints (not bools), each in [lo, hi]."""
+    return _meta(FieldSpec(Kind.INT_LIST, description, unit, lo=lo, hi=hi, max_len=MAX_LIST_LEN))
+
+
+def f_enum_list(description: str, choices: type[StrEnum]) -> dict[str, FieldSpec]:
+    """An array of at most MAX_LIST_LEN strs, each one of the values of a StrEnum (a
+    ``list[str]`` on the wire whose elements match ``(a|b|...)``)."""
+    values = tuple(str(c.value) for c in choices)
+    return _meta(
+        FieldSpec(
+            Kind.STR_LIST,
+            description,
+            pattern="(" + "|".join(re.escape(v) for v in values) + ")",
+            max_len=MAX_LIST_LEN,
+            range_text=f"len <= {MAX_LIST_LEN}, each " + " \\| ".join(f"`{v}`" for v in values),
         )
     )
 
@@ -493,6 +518,21 @@ def _str_list_check(name: str, pattern: str | None, max_len: int) -> Check:
     return check
 
 
+def _int_list_check(name: str, lo: int, hi: int, max_len: int) -> Check:
+    element = _int_check(name, lo, hi)
+
+    def check(raw: Any) -> tuple[int, ...]:
+        seq = _sequence(raw, name, "list[int]", max_len)
+        for e in seq:  # fast path: every element an in-range int
+            if type(e) is not int or not lo <= e <= hi:
+                break
+        else:
+            return seq if type(seq) is tuple else tuple(seq)
+        return tuple(_elements(element, seq, name))
+
+    return check
+
+
 def _elements(element: Check, seq: tuple[Any, ...] | list[Any], name: str) -> list[Any]:
     """Validate each element; an error names the element (``x[3]``)."""
     out: list[Any] = []
@@ -540,6 +580,10 @@ def compile_check(name: str, fs: FieldSpec) -> Check:
         return _float_list_check(name, lo, hi, fs.max_len or MAX_LIST_LEN)
     if fs.kind is Kind.STR_LIST:
         return _str_list_check(name, fs.pattern, fs.max_len or MAX_LIST_LEN)
+    if fs.kind is Kind.INT_LIST:
+        ilo = int(fs.lo) if fs.lo is not None else INT64_MIN
+        ihi = int(fs.hi) if fs.hi is not None else UINT64_MAX
+        return _int_list_check(name, ilo, ihi, fs.max_len or MAX_LIST_LEN)
     if fs.kind is Kind.STR_INT_MAP:
         vlo = fs.value_lo if fs.value_lo is not None else INT64_MIN
         vhi = fs.value_hi if fs.value_hi is not None else UINT64_MAX

@@ -131,6 +131,13 @@ def _field_schema(fs: FieldSpec) -> dict[str, Any]:
         if fs.hi is not None and abs(fs.hi) < FLOAT64_MAX:
             item["maximum"] = fs.hi
         out = {"type": "array", "items": item, "maxItems": fs.max_len}
+    elif fs.kind is Kind.INT_LIST:
+        int_item: dict[str, Any] = {"type": "integer"}
+        if fs.lo is not None and fs.lo > -(2**63):
+            int_item["minimum"] = fs.lo
+        if fs.hi is not None and fs.hi < UINT64_MAX:
+            int_item["maximum"] = fs.hi
+        out = {"type": "array", "items": int_item, "maxItems": fs.max_len}
     elif fs.kind is Kind.STR_LIST:
         out = {
             "type": "array",

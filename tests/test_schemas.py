@@ -31,10 +31,14 @@ from bus_schemas import (
     Role,
     SchemaError,
     Setpoint,
+    SetpointBatch,
     Slot,
     Status,
+    StatusBatch,
     Truth,
+    TruthBatch,
     Wheels,
+    WheelsBatch,
     decode,
     decode_or_raise,
     encode,
@@ -151,6 +155,46 @@ SAMPLES: dict[type, Any] = {
         theta=(0.0, -1.0),
         stamp=0.99,
     ),
+    TruthBatch: TruthBatch(
+        t=1.0, seq=12, robots=("r1", "r2"), x=(0.1, 0.2), y=(0.3, 0.4), theta=(0.0, 1.0), stamp=1.0
+    ),
+    SetpointBatch: SetpointBatch(
+        t=1.0,
+        seq=13,
+        robots=("r1", "r2"),
+        slot=(0, 1),
+        role=("leader", "follower"),
+        stage=(0, 1),
+        x=(0.1, 0.2),
+        y=(0.3, 0.4),
+        theta=0.5,
+        vx=(0.1, 0.1),
+        vy=(0.0, 0.0),
+        tick=7,
+    ),
+    WheelsBatch: WheelsBatch(
+        t=1.0,
+        seq=14,
+        robots=("r1", "r2"),
+        omega_r=(5.0, 1.0),
+        omega_l=(-5.0, 1.0),
+        power_r=(0.5, 0.1),
+        power_l=(-0.5, 0.1),
+        pose_t=(0.98, -1.0),
+        tick=7,
+    ),
+    StatusBatch: StatusBatch(
+        t=1.0,
+        seq=15,
+        pid=1234,
+        host="ws-1",
+        robots=("r1", "r2"),
+        mode=("tracking", "idle"),
+        slot=(0, -1),
+        rejected=(0, 3),
+        ex=(0.01, 0.0),
+        ey=(-0.02, 0.0),
+    ),
 }
 
 TYPES = list(MESSAGE_TYPES)
@@ -186,6 +230,8 @@ NAMES = st.text(
 
 
 def _pattern_strategy(pattern: str) -> st.SearchStrategy[str]:
+    if pattern.startswith("(") and pattern.endswith(")"):  # an enum list: (a|b|c)
+        return st.sampled_from(pattern[1:-1].split("|"))
     return {keys.ROBOT_ID_PATTERN: ROBOT_IDS, keys.NAME_PATTERN: NAMES}[pattern]
 
 
@@ -222,6 +268,8 @@ def field_strategy(info: FieldInfo) -> st.SearchStrategy[Any]:
     elif fs.kind is Kind.STR_LIST:
         assert fs.pattern is not None
         s = st.lists(_pattern_strategy(fs.pattern), max_size=8).map(tuple)
+    elif fs.kind is Kind.INT_LIST:
+        s = st.lists(st.integers(min_value=fs.lo, max_value=fs.hi), max_size=8).map(tuple)  # type: ignore[arg-type]
     elif fs.kind is Kind.STR_INT_MAP:
         assert fs.pattern is not None
         s = st.dictionaries(
@@ -252,10 +300,41 @@ def _pose_batch(draw: st.DrawFn) -> PoseBatch:
     )
 
 
+def _list_element(fs: Any) -> st.SearchStrategy[Any]:
+    lo = None if fs.lo is None else float(fs.lo)
+    hi = None if fs.hi is None else float(fs.hi)
+    if fs.kind is Kind.FLOAT_LIST:
+        return _float_strategy(lo, hi)
+    if fs.kind is Kind.INT_LIST:
+        return st.integers(min_value=fs.lo, max_value=fs.hi)
+    assert fs.kind is Kind.STR_LIST and fs.pattern is not None
+    return _pattern_strategy(fs.pattern)
+
+
+@st.composite
+def _same_length_batch(draw: st.DrawFn, cls: type) -> Any:
+    """A batch message whose SameLength fields all have one drawn length."""
+    n = draw(st.integers(min_value=0, max_value=8))
+    same = {
+        name for rule in spec_of(cls).rules if isinstance(rule, SameLength) for name in rule.fields
+    }
+    values: dict[str, Any] = {}
+    for f in spec_of(cls).fields:
+        if f.name == "v":
+            continue
+        if f.name in same:
+            values[f.name] = tuple(draw(st.lists(_list_element(f.spec), min_size=n, max_size=n)))
+        else:
+            values[f.name] = draw(field_strategy(f))
+    return cls(**values)
+
+
 def message_strategy(cls: type) -> st.SearchStrategy[Any]:
     """Any valid message of type `cls`."""
     if cls is PoseBatch:
         return _pose_batch()
+    if any(isinstance(r, SameLength) for r in spec_of(cls).rules):
+        return _same_length_batch(cls)
     fields = {f.name: field_strategy(f) for f in spec_of(cls).fields if f.name != "v"}
     s = st.builds(cls, **fields)
     if spec_of(cls).rules:
@@ -380,7 +459,8 @@ REASON_CASES = [
     (cls, reason)
     for cls in TYPES
     for reason in Reason
-    if reason is not Reason.INCONSISTENT or cls is PoseBatch
+    if reason is not Reason.INCONSISTENT
+    or any(isinstance(r, SameLength) for r in spec_of(cls).rules)
 ]
 
 
@@ -389,7 +469,8 @@ REASON_CASES = [
 )
 def test_every_reason_for_every_type(cls: type, reason: Reason) -> None:
     if reason is Reason.INCONSISTENT:
-        data = pack(wire_map(cls) | {"x": [0.0]})
+        first = next(r for r in spec_of(cls).rules if isinstance(r, SameLength)).fields[1]
+        data = pack(wire_map(cls) | {first: wire_map(cls)[first][:1]})
     else:
         data = _mutate(cls, reason)
     err = rejected(data, cls)
@@ -410,7 +491,7 @@ def _wrong_type_values(info: FieldInfo) -> list[Any]:
         return [1, 0, "true", 1.0]
     if kind in (Kind.STR, Kind.ENUM):
         return [5, True, b"r1", ["r1"], 1.5]
-    if kind in (Kind.FLOAT_LIST, Kind.STR_LIST):
+    if kind in (Kind.FLOAT_LIST, Kind.STR_LIST, Kind.INT_LIST):
         return ["abc", 1.0, {"a": 1}, b"\x01\x02"]
     if kind is Kind.STR_INT_MAP:
         return [[1, 2], "r1", 3]
@@ -494,6 +575,11 @@ def _out_of_range_values(info: FieldInfo, current: Any) -> list[Any]:
         return out
     if fs.kind is Kind.STR_LIST:
         return [["r1"] * (MAX_LIST_LEN + 1), [*current[:-1], "Bad"]]
+    if fs.kind is Kind.INT_LIST:
+        bad_ints: list[Any] = [[0] * (MAX_LIST_LEN + 1)]
+        if fs.lo is not None:
+            bad_ints.append([*current[:-1], int(fs.lo) - 1])
+        return bad_ints
     if fs.kind is Kind.STR_INT_MAP:
         too_many = {f"k{i}": 0 for i in range(MAX_MAP_LEN + 1)}
         bad_maps: list[Any] = [too_many, {"Bad Key": 0}, {"r1": -1}]
@@ -875,6 +961,8 @@ def test_key_parse_round_trip(fleet: str, robot: str, name: str, slot: int) -> N
         (keys.clock_key, Clock),
         (keys.disturbance_key, Disturbance),
         (keys.poses_key, PoseBatch),
+        (keys.setpoints_key, SetpointBatch),
+        (keys.truths_key, TruthBatch),
     ]:
         key = build_f(fleet)
         assert keys.parse_key(key) == keys.KeyInfo(fleet, spec_of(cls).name)
@@ -883,6 +971,13 @@ def test_key_parse_round_trip(fleet: str, robot: str, name: str, slot: int) -> N
     key = keys.slot_key(fleet, slot)
     assert keys.parse_key(key) == keys.KeyInfo(fleet, keys.SLOT, slot=slot)
     assert message_type_for_key(key) is Slot
+    for build_h, leaf, cls in [
+        (keys.host_wheels_key, keys.HOST_WHEELS, WheelsBatch),
+        (keys.host_status_key, keys.HOST_STATUS, StatusBatch),
+    ]:
+        key = build_h(fleet, name)
+        assert keys.parse_key(key) == keys.KeyInfo(fleet, leaf, name=name)
+        assert message_type_for_key(key) is cls
     key = keys.heartbeat_key(fleet, name)
     assert keys.parse_key(key) == keys.KeyInfo(fleet, keys.HEARTBEAT, name=name)
     assert message_type_for_key(key) is Heartbeat

@@ -25,10 +25,14 @@ from bus_schemas import (
     Pose,
     PoseBatch,
     Setpoint,
+    SetpointBatch,
     Slot,
     Status,
+    StatusBatch,
     Truth,
+    TruthBatch,
     Wheels,
+    WheelsBatch,
     decode,
     encode,
 )
@@ -138,6 +142,52 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         theta=(1.2, -1.5),
         stamp=12.48,
     ),
+    "truths": TruthBatch(
+        t=12.5,
+        seq=625,
+        robots=("r1", "r2"),
+        x=(0.125, 0.875),
+        y=(-0.5, -0.25),
+        theta=(1.25, -1.5),
+        stamp=12.5,
+    ),
+    "setpoints": SetpointBatch(
+        t=12.5,
+        seq=626,
+        robots=("r2", "r1"),
+        slot=(1, 0),
+        role=("subleader", "leader"),
+        stage=(1, 0),
+        x=(0.9, 1.25),
+        y=(-0.25, -0.5),
+        theta=-1.5,
+        vx=(0.07, 0.07),
+        vy=(0.0, 0.0),
+        tick=625,
+    ),
+    "host_wheels": WheelsBatch(
+        t=12.5,
+        seq=627,
+        robots=("r1", "r2"),
+        omega_r=(5.25, 0.0),
+        omega_l=(4.75, 0.0),
+        power_r=(0.5, 0.0),
+        power_l=(0.25, 0.0),
+        pose_t=(12.48, -1.0),
+        tick=625,
+    ),
+    "host_status": StatusBatch(
+        t=12.5,
+        seq=63,
+        pid=4243,
+        host="ws-1",
+        robots=("r1", "r2"),
+        mode=("tracking", "idle"),
+        slot=(0, -1),
+        rejected=(0, 2),
+        ex=(0.01, 0.0),
+        ey=(-0.02, 0.0),
+    ),
 }
 
 # fmt: off
@@ -201,6 +251,18 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "poses": (
         "88a17601a174cb4028fae147ae147ba3736571cd0270a6726f626f747392a27231a27232a17892cb3fbf7ced916872b0cb3feccccccccccccda17992cbbfdd2f1a9fbe76c9cbbfd0000000000000a5746865746192cb3ff3333333333333cbbff8000000000000a57374616d70cb4028f5c28f5c28f6"
+    ),
+    "truths": (
+        "88a17601a174cb4029000000000000a3736571cd0271a6726f626f747392a27231a27232a17892cb3fc0000000000000cb3fec000000000000a17992cbbfe0000000000000cbbfd0000000000000a5746865746192cb3ff4000000000000cbbff8000000000000a57374616d70cb4029000000000000"
+    ),
+    "setpoints": (
+        "8da17601a174cb4029000000000000a3736571cd0272a6726f626f747392a27232a27231a4736c6f74920100a4726f6c6592a97375626c6561646572a66c6561646572a57374616765920100a17892cb3feccccccccccccdcb3ff4000000000000a17992cbbfd0000000000000cbbfe0000000000000a57468657461cbbff8000000000000a2767892cb3fb1eb851eb851eccb3fb1eb851eb851eca2767992cb0000000000000000cb0000000000000000a47469636bcd0271"
+    ),
+    "host_wheels": (
+        "8aa17601a174cb4029000000000000a3736571cd0273a6726f626f747392a27231a27232a76f6d6567615f7292cb4015000000000000cb0000000000000000a76f6d6567615f6c92cb4013000000000000cb0000000000000000a7706f7765725f7292cb3fe0000000000000cb0000000000000000a7706f7765725f6c92cb3fd0000000000000cb0000000000000000a6706f73655f7492cb4028f5c28f5c28f6cbbff0000000000000a47469636bcd0271"
+    ),
+    "host_status": (
+        "8ba17601a174cb4029000000000000a37365713fa3706964cd1093a4686f7374a477732d31a6726f626f747392a27231a27232a46d6f646592a8747261636b696e67a469646c65a4736c6f749200ffa872656a6563746564920002a2657892cb3f847ae147ae147bcb0000000000000000a2657992cbbf947ae147ae147bcb0000000000000000"
     ),
 }
 # fmt: on
