@@ -42,7 +42,17 @@ from bus_schemas import (
     to_map,
 )
 from bus_schemas import transport as tp
-from bus_schemas.messages import Disturbance, Estop, Heartbeat, PoseBatch, Setpoint
+from bus_schemas.messages import (
+    Disturbance,
+    Estop,
+    Heartbeat,
+    PoseBatch,
+    Setpoint,
+    SetpointBatch,
+    StatusBatch,
+    TruthBatch,
+    WheelsBatch,
+)
 from formation import report as report_mod
 from formation.record import (
     LIVELINESS_SCHEMA,
@@ -186,6 +196,44 @@ EXAMPLES = [
     Heartbeat(t=1.0, seq=1, name="main", active=True, epoch=1, leader_t0=0.5),
     PoseBatch(
         t=1.0, seq=1, robots=("r1", "r2"), x=(0.1, 0.2), y=(0.3, 0.4), theta=(0.0, 1.0), stamp=0.97
+    ),
+    TruthBatch(
+        t=1.0, seq=1, robots=("r1", "r2"), x=(0.1, 0.2), y=(0.3, 0.4), theta=(0.0, 1.0), stamp=1.0
+    ),
+    SetpointBatch(
+        t=1.0,
+        seq=1,
+        robots=("r1",),
+        slot=(0,),
+        role=("leader",),
+        stage=(0,),
+        x=(0.1,),
+        y=(0.2,),
+        theta=0.0,
+        vx=(0.1,),
+        vy=(0.0,),
+    ),
+    WheelsBatch(
+        t=1.0,
+        seq=1,
+        robots=("r1",),
+        omega_r=(1.0,),
+        omega_l=(2.0,),
+        power_r=(0.1,),
+        power_l=(0.2,),
+        pose_t=(-1.0,),
+    ),
+    StatusBatch(
+        t=1.0,
+        seq=1,
+        pid=7,
+        host="h",
+        robots=("r1",),
+        mode=("hold",),
+        slot=(-1,),
+        rejected=(0,),
+        ex=(0.0,),
+        ey=(0.0,),
     ),
 ]
 
