@@ -47,8 +47,8 @@ SlotLike = SlotState | tuple[int, float, float]
 """A slot for assignment: a :class:`SlotState`, or ``(slot, x, y)`` with x, y in m."""
 
 FloatArray = npt.NDArray[np.float64]
-Method = Literal["greedy", "optimal"]
-METHODS: Final = ("greedy", "optimal")
+Method = Literal["greedy", "optimal", "sparse"]
+METHODS: Final = ("greedy", "optimal", "sparse")
 
 _DIGITS = re.compile(r"(\d+)")
 
@@ -450,7 +450,7 @@ class RoleAssigner:
     ) -> None:
         if method not in METHODS:
             raise ValueError(f"RoleAssigner: method must be one of {METHODS}, got {method!r}")
-        self.method: Method = "greedy" if method == "greedy" else "optimal"
+        self.method: Method = method  # type: ignore[assignment]  # checked just above
         self.hysteresis_m = _tolerance("hysteresis_m", hysteresis_m)
         self.tie_tol_m = _tolerance("tie_tol_m", tie_tol_m)
         self._assignment: dict[str, int] = {}
@@ -533,6 +533,19 @@ class RoleAssigner:
         slot_ids: Sequence[int],
         sxy: Sequence[Sequence[float]],
     ) -> tuple[dict[str, int], bool]:
+        if self.method == "sparse":
+            # The minimum-sum assignment at scale (coordinator.scale_assign): dense below its
+            # size threshold, else the exact solver on a k-nearest candidate graph, warm-started
+            # from the incumbent (which it returns at once when provably still optimal).
+            from coordinator.scale_assign import assign_sparse
+
+            robots = dict(zip(robot_ids, rxy, strict=True))
+            slots = [(sid, row[0], row[1]) for sid, row in zip(slot_ids, sxy, strict=True)]
+            new = assign_sparse(
+                robots, slots, incumbent=self._assignment, hysteresis_m=self.hysteresis_m,
+                tie_tol_m=self.tie_tol_m,
+            )  # fmt: skip
+            return self._store(new)
         fn = _greedy_ordered if self.method == "greedy" else _optimal_ordered
         new = fn(robot_ids, rxy, slot_ids, sxy, self._assignment, self.hysteresis_m, self.tie_tol_m)
         return self._store(new)

@@ -82,13 +82,16 @@ from typing import Any, Final
 import msgpack
 
 from bus_schemas import (
+    BATCH_CHUNK,
     Assignment,
     Clock,
     DecodeError,
     Heartbeat,
     Leader,
     Pose,
+    PoseBatch,
     Setpoint,
+    SetpointBatch,
     Slot,
     decode,
     encode,
@@ -114,9 +117,12 @@ STANDBY_SETTLE_S: Final = 0.3
 (s), so the tokens and heartbeats of the instances already running have arrived."""
 ASSIGNMENT_REPEAT_S: Final = 1.0
 """The assignment is re-published at least this often (s; sim time in lockstep)."""
+BATCH_SLOT_PERIOD_S: Final = 1.0
+"""``--batch``: every ``slot/<k>`` is published this often (s) instead of every tick; the
+setpoint batches carry the assigned slots' positions every tick (docs/scale.md)."""
 MAX_PEERS: Final = 64
 """Distinct coordinator instance names tracked."""
-MAX_ROBOTS: Final = 1024
+MAX_ROBOTS: Final = 4096
 """Distinct robot ids tracked (made-up ids cannot grow memory without bound)."""
 POSITION_LIMIT_M: Final = 1.0e4
 """A pose farther than this from the origin (m, per axis) is rejected: it can only be garbage,
@@ -156,9 +162,11 @@ class CoordinatorNode:
         *,
         lockstep: bool = False,
         standby: bool = False,
+        batch: bool = False,
         log: NodeLog | None = None,
     ) -> None:
         self.scenario = scenario
+        self.batch = batch
         self.name = keys.check_name(name)
         self.fleet = keys.check_fleet(fleet)
         self.lockstep = lockstep
@@ -176,6 +184,9 @@ class CoordinatorNode:
         self.heartbeat_key = keys.heartbeat_key(fleet, name)
         self.alive_key = keys.alive_coordinator_key(fleet, name)
         self.poses_pattern = keys.all_poses_pattern(fleet)
+        self.poses_key = keys.poses_key(fleet)
+        self.setpoints_key = keys.setpoints_key(fleet)
+        self._last_slots_t = -math.inf
         self.alive_pattern = keys.alive_robots_pattern(fleet)
         # Lockstep: setpoints and leader are what the plant and the agents wait for, so they
         # must arrive (BLOCK) and keep their order (one priority, the clock's).
@@ -191,7 +202,7 @@ class CoordinatorNode:
         self._pending: list[str] = []
         self.rejected = 0
         self.internal_errors = 0
-        self.rx: dict[str, int] = {"pose": 0, "clock": 0, "alive": 0}
+        self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0}
         self.ticks = 0
         self.t0_s: float | None = 0.0 if lockstep else None
         self.last: CoordinatorOutput | None = None
@@ -409,6 +420,37 @@ class CoordinatorNode:
         except Exception as exc:
             self._internal("on_pose", exc)
 
+    def on_poses(self, rx: tp.Received) -> None:
+        """A batched pose frame (``--batch``): each entry as if it came on its robot's key."""
+        try:
+            self.rx["poses"] += 1
+            msg = decode(rx.payload, PoseBatch)
+            if isinstance(msg, DecodeError):
+                self._reject("poses", msg)
+                return
+            rx_s: float | None = None if self.lockstep else rx.rx_s
+            poses = self.poses
+            lim = POSITION_LIMIT_M
+            bad = 0
+            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
+                if abs(x) > lim or abs(y) > lim:
+                    bad += 1
+                    continue
+                entry = poses.get(rid)
+                if entry is None:
+                    if len(poses) >= MAX_ROBOTS:
+                        bad += 1
+                        continue
+                    poses[rid] = [x, y, th, msg.stamp, rx_s]
+                else:
+                    entry[0], entry[1], entry[2], entry[3], entry[4] = x, y, th, msg.stamp, rx_s
+                if rx_s is None:
+                    self._pending.append(rid)
+            if bad:
+                self._reject("poses", f"{bad} entries beyond {lim:g} m or too many robots")
+        except Exception as exc:
+            self._internal("on_poses", exc)
+
     def on_clock(self, rx: tp.Received) -> None:
         """Lockstep clock k: tick at clock.t and publish, leader last."""
         try:
@@ -485,7 +527,9 @@ class CoordinatorNode:
         fleet = self.fleet
         setpoints: list[tuple[str, bytes, tp.QoS]] = []
         by_slot = out.slots_by_id
-        for rid, slot_id in out.assignment.items():
+        if self.batch:
+            setpoints = self._setpoint_batches(out, t, tick)
+        for rid, slot_id in () if self.batch else out.assignment.items():
             s = by_slot[slot_id]
             key = keys.setpoint_key(fleet, rid)
             sp = Setpoint(
@@ -504,7 +548,10 @@ class CoordinatorNode:
             )
             setpoints.append((key, encode_ticked(sp, tick), self.sp_qos))
         slots: list[tuple[str, bytes, tp.QoS]] = []
-        for s in out.slots:
+        slots_due = not self.batch or now_s - self._last_slots_t >= BATCH_SLOT_PERIOD_S
+        if slots_due:
+            self._last_slots_t = now_s
+        for s in out.slots if slots_due else ():
             key = keys.slot_key(fleet, s.slot)
             msg = Slot(
                 t=t,
@@ -547,6 +594,33 @@ class CoordinatorNode:
         if self.lockstep:  # slots, setpoints, assignment, then the leader LAST
             return [*slots, *setpoints, *extra, leader_out]
         return [*setpoints, leader_out, *slots, *extra]  # realtime: setpoints first (latency)
+
+    def _setpoint_batches(
+        self, out: CoordinatorOutput, t: float, tick: int | None
+    ) -> list[tuple[str, bytes, tp.QoS]]:
+        """``--batch``: every assigned robot's setpoint in SetpointBatch chunks (robot order)."""
+        by_slot = out.slots_by_id
+        rows = sorted(out.assignment.items(), key=lambda a: (self._order.get(a[0], 1 << 30), a[0]))
+        msgs: list[tuple[str, bytes, tp.QoS]] = []
+        theta = out.theta
+        for i in range(0, len(rows), BATCH_CHUNK):
+            chunk = [(rid, by_slot[sid]) for rid, sid in rows[i : i + BATCH_CHUNK]]
+            msg = SetpointBatch(
+                t=t,
+                seq=self._next_seq(self.setpoints_key),
+                robots=tuple(r for r, _ in chunk),
+                slot=tuple(s.slot for _, s in chunk),
+                role=tuple(s.role for _, s in chunk),
+                stage=tuple(s.stage for _, s in chunk),
+                x=tuple(s.x for _, s in chunk),
+                y=tuple(s.y for _, s in chunk),
+                theta=theta,
+                vx=tuple(s.vx for _, s in chunk),
+                vy=tuple(s.vy for _, s in chunk),
+                tick=tick,
+            )
+            msgs.append((self.setpoints_key, encode(msg), self.sp_qos))
+        return msgs
 
     # -- periodic ------------------------------------------------------------------------------
 
@@ -679,6 +753,12 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="start as a hot standby: take over when the active instance is gone (docs/faults.md)",
     )
+    parser.add_argument(
+        "--batch",
+        action="store_true",
+        help="large fleets: read the batched pose frames and publish batched setpoints "
+        "(agent hosts read them; slot keys at 1 Hz); docs/scale.md",
+    )
     tp.add_zenoh_arguments(parser)
     return parser
 
@@ -703,7 +783,15 @@ def main(argv: list[str]) -> int:
         return 2
     return tp.run_node(
         lambda stop: _node(
-            stop, scenario, ns.name, ns.fleet, settings, ns.lockstep, ns.rate_hz, ns.standby
+            stop,
+            scenario,
+            ns.name,
+            ns.fleet,
+            settings,
+            ns.lockstep,
+            ns.rate_hz,
+            ns.standby,
+            ns.batch,
         )
     )
 
@@ -717,6 +805,7 @@ async def _node(
     lockstep: bool,
     rate_hz: float,
     standby: bool = False,
+    batch: bool = False,
 ) -> int:
     loop = asyncio.get_running_loop()
     log = NodeLog(f"coordinator {name}")
@@ -728,8 +817,9 @@ async def _node(
     try:
         pubs = tp.Publishers(session)
         node = CoordinatorNode(
-            scenario, name, fleet, pubs.put, lockstep=lockstep, standby=standby, log=log
-        )
+            scenario, name, fleet, pubs.put, lockstep=lockstep, standby=standby, batch=batch,
+            log=log,
+        )  # fmt: skip
         if settings.lease_ms is not None:
             # Only a stop of the whole process lets the token expire (keep-alives come from
             # Zenoh's own threads, not this loop), after a whole lease of silence: a shorter
@@ -739,13 +829,17 @@ async def _node(
         else:
             node.hang_gap_s = 5.0  # Zenoh's default lease is 10 s
         pubs.get(node.leader_key, node.leader_qos)
-        for rid in scenario.robot_ids:
+        for rid in () if batch else scenario.robot_ids:
             pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
         tp.watch_liveliness(session, node.alive_pattern, loop, node.on_alive)
         tp.watch_liveliness(session, node.coordinators_pattern, loop, node.on_alive)
         subscribe_ordered(session, node.heartbeats_pattern, loop, node.on_heartbeat)
         subscribe_ordered(session, node.assignment_key, loop, node.on_assignment)
-        subscribe_ordered(session, node.poses_pattern, loop, node.on_pose)
+        if batch:
+            pubs.get(node.setpoints_key, node.sp_qos)
+            subscribe_ordered(session, node.poses_key, loop, node.on_poses)
+        else:
+            subscribe_ordered(session, node.poses_pattern, loop, node.on_pose)
         if lockstep:
             subscribe_ordered(session, node.clock_key, loop, node.on_clock)
         token = tp.declare_token(session, node.alive_key)

@@ -17,6 +17,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "router": ("formation.router", "run an embedded Zenoh router"),
     "coordinator": ("coordinator.node", "run the coordinator process"),
     "agent": ("robot_agent.node", "run one robot agent process"),
+    "agent-host": ("robot_agent.host", "run the agents of many robots in one process (scale)"),
     "plant": ("sim_plant.node", "run the plant simulator process"),
     "fault": ("formation.fault", "inject a fault into a running fleet"),
     "record": ("formation.record", "record the fleet's keys to MCAP"),

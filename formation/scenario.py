@@ -269,8 +269,8 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
     a = _table(data, "assignment", "")
     _only(a, {"method", "hysteresis_m", "tie_tol_m"}, "assignment")
     method = a.get("method", "greedy")
-    if method not in ("greedy", "optimal"):
-        raise ScenarioError(f"assignment.method: {method!r} is not 'greedy' or 'optimal'")
+    if method not in ("greedy", "optimal", "sparse"):
+        raise ScenarioError(f"assignment.method: {method!r} is not 'greedy', 'optimal' or 'sparse'")
     assignment = AssignmentConfig(
         method=method,
         hysteresis_m=_num(a, "hysteresis_m", "assignment", 0.05, lo=0.0),

@@ -426,6 +426,10 @@ class AgentNode:
         self.quarantine_until_s = -math.inf
         self.hang_gap_s = HANG_GAP_S
         self.resumes = 0
+        # Agent host (robot_agent.host): the host publishes the wheels of all its robots in one
+        # batch and answers neighbour queries from its shared spatial index.
+        self.publish_wheels = True
+        self.neighbour_fn: Callable[[AgentNode, float], list[tuple[float, float]]] | None = None
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -496,18 +500,22 @@ class AgentNode:
                 self._reject("setpoint", f"robot {msg.robot!r} on {self.robot_id}'s key")
                 return
             sp = FwSetpoint(msg.x, msg.y, msg.vx, msg.vy, msg.theta, msg.slot, msg.t)
-            if self.lockstep:
-                tick = payload_tick(rx.payload)
-                if tick is None:
-                    self._reject("setpoint", "lockstep setpoint without a valid tick")
-                    return
-                # In lockstep the setpoint's t is the sim time of its tick, which is when
-                # simulate.py considers it received.
-                self._setpoints.append(_SetpointIn(sp, msg.role, msg.t, tick))
-            else:
-                self.setpoint = _SetpointIn(sp, msg.role, rx.rx_s, None)
+            tick = payload_tick(rx.payload) if self.lockstep else None
+            self.accept_setpoint(sp, msg.role, rx.rx_s, tick)
         except Exception as exc:
             self._internal("on_setpoint", exc)
+
+    def accept_setpoint(self, sp: FwSetpoint, role: str, rx_s: float, tick: int | None) -> None:
+        """Keep a valid setpoint: the newest (realtime) or the last two with ticks (lockstep)."""
+        if self.lockstep:
+            if tick is None:
+                self._reject("setpoint", "lockstep setpoint without a valid tick")
+                return
+            # In lockstep the setpoint's t is the sim time of its tick, which is when
+            # simulate.py considers it received.
+            self._setpoints.append(_SetpointIn(sp, role, sp.t, tick))
+        else:
+            self.setpoint = _SetpointIn(sp, role, rx_s, None)
 
     def on_poses(self, rx: tp.Received) -> None:
         """Batched poses: the other robots' positions, for repulsion."""
@@ -574,7 +582,14 @@ class AgentNode:
             if k == self._last_tick and self._last_wheels is not None:
                 self._publish(self.wheels_key, self._last_wheels, self.wheels_qos)  # re-announce
                 return
-            t_k = msg.t
+            self.clock_step(k, msg.t)
+        except Exception as exc:
+            self._internal("on_clock", exc)
+
+    def clock_step(self, k: int, t_k: float) -> WheelCommand | None:
+        """Lockstep tick k at sim time ``t_k``: poses and neighbours received since the last
+        clock count as received at ``t_k``, the setpoint of tick k-1 is chosen, one step."""
+        try:
             self.sim_t = t_k
             if self._pose_pending:
                 self.pose_rx_s = t_k
@@ -592,9 +607,10 @@ class AgentNode:
                     chosen = s
             self.setpoint = chosen
             self._last_tick = k
-            self.step(t_k, tick=k)
+            return self.step(t_k, tick=k)
         except Exception as exc:
-            self._internal("on_clock", exc)
+            self._internal("clock_step", exc)
+            return None
 
     # -- control -------------------------------------------------------------------------------
 
@@ -626,7 +642,11 @@ class AgentNode:
                 pose_rx_s=self.pose_rx_s,
                 setpoint=sp.sp if sp is not None else None,
                 setpoint_rx_s=sp.rx_s if sp is not None else -math.inf,
-                neighbours=self.neighbours(now_s),
+                neighbours=(
+                    self.neighbours(now_s)
+                    if self.neighbour_fn is None
+                    else self.neighbour_fn(self, now_s)
+                ),
             )
             if sp is not None:
                 self.role = sp.role
@@ -635,6 +655,8 @@ class AgentNode:
             if self.motor is not None:
                 zero = cmd.omega_r == 0.0 and cmd.omega_l == 0.0
                 self.motor.command(cmd.omega_r, cmd.omega_l, now_s, zero)
+            if not self.publish_wheels:
+                return cmd
             self._seq_wheels += 1
             payload = encode(
                 Wheels(

@@ -73,7 +73,7 @@ import numpy as np
 import numpy.typing as npt
 
 from bus_schemas import (
-    MAX_LIST_LEN,
+    BATCH_CHUNK,
     Clock,
     DecodeError,
     Disturbance,
@@ -81,7 +81,9 @@ from bus_schemas import (
     Pose,
     PoseBatch,
     Truth,
+    TruthBatch,
     Wheels,
+    WheelsBatch,
     decode,
     encode,
     keys,
@@ -101,6 +103,10 @@ REANNOUNCE_S: Final = 0.25
 WAIT_ROBOTS_S: Final = 30.0
 """--wait-robots gives up after this long (s)."""
 ARENA_LIMIT_M: Final = 1000.0
+LATENCY_SAMPLES: Final = 500_000
+"""Realtime latency / lateness samples kept (the newest)."""
+FRAMES_REMEMBERED: Final = 64
+"""Published frames whose stamps a returning command may still name (2 s at 30 Hz)."""
 """A disturbance moving a robot (or by) more than this (m) is rejected as absurd."""
 MAX_DRAG_S: Final = 3600.0
 _DRAG: Final = "drag"
@@ -143,9 +149,11 @@ class PlantNode:
         lockstep_timeout_s: float = 2.0,
         physics_hz: float = 100.0,
         duration_s: float | None = None,
+        batch: bool = False,
         log: NodeLog | None = None,
     ) -> None:
         self.scenario = scenario
+        self.batch = batch
         self.fleet = keys.check_fleet(fleet)
         self.seed = scenario.seed if seed is None else seed
         self.lockstep = lockstep
@@ -166,6 +174,8 @@ class PlantNode:
         self.poses_key = keys.poses_key(fleet)
         self.disturbance_key = keys.disturbance_key(fleet)
         self.wheels_pattern = keys.all_wheels_pattern(fleet)
+        self.host_wheels_pattern = keys.all_host_wheels_pattern(fleet)
+        self.truths_key = keys.truths_key(fleet)
         self.alive_robots_pattern = keys.alive_robots_pattern(fleet)
         self.alive_coordinators_pattern = keys.alive_coordinators_pattern(fleet)
         self.status_key = plant_status_key(fleet)
@@ -190,7 +200,16 @@ class PlantNode:
         self.rejected = 0
         self.internal_errors = 0
         self.ignored = 0  # valid messages for robots this plant does not simulate
-        self.rx: dict[str, int] = {"wheels": 0, "disturbance": 0, "leader": 0, "alive": 0}
+        self.rx: dict[str, int] = {
+            "wheels": 0, "host_wheels": 0, "disturbance": 0, "leader": 0, "alive": 0,
+        }  # fmt: skip
+        # Realtime control-loop latency (docs/scale.md): frame stamp -> when its poses were
+        # published; a command whose pose_t is such a stamp came back after rx - published.
+        self._frame_pub: dict[float, float] = {}
+        self._frame_order: deque[float] = deque()
+        self.latencies_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.frames_published = 0
+        self.frame_lateness_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.timeouts = 0
         self.state = "waiting"
         self.tick = -1
@@ -270,16 +289,45 @@ class PlantNode:
             if i is None:
                 self.ignored += 1
                 return
-            self.last_cmd[i] = (msg.omega_r, msg.omega_l)
-            if self.lockstep:
-                if msg.tick is not None:
-                    self.answer_tick[i] = msg.tick
-                    if msg.tick == self.tick:
-                        self.changed.set()
-            elif self.sim is not None:
-                self.sim.link.send(rx.rx_s, i, (self.generation[i], msg.omega_r, msg.omega_l))
+            self._command(i, msg.omega_r, msg.omega_l, msg.tick, msg.pose_t, rx.rx_s)
         except Exception as exc:
             self._internal("on_wheels", exc)
+
+    def on_host_wheels(self, rx: tp.Received) -> None:
+        """An agent host's batch of wheel commands: each entry as a ``robot/<id>/wheels``."""
+        try:
+            self.rx["host_wheels"] += 1
+            msg = decode(rx.payload, WheelsBatch)
+            if isinstance(msg, DecodeError):
+                self._reject("host wheels", msg)
+                return
+            index = self.index
+            rows = zip(msg.robots, msg.omega_r, msg.omega_l, msg.pose_t, strict=True)
+            for rid, wr, wl, pose_t in rows:
+                i = index.get(rid)
+                if i is None:
+                    self.ignored += 1
+                    continue
+                self._command(i, wr, wl, msg.tick, pose_t if pose_t >= 0.0 else None, rx.rx_s)
+        except Exception as exc:
+            self._internal("on_host_wheels", exc)
+
+    def _command(
+        self, i: int, wr: float, wl: float, tick: int | None, pose_t: float | None, rx_s: float
+    ) -> None:
+        """Robot ``i``'s command: into the link now (realtime) or at the tick's end (lockstep)."""
+        self.last_cmd[i] = (wr, wl)
+        if self.lockstep:
+            if tick is not None:
+                self.answer_tick[i] = tick
+                if tick == self.tick:
+                    self.changed.set()
+        elif self.sim is not None:
+            self.sim.link.send(rx_s, i, (self.generation[i], wr, wl))
+            if pose_t is not None:
+                published = self._frame_pub.get(pose_t)
+                if published is not None:
+                    self.latencies_s.append(rx_s - published)
 
     def on_leader(self, rx: tp.Received) -> None:
         """Lockstep: the coordinator's leader message closes its answer to a tick."""
@@ -381,6 +429,9 @@ class PlantNode:
 
     def _publish_truth(self, t_s: float, truth: npt.NDArray[np.float64]) -> None:
         t = max(t_s, 0.0)
+        if self.batch:
+            self._publish_truth_batch(t, truth)
+            return
         for i, row in enumerate(truth.tolist()):
             key = self.truth_keys[i]
             msg = Truth(
@@ -388,13 +439,29 @@ class PlantNode:
             )
             self._publish(key, encode(msg), self.truth_qos)
 
+    def _publish_truth_batch(self, t: float, truth: npt.NDArray[np.float64]) -> None:
+        """``--batch``: truth as TruthBatch chunks on ``truths`` instead of one key per robot."""
+        rows = truth.tolist()
+        for start in range(0, len(rows), BATCH_CHUNK):
+            chunk = rows[start : start + BATCH_CHUNK]
+            msg = TruthBatch(
+                t=t,
+                seq=self._next_seq(self.truths_key),
+                robots=tuple(self.ids[start : start + len(chunk)]),
+                x=tuple(r[0] for r in chunk),
+                y=tuple(r[1] for r in chunk),
+                theta=tuple(r[2] for r in chunk),
+                stamp=t,
+            )
+            self._publish(self.truths_key, encode(msg), self.truth_qos)
+
     def _publish_frame(
         self, t_s: float, stamp_t: float, rows: list[tuple[int, float, float, float, float]]
     ) -> None:
         """One camera frame: the batch first, then each robot's pose (``t`` = capture time)."""
         stamp = max(stamp_t, 0.0)
-        for start in range(0, len(rows), MAX_LIST_LEN):
-            chunk = rows[start : start + MAX_LIST_LEN]
+        for start in range(0, len(rows), BATCH_CHUNK):
+            chunk = rows[start : start + BATCH_CHUNK]
             batch = PoseBatch(
                 t=max(t_s, 0.0),
                 seq=self._next_seq(self.poses_key),
@@ -405,10 +472,40 @@ class PlantNode:
                 stamp=stamp,
             )
             self._publish(self.poses_key, encode(batch), self.data_qos)
+        if not self.lockstep:
+            self._frame_published(stamp, t_s)
+        if self.batch:
+            return  # agent hosts and a --batch coordinator read the batches only
         for i, _, x, y, theta in rows:
             key = self.pose_keys[i]
             msg = Pose(t=stamp, seq=self._next_seq(key), x=x, y=y, theta=theta, robot=self.ids[i])
             self._publish(key, encode(msg), self.data_qos)
+
+    def _frame_published(self, stamp: float, due_s: float) -> None:
+        """Realtime bookkeeping of a published frame (latency and lateness, see status)."""
+        now = time.monotonic()
+        self.frames_published += 1
+        self.frame_lateness_s.append(max(0.0, now - due_s))
+        self._frame_pub[stamp] = now
+        self._frame_order.append(stamp)
+        while len(self._frame_order) > FRAMES_REMEMBERED:
+            self._frame_pub.pop(self._frame_order.popleft(), None)
+
+    def latency_stats(self) -> dict[str, Any]:
+        """Control-loop latency (frame published -> command received, ms) and frame lateness
+        (frame published after its due time, ms), p50/p99/max over the run (realtime)."""
+        out: dict[str, Any] = {"frames": self.frames_published, "commands": len(self.latencies_s)}
+        for name, samples in (
+            ("latency_ms", self.latencies_s),
+            ("lateness_ms", self.frame_lateness_s),
+        ):
+            if samples:
+                arr = np.fromiter(samples, dtype=float) * 1e3
+                p50, p99 = np.percentile(arr, [50.0, 99.0])
+                out[name] = {"p50": float(p50), "p99": float(p99), "max": float(arr.max())}
+            else:
+                out[name] = None
+        return out
 
     def publish_due_frames(self, sim: _Sim, t_s: float) -> None:
         """Publish every camera frame delivered by ``t_s`` (``Camera.poll``, as the simulator)."""
@@ -605,6 +702,8 @@ class PlantNode:
             "link_dropped": sim.link.dropped if sim is not None else 0,
             "min_separation_m": min_sep if math.isfinite(min_sep) else None,
             "collisions": sim.monitor.collision_count if sim is not None else 0,
+            "frames": self.frames_published,
+            "batch": self.batch,
         }
 
     def publish_status(self) -> None:
@@ -717,6 +816,17 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"start only once every robot's and a coordinator's token are present "
         f"(gives up after {WAIT_ROBOTS_S:g} s)",
     )
+    parser.add_argument(
+        "--batch",
+        action="store_true",
+        help="large fleets: poses only as batched frames, truth as batches (no per-robot "
+        "pose/truth keys); docs/scale.md",
+    )
+    parser.add_argument(
+        "--stats-out",
+        metavar="FILE.json",
+        help="at exit, write the run's statistics (latency, frames, lateness, rx) as JSON",
+    )
     tp.add_zenoh_arguments(parser)
     return parser
 
@@ -744,6 +854,18 @@ def main(argv: list[str]) -> int:
     return tp.run_node(lambda stop: _node(stop, scenario, ns, settings))
 
 
+def write_stats(node: PlantNode, path: str, log: NodeLog) -> None:
+    """``--stats-out``: the status map plus the latency statistics, as JSON (never raises)."""
+    import json
+
+    try:
+        stats = {**node.status_map(), **node.latency_stats(), "n_robots": node.n}
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(stats, fh, indent=1)
+    except Exception as exc:
+        log.info(f"--stats-out {path}: {exc!r}")
+
+
 async def _node(
     stop: asyncio.Event, scenario: Scenario, ns: argparse.Namespace, settings: tp.ZenohSettings
 ) -> int:
@@ -765,10 +887,11 @@ async def _node(
             lockstep_timeout_s=ns.lockstep_timeout,
             physics_hz=ns.physics_hz,
             duration_s=ns.duration,
+            batch=ns.batch,
             log=log,
         )
         pubs.get(node.poses_key, node.data_qos)
-        for key in node.pose_keys:
+        for key in () if ns.batch else node.pose_keys:
             pubs.get(key, node.data_qos)
         if ns.lockstep:
             pubs.get(node.clock_key, tp.QOS_CRITICAL)
@@ -777,12 +900,15 @@ async def _node(
             session, node.alive_coordinators_pattern, loop, node.on_alive_coordinator
         )
         subscribe_ordered(session, node.wheels_pattern, loop, node.on_wheels)
+        subscribe_ordered(session, node.host_wheels_pattern, loop, node.on_host_wheels)
         subscribe_ordered(session, node.disturbance_key, loop, node.on_disturbance)
         if ns.lockstep:
             subscribe_ordered(session, node.leader_key, loop, node.on_leader)
         token = tp.declare_token(session, node.alive_key)
         print("plant ready", flush=True)
         code = await node.run(stop, ns.wait_robots)
+        if ns.stats_out:
+            write_stats(node, ns.stats_out, log)
         del token
         return code
     finally:

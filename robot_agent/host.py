@@ -1,0 +1,642 @@
+"""``formation agent-host``: the firmware of many robots in one process (for simulation at scale).
+
+Usage::
+
+    formation agent-host --ids r1..r100 [--name NAME] [--scenario NAME|FILE] [--fleet demo]
+                         [--lockstep] [--rate-hz 50] [zenoh options]
+
+A workstation simulating hundreds of robots cannot afford one process (and ~40 MB, and one Zenoh
+session) per robot; a real robot runs ``formation agent``. This process runs one
+:class:`~robot_agent.node.AgentNode` per robot, each with its own
+:class:`~robot_agent.firmware.Firmware` exactly as ``formation agent`` runs it (same setpoint
+choice, same safe states, same lockstep rules), and each robot keeps its own liveliness token
+``formation/<fleet>/alive/robot/<id>``, so the coordinator, the plant and the fault tools see
+ordinary robots. What is shared is the I/O, batched (bus_schemas, docs/scale.md):
+
+* in: ``formation/<fleet>/poses`` (:class:`~bus_schemas.PoseBatch`, every robot's pose, which is
+  both the own pose of each hosted robot and the neighbours for repulsion), ``setpoints``
+  (:class:`~bus_schemas.SetpointBatch` from a coordinator started with ``--batch``), ``estop``,
+  and ``clock`` in lockstep. One decode per message for all robots, not one per robot.
+* out: ``formation/<fleet>/host/<name>/wheels`` (:class:`~bus_schemas.WheelsBatch`, the commands of
+  one control step, chunks of :data:`~bus_schemas.BATCH_CHUNK`) and ``host/<name>/status``
+  (:class:`~bus_schemas.StatusBatch`, 5 Hz).
+* repulsion: each robot's neighbours come from one spatial hash of the latest frame (cells of the
+  repulsion influence distance ``d0``), so a query costs the robots in 3 x 3 cells, not N; the
+  neighbours are passed in frame order, the order ``formation agent`` sees them, so the firmware
+  sums the same terms in the same order.
+
+Realtime: the robots whose poses are in a frame chunk are stepped when it arrives (the
+on-pose loop of ``formation agent``) and their commands go out as one batch; a ``--rate-hz``
+timer steps every robot that was not stepped for a period, so stale data still drives HOLD.
+Lockstep: on ``clock`` k every robot steps at ``t_k`` (``AgentNode.clock_step``) and one batch
+(``tick: k``) answers; a repeated clock gets the same batch again.
+
+Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
+logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
+session closed (``bus_schemas.transport.run_node``). Prints ``agent-host <name> ready`` once its
+subscriptions and every robot's token are declared.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import os
+import re
+import socket
+import sys
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from typing import Final
+
+import zenoh
+
+from bus_schemas import (
+    BATCH_CHUNK,
+    Clock,
+    DecodeError,
+    Estop,
+    PoseBatch,
+    SetpointBatch,
+    StatusBatch,
+    WheelsBatch,
+    decode,
+    encode,
+    keys,
+)
+from bus_schemas import transport as tp
+from robot_agent.firmware import Pose as FwPose
+from robot_agent.firmware import Setpoint as FwSetpoint
+from robot_agent.firmware import WheelCommand
+from robot_agent.node import (
+    NEIGHBOUR_STALE_S,
+    RESUME_QUARANTINE_S,
+    STATUS_PERIOD_S,
+    AgentNode,
+    NodeLog,
+    Publish,
+    finite_or_none,
+    subscribe_ordered,
+)
+from robot_agent.params import AgentConfig
+from robot_agent.sdnotify import Notifier
+
+__all__ = ["MAX_HOSTED", "HostNode", "build_parser", "expand_ids", "main"]
+
+MAX_HOSTED: Final = 4096
+"""Robots one host runs at most."""
+MAX_TRACKED: Final = 20000
+"""Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
+HANG_GAP_S: Final = 0.5
+"""Realtime: the loop idle for longer than this (s) means the process was stopped; see
+``robot_agent.node.HANG_GAP_S``."""
+
+_Grid = dict[tuple[int, int], list[tuple[int, str, float, float]]]
+"""Spatial hash: cell -> (frame order, robot id, x, y) of the robots in it."""
+
+_RANGE = re.compile(r"([a-z_-]*)(\d+)\.\.\1?(\d+)")
+
+
+def expand_ids(spec: str) -> list[str]:
+    """``"r1..r3,x7"`` -> ``["r1", "r2", "r3", "x7"]``; raises ValueError on a bad id or range."""
+    out: list[str] = []
+    for part in (p.strip() for p in spec.split(",")):
+        if not part:
+            continue
+        m = _RANGE.fullmatch(part)
+        if m is not None:
+            prefix, lo, hi = m.group(1), int(m.group(2)), int(m.group(3))
+            if hi < lo or hi - lo >= MAX_HOSTED:
+                raise ValueError(f"bad id range {part!r}")
+            out.extend(f"{prefix}{i}" for i in range(lo, hi + 1))
+        elif keys.is_robot_id(part):
+            out.append(part)
+        else:
+            raise ValueError(f"invalid robot id {part!r}: must match {keys.ROBOT_ID_PATTERN}")
+    if not out:
+        raise ValueError("no robot ids")
+    if len(set(out)) != len(out):
+        raise ValueError("duplicate robot id")
+    if len(out) > MAX_HOSTED:
+        raise ValueError(f"at most {MAX_HOSTED} robots per host")
+    for rid in out:
+        keys.check_robot_id(rid)
+    return out
+
+
+@dataclass(slots=True)
+class _Seen:
+    """Latest position of a robot from the pose frames (for repulsion)."""
+
+    x: float
+    y: float
+    rx_s: float | None  # receive time; None while pending (lockstep, until the next clock)
+    order: int  # first-seen order (= frame order): neighbours are passed in this order
+
+
+class HostNode:
+    """Many :class:`AgentNode` sharing one session's batched I/O; Zenoh-free apart from
+    ``publish``. Handlers take one :class:`bus_schemas.transport.Received`, run on the event
+    loop and never raise.
+
+    Args:
+        name: host name in the keys (``[A-Za-z0-9_-]+``).
+        robot_ids: the robots this host runs.
+        fleet: fleet name.
+        config: firmware parameters (every robot the same).
+        publish: ``publish(key, payload, qos)``.
+        lockstep: step on ``clock`` only.
+        rate_hz: realtime watchdog timer rate.
+        log: where to log.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        robot_ids: Sequence[str],
+        fleet: str,
+        config: AgentConfig,
+        publish: Publish,
+        *,
+        lockstep: bool = False,
+        rate_hz: float = 50.0,
+        log: NodeLog | None = None,
+    ) -> None:
+        self.name = keys.check_name(name)
+        self.fleet = keys.check_fleet(fleet)
+        self.lockstep = lockstep
+        self.period_s = 1.0 / rate_hz
+        self.log = log if log is not None else NodeLog(f"agent-host {name}")
+        self._publish = publish
+        self.hostname = socket.gethostname()[:255] or "unknown"
+        self.pid = os.getpid()
+        if len(robot_ids) > MAX_HOSTED:
+            raise ValueError(f"at most {MAX_HOSTED} robots per host")
+        self.nodes: dict[str, AgentNode] = {}
+        quiet = NodeLog(f"agent-host {name}", min_interval_s=5.0)
+        for rid in robot_ids:
+            node = AgentNode(
+                rid, fleet, config, publish, lockstep=lockstep, loop_mode="fixed",
+                rate_hz=rate_hz, log=quiet,
+            )  # fmt: skip
+            node.publish_wheels = False
+            node.neighbour_fn = self._neighbours_of
+            self.nodes[rid] = node
+        self.order = list(self.nodes)
+        self.cell_m = max(config.repulsion.d0_m, 1e-3)
+
+        self.poses_key = keys.poses_key(fleet)
+        self.setpoints_key = keys.setpoints_key(fleet)
+        self.estop_key = keys.estop_key(fleet)
+        self.clock_key = keys.clock_key(fleet)
+        self.wheels_key = keys.host_wheels_key(fleet, name)
+        self.status_key = keys.host_status_key(fleet, name)
+        self.wheels_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_CONTROL
+
+        self._seen: dict[str, _Seen] = {}
+        self._pending: list[_Seen] = []  # lockstep: positions received since the last clock
+        self._grid: _Grid | None = None
+        self._grid_now = -math.inf
+        self.rx: dict[str, int] = {"poses": 0, "setpoints": 0, "estop": 0, "clock": 0}
+        self.rejected = 0
+        self.internal_errors = 0
+        self.batches = 0
+        self.sim_t = 0.0
+        self._last_tick: int | None = None
+        self._last_batches: list[bytes] = []
+        self._seq_wheels = 0
+        self._seq_status = 0
+        self._last_loop_s: float | None = None
+        self.hang_gap_s = HANG_GAP_S
+        self.quarantine_until_s = -math.inf
+        self.resumes = 0
+
+    # -- bookkeeping ---------------------------------------------------------------------------
+
+    def _reject(self, what: str, why: DecodeError | str) -> None:
+        """A bad message reached every hosted robot: each firmware counts it."""
+        self.rejected += 1
+        for node in self.nodes.values():
+            node.firmware.reject(f"{what}: {why}")
+        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+
+    def _internal(self, where: str, exc: BaseException) -> None:
+        self.internal_errors += 1
+        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+
+    def _resumed(self, now_s: float) -> bool:
+        """Realtime: a stop of the whole process (SIGSTOP) -> every robot drops its setpoint and
+        pose and ignores input for :data:`RESUME_QUARANTINE_S` (as ``AgentNode._resumed``)."""
+        if self.lockstep:
+            return False
+        last = self._last_loop_s
+        if last is not None and now_s - last > self.hang_gap_s:
+            self._last_loop_s = now_s
+            self.quarantine_until_s = now_s + RESUME_QUARANTINE_S
+            self.resumes += 1
+            for node in self.nodes.values():
+                node.setpoint = None
+                node.pose = None
+            self._seen.clear()
+            self._grid = None
+            self.log.info(f"resumed after {now_s - last:.2f} s stopped: holding until fresh data")
+        return now_s < self.quarantine_until_s
+
+    # -- neighbours ----------------------------------------------------------------------------
+
+    def _build_grid(
+        self, now_s: float
+    ) -> dict[tuple[int, int], list[tuple[int, str, float, float]]]:
+        grid: dict[tuple[int, int], list[tuple[int, str, float, float]]] = {}
+        c = self.cell_m
+        stale = NEIGHBOUR_STALE_S
+        for rid, e in self._seen.items():
+            rx_s = e.rx_s
+            if rx_s is None or not -stale <= now_s - rx_s <= stale:
+                continue
+            cell = (math.floor(e.x / c), math.floor(e.y / c))
+            entry = (e.order, rid, e.x, e.y)
+            bucket = grid.get(cell)
+            if bucket is None:
+                grid[cell] = [entry]
+            else:
+                bucket.append(entry)
+        return grid
+
+    def _neighbours_of(self, node: AgentNode, now_s: float) -> list[tuple[float, float]]:
+        """The other robots within the 3 x 3 cells around ``node``'s pose, in frame order."""
+        pose = node.pose
+        if pose is None:
+            return []
+        grid = self._grid
+        if grid is None or now_s != self._grid_now:
+            grid = self._grid = self._build_grid(now_s)
+            self._grid_now = now_s
+        c = self.cell_m
+        cx, cy = math.floor(pose.x / c), math.floor(pose.y / c)
+        found: list[tuple[int, str, float, float]] = []
+        me = node.robot_id
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                bucket = grid.get((cx + dx, cy + dy))
+                if bucket:
+                    found.extend(e for e in bucket if e[1] != me)
+        if len(found) > 1:
+            found.sort()
+        return [(e[2], e[3]) for e in found]
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def on_poses(self, rx: tp.Received) -> None:
+        """A pose frame (chunk): own poses of hosted robots, everyone's position for repulsion;
+        realtime: step the hosted robots of this chunk now and publish their batch."""
+        try:
+            self.rx["poses"] += 1
+            if self._resumed(rx.rx_s):
+                return
+            msg = decode(rx.payload, PoseBatch)
+            if isinstance(msg, DecodeError):
+                self._reject("poses", msg)
+                return
+            rx_s: float | None = None if self.lockstep else rx.rx_s
+            seen = self._seen
+            nodes = self.nodes
+            stamp = msg.stamp
+            mine: list[AgentNode] = []
+            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
+                e = seen.get(rid)
+                if e is None:
+                    if len(seen) >= MAX_TRACKED:
+                        continue
+                    e = seen[rid] = _Seen(x, y, rx_s, len(seen))
+                else:
+                    e.x, e.y, e.rx_s = x, y, rx_s
+                if rx_s is None:
+                    self._pending.append(e)
+                node = nodes.get(rid)
+                if node is not None:
+                    node.rx["pose"] += 1
+                    node.pose = FwPose(x, y, th, stamp)
+                    if rx_s is None:
+                        node._pose_pending = True
+                    else:
+                        node.pose_rx_s = rx_s
+                        mine.append(node)
+            self._grid = None
+            if len(self._pending) > 4 * MAX_TRACKED:  # no clock for ages
+                self._pending = list({id(e): e for e in self._pending}.values())
+            if mine:
+                now = time.monotonic()
+                self._publish_steps((n, n.step(now)) for n in mine)
+        except Exception as exc:
+            self._internal("on_poses", exc)
+
+    def on_setpoints(self, rx: tp.Received) -> None:
+        """A setpoint batch: each hosted robot's entry as if it came on its own key."""
+        try:
+            self.rx["setpoints"] += 1
+            if self._resumed(rx.rx_s):
+                return
+            msg = decode(rx.payload, SetpointBatch)
+            if isinstance(msg, DecodeError):
+                self._reject("setpoints", msg)
+                return
+            nodes = self.nodes
+            th, t, tick = msg.theta, msg.t, msg.tick
+            rows = zip(msg.robots, msg.slot, msg.role, msg.x, msg.y, msg.vx, msg.vy, strict=True)
+            for rid, slot, role, x, y, vx, vy in rows:
+                node = nodes.get(rid)
+                if node is not None:
+                    node.rx["setpoint"] += 1
+                    node.accept_setpoint(FwSetpoint(x, y, vx, vy, th, slot, t), role, rx.rx_s, tick)
+        except Exception as exc:
+            self._internal("on_setpoints", exc)
+
+    def on_estop(self, rx: tp.Received) -> None:
+        """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
+        try:
+            self.rx["estop"] += 1
+            msg = decode(rx.payload, Estop)
+            if isinstance(msg, DecodeError):
+                self._reject("estop", msg)
+                return
+            if msg.robot is None:
+                targets = list(self.nodes.values())
+            elif msg.robot in self.nodes:
+                targets = [self.nodes[msg.robot]]
+            else:
+                return
+            for node in targets:
+                node.rx["estop"] += 1
+                if msg.engage:
+                    node.firmware.engage_estop()
+                else:
+                    node.firmware.release_estop()
+            what = "all robots" if msg.robot is None else msg.robot
+            self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")
+            if msg.engage and not self.lockstep:
+                now = time.monotonic()
+                self._publish_steps((n, n.step(now)) for n in targets)
+        except Exception as exc:
+            self._internal("on_estop", exc)
+
+    def on_clock(self, rx: tp.Received) -> None:
+        """Lockstep clock k: every robot steps at t_k; one batch with ``tick: k`` answers."""
+        try:
+            self.rx["clock"] += 1
+            msg = decode(rx.payload, Clock)
+            if isinstance(msg, DecodeError):
+                self._reject("clock", msg)
+                return
+            k, t_k = msg.tick, msg.t
+            if k == self._last_tick and self._last_batches:
+                for payload in self._last_batches:  # re-announce
+                    self._publish(self.wheels_key, payload, self.wheels_qos)
+                return
+            self.sim_t = t_k
+            for e in self._pending:
+                if e.rx_s is None:
+                    e.rx_s = t_k
+            self._pending = []
+            self._grid = None
+            self._last_tick = k
+            nodes = self.nodes.values()
+            self._last_batches = self._publish_steps(
+                ((n, n.clock_step(k, t_k)) for n in nodes), tick=k
+            )
+        except Exception as exc:
+            self._internal("on_clock", exc)
+
+    # -- outputs -------------------------------------------------------------------------------
+
+    def _publish_steps(
+        self,
+        steps: Iterable[tuple[AgentNode, WheelCommand | None]],
+        tick: int | None = None,
+    ) -> list[bytes]:
+        """Publish the commands of ``steps`` as WheelsBatch chunks; returns the payloads."""
+        now = self.sim_t if self.lockstep else time.monotonic()
+        rows: list[tuple[str, WheelCommand]] = [
+            (n.robot_id, cmd) for n, cmd in steps if cmd is not None
+        ]
+        payloads: list[bytes] = []
+        for i in range(0, len(rows), BATCH_CHUNK):
+            chunk = rows[i : i + BATCH_CHUNK]
+            self._seq_wheels += 1
+            pose_t = tuple(-1.0 if c.pose_t is None else c.pose_t for _, c in chunk)
+            payload = encode(
+                WheelsBatch(
+                    t=max(now, 0.0),
+                    seq=self._seq_wheels,
+                    robots=tuple(r for r, _ in chunk),
+                    omega_r=tuple(c.omega_r for _, c in chunk),
+                    omega_l=tuple(c.omega_l for _, c in chunk),
+                    power_r=tuple(c.power_r for _, c in chunk),
+                    power_l=tuple(c.power_l for _, c in chunk),
+                    pose_t=pose_t,
+                    tick=tick,
+                )
+            )
+            self._publish(self.wheels_key, payload, self.wheels_qos)
+            payloads.append(payload)
+        self.batches += len(payloads)
+        return payloads
+
+    def step_due(self, now_s: float) -> int:
+        """Realtime watchdog: step (and publish) every robot not stepped for a period."""
+        lim = self.period_s * 0.999
+        due = [n for n in self.nodes.values() if now_s - n.last_step_s >= lim]
+        if due:
+            self._publish_steps((n, n.step(now_s)) for n in due)
+        return len(due)
+
+    def status_batches(self, now_s: float) -> list[StatusBatch]:
+        """The status of every hosted robot, in chunks."""
+        out: list[StatusBatch] = []
+        for i in range(0, len(self.order), BATCH_CHUNK):
+            ids = self.order[i : i + BATCH_CHUNK]
+            sts = [self.nodes[r].firmware.status() for r in ids]
+            self._seq_status += 1
+            out.append(
+                StatusBatch(
+                    t=max(now_s, 0.0),
+                    seq=self._seq_status,
+                    pid=self.pid,
+                    host=self.hostname,
+                    robots=tuple(ids),
+                    mode=tuple(str(s.mode) for s in sts),
+                    slot=tuple(-1 if s.slot is None else s.slot for s in sts),
+                    rejected=tuple(s.rejected_count for s in sts),
+                    ex=tuple(finite_or_none(s.ex) or 0.0 for s in sts),
+                    ey=tuple(finite_or_none(s.ey) or 0.0 for s in sts),
+                )
+            )
+        return out
+
+    def publish_status(self) -> None:
+        """Publish the status batches (never raises)."""
+        try:
+            now = self.sim_t if self.lockstep else time.monotonic()
+            for msg in self.status_batches(now):
+                self._publish(self.status_key, encode(msg), tp.QOS_TELEMETRY)
+        except Exception as exc:
+            self._internal("status", exc)
+
+    async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
+        """Timers until ``stop``: the realtime watchdog step and the 5 Hz status."""
+        period = self.period_s
+        wd_period = notifier.watchdog_interval_s() if notifier is not None else None
+        now = time.monotonic()
+        next_ctrl = now + period
+        next_status = now
+        next_wd = now
+        while not stop.is_set():
+            now = time.monotonic()
+            self._resumed(now)
+            if now >= next_ctrl:
+                if not self.lockstep:
+                    try:
+                        self.step_due(now)
+                    except Exception as exc:
+                        self._internal("step_due", exc)
+                next_ctrl += period
+                if next_ctrl <= now:
+                    next_ctrl = now + period
+                if notifier is not None and wd_period is not None and now >= next_wd:
+                    notifier.watchdog()
+                    next_wd = now + wd_period
+            if now >= next_status:
+                self.publish_status()
+                next_status += STATUS_PERIOD_S
+                if next_status <= now:
+                    next_status = now + STATUS_PERIOD_S
+            self._last_loop_s = time.monotonic()
+            await asyncio.sleep(max(0.0, min(next_ctrl, next_status) - self._last_loop_s))
+
+
+# ---------------------------------------------------------------------------------------------
+# CLI
+# ---------------------------------------------------------------------------------------------
+
+
+def _rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.5 <= value <= 2000.0:
+        raise argparse.ArgumentTypeError(f"rate must be in [0.5, 2000] Hz, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation agent-host`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog="formation agent-host",
+        description="Run the firmware of many robots in one process (simulation at scale).",
+    )
+    parser.add_argument(
+        "--ids", required=True, metavar="IDS", help="robot ids: r1..r100 or r1,r2,r5..r9"
+    )
+    parser.add_argument(
+        "--name", metavar="NAME", help="host name in the keys (default: host-<pid>)"
+    )
+    parser.add_argument("--scenario", metavar="NAME|FILE", help="robot parameters of a scenario")
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, metavar="NAME", help="fleet name")
+    parser.add_argument(
+        "--lockstep", action="store_true", help="step on the plant's clock (docs/runtime.md)"
+    )
+    parser.add_argument(
+        "--rate-hz", type=_rate, default=50.0, metavar="HZ", help="watchdog timer rate (50 Hz)"
+    )
+    tp.add_zenoh_arguments(parser)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation agent-host``; returns the exit status."""
+    ns = build_parser().parse_args(argv)
+    log = NodeLog("formation agent-host")
+    try:
+        ids = expand_ids(ns.ids)
+    except ValueError as exc:
+        log.info(f"--ids: {exc}")
+        return 2
+    name = ns.name or f"host-{os.getpid()}"
+    if not keys.is_name(name) or not keys.is_name(ns.fleet):
+        log.info(f"invalid --name {name!r} or --fleet {ns.fleet!r}: must match {keys.NAME_PATTERN}")
+        return 2
+    config = AgentConfig()
+    if ns.scenario is not None:
+        from formation.scenario import ScenarioError, load
+
+        try:
+            config = load(ns.scenario).agent
+        except (ScenarioError, OSError) as exc:
+            log.info(f"scenario: {exc}")
+            return 2
+    try:
+        settings = tp.settings_from_args(ns)
+    except (TypeError, ValueError) as exc:
+        log.info(f"zenoh settings: {exc}")
+        return 2
+    return tp.run_node(
+        lambda stop: _node(stop, name, ids, ns.fleet, config, settings, ns.lockstep, ns.rate_hz)
+    )
+
+
+async def _node(
+    stop: asyncio.Event,
+    name: str,
+    ids: list[str],
+    fleet: str,
+    config: AgentConfig,
+    settings: tp.ZenohSettings,
+    lockstep: bool,
+    rate_hz: float,
+) -> int:
+    loop = asyncio.get_running_loop()
+    log = NodeLog(f"agent-host {name}")
+    try:
+        session = await tp.open_session_async(settings)
+    except (tp.TransportError, ValueError) as exc:
+        log.info(str(exc))
+        return 1
+    notifier = Notifier()
+    tokens: list[zenoh.LivelinessToken] = []
+    try:
+        pubs = tp.Publishers(session)
+        host = HostNode(
+            name, ids, fleet, config, pubs.put, lockstep=lockstep, rate_hz=rate_hz, log=log
+        )
+        if settings.lease_ms is not None:
+            host.hang_gap_s = max(0.3, 0.9 * settings.lease_ms / 1000.0)
+        pubs.get(host.wheels_key, host.wheels_qos)
+        pubs.get(host.status_key, tp.QOS_TELEMETRY)
+        handlers: list[tuple[str, Callable[[tp.Received], None]]] = [
+            (host.setpoints_key, host.on_setpoints),
+            (host.estop_key, host.on_estop),
+        ]
+        if lockstep:
+            handlers.append((host.clock_key, host.on_clock))
+        handlers.append((host.poses_key, host.on_poses))
+        for key, handler in handlers:
+            subscribe_ordered(session, key, loop, handler)
+        tokens = [tp.declare_token(session, keys.alive_robot_key(fleet, r)) for r in ids]
+        print(f"agent-host {name} ready", flush=True)
+        notifier.ready(f"agent-host {name} connected ({len(ids)} robots)")
+        mode = "lockstep" if lockstep else f"realtime, watchdog {rate_hz:g} Hz"
+        log.info(f"fleet {fleet}, {len(ids)} robots ({ids[0]}..{ids[-1]}), {mode}")
+        await host.run(stop, notifier)
+        notifier.stopping()
+        return 0
+    finally:
+        tokens.clear()
+        session.close()
+        notifier.close()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))
