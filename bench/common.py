@@ -34,7 +34,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import IO, Literal
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:
@@ -189,13 +189,17 @@ def stop_process(proc: subprocess.Popen[bytes], timeout_s: float = 2.0) -> int:
 
 @contextlib.contextmanager
 def running(
-    argv: Sequence[str], *, ready: str | None = None, timeout_s: float = 15.0
+    argv: Sequence[str],
+    *,
+    ready: str | None = None,
+    timeout_s: float = 15.0,
+    stderr: IO[bytes] | None = None,
 ) -> Iterator[subprocess.Popen[bytes]]:
     """Run ``argv`` (cwd = repository) for the duration of the ``with`` block.
 
     stdin is a pipe the child may watch to exit with its parent; stdout is a pipe read until the
     line starting with ``ready`` (the child should print nothing much after it); stderr is
-    inherited so errors show.
+    inherited so errors show, or goes to ``stderr`` (an open file).
     """
     proc = subprocess.Popen(
         list(argv),
@@ -203,6 +207,7 @@ def running(
         env=_child_env(),
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
+        stderr=stderr,
         start_new_session=True,
     )
     try:

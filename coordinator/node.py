@@ -76,6 +76,7 @@ import os
 import socket
 import sys
 import time
+from collections import deque
 from collections.abc import Iterable, Mapping
 from typing import Any, Final
 
@@ -204,6 +205,7 @@ class CoordinatorNode:
         self.internal_errors = 0
         self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0}
         self.ticks = 0
+        self.tick_s: deque[float] = deque(maxlen=250)  # compute + publish time of recent ticks
         self.t0_s: float | None = 0.0 if lockstep else None
         self.last: CoordinatorOutput | None = None
         self._last_assignment_t = -math.inf
@@ -508,6 +510,7 @@ class CoordinatorNode:
             if self.t0_s is None:
                 self.t0_s = now_s
                 self.core.t0_s = now_s
+            started = time.perf_counter()
             out = self.core.tick(now_s, self.fresh_poses(now_s))
             self.ticks += 1
             self.last = out
@@ -515,6 +518,7 @@ class CoordinatorNode:
             for key, payload, qos in outputs:
                 self._publish(key, payload, qos)
             self._last_outputs = outputs
+            self.tick_s.append(time.perf_counter() - started)
             return out
         except Exception as exc:
             self._internal("tick", exc)
@@ -646,6 +650,7 @@ class CoordinatorNode:
             "stepdowns": self.stepdowns,
             "pid": os.getpid(),
             "host": _HOST,
+            "tick_ms": _tick_ms(self.tick_s),
         }
 
     def publish_status(self) -> None:
@@ -705,6 +710,14 @@ class CoordinatorNode:
 
 
 _HOST: Final = socket.gethostname()[:255] or "unknown"
+
+
+def _tick_ms(samples: Iterable[float]) -> dict[str, float] | None:
+    """p50 and max (ms) of the recent ticks' compute-and-publish times, None before any."""
+    ordered = sorted(samples)
+    if not ordered:
+        return None
+    return {"p50": 1e3 * ordered[len(ordered) // 2], "max": 1e3 * ordered[-1]}
 
 
 def _rank(name: str) -> tuple[int, str]:

@@ -209,6 +209,7 @@ class PlantNode:
         self._frame_order: deque[float] = deque()
         self.latencies_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.frames_published = 0
+        self._answered: list[float | None] = [None] * self.n  # last frame stamp answered
         self.frame_lateness_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.timeouts = 0
         self.state = "waiting"
@@ -324,9 +325,10 @@ class PlantNode:
                     self.changed.set()
         elif self.sim is not None:
             self.sim.link.send(rx_s, i, (self.generation[i], wr, wl))
-            if pose_t is not None:
+            if pose_t is not None and pose_t != self._answered[i]:
                 published = self._frame_pub.get(pose_t)
-                if published is not None:
+                if published is not None:  # the first command computed from this frame
+                    self._answered[i] = pose_t
                     self.latencies_s.append(rx_s - published)
 
     def on_leader(self, rx: tp.Received) -> None:
