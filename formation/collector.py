@@ -47,10 +47,14 @@ from bus_schemas import (
     Clock,
     DecodeError,
     Leader,
+    SetpointBatch,
     Slot,
     Status,
+    StatusBatch,
     Truth,
+    TruthBatch,
     Wheels,
+    WheelsBatch,
     decode,
     keys,
 )
@@ -63,8 +67,15 @@ __all__ = ["LiveRobot", "LiveView", "RunCollector", "key_patterns", "slot_ids_of
 F64 = npt.NDArray[np.float64]
 
 _LEAVES: Final = frozenset(
-    {keys.TRUTH, keys.LEADER, keys.SLOT, keys.ASSIGNMENT, keys.WHEELS, keys.STATUS, keys.CLOCK}
-)
+    {
+        keys.TRUTH, keys.LEADER, keys.SLOT, keys.ASSIGNMENT, keys.WHEELS, keys.STATUS, keys.CLOCK,
+        # the batched forms of a large fleet (plant/coordinator --batch, agent hosts)
+        keys.TRUTHS, keys.HOST_WHEELS, keys.HOST_STATUS, keys.SETPOINTS,
+    }
+)  # fmt: skip
+
+
+_BATCH_LEAVES: Final = frozenset({keys.TRUTHS, keys.HOST_WHEELS, keys.HOST_STATUS, keys.SETPOINTS})
 
 
 def key_patterns(fleet: str) -> list[str]:
@@ -77,6 +88,10 @@ def key_patterns(fleet: str) -> list[str]:
         keys.all_wheels_pattern(fleet),
         keys.all_status_pattern(fleet),
         keys.clock_key(fleet),
+        keys.truths_key(fleet),
+        keys.all_host_wheels_pattern(fleet),
+        keys.all_host_status_pattern(fleet),
+        keys.setpoints_key(fleet),
     ]
 
 
@@ -249,6 +264,8 @@ class RunCollector:
                 self.ignored += 1
                 return False
         self.received[leaf] = self.received.get(leaf, 0) + 1
+        if leaf in _BATCH_LEAVES:
+            return self._feed_batch(leaf, payload)
         if leaf == keys.TRUTH:
             assert i is not None
             truth = decode(payload, Truth)
@@ -298,6 +315,53 @@ class RunCollector:
             if isinstance(clock, DecodeError):
                 return self._reject(f"clock: {clock.reason}")
             self._last_clock = clock
+        return True
+
+    def _feed_batch(self, leaf: str, payload: bytes | bytearray | memoryview) -> bool:
+        """A batched message: each entry of a known robot as its per-robot message would be."""
+        index = self._index
+        if leaf == keys.TRUTHS:
+            tb = decode(payload, TruthBatch)
+            if isinstance(tb, DecodeError):
+                return self._reject(f"truths: {tb.reason}")
+            row = self._row_key(tb.stamp)
+            frame = self._truth.setdefault(row, {})
+            for rid, x, y, th in zip(tb.robots, tb.x, tb.y, tb.theta, strict=True):
+                i = index.get(rid)
+                if i is not None:
+                    frame[i] = self._latest_truth[i] = (x, y, th)
+            if self._last_truth_key is None or row > self._last_truth_key:
+                self._last_truth_key = row
+        elif leaf == keys.HOST_WHEELS:
+            wb = decode(payload, WheelsBatch)
+            if isinstance(wb, DecodeError):
+                return self._reject(f"host wheels: {wb.reason}")
+            row = self._row_key(wb.t, wb.tick)
+            for rid, pr, pl in zip(wb.robots, wb.power_r, wb.power_l, strict=True):
+                i = index.get(rid)
+                if i is not None:
+                    self._wheels[i].add(row, (pr, pl))
+        elif leaf == keys.HOST_STATUS:
+            sb = decode(payload, StatusBatch)
+            if isinstance(sb, DecodeError):
+                return self._reject(f"host status: {sb.reason}")
+            rows = zip(sb.robots, sb.mode, sb.slot, sb.rejected, sb.ex, sb.ey, strict=True)
+            for rid, mode, slot, rejected, ex, ey in rows:
+                i = index.get(rid)
+                if i is None:
+                    continue
+                self._status[i] = Status(
+                    t=sb.t, seq=sb.seq, mode=mode, slot=None if slot < 0 else slot, pid=sb.pid,
+                    host=sb.host, rejected=rejected, ex=ex, ey=ey, robot=rid,
+                )  # fmt: skip
+                self._modes[i].add(self._row_key(sb.t), MODE_CODES.get(mode, 0))
+        else:  # setpoints: the assigned slots' positions of every tick (slot keys come at 1 Hz)
+            sp = decode(payload, SetpointBatch)
+            if isinstance(sp, DecodeError):
+                return self._reject(f"setpoints: {sp.reason}")
+            row = self._row_key(sp.t, sp.tick)
+            for slot, x, y in zip(sp.slot, sp.x, sp.y, strict=True):
+                self._slots.setdefault(slot, _Series()).add(row, (x, y))
         return True
 
     def feed_alive(self, key: str, alive: bool) -> None:

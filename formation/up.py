@@ -5,7 +5,7 @@ Usage::
     formation up [--scenario NAME|FILE] [--robots N] [--duration S] [--lockstep]
                  [--endpoint tcp/127.0.0.1:7447] [--fleet F] [--out DIR] [--seed N]
                  [--no-figures] [--quiet] [--record FILE.mcap] [--foxglove [PORT]]
-                 [--standby] [--respawn S] [--lease-ms MS]
+                 [--standby] [--respawn S] [--lease-ms MS] [--hosts H]
 
 Theory of operation
 -------------------
@@ -15,7 +15,9 @@ Theory of operation
    writes it to ``<out>/scenario.toml``, which every process then loads.
 2. **Spawn** (fork+exec, ``asyncio.create_subprocess_exec``; this process opens no Zenoh session
    before every child exists): ``formation router --listen EP``, then ``formation plant``,
-   ``formation coordinator`` and one ``formation agent --id rK`` per robot, all connecting to EP.
+   ``formation coordinator`` and one ``formation agent --id rK`` per robot, all connecting to EP
+   (``--hosts H``: H ``formation agent-host`` processes share the robots instead, and plant and
+   coordinator use the batched keys, ``--batch``; docs/scale.md).
    Each child's stderr goes to ``<out>/logs/<name>.log``, its stdout to ``<name>.out``; the
    launcher waits for each one's ready line (``router listening on``, ``plant ready``,
    ``coordinator ready``, ``agent rK ready``) and names the process and its stderr tail if one
@@ -147,6 +149,7 @@ class UpConfig:
     lease_ms: int | None = DEFAULT_LEASE_MS  # Zenoh lease of every node (hang detection)
     standby: bool = False  # run a second, hot-standby coordinator
     respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
+    hosts: int = 0  # > 0: that many agent-host processes run the robots, batched bus (scale)
 
 
 @dataclass(frozen=True)
@@ -746,15 +749,31 @@ class _Launcher:
             "plant", "--scenario", scn_arg, "--seed", str(self.plan.seed),
             "--duration", repr(self.plan.duration_s), "--wait-robots", *lock, *common,
         ]  # fmt: skip
-        coord = ["coordinator", "--scenario", scn_arg, "--name", "main", *lock, *common]
+        batch = ["--batch"] if self.cfg.hosts > 0 else []
+        plant += batch
+        coord = [
+            "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock, *common,
+        ]  # fmt: skip
         out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
         if self.cfg.standby:
             standby = [
                 "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",
-                *lock, *common,
+                *batch, *lock, *common,
             ]  # fmt: skip
             out.append(("coordinator-standby", standby, "coordinator ready"))
-        for rid in self.scn.robot_ids:
+        ids = list(self.scn.robot_ids)
+        if self.cfg.hosts > 0:  # agent hosts, each running a contiguous share of the robots
+            h = min(self.cfg.hosts, len(ids))
+            for k in range(h):
+                part = ids[k * len(ids) // h : (k + 1) * len(ids) // h]
+                name = f"h{k + 1}"
+                host = [
+                    "agent-host", "--ids", ",".join(part), "--name", name, "--scenario", scn_arg,
+                    *lock, *common,
+                ]  # fmt: skip
+                out.append((f"agent-host-{name}", host, f"agent-host {name} ready"))
+            return out
+        for rid in ids:
             agent = ["agent", "--id", rid, "--scenario", scn_arg, *lock, *common]
             out.append((f"agent-{rid}", agent, f"agent {rid} ready"))
         return out
@@ -866,12 +885,12 @@ class _Launcher:
 
     def _drain_subscribers(self) -> None:
         """Feed every sample buffered by Zenoh to the collector."""
-        truth_leaf = f"/{keys.TRUTH}"
+        truth_leaves = (f"/{keys.TRUTH}", f"/{keys.TRUTHS}")  # per robot, or batched
         feed = self.collector.feed
         for sub in self._subscribers:
             while (sample := sub.try_recv()) is not None:
                 key = str(sample.key_expr)
-                if feed(key, sample.payload.to_bytes()) and key.endswith(truth_leaf):
+                if feed(key, sample.payload.to_bytes()) and key.endswith(truth_leaves):
                     now = time.monotonic()
                     if self.first_truth_rx is None:
                         self.first_truth_rx = now
@@ -1205,6 +1224,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--standby", action="store_true", help="also run a hot-standby coordinator (docs/faults.md)"
     )
     p.add_argument(
+        "--hosts",
+        type=int,
+        default=0,
+        metavar="H",
+        help="run the robots in H agent-host processes with the batched bus instead of one "
+        "agent process per robot (large fleets, docs/scale.md)",
+    )
+    p.add_argument(
         "--respawn",
         type=float,
         default=None,
@@ -1265,12 +1292,16 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         lease_ms=ns.lease_ms or None,
         standby=ns.standby,
         respawn_s=ns.respawn,
+        hosts=ns.hosts,
     )
 
 
 def main(argv: list[str]) -> int:
     """Entry point of ``formation up`` (dispatched by ``formation.cli``)."""
     cfg = config_from_args(build_parser().parse_args(argv))
+    if not 0 <= cfg.hosts <= 256:
+        print(f"formation up: --hosts: expected 0..256, got {cfg.hosts}", file=sys.stderr)
+        return 2
     if cfg.foxglove_port is not None and not 0 <= cfg.foxglove_port <= 65535:
         print(f"formation up: --foxglove: bad port {cfg.foxglove_port}", file=sys.stderr)
         return 2
