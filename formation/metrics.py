@@ -69,6 +69,14 @@ def leader_timeline(log: RunLog) -> list[dict[str, Any]]:
     return out
 
 
+def settle_for(settle_s: float, duration_s: float) -> float:
+    """The settling time a run of ``duration_s`` is measured with: the scenario's ``settle_s``,
+    or half the run when the run is not longer than that. ``formation sim``, ``formation up``
+    (``plan_run``) and ``formation report`` all use this rule, so the same run gets the same
+    metrics from each of them."""
+    return settle_s if settle_s < duration_s else duration_s / 2.0
+
+
 def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 

@@ -587,7 +587,7 @@ def analyze(
         if "settle_s" in rec.run:
             settle_s = float(rec.run["settle_s"])
         elif scn is not None:
-            settle_s = scn.settle_s if scn.settle_s < duration else duration / 2.0
+            settle_s = metrics_mod.settle_for(scn.settle_s, duration)
         else:
             settle_s = duration / 2.0
     if tol_m is None:
@@ -628,8 +628,10 @@ LOG_ARRAYS: Final = (
 def at_instants(log: RunLog, t_s: np.ndarray) -> tuple[RunLog, int]:
     """The rows of ``log`` at the times ``t_s`` (matched to the microsecond), and their count.
 
-    A bus run logs the plant's truth frames (the camera rate, 30 Hz in the built-in scenarios),
-    the simulator every tick (50 Hz): this puts the simulator's log on the bus run's instants.
+    A lockstep plant publishes truth at every tick, so a recording's rows are the simulator's
+    ticks and this is the identity; recordings made before that carry truth at the camera rate
+    only (30 of the 50 ticks per second in the built-in scenarios), and this puts the simulator's
+    log on their instants.
     """
     ka = np.round(np.asarray(t_s) * 1e6).astype(np.int64)
     kb = np.round(log.t_s * 1e6).astype(np.int64)
@@ -638,11 +640,12 @@ def at_instants(log: RunLog, t_s: np.ndarray) -> tuple[RunLog, int]:
     return dataclasses.replace(log, **rows), int(ib.size)
 
 
-def _differences(a: Any, b: Any, path: str = "") -> list[str]:
+def differences(a: Any, b: Any, path: str = "") -> list[str]:
+    """Every leaf where two nested dictionaries differ: ``path: a != b``."""
     if isinstance(a, dict) and isinstance(b, dict):
         out: list[str] = []
         for k in sorted(set(a) | set(b), key=str):
-            out += _differences(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))
+            out += differences(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))
         return out
     return [] if a == b else [f"{path}: {a!r} != {b!r}"]
 
@@ -651,13 +654,17 @@ def compare_with_simulator(
     report: Report, scenario: str | None = None
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Run the in-process simulator (``formation.simulate``) on this recording's scenario, seed
-    and duration and compute its metrics at the recording's instants with the report's settling
-    time and band. Returns (the simulator's metrics, a comparison: ``instants`` matched,
-    ``recording_rows``, ``simulator_ticks``, ``robots_equal``, ``run_equal``, ``differences``).
+    and duration and compute its metrics with the report's settling time and band. Returns (the
+    simulator's metrics, a comparison: ``instants`` matched, ``recording_rows``,
+    ``simulator_ticks``, ``every_tick`` (the recording has truth at every simulator tick, so the
+    simulator's metrics are those of ``formation sim``'s metrics.json, not a subset),
+    ``robots_equal``, ``run_equal``, ``differences``).
 
     Only a lockstep recording is comparable (realtime timing is not reproducible); raises
     ReportError otherwise or when the scenario is unknown. Lockstep reproduces the simulator
-    tick for tick (docs/runtime.md), so ``robots`` and ``run`` are expected to be equal.
+    tick for tick (docs/runtime.md), so ``robots`` and ``run`` are expected to be equal. A
+    recording from a plant that published truth at the camera rate only is compared at its
+    instants (:func:`at_instants`).
     """
     from formation import simulate
 
@@ -672,9 +679,12 @@ def compare_with_simulator(
     if duration is None:
         duration = round(float(report.log.t_s[-1]) / scn.dt_s) * scn.dt_s
     sim = simulate.run(scn, seed=seed, duration_s=duration)
-    sub, n = at_instants(sim.log, report.log.t_s)
+    every_tick = np.array_equal(report.log.t_s, sim.log.t_s)
+    sub, n = (
+        (sim.log, int(sim.log.t_s.size)) if every_tick else at_instants(sim.log, report.log.t_s)
+    )
     m = metrics_mod.compute(sub, report.settle_s, report.tol_m)
-    diffs = _differences(
+    diffs = differences(
         {"robots": report.metrics["robots"], "run": report.metrics["run"]},
         {"robots": m["robots"], "run": m["run"]},
     )
@@ -682,6 +692,7 @@ def compare_with_simulator(
         "instants": n,
         "recording_rows": int(report.log.t_s.size),
         "simulator_ticks": int(sim.log.t_s.size),
+        "every_tick": every_tick,
         "seed": seed if seed is not None else scn.seed,
         "duration_s": duration,
         "robots_equal": report.metrics["robots"] == m["robots"],
@@ -730,9 +741,14 @@ def comparison_line(cmp: dict[str, Any]) -> str:
     """One line on :func:`compare_with_simulator`'s result."""
     same = cmp["robots_equal"] and cmp["run_equal"]
     verdict = "equal" if same else f"DIFFER ({len(cmp['differences'])}+ fields)"
+    where = (
+        f"at every one of its {cmp['simulator_ticks']} ticks"
+        if cmp.get("every_tick")
+        else f"at the {cmp['instants']} recorded instants ({cmp['simulator_ticks']} ticks "
+        "simulated)"
+    )
     return (
-        f"in-process simulator (seed {cmp['seed']}, {cmp['duration_s']:g} s) at the "
-        f"{cmp['instants']} recorded instants ({cmp['simulator_ticks']} ticks simulated): "
+        f"in-process simulator (seed {cmp['seed']}, {cmp['duration_s']:g} s) {where}: "
         f"metrics {verdict}"
     )
 
@@ -754,7 +770,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--compare-sim",
         action="store_true",
         help="lockstep recordings: also run the in-process simulator (same scenario, seed, "
-        "duration), compare its metrics at the recorded instants (metrics.json "
+        "duration), compare its metrics with the recording's (metrics.json "
         "'simulator_comparison'); exit 3 if they differ",
     )
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")

@@ -40,7 +40,9 @@ def run_and_write(
     from formation import metrics, simulate
 
     result = simulate.run(scn, seed=seed, duration_s=duration)
-    m = metrics.compute(result.log, scn.settle_s, scn.settle_tol_m)
+    # the same settling time as `formation up` / `formation report` for this duration
+    settle_s = metrics.settle_for(scn.settle_s, scn.duration_s if duration is None else duration)
+    m = metrics.compute(result.log, settle_s, scn.settle_tol_m)
     m["meta"]["realtime_factor"] = result.realtime_factor
     m["firmware"] = result.firmware_status
     out.mkdir(parents=True, exist_ok=True)
@@ -53,7 +55,7 @@ def run_and_write(
             result.log,
             out,
             title=f"{scn.name}: reference points (solid), virtual trajectories (dashed)",
-            settle_s=scn.settle_s,
+            settle_s=settle_s,
         )
     return m
 

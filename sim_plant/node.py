@@ -19,9 +19,11 @@ Theory of operation
 -------------------
 Outputs, per camera frame: one ``poses`` batch (``PoseBatch``, published first, so an agent that
 steps on its own pose already has its neighbours of the same frame), then ``robot/<id>/pose`` per
-robot (``t`` = capture time, ``robot`` set), each delivered after the camera latency; at every
-capture, ``robot/<id>/truth`` of every robot (truth decimated to the camera rate); every key has
-its own ``seq``. In lockstep also ``clock``.
+robot (``t`` = capture time, ``robot`` set), each delivered after the camera latency;
+``robot/<id>/truth`` of every robot (``truths`` batches with ``--batch``): in lockstep at every
+tick (so the metrics computed from truth are evaluated on the same instants as the in-process
+simulator's), in realtime at every camera capture (truth decimated to the camera rate); every key
+has its own ``seq``. In lockstep also ``clock``.
 
 Inputs (decoded on the event loop; a bad message is counted in ``rejected`` and ignored):
 ``robot/*/wheels`` of the scenario's robots, ``disturbance`` (drag / teleport a robot by id, at
@@ -37,11 +39,11 @@ latency exactly; scheduled disturbances fire at start + ``t_s``; commands enter 
 receive time.
 
 Lockstep (``--lockstep``, docs/runtime.md), per tick k at ``t_k = k * dt``: disturbances due;
-capture; publish truth and the poses due; publish ``clock {tick: k, t: t_k}``; wait until every
-live agent answered ``wheels`` with ``tick: k`` and, if a coordinator is alive, the ``leader``
-with ``tick: k`` (the clock is re-announced every :data:`REANNOUNCE_S` while waiting, for a
-participant that joined late; after ``--lockstep-timeout`` the tick goes on and the timeout is
-counted); then every robot's latest command goes through the link in robot order (which is what
+publish truth; capture; publish the poses due; publish ``clock {tick: k, t: t_k}``; wait until
+every live agent answered ``wheels`` with ``tick: k`` and, if a coordinator is alive, the
+``leader`` with ``tick: k`` (the clock is re-announced every :data:`REANNOUNCE_S` while waiting,
+for a participant that joined late; after ``--lockstep-timeout`` the tick goes on and the timeout
+is counted); then every robot's latest command goes through the link in robot order (which is what
 keeps the random stream identical to the simulator's); deliveries are applied; the plant
 integrates ``dt``.
 
@@ -522,10 +524,11 @@ class PlantNode:
             start = end
 
     def sense(self, sim: _Sim, t_s: float) -> npt.NDArray[np.float64]:
-        """Capture a frame if due (publishing truth), publish the frames due; returns truth."""
+        """Lockstep tick: publish truth (every tick, so a collector's rows are the simulator's
+        ticks), capture a frame if due, publish the frames due; returns truth."""
         truth = sim.plant.truth
-        if sim.camera.capture(t_s, truth):
-            self._publish_truth(t_s, truth)
+        self._publish_truth(t_s, truth)
+        sim.camera.capture(t_s, truth)
         self.publish_due_frames(sim, t_s)
         return truth
 

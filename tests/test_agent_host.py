@@ -212,8 +212,14 @@ def test_lockstep_agent_hosts_reproduce_per_robot_agents_bit_for_bit(
     assert b["meta"]["collector"]["received"].get("host_wheels", 0) > 0
     assert a["run"] == b["run"] and a["robots"] == b["robots"]
     ra, rb = np.load(tmp_path / "agents" / "run.npz"), np.load(tmp_path / "hosts" / "run.npz")
-    for name in ("t_s", "truth", "power", "slot_xy"):
+    for name in ("t_s", "truth", "power", "slot_of", "target"):
         assert np.array_equal(ra[name], rb[name], equal_nan=True), name
+    # A --batch coordinator sends the assigned slots every tick (setpoint batches) and every slot
+    # at 1 Hz: before the first assignment (ticks 0-1, truth is logged at every tick) the hosts
+    # run's slot_xy holds tick 0's slots. Once every slot is held, slot_xy is equal.
+    held = (ra["slot_of"] >= 0).all(axis=1)
+    assert held.sum() > 0.9 * held.size
+    assert np.array_equal(ra["slot_xy"][held], rb["slot_xy"][held]), "slot_xy"
 
 
 def test_thirty_robots_on_two_hosts_hold_the_formation_in_realtime(

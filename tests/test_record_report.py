@@ -752,10 +752,13 @@ def test_up_record_then_report_reproduces_the_in_process_simulator(
 ) -> None:
     """``formation up --lockstep --record`` on 4 s of paper-exp2: the MCAP file read back by the
     mcap library (one channel per key, JSON Schemas, the run's metadata), ``formation report
-    --compare-sim`` on it (metrics.json, the four figures), and its metrics equal both the live
-    run's and ``formation.simulate``'s for the same scenario and seed at the recorded instants
-    (the bus carries truth at the camera rate, 30 of the 50 ticks per second)."""
-    from formation import metrics, scenario, simulate
+    --compare-sim`` on it (metrics.json, the four figures), and the metrics computed from truth,
+    commands and assignment (``robots`` and ``run``: error RMS, settling, separation, collisions,
+    role changes with their times, motor power peaks) of the live run's metrics.json, of the
+    report's and of ``formation sim``'s metrics.json for the same scenario, seed and duration are
+    equal, exactly: the lockstep plant publishes truth at every tick, so all three are computed
+    on the same 201 ticks."""
+    from formation import scenario, sim_cli, simulate
 
     fleet, seed, duration = "rec1", 3, 4.0
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -835,22 +838,28 @@ def test_up_record_then_report_reproduces_the_in_process_simulator(
     assert set(m_rep["power_peaks"]) == {"r1", "r2", "r3"}
     cmp = m_rep["simulator_comparison"]
     assert cmp["robots_equal"] and cmp["run_equal"] and cmp["differences"] == []
+    assert cmp["every_tick"] is True and cmp["instants"] == cmp["simulator_ticks"] == ticks
 
-    # The same comparison done here, independently of report.compare_with_simulator.
+    # Truth is on the bus at every tick, bit for bit the simulator's.
     scn = scenario.load("paper-exp2")
     sim = simulate.run(scn, seed=seed, duration_s=duration).log
-    assert sim.t_s.size == ticks
-    keep = np.isin(np.round(sim.t_s * 1e6).astype(np.int64), sorted(truth_r1))
-    assert 0.5 * ticks < keep.sum() < ticks  # the camera rate: 3 of every 5 ticks
-    for k in np.flatnonzero(keep):  # the recorded truth is the simulator's, bit for bit
+    assert sim.t_s.size == ticks == counts[f"/formation/{fleet}/robot/r1/truth"]
+    assert sorted(truth_r1) == [round(float(t) * 1e6) for t in sim.t_s]
+    for k in range(ticks):
         assert truth_r1[round(float(sim.t_s[k]) * 1e6)] == tuple(float(v) for v in sim.truth[k, 0])
-    arrays = ("t_s", "truth", "ref", "target", "slot_of", "slot_xy", "leader", "power", "mode")
-    sub = RunLog(
-        robot_ids=sim.robot_ids, slot_ids=sim.slot_ids,
-        **{a: getattr(sim, a)[keep] for a in arrays},
-        min_separation_m=sim.min_separation_m, collisions=sim.collisions,
-    )  # fmt: skip
-    m_sim = metrics.compute(sub, m_rep["run"]["settle_s"], scn.settle_tol_m)
-    assert m_rep["robots"] == m_sim["robots"]
-    assert m_rep["run"] == m_sim["run"]
-    assert m_rep["run"]["ticks"] == int(keep.sum()) and m_rep["run"]["collisions"] == 0
+
+    # `formation sim --out DIR` for the same scenario, seed and duration: its metrics.json equals
+    # the live run's and the report's, every metric computed from the run (not only a subset).
+    sim_out = tmp_path / "sim"
+    assert sim_cli.main(
+        ["--scenario", "paper-exp2", "--seed", str(seed), "--duration", str(duration),
+         "--out", str(sim_out), "--no-figures", "--quiet"]
+    ) == 0  # fmt: skip
+    m_sim = json.loads((sim_out / "metrics.json").read_text())
+    for part in ("robots", "run"):
+        assert live[part] == m_sim[part], report_mod.differences(live[part], m_sim[part])
+        assert m_rep[part] == m_sim[part], report_mod.differences(m_rep[part], m_sim[part])
+    assert m_sim["run"]["ticks"] == ticks and m_sim["run"]["settle_s"] == duration / 2
+    assert m_sim["run"]["collisions"] == 0 and m_sim["run"]["role_change_count"] == 3
+    for r in m_sim["robots"].values():  # the settled part and the power peaks are measured
+        assert r["formation_error_rms_m"] > 0.0 and r["peak_motor_power"] > 0.0
