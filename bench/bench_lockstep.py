@@ -9,6 +9,9 @@ collector) as a subprocess tree for ``--duration`` sim seconds of paper-exp2 and
   utime + stime, sampled until each process exits) and the launcher's own;
 * the in-process simulator on the same scenario and duration, for reference.
 
+Each robot count runs twice: one ``formation agent`` process per robot, and one
+``formation agent-host`` for all robots with the batched bus (``--hosts 1``, docs/scale.md).
+
 Usage: ``python bench/bench_lockstep.py [--duration 60] [--robots 3 ...]``. Prints; asserts nothing.
 """
 
@@ -43,7 +46,9 @@ def proc_table() -> dict[int, tuple[int, float, str]]:
         cpu = (int(f[11]) + int(f[12])) / CLK_TCK
         args = [a.decode(errors="replace") for a in cmd if a]
         name = " ".join(args[3:5]) if len(args) > 4 and args[1:3] == ["-m", "formation"] else "?"
-        if name.startswith("agent"):
+        if name.startswith("agent-host"):
+            name = "agent-host"
+        elif name.startswith("agent"):
             name = f"agent {args[args.index('--id') + 1]}" if "--id" in args else "agent"
         out[int(entry)] = (int(f[1]), cpu, name.split(" --")[0])
     return out
@@ -59,11 +64,12 @@ def descendants(root: int, table: dict[int, tuple[int, float, str]]) -> list[int
     return found
 
 
-def run_lockstep(robots: int, duration_s: float, out: Path) -> None:
+def run_lockstep(robots: int, duration_s: float, out: Path, hosts: int = 0) -> None:
     argv = [
         sys.executable, "-m", "formation", "up", "--scenario", "paper-exp2", "--lockstep",
         "--duration", str(duration_s), "--robots", str(robots), "--quiet", "--no-figures",
         "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet", "bench", "--out", str(out),
+        "--hosts", str(hosts),
     ]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     wall0 = time.monotonic()
@@ -86,8 +92,9 @@ def run_lockstep(robots: int, duration_s: float, out: Path) -> None:
     meta = m["meta"]
     sim_s = m["run"]["duration_s"]
     run_wall = meta["run_wall_s"]
+    how = f"{hosts} agent host(s), batched bus" if hosts else "one agent process per robot"
     print(
-        f"  {robots} robots: {sim_s:.1f} sim s in {run_wall:.2f} wall s = "
+        f"  {robots} robots, {how}: {sim_s:.1f} sim s in {run_wall:.2f} wall s = "
         f"{sim_s / run_wall:.1f}x real time  (whole command {wall:.1f} s: start-up "
         f"{meta['wall_s'] - run_wall - (meta['stop_s'] or 0):.1f} s, stop {meta['stop_s']:.2f} s)"
     )
@@ -115,6 +122,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="bench-lockstep-") as tmp:
         for n in args.robots:
             run_lockstep(n, args.duration, Path(tmp) / f"r{n}")
+            run_lockstep(n, args.duration, Path(tmp) / f"r{n}-host", hosts=1)
     return 0
 
 

@@ -22,7 +22,7 @@ rate asked (50 Hz for N <= 300, 20 Hz for N = 1000 by default: dt and camera rat
 Measures only; asserts nothing. Results and the command: docs/scale.md.
 
 Run: .venv/bin/python bench/bench_scale.py [--sizes 3,30,100,300,1000] [--duration 20]
-     [--hosts 2] [--per-robot] [--assignment greedy|optimal|sparse]
+     [--hosts 1] [--per-robot] [--rate-hz HZ] [--json FILE] [--quick]
 """
 
 from __future__ import annotations
@@ -262,11 +262,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--sizes", default="3,30,100,300,1000", help="robot counts")
     ap.add_argument("--duration", type=float, default=20.0, help="wall seconds measured per N")
-    ap.add_argument("--hosts", type=int, default=2, help="agent-host processes")
+    ap.add_argument("--hosts", type=int, default=1, help="agent-host processes (1)")
     ap.add_argument("--per-robot", action="store_true", help="one agent process per robot")
     ap.add_argument("--rate-hz", type=float, default=None, help="force one rate for every N")
     ap.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+    ap.add_argument("--quick", action="store_true", help="smoke run: N = 3, 100 for 8 s each")
     ns = ap.parse_args()
+    if ns.quick:
+        ns.sizes, ns.duration = "3,100", 8.0
     sizes = [int(s) for s in ns.sizes.split(",") if s.strip()]
     floor = measure_floor(n=1000, warmup=100)
     floor_us = floor.p50_us

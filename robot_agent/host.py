@@ -89,6 +89,8 @@ MAX_HOSTED: Final = 4096
 """Robots one host runs at most."""
 MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
+REALTIME_CHUNK: Final = 32
+"""Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
 HANG_GAP_S: Final = 0.5
 """Realtime: the loop idle for longer than this (s) means the process was stopped; see
 ``robot_agent.node.HANG_GAP_S``."""
@@ -416,33 +418,45 @@ class HostNode:
         steps: Iterable[tuple[AgentNode, WheelCommand | None]],
         tick: int | None = None,
     ) -> list[bytes]:
-        """Publish the commands of ``steps`` as WheelsBatch chunks; returns the payloads."""
-        now = self.sim_t if self.lockstep else time.monotonic()
-        rows: list[tuple[str, WheelCommand]] = [
-            (n.robot_id, cmd) for n, cmd in steps if cmd is not None
-        ]
+        """Publish the commands of ``steps`` as WheelsBatch chunks; returns the payloads.
+
+        ``steps`` is consumed lazily (a generator that steps the firmware): in realtime a chunk
+        of :data:`REALTIME_CHUNK` commands goes out as soon as it is complete, so the first
+        robots' commands do not wait for the last robots' steps; lockstep sends fewer, larger
+        chunks (:data:`~bus_schemas.BATCH_CHUNK`): the plant waits for all of them anyway."""
+        size = BATCH_CHUNK if self.lockstep else REALTIME_CHUNK
         payloads: list[bytes] = []
-        for i in range(0, len(rows), BATCH_CHUNK):
-            chunk = rows[i : i + BATCH_CHUNK]
-            self._seq_wheels += 1
-            pose_t = tuple(-1.0 if c.pose_t is None else c.pose_t for _, c in chunk)
-            payload = encode(
-                WheelsBatch(
-                    t=max(now, 0.0),
-                    seq=self._seq_wheels,
-                    robots=tuple(r for r, _ in chunk),
-                    omega_r=tuple(c.omega_r for _, c in chunk),
-                    omega_l=tuple(c.omega_l for _, c in chunk),
-                    power_r=tuple(c.power_r for _, c in chunk),
-                    power_l=tuple(c.power_l for _, c in chunk),
-                    pose_t=pose_t,
-                    tick=tick,
-                )
-            )
-            self._publish(self.wheels_key, payload, self.wheels_qos)
-            payloads.append(payload)
+        rows: list[tuple[str, WheelCommand]] = []
+        for n, cmd in steps:
+            if cmd is not None:
+                rows.append((n.robot_id, cmd))
+                if len(rows) == size:
+                    payloads.append(self._publish_chunk(rows, tick))
+                    rows = []
+        if rows:
+            payloads.append(self._publish_chunk(rows, tick))
         self.batches += len(payloads)
         return payloads
+
+    def _publish_chunk(self, chunk: list[tuple[str, WheelCommand]], tick: int | None) -> bytes:
+        """Publish one WheelsBatch of ``chunk``; returns its payload."""
+        now = self.sim_t if self.lockstep else time.monotonic()
+        self._seq_wheels += 1
+        payload = encode(
+            WheelsBatch(
+                t=max(now, 0.0),
+                seq=self._seq_wheels,
+                robots=tuple(r for r, _ in chunk),
+                omega_r=tuple(c.omega_r for _, c in chunk),
+                omega_l=tuple(c.omega_l for _, c in chunk),
+                power_r=tuple(c.power_r for _, c in chunk),
+                power_l=tuple(c.power_l for _, c in chunk),
+                pose_t=tuple(-1.0 if c.pose_t is None else c.pose_t for _, c in chunk),
+                tick=tick,
+            )
+        )
+        self._publish(self.wheels_key, payload, self.wheels_qos)
+        return payload
 
     def step_due(self, now_s: float) -> int:
         """Realtime watchdog: step (and publish) every robot not stepped for a period."""
