@@ -304,12 +304,15 @@ def make_config(settings: ZenohSettings) -> zenoh.Config:
         # multicast off a router (or a peer that connects nowhere) has nobody to wait for: skip
         # it, so `formation router` is ready in ~2 ms instead of ~500 ms.
         put("scouting/delay", 0)
-    if settings.mode in (None, "client") and json.loads(config.get_json("connect/retry")) is None:
+    retries = settings.mode in (None, "client") or bool(settings.connect)
+    if retries and json.loads(config.get_json("connect/retry")) is None:
         # A client whose router goes away keeps its session and reconnects by itself, then
         # re-declares its subscribers and liveliness tokens (measured with zenoh 1.10). Zenoh's
         # default retry period starts at 1 s and doubles up to 4 s: a router restart would
         # cost the loop 1-4 s. Retry every 100 ms, at most every 500 ms (measured here: the loop
-        # is back ~40 ms after the router is), which on loopback costs nothing.
+        # is back ~40 ms after the router is), which on loopback costs nothing. The same for a
+        # router or peer that connects to another router (a robot host's router across a link
+        # that went down: Zenoh's default took up to 4.5 s to bring it back, tests/test_multihost).
         put("connect/retry", dict(_CONNECT_RETRY))
     if settings.lease_ms is not None:
         put("transport/link/tx/lease", int(settings.lease_ms))
