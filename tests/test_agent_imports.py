@@ -23,6 +23,7 @@ def _is_shell(path: Path) -> bool:
     name = path.name
     return (
         "node" in name
+        or name == "host.py"  # the agent-host process shell (Zenoh I/O around AgentNode)
         or "shell" in name
         or name.startswith("motors")
         or name.startswith("sdnotify")
