@@ -73,11 +73,12 @@ from robot_agent.firmware import WheelCommand
 from robot_agent.node import (
     NEIGHBOUR_STALE_S,
     RESUME_QUARANTINE_S,
-    STATUS_PERIOD_S,
     AgentNode,
     NodeLog,
     Publish,
     finite_or_none,
+    positive_rate,
+    run_timers,
     subscribe_ordered,
 )
 from robot_agent.params import AgentConfig
@@ -498,51 +499,21 @@ class HostNode:
         except Exception as exc:
             self._internal("status", exc)
 
+    def control_timer(self, now: float) -> None:
+        """Realtime timer tick: the watchdog step of every robot not stepped for a period."""
+        try:
+            self.step_due(now)
+        except Exception as exc:
+            self._internal("step_due", exc)
+
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime watchdog step and the 5 Hz status."""
-        period = self.period_s
-        wd_period = notifier.watchdog_interval_s() if notifier is not None else None
-        now = time.monotonic()
-        next_ctrl = now + period
-        next_status = now
-        next_wd = now
-        while not stop.is_set():
-            now = time.monotonic()
-            self._resumed(now)
-            if now >= next_ctrl:
-                if not self.lockstep:
-                    try:
-                        self.step_due(now)
-                    except Exception as exc:
-                        self._internal("step_due", exc)
-                next_ctrl += period
-                if next_ctrl <= now:
-                    next_ctrl = now + period
-                if notifier is not None and wd_period is not None and now >= next_wd:
-                    notifier.watchdog()
-                    next_wd = now + wd_period
-            if now >= next_status:
-                self.publish_status()
-                next_status += STATUS_PERIOD_S
-                if next_status <= now:
-                    next_status = now + STATUS_PERIOD_S
-            self._last_loop_s = time.monotonic()
-            await asyncio.sleep(max(0.0, min(next_ctrl, next_status) - self._last_loop_s))
+        await run_timers(self, stop, notifier)
 
 
 # ---------------------------------------------------------------------------------------------
 # CLI
 # ---------------------------------------------------------------------------------------------
-
-
-def _rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.5 <= value <= 2000.0:
-        raise argparse.ArgumentTypeError(f"rate must be in [0.5, 2000] Hz, got {text}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -563,7 +534,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--lockstep", action="store_true", help="step on the plant's clock (docs/runtime.md)"
     )
     parser.add_argument(
-        "--rate-hz", type=_rate, default=50.0, metavar="HZ", help="watchdog timer rate (50 Hz)"
+        "--rate-hz",
+        type=positive_rate,
+        default=50.0,
+        metavar="HZ",
+        help="watchdog timer rate (50 Hz)",
     )
     tp.add_zenoh_arguments(parser)
     return parser

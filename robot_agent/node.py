@@ -69,7 +69,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal
+from typing import Any, Final, Literal, Protocol
 
 import msgpack
 import zenoh
@@ -107,6 +107,8 @@ __all__ = [
     "encode_ticked",
     "main",
     "payload_tick",
+    "positive_rate",
+    "run_timers",
     "subscribe_ordered",
 ]
 
@@ -705,35 +707,57 @@ class AgentNode:
         except Exception as exc:
             self._internal("status", exc)
 
+    def control_timer(self, now: float) -> None:
+        """Realtime timer tick: step unless an own pose stepped within the period (on-pose)."""
+        if self.loop_mode == "fixed" or now - self.last_step_s >= self.period_s * 0.999:
+            self.step(now)
+
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime control/watchdog timer and the 5 Hz status."""
-        period = self.period_s
-        wd_period = notifier.watchdog_interval_s() if notifier is not None else None
+        await run_timers(self, stop, notifier)
+
+
+class _TimedNode(Protocol):
+    """What :func:`run_timers` drives (an :class:`AgentNode` or an agent host)."""
+
+    period_s: float
+    lockstep: bool
+    _last_loop_s: float | None
+
+    def _resumed(self, now_s: float) -> bool: ...
+    def control_timer(self, now: float) -> None: ...
+    def publish_status(self) -> None: ...
+
+
+async def run_timers(node: _TimedNode, stop: asyncio.Event, notifier: Notifier | None) -> None:
+    """The timers of an agent process until ``stop``: the realtime control/watchdog tick
+    (``node.control_timer``, also where sd_notify WATCHDOG is sent: the control loop is alive)
+    and the 5 Hz status. Records each loop turn in ``node._last_loop_s`` (hang detection)."""
+    period = node.period_s
+    wd_period = notifier.watchdog_interval_s() if notifier is not None else None
+    now = time.monotonic()
+    next_ctrl = now + period
+    next_status = now
+    next_wd = now
+    while not stop.is_set():
         now = time.monotonic()
-        next_ctrl = now + period
-        next_status = now
-        next_wd = now
-        while not stop.is_set():
-            now = time.monotonic()
-            self._resumed(now)
-            if now >= next_ctrl:
-                if not self.lockstep and (
-                    self.loop_mode == "fixed" or now - self.last_step_s >= period * 0.999
-                ):
-                    self.step(now)
-                next_ctrl += period
-                if next_ctrl <= now:  # fell behind (loop stalled): resynchronise
-                    next_ctrl = now + period
-                if notifier is not None and wd_period is not None and now >= next_wd:
-                    notifier.watchdog()  # the control loop is alive
-                    next_wd = now + wd_period
-            if now >= next_status:
-                self.publish_status()
-                next_status += STATUS_PERIOD_S
-                if next_status <= now:
-                    next_status = now + STATUS_PERIOD_S
-            self._last_loop_s = time.monotonic()
-            await asyncio.sleep(max(0.0, min(next_ctrl, next_status) - self._last_loop_s))
+        node._resumed(now)
+        if now >= next_ctrl:
+            if not node.lockstep:
+                node.control_timer(now)
+            next_ctrl += period
+            if next_ctrl <= now:  # fell behind (loop stalled): resynchronise
+                next_ctrl = now + period
+            if notifier is not None and wd_period is not None and now >= next_wd:
+                notifier.watchdog()  # the control loop is alive
+                next_wd = now + wd_period
+        if now >= next_status:
+            node.publish_status()
+            next_status += STATUS_PERIOD_S
+            if next_status <= now:
+                next_status = now + STATUS_PERIOD_S
+        node._last_loop_s = time.monotonic()
+        await asyncio.sleep(max(0.0, min(next_ctrl, next_status) - node._last_loop_s))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -741,7 +765,7 @@ class AgentNode:
 # ---------------------------------------------------------------------------------------------
 
 
-def _positive_rate(text: str) -> float:
+def positive_rate(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -784,7 +808,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--rate-hz",
-        type=_positive_rate,
+        type=positive_rate,
         default=50.0,
         metavar="HZ",
         help="realtime timer rate (default 50 Hz)",
