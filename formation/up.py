@@ -363,7 +363,9 @@ def plan_run(cfg: UpConfig) -> Plan:
     if toml_text is not None:
         scenario_arg = str((out_dir / "scenario.toml").resolve())
     duration = cfg.duration_s if cfg.duration_s is not None else scn.duration_s
-    settle = scn.settle_s if scn.settle_s < duration else duration / 2.0
+    from formation.metrics import settle_for  # numpy: only when a run is planned
+
+    settle = settle_for(scn.settle_s, duration)
     return Plan(
         scenario=scn,
         scenario_arg=scenario_arg,
