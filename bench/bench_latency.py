@@ -41,17 +41,18 @@ import zenoh
 from common import (
     REPO_ROOT,
     LatencyStats,
+    cpu_s,
     free_port,
     measure_floor,
     print_latency,
     print_latency_header,
+    vm_hwm_kib,
 )
 
 from bus_schemas import transport as tp
 from formation import scenario
 from formation.up import to_toml
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 FLEET = "bench"
 
 
@@ -78,19 +79,6 @@ def agent_pids(root: int) -> dict[int, str]:
             if b"agent" in args and b"--id" in args:
                 out[pid] = args[args.index(b"--id") + 1].decode()
     return out
-
-
-def cpu_s(pid: int) -> float:
-    raw = Path(f"/proc/{pid}/stat").read_text(errors="replace")
-    f = raw[raw.rfind(")") + 2 :].split()
-    return (int(f[11]) + int(f[12])) / CLK_TCK
-
-
-def vm_hwm_kib(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1])
-    return 0
 
 
 def bench_scenario(tmp: Path) -> Path:

@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import sys
 import tempfile
 import threading
@@ -44,28 +43,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import msgpack
-from common import measure_floor, running
+from common import cpu_s, free_port, measure_floor, running, vm_hwm_kib
 
 from bus_schemas import transport as tp
 from coordinator.node import coordinator_status_key
 from formation import scenario as scenario_mod
 from formation.up import scenario_with_robots, to_toml
 
-CLK_TCK = os.sysconf("SC_CLK_TCK")
 PY = sys.executable
-
-
-def cpu_s(pid: int) -> float:
-    raw = Path(f"/proc/{pid}/stat").read_text(errors="replace")
-    f = raw[raw.rfind(")") + 2 :].split()
-    return (int(f[11]) + int(f[12])) / CLK_TCK
-
-
-def vm_hwm_mib(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmHWM:"):
-            return int(line.split()[1]) / 1024.0
-    return 0.0
 
 
 def scale_scenario(n: int, rate_hz: float, duration_s: float, tmp: Path) -> Path:
@@ -161,7 +146,7 @@ def measure(
     scenario = scale_scenario(n, rate_hz, duration_s, tmp)
     stats_path = tmp / f"plant-{n}.json"
     stats_path.unlink(missing_ok=True)
-    router_argv = [PY, "-m", "formation", "router", "--listen", f"tcp/127.0.0.1:{_port()}"]
+    router_argv = [PY, "-m", "formation", "router", "--listen", f"tcp/127.0.0.1:{free_port()}"]
     endpoint = router_argv[-1]
     with running(router_argv, ready="router listening on"):
         watch: CoordinatorWatch | None = None
@@ -193,7 +178,7 @@ def measure(
                 rss = {}
                 for name, pid in pids.items():
                     with contextlib.suppress(OSError):
-                        rss[name] = vm_hwm_mib(pid)
+                        rss[name] = vm_hwm_kib(pid) / 1024.0
                 procs["plant"].wait(timeout=duration_s + 60.0)
         finally:
             if watch is not None:
@@ -219,12 +204,6 @@ def measure(
         "min_separation_m": plant.get("min_separation_m"),
         "coordinator": {"tick_ms": s1.get("tick_ms")},
     }
-
-
-def _port() -> int:
-    from common import free_port
-
-    return free_port()
 
 
 def report(r: dict[str, Any]) -> None:

@@ -135,6 +135,24 @@ def print_latency(label: str, stats: LatencyStats, floor: LatencyStats | None = 
 # ---------------------------------------------------------------------------------------------
 
 
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) process ``pid`` has used so far (``/proc/<pid>/stat``)."""
+    raw = Path(f"/proc/{pid}/stat").read_text(errors="replace")
+    f = raw[raw.rfind(")") + 2 :].split()
+    return (int(f[11]) + int(f[12])) / CLK_TCK
+
+
+def vm_hwm_kib(pid: int) -> int:
+    """Peak resident set size (VmHWM, KiB) of process ``pid``; 0 if not reported."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1])
+    return 0
+
+
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that the kernel considered free a moment ago."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:

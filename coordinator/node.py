@@ -407,20 +407,27 @@ class CoordinatorNode:
             if msg.robot is not None and msg.robot != rid:
                 self._reject("pose", f"robot {msg.robot!r} on {rid}'s key")
                 return
-            if abs(msg.x) > POSITION_LIMIT_M or abs(msg.y) > POSITION_LIMIT_M:
-                self._reject("pose", f"position beyond {POSITION_LIMIT_M:g} m")
-                return
             rx_s: float | None = None if self.lockstep else rx.rx_s
-            if rid not in self.poses and len(self.poses) >= MAX_ROBOTS:
-                self._reject("pose", "too many robots")
-                return
-            # The newest arrival wins (no stamp comparison: one bogus future stamp must not
-            # lock the real poses out).
-            self.poses[rid] = [msg.x, msg.y, msg.theta, msg.t, rx_s]
-            if rx_s is None:
-                self._pending.append(rid)
+            why = self._store_pose(rid, msg.x, msg.y, msg.theta, msg.t, rx_s)
+            if why is not None:
+                self._reject("pose", why)
         except Exception as exc:
             self._internal("on_pose", exc)
+
+    def _store_pose(
+        self, rid: str, x: float, y: float, theta: float, t: float, rx_s: float | None
+    ) -> str | None:
+        """Keep robot ``rid``'s pose (``rx_s`` None: pending until the next clock); returns why
+        it was refused, or None. The newest arrival wins (no stamp comparison: one bogus future
+        stamp must not lock the real poses out)."""
+        if abs(x) > POSITION_LIMIT_M or abs(y) > POSITION_LIMIT_M:
+            return f"position beyond {POSITION_LIMIT_M:g} m"
+        if rid not in self.poses and len(self.poses) >= MAX_ROBOTS:
+            return "too many robots"
+        self.poses[rid] = [x, y, theta, t, rx_s]
+        if rx_s is None:
+            self._pending.append(rid)
+        return None
 
     def on_poses(self, rx: tp.Received) -> None:
         """A batched pose frame (``--batch``): each entry as if it came on its robot's key."""
@@ -431,25 +438,14 @@ class CoordinatorNode:
                 self._reject("poses", msg)
                 return
             rx_s: float | None = None if self.lockstep else rx.rx_s
-            poses = self.poses
-            lim = POSITION_LIMIT_M
-            bad = 0
-            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
-                if abs(x) > lim or abs(y) > lim:
-                    bad += 1
-                    continue
-                entry = poses.get(rid)
-                if entry is None:
-                    if len(poses) >= MAX_ROBOTS:
-                        bad += 1
-                        continue
-                    poses[rid] = [x, y, th, msg.stamp, rx_s]
-                else:
-                    entry[0], entry[1], entry[2], entry[3], entry[4] = x, y, th, msg.stamp, rx_s
-                if rx_s is None:
-                    self._pending.append(rid)
-            if bad:
-                self._reject("poses", f"{bad} entries beyond {lim:g} m or too many robots")
+            store, stamp = self._store_pose, msg.stamp
+            refused = [
+                why
+                for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True)
+                if (why := store(rid, x, y, th, stamp, rx_s)) is not None
+            ]
+            if refused:
+                self._reject("poses", f"{len(refused)} entries refused, e.g. {refused[0]}")
         except Exception as exc:
             self._internal("on_poses", exc)
 
@@ -529,10 +525,9 @@ class CoordinatorNode:
     ) -> list[tuple[str, bytes, tp.QoS]]:
         t = max(now_s, 0.0)
         fleet = self.fleet
-        setpoints: list[tuple[str, bytes, tp.QoS]] = []
+        # --batch: SetpointBatch chunks instead of one key per robot
+        setpoints = self._setpoint_batches(out, t, tick) if self.batch else []
         by_slot = out.slots_by_id
-        if self.batch:
-            setpoints = self._setpoint_batches(out, t, tick)
         for rid, slot_id in () if self.batch else out.assignment.items():
             s = by_slot[slot_id]
             key = keys.setpoint_key(fleet, rid)

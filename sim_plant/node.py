@@ -477,7 +477,9 @@ class PlantNode:
             )
             self._publish(self.poses_key, encode(batch), self.data_qos)
         if not self.lockstep:
-            self._frame_published(stamp, t_s)
+            # due: when the camera model delivers it (exposure + latency, sensors.Camera)
+            latency = self.sim.camera.latency_s if self.sim is not None else 0.0
+            self._frame_published(stamp, stamp + latency)
         if self.batch:
             return  # agent hosts and a --batch coordinator read the batches only
         for i, _, x, y, theta in rows:
