@@ -49,9 +49,9 @@ from common import (
     vm_hwm_kib,
 )
 
-from bus_schemas import transport as tp
-from formation import scenario
-from formation.up import to_toml
+import runtime as rt
+import scenario
+from scenario import to_toml
 
 FLEET = "bench"
 
@@ -120,7 +120,7 @@ def measure(n: int, window_s: float, tmp: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     up = subprocess.Popen(argv, cwd=REPO_ROOT, env=env)
     rec = Recorder()
-    session = tp.open_session(tp.ZenohSettings(connect=(endpoint,), open_timeout_s=60.0))
+    session = rt.open_session(rt.ZenohSettings(connect=(endpoint,), open_timeout_s=60.0))
     try:
         session.declare_subscriber(f"formation/{FLEET}/robot/*/wheels", rec)
         session.declare_subscriber(f"formation/{FLEET}/robot/*/pose", rec)

@@ -113,7 +113,8 @@ def main() -> int:
     p.add_argument("--duration", type=float, default=60.0, help="sim seconds per run")
     p.add_argument("--robots", type=int, nargs="+", default=[3], help="robot counts")
     args = p.parse_args()
-    from formation import scenario, simulate
+    import scenario
+    from formation import simulate
 
     print(f"lockstep speed, paper-exp2, {args.duration:g} sim s per run, {os.cpu_count()} CPUs")
     scn = scenario.load("paper-exp2")

@@ -45,10 +45,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import msgpack
 from common import cpu_s, free_port, measure_floor, running, vm_hwm_kib
 
-from bus_schemas import transport as tp
+import runtime as rt
+import scenario as scenario_mod
 from coordinator.node import coordinator_status_key
-from formation import scenario as scenario_mod
-from formation.up import scenario_with_robots, to_toml
+from scenario import scenario_with_robots, to_toml
 
 PY = sys.executable
 
@@ -70,8 +70,8 @@ class CoordinatorWatch:
     """The coordinator's status map (ticks, assignment timing) from a Zenoh subscription."""
 
     def __init__(self, endpoint: str, fleet: str) -> None:
-        settings = tp.ZenohSettings(mode="client", connect=(endpoint,))
-        self.session = tp.open_session(settings)
+        settings = rt.ZenohSettings(mode="client", connect=(endpoint,))
+        self.session = rt.open_session(settings)
         self.latest: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._sub = self.session.declare_subscriber(coordinator_status_key(fleet, "main"), self._on)

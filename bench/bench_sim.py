@@ -1,7 +1,7 @@
 """Benchmark: real-time factor of the in-process closed loop (``formation.simulate.run``).
 
 Three fleets: paper-exp2 (3 robots, greedy, a drag mid-run), chevron7 (7 robots, optimal) and a
-30-robot chevron built here with ``formation.scenario.parse`` (robots start near their slots,
+30-robot chevron built here with ``scenario.parse`` (robots start near their slots,
 straight-line leader). For each: the real-time factor (sim seconds per wall second of the loop,
 including building the log arrays; best and median of ``--runs`` runs, plus the process-CPU
 figure, which is steadier on a shared machine), then the time per tick of each stage.
@@ -29,12 +29,12 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import scenario as scenario_mod
 from coordinator import core as coord_core
 from coordinator import trajectory as traj_mod
 from coordinator.assignment import RoleAssigner
 from coordinator.formation import FormationSpec, slot_states
 from coordinator.trajectory import make_trajectory
-from formation import scenario as scenario_mod
 from formation import simulate
 from formation.runlog import RunLog
 from robot_agent.firmware import Firmware

@@ -45,8 +45,8 @@ sys.path.insert(0, str(HERE))
 
 from common import free_port, percentile  # noqa: E402
 
+import runtime as rt  # noqa: E402
 from bus_schemas import Assignment, Status, Truth, decode, keys  # noqa: E402
-from bus_schemas import transport as tp  # noqa: E402
 
 SCENARIO = (HERE.parent / "tests" / "test_faults.py").read_text().split('SCENARIO = """\\\n')[1]
 SCENARIO = SCENARIO.split('"""')[0]
@@ -62,7 +62,7 @@ class Observer:
         self.status: dict[str, tuple[float, Any]] = {}
         self.status_log: list[tuple[float, str, Any]] = []
         self.truth: list[tuple[float, str, Any]] = []
-        self.session = tp.open_session(tp.ZenohSettings(connect=(endpoint,)))
+        self.session = rt.open_session(rt.ZenohSettings(connect=(endpoint,)))
         self._sub(keys.assignment_key(fleet), Assignment, self._on_assign)
         self._sub(keys.all_status_pattern(fleet), Status, self._on_status)
         self._sub(keys.all_truth_pattern(fleet), Truth, self._on_truth)
@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         while obs is None:
             try:
                 obs = Observer(endpoint, fleet)
-            except tp.TransportError:
+            except rt.TransportError:
                 if time.monotonic() > deadline or up.poll() is not None:
                     raise
         for i in range(ns.kills):

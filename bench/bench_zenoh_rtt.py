@@ -6,7 +6,7 @@ Two processes (this one and an echo subprocess started with fork+exec), 100-byte
 * router: both processes are clients of a ``formation router`` subprocess (how the fleet runs);
 * peer: the echo listens as a peer and this process connects to it directly, no router;
 * callback: the pong is caught in a Zenoh callback (threading.Event);
-* asyncio: the pong goes through ``bus_schemas.transport`` (call_soon_threadsafe into an Inbox
+* asyncio: the pong goes through ``runtime.transport`` (call_soon_threadsafe into an Inbox
   awaited on an event loop), as in every process shell.
 
 Usage: ``python bench/bench_zenoh_rtt.py [--n 2000] [--warmup 200] [--payload-bytes 100]``.

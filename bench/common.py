@@ -42,7 +42,7 @@ if str(REPO_ROOT) not in sys.path:
 
 import zenoh  # noqa: E402
 
-from bus_schemas import transport as tp  # noqa: E402
+import runtime as rt  # noqa: E402
 
 PING_KEY = "bench/floor/ping"
 PONG_KEY = "bench/floor/pong"
@@ -317,8 +317,8 @@ def _ping_pong_asyncio(
     """Receive pongs through the asyncio bridge (``transport.subscribe`` + ``Inbox``)."""
 
     async def run() -> tuple[list[float], int]:
-        inbox = tp.Inbox("queue")
-        sub = tp.subscribe(session, PONG_KEY, asyncio.get_running_loop(), inbox)
+        inbox = rt.Inbox("queue")
+        sub = rt.subscribe(session, PONG_KEY, asyncio.get_running_loop(), inbox)
         pub = _declare_fast_publisher(session, PING_KEY)
         _wait_matched(pub)
         samples: list[float] = []
@@ -368,11 +368,11 @@ def measure_floor(
         if topology == "router":
             endpoint = stack.enter_context(router())
             echo = ["client", endpoint, "-"]
-            mine = tp.ZenohSettings(connect=(endpoint,))
+            mine = rt.ZenohSettings(connect=(endpoint,))
         elif topology == "peer":
             endpoint = f"tcp/127.0.0.1:{free_port()}"
             echo = ["peer", "-", endpoint]
-            mine = tp.ZenohSettings(mode="peer", connect=(endpoint,))
+            mine = rt.ZenohSettings(mode="peer", connect=(endpoint,))
         else:
             raise ValueError(f"unknown topology {topology!r}")
         stack.enter_context(
@@ -380,7 +380,7 @@ def measure_floor(
                 [sys.executable, str(Path(__file__).resolve()), "echo", *echo], ready=ECHO_READY
             )
         )
-        session = tp.open_session(mine)
+        session = rt.open_session(mine)
         stack.callback(session.close)
         if receive == "callback":
             samples, lost = _ping_pong_callback(session, n, warmup, payload_bytes)
@@ -404,13 +404,13 @@ def _echo(argv: list[str]) -> int:
     mode, connect, listen = argv
     if mode not in ("client", "peer"):
         raise SystemExit(f"echo: mode must be client or peer, not {mode!r}")
-    settings = tp.ZenohSettings(
+    settings = rt.ZenohSettings(
         mode=mode,  # type: ignore[arg-type]  # checked just above
         connect=() if connect == "-" else (connect,),
         listen=() if listen == "-" else (listen,),
     )
     threading.Thread(target=_exit_with_parent, daemon=True).start()
-    session = tp.open_session(settings)
+    session = rt.open_session(settings)
     pub = _declare_fast_publisher(session, PONG_KEY)
     sub = session.declare_subscriber(PING_KEY, zenoh.handlers.FifoChannel(1024))
     print(ECHO_READY, flush=True)

@@ -105,6 +105,10 @@ class Leader:
     theta: float = field(metadata=f_angle("heading of the virtual leader"))
     v_mps: float = field(metadata=f_float("forward speed of the virtual leader", "m/s"))
     omega_radps: float = field(metadata=f_float("turn rate of the virtual leader", "rad/s"))
+    tick: int | None = field(
+        default=None,
+        metadata=f_int("lockstep: the clock `tick` this leader state answers (sent last)"),
+    )
 
 
 @message(name=keys.SLOT, publisher="coordinator", periodic=True)
@@ -124,6 +128,9 @@ class Slot:
     theta: float = field(metadata=_SLOT_THETA)
     vx: float = field(metadata=_SLOT_VX)
     vy: float = field(metadata=_SLOT_VY)
+    tick: int | None = field(
+        default=None, metadata=f_int("lockstep: the clock `tick` this slot state was computed on")
+    )
 
 
 @message(name=keys.SETPOINT, publisher="coordinator", periodic=True)
@@ -148,6 +155,9 @@ class Setpoint:
     theta: float = field(metadata=_SLOT_THETA)
     vx: float = field(metadata=_SLOT_VX)
     vy: float = field(metadata=_SLOT_VY)
+    tick: int | None = field(
+        default=None, metadata=f_int("lockstep: the clock `tick` this setpoint was computed on")
+    )
 
 
 @message(name=keys.ASSIGNMENT, publisher="coordinator", periodic=True)

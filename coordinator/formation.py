@@ -2,7 +2,7 @@
 
 Slot 0 is the virtual leader. Every other slot ``i`` hangs off a parent slot ``p`` (the leader or
 a sub-leader of an earlier stage) at distance ``b_i`` (m) and angle ``phi_i`` (rad), and its
-position follows eqs 3-5 (corrected, see shared/notes/paper-math.md)::
+position follows eqs 3-5 (corrected, see docs/paper-errata.md)::
 
     gamma_i = phi_i + theta_p - pi/2
     x_i = x_p - b_i cos(gamma_i)

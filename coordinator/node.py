@@ -33,10 +33,10 @@ and at least once a second.
 Lockstep (``--lockstep``, docs/runtime.md): on ``clock`` k the core ticks at ``clock.t`` (t0 = 0,
 as in the simulator) on the poses received so far (a pose received since the previous clock
 counts as received at this clock's t); it publishes every slot and the setpoints with the extra
-field ``tick: k`` (see ``robot_agent.node.encode_ticked``), the assignment if it changed (or
+field ``tick: k``, the assignment if it changed (or
 >= 1 s of sim time since the last), then ``leader`` with ``tick: k`` LAST, all at the clock's
 priority (Zenoh keeps order only within one priority, and zenoh-python only within one
-subscriber unless ``robot_agent.node.subscribe_ordered`` is used): the plant waits for it,
+subscriber unless ``runtime.bridge.subscribe``'s ordered callback is used): the plant waits for it,
 and because setpoints and leader share one session and one priority, every setpoint of tick k
 reaches the router before the plant can start tick k+1. A repeated clock k is answered by
 re-sending the same messages.
@@ -54,7 +54,7 @@ the previous active's ``leader_t0`` (so the virtual leader continues without a j
 role assigner's incumbents with the previous assignment (no role chatter) and ticks at once.
 Never two actives: a standby needs the active's token gone, which happens ~3 ms after it dies or
 one lease after it hangs; an instance resuming from a hang (its loop late by more than
-``hang_gap_s``, 0.9 lease) steps down before it publishes anything; and if two actives ever
+``stall.gap_s``, 0.9 lease) steps down before it publishes anything; and if two actives ever
 meet (two instances started without ``--standby``), the one with the lower epoch, then the later
 name, steps down on the other's heartbeat. An instance without ``--standby`` starts active.
 
@@ -78,10 +78,12 @@ import sys
 import time
 from collections import deque
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 from typing import Any, Final
 
 import msgpack
 
+import runtime as rt
 from bus_schemas import (
     BATCH_CHUNK,
     Assignment,
@@ -98,10 +100,10 @@ from bus_schemas import (
     encode,
     keys,
 )
-from bus_schemas import transport as tp
 from coordinator.core import CoordinatorCore, CoordinatorOutput
-from formation.scenario import Scenario, ScenarioError, load
-from robot_agent.node import NodeLog, encode_ticked, subscribe_ordered
+from coordinator.election import Election, Takeover
+from robot_agent.lockstep import Arrivals, Replay
+from scenario import Scenario, ScenarioError, load
 
 __all__ = ["CoordinatorNode", "build_parser", "coordinator_status_key", "main"]
 
@@ -109,20 +111,11 @@ STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
 """Heartbeat period (s): a standby learns the active's state (``leader_t0``, epoch) from it, and
 an instance resuming from a hang learns from it that it was replaced."""
-HANG_GAP_S: Final = 0.3
-"""Realtime: a loop iteration this much later than planned (s) means this process was stopped
-(SIGSTOP, a swapped-out VM); an active instance then steps down instead of ticking: its token
-may have expired and a standby taken over (see *Standby* in the module docstring)."""
-STANDBY_SETTLE_S: Final = 0.3
-"""A standby decides nothing during this long after its liveliness subscriptions were declared
-(s), so the tokens and heartbeats of the instances already running have arrived."""
 ASSIGNMENT_REPEAT_S: Final = 1.0
 """The assignment is re-published at least this often (s; sim time in lockstep)."""
 BATCH_SLOT_PERIOD_S: Final = 1.0
 """``--batch``: every ``slot/<k>`` is published this often (s) instead of every tick; the
 setpoint batches carry the assigned slots' positions every tick (docs/scale.md)."""
-MAX_PEERS: Final = 64
-"""Distinct coordinator instance names tracked."""
 MAX_ROBOTS: Final = 4096
 """Distinct robot ids tracked (made-up ids cannot grow memory without bound)."""
 POSITION_LIMIT_M: Final = 1.0e4
@@ -164,7 +157,7 @@ class CoordinatorNode:
         lockstep: bool = False,
         standby: bool = False,
         batch: bool = False,
-        log: NodeLog | None = None,
+        log: rt.NodeLog | None = None,
     ) -> None:
         self.scenario = scenario
         self.batch = batch
@@ -173,8 +166,9 @@ class CoordinatorNode:
         self.lockstep = lockstep
         self.core = core_from_scenario(scenario)
         self.stale_pose_s = scenario.agent.safety.stale_pose_s
-        self.hang_gap_s = HANG_GAP_S
-        self.log = log if log is not None else NodeLog(f"coordinator {name}")
+        # Realtime: a stop of this process (runtime.stall) makes an active instance step down.
+        self.stall = rt.StallDetector(gap_s=rt.HANG_GAP_NO_LEASE_S)
+        self.log = log if log is not None else rt.NodeLog(f"coordinator {name}")
         self._publish = publish
         self._order = {rid: i for i, rid in enumerate(scenario.robot_ids)}
 
@@ -193,14 +187,14 @@ class CoordinatorNode:
         # must arrive (BLOCK) and keep their order (one priority, the clock's).
         # Slots and assignment too: a lower priority would let the leader overtake them, and a
         # recorder would see tick k's slots after the plant moved on.
-        self.sp_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_CONTROL
-        self.leader_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_TELEMETRY
-        self.data_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_TELEMETRY
+        self.sp_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
+        self.leader_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
+        self.data_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
 
         self.alive: set[str] = set()
         # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
         self.poses: dict[str, list[Any]] = {}
-        self._pending: list[str] = []
+        self._pending: Arrivals[str] = Arrivals()  # lockstep: poses since the last clock
         self.rejected = 0
         self.internal_errors = 0
         self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0}
@@ -209,21 +203,14 @@ class CoordinatorNode:
         self.t0_s: float | None = 0.0 if lockstep else None
         self.last: CoordinatorOutput | None = None
         self._last_assignment_t = -math.inf
-        self._last_tick: int | None = None
-        self._last_outputs: list[tuple[str, bytes, tp.QoS]] = []
+        # lockstep: the last clock and the outputs that answered it (realtime: the last tick's)
+        self._replay: Replay[list[tuple[str, bytes, rt.QoS]]] = Replay()
+        self._replay.answer = []
         self._seq: dict[str, int] = {}
         self.sim_t = 0.0
 
-        # -- election (module docstring, *Standby*) ------------------------------------------
-        self.active = not standby
-        self.epoch = 0
-        self.takeovers = 0
-        self.stepdowns = 0
-        self._started_s: float | None = None  # set by run(): when subscriptions were declared
-        self._last_loop_s: float | None = None
-        # other instance name -> {"alive": bool, "active": bool | None, "epoch": int,
-        #                         "leader_t0": float | None}
-        self.peers: dict[str, dict[str, Any]] = {}
+        # -- election (module docstring, *Standby*; the decisions are coordinator.election's)
+        self.election = Election(self.name, active=not standby)
         self.peer_assignment: dict[str, int] = {}  # the last assignment seen on the bus
         self.heartbeats_pattern = keys.all_heartbeats_pattern(fleet)
         self.coordinators_pattern = keys.alive_coordinators_pattern(fleet)
@@ -273,58 +260,43 @@ class CoordinatorNode:
 
     # -- election (standby) ---------------------------------------------------------------------
 
-    def _peer(self, name: str) -> dict[str, Any] | None:
-        peer = self.peers.get(name)
-        if peer is None and len(self.peers) < MAX_PEERS:
-            peer = self.peers[name] = {
-                "alive": False, "active": None, "epoch": 0, "leader_t0": None,
-            }  # fmt: skip
-        return peer
+    @property
+    def active(self) -> bool:
+        """This instance ticks and publishes (the election's decision)."""
+        return self.election.active
+
+    @property
+    def epoch(self) -> int:
+        return self.election.epoch
 
     def on_peer_alive(self, name: str, alive: bool) -> None:
         """The liveliness token of coordinator instance ``name`` appeared or vanished."""
-        if name == self.name:
+        if not self.election.peer_alive(name, alive):
             return
-        peer = self._peer(name)
-        if peer is None:
-            return
-        was = peer["alive"]
-        peer["alive"] = alive
-        if alive and not was:
-            # a (re)started instance: unknown role until its first heartbeat
-            peer["active"] = None
+        if alive:
             self.log.info(f"coordinator {name} alive")
-        elif not alive and was:
+        else:
             self.log.info(f"coordinator {name} gone")
             if not self.lockstep:
                 self.elect(time.monotonic())
 
-    def on_heartbeat(self, rx: tp.Received) -> None:
+    def on_heartbeat(self, rx: rt.Received) -> None:
         """Another instance's heartbeat: its role, epoch and trajectory origin."""
         try:
             msg = decode(rx.payload, Heartbeat)
             if isinstance(msg, DecodeError):
                 self._reject("heartbeat", msg)
                 return
-            if msg.name == self.name:
-                return  # our own
-            peer = self._peer(msg.name)
-            if peer is None:
-                return
-            peer["active"] = msg.active
-            peer["epoch"] = msg.epoch
-            if msg.active:
-                peer["leader_t0"] = msg.leader_t0
-                if self.active and (msg.epoch, _rank(self.name)) > (self.epoch, _rank(msg.name)):
-                    # Two actives (a split brain, or two instances started without --standby):
-                    # the higher epoch wins, then the name first in order. The loser stops at
-                    # once, so the robots get one coordinator's setpoints again within one
-                    # heartbeat period.
-                    self.step_down(f"coordinator {msg.name} is active with epoch {msg.epoch}")
+            # Two actives (a split brain, or two instances started without --standby): the
+            # loser stops at once, so the robots get one coordinator's setpoints again within
+            # one heartbeat period.
+            why = self.election.heartbeat(msg.name, msg.active, msg.epoch, msg.leader_t0)
+            if why is not None:
+                self.step_down(why)
         except Exception as exc:
             self._internal("on_heartbeat", exc)
 
-    def on_assignment(self, rx: tp.Received) -> None:
+    def on_assignment(self, rx: rt.Received) -> None:
         """The active instance's assignment: a standby keeps it to seed its hysteresis."""
         try:
             if self.active:
@@ -339,41 +311,30 @@ class CoordinatorNode:
             self._internal("on_assignment", exc)
 
     def elect(self, now_s: float) -> bool:
-        """A standby takes over when no live instance is (or may be) active and no live standby
-        comes before it in name order; returns True if it did. Never raises."""
+        """Take over if the election says so at ``now_s``; returns True if it did. Never
+        raises."""
         try:
-            if self.active or self._started_s is None:
+            if not self.election.should_take_over(now_s):
                 return False
-            if now_s - self._started_s < STANDBY_SETTLE_S:
-                return False
-            live = {n: p for n, p in self.peers.items() if p["alive"]}
-            if any(p["active"] is not False for p in live.values()):
-                return False  # an active one, or one whose role we do not know yet
-            if any(_rank(n) < _rank(self.name) for n in live):
-                return False  # a standby before us in order goes first
-            self._take_over(now_s)
+            self._take_over(now_s, self.election.take_over())
             return True
         except Exception as exc:
             self._internal("elect", exc)
             return False
 
-    def _take_over(self, now_s: float) -> None:
-        known = [p for p in self.peers.values() if p["leader_t0"] is not None]
-        self.epoch = max([self.epoch, *(p["epoch"] for p in self.peers.values())]) + 1
-        if known and not self.lockstep:
+    def _take_over(self, now_s: float, takeover: Takeover) -> None:
+        if takeover.leader_t0 is not None and not self.lockstep:
             # Continue the same trajectory: the virtual leader is a pure function of time and
             # t0 is on the same clock (time.monotonic() of this host, see docs/faults.md).
-            t0 = max(known, key=lambda p: p["epoch"])["leader_t0"]
-            self.t0_s = t0
-            self.core.t0_s = t0
+            self.t0_s = takeover.leader_t0
+            self.core.t0_s = takeover.leader_t0
         seed = {rid: slot for rid, slot in self.peer_assignment.items() if rid in self.alive}
         self.core.assigner.seed_incumbent(seed)
         self.core.assignment = dict(seed)
-        self.active = True
-        self.takeovers += 1
+        continued = takeover.leader_t0 is not None
         self.log.info(
-            f"active (epoch {self.epoch}): took over with the trajectory origin "
-            f"{'of the previous instance' if known else 'at this tick'} and "
+            f"active (epoch {takeover.epoch}): took over with the trajectory origin "
+            f"{'of the previous instance' if continued else 'at this tick'} and "
             f"{len(seed)} incumbents"
         )
         self.publish_heartbeat()
@@ -382,16 +343,14 @@ class CoordinatorNode:
 
     def step_down(self, why: str) -> None:
         """Stop publishing (become a standby); never raises."""
-        if not self.active:
+        now = time.monotonic() if not self.lockstep else self.sim_t
+        if not self.election.step_down(now):
             return
-        self.active = False
-        self.stepdowns += 1
-        self._started_s = time.monotonic() if not self.lockstep else self.sim_t
         self.log.info(f"standby: {why}")
         with contextlib.suppress(Exception):
             self.publish_heartbeat()
 
-    def on_pose(self, rx: tp.Received) -> None:
+    def on_pose(self, rx: rt.Received) -> None:
         """A measured pose ``robot/<id>/pose``."""
         try:
             self.rx["pose"] += 1
@@ -426,10 +385,10 @@ class CoordinatorNode:
             return "too many robots"
         self.poses[rid] = [x, y, theta, t, rx_s]
         if rx_s is None:
-            self._pending.append(rid)
+            self._pending.add(rid)
         return None
 
-    def on_poses(self, rx: tp.Received) -> None:
+    def on_poses(self, rx: rt.Received) -> None:
         """A batched pose frame (``--batch``): each entry as if it came on its robot's key."""
         try:
             self.rx["poses"] += 1
@@ -449,7 +408,7 @@ class CoordinatorNode:
         except Exception as exc:
             self._internal("on_poses", exc)
 
-    def on_clock(self, rx: tp.Received) -> None:
+    def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: tick at clock.t and publish, leader last."""
         try:
             self.rx["clock"] += 1
@@ -460,19 +419,18 @@ class CoordinatorNode:
             if not self.active:
                 self.sim_t = msg.t
                 return
-            if msg.tick == self._last_tick:  # the plant re-announced: answer again
-                for key, payload, qos in self._last_outputs:
+            again = self._replay.repeat(msg.tick)
+            if again is not None:  # the plant re-announced: answer again
+                for key, payload, qos in again:
                     self._publish(key, payload, qos)
                 return
             t_k = msg.t
             self.sim_t = t_k
-            if self._pending:
-                for rid in self._pending:
-                    entry = self.poses.get(rid)
-                    if entry is not None and entry[4] is None:
-                        entry[4] = t_k
-                self._pending = []
-            self._last_tick = msg.tick
+            for rid in self._pending.take():
+                entry = self.poses.get(rid)
+                if entry is not None and entry[4] is None:
+                    entry[4] = t_k
+            self._replay.last_tick = msg.tick
             self.tick(t_k, tick=msg.tick)
         except Exception as exc:
             self._internal("on_clock", exc)
@@ -494,13 +452,13 @@ class CoordinatorNode:
         """Run the core at ``now_s`` and publish its outputs (see the module docstring).
 
         Only the active instance ticks. In realtime a tick that finds the loop stalled for more
-        than ``hang_gap_s`` steps down instead (the token may have expired meanwhile)."""
+        than ``stall.gap_s`` steps down instead (the token may have expired meanwhile)."""
         try:
             if not self.active:
                 return None
-            if not self.lockstep and self._last_loop_s is not None:
-                stalled = time.monotonic() - self._last_loop_s
-                if stalled > self.hang_gap_s:
+            if not self.lockstep:
+                stalled = self.stall.stalled_for(time.monotonic())
+                if stalled is not None:
                     self.step_down(f"this process was stopped for {stalled:.2f} s")
                     return None
             if self.t0_s is None:
@@ -513,7 +471,7 @@ class CoordinatorNode:
             outputs = self._outputs(out, now_s, tick)
             for key, payload, qos in outputs:
                 self._publish(key, payload, qos)
-            self._last_outputs = outputs
+            self._replay.answer = outputs
             self.tick_s.append(time.perf_counter() - started)
             return out
         except Exception as exc:
@@ -522,7 +480,7 @@ class CoordinatorNode:
 
     def _outputs(
         self, out: CoordinatorOutput, now_s: float, tick: int | None
-    ) -> list[tuple[str, bytes, tp.QoS]]:
+    ) -> list[tuple[str, bytes, rt.QoS]]:
         t = max(now_s, 0.0)
         fleet = self.fleet
         # --batch: SetpointBatch chunks instead of one key per robot
@@ -545,8 +503,8 @@ class CoordinatorNode:
                 vx=s.vx,
                 vy=s.vy,
             )
-            setpoints.append((key, encode_ticked(sp, tick), self.sp_qos))
-        slots: list[tuple[str, bytes, tp.QoS]] = []
+            setpoints.append((key, encode(replace(sp, tick=tick)), self.sp_qos))
+        slots: list[tuple[str, bytes, rt.QoS]] = []
         slots_due = not self.batch or now_s - self._last_slots_t >= BATCH_SLOT_PERIOD_S
         if slots_due:
             self._last_slots_t = now_s
@@ -565,8 +523,8 @@ class CoordinatorNode:
                 vx=s.vx,
                 vy=s.vy,
             )
-            slots.append((key, encode_ticked(msg, tick), self.data_qos))
-        extra: list[tuple[str, bytes, tp.QoS]] = []
+            slots.append((key, encode(replace(msg, tick=tick)), self.data_qos))
+        extra: list[tuple[str, bytes, rt.QoS]] = []
         if out.changed or now_s - self._last_assignment_t >= ASSIGNMENT_REPEAT_S:
             self._last_assignment_t = now_s
             amsg = Assignment(
@@ -589,18 +547,18 @@ class CoordinatorNode:
             v_mps=ld.v_mps,
             omega_radps=ld.omega_radps,
         )
-        leader_out = (self.leader_key, encode_ticked(leader, tick), self.leader_qos)
+        leader_out = (self.leader_key, encode(replace(leader, tick=tick)), self.leader_qos)
         if self.lockstep:  # slots, setpoints, assignment, then the leader LAST
             return [*slots, *setpoints, *extra, leader_out]
         return [*setpoints, leader_out, *slots, *extra]  # realtime: setpoints first (latency)
 
     def _setpoint_batches(
         self, out: CoordinatorOutput, t: float, tick: int | None
-    ) -> list[tuple[str, bytes, tp.QoS]]:
+    ) -> list[tuple[str, bytes, rt.QoS]]:
         """``--batch``: every assigned robot's setpoint in SetpointBatch chunks (robot order)."""
         by_slot = out.slots_by_id
         rows = sorted(out.assignment.items(), key=lambda a: (self._order.get(a[0], 1 << 30), a[0]))
-        msgs: list[tuple[str, bytes, tp.QoS]] = []
+        msgs: list[tuple[str, bytes, rt.QoS]] = []
         theta = out.theta
         for i in range(0, len(rows), BATCH_CHUNK):
             chunk = [(rid, by_slot[sid]) for rid, sid in rows[i : i + BATCH_CHUNK]]
@@ -641,8 +599,8 @@ class CoordinatorNode:
             "leader": last.leader_robot if last is not None else None,
             "role": "active" if self.active else "standby",
             "epoch": self.epoch,
-            "takeovers": self.takeovers,
-            "stepdowns": self.stepdowns,
+            "takeovers": self.election.takeovers,
+            "stepdowns": self.election.stepdowns,
             "pid": os.getpid(),
             "host": _HOST,
             "tick_ms": _tick_ms(self.tick_s),
@@ -653,7 +611,7 @@ class CoordinatorNode:
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
             payload: bytes = msgpack.packb(self.status_map(now), use_bin_type=True)
-            self._publish(self.status_key, payload, tp.QOS_TELEMETRY)
+            self._publish(self.status_key, payload, rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("status", exc)
 
@@ -669,7 +627,7 @@ class CoordinatorNode:
                 epoch=self.epoch,
                 leader_t0=self.t0_s if self.t0_s is not None else 0.0,
             )
-            self._publish(self.heartbeat_key, encode(hb), tp.QOS_TELEMETRY)
+            self._publish(self.heartbeat_key, encode(hb), rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("heartbeat", exc)
 
@@ -680,8 +638,8 @@ class CoordinatorNode:
         next_tick = now
         next_status = now
         next_hb = now
-        self._started_s = self.sim_t if self.lockstep else now
-        self._last_loop_s = now
+        self.election.start(self.sim_t if self.lockstep else now)
+        self.stall.turned(now)
         while not stop.is_set():
             now = time.monotonic()
             if not self.active:
@@ -700,8 +658,9 @@ class CoordinatorNode:
             wake = min(next_status, next_hb)
             if not self.lockstep:
                 wake = min(wake, next_tick)
-            self._last_loop_s = time.monotonic()
-            await asyncio.sleep(max(0.0, wake - self._last_loop_s))
+            turned = time.monotonic()
+            self.stall.turned(turned)
+            await asyncio.sleep(max(0.0, wake - turned))
 
 
 _HOST: Final = socket.gethostname()[:255] or "unknown"
@@ -715,11 +674,6 @@ def _tick_ms(samples: Iterable[float]) -> dict[str, float] | None:
     return {"p50": 1e3 * ordered[len(ordered) // 2], "max": 1e3 * ordered[-1]}
 
 
-def _rank(name: str) -> tuple[int, str]:
-    """Election order of instance names: ``main`` first, then by name."""
-    return (0 if name == "main" else 1, name)
-
-
 def _describe(assignment: Mapping[str, int]) -> str:
     parts: Iterable[str] = (f"{rid}->{slot}" for rid, slot in sorted(assignment.items()))
     leader = next((rid for rid, slot in assignment.items() if slot == 0), None)
@@ -729,16 +683,6 @@ def _describe(assignment: Mapping[str, int]) -> str:
 # ---------------------------------------------------------------------------------------------
 # CLI
 # ---------------------------------------------------------------------------------------------
-
-
-def _rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.5 <= value <= 1000.0:
-        raise argparse.ArgumentTypeError(f"rate must be in [0.5, 1000] Hz, got {text}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -751,7 +695,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--name", default="main", help="coordinator instance name (main)")
     parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
     parser.add_argument(
-        "--rate-hz", type=_rate, default=50.0, metavar="HZ", help="realtime tick rate (50)"
+        "--rate-hz", type=rt.rate_hz, default=50.0, metavar="HZ", help="realtime tick rate (50)"
     )
     parser.add_argument(
         "--lockstep", action="store_true", help="tick on the plant's clock (docs/runtime.md)"
@@ -767,14 +711,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="large fleets: read the batched pose frames and publish batched setpoints "
         "(agent hosts read them; slot keys at 1 Hz); docs/scale.md",
     )
-    tp.add_zenoh_arguments(parser)
+    rt.add_zenoh_arguments(parser)
     return parser
 
 
 def main(argv: list[str]) -> int:
     """Entry point of ``formation coordinator``; returns the exit status."""
     ns = build_parser().parse_args(argv)
-    log = NodeLog(f"coordinator {ns.name}")
+    log = rt.NodeLog(f"coordinator {ns.name}")
     if not keys.is_name(ns.name) or not keys.is_name(ns.fleet):
         log.info(f"invalid --name {ns.name!r} or --fleet {ns.fleet!r}: {keys.NAME_PATTERN}")
         return 2
@@ -785,81 +729,58 @@ def main(argv: list[str]) -> int:
         log.info(f"scenario: {exc}")
         return 2
     try:
-        settings = tp.settings_from_args(ns)
+        settings = rt.settings_from_args(ns)
     except (TypeError, ValueError) as exc:
         log.info(f"zenoh settings: {exc}")
         return 2
-    return tp.run_node(
-        lambda stop: _node(
-            stop,
-            scenario,
-            ns.name,
-            ns.fleet,
-            settings,
-            ns.lockstep,
-            ns.rate_hz,
-            ns.standby,
-            ns.batch,
-        )
+    return rt.serve(
+        f"coordinator {ns.name}",
+        settings,
+        lambda io, stop: _node(
+            io, stop, scenario, ns.name, ns.fleet, ns.lockstep, ns.rate_hz, ns.standby, ns.batch
+        ),
     )
 
 
 async def _node(
+    io: rt.NodeIO,
     stop: asyncio.Event,
     scenario: Scenario,
     name: str,
     fleet: str,
-    settings: tp.ZenohSettings,
     lockstep: bool,
     rate_hz: float,
     standby: bool = False,
     batch: bool = False,
 ) -> int:
-    loop = asyncio.get_running_loop()
-    log = NodeLog(f"coordinator {name}")
-    try:
-        session = await tp.open_session_async(settings)
-    except (tp.TransportError, ValueError) as exc:
-        log.info(str(exc))
-        return 1
-    try:
-        pubs = tp.Publishers(session)
-        node = CoordinatorNode(
-            scenario, name, fleet, pubs.put, lockstep=lockstep, standby=standby, batch=batch,
-            log=log,
-        )  # fmt: skip
-        if settings.lease_ms is not None:
-            # Only a stop of the whole process lets the token expire (keep-alives come from
-            # Zenoh's own threads, not this loop), after a whole lease of silence: a shorter
-            # stall cannot have let a standby take over. 0.9: margin for the lease timer. (0.5
-            # was measured to trip on a loaded 2-core box when processes were being spawned.)
-            node.hang_gap_s = max(HANG_GAP_S, 0.9 * settings.lease_ms / 1000.0)
-        else:
-            node.hang_gap_s = 5.0  # Zenoh's default lease is 10 s
-        pubs.get(node.leader_key, node.leader_qos)
-        for rid in () if batch else scenario.robot_ids:
-            pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
-        tp.watch_liveliness(session, node.alive_pattern, loop, node.on_alive)
-        tp.watch_liveliness(session, node.coordinators_pattern, loop, node.on_alive)
-        subscribe_ordered(session, node.heartbeats_pattern, loop, node.on_heartbeat)
-        subscribe_ordered(session, node.assignment_key, loop, node.on_assignment)
-        if batch:
-            pubs.get(node.setpoints_key, node.sp_qos)
-            subscribe_ordered(session, node.poses_key, loop, node.on_poses)
-        else:
-            subscribe_ordered(session, node.poses_pattern, loop, node.on_pose)
-        if lockstep:
-            subscribe_ordered(session, node.clock_key, loop, node.on_clock)
-        token = tp.declare_token(session, node.alive_key)
-        print("coordinator ready", flush=True)
-        mode = "lockstep" if lockstep else f"realtime at {rate_hz:g} Hz"
-        role = "standby" if standby else "active"
-        log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}, {role}")
-        await node.run(stop, rate_hz)
-        del token
-        return 0
-    finally:
-        session.close()
+    node = CoordinatorNode(
+        scenario, name, fleet, io.pubs.put, lockstep=lockstep, standby=standby, batch=batch,
+        log=io.log,
+    )  # fmt: skip
+    # Only a stop of the whole process lets the token expire (keep-alives come from Zenoh's own
+    # threads, not this loop), after a whole lease of silence (runtime.stall).
+    node.stall.gap_s = rt.hang_gap_for(io.settings.lease_ms, default_s=rt.HANG_GAP_NO_LEASE_S)
+    io.pubs.get(node.leader_key, node.leader_qos)
+    for rid in () if batch else scenario.robot_ids:
+        io.pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
+    io.watch_liveliness(node.alive_pattern, node.on_alive)
+    io.watch_liveliness(node.coordinators_pattern, node.on_alive)
+    io.subscribe(node.heartbeats_pattern, node.on_heartbeat)
+    io.subscribe(node.assignment_key, node.on_assignment)
+    if batch:
+        io.pubs.get(node.setpoints_key, node.sp_qos)
+        io.subscribe(node.poses_key, node.on_poses)
+    else:
+        io.subscribe(node.poses_pattern, node.on_pose)
+    if lockstep:
+        io.subscribe(node.clock_key, node.on_clock)
+    io.declare_token(node.alive_key)
+    print("coordinator ready", flush=True)
+    mode = "lockstep" if lockstep else f"realtime at {rate_hz:g} Hz"
+    role = "standby" if standby else "active"
+    io.log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}, {role}")
+    await node.run(stop, rate_hz)
+    return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

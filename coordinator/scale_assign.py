@@ -64,13 +64,13 @@ from scipy.sparse import csr_array
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from coordinator.assignment import (
+from coordinator.matching import (
     SlotLike,
-    _check_incumbent,
-    _robots,
-    _slots,
-    _tolerance,
     assign_optimal,
+    check_incumbent,
+    check_tolerance,
+    robots_xy,
+    slots_xy,
 )
 
 __all__ = [
@@ -468,11 +468,11 @@ def solve_sparse(
         raise ValueError(f"dense_max_pairs must be an int >= 0, got {dense_max_pairs!r}")
     if dense_max_pairs < 0:
         raise ValueError(f"dense_max_pairs must be an int >= 0, got {dense_max_pairs!r}")
-    tol = _tolerance("tie_tol_m", tie_tol_m)
-    hyst = _tolerance("hysteresis_m", hysteresis_m)
-    _check_incumbent(incumbent)
-    robot_ids, rxy_raw = _robots(robots)
-    slot_ids, sxy_raw = _slots(slots)
+    tol = check_tolerance("tie_tol_m", tie_tol_m)
+    hyst = check_tolerance("hysteresis_m", hysteresis_m)
+    check_incumbent(incumbent)
+    robot_ids, rxy_raw = robots_xy(robots)
+    slot_ids, sxy_raw = slots_xy(slots)
     n_r = len(robot_ids)
     n_s = min(n_r, len(slot_ids))  # slots filled: the first n_s in priority order
     if n_s == 0:

@@ -59,7 +59,7 @@ from bus_schemas import (
     keys,
 )
 from formation.runlog import MODE_CODES, RunLog
-from formation.scenario import Scenario
+from scenario import Scenario
 from sim_plant.accounting import SeparationMonitor
 
 __all__ = ["LiveRobot", "LiveView", "RunCollector", "key_patterns", "slot_ids_of"]

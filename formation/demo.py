@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
+import scenario as scenario_mod
 from formation import report as report_mod
-from formation import scenario as scenario_mod
 from formation.sim_cli import run_and_write, summary
 
 SCENARIO = "paper-exp2"

@@ -44,8 +44,8 @@ from typing import Any
 
 import msgpack
 
+import runtime as rt
 from bus_schemas import Assignment, DecodeError, Disturbance, Estop, Status, decode, encode, keys
-from bus_schemas import transport as tp
 
 __all__ = ["build_parser", "find_agent_pids", "main"]
 
@@ -96,14 +96,14 @@ class _Bus:
         loop = asyncio.get_running_loop()
         got: asyncio.Future[Any] = loop.create_future()
 
-        def on(rx: tp.Received) -> None:
+        def on(rx: rt.Received) -> None:
             if got.done():
                 return
             value = parse(rx.payload)
             if value is not None:
                 got.set_result(value)
 
-        sub = tp.subscribe(self.session, key, loop, on)
+        sub = rt.subscribe(self.session, key, loop, on)
         try:
             return await asyncio.wait_for(got, self.timeout_s)
         except TimeoutError:
@@ -157,9 +157,9 @@ def _signal(pid: int, sig: signal.Signals) -> float:
     return time.monotonic()
 
 
-async def _run(ns: argparse.Namespace, settings: tp.ZenohSettings) -> str:
+async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:
     fleet = keys.check_fleet(ns.fleet)
-    session = await tp.open_session_async(settings)
+    session = await rt.open_session_async(settings)
     try:
         bus = _Bus(session, ns.timeout)
         cmd = ns.command
@@ -257,7 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, text in (("estop", "engage the e-stop"), ("release", "release the e-stop")):
         sp = sub.add_parser(name, help=f"{text} of the fleet or of ROBOT")
         sp.add_argument("robot", nargs="?", default=None, metavar="ROBOT")
-    tp.add_zenoh_arguments(p)
+    rt.add_zenoh_arguments(p)
     return p
 
 
@@ -265,14 +265,14 @@ def main(argv: list[str]) -> int:
     """Entry point of ``formation fault``; returns the exit status."""
     ns = build_parser().parse_args(argv)
     try:
-        settings = tp.settings_from_args(ns)
+        settings = rt.settings_from_args(ns)
         keys.check_fleet(ns.fleet)
     except (TypeError, ValueError) as exc:
         print(f"formation fault: {exc}", file=sys.stderr)
         return 2
     try:
         print(asyncio.run(_run(ns, settings)), flush=True)
-    except (FaultError, tp.TransportError, ValueError) as exc:
+    except (FaultError, rt.TransportError, ValueError) as exc:
         print(f"formation fault: {exc}", file=sys.stderr)
         return 1
     return 0

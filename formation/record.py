@@ -49,514 +49,57 @@ import asyncio
 import base64
 import contextlib
 import json
-import math
 import os
-import queue
 import socket
 import sys
 import threading
 import time
-from collections import OrderedDict
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, Final, Literal, NamedTuple
+from typing import IO, Any, Final
 
-import msgpack
 import zenoh
 from mcap.writer import CompressionType, Writer
 
+import runtime as rt
 from bus_schemas import (
-    MAX_PAYLOAD_BYTES,
     VERSION,
     DecodeError,
     Message,
     Status,
     Wheels,
-    from_map,
     keys,
-    message_type_for_key,
-    spec_of,
 )
-from bus_schemas import transport as tp
 from bus_schemas.messages import Clock, Pose
-from bus_schemas.spec import FLOAT64_MAX, UINT64_MAX, FieldSpec, Kind
+from formation.bus_json import (
+    DERIVED_PREFIX,
+    LATENCY_SCHEMA,
+    LIVELINESS_SCHEMA,
+    REJECTED_SCHEMA,
+    TRACKING_ERROR_SCHEMA,
+    alive_kind,
+    decode_sample,
+    json_schema,
+    jsonable,
+    schema_name,
+    tracking_error,
+    unpack_map,
+)
+from formation.tap import DEFAULT_QUEUE_LEN, BusItem, BusTap, LatencyTracker
 
 READY_PREFIX: Final = "recording "
 """Start of the line ``formation record`` prints on stdout once it is subscribed."""
 
-SCHEMA_PREFIX: Final = "formation."
 RAW_PREFIX: Final = "/raw/"
-DERIVED_PREFIX: Final = "/derived/robot/"
 REJECTED_TOPIC: Final = "/recorder/rejected"
 METADATA_NAME: Final = "formation.recording"
 STATS_METADATA_NAME: Final = "formation.recording.stats"
 RUN_METADATA_NAME: Final = "formation.run"
 LIBRARY: Final = "formation-record"
 
-DEFAULT_QUEUE_LEN: Final = 200_000
-"""Samples the tap buffers between Zenoh threads and the worker (~1 min of a 3-robot fleet)."""
 DEFAULT_CHUNK_BYTES: Final = 256 * 1024
 """MCAP chunk size: at most this much (uncompressed) is lost if the recorder is SIGKILLed."""
-
-
-# --------------------------------------------------------------------------------------------
-# JSON Schemas generated from the bus_schemas message tables
-# --------------------------------------------------------------------------------------------
-
-
-def _field_schema(fs: FieldSpec) -> dict[str, Any]:
-    """JSON Schema of one field (without nil); bounds are the wire bounds of the spec."""
-    out: dict[str, Any]
-    if fs.kind in (Kind.FLOAT, Kind.INT):
-        out = {"type": "number" if fs.kind is Kind.FLOAT else "integer"}
-        if fs.lo is not None and abs(fs.lo) < FLOAT64_MAX and fs.lo > -(2**63):
-            out["minimum"] = fs.lo
-        if fs.hi is not None and abs(fs.hi) < FLOAT64_MAX and fs.hi < UINT64_MAX:
-            out["maximum"] = fs.hi
-    elif fs.kind is Kind.BOOL:
-        out = {"type": "boolean"}
-    elif fs.kind is Kind.STR:
-        out = {"type": "string"}
-        if fs.max_len is not None:
-            out["maxLength"] = fs.max_len
-        if fs.pattern is not None:
-            out["pattern"] = f"^{fs.pattern}$"
-    elif fs.kind is Kind.ENUM:
-        out = {"type": "string", "enum": list(fs.choices)}
-    elif fs.kind is Kind.FLOAT_LIST:
-        item: dict[str, Any] = {"type": "number"}
-        if fs.lo is not None and abs(fs.lo) < FLOAT64_MAX:
-            item["minimum"] = fs.lo
-        if fs.hi is not None and abs(fs.hi) < FLOAT64_MAX:
-            item["maximum"] = fs.hi
-        out = {"type": "array", "items": item, "maxItems": fs.max_len}
-    elif fs.kind is Kind.INT_LIST:
-        int_item: dict[str, Any] = {"type": "integer"}
-        if fs.lo is not None and fs.lo > -(2**63):
-            int_item["minimum"] = fs.lo
-        if fs.hi is not None and fs.hi < UINT64_MAX:
-            int_item["maximum"] = fs.hi
-        out = {"type": "array", "items": int_item, "maxItems": fs.max_len}
-    elif fs.kind is Kind.STR_LIST:
-        out = {
-            "type": "array",
-            "items": {"type": "string", "pattern": f"^{fs.pattern}$"},
-            "maxItems": fs.max_len,
-        }
-    elif fs.kind is Kind.STR_INT_MAP:
-        value: dict[str, Any] = {"type": "integer"}
-        if fs.value_lo is not None:
-            value["minimum"] = fs.value_lo
-        if fs.value_hi is not None and fs.value_hi < UINT64_MAX:
-            value["maximum"] = fs.value_hi
-        out = {
-            "type": "object",
-            "additionalProperties": value,
-            "propertyNames": {"pattern": f"^{fs.pattern}$"},
-            "maxProperties": fs.max_len,
-        }
-    else:  # pragma: no cover - every Kind is handled above
-        raise TypeError(f"unhandled field kind {fs.kind}")
-    text = fs.description + (f" [{fs.unit}]" if fs.unit and fs.unit != "1" else "")
-    out["description"] = text
-    return out
-
-
-def json_schema(cls: type[Message]) -> dict[str, Any]:
-    """The JSON Schema (draft 2020-12) of a bus message type, from its ``bus_schemas`` table.
-
-    Required fields are the ones the codec requires; ``nil allowed`` fields accept ``null``;
-    unknown extra properties are allowed (a newer publisher may add fields).
-    """
-    spec = spec_of(cls)
-    props: dict[str, Any] = {}
-    required: list[str] = []
-    for f in spec.fields:
-        prop = _field_schema(f.spec)
-        if f.spec.nullable:
-            prop["type"] = [prop["type"], "null"]
-        props[f.name] = prop
-        if not f.optional:
-            required.append(f.name)
-    return {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": schema_name(cls),
-        "description": spec.summary + f"\n\nBus key: {spec.key} (bus contract v{VERSION}).",
-        "type": "object",
-        "properties": props,
-        "required": required,
-        "additionalProperties": True,
-    }
-
-
-def schema_name(cls: type[Message]) -> str:
-    """``formation.<Type>``, e.g. ``formation.Pose``: the MCAP / Foxglove schema name."""
-    return SCHEMA_PREFIX + cls.__name__
-
-
-def _object_schema(title: str, description: str, props: Mapping[str, Any]) -> dict[str, Any]:
-    return {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
-        "description": description,
-        "type": "object",
-        "properties": dict(props),
-        "required": list(props),
-    }
-
-
-LIVELINESS_SCHEMA: Final = _object_schema(
-    "formation.Liveliness",
-    "A liveliness token appeared (alive) or disappeared (process ended, crashed or its link "
-    "lease expired).",
-    {
-        "alive": {"type": "boolean", "description": "true: token present; false: gone"},
-        "kind": {"type": "string", "enum": ["robot", "coordinator", "plant", "other"]},
-        "id": {"type": ["string", "null"], "description": "robot id or coordinator name"},
-        "key": {"type": "string", "description": "the token's key expression"},
-    },
-)
-TRACKING_ERROR_SCHEMA: Final = _object_schema(
-    "formation.TrackingError",
-    "Tracking error of one robot as its agent reports it (status ex, ey: eqs 17-18).",
-    {
-        "t": {"type": "number", "description": "status t [s]"},
-        "ex": {"type": "number", "description": "setpoint x - reference point x [m]"},
-        "ey": {"type": "number", "description": "setpoint y - reference point y [m]"},
-        "norm_m": {"type": "number", "description": "hypot(ex, ey) [m]"},
-        "slot": {"type": "integer", "description": "assigned slot, -1 if none"},
-        "mode": {"type": "string", "description": "firmware mode"},
-    },
-)
-LATENCY_SCHEMA: Final = _object_schema(
-    "formation.Latency",
-    "Latency of one wheel command: rx_latency_ms = recorder receive time of the wheels minus "
-    "recorder receive time of the pose it was computed from (one clock); pose_age_ms = wheels "
-    "receive time minus the pose's capture time pose_t (realtime, same host) or wheels t minus "
-    "pose_t (lockstep, sim time).",
-    {
-        "t": {"type": "number", "description": "wheels t [s]"},
-        "pose_t": {"type": "number", "description": "t of the pose used [s]"},
-        "rx_latency_ms": {"type": ["number", "null"], "description": "[ms], null if unseen"},
-        "pose_age_ms": {"type": ["number", "null"], "description": "[ms]"},
-    },
-)
-REJECTED_SCHEMA: Final = _object_schema(
-    "formation.Rejected",
-    "A sample on a fleet key that failed the strict bus_schemas decode.",
-    {
-        "key": {"type": "string"},
-        "reason": {"type": "string"},
-        "detail": {"type": "string"},
-        "field": {"type": ["string", "null"]},
-        "payload_b64": {"type": "string", "description": "the payload bytes, base64"},
-    },
-)
-
-
-# --------------------------------------------------------------------------------------------
-# Decoding one sample
-# --------------------------------------------------------------------------------------------
-
-
-class Decoded(NamedTuple):
-    """A sample that passed strict decoding: its type, the typed message and the wire map."""
-
-    cls: type[Message]
-    msg: Message
-    obj: dict[str, Any]
-
-
-def jsonable(value: Any) -> Any:
-    """A msgpack-decoded value as JSON-ready data (bytes -> base64 str, tuples -> lists)."""
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if isinstance(value, bytes | bytearray | memoryview):
-        return base64.b64encode(bytes(value)).decode("ascii")
-    if isinstance(value, float) and not math.isfinite(value):
-        return None  # only in unknown extra fields: known fields reject non-finite values
-    if isinstance(value, msgpack.ExtType):
-        return {"ext": value.code, "data": base64.b64encode(value.data).decode("ascii")}
-    return value
-
-
-def decode_sample(key: str, payload: bytes) -> Decoded | DecodeError | None:
-    """Strictly decode a sample of ``key``; None if the key carries no known message type.
-
-    Unlike ``bus_schemas.decode`` this also returns the wire map (extra fields included), which
-    is what the recorder writes as JSON.
-    """
-    cls = message_type_for_key(key)
-    if cls is None:
-        return None
-    obj = unpack_map(payload)
-    if isinstance(obj, DecodeError):
-        return obj
-    msg = from_map(obj, cls)
-    if isinstance(msg, DecodeError):
-        return msg
-    return Decoded(cls, msg, obj)
-
-
-def unpack_map(payload: bytes) -> dict[str, Any] | DecodeError:
-    """Unpack one msgpack map (size-checked like ``bus_schemas.decode``) or say why not."""
-    from bus_schemas import Reason
-
-    if len(payload) > MAX_PAYLOAD_BYTES:
-        return DecodeError(Reason.TOO_LARGE, f"{len(payload)} bytes", None)
-    try:
-        obj = msgpack.unpackb(payload, use_list=False, strict_map_key=False)
-    except Exception as exc:  # any msgpack failure
-        return DecodeError(Reason.MALFORMED, f"{type(exc).__name__}: {exc}"[:200], None)
-    if type(obj) is not dict:
-        return DecodeError(Reason.NOT_A_MAP, f"top-level object is {type(obj).__name__}", None)
-    return obj
-
-
-def tracking_error(msg: Status) -> dict[str, Any] | None:
-    """The ``formation.TrackingError`` record of a status (None without ex, ey)."""
-    if msg.ex is None or msg.ey is None:
-        return None
-    return {
-        "t": msg.t,
-        "ex": msg.ex,
-        "ey": msg.ey,
-        "norm_m": math.hypot(msg.ex, msg.ey),
-        "slot": -1 if msg.slot is None else msg.slot,
-        "mode": msg.mode,
-    }
-
-
-def alive_kind(key: str) -> tuple[str, str | None]:
-    """``(kind, id)`` of a liveliness key: robot/coordinator/plant (or ``other``, None)."""
-    parsed = keys.parse_alive_key(key)
-    if parsed is None:
-        return "other", None
-    return parsed[1], parsed[2]
-
-
-# --------------------------------------------------------------------------------------------
-# Latency of wheel commands
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class LatencySample:
-    """One wheel command's latency (see :data:`LATENCY_SCHEMA`); times in seconds."""
-
-    robot: str
-    t: float
-    pose_t: float
-    rx_latency_s: float | None
-    pose_age_s: float
-
-
-class LatencyTracker:
-    """Matches each robot's wheel command to the pose it was computed from (``pose_t``).
-
-    Feed every pose and wheels sample with its receive time (seconds, one monotonic clock);
-    :meth:`on_wheels` returns the command's latency. Remembers the last ``window`` poses per
-    robot (a command uses a pose of the last few frames). Lockstep is detected from the
-    ``clock`` key: then ``pose_age_s`` is sim time (wheels ``t`` - ``pose_t``), otherwise the
-    wheels receive time minus ``pose_t`` (meaningful when the publisher's monotonic clock is this
-    host's, i.e. a local run).
-    """
-
-    def __init__(self, window: int = 64) -> None:
-        self.window = window
-        self.lockstep = False
-        self._pose_rx: dict[str, OrderedDict[float, float]] = {}
-
-    def on_clock(self) -> None:
-        """A ``clock`` message was seen: the run is lockstep."""
-        self.lockstep = True
-
-    def on_pose(self, robot: str, t: float, rx_s: float) -> None:
-        """A pose of ``robot`` with ``t`` arrived at ``rx_s``."""
-        seen = self._pose_rx.get(robot)
-        if seen is None:
-            seen = self._pose_rx[robot] = OrderedDict()
-        seen.setdefault(t, rx_s)  # the first arrival counts
-        while len(seen) > self.window:
-            seen.popitem(last=False)
-
-    def on_wheels(self, robot: str, msg: Wheels, rx_s: float) -> LatencySample | None:
-        """The latency of a wheel command, or None if it used no pose."""
-        if msg.pose_t is None:
-            return None
-        seen = self._pose_rx.get(robot)
-        pose_rx = None if seen is None else seen.get(msg.pose_t)
-        age = (msg.t - msg.pose_t) if self.lockstep else (rx_s - msg.pose_t)
-        return LatencySample(
-            robot=robot,
-            t=msg.t,
-            pose_t=msg.pose_t,
-            rx_latency_s=None if pose_rx is None else rx_s - pose_rx,
-            pose_age_s=age,
-        )
-
-
-# --------------------------------------------------------------------------------------------
-# The tap: Zenoh threads -> one worker thread
-# --------------------------------------------------------------------------------------------
-
-ItemKind = Literal["put", "delete", "alive", "dead"]
-
-
-class BusItem(NamedTuple):
-    """One observation of the bus: a sample (put/delete) or a liveliness change (alive/dead)."""
-
-    kind: ItemKind
-    key: str
-    payload: bytes
-    rx_ns: int  # time.monotonic_ns() on the Zenoh thread
-
-
-_STOP: Final = BusItem("delete", "", b"", -1)
-
-
-class BusTap:
-    """Subscribes to every key and liveliness token of a fleet; hands them to one worker thread.
-
-    ``handler(item)`` runs on the worker thread for every :class:`BusItem` in arrival order;
-    ``tick(now_ns)`` (optional) runs on it at least every ``tick_s`` seconds. The Zenoh callbacks
-    only copy the sample and enqueue it (never block: a full queue drops and counts). Handler
-    exceptions are counted in ``errors`` (the first one is printed to stderr) and never stop the
-    worker. :meth:`close` undeclares the subscribers, lets the worker finish the queue and joins
-    it; it is idempotent.
-    """
-
-    def __init__(
-        self,
-        session: zenoh.Session,
-        fleet: str,
-        handler: Callable[[BusItem], None],
-        *,
-        tick: Callable[[int], None] | None = None,
-        tick_s: float = 0.1,
-        maxlen: int = DEFAULT_QUEUE_LEN,
-        name: str = "bus-tap",
-    ) -> None:
-        self.fleet = keys.check_fleet(fleet)
-        self.received = 0
-        self.dropped = 0
-        self.errors = 0
-        self._handler = handler
-        self._tick = tick
-        self._tick_s = tick_s
-        self._queue: queue.Queue[BusItem] = queue.Queue(maxsize=maxlen)
-        self._closed = False
-        self._abandon = False
-        self._lock = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-        self._subs: list[Any] = []
-        try:
-            self._subs.append(
-                session.declare_subscriber(keys.fleet_pattern(fleet), self._on_sample)
-            )
-            self._subs.append(
-                session.liveliness().declare_subscriber(
-                    keys.alive_pattern(fleet), self._on_liveliness, history=True
-                )
-            )
-        except BaseException:
-            self.close()
-            raise
-
-    # Zenoh threads ------------------------------------------------------------------------
-
-    def _push(self, item: BusItem) -> None:
-        if self._closed:
-            return
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:
-            with self._lock:
-                self.dropped += 1
-            return
-        with self._lock:
-            self.received += 1
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        kind: ItemKind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
-        self._push(
-            BusItem(kind, str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns())
-        )
-
-    def _on_liveliness(self, sample: zenoh.Sample) -> None:
-        kind: ItemKind = "alive" if sample.kind == zenoh.SampleKind.PUT else "dead"
-        self._push(BusItem(kind, str(sample.key_expr), b"", time.monotonic_ns()))
-
-    # Local feeding (tests, replays) -------------------------------------------------------
-
-    def feed(self, item: BusItem) -> None:
-        """Enqueue an item as if it came from Zenoh (thread-safe)."""
-        self._push(item)
-
-    # Worker -------------------------------------------------------------------------------
-
-    def _run(self) -> None:
-        next_tick = time.monotonic_ns() + int(self._tick_s * 1e9)
-        while True:
-            timeout = max(0.0, (next_tick - time.monotonic_ns()) / 1e9)
-            try:
-                item: BusItem | None = self._queue.get(timeout=timeout)
-            except queue.Empty:
-                item = None
-            if item is _STOP:
-                break
-            if self._abandon:
-                if item is not None:
-                    with self._lock:
-                        self.dropped += 1
-                break
-            if item is not None:
-                self._call(self._handler, item)
-            now = time.monotonic_ns()
-            if now >= next_tick:
-                if self._tick is not None:
-                    self._call(self._tick, now)
-                next_tick = now + int(self._tick_s * 1e9)
-
-    def _call(self, fn: Callable[[Any], None], arg: Any) -> None:
-        try:
-            fn(arg)
-        except Exception as exc:  # a bad sample or a bug must not kill the recorder
-            self.errors += 1
-            if self.errors == 1:
-                print(f"{self._thread.name}: {type(exc).__name__}: {exc}", file=sys.stderr)
-
-    def close(self, timeout_s: float = 5.0) -> None:
-        """Undeclare the subscribers, process what is queued, stop the worker (idempotent).
-
-        If the backlog takes longer than ``timeout_s`` seconds, the rest is dropped (counted in
-        ``dropped``); when this returns, the worker has stopped and the handler is not running.
-        """
-        for sub in self._subs:
-            # ZError: the session was closed first, the subscriber is gone already.
-            with contextlib.suppress(zenoh.ZError):
-                sub.undeclare()
-        self._subs.clear()
-        if self._closed:
-            return
-        self._closed = True
-        self._queue.put(_STOP)  # blocks only if full; the worker is draining it
-        self._thread.join(timeout=timeout_s)
-        if self._thread.is_alive():  # a huge backlog: give up on it, keep what was handled
-            self._abandon = True
-            self._thread.join()
-            while True:
-                try:
-                    left = self._queue.get_nowait()
-                except queue.Empty:
-                    break
-                if left is not _STOP:
-                    with self._lock:
-                        self.dropped += 1
 
 
 # --------------------------------------------------------------------------------------------
@@ -595,7 +138,7 @@ def run_info(
     """
     out: dict[str, str] = {}
     if scenario is not None:
-        from formation import scenario as scenario_mod
+        import scenario as scenario_mod
 
         path = scenario_mod.resolve(scenario)
         out["scenario"] = scenario
@@ -647,12 +190,12 @@ class Recorder:
         self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._seq: dict[int, int] = {}
-        self._scene: Any = None  # formation.live.SceneModel when foxglove-sdk is installed
+        self._scene: Any = None  # formation.scene.SceneModel when foxglove-sdk is installed
         self._scene_period_ns = 0
         self._next_scene_ns = 0
         if scene_hz is not None and scene_hz > 0:
             try:
-                from formation.live import SceneModel
+                from formation.scene import SceneModel
             except ImportError:  # foxglove-sdk not installed: no 3D scene in the file
                 pass
             else:
@@ -780,7 +323,7 @@ class Recorder:
         """The 3D scene (``/scene``, ``/tf``) as protobuf, like the live Foxglove server's."""
         from foxglove.messages import FrameTransforms, SceneUpdate
 
-        from formation.live import SCENE_TOPIC, TF_TOPIC
+        from formation.scene import SCENE_TOPIC, TF_TOPIC
 
         self._next_scene_ns = log_ns + self._scene_period_ns
         for topic, cls, msg in (
@@ -922,7 +465,7 @@ class RecorderHandle:
 
 
 def start_recorder(
-    session_or_settings: zenoh.Session | tp.ZenohSettings,
+    session_or_settings: zenoh.Session | rt.ZenohSettings,
     fleet: str,
     path: str | Path,
     *,
@@ -947,8 +490,8 @@ def start_recorder(
         handle.close()   # before session.close()
     """
     own: zenoh.Session | None = None
-    if isinstance(session_or_settings, tp.ZenohSettings):
-        own = tp.open_session(session_or_settings)
+    if isinstance(session_or_settings, rt.ZenohSettings):
+        own = rt.open_session(session_or_settings)
         session = own
     else:
         session = session_or_settings
@@ -984,7 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="scenario of the run (name or TOML file), embedded for `formation report`",
     )
-    tp.add_zenoh_arguments(p)
+    rt.add_zenoh_arguments(p)
     return p
 
 
@@ -1004,12 +547,12 @@ def main(argv: list[str]) -> int:
     except ValueError as exc:  # ScenarioError
         print(f"formation record: {exc}", file=sys.stderr)
         return 2
-    settings = tp.settings_from_args(args)
+    settings = rt.settings_from_args(args)
 
     async def node(stop: asyncio.Event) -> int:
         try:
-            session = await tp.open_session_async(settings)
-        except tp.TransportError as exc:
+            session = await rt.open_session_async(settings)
+        except rt.TransportError as exc:
             print(f"formation record: {exc}", file=sys.stderr)
             return 1
         recorder: Recorder | None = None
@@ -1033,4 +576,4 @@ def main(argv: list[str]) -> int:
             session.close()
         return 0
 
-    return tp.run_node(node, grace_s=0.8, hard_exit_s=3.0)
+    return rt.run_node(node, grace_s=0.8, hard_exit_s=3.0)

@@ -50,6 +50,7 @@ import numpy as np
 from mcap.records import Channel, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
+import scenario as scenario_mod
 from bus_schemas import (
     Assignment,
     Clock,
@@ -64,17 +65,10 @@ from bus_schemas import (
     message_type_for_key,
 )
 from formation import metrics as metrics_mod
-from formation import scenario as scenario_mod
 from formation.collector import RunCollector
-from formation.record import (
-    METADATA_NAME,
-    RAW_PREFIX,
-    RUN_METADATA_NAME,
-    STATS_METADATA_NAME,
-    LatencySample,
-    LatencyTracker,
-)
+from formation.record import METADATA_NAME, RAW_PREFIX, RUN_METADATA_NAME, STATS_METADATA_NAME
 from formation.runlog import RunLog
+from formation.tap import LatencySample, LatencyTracker
 from robot_agent.params import RobotGeometry
 
 MIN_RUN_AFTER_LOSS_S: Final = 1.0

@@ -19,7 +19,7 @@ import asyncio
 import json
 import sys
 
-from bus_schemas import transport as tp
+import runtime as rt
 
 READY_PREFIX = "router listening on "
 """Start of the single line printed on stdout once the router accepts connections."""
@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--listen",
         action="append",
         metavar="ENDPOINT",
-        help=f"endpoint to listen on, repeatable (default {tp.DEFAULT_ENDPOINT}, "
+        help=f"endpoint to listen on, repeatable (default {rt.DEFAULT_ENDPOINT}, "
         "or the config file's)",
     )
     parser.add_argument(
@@ -54,17 +54,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def settings_from_router_args(ns: argparse.Namespace) -> tp.ZenohSettings:
-    """Router settings: mode ``router``; listen defaults to :data:`tp.DEFAULT_ENDPOINT` unless a
+def settings_from_router_args(ns: argparse.Namespace) -> rt.ZenohSettings:
+    """Router settings: mode ``router``; listen defaults to :data:`rt.DEFAULT_ENDPOINT` unless a
     config file is given (then its ``listen`` is kept)."""
     listen: tuple[str, ...]
     if ns.listen:
         listen = tuple(ns.listen)
     elif ns.zenoh_config is None:
-        listen = (tp.DEFAULT_ENDPOINT,)
+        listen = (rt.DEFAULT_ENDPOINT,)
     else:
         listen = ()
-    return tp.ZenohSettings(
+    return rt.ZenohSettings(
         connect=tuple(ns.endpoint or ()),
         listen=listen,
         mode="router",
@@ -74,20 +74,20 @@ def settings_from_router_args(ns: argparse.Namespace) -> tp.ZenohSettings:
     )
 
 
-def _listen_endpoints(settings: tp.ZenohSettings) -> str:
+def _listen_endpoints(settings: rt.ZenohSettings) -> str:
     if settings.listen:
         return ", ".join(settings.listen)
     # From the config file: a list, or Zenoh's per-mode map {"router": [...], ...}.
-    value = json.loads(tp.make_config(settings).get_json("listen/endpoints"))
+    value = json.loads(rt.make_config(settings).get_json("listen/endpoints"))
     if isinstance(value, dict):
         value = value.get("router", [])
     return ", ".join(str(v) for v in value) or "(no endpoint)"
 
 
-async def _serve(stop: asyncio.Event, settings: tp.ZenohSettings) -> int:
+async def _serve(stop: asyncio.Event, settings: rt.ZenohSettings) -> int:
     try:
-        session = tp.open_session(settings)  # a router opens at once or fails (port in use)
-    except (tp.TransportError, ValueError) as exc:
+        session = rt.open_session(settings)  # a router opens at once or fails (port in use)
+    except (rt.TransportError, ValueError) as exc:
         print(f"formation router: {exc}", file=sys.stderr)
         return 1
     try:
@@ -106,4 +106,4 @@ def main(argv: list[str]) -> int:
     except ValueError as exc:
         print(f"formation router: {exc}", file=sys.stderr)
         return 2
-    return tp.run_node(lambda stop: _serve(stop, settings))
+    return rt.run_node(lambda stop: _serve(stop, settings))

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from formation import scenario as scenario_mod
+import scenario as scenario_mod
 
 
 def build_parser() -> argparse.ArgumentParser:

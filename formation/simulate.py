@@ -5,8 +5,9 @@ Per control tick (``dt_s``), in this order:
 2. the camera captures truth at its own rate and delivers noisy poses after its latency;
 3. the coordinator core runs on the latest measured poses (virtual leader, slots, assignment);
 4. each robot's firmware steps on its latest pose, its neighbours' poses and the setpoint the
-   coordinator computed on the PREVIOUS tick (as over the bus in lockstep, where a setpoint
-   computed on clock tick k reaches the agents before tick k+1; see docs/runtime.md);
+   coordinator computed on the PREVIOUS tick: the lockstep rules of ``robot_agent.lockstep``
+   (tick time, setpoint delay), the same code the distributed nodes run, so a run over Zenoh in
+   lockstep equals this one bit for bit (docs/runtime.md);
 5. wheel commands go through the lossy, delayed command link;
 6. the plant integrates the wheel speeds that arrived (truth).
 
@@ -34,8 +35,9 @@ import numpy as np
 
 from coordinator.core import CoordinatorCore, CoordinatorOutput
 from formation.runlog import RunLog
-from formation.scenario import Scenario
 from robot_agent.firmware import Firmware, Pose, Setpoint, WheelCommand
+from robot_agent.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
+from scenario import Scenario
 from sim_plant.accounting import SeparationMonitor
 from sim_plant.plant import Plant
 from sim_plant.sensors import Camera, CommandLink
@@ -116,7 +118,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     pending = list(scenario.disturbances)
     fresh: dict[str, tuple[float, float, float]] = {}
     oldest_rx = math.inf  # earliest receive time among the poses in `fresh`
-    prev_out: CoordinatorOutput | None = None  # the coordinator output of the previous tick
+    outputs: SetpointWindow[CoordinatorOutput] = SetpointWindow()  # the coordinator's outputs
 
     # What the log keeps per tick (converted to arrays once, at the end).
     log_truth: list[tuple[tuple[float, float, float], ...]] = []
@@ -129,7 +131,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
     for k in range(ticks):
-        t = k * dt
+        t = tick_time(k, dt)
         # 1. disturbances
         while pending and pending[0].t_s <= t + 1e-9:
             d = pending.pop(0)
@@ -174,8 +176,9 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                     if pose_rx[i] < oldest_rx:
                         oldest_rx = pose_rx[i]
         out = coord.tick(t, fresh)
-        # 4. firmware, on the setpoints of the previous tick
-        t_prev = t - dt
+        # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
+        prev_out = outputs.for_clock(k)
+        t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
         cmds: list[WheelCommand] = []
         if prev_out is not None:
             prev_asg = prev_out.assignment
@@ -212,7 +215,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
         if out.changed or k == 0:
             asg = out.assignment
             slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
-        prev_out = out
+        outputs.add(k, out)
         # 6. plant
         plant.step(dt, applied)
     log = RunLog.from_ticks(

@@ -28,6 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
+import runtime as rt
 from bus_schemas import (
     Assignment,
     Clock,
@@ -36,8 +37,8 @@ from bus_schemas import (
     Status,
     keys,
 )
-from bus_schemas import transport as tp
-from formation.record import BusItem, BusTap, alive_kind, decode_sample
+from formation.bus_json import alive_kind, decode_sample
+from formation.tap import BusItem, BusTap
 
 RATE_LEAVES: Final = (keys.POSE, keys.SETPOINT, keys.WHEELS, keys.STATUS, keys.TRUTH)
 """Per-robot keys whose message rate is shown, in column order."""
@@ -240,7 +241,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wait", type=float, default=1.5, metavar="S", help="--once: listen S s")
     p.add_argument("--period", type=float, default=0.5, metavar="S", help="redraw period (s)")
     p.add_argument("--window", type=float, default=2.0, metavar="S", help="rate window (s)")
-    tp.add_zenoh_arguments(p)
+    rt.add_zenoh_arguments(p)
     return p
 
 
@@ -257,13 +258,13 @@ def main(argv: Sequence[str]) -> int:
         if not (value > 0 and math.isfinite(value)):
             print(f"formation top: --{name} must be > 0", file=sys.stderr)
             return 2
-    settings = tp.settings_from_args(args)
+    settings = rt.settings_from_args(args)
     interactive = sys.stdout.isatty() and not args.once
 
     async def node(stop: asyncio.Event) -> int:
         try:
-            session = await tp.open_session_async(settings)
-        except tp.TransportError as exc:
+            session = await rt.open_session_async(settings)
+        except rt.TransportError as exc:
             print(f"formation top: {exc}", file=sys.stderr)
             return 1
         status = FleetStatus(args.fleet, args.window)
@@ -287,4 +288,4 @@ def main(argv: Sequence[str]) -> int:
                 await asyncio.to_thread(tap.close)
             session.close()
 
-    return tp.run_node(node)
+    return rt.run_node(node)

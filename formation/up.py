@@ -62,11 +62,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import copy
 import json
 import math
 import os
-import re
 import signal
 import sys
 import time
@@ -77,9 +75,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final, TextIO
 
+import scenario as scenario_mod
 from bus_schemas import keys
-from formation import scenario as scenario_mod
 from formation.collector import LiveView, RunCollector, key_patterns
+from scenario import scenario_with_robots, to_toml
 
 __all__ = [
     "LaunchError",
@@ -90,8 +89,6 @@ __all__ = [
     "main",
     "plan_run",
     "run_up",
-    "scenario_with_robots",
-    "to_toml",
 ]
 
 REPO_ROOT: Final = Path(__file__).resolve().parents[1]
@@ -178,170 +175,10 @@ class UpResult:
     run_wall_s: float | None = None  # from the first to the last truth frame received
 
 
-# --- TOML output (tomllib only reads) --------------------------------------------------------
-
-_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
-
-
-def _toml_str(s: str) -> str:
-    out = ['"']
-    for ch in s:
-        if ch in '"\\':
-            out.append("\\" + ch)
-        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
-            out.append(f"\\u{ord(ch):04x}")
-        else:
-            out.append(ch)
-    out.append('"')
-    return "".join(out)
-
-
-def _toml_key(k: str) -> str:
-    return k if _BARE_KEY.fullmatch(k) else _toml_str(k)
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v)  # 0.1, 1e-05, inf, nan: all valid TOML floats
-    if isinstance(v, str):
-        return _toml_str(v)
-    if isinstance(v, Mapping):
-        return (
-            "{" + ", ".join(f"{_toml_key(str(k))} = {_toml_value(x)}" for k, x in v.items()) + "}"
-        )
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} {v!r} as TOML")
-
-
-def _is_table_array(v: Any) -> bool:
-    return isinstance(v, list) and bool(v) and all(isinstance(x, Mapping) for x in v)
-
-
-def _write_table(
-    lines: list[str], table: Mapping[str, Any], path: tuple[str, ...], header: str
-) -> None:
-    if header:
-        lines.append("")
-        lines.append(header)
-    for k, v in table.items():
-        if not isinstance(v, Mapping) and not _is_table_array(v):
-            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
-    for k, v in table.items():
-        sub = (*path, k)
-        dotted = ".".join(_toml_key(p) for p in sub)
-        if isinstance(v, Mapping):
-            _write_table(lines, v, sub, f"[{dotted}]")
-        elif _is_table_array(v):
-            for item in v:
-                _write_table(lines, item, sub, f"[[{dotted}]]")
-
-
-def to_toml(data: Mapping[str, Any]) -> str:
-    """``data`` (str keys; bool, int, float, str, lists, tables) as TOML text.
-
-    Raises ValueError if the text would not read back as ``data`` (never silently changes it).
-    """
-    lines: list[str] = []
-    _write_table(lines, data, (), "")
-    text = "\n".join(lines).lstrip("\n") + "\n"
-    if tomllib.loads(text) != data:
-        raise ValueError("scenario does not survive a TOML round trip")
-    return text
-
-
-# --- scenario rewriting -----------------------------------------------------------------------
-
-
-def _robot_ids(robots: Mapping[str, Any]) -> list[str]:
-    if "ids" in robots:
-        return [str(r) for r in robots["ids"]]
-    return [f"r{i + 1}" for i in range(int(robots.get("count", 0)))]
-
-
-def _slot_poses(data: Mapping[str, Any]) -> list[tuple[float, float, float]]:
-    """Axle-centre poses that put each robot's reference point on a slot at t = 0, in slot
-    definition order (the reference point is ``ref_offset_m`` ahead of the axle, eqs 10-11)."""
-    from coordinator.formation import FormationSpec, slot_states
-    from coordinator.trajectory import make_trajectory
-
-    traj = dict(data["trajectory"])
-    kind = str(traj.pop("kind"))
-    leader = make_trajectory(kind, traj).sample(0.0)
-    spec = FormationSpec.from_dict(dict(data["formation"]))
-    l_m = float(data.get("geometry", {}).get("ref_offset_m", 0.05))
-    return [
-        (s.x - l_m * math.cos(s.theta), s.y - l_m * math.sin(s.theta), s.theta)
-        for s in slot_states(spec, leader)
-    ]
-
-
-def scenario_with_robots(data: Mapping[str, Any], n: int) -> dict[str, Any]:
-    """A copy of the scenario table ``data`` with robots ``r1..rN``.
-
-    Robots that existed keep their start pose; new ones start on their slot (robot ``rK`` on the
-    K-th slot of the formation, in definition order) or, beyond the last slot, in rows 0.5 m
-    behind the formation, 0.4 m apart. A chevron or lattice formation gets ``n`` slots; a
-    disturbance of a robot that no longer exists is dropped.
-    """
-    if n < 1:
-        raise scenario_mod.ScenarioError(f"--robots: need at least 1 robot, got {n}")
-    out = copy.deepcopy(dict(data))
-    robots = dict(out.get("robots", {}))
-    old_ids = _robot_ids(robots)
-    old_initial = robots.get("initial")
-    ids = [f"r{i + 1}" for i in range(n)]
-    formation = dict(out.get("formation", {}))
-    if formation.get("kind") in ("chevron", "lattice"):
-        if isinstance(formation.get("params"), Mapping):
-            formation["params"] = {**formation["params"], "n": n}
-        else:
-            formation["n"] = n
-        out["formation"] = formation
-    try:
-        slot_poses = _slot_poses(out)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise scenario_mod.ScenarioError(f"--robots: cannot place new robots: {exc}") from exc
-    # rows behind the formation, in the leader's frame
-    leader_x, leader_y, heading = slot_poses[0] if slot_poses else (0.0, 0.0, 0.0)
-    c, s = math.cos(heading), math.sin(heading)
-    rear = min(((x - leader_x) * c + (y - leader_y) * s for x, y, _ in slot_poses), default=0.0)
-    initial: list[list[float]] = []
-    for i, rid in enumerate(ids):
-        if isinstance(old_initial, list) and i < len(old_initial) and old_ids[i : i + 1] == [rid]:
-            initial.append([float(v) for v in old_initial[i]])
-        elif i < len(slot_poses):
-            initial.append([round(v, 6) for v in slot_poses[i]])
-        else:
-            extra = i - len(slot_poses)
-            row, col = divmod(extra, 5)
-            back = rear - 0.5 * (row + 1)
-            side = 0.4 * (col - 2)
-            initial.append(
-                [
-                    round(leader_x + back * c - side * s, 6),
-                    round(leader_y + back * s + side * c, 6),
-                    round(heading, 6),
-                ]
-            )
-    out["robots"] = {"ids": ids, "initial": initial}
-    if "disturbance" in out:
-        kept = [d for d in out["disturbance"] if d.get("robot") in ids]
-        if kept:
-            out["disturbance"] = kept
-        else:
-            del out["disturbance"]
-    return out
-
-
 def plan_run(cfg: UpConfig) -> Plan:
     """Validate the config and the scenario; raise ``ScenarioError``/``ValueError`` (exit 2)."""
     keys.check_fleet(cfg.fleet)
-    from bus_schemas.transport import ZenohSettings
+    from runtime.transport import ZenohSettings
 
     ZenohSettings(connect=(cfg.endpoint,))  # validates the endpoint's shape
     if cfg.duration_s is not None and not (cfg.duration_s > 0 and math.isfinite(cfg.duration_s)):
@@ -810,11 +647,11 @@ class _Launcher:
     async def _open_session(self) -> None:
         import zenoh
 
-        from bus_schemas import transport as tp
+        import runtime as rt
 
         loop = asyncio.get_running_loop()
-        settings = tp.ZenohSettings(connect=(self.cfg.endpoint,), open_timeout_s=5.0)
-        self.session = await tp.open_session_async(settings)
+        settings = rt.ZenohSettings(connect=(self.cfg.endpoint,), open_timeout_s=5.0)
+        self.session = await rt.open_session_async(settings)
         # Zenoh buffers the samples in its own FIFO and the loop drains it every CONSUME_PERIOD_S:
         # no Python callback per sample on Zenoh's threads, no loop wake-up per burst. On two
         # cores this keeps the launcher from slowing down the lockstep it is watching. The
@@ -823,7 +660,7 @@ class _Launcher:
             self.session.declare_subscriber(p, zenoh.handlers.FifoChannel(FIFO_CAPACITY))
             for p in key_patterns(self.cfg.fleet)
         ]
-        tp.watch_liveliness(
+        rt.watch_liveliness(
             self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive
         )
         self._start_observers()

@@ -33,7 +33,7 @@ Lockstep: on ``clock`` k every robot steps at ``t_k`` (``AgentNode.clock_step``)
 
 Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
 logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
-session closed (``bus_schemas.transport.run_node``). Prints ``agent-host <name> ready`` once its
+session closed (``runtime.transport.run_node``). Prints ``agent-host <name> ready`` once its
 subscriptions and every robot's token are declared.
 """
 
@@ -47,12 +47,11 @@ import re
 import socket
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Final
 
-import zenoh
-
+import runtime as rt
 from bus_schemas import (
     BATCH_CHUNK,
     Clock,
@@ -66,23 +65,14 @@ from bus_schemas import (
     encode,
     keys,
 )
-from bus_schemas import transport as tp
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
 from robot_agent.firmware import WheelCommand
-from robot_agent.node import (
-    NEIGHBOUR_STALE_S,
-    RESUME_QUARANTINE_S,
-    AgentNode,
-    NodeLog,
-    Publish,
-    finite_or_none,
-    positive_rate,
-    run_timers,
-    subscribe_ordered,
-)
+from robot_agent.lockstep import Arrivals, Replay
+from robot_agent.node import NEIGHBOUR_STALE_S, AgentNode, Publish
 from robot_agent.params import AgentConfig
-from robot_agent.sdnotify import Notifier
+from runtime.sdnotify import Notifier
+from runtime.timers import run_timers
 
 __all__ = ["MAX_HOSTED", "HostNode", "build_parser", "expand_ids", "main"]
 
@@ -92,9 +82,6 @@ MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
 REALTIME_CHUNK: Final = 32
 """Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
-HANG_GAP_S: Final = 0.5
-"""Realtime: the loop idle for longer than this (s) means the process was stopped; see
-``robot_agent.node.HANG_GAP_S``."""
 
 _Grid = dict[tuple[int, int], list[tuple[int, str, float, float]]]
 """Spatial hash: cell -> (frame order, robot id, x, y) of the robots in it."""
@@ -141,7 +128,7 @@ class _Seen:
 
 class HostNode:
     """Many :class:`AgentNode` sharing one session's batched I/O; Zenoh-free apart from
-    ``publish``. Handlers take one :class:`bus_schemas.transport.Received`, run on the event
+    ``publish``. Handlers take one :class:`runtime.transport.Received`, run on the event
     loop and never raise.
 
     Args:
@@ -165,20 +152,20 @@ class HostNode:
         *,
         lockstep: bool = False,
         rate_hz: float = 50.0,
-        log: NodeLog | None = None,
+        log: rt.NodeLog | None = None,
     ) -> None:
         self.name = keys.check_name(name)
         self.fleet = keys.check_fleet(fleet)
         self.lockstep = lockstep
         self.period_s = 1.0 / rate_hz
-        self.log = log if log is not None else NodeLog(f"agent-host {name}")
+        self.log = log if log is not None else rt.NodeLog(f"agent-host {name}")
         self._publish = publish
         self.hostname = socket.gethostname()[:255] or "unknown"
         self.pid = os.getpid()
         if len(robot_ids) > MAX_HOSTED:
             raise ValueError(f"at most {MAX_HOSTED} robots per host")
         self.nodes: dict[str, AgentNode] = {}
-        quiet = NodeLog(f"agent-host {name}", min_interval_s=5.0)
+        quiet = rt.NodeLog(f"agent-host {name}", min_interval_s=5.0)
         for rid in robot_ids:
             node = AgentNode(
                 rid, fleet, config, publish, lockstep=lockstep, loop_mode="fixed",
@@ -196,10 +183,10 @@ class HostNode:
         self.clock_key = keys.clock_key(fleet)
         self.wheels_key = keys.host_wheels_key(fleet, name)
         self.status_key = keys.host_status_key(fleet, name)
-        self.wheels_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_CONTROL
+        self.wheels_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
 
         self._seen: dict[str, _Seen] = {}
-        self._pending: list[_Seen] = []  # lockstep: positions received since the last clock
+        self._pending: Arrivals[_Seen] = Arrivals()  # lockstep: received since the last clock
         self._grid: _Grid | None = None
         self._grid_now = -math.inf
         self.rx: dict[str, int] = {"poses": 0, "setpoints": 0, "estop": 0, "clock": 0}
@@ -207,14 +194,10 @@ class HostNode:
         self.internal_errors = 0
         self.batches = 0
         self.sim_t = 0.0
-        self._last_tick: int | None = None
-        self._last_batches: list[bytes] = []
+        self._replay: Replay[list[bytes]] = Replay()  # lockstep: the last clock's batches
         self._seq_wheels = 0
         self._seq_status = 0
-        self._last_loop_s: float | None = None
-        self.hang_gap_s = HANG_GAP_S
-        self.quarantine_until_s = -math.inf
-        self.resumes = 0
+        self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -229,23 +212,20 @@ class HostNode:
         self.internal_errors += 1
         self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
 
-    def _resumed(self, now_s: float) -> bool:
-        """Realtime: a stop of the whole process (SIGSTOP) -> every robot drops its setpoint and
-        pose and ignores input for :data:`RESUME_QUARANTINE_S` (as ``AgentNode._resumed``)."""
+    def check_resume(self, now_s: float) -> bool:
+        """Realtime: a stop of the whole process (:mod:`runtime.stall`) -> every robot drops its
+        setpoint and pose; True while the quarantine lasts (as ``AgentNode.check_resume``)."""
         if self.lockstep:
             return False
-        last = self._last_loop_s
-        if last is not None and now_s - last > self.hang_gap_s:
-            self._last_loop_s = now_s
-            self.quarantine_until_s = now_s + RESUME_QUARANTINE_S
-            self.resumes += 1
+        stopped = self.stall.resume(now_s)
+        if stopped is not None:
             for node in self.nodes.values():
                 node.setpoint = None
                 node.pose = None
             self._seen.clear()
             self._grid = None
-            self.log.info(f"resumed after {now_s - last:.2f} s stopped: holding until fresh data")
-        return now_s < self.quarantine_until_s
+            self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
+        return self.stall.quarantined(now_s)
 
     # -- neighbours ----------------------------------------------------------------------------
 
@@ -292,12 +272,12 @@ class HostNode:
 
     # -- inputs --------------------------------------------------------------------------------
 
-    def on_poses(self, rx: tp.Received) -> None:
+    def on_poses(self, rx: rt.Received) -> None:
         """A pose frame (chunk): own poses of hosted robots, everyone's position for repulsion;
         realtime: step the hosted robots of this chunk now and publish their batch."""
         try:
             self.rx["poses"] += 1
-            if self._resumed(rx.rx_s):
+            if self.check_resume(rx.rx_s):
                 return
             msg = decode(rx.payload, PoseBatch)
             if isinstance(msg, DecodeError):
@@ -317,7 +297,7 @@ class HostNode:
                 else:
                     e.x, e.y, e.rx_s = x, y, rx_s
                 if rx_s is None:
-                    self._pending.append(e)
+                    self._pending.add(e)
                 node = nodes.get(rid)
                 if node is not None:
                     node.rx["pose"] += 1
@@ -329,18 +309,18 @@ class HostNode:
                         mine.append(node)
             self._grid = None
             if len(self._pending) > 4 * MAX_TRACKED:  # no clock for ages
-                self._pending = list({id(e): e for e in self._pending}.values())
+                self._pending.compact(key=id)
             if mine:
                 now = time.monotonic()
                 self._publish_steps((n, n.step(now)) for n in mine)
         except Exception as exc:
             self._internal("on_poses", exc)
 
-    def on_setpoints(self, rx: tp.Received) -> None:
+    def on_setpoints(self, rx: rt.Received) -> None:
         """A setpoint batch: each hosted robot's entry as if it came on its own key."""
         try:
             self.rx["setpoints"] += 1
-            if self._resumed(rx.rx_s):
+            if self.check_resume(rx.rx_s):
                 return
             msg = decode(rx.payload, SetpointBatch)
             if isinstance(msg, DecodeError):
@@ -357,7 +337,7 @@ class HostNode:
         except Exception as exc:
             self._internal("on_setpoints", exc)
 
-    def on_estop(self, rx: tp.Received) -> None:
+    def on_estop(self, rx: rt.Received) -> None:
         """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
         try:
             self.rx["estop"] += 1
@@ -385,7 +365,7 @@ class HostNode:
         except Exception as exc:
             self._internal("on_estop", exc)
 
-    def on_clock(self, rx: tp.Received) -> None:
+    def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: every robot steps at t_k; one batch with ``tick: k`` answers."""
         try:
             self.rx["clock"] += 1
@@ -394,19 +374,19 @@ class HostNode:
                 self._reject("clock", msg)
                 return
             k, t_k = msg.tick, msg.t
-            if k == self._last_tick and self._last_batches:
-                for payload in self._last_batches:  # re-announce
+            again = self._replay.repeat(k)
+            if again:
+                for payload in again:  # re-announced clock
                     self._publish(self.wheels_key, payload, self.wheels_qos)
                 return
             self.sim_t = t_k
-            for e in self._pending:
+            for e in self._pending.take():
                 if e.rx_s is None:
                     e.rx_s = t_k
-            self._pending = []
             self._grid = None
-            self._last_tick = k
+            self._replay.record(k, [])
             nodes = self.nodes.values()
-            self._last_batches = self._publish_steps(
+            self._replay.answer = self._publish_steps(
                 ((n, n.clock_step(k, t_k)) for n in nodes), tick=k
             )
         except Exception as exc:
@@ -484,8 +464,8 @@ class HostNode:
                     mode=tuple(str(s.mode) for s in sts),
                     slot=tuple(-1 if s.slot is None else s.slot for s in sts),
                     rejected=tuple(s.rejected_count for s in sts),
-                    ex=tuple(finite_or_none(s.ex) or 0.0 for s in sts),
-                    ey=tuple(finite_or_none(s.ey) or 0.0 for s in sts),
+                    ex=tuple(rt.finite_or_none(s.ex) or 0.0 for s in sts),
+                    ey=tuple(rt.finite_or_none(s.ey) or 0.0 for s in sts),
                 )
             )
         return out
@@ -495,7 +475,7 @@ class HostNode:
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
             for msg in self.status_batches(now):
-                self._publish(self.status_key, encode(msg), tp.QOS_TELEMETRY)
+                self._publish(self.status_key, encode(msg), rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("status", exc)
 
@@ -535,19 +515,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--rate-hz",
-        type=positive_rate,
+        type=rt.rate_hz,
         default=50.0,
         metavar="HZ",
         help="watchdog timer rate (50 Hz)",
     )
-    tp.add_zenoh_arguments(parser)
+    rt.add_zenoh_arguments(parser)
     return parser
 
 
 def main(argv: list[str]) -> int:
     """Entry point of ``formation agent-host``; returns the exit status."""
     ns = build_parser().parse_args(argv)
-    log = NodeLog("formation agent-host")
+    log = rt.NodeLog("formation agent-host")
     try:
         ids = expand_ids(ns.ids)
     except ValueError as exc:
@@ -559,7 +539,7 @@ def main(argv: list[str]) -> int:
         return 2
     config = AgentConfig()
     if ns.scenario is not None:
-        from formation.scenario import ScenarioError, load
+        from scenario import ScenarioError, load
 
         try:
             config = load(ns.scenario).agent
@@ -567,63 +547,50 @@ def main(argv: list[str]) -> int:
             log.info(f"scenario: {exc}")
             return 2
     try:
-        settings = tp.settings_from_args(ns)
+        settings = rt.settings_from_args(ns)
     except (TypeError, ValueError) as exc:
         log.info(f"zenoh settings: {exc}")
         return 2
-    return tp.run_node(
-        lambda stop: _node(stop, name, ids, ns.fleet, config, settings, ns.lockstep, ns.rate_hz)
+    return rt.serve(
+        f"agent-host {name}",
+        settings,
+        lambda io, stop: _node(io, stop, name, ids, ns.fleet, config, ns.lockstep, ns.rate_hz),
     )
 
 
 async def _node(
+    io: rt.NodeIO,
     stop: asyncio.Event,
     name: str,
     ids: list[str],
     fleet: str,
     config: AgentConfig,
-    settings: tp.ZenohSettings,
     lockstep: bool,
     rate_hz: float,
 ) -> int:
-    loop = asyncio.get_running_loop()
-    log = NodeLog(f"agent-host {name}")
-    try:
-        session = await tp.open_session_async(settings)
-    except (tp.TransportError, ValueError) as exc:
-        log.info(str(exc))
-        return 1
     notifier = Notifier()
-    tokens: list[zenoh.LivelinessToken] = []
     try:
-        pubs = tp.Publishers(session)
         host = HostNode(
-            name, ids, fleet, config, pubs.put, lockstep=lockstep, rate_hz=rate_hz, log=log
+            name, ids, fleet, config, io.pubs.put, lockstep=lockstep, rate_hz=rate_hz, log=io.log
         )
-        if settings.lease_ms is not None:
-            host.hang_gap_s = max(0.3, 0.9 * settings.lease_ms / 1000.0)
-        pubs.get(host.wheels_key, host.wheels_qos)
-        pubs.get(host.status_key, tp.QOS_TELEMETRY)
-        handlers: list[tuple[str, Callable[[tp.Received], None]]] = [
-            (host.setpoints_key, host.on_setpoints),
-            (host.estop_key, host.on_estop),
-        ]
+        host.stall.gap_s = rt.hang_gap_for(io.settings.lease_ms)
+        io.pubs.get(host.wheels_key, host.wheels_qos)
+        io.pubs.get(host.status_key, rt.QOS_TELEMETRY)
+        io.subscribe(host.setpoints_key, host.on_setpoints)
+        io.subscribe(host.estop_key, host.on_estop)
         if lockstep:
-            handlers.append((host.clock_key, host.on_clock))
-        handlers.append((host.poses_key, host.on_poses))
-        for key, handler in handlers:
-            subscribe_ordered(session, key, loop, handler)
-        tokens = [tp.declare_token(session, keys.alive_robot_key(fleet, r)) for r in ids]
+            io.subscribe(host.clock_key, host.on_clock)
+        io.subscribe(host.poses_key, host.on_poses)
+        for r in ids:
+            io.declare_token(keys.alive_robot_key(fleet, r))
         print(f"agent-host {name} ready", flush=True)
         notifier.ready(f"agent-host {name} connected ({len(ids)} robots)")
         mode = "lockstep" if lockstep else f"realtime, watchdog {rate_hz:g} Hz"
-        log.info(f"fleet {fleet}, {len(ids)} robots ({ids[0]}..{ids[-1]}), {mode}")
+        io.log.info(f"fleet {fleet}, {len(ids)} robots ({ids[0]}..{ids[-1]}), {mode}")
         await host.run(stop, notifier)
         notifier.stopping()
         return 0
     finally:
-        tokens.clear()
-        session.close()
         notifier.close()
 
 

@@ -3,7 +3,7 @@
 Symbols: R wheel radius (m), L half the track (m, track = 2L), l reference-point offset (m),
 theta heading (rad), v forward speed (m/s), omega yaw rate (rad/s), omega_r / omega_l wheel
 speeds (rad/s). The printed eqs 7-8 lose a factor of 2 and eq 13 is misprinted; the forms here
-are the standard ones (see shared/notes/paper-math.md).
+are the standard ones (see docs/paper-errata.md).
 
 All functions are pure and allocation-light (they return tuples). The maps propagate NaN like
 any arithmetic; ``saturate_wheels`` is the safety stage and never returns a non-finite value.

@@ -8,7 +8,7 @@ Usage::
 
 It prints exactly one line ``agent <id> ready`` on stdout once its Zenoh session is open, its
 subscriptions are declared and its liveliness token ``formation/<fleet>/alive/robot/<id>`` is
-declared; it exits 0 within a second of SIGINT/SIGTERM (``bus_schemas.transport.run_node``).
+declared; it exits 0 within a second of SIGINT/SIGTERM (``runtime.transport.run_node``).
 
 Theory of operation
 -------------------
@@ -58,27 +58,22 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import math
 import os
 import socket
 import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final, Literal, Protocol
+from typing import Any, Final, Literal
 
-import msgpack
-import zenoh
-
+import runtime as rt
 from bus_schemas import (
     Clock,
     DecodeError,
     Estop,
-    Message,
     Pose,
     PoseBatch,
     Setpoint,
@@ -87,157 +82,23 @@ from bus_schemas import (
     decode,
     encode,
     keys,
-    to_map,
 )
-from bus_schemas import transport as tp
 from robot_agent.firmware import Firmware, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
+from robot_agent.lockstep import Arrivals, Replay, SetpointWindow
 from robot_agent.motors import MotorBackend, MotorStatus, create_backend
 from robot_agent.params import AgentConfig
-from robot_agent.sdnotify import Notifier
+from runtime.sdnotify import Notifier
+from runtime.timers import run_timers
 
-__all__ = [
-    "NEIGHBOUR_STALE_S",
-    "STATUS_PERIOD_S",
-    "AgentNode",
-    "MotorOutput",
-    "NodeLog",
-    "build_parser",
-    "encode_ticked",
-    "main",
-    "payload_tick",
-    "positive_rate",
-    "run_timers",
-    "subscribe_ordered",
-]
+__all__ = ["NEIGHBOUR_STALE_S", "AgentNode", "MotorOutput", "build_parser", "main"]
 
-STATUS_PERIOD_S: Final = 0.2
-"""Status publication period (s): 5 Hz, the contract's minimum rate."""
 NEIGHBOUR_STALE_S: Final = 1.0
 """A neighbour's batched pose older than this (s, receive time) no longer repels."""
 MAX_NEIGHBOURS: Final = 1024
 """Distinct neighbour ids kept (a flood of made-up ids cannot grow memory without bound)."""
-HANG_GAP_S: Final = 0.5
-"""Realtime: the event loop idle for longer than this (s) means the process was stopped
-(SIGSTOP, a swapped-out VM). Its loop turns at least every 1/rate_hz (20 ms at 50 Hz). With
-``--lease-ms`` the limit is 0.9 lease: a shorter stop cannot have cost the robot its slot."""
-RESUME_QUARANTINE_S: Final = 0.25
-"""After such a stop, setpoints and poses received during this long (s) are dropped: they are the
-backlog queued while the process was stopped, stamped with fresh receive times on delivery, and
-the setpoint may be for a slot another robot took meanwhile (issue 4: a resumed robot must not
-fight the one that took its slot). The firmware holds until fresh data arrives."""
-TICK_FIELD: Final = "tick"
-"""Extra wire field carrying the lockstep tick on setpoint, slot and leader messages."""
-_TICK_MAX: Final = 2**64 - 1
-
 LoopMode = Literal["on-pose", "fixed"]
-
-
-# ---------------------------------------------------------------------------------------------
-# Helpers shared by the three node shells (agent, coordinator, plant)
-# ---------------------------------------------------------------------------------------------
-
-
-def encode_ticked(msg: Message, tick: int | None) -> bytes:
-    """Encode ``msg`` (validated like ``bus_schemas.encode``) plus, if ``tick`` is not None, the
-    extra field ``tick`` (the lockstep clock tick the message answers).
-
-    Only for message types without a ``tick`` field of their own (setpoint, slot, leader); the
-    contract allows added fields and every strict decoder ignores unknown ones.
-    """
-    if tick is None:
-        return encode(msg)
-    if type(tick) is not int or not 0 <= tick <= _TICK_MAX:
-        raise ValueError(f"tick must be an int in [0, 2^64-1], got {tick!r}")
-    obj = to_map(msg)
-    if TICK_FIELD in obj:
-        raise ValueError(f"{type(msg).__name__} has its own {TICK_FIELD!r} field")
-    obj[TICK_FIELD] = tick
-    data: bytes = msgpack.packb(obj, use_bin_type=True)
-    return data
-
-
-def payload_tick(payload: bytes) -> int | None:
-    """The ``tick`` extra field of a payload that already decoded cleanly, or None.
-
-    None when absent or not an int in [0, 2^64-1] (bool is not an int). Never raises.
-    """
-    try:
-        obj = msgpack.unpackb(payload, use_list=False, strict_map_key=False)
-    except Exception:
-        return None
-    if type(obj) is not dict:
-        return None
-    tick = obj.get(TICK_FIELD)
-    if type(tick) is not int or not 0 <= tick <= _TICK_MAX:
-        return None
-    return tick
-
-
-class NodeLog:
-    """Lines to stderr prefixed with the node's name; at most one line per second per ``topic``
-    for :meth:`limited` (a flood of bad input must not turn into a flood of log lines)."""
-
-    def __init__(self, prefix: str, min_interval_s: float = 1.0) -> None:
-        self.prefix = prefix
-        self._min_interval_s = min_interval_s
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
-
-    def info(self, text: str) -> None:
-        """Write one line now."""
-        with contextlib.suppress(OSError, ValueError):  # stderr closed: nothing to do
-            print(f"{self.prefix}: {text}", file=sys.stderr, flush=True)
-
-    def limited(self, topic: str, text: str) -> None:
-        """Write one line unless ``topic`` was logged less than ``min_interval_s`` ago."""
-        now = time.monotonic()
-        last = self._last.get(topic)
-        if last is not None and now - last < self._min_interval_s:
-            self._suppressed[topic] = self._suppressed.get(topic, 0) + 1
-            return
-        self._last[topic] = now
-        more = self._suppressed.pop(topic, 0)
-        self.info(text + (f" (+{more} similar)" if more else ""))
-
-
-def subscribe_ordered(
-    session: zenoh.Session,
-    key_expr: str,
-    loop: asyncio.AbstractEventLoop,
-    handler: Callable[[tp.Received], object],
-) -> zenoh.Subscriber[None]:
-    """Subscribe like ``transport.subscribe(..., handler)``, keeping the order across keys.
-
-    zenoh-python runs a plain Python callback in a separate thread *per subscriber*
-    (``handlers.Callback(indirect=True)``, the default), so samples of two subscriptions of one
-    session can reach the event loop in another order than they arrived on the link (seen here:
-    a plant's pose overtaken by its next clock). Lockstep relies on that order (docs/runtime.md),
-    so this callback runs on Zenoh's network thread (``indirect=False``): it only copies the
-    sample and posts it with ``loop.call_soon_threadsafe``, never blocks and never calls Zenoh.
-    """
-
-    def on_sample(sample: zenoh.Sample) -> None:  # Zenoh network thread
-        try:
-            rx = tp.Received(
-                key=str(sample.key_expr),
-                payload=sample.payload.to_bytes(),
-                rx_s=time.monotonic(),
-                deleted=sample.kind == zenoh.SampleKind.DELETE,
-            )
-            loop.call_soon_threadsafe(handler, rx)
-        except Exception:  # loop closed at shutdown; nothing may escape into Zenoh's thread
-            pass
-
-    return session.declare_subscriber(key_expr, zenoh.handlers.Callback(on_sample, indirect=False))
-
-
-def finite_or_none(value: float | None) -> float | None:
-    """``value`` if it is a finite float, else None (for optional message fields)."""
-    if value is None or not math.isfinite(value):
-        return None
-    return float(value)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -347,13 +208,13 @@ class _SetpointIn:
     tick: int | None
 
 
-Publish = Callable[[str, bytes, tp.QoS], None]
+Publish = Callable[[str, bytes, rt.QoS], None]
 
 
 class AgentNode:
     """State and handlers of one agent; Zenoh-free apart from the ``publish`` callable.
 
-    Every handler takes one :class:`bus_schemas.transport.Received` and runs on the event loop;
+    Every handler takes one :class:`runtime.transport.Received` and runs on the event loop;
     none raises (bad input is counted, internal faults are counted and logged).
 
     Args:
@@ -379,7 +240,7 @@ class AgentNode:
         loop_mode: LoopMode = "on-pose",
         rate_hz: float = 50.0,
         motor: MotorOutput | None = None,
-        log: NodeLog | None = None,
+        log: rt.NodeLog | None = None,
     ) -> None:
         self.robot_id = keys.check_robot_id(robot_id)
         self.fleet = keys.check_fleet(fleet)
@@ -388,7 +249,7 @@ class AgentNode:
         self.loop_mode: LoopMode = loop_mode
         self.period_s = 1.0 / rate_hz
         self.motor = motor
-        self.log = log if log is not None else NodeLog(f"agent {robot_id}")
+        self.log = log if log is not None else rt.NodeLog(f"agent {robot_id}")
         self._publish = publish
         self.host = socket.gethostname()[:255] or "unknown"
         self.pid = os.getpid()
@@ -403,31 +264,27 @@ class AgentNode:
         self.alive_key = keys.alive_robot_key(fleet, robot_id)
         # Lockstep: the plant waits for these wheels, so they must arrive (BLOCK) and keep their
         # order relative to the clock (same priority).
-        self.wheels_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_CONTROL
+        self.wheels_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
 
         self.pose: FwPose | None = None
         self.pose_rx_s = -math.inf
         self._pose_pending = False  # lockstep: received since the last clock
         self.setpoint: _SetpointIn | None = None  # realtime: the newest
-        self._setpoints: deque[_SetpointIn] = deque(maxlen=2)  # lockstep: the last two
+        self._setpoints: SetpointWindow[_SetpointIn] = SetpointWindow()  # lockstep
         self.role: str | None = None
         # neighbour id -> [x_m, y_m, rx_s]; rx_s is None while pending (lockstep)
         self._neighbours: dict[str, list[Any]] = {}
-        self._pending_neighbours: list[str] = []
+        self._pending_neighbours: Arrivals[str] = Arrivals()  # lockstep
 
         self.rx: dict[str, int] = {"pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0}
         self.internal_errors = 0
         self.steps = 0
         self.last_step_s = -math.inf
         self.sim_t = 0.0  # lockstep: t of the last clock
-        self._last_tick: int | None = None
-        self._last_wheels: bytes | None = None
+        self._replay: Replay[bytes] = Replay()  # lockstep: the last clock's wheels
         self._seq_wheels = 0
         self._seq_status = 0
-        self._last_loop_s: float | None = None  # realtime: last turn of run()'s loop
-        self.quarantine_until_s = -math.inf
-        self.hang_gap_s = HANG_GAP_S
-        self.resumes = 0
+        self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
         # Agent host (robot_agent.host): the host publishes the wheels of all its robots in one
         # batch and answers neighbour queries from its shared spatial index.
         self.publish_wheels = True
@@ -448,28 +305,25 @@ class AgentNode:
         """Messages rejected so far (decode errors and misaddressed messages)."""
         return self.firmware.status().rejected_count
 
-    def _resumed(self, now_s: float) -> bool:
-        """Realtime: detect a resume after a stop (see :data:`RESUME_QUARANTINE_S`) and return
-        True while the quarantine lasts."""
+    def check_resume(self, now_s: float) -> bool:
+        """Realtime: detect a resume after a stop of this process (:mod:`runtime.stall`): drop
+        the setpoint and pose and return True while the quarantine lasts (inputs are backlog)."""
         if self.lockstep:
             return False
-        last = self._last_loop_s
-        if last is not None and now_s - last > self.hang_gap_s:
-            self._last_loop_s = now_s
-            self.quarantine_until_s = now_s + RESUME_QUARANTINE_S
-            self.resumes += 1
+        stopped = self.stall.resume(now_s)
+        if stopped is not None:
             self.setpoint = None
             self.pose = None
-            self.log.info(f"resumed after {now_s - last:.2f} s stopped: holding until fresh data")
-        return now_s < self.quarantine_until_s
+            self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
+        return self.stall.quarantined(now_s)
 
     # -- input handlers (event loop) -----------------------------------------------------------
 
-    def on_pose(self, rx: tp.Received) -> None:
+    def on_pose(self, rx: rt.Received) -> None:
         """Own pose: keep it; realtime on-pose: step now."""
         try:
             self.rx["pose"] += 1
-            if self._resumed(rx.rx_s):
+            if self.check_resume(rx.rx_s):
                 return
             msg = decode(rx.payload, Pose)
             if isinstance(msg, DecodeError):
@@ -488,11 +342,11 @@ class AgentNode:
         except Exception as exc:
             self._internal("on_pose", exc)
 
-    def on_setpoint(self, rx: tp.Received) -> None:
+    def on_setpoint(self, rx: rt.Received) -> None:
         """Own setpoint: keep the newest (realtime) or the last two with their ticks (lockstep)."""
         try:
             self.rx["setpoint"] += 1
-            if self._resumed(rx.rx_s):
+            if self.check_resume(rx.rx_s):
                 return
             msg = decode(rx.payload, Setpoint)
             if isinstance(msg, DecodeError):
@@ -502,7 +356,7 @@ class AgentNode:
                 self._reject("setpoint", f"robot {msg.robot!r} on {self.robot_id}'s key")
                 return
             sp = FwSetpoint(msg.x, msg.y, msg.vx, msg.vy, msg.theta, msg.slot, msg.t)
-            tick = payload_tick(rx.payload) if self.lockstep else None
+            tick = msg.tick if self.lockstep else None
             self.accept_setpoint(sp, msg.role, rx.rx_s, tick)
         except Exception as exc:
             self._internal("on_setpoint", exc)
@@ -515,11 +369,11 @@ class AgentNode:
                 return
             # In lockstep the setpoint's t is the sim time of its tick, which is when
             # simulate.py considers it received.
-            self._setpoints.append(_SetpointIn(sp, role, sp.t, tick))
+            self._setpoints.add(tick, _SetpointIn(sp, role, sp.t, tick))
         else:
             self.setpoint = _SetpointIn(sp, role, rx_s, None)
 
-    def on_poses(self, rx: tp.Received) -> None:
+    def on_poses(self, rx: rt.Received) -> None:
         """Batched poses: the other robots' positions, for repulsion."""
         try:
             self.rx["poses"] += 1
@@ -545,13 +399,13 @@ class AgentNode:
                     entry[1] = y
                     entry[2] = rx_s
                 if rx_s is None:
-                    self._pending_neighbours.append(rid)
+                    self._pending_neighbours.add(rid)
             if len(self._pending_neighbours) > 4 * MAX_NEIGHBOURS:  # no clock for ages
-                self._pending_neighbours = list(dict.fromkeys(self._pending_neighbours))
+                self._pending_neighbours.compact()
         except Exception as exc:
             self._internal("on_poses", exc)
 
-    def on_estop(self, rx: tp.Received) -> None:
+    def on_estop(self, rx: rt.Received) -> None:
         """Fleet or own estop: engage (zero wheels at once in realtime) or release."""
         try:
             self.rx["estop"] += 1
@@ -572,7 +426,7 @@ class AgentNode:
         except Exception as exc:
             self._internal("on_estop", exc)
 
-    def on_clock(self, rx: tp.Received) -> None:
+    def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: step at t_k and answer with wheels(tick=k)."""
         try:
             self.rx["clock"] += 1
@@ -581,8 +435,9 @@ class AgentNode:
                 self._reject("clock", msg)
                 return
             k = msg.tick
-            if k == self._last_tick and self._last_wheels is not None:
-                self._publish(self.wheels_key, self._last_wheels, self.wheels_qos)  # re-announce
+            again = self._replay.repeat(k)
+            if again is not None:
+                self._publish(self.wheels_key, again, self.wheels_qos)  # re-announced clock
                 return
             self.clock_step(k, msg.t)
         except Exception as exc:
@@ -598,17 +453,12 @@ class AgentNode:
                 self._pose_pending = False
             if self._pending_neighbours:
                 nb = self._neighbours
-                for rid in self._pending_neighbours:
+                for rid in self._pending_neighbours.take():
                     entry = nb.get(rid)
                     if entry is not None and entry[2] is None:
                         entry[2] = t_k
-                self._pending_neighbours = []
-            chosen: _SetpointIn | None = None
-            for s in self._setpoints:
-                if s.tick == k - 1:
-                    chosen = s
-            self.setpoint = chosen
-            self._last_tick = k
+            self.setpoint = self._setpoints.for_clock(k)
+            self._replay.last_tick = k
             return self.step(t_k, tick=k)
         except Exception as exc:
             self._internal("clock_step", exc)
@@ -673,7 +523,7 @@ class AgentNode:
                     saturated=cmd.saturated,
                 )
             )
-            self._last_wheels = payload
+            self._replay.answer = payload
             self._publish(self.wheels_key, payload, self.wheels_qos)
             return cmd
         except Exception as exc:  # SchemaError (a bug) or a closed session at shutdown
@@ -692,8 +542,8 @@ class AgentNode:
             pid=self.pid,
             host=self.host,
             rejected=st.rejected_count,
-            ex=finite_or_none(st.ex),
-            ey=finite_or_none(st.ey),
+            ex=rt.finite_or_none(st.ex),
+            ey=rt.finite_or_none(st.ey),
             role=self.role,
             rx=dict(self.rx),
             robot=self.robot_id,
@@ -703,7 +553,7 @@ class AgentNode:
         """Publish one status message (never raises)."""
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
-            self._publish(self.status_key, encode(self.status_message(now)), tp.QOS_TELEMETRY)
+            self._publish(self.status_key, encode(self.status_message(now)), rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("status", exc)
 
@@ -717,62 +567,9 @@ class AgentNode:
         await run_timers(self, stop, notifier)
 
 
-class _TimedNode(Protocol):
-    """What :func:`run_timers` drives (an :class:`AgentNode` or an agent host)."""
-
-    period_s: float
-    lockstep: bool
-    _last_loop_s: float | None
-
-    def _resumed(self, now_s: float) -> bool: ...
-    def control_timer(self, now: float) -> None: ...
-    def publish_status(self) -> None: ...
-
-
-async def run_timers(node: _TimedNode, stop: asyncio.Event, notifier: Notifier | None) -> None:
-    """The timers of an agent process until ``stop``: the realtime control/watchdog tick
-    (``node.control_timer``, also where sd_notify WATCHDOG is sent: the control loop is alive)
-    and the 5 Hz status. Records each loop turn in ``node._last_loop_s`` (hang detection)."""
-    period = node.period_s
-    wd_period = notifier.watchdog_interval_s() if notifier is not None else None
-    now = time.monotonic()
-    next_ctrl = now + period
-    next_status = now
-    next_wd = now
-    while not stop.is_set():
-        now = time.monotonic()
-        node._resumed(now)
-        if now >= next_ctrl:
-            if not node.lockstep:
-                node.control_timer(now)
-            next_ctrl += period
-            if next_ctrl <= now:  # fell behind (loop stalled): resynchronise
-                next_ctrl = now + period
-            if notifier is not None and wd_period is not None and now >= next_wd:
-                notifier.watchdog()  # the control loop is alive
-                next_wd = now + wd_period
-        if now >= next_status:
-            node.publish_status()
-            next_status += STATUS_PERIOD_S
-            if next_status <= now:
-                next_status = now + STATUS_PERIOD_S
-        node._last_loop_s = time.monotonic()
-        await asyncio.sleep(max(0.0, min(next_ctrl, next_status) - node._last_loop_s))
-
-
 # ---------------------------------------------------------------------------------------------
 # CLI
 # ---------------------------------------------------------------------------------------------
-
-
-def positive_rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not 0.5 <= value <= 2000.0:
-        raise argparse.ArgumentTypeError(f"rate must be in [0.5, 2000] Hz, got {text}")
-    return value
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -808,12 +605,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--rate-hz",
-        type=positive_rate,
+        type=rt.rate_hz,
         default=50.0,
         metavar="HZ",
         help="realtime timer rate (default 50 Hz)",
     )
-    tp.add_zenoh_arguments(parser)
+    rt.add_zenoh_arguments(parser)
     return parser
 
 
@@ -822,7 +619,7 @@ class _Setup:
     robot_id: str
     fleet: str
     config: AgentConfig
-    settings: tp.ZenohSettings
+    settings: rt.ZenohSettings
     motor: MotorBackend | None
 
 
@@ -857,7 +654,7 @@ def _setup(ns: argparse.Namespace, log_err: Callable[[str], None]) -> _Setup | N
                 log_err(f"motor backend: {exc}")
                 return None
     elif ns.scenario is not None:
-        from formation.scenario import ScenarioError, load
+        from scenario import ScenarioError, load
 
         try:
             scenario = load(ns.scenario)
@@ -882,7 +679,7 @@ def _setup(ns: argparse.Namespace, log_err: Callable[[str], None]) -> _Setup | N
         log_err(f"invalid fleet name {fleet!r}: must match {keys.NAME_PATTERN}")
         return None
     try:
-        settings = tp.settings_from_args(ns)
+        settings = rt.settings_from_args(ns)
     except (TypeError, ValueError) as exc:
         log_err(f"zenoh settings: {exc}")
         return None
@@ -903,69 +700,66 @@ def main(argv: list[str]) -> int:
     ns = build_parser().parse_args(argv)
     if ns.check_config is not None:
         return check_config_command(ns.check_config)
-    errlog = NodeLog("formation agent")
+    errlog = rt.NodeLog("formation agent")
     setup = _setup(ns, errlog.info)
     if setup is None:
         return 2
-    return tp.run_node(
-        lambda stop: _node(
-            stop, setup, lockstep=bool(ns.lockstep), loop_mode=ns.loop, rate_hz=ns.rate_hz
-        )
+    return rt.serve(
+        f"agent {setup.robot_id}",
+        setup.settings,
+        lambda io, stop: _node(
+            io, stop, setup, lockstep=bool(ns.lockstep), loop_mode=ns.loop, rate_hz=ns.rate_hz
+        ),
     )
 
 
 async def _node(
-    stop: asyncio.Event, setup: _Setup, *, lockstep: bool, loop_mode: LoopMode, rate_hz: float
+    io: rt.NodeIO,
+    stop: asyncio.Event,
+    setup: _Setup,
+    *,
+    lockstep: bool,
+    loop_mode: LoopMode,
+    rate_hz: float,
 ) -> int:
-    loop = asyncio.get_running_loop()
-    log = NodeLog(f"agent {setup.robot_id}")
-    try:
-        session = await tp.open_session_async(setup.settings)
-    except (tp.TransportError, ValueError) as exc:
-        log.info(str(exc))
-        return 1
     motor = MotorOutput(setup.motor) if setup.motor is not None else None
     notifier = Notifier()
     try:
-        pubs = tp.Publishers(session)
         node = AgentNode(
             setup.robot_id,
             setup.fleet,
             setup.config,
-            pubs.put,
+            io.pubs.put,
             lockstep=lockstep,
             loop_mode=loop_mode,
             rate_hz=rate_hz,
             motor=motor,
-            log=log,
+            log=io.log,
         )
-        if setup.settings.lease_ms is not None:
-            node.hang_gap_s = max(0.3, 0.9 * setup.settings.lease_ms / 1000.0)
+        node.stall.gap_s = rt.hang_gap_for(setup.settings.lease_ms)
         if motor is not None:
             motor.start()
         # Declare the publishers first, so the first command is not delayed by a declaration.
-        pubs.get(node.wheels_key, node.wheels_qos)
-        pubs.get(node.status_key, tp.QOS_TELEMETRY)
-        subscribe_ordered(session, node.setpoint_key, loop, node.on_setpoint)
-        subscribe_ordered(session, node.poses_key, loop, node.on_poses)
-        subscribe_ordered(session, node.estop_key, loop, node.on_estop)
+        io.pubs.get(node.wheels_key, node.wheels_qos)
+        io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
+        io.subscribe(node.setpoint_key, node.on_setpoint)
+        io.subscribe(node.poses_key, node.on_poses)
+        io.subscribe(node.estop_key, node.on_estop)
         if lockstep:
-            subscribe_ordered(session, node.clock_key, loop, node.on_clock)
-        subscribe_ordered(session, node.pose_key, loop, node.on_pose)
-        token = tp.declare_token(session, node.alive_key)
+            io.subscribe(node.clock_key, node.on_clock)
+        io.subscribe(node.pose_key, node.on_pose)
+        io.declare_token(node.alive_key)
         print(f"agent {setup.robot_id} ready", flush=True)
         notifier.ready(f"agent {setup.robot_id} connected")
         mode = "lockstep" if lockstep else f"realtime, loop {loop_mode} at {rate_hz:g} Hz"
         backend = setup.motor.name if setup.motor is not None else "bus"
-        log.info(f"fleet {setup.fleet}, {mode}, motor backend {backend}")
+        io.log.info(f"fleet {setup.fleet}, {mode}, motor backend {backend}")
         await node.run(stop, notifier)
         notifier.stopping()
-        del token
         return 0
     finally:
         if motor is not None:
             motor.close()
-        session.close()
         notifier.close()
 
 

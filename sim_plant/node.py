@@ -74,6 +74,7 @@ import msgpack
 import numpy as np
 import numpy.typing as npt
 
+import runtime as rt
 from bus_schemas import (
     BATCH_CHUNK,
     Clock,
@@ -90,9 +91,8 @@ from bus_schemas import (
     encode,
     keys,
 )
-from bus_schemas import transport as tp
-from formation.scenario import Scenario, ScenarioError, load
-from robot_agent.node import NodeLog, payload_tick, subscribe_ordered
+from robot_agent.lockstep import tick_time
+from scenario import Scenario, ScenarioError, load
 from sim_plant.accounting import SeparationMonitor
 from sim_plant.plant import Plant
 from sim_plant.sensors import Camera, CommandLink
@@ -152,7 +152,7 @@ class PlantNode:
         physics_hz: float = 100.0,
         duration_s: float | None = None,
         batch: bool = False,
-        log: NodeLog | None = None,
+        log: rt.NodeLog | None = None,
     ) -> None:
         self.scenario = scenario
         self.batch = batch
@@ -162,7 +162,7 @@ class PlantNode:
         self.lockstep_timeout_s = lockstep_timeout_s
         self.physics_period_s = 1.0 / physics_hz
         self.duration_s = duration_s
-        self.log = log if log is not None else NodeLog("plant")
+        self.log = log if log is not None else rt.NodeLog("plant")
         self._publish = publish
 
         self.ids: list[str] = list(scenario.robot_ids)
@@ -185,8 +185,8 @@ class PlantNode:
         self.pose_keys = [keys.pose_key(fleet, r) for r in self.ids]
         self.truth_keys = [keys.truth_key(fleet, r) for r in self.ids]
         # Lockstep: poses must precede the clock (same session, same priority) and arrive.
-        self.data_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_CONTROL
-        self.truth_qos = tp.QOS_CRITICAL if lockstep else tp.QOS_TELEMETRY
+        self.data_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
+        self.truth_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
 
         self.alive: set[str] = set()
         self.coordinators: set[str] = set()
@@ -276,7 +276,7 @@ class PlantNode:
         except Exception as exc:
             self._internal("on_alive_coordinator", exc)
 
-    def on_wheels(self, rx: tp.Received) -> None:
+    def on_wheels(self, rx: rt.Received) -> None:
         """A wheel command: into the link now (realtime) or at the tick's end (lockstep)."""
         try:
             self.rx["wheels"] += 1
@@ -296,7 +296,7 @@ class PlantNode:
         except Exception as exc:
             self._internal("on_wheels", exc)
 
-    def on_host_wheels(self, rx: tp.Received) -> None:
+    def on_host_wheels(self, rx: rt.Received) -> None:
         """An agent host's batch of wheel commands: each entry as a ``robot/<id>/wheels``."""
         try:
             self.rx["host_wheels"] += 1
@@ -333,7 +333,7 @@ class PlantNode:
                     self._answered[i] = pose_t
                     self.latencies_s.append(rx_s - published)
 
-    def on_leader(self, rx: tp.Received) -> None:
+    def on_leader(self, rx: rt.Received) -> None:
         """Lockstep: the coordinator's leader message closes its answer to a tick."""
         try:
             self.rx["leader"] += 1
@@ -341,7 +341,7 @@ class PlantNode:
             if isinstance(msg, DecodeError):
                 self._reject("leader", msg)
                 return
-            tick = payload_tick(rx.payload)
+            tick = msg.tick
             if tick is None:
                 self._reject("leader", "lockstep leader without a valid tick")
                 return
@@ -351,7 +351,7 @@ class PlantNode:
         except Exception as exc:
             self._internal("on_leader", exc)
 
-    def on_disturbance(self, rx: tp.Received) -> None:
+    def on_disturbance(self, rx: rt.Received) -> None:
         """Drag or teleport a robot at the next physics step."""
         try:
             self.rx["disturbance"] += 1
@@ -552,7 +552,7 @@ class PlantNode:
 
     def _publish_clock(self, k: int, t_s: float) -> None:
         msg = Clock(t=t_s, seq=self._next_seq(self.clock_key), tick=k)
-        self._publish(self.clock_key, encode(msg), tp.QOS_CRITICAL)
+        self._publish(self.clock_key, encode(msg), rt.QOS_CRITICAL)
 
     async def _wait_answers(self, stop: asyncio.Event, k: int, t_s: float) -> None:
         start = time.monotonic()
@@ -591,7 +591,7 @@ class PlantNode:
         k = 0
         while not stop.is_set() and (ticks is None or k < ticks):
             try:
-                t = k * dt
+                t = tick_time(k, dt)
                 self.tick = k
                 self.sim_t = t
                 self._apply_disturbances(sim, t)
@@ -717,7 +717,7 @@ class PlantNode:
         """Publish the status map; never raises."""
         try:
             payload: bytes = msgpack.packb(self.status_map(), use_bin_type=True)
-            self._publish(self.status_key, payload, tp.QOS_TELEMETRY)
+            self._publish(self.status_key, payload, rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("status", exc)
 
@@ -767,26 +767,6 @@ class PlantNode:
 # ---------------------------------------------------------------------------------------------
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"seed must be >= 0, got {text}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The ``formation plant`` argument parser."""
     parser = argparse.ArgumentParser(
@@ -795,25 +775,27 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
     parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
-    parser.add_argument("--seed", type=_seed, help="random seed (default: the scenario's)")
+    parser.add_argument(
+        "--seed", type=rt.non_negative_int, help="random seed (default: the scenario's)"
+    )
     parser.add_argument("--lockstep", action="store_true", help="lockstep (docs/runtime.md)")
     parser.add_argument(
         "--lockstep-timeout",
-        type=_positive,
+        type=rt.positive_float,
         default=2.0,
         metavar="S",
         help="lockstep: go on after this long without every answer (2.0 s, counted)",
     )
     parser.add_argument(
         "--physics-hz",
-        type=_positive,
+        type=rt.positive_float,
         default=100.0,
         metavar="HZ",
         help="realtime physics rate (100 Hz); lockstep uses the scenario's dt_s",
     )
     parser.add_argument(
         "--duration",
-        type=_positive,
+        type=rt.positive_float,
         metavar="S",
         help="stop after this much sim time (lockstep) or wall time (realtime) and exit 0",
     )
@@ -834,14 +816,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.json",
         help="at exit, write the run's statistics (latency, frames, lateness, rx) as JSON",
     )
-    tp.add_zenoh_arguments(parser)
+    rt.add_zenoh_arguments(parser)
     return parser
 
 
 def main(argv: list[str]) -> int:
     """Entry point of ``formation plant``; returns the exit status."""
     ns = build_parser().parse_args(argv)
-    log = NodeLog("plant")
+    log = rt.NodeLog("plant")
     if not keys.is_name(ns.fleet):
         log.info(f"invalid --fleet {ns.fleet!r}: must match {keys.NAME_PATTERN}")
         return 2
@@ -854,14 +836,14 @@ def main(argv: list[str]) -> int:
         log.info(f"scenario: {exc}")
         return 2
     try:
-        settings = tp.settings_from_args(ns)
+        settings = rt.settings_from_args(ns)
     except (TypeError, ValueError) as exc:
         log.info(f"zenoh settings: {exc}")
         return 2
-    return tp.run_node(lambda stop: _node(stop, scenario, ns, settings))
+    return rt.serve("plant", settings, lambda io, stop: _node(io, stop, scenario, ns))
 
 
-def write_stats(node: PlantNode, path: str, log: NodeLog) -> None:
+def write_stats(node: PlantNode, path: str, log: rt.NodeLog) -> None:
     """``--stats-out``: the status map plus the latency statistics, as JSON (never raises)."""
     import json
 
@@ -874,52 +856,38 @@ def write_stats(node: PlantNode, path: str, log: NodeLog) -> None:
 
 
 async def _node(
-    stop: asyncio.Event, scenario: Scenario, ns: argparse.Namespace, settings: tp.ZenohSettings
+    io: rt.NodeIO, stop: asyncio.Event, scenario: Scenario, ns: argparse.Namespace
 ) -> int:
-    loop = asyncio.get_running_loop()
-    log = NodeLog("plant")
-    try:
-        session = await tp.open_session_async(settings)
-    except (tp.TransportError, ValueError) as exc:
-        log.info(str(exc))
-        return 1
-    try:
-        pubs = tp.Publishers(session)
-        node = PlantNode(
-            scenario,
-            ns.fleet,
-            pubs.put,
-            seed=ns.seed,
-            lockstep=ns.lockstep,
-            lockstep_timeout_s=ns.lockstep_timeout,
-            physics_hz=ns.physics_hz,
-            duration_s=ns.duration,
-            batch=ns.batch,
-            log=log,
-        )
-        pubs.get(node.poses_key, node.data_qos)
-        for key in () if ns.batch else node.pose_keys:
-            pubs.get(key, node.data_qos)
-        if ns.lockstep:
-            pubs.get(node.clock_key, tp.QOS_CRITICAL)
-        tp.watch_liveliness(session, node.alive_robots_pattern, loop, node.on_alive_robot)
-        tp.watch_liveliness(
-            session, node.alive_coordinators_pattern, loop, node.on_alive_coordinator
-        )
-        subscribe_ordered(session, node.wheels_pattern, loop, node.on_wheels)
-        subscribe_ordered(session, node.host_wheels_pattern, loop, node.on_host_wheels)
-        subscribe_ordered(session, node.disturbance_key, loop, node.on_disturbance)
-        if ns.lockstep:
-            subscribe_ordered(session, node.leader_key, loop, node.on_leader)
-        token = tp.declare_token(session, node.alive_key)
-        print("plant ready", flush=True)
-        code = await node.run(stop, ns.wait_robots)
-        if ns.stats_out:
-            write_stats(node, ns.stats_out, log)
-        del token
-        return code
-    finally:
-        session.close()
+    node = PlantNode(
+        scenario,
+        ns.fleet,
+        io.pubs.put,
+        seed=ns.seed,
+        lockstep=ns.lockstep,
+        lockstep_timeout_s=ns.lockstep_timeout,
+        physics_hz=ns.physics_hz,
+        duration_s=ns.duration,
+        batch=ns.batch,
+        log=io.log,
+    )
+    io.pubs.get(node.poses_key, node.data_qos)
+    for key in () if ns.batch else node.pose_keys:
+        io.pubs.get(key, node.data_qos)
+    if ns.lockstep:
+        io.pubs.get(node.clock_key, rt.QOS_CRITICAL)
+    io.watch_liveliness(node.alive_robots_pattern, node.on_alive_robot)
+    io.watch_liveliness(node.alive_coordinators_pattern, node.on_alive_coordinator)
+    io.subscribe(node.wheels_pattern, node.on_wheels)
+    io.subscribe(node.host_wheels_pattern, node.on_host_wheels)
+    io.subscribe(node.disturbance_key, node.on_disturbance)
+    if ns.lockstep:
+        io.subscribe(node.leader_key, node.on_leader)
+    io.declare_token(node.alive_key)
+    print("plant ready", flush=True)
+    code = await node.run(stop, ns.wait_robots)
+    if ns.stats_out:
+        write_stats(node, ns.stats_out, io.log)
+    return code
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -20,7 +20,7 @@ step (zero-order hold, as a motor driver updated once per control tick):
    travelled are exact; only the shape of the path inside one step is approximated by an arc.
    With ``motor_tau_s == 0`` the wheels follow the command instantly.
 3. Exact unicycle integration (paper eq. 9) of the body twist from the standard differential-drive
-   kinematics (paper eq. 7 corrected, see shared/notes/paper-math.md)::
+   kinematics (paper eq. 7 corrected, see docs/paper-errata.md)::
 
        v = R (omega_r + omega_l) / 2,   omega = R (omega_r - omega_l) / (2 L)
 

@@ -353,14 +353,14 @@ def router(start_router: Callable[..., RouterHandle]) -> RouterHandle:
 @pytest.fixture
 def session(router: RouterHandle) -> Iterator[Callable[..., zenoh.Session]]:
     """Factory of client sessions to ``router``: ``session(**ZenohSettings overrides)``."""
-    from bus_schemas import transport as tp
+    import runtime as rt
 
     opened: list[zenoh.Session] = []
 
     def open_client(**overrides: Any) -> zenoh.Session:
         fields: dict[str, Any] = {"connect": (router.endpoint,), "open_timeout_s": 5.0}
         fields.update(overrides)
-        s = tp.open_session(tp.ZenohSettings(**fields))
+        s = rt.open_session(rt.ZenohSettings(**fields))
         opened.append(s)
         return s
 

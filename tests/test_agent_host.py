@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from conftest import RouterHandle, Spawner
 
+import runtime as rt
 from bus_schemas import (
     Estop,
     PoseBatch,
@@ -35,16 +36,15 @@ from bus_schemas import (
     encode,
     keys,
 )
-from bus_schemas import transport as tp
-from formation.scenario import load
 from robot_agent.host import HostNode, expand_ids
 from robot_agent.params import AgentConfig
+from scenario import load
 
 FLEET = "demo"
 
 
-def _rx(key: str, payload: bytes, rx_s: float | None = None) -> tp.Received:
-    return tp.Received(key=key, payload=payload, rx_s=time.monotonic() if rx_s is None else rx_s)
+def _rx(key: str, payload: bytes, rx_s: float | None = None) -> rt.Received:
+    return rt.Received(key=key, payload=payload, rx_s=time.monotonic() if rx_s is None else rx_s)
 
 
 class _Bus:

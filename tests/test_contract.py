@@ -1,8 +1,8 @@
-"""The bus contract (../shared/notes/bus-contract.md, version 1) as seen by an outsider.
+"""The bus contract (docs/bus-contract.md, version 1) as seen by an outsider.
 
 A short lockstep run of the real processes (plant, coordinator, one agent per robot, all
 ``python -m formation ...`` subprocesses on a ``formation router``) is watched by an independent
-subscriber: a plain ``zenoh`` session (no ``bus_schemas.transport``) that unpacks every payload
+subscriber: a plain ``zenoh`` session (no ``runtime.transport``) that unpacks every payload
 with plain ``msgpack.unpackb`` (no ``bus_schemas`` decoder). It checks, for every key of the
 contract: that it was published, the required fields and their types, ``v == 1``, ``seq`` +1 per
 message of a key, angles in (-pi, pi], robot ids matching ``[a-z0-9_-]+``, and that every

@@ -33,8 +33,8 @@ import msgpack
 import pytest
 from conftest import Spawner, free_port
 
+import runtime as rt
 from bus_schemas import Assignment, Heartbeat, Leader, Slot, Status, Truth, Wheels, decode, keys
-from bus_schemas import transport as tp
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
@@ -85,7 +85,7 @@ class Observer:
             k: []
             for k in ("assignment", "status", "truth", "wheels", "slot0", "leader", "hb", "cst")
         }
-        self.session = tp.open_session(tp.ZenohSettings(connect=(endpoint,)))
+        self.session = rt.open_session(rt.ZenohSettings(connect=(endpoint,)))
         f = fleet
         self._sub(keys.assignment_key(f), "assignment", Assignment)
         self._sub(keys.all_status_pattern(f), "status", Status)

@@ -20,6 +20,7 @@ import math
 import random
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import replace
 from typing import Any
 
 import msgpack
@@ -28,6 +29,7 @@ import zenoh
 from conftest import Child, RouterHandle, Spawner
 from test_node_agent import Recorder, decoder_of, setpoint_msg
 
+import runtime as rt
 from bus_schemas import (
     MAX_PAYLOAD_BYTES,
     Clock,
@@ -43,8 +45,12 @@ from bus_schemas import (
     keys,
     to_map,
 )
-from bus_schemas import transport as tp
-from robot_agent.node import encode_ticked
+
+
+def _ticked(msg, tick):  # type: ignore[no-untyped-def]
+    """``msg`` encoded with its lockstep ``tick`` (a declared field of setpoint/slot/leader)."""
+    return encode(replace(msg, tick=tick))
+
 
 FLEET = "demo"
 Payloads = list[tuple[str, bytes]]
@@ -82,9 +88,9 @@ def hostile(
     return out + list(extra or ())
 
 
-def publish_all(pubs: tp.Publishers, key: str, payloads: Payloads) -> int:
+def publish_all(pubs: rt.Publishers, key: str, payloads: Payloads) -> int:
     for _, payload in payloads:
-        pubs.put(key, payload, tp.QOS_CRITICAL)
+        pubs.put(key, payload, rt.QOS_CRITICAL)
     return len(payloads)
 
 
@@ -133,7 +139,7 @@ def assert_alive(child: Child) -> None:
 def test_agent_survives_counts_and_keeps_answering(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session
 ) -> None:
-    pubs = tp.Publishers(client)
+    pubs = rt.Publishers(client)
     status = Recorder(client, keys.status_key(FLEET, "r1"), decoder_of(Status))
     wheels = Recorder(client, keys.wheels_key(FLEET, "r1"), decoder_of(Wheels))
     child = spawn(
@@ -152,12 +158,12 @@ def test_agent_survives_counts_and_keeps_answering(
     def valid_once() -> None:
         for key, payload in (
             (k_pose, encode(pose)),
-            (k_sp, encode_ticked(sp, 0)),
+            (k_sp, _ticked(sp, 0)),
             (k_batch, encode(batch)),
             (k_estop, encode(release)),
             (k_clock, clock(0)),
         ):
-            pubs.put(key, payload, tp.QOS_CRITICAL)
+            pubs.put(key, payload, rt.QOS_CRITICAL)
 
     warm_up(status, lambda s: s.rx, ("pose", "setpoint", "poses", "estop", "clock"), valid_once)
     status.clear()
@@ -175,7 +181,7 @@ def test_agent_survives_counts_and_keeps_answering(
     }
     absurd = {  # valid for the decoder; the firmware must cope
         "pose": [("far away", encode(Pose(t=1e300, seq=3, x=1e300, y=-1e300, theta=0.0)))],
-        "setpoint": [("fast", encode_ticked(setpoint_msg("r1", 1e300, 0.0, t=1e300), 2**63))],
+        "setpoint": [("fast", _ticked(setpoint_msg("r1", 1e300, 0.0, t=1e300), 2**63))],
         "poses": [
             (
                 "far neighbour",
@@ -212,7 +218,7 @@ def test_agent_survives_counts_and_keeps_answering(
 
     # Still answering: a valid clock gets its wheels, the status keeps coming.
     for k in range(1, 50):
-        pubs.put(k_clock, clock(k), tp.QOS_CRITICAL)
+        pubs.put(k_clock, clock(k), rt.QOS_CRITICAL)
         if [w for _, _, w in wheels.snapshot() if w.tick == k]:
             break
     wheels.wait_for(lambda _r, _k, w: w.tick is not None and w.tick >= 1, timeout_s=2.0)
@@ -224,8 +230,8 @@ def test_agent_survives_counts_and_keeps_answering(
 def test_coordinator_survives_counts_and_keeps_answering(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session
 ) -> None:
-    pubs = tp.Publishers(client)
-    token = tp.declare_token(client, keys.alive_robot_key(FLEET, "r1"))
+    pubs = rt.Publishers(client)
+    token = rt.declare_token(client, keys.alive_robot_key(FLEET, "r1"))
     status = Recorder(client, f"formation/{FLEET}/coordinator/main/status", msgpack.unpackb)
     leaders = Recorder(client, keys.leader_key(FLEET), msgpack.unpackb)
     child = spawn(
@@ -241,8 +247,8 @@ def test_coordinator_survives_counts_and_keeps_answering(
     pose = Pose(t=0.0, seq=1, x=0.4, y=0.0, theta=0.0, robot="r1")
 
     def valid_once() -> None:
-        pubs.put(k_pose, encode(pose), tp.QOS_CRITICAL)
-        pubs.put(k_clock, encode(Clock(t=0.0, seq=1, tick=0)), tp.QOS_CRITICAL)
+        pubs.put(k_pose, encode(pose), rt.QOS_CRITICAL)
+        pubs.put(k_clock, encode(Clock(t=0.0, seq=1, tick=0)), rt.QOS_CRITICAL)
 
     warm_up(status, lambda s: s["rx"], ("pose", "clock"), valid_once)
     status.clear()
@@ -266,7 +272,7 @@ def test_coordinator_survives_counts_and_keeps_answering(
     assert_alive(child)
 
     k = 10_000  # still answering: a fresh clock gets its leader message, with its tick
-    pubs.put(k_clock, encode(Clock(t=k * 0.02, seq=k, tick=k)), tp.QOS_CRITICAL)
+    pubs.put(k_clock, encode(Clock(t=k * 0.02, seq=k, tick=k)), rt.QOS_CRITICAL)
     leaders.wait_for(lambda _r, _k, m: m.get("tick") == k, timeout_s=2.0)
     assert_alive(child)
     del token
@@ -275,10 +281,10 @@ def test_coordinator_survives_counts_and_keeps_answering(
 def test_plant_survives_counts_and_keeps_answering(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session
 ) -> None:
-    pubs = tp.Publishers(client)
+    pubs = rt.Publishers(client)
     robots = ("r1", "r2", "r3")
-    tokens = [tp.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in robots]
-    tokens.append(tp.declare_token(client, keys.alive_coordinator_key(FLEET, "test")))
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in robots]
+    tokens.append(rt.declare_token(client, keys.alive_coordinator_key(FLEET, "test")))
     status = Recorder(client, f"formation/{FLEET}/plant/status", msgpack.unpackb)
     clocks = Recorder(client, keys.clock_key(FLEET), decoder_of(Clock))
     child = spawn(
@@ -304,9 +310,9 @@ def test_plant_survives_counts_and_keeps_answering(
     leader = Leader(t=0.0, seq=1, x=0.0, y=0.0, theta=0.0, v_mps=0.0, omega_radps=0.0)
 
     def valid_once() -> None:
-        pubs.put(k_wheels, encode(wheels), tp.QOS_CRITICAL)
-        pubs.put(k_dist, encode(drag), tp.QOS_CRITICAL)
-        pubs.put(k_leader, encode_ticked(leader, 10**6), tp.QOS_CRITICAL)
+        pubs.put(k_wheels, encode(wheels), rt.QOS_CRITICAL)
+        pubs.put(k_dist, encode(drag), rt.QOS_CRITICAL)
+        pubs.put(k_leader, _ticked(leader, 10**6), rt.QOS_CRITICAL)
 
     warm_up(status, lambda s: s["rx"], ("wheels", "disturbance", "leader"), valid_once)
     status.clear()
@@ -363,8 +369,8 @@ def test_plant_survives_counts_and_keeps_answering(
         answer = Wheels(
             t=0.0, seq=9, omega_r=0.0, omega_l=0.0, power_r=0.0, power_l=0.0, pose_t=None, tick=0
         )
-        pubs.put(keys.wheels_key(FLEET, rid), encode(answer), tp.QOS_CRITICAL)
-    pubs.put(k_leader, encode_ticked(leader, 0), tp.QOS_CRITICAL)
+        pubs.put(keys.wheels_key(FLEET, rid), encode(answer), rt.QOS_CRITICAL)
+    pubs.put(k_leader, _ticked(leader, 0), rt.QOS_CRITICAL)
     clocks.wait_for(lambda _r, _k, c: c.tick == 1, timeout_s=2.0)
     assert_alive(child)
     elapsed = child.stop()  # while blocked waiting for tick 1's answers

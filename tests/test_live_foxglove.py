@@ -27,8 +27,8 @@ import websockets
 import zenoh
 from conftest import Spawner, free_port
 
+import runtime as rt
 from bus_schemas import Assignment, Leader, Pose, Slot, Status, Truth, encode, keys
-from bus_schemas import transport as tp
 from formation.live import SUBPROTOCOL, LiveServer, SceneModel, start_live
 
 FLEET = "demo"
@@ -43,8 +43,8 @@ class FleetPublisher:
         self.period_s = 1.0 / rate_hz
         self.stop_event = threading.Event()
         self.tokens = [
-            tp.declare_token(session, keys.alive_robot_key(FLEET, rid)) for rid in POSES
-        ] + [tp.declare_token(session, keys.alive_plant_key(FLEET))]
+            rt.declare_token(session, keys.alive_robot_key(FLEET, rid)) for rid in POSES
+        ] + [rt.declare_token(session, keys.alive_plant_key(FLEET))]
         self.thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:

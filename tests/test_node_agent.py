@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,10 +22,15 @@ import pytest
 import zenoh
 from conftest import REPO_ROOT, RouterHandle, Spawner, child_env
 
+import runtime as rt
 from bus_schemas import Estop, Pose, Setpoint, Status, Wheels, decode, encode, keys
-from bus_schemas import transport as tp
-from robot_agent.node import encode_ticked
 from robot_agent.node import main as agent_main
+
+
+def _ticked(msg, tick):  # type: ignore[no-untyped-def]
+    """``msg`` encoded with its lockstep ``tick`` (a declared field of setpoint/slot/leader)."""
+    return encode(replace(msg, tick=tick))
+
 
 FLEET = "demo"
 EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of SIGTERM; 0.5 s margin for a loaded CI box
@@ -100,7 +106,7 @@ class Feeder:
 
     def __init__(
         self,
-        pubs: tp.Publishers,
+        pubs: rt.Publishers,
         robot: str,
         pose: Callable[[], tuple[float, float, float]] | None,
         setpoint: Callable[[], tuple[float, float]] | None,
@@ -136,7 +142,7 @@ class Feeder:
                 self.pubs.put(
                     keys.setpoint_key(FLEET, self.robot),
                     encode(setpoint_msg(self.robot, x, y, t=now, seq=seq)),
-                    tp.QOS_CRITICAL,
+                    rt.QOS_CRITICAL,
                 )
             if self.pose is not None:
                 px, py, pth = self.pose()
@@ -144,7 +150,7 @@ class Feeder:
                 self.pubs.put(
                     keys.pose_key(FLEET, self.robot),
                     encode(Pose(t=t, seq=seq, x=px, y=py, theta=pth, robot=self.robot)),
-                    tp.QOS_CRITICAL,
+                    rt.QOS_CRITICAL,
                 )
                 self.sent_pose_t.append(t)
             self._stop.wait(self.period_s)
@@ -185,8 +191,8 @@ def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
 
 
 @pytest.fixture
-def pubs(client: zenoh.Session) -> Iterator[tp.Publishers]:
-    p = tp.Publishers(client)
+def pubs(client: zenoh.Session) -> Iterator[rt.Publishers]:
+    p = rt.Publishers(client)
     yield p
 
 
@@ -200,7 +206,7 @@ def start_agent(spawn: Spawner, router: RouterHandle, *extra: str, robot: str = 
 
 
 def test_wheels_echo_pose_t_and_point_towards_the_setpoint(
-    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: tp.Publishers
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: rt.Publishers
 ) -> None:
     child = start_agent(spawn, router)
     assert child.stdout().splitlines()[0] == "agent r1 ready"
@@ -228,7 +234,7 @@ def test_wheels_echo_pose_t_and_point_towards_the_setpoint(
 
 
 def test_hold_with_zero_wheels_within_300_ms_after_poses_stop(
-    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: tp.Publishers
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: rt.Publishers
 ) -> None:
     start_agent(spawn, router)
     wheels = Recorder(client, keys.wheels_key(FLEET, "r1"), decoder_of(Wheels))
@@ -250,7 +256,7 @@ def test_hold_with_zero_wheels_within_300_ms_after_poses_stop(
 
 
 def test_estop_zeroes_the_wheels_within_100_ms_and_latches_until_release(
-    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: tp.Publishers
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: rt.Publishers
 ) -> None:
     start_agent(spawn, router)
     wheels = Recorder(client, keys.wheels_key(FLEET, "r1"), decoder_of(Wheels))
@@ -259,7 +265,7 @@ def test_estop_zeroes_the_wheels_within_100_ms_and_latches_until_release(
 
     def estop(engage: bool, robot: str | None) -> float:
         t = time.monotonic()
-        pubs.put(estop_key, encode(Estop(t=t, engage=engage, robot=robot)), tp.QOS_CRITICAL)
+        pubs.put(estop_key, encode(Estop(t=t, engage=engage, robot=robot)), rt.QOS_CRITICAL)
         return t
 
     with Feeder(pubs, "r1", pose=lambda: (0.0, 0.0, 0.0), setpoint=lambda: (0.45, 0.0)):
@@ -280,7 +286,7 @@ def test_estop_zeroes_the_wheels_within_100_ms_and_latches_until_release(
 
 
 def test_fixed_loop_steps_at_the_timer_rate_not_at_the_pose_rate(
-    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: tp.Publishers
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: rt.Publishers
 ) -> None:
     start_agent(spawn, router, "--loop", "fixed", "--rate-hz", "20")
     wheels = Recorder(client, keys.wheels_key(FLEET, "r1"), decoder_of(Wheels))
@@ -309,7 +315,7 @@ def test_sigterm_exits_0_within_a_second(spawn: Spawner, router: RouterHandle) -
 
 
 def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
-    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: tp.Publishers
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, pubs: rt.Publishers
 ) -> None:
     from bus_schemas import Clock
 
@@ -319,11 +325,11 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
     dt = 0.02
 
     def clock(k: int) -> None:
-        pubs.put(clock_key, encode(Clock(t=k * dt, seq=k + 1, tick=k)), tp.QOS_CRITICAL)
+        pubs.put(clock_key, encode(Clock(t=k * dt, seq=k + 1, tick=k)), rt.QOS_CRITICAL)
 
     def setpoint(tick: int, x: float, y: float) -> None:
         msg = setpoint_msg("r1", x, y, t=tick * dt, seq=tick + 1)
-        pubs.put(keys.setpoint_key(FLEET, "r1"), encode_ticked(msg, tick), tp.QOS_CRITICAL)
+        pubs.put(keys.setpoint_key(FLEET, "r1"), _ticked(msg, tick), rt.QOS_CRITICAL)
 
     # Warm up with clocks 0, 1, ... until an answer shows the pose and setpoint arrived before
     # the clock (the test session knows the agent's subscriptions by then); K: next free tick.
@@ -333,7 +339,7 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
         if k > 0:
             setpoint(k - 1, 0.45, 0.0)  # the firmware reads the pose only with a setpoint
         pose = Pose(t=k * dt, seq=k + 1, x=0.0, y=0.0, theta=0.0, robot="r1")
-        pubs.put(keys.pose_key(FLEET, "r1"), encode(pose), tp.QOS_CRITICAL)
+        pubs.put(keys.pose_key(FLEET, "r1"), encode(pose), rt.QOS_CRITICAL)
         clock(k)
         time.sleep(0.02)
         if [w for _, _, w in wheels.snapshot() if w.pose_t is not None and w.pose_t == w.t]:
@@ -439,7 +445,7 @@ def test_bad_arguments_exit_2_before_connecting(capsys: pytest.CaptureFixture[st
 
 
 def test_roboclaw_backend_from_the_config_drives_the_motors(
-    spawn: Spawner, router: RouterHandle, pubs: tp.Publishers, tmp_path: Path
+    spawn: Spawner, router: RouterHandle, pubs: rt.Publishers, tmp_path: Path
 ) -> None:
     from roboclaw_emulator import RoboClawEmulator
 

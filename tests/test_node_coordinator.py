@@ -17,9 +17,9 @@ import zenoh
 from conftest import RouterHandle, Spawner
 from test_node_agent import Recorder, decoder_of
 
+import runtime as rt
 from bus_schemas import Assignment, Clock, Leader, Pose, Setpoint, Slot, encode, keys
-from bus_schemas import transport as tp
-from formation.scenario import load
+from scenario import load
 
 FLEET = "demo"
 SCENARIO = load("paper-exp2")  # r1 ahead at (0.40, 0.02), r2 left-behind, r3 right-behind
@@ -30,7 +30,7 @@ class PoseFeeder:
     """Publishes ``robot/<id>/pose`` for the robots in :attr:`robots` every ``period_s``
     (``t`` = monotonic, or a fixed ``t``), from a thread."""
 
-    def __init__(self, pubs: tp.Publishers, robots: set[str], period_s: float = 0.02) -> None:
+    def __init__(self, pubs: rt.Publishers, robots: set[str], period_s: float = 0.02) -> None:
         self.pubs = pubs
         self.robots = robots
         self.period_s = period_s
@@ -52,7 +52,7 @@ class PoseFeeder:
             for rid in sorted(self.robots):
                 x, y, th = START[rid]
                 msg = Pose(t=time.monotonic(), seq=seq, x=x, y=y, theta=th, robot=rid)
-                self.pubs.put(keys.pose_key(FLEET, rid), encode(msg), tp.QOS_CRITICAL)
+                self.pubs.put(keys.pose_key(FLEET, rid), encode(msg), rt.QOS_CRITICAL)
             self._stop.wait(self.period_s)
 
 
@@ -64,8 +64,8 @@ def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
 def test_setpoints_for_alive_robots_and_reassignment_when_the_leader_dies(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session
 ) -> None:
-    pubs = tp.Publishers(client)
-    tokens = {r: tp.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START}
+    pubs = rt.Publishers(client)
+    tokens = {r: rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START}
     setpoints = Recorder(client, keys.all_setpoints_pattern(FLEET), decoder_of(Setpoint))
     assignments = Recorder(client, keys.assignment_key(FLEET), decoder_of(Assignment))
     leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
@@ -113,8 +113,8 @@ def test_setpoints_for_alive_robots_and_reassignment_when_the_leader_dies(
 def test_lockstep_answers_each_clock_with_the_leader_last(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session
 ) -> None:
-    pubs = tp.Publishers(client)
-    tokens = [tp.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    pubs = rt.Publishers(client)
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
     # One subscriber for the whole fleet, on Zenoh's thread: the true arrival order.
     every = Recorder(client, f"formation/{FLEET}/**", msgpack.unpackb)
     spawn(
@@ -143,8 +143,8 @@ def test_lockstep_answers_each_clock_with_the_leader_last(
     while True:  # poses then clock k, until the answer covers every robot
         for rid, (x, y, th) in START.items():
             msg = Pose(t=k * dt, seq=k + 1, x=x, y=y, theta=th, robot=rid)
-            pubs.put(keys.pose_key(FLEET, rid), encode(msg), tp.QOS_CRITICAL)
-        pubs.put(clock_key, encode(Clock(t=k * dt, seq=k + 1, tick=k)), tp.QOS_CRITICAL)
+            pubs.put(keys.pose_key(FLEET, rid), encode(msg), rt.QOS_CRITICAL)
+        pubs.put(clock_key, encode(Clock(t=k * dt, seq=k + 1, tick=k)), rt.QOS_CRITICAL)
         time.sleep(0.03)
         got = [key for key, m in answer(k) if key.endswith("/setpoint")] if k > 0 else []
         if len(got) == 3:
@@ -158,7 +158,7 @@ def test_lockstep_answers_each_clock_with_the_leader_last(
     assert {m["slot"] for key, m in msgs if "/slot/" in key} == {0, 1, 2}
     assert all(m["t"] == k * dt for _, m in msgs)  # sim time: the clock's t
     n_before = len(every.snapshot())
-    pubs.put(clock_key, encode(Clock(t=k * dt, seq=99, tick=k)), tp.QOS_CRITICAL)  # repeated
+    pubs.put(clock_key, encode(Clock(t=k * dt, seq=99, tick=k)), rt.QOS_CRITICAL)  # repeated
     time.sleep(0.2)
     repeat = [
         (key, m)

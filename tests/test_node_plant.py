@@ -11,6 +11,7 @@ import statistics
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import msgpack
 import pytest
@@ -18,6 +19,7 @@ import zenoh
 from conftest import RouterHandle, Spawner
 from test_node_agent import Recorder, decoder_of
 
+import runtime as rt
 from bus_schemas import (
     Clock,
     Disturbance,
@@ -29,10 +31,14 @@ from bus_schemas import (
     encode,
     keys,
 )
-from bus_schemas import transport as tp
-from formation.scenario import Disturbance as ScheduledDisturbance
-from formation.scenario import load
-from robot_agent.node import encode_ticked
+from scenario import Disturbance as ScheduledDisturbance
+from scenario import load
+
+
+def _ticked(msg, tick):  # type: ignore[no-untyped-def]
+    """``msg`` encoded with its lockstep ``tick`` (a declared field of setpoint/slot/leader)."""
+    return encode(replace(msg, tick=tick))
+
 
 FLEET = "demo"
 SCENARIO = load("paper-exp2")
@@ -69,7 +75,7 @@ def latest_truth(rec: Recorder, robot: str) -> Truth:
 class WheelsFeeder:
     """Publishes ``wheels`` (both wheels at ``omega`` rad/s) for ``robot`` at 50 Hz."""
 
-    def __init__(self, pubs: tp.Publishers, robot: str, omega: float) -> None:
+    def __init__(self, pubs: rt.Publishers, robot: str, omega: float) -> None:
         self.pubs, self.robot, self.omega = pubs, robot, omega
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -80,7 +86,7 @@ class WheelsFeeder:
         while not self._stop.is_set():
             seq += 1
             payload = wheels_msg(self.omega, t=time.monotonic(), seq=seq)
-            self.pubs.put(keys.wheels_key(FLEET, self.robot), payload, tp.QOS_CRITICAL)
+            self.pubs.put(keys.wheels_key(FLEET, self.robot), payload, rt.QOS_CRITICAL)
             self._stop.wait(0.02)
 
     def stop(self) -> None:
@@ -91,7 +97,7 @@ class WheelsFeeder:
 def test_realtime_poses_wheels_dead_robot_and_drag(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session
 ) -> None:
-    pubs = tp.Publishers(client)
+    pubs = rt.Publishers(client)
     poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
     batches = Recorder(client, keys.poses_key(FLEET), decoder_of(PoseBatch))
     truth = Recorder(client, keys.all_truth_pattern(FLEET), decoder_of(Truth))
@@ -120,7 +126,7 @@ def test_realtime_poses_wheels_dead_robot_and_drag(
     assert latest_truth(truth, "r2").x == x0_r2  # zero command: exactly still
 
     # With a token, r1's agent is alive; the last command keeps acting when wheels stop ...
-    token = tp.declare_token(client, keys.alive_robot_key(FLEET, "r1"))
+    token = rt.declare_token(client, keys.alive_robot_key(FLEET, "r1"))
     status.wait_for(lambda _r, _k, s: s["alive"] == ["r1"])
     feeder.stop()
     x2 = latest_truth(truth, "r1").x
@@ -137,7 +143,7 @@ def test_realtime_poses_wheels_dead_robot_and_drag(
 
     # Drag r2 back 0.3 m over 0.2 s.
     drag = Disturbance(t=time.monotonic(), robot="r2", kind="drag", dx=-0.3, dy=0.0, duration_s=0.2)
-    pubs.put(keys.disturbance_key(FLEET), encode(drag), tp.QOS_CRITICAL)
+    pubs.put(keys.disturbance_key(FLEET), encode(drag), rt.QOS_CRITICAL)
     time.sleep(0.4)
     assert latest_truth(truth, "r2").x == pytest.approx(x0_r2 - 0.3, abs=1e-9)
     t_check = time.monotonic()
@@ -149,8 +155,8 @@ def test_realtime_poses_wheels_dead_robot_and_drag(
 def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session
 ) -> None:
-    pubs = tp.Publishers(client)
-    tokens = [tp.declare_token(client, keys.alive_robot_key(FLEET, "r2"))]
+    pubs = rt.Publishers(client)
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, "r2"))]
     clocks = Recorder(client, keys.clock_key(FLEET), decoder_of(Clock))
     truth = Recorder(client, keys.all_truth_pattern(FLEET), decoder_of(Truth))
     status = Recorder(client, STATUS_KEY, msgpack.unpackb)
@@ -174,10 +180,10 @@ def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
         for rid in robots:
             omega = 5.0 if rid == "r1" else 0.0
             payload = wheels_msg(omega, t=k * dt, seq=k + 1, tick=k)
-            pubs.put(keys.wheels_key(FLEET, rid), payload, tp.QOS_CRITICAL)
+            pubs.put(keys.wheels_key(FLEET, rid), payload, rt.QOS_CRITICAL)
         if leader:
             msg = Leader(t=k * dt, seq=k + 1, x=0.0, y=0.0, theta=0.0, v_mps=0.0, omega_radps=0.0)
-            pubs.put(keys.leader_key(FLEET), encode_ticked(msg, k), tp.QOS_CRITICAL)
+            pubs.put(keys.leader_key(FLEET), _ticked(msg, k), rt.QOS_CRITICAL)
         return time.monotonic()
 
     def clock(k: int, timeout_s: float = 2.0) -> float:
@@ -192,8 +198,8 @@ def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
         time.sleep(0.02)
     time.sleep(0.2)
     assert clocks.snapshot() == []
-    tokens += [tp.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in ("r1", "r3")]
-    tokens.append(tp.declare_token(client, keys.alive_coordinator_key(FLEET, "test")))
+    tokens += [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in ("r1", "r3")]
+    tokens.append(rt.declare_token(client, keys.alive_coordinator_key(FLEET, "test")))
 
     clock(0)
     answer(0, ("r1", "r2"))  # r3 missing
@@ -236,11 +242,11 @@ def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> No
     drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
     scenario = SCENARIO.with_overrides(disturbances=(drag,))
     duration = 1.0
-    routes: list[tuple[Callable[[str], bool], Callable[[tp.Received], None]]] = []
+    routes: list[tuple[Callable[[str], bool], Callable[[rt.Received], None]]] = []
     wheels: dict[tuple[int, str], tuple[float, float]] = {}
     truth: dict[tuple[float, str], tuple[float, float, float]] = {}
 
-    def publish(key: str, payload: bytes, qos: tp.QoS) -> None:
+    def publish(key: str, payload: bytes, qos: rt.QoS) -> None:
         if key.endswith("/wheels"):
             w = decode(payload, Wheels)
             assert isinstance(w, Wheels) and w.tick is not None
@@ -251,7 +257,7 @@ def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> No
             truth[(tr.t, tr.robot)] = (tr.x, tr.y, tr.theta)
         for match, handler in routes:
             if match(key):
-                handler(tp.Received(key, payload, time.monotonic()))
+                handler(rt.Received(key, payload, time.monotonic()))
 
     plant = PlantNode(scenario, FLEET, publish, lockstep=True, duration_s=duration)
     coord = CoordinatorNode(scenario, "main", FLEET, publish, lockstep=True)

@@ -26,6 +26,7 @@ import zenoh
 from conftest import RouterHandle, Spawner, free_port
 from mcap.reader import make_reader
 
+import runtime as rt
 from bus_schemas import (
     MESSAGE_TYPES,
     Assignment,
@@ -41,7 +42,6 @@ from bus_schemas import (
     message_type_for_key,
     to_map,
 )
-from bus_schemas import transport as tp
 from bus_schemas.messages import (
     Disturbance,
     Estop,
@@ -54,18 +54,11 @@ from bus_schemas.messages import (
     WheelsBatch,
 )
 from formation import report as report_mod
-from formation.record import (
-    LIVELINESS_SCHEMA,
-    READY_PREFIX,
-    BusItem,
-    BusTap,
-    Recorder,
-    json_schema,
-    schema_name,
-    start_recorder,
-)
+from formation.bus_json import LIVELINESS_SCHEMA, json_schema, schema_name
+from formation.record import READY_PREFIX, Recorder, start_recorder
 from formation.report import LivenessChange, Replay, leader_losses, read_recording
 from formation.runlog import RunLog
+from formation.tap import BusItem, BusTap
 
 FLEET = "demo"
 DT = 0.02
@@ -611,7 +604,7 @@ def test_record_command_finalizes_the_file_within_a_second_of_sigint(
     child = spawn("record", "--out", str(out), "--endpoint", router.endpoint, ready=READY_PREFIX)
     assert f"formation/{FLEET}/**" in child.stdout()
     pub = session()
-    token = tp.declare_token(pub, keys.alive_robot_key(FLEET, "r1"))
+    token = rt.declare_token(pub, keys.alive_robot_key(FLEET, "r1"))
     t0 = 100.0
     for k in range(20):
         pub.put(
@@ -682,7 +675,7 @@ def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
     # The recorder joins as soon as up's router listens, before the plant starts its clock
     # (the plant waits for every agent's token; each agent takes a Python start).
     handle = start_recorder(
-        tp.ZenohSettings(connect=(endpoint,), open_timeout_s=30.0), FLEET, tmp_path / "run.mcap"
+        rt.ZenohSettings(connect=(endpoint,), open_timeout_s=30.0), FLEET, tmp_path / "run.mcap"
     )
     try:
         assert up.proc.wait(timeout=120) == 0, up.describe()
@@ -758,7 +751,8 @@ def test_up_record_then_report_reproduces_the_in_process_simulator(
     report's and of ``formation sim``'s metrics.json for the same scenario, seed and duration are
     equal, exactly: the lockstep plant publishes truth at every tick, so all three are computed
     on the same 201 ticks."""
-    from formation import scenario, sim_cli, simulate
+    import scenario
+    from formation import sim_cli, simulate
 
     fleet, seed, duration = "rec1", 3, 4.0
     endpoint = f"tcp/127.0.0.1:{free_port()}"

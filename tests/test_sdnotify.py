@@ -1,4 +1,4 @@
-"""robot_agent.sdnotify against a real AF_UNIX datagram socket standing in for systemd."""
+"""runtime.sdnotify against a real AF_UNIX datagram socket standing in for systemd."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from robot_agent.sdnotify import Notifier
+from runtime.sdnotify import Notifier
 
 
 @pytest.fixture

@@ -18,21 +18,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import scenario as scenario_mod
 import sim_plant.plant as plant_mod
 import sim_plant.sensors as sensors_mod
-from coordinator.assignment import (
-    RoleAssigner,
-    _cost_matrix_py,
-    _costs,
-    _greedy_np,
-    _greedy_py,
-    assign_optimal,
-)
+from coordinator.assignment import RoleAssigner, assign_optimal
 from coordinator.core import CoordinatorCore, CoordinatorOutput
 from coordinator.formation import FormationSpec, slot_arrays, slot_rows, slot_states
+from coordinator.matching import _cost_matrix_py, _costs, _greedy_np
+from coordinator.matching import greedy_py as _greedy_py
 from coordinator.trajectory import LeaderState
 from formation import metrics, simulate
-from formation import scenario as scenario_mod
 from formation.runlog import RunLog
 from robot_agent.params import RobotGeometry
 from sim_plant.accounting import SeparationMonitor

@@ -1,4 +1,4 @@
-"""bus_schemas.transport and formation.router: real Zenoh sessions and real processes on loopback.
+"""runtime.transport and formation.router: real Zenoh sessions and real processes on loopback.
 
 No mocks: every session goes through a `formation router` subprocess on a free port (conftest
 fixtures), multicast scouting off. Timings are asserted with a margin for a loaded 2-core CI box;
@@ -20,18 +20,18 @@ import pytest
 import zenoh
 from conftest import Child, RouterHandle, Spawner, free_port
 
-from bus_schemas import transport as tp
+import runtime as rt
 
 EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of the signal; 0.5 s margin for CI noise
 
 # A client holding one liveliness token; prints "ready" then idles (killed by the test).
 HOLDER = """
 import sys, time
-from bus_schemas import transport as tp
+import runtime as rt
 endpoint, key = sys.argv[1], sys.argv[2]
 lease = int(sys.argv[3]) if len(sys.argv) > 3 else None
-session = tp.open_session(tp.ZenohSettings(connect=(endpoint,), lease_ms=lease))
-token = tp.declare_token(session, key)
+session = rt.open_session(rt.ZenohSettings(connect=(endpoint,), lease_ms=lease))
+token = rt.declare_token(session, key)
 print("ready", flush=True)
 while True:
     time.sleep(1)
@@ -40,17 +40,17 @@ while True:
 # A node written the documented way (run_node + session in try/finally), with misbehaviours.
 NODE = """
 import asyncio, sys, time
-from bus_schemas import transport as tp
+import runtime as rt
 endpoint, behaviour = sys.argv[1], sys.argv[2]
 opened = []
 
 async def main(stop):
     loop = asyncio.get_running_loop()
-    session = await tp.open_session_async(tp.ZenohSettings(connect=(endpoint,)))
+    session = await rt.open_session_async(rt.ZenohSettings(connect=(endpoint,)))
     opened.append(session)
     try:
-        token = tp.declare_token(session, "test/alive/node")
-        tp.subscribe(session, "test/data/**", loop, tp.Inbox("latest"))
+        token = rt.declare_token(session, "test/alive/node")
+        rt.subscribe(session, "test/data/**", loop, rt.Inbox("latest"))
         print("ready", flush=True)
         if behaviour == "ignore-stop":
             await asyncio.sleep(3600)
@@ -63,7 +63,7 @@ async def main(stop):
         if behaviour != "forget-close":
             session.close()
 
-code = tp.run_node(main)
+code = rt.run_node(main)
 print(f"run_node returned {code}; session closed: {opened[0].is_closed()}", flush=True)
 raise SystemExit(code)
 """
@@ -93,19 +93,19 @@ def cfg(config: zenoh.Config, key: str) -> object:
 
 
 def test_default_config_is_a_loopback_client_without_multicast() -> None:
-    config = tp.make_config(tp.ZenohSettings())
+    config = rt.make_config(rt.ZenohSettings())
     assert cfg(config, "mode") == "client"
-    assert cfg(config, "connect/endpoints") == [tp.DEFAULT_ENDPOINT]
+    assert cfg(config, "connect/endpoints") == [rt.DEFAULT_ENDPOINT]
     assert cfg(config, "listen/endpoints") == []
     assert cfg(config, "scouting/multicast/enabled") is False
     assert cfg(config, "transport/link/tx/lease") == 10000  # Zenoh's default left alone
     assert cfg(config, "scouting/delay") is None  # a client waits for its router as usual
-    router = tp.make_config(tp.ZenohSettings(mode="router", connect=(), listen=("tcp/[::1]:1",)))
+    router = rt.make_config(rt.ZenohSettings(mode="router", connect=(), listen=("tcp/[::1]:1",)))
     assert cfg(router, "scouting/delay") == 0  # nothing to scout: open() at once
 
 
 def test_lease_sets_lease_and_keep_alive() -> None:
-    config = tp.make_config(tp.ZenohSettings(lease_ms=1000))
+    config = rt.make_config(rt.ZenohSettings(lease_ms=1000))
     assert cfg(config, "transport/link/tx/lease") == 1000
     assert cfg(config, "transport/link/tx/keep_alive") == 4
 
@@ -121,29 +121,29 @@ def test_config_file_is_loaded_first_and_cannot_enable_multicast(tmp_path: Path)
           namespace: "fromfile",
         }"""
     )
-    ns = tp.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(["--zenoh-config", str(path)])
-    settings = tp.settings_from_args(ns)
+    ns = rt.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(["--zenoh-config", str(path)])
+    settings = rt.settings_from_args(ns)
     assert settings.mode is None and settings.connect == () and settings.listen == ()
-    config = tp.make_config(settings)
+    config = rt.make_config(settings)
     assert cfg(config, "mode") == "peer"
     assert cfg(config, "connect/endpoints") == ["tcp/10.0.0.1:7447"]
     assert cfg(config, "listen/endpoints") == ["tcp/127.0.0.1:0"]
     assert cfg(config, "namespace") == "fromfile"
     assert cfg(config, "scouting/multicast/enabled") is False  # only an explicit flag enables it
 
-    ns = tp.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(
+    ns = rt.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(
         ["--zenoh-config", str(path), "--endpoint", "tcp/127.0.0.1:1", "--multicast-scouting"]
     )
-    config = tp.make_config(tp.settings_from_args(ns))
+    config = rt.make_config(rt.settings_from_args(ns))
     assert cfg(config, "connect/endpoints") == ["tcp/127.0.0.1:1"]
     assert cfg(config, "scouting/multicast/enabled") is True
 
 
 def test_settings_from_args() -> None:
-    parser = tp.add_zenoh_arguments(argparse.ArgumentParser())
-    s = tp.settings_from_args(parser.parse_args([]))
-    assert s == tp.ZenohSettings()
-    s = tp.settings_from_args(
+    parser = rt.add_zenoh_arguments(argparse.ArgumentParser())
+    s = rt.settings_from_args(parser.parse_args([]))
+    assert s == rt.ZenohSettings()
+    s = rt.settings_from_args(
         parser.parse_args(
             [
                 *("--endpoint", "tcp/a:1", "--endpoint", "tcp/b:2", "--mode", "peer"),
@@ -153,7 +153,7 @@ def test_settings_from_args() -> None:
     )
     assert s.connect == ("tcp/a:1", "tcp/b:2") and s.listen == ("tcp/127.0.0.1:9",)
     assert (s.mode, s.lease_ms, s.namespace, s.multicast_scouting) == ("peer", 1000, "run7", False)
-    assert tp.settings_from_args(parser.parse_args(["--mode", "router"])).connect == ()
+    assert rt.settings_from_args(parser.parse_args(["--mode", "router"])).connect == ()
 
 
 @pytest.mark.parametrize(
@@ -169,7 +169,7 @@ def test_settings_from_args() -> None:
 )
 def test_settings_reject_bad_values(kwargs: dict[str, object], error: type[Exception]) -> None:
     with pytest.raises(error):
-        tp.ZenohSettings(**kwargs)  # type: ignore[arg-type]
+        rt.ZenohSettings(**kwargs)  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -177,7 +177,7 @@ def test_settings_reject_bad_values(kwargs: dict[str, object], error: type[Excep
 # ---------------------------------------------------------------------------------------------
 
 
-def push_from_thread(inbox: tp.Inbox, items: list[tp.Received]) -> None:
+def push_from_thread(inbox: rt.Inbox, items: list[rt.Received]) -> None:
     def run() -> None:
         for i in items:
             inbox.push(i)
@@ -187,12 +187,12 @@ def push_from_thread(inbox: tp.Inbox, items: list[tp.Received]) -> None:
     thread.join()
 
 
-def item(key: str, n: int) -> tp.Received:
-    return tp.Received(key=key, payload=str(n).encode(), rx_s=time.monotonic())
+def item(key: str, n: int) -> rt.Received:
+    return rt.Received(key=key, payload=str(n).encode(), rx_s=time.monotonic())
 
 
 async def test_latest_inbox_coalesces_a_burst_into_one_wake_with_newest_values() -> None:
-    inbox = tp.Inbox("latest")
+    inbox = rt.Inbox("latest")
     inbox.bind(asyncio.get_running_loop())
     # The loop is not running callbacks while this thread pushes: everything lands in one drain.
     push_from_thread(inbox, [item(k, n) for n in range(500) for k in ("a", "b")])
@@ -201,13 +201,13 @@ async def test_latest_inbox_coalesces_a_burst_into_one_wake_with_newest_values()
     assert {k: r.payload for k, r in inbox.snapshot().items()} == {"a": b"499", "b": b"499"}
     assert set(inbox.take_updates()) == {"a", "b"} and inbox.take_updates() == {}
     assert inbox.received == 1000 and inbox.dropped == 0
-    push_from_thread(inbox, [tp.Received("a", b"", time.monotonic(), deleted=True)])
+    push_from_thread(inbox, [rt.Received("a", b"", time.monotonic(), deleted=True)])
     assert await inbox.wait(timeout_s=1.0)
     assert inbox.latest("a") is None and inbox.latest("b") is not None
 
 
 async def test_queue_inbox_keeps_order_and_drops_oldest_beyond_maxlen() -> None:
-    inbox = tp.Inbox("queue", maxlen=100)
+    inbox = rt.Inbox("queue", maxlen=100)
     inbox.bind(asyncio.get_running_loop())
     push_from_thread(inbox, [item("e", n) for n in range(250)])
     first = await asyncio.wait_for(inbox.get(), timeout=1.0)
@@ -217,8 +217,8 @@ async def test_queue_inbox_keeps_order_and_drops_oldest_beyond_maxlen() -> None:
 
 
 def test_inbox_latest_mode_bounds_distinct_keys() -> None:
-    async def run() -> tp.Inbox:
-        inbox = tp.Inbox("latest", maxlen=3)
+    async def run() -> rt.Inbox:
+        inbox = rt.Inbox("latest", maxlen=3)
         inbox.bind(asyncio.get_running_loop())
         push_from_thread(inbox, [item(f"k{n}", n) for n in range(10)])
         await inbox.wait(timeout_s=1.0)
@@ -239,21 +239,21 @@ async def test_pub_sub_round_trip_through_the_asyncio_bridge(
 ) -> None:
     loop = asyncio.get_running_loop()
     sub_session, pub_session = session(), session()
-    got: list[tuple[tp.Received, bool]] = []
-    queue = tp.Inbox("queue")
-    tp.subscribe(
+    got: list[tuple[rt.Received, bool]] = []
+    queue = rt.Inbox("queue")
+    rt.subscribe(
         sub_session,
         "test/rt/**",
         loop,
         lambda r: got.append((r, threading.current_thread() is threading.main_thread())),
     )
-    tp.subscribe(sub_session, "test/rt/**", loop, queue)
+    rt.subscribe(sub_session, "test/rt/**", loop, queue)
     await asyncio.sleep(0.05)  # let the subscriptions reach the router
-    pubs = tp.Publishers(pub_session)
+    pubs = rt.Publishers(pub_session)
     payloads = [bytes([n]) * 100 for n in range(50)]
     before = time.monotonic()
     for p in payloads:
-        pubs.put("test/rt/x", p, tp.QOS_CONTROL)
+        pubs.put("test/rt/x", p, rt.QOS_CONTROL)
     await wait_until(lambda: len(got) == 50)
     assert [r.payload for r, _ in got] == payloads  # every sample, in order, intact
     assert all(on_loop_thread for _, on_loop_thread in got)  # delivered on the loop thread
@@ -268,11 +268,11 @@ async def test_latest_inbox_over_zenoh_keeps_only_the_newest(
     session: Callable[..., zenoh.Session],
 ) -> None:
     sub_session, pub_session = session(), session()
-    inbox = tp.Inbox("latest")
-    tp.subscribe(sub_session, "test/pose/*", asyncio.get_running_loop(), inbox)
+    inbox = rt.Inbox("latest")
+    rt.subscribe(sub_session, "test/pose/*", asyncio.get_running_loop(), inbox)
     await asyncio.sleep(0.05)
     # BLOCK, so that this burst of 400 puts is delivered whole (DROP may shed some of it).
-    pubs = tp.Publishers(pub_session, default_qos=tp.QOS_CRITICAL)
+    pubs = rt.Publishers(pub_session, default_qos=rt.QOS_CRITICAL)
     for n in range(200):  # published without yielding: the loop sees one backlog
         for robot in ("r1", "r2"):
             pubs.put(f"test/pose/{robot}", str(n).encode())
@@ -291,8 +291,8 @@ async def test_publisher_qos_reaches_the_wire(session: Callable[..., zenoh.Sessi
     samples: list[zenoh.Sample] = []
     sub_session.declare_subscriber("test/qos/**", samples.append)
     await asyncio.sleep(0.05)
-    pubs = tp.Publishers(pub_session)
-    pubs.put("test/qos/wheels", b"w", tp.QOS_CONTROL)
+    pubs = rt.Publishers(pub_session)
+    pubs.put("test/qos/wheels", b"w", rt.QOS_CONTROL)
     pubs.put("test/qos/status", b"s")  # default: telemetry
     await wait_until(lambda: len(samples) == 2)
     by_key = {str(s.key_expr): s for s in samples}
@@ -300,7 +300,7 @@ async def test_publisher_qos_reaches_the_wire(session: Callable[..., zenoh.Sessi
     assert wheels.priority == zenoh.Priority.REAL_TIME and not wheels.express
     assert status.priority == zenoh.Priority.DATA and not status.express
     with pytest.raises(ValueError, match="already declared"):
-        pubs.put("test/qos/wheels", b"w", tp.QOS_TELEMETRY)
+        pubs.put("test/qos/wheels", b"w", rt.QOS_TELEMETRY)
 
 
 @pytest.mark.zenoh
@@ -308,9 +308,9 @@ async def test_namespace_isolates_sessions_on_one_router(
     session: Callable[..., zenoh.Session],
 ) -> None:
     loop = asyncio.get_running_loop()
-    same, other = tp.Inbox("queue"), tp.Inbox("queue")
-    tp.subscribe(session(namespace="runA"), "test/ns", loop, same)
-    tp.subscribe(session(namespace="runB"), "test/ns", loop, other)
+    same, other = rt.Inbox("queue"), rt.Inbox("queue")
+    rt.subscribe(session(namespace="runA"), "test/ns", loop, same)
+    rt.subscribe(session(namespace="runB"), "test/ns", loop, other)
     await asyncio.sleep(0.05)
     session(namespace="runA").put("test/ns", b"hello")
     await wait_until(lambda: same.received == 1)
@@ -326,16 +326,16 @@ async def test_two_isolated_routers_do_not_see_each_other(
 ) -> None:
     loop = asyncio.get_running_loop()
     a, b = start_router(), start_router()
-    settings_a = tp.ZenohSettings(connect=(a.endpoint,))
-    settings_b = tp.ZenohSettings(connect=(b.endpoint,))
+    settings_a = rt.ZenohSettings(connect=(a.endpoint,))
+    settings_b = rt.ZenohSettings(connect=(b.endpoint,))
     with (
-        tp.open_session(settings_a) as on_a,
-        tp.open_session(settings_b) as on_b,
-        tp.open_session(settings_b) as pub_b,
+        rt.open_session(settings_a) as on_a,
+        rt.open_session(settings_b) as on_b,
+        rt.open_session(settings_b) as pub_b,
     ):
-        seen_a, seen_b = tp.Inbox("queue"), tp.Inbox("queue")
-        tp.subscribe(on_a, "test/iso/**", loop, seen_a)
-        tp.subscribe(on_b, "test/iso/**", loop, seen_b)
+        seen_a, seen_b = rt.Inbox("queue"), rt.Inbox("queue")
+        rt.subscribe(on_a, "test/iso/**", loop, seen_a)
+        rt.subscribe(on_b, "test/iso/**", loop, seen_b)
         await asyncio.sleep(0.1)
         for n in range(10):
             pub_b.put("test/iso/x", str(n).encode())
@@ -353,8 +353,8 @@ async def test_two_isolated_routers_do_not_see_each_other(
 def test_client_open_without_router_fails_clearly_after_timeout() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     start = time.monotonic()
-    with pytest.raises(tp.TransportError, match=endpoint.replace(".", r"\.")):
-        tp.open_session(tp.ZenohSettings(connect=(endpoint,)), timeout_s=0.3)
+    with pytest.raises(rt.TransportError, match=endpoint.replace(".", r"\.")):
+        rt.open_session(rt.ZenohSettings(connect=(endpoint,)), timeout_s=0.3)
     assert 0.3 <= time.monotonic() - start < 1.5
 
 
@@ -366,7 +366,7 @@ def test_client_open_retries_until_the_router_is_up(spawn: Spawner) -> None:
 
     def opener() -> None:
         try:
-            result.append(tp.open_session(tp.ZenohSettings(connect=(endpoint,)), timeout_s=15))
+            result.append(rt.open_session(rt.ZenohSettings(connect=(endpoint,)), timeout_s=15))
         except BaseException as exc:
             result.append(exc)
 
@@ -382,8 +382,8 @@ def test_client_open_retries_until_the_router_is_up(spawn: Spawner) -> None:
 
 @pytest.mark.zenoh
 async def test_open_session_async_is_cancellable() -> None:
-    settings = tp.ZenohSettings(connect=(f"tcp/127.0.0.1:{free_port()}",))
-    task = asyncio.ensure_future(tp.open_session_async(settings, timeout_s=30))
+    settings = rt.ZenohSettings(connect=(f"tcp/127.0.0.1:{free_port()}",))
+    task = asyncio.ensure_future(rt.open_session_async(settings, timeout_s=30))
     await asyncio.sleep(0.25)
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
@@ -402,7 +402,7 @@ async def test_liveliness_token_disappears_when_its_process_is_sigkilled(
     holder = ready_holder(spawn, router, "test/alive/holder")
     events: list[tuple[str, bool, float]] = []
     # Declared after the token exists: history=True must report it.
-    tp.watch_liveliness(
+    rt.watch_liveliness(
         session(),
         "test/alive/**",
         asyncio.get_running_loop(),
@@ -426,7 +426,7 @@ async def test_short_lease_detects_a_hung_process_in_about_a_second(
 ) -> None:
     holder = ready_holder(spawn, router, "test/alive/hung", "1000")
     events: list[tuple[bool, float]] = []
-    tp.watch_liveliness(
+    rt.watch_liveliness(
         session(),
         "test/alive/hung",
         asyncio.get_running_loop(),
@@ -457,8 +457,8 @@ def test_router_exits_cleanly_within_a_second_of_a_signal(
     start_router: Callable[..., RouterHandle], sig: signal.Signals
 ) -> None:
     router = start_router()
-    with tp.open_session(tp.ZenohSettings(connect=(router.endpoint,))) as client:
-        token = tp.declare_token(client, "test/alive/client")  # a connected, declaring client
+    with rt.open_session(rt.ZenohSettings(connect=(router.endpoint,))) as client:
+        token = rt.declare_token(client, "test/alive/client")  # a connected, declaring client
         elapsed = router.child.stop(sig)
         del token
     print(f"router exit {elapsed * 1e3:.0f} ms after {sig.name}")
@@ -482,7 +482,7 @@ async def node_exit(
 ) -> tuple[Child, float, list[bool]]:
     """Start NODE with ``behaviour``, SIGTERM it once ready; (child, seconds to exit, token log)."""
     alive: list[bool] = []
-    tp.watch_liveliness(
+    rt.watch_liveliness(
         watcher, "test/alive/node", asyncio.get_running_loop(), lambda k, a: alive.append(a)
     )
     node = spawn.python(NODE, router.endpoint, behaviour, ready="ready")
@@ -531,7 +531,7 @@ async def test_watchdog_forces_out_a_node_blocked_in_sync_code(
     spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
 ) -> None:
     node, elapsed, _ = await node_exit(spawn, router, session(), "block")
-    assert node.proc.returncode == tp.FORCED_EXIT_CODE, node.describe()
+    assert node.proc.returncode == rt.FORCED_EXIT_CODE, node.describe()
     assert elapsed < EXIT_BOUND_S
     assert "forcing exit" in node.stderr()
 
@@ -544,7 +544,7 @@ async def test_a_second_signal_forces_an_immediate_exit(
     node.send_signal(signal.SIGTERM)
     await asyncio.sleep(0.05)  # inside the 0.4 s grace period
     elapsed = node.stop(signal.SIGTERM)
-    assert node.proc.returncode == tp.FORCED_EXIT_CODE, node.describe()
+    assert node.proc.returncode == rt.FORCED_EXIT_CODE, node.describe()
     assert elapsed < 0.3  # not the grace period nor the watchdog deadline
     assert "second stop signal" in node.stderr()
 
@@ -554,7 +554,7 @@ def test_run_node_must_run_on_the_main_thread() -> None:
         return 0
 
     errors: list[BaseException | None] = []
-    thread = threading.Thread(target=lambda: errors.append(_catch(lambda: tp.run_node(main))))
+    thread = threading.Thread(target=lambda: errors.append(_catch(lambda: rt.run_node(main))))
     thread.start()
     thread.join()
     assert isinstance(errors[0], RuntimeError)
@@ -576,7 +576,7 @@ def test_run_node_in_process_returns_main_status_and_restores_signals() -> None:
         assert signal.getsignal(signal.SIGTERM) != before[signal.SIGTERM]  # installed
         return 3
 
-    assert tp.run_node(main) == 3
+    assert rt.run_node(main) == 3
     assert {sig: signal.getsignal(sig) for sig in before} == before
 
 
@@ -588,10 +588,10 @@ def test_run_node_closes_only_the_sessions_its_main_opened(
     inside: list[zenoh.Session] = []
 
     async def main(stop: asyncio.Event) -> int:
-        inside.append(await tp.open_session_async(tp.ZenohSettings(connect=(router.endpoint,))))
+        inside.append(await rt.open_session_async(rt.ZenohSettings(connect=(router.endpoint,))))
         return 0  # and "forgets" to close it
 
-    assert tp.run_node(main) == 0
+    assert rt.run_node(main) == 0
     assert inside[0].is_closed()
     assert not outside.is_closed()
 
@@ -601,4 +601,4 @@ def test_run_node_propagates_main_exceptions_after_cleanup() -> None:
         raise KeyError("boom")
 
     with pytest.raises(KeyError, match="boom"):
-        tp.run_node(main)
+        rt.run_node(main)

@@ -28,11 +28,13 @@ import numpy as np
 import pytest
 from conftest import REPO_ROOT, Child, Spawner, child_env, free_port
 
+import scenario
 from bus_schemas import Assignment, Leader, Slot, Truth, Wheels, encode, keys
-from formation import metrics, scenario, simulate
+from formation import metrics, simulate
 from formation.collector import RunCollector, slot_ids_of
 from formation.runlog import RunLog
-from formation.up import UpConfig, plan_run, scenario_with_robots, to_toml
+from formation.up import UpConfig, plan_run
+from scenario import scenario_with_robots, to_toml
 
 FLEET = "unit"
 

@@ -1,23 +1,23 @@
-"""Scenario files: TOML, validated with errors that name the offending field.
+"""Scenario files: the loader and the one validator (TOML in, a frozen ``Scenario`` out).
 
 A scenario fixes everything about a run: robots and their start poses, robot parameters, the
 virtual leader's trajectory, the formation, the assignment rule, the plant's sensor and link
 models and scheduled disturbances. ``formation sim`` and ``formation up`` both read it, so the
 in-process and the distributed runs are the same experiment.
 
-Built-in scenarios live in ``formation/scenarios/*.toml`` and are named without the extension.
+Built-in scenarios live in ``scenario/builtin/*.toml`` and are named without the extension.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bus_schemas import keys
 from robot_agent.params import (
     AgentConfig,
     RepulsionParams,
@@ -26,8 +26,7 @@ from robot_agent.params import (
     TrackingGains,
 )
 
-SCENARIO_DIR = Path(__file__).parent / "scenarios"
-ROBOT_ID_RE = re.compile(r"^[a-z0-9_-]+$")
+SCENARIO_DIR = Path(__file__).parent / "builtin"
 
 
 class ScenarioError(ValueError):
@@ -227,8 +226,8 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
     else:
         raise ScenarioError("robots: give either ids = [...] or count = N")
     for rid in ids:
-        if not ROBOT_ID_RE.match(rid):
-            raise ScenarioError(f"robots.ids: {rid!r} does not match [a-z0-9_-]+")
+        if not keys.is_robot_id(rid):
+            raise ScenarioError(f"robots.ids: {rid!r} does not match {keys.ROBOT_ID_PATTERN}")
     if len(set(ids)) != len(ids):
         raise ScenarioError("robots.ids: duplicate robot id")
     initial_raw = robots.get("initial")

@@ -1,0 +1,88 @@
+"""The shared node runtime: everything a process shell needs around its pure core.
+
+One floor above the contract (``bus_schemas``) and below the process shells (docs/architecture.md):
+
+* :mod:`runtime.transport`: Zenoh settings, config, sessions, QoS, publishers;
+* :mod:`runtime.bridge`: the one subscription bridge (Zenoh thread -> event loop, ordered),
+  ``Inbox``, liveliness tokens and watches;
+* :mod:`runtime.lifecycle`: ``run_node`` (signals, bounded shutdown) and ``serve``, the one node
+  bootstrap;
+* :mod:`runtime.log` (``NodeLog``), :mod:`runtime.timers` (the agent timer loop),
+  :mod:`runtime.args` (command-line value parsers), :mod:`runtime.stall` (stall/resume
+  detection, a pure core), :mod:`runtime.sdnotify` (systemd notifications).
+
+Everything is re-exported here, so a shell writes ``import runtime as rt`` and ``rt.serve``.
+"""
+
+from runtime.args import finite_or_none, non_negative_int, positive_float, rate_hz
+from runtime.bridge import (
+    Inbox,
+    LivelinessHandler,
+    Received,
+    SampleHandler,
+    declare_token,
+    subscribe,
+    watch_liveliness,
+)
+from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve
+from runtime.log import NodeLog
+from runtime.stall import (
+    HANG_GAP_NO_LEASE_S,
+    HANG_GAP_S,
+    RESUME_QUARANTINE_S,
+    StallDetector,
+    hang_gap_for,
+)
+from runtime.transport import (
+    DEFAULT_ENDPOINT,
+    QOS_CONTROL,
+    QOS_CRITICAL,
+    QOS_TELEMETRY,
+    Publishers,
+    QoS,
+    TransportError,
+    ZenohSettings,
+    add_zenoh_arguments,
+    make_config,
+    open_session,
+    open_session_async,
+    settings_from_args,
+)
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "FORCED_EXIT_CODE",
+    "HANG_GAP_NO_LEASE_S",
+    "HANG_GAP_S",
+    "QOS_CONTROL",
+    "QOS_CRITICAL",
+    "QOS_TELEMETRY",
+    "RESUME_QUARANTINE_S",
+    "Inbox",
+    "LivelinessHandler",
+    "NodeIO",
+    "NodeLog",
+    "NodeMain",
+    "Publishers",
+    "QoS",
+    "Received",
+    "SampleHandler",
+    "StallDetector",
+    "TransportError",
+    "ZenohSettings",
+    "add_zenoh_arguments",
+    "declare_token",
+    "finite_or_none",
+    "hang_gap_for",
+    "make_config",
+    "non_negative_int",
+    "open_session",
+    "open_session_async",
+    "positive_float",
+    "rate_hz",
+    "run_node",
+    "serve",
+    "settings_from_args",
+    "subscribe",
+    "watch_liveliness",
+]

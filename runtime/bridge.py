@@ -1,0 +1,294 @@
+"""The one bridge from Zenoh's threads to a node's asyncio event loop, and liveliness.
+
+Zenoh runs subscriber callbacks on its own threads. :func:`subscribe` installs a callback that
+runs on Zenoh's network thread (``indirect=False``): it only copies the sample (key, payload
+bytes, ``time.monotonic()`` receive time) and hands it to the loop, never blocks and never calls
+Zenoh. Running on the network thread keeps the order of samples *across* keys of one session
+(zenoh-python's default runs each subscriber on a thread of its own, so a plant's pose could be
+overtaken by its next clock); lockstep relies on that order (docs/runtime.md).
+
+The handler is either a callable run on the loop with one :class:`Received` per sample, in
+arrival order (every process shell), or an :class:`Inbox` that keeps the newest sample per key
+or a bounded FIFO and wakes the loop once per burst (tools and benches that poll).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Final, Literal
+
+import zenoh
+
+__all__ = [
+    "Inbox",
+    "LivelinessHandler",
+    "Received",
+    "SampleHandler",
+    "declare_token",
+    "subscribe",
+    "watch_liveliness",
+]
+
+# --------------------------------------------------------------------------------------------
+# Receiving: Zenoh threads -> asyncio
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Received:
+    """One sample as handed to the event loop.
+
+    Attributes:
+        key: the sample's key expression (without the session namespace).
+        payload: the payload bytes (empty for a delete).
+        rx_s: ``time.monotonic()`` on the Zenoh thread when the sample arrived, in seconds (a local
+            receive time: compare it with this host's clock only).
+        deleted: the sample is a DELETE.
+    """
+
+    key: str
+    payload: bytes
+    rx_s: float
+    deleted: bool = False
+
+
+def _to_received(sample: zenoh.Sample) -> Received:
+    return Received(
+        key=str(sample.key_expr),
+        payload=sample.payload.to_bytes(),
+        rx_s=time.monotonic(),
+        deleted=sample.kind == zenoh.SampleKind.DELETE,
+    )
+
+
+def _post(loop: asyncio.AbstractEventLoop, fn: Callable[..., object], *args: Any) -> None:
+    """``loop.call_soon_threadsafe`` that drops the call once the loop is closed (shutdown)."""
+    # RuntimeError: the loop is closed, the node is exiting and the sample is moot.
+    with contextlib.suppress(RuntimeError):
+        loop.call_soon_threadsafe(fn, *args)
+
+
+InboxMode = Literal["latest", "queue"]
+
+
+class Inbox:
+    """Receive buffer of one or more subscriptions, read from the event loop.
+
+    ``Inbox("latest")`` keeps the newest sample per key (poses, setpoints, wheels): a reader
+    never works on a backlog. ``Inbox("queue", maxlen=n)`` keeps every sample in order, up to
+    ``maxlen`` (the oldest is dropped and counted beyond that), for events such as estop.
+
+    :meth:`push` is the only method safe to call from another thread (Zenoh's); everything else
+    must run on the loop. A burst of samples wakes the loop once: pushes accumulate under a lock
+    and a single drain is scheduled with ``call_soon_threadsafe``.
+
+    Counters: ``received`` (samples pushed), ``dropped`` (queue overflow, more than ``maxlen``
+    keys in latest mode, or arrival after the loop closed).
+    """
+
+    def __init__(self, mode: InboxMode = "latest", *, maxlen: int = 1024) -> None:
+        if mode not in ("latest", "queue"):
+            raise ValueError(f"Inbox mode must be 'latest' or 'queue', got {mode!r}")
+        if maxlen < 1:
+            raise ValueError(f"maxlen must be >= 1, got {maxlen}")
+        self.mode: Final[InboxMode] = mode
+        self.maxlen: Final = maxlen
+        self.received = 0
+        self.dropped = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._lock = threading.Lock()
+        self._pending_latest: dict[str, Received] = {}
+        self._pending_queue: deque[Received] = deque()
+        self._drain_scheduled = False
+        self._latest: dict[str, Received] = {}
+        self._updated: dict[str, Received] = {}
+        self._queue: deque[Received] = deque()
+        self._event = asyncio.Event()
+
+    # -- producer side (any thread) ------------------------------------------------------------
+
+    def bind(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Attach the loop that reads this inbox (done by :func:`subscribe`)."""
+        if self._loop is not None and self._loop is not loop:
+            raise RuntimeError("an Inbox is read by one event loop only")
+        self._loop = loop
+
+    def push(self, item: Received) -> None:
+        """Add a sample; thread-safe and non-blocking (a short uncontended lock)."""
+        loop = self._loop
+        if loop is None:
+            raise RuntimeError("Inbox.push before bind(loop): use subscribe(...)")
+        with self._lock:
+            self.received += 1
+            if self.mode == "latest":
+                if (
+                    item.key not in self._pending_latest
+                    and len(self._pending_latest) >= self.maxlen
+                ):
+                    self.dropped += 1
+                    return
+                self._pending_latest[item.key] = item
+            else:
+                if len(self._pending_queue) >= self.maxlen:
+                    self._pending_queue.popleft()
+                    self.dropped += 1
+                self._pending_queue.append(item)
+            if self._drain_scheduled:
+                return
+            self._drain_scheduled = True
+        try:
+            loop.call_soon_threadsafe(self._drain)
+        except RuntimeError:  # loop closed during shutdown
+            with self._lock:
+                self._drain_scheduled = False
+                self.dropped += 1
+
+    def _drain(self) -> None:  # on the loop
+        with self._lock:
+            latest, self._pending_latest = self._pending_latest, {}
+            queued, self._pending_queue = self._pending_queue, deque()
+            self._drain_scheduled = False
+        for key, item in latest.items():
+            if key not in self._latest and len(self._latest) >= self.maxlen and not item.deleted:
+                self.dropped += 1  # more distinct keys than maxlen: refuse new ones
+                continue
+            if item.deleted:
+                self._latest.pop(key, None)
+            else:
+                self._latest[key] = item
+            self._updated[key] = item
+        if queued:
+            self._queue.extend(queued)
+            overflow = len(self._queue) - self.maxlen
+            for _ in range(max(0, overflow)):
+                self._queue.popleft()
+            if overflow > 0:
+                self.dropped += overflow
+        if latest or queued:
+            self._event.set()
+
+    # -- consumer side (the loop) --------------------------------------------------------------
+
+    def latest(self, key: str) -> Received | None:
+        """Newest sample of ``key`` (latest mode), or ``None`` if none yet / deleted."""
+        return self._latest.get(key)
+
+    def snapshot(self) -> dict[str, Received]:
+        """Copy of the newest sample of every key (latest mode)."""
+        return dict(self._latest)
+
+    def take_updates(self) -> dict[str, Received]:
+        """Keys updated since the previous call, with their newest sample (deletes included)."""
+        updated, self._updated = self._updated, {}
+        return updated
+
+    def get_nowait(self) -> Received | None:
+        """Oldest queued sample (queue mode), or ``None``."""
+        return self._queue.popleft() if self._queue else None
+
+    def drain(self) -> list[Received]:
+        """All queued samples, oldest first (queue mode)."""
+        items = list(self._queue)
+        self._queue.clear()
+        return items
+
+    async def get(self) -> Received:
+        """Wait for and return the oldest queued sample (queue mode)."""
+        while not self._queue:
+            await self._event.wait()
+            self._event.clear()
+        return self._queue.popleft()
+
+    async def wait(self, timeout_s: float | None = None) -> bool:
+        """Wait until something arrived since the previous ``wait`` returned True.
+
+        Returns False on timeout (``timeout_s`` in seconds; ``None`` waits forever).
+        """
+        if not self._event.is_set():
+            try:
+                async with asyncio.timeout(timeout_s):
+                    await self._event.wait()
+            except TimeoutError:
+                return False
+        self._event.clear()
+        return True
+
+
+SampleHandler = Callable[[Received], object]
+
+
+def subscribe(
+    session: zenoh.Session,
+    key_expr: str,
+    loop: asyncio.AbstractEventLoop,
+    handler: Inbox | SampleHandler,
+) -> zenoh.Subscriber[None]:
+    """Subscribe to ``key_expr`` and deliver each sample to the event loop ``loop``, in the
+    order the session received them (across keys too: see the module docstring).
+
+    ``handler`` is a callable run on the loop thread with one :class:`Received` per sample, or
+    an :class:`Inbox`. A callback subscriber stays declared until ``undeclare()`` or the session
+    closes, even if the returned object is dropped (zenoh 1.x).
+    """
+    if isinstance(handler, Inbox):
+        inbox = handler
+        inbox.bind(loop)
+
+        def on_sample_inbox(sample: zenoh.Sample) -> None:  # Zenoh network thread
+            with contextlib.suppress(Exception):  # nothing may escape into Zenoh's thread
+                inbox.push(_to_received(sample))
+
+        return session.declare_subscriber(
+            key_expr, zenoh.handlers.Callback(on_sample_inbox, indirect=False)
+        )
+
+    fn = handler
+
+    def on_sample(sample: zenoh.Sample) -> None:  # Zenoh network thread
+        # The loop closed at shutdown: drop the sample; nothing may escape into Zenoh's thread.
+        with contextlib.suppress(Exception):
+            loop.call_soon_threadsafe(fn, _to_received(sample))
+
+    return session.declare_subscriber(key_expr, zenoh.handlers.Callback(on_sample, indirect=False))
+
+
+# --------------------------------------------------------------------------------------------
+# Liveliness
+# --------------------------------------------------------------------------------------------
+
+
+def declare_token(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
+    """Declare a liveliness token at ``key``. KEEP THE RETURNED TOKEN REFERENCED: it is
+    undeclared when garbage-collected. It also vanishes when the session closes, the process
+    dies (~3 ms after SIGKILL) or the link lease expires (a hang: ``lease_ms``)."""
+    return session.liveliness().declare_token(key)
+
+
+LivelinessHandler = Callable[[str, bool], object]
+
+
+def watch_liveliness(
+    session: zenoh.Session,
+    pattern: str,
+    loop: asyncio.AbstractEventLoop,
+    on_change: LivelinessHandler,
+    *,
+    history: bool = True,
+) -> zenoh.Subscriber[None]:
+    """Call ``on_change(key, alive)`` on the loop thread when a token matching ``pattern``
+    appears (``True``) or disappears (``False``). With ``history`` the tokens already alive are
+    reported once at declaration."""
+
+    def on_sample(sample: zenoh.Sample) -> None:  # Zenoh thread
+        _post(loop, on_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+    return session.liveliness().declare_subscriber(pattern, on_sample, history=history)
+
+
+# --------------------------------------------------------------------------------------------

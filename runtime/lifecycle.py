@@ -1,0 +1,251 @@
+"""Process lifecycle of every node: signals, bounded shutdown, and the one bootstrap ``serve``.
+
+:func:`run_node` owns the event loop: SIGINT/SIGTERM set a stop ``asyncio.Event``, ``main`` gets
+``grace_s`` to return, is then cancelled, every session opened through :mod:`runtime.transport`
+and still open is closed, and a watchdog thread forces the process out ``hard_exit_s`` after the
+first signal if anything still hangs (every process exits within a second of a stop signal).
+
+:func:`serve` is the bootstrap every process shell uses on top of it: open the session (retrying
+while the router starts), hand the shell a :class:`NodeIO` (publishers, the subscription bridge,
+liveliness, tokens kept alive), and close everything whatever happens.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import signal
+import sys
+import threading
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from types import FrameType
+from typing import Any, Final
+
+import zenoh
+
+from runtime import transport as _tp
+from runtime.bridge import LivelinessHandler, Received, declare_token, subscribe, watch_liveliness
+from runtime.log import NodeLog
+
+__all__ = ["FORCED_EXIT_CODE", "NodeIO", "NodeMain", "run_node", "serve"]
+
+# --------------------------------------------------------------------------------------------
+# Process lifecycle
+# --------------------------------------------------------------------------------------------
+
+NodeMain = Callable[[asyncio.Event], Awaitable[int]]
+
+_STOP_SIGNALS: Final = (signal.SIGINT, signal.SIGTERM)
+FORCED_EXIT_CODE: Final = 70
+"""Exit status when the shutdown watchdog had to force the process out (EX_SOFTWARE)."""
+
+
+class _ShutdownWatchdog:
+    """Forces ``os._exit`` if the process has not finished shutting down in time.
+
+    Armed from a plain Python signal handler, so it starts counting even if the event loop is
+    stuck in blocking code and never runs its own signal callback.
+    """
+
+    def __init__(self, deadline_s: float) -> None:
+        self._deadline_s = deadline_s
+        self._armed = threading.Event()
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="shutdown-watchdog", daemon=True)
+        self._thread.start()
+
+    def arm(self) -> None:  # safe in a signal handler: only sets an Event nobody else locks
+        self._armed.set()
+
+    @staticmethod
+    def fire_now() -> None:
+        """Exit at once (the operator sent a second signal)."""
+        _forced_exit("run_node: second stop signal, exiting now")
+
+    def disarm(self) -> None:
+        self._done.set()
+        self._armed.set()
+        self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        self._armed.wait()
+        if self._done.wait(self._deadline_s):
+            return
+        _forced_exit("run_node: shutdown did not finish in time, forcing exit")
+
+
+def _forced_exit(message: str) -> None:
+    """Leave the process now: no cleanup can run (the kernel closes the sockets, so peers see the
+    links drop and the tokens vanish within milliseconds)."""
+    with contextlib.suppress(OSError):
+        os.write(2, message.encode() + b"\n")
+    os._exit(FORCED_EXIT_CODE)
+
+
+def _install_stop_signals(
+    loop: asyncio.AbstractEventLoop, stop: asyncio.Event, watchdog: _ShutdownWatchdog
+) -> dict[int, Any]:
+    """Install the stop handlers; return the previous Python handlers to restore."""
+    previous: dict[int, Any] = {sig: signal.getsignal(sig) for sig in _STOP_SIGNALS}
+
+    def on_signal_in_loop(signum: int) -> None:
+        if stop.is_set():  # second signal: the operator insists
+            watchdog.fire_now()
+        stop.set()
+
+    for sig in _STOP_SIGNALS:
+        # The loop callback sets the stop Event (asyncio's own wake-up-fd mechanism) ...
+        loop.add_signal_handler(sig, on_signal_in_loop, sig)
+        # ... and a chained Python-level handler arms the watchdog at once. asyncio's Python
+        # handler is a no-op placeholder (the wake-up fd does the work), so chaining is safe.
+        inner = signal.getsignal(sig)
+
+        def on_signal_now(signum: int, frame: FrameType | None, _inner: Any = inner) -> None:
+            watchdog.arm()
+            if callable(_inner):
+                _inner(signum, frame)
+
+        signal.signal(sig, on_signal_now)
+    return previous
+
+
+async def _supervise(main: NodeMain, grace_s: float, watchdog: _ShutdownWatchdog) -> int:
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    previous = _install_stop_signals(loop, stop, watchdog)
+    task: asyncio.Task[int] = asyncio.ensure_future(main(stop))
+    stopping = asyncio.ensure_future(stop.wait())
+    try:
+        await asyncio.wait({task, stopping}, return_when=asyncio.FIRST_COMPLETED)
+        if not task.done():
+            await asyncio.wait({task}, timeout=grace_s)
+        if not task.done():
+            print(
+                f"run_node: main did not return {grace_s:.2f} s after stop; cancelling",
+                file=sys.stderr,
+            )
+            task.cancel()
+            await asyncio.wait({task})
+    finally:
+        stopping.cancel()
+        watchdog.arm()  # from here on, shutdown is on the clock
+        for sig in _STOP_SIGNALS:
+            loop.remove_signal_handler(sig)  # also detaches the loop's wake-up fd
+            signal.signal(sig, previous[sig])
+        # Close sessions while the loop is still open, so no callback posts to a closed loop.
+        forgotten = _tp._close_node_sessions()
+        if forgotten:
+            print(f"run_node: closed {forgotten} session(s) main left open", file=sys.stderr)
+    if task.cancelled():
+        return 1
+    return task.result()  # re-raises main's exception
+
+
+def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) -> int:
+    """Run a node's ``main(stop)`` on a fresh event loop and return its exit status.
+
+    * SIGINT and SIGTERM set ``stop``; ``main`` should then return promptly (``0`` on a clean
+      stop). A second signal forces the exit.
+    * ``main`` gets ``grace_s`` seconds after ``stop`` to return, then it is cancelled (status 1).
+    * Every session opened with :func:`open_session`/:func:`open_session_async` and still open
+      is closed before the loop is, whatever happened (return, exception, cancellation).
+    * If the process is still shutting down ``hard_exit_s`` seconds after the first signal (or
+      after ``main`` ended), a watchdog writes to stderr and calls ``os._exit(70)``.
+
+    Call it from the main thread; use ``raise SystemExit(run_node(main))`` or return its value
+    from a ``formation`` subcommand. ``main``'s exceptions propagate after the cleanup.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        raise RuntimeError("run_node must be called from the main thread (signal handlers)")
+    if _tp._node_sessions is not None:
+        raise RuntimeError("run_node is already running")
+    watchdog = _ShutdownWatchdog(hard_exit_s)
+    _tp._track_node_sessions(True)
+    try:
+        return asyncio.run(_supervise(main, grace_s, watchdog))
+    finally:
+        _tp._close_node_sessions()  # again: a session opened during asyncio.run's own teardown
+        _tp._track_node_sessions(False)
+        watchdog.disarm()
+
+
+# --------------------------------------------------------------------------------------------
+# The node bootstrap
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class NodeIO:
+    """What :func:`serve` hands a process shell: its open session and the ways to use it.
+
+    Attributes:
+        session: the open Zenoh session (closed by :func:`serve`).
+        loop: the running event loop.
+        pubs: the publishers of this node (:class:`runtime.transport.Publishers`).
+        log: the node's :class:`~runtime.log.NodeLog`.
+        settings: the settings the session was opened with (``lease_ms`` sizes the hang gap).
+    """
+
+    session: zenoh.Session
+    loop: asyncio.AbstractEventLoop
+    pubs: _tp.Publishers
+    log: NodeLog
+    settings: _tp.ZenohSettings
+    _keep: list[Any] = field(default_factory=list)
+
+    def subscribe(self, key_expr: str, handler: Callable[[Received], object]) -> None:
+        """Deliver every sample of ``key_expr`` to ``handler`` on the loop, in arrival order
+        (:func:`runtime.bridge.subscribe`, the one bridge)."""
+        self._keep.append(subscribe(self.session, key_expr, self.loop, handler))
+
+    def watch_liveliness(self, pattern: str, on_change: LivelinessHandler) -> None:
+        """Call ``on_change(key, alive)`` on the loop when a token matching ``pattern`` appears
+        or vanishes (those already alive are reported once)."""
+        self._keep.append(watch_liveliness(self.session, pattern, self.loop, on_change))
+
+    def declare_token(self, key: str) -> None:
+        """Declare a liveliness token at ``key``, kept alive until the node ends."""
+        self._keep.append(declare_token(self.session, key))
+
+    def close(self) -> None:
+        """Drop the tokens and subscriptions (the session close undeclares them too)."""
+        self._keep.clear()
+
+
+NodeBody = Callable[[NodeIO, asyncio.Event], Awaitable[int]]
+
+
+def serve(
+    name: str,
+    settings: _tp.ZenohSettings,
+    body: NodeBody,
+    *,
+    grace_s: float = 0.4,
+    hard_exit_s: float = 0.9,
+) -> int:
+    """Run a process shell: the one bootstrap of every node; returns the exit status.
+
+    Opens the session (retrying while the router starts; on failure logs one line and returns
+    1), then awaits ``body(io, stop)`` under :func:`run_node` (signals, bounded shutdown), and
+    closes the tokens, subscriptions and session whatever happens. ``name`` prefixes the log
+    lines (``io.log``). ``body`` declares its publishers and subscriptions on ``io``, prints its
+    ready line, runs until ``stop`` is set and returns the exit status (0 on a clean stop).
+    """
+
+    async def main(stop: asyncio.Event) -> int:
+        log = NodeLog(name)
+        try:
+            session = await _tp.open_session_async(settings)
+        except (_tp.TransportError, ValueError) as exc:
+            log.info(str(exc))
+            return 1
+        io = NodeIO(session, asyncio.get_running_loop(), _tp.Publishers(session), log, settings)
+        try:
+            return await body(io, stop)
+        finally:
+            io.close()
+            session.close()
+
+    return run_node(main, grace_s=grace_s, hard_exit_s=hard_exit_s)

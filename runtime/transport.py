@@ -1,0 +1,447 @@
+"""Zenoh sessions for every process shell: settings, config, opening with retries, publishers.
+
+Only the ``runtime`` package imports ``zenoh``; the contract (``bus_schemas``) stays stdlib +
+msgpack and payloads here are plain ``bytes``.
+
+* **Settings -> config.** :class:`ZenohSettings` (or ``add_zenoh_arguments`` +
+  ``settings_from_args`` on a CLI) says where to connect. :func:`make_config` turns it into a
+  ``zenoh.Config``: an optional JSON5 file first, our settings on top. Multicast scouting is
+  always written as *off* unless asked for, so parallel runs never find each other by accident.
+* **Sessions.** :func:`open_session` / :func:`open_session_async` open a session. A client
+  session fails at once when no router is up, so both retry until ``open_timeout_s`` and then
+  raise :class:`TransportError` naming the endpoints. Sessions opened while
+  :func:`runtime.lifecycle.run_node` runs are tracked so it can close any a node forgot.
+* **Publishing.** :class:`Publishers` declares one publisher per key with a fixed :class:`QoS`.
+
+Receiving (the Zenoh thread -> event loop bridge) is :mod:`runtime.bridge`; the process
+lifecycle and the one node bootstrap (:func:`runtime.lifecycle.serve`) are
+:mod:`runtime.lifecycle`. docs/runtime.md has a worked example of a node.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Final, Literal
+
+import zenoh
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "QOS_CONTROL",
+    "QOS_CRITICAL",
+    "QOS_TELEMETRY",
+    "Publishers",
+    "QoS",
+    "TransportError",
+    "ZenohSettings",
+    "add_zenoh_arguments",
+    "make_config",
+    "open_session",
+    "open_session_async",
+    "settings_from_args",
+]
+
+DEFAULT_ENDPOINT: Final = "tcp/127.0.0.1:7447"
+"""Where ``formation up`` / ``formation router`` listen by default (bus contract, Connection)."""
+
+Mode = Literal["client", "peer", "router"]
+_MODES: Final = ("client", "peer", "router")
+
+# Transport keep-alive messages per lease period (Zenoh's own default ratio, written explicitly
+# so a short lease always comes with a proportionally short keep-alive interval).
+_KEEP_ALIVES_PER_LEASE: Final = 4
+_MIN_LEASE_MS: Final = 100
+_RETRY_PERIOD_S: Final = 0.1
+_CONNECT_RETRY: Final = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
+"""Client reconnection to its router after the link was lost (see :func:`make_config`)."""
+
+
+class TransportError(ConnectionError):
+    """A Zenoh session could not be opened (router absent, bad endpoint, port in use)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Settings and configuration
+# --------------------------------------------------------------------------------------------
+
+
+def _as_endpoints(value: Sequence[str], what: str) -> tuple[str, ...]:
+    if isinstance(value, str):  # a bare str would be split into characters
+        raise TypeError(f"{what} must be a sequence of endpoints, not a str: use ({value!r},)")
+    endpoints = tuple(value)
+    for ep in endpoints:
+        if not isinstance(ep, str) or "/" not in ep or ep.startswith("/") or ep.endswith("/"):
+            raise ValueError(f"{what}: {ep!r} is not a Zenoh endpoint like 'tcp/127.0.0.1:7447'")
+    return endpoints
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """Where and how a process joins the Zenoh network.
+
+    Attributes:
+        connect: endpoints to connect to, e.g. ``("tcp/127.0.0.1:7447",)``. Empty: leave the
+            config file's (or Zenoh's) value.
+        listen: endpoints to listen on (routers, and peers others connect to). Empty: listen on
+            nothing, or keep the config file's value when ``config_file`` is given.
+        mode: ``"client"`` (default: everything goes through a router), ``"peer"`` or
+            ``"router"``. ``None`` keeps the config file's mode.
+        config_file: optional Zenoh JSON5 config loaded first; the other fields are applied on
+            top (security, TLS, access control live there).
+        lease_ms: lease this session announces, in milliseconds: the far end declares it dead
+            (its liveliness tokens vanish) after ``lease_ms`` of silence, e.g. when the process is
+            hung or SIGSTOPped. Zenoh's default is 10000; 1000 detects a hang in about 1 s.
+            Keep-alives are sent every ``lease_ms / 4``. Set it on the process that may hang.
+        multicast_scouting: multicast discovery; off unless explicitly enabled (a config file
+            cannot switch it on by itself).
+        namespace: optional prefix Zenoh adds to every key of this session (isolation of
+            parallel runs); ``None`` keeps the config file's.
+        open_timeout_s: how long a client keeps retrying to reach a router, in seconds.
+    """
+
+    connect: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    listen: tuple[str, ...] = ()
+    mode: Mode | None = "client"
+    config_file: str | None = None
+    lease_ms: int | None = None
+    multicast_scouting: bool = False
+    namespace: str | None = None
+    open_timeout_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "connect", _as_endpoints(self.connect, "connect"))
+        object.__setattr__(self, "listen", _as_endpoints(self.listen, "listen"))
+        if self.mode is not None and self.mode not in _MODES:
+            raise ValueError(f"mode must be one of {_MODES}, got {self.mode!r}")
+        if self.lease_ms is not None and (
+            isinstance(self.lease_ms, bool) or int(self.lease_ms) < _MIN_LEASE_MS
+        ):
+            raise ValueError(f"lease_ms must be an int >= {_MIN_LEASE_MS}, got {self.lease_ms!r}")
+        if self.namespace is not None and (
+            not self.namespace or any(c in self.namespace for c in "*$?#")
+        ):
+            raise ValueError(
+                f"namespace must be a non-empty key without wildcards: {self.namespace!r}"
+            )
+        if not self.open_timeout_s >= 0.0:
+            raise ValueError(f"open_timeout_s must be >= 0, got {self.open_timeout_s!r}")
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Add the Zenoh options every process shares to ``parser`` and return it.
+
+    Options: ``--endpoint`` (repeatable, connect), ``--listen`` (repeatable), ``--zenoh-config``,
+    ``--mode``, ``--lease-ms``, ``--multicast-scouting``, ``--zenoh-namespace``. Their ``dest``
+    names start with ``zenoh_`` so they never clash with a node's own options.
+    """
+    group = parser.add_argument_group("zenoh")
+    group.add_argument(
+        "--endpoint",
+        dest="zenoh_connect",
+        action="append",
+        metavar="ENDPOINT",
+        help=f"Zenoh endpoint to connect to, repeatable (default {DEFAULT_ENDPOINT})",
+    )
+    group.add_argument(
+        "--listen",
+        dest="zenoh_listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on, repeatable (default: none)",
+    )
+    group.add_argument(
+        "--zenoh-config",
+        dest="zenoh_config",
+        metavar="FILE",
+        help="Zenoh JSON5 config file, loaded first; the options here override it",
+    )
+    group.add_argument(
+        "--mode",
+        dest="zenoh_mode",
+        choices=_MODES,
+        help="Zenoh mode (default client, or the config file's)",
+    )
+    group.add_argument(
+        "--lease-ms",
+        dest="zenoh_lease_ms",
+        type=int,
+        metavar="MS",
+        help="transport lease in ms: a hung process is declared dead after this (Zenoh: 10000)",
+    )
+    group.add_argument(
+        "--multicast-scouting",
+        dest="zenoh_multicast_scouting",
+        action="store_true",
+        help="enable multicast discovery (off by default)",
+    )
+    group.add_argument(
+        "--zenoh-namespace",
+        dest="zenoh_namespace",
+        metavar="PREFIX",
+        help="prefix Zenoh adds to every key of this process",
+    )
+    return parser
+
+
+def settings_from_args(ns: argparse.Namespace) -> ZenohSettings:
+    """Build :class:`ZenohSettings` from options added by :func:`add_zenoh_arguments`.
+
+    Without ``--endpoint`` a client/peer connects to :data:`DEFAULT_ENDPOINT`, except when a
+    config file is given (its ``connect`` is kept) or the mode is ``router``.
+    """
+    config_file: str | None = ns.zenoh_config
+    mode: Mode | None = ns.zenoh_mode
+    if mode is None and config_file is None:
+        mode = "client"
+    connect: tuple[str, ...]
+    if ns.zenoh_connect:
+        connect = tuple(ns.zenoh_connect)
+    elif config_file is not None or mode == "router":
+        connect = ()
+    else:
+        connect = (DEFAULT_ENDPOINT,)
+    return ZenohSettings(
+        connect=connect,
+        listen=tuple(ns.zenoh_listen or ()),
+        mode=mode,
+        config_file=config_file,
+        lease_ms=ns.zenoh_lease_ms,
+        multicast_scouting=bool(ns.zenoh_multicast_scouting),
+        namespace=ns.zenoh_namespace,
+    )
+
+
+def make_config(settings: ZenohSettings) -> zenoh.Config:
+    """The ``zenoh.Config`` for ``settings``: the config file if any, then the settings on top.
+
+    Without a config file the result is fully determined by ``settings`` (connect and listen are
+    written even when empty, so a peer does not fall back to listening on every interface).
+    """
+    if settings.config_file is not None:
+        try:
+            config = zenoh.Config.from_file(settings.config_file)
+        except zenoh.ZError as exc:
+            raise ValueError(f"bad Zenoh config file {settings.config_file!r}: {exc}") from exc
+    else:
+        config = zenoh.Config()
+    standalone = settings.config_file is None
+
+    def put(key: str, value: object) -> None:
+        config.insert_json5(key, json.dumps(value))
+
+    if settings.mode is not None:
+        put("mode", settings.mode)
+    if settings.connect or standalone:
+        put("connect/endpoints", list(settings.connect))
+    if settings.listen or standalone:
+        put("listen/endpoints", list(settings.listen))
+    put("scouting/multicast/enabled", bool(settings.multicast_scouting))
+    if (
+        not settings.multicast_scouting
+        and (settings.mode == "router" or not settings.connect)
+        and json.loads(config.get_json("scouting/delay")) is None
+    ):
+        # Zenoh waits `scouting/delay` (500 ms) in open() for scouted peers to connect. With
+        # multicast off a router (or a peer that connects nowhere) has nobody to wait for: skip
+        # it, so `formation router` is ready in ~2 ms instead of ~500 ms.
+        put("scouting/delay", 0)
+    retries = settings.mode in (None, "client") or bool(settings.connect)
+    if retries and json.loads(config.get_json("connect/retry")) is None:
+        # A client whose router goes away keeps its session and reconnects by itself, then
+        # re-declares its subscribers and liveliness tokens (measured with zenoh 1.10). Zenoh's
+        # default retry period starts at 1 s and doubles up to 4 s: a router restart would
+        # cost the loop 1-4 s. Retry every 100 ms, at most every 500 ms (measured here: the loop
+        # is back ~40 ms after the router is), which on loopback costs nothing. The same for a
+        # router or peer that connects to another router (a robot host's router across a link
+        # that went down: Zenoh's default took up to 4.5 s to bring it back, tests/test_multihost).
+        put("connect/retry", dict(_CONNECT_RETRY))
+    if settings.lease_ms is not None:
+        put("transport/link/tx/lease", int(settings.lease_ms))
+        put("transport/link/tx/keep_alive", _KEEP_ALIVES_PER_LEASE)
+    if settings.namespace is not None:
+        put("namespace", settings.namespace)
+    return config
+
+
+# Sessions opened by this module while run_node is running (None: no node running), so run_node
+# can close any its main forgot without touching sessions of anything else in the process.
+# zenoh.Session does not support weak references; closed sessions are pruned on every open.
+_node_sessions: list[zenoh.Session] | None = None
+_node_sessions_lock = threading.Lock()
+
+
+def _register(session: zenoh.Session) -> zenoh.Session:
+    with _node_sessions_lock:
+        if _node_sessions is not None:
+            _node_sessions[:] = [s for s in _node_sessions if not s.is_closed()]
+            _node_sessions.append(session)
+    return session
+
+
+def _track_node_sessions(enable: bool) -> list[zenoh.Session]:
+    """Start (``True``) or stop tracking; return the sessions tracked so far."""
+    global _node_sessions
+    with _node_sessions_lock:
+        tracked = _node_sessions or []
+        _node_sessions = [] if enable else None
+    return tracked
+
+
+def _close_node_sessions() -> int:
+    """Close the sessions the running node opened and left open; return how many."""
+    with _node_sessions_lock:
+        sessions = list(_node_sessions or [])
+    closed = 0
+    for s in sessions:
+        if not s.is_closed():
+            s.close()
+            closed += 1
+    return closed
+
+
+def _open_error(settings: ZenohSettings, waited_s: float, exc: BaseException) -> TransportError:
+    where = ", ".join(settings.connect) or "(config file endpoints)"
+    return TransportError(
+        f"could not open a Zenoh {settings.mode or 'session'} session to {where} "
+        f"within {waited_s:.1f} s: {exc}. Is `formation router` (or `formation up`) running?"
+    )
+
+
+def _open_once(settings: ZenohSettings) -> zenoh.Session:
+    return _register(zenoh.open(make_config(settings)))
+
+
+def _retries(settings: ZenohSettings) -> bool:
+    # Peers and routers open immediately and keep dialling in the background; only a client
+    # fails at once when no router answers.
+    return settings.mode in (None, "client")
+
+
+def open_session(settings: ZenohSettings, *, timeout_s: float | None = None) -> zenoh.Session:
+    """Open a session, retrying a client for up to ``timeout_s`` (default ``open_timeout_s``).
+
+    Blocks the calling thread: use :func:`open_session_async` inside an event loop. The caller
+    owns the session and must ``close()`` it (``try/finally``).
+
+    Raises:
+        TransportError: the session could not be opened in time.
+        ValueError: the config file is invalid.
+    """
+    timeout = settings.open_timeout_s if timeout_s is None else timeout_s
+    start = time.monotonic()
+    while True:
+        try:
+            return _open_once(settings)
+        except zenoh.ZError as exc:
+            waited = time.monotonic() - start
+            if not _retries(settings) or waited >= timeout:
+                raise _open_error(settings, waited, exc) from exc
+        time.sleep(min(_RETRY_PERIOD_S, max(0.0, timeout - (time.monotonic() - start))))
+
+
+async def open_session_async(
+    settings: ZenohSettings, *, timeout_s: float | None = None
+) -> zenoh.Session:
+    """:func:`open_session` for a coroutine: retries with ``asyncio.sleep`` and can be cancelled.
+
+    One attempt blocks the loop only for the few milliseconds ``zenoh.open`` takes.
+    """
+    timeout = settings.open_timeout_s if timeout_s is None else timeout_s
+    start = time.monotonic()
+    while True:
+        try:
+            return _open_once(settings)
+        except zenoh.ZError as exc:
+            waited = time.monotonic() - start
+            if not _retries(settings) or waited >= timeout:
+                raise _open_error(settings, waited, exc) from exc
+        await asyncio.sleep(min(_RETRY_PERIOD_S, max(0.0, timeout - (time.monotonic() - start))))
+
+
+# --------------------------------------------------------------------------------------------
+# Publishing
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=True)
+class QoS:
+    """Quality of service of one publisher (fixed when it is declared).
+
+    ``express`` puts the message in a batch of its own instead of letting the transmit task
+    coalesce what is queued. Measured here with eclipse-zenoh 1.10 (two clients through a
+    router, 100-byte ping-pong): no latency gain (round trip p50 519 us express vs 482 us not,
+    p99 1363 vs 706 us, on a loaded machine) but ~20x the CPU per put in the caller (30-45 us vs
+    ~2 us), and every express message is one more wake-up of every receiving process. Lockstep
+    went from 4.8x to 6.2x real time when the control and critical QoS stopped using it
+    (``formation up --lockstep --duration 30``, back to back). So no publisher here is express.
+    ``CongestionControl.DROP``: when the transmit queue stays full for ~1 ms the message being
+    sent is dropped (fine at control rates, but a tight loop of thousands of puts does lose
+    some, measured); ``BLOCK`` waits instead (the message must arrive).
+    """
+
+    priority: zenoh.Priority
+    congestion_control: zenoh.CongestionControl
+    express: bool
+
+
+QOS_CONTROL: Final = QoS(zenoh.Priority.REAL_TIME, zenoh.CongestionControl.DROP, express=False)
+"""Control loop data where only the newest counts: setpoint, wheels, pose."""
+
+QOS_CRITICAL: Final = QoS(zenoh.Priority.REAL_TIME, zenoh.CongestionControl.BLOCK, express=False)
+"""Must arrive, at once: estop, and every message a lockstep run waits for (clock)."""
+
+QOS_TELEMETRY: Final = QoS(zenoh.Priority.DATA, zenoh.CongestionControl.DROP, express=False)
+"""Observation data, batched: status, truth, leader, slot, assignment."""
+
+
+class Publishers:
+    """Cache of ``zenoh.Publisher`` objects, one declared per key on first use.
+
+    The QoS of a key is fixed by its first use; using the same key with another QoS raises
+    ``ValueError`` (a silent mismatch would hide a latency bug). Closing the session undeclares
+    them all; :meth:`undeclare_all` does it earlier.
+    """
+
+    def __init__(self, session: zenoh.Session, default_qos: QoS = QOS_TELEMETRY) -> None:
+        self._session = session
+        self._default = default_qos
+        self._pubs: dict[str, tuple[zenoh.Publisher, QoS]] = {}
+
+    def get(self, key: str, qos: QoS | None = None) -> zenoh.Publisher:
+        """The publisher of ``key``, declared with ``qos`` (or the default) on first use."""
+        want = self._default if qos is None else qos
+        entry = self._pubs.get(key)
+        if entry is not None:
+            if qos is not None and entry[1] != want:
+                raise ValueError(f"publisher {key!r} already declared with {entry[1]}, not {want}")
+            return entry[0]
+        pub = self._session.declare_publisher(
+            key,
+            priority=want.priority,
+            congestion_control=want.congestion_control,
+            express=want.express,
+        )
+        self._pubs[key] = (pub, want)
+        return pub
+
+    def put(self, key: str, payload: bytes, qos: QoS | None = None) -> None:
+        """Publish ``payload`` on ``key`` (raises ``zenoh.ZError`` once the session is closed)."""
+        self.get(key, qos).put(payload)
+
+    def undeclare_all(self) -> None:
+        """Undeclare every cached publisher (no-op for those of a closed session)."""
+        for pub, _ in self._pubs.values():
+            pub.undeclare()
+        self._pubs.clear()
+
+    def __len__(self) -> int:
+        return len(self._pubs)
+
+
+# --------------------------------------------------------------------------------------------

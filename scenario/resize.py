@@ -1,0 +1,99 @@
+"""``--robots N``: a scenario table resized to robots ``r1..rN``.
+
+New robots start with their reference point on their slot (eqs 10-11), so a resized fleet
+starts in formation; chevron and lattice formations grow to N slots. The coordinator cores are
+imported inside the function that needs them, so loading a scenario (what an agent does) never
+pulls in numpy.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from scenario.load import ScenarioError
+
+__all__ = ["scenario_with_robots"]
+
+
+def _robot_ids(robots: Mapping[str, Any]) -> list[str]:
+    if "ids" in robots:
+        return [str(r) for r in robots["ids"]]
+    return [f"r{i + 1}" for i in range(int(robots.get("count", 0)))]
+
+
+def _slot_poses(data: Mapping[str, Any]) -> list[tuple[float, float, float]]:
+    """Axle-centre poses that put each robot's reference point on a slot at t = 0, in slot
+    definition order (the reference point is ``ref_offset_m`` ahead of the axle, eqs 10-11)."""
+    from coordinator.formation import FormationSpec, slot_states
+    from coordinator.trajectory import make_trajectory
+
+    traj = dict(data["trajectory"])
+    kind = str(traj.pop("kind"))
+    leader = make_trajectory(kind, traj).sample(0.0)
+    spec = FormationSpec.from_dict(dict(data["formation"]))
+    l_m = float(data.get("geometry", {}).get("ref_offset_m", 0.05))
+    return [
+        (s.x - l_m * math.cos(s.theta), s.y - l_m * math.sin(s.theta), s.theta)
+        for s in slot_states(spec, leader)
+    ]
+
+
+def scenario_with_robots(data: Mapping[str, Any], n: int) -> dict[str, Any]:
+    """A copy of the scenario table ``data`` with robots ``r1..rN``.
+
+    Robots that existed keep their start pose; new ones start on their slot (robot ``rK`` on the
+    K-th slot of the formation, in definition order) or, beyond the last slot, in rows 0.5 m
+    behind the formation, 0.4 m apart. A chevron or lattice formation gets ``n`` slots; a
+    disturbance of a robot that no longer exists is dropped.
+    """
+    if n < 1:
+        raise ScenarioError(f"--robots: need at least 1 robot, got {n}")
+    out = copy.deepcopy(dict(data))
+    robots = dict(out.get("robots", {}))
+    old_ids = _robot_ids(robots)
+    old_initial = robots.get("initial")
+    ids = [f"r{i + 1}" for i in range(n)]
+    formation = dict(out.get("formation", {}))
+    if formation.get("kind") in ("chevron", "lattice"):
+        if isinstance(formation.get("params"), Mapping):
+            formation["params"] = {**formation["params"], "n": n}
+        else:
+            formation["n"] = n
+        out["formation"] = formation
+    try:
+        slot_poses = _slot_poses(out)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ScenarioError(f"--robots: cannot place new robots: {exc}") from exc
+    # rows behind the formation, in the leader's frame
+    leader_x, leader_y, heading = slot_poses[0] if slot_poses else (0.0, 0.0, 0.0)
+    c, s = math.cos(heading), math.sin(heading)
+    rear = min(((x - leader_x) * c + (y - leader_y) * s for x, y, _ in slot_poses), default=0.0)
+    initial: list[list[float]] = []
+    for i, rid in enumerate(ids):
+        if isinstance(old_initial, list) and i < len(old_initial) and old_ids[i : i + 1] == [rid]:
+            initial.append([float(v) for v in old_initial[i]])
+        elif i < len(slot_poses):
+            initial.append([round(v, 6) for v in slot_poses[i]])
+        else:
+            extra = i - len(slot_poses)
+            row, col = divmod(extra, 5)
+            back = rear - 0.5 * (row + 1)
+            side = 0.4 * (col - 2)
+            initial.append(
+                [
+                    round(leader_x + back * c - side * s, 6),
+                    round(leader_y + back * s + side * c, 6),
+                    round(heading, 6),
+                ]
+            )
+    out["robots"] = {"ids": ids, "initial": initial}
+    if "disturbance" in out:
+        kept = [d for d in out["disturbance"] if d.get("robot") in ids]
+        if kept:
+            out["disturbance"] = kept
+        else:
+            del out["disturbance"]
+    return out

@@ -1,0 +1,312 @@
+"""The floor plan (docs/architecture.md): every import points down, nothing imports in a circle.
+
+Plain ``ast`` over every ``.py`` file of the project's packages, every import statement included
+(module level, inside functions, under ``if TYPE_CHECKING``). Each module is on one floor; a
+module may import modules of its own floor or of a lower one, never of a higher one, and the
+graph of imports between the project's modules has no cycle. The last tests show the checker
+has teeth: an upward import or a cycle added to a copy of the tree makes it fail.
+"""
+
+from __future__ import annotations
+
+import ast
+import shutil
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+PACKAGES = (
+    "bus_schemas",
+    "robot_agent",
+    "coordinator",
+    "sim_plant",
+    "scenario",
+    "runtime",
+    "formation",
+)
+
+# Floors, bottom up. A rule is a module name or a package prefix ending in ".*"; the most
+# specific rule wins (exact name, then the longest prefix).
+FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("contract", ("bus_schemas", "bus_schemas.*")),
+    (
+        "cores",
+        (
+            "robot_agent",
+            "robot_agent.*",
+            "coordinator",
+            "coordinator.*",
+            "sim_plant",
+            "sim_plant.*",
+        ),
+    ),
+    ("scenario", ("scenario.*", "scenario")),
+    ("runtime", ("runtime.*", "runtime")),
+    (
+        "shells",
+        ("robot_agent.node", "robot_agent.host", "coordinator.node", "sim_plant.node"),
+    ),
+    ("tools", ("formation", "formation.*")),
+)
+
+
+def module_files(root: Path) -> dict[str, Path]:
+    """Dotted module name -> file, for every ``.py`` file of :data:`PACKAGES` under ``root``."""
+    out: dict[str, Path] = {}
+    for pkg in PACKAGES:
+        base = root / pkg
+        if not base.is_dir():
+            continue
+        for path in sorted(base.rglob("*.py")):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            out[".".join(parts)] = path
+    return out
+
+
+def floor_of(module: str) -> int:
+    """Index of ``module``'s floor in :data:`FLOORS` (KeyError if no rule covers it)."""
+    best: tuple[int, int] | None = None  # (specificity, floor)
+    for index, (_, rules) in enumerate(FLOORS):
+        for rule in rules:
+            if rule.endswith(".*"):
+                prefix = rule[:-2]
+                if module.startswith(prefix + "."):
+                    spec = len(prefix)
+                else:
+                    continue
+            elif rule == module:
+                spec = 10_000
+            else:
+                continue
+            if best is None or spec > best[0]:
+                best = (spec, index)
+    if best is None:
+        raise KeyError(f"{module}: on no floor of tests/test_layers.py FLOORS")
+    return best[1]
+
+
+def _imported(module: str, is_package: bool, node: ast.AST, known: Iterable[str]) -> list[str]:
+    """Project modules an import statement loads (``from pkg import sub`` -> ``pkg.sub``)."""
+    known = set(known)
+    targets: list[str] = []
+    if isinstance(node, ast.Import):
+        targets = [alias.name for alias in node.names]
+    elif isinstance(node, ast.ImportFrom):
+        if node.level:
+            base = module.split(".")
+            if not is_package:
+                base = base[:-1]
+            if node.level > 1:
+                base = base[: len(base) - (node.level - 1)]
+            parent = ".".join(base + ([node.module] if node.module else []))
+        else:
+            parent = node.module or ""
+        subs = [f"{parent}.{a.name}" for a in node.names if f"{parent}.{a.name}" in known]
+        targets = subs if len(subs) == len(node.names) else [parent, *subs]
+    out: list[str] = []
+    for target in targets:
+        while target and target not in known and "." in target:
+            target = target.rsplit(".", 1)[0]
+        if target in known and target != module:
+            out.append(target)
+    return out
+
+
+def import_graph(root: Path) -> dict[str, dict[str, int]]:
+    """module -> {imported project module: line of the first such import}."""
+    files = module_files(root)
+    graph: dict[str, dict[str, int]] = {}
+    for module, path in files.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        edges: dict[str, int] = {}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import | ast.ImportFrom):
+                for target in _imported(module, path.name == "__init__.py", node, files):
+                    edges.setdefault(target, node.lineno)
+        graph[module] = edges
+    return graph
+
+
+def upward_imports(graph: Mapping[str, Mapping[str, int]]) -> list[str]:
+    """Every import of a module on a higher floor, as readable lines."""
+    bad: list[str] = []
+    for module, edges in sorted(graph.items()):
+        mine = floor_of(module)
+        for target, line in sorted(edges.items()):
+            theirs = floor_of(target)
+            if theirs > mine:
+                bad.append(
+                    f"{module}:{line} ({FLOORS[mine][0]}) imports {target} ({FLOORS[theirs][0]})"
+                )
+    return bad
+
+
+def _facade(module: str, graph: Mapping[str, Mapping[str, int]]) -> bool:
+    """A package ``__init__`` that only re-exports its own submodules."""
+    return any(other.startswith(module + ".") for other in graph)
+
+
+def cycles(graph: Mapping[str, Mapping[str, int]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan), sorted.
+
+    An edge from a package's submodule to the package itself (``from bus_schemas import keys``
+    loads ``bus_schemas/__init__``, which imports the submodules back) is not a cycle of the
+    design, so edges into a package's own ``__init__`` from inside the package are left out.
+    """
+    edges = {
+        m: [t for t in targets if not (_facade(t, graph) and m.startswith(t + "."))]
+        for m, targets in graph.items()
+    }
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    counter = 0
+
+    def visit(v: str) -> None:
+        nonlocal counter
+        index[v] = low[v] = counter
+        counter += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in edges.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp: list[str] = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+# --------------------------------------------------------------------------------------------
+# The checks on this repository
+# --------------------------------------------------------------------------------------------
+
+
+def test_every_module_is_on_a_floor() -> None:
+    modules = module_files(ROOT)
+    assert len(modules) > 50, "the scanner found too few modules"
+    for module in modules:
+        floor_of(module)  # raises for a module no rule covers
+
+
+def test_floor_rules_place_the_shells_above_the_runtime() -> None:
+    names = [name for name, _ in FLOORS]
+    assert names.index("contract") < names.index("cores") < names.index("scenario")
+    assert names.index("scenario") < names.index("runtime") < names.index("shells")
+    assert floor_of("robot_agent.firmware") == names.index("cores")
+    assert floor_of("robot_agent.node") == names.index("shells")
+    assert floor_of("coordinator.node") == names.index("shells")
+    assert floor_of("runtime.bridge") == names.index("runtime")
+    assert floor_of("formation.up") == names.index("tools")
+
+
+def test_scanner_sees_function_level_imports() -> None:
+    graph = import_graph(ROOT)
+    # scenario.resize imports the coordinator cores inside a function only.
+    assert "coordinator.formation" in graph["scenario.resize"]
+
+
+def test_every_import_points_down() -> None:
+    bad = upward_imports(import_graph(ROOT))
+    assert not bad, "imports pointing up (docs/architecture.md):\n" + "\n".join(bad)
+
+
+def test_no_import_cycles() -> None:
+    found = cycles(import_graph(ROOT))
+    assert not found, f"import cycles: {found}"
+
+
+def test_contract_imports_neither_zenoh_nor_asyncio() -> None:
+    for module, path in module_files(ROOT).items():
+        if not module.startswith("bus_schemas"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names: list[str] = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            for name in names:
+                assert name.split(".")[0] not in ("zenoh", "asyncio"), f"{module} imports {name}"
+
+
+def test_no_process_shell_imports_the_cli() -> None:
+    graph = import_graph(ROOT)
+    shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
+    assert len(shells) == 4
+    for shell in shells:
+        assert not [t for t in graph[shell] if t.startswith("formation")], shell
+
+
+# --------------------------------------------------------------------------------------------
+# Teeth: the checker fails on a copy of the tree with a bad import added
+# --------------------------------------------------------------------------------------------
+
+
+def _copy_tree(tmp_path: Path) -> Path:
+    for pkg in PACKAGES:
+        shutil.copytree(ROOT / pkg, tmp_path / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    return tmp_path
+
+
+def _append(path: Path, text: str) -> None:
+    path.write_text(path.read_text(encoding="utf-8") + "\n" + text + "\n", encoding="utf-8")
+
+
+def test_teeth_copy_is_clean(tmp_path: Path) -> None:
+    root = _copy_tree(tmp_path)
+    graph = import_graph(root)
+    assert not upward_imports(graph)
+    assert not cycles(graph)
+
+
+@pytest.mark.parametrize(
+    ("file", "statement", "expected"),
+    [
+        # a function-level import of the CLI from the contract
+        ("bus_schemas/keys.py", "def _late():\n    from formation import cli\n", "formation.cli"),
+        # a core that reaches up into the runtime
+        ("robot_agent/firmware.py", "import runtime.bridge\n", "runtime.bridge"),
+        # a process shell importing the CLI package (the old formation.scenario habit)
+        ("sim_plant/node.py", "from formation.up import UpConfig\n", "formation.up"),
+    ],
+)
+def test_teeth_upward_import_fails(
+    tmp_path: Path, file: str, statement: str, expected: str
+) -> None:
+    root = _copy_tree(tmp_path)
+    _append(root / file, statement)
+    bad = upward_imports(import_graph(root))
+    assert any(expected in line for line in bad), bad
+
+
+def test_teeth_cycle_fails(tmp_path: Path) -> None:
+    root = _copy_tree(tmp_path)
+    # coordinator.assignment already imports coordinator.formation: close the loop.
+    _append(
+        root / "coordinator" / "formation.py", "def _late():\n    import coordinator.assignment\n"
+    )
+    found = cycles(import_graph(root))
+    assert any({"coordinator.assignment", "coordinator.formation"} <= set(c) for c in found), found
+    assert not upward_imports(import_graph(root))  # same floor: only the cycle check catches it
