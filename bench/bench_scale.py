@@ -47,7 +47,7 @@ from common import cpu_s, free_port, measure_floor, running, vm_hwm_kib
 
 import runtime as rt
 import scenario as scenario_mod
-from coordinator.node import coordinator_status_key
+from bus_schemas import keys
 from scenario import scenario_with_robots, to_toml
 
 PY = sys.executable
@@ -74,7 +74,9 @@ class CoordinatorWatch:
         self.session = rt.open_session(settings)
         self.latest: dict[str, Any] = {}
         self._lock = threading.Lock()
-        self._sub = self.session.declare_subscriber(coordinator_status_key(fleet, "main"), self._on)
+        self._sub = self.session.declare_subscriber(
+            keys.coordinator_status_key(fleet, "main"), self._on
+        )
 
     def _on(self, sample: Any) -> None:
         with contextlib.suppress(Exception):

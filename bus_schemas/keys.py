@@ -217,6 +217,16 @@ def host_wheels_key(fleet: str, name: str) -> str:
     return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{WHEELS}"
 
 
+def coordinator_status_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/coordinator/<name>/status``: status of coordinator instance ``name``."""
+    return f"{_fleet_prefix(fleet)}/coordinator/{check_name(name)}/{STATUS}"
+
+
+def plant_status_key(fleet: str) -> str:
+    """``formation/<fleet>/plant/status``: status of the plant simulator."""
+    return f"{_fleet_prefix(fleet)}/plant/{STATUS}"
+
+
 def host_status_key(fleet: str, name: str) -> str:
     """``formation/<fleet>/host/<name>/status``: status of an agent host's robots."""
     return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{STATUS}"

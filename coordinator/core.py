@@ -26,6 +26,7 @@ from coordinator.formation import (
     states_from_rows,
 )
 from coordinator.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
+from robot_agent.kinematics import reference_point
 
 __all__ = ["CoordinatorCore", "CoordinatorOutput"]
 
@@ -229,12 +230,11 @@ class CoordinatorCore:
     ) -> tuple[list[str], list[tuple[float, float]]]:
         """Reference points (eqs 10-11) of the finite poses: (ids, (x, y) in m), input order."""
         l_m = self.ref_offset_m
-        cos, sin, isfinite = math.cos, math.sin, math.isfinite
+        isfinite = math.isfinite
         ids: list[str] = []
         xy: list[tuple[float, float]] = []
         for rid, (x, y, th) in poses.items():
-            xr = x + l_m * cos(th)
-            yr = y + l_m * sin(th)
+            xr, yr = reference_point(x, y, th, l_m)
             if isfinite(xr) and isfinite(yr):
                 ids.append(rid)
                 xy.append((xr, yr))

@@ -5,76 +5,23 @@ Usage::
     formation coordinator --scenario NAME|FILE [--name main] [--fleet demo] [--rate-hz 50]
                           [--lockstep] [zenoh options]
 
-A thin asyncio shell over :class:`coordinator.core.CoordinatorCore`, built from the scenario
-exactly like ``formation/simulate.py`` builds it. It prints exactly one line
-``coordinator ready`` on stdout once its session is open, its subscriptions and its liveliness
-token ``formation/<fleet>/alive/coordinator/<name>`` are declared, and exits 0 within a second
-of SIGINT/SIGTERM.
+A thin asyncio shell over :class:`coordinator.core.CoordinatorCore`, built from the scenario by
+``scenario.assemble`` (the assembly ``formation/simulate.py`` uses too); the standby election
+is :mod:`coordinator.election`, the lockstep rules :mod:`robot_agent.lockstep`. It prints
+exactly one line ``coordinator ready`` on stdout once its session is open, its subscriptions
+and its liveliness token ``formation/<fleet>/alive/coordinator/<name>`` are declared, and exits
+0 within a second of SIGINT/SIGTERM.
 
-Theory of operation
--------------------
-Inputs: liveliness of the agents (``alive/robot/*``: a robot is *alive* while its token is
-present), measured poses ``robot/*/pose`` (decoded on the event loop; a bad one is counted in
-``rejected`` and ignored; so is a pose whose ``robot`` field disagrees with its key, or farther
-than :data:`POSITION_LIMIT_M` from the origin), and in
-lockstep ``clock``. The robots offered to the assignment are the alive ones whose latest pose is
-*fresh*: received within the scenario's ``safety.stale_pose_s`` of the tick (receive times are
-local: this host's ``time.monotonic()`` in realtime, the clock's sim time in lockstep). They are
-passed in the scenario's robot order (then any other id, sorted), so ties break the same way as
-in the in-process simulator.
-
-Realtime (default): a fixed-rate loop (``--rate-hz``). The trajectory's time origin ``t0`` is
-this process's ``time.monotonic()`` at its first tick (published as ``leader_t0`` in the 1 Hz
-heartbeat), so the virtual leader starts at the trajectory's t = 0 when the coordinator starts
-ticking. Each tick publishes the setpoint of every assigned robot (``robot/<id>/setpoint``: the
-slot's fields plus ``robot``), ``leader``, every ``slot/<k>``, and ``assignment`` when it changed
-and at least once a second.
-
-Lockstep (``--lockstep``, docs/runtime.md): on ``clock`` k the core ticks at ``clock.t`` (t0 = 0,
-as in the simulator) on the poses received so far (a pose received since the previous clock
-counts as received at this clock's t); it publishes every slot and the setpoints with the extra
-field ``tick: k``, the assignment if it changed (or
->= 1 s of sim time since the last), then ``leader`` with ``tick: k`` LAST, all at the clock's
-priority (Zenoh keeps order only within one priority, and zenoh-python only within one
-subscriber unless ``runtime.bridge.subscribe``'s ordered callback is used): the plant waits for it,
-and because setpoints and leader share one session and one priority, every setpoint of tick k
-reaches the router before the plant can start tick k+1. A repeated clock k is answered by
-re-sending the same messages.
-
-Standby (``--standby``, docs/faults.md)
-----------------------------------------
-Several instances may run; exactly one is *active* (ticks and publishes), the others are hot
-standbys. Every instance publishes a ``heartbeat`` (``active``, ``epoch``, ``leader_t0``) every
-:data:`HEARTBEAT_PERIOD_S` and watches the others' tokens ``alive/coordinator/*`` and heartbeats.
-A standby remembers the active's ``leader_t0`` and its last ``assignment``. Election, re-run when
-a coordinator token vanishes and on every loop turn: a standby takes over only when no live
-instance is active or of unknown role (token present, no heartbeat yet), and no live standby
-comes before it (``main`` first, then by name); it then takes ``epoch`` = the highest seen + 1,
-the previous active's ``leader_t0`` (so the virtual leader continues without a jump), seeds the
-role assigner's incumbents with the previous assignment (no role chatter) and ticks at once.
-Never two actives: a standby needs the active's token gone, which happens ~3 ms after it dies or
-one lease after it hangs; an instance resuming from a hang (its loop late by more than
-``stall.gap_s``, 0.9 lease) steps down before it publishes anything; and if two actives ever
-meet (two instances started without ``--standby``), the one with the lower epoch, then the later
-name, steps down on the other's heartbeat. An instance without ``--standby`` starts active.
-
-Also published (not part of bus contract v1, plain msgpack maps readable by any decoder):
-``formation/<fleet>/coordinator/<name>/status`` at 5 Hz with ``v``, ``t``, ``seq``, ``rejected``
-(messages rejected), ``rx`` (received per input), ``ticks``, ``alive`` (robot ids), ``assignment``
-(robot -> slot), ``leader`` (robot id or nil), ``mode``, ``internal_errors``, ``role``
-(``active``/``standby``), ``epoch``, ``takeovers``, ``stepdowns``, ``pid`` and ``host``. Role
-changes are logged to stderr.
+Theory of operation: docs/process-shells.md (inputs, outputs, realtime and lockstep).
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import math
 import os
 import socket
-import sys
 import time
 from collections import deque
 from collections.abc import Iterable, Mapping
@@ -100,12 +47,13 @@ from bus_schemas import (
     encode,
     keys,
 )
-from coordinator.core import CoordinatorCore, CoordinatorOutput
+from coordinator.core import CoordinatorOutput
 from coordinator.election import Election, Takeover
 from robot_agent.lockstep import Arrivals, Replay
-from scenario import Scenario, ScenarioError, load
+from scenario import Scenario
+from scenario.assemble import coordinator_core
 
-__all__ = ["CoordinatorNode", "build_parser", "coordinator_status_key", "main"]
+__all__ = ["CoordinatorNode"]
 
 STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
@@ -121,24 +69,6 @@ MAX_ROBOTS: Final = 4096
 POSITION_LIMIT_M: Final = 1.0e4
 """A pose farther than this from the origin (m, per axis) is rejected: it can only be garbage,
 and squared distances of absurd positions overflow the assignment's costs."""
-
-
-def coordinator_status_key(fleet: str, name: str) -> str:
-    """``formation/<fleet>/coordinator/<name>/status``: this node's status map."""
-    return f"{keys.ROOT}/{keys.check_fleet(fleet)}/coordinator/{keys.check_name(name)}/status"
-
-
-def core_from_scenario(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
-    """The coordinator core of ``scenario``, built exactly as ``formation/simulate.py`` does."""
-    return CoordinatorCore.from_config(
-        scenario.trajectory,
-        scenario.formation,
-        scenario.assignment.method,
-        scenario.assignment.hysteresis_m,
-        scenario.assignment.tie_tol_m,
-        ref_offset_m=scenario.agent.geometry.ref_offset_m,
-        t0_s=t0_s,
-    )
 
 
 class CoordinatorNode:
@@ -164,7 +94,7 @@ class CoordinatorNode:
         self.name = keys.check_name(name)
         self.fleet = keys.check_fleet(fleet)
         self.lockstep = lockstep
-        self.core = core_from_scenario(scenario)
+        self.core = coordinator_core(scenario)
         self.stale_pose_s = scenario.agent.safety.stale_pose_s
         # Realtime: a stop of this process (runtime.stall) makes an active instance step down.
         self.stall = rt.StallDetector(gap_s=rt.HANG_GAP_NO_LEASE_S)
@@ -175,7 +105,7 @@ class CoordinatorNode:
         self.leader_key = keys.leader_key(fleet)
         self.assignment_key = keys.assignment_key(fleet)
         self.clock_key = keys.clock_key(fleet)
-        self.status_key = coordinator_status_key(fleet, name)
+        self.status_key = keys.coordinator_status_key(fleet, name)
         self.heartbeat_key = keys.heartbeat_key(fleet, name)
         self.alive_key = keys.alive_coordinator_key(fleet, name)
         self.poses_pattern = keys.all_poses_pattern(fleet)
@@ -678,110 +608,3 @@ def _describe(assignment: Mapping[str, int]) -> str:
     parts: Iterable[str] = (f"{rid}->{slot}" for rid, slot in sorted(assignment.items()))
     leader = next((rid for rid, slot in assignment.items() if slot == 0), None)
     return f"{' '.join(parts) or '(none)'}; leader {leader or '-'}"
-
-
-# ---------------------------------------------------------------------------------------------
-# CLI
-# ---------------------------------------------------------------------------------------------
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The ``formation coordinator`` argument parser."""
-    parser = argparse.ArgumentParser(
-        prog="formation coordinator",
-        description="Run the coordinator (virtual leader, slots, roles, setpoints) as a node.",
-    )
-    parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
-    parser.add_argument("--name", default="main", help="coordinator instance name (main)")
-    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
-    parser.add_argument(
-        "--rate-hz", type=rt.rate_hz, default=50.0, metavar="HZ", help="realtime tick rate (50)"
-    )
-    parser.add_argument(
-        "--lockstep", action="store_true", help="tick on the plant's clock (docs/runtime.md)"
-    )
-    parser.add_argument(
-        "--standby",
-        action="store_true",
-        help="start as a hot standby: take over when the active instance is gone (docs/faults.md)",
-    )
-    parser.add_argument(
-        "--batch",
-        action="store_true",
-        help="large fleets: read the batched pose frames and publish batched setpoints "
-        "(agent hosts read them; slot keys at 1 Hz); docs/scale.md",
-    )
-    rt.add_zenoh_arguments(parser)
-    return parser
-
-
-def main(argv: list[str]) -> int:
-    """Entry point of ``formation coordinator``; returns the exit status."""
-    ns = build_parser().parse_args(argv)
-    log = rt.NodeLog(f"coordinator {ns.name}")
-    if not keys.is_name(ns.name) or not keys.is_name(ns.fleet):
-        log.info(f"invalid --name {ns.name!r} or --fleet {ns.fleet!r}: {keys.NAME_PATTERN}")
-        return 2
-    try:
-        scenario = load(ns.scenario)
-        core_from_scenario(scenario)  # fail now, before the ready line, on a bad trajectory
-    except (ScenarioError, OSError, ValueError, KeyError, TypeError) as exc:
-        log.info(f"scenario: {exc}")
-        return 2
-    try:
-        settings = rt.settings_from_args(ns)
-    except (TypeError, ValueError) as exc:
-        log.info(f"zenoh settings: {exc}")
-        return 2
-    return rt.serve(
-        f"coordinator {ns.name}",
-        settings,
-        lambda io, stop: _node(
-            io, stop, scenario, ns.name, ns.fleet, ns.lockstep, ns.rate_hz, ns.standby, ns.batch
-        ),
-    )
-
-
-async def _node(
-    io: rt.NodeIO,
-    stop: asyncio.Event,
-    scenario: Scenario,
-    name: str,
-    fleet: str,
-    lockstep: bool,
-    rate_hz: float,
-    standby: bool = False,
-    batch: bool = False,
-) -> int:
-    node = CoordinatorNode(
-        scenario, name, fleet, io.pubs.put, lockstep=lockstep, standby=standby, batch=batch,
-        log=io.log,
-    )  # fmt: skip
-    # Only a stop of the whole process lets the token expire (keep-alives come from Zenoh's own
-    # threads, not this loop), after a whole lease of silence (runtime.stall).
-    node.stall.gap_s = rt.hang_gap_for(io.settings.lease_ms, default_s=rt.HANG_GAP_NO_LEASE_S)
-    io.pubs.get(node.leader_key, node.leader_qos)
-    for rid in () if batch else scenario.robot_ids:
-        io.pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
-    io.watch_liveliness(node.alive_pattern, node.on_alive)
-    io.watch_liveliness(node.coordinators_pattern, node.on_alive)
-    io.subscribe(node.heartbeats_pattern, node.on_heartbeat)
-    io.subscribe(node.assignment_key, node.on_assignment)
-    if batch:
-        io.pubs.get(node.setpoints_key, node.sp_qos)
-        io.subscribe(node.poses_key, node.on_poses)
-    else:
-        io.subscribe(node.poses_pattern, node.on_pose)
-    if lockstep:
-        io.subscribe(node.clock_key, node.on_clock)
-    io.declare_token(node.alive_key)
-    print("coordinator ready", flush=True)
-    mode = "lockstep" if lockstep else f"realtime at {rate_hz:g} Hz"
-    role = "standby" if standby else "active"
-    io.log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}, {role}")
-    await node.run(stop, rate_hz)
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main(sys.argv[1:]))

@@ -27,6 +27,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
+from robot_agent.kinematics import wrap_angle  # the one wrap to (-pi, pi]; NaN for non-finite
+
 __all__ = [
     "TRAJECTORY_KINDS",
     "Circle",
@@ -40,12 +42,6 @@ __all__ = [
 ]
 
 _TWO_PI = 2.0 * math.pi
-
-
-def wrap_angle(a_rad: float) -> float:
-    """Wrap an angle in radians to (-pi, pi]."""
-    w = math.remainder(a_rad, _TWO_PI)
-    return math.pi if w == -math.pi else w
 
 
 @dataclass(frozen=True, slots=True)

@@ -59,6 +59,7 @@ from bus_schemas import (
     keys,
 )
 from formation.runlog import MODE_CODES, RunLog
+from robot_agent.kinematics import reference_point
 from scenario import Scenario
 from sim_plant.accounting import SeparationMonitor
 
@@ -420,8 +421,7 @@ class RunCollector:
             pose = latest[i]
             target = slot_xy.get(slot) if slot is not None else None
             if pose is not None and target is not None:
-                xr = pose[0] + l_m * math.cos(pose[2])
-                yr = pose[1] + l_m * math.sin(pose[2])
+                xr, yr = reference_point(pose[0], pose[1], pose[2], l_m)
                 err = math.hypot(target[0] - xr, target[1] - yr)
             robots.append(
                 LiveRobot(

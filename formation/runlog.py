@@ -97,6 +97,7 @@ class RunLog:
         # np.array's nested-sequence discovery.
         tr = np.fromiter(flat(flat(truth)), f64, ticks * n * 3).reshape(ticks, n, 3)
         ref = np.empty((ticks, n, 2))
+        # eqs 10-11 over the whole log at once: robot_agent.kinematics.reference_point, vectorised
         ref[:, :, 0] = tr[:, :, 0] + ref_offset_m * np.cos(tr[:, :, 2])  # eq 10
         ref[:, :, 1] = tr[:, :, 1] + ref_offset_m * np.sin(tr[:, :, 2])  # eq 11
         width = len(slot_rows[0][0]) if ticks and m else 2

@@ -44,6 +44,7 @@ from bus_schemas import (
 from bus_schemas import Pose as BusPose
 from bus_schemas import Truth as BusTruth
 from formation.bus_json import alive_kind
+from robot_agent.kinematics import reference_point
 from robot_agent.params import RobotGeometry
 
 SCENE_TOPIC: Final = "/scene"
@@ -163,7 +164,7 @@ class SceneModel:
         if r is None or r.xytheta is None:
             return None
         x, y, th = r.xytheta
-        return x + self.ref_offset_m * math.cos(th), y + self.ref_offset_m * math.sin(th)
+        return reference_point(x, y, th, self.ref_offset_m)
 
     def scene(self, wall_ns: int) -> SceneUpdate:
         """The whole scene at ``wall_ns`` (ns since the epoch), replacing the previous one."""

@@ -33,14 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.core import CoordinatorCore, CoordinatorOutput
+from coordinator.core import CoordinatorOutput
 from formation.runlog import RunLog
 from robot_agent.firmware import Firmware, Pose, Setpoint, WheelCommand
 from robot_agent.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from scenario import Scenario
-from sim_plant.accounting import SeparationMonitor
-from sim_plant.plant import Plant
-from sim_plant.sensors import Camera, CommandLink
+from scenario.assemble import apply_scheduled, coordinator_core, plant_models
 
 # Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
 # firmware builds its WheelCommand the same way).
@@ -75,31 +73,8 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     geom = scenario.agent.geometry
     l_m = geom.ref_offset_m
 
-    coord = CoordinatorCore.from_config(
-        scenario.trajectory,
-        scenario.formation,
-        scenario.assignment.method,
-        scenario.assignment.hysteresis_m,
-        scenario.assignment.tie_tol_m,
-        ref_offset_m=l_m,
-    )
-    plant = Plant(
-        np.array(scenario.initial, dtype=float), geom, motor_tau_s=scenario.plant.motor_tau_s
-    )
-    cam = scenario.camera
-    camera = Camera(
-        n,
-        rate_hz=cam.rate_hz,
-        pos_std_m=cam.pos_std_m,
-        theta_std_rad=cam.theta_std_rad,
-        latency_s=cam.latency_s,
-        rng=rng,
-    )
-    lk = scenario.link
-    link: CommandLink[tuple[float, float]] = CommandLink(
-        latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=rng
-    )
-    monitor = SeparationMonitor(geom.body_radius_m)
+    coord = coordinator_core(scenario)
+    plant, camera, link, monitor = plant_models(scenario, rng)
     firmwares = [Firmware(scenario.agent) for _ in ids]
 
     dt = scenario.dt_s
@@ -135,17 +110,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
         # 1. disturbances
         while pending and pending[0].t_s <= t + 1e-9:
             d = pending.pop(0)
-            i = index[d.robot]
-            if d.kind == "drag":
-                plant.drag(i, d.dx, d.dy, d.duration_s)
-            else:
-                x_i, y_i, _ = plant.truth_rows()[i]
-                plant.teleport(
-                    i,
-                    d.x if d.x is not None else x_i + d.dx,
-                    d.y if d.y is not None else y_i + d.dy,
-                    d.theta,
-                )
+            apply_scheduled(plant, index[d.robot], d)
         truth = plant.truth_rows()
         # 2. camera
         camera.capture(t, truth)

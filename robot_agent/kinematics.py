@@ -107,6 +107,14 @@ def reference_point(x: float, y: float, theta: float, l_m: float) -> tuple[float
     return x + l_m * _cos(theta), y + l_m * _sin(theta)
 
 
+def axle_from_reference_point(
+    x_r: float, y_r: float, theta: float, l_m: float
+) -> tuple[float, float]:
+    """Axle centre (m) whose reference point is ``(x_r, y_r)`` at heading ``theta``: the inverse
+    of :func:`reference_point` (eqs 10-11)."""
+    return x_r - l_m * _cos(theta), y_r - l_m * _sin(theta)
+
+
 def ref_point_velocity(v: float, omega: float, theta: float, l_m: float) -> tuple[float, float]:
     """Velocity (m/s) of the reference point for a twist; eqs 14-15 (eq 13 corrected).
 

@@ -13,6 +13,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
+from robot_agent.kinematics import axle_from_reference_point
 from scenario.load import ScenarioError
 
 __all__ = ["scenario_with_robots"]
@@ -36,7 +37,7 @@ def _slot_poses(data: Mapping[str, Any]) -> list[tuple[float, float, float]]:
     spec = FormationSpec.from_dict(dict(data["formation"]))
     l_m = float(data.get("geometry", {}).get("ref_offset_m", 0.05))
     return [
-        (s.x - l_m * math.cos(s.theta), s.y - l_m * math.sin(s.theta), s.theta)
+        (*axle_from_reference_point(s.x, s.y, s.theta, l_m), s.theta)
         for s in slot_states(spec, leader)
     ]
 

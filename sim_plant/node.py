@@ -8,66 +8,22 @@ Usage::
 
 A thin asyncio shell over :class:`sim_plant.plant.Plant`, :class:`sim_plant.sensors.Camera`,
 :class:`sim_plant.sensors.CommandLink` and :class:`sim_plant.accounting.SeparationMonitor`, built
-from the scenario exactly like ``formation/simulate.py`` builds them (one
+from the scenario by ``scenario.assemble`` (the assembly ``formation/simulate.py`` uses: one
 ``numpy.random.default_rng(seed)`` shared by camera and link, the same order of random draws), so
 a lockstep run over the bus reproduces the in-process run. It prints exactly one line
 ``plant ready`` once its session is open, its subscriptions and its liveliness token
 ``formation/<fleet>/alive/plant`` are declared, and exits 0 within a second of SIGINT/SIGTERM,
 or after ``--duration`` (sim time in lockstep, wall time in realtime).
 
-Theory of operation
--------------------
-Outputs, per camera frame: one ``poses`` batch (``PoseBatch``, published first, so an agent that
-steps on its own pose already has its neighbours of the same frame), then ``robot/<id>/pose`` per
-robot (``t`` = capture time, ``robot`` set), each delivered after the camera latency;
-``robot/<id>/truth`` of every robot (``truths`` batches with ``--batch``): in lockstep at every
-tick (so the metrics computed from truth are evaluated on the same instants as the in-process
-simulator's), in realtime at every camera capture (truth decimated to the camera rate); every key
-has its own ``seq``. In lockstep also ``clock``.
-
-Inputs (decoded on the event loop; a bad message is counted in ``rejected`` and ignored):
-``robot/*/wheels`` of the scenario's robots, ``disturbance`` (drag / teleport a robot by id, at
-the next physics step; targets beyond :data:`ARENA_LIMIT_M` are rejected), liveliness of agents
-and coordinators, and in lockstep ``leader``. Every wheel command goes through the link model
-(latency, jitter, loss) before it acts. A robot whose agent token disappears has its wheels set to
-zero at once (a dead robot's motors stop) and commands still in flight for it are discarded;
-otherwise a robot keeps its last command (zero if none ever came).
-
-Realtime (default): ``t`` is ``time.monotonic()``; physics steps at ``--physics-hz`` and also
-whenever a camera frame is due to be taken or delivered, so frames keep the camera's rate and
-latency exactly; scheduled disturbances fire at start + ``t_s``; commands enter the link at their
-receive time.
-
-Lockstep (``--lockstep``, docs/runtime.md), per tick k at ``t_k = k * dt``: disturbances due;
-publish truth; capture; publish the poses due; publish ``clock {tick: k, t: t_k}``; wait until
-every live agent answered ``wheels`` with ``tick: k`` and, if a coordinator is alive, the
-``leader`` with ``tick: k`` (the clock is re-announced every :data:`REANNOUNCE_S` while waiting,
-for a participant that joined late; after ``--lockstep-timeout`` the tick goes on and the timeout
-is counted); then every robot's latest command goes through the link in robot order (which is what
-keeps the random stream identical to the simulator's); deliveries are applied; the plant
-integrates ``dt``.
-
-``--wait-robots``: the clock / physics start only once every scenario robot's token and a
-coordinator's token are present; the plant logs what it waits for and gives up with exit status 1
-after :data:`WAIT_ROBOTS_S`.
-
-Also published (not part of bus contract v1; a plain msgpack map any decoder reads):
-``formation/<fleet>/plant/status`` at 5 Hz: ``v``, ``t``, ``seq``, ``rejected``, ``rx`` (per
-input), ``mode``, ``state`` (``waiting`` / ``running`` / ``done``), ``tick``, ``sim_t``,
-``timeouts`` (lockstep), ``alive`` (robot ids), ``coordinators``, ``link_sent``,
-``link_dropped``, ``min_separation_m`` (nil before two robots), ``collisions``,
-``internal_errors``. A final one with ``state: done`` is sent when ``--duration`` ends the run.
+Theory of operation: docs/process-shells.md (inputs, outputs, realtime and lockstep).
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import math
-import sys
 import time
 from collections import deque
-from dataclasses import dataclass
 from typing import Any, Final
 
 import msgpack
@@ -78,63 +34,33 @@ import runtime as rt
 from bus_schemas import (
     BATCH_CHUNK,
     Clock,
-    DecodeError,
     Disturbance,
-    Leader,
     Pose,
     PoseBatch,
     Truth,
     TruthBatch,
-    Wheels,
-    WheelsBatch,
-    decode,
     encode,
     keys,
 )
 from robot_agent.lockstep import tick_time
-from scenario import Scenario, ScenarioError, load
-from sim_plant.accounting import SeparationMonitor
-from sim_plant.plant import Plant
-from sim_plant.sensors import Camera, CommandLink
+from scenario import Scenario
+from scenario.assemble import apply_scheduled, plant_models
+from sim_plant.inputs import _DRAG, ARENA_LIMIT_M, PlantInputs, _Sim
 
-__all__ = ["ARENA_LIMIT_M", "PlantNode", "build_parser", "main", "plant_status_key"]
+__all__ = ["ARENA_LIMIT_M", "PlantNode"]
 
 STATUS_PERIOD_S: Final = 0.2
 REANNOUNCE_S: Final = 0.25
 """Lockstep: while waiting for answers the clock is published again this often (s)."""
 WAIT_ROBOTS_S: Final = 30.0
 """--wait-robots gives up after this long (s)."""
-ARENA_LIMIT_M: Final = 1000.0
 LATENCY_SAMPLES: Final = 500_000
 """Realtime latency / lateness samples kept (the newest)."""
 FRAMES_REMEMBERED: Final = 64
 """Published frames whose stamps a returning command may still name (2 s at 30 Hz)."""
-"""A disturbance moving a robot (or by) more than this (m) is rejected as absurd."""
-MAX_DRAG_S: Final = 3600.0
-_DRAG: Final = "drag"
-
-# Per-robot command in the link: (generation, omega_r, omega_l). The generation of a robot is
-# bumped when its agent dies, so commands sent before that are discarded on delivery.
-LinkCmd = tuple[int, float, float]
 
 
-def plant_status_key(fleet: str) -> str:
-    """``formation/<fleet>/plant/status``: the plant's status map."""
-    return f"{keys.ROOT}/{keys.check_fleet(fleet)}/plant/status"
-
-
-@dataclass
-class _Sim:
-    """The numpy cores of one run (built when the run starts: realtime needs its t0)."""
-
-    plant: Plant
-    camera: Camera
-    link: CommandLink[LinkCmd]
-    monitor: SeparationMonitor
-    t0_s: float
-
-
-class PlantNode:
+class PlantNode(PlantInputs):
     """State and handlers of the plant; Zenoh-free apart from the ``publish`` callable.
 
     Handlers run on the event loop and never raise.
@@ -180,7 +106,7 @@ class PlantNode:
         self.truths_key = keys.truths_key(fleet)
         self.alive_robots_pattern = keys.alive_robots_pattern(fleet)
         self.alive_coordinators_pattern = keys.alive_coordinators_pattern(fleet)
-        self.status_key = plant_status_key(fleet)
+        self.status_key = keys.plant_status_key(fleet)
         self.alive_key = keys.alive_plant_key(fleet)
         self.pose_keys = [keys.pose_key(fleet, r) for r in self.ids]
         self.truth_keys = [keys.truth_key(fleet, r) for r in self.ids]
@@ -226,175 +152,13 @@ class PlantNode:
         self._seq[key] = n
         return n
 
-    def _reject(self, what: str, why: DecodeError | str) -> None:
-        self.rejected += 1
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
-
-    def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
-
     def _now(self) -> float:
         return self.sim_t if self.lockstep else time.monotonic()
 
-    # -- inputs --------------------------------------------------------------------------------
-
-    def on_alive_robot(self, key: str, alive: bool) -> None:
-        """An agent token appeared or vanished; a vanished agent's wheels stop at once."""
-        try:
-            self.rx["alive"] += 1
-            parsed = keys.parse_alive_key(key)
-            if parsed is None or parsed[2] is None or parsed[2] not in self.index:
-                return
-            rid = parsed[2]
-            i = self.index[rid]
-            if alive:
-                self.alive.add(rid)
-            elif rid in self.alive:
-                self.alive.discard(rid)
-                self.generation[i] += 1  # commands in flight for it are discarded
-                self.last_cmd[i] = 0.0
-                self.applied[i] = 0.0
-                self.answer_tick[i] = None
-                self.log.info(f"robot {rid}'s agent is gone: its wheels stop")
-            self.changed.set()
-        except Exception as exc:
-            self._internal("on_alive_robot", exc)
-
-    def on_alive_coordinator(self, key: str, alive: bool) -> None:
-        """A coordinator token appeared or vanished."""
-        try:
-            self.rx["alive"] += 1
-            parsed = keys.parse_alive_key(key)
-            if parsed is None or parsed[1] != "coordinator" or parsed[2] is None:
-                return
-            if alive:
-                self.coordinators.add(parsed[2])
-            else:
-                self.coordinators.discard(parsed[2])
-            self.changed.set()
-        except Exception as exc:
-            self._internal("on_alive_coordinator", exc)
-
-    def on_wheels(self, rx: rt.Received) -> None:
-        """A wheel command: into the link now (realtime) or at the tick's end (lockstep)."""
-        try:
-            self.rx["wheels"] += 1
-            parsed = keys.parse_robot_key(rx.key)
-            if parsed is None or parsed[2] != keys.WHEELS:
-                self._reject("wheels", f"not a wheels key: {rx.key[:100]!r}")
-                return
-            msg = decode(rx.payload, Wheels)
-            if isinstance(msg, DecodeError):
-                self._reject("wheels", msg)
-                return
-            i = self.index.get(parsed[1])
-            if i is None:
-                self.ignored += 1
-                return
-            self._command(i, msg.omega_r, msg.omega_l, msg.tick, msg.pose_t, rx.rx_s)
-        except Exception as exc:
-            self._internal("on_wheels", exc)
-
-    def on_host_wheels(self, rx: rt.Received) -> None:
-        """An agent host's batch of wheel commands: each entry as a ``robot/<id>/wheels``."""
-        try:
-            self.rx["host_wheels"] += 1
-            msg = decode(rx.payload, WheelsBatch)
-            if isinstance(msg, DecodeError):
-                self._reject("host wheels", msg)
-                return
-            index = self.index
-            rows = zip(msg.robots, msg.omega_r, msg.omega_l, msg.pose_t, strict=True)
-            for rid, wr, wl, pose_t in rows:
-                i = index.get(rid)
-                if i is None:
-                    self.ignored += 1
-                    continue
-                self._command(i, wr, wl, msg.tick, pose_t if pose_t >= 0.0 else None, rx.rx_s)
-        except Exception as exc:
-            self._internal("on_host_wheels", exc)
-
-    def _command(
-        self, i: int, wr: float, wl: float, tick: int | None, pose_t: float | None, rx_s: float
-    ) -> None:
-        """Robot ``i``'s command: into the link now (realtime) or at the tick's end (lockstep)."""
-        self.last_cmd[i] = (wr, wl)
-        if self.lockstep:
-            if tick is not None:
-                self.answer_tick[i] = tick
-                if tick == self.tick:
-                    self.changed.set()
-        elif self.sim is not None:
-            self.sim.link.send(rx_s, i, (self.generation[i], wr, wl))
-            if pose_t is not None and pose_t != self._answered[i]:
-                published = self._frame_pub.get(pose_t)
-                if published is not None:  # the first command computed from this frame
-                    self._answered[i] = pose_t
-                    self.latencies_s.append(rx_s - published)
-
-    def on_leader(self, rx: rt.Received) -> None:
-        """Lockstep: the coordinator's leader message closes its answer to a tick."""
-        try:
-            self.rx["leader"] += 1
-            msg = decode(rx.payload, Leader)
-            if isinstance(msg, DecodeError):
-                self._reject("leader", msg)
-                return
-            tick = msg.tick
-            if tick is None:
-                self._reject("leader", "lockstep leader without a valid tick")
-                return
-            self.leader_tick = tick
-            if tick == self.tick:
-                self.changed.set()
-        except Exception as exc:
-            self._internal("on_leader", exc)
-
-    def on_disturbance(self, rx: rt.Received) -> None:
-        """Drag or teleport a robot at the next physics step."""
-        try:
-            self.rx["disturbance"] += 1
-            msg = decode(rx.payload, Disturbance)
-            if isinstance(msg, DecodeError):
-                self._reject("disturbance", msg)
-                return
-            if msg.robot not in self.index:
-                self.ignored += 1
-                return
-            lim = ARENA_LIMIT_M
-            values = (msg.dx, msg.dy, msg.x or 0.0, msg.y or 0.0)
-            if any(abs(v) > lim for v in values) or msg.duration_s > MAX_DRAG_S:
-                self._reject("disturbance", f"beyond {lim} m or {MAX_DRAG_S} s")
-                return
-            self.bus_disturbances.append(msg)
-        except Exception as exc:
-            self._internal("on_disturbance", exc)
-
-    # -- the simulation ------------------------------------------------------------------------
-
     def build(self, t0_s: float) -> _Sim:
         """Build plant, camera, link and monitor as ``formation/simulate.py`` does, at ``t0_s``."""
-        sc = self.scenario
-        geom = sc.agent.geometry
-        plant = Plant(
-            np.array(sc.initial, dtype=float), geom, motor_tau_s=sc.plant.motor_tau_s, t0_s=t0_s
-        )
-        cam = sc.camera
-        camera = Camera(
-            self.n,
-            rate_hz=cam.rate_hz,
-            pos_std_m=cam.pos_std_m,
-            theta_std_rad=cam.theta_std_rad,
-            latency_s=cam.latency_s,
-            rng=self.rng,
-            t0_s=t0_s,
-        )
-        lk = sc.link
-        link: CommandLink[LinkCmd] = CommandLink(
-            latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=self.rng
-        )
-        self.sim = _Sim(plant, camera, link, SeparationMonitor(geom.body_radius_m), t0_s)
+        plant, camera, link, monitor = plant_models(self.scenario, self.rng, t0_s)
+        self.sim = _Sim(plant, camera, link, monitor, t0_s)
         return self.sim
 
     def _apply_disturbances(self, sim: _Sim, t_s: float) -> None:
@@ -405,16 +169,7 @@ class PlantNode:
             d = self.scheduled.popleft()
             i = self.index[d.robot]
             try:
-                if d.kind == _DRAG:
-                    plant.drag(i, d.dx, d.dy, d.duration_s)
-                else:
-                    truth_i = plant.truth[i]
-                    plant.teleport(
-                        i,
-                        d.x if d.x is not None else float(truth_i[0]) + d.dx,
-                        d.y if d.y is not None else float(truth_i[1]) + d.dy,
-                        d.theta,
-                    )
+                apply_scheduled(plant, i, d)
                 self.log.info(f"t={t_s:.3f} s: scheduled {d.kind} of {d.robot}")
             except (ValueError, IndexError) as exc:
                 self._internal("scheduled disturbance", exc)
@@ -760,135 +515,3 @@ class PlantNode:
         """Wake the waits (answers, fleet) at once on SIGINT/SIGTERM."""
         await stop.wait()
         self.changed.set()
-
-
-# ---------------------------------------------------------------------------------------------
-# CLI
-# ---------------------------------------------------------------------------------------------
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The ``formation plant`` argument parser."""
-    parser = argparse.ArgumentParser(
-        prog="formation plant",
-        description="Run the plant simulator (robots, camera, command link) as a Zenoh node.",
-    )
-    parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
-    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
-    parser.add_argument(
-        "--seed", type=rt.non_negative_int, help="random seed (default: the scenario's)"
-    )
-    parser.add_argument("--lockstep", action="store_true", help="lockstep (docs/runtime.md)")
-    parser.add_argument(
-        "--lockstep-timeout",
-        type=rt.positive_float,
-        default=2.0,
-        metavar="S",
-        help="lockstep: go on after this long without every answer (2.0 s, counted)",
-    )
-    parser.add_argument(
-        "--physics-hz",
-        type=rt.positive_float,
-        default=100.0,
-        metavar="HZ",
-        help="realtime physics rate (100 Hz); lockstep uses the scenario's dt_s",
-    )
-    parser.add_argument(
-        "--duration",
-        type=rt.positive_float,
-        metavar="S",
-        help="stop after this much sim time (lockstep) or wall time (realtime) and exit 0",
-    )
-    parser.add_argument(
-        "--wait-robots",
-        action="store_true",
-        help=f"start only once every robot's and a coordinator's token are present "
-        f"(gives up after {WAIT_ROBOTS_S:g} s)",
-    )
-    parser.add_argument(
-        "--batch",
-        action="store_true",
-        help="large fleets: poses only as batched frames, truth as batches (no per-robot "
-        "pose/truth keys); docs/scale.md",
-    )
-    parser.add_argument(
-        "--stats-out",
-        metavar="FILE.json",
-        help="at exit, write the run's statistics (latency, frames, lateness, rx) as JSON",
-    )
-    rt.add_zenoh_arguments(parser)
-    return parser
-
-
-def main(argv: list[str]) -> int:
-    """Entry point of ``formation plant``; returns the exit status."""
-    ns = build_parser().parse_args(argv)
-    log = rt.NodeLog("plant")
-    if not keys.is_name(ns.fleet):
-        log.info(f"invalid --fleet {ns.fleet!r}: must match {keys.NAME_PATTERN}")
-        return 2
-    if ns.physics_hz > 10000.0:
-        log.info(f"--physics-hz {ns.physics_hz:g} is above 10000")
-        return 2
-    try:
-        scenario = load(ns.scenario)
-    except (ScenarioError, OSError) as exc:
-        log.info(f"scenario: {exc}")
-        return 2
-    try:
-        settings = rt.settings_from_args(ns)
-    except (TypeError, ValueError) as exc:
-        log.info(f"zenoh settings: {exc}")
-        return 2
-    return rt.serve("plant", settings, lambda io, stop: _node(io, stop, scenario, ns))
-
-
-def write_stats(node: PlantNode, path: str, log: rt.NodeLog) -> None:
-    """``--stats-out``: the status map plus the latency statistics, as JSON (never raises)."""
-    import json
-
-    try:
-        stats = {**node.status_map(), **node.latency_stats(), "n_robots": node.n}
-        with open(path, "w", encoding="utf-8") as fh:
-            json.dump(stats, fh, indent=1)
-    except Exception as exc:
-        log.info(f"--stats-out {path}: {exc!r}")
-
-
-async def _node(
-    io: rt.NodeIO, stop: asyncio.Event, scenario: Scenario, ns: argparse.Namespace
-) -> int:
-    node = PlantNode(
-        scenario,
-        ns.fleet,
-        io.pubs.put,
-        seed=ns.seed,
-        lockstep=ns.lockstep,
-        lockstep_timeout_s=ns.lockstep_timeout,
-        physics_hz=ns.physics_hz,
-        duration_s=ns.duration,
-        batch=ns.batch,
-        log=io.log,
-    )
-    io.pubs.get(node.poses_key, node.data_qos)
-    for key in () if ns.batch else node.pose_keys:
-        io.pubs.get(key, node.data_qos)
-    if ns.lockstep:
-        io.pubs.get(node.clock_key, rt.QOS_CRITICAL)
-    io.watch_liveliness(node.alive_robots_pattern, node.on_alive_robot)
-    io.watch_liveliness(node.alive_coordinators_pattern, node.on_alive_coordinator)
-    io.subscribe(node.wheels_pattern, node.on_wheels)
-    io.subscribe(node.host_wheels_pattern, node.on_host_wheels)
-    io.subscribe(node.disturbance_key, node.on_disturbance)
-    if ns.lockstep:
-        io.subscribe(node.leader_key, node.on_leader)
-    io.declare_token(node.alive_key)
-    print("plant ready", flush=True)
-    code = await node.run(stop, ns.wait_robots)
-    if ns.stats_out:
-        write_stats(node, ns.stats_out, io.log)
-    return code
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main(sys.argv[1:]))

@@ -123,14 +123,18 @@ def wrap_angles(a: npt.ArrayLike) -> FloatArray:
     # np.mod lies in [0, 2 pi], so pi - mod lies in [-pi, pi]; mod rounds up to exactly 2 pi only
     # for a hair above pi (pi - a a tiny negative number), whose wrap is pi.
     r = np.mod(math.pi - arr, _TWO_PI)
-    r = np.where(r < _TWO_PI, r, 0.0)
+    r = np.where(r >= _TWO_PI, 0.0, r)  # NaN stays NaN (as robot_agent.kinematics.wrap_angle)
     return np.asarray(math.pi - r, dtype=np.float64)
 
 
 def wrap_angle(a: float) -> float:
-    """Scalar :func:`wrap_angles`: ``a`` (rad) to (-pi, pi], the same bits for the same input."""
+    """Scalar :func:`wrap_angles`: ``a`` (rad) to (-pi, pi], the same bits for the same input.
+
+    The plant keeps this pair (not ``robot_agent.kinematics.wrap_angle``, which uses
+    ``math.remainder``) because its vectorised and scalar paths must agree bit for bit; both
+    give NaN for a non-finite angle, as the firmware's does."""
     r = (_PI - a) % _TWO_PI  # float % is fmod adjusted to the divisor's sign, as np.mod
-    if not r < _TWO_PI:
+    if r >= _TWO_PI:
         r = 0.0
     return _PI - r
 

@@ -1,6 +1,6 @@
 """The robot's pure cores import only the standard library (they could run on a bare robot).
 
-robot_agent/*.py (not subpackages, not the I/O shells: files named *node*, *shell*, motors*)
+robot_agent/*.py (not subpackages, not the I/O shells: node.py, host.py, main.py, motors*)
 may import the standard library and robot_agent itself. bus_schemas/*.py may also import
 msgpack, and nothing else (Zenoh lives in the runtime package). The whole floor plan is
 tests/test_layers.py.
@@ -25,6 +25,7 @@ def _is_shell(path: Path) -> bool:
     return (
         "node" in name
         or name == "host.py"  # the agent-host process shell (Zenoh I/O around AgentNode)
+        or name == "main.py"  # the agent process's command line and bootstrap
         or "shell" in name
         or name.startswith("motors")
     )

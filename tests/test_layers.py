@@ -47,7 +47,16 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("runtime", ("runtime.*", "runtime")),
     (
         "shells",
-        ("robot_agent.node", "robot_agent.host", "coordinator.node", "sim_plant.node"),
+        (
+            "robot_agent.node",
+            "robot_agent.host",
+            "robot_agent.main",
+            "coordinator.node",
+            "coordinator.main",
+            "sim_plant.node",
+            "sim_plant.inputs",
+            "sim_plant.main",
+        ),
     ),
     ("tools", ("formation", "formation.*")),
 )
@@ -254,7 +263,7 @@ def test_contract_imports_neither_zenoh_nor_asyncio() -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 4
+    assert len(shells) == 8
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 

@@ -24,7 +24,7 @@ from conftest import REPO_ROOT, RouterHandle, Spawner, child_env
 
 import runtime as rt
 from bus_schemas import Estop, Pose, Setpoint, Status, Wheels, decode, encode, keys
-from robot_agent.node import main as agent_main
+from robot_agent.main import main as agent_main
 
 
 def _ticked(msg, tick):  # type: ignore[no-untyped-def]

@@ -56,7 +56,8 @@ from bus_schemas.messages import (
 from formation import report as report_mod
 from formation.bus_json import LIVELINESS_SCHEMA, json_schema, schema_name
 from formation.record import READY_PREFIX, Recorder, start_recorder
-from formation.report import LivenessChange, Replay, leader_losses, read_recording
+from formation.replay import LivenessChange, Replay, read_recording
+from formation.report import leader_losses
 from formation.runlog import RunLog
 from formation.tap import BusItem, BusTap
 

@@ -1,0 +1,124 @@
+"""``formation coordinator``: the command line and bootstrap of a coordinator process.
+
+Checks the names and the scenario (a bad one exits 2 before the ready line), then runs
+:class:`coordinator.node.CoordinatorNode` under ``runtime.serve``. The node is described in
+:mod:`coordinator.node`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+
+import runtime as rt
+from bus_schemas import (
+    keys,
+)
+from coordinator.node import CoordinatorNode
+from scenario import Scenario, ScenarioError, load
+from scenario.assemble import coordinator_core
+
+__all__ = ["build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation coordinator`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog="formation coordinator",
+        description="Run the coordinator (virtual leader, slots, roles, setpoints) as a node.",
+    )
+    parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
+    parser.add_argument("--name", default="main", help="coordinator instance name (main)")
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
+    parser.add_argument(
+        "--rate-hz", type=rt.rate_hz, default=50.0, metavar="HZ", help="realtime tick rate (50)"
+    )
+    parser.add_argument(
+        "--lockstep", action="store_true", help="tick on the plant's clock (docs/runtime.md)"
+    )
+    parser.add_argument(
+        "--standby",
+        action="store_true",
+        help="start as a hot standby: take over when the active instance is gone (docs/faults.md)",
+    )
+    parser.add_argument(
+        "--batch",
+        action="store_true",
+        help="large fleets: read the batched pose frames and publish batched setpoints "
+        "(agent hosts read them; slot keys at 1 Hz); docs/scale.md",
+    )
+    rt.add_zenoh_arguments(parser)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation coordinator``; returns the exit status."""
+    ns = build_parser().parse_args(argv)
+    log = rt.NodeLog(f"coordinator {ns.name}")
+    if not keys.is_name(ns.name) or not keys.is_name(ns.fleet):
+        log.info(f"invalid --name {ns.name!r} or --fleet {ns.fleet!r}: {keys.NAME_PATTERN}")
+        return 2
+    try:
+        scenario = load(ns.scenario)
+        coordinator_core(scenario)  # fail now, before the ready line, on a bad trajectory
+    except (ScenarioError, OSError, ValueError, KeyError, TypeError) as exc:
+        log.info(f"scenario: {exc}")
+        return 2
+    try:
+        settings = rt.settings_from_args(ns)
+    except (TypeError, ValueError) as exc:
+        log.info(f"zenoh settings: {exc}")
+        return 2
+    return rt.serve(
+        f"coordinator {ns.name}",
+        settings,
+        lambda io, stop: _node(
+            io, stop, scenario, ns.name, ns.fleet, ns.lockstep, ns.rate_hz, ns.standby, ns.batch
+        ),
+    )
+
+
+async def _node(
+    io: rt.NodeIO,
+    stop: asyncio.Event,
+    scenario: Scenario,
+    name: str,
+    fleet: str,
+    lockstep: bool,
+    rate_hz: float,
+    standby: bool = False,
+    batch: bool = False,
+) -> int:
+    node = CoordinatorNode(
+        scenario, name, fleet, io.pubs.put, lockstep=lockstep, standby=standby, batch=batch,
+        log=io.log,
+    )  # fmt: skip
+    # Only a stop of the whole process lets the token expire (keep-alives come from Zenoh's own
+    # threads, not this loop), after a whole lease of silence (runtime.stall).
+    node.stall.gap_s = rt.hang_gap_for(io.settings.lease_ms, default_s=rt.HANG_GAP_NO_LEASE_S)
+    io.pubs.get(node.leader_key, node.leader_qos)
+    for rid in () if batch else scenario.robot_ids:
+        io.pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
+    io.watch_liveliness(node.alive_pattern, node.on_alive)
+    io.watch_liveliness(node.coordinators_pattern, node.on_alive)
+    io.subscribe(node.heartbeats_pattern, node.on_heartbeat)
+    io.subscribe(node.assignment_key, node.on_assignment)
+    if batch:
+        io.pubs.get(node.setpoints_key, node.sp_qos)
+        io.subscribe(node.poses_key, node.on_poses)
+    else:
+        io.subscribe(node.poses_pattern, node.on_pose)
+    if lockstep:
+        io.subscribe(node.clock_key, node.on_clock)
+    io.declare_token(node.alive_key)
+    print("coordinator ready", flush=True)
+    mode = "lockstep" if lockstep else f"realtime at {rate_hz:g} Hz"
+    role = "standby" if standby else "active"
+    io.log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}, {role}")
+    await node.run(stop, rate_hz)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,605 @@
+"""The ``formation up`` launcher: spawn the fleet's processes, collect, display, stop, report.
+
+:func:`run_up` runs one planned run (:mod:`formation.up_plan`) with the children of
+:mod:`formation.children`; the theory of operation is in :mod:`formation.up`."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import Awaitable
+from typing import Any, Final
+
+from bus_schemas import keys
+from formation.children import (
+    Child,
+    all_or_first_error,
+    child_env,
+    group_members,
+    tail_of,
+)
+from formation.collector import RunCollector, key_patterns
+from formation.up_plan import LaunchError, Plan, UpConfig, UpResult, plan_run
+from formation.up_view import format_line, format_table
+
+DRAIN_S: Final = 0.25
+"""Lockstep: time given to the last messages in flight after the plant ended, seconds."""
+REALTIME_END_GRACE_S: Final = 1.5
+"""Realtime: how long after --duration the launcher stops a plant that did not end the run."""
+FIFO_CAPACITY: Final = 1 << 18
+"""Samples Zenoh buffers per subscription for the collector (drained every CONSUME_PERIOD_S)."""
+CONSUME_PERIOD_S: Final = 0.02
+TABLE_PERIOD_S: Final = 0.5
+LINE_PERIOD_S: Final = 5.0
+EXIT_INTERRUPTED: Final = 130
+
+
+class _Interrupted(Exception):
+    """The launcher was asked to stop (SIGINT/SIGTERM)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# The launcher
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+class _Launcher:
+    def __init__(self, cfg: UpConfig, plan: Plan) -> None:
+        self.cfg = cfg
+        self.plan = plan
+        self.scn = plan.scenario
+        self.out_dir = plan.out_dir
+        self.log_dir = plan.out_dir / "logs"
+        self.stop = asyncio.Event()
+        self.kill_now = False
+        self.signals: list[int] = []
+        self.failures: list[str] = []
+        self.collector = RunCollector.for_scenario(self.scn, fleet=cfg.fleet, lockstep=cfg.lockstep)
+        self.router: Child | None = None
+        self.nodes: list[Child] = []
+        self.retired: list[Child] = []  # dead nodes replaced by a respawn
+        self.events: list[dict[str, Any]] = []  # deaths and respawns during the run
+        self.session: Any = None
+        self.first_truth_rx: float | None = None
+        self.last_truth_rx: float | None = None
+        self._subscribers: list[Any] = []
+        display = cfg.display
+        if cfg.quiet:
+            display = "none"
+        elif display == "auto":
+            display = "table" if sys.stdout.isatty() else "lines"
+        self.display = display
+        self._table_lines = 0
+        self.stop_s: float | None = None
+        self.recorder: Any = None  # formation.record.RecorderHandle with --record
+        self.live: Any = None  # formation.live.LiveHandle with --foxglove
+        self.record_stats: Any = None
+
+    # -- output ---------------------------------------------------------------------------------
+
+    def say(self, text: str) -> None:
+        if not self.cfg.quiet:
+            self._clear_table()
+            print(text, flush=True)
+
+    def warn(self, text: str) -> None:
+        self._clear_table()
+        print(f"formation up: {text}", file=sys.stderr, flush=True)
+
+    def _clear_table(self) -> None:
+        if self._table_lines:
+            sys.stdout.write(f"\x1b[{self._table_lines}F\x1b[J")
+            sys.stdout.flush()
+            self._table_lines = 0
+
+    def _speed(self) -> float | None:
+        view_t = self._sim_elapsed()
+        if view_t is None or self.first_truth_rx is None or self.last_truth_rx is None:
+            return None
+        wall = self.last_truth_rx - self.first_truth_rx
+        return view_t / wall if wall > 0.5 else None
+
+    def _sim_elapsed(self) -> float | None:
+        if not self.cfg.lockstep:
+            return None
+        first, last = self.collector.first_tick, self.collector.last_clock_tick
+        if first is None or last is None:
+            return None
+        return (last - first) * self.scn.dt_s
+
+    async def _display_loop(self) -> None:
+        if self.display == "none":
+            return
+        mode = "lockstep" if self.cfg.lockstep else "realtime"
+        header = (
+            f"formation up: {self.scn.name}, {len(self.scn.robot_ids)} robots, {mode}, "
+            f"fleet {self.cfg.fleet} on {self.cfg.endpoint}  (Ctrl-C stops)"
+        )
+        period = TABLE_PERIOD_S if self.display == "table" else LINE_PERIOD_S
+        while True:
+            await asyncio.sleep(period)
+            view = self.collector.live()
+            if self.display == "table":
+                lines = format_table(view, header, self._speed())
+                self._clear_table()
+                sys.stdout.write("\n".join(lines) + "\n")
+                sys.stdout.flush()
+                self._table_lines = len(lines)
+            else:
+                print(format_line(view, self._speed()), flush=True)
+
+    # -- signals --------------------------------------------------------------------------------
+
+    def _on_signal(self, signum: int) -> None:
+        self.signals.append(signum)
+        if self.stop.is_set():
+            if not self.kill_now:
+                self.kill_now = True
+                self.warn("second signal: killing every process of the run now")
+            for child in self._all_children():
+                child.signal(signal.SIGKILL)
+            return
+        self.stop.set()
+
+    async def _or_stop(self, aw: Awaitable[Any]) -> Any:
+        """Await ``aw`` unless a stop signal comes first (then raise _Interrupted)."""
+        task = asyncio.ensure_future(aw)
+        stopper = asyncio.ensure_future(self.stop.wait())
+        try:
+            await asyncio.wait({task, stopper}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            stopper.cancel()
+        if not task.done():
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+            raise _Interrupted
+        return task.result()
+
+    def _all_children(self) -> list[Child]:
+        return [*self.retired, *self.nodes, *([self.router] if self.router is not None else [])]
+
+    # -- start ----------------------------------------------------------------------------------
+
+    def _node_args(self) -> list[tuple[str, list[str], str]]:
+        ep, fleet, scn_arg = self.cfg.endpoint, self.cfg.fleet, self.plan.scenario_arg
+        common = ["--endpoint", ep, "--fleet", fleet]
+        if self.cfg.lease_ms is not None:
+            common += ["--lease-ms", str(self.cfg.lease_ms)]
+        lock = ["--lockstep"] if self.cfg.lockstep else []
+        plant = [
+            "plant", "--scenario", scn_arg, "--seed", str(self.plan.seed),
+            "--duration", repr(self.plan.duration_s), "--wait-robots", *lock, *common,
+        ]  # fmt: skip
+        batch = ["--batch"] if self.cfg.hosts > 0 else []
+        plant += batch
+        coord = [
+            "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock, *common,
+        ]  # fmt: skip
+        out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
+        if self.cfg.standby:
+            standby = [
+                "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",
+                *batch, *lock, *common,
+            ]  # fmt: skip
+            out.append(("coordinator-standby", standby, "coordinator ready"))
+        ids = list(self.scn.robot_ids)
+        if self.cfg.hosts > 0:  # agent hosts, each running a contiguous share of the robots
+            h = min(self.cfg.hosts, len(ids))
+            for k in range(h):
+                part = ids[k * len(ids) // h : (k + 1) * len(ids) // h]
+                name = f"h{k + 1}"
+                host = [
+                    "agent-host", "--ids", ",".join(part), "--name", name, "--scenario", scn_arg,
+                    *lock, *common,
+                ]  # fmt: skip
+                out.append((f"agent-host-{name}", host, f"agent-host {name} ready"))
+            return out
+        for rid in ids:
+            agent = ["agent", "--id", rid, "--scenario", scn_arg, *lock, *common]
+            out.append((f"agent-{rid}", agent, f"agent {rid} ready"))
+        return out
+
+    async def _start(self) -> None:
+        env = child_env()
+        self.router = Child(
+            "router", ["router", "--listen", self.cfg.endpoint], "router listening on ",
+            self.log_dir,
+        )  # fmt: skip
+        await self.router.spawn(env, process_group=0)
+        assert self.router.pid is not None
+        group = self.router.pid
+        await self._or_stop(self.router.wait_ready(self.cfg.ready_timeout_s))
+        self.say(f"  router       pid {self.router.pid:<7} ready in {self.router.ready_s:.2f} s")
+        for name, args, ready in self._node_args():
+            child = Child(name, args, ready, self.log_dir)
+            self.nodes.append(child)
+            await child.spawn(env, process_group=group)
+        # Every child exists: only now may this process start Zenoh (no fork after Zenoh).
+        await self._or_stop(self._open_session())
+        await self._or_stop(
+            all_or_first_error(c.wait_ready(self.cfg.ready_timeout_s) for c in self.nodes)
+        )
+        agents = [c for c in self.nodes if c.name.startswith("agent-")]
+        for c in self.nodes:
+            if not c.name.startswith("agent-"):
+                self.say(f"  {c.name:<12} pid {c.pid:<7} ready in {c.ready_s:.2f} s")
+        slowest = max((c.ready_s or 0.0) for c in agents)
+        self.say(f"  {len(agents)} agents    ready in {slowest:.2f} s (slowest)")
+
+    async def _open_session(self) -> None:
+        import zenoh
+
+        import runtime as rt
+
+        loop = asyncio.get_running_loop()
+        settings = rt.ZenohSettings(connect=(self.cfg.endpoint,), open_timeout_s=5.0)
+        self.session = await rt.open_session_async(settings)
+        # Zenoh buffers the samples in its own FIFO and the loop drains it every CONSUME_PERIOD_S:
+        # no Python callback per sample on Zenoh's threads, no loop wake-up per burst. On two
+        # cores this keeps the launcher from slowing down the lockstep it is watching. The
+        # collector does not need the order across keys (it places samples by tick / time).
+        self._subscribers = [
+            self.session.declare_subscriber(p, zenoh.handlers.FifoChannel(FIFO_CAPACITY))
+            for p in key_patterns(self.cfg.fleet)
+        ]
+        rt.watch_liveliness(
+            self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive
+        )
+        self._start_observers()
+
+    def _start_observers(self) -> None:
+        """``--record`` and ``--foxglove``: recorder and live server on the launcher's session."""
+        if self.cfg.record is not None:
+            from formation.record import run_info, start_recorder
+
+            run = run_info(
+                self.plan.scenario_arg,
+                lockstep=self.cfg.lockstep,
+                settle_s=self.plan.settle_s,
+                seed=self.plan.seed,
+                duration_s=self.plan.duration_s,
+                endpoint=self.cfg.endpoint,
+            )
+            try:
+                self.recorder = start_recorder(
+                    self.session, self.cfg.fleet, self.cfg.record, run=run
+                )
+            except OSError as exc:
+                raise LaunchError(f"--record {self.cfg.record}: {exc}") from exc
+            self.say(f"  recording    {keys.fleet_pattern(self.cfg.fleet)} to {self.cfg.record}")
+        if self.cfg.foxglove_port is not None:
+            from formation.live import start_live
+
+            geom = self.scn.agent.geometry
+            try:
+                self.live = start_live(
+                    self.session,
+                    self.cfg.fleet,
+                    host=self.cfg.foxglove_host,
+                    port=self.cfg.foxglove_port,
+                    ref_offset_m=geom.ref_offset_m,
+                    body_radius_m=geom.body_radius_m,
+                )
+            except RuntimeError as exc:
+                raise LaunchError(f"--foxglove {self.cfg.foxglove_port}: {exc}") from exc
+            # printed even with --quiet: a client needs the address
+            print(f"foxglove live view on {self.live.url}", flush=True)
+
+    async def _stop_observers(self) -> None:
+        """Close the live server and finalize the recording (before the session closes)."""
+        live, self.live = self.live, None
+        if live is not None:
+            await asyncio.to_thread(live.close)
+        recorder, self.recorder = self.recorder, None
+        if recorder is not None:
+            stats = await asyncio.to_thread(recorder.close)
+            self.record_stats = stats
+            if stats.dropped or stats.handler_errors:
+                self.warn(
+                    f"recording {recorder.path}: {stats.dropped} samples dropped, "
+                    f"{stats.handler_errors} write errors"
+                )
+            self.say(
+                f"recorded {stats.samples} samples ({stats.rejected} rejected, "
+                f"{stats.liveliness} liveliness changes) to {recorder.path}"
+            )
+
+    def _drain_subscribers(self) -> None:
+        """Feed every sample buffered by Zenoh to the collector."""
+        truth_leaves = (f"/{keys.TRUTH}", f"/{keys.TRUTHS}")  # per robot, or batched
+        feed = self.collector.feed
+        for sub in self._subscribers:
+            while (sample := sub.try_recv()) is not None:
+                key = str(sample.key_expr)
+                if feed(key, sample.payload.to_bytes()) and key.endswith(truth_leaves):
+                    now = time.monotonic()
+                    if self.first_truth_rx is None:
+                        self.first_truth_rx = now
+                    self.last_truth_rx = now
+
+    async def _consume(self) -> None:
+        while True:
+            self._drain_subscribers()
+            await asyncio.sleep(CONSUME_PERIOD_S)
+
+    # -- run ------------------------------------------------------------------------------------
+
+    async def _first_truth(self) -> None:
+        while self.first_truth_rx is None:
+            await asyncio.sleep(0.02)
+
+    def _survivable(self, child: Child) -> bool:
+        """An agent's death is an event of the run (issue 4: the fleet re-forms without it); a
+        coordinator's too while another coordinator process is running (``--standby``)."""
+        if child.name.startswith("agent-"):
+            return True
+        if child.name.startswith("coordinator"):
+            return any(
+                c is not child and c.name.startswith("coordinator") and c.returncode is None
+                for c in self.nodes
+            )
+        return False
+
+    def _event(self, text: str) -> None:
+        self.events.append({"t": time.monotonic(), "event": text})
+        self.say(f"formation up: {text}")
+
+    async def _respawn(self, old: Child) -> Child:
+        """Start ``old``'s command again after ``--respawn`` seconds (a coordinator always as a
+        standby: the survivor took over and must not be fought)."""
+        assert self.cfg.respawn_s is not None and self.router is not None
+        await asyncio.sleep(self.cfg.respawn_s)
+        args = list(old.argv[3:])
+        if old.name.startswith("coordinator") and "--standby" not in args:
+            args.append("--standby")
+        child = Child(old.name, args, old.ready_prefix, self.log_dir, generation=old.generation + 1)
+        # fork+exec of a fresh interpreter: the child never runs this process's Zenoh state
+        # (the fork hazard of the field notes is a forked child *using* it).
+        assert self.router.pid is not None
+        await child.spawn(child_env(), process_group=self.router.pid)
+        self.retired.append(old)
+        self.nodes[self.nodes.index(old)] = child
+        await child.wait_ready(self.cfg.ready_timeout_s)
+        self._event(f"{child.name} respawned (pid {child.pid}), ready in {child.ready_s:.2f} s")
+        return child
+
+    async def _run(self) -> None:
+        plant = self.nodes[0]
+        assert plant.proc is not None
+        waits: dict[asyncio.Future[Any], Child] = {
+            asyncio.ensure_future(c.proc.wait()): c for c in self.nodes if c.proc is not None
+        }
+        assert self.router is not None and self.router.proc is not None
+        waits[asyncio.ensure_future(self.router.proc.wait())] = self.router
+        respawns: set[asyncio.Future[Any]] = set()
+        timer: asyncio.Future[Any] | None = None
+        stopper: asyncio.Future[Any] | None = None
+        try:
+            if not self.cfg.lockstep:
+                # realtime: the duration counts from the first truth frame
+                try:
+                    await self._or_stop(
+                        asyncio.wait_for(self._first_truth(), self.cfg.ready_timeout_s)
+                    )
+                except TimeoutError:
+                    raise LaunchError(
+                        f"no truth from the plant within {self.cfg.ready_timeout_s} s of start"
+                    ) from None
+                # The plant ends a realtime run itself after --duration (from its clock start,
+                # which is the first truth frame); the timer is the backstop for a plant that
+                # does not, late enough not to race with the plant's own clean exit.
+                timer = asyncio.ensure_future(
+                    asyncio.sleep(self.plan.duration_s + REALTIME_END_GRACE_S)
+                )
+            stopper = asyncio.ensure_future(self.stop.wait())
+            while True:
+                pending = {*waits, *respawns, stopper, *([timer] if timer is not None else [])}
+                done, _ = await asyncio.wait(pending, return_when=asyncio.FIRST_COMPLETED)
+                if stopper in done:
+                    raise _Interrupted
+                if timer is not None and timer in done:
+                    return
+                for fut in done:
+                    if fut in respawns:
+                        respawns.discard(fut)
+                        if fut.exception() is not None:
+                            self._event(f"respawn failed: {fut.exception()}")
+                            continue
+                        new: Child = fut.result()
+                        assert new.proc is not None
+                        waits[asyncio.ensure_future(new.proc.wait())] = new
+                        continue
+                    child = waits.pop(fut, None)
+                    if child is None:
+                        continue
+                    rc = child.returncode
+                    if child is plant and rc == 0:
+                        return  # the plant ran its duration
+                    if self._survivable(child):
+                        what = "killed by SIGKILL" if rc == -signal.SIGKILL else f"status {rc}"
+                        self._event(f"{child.name} (pid {child.pid}) exited ({what})")
+                        if self.cfg.respawn_s is not None:
+                            respawns.add(asyncio.ensure_future(self._respawn(child)))
+                        continue
+                    raise LaunchError(
+                        f"{child.name} (pid {child.pid}) exited with status {rc} during the "
+                        f"run; stderr ({child.log_path}):\n{tail_of(child.log_path)}"
+                    )
+        finally:
+            leftovers: list[asyncio.Future[Any] | None] = [*waits, *respawns, stopper, timer]
+            for pending_fut in leftovers:
+                if pending_fut is not None:
+                    pending_fut.cancel()
+            await asyncio.gather(*respawns, return_exceptions=True)
+
+    # -- stop -----------------------------------------------------------------------------------
+
+    async def _stop_children(self, children: list[Child]) -> None:
+        if self.kill_now:
+            for c in children:
+                c.signal(signal.SIGKILL)
+        problems = await asyncio.gather(*(c.stop() for c in children))
+        for p in problems:
+            if p is not None:
+                self.failures.append(p)
+                self.warn(p)
+
+    async def _shutdown(self) -> None:
+        t0 = time.monotonic()
+        await self._stop_children(self.nodes)
+        if self.session is not None:
+            self._drain_subscribers()  # what arrived before the nodes stopped
+            self._subscribers = []
+            await self._stop_observers()
+            with contextlib.suppress(Exception):
+                self.session.close()
+        if self.router is not None:
+            await self._stop_children([self.router])
+            group = self.router.pid
+            assert group is not None
+            leftovers = group_members(group)
+            if leftovers:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(group, signal.SIGKILL)
+                msg = f"processes left in the run's group killed: {leftovers}"
+                self.failures.append(msg)
+                self.warn(msg)
+        for c in self._all_children():
+            await c.close()
+        self.stop_s = time.monotonic() - t0
+
+    # -- main -----------------------------------------------------------------------------------
+
+    async def run(self) -> UpResult:
+        loop = asyncio.get_running_loop()
+        wall0 = time.monotonic()
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        if self.plan.scenario_toml is not None:
+            (self.out_dir / "scenario.toml").write_text(self.plan.scenario_toml)
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            loop.add_signal_handler(sig, self._on_signal, sig)
+        mode = "lockstep" if self.cfg.lockstep else "realtime"
+        self.say(
+            f"formation up: {self.scn.name} ({len(self.scn.robot_ids)} robots, {mode}, "
+            f"{self.plan.duration_s:g} s, seed {self.plan.seed}) on {self.cfg.endpoint}, "
+            f"fleet {self.cfg.fleet}; logs in {self.log_dir}/"
+        )
+        interrupted = False
+        consumer: asyncio.Task[None] | None = None
+        display: asyncio.Task[None] | None = None
+        try:
+            try:
+                await self._start()
+                consumer = asyncio.ensure_future(self._consume())
+                display = asyncio.ensure_future(self._display_loop())
+                await self._run()
+                if self.cfg.lockstep:
+                    await asyncio.sleep(DRAIN_S)  # the plant's last messages may be in flight
+            except _Interrupted:
+                interrupted = True
+                name = signal.Signals(self.signals[0]).name if self.signals else "signal"
+                self.warn(f"{name}: stopping the run")
+            except LaunchError as exc:
+                self.failures.append(str(exc))
+                self.warn(str(exc))
+            finally:
+                if display is not None:
+                    display.cancel()
+                self._clear_table()
+                if consumer is not None:
+                    consumer.cancel()
+                await self._shutdown()
+        finally:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.remove_signal_handler(sig)
+        return self._results(interrupted, time.monotonic() - wall0)
+
+    def _results(self, interrupted: bool, wall_s: float) -> UpResult:
+        run_wall = (
+            self.last_truth_rx - self.first_truth_rx
+            if self.first_truth_rx is not None and self.last_truth_rx is not None
+            else None
+        )
+        code = 1 if self.failures else (EXIT_INTERRUPTED if interrupted else 0)
+        result = UpResult(
+            exit_code=code,
+            out_dir=self.out_dir,
+            failures=list(self.failures),
+            interrupted=interrupted,
+            wall_s=wall_s,
+            run_wall_s=run_wall,
+        )
+        first = self.collector.first_tick
+        if self.cfg.lockstep and first not in (None, 0):
+            self.warn(f"the collector joined late: ticks 0..{first - 1} are missing from the log")
+        meta = {
+            "scenario": self.scn.name,
+            "seed": self.plan.seed,
+            "dt_s": self.scn.dt_s,
+            "mode": "lockstep" if self.cfg.lockstep else "realtime",
+            "wall_s": wall_s,
+            "run_wall_s": run_wall,
+            "stop_s": self.stop_s,
+            "endpoint": self.cfg.endpoint,
+            "fleet": self.cfg.fleet,
+            "record": None if self.cfg.record is None else str(self.cfg.record),
+            "interrupted": interrupted,
+            "failures": list(self.failures),
+            "events": list(self.events),
+            "children": {
+                f"{c.name}.{c.generation}" if c.generation else c.name: {
+                    "pid": c.pid,
+                    "returncode": c.returncode,
+                    "ready_s": c.ready_s,
+                    "killed": c.killed,
+                }
+                for c in self._all_children()
+            },
+        }
+        log = self.collector.build(meta)
+        if log.t_s.size == 0:
+            self.warn("no truth was received: no metrics written")
+            return result
+        from formation import metrics as metrics_mod
+
+        m = metrics_mod.compute(log, self.plan.settle_s, self.scn.settle_tol_m)
+        sim_s = float(log.t_s[-1] - log.t_s[0])
+        m["meta"]["realtime_factor"] = sim_s / run_wall if run_wall else None
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        (self.out_dir / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
+        log.save_npz(str(self.out_dir / "run.npz"))
+        result.metrics = m
+        if self.cfg.figures and not interrupted:
+            from formation import figures as fig_mod
+
+            fig_mod.write_all(
+                log,
+                self.out_dir,
+                title=f"{self.scn.name} over Zenoh ({m['meta']['mode']}): reference points "
+                "(solid), virtual trajectories (dashed)",
+                settle_s=self.plan.settle_s,
+            )
+        if not self.cfg.quiet:
+            from formation.sim_cli import summary
+
+            print(summary(m))
+            rf = m["meta"]["realtime_factor"]
+            speed = f", {rf:.1f}x real time" if rf else ""
+            what = "metrics" if interrupted or not self.cfg.figures else "metrics and figures"
+            print(f"{sim_s:.2f} s of {m['meta']['mode']} run{speed}; {what} in {self.out_dir}/")
+        return result
+
+
+async def run_up(cfg: UpConfig, plan: Plan | None = None) -> UpResult:
+    """Run the whole system once (see the module docstring); call from an event loop on the
+    main thread (it installs SIGINT/SIGTERM handlers for its duration)."""
+    plan = plan if plan is not None else plan_run(cfg)
+    return await _Launcher(cfg, plan).run()

@@ -1,0 +1,125 @@
+"""What a ``formation up`` run is: its options (:class:`UpConfig`), the validated plan
+(:class:`Plan`: scenario, the ``--robots`` rewrite, duration, seed, settling time, output
+directory) and its outcome (:class:`UpResult`). Planning starts nothing, so a bad scenario or
+option exits with status 2 before any process exists."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import scenario as scenario_mod
+from bus_schemas import keys
+from scenario import scenario_with_robots, to_toml
+
+DEFAULT_ENDPOINT: Final = "tcp/127.0.0.1:7447"
+DEFAULT_LEASE_MS: Final = 700
+"""Zenoh lease every node announces: a hung (SIGSTOPped) node's tokens vanish ~0.7 s after it
+stopped, inside issue 4's 1 s (keep-alives every lease/4 = 175 ms, sent by Zenoh's own threads,
+so a busy Python loop does not expire it)."""
+
+
+class LaunchError(RuntimeError):
+    """A child did not start, died or misbehaved; the message names it and says why."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Configuration and plan
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class UpConfig:
+    """Options of one ``formation up`` run (the CLI's, see :func:`build_parser`)."""
+
+    scenario: str = "paper-exp2"
+    robots: int | None = None
+    duration_s: float | None = None
+    lockstep: bool = False
+    endpoint: str = DEFAULT_ENDPOINT
+    fleet: str = keys.DEFAULT_FLEET
+    out: Path | None = None
+    seed: int | None = None
+    figures: bool = True
+    quiet: bool = False
+    ready_timeout_s: float = 30.0
+    display: str = "auto"  # "auto" (table on a TTY, lines otherwise), "table", "lines", "none"
+    record: Path | None = None  # MCAP file to record the run's bus traffic to
+    foxglove_port: int | None = None  # serve a live Foxglove WebSocket on this port (0: any)
+    foxglove_host: str = "127.0.0.1"
+    lease_ms: int | None = DEFAULT_LEASE_MS  # Zenoh lease of every node (hang detection)
+    standby: bool = False  # run a second, hot-standby coordinator
+    respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
+    hosts: int = 0  # > 0: that many agent-host processes run the robots, batched bus (scale)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What will run: the validated scenario and the arguments derived from the config."""
+
+    scenario: scenario_mod.Scenario
+    scenario_arg: str  # what every node gets as --scenario (a built-in name or a file)
+    scenario_toml: str | None  # the rewritten scenario to write into out_dir, if any
+    duration_s: float
+    seed: int
+    settle_s: float
+    out_dir: Path
+
+
+@dataclass
+class UpResult:
+    """Outcome of :func:`run_up`."""
+
+    exit_code: int
+    out_dir: Path
+    metrics: dict[str, Any] | None = None
+    failures: list[str] = field(default_factory=list)
+    interrupted: bool = False
+    wall_s: float = 0.0
+    run_wall_s: float | None = None  # from the first to the last truth frame received
+
+
+def plan_run(cfg: UpConfig) -> Plan:
+    """Validate the config and the scenario; raise ``ScenarioError``/``ValueError`` (exit 2)."""
+    keys.check_fleet(cfg.fleet)
+    from runtime.transport import ZenohSettings
+
+    ZenohSettings(connect=(cfg.endpoint,))  # validates the endpoint's shape
+    if cfg.duration_s is not None and not (cfg.duration_s > 0 and math.isfinite(cfg.duration_s)):
+        raise ValueError(f"--duration must be positive, got {cfg.duration_s}")
+    if cfg.seed is not None and cfg.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {cfg.seed}")
+    path = scenario_mod.resolve(cfg.scenario)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise scenario_mod.ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    scenario_arg = cfg.scenario if path.parent == scenario_mod.SCENARIO_DIR else str(path.resolve())
+    toml_text: str | None = None
+    if cfg.robots is not None:
+        data = scenario_with_robots(data, cfg.robots)
+        toml_text = to_toml(data)
+    scn = scenario_mod.parse(data, source=str(path))
+    out_dir = cfg.out if cfg.out is not None else Path("runs") / f"up-{scn.name}"
+    if toml_text is not None:
+        scenario_arg = str((out_dir / "scenario.toml").resolve())
+    duration = cfg.duration_s if cfg.duration_s is not None else scn.duration_s
+    from formation.metrics import settle_for  # numpy: only when a run is planned
+
+    settle = settle_for(scn.settle_s, duration)
+    return Plan(
+        scenario=scn,
+        scenario_arg=scenario_arg,
+        scenario_toml=toml_text,
+        duration_s=duration,
+        seed=scn.seed if cfg.seed is None else cfg.seed,
+        settle_s=settle,
+        out_dir=out_dir,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Children

@@ -1,0 +1,51 @@
+"""What ``formation up`` shows while a run goes: the live table (robot, slot, role, mode,
+tracking error, rejected) on a terminal, or a one-line summary."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from formation.collector import LiveView
+
+
+def _fmt_opt(v: Any, fmt: str = "{}", none: str = "-") -> str:
+    return none if v is None else fmt.format(v)
+
+
+def format_table(view: LiveView, header: str, speed: float | None) -> list[str]:
+    """The live status table as lines (no terminal control codes)."""
+    t = _fmt_opt(view.t_s, "{:7.2f} s")
+    sp = f"  {speed:5.1f}x real time" if speed is not None and math.isfinite(speed) else ""
+    lines = [
+        header,
+        f"t {t}{sp}   leader {view.leader or '-'}   min distance "
+        f"{_fmt_opt(view.min_distance_m, '{:.3f} m')}   rejected by collector {view.rejected}",
+        f"{'robot':<8}{'alive':<7}{'slot':>5}  {'role':<10}{'mode':<10}{'error (cm)':>11}"
+        f"{'power R/L (%)':>16}{'rejected':>10}",
+    ]
+    for r in view.robots:
+        alive = {True: "yes", False: "NO", None: "?"}[r.alive]
+        err = _fmt_opt(None if r.error_m is None else r.error_m * 100, "{:.2f}")
+        power = "-" if r.power is None else f"{r.power[0] * 100:5.1f}/{r.power[1] * 100:5.1f}"
+        lines.append(
+            f"{r.robot:<8}{alive:<7}{_fmt_opt(r.slot):>5}  {_fmt_opt(r.role):<10}"
+            f"{_fmt_opt(r.mode):<10}{err:>11}"
+            f"{power:>16}{_fmt_opt(r.rejected):>10}"
+        )
+    return lines
+
+
+def format_line(view: LiveView, speed: float | None) -> str:
+    """One-line summary of the live view (for logs and pipes)."""
+    errs = [r.error_m for r in view.robots if r.error_m is not None]
+    modes: dict[str, int] = {}
+    for r in view.robots:
+        modes[r.mode or "?"] = modes.get(r.mode or "?", 0) + 1
+    sp = f" ({speed:.1f}x)" if speed is not None and math.isfinite(speed) else ""
+    return (
+        f"t {_fmt_opt(view.t_s, '{:.2f} s')}{sp}  leader {view.leader or '-'}  "
+        f"max error {_fmt_opt(max(errs) * 100 if errs else None, '{:.2f} cm')}  "
+        f"min distance {_fmt_opt(view.min_distance_m, '{:.3f} m')}  "
+        f"modes {' '.join(f'{k}:{v}' for k, v in sorted(modes.items()))}"
+    )

@@ -1,0 +1,222 @@
+"""``formation agent``: the command line and bootstrap of one robot agent process.
+
+Resolves the robot id, fleet, parameters (``--config ROBOT.toml``, ``--scenario`` or the
+defaults), Zenoh settings and motor backend, then runs :class:`robot_agent.node.AgentNode` under
+``runtime.serve`` (signals, bounded exit). ``--check-config`` checks a robot config file without
+Zenoh. The node itself, its inputs and outputs are described in :mod:`robot_agent.node`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import runtime as rt
+from bus_schemas import (
+    keys,
+)
+from robot_agent.motors import MotorBackend, create_backend
+from robot_agent.node import AgentNode, LoopMode, MotorOutput
+from robot_agent.params import AgentConfig
+from runtime.sdnotify import Notifier
+
+__all__ = ["build_parser", "main"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation agent`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog="formation agent", description="Run the firmware of one robot as a Zenoh node."
+    )
+    parser.add_argument("--id", dest="robot_id", metavar="ID", help="robot id ([a-z0-9_-]+)")
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument(
+        "--scenario", metavar="NAME|FILE", help="take the robot parameters from a scenario"
+    )
+    source.add_argument(
+        "--config",
+        metavar="ROBOT.toml",
+        help="robot config file: id, fleet, parameters, Zenoh connection, motor backend",
+    )
+    source.add_argument(
+        "--check-config",
+        metavar="ROBOT.toml",
+        help="check a robot config file, print OK or every problem, exit 0/1 (no Zenoh)",
+    )
+    parser.add_argument("--fleet", metavar="NAME", help="fleet name (default demo, or --config's)")
+    parser.add_argument(
+        "--lockstep", action="store_true", help="step on the plant's clock (docs/runtime.md)"
+    )
+    parser.add_argument(
+        "--loop",
+        choices=("on-pose", "fixed"),
+        default="on-pose",
+        help="realtime: step on every own pose plus a watchdog timer (default), or on the "
+        "timer only",
+    )
+    parser.add_argument(
+        "--rate-hz",
+        type=rt.rate_hz,
+        default=50.0,
+        metavar="HZ",
+        help="realtime timer rate (default 50 Hz)",
+    )
+    rt.add_zenoh_arguments(parser)
+    return parser
+
+
+@dataclass(frozen=True)
+class _Setup:
+    robot_id: str
+    fleet: str
+    config: AgentConfig
+    settings: rt.ZenohSettings
+    motor: MotorBackend | None
+
+
+def _setup(ns: argparse.Namespace, log_err: Callable[[str], None]) -> _Setup | None:
+    """Resolve id, fleet, parameters, Zenoh settings and motor backend; None after an error."""
+    from robot_agent.robot_config import ConfigError, load_robot_config
+
+    robot_id: str | None = ns.robot_id
+    fleet: str | None = ns.fleet
+    config = AgentConfig()
+    motor: MotorBackend | None = None
+    if ns.config is not None:
+        try:
+            rc = load_robot_config(ns.config)
+        except ConfigError as exc:
+            log_err(str(exc))
+            return None
+        if robot_id is not None and robot_id != rc.robot_id:
+            log_err(f"--id {robot_id} does not match robot_id {rc.robot_id!r} of {ns.config}")
+            return None
+        robot_id = rc.robot_id
+        fleet = fleet or rc.fleet
+        config = rc.agent
+        # The file's Zenoh section fills in what the command line did not say.
+        ns.zenoh_mode = ns.zenoh_mode or rc.zenoh.mode
+        ns.zenoh_connect = ns.zenoh_connect or (list(rc.zenoh.endpoints) or None)
+        ns.zenoh_config = ns.zenoh_config or rc.zenoh.config_file
+        if rc.motor.backend != "bus":
+            try:
+                motor = create_backend(rc.motor, config.geometry.max_wheel_radps)
+            except ValueError as exc:
+                log_err(f"motor backend: {exc}")
+                return None
+    elif ns.scenario is not None:
+        from scenario import ScenarioError, load
+
+        try:
+            scenario = load(ns.scenario)
+        except (ScenarioError, OSError) as exc:
+            log_err(f"scenario: {exc}")
+            return None
+        if robot_id is not None and robot_id not in scenario.robot_ids:
+            log_err(
+                f"robot {robot_id!r} is not in scenario {scenario.name!r} "
+                f"({', '.join(scenario.robot_ids)})"
+            )
+            return None
+        config = scenario.agent
+    if robot_id is None:
+        log_err("--id is required (or --config with a robot_id)")
+        return None
+    fleet = fleet or keys.DEFAULT_FLEET
+    if not keys.is_robot_id(robot_id):
+        log_err(f"invalid robot id {robot_id!r}: must match {keys.ROBOT_ID_PATTERN}")
+        return None
+    if not keys.is_name(fleet):
+        log_err(f"invalid fleet name {fleet!r}: must match {keys.NAME_PATTERN}")
+        return None
+    try:
+        settings = rt.settings_from_args(ns)
+    except (TypeError, ValueError) as exc:
+        log_err(f"zenoh settings: {exc}")
+        return None
+    return _Setup(robot_id, fleet, config, settings, motor)
+
+
+def check_config_command(path: str) -> int:
+    """``--check-config``: print OK or every problem (one per line); 0 if valid, else 1."""
+    from robot_agent.robot_config import check_config
+
+    problems = check_config(Path(path))
+    print("\n".join(problems) or "OK", flush=True)
+    return 1 if problems else 0
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation agent``; returns the exit status."""
+    ns = build_parser().parse_args(argv)
+    if ns.check_config is not None:
+        return check_config_command(ns.check_config)
+    errlog = rt.NodeLog("formation agent")
+    setup = _setup(ns, errlog.info)
+    if setup is None:
+        return 2
+    return rt.serve(
+        f"agent {setup.robot_id}",
+        setup.settings,
+        lambda io, stop: _node(
+            io, stop, setup, lockstep=bool(ns.lockstep), loop_mode=ns.loop, rate_hz=ns.rate_hz
+        ),
+    )
+
+
+async def _node(
+    io: rt.NodeIO,
+    stop: asyncio.Event,
+    setup: _Setup,
+    *,
+    lockstep: bool,
+    loop_mode: LoopMode,
+    rate_hz: float,
+) -> int:
+    motor = MotorOutput(setup.motor) if setup.motor is not None else None
+    notifier = Notifier()
+    try:
+        node = AgentNode(
+            setup.robot_id,
+            setup.fleet,
+            setup.config,
+            io.pubs.put,
+            lockstep=lockstep,
+            loop_mode=loop_mode,
+            rate_hz=rate_hz,
+            motor=motor,
+            log=io.log,
+        )
+        node.stall.gap_s = rt.hang_gap_for(setup.settings.lease_ms)
+        if motor is not None:
+            motor.start()
+        # Declare the publishers first, so the first command is not delayed by a declaration.
+        io.pubs.get(node.wheels_key, node.wheels_qos)
+        io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
+        io.subscribe(node.setpoint_key, node.on_setpoint)
+        io.subscribe(node.poses_key, node.on_poses)
+        io.subscribe(node.estop_key, node.on_estop)
+        if lockstep:
+            io.subscribe(node.clock_key, node.on_clock)
+        io.subscribe(node.pose_key, node.on_pose)
+        io.declare_token(node.alive_key)
+        print(f"agent {setup.robot_id} ready", flush=True)
+        notifier.ready(f"agent {setup.robot_id} connected")
+        mode = "lockstep" if lockstep else f"realtime, loop {loop_mode} at {rate_hz:g} Hz"
+        backend = setup.motor.name if setup.motor is not None else "bus"
+        io.log.info(f"fleet {setup.fleet}, {mode}, motor backend {backend}")
+        await node.run(stop, notifier)
+        notifier.stopping()
+        return 0
+    finally:
+        if motor is not None:
+            motor.close()
+        notifier.close()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,83 @@
+"""A scenario turned into the cores of one run: the one assembly both runtimes use.
+
+``formation/simulate.py`` (in-process) and the process shells (``coordinator/node.py``,
+``sim_plant/node.py``) build their cores here, so the two runtimes run the same experiment by
+construction: the same trajectory, formation and assigner, the same plant, camera and command
+link drawing from one seeded generator in the same order, and the same rule for a scheduled
+disturbance. Imports the numeric cores, so it is not re-exported by ``scenario/__init__`` (an
+agent loads scenarios without numpy).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from coordinator.core import CoordinatorCore
+from scenario.load import Disturbance, Scenario
+from sim_plant.accounting import SeparationMonitor
+from sim_plant.plant import Plant
+from sim_plant.sensors import Camera, CommandLink
+
+__all__ = ["apply_scheduled", "coordinator_core", "plant_models"]
+
+
+def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
+    """The coordinator core of ``scenario`` (trajectory time origin ``t0_s``)."""
+    return CoordinatorCore.from_config(
+        scenario.trajectory,
+        scenario.formation,
+        scenario.assignment.method,
+        scenario.assignment.hysteresis_m,
+        scenario.assignment.tie_tol_m,
+        ref_offset_m=scenario.agent.geometry.ref_offset_m,
+        t0_s=t0_s,
+    )
+
+
+def plant_models(
+    scenario: Scenario, rng: np.random.Generator, t0_s: float = 0.0
+) -> tuple[Plant, Camera, CommandLink[Any], SeparationMonitor]:
+    """Plant, camera, command link and separation monitor of ``scenario`` starting at ``t0_s``.
+
+    The camera and then the link draw from ``rng``: build them in this one place so a seed gives
+    the same noise in every runtime.
+    """
+    geom = scenario.agent.geometry
+    plant = Plant(
+        np.array(scenario.initial, dtype=float),
+        geom,
+        motor_tau_s=scenario.plant.motor_tau_s,
+        t0_s=t0_s,
+    )
+    cam = scenario.camera
+    camera = Camera(
+        len(scenario.robot_ids),
+        rate_hz=cam.rate_hz,
+        pos_std_m=cam.pos_std_m,
+        theta_std_rad=cam.theta_std_rad,
+        latency_s=cam.latency_s,
+        rng=rng,
+        t0_s=t0_s,
+    )
+    lk = scenario.link
+    link: CommandLink[Any] = CommandLink(
+        latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=rng
+    )
+    return plant, camera, link, SeparationMonitor(geom.body_radius_m)
+
+
+def apply_scheduled(plant: Plant, i: int, d: Disturbance) -> None:
+    """Start scheduled disturbance ``d`` on robot ``i``: a drag, or a teleport to ``(x, y)``
+    (each defaulting to the current truth plus ``dx``/``dy``) and ``theta``."""
+    if d.kind == "drag":
+        plant.drag(i, d.dx, d.dy, d.duration_s)
+    else:
+        x_i, y_i, _ = plant.truth_rows()[i]
+        plant.teleport(
+            i,
+            d.x if d.x is not None else x_i + d.dx,
+            d.y if d.y is not None else y_i + d.dy,
+            d.theta,
+        )
