@@ -374,12 +374,9 @@ class QoS:
     """Quality of service of one publisher (fixed when it is declared).
 
     ``express`` puts the message in a batch of its own instead of letting the transmit task
-    coalesce what is queued. Measured here with eclipse-zenoh 1.10 (two clients through a
-    router, 100-byte ping-pong): no latency gain (round trip p50 519 us express vs 482 us not,
-    p99 1363 vs 706 us, on a loaded machine) but ~20x the CPU per put in the caller (30-45 us vs
-    ~2 us), and every express message is one more wake-up of every receiving process. Lockstep
-    went from 4.8x to 6.2x real time when the control and critical QoS stopped using it
-    (``formation up --lockstep --duration 30``, back to back). So no publisher here is express.
+    coalesce what is queued. With eclipse-zenoh 1.10 it gave no latency gain here but cost many
+    times the CPU per put and one more wake-up of every receiver per message, and lockstep ran
+    faster without it (docs/zenoh-notes.md, docs/benchmarks.md). So no publisher here is express.
     ``CongestionControl.DROP``: when the transmit queue stays full for ~1 ms the message being
     sent is dropped (fine at control rates, but a tight loop of thousands of puts does lose
     some, measured); ``BLOCK`` waits instead (the message must arrive).
