@@ -25,7 +25,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 typecheck: $(STAMP)
-	$(BIN)/mypy coordinator robot_agent bus_schemas sim_plant formation
+	$(BIN)/mypy coordinator robot_agent bus_schemas sim_plant formation runtime scenario
 
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
