@@ -90,3 +90,26 @@ def test_agent_imports_without_numpy_or_scipy() -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "ok"
+
+
+def test_agent_process_modules_import_without_numpy() -> None:
+    """The agent's whole process (its shell, the runtime, the scenario loader) stays numpy-free:
+    ``pip install .[agent]`` on a robot pulls in no numpy/scipy."""
+    code = (
+        "import sys; sys.modules['numpy'] = None; sys.modules['scipy'] = None; "
+        "import robot_agent.main, robot_agent.host, runtime, scenario; "
+        "s = scenario.load('paper-exp2'); assert s.robot_ids; print('ok')"
+    )
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "ok"
