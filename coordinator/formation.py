@@ -675,6 +675,7 @@ def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
         raise ValueError(f"{owner}: two slots of the formation coincide (spacing {spacing} m)")
     min_d = spacing * (1.0 - _GROW_TOL)
     merge_d = spacing * _GROW_TOL
+    q = spacing * _GROW_TOL  # quantum for ordering keys (float noise must not reorder)
     offs = spec.body_offsets_m
     pts: list[tuple[float, float]] = [(float(x), float(y)) for x, y in offs]
     stage_of: dict[int, int] = {s.slot: s.stage for s in spec.slots}
@@ -687,7 +688,6 @@ def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
         parents = [r[0] for r in rows if stage_of[r[0]] == stage - 1]
         # candidates: [x, y, parent, b, phi, (parent |y|, -parent y, generation index)]
         cands: list[list[Any]] = []
-        q = spacing * 1e-6  # quantum for ordering keys (float noise must not reorder)
         gen = 0
         for p in parents:
             px, py = off_of[p]
@@ -703,11 +703,10 @@ def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
                     cands.append([x, y, p, b, phi, pref])
                 gen += 1
 
-        def order(c: list[Any]) -> tuple[float, float, float, int]:
-            return (round(abs(c[1]) / q), -round(c[1] / q), -round(c[0] / q), c[5][2])
-
         added = 0
-        for c in sorted(cands, key=order):
+        # centre out, left (+y) before right, front to back, then generation order
+        cands.sort(key=lambda c: (round(abs(c[1]) / q), -round(c[1] / q), -round(c[0] / q), c[5]))
+        for c in cands:
             if len(rows) >= n_i:
                 break
             x, y = c[0], c[1]
