@@ -140,6 +140,14 @@ def _save(fig: Figure, path: Path) -> None:
     plt.close(fig)
 
 
+def _no_data(title: str) -> Figure:
+    """A small figure saying the run recorded no tick (an empty or at once interrupted run)."""
+    fig = _figure(6.0, 2.0)
+    fig.text(0.5, 0.6, title, ha="center", va="center", fontsize=11)
+    fig.text(0.5, 0.3, "no tick recorded: nothing to plot", ha="center", color="0.4")
+    return fig
+
+
 def _stride(ticks: int) -> int:
     return max(1, math.ceil(ticks / _MAX_POINTS))
 
@@ -179,6 +187,9 @@ def _nanmax(a: np.ndarray, axis: int | None = None) -> Any:
 
 
 def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
+    if not log.t_s.size:
+        _save(_no_data(title or "Trajectories"), path)
+        return
     n = len(log.robot_ids)
     m = log.slot_xy.shape[1]
     ticks = log.t_s.size
@@ -253,6 +264,9 @@ def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
 
 
 def plot_motor_power(log: RunLog, path: Path) -> None:
+    if not log.t_s.size:
+        _save(_no_data("Motor power"), path)
+        return
     n = len(log.robot_ids)
     if n <= DETAIL_MAX:
         t, pw = _envelope(log.t_s, log.power * 100)
@@ -304,7 +318,9 @@ def plot_motor_power(log: RunLog, path: Path) -> None:
         interpolation="nearest",
         origin="lower",
         cmap="magma",
-        extent=(float(t_full[0]), float(t_full[-1]), 0.5, n + 0.5) if t_full.size else None,
+        extent=(float(t_full[0]), max(float(t_full[-1]), float(t_full[0]) + 1e-3), 0.5, n + 0.5)
+        if t_full.size
+        else None,
         vmin=0.0,
     )
     axes[2].set_ylabel("robot (1..n)")
@@ -341,6 +357,8 @@ def plot_error(log: RunLog, path: Path, settle_s: float | None = None) -> None:
 
 def error_figure(log: RunLog, settle_s: float | None = None) -> Figure:
     """The formation error figure (axes: linear from 0 above the peak, then log); unsaved."""
+    if not log.t_s.size:
+        return _no_data("Formation error")
     t, series = _error_series(log)
     n = len(log.robot_ids)
     fig = _figure(10.0, 6.5)
@@ -359,6 +377,9 @@ def error_figure(log: RunLog, settle_s: float | None = None) -> Figure:
     if positive.size:
         lo = max(float(np.min(positive)), top * 1e-5, 1e-4)
         ax_log.set_ylim(lo * 0.8, top * 1.3)
+    else:  # nothing to draw (an empty run): positive limits all the same
+        ax_log.set_ylim(1e-2, 1.0)
+        ax_lin.text(0.5, 0.5, "no data", transform=ax_lin.transAxes, ha="center", color="0.4")
     ax_log.set_ylabel("error (cm), log")
     ax_log.set_xlabel("time (s)")
     for ax in (ax_lin, ax_log):
@@ -383,6 +404,8 @@ def plot_roles(log: RunLog, path: Path) -> None:
 
 def roles_figure(log: RunLog) -> Figure:
     """The role figure (slot steps up to DETAIL_MAX robots, else role-change events); unsaved."""
+    if not log.t_s.size:
+        return _no_data("Roles")
     n = len(log.robot_ids)
     m = log.slot_xy.shape[1]
     changes = role_changes(log)
@@ -398,8 +421,11 @@ def roles_figure(log: RunLog) -> Figure:
             if ch["to_slot"] is not None:
                 ax.plot(ch["t_s"], ch["to_slot"], "|", color="k", ms=12, mew=1.2)
         ticks = sorted(set(log.slot_ids))
-        ax.set_yticks(ticks)
-        ax.set_yticklabels([f"{s} leader" if s == 0 else str(s) for s in ticks])
+        if len(ticks) <= 2 * LEGEND_MAX:
+            ax.set_yticks(ticks)
+            ax.set_yticklabels([f"{s} leader" if s == 0 else str(s) for s in ticks])
+        else:
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         if ticks:
             ax.set_ylim(min(ticks) - 0.5, max(ticks) + 0.5)
         ax.set_ylabel("slot")
@@ -414,7 +440,10 @@ def roles_figure(log: RunLog) -> Figure:
     ax_n, ax_ev = fig.subplots(2, 1, sharex=True, height_ratios=[1, 3])
     held = (log.slot_of >= 0).sum(axis=1)
     leader = (log.slot_of == 0).any(axis=1)
-    ax_n.plot(log.t_s, held, color="tab:blue", lw=1.2, label="robots holding a slot")
+    ax_n.plot(
+        log.t_s, held, drawstyle="steps-post", color="tab:blue", lw=1.2,
+        label="robots holding a slot",
+    )  # fmt: skip
     ax_n.axhline(min(n, m), color="0.5", ls=":", lw=1, label=f"slots ({m})")
     if not leader.all():
         no_lead = log.t_s[~leader]
@@ -440,7 +469,7 @@ def roles_figure(log: RunLog) -> Figure:
         ax_ev.text(0.5, 0.5, "no role changes after the initial assignment",
                    transform=ax_ev.transAxes, ha="center", va="center", color="0.3")  # fmt: skip
     ax_ev.set_ylim(0.5, n + 0.5)
-    if log.t_s.size:
+    if log.t_s.size > 1 and log.t_s[-1] > log.t_s[0]:
         ax_ev.set_xlim(float(log.t_s[0]), float(log.t_s[-1]))
     ax_ev.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax_ev.set_ylabel("robot (1..n)")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 from pathlib import Path
 
 import matplotlib.image as mpimg
@@ -144,3 +145,19 @@ def test_clean_simulated_three_robot_run_reports_no_role_change() -> None:
     run = metrics.compute(res.log, 2.5, scn.settle_tol_m)["run"]
     assert run["role_change_count"] == 0
     assert len(run["initial_assignments"]) == 3
+
+
+@pytest.mark.parametrize("n", [3, 40])
+@pytest.mark.parametrize("ticks", [0, 1, 2])
+def test_figures_of_empty_and_tiny_runs(n: int, ticks: int, tmp_path: Path) -> None:
+    """An interrupted run may have recorded nothing or one tick: figures are still written."""
+    if ticks:
+        log = synthetic_log(n, ticks=ticks)
+    else:
+        log = RunLog.allocate([f"r{j + 1}" for j in range(n)], list(range(n)), 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # no singular axis limits
+        paths = figures.write_all(log, tmp_path)
+    for p in paths[:4]:
+        h, w = mpimg.imread(p).shape[:2]
+        assert w <= figures.MAX_PX and h <= figures.MAX_PX
