@@ -9,9 +9,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from coordinator.formation import (
     FormationSpec,
+    SlotSpec,
     first_stage_pattern,
     formation_spacing_m,
     grow_staged,
@@ -163,3 +166,74 @@ def test_resized_formation_table_for_every_scenario() -> None:
                 assert spec == FormationSpec.from_dict(table).grown(n)
     with pytest.raises(ValueError):
         resized_formation_table({"kind": "triangle"}, 0)
+
+
+def test_builtin_spacing_is_b() -> None:
+    """For the built-in kinds the growth spacing is b, so ">= spacing" is ">= b"."""
+    for spec, b in (
+        (FormationSpec.triangle(b_m=0.4), 0.4),
+        (FormationSpec.chevron(7, b_m=0.35), 0.35),
+        (FormationSpec.lattice(6, b_m=0.5), 0.5),
+    ):
+        assert formation_spacing_m(spec) == pytest.approx(b)
+        assert formation_spacing_m(spec.grown(60)) >= 0.9 * b
+
+
+_angle = st.floats(0.15, math.pi - 0.15)  # behind the parent (phi in (0, pi))
+_b = st.floats(0.2, 1.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    first=st.lists(st.tuples(_b, _angle), min_size=1, max_size=3),
+    n=st.integers(1, 60),
+)
+def test_any_first_stage_pattern_grows_or_refuses_cleanly(
+    first: list[tuple[float, float]], n: int
+) -> None:
+    rows: list[tuple[int, int | None, float, float]] = [(0, None, 0.0, 0.0)]
+    rows += [(i + 1, 0, b, phi) for i, (b, phi) in enumerate(first)]
+    base = FormationSpec.from_tree(rows)
+    spacing = formation_spacing_m(base)
+    if spacing < 1e-9:  # coincident first-stage slots: growth refuses with a reason
+        with pytest.raises(ValueError, match="coincide"):
+            grow_staged(base, len(base) + 1)
+        return
+    spec = grow_staged(base, n)
+    assert len(spec) == n
+    assert _min_pairwise(spec.body_offsets_m) >= spacing * (1 - 1e-6)
+
+    def key(s: SlotSpec) -> tuple[int, int | None, float, float, int]:
+        return (s.slot, s.parent, s.b_m, s.phi_rad, s.stage)
+
+    assert [key(s) for s in spec.slots[: len(base)]] == [key(s) for s in base.slots[:n]]
+    big = grow_staged(base, n + 5)
+    assert [s.slot for s in big.slots[:n]] == [s.slot for s in spec.slots]
+
+
+def test_grown_paper_triangle_flies_in_the_simulator() -> None:
+    """paper-sim's triangle grown to 10 slots, 10 robots started on their slots: the closed
+    loop holds it (no collision, every robot keeps its first slot)."""
+    from coordinator.formation import slot_states
+    from coordinator.trajectory import make_trajectory
+    from formation import metrics, scenario, simulate
+
+    data = tomllib.loads((SCENARIOS / "paper-sim.toml").read_text())
+    data["formation"] = resized_formation_table(data["formation"], 10)
+    traj = dict(data["trajectory"])
+    leader = make_trajectory(str(traj.pop("kind")), traj).sample(0.0)
+    spec = FormationSpec.from_dict(data["formation"])
+    l_m = 0.05
+    data["robots"] = {
+        "ids": [f"r{i + 1}" for i in range(10)],
+        "initial": [
+            [s.x - l_m * math.cos(s.theta), s.y - l_m * math.sin(s.theta), s.theta]
+            for s in slot_states(spec, leader)
+        ],
+    }
+    scn = scenario.parse(data)
+    res = simulate.run(scn, duration_s=6.0)
+    run = metrics.compute(res.log, 3.0, scn.settle_tol_m)["run"]
+    assert run["collisions"] == 0 and run["min_separation_m"] > 0.3
+    assert run["role_change_count"] == 0
+    assert [a["slot"] for a in run["initial_assignments"]] == list(range(10))
