@@ -38,6 +38,10 @@ __all__ = [
     "FormationSpec",
     "SlotSpec",
     "SlotState",
+    "first_stage_pattern",
+    "formation_spacing_m",
+    "grow_staged",
+    "resized_formation_table",
     "slot_arrays",
     "slot_rows",
     "slot_states",
@@ -501,6 +505,11 @@ class FormationSpec:
         """Row of ``slot`` in definition order (and in :func:`slot_arrays`)."""
         return self._index[slot]
 
+    def grown(self, n: int) -> FormationSpec:
+        """This formation grown (or cut) to ``n`` slots by the paper's staged rule (Fig 2b);
+        see :func:`grow_staged`."""
+        return grow_staged(self, n)
+
     @property
     def priority_slots(self) -> tuple[int, ...]:
         """Slot ids in fill priority (as :meth:`priority_order`, as a shared tuple)."""
@@ -596,3 +605,146 @@ def slot_arrays(spec: FormationSpec, leader: LeaderState) -> tuple[FloatArray, F
     vxy[:, 0] = leader.v_mps * c - leader.omega_radps * ry
     vxy[:, 1] = leader.v_mps * s + leader.omega_radps * rx
     return xy, vxy
+
+
+# -- staged growth (paper Fig 2b) ----------------------------------------------------------------
+
+_GROW_TOL: Final = 1e-6  # relative tolerance on the spacing (float noise of summed offsets)
+
+
+def first_stage_pattern(spec: FormationSpec) -> tuple[tuple[float, float], ...]:
+    """The ``(b_m, phi_rad)`` of the leader's children (the first stage), in definition order:
+    the pattern every sub-leader repeats when the formation grows (paper Fig 2b)."""
+    return tuple((s.b_m, s.phi_rad) for s in spec.slots if s.parent == LEADER_SLOT)
+
+
+def formation_spacing_m(spec: FormationSpec) -> float:
+    """The smallest distance (m) between two slots of ``spec`` (inf for a single slot)."""
+    d = spec.body_offsets_m
+    if len(d) < 2:
+        return math.inf
+    diff = d[:, None, :] - d[None, :, :]
+    dist = np.hypot(diff[..., 0], diff[..., 1])
+    np.fill_diagonal(dist, np.inf)
+    return float(dist.min())
+
+
+def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
+    """``spec`` grown (or cut) to exactly ``n`` slots by the paper's staged rule (Fig 2b).
+
+    Every slot of a stage becomes the sub-leader of its own followers in the next stage, placed
+    at the first stage's ``(b_m, phi_rad)`` pattern (:func:`first_stage_pattern`). Sub-trees of
+    neighbouring sub-leaders overlap (the triangle's pi/3 and 2 pi/3 put the right follower of
+    one and the left follower of the other on the same point: the paper's "trajectory 5 can be
+    developed from trajectory 2 or 3"), so candidates are merged and filtered:
+
+    * stages are filled in order (stage ``s`` candidates are the pattern children of every
+      stage ``s - 1`` slot, the existing ones included, so a partial last stage is completed
+      first where the pattern reaches);
+    * a point reached from several sub-leaders is one slot; its parent is the sub-leader nearest
+      the centre line (smallest ``|y|`` in the leader's frame), left before right on a tie, then
+      the first in definition order;
+    * within a stage, slots are numbered from the centre out, left (+y) before right, then
+      front to back;
+    * a candidate closer than the formation's spacing (:func:`formation_spacing_m`, its
+      smallest slot-to-slot distance) to any slot already placed is dropped.
+
+    The slots of ``spec`` keep their ids, parents, ``b_m``, ``phi_rad`` and stages; new slots
+    get the next ids. ``n`` smaller than ``len(spec)`` keeps the first ``n`` slots in definition
+    order; the result for ``n`` is always a prefix of the result for any larger ``n``. Roles are
+    derived again (a follower that gets children becomes a sub-leader). ``grow_staged(triangle,
+    n)`` is ``FormationSpec.lattice(n)`` exactly. Raises ``ValueError`` if ``n < 1``, if the
+    formation has no first stage to repeat (a lone leader), or if the pattern cannot place
+    another slot.
+    """
+    owner = "grow_staged"
+    n_i = _count(owner, n)
+    rows: list[tuple[int, int | None, float, float]] = [
+        (s.slot, s.parent, s.b_m, s.phi_rad) for s in spec.slots
+    ]
+    if n_i <= len(rows):
+        return FormationSpec.from_tree(rows[:n_i])
+    pattern = first_stage_pattern(spec)
+    if not pattern:
+        raise ValueError(
+            f"{owner}: the formation has no first stage (only the leader), so there is no "
+            "pattern to repeat; give it at least one follower of the leader"
+        )
+    spacing = formation_spacing_m(spec)
+    if not spacing > 0.0:
+        raise ValueError(f"{owner}: two slots of the formation coincide (spacing {spacing} m)")
+    min_d = spacing * (1.0 - _GROW_TOL)
+    merge_d = spacing * _GROW_TOL
+    q = spacing * _GROW_TOL  # quantum for ordering keys (float noise must not reorder)
+    offs = spec.body_offsets_m
+    pts: list[tuple[float, float]] = [(float(x), float(y)) for x, y in offs]
+    stage_of: dict[int, int] = {s.slot: s.stage for s in spec.slots}
+    off_of: dict[int, tuple[float, float]] = {s.slot: pts[i] for i, s in enumerate(spec.slots)}
+    last_spec_stage = spec.n_stages - 1
+    next_id = max(stage_of) + 1
+    placed = np.array(pts, dtype=np.float64)
+    stage = 1
+    while len(rows) < n_i:
+        parents = [r[0] for r in rows if stage_of[r[0]] == stage - 1]
+        # candidates: [x, y, parent, b, phi, (parent |y|, -parent y, generation index)]
+        cands: list[list[Any]] = []
+        gen = 0
+        for p in parents:
+            px, py = off_of[p]
+            for b, phi in pattern:
+                x, y = px - b * math.sin(phi), py + b * math.cos(phi)
+                pref = (round(abs(py) / q), -round(py / q), gen)
+                for c in cands:
+                    if math.hypot(c[0] - x, c[1] - y) <= merge_d:
+                        if pref < c[5]:  # a parent nearer the centre line takes the shared slot
+                            c[2:6] = [p, b, phi, pref]
+                        break
+                else:
+                    cands.append([x, y, p, b, phi, pref])
+                gen += 1
+
+        added = 0
+        # centre out, left (+y) before right, front to back, then generation order
+        cands.sort(key=lambda c: (round(abs(c[1]) / q), -round(c[1] / q), -round(c[0] / q), c[5]))
+        for c in cands:
+            if len(rows) >= n_i:
+                break
+            x, y = c[0], c[1]
+            if float(np.min(np.hypot(placed[:, 0] - x, placed[:, 1] - y))) < min_d:
+                continue
+            rows.append((next_id, c[2], c[3], c[4]))
+            stage_of[next_id] = stage
+            off_of[next_id] = (x, y)
+            placed = np.vstack([placed, [[x, y]]])
+            next_id += 1
+            added += 1
+        if added == 0 and stage > last_spec_stage:
+            raise ValueError(
+                f"{owner}: the first-stage pattern cannot place slot {len(rows)} at stage {stage} "
+                f"without coming closer than {spacing:.3g} m to another slot"
+            )
+        stage += 1
+    return FormationSpec.from_tree(rows)
+
+
+def resized_formation_table(table: Mapping[str, Any], n: int) -> dict[str, Any]:
+    """A scenario ``[formation]`` table for exactly ``n`` slots (what ``--robots N`` needs).
+
+    ``chevron`` and ``lattice`` keep their kind with ``n`` replaced (their builders are staged
+    and prefix-stable: the first slots of ``lattice(m)`` are ``lattice(n)``); any other kind
+    (the paper's ``triangle``, ``explicit``) is grown by :func:`grow_staged` and returned in the
+    explicit form of :meth:`FormationSpec.to_dict`. Raises ``ValueError`` for a bad table or n.
+    """
+    n_i = _count("formation", n)
+    if not isinstance(table, Mapping):
+        raise ValueError(f"formation: expected a table/mapping, got {table!r}")
+    kind = table.get("kind")
+    if kind in ("chevron", "lattice"):
+        out = dict(table)
+        if isinstance(out.get("params"), Mapping):
+            out["params"] = {**out["params"], "n": n_i}
+        else:
+            out["n"] = n_i
+        FormationSpec.from_dict(out)  # validate
+        return out
+    return grow_staged(FormationSpec.from_dict(table), n_i).to_dict()

@@ -3,8 +3,9 @@
 Per robot: formation error RMS after settling (distance from the robot's reference point to its
 assigned slot, eqs 17-18), settling time (the time after which that error stays within the
 tolerance to the end of the run), peak motor power. For the run: minimum pairwise separation of
-axle centres, collisions (pairs closer than two body radii, counted once per contact), every role
-change with its time, and the leader's identity over time.
+axle centres, collisions (pairs closer than two body radii, counted once per contact), each
+robot's initial assignment, every role change after it with its time (a clean run has none), and
+the leader's identity over time.
 """
 
 from __future__ import annotations
@@ -35,21 +36,47 @@ def settling_time(t_s: np.ndarray, err: np.ndarray, tol_m: float) -> float | Non
     return float(t_s[idx[-1] + 1])
 
 
+def _slot_or_none(s: int) -> int | None:
+    return None if s < 0 else int(s)
+
+
+def initial_assignments(log: RunLog) -> list[dict[str, Any]]:
+    """Each robot's first slot and when it got it, in time order: {t_s, robot, slot}. Robots
+    that never got a slot are left out."""
+    out: list[dict[str, Any]] = []
+    s = log.slot_of
+    if s.shape[0] == 0:
+        return out
+    assigned = s >= 0
+    for j in np.flatnonzero(assigned.any(axis=0)).tolist():
+        k = int(np.argmax(assigned[:, j]))
+        out.append(
+            {"t_s": round(float(log.t_s[k]), 6), "robot": log.robot_ids[j], "slot": int(s[k, j])}
+        )
+    out.sort(key=lambda e: (e["t_s"], log.robot_ids.index(e["robot"])))
+    return out
+
+
 def role_changes(log: RunLog) -> list[dict[str, Any]]:
-    """Every change of a robot's slot, in time order: {t_s, robot, from_slot, to_slot}."""
+    """Every change of a robot's slot after its initial assignment (see
+    :func:`initial_assignments`), in time order: {t_s, robot, from_slot, to_slot}. A clean run
+    has none; losing a slot (``to_slot`` None) and getting one back are changes."""
     out: list[dict[str, Any]] = []
     s = log.slot_of
     if s.shape[0] < 2:
         return out
+    assigned = s >= 0
+    first = np.where(assigned.any(axis=0), np.argmax(assigned, axis=0), s.shape[0])
     changed_t, changed_r = np.nonzero(s[1:] != s[:-1])
     for k, j in zip(changed_t.tolist(), changed_r.tolist(), strict=True):
-        prev, new = int(s[k, j]), int(s[k + 1, j])
+        if k + 1 <= first[j]:  # before or at the robot's first slot: the initial assignment
+            continue
         out.append(
             {
                 "t_s": round(float(log.t_s[k + 1]), 6),
                 "robot": log.robot_ids[j],
-                "from_slot": None if prev < 0 else prev,
-                "to_slot": None if new < 0 else new,
+                "from_slot": _slot_or_none(int(s[k, j])),
+                "to_slot": _slot_or_none(int(s[k + 1, j])),
             }
         )
     return out
@@ -112,6 +139,7 @@ def compute(log: RunLog, settle_s: float, settle_tol_m: float) -> dict[str, Any]
             "min_separation_m": _finite_or_none(log.min_separation_m),
             "collisions": len(log.collisions),
             "collision_events": log.collisions,
+            "initial_assignments": initial_assignments(log),
             "role_changes": changes,
             "role_change_count": len(changes),
             "leader_timeline": leader_timeline(log),

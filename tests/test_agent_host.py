@@ -232,7 +232,7 @@ def test_thirty_robots_on_two_hosts_hold_the_formation_in_realtime(
     run = m["run"]
     assert run["collisions"] == 0 and run["min_separation_m"] > 0.15
     assert run["final_leader"] == "r1"
-    assert len({c["robot"] for c in run["role_changes"]}) == 30  # everyone got a slot
+    assert len({c["robot"] for c in run["initial_assignments"]}) == 30  # everyone got a slot
     errors = [r["formation_error_rms_m"] for r in m["robots"].values()]
     assert max(e for e in errors if e is not None) < 0.05
 

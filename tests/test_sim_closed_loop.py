@@ -115,10 +115,10 @@ def test_paper_exp2_lead_passes_from_r1_to_r2_once(paper_exp2: Any) -> None:
     handover_t = run["leader_timeline"][2]["t_s"]
     assert 30.0 < handover_t < 34.0  # during or just after the drag (t = 30..32 s)
     # Exactly one reassignment event after the initial assignment: r1 and r2 swap at one tick.
-    changes = run["role_changes"]
-    initial = [c for c in changes if c["from_slot"] is None]
-    later = [c for c in changes if c["from_slot"] is not None]
-    assert {(c["robot"], c["to_slot"]) for c in initial} == {("r1", 0), ("r2", 1), ("r3", 2)}
+    initial = run["initial_assignments"]
+    later = run["role_changes"]  # the initial assignment is not a role change
+    assert run["role_change_count"] == len(later) == 2
+    assert {(c["robot"], c["slot"]) for c in initial} == {("r1", 0), ("r2", 1), ("r3", 2)}
     assert len({c["t_s"] for c in later}) == 1
     assert {(c["robot"], c["from_slot"], c["to_slot"]) for c in later} == {
         ("r1", 0, 1),
