@@ -13,8 +13,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
+import scenario
 from coordinator.formation import FormationSpec
-from formation import figures, metrics, scenario, simulate
+from formation import figures, metrics, simulate
 from formation.runlog import RunLog
 
 

@@ -21,7 +21,7 @@ from coordinator.formation import (
     resized_formation_table,
 )
 
-SCENARIOS = Path(__file__).resolve().parents[1] / "formation" / "scenarios"
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenario" / "builtin"
 
 
 def _scenario_formations() -> dict[str, dict[str, Any]]:
@@ -214,9 +214,10 @@ def test_any_first_stage_pattern_grows_or_refuses_cleanly(
 def test_grown_paper_triangle_flies_in_the_simulator() -> None:
     """paper-sim's triangle grown to 10 slots, 10 robots started on their slots: the closed
     loop holds it (no collision, every robot keeps its first slot)."""
+    import scenario
     from coordinator.formation import slot_states
     from coordinator.trajectory import make_trajectory
-    from formation import metrics, scenario, simulate
+    from formation import metrics, simulate
 
     data = tomllib.loads((SCENARIOS / "paper-sim.toml").read_text())
     data["formation"] = resized_formation_table(data["formation"], 10)
