@@ -23,6 +23,8 @@ class Reason(StrEnum):
     UNKNOWN_VERSION = "unknown_version"
     TOO_LARGE = "too_large"
     INCONSISTENT = "inconsistent"
+    NON_STRING_KEY = "non_string_key"
+    DUPLICATE_KEY = "duplicate_key"
 
 
 REASON_HELP: dict[Reason, str] = {
@@ -38,6 +40,10 @@ REASON_HELP: dict[Reason, str] = {
     Reason.UNKNOWN_VERSION: "`v` is an int other than the version this decoder implements",
     Reason.TOO_LARGE: "the payload is longer than the maximum payload size",
     Reason.INCONSISTENT: "fields disagree with each other (parallel lists of different lengths)",
+    Reason.NON_STRING_KEY: "a map (top-level or nested) has a key that is not a str (int, bin, "
+    "nil, ...); such a payload is refused whole, never read past",
+    Reason.DUPLICATE_KEY: "a map (top-level or nested) has the same key twice; a generic decoder "
+    "would keep one of them silently, so the payload is refused whole",
 }
 """What each reason means (rendered in docs/bus.md)."""
 
