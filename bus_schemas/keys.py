@@ -44,6 +44,8 @@ HOST_STATUS = "host_status"
 ALIVE_ROBOT = "alive_robot"
 ALIVE_COORDINATOR = "alive_coordinator"
 ALIVE_PLANT = "alive_plant"
+COORDINATOR_STATUS = "coordinator_status"
+PLANT_STATUS = "plant_status"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -67,6 +69,9 @@ KEY_TEMPLATES: dict[str, str] = {
     ALIVE_ROBOT: "formation/{fleet}/alive/robot/{robot}",
     ALIVE_COORDINATOR: "formation/{fleet}/alive/coordinator/{name}",
     ALIVE_PLANT: "formation/{fleet}/alive/plant",
+    # node status maps (free-form msgpack maps, not contract messages: see docs/observability.md)
+    COORDINATOR_STATUS: "formation/{fleet}/coordinator/{name}/status",
+    PLANT_STATUS: "formation/{fleet}/plant/status",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
@@ -220,6 +225,16 @@ def host_wheels_key(fleet: str, name: str) -> str:
 def host_status_key(fleet: str, name: str) -> str:
     """``formation/<fleet>/host/<name>/status``: status of an agent host's robots."""
     return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{STATUS}"
+
+
+def coordinator_status_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/coordinator/<name>/status``: a coordinator's status map."""
+    return f"{_fleet_prefix(fleet)}/coordinator/{check_name(name)}/{STATUS}"
+
+
+def plant_status_key(fleet: str) -> str:
+    """``formation/<fleet>/plant/status``: the plant simulator's status map."""
+    return f"{_fleet_prefix(fleet)}/plant/{STATUS}"
 
 
 # --- liveliness tokens ----------------------------------------------------------------------
