@@ -253,6 +253,60 @@ def make_run_pki(root: str | Path, identities: Iterable[acl.Identity | str]) -> 
     return make_pki(root, cns, router_hosts=DEFAULT_ROUTER_HOSTS, days=1, force=True)
 
 
+@dataclass(frozen=True)
+class RunConfigs:
+    """The Zenoh config files of an authenticated local run: the router's, and each identity's
+    client config by CN (pass each as ``--zenoh-config`` to that process)."""
+
+    pki: RunPki
+    router: Path
+    clients: dict[str, Path]
+    endpoint: str
+
+
+def write_run_configs(
+    root: str | Path,
+    identities: Sequence[acl.Identity],
+    *,
+    port: int,
+    fleet: str = "demo",
+    lease_ms: int = acl.LEASE_MS,
+) -> RunConfigs:
+    """Everything an authenticated local run needs, under ``root``: an ephemeral PKI
+    (:func:`make_run_pki`) for ``identities``, the router config (``tls/127.0.0.1:<port>``,
+    mTLS, access control of ``identities`` for ``fleet``) and one client config per identity
+    (connecting to ``tls/localhost:<port>``, failing at once if the router is absent).
+
+    A launcher starts ``formation router --zenoh-config <router>`` and every process with
+    ``--zenoh-config <clients[cn]>`` and no ``--endpoint`` (the file's is the TLS one)."""
+    root = Path(root)
+    pki = make_run_pki(root / "pki", identities)
+    conf_dir = root / "zenoh"
+    conf_dir.mkdir(parents=True, exist_ok=True)
+    router_conf = acl.router_config(
+        identities,
+        pki.router.tls(),
+        fleet=fleet,
+        listen=(f"tls/127.0.0.1:{port}",),
+        lease_ms=lease_ms,
+    )
+    router_path = conf_dir / "router.json5"
+    router_path.write_text(acl.to_json5(router_conf, "authenticated local run: router"))
+    endpoint = f"tls/localhost:{port}"
+    clients: dict[str, Path] = {}
+    for ident in identities:
+        conf = acl.client_config(
+            pki.identities[ident.cn].tls(),
+            connect=(endpoint,),
+            lease_ms=lease_ms,
+            retry_forever=False,
+        )
+        path = conf_dir / f"{ident.cn}.json5"
+        path.write_text(acl.to_json5(conf, f"authenticated local run: {ident.cn}"))
+        clients[ident.cn] = path
+    return RunConfigs(pki=pki, router=router_path, clients=clients, endpoint=endpoint)
+
+
 def main(argv: list[str] | None = None) -> int:
     """``formation certs``: make or extend a deployment's certificates."""
     parser = argparse.ArgumentParser(

@@ -389,8 +389,10 @@ def test_live_publish_per_identity(router: int, pki) -> None:  # type: ignore[no
                 tag = cn.encode()
                 for key in refused:
                     session.put(key, b"forged-" + tag)
-                for key in allowed:
-                    session.put(key, b"ok-" + tag)
+                # the nodes publish through declared publishers: use those for allowed keys
+                pubs = [session.declare_publisher(key) for key in allowed]
+                for pub in pubs:
+                    pub.put(b"ok-" + tag)
                 for key in allowed:
                     assert inbox.wait(key, b"ok-" + tag), (cn, key)
                 for key in refused:
@@ -522,3 +524,98 @@ def test_plain_tcp_client_is_refused(router: int) -> None:
     }
     with pytest.raises(zenoh.ZError):
         zenoh.open(zenoh.Config.from_json5(json.dumps(conf)))
+
+
+# ---------------------------------------------------------------------- a local run, processes
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_authenticated_local_run_processes(tmp_path: Path, spawn) -> None:  # type: ignore[no-untyped-def]
+    """What a launcher does (formation.pki.write_run_configs): a ``formation router`` and a
+    ``formation agent`` with the generated configs. The agent runs authenticated (its status
+    arrives, it tracks the coordinator's setpoint from the localization's poses), and setpoints
+    that robot r2's certificate forges for r1 never reach it (its own receive counter)."""
+    import zenoh
+    from test_node_agent import setpoint_msg
+
+    from bus_schemas import Pose, Status, decode, encode
+    from formation.pki import write_run_configs
+    from formation.router import READY_PREFIX
+
+    idents = [
+        acl.robot("r1"),
+        acl.robot("r2"),
+        acl.coordinator("main"),
+        Identity(Kind.LOCALIZATION),
+        Identity(Kind.OBSERVER),
+    ]
+    rc = write_run_configs(tmp_path / "run", idents, port=_free_port())
+    spawn("router", "--zenoh-config", str(rc.router), ready=READY_PREFIX)
+    spawn("agent", "--id", "r1", "--zenoh-config", str(rc.clients["robot.r1"]), ready="agent")
+
+    def open_as(cn: str) -> zenoh.Session:
+        return zenoh.open(zenoh.Config.from_file(str(rc.clients[cn])))
+
+    sessions = [open_as(cn) for cn in ("observer", "coordinator.main", "localization", "robot.r2")]
+    observer, coord, loc, r2 = sessions
+    try:
+        statuses: list[Status] = []
+        lock = threading.Lock()
+        fence = Inbox()
+
+        def on_status(sample) -> None:  # type: ignore[no-untyped-def]
+            msg = decode(sample.payload.to_bytes(), Status)
+            assert isinstance(msg, Status), msg
+            with lock:
+                statuses.append(msg)
+
+        subs = [
+            observer.declare_subscriber(_f("robot/r1/status"), on_status),
+            observer.declare_subscriber(_f("robot/r2/status"), fence),
+        ]
+
+        def latest(pred, timeout_s: float = 10.0) -> Status:  # type: ignore[no-untyped-def]
+            deadline = time.monotonic() + timeout_s
+            while time.monotonic() < deadline:
+                with lock:
+                    for st in reversed(statuses):
+                        if pred(st):
+                            return st
+                time.sleep(0.02)
+            raise AssertionError(f"no such status; last {statuses[-1:] if statuses else None}")
+
+        first = latest(lambda s: True)
+        assert first.robot == "r1"
+        # tracking: the coordinator's setpoint and the localization's poses are read
+        t0 = time.monotonic()
+        seq = 0
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            seq += 1
+            now = time.monotonic()
+            loc.put(_f("robot/r1/pose"), encode(Pose(t=now, seq=seq, x=0.0, y=0.0, theta=0.0)))
+            coord.put(_f("robot/r1/setpoint"), encode(setpoint_msg("r1", 0.3, 0.0, t=now, seq=seq)))
+            with lock:
+                if statuses and statuses[-1].mode == "tracking":
+                    break
+            time.sleep(0.02)
+        tracking = latest(lambda s: s.mode == "tracking", timeout_s=1.0)
+        assert time.monotonic() - t0 < 10.0
+        # forged setpoints from r2's certificate: dropped at the router, never counted by r1
+        rx_before = latest(lambda s: s.rx is not None and s.seq > tracking.seq).rx
+        assert rx_before is not None
+        for k in range(20):
+            r2.put(_f("robot/r1/setpoint"), encode(setpoint_msg("r1", 5.0, 5.0, t=1.0, seq=k)))
+        r2.put(_f("robot/r2/status"), b"fence")  # allowed: arrives after the forged ones
+        assert fence.wait(_f("robot/r2/status"), b"fence")
+        now = time.monotonic()
+        coord.put(_f("robot/r1/setpoint"), encode(setpoint_msg("r1", 0.3, 0.0, t=now, seq=10**6)))
+        want = rx_before.get("setpoint", 0) + 1
+        after = latest(lambda s: s.rx is not None and s.rx.get("setpoint", 0) >= want)
+        assert after.rx is not None and after.rx["setpoint"] == want, (rx_before, after.rx)
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        for s in sessions:
+            s.close()
