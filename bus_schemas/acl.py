@@ -32,7 +32,10 @@ and egress messages (from the router to the identity) separately, so a grant is 
 publishing key K is ``put``/``delete`` ingress on K, reading K is ``declare_subscriber`` ingress
 and ``put``/``delete`` egress on K; a liveliness token is ``liveliness_token`` ingress; watching
 tokens is ``declare_liveliness_subscriber``/``liveliness_query`` ingress and ``liveliness_token``
-egress (tests/test_acl.py checks each against a real router).
+egress; an identity that publishes is also told of every subscriber of the fleet
+(``declare_subscriber`` egress on ``formation/<fleet>/**``), without which its declared publishers
+do not send to wide subscribers such as a recorder's (tests/test_acl.py checks each against a real
+router).
 """
 
 from __future__ import annotations
@@ -157,11 +160,9 @@ class Access(StrEnum):
     WATCH = "watch"  # subscribe to / query liveliness tokens
 
 
-# (flow, messages) pairs that each access needs at the router. PUBLISH also lets the router tell
-# the publisher about matching subscribers (declare_subscriber egress): a client only sends what
-# someone is subscribed to.
+# (flow, messages) pairs that each access needs at the router.
 ZENOH_MESSAGES: Final[dict[Access, tuple[tuple[str, tuple[str, ...]], ...]]] = {
-    Access.PUBLISH: (("ingress", ("put", "delete")), ("egress", ("declare_subscriber",))),
+    Access.PUBLISH: (("ingress", ("put", "delete")),),
     Access.READ: (("ingress", ("declare_subscriber",)), ("egress", ("put", "delete"))),
     Access.TOKEN: (("ingress", ("liveliness_token",)),),
     Access.WATCH: (
@@ -301,6 +302,23 @@ def access_control(
                     }
                 )
                 rule_ids.append(rid)
+        if Access.PUBLISH in by_access:
+            # A declared publisher sends only while it knows of a matching subscriber: let the
+            # router tell it about every subscriber of the fleet, including wide ones such as a
+            # recorder's formation/<fleet>/** (which no publish grant includes). Measured: with
+            # the declarations limited to its own keys, r1's status publisher never sent to an
+            # observer subscribed to formation/<fleet>/**. This reveals key expressions only.
+            rid = _rule_id(ident, Access.PUBLISH, "discover")
+            rules.append(
+                {
+                    "id": rid,
+                    "permission": "allow",
+                    "flows": ["egress"],
+                    "messages": ["declare_subscriber"],
+                    "key_exprs": [keys.fleet_pattern(fleet)],
+                }
+            )
+            rule_ids.append(rid)
         subjects.append({"id": ident.cn, "cert_common_names": [ident.cn]})
         policies.append({"id": ident.cn, "rules": rule_ids, "subjects": [ident.cn]})
     return {

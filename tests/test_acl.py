@@ -304,12 +304,17 @@ class Inbox:
 
 
 def _prime(session, key: str, inbox: Inbox, timeout_s: float = 5.0) -> None:  # type: ignore[no-untyped-def]
-    """Put on ``key`` until ``inbox`` sees it: the route through the router is in place."""
+    """Put on ``key`` until ``inbox`` sees it: the route through the router is in place.
+    ``session`` is a Session, or a Publisher of ``key``."""
     deadline = time.monotonic() + timeout_s
     n = 0
+    is_publisher = not hasattr(session, "declare_publisher")
     while time.monotonic() < deadline:
         payload = f"prime-{n}".encode()
-        session.put(key, payload)
+        if is_publisher:
+            session.put(payload)
+        else:
+            session.put(key, payload)
         if inbox.wait(key, payload, timeout_s=0.1):
             return
         n += 1
@@ -385,12 +390,14 @@ def test_live_publish_per_identity(router: int, pki) -> None:  # type: ignore[no
         for cn, (allowed, refused) in LIVE_PUBLISH.items():
             session = _client(router, fleet.identities[cn].tls())
             try:
-                _prime(session, allowed[0], inbox)
+                # the nodes publish through declared publishers: use those for allowed keys (a
+                # new publisher learns of the subscribers first: prime each)
+                pubs = [session.declare_publisher(key) for key in allowed]
+                for pub in pubs:
+                    _prime(pub, str(pub.key_expr), inbox)
                 tag = cn.encode()
                 for key in refused:
                     session.put(key, b"forged-" + tag)
-                # the nodes publish through declared publishers: use those for allowed keys
-                pubs = [session.declare_publisher(key) for key in allowed]
                 for pub in pubs:
                     pub.put(b"ok-" + tag)
                 for key in allowed:
