@@ -317,11 +317,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("-o", "--out", required=True, help="directory (keep ca/ca.key private)")
     parser.add_argument("--router-host", action="append", default=[], metavar="NAME_OR_IP")
     parser.add_argument("--robots", type=acl._csv, default=[], help="r1,r2,r3")
-    parser.add_argument("--coordinators", type=acl._csv, default=[], help="main,standby")
-    parser.add_argument("--operators", type=acl._csv, default=[], help="'' for CN operator")
-    parser.add_argument("--observers", type=acl._csv, default=[])
-    parser.add_argument("--localization", action="store_true")
-    parser.add_argument("--plant", action="store_true")
+    parser.add_argument(
+        "--coordinators", type=acl._csv, default=list(acl.DEPLOY_COORDINATORS), help="main,standby"
+    )
+    parser.add_argument(
+        "--operators", type=acl._csv, default=[], help="operator names (default: CN operator)"
+    )
+    parser.add_argument(
+        "--observers", type=acl._csv, default=[], help="observer names (default: CN observer)"
+    )
+    parser.add_argument(
+        "--no-localization", action="store_true", help="no localization certificate"
+    )
+    parser.add_argument("--plant", action="store_true", help="also a plant (simulator) identity")
     parser.add_argument("--cn", action="append", default=[], help="any other identity CN")
     parser.add_argument("--days", type=int, default=825)
     parser.add_argument("--force", action="store_true", help="replace existing files")
@@ -329,9 +337,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         idents = [acl.robot(r) for r in ns.robots]
         idents += [acl.coordinator(c) for c in ns.coordinators]
-        idents += [acl.Identity(acl.Kind.OPERATOR, n) for n in ns.operators]
-        idents += [acl.Identity(acl.Kind.OBSERVER, n) for n in ns.observers]
-        if ns.localization:
+        idents += [acl.Identity(acl.Kind.OPERATOR, n) for n in ns.operators or [""]]
+        idents += [acl.Identity(acl.Kind.OBSERVER, n) for n in ns.observers or [""]]
+        if not ns.no_localization:
             idents.append(acl.Identity(acl.Kind.LOCALIZATION))
         if ns.plant:
             idents.append(acl.Identity(acl.Kind.PLANT))
@@ -346,10 +354,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"formation certs: {exc}", file=sys.stderr)
         return 2
-    print(f"CA      {pki.ca}")
-    print(f"router  {pki.router.cert.parent}")
+    print(f"{'CA':<24} {pki.ca}")
+    print(f"{'router':<24} {pki.router.cert.parent}")
     for cn, paths in pki.identities.items():
-        print(f"{cn:<8}{paths.cert.parent}")
+        print(f"{cn:<24} {paths.cert.parent}")
     return 0
 
 

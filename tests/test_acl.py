@@ -626,3 +626,35 @@ def test_authenticated_local_run_processes(tmp_path: Path, spawn) -> None:  # ty
     finally:
         for s in sessions:
             s.close()
+
+
+# ---------------------------------------------------------------------- certificates
+
+
+def test_formation_certs_cli(tmp_path: Path) -> None:
+    """Deployment certificates: CN = identity, private keys 0600, the CA kept on a re-run (so a
+    robot added later is signed by the same CA), bad names refused before anything is written."""
+    import stat
+
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    from formation.pki import main as certs_main
+
+    out = tmp_path / "fleet"
+    assert certs_main(["-o", str(out), "--robots", "Robot 1"]) == 2
+    assert not out.exists()
+    assert certs_main(["-o", str(out), "--robots", "r1", "--router-host", "coord.lan"]) == 0
+    ca_before = (out / "ca" / "ca.pem").read_bytes()
+    assert certs_main(["-o", str(out), "--robots", "r2"]) == 0
+    assert (out / "ca" / "ca.pem").read_bytes() == ca_before
+    expected = {"robot.r1", "robot.r2", "coordinator.main", "coordinator.standby"}
+    expected |= {"localization", "operator", "observer"}
+    for cn in expected:
+        cert = x509.load_pem_x509_certificate((out / cn / "cert.pem").read_bytes())
+        assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == cn
+        assert stat.S_IMODE((out / cn / "key.pem").stat().st_mode) == 0o600
+        assert (out / cn / "ca.pem").read_bytes() == ca_before
+    router = x509.load_pem_x509_certificate((out / "router" / "cert.pem").read_bytes())
+    san = router.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert san.get_values_for_type(x509.DNSName) == ["coord.lan"]
