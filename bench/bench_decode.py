@@ -104,7 +104,7 @@ def fuzz_payload(rnd: random.Random, msg: Any) -> bytes:
         for _ in range(rnd.randrange(1, 4)):
             data[rnd.randrange(len(data))] = rnd.randrange(256)
         return bytes(data[: len(data) - rnd.randrange(len(data) // 4 + 1)])
-    pairs = list(to_map(msg).items())
+    pairs: list[tuple[Any, Any]] = list(to_map(msg).items())
     for _ in range(rnd.randrange(1, 4)):
         action = rnd.randrange(5)
         if action == 0 and pairs:

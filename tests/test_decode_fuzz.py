@@ -113,7 +113,7 @@ def _pack_pairs(pairs: list[tuple[Any, Any]]) -> bytes:
 @st.composite
 def _forged_map(draw: st.DrawFn, cls: type) -> tuple[bytes, str]:
     """A valid wire map of `cls` with random damage; returns (payload, what was done)."""
-    pairs = list(to_map(SAMPLES[cls]).items())
+    pairs: list[tuple[Any, Any]] = list(to_map(SAMPLES[cls]).items())
     names = [k for k, _ in pairs]
     for _ in range(draw(st.integers(1, 3))):
         action = draw(st.sampled_from(["replace", "drop", "extra", "non_str", "duplicate"]))
@@ -151,11 +151,12 @@ def test_forged_maps(cls: type, data: st.DataObject) -> None:
 def _iter_pairs(payload: bytes) -> list[tuple[Any, Any]]:
     """Top-level (key, value) pairs as written, duplicates and odd keys kept."""
     pairs: list[tuple[Any, Any]] = []
-    msgpack.unpackb(
-        payload,
-        strict_map_key=False,
-        object_pairs_hook=lambda p: pairs.extend(p) or {},
-    )
+
+    def keep(p: list[tuple[Any, Any]]) -> dict[str, Any]:
+        pairs.extend(p)
+        return {}
+
+    msgpack.unpackb(payload, strict_map_key=False, object_pairs_hook=keep)
     # the hook also sees nested maps first (depth first): the top-level ones are the last batch
     return pairs[-_top_len(payload) :] if pairs else []
 

@@ -670,7 +670,9 @@ def test_unknown_fields_are_ignored_but_not_non_str_keys() -> None:
     assert decode_or_raise(pack(m), Status) == SAMPLES[Status]
     # A non-str key anywhere refuses the whole payload (issue 13: a map with an int key was
     # accepted and acted on), even in an unknown field nobody reads.
-    for odd in ({7: "x"}, {(1, 2): None}, {b"t": 1.0}, {None: 1}, {"future": {3: 1}}):
+    odds: list[dict[Any, Any]] = [{7: "x"}, {(1, 2): None}, {b"t": 1.0}, {None: 1}]
+    odds.append({"future": {3: 1}})
+    for odd in odds:
         raw = msgpack.packb({**wire_map(Clock), **odd}, use_bin_type=True)
         assert rejected(raw, Clock).reason is Reason.NON_STRING_KEY, odd
     assert from_map({**wire_map(Clock), 7: "x"}, Clock).reason is Reason.NON_STRING_KEY  # type: ignore[union-attr]
