@@ -42,7 +42,7 @@ from bus_schemas.spec import (
 )
 
 FUZZ = settings(
-    max_examples=100,
+    max_examples=60,
     deadline=None,
     derandomize=True,
     database=None,
