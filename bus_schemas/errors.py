@@ -61,6 +61,34 @@ class DecodeError:
         return f"{self.reason}{where}: {self.detail}"
 
 
+class RejectCounts:
+    """Rejected inputs counted by reason, for a node's status (``rejected`` and its breakdown).
+
+    ``add(error_or_reason)`` takes a DecodeError, a Reason, or a node's own reason string
+    (``"misaddressed"``, ``"stale"``, ...). Memory is bounded: at most :attr:`MAX_REASONS`
+    distinct reasons are kept apart, any further ones are counted under ``"other"``.
+    """
+
+    MAX_REASONS = 64
+    __slots__ = ("by_reason", "total")
+
+    def __init__(self) -> None:
+        self.total = 0
+        self.by_reason: dict[str, int] = {}
+
+    def add(self, why: DecodeError | Reason | str) -> None:
+        """Count one rejected input."""
+        reason = str(why.reason) if isinstance(why, DecodeError) else str(why)
+        self.total += 1
+        if reason not in self.by_reason and len(self.by_reason) >= self.MAX_REASONS:
+            reason = "other"
+        self.by_reason[reason] = self.by_reason.get(reason, 0) + 1
+
+    def as_dict(self) -> dict[str, int]:
+        """Reason -> count, sorted by reason (a Status ``rx``-like map)."""
+        return dict(sorted(self.by_reason.items()))
+
+
 class SchemaError(ValueError):
     """Raised by `encode` for an invalid message and by `decode_or_raise`; carries the error."""
 

@@ -27,6 +27,7 @@ from test_schemas import SAMPLES
 from bus_schemas import (
     MESSAGE_TYPES,
     DecodeError,
+    Heartbeat,
     Reason,
     decode,
     encode,
@@ -212,8 +213,6 @@ def test_absurd_positions_and_velocities_are_refused(cls: type) -> None:
 
 
 def test_epoch_is_bounded() -> None:
-    from bus_schemas import Heartbeat
-
     base = to_map(SAMPLES[Heartbeat])
     for epoch in (EPOCH_MAX + 1, 2**64 - 1):
         err = decode(msgpack.packb({**base, "epoch": epoch}), Heartbeat)
@@ -223,3 +222,27 @@ def test_epoch_is_bounded() -> None:
     for t0 in (1e300, -1e300, math.inf):
         err = decode(msgpack.packb({**base, "leader_t0": t0}), Heartbeat)
         assert isinstance(err, DecodeError)
+
+
+def test_reject_counts_by_reason() -> None:
+    from bus_schemas import RejectCounts
+
+    counts = RejectCounts()
+    odd: dict[Any, Any] = {**to_map(SAMPLES[Heartbeat]), 7: 1}
+    for payload in (b"\xc1", msgpack.packb([1]), msgpack.packb(odd)):
+        err = decode(payload, Heartbeat)
+        assert isinstance(err, DecodeError)
+        counts.add(err)
+    counts.add(Reason.DUPLICATE_KEY)
+    counts.add("misaddressed")
+    assert counts.total == 5
+    assert counts.as_dict() == {
+        "duplicate_key": 1,
+        "malformed": 1,
+        "misaddressed": 1,
+        "non_string_key": 1,
+        "not_a_map": 1,
+    }
+    for k in range(200):  # bounded: made-up reasons cannot grow it
+        counts.add(f"r{k}")
+    assert len(counts.as_dict()) <= RejectCounts.MAX_REASONS + 1 and counts.total == 205
