@@ -34,6 +34,7 @@ BENCHES: dict[str, tuple[list[str], list[str]]] = {
     "bench_lockstep": ([], ["--duration", "20", "--robots", "3"]),
     "bench_scale": ([], ["--quick"]),
     "bench_soak": ([], ["--kills", "5"]),
+    "bench_decode": ([], ["--fuzz", "20000"]),
 }
 
 

@@ -18,7 +18,7 @@ docs/bus.md is rendered from the same tables (`python -m bus_schemas.docs`).
 
 from bus_schemas import keys
 from bus_schemas.codec import decode, decode_or_raise, encode, from_map, to_map, validate
-from bus_schemas.errors import DecodeError, Reason, SchemaError
+from bus_schemas.errors import DecodeError, Reason, RejectCounts, SchemaError
 from bus_schemas.messages import (
     BATCH_CHUNK,
     MESSAGE_TYPES,
@@ -78,6 +78,7 @@ __all__ = [
     "Pose",
     "PoseBatch",
     "Reason",
+    "RejectCounts",
     "Role",
     "SchemaError",
     "Setpoint",

@@ -6,8 +6,10 @@ sorted by key, floats always float64, str as UTF-8 str, bin type for bytes (unus
 message therefore always encodes to the same bytes (tests/test_schemas_golden.py pins them).
 
 Decoding is strict about types (bool is not int, int is not bool, only float fields accept ints),
-rejects NaN/inf everywhere, checks ranges, enums, ids, sizes and the version, and ignores unknown
-extra fields (forward compatible: a newer publisher may add fields).
+rejects NaN/inf everywhere, checks ranges (including the plausibility bounds of positions,
+velocities, times and epochs declared in bus_schemas.spec), enums, ids, sizes and the version,
+refuses any map (top-level or nested) with a non-str key or a key given twice, and ignores unknown
+extra fields with str keys (forward compatible: a newer publisher may add fields).
 """
 
 from __future__ import annotations
@@ -34,6 +36,26 @@ _unpackb = msgpack.unpackb
 _packb = msgpack.packb
 
 
+def _strict_map(pairs: list[tuple[Any, Any]]) -> dict[str, Any]:
+    """msgpack ``object_pairs_hook``: every map, top-level or nested, goes through here.
+
+    A plain ``unpackb`` keeps the last of two equal keys and accepts int, bin or nil keys, so a
+    forged payload could show one value to a generic decoder (a recorder, a dashboard) and act
+    with another; both are refused with their own reason instead.
+    """
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        seen: set[Any] = set()
+        for k, _ in pairs:
+            if k in seen:
+                raise Invalid(Reason.DUPLICATE_KEY, f"key {str(k)[:80]!r} appears twice", None)
+            seen.add(k)
+    for k in obj:
+        if type(k) is not str:
+            raise Invalid(Reason.NON_STRING_KEY, f"map key of type {type(k).__name__}", None)
+    return obj
+
+
 def _short(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"[:200]
 
@@ -42,8 +64,9 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M | Decod
     """Decode and validate one payload as a message of type `expected`.
 
     Returns the message, or a DecodeError (reason: malformed, not_a_map, missing_field,
-    wrong_type, non_finite, out_of_range, unknown_version, too_large, inconsistent) for any bad
-    input; never raises on data. Raises TypeError only if `expected` is not a message type (a bug).
+    wrong_type, non_finite, out_of_range, unknown_version, too_large, inconsistent,
+    non_string_key, duplicate_key) for any bad input; never raises on data. Raises TypeError only
+    if `expected` is not a message type (a bug).
     """
     decode_map = _DECODE_MAPS.get(expected)
     if decode_map is None:
@@ -52,10 +75,12 @@ def decode(data: bytes | bytearray | memoryview, expected: type[M]) -> M | Decod
         size = len(data)
         if size > MAX_PAYLOAD_BYTES:
             return DecodeError(Reason.TOO_LARGE, f"{size} bytes, at most {MAX_PAYLOAD_BYTES}", None)
-        # use_list=False: arrays arrive as tuples (the messages' list type); strict_map_key=False:
-        # non-str keys are not a reason to fail the whole payload (unknown top-level keys are
-        # ignored, nested maps check their keys themselves).
-        obj = _unpackb(data, use_list=False, strict_map_key=False)
+        # use_list=False: arrays arrive as tuples (the messages' list type). strict_map_key=False
+        # lets every key reach _strict_map, which refuses non-str and duplicate keys with a
+        # reason of their own (msgpack's strict mode would call an int key merely malformed).
+        obj = _unpackb(data, use_list=False, strict_map_key=False, object_pairs_hook=_strict_map)
+    except Invalid as exc:  # from _strict_map
+        return exc.error
     except Exception as exc:  # any msgpack failure (truncated, extra data, bad UTF-8, depth, ...)
         return DecodeError(Reason.MALFORMED, _short(exc), None)
     if type(obj) is not dict:
@@ -82,6 +107,9 @@ def from_map(obj: Mapping[Any, Any], expected: type[M]) -> M | DecodeError:
         raise TypeError(f"{expected!r} is not a bus message type")
     if not isinstance(obj, Mapping):
         return DecodeError(Reason.NOT_A_MAP, f"top-level object is {type(obj).__name__}", None)
+    for k in obj:
+        if type(k) is not str:
+            return DecodeError(Reason.NON_STRING_KEY, f"map key of type {type(k).__name__}", None)
     try:
         msg: M = decode_map(obj)
     except Invalid as exc:

@@ -23,6 +23,8 @@ class Reason(StrEnum):
     UNKNOWN_VERSION = "unknown_version"
     TOO_LARGE = "too_large"
     INCONSISTENT = "inconsistent"
+    NON_STRING_KEY = "non_string_key"
+    DUPLICATE_KEY = "duplicate_key"
 
 
 REASON_HELP: dict[Reason, str] = {
@@ -38,6 +40,10 @@ REASON_HELP: dict[Reason, str] = {
     Reason.UNKNOWN_VERSION: "`v` is an int other than the version this decoder implements",
     Reason.TOO_LARGE: "the payload is longer than the maximum payload size",
     Reason.INCONSISTENT: "fields disagree with each other (parallel lists of different lengths)",
+    Reason.NON_STRING_KEY: "a map (top-level or nested) has a key that is not a str (int, bin, "
+    "nil, ...); such a payload is refused whole, never read past",
+    Reason.DUPLICATE_KEY: "a map (top-level or nested) has the same key twice; a generic decoder "
+    "would keep one of them silently, so the payload is refused whole",
 }
 """What each reason means (rendered in docs/bus.md)."""
 
@@ -53,6 +59,34 @@ class DecodeError:
     def __str__(self) -> str:
         where = f" [{self.field}]" if self.field is not None else ""
         return f"{self.reason}{where}: {self.detail}"
+
+
+class RejectCounts:
+    """Rejected inputs counted by reason, for a node's status (``rejected`` and its breakdown).
+
+    ``add(error_or_reason)`` takes a DecodeError, a Reason, or a node's own reason string
+    (``"misaddressed"``, ``"stale"``, ...). Memory is bounded: at most :attr:`MAX_REASONS`
+    distinct reasons are kept apart, any further ones are counted under ``"other"``.
+    """
+
+    MAX_REASONS = 64
+    __slots__ = ("by_reason", "total")
+
+    def __init__(self) -> None:
+        self.total = 0
+        self.by_reason: dict[str, int] = {}
+
+    def add(self, why: DecodeError | Reason | str) -> None:
+        """Count one rejected input."""
+        reason = str(why.reason) if isinstance(why, DecodeError) else str(why)
+        self.total += 1
+        if reason not in self.by_reason and len(self.by_reason) >= self.MAX_REASONS:
+            reason = "other"
+        self.by_reason[reason] = self.by_reason.get(reason, 0) + 1
+
+    def as_dict(self) -> dict[str, int]:
+        """Reason -> count, sorted by reason (a Status ``rx``-like map)."""
+        return dict(sorted(self.by_reason.items()))
 
 
 class SchemaError(ValueError):

@@ -29,6 +29,25 @@ MAX_MAP_LEN = 1024
 MAX_STR_LEN = 255
 ANGLE_TOL_RAD = 1e-9
 
+# Plausibility bounds (docs/bus.md): a value outside them is no measurement or command any real or
+# simulated fleet of this project produces, so the decoder refuses it (out_of_range) before a
+# controller can act on it (x = 1e300 saturated the wheels; epoch = 2^64-1 overflowed the
+# election). They are generous on purpose: an arena-scale position bound, not the arena.
+POSITION_MAX_M = 1000.0
+"""|x|, |y| of every position, slot, setpoint, drag and teleport (a 2 km square arena)."""
+SPEED_MAX_MPS = 20.0
+"""|v| of every linear velocity (leader speed, slot feed-forward): the robots do < 1 m/s."""
+TURN_RATE_MAX_RADPS = 100.0
+"""|omega| of a body turn rate (the virtual leader's)."""
+WHEEL_RATE_MAX_RADPS = 1000.0
+"""|omega| of a wheel angular speed command (~10,000 rpm)."""
+TIME_MAX_S = 1e9
+"""Upper bound of every timestamp (sim time, or time.monotonic(): 31 years of uptime)."""
+DURATION_MAX_S = 3600.0
+"""Upper bound of a duration (a drag's)."""
+EPOCH_MAX = 2**31 - 1
+"""Largest leadership epoch: +1 per takeover, so never reached, and never an overflow."""
+
 FLOAT64_MAX = sys.float_info.max
 INT64_MIN = -(2**63)
 UINT64_MAX = 2**64 - 1

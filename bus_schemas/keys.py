@@ -44,6 +44,8 @@ HOST_STATUS = "host_status"
 ALIVE_ROBOT = "alive_robot"
 ALIVE_COORDINATOR = "alive_coordinator"
 ALIVE_PLANT = "alive_plant"
+COORDINATOR_STATUS = "coordinator_status"
+PLANT_STATUS = "plant_status"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -67,6 +69,9 @@ KEY_TEMPLATES: dict[str, str] = {
     ALIVE_ROBOT: "formation/{fleet}/alive/robot/{robot}",
     ALIVE_COORDINATOR: "formation/{fleet}/alive/coordinator/{name}",
     ALIVE_PLANT: "formation/{fleet}/alive/plant",
+    # node status maps (free-form msgpack maps, not contract messages: see docs/observability.md)
+    COORDINATOR_STATUS: "formation/{fleet}/coordinator/{name}/status",
+    PLANT_STATUS: "formation/{fleet}/plant/status",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).

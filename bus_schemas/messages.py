@@ -17,6 +17,13 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from bus_schemas import keys
+from bus_schemas.spec import DURATION_MAX_S as _DUR
+from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
+from bus_schemas.spec import POSITION_MAX_M as _POS
+from bus_schemas.spec import SPEED_MAX_MPS as _SPEED
+from bus_schemas.spec import TIME_MAX_S as _TMAX
+from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
+from bus_schemas.spec import WHEEL_RATE_MAX_RADPS as _WHEEL
 from bus_schemas.spec import (
     RequiredWhen,
     SameLength,
@@ -70,25 +77,36 @@ _T = f_float(
     "timestamp: sim time in lockstep, the publisher's time.monotonic() in realtime",
     "s",
     lo=0.0,
+    hi=_TMAX,
 )
 _SEQ = f_int("sequence number, +1 per message on this key (per publisher)")
-_X = f_float("x position, world frame", "m")
-_Y = f_float("y position, world frame", "m")
+_X = f_float("x position, world frame", "m", lo=-_POS, hi=_POS)
+_Y = f_float("y position, world frame", "m", lo=-_POS, hi=_POS)
 _SLOT = f_slot("slot number, 0 = virtual leader")
 _ROLE = f_enum("role of the slot", Role)
 _STAGE = f_int("stage of the slot in the formation tree (0 = leader, 1 = first stage, ...)", hi=255)
 _PARENT = f_slot("slot number of the (sub-)leader this slot follows; nil for slot 0", nullable=True)
 _SLOT_X = f_float(
-    "x where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)", "m"
+    "x where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)",
+    "m",
+    lo=-_POS,
+    hi=_POS,
 )
 _SLOT_Y = f_float(
-    "y where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)", "m"
+    "y where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)",
+    "m",
+    lo=-_POS,
+    hi=_POS,
 )
 _SLOT_THETA = f_angle("heading of the slot (= its parent's heading, rigid formation)")
-_SLOT_VX = f_float("feed-forward velocity of the slot point along x (eqs 21-22)", "m/s")
-_SLOT_VY = f_float("feed-forward velocity of the slot point along y (eqs 21-22)", "m/s")
-_POSE_X = f_float("x of the robot's axle centre, world frame", "m")
-_POSE_Y = f_float("y of the robot's axle centre, world frame", "m")
+_SLOT_VX = f_float(
+    "feed-forward velocity of the slot point along x (eqs 21-22)", "m/s", lo=-_SPEED, hi=_SPEED
+)
+_SLOT_VY = f_float(
+    "feed-forward velocity of the slot point along y (eqs 21-22)", "m/s", lo=-_SPEED, hi=_SPEED
+)
+_POSE_X = f_float("x of the robot's axle centre, world frame", "m", lo=-_POS, hi=_POS)
+_POSE_Y = f_float("y of the robot's axle centre, world frame", "m", lo=-_POS, hi=_POS)
 _POSE_THETA = f_angle("heading of the robot, world frame, counter-clockwise from +x")
 
 
@@ -103,8 +121,12 @@ class Leader:
     x: float = field(metadata=_X)
     y: float = field(metadata=_Y)
     theta: float = field(metadata=f_angle("heading of the virtual leader"))
-    v_mps: float = field(metadata=f_float("forward speed of the virtual leader", "m/s"))
-    omega_radps: float = field(metadata=f_float("turn rate of the virtual leader", "rad/s"))
+    v_mps: float = field(
+        metadata=f_float("forward speed of the virtual leader", "m/s", lo=-_SPEED, hi=_SPEED)
+    )
+    omega_radps: float = field(
+        metadata=f_float("turn rate of the virtual leader", "rad/s", lo=-_TURN, hi=_TURN)
+    )
     tick: int | None = field(
         default=None,
         metadata=f_int("lockstep: the clock `tick` this leader state answers (sent last)"),
@@ -220,8 +242,12 @@ class Wheels:
     v: int = field(default=1, metadata=_V)
     t: float = field(metadata=_T)
     seq: int = field(metadata=_SEQ)
-    omega_r: float = field(metadata=f_float("right wheel angular speed command", "rad/s"))
-    omega_l: float = field(metadata=f_float("left wheel angular speed command", "rad/s"))
+    omega_r: float = field(
+        metadata=f_float("right wheel angular speed command", "rad/s", lo=-_WHEEL, hi=_WHEEL)
+    )
+    omega_l: float = field(
+        metadata=f_float("left wheel angular speed command", "rad/s", lo=-_WHEEL, hi=_WHEEL)
+    )
     power_r: float = field(
         metadata=f_float("right wheel command as a fraction of max speed", "1", lo=-1.0, hi=1.0)
     )
@@ -233,6 +259,7 @@ class Wheels:
             "`t` of the pose this command was computed from; nil if no pose was used (idle)",
             "s",
             lo=0.0,
+            hi=_TMAX,
             nullable=True,
         )
     )
@@ -258,10 +285,16 @@ class Status:
     host: str = field(metadata=f_str("host name the agent runs on"))
     rejected: int = field(metadata=f_int("count of received messages rejected by decode"))
     ex: float | None = field(
-        default=None, metadata=f_float("tracking error along x (eq 17), setpoint - ref. point", "m")
+        default=None,
+        metadata=f_float(
+            "tracking error along x (eq 17), setpoint - ref. point", "m", lo=-2 * _POS, hi=2 * _POS
+        ),
     )
     ey: float | None = field(
-        default=None, metadata=f_float("tracking error along y (eq 18), setpoint - ref. point", "m")
+        default=None,
+        metadata=f_float(
+            "tracking error along y (eq 18), setpoint - ref. point", "m", lo=-2 * _POS, hi=2 * _POS
+        ),
     )
     role: str | None = field(default=None, metadata=f_enum("role of the assigned slot", Role))
     rx: Mapping[str, int] | None = field(
@@ -313,13 +346,21 @@ class Disturbance:
     kind: str = field(
         metadata=f_enum("drag: move by (dx, dy); teleport: jump to (x, y, theta)", DisturbanceKind)
     )
-    dx: float = field(metadata=f_float("drag displacement along x, world frame", "m"))
-    dy: float = field(metadata=f_float("drag displacement along y, world frame", "m"))
-    duration_s: float = field(
-        metadata=f_float("time over which the drag is applied (0 = at once)", "s", lo=0.0)
+    dx: float = field(
+        metadata=f_float("drag displacement along x, world frame", "m", lo=-_POS, hi=_POS)
     )
-    x: float | None = field(default=None, metadata=f_float("teleport target x", "m"))
-    y: float | None = field(default=None, metadata=f_float("teleport target y", "m"))
+    dy: float = field(
+        metadata=f_float("drag displacement along y, world frame", "m", lo=-_POS, hi=_POS)
+    )
+    duration_s: float = field(
+        metadata=f_float("time over which the drag is applied (0 = at once)", "s", lo=0.0, hi=_DUR)
+    )
+    x: float | None = field(
+        default=None, metadata=f_float("teleport target x", "m", lo=-_POS, hi=_POS)
+    )
+    y: float | None = field(
+        default=None, metadata=f_float("teleport target y", "m", lo=-_POS, hi=_POS)
+    )
     theta: float | None = field(default=None, metadata=f_angle("teleport target heading"))
 
 
@@ -335,9 +376,14 @@ class Heartbeat:
     seq: int = field(metadata=_SEQ)
     name: str = field(metadata=f_name("coordinator instance name (= the key's name)"))
     active: bool = field(metadata=f_bool("this instance is the one publishing setpoints"))
-    epoch: int = field(metadata=f_int("leadership epoch, +1 at every takeover"))
+    epoch: int = field(metadata=f_int("leadership epoch, +1 at every takeover", hi=_EPOCH_MAX))
     leader_t0: float = field(
-        metadata=f_float("time origin of the virtual-leader trajectory (same clock as t)", "s")
+        metadata=f_float(
+            "time origin of the virtual-leader trajectory (same clock as t)",
+            "s",
+            lo=-_TMAX,
+            hi=_TMAX,
+        )
     )
 
 
@@ -359,11 +405,17 @@ class PoseBatch:
     t: float = field(metadata=_T)
     seq: int = field(metadata=_SEQ)
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
-    x: tuple[float, ...] = field(metadata=f_float_list("x of each axle centre", "m"))
-    y: tuple[float, ...] = field(metadata=f_float_list("y of each axle centre", "m"))
+    x: tuple[float, ...] = field(
+        metadata=f_float_list("x of each axle centre", "m", lo=-_POS, hi=_POS)
+    )
+    y: tuple[float, ...] = field(
+        metadata=f_float_list("y of each axle centre", "m", lo=-_POS, hi=_POS)
+    )
     theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
     stamp: float = field(
-        metadata=f_float("measurement (capture) time of the frame, same clock as t", "s", lo=0.0)
+        metadata=f_float(
+            "measurement (capture) time of the frame, same clock as t", "s", lo=0.0, hi=_TMAX
+        )
     )
 
 
@@ -385,11 +437,15 @@ class TruthBatch:
     t: float = field(metadata=_T)
     seq: int = field(metadata=_SEQ)
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
-    x: tuple[float, ...] = field(metadata=f_float_list("x of each axle centre", "m"))
-    y: tuple[float, ...] = field(metadata=f_float_list("y of each axle centre", "m"))
+    x: tuple[float, ...] = field(
+        metadata=f_float_list("x of each axle centre", "m", lo=-_POS, hi=_POS)
+    )
+    y: tuple[float, ...] = field(
+        metadata=f_float_list("y of each axle centre", "m", lo=-_POS, hi=_POS)
+    )
     theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
     stamp: float = field(
-        metadata=f_float("sim time of these true poses, same clock as t", "s", lo=0.0)
+        metadata=f_float("sim time of these true poses, same clock as t", "s", lo=0.0, hi=_TMAX)
     )
 
 
@@ -420,14 +476,18 @@ class SetpointBatch:
     stage: tuple[int, ...] = field(
         metadata=f_int_list("formation stage of each slot (0 = leader)", hi=keys.MAX_SLOT)
     )
-    x: tuple[float, ...] = field(metadata=f_float_list("x of each slot (reference point)", "m"))
-    y: tuple[float, ...] = field(metadata=f_float_list("y of each slot (reference point)", "m"))
+    x: tuple[float, ...] = field(
+        metadata=f_float_list("x of each slot (reference point)", "m", lo=-_POS, hi=_POS)
+    )
+    y: tuple[float, ...] = field(
+        metadata=f_float_list("y of each slot (reference point)", "m", lo=-_POS, hi=_POS)
+    )
     theta: float = field(metadata=f_angle("heading of the formation (every slot's)"))
     vx: tuple[float, ...] = field(
-        metadata=f_float_list("feed-forward velocity x of each slot", "m/s")
+        metadata=f_float_list("feed-forward velocity x of each slot", "m/s", lo=-_SPEED, hi=_SPEED)
     )
     vy: tuple[float, ...] = field(
-        metadata=f_float_list("feed-forward velocity y of each slot", "m/s")
+        metadata=f_float_list("feed-forward velocity y of each slot", "m/s", lo=-_SPEED, hi=_SPEED)
     )
     tick: int | None = field(
         default=None, metadata=f_int("lockstep: the clock `tick` these setpoints were computed on")
@@ -453,10 +513,10 @@ class WheelsBatch:
     seq: int = field(metadata=_SEQ)
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per command"))
     omega_r: tuple[float, ...] = field(
-        metadata=f_float_list("right wheel angular speed command", "rad/s")
+        metadata=f_float_list("right wheel angular speed command", "rad/s", lo=-_WHEEL, hi=_WHEEL)
     )
     omega_l: tuple[float, ...] = field(
-        metadata=f_float_list("left wheel angular speed command", "rad/s")
+        metadata=f_float_list("left wheel angular speed command", "rad/s", lo=-_WHEEL, hi=_WHEEL)
     )
     power_r: tuple[float, ...] = field(
         metadata=f_float_list("right wheel command as a fraction of max", "1", lo=-1.0, hi=1.0)
@@ -469,6 +529,7 @@ class WheelsBatch:
             "`t` of the pose each command was computed from; -1 if none was used (idle)",
             "s",
             lo=-1.0,
+            hi=_TMAX,
         )
     )
     tick: int | None = field(
@@ -501,10 +562,14 @@ class StatusBatch:
         metadata=f_int_list("messages rejected by each robot's firmware")
     )
     ex: tuple[float, ...] = field(
-        metadata=f_float_list("tracking error along x (eq 17), 0 without a setpoint", "m")
+        metadata=f_float_list(
+            "tracking error along x (eq 17), 0 without a setpoint", "m", lo=-2 * _POS, hi=2 * _POS
+        )
     )
     ey: tuple[float, ...] = field(
-        metadata=f_float_list("tracking error along y (eq 18), 0 without a setpoint", "m")
+        metadata=f_float_list(
+            "tracking error along y (eq 18), 0 without a setpoint", "m", lo=-2 * _POS, hi=2 * _POS
+        )
     )
 
 

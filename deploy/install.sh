@@ -200,7 +200,7 @@ fi
 
 id_hint="${robot_id:-<id>}"
 say "done. Next steps:"
-echo "  1. certificates: copy robots/$id_hint/{ca,cert,key}.pem from gen-certs.sh into $etc_dir/certs/"
+echo "  1. certificates: copy robot.$id_hint/{ca,cert,key}.pem from gen-certs.sh (or formation certs) into $etc_dir/certs/"
 echo "  2. config:       $etc_dir/$id_hint.toml (template: $etc_dir/r1.example.toml)"
 echo "  3. check:        $venv_dir/bin/formation agent --check-config $etc_dir/$id_hint.toml"
 echo "  4. start:        systemctl enable --now formation-agent@$id_hint"

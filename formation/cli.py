@@ -23,6 +23,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "record": ("formation.record", "record the fleet's keys to MCAP"),
     "report": ("formation.report", "metrics and figures from an MCAP recording"),
     "top": ("formation.top", "live fleet status table"),
+    "acl": ("bus_schemas.acl", "write the Zenoh router ACL and client configs of a fleet"),
+    "certs": ("formation.pki", "make the fleet CA and a certificate per identity"),
 }
 
 

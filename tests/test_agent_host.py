@@ -184,7 +184,9 @@ def test_plant_and_coordinator_take_the_batched_forms() -> None:
     ids = list(scn.robot_ids)
     coord.on_poses(_rx(keys.poses_key(FLEET), _frame(ids, np.array(scn.initial)[:, :2])))
     assert set(coord.poses) == set(ids)
-    bad = _frame(["r1", "r2"], np.array([[2e4, 0.0], [0.0, 0.0]]))
+    # 20 km: beyond the contract's position bound (and the coordinator's own limit)
+    good = msgpack.unpackb(_frame(["r1", "r2"], np.zeros((2, 2))))
+    bad = msgpack.packb({**good, "x": [2e4, 0.0]})
     coord.on_poses(_rx(keys.poses_key(FLEET), bad))
     assert coord.rejected == 1 and coord.internal_errors == 0
 

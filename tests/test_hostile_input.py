@@ -5,10 +5,11 @@ too) the test session publishes on every subscribed key: random bytes, an empty 
 payload, msgpack that is not a map, wrong types, a bool for an int, NaN and inf, a missing field,
 huge values, an unknown version, an oversized payload (beyond ``MAX_PAYLOAD_BYTES``) and a
 misaddressed message. Each must be rejected and counted (the agent's ``status.rejected``, the
-coordinator's and plant's status maps). Valid but absurd values (1e300 m, far-future ticks) must
-not crash anything either. Afterwards each node still answers: the agent publishes status and
-answers a clock, the coordinator answers a clock with its leader message, the plant re-announces
-its clock and advances when the tick is answered.
+coordinator's and plant's status maps). Values beyond the contract's plausibility bounds (1e300 m,
+t = 1e300) are rejected and counted like the rest; values at the bounds (1 km away, far-future
+ticks) are valid for the decoder and must not crash anything either. Afterwards each node still
+answers: the agent publishes status and answers a clock, the coordinator answers a clock with its
+leader message, the plant re-announces its clock and advances when the tick is answered.
 
 Delivery is confirmed by the nodes' own per-input receive counters (``rx``) before the rejected
 counts are compared, so nothing here depends on timing.
@@ -45,6 +46,8 @@ from bus_schemas import (
     keys,
     to_map,
 )
+from bus_schemas.spec import POSITION_MAX_M as POS
+from bus_schemas.spec import TIME_MAX_S, WHEEL_RATE_MAX_RADPS
 
 
 def _ticked(msg, tick):  # type: ignore[no-untyped-def]
@@ -59,6 +62,11 @@ Payloads = list[tuple[str, bytes]]
 def pack(obj: Any) -> bytes:
     data: bytes = msgpack.packb(obj, use_bin_type=True)
     return data
+
+
+def forged(payload: bytes, **fields: Any) -> bytes:
+    """A valid payload with some fields overwritten (beyond what ``encode`` would accept)."""
+    return pack({**msgpack.unpackb(payload), **fields})
 
 
 def hostile(
@@ -173,15 +181,36 @@ def test_agent_survives_counts_and_keeps_answering(
     misaddressed = encode(Pose(t=0.0, seq=2, x=0.0, y=0.0, theta=0.0, robot="r2"))
     no_tick = encode(sp)  # lockstep setpoints must carry their tick
     must = {
-        "pose": hostile(pose, "x", {"theta": 1e300}, [("misaddressed", misaddressed)]),
-        "setpoint": hostile(sp, "slot", {"slot": 10**9}, [("no tick", no_tick)]),
-        "poses": hostile(batch, "robots", {"robots": ["r2"] * 2000}),
+        "pose": hostile(
+            pose,
+            "x",
+            {"theta": 1e300},
+            [
+                ("misaddressed", misaddressed),
+                ("far away", forged(encode(pose), t=1e300, x=1e300, y=-1e300)),
+            ],
+        ),
+        "setpoint": hostile(
+            sp,
+            "slot",
+            {"slot": 10**9},
+            [
+                ("no tick", no_tick),
+                ("fast", forged(_ticked(sp, 2**63), x=1e300, t=1e300)),
+            ],
+        ),
+        "poses": hostile(
+            batch,
+            "robots",
+            {"robots": ["r2"] * 2000},
+            [("far stamp", forged(encode(batch), stamp=1e300))],
+        ),
         "estop": hostile(release, "engage", {"robot": "r" * 1000}),
         "clock": hostile(Clock(t=0.0, seq=1, tick=0), "tick", {"tick": -1}),
     }
-    absurd = {  # valid for the decoder; the firmware must cope
-        "pose": [("far away", encode(Pose(t=1e300, seq=3, x=1e300, y=-1e300, theta=0.0)))],
-        "setpoint": [("fast", _ticked(setpoint_msg("r1", 1e300, 0.0, t=1e300), 2**63))],
+    absurd = {  # valid for the decoder (at the plausibility bounds); the firmware must cope
+        "pose": [("far away", encode(Pose(t=TIME_MAX_S, seq=3, x=POS, y=-POS, theta=0.0)))],
+        "setpoint": [("fast", _ticked(setpoint_msg("r1", POS, 0.0, t=TIME_MAX_S), 2**63))],
         "poses": [
             (
                 "far neighbour",
@@ -193,7 +222,7 @@ def test_agent_survives_counts_and_keeps_answering(
                         x=(1e-300,),
                         y=(0.0,),
                         theta=(0.0,),
-                        stamp=1e300,
+                        stamp=TIME_MAX_S,
                     )
                 ),
             )
@@ -261,9 +290,7 @@ def test_coordinator_survives_counts_and_keeps_answering(
     bad_id_key = f"formation/{FLEET}/robot/R1/pose"  # matches robot/*/pose, not a robot id
     sent_pose = publish_all(pubs, k_pose, must_pose)
     sent_pose += publish_all(pubs, bad_id_key, [("bad id", encode(pose))])
-    sent_pose += publish_all(
-        pubs, k_pose, [("far", encode(Pose(t=1e300, seq=3, x=1e300, y=1e300, theta=0.0)))]
-    )
+    sent_pose += publish_all(pubs, k_pose, [("far", forged(encode(pose), x=1e300, y=1e300))])
     sent_clock = publish_all(pubs, k_clock, must_clock)
     want = {"pose": before["rx"]["pose"] + sent_pose, "clock": before["rx"]["clock"] + sent_clock}
     after = wait_counts(status, lambda s: s["rx"], want)
@@ -319,12 +346,17 @@ def test_plant_survives_counts_and_keeps_answering(
     _, _, before = status.wait_for(lambda *_: True)
     assert before["rejected"] == 0
 
-    far = Disturbance(t=0.0, robot="r1", kind="drag", dx=1e300, dy=0.0, duration_s=1.0)
+    far = forged(encode(drag), dx=1e300)
     no_target = pack({**to_map(drag), "kind": "teleport"})  # teleport needs x, y, theta
     must = {
-        "wheels": hostile(wheels, "omega_r", {"power_r": 1e300}),
+        "wheels": hostile(
+            wheels,
+            "omega_r",
+            {"power_r": 1e300},
+            [("too fast", forged(encode(wheels), omega_r=1e300, omega_l=-1e300, pose_t=1e300))],
+        ),
         "disturbance": hostile(
-            drag, "kind", {"kind": "explode"}, [("far", encode(far)), ("no target", no_target)]
+            drag, "kind", {"kind": "explode"}, [("far", far), ("no target", no_target)]
         ),
         "leader": hostile(leader, "x", {"theta": 1e300}, [("no tick", encode(leader))]),
     }
@@ -336,11 +368,11 @@ def test_plant_survives_counts_and_keeps_answering(
                     Wheels(
                         t=0.0,
                         seq=2,
-                        omega_r=1e300,
-                        omega_l=-1e300,
+                        omega_r=WHEEL_RATE_MAX_RADPS,
+                        omega_l=-WHEEL_RATE_MAX_RADPS,
                         power_r=1.0,
                         power_l=-1.0,
-                        pose_t=1e300,
+                        pose_t=TIME_MAX_S,
                     )
                 ),
             )

@@ -1,8 +1,11 @@
-"""The shipped Zenoh mTLS + access-control configuration, exercised with real sessions.
+"""The shipped Zenoh mTLS + access-control files, exercised with real sessions, as shipped.
 
-Certificates come from deploy/security/gen-certs.sh; the router runs in this process with
-deploy/zenoh/router-mtls.json5 (only the listen endpoint and certificate paths changed), the
-clients with robot-mtls.json5 / coordinator-mtls.json5 the same way.
+Certificates come from deploy/security/gen-certs.sh (openssl); the router runs in this process
+with deploy/zenoh/router-mtls.json5 (only the listen endpoint and certificate paths changed),
+the clients with robot-mtls.json5 / coordinator-mtls.json5 / operator-mtls.json5 /
+observer-mtls.json5 the same way. tests/test_acl.py checks every identity and key against the
+generator (bus_schemas.acl) with certificates from formation.pki; this file checks that the
+shipped files and the shell script fit together.
 
 "Not received" is proven by ordering, not by waiting: a client's samples travel in order on
 its one link, so once a later, allowed sample of the same session has arrived, an earlier
@@ -55,7 +58,7 @@ def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
         check=True,
         capture_output=True,
     )
-    # an impostor: a certificate with CN "coordinator" from a CA the fleet does not trust
+    # an impostor: a certificate with CN "coordinator.main" from a CA the fleet does not trust
     subprocess.run(
         ["bash", str(GEN_CERTS), "-o", str(out / "rogue")], check=True, capture_output=True
     )
@@ -109,23 +112,12 @@ def _client_conf(
     return conf
 
 
-def _open(port: int, certs: Path, identity: str) -> zenoh.Session:
-    """A client session with the fleet certificate of ``identity`` ("coordinator", "r1")."""
+def _open(port: int, certs: Path, cn: str) -> zenoh.Session:
+    """A client session with the fleet certificate of ``cn`` ("coordinator.main", "robot.r1")
+    and the shipped config file of its kind."""
     fleet = certs / "fleet"
-    if identity == "coordinator":
-        conf = _client_conf(
-            port,
-            "coordinator-mtls.json5",
-            ca=fleet / "ca" / "ca.pem",
-            cert_dir=fleet / "coordinator",
-        )
-    else:
-        conf = _client_conf(
-            port,
-            "robot-mtls.json5",
-            ca=fleet / "ca" / "ca.pem",
-            cert_dir=fleet / "robots" / identity,
-        )
+    template = cn.partition(".")[0] + "-mtls.json5"
+    conf = _client_conf(port, template, ca=fleet / "ca" / "ca.pem", cert_dir=fleet / cn)
     return zenoh.open(conf)
 
 
@@ -186,7 +178,7 @@ def test_certificate_from_another_ca_is_refused(router_port: int, certs: Path) -
         router_port,
         "coordinator-mtls.json5",
         ca=certs / "fleet" / "ca" / "ca.pem",  # it trusts the router...
-        cert_dir=certs / "rogue" / "coordinator",  # ...but the router does not trust it
+        cert_dir=certs / "rogue" / "coordinator.main",  # ...but the router does not trust it
     )
     with pytest.raises(zenoh.ZError):
         zenoh.open(conf)
@@ -206,38 +198,44 @@ COORDINATOR_KEYS = [
     f"formation/{FLEET}/slot/1",
     f"formation/{FLEET}/leader",
     f"formation/{FLEET}/assignment",
-    f"formation/{FLEET}/estop",
+    f"formation/{FLEET}/setpoints",
+    f"formation/{FLEET}/coordinator/main/heartbeat",
 ]
 
 
 def test_access_control(router_port: int, certs: Path) -> None:
-    coordinator = _open(router_port, certs, "coordinator")
-    r1 = _open(router_port, certs, "r1")
-    r2 = _open(router_port, certs, "r2")
+    observer = _open(router_port, certs, "observer")
+    coordinator = _open(router_port, certs, "coordinator.main")
+    operator = _open(router_port, certs, "operator")
+    r1 = _open(router_port, certs, "robot.r1")
+    r2 = _open(router_port, certs, "robot.r2")
+    sessions = (r2, r1, operator, coordinator, observer)
     try:
-        seen_by_coordinator = Inbox()
-        seen_by_r1 = Inbox()
-        seen_by_r2 = Inbox()
+        seen = Inbox()  # the observer reads the whole fleet
+        r1_setpoint, r1_estop = Inbox(), Inbox()
         alive_seen = Inbox()
         subs = [
-            coordinator.declare_subscriber(f"formation/{FLEET}/**", seen_by_coordinator),
-            r1.declare_subscriber(f"formation/{FLEET}/**", seen_by_r1),
-            r2.declare_subscriber(f"formation/{FLEET}/**", seen_by_r2),
-            coordinator.liveliness().declare_subscriber(f"formation/{FLEET}/alive/**", alive_seen),
+            observer.declare_subscriber(f"formation/{FLEET}/**", seen),
+            r1.declare_subscriber(f"formation/{FLEET}/robot/r1/setpoint", r1_setpoint),
+            r1.declare_subscriber(f"formation/{FLEET}/estop", r1_estop),
+            coordinator.liveliness().declare_subscriber(
+                f"formation/{FLEET}/alive/robot/*", alive_seen
+            ),
         ]
         own_wheels_r1 = f"formation/{FLEET}/robot/r1/wheels"
-        own_status_r2 = f"formation/{FLEET}/robot/r2/status"
-        _prime(r1, own_wheels_r1, seen_by_coordinator)
-        _prime(r1, own_wheels_r1, seen_by_r2)
-        _prime(r2, own_status_r2, seen_by_coordinator)
-        _prime(coordinator, COORDINATOR_KEYS[0], seen_by_r1)
-        _prime(coordinator, COORDINATOR_KEYS[0], seen_by_r2)
+        _prime(r1, own_wheels_r1, seen)
+        _prime(r2, f"formation/{FLEET}/robot/r2/status", seen)
+        _prime(coordinator, COORDINATOR_KEYS[0], seen)
+        _prime(coordinator, COORDINATOR_KEYS[0], r1_setpoint)
+        _prime(operator, f"formation/{FLEET}/estop", r1_estop)
 
-        # 1. a robot certificate cannot put what only the coordinator may
+        # 1. a robot certificate cannot put what only coordinators, localization or operators may
         forbidden_for_r1 = [
             *COORDINATOR_KEYS,
+            f"formation/{FLEET}/estop",
             f"formation/{FLEET}/robot/r2/setpoint",
             f"formation/{FLEET}/robot/r1/pose",
+            f"formation/{FLEET}/poses",
             f"formation/{FLEET}/robot/r2/wheels",  # another robot's wheels
             f"formation/{FLEET}/robot/r2/status",
         ]
@@ -245,25 +243,28 @@ def test_access_control(router_port: int, certs: Path) -> None:
             r1.put(key, b"forged")
         r1.put(own_wheels_r1, b"after-forged")  # allowed: r1's own wheels
         r1.put(f"formation/{FLEET}/robot/r1/status", b"after-forged")  # and status
-        assert seen_by_coordinator.wait(own_wheels_r1, b"after-forged")
-        assert seen_by_coordinator.wait(f"formation/{FLEET}/robot/r1/status", b"after-forged")
-        assert seen_by_r2.wait(own_wheels_r1, b"after-forged")
+        assert seen.wait(own_wheels_r1, b"after-forged")
+        assert seen.wait(f"formation/{FLEET}/robot/r1/status", b"after-forged")
         for key in forbidden_for_r1:
-            assert not seen_by_coordinator.has(key, b"forged"), key
-            assert not seen_by_r2.has(key, b"forged"), key
+            assert not seen.has(key, b"forged"), key
 
-        # 2. the coordinator certificate can
+        # 2. the coordinator certificate can, and r1 reads its setpoint
         for key in COORDINATOR_KEYS:
             coordinator.put(key, b"from-coordinator")
         for key in COORDINATOR_KEYS:
-            assert seen_by_r1.wait(key, b"from-coordinator"), key
-            assert seen_by_r2.wait(key, b"from-coordinator"), key
+            assert seen.wait(key, b"from-coordinator"), key
+        assert r1_setpoint.wait(COORDINATOR_KEYS[0], b"from-coordinator")
+        # ...but not the e-stop, which only an operator puts
+        coordinator.put(f"formation/{FLEET}/estop", b"coordinator-estop")
+        operator.put(f"formation/{FLEET}/estop", b"operator-estop")
+        assert r1_estop.wait(f"formation/{FLEET}/estop", b"operator-estop")
+        assert not r1_estop.has(f"formation/{FLEET}/estop", b"coordinator-estop")
 
         # 3. r2 may put its own wheels, not r1's
         r2.put(own_wheels_r1, b"r2-forged")
         r2.put(f"formation/{FLEET}/robot/r2/wheels", b"r2-own")
-        assert seen_by_coordinator.wait(f"formation/{FLEET}/robot/r2/wheels", b"r2-own")
-        assert not seen_by_coordinator.has(own_wheels_r1, b"r2-forged")
+        assert seen.wait(f"formation/{FLEET}/robot/r2/wheels", b"r2-own")
+        assert not seen.has(own_wheels_r1, b"r2-forged")
 
         # 4. liveliness: r1 may declare its own token only
         forged_token = r1.liveliness().declare_token(f"formation/{FLEET}/alive/robot/r2")
@@ -278,5 +279,5 @@ def test_access_control(router_port: int, certs: Path) -> None:
         for sub in subs:
             sub.undeclare()
     finally:
-        for session in (r2, r1, coordinator):
+        for session in sessions:
             session.close()

@@ -54,6 +54,8 @@ from bus_schemas.docs import render_markdown
 from bus_schemas.spec import (
     ANGLE_HI,
     ANGLE_LO,
+    POSITION_MAX_M,
+    TIME_MAX_S,
     FieldInfo,
     Kind,
     RequiredWhen,
@@ -289,14 +291,16 @@ def _pose_batch(draw: st.DrawFn) -> PoseBatch:
     n = draw(st.integers(min_value=0, max_value=8))
     ids = ROBOT_IDS
     angle = st.floats(min_value=ANGLE_LO, max_value=ANGLE_HI)
+    time_s = st.floats(min_value=0.0, max_value=TIME_MAX_S)
+    position = st.floats(min_value=-POSITION_MAX_M, max_value=POSITION_MAX_M)
     return PoseBatch(
-        t=draw(st.floats(min_value=0.0, allow_infinity=False)),
+        t=draw(time_s),
         seq=draw(st.integers(min_value=0, max_value=2**64 - 1)),
         robots=tuple(draw(st.lists(ids, min_size=n, max_size=n))),
-        x=tuple(draw(st.lists(FLOAT_OK, min_size=n, max_size=n))),
-        y=tuple(draw(st.lists(FLOAT_OK, min_size=n, max_size=n))),
+        x=tuple(draw(st.lists(position, min_size=n, max_size=n))),
+        y=tuple(draw(st.lists(position, min_size=n, max_size=n))),
         theta=tuple(draw(st.lists(angle, min_size=n, max_size=n))),
-        stamp=draw(st.floats(min_value=0.0, allow_infinity=False)),
+        stamp=draw(time_s),
     )
 
 
@@ -450,7 +454,20 @@ def _mutate(cls: type, reason: Reason) -> bytes:
         m["v"] = 2
     elif reason is Reason.TOO_LARGE:
         m["padding"] = "x" * MAX_PAYLOAD_BYTES
+    elif reason is Reason.NON_STRING_KEY:
+        return pack_pairs([*m.items(), (7, "x")])
+    elif reason is Reason.DUPLICATE_KEY:
+        return pack_pairs([*m.items(), ("t", m["t"])])  # even with the same value
     return pack(m)
+
+
+def pack_pairs(pairs: list[tuple[Any, Any]]) -> bytes:
+    """A msgpack map written pair by pair: keys may repeat or be of any type."""
+    packer = msgpack.Packer(use_bin_type=True)
+    out = packer.pack_map_header(len(pairs))
+    for k, v in pairs:
+        out += packer.pack(k) + packer.pack(v)
+    return out
 
 
 # Every (type, reason) pair; `inconsistent` exists only where a type has a cross-field rule
@@ -648,17 +665,41 @@ def test_strict_bool_int_and_version_types() -> None:
     assert rejected(pack({"v": 1}), Clock).reason is Reason.MISSING_FIELD
 
 
-def test_unknown_fields_are_ignored_and_non_str_keys_too() -> None:
+def test_unknown_fields_are_ignored_but_not_non_str_keys() -> None:
     m = wire_map(Status) | {"battery_v": 7.4, "future": {"nested": [1, 2]}}
     assert decode_or_raise(pack(m), Status) == SAMPLES[Status]
-    odd_keys: dict[Any, Any] = {**wire_map(Clock), 7: "x", (1, 2): None}
-    raw = msgpack.packb(odd_keys)
-    assert decode_or_raise(raw, Clock) == SAMPLES[Clock]
+    # A non-str key anywhere refuses the whole payload (issue 13: a map with an int key was
+    # accepted and acted on), even in an unknown field nobody reads.
+    odds: list[dict[Any, Any]] = [{7: "x"}, {(1, 2): None}, {b"t": 1.0}, {None: 1}]
+    odds.append({"future": {3: 1}})
+    for odd in odds:
+        raw = msgpack.packb({**wire_map(Clock), **odd}, use_bin_type=True)
+        assert rejected(raw, Clock).reason is Reason.NON_STRING_KEY, odd
+    assert from_map({**wire_map(Clock), 7: "x"}, Clock).reason is Reason.NON_STRING_KEY  # type: ignore[union-attr]
+
+
+def test_duplicate_keys_are_refused_at_any_depth() -> None:
+    m = wire_map(Wheels)
+    # A generic decoder keeps the last value: power 1.0 would win over the first, valid 0.1.
+    forged = pack_pairs([*m.items(), ("power_r", 1.0)])
+    assert msgpack.unpackb(forged)["power_r"] == 1.0
+    err = rejected(forged, Wheels)
+    assert err.reason is Reason.DUPLICATE_KEY and "power_r" in err.detail
+    a = wire_map(Assignment)
+    packer = msgpack.Packer(use_bin_type=True)
+    nested = packer.pack_map_header(2) + packer.pack("r1") + packer.pack(0)
+    nested += packer.pack("r1") + packer.pack(1)
+    top = pack_pairs([(k, v) for k, v in a.items() if k != "robots"])
+    # rewrite the top-level header to one more entry and append robots -> nested map
+    head = packer.pack_map_header(len(a))
+    data = head + top[len(packer.pack_map_header(len(a) - 1)) :] + packer.pack("robots") + nested
+    assert msgpack.unpackb(data)["robots"] == {"r1": 1}
+    assert rejected(data, Assignment).reason is Reason.DUPLICATE_KEY
 
 
 def test_nested_map_rejects_bad_keys_and_values() -> None:
     m = wire_map(Assignment)
-    assert rejected(pack(m | {"robots": {1: 0}}), Assignment).reason is Reason.WRONG_TYPE
+    assert rejected(pack(m | {"robots": {1: 0}}), Assignment).reason is Reason.NON_STRING_KEY
     assert rejected(pack(m | {"robots": {"r1": True}}), Assignment).reason is Reason.WRONG_TYPE
     assert rejected(pack(m | {"robots": {"r1": 1.0}}), Assignment).reason is Reason.WRONG_TYPE
     assert rejected(pack(m | {"robots": {"r1": 70000}}), Assignment).reason is Reason.OUT_OF_RANGE
