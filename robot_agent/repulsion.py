@@ -75,13 +75,13 @@ def repulsion_velocity_counted(
         return 0.0, 0.0, 0
     skipped = 0
     k = params.k_rep
-    d0 = params.d0_m
+    d0 = params.influence_m
     inv_d0 = 1.0 / d0
     sx = 0.0
     sy = 0.0
-    for nx, ny in neighbours:
-        dx = px - nx
-        dy = py - ny
+    for nb in neighbours:  # (x, y) or a longer tuple starting with x, y (safety_filter)
+        dx = px - nb[0]
+        dy = py - nb[1]
         # Cheap box reject first (most neighbours are far); NaN/inf also fail these tests.
         if not (-d0 < dx < d0 and -d0 < dy < d0):
             if not _isfinite(dx + dy):
