@@ -124,6 +124,8 @@ class TrackingGains:
 # 0.12 m.
 DEFAULT_K_REP = 6.75e-4
 
+_DEFAULT_BODY_RADIUS_M = 0.075  # RobotGeometry's default (a slots dataclass has no class value)
+
 #: Clearance (m) added to two body radii to get the potential field's influence distance d0.
 D0_CLEARANCE_M = 0.10
 
@@ -168,7 +170,7 @@ class RepulsionParams:
     @property
     def influence_m(self) -> float:
         """``d0_m``, or the value derived from the default body when it is None (m)."""
-        return self.d0_m if self.d0_m is not None else derived_d0_m(RobotGeometry.body_radius_m)
+        return self.d0_m if self.d0_m is not None else derived_d0_m(_DEFAULT_BODY_RADIUS_M)
 
     def speed_at(self, d_m: float) -> float:
         """Magnitude (m/s) of the uncapped push from one neighbour at distance ``d_m`` > 0."""

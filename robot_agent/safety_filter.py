@@ -41,7 +41,9 @@ The filter: ``u* = argmin |u - u_nom|^2`` subject to, for every barrier in range
         + n . v_j                           (non-cooperative neighbour with known velocity v_j)
     b = -gamma * h / 2                      cooperative neighbour (reciprocal, half each)
 
-and ``|u| <= |u_nom|`` (it never increases speed). Discrete-time proof of invariance (the loop
+and ``|u| <= |u_nom|``: it never increases speed, except when some ``b > 0`` (the robot is
+already inside a boundary, or a neighbour with a known velocity comes at it): then it may use
+up to ``max_ref_speed_mps`` to get out. Discrete-time proof of invariance (the loop
 holds ``u`` for one tick ``dt``): every ``h`` above is a distance to a convex set minus a
 constant, hence a CONVEX function of ``p`` (of ``(p_i, p_j)`` for the pair row), so it lies
 above its tangent: ``h(p + u dt) >= h(p) + dt n . u >= h(p) (1 - gamma dt) >= 0`` whenever
@@ -115,7 +117,8 @@ class Neighbour(NamedTuple):
         x, y: the neighbour's measured axle centre (m).
         theta: its heading (rad), NaN if unknown (needed for ``cooperative``).
         age_s: age of the measurement (s, >= 0): capture time to now on this robot's clock.
-        vx, vy: the centre's velocity if known (m/s), used for a non-cooperative neighbour.
+        vx, vy: the centre's velocity if known (m/s), used for a non-cooperative neighbour; a
+            component beyond 10 x the neighbour top speed is rejected (counted, taken as 0).
         cooperative: it is TRACKING and runs this filter (fresh status): half responsibility.
         radius_m: extra radius for the neighbour's own uncertainty (m).
     """
@@ -208,7 +211,7 @@ def solve_qp(
         t = b - (ax * ux + ay * uy)
         x = ux + t * ax
         y = uy + t * ay
-        d = (x - ux) ** 2 + (y - uy) ** 2
+        d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
         if d < best and ok(x, y):
             best, best_x, best_y = d, x, y
         # the line's intersections with the speed circle |u| = cap
@@ -218,7 +221,7 @@ def solve_qp(
             for sgn in (1.0, -1.0):
                 x = b * ax - sgn * r * ay
                 y = b * ay + sgn * r * ax
-                d = (x - ux) ** 2 + (y - uy) ** 2
+                d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
                 if d < best and ok(x, y):
                     best, best_x, best_y = d, x, y
         # intersections with the other lines
@@ -229,7 +232,7 @@ def solve_qp(
                 continue
             x = (b * by - ay * c) / det
             y = (ax * c - b * bx) / det
-            d = (x - ux) ** 2 + (y - uy) ** 2
+            d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
             if d < best and ok(x, y):
                 best, best_x, best_y = d, x, y
     if best == math.inf:
@@ -266,6 +269,7 @@ class SafetyFilter:
         "_tb_until",
         "_ticks",
         "_tiebreaks",
+        "_vbad",
         "_vcap",
         "_vnb",
         "_violations",
@@ -289,6 +293,7 @@ class SafetyFilter:
         self._gamma = p.gamma_per_s
         self._gamma_slow = min(p.gamma_per_s, 1.0 / config.safety.max_dt_s)
         self._vnb = p.neighbour_speed_mps if p.neighbour_speed_mps > 0.0 else g.max_speed_mps
+        self._vbad = 10.0 * self._vnb  # a neighbour velocity beyond this is absurd: rejected
         self._max_age = p.max_age_s
         self._vcap = config.gains.max_ref_speed_mps
         self._tb_cos = math.cos(p.tiebreak_angle_rad)
@@ -392,7 +397,12 @@ class SafetyFilter:
                 vx = vy = 0.0
             else:
                 qx, qy, th, age, vx, vy, coop, rad = nb
-                if not (_isfinite(age) and _isfinite(vx + vy) and _isfinite(rad)):
+                if not (
+                    _isfinite(age)
+                    and _isfinite(rad)
+                    and -self._vbad < vx < self._vbad
+                    and -self._vbad < vy < self._vbad
+                ):  # non-finite or absurd: keep the position, as old as allowed, not moving
                     self._rejected += 1
                     vx = vy = 0.0
                     age = self._max_age
@@ -506,7 +516,8 @@ class SafetyFilter:
             dt_s: this tick's length (s), 0 if unknown; see ``constraints``.
 
         Returns:
-            ``(ux, uy)``: ``|u| <= |u_nom|`` except during a tie-break (module docstring).
+            ``(ux, uy)``: ``|u| <= |u_nom|`` except during a tie-break or to leave a boundary
+            (``b > 0``; module docstring).
         """
         self._ticks += 1
         if not self.enabled:
@@ -534,11 +545,15 @@ class SafetyFilter:
             ux = speed * (gx * c + gy * s)
             uy = speed * (gy * c - gx * s)
         cap = _hypot(ux, uy)
-        cons = self.constraints(px, py, cap, neighbours, obstacles, extra_radius_m, dt_s)
+        cons = self.constraints(px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s)
         self._cons = cons
         if not cons:
             fx, fy = ux, uy
         else:
+            for con in cons:
+                if con[2] > 0.0:  # must move away (inside a boundary / approached): may speed up
+                    cap = self._vcap
+                    break
             fx, fy, feasible = solve_qp(ux, uy, cons, cap)
             if not feasible:
                 self._infeasible += 1
