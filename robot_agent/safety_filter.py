@@ -82,8 +82,10 @@ robot, and also when it only trails a moving robot that blocks its way) triggers
 of ``tiebreak_time_s``: the nominal command is replaced by one toward the setpoint rotated
 ``tiebreak_angle_rad`` to the RIGHT (clockwise), at ``max(|u_nom|, tiebreak_speed_mps)``, and
 filtered as usual. Every robot turns right, so two robots head-on pass each other (each keeps
-the other on its left), and a robot blocked by a stationary one goes around it clockwise. It
-is the one place the command can be faster
+the other on its left), and a robot blocked by a stationary one goes around it clockwise.
+After two tie-breaks in a row that did not bring the robot within ``stuck_error_m`` of its
+setpoint, the next two turn LEFT (a dead end on the right, e.g. a gap too narrow between a
+pillar and a wall), then right again, and so on: still deterministic. It is the one place the command can be faster
 than the nominal one (at most ``tiebreak_speed_mps`` when the nominal is slower); it is counted.
 """
 
@@ -108,6 +110,7 @@ _sqrt = math.sqrt
 _isfinite = math.isfinite
 _NAN = math.nan
 _TOL = 1e-9  # feasibility tolerance of a constraint (m/s)
+_VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
 
 
 class Neighbour(NamedTuple):
@@ -266,6 +269,7 @@ class SafetyFilter:
         "_stuck_since",
         "_tb_cos",
         "_tb_sin",
+        "_tb_streak",
         "_tb_until",
         "_ticks",
         "_tiebreaks",
@@ -320,6 +324,7 @@ class SafetyFilter:
         self._stuck_since = _NAN
         self._stuck_e = math.inf
         self._tb_until = -math.inf
+        self._tb_streak = 0
         self._ticks = 0
         self._active = 0
         self._violations = 0
@@ -481,7 +486,7 @@ class SafetyFilter:
                     min_h = h
                 if h < reach:
                     cons.append((ax, ay, -gamma * h))
-        if min_h < 0.0:
+        if min_h < -_VIOLATION_M:
             self._violations += 1
         if min_h < self._min_h:
             self._min_h = min_h
@@ -541,7 +546,10 @@ class SafetyFilter:
                 speed = self._params.tiebreak_speed_mps
             if speed > self._vcap:
                 speed = self._vcap
-            # the goal direction rotated clockwise (to the right) by the tie-break angle
+            # the goal direction rotated clockwise (to the right) by the tie-break angle; after
+            # two tie-breaks that did not get the robot home, two to the left, and so on
+            if (self._tb_streak - 1) // 2 % 2:
+                s = -s
             ux = speed * (gx * c + gy * s)
             uy = speed * (gy * c - gx * s)
         cap = _hypot(ux, uy)
@@ -564,7 +572,10 @@ class SafetyFilter:
         if not tiebreak:
             p = self._params
             since = self._stuck_since
-            if not cons or e <= p.stuck_error_m:
+            if e <= p.stuck_error_m:
+                self._stuck_since = _NAN
+                self._tb_streak = 0
+            elif not cons:
                 self._stuck_since = _NAN
             elif since != since or e < self._stuck_e - p.stuck_speed_mps * p.stuck_time_s:
                 self._stuck_since = now_s  # (re)start the window: progress was made
@@ -572,6 +583,7 @@ class SafetyFilter:
             elif now_s - since >= p.stuck_time_s:
                 self._tb_until = now_s + p.tiebreak_time_s
                 self._tiebreaks += 1
+                self._tb_streak += 1
                 self._stuck_since = _NAN
         return fx, fy
 

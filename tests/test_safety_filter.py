@@ -625,13 +625,13 @@ def test_seven_robots_from_100_random_starts(sensing: dict[str, float]) -> None:
 
 @SENSING
 def test_corridor_with_obstacles(sensing: dict[str, float]) -> None:
-    """Two robots swap ends of a 0.6 m wide corridor (two walls) with a pillar in it, inside an
+    """Two robots swap ends of a 1 m wide corridor (two walls) with a pillar in it, inside an
     arena: no contact, no centre within a body of a wall, the pillar or the arena's edge."""
     walls = (
-        SegmentObstacle(-1.0, 0.3, 1.0, 0.3),
-        SegmentObstacle(-1.0, -0.3, 1.0, -0.3),
+        SegmentObstacle(-1.0, 0.5, 1.0, 0.5),
+        SegmentObstacle(-1.0, -0.5, 1.0, -0.5),
     )
-    pillar = CircleObstacle(0.0, 0.12, 0.05)
+    pillar = CircleObstacle(0.0, 0.15, 0.05)
     box = Arena(-2.0, -1.0, 2.0, 1.0)
     cfg = AgentConfig(world=WorldMap(obstacles=(*walls, pillar), arena=box))
     worst = [math.inf]
