@@ -275,7 +275,8 @@ class CircleObstacle:
         for name in ("x", "y"):
             v = getattr(self, name)
             _require(
-                isinstance(v, (int, float)) and math.isfinite(v), f"{name} must be finite, got {v!r}"
+                isinstance(v, (int, float)) and math.isfinite(v),
+                f"{name} must be finite, got {v!r}",
             )
         _non_negative("radius_m", self.radius_m)
 
@@ -295,7 +296,8 @@ class SegmentObstacle:
         for name in ("x1", "y1", "x2", "y2"):
             v = getattr(self, name)
             _require(
-                isinstance(v, (int, float)) and math.isfinite(v), f"{name} must be finite, got {v!r}"
+                isinstance(v, (int, float)) and math.isfinite(v),
+                f"{name} must be finite, got {v!r}",
             )
         _non_negative("radius_m", self.radius_m)
 
@@ -313,7 +315,8 @@ class Arena:
         for name in ("x_min", "y_min", "x_max", "y_max"):
             v = getattr(self, name)
             _require(
-                isinstance(v, (int, float)) and math.isfinite(v), f"{name} must be finite, got {v!r}"
+                isinstance(v, (int, float)) and math.isfinite(v),
+                f"{name} must be finite, got {v!r}",
             )
         _require(self.x_min < self.x_max, "arena x_min must be < x_max")
         _require(self.y_min < self.y_max, "arena y_min must be < y_max")

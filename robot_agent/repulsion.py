@@ -17,7 +17,7 @@ is never NaN for finite ``px, py``; non-finite ``px, py`` give ``(0.0, 0.0)``.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 from .params import RepulsionParams
 
@@ -32,7 +32,7 @@ _isfinite = math.isfinite
 def repulsion_velocity(
     px: float,
     py: float,
-    neighbours: Iterable[tuple[float, float]],
+    neighbours: Iterable[Sequence[float]],
     obstacles: Iterable[tuple[float, float, float]],
     params: RepulsionParams,
 ) -> tuple[float, float]:
@@ -40,7 +40,8 @@ def repulsion_velocity(
 
     Args:
         px, py: where the push is evaluated (m); the firmware uses the robot's axle centre.
-        neighbours: other robots' positions ``(x, y)`` (m).
+        neighbours: other robots' positions ``(x, y)`` (m), or longer tuples whose first two
+            fields are x, y (``safety_filter.Neighbour``).
         obstacles: circles ``(x, y, radius_m)`` (m).
         params: gain, influence distance ``d0_m``, cap ``max_speed_mps``, ``enabled``.
 
@@ -54,7 +55,7 @@ def repulsion_velocity(
 def repulsion_velocity_counted(
     px: float,
     py: float,
-    neighbours: Iterable[tuple[float, float]],
+    neighbours: Iterable[Sequence[float]],
     obstacles: Iterable[tuple[float, float, float]],
     params: RepulsionParams,
 ) -> tuple[float, float, int]:
@@ -62,7 +63,8 @@ def repulsion_velocity_counted(
 
     Args:
         px, py: where the push is evaluated (m); the firmware uses the robot's axle centre.
-        neighbours: other robots' positions ``(x, y)`` (m).
+        neighbours: other robots' positions ``(x, y)`` (m), or longer tuples whose first two
+            fields are x, y (``safety_filter.Neighbour``).
         obstacles: circles ``(x, y, radius_m)`` (m).
         params: gain, influence distance ``d0_m``, cap ``max_speed_mps``, ``enabled``.
 

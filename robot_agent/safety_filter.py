@@ -85,8 +85,9 @@ filtered as usual. Every robot turns right, so two robots head-on pass each othe
 the other on its left), and a robot blocked by a stationary one goes around it clockwise.
 After two tie-breaks in a row that did not bring the robot within ``stuck_error_m`` of its
 setpoint, the next two turn LEFT (a dead end on the right, e.g. a gap too narrow between a
-pillar and a wall), then right again, and so on: still deterministic. It is the one place the command can be faster
-than the nominal one (at most ``tiebreak_speed_mps`` when the nominal is slower); it is counted.
+pillar and a wall), then right again, and so on: still deterministic. It is the one place the
+command can be faster than the nominal one besides leaving a boundary (at most
+``tiebreak_speed_mps`` when the nominal is slower); it is counted.
 """
 
 from __future__ import annotations
@@ -178,9 +179,7 @@ class SafetyFilterStatus:
             "tiebreak_active": self.tiebreak_active,
             "rescaled": self.rescaled,
             "rejected": self.rejected,
-            "min_clearance_m": self.min_clearance_m
-            if _isfinite(self.min_clearance_m)
-            else None,
+            "min_clearance_m": self.min_clearance_m if _isfinite(self.min_clearance_m) else None,
             "constraints": self.constraints,
         }
 
@@ -198,7 +197,7 @@ def solve_qp(
     def ok(x: float, y: float) -> bool:
         if x * x + y * y > cap2:
             return False
-        for ax, ay, b in cons:
+        for ax, ay, b in cons:  # noqa: SIM110 (a plain loop: no generator on the hot path)
             if ax * x + ay * y < b - _TOL:
                 return False
         return True
@@ -275,8 +274,8 @@ class SafetyFilter:
         "_tiebreaks",
         "_vbad",
         "_vcap",
-        "_vnb",
         "_violations",
+        "_vnb",
         "enabled",
         "safety_distance_m",
     )
@@ -352,13 +351,27 @@ class SafetyFilter:
         )
 
     @property
+    def neighbour_range_m(self) -> float:
+        """The farthest centre-to-centre distance (m) at which a neighbour can constrain this
+        robot (any age up to ``max_age_s``, a neighbour radius up to 0.1 m, any command up to
+        ``max_ref_speed_mps``): a shell that pre-selects neighbours by distance must pass at
+        least every neighbour within this range."""
+        return (
+            self._d_coop
+            + self._l
+            + self._vnb * self._max_age
+            + 0.1
+            + self._vcap / (0.5 * self._gamma_slow)
+        )
+
+    @property
     def in_range(self) -> bool:
         """Some constraint was in range on the last ``filter`` call."""
         return bool(self._cons)
 
     def admissible(self, ux: float, uy: float) -> bool:
         """Whether ``u`` meets the constraints of the last ``filter`` call."""
-        for ax, ay, b in self._cons:
+        for ax, ay, b in self._cons:  # noqa: SIM110 (a plain loop: faster than all())
             if ax * ux + ay * uy < b - _TOL:
                 return False
         return True

@@ -137,9 +137,7 @@ def barriers(
             out.append((lambda x, y, qx=qx, qy=qy, d=d: math.hypot(x - qx, y - qy) - d, 0.5))
         else:
             d = ds + g.ref_offset_m + infl
-            out.append(
-                (lambda x, y, qx=nb.x, qy=nb.y, d=d: math.hypot(x - qx, y - qy) - d, 1.0)
-            )
+            out.append((lambda x, y, qx=nb.x, qy=nb.y, d=d: math.hypot(x - qx, y - qy) - d, 1.0))
     for o in world.obstacles:
         if isinstance(o, CircleObstacle):
             d = o.radius_m + clear
@@ -171,9 +169,7 @@ nbr = st.builds(
 circle = st.builds(
     CircleObstacle, x=coord, y=coord, radius_m=st.floats(min_value=0.0, max_value=0.3)
 )
-segment = st.builds(
-    SegmentObstacle, x1=coord, y1=coord, x2=coord, y2=coord, radius_m=st.just(0.0)
-)
+segment = st.builds(SegmentObstacle, x1=coord, y1=coord, x2=coord, y2=coord, radius_m=st.just(0.0))
 arena = st.one_of(
     st.none(),
     st.builds(
