@@ -289,6 +289,8 @@ class Firmware:
         "_ex",
         "_ey",
         "_filter",
+        "_filter_fn",
+        "_filter_on",
         "_geom",
         "_half_track",
         "_have_setpoint",
@@ -335,6 +337,8 @@ class Firmware:
         self._max_dt = cfg.safety.max_dt_s
         self._tracker = TrackingController(cfg.gains)
         self._filter = SafetyFilter(cfg)
+        self._filter_on = self._filter.enabled
+        self._filter_fn = self._filter.filter
         self._mode = Mode.IDLE
         self._reason = "no setpoint yet"
         self._have_setpoint = False
@@ -548,9 +552,8 @@ class Firmware:
 
             # --- safety filter (barrier certificate on the reference-point velocity), last
             # before eq 16: keeps Ds to neighbours / obstacles / walls (safety_filter.py) ----
-            flt = self._filter
-            if flt.enabled:
-                vx, vy = flt.filter(
+            if self._filter_on:
+                vx, vy = self._filter_fn(
                     now_s,
                     rx,
                     ry,
@@ -582,7 +585,8 @@ class Firmware:
                 wr, wl, sat = saturate_wheels(wr, wl, wmax)
                 if sat:
                     self._saturated += 1
-                    if flt.in_range and _isfinite(wr0 + wl0):
+                    flt = self._filter
+                    if self._filter_on and flt.in_range and _isfinite(wr0 + wl0):
                         # keeping the turn changes the reference velocity's direction: if that
                         # leaves the filter's constraints, scale both wheels by one factor
                         # instead (u scales by s in (0, 1]: safe, see safety_filter.py)

@@ -254,6 +254,7 @@ class SafetyFilter:
         "_d_plain",
         "_gamma",
         "_gamma_slow",
+        "_has_world",
         "_infeasible",
         "_l",
         "_last_now",
@@ -265,6 +266,7 @@ class SafetyFilter:
         "_rescaled",
         "_segments",
         "_stuck_e",
+        "_stuck_error",
         "_stuck_since",
         "_tb_cos",
         "_tb_sin",
@@ -318,6 +320,8 @@ class SafetyFilter:
             if a is None
             else (a.x_min + clear, a.y_min + clear, a.x_max - clear, a.y_max - clear)
         )
+        self._has_world = bool(circles or segments or a is not None)
+        self._stuck_error = p.stuck_error_m
         self._cons: list[tuple[float, float, float]] = []
         self._last_now = _NAN
         self._stuck_since = _NAN
@@ -407,12 +411,27 @@ class SafetyFilter:
         # A constraint n.u >= b can bind a command of speed <= cap only if b > -cap, that is
         # h < (cap + n.v) / (share * gamma): the reach beyond the boundary.
         reach = (cap + _TOL) / gamma
+        d_plain = self._d_plain + rho
+        lim_plain = d_plain + reach + _TOL
         for nb in neighbours:
-            if len(nb) == 2:
+            if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
                 qx, qy = nb
-                share = 1.0
-                dd = self._d_plain + rho
-                vx = vy = 0.0
+                dx = px - qx
+                dy = py - qy
+                if not (-lim_plain < dx < lim_plain and -lim_plain < dy < lim_plain):
+                    if not _isfinite(dx + dy):
+                        self._rejected += 1
+                    continue
+                d = _hypot(dx, dy)
+                h = d - d_plain
+                if h < min_h:
+                    min_h = h
+                if h < reach:
+                    if d > 0.0:
+                        cons.append((dx / d, dy / d, -gamma * h))
+                    else:
+                        cons.append((1.0, 0.0, -gamma * h))
+                continue
             else:
                 qx, qy, th, age, vx, vy, coop, rad = nb
                 if not (
@@ -458,6 +477,26 @@ class SafetyFilter:
             b = -share * gamma * h + nx * vx + ny * vy
             if b > -cap - _TOL:
                 cons.append((nx, ny, b))
+        if obstacles or self._has_world:
+            min_h = self._world(px, py, reach, gamma, rho, obstacles, cons, min_h)
+        if min_h < -_VIOLATION_M:
+            self._violations += 1
+        if min_h < self._min_h:
+            self._min_h = min_h
+        return cons
+
+    def _world(
+        self,
+        px: float,
+        py: float,
+        reach: float,
+        gamma: float,
+        rho: float,
+        obstacles: Sequence[tuple[float, float, float]],
+        cons: list[tuple[float, float, float]],
+        min_h: float,
+    ) -> float:
+        """Append the obstacle / wall constraints in range; returns the least barrier value."""
         for ox, oy, r in obstacles:  # (x, y, radius_m) circles given per tick
             if not (0.0 <= r < math.inf):
                 self._rejected += 1
@@ -499,11 +538,7 @@ class SafetyFilter:
                     min_h = h
                 if h < reach:
                     cons.append((ax, ay, -gamma * h))
-        if min_h < -_VIOLATION_M:
-            self._violations += 1
-        if min_h < self._min_h:
-            self._min_h = min_h
-        return cons
+        return min_h
 
     def filter(
         self,
@@ -547,8 +582,10 @@ class SafetyFilter:
             self._stuck_since = _NAN
             if not now_s - last <= 0.5:
                 self._tb_until = -math.inf
-        e = _hypot(ex, ey)
-        tiebreak = now_s < self._tb_until and e > self._params.stuck_error_m
+        tiebreak = False
+        if now_s < self._tb_until:
+            e = _hypot(ex, ey)
+            tiebreak = e > self._stuck_error
         if tiebreak:
             gx = ex / e
             gy = ey / e
@@ -565,26 +602,48 @@ class SafetyFilter:
                 s = -s
             ux = speed * (gx * c + gy * s)
             uy = speed * (gy * c - gx * s)
-        cap = _hypot(ux, uy)
         cons = self.constraints(px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s)
         self._cons = cons
         if not cons:
             fx, fy = ux, uy
         else:
+            cap = _hypot(ux, uy)
             for con in cons:
                 if con[2] > 0.0:  # must move away (inside a boundary / approached): may speed up
                     cap = self._vcap
                     break
-            fx, fy, feasible = solve_qp(ux, uy, cons, cap)
-            if not feasible:
-                self._infeasible += 1
-            if fx != ux or fy != uy:
-                self._active += 1
+            if len(cons) == 1:  # the common case, in closed form (same result as solve_qp)
+                ax, ay, b = cons[0]
+                dot = ax * ux + ay * uy
+                if dot >= b - _TOL:
+                    fx, fy = ux, uy
+                else:
+                    t = b - dot
+                    fx = ux + t * ax
+                    fy = uy + t * ay
+                    cap2 = cap * cap
+                    if fx * fx + fy * fy > cap2 * (1.0 + 1e-12) + 1e-18:
+                        r2 = cap2 - b * b
+                        if r2 < 0.0:  # asks for more than cap away: stop
+                            fx = fy = 0.0
+                            self._infeasible += 1
+                        else:  # the end of the chord nearest the projection
+                            r = _sqrt(r2) if ax * uy - ay * ux >= 0.0 else -_sqrt(r2)
+                            fx = b * ax - r * ay
+                            fy = b * ay + r * ax
+                    self._active += 1
+            else:
+                fx, fy, feasible = solve_qp(ux, uy, cons, cap)
+                if not feasible:
+                    self._infeasible += 1
+                if fx != ux or fy != uy:
+                    self._active += 1
         # deadlock detection: something in range and the tracking error has not shrunk by
         # stuck_speed_mps * stuck_time_s within stuck_time_s
-        if not tiebreak:
+        if not tiebreak and (cons or self._tb_streak):
             p = self._params
             since = self._stuck_since
+            e = _hypot(ex, ey)
             if e <= p.stuck_error_m:
                 self._stuck_since = _NAN
                 self._tb_streak = 0
@@ -598,6 +657,8 @@ class SafetyFilter:
                 self._tiebreaks += 1
                 self._tb_streak += 1
                 self._stuck_since = _NAN
+        elif not cons:
+            self._stuck_since = _NAN
         return fx, fy
 
     # ------------------------------------------------------------------ internals

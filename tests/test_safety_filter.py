@@ -34,6 +34,7 @@ from robot_agent.params import (
     SegmentObstacle,
     WorldMap,
 )
+from robot_agent.robot_config import ConfigError, robot_config_from_dict
 from robot_agent.safety_filter import Neighbour, SafetyFilter, solve_qp
 from sim_plant.plant import Plant
 from sim_plant.sensors import Camera, CommandLink
@@ -653,3 +654,67 @@ def test_corridor_with_obstacles(sensing: dict[str, float]) -> None:
     assert out.min_sep >= TOUCH, out.min_sep
     assert worst[0] >= RB, worst[0]
     assert max(out.errs) < 0.05, out.errs
+
+
+# ----------------------------------------------------------------------------- robot config
+
+
+def _robot(extra: dict[str, object]) -> dict[str, object]:
+    return {"robot_id": "r1", "zenoh": {"endpoints": ["tcp/127.0.0.1:7447"]}, **extra}
+
+
+def test_robot_config_reads_arena_obstacles_and_filter_params() -> None:
+    cfg = robot_config_from_dict(
+        _robot(
+            {
+                "safety_filter": {"margin_m": 0.05, "gamma_per_s": 8.0},
+                "arena": {"x_min": -2, "y_min": -1.5, "x_max": 2.0, "y_max": 1.5},
+                "obstacle": [
+                    {"kind": "circle", "x": 0.5, "y": 0.0, "radius_m": 0.1},
+                    {"kind": "segment", "x1": -1, "y1": 1, "x2": 1, "y2": 1},
+                    {"kind": "polygon", "points": [[1, -1], [1.2, -1], [1.2, -0.8]]},
+                ],
+            }
+        )
+    )
+    agent = cfg.agent
+    assert agent.safety_filter.margin_m == 0.05 and agent.safety_filter.gamma_per_s == 8.0
+    assert agent.world.arena == Arena(-2.0, -1.5, 2.0, 1.5)
+    obs = agent.world.obstacles
+    assert obs[0] == CircleObstacle(0.5, 0.0, 0.1)
+    assert obs[1] == SegmentObstacle(-1.0, 1.0, 1.0, 1.0, 0.0)
+    assert len(obs) == 2 + 3  # the polygon's three edges, closed
+    assert obs[-1] == SegmentObstacle(1.2, -0.8, 1.0, -1.0, 0.0)
+    # the firmware uses them: a robot at the arena's edge does not drive out
+    fw = Firmware(agent)
+    sp = Setpoint(3.0, 0.0, 0.0, 0.0, 0.0, 1, 0.0)
+    x = 2.0 - RB - agent.safety_filter.margin_m - L  # reference point on the wall barrier
+    cmd = fw.step(0.0, pose=Pose(x, 0.0, 0.0, 0.0), pose_rx_s=0.0, setpoint=sp, setpoint_rx_s=0.0)
+    v, _ = twist_from_wheels(cmd.omega_r, cmd.omega_l, GEOM)
+    assert v <= 1e-9
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        ({"arena": {"x_min": 1.0, "y_min": 0.0, "x_max": 0.0, "y_max": 1.0}}, "arena"),
+        ({"arena": {"x_min": 0.0, "y_min": 0.0, "x_max": 1.0}}, "arena.y_max: required"),
+        ({"arena": {"x_min": "a", "y_min": 0, "x_max": 1, "y_max": 1}}, "arena.x_min"),
+        ({"obstacle": [{"kind": "blob"}]}, "obstacle[0].kind"),
+        ({"obstacle": [{"kind": "circle", "x": 0, "y": 0}]}, "obstacle[0].radius_m: required"),
+        ({"obstacle": [{"kind": "circle", "x": 0, "y": 0, "radius_m": -1}]}, "radius_m"),
+        ({"obstacle": [{"kind": "circle", "x": math.nan, "y": 0, "radius_m": 1}]}, "obstacle[0].x"),
+        (
+            {"obstacle": [{"kind": "circle", "x": 0, "y": 0, "radius_m": 1, "z": 1}]},
+            "obstacle[0].z",
+        ),
+        ({"obstacle": [{"kind": "polygon", "points": [[0, 0], [1, 0]]}]}, "obstacle[0].points"),
+        ({"obstacle": {"kind": "circle"}}, "obstacle: expected an array"),
+        ({"safety_filter": {"gamma_per_s": 0}}, "safety_filter"),
+        ({"safety_filter": {"margin": 0.1}}, "safety_filter.margin: unknown key"),
+    ],
+)
+def test_robot_config_rejects_bad_world_and_filter(extra: dict[str, object], needle: str) -> None:
+    with pytest.raises(ConfigError) as exc:
+        robot_config_from_dict(_robot(extra))
+    assert any(needle in p for p in exc.value.problems), exc.value.problems
