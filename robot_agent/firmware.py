@@ -37,9 +37,12 @@ Pipeline in TRACKING (one tick)::
 
     reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
     -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
-    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (safety, last
-       Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
-    -> saturation keeping the turn -> power = omega / max_wheel_radps in [-1, 1]
+    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (the paper's
+       potential field) -> safety filter (barrier certificate on the reference-point velocity,
+       ``safety_filter.py``: keeps Ds to neighbours, clear of obstacles, inside the arena; the
+       last Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
+    -> saturation keeping the turn (or one factor on both wheels if keeping the turn would
+       leave the filter's constraints) -> power = omega / max_wheel_radps in [-1, 1]
 
 The integrators are frozen (may only shrink) on a tick after one whose wheels saturated: the
 PID cannot see this tick's saturation before it has computed this tick's command (the usual
