@@ -413,6 +413,8 @@ class SafetyFilter:
         reach = (cap + _TOL) / gamma
         d_plain = self._d_plain + rho
         lim_plain = d_plain + reach + _TOL
+        two_over_g = 2.0 / gamma
+        quick = self._d_coop + self._l + self._vnb * self._max_age + rho + 2.0 * reach + _TOL
         for nb in neighbours:
             if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
                 qx, qy = nb
@@ -434,6 +436,15 @@ class SafetyFilter:
                 continue
             else:
                 qx, qy, th, age, vx, vy, coop, rad = nb
+                # quick reject of a far neighbour (any share, age, shift by l); a non-finite
+                # field makes the bound NaN and takes the full path below
+                lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
+                dx = px - qx
+                dy = py - qy
+                if not (-lim < dx < lim and -lim < dy < lim) and lim < math.inf:
+                    if not _isfinite(dx + dy):
+                        self._rejected += 1
+                    continue
                 if not (
                     _isfinite(age)
                     and _isfinite(rad)
