@@ -114,6 +114,14 @@ def _seg_dist(px: float, py: float, s: SegmentObstacle) -> float:
     return math.hypot(px - (s.x1 + t * sx), py - (s.y1 + t * sy))
 
 
+def _dist_barrier(qx: float, qy: float, d: float) -> Callable[[float, float], float]:
+    return lambda x, y: math.hypot(x - qx, y - qy) - d
+
+
+def _seg_barrier(o: SegmentObstacle, d: float) -> Callable[[float, float], float]:
+    return lambda x, y: _seg_dist(x, y, o) - d
+
+
 def barriers(
     px: float,
     py: float,
@@ -135,17 +143,17 @@ def barriers(
             qx = nb.x + g.ref_offset_m * math.cos(nb.theta)
             qy = nb.y + g.ref_offset_m * math.sin(nb.theta)
             d = ds + 2 * g.ref_offset_m + infl
-            out.append((lambda x, y, qx=qx, qy=qy, d=d: math.hypot(x - qx, y - qy) - d, 0.5))
+            out.append((_dist_barrier(qx, qy, d), 0.5))
         else:
             d = ds + g.ref_offset_m + infl
-            out.append((lambda x, y, qx=nb.x, qy=nb.y, d=d: math.hypot(x - qx, y - qy) - d, 1.0))
+            out.append((_dist_barrier(nb.x, nb.y, d), 1.0))
     for o in world.obstacles:
         if isinstance(o, CircleObstacle):
             d = o.radius_m + clear
-            out.append((lambda x, y, o=o, d=d: math.hypot(x - o.x, y - o.y) - d, 1.0))
+            out.append((_dist_barrier(o.x, o.y, d), 1.0))
         else:
             d = o.radius_m + clear
-            out.append((lambda x, y, o=o, d=d: _seg_dist(x, y, o) - d, 1.0))
+            out.append((_seg_barrier(o, d), 1.0))
     a = world.arena
     if a is not None:
         out.append((lambda x, y: x - a.x_min - clear, 1.0))
@@ -400,7 +408,12 @@ class Outcome:
         self.errs = errs  # final distance of each reference point to its goal (m)
 
     def tiebreaks(self) -> int:
-        return sum(fw.status().safety_filter.tiebreaks for fw in self.fws)  # type: ignore[union-attr]
+        total = 0
+        for fw in self.fws:
+            st_ = fw.status().safety_filter
+            assert st_ is not None
+            total += st_.tiebreaks
+        return total
 
 
 def closed_loop(
