@@ -32,6 +32,7 @@ from robot_agent import (
     AgentConfig,
     Firmware,
     Pose,
+    SafetyFilter,
     Setpoint,
     TrackingController,
     reference_point,
@@ -155,6 +156,8 @@ def breakdown(n: int) -> dict[str, float]:
     poses, sps, nbrs = _inputs(4)
     pose, sp, nb = poses[1], sps[1], nbrs[1]
     ctl = TrackingController(cfg.gains)
+    flt = SafetyFilter(cfg)
+    rx, ry = reference_point(pose.x, pose.y, pose.theta, g.ref_offset_m)
     fw = Firmware(cfg)
     hold = Firmware(cfg)
     clock = [0.0]
@@ -178,6 +181,9 @@ def breakdown(n: int) -> dict[str, float]:
         ),
         "repulsion, 3 neighbours (1 in range)": _loop_us(
             lambda: repulsion_velocity_counted(pose.x, pose.y, nb, (), cfg.repulsion), n
+        ),
+        "safety filter, 3 neighbours (1 inside Ds)": _loop_us(
+            lambda: flt.filter(1.0, rx, ry, 0.2, 0.05, 0.08, 0.03, nb, (), 0.0, DT_S), n
         ),
         "twist_from_ref_velocity (eq 16)": _loop_us(
             lambda: twist_from_ref_velocity(0.1, 0.05, pose.theta, g.ref_offset_m), n

@@ -35,8 +35,9 @@ import numpy as np
 
 from coordinator.core import CoordinatorOutput
 from formation.runlog import RunLog
-from robot_agent.firmware import Firmware, Pose, Setpoint, WheelCommand
+from robot_agent.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
+from robot_agent.safety_filter import Neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, plant_models
 
@@ -89,7 +90,8 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     xyt: list[tuple[float, float, float] | None] = [None] * n
     pose_rx = [-math.inf] * n
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
-    neighbours: list[list[tuple[float, float]]] = [[] for _ in ids]
+    neighbours: list[list[Any]] = [[] for _ in ids]
+    tracking = [False] * n  # robot j's firmware was TRACKING on the previous tick
     pending = list(scenario.disturbances)
     fresh: dict[str, tuple[float, float, float]] = {}
     oldest_rx = math.inf  # earliest receive time among the poses in `fresh`
@@ -120,16 +122,21 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                 poses[i] = _tuple_new(Pose, (x, y, th, stamp))
                 xyt[i] = (x, y, th)
                 pose_rx[i] = t
-            # every other robot's latest measured position, for repulsion
-            if None in xyt:
-                for i in range(n):
-                    neighbours[i] = [
-                        (p[0], p[1]) for j, p in enumerate(poses) if j != i and p is not None
-                    ]
-            else:
-                pts = [(p[0], p[1]) for p in poses if p is not None]
-                for i in range(n):
-                    neighbours[i] = pts[:i] + pts[i + 1 :]
+        # every other robot's latest measured pose, for repulsion and the safety filter, with
+        # its age now (capture to this tick) and whether it was TRACKING on the previous tick
+        # (then it runs the same filter: cooperative)
+        pts = [
+            None
+            if p is None
+            else _tuple_new(Neighbour, (p[0], p[1], p[2], t - p[3], 0.0, 0.0, tracking[j], 0.0))
+            for j, p in enumerate(poses)
+        ]
+        if None in pts:
+            for i in range(n):
+                neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
+        else:
+            for i in range(n):
+                neighbours[i] = pts[:i] + pts[i + 1 :]
         # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
         # arrives or one goes stale)
         if delivered or t - oldest_rx > stale:
@@ -167,6 +174,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                     neighbours=neighbours[i],
                 )
             )
+        tracking = [c[4] is Mode.TRACKING for c in cmds]
         # 5. command link
         link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
         for i, wheels in link.poll(t):

@@ -20,10 +20,13 @@ from .params import (
     AgentConfig,
     RepulsionParams,
     RobotGeometry,
+    SafetyFilterParams,
     SafetyParams,
     TrackingGains,
+    WorldMap,
 )
 from .repulsion import repulsion_velocity, repulsion_velocity_counted
+from .safety_filter import Neighbour, SafetyFilter, SafetyFilterStatus
 from .tracking import AxisPID, PIDInfo, TrackingController
 
 __all__ = [
@@ -33,15 +36,20 @@ __all__ = [
     "Firmware",
     "FirmwareStatus",
     "Mode",
+    "Neighbour",
     "PIDInfo",
     "Pose",
     "RepulsionParams",
     "RobotGeometry",
+    "SafetyFilter",
+    "SafetyFilterParams",
+    "SafetyFilterStatus",
     "SafetyParams",
     "Setpoint",
     "TrackingController",
     "TrackingGains",
     "WheelCommand",
+    "WorldMap",
     "ref_point_velocity",
     "reference_point",
     "repulsion_velocity",

@@ -37,9 +37,12 @@ Pipeline in TRACKING (one tick)::
 
     reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
     -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
-    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (safety, last
-       Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
-    -> saturation keeping the turn -> power = omega / max_wheel_radps in [-1, 1]
+    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (the paper's
+       potential field) -> safety filter (barrier certificate on the reference-point velocity,
+       ``safety_filter.py``: keeps Ds to neighbours, clear of obstacles, inside the arena; the
+       last Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
+    -> saturation keeping the turn (or one factor on both wheels if keeping the turn would
+       leave the filter's constraints) -> power = omega / max_wheel_radps in [-1, 1]
 
 The integrators are frozen (may only shrink) on a tick after one whose wheels saturated: the
 PID cannot see this tick's saturation before it has computed this tick's command (the usual
@@ -70,6 +73,7 @@ from typing import Any, Final, NamedTuple
 from .kinematics import saturate_wheels
 from .params import AgentConfig
 from .repulsion import repulsion_velocity_counted
+from .safety_filter import Neighbour, SafetyFilter, SafetyFilterStatus
 from .tracking import PIDInfo, TrackingController
 
 __all__ = [
@@ -158,6 +162,7 @@ class FirmwareStatus:
         dt_faults: ticks whose dt was <= 0 or > max_dt_s (not counting the first tick).
         pose_age_s, setpoint_age_s: receive ages at the last tick (s); NaN if unknown.
         pid_x, pid_y: last PID snapshots per axis.
+        safety_filter: the safety filter's counters (``SafetyFilterStatus``).
     """
 
     mode: Mode
@@ -177,6 +182,7 @@ class FirmwareStatus:
     setpoint_age_s: float
     pid_x: PIDInfo
     pid_y: PIDInfo
+    safety_filter: SafetyFilterStatus | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """msgpack-friendly dict (the status message carries ``mode``, ``slot``, ``pid``,
@@ -198,6 +204,7 @@ class FirmwareStatus:
             "pose_age_s": self.pose_age_s,
             "setpoint_age_s": self.setpoint_age_s,
             "pid": {"x": self.pid_x.as_dict(), "y": self.pid_y.as_dict()},
+            "filter": self.safety_filter.as_dict() if self.safety_filter is not None else None,
         }
 
 
@@ -284,6 +291,9 @@ class Firmware:
         "_dt_faults",
         "_ex",
         "_ey",
+        "_filter",
+        "_filter_fn",
+        "_filter_on",
         "_geom",
         "_half_track",
         "_have_setpoint",
@@ -329,6 +339,9 @@ class Firmware:
         self._stale_sp = cfg.safety.stale_setpoint_s
         self._max_dt = cfg.safety.max_dt_s
         self._tracker = TrackingController(cfg.gains)
+        self._filter = SafetyFilter(cfg)
+        self._filter_on = self._filter.enabled
+        self._filter_fn = self._filter.filter
         self._mode = Mode.IDLE
         self._reason = "no setpoint yet"
         self._have_setpoint = False
@@ -360,6 +373,11 @@ class Firmware:
     def mode(self) -> Mode:
         """Current mode."""
         return self._mode
+
+    @property
+    def safety_filter(self) -> SafetyFilter:
+        """The safety filter (counters via ``status().safety_filter``)."""
+        return self._filter
 
     @property
     def tracker(self) -> TrackingController:
@@ -408,6 +426,7 @@ class Firmware:
             setpoint_age_s=self._setpoint_age,
             pid_x=pid_x,
             pid_y=pid_y,
+            safety_filter=self._filter.status(),
         )
 
     def step(
@@ -418,8 +437,9 @@ class Firmware:
         pose_rx_s: float,
         setpoint: Setpoint | None,
         setpoint_rx_s: float,
-        neighbours: Sequence[tuple[float, float]] = (),
+        neighbours: Sequence[tuple[float, float] | Neighbour] = (),
         obstacles: Sequence[tuple[float, float, float]] = (),
+        extra_radius_m: float = 0.0,
     ) -> WheelCommand:
         """Run one control tick.
 
@@ -429,8 +449,13 @@ class Firmware:
             pose_rx_s: local time the pose was received (s); ignored when ``pose`` is None.
             setpoint: latest setpoint for this robot, or None (none yet / unassigned).
             setpoint_rx_s: local time the setpoint was received (s).
-            neighbours: other robots' axle-centre positions (m), for repulsion.
-            obstacles: static circles ``(x, y, radius_m)`` (m), for repulsion.
+            neighbours: other robots' axle-centre positions (m), for repulsion and the safety
+                filter: ``(x, y)`` tuples (a fresh position of a robot treated as an obstacle)
+                or ``safety_filter.Neighbour``s (with heading, age, velocity, cooperative).
+            obstacles: circles ``(x, y, radius_m)`` (m), for repulsion and the safety filter
+                (on top of the configured ``AgentConfig.world``).
+            extra_radius_m: this robot's own position uncertainty (m), which the safety filter
+                adds to every clearance (from the estimator; 0 = exact pose).
 
         Returns:
             The wheel command; exactly zero wheels in every mode but TRACKING. Never raises.
@@ -505,8 +530,10 @@ class Firmware:
             l_m = self._l
             c = _cos(th)
             s = _sin(th)
-            ex = spx - (x + l_m * c)
-            ey = spy - (y + l_m * s)
+            rx = x + l_m * c
+            ry = y + l_m * s
+            ex = spx - rx
+            ey = spy - ry
             self._ex = ex
             self._ey = ey
             tracker = self._tracker
@@ -526,6 +553,23 @@ class Firmware:
                 vx += rvx
                 vy += rvy
 
+            # --- safety filter (barrier certificate on the reference-point velocity), last
+            # before eq 16: keeps Ds to neighbours / obstacles / walls (safety_filter.py) ----
+            if self._filter_on:
+                vx, vy = self._filter_fn(
+                    now_s,
+                    rx,
+                    ry,
+                    vx,
+                    vy,
+                    ex,
+                    ey,
+                    neighbours,
+                    obstacles,
+                    extra_radius_m,
+                    dt,
+                )
+
             # --- eq 16, then eq 8: inlined copies of twist_from_ref_velocity and
             # wheels_from_twist (same operations, bit-identical; tested), saving two calls ---
             v = c * vx + s * vy
@@ -540,9 +584,22 @@ class Firmware:
             if -wmax <= wr <= wmax and -wmax <= wl <= wmax:
                 sat = False
             else:
+                wr0, wl0 = wr, wl
                 wr, wl, sat = saturate_wheels(wr, wl, wmax)
                 if sat:
                     self._saturated += 1
+                    flt = self._filter
+                    if self._filter_on and flt.in_range and _isfinite(wr0 + wl0):
+                        # keeping the turn changes the reference velocity's direction: if that
+                        # leaves the filter's constraints, scale both wheels by one factor
+                        # instead (u scales by s in (0, 1]: safe, see safety_filter.py)
+                        sv = 0.5 * r * (wr + wl)
+                        sw = 0.5 * r * (wr - wl) / self._half_track
+                        if not flt.admissible(c * sv - l_m * sw * s, s * sv + l_m * sw * c):
+                            k = wmax / max(abs(wr0), abs(wl0))
+                            wr = wr0 * k
+                            wl = wl0 * k
+                            flt.count_rescaled()
             self._last_saturated = sat
             return _new_command(wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat)
         except Exception as exc:
@@ -561,6 +618,8 @@ class Firmware:
         if new is old:
             return
         self._mode = new
+        if new is not Mode.TRACKING:
+            self._filter.reset_deadlock()
         tracker = self._tracker
         if new is Mode.HOLD:
             # Integrators are frozen simply by not being updated; a fresh derivative means

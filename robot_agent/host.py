@@ -20,8 +20,9 @@ ordinary robots. What is shared is the I/O, batched (bus_schemas, docs/scale.md)
 * out: ``formation/<fleet>/host/<name>/wheels`` (:class:`~bus_schemas.WheelsBatch`, the commands of
   one control step, chunks of :data:`~bus_schemas.BATCH_CHUNK`) and ``host/<name>/status``
   (:class:`~bus_schemas.StatusBatch`, 5 Hz).
-* repulsion: each robot's neighbours come from one spatial hash of the latest frame (cells of the
-  repulsion influence distance ``d0``), so a query costs the robots in 3 x 3 cells, not N; the
+* repulsion and safety filter: each robot's neighbours come from one spatial hash of the latest
+  frame (cells of the larger of the repulsion influence distance ``d0`` and the safety filter's
+  ``neighbour_range_m``), so a query costs the robots in 3 x 3 cells, not N; the
   neighbours are passed in frame order, the order ``formation agent`` sees them, so the firmware
   sums the same terms in the same order.
 
@@ -71,6 +72,7 @@ from robot_agent.firmware import WheelCommand
 from robot_agent.lockstep import Arrivals, Replay
 from robot_agent.node import NEIGHBOUR_STALE_S, AgentNode, Publish
 from robot_agent.params import AgentConfig
+from robot_agent.safety_filter import SafetyFilter
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
@@ -175,7 +177,11 @@ class HostNode:
             node.neighbour_fn = self._neighbours_of
             self.nodes[rid] = node
         self.order = list(self.nodes)
-        self.cell_m = max(config.repulsion.d0_m, 1e-3)
+        # neighbours are looked up in 3 x 3 cells: a cell must cover the repulsion's d0 and the
+        # safety filter's range
+        self.cell_m = max(
+            config.repulsion.influence_m, SafetyFilter(config).neighbour_range_m, 1e-3
+        )
 
         self.poses_key = keys.poses_key(fleet)
         self.setpoints_key = keys.setpoints_key(fleet)

@@ -12,15 +12,22 @@ Defaults describe a small differential robot (the paper gives no dimensions): 3 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 __all__ = [
+    "D0_CLEARANCE_M",
     "DEFAULT_K_REP",
     "AgentConfig",
+    "Arena",
+    "CircleObstacle",
     "RepulsionParams",
     "RobotGeometry",
+    "SafetyFilterParams",
     "SafetyParams",
+    "SegmentObstacle",
     "TrackingGains",
+    "WorldMap",
+    "derived_d0_m",
 ]
 
 
@@ -109,12 +116,28 @@ class TrackingGains:
         _positive("max_ref_speed_mps", self.max_ref_speed_mps)
 
 
-# Default repulsion gain. The push at distance d (< d0) is k_rep * (1/d - 1/d0) / d^2. We want
-# about 0.1 m/s when two default robots touch (centre distance d = 2 * 0.075 m = 0.15 m) with
-# d0 = 0.30 m: (1/0.15 - 1/0.30) / 0.15^2 = 148.1 m^-3, so k_rep = 0.1 / 148.1 = 6.75e-4 m^4/s.
-# The push is then 0.0 at 0.30 m, 0.0095 m/s at 0.25 m, 0.1 m/s at 0.15 m and reaches the
-# 0.20 m/s cap at about 0.127 m.
+# Default repulsion gain. The push at distance d (< d0) is k_rep * (1/d - 1/d0) / d^2. It was
+# chosen for about 0.1 m/s when two default robots touch (centre distance d = 2 * 0.075 m =
+# 0.15 m) with d0 = 0.30 m: (1/0.15 - 1/0.30) / 0.15^2 = 148.1 m^-3, k_rep = 0.1 / 148.1 =
+# 6.75e-4 m^4/s. With the derived d0 = 2 * 0.075 + 0.10 = 0.25 m (see ``derived_d0_m``) the
+# push is 0.0 at 0.25 m, 0.08 m/s at 0.15 m (touching) and reaches the 0.20 m/s cap at about
+# 0.12 m.
 DEFAULT_K_REP = 6.75e-4
+
+_DEFAULT_BODY_RADIUS_M = 0.075  # RobotGeometry's default (a slots dataclass has no class value)
+
+#: Clearance (m) added to two body radii to get the potential field's influence distance d0.
+D0_CLEARANCE_M = 0.10
+
+
+def derived_d0_m(body_radius_m: float) -> float:
+    """The potential field's default influence distance: ``2 * body_radius_m + 0.10`` (m).
+
+    Derived from the body, not from the formation spacing, so a formation whose robots are
+    spaced at least this far apart is not pushed on (with the 0.075 m default body: 0.25 m,
+    below the 0.3 m spacing of the Robotarium task and of the default formations).
+    """
+    return 2.0 * body_radius_m + D0_CLEARANCE_M
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,27 +147,37 @@ class RepulsionParams:
     Attributes:
         k_rep: gain (m^4/s); see ``DEFAULT_K_REP`` for how the default was chosen
             (0.1 m/s at 0.15 m centre distance with d0 = 0.30 m).
-        d0_m: influence distance (m); no push at or beyond it.
+        d0_m: influence distance (m); no push at or beyond it. None (the default) means
+            derived from the body: ``derived_d0_m(body_radius_m)``, resolved by ``AgentConfig``
+            with the robot's geometry (0.25 m for the default 0.075 m body); a
+            ``RepulsionParams`` used on its own resolves None with the default body.
         max_speed_mps: cap on the norm of the summed repulsion velocity (m/s).
         enabled: False turns repulsion off (the paper's controller without collision avoidance).
     """
 
     k_rep: float = DEFAULT_K_REP
-    d0_m: float = 0.30
+    d0_m: float | None = None
     max_speed_mps: float = 0.20
     enabled: bool = True
 
     def __post_init__(self) -> None:
         _non_negative("k_rep", self.k_rep)
-        _positive("d0_m", self.d0_m)
+        if self.d0_m is not None:
+            _positive("d0_m", self.d0_m)
         _non_negative("max_speed_mps", self.max_speed_mps)
         _require(isinstance(self.enabled, bool), f"enabled must be a bool, got {self.enabled!r}")
 
+    @property
+    def influence_m(self) -> float:
+        """``d0_m``, or the value derived from the default body when it is None (m)."""
+        return self.d0_m if self.d0_m is not None else derived_d0_m(_DEFAULT_BODY_RADIUS_M)
+
     def speed_at(self, d_m: float) -> float:
         """Magnitude (m/s) of the uncapped push from one neighbour at distance ``d_m`` > 0."""
-        if d_m >= self.d0_m:
+        d0 = self.influence_m
+        if d_m >= d0:
             return 0.0
-        return self.k_rep * (1.0 / d_m - 1.0 / self.d0_m) / (d_m * d_m)
+        return self.k_rep * (1.0 / d_m - 1.0 / d0) / (d_m * d_m)
 
 
 @dataclass(frozen=True, slots=True)
@@ -169,16 +202,175 @@ class SafetyParams:
 
 
 @dataclass(frozen=True, slots=True)
+class SafetyFilterParams:
+    """The barrier-certificate safety filter (``robot_agent.safety_filter``), last before eq 16.
+
+    Attributes:
+        enabled: False passes the command through unchanged (the paper's controller).
+        margin_m: safety distance between two robots' centres is ``Ds = 2 * body_radius_m +
+            margin_m`` (0.19 m with the defaults); a robot's centre keeps ``body_radius_m +
+            margin_m`` from an obstacle's surface and from the arena's walls. The margin
+            absorbs what the proof leaves out: camera noise on two positions (3 sigma of
+            3 mm each: 13 mm), one tick of motion (0.3 m/s x 33 ms: 10 mm), the heading change
+            within a tick (about 1 mm) and a residual of latency: 0.04 m. Bodies touch at
+            ``2 * body_radius_m``; the tests check that is never reached.
+        gamma_per_s: barrier gain gamma (1/s): ``dh/dt >= -gamma * h``; the robot may approach a
+            boundary no faster than gamma times its remaining clearance. The filter uses
+            ``min(gamma, 1 / dt)`` with the tick's ``dt`` (``1 / max_dt_s`` when unknown) so
+            ``gamma * dt <= 1`` holds: the discrete-time guarantee.
+        neighbour_speed_mps: how fast a neighbour can move (m/s), to inflate a position of age
+            ``a`` by ``neighbour_speed_mps * a``; 0 means this robot's own top speed
+            (``RobotGeometry.max_speed_mps``).
+        max_age_s: cap on the age used to inflate a neighbour position (s): an older position
+            is still kept (a robot that stopped reporting is an obstacle where last seen), but
+            its inflation stops growing, so an ancient entry cannot cover the arena.
+        stuck_time_s: a robot near a boundary whose tracking error (above ``stuck_error_m``)
+            has not shrunk by ``stuck_speed_mps * stuck_time_s`` within this time is
+            deadlocked (s).
+        stuck_speed_mps: mean progress rate below which the robot counts as stuck (m/s).
+        stuck_error_m: tracking errors below this never count as a deadlock (m).
+        tiebreak_time_s: how long a tie-break lasts once triggered (s).
+        tiebreak_angle_rad: the tie-break steers this far to the right of the direction to the
+            setpoint (rad, in (0, pi/2]); deterministic "pass on the right".
+        tiebreak_speed_mps: the speed of the tie-break command when the nominal one is slower
+            (m/s).
+    """
+
+    enabled: bool = True
+    margin_m: float = 0.04
+    gamma_per_s: float = 10.0
+    neighbour_speed_mps: float = 0.0
+    max_age_s: float = 0.5
+    stuck_time_s: float = 1.0
+    stuck_speed_mps: float = 0.02
+    stuck_error_m: float = 0.05
+    tiebreak_time_s: float = 2.0
+    tiebreak_angle_rad: float = 1.0
+    tiebreak_speed_mps: float = 0.1
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.enabled, bool), f"enabled must be a bool, got {self.enabled!r}")
+        _non_negative("margin_m", self.margin_m)
+        _positive("gamma_per_s", self.gamma_per_s)
+        _non_negative("neighbour_speed_mps", self.neighbour_speed_mps)
+        _non_negative("max_age_s", self.max_age_s)
+        _positive("stuck_time_s", self.stuck_time_s)
+        _non_negative("stuck_speed_mps", self.stuck_speed_mps)
+        _non_negative("stuck_error_m", self.stuck_error_m)
+        _positive("tiebreak_time_s", self.tiebreak_time_s)
+        _positive("tiebreak_angle_rad", self.tiebreak_angle_rad)
+        _require(self.tiebreak_angle_rad <= math.pi / 2, "tiebreak_angle_rad must be <= pi/2")
+        _non_negative("tiebreak_speed_mps", self.tiebreak_speed_mps)
+
+
+@dataclass(frozen=True, slots=True)
+class CircleObstacle:
+    """A static disc the robot must keep clear of: centre ``(x, y)`` and ``radius_m`` (m)."""
+
+    x: float
+    y: float
+    radius_m: float
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y"):
+            v = getattr(self, name)
+            _require(
+                isinstance(v, (int, float)) and math.isfinite(v),
+                f"{name} must be finite, got {v!r}",
+            )
+        _non_negative("radius_m", self.radius_m)
+
+
+@dataclass(frozen=True, slots=True)
+class SegmentObstacle:
+    """A static wall: the segment from ``(x1, y1)`` to ``(x2, y2)`` (m), ``radius_m`` thick on
+    each side (0 = a thin wall). A polygon is given as its edges (see ``robot_config``)."""
+
+    x1: float
+    y1: float
+    x2: float
+    y2: float
+    radius_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("x1", "y1", "x2", "y2"):
+            v = getattr(self, name)
+            _require(
+                isinstance(v, (int, float)) and math.isfinite(v),
+                f"{name} must be finite, got {v!r}",
+            )
+        _non_negative("radius_m", self.radius_m)
+
+
+@dataclass(frozen=True, slots=True)
+class Arena:
+    """The rectangle the robot's whole body must stay inside (m)."""
+
+    x_min: float
+    y_min: float
+    x_max: float
+    y_max: float
+
+    def __post_init__(self) -> None:
+        for name in ("x_min", "y_min", "x_max", "y_max"):
+            v = getattr(self, name)
+            _require(
+                isinstance(v, (int, float)) and math.isfinite(v),
+                f"{name} must be finite, got {v!r}",
+            )
+        _require(self.x_min < self.x_max, "arena x_min must be < x_max")
+        _require(self.y_min < self.y_max, "arena y_min must be < y_max")
+
+
+@dataclass(frozen=True, slots=True)
+class WorldMap:
+    """What the firmware knows of the world: static obstacles and the arena (None = none)."""
+
+    obstacles: tuple[CircleObstacle | SegmentObstacle, ...] = ()
+    arena: Arena | None = None
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.obstacles, tuple), "obstacles must be a tuple")
+        for o in self.obstacles:
+            _require(
+                isinstance(o, (CircleObstacle, SegmentObstacle)),
+                f"obstacle must be a CircleObstacle or SegmentObstacle, got {o!r}",
+            )
+        _require(self.arena is None or isinstance(self.arena, Arena), "arena must be an Arena")
+
+
+@dataclass(frozen=True, slots=True)
 class AgentConfig:
-    """Everything one robot's firmware needs."""
+    """Everything one robot's firmware needs.
+
+    A ``repulsion.d0_m`` of None is resolved here to ``derived_d0_m(geometry.body_radius_m)``.
+    """
 
     geometry: RobotGeometry = field(default_factory=RobotGeometry)
     gains: TrackingGains = field(default_factory=TrackingGains)
     repulsion: RepulsionParams = field(default_factory=RepulsionParams)
     safety: SafetyParams = field(default_factory=SafetyParams)
+    safety_filter: SafetyFilterParams = field(default_factory=SafetyFilterParams)
+    world: WorldMap = field(default_factory=WorldMap)
 
     def __post_init__(self) -> None:
         _require(isinstance(self.geometry, RobotGeometry), "geometry must be a RobotGeometry")
         _require(isinstance(self.gains, TrackingGains), "gains must be a TrackingGains")
         _require(isinstance(self.repulsion, RepulsionParams), "repulsion must be RepulsionParams")
         _require(isinstance(self.safety, SafetyParams), "safety must be a SafetyParams")
+        _require(
+            isinstance(self.safety_filter, SafetyFilterParams),
+            "safety_filter must be SafetyFilterParams",
+        )
+        _require(isinstance(self.world, WorldMap), "world must be a WorldMap")
+        if self.repulsion.d0_m is None:
+            object.__setattr__(
+                self,
+                "repulsion",
+                replace(self.repulsion, d0_m=derived_d0_m(self.geometry.body_radius_m)),
+            )
+
+    @property
+    def safety_distance_m(self) -> float:
+        """Ds: the least centre distance the filter keeps between two robots (m)."""
+        return 2.0 * self.geometry.body_radius_m + self.safety_filter.margin_m

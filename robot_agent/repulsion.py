@@ -17,7 +17,7 @@ is never NaN for finite ``px, py``; non-finite ``px, py`` give ``(0.0, 0.0)``.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 from .params import RepulsionParams
 
@@ -32,7 +32,7 @@ _isfinite = math.isfinite
 def repulsion_velocity(
     px: float,
     py: float,
-    neighbours: Iterable[tuple[float, float]],
+    neighbours: Iterable[Sequence[float]],
     obstacles: Iterable[tuple[float, float, float]],
     params: RepulsionParams,
 ) -> tuple[float, float]:
@@ -40,7 +40,8 @@ def repulsion_velocity(
 
     Args:
         px, py: where the push is evaluated (m); the firmware uses the robot's axle centre.
-        neighbours: other robots' positions ``(x, y)`` (m).
+        neighbours: other robots' positions ``(x, y)`` (m), or longer tuples whose first two
+            fields are x, y (``safety_filter.Neighbour``).
         obstacles: circles ``(x, y, radius_m)`` (m).
         params: gain, influence distance ``d0_m``, cap ``max_speed_mps``, ``enabled``.
 
@@ -54,7 +55,7 @@ def repulsion_velocity(
 def repulsion_velocity_counted(
     px: float,
     py: float,
-    neighbours: Iterable[tuple[float, float]],
+    neighbours: Iterable[Sequence[float]],
     obstacles: Iterable[tuple[float, float, float]],
     params: RepulsionParams,
 ) -> tuple[float, float, int]:
@@ -62,7 +63,8 @@ def repulsion_velocity_counted(
 
     Args:
         px, py: where the push is evaluated (m); the firmware uses the robot's axle centre.
-        neighbours: other robots' positions ``(x, y)`` (m).
+        neighbours: other robots' positions ``(x, y)`` (m), or longer tuples whose first two
+            fields are x, y (``safety_filter.Neighbour``).
         obstacles: circles ``(x, y, radius_m)`` (m).
         params: gain, influence distance ``d0_m``, cap ``max_speed_mps``, ``enabled``.
 
@@ -75,13 +77,13 @@ def repulsion_velocity_counted(
         return 0.0, 0.0, 0
     skipped = 0
     k = params.k_rep
-    d0 = params.d0_m
+    d0 = params.influence_m
     inv_d0 = 1.0 / d0
     sx = 0.0
     sy = 0.0
-    for nx, ny in neighbours:
-        dx = px - nx
-        dy = py - ny
+    for nb in neighbours:  # (x, y) or a longer tuple starting with x, y (safety_filter)
+        dx = px - nb[0]
+        dy = py - nb[1]
         # Cheap box reject first (most neighbours are far); NaN/inf also fail these tests.
         if not (-d0 < dx < d0 and -d0 < dy < d0):
             if not _isfinite(dx + dy):

@@ -10,6 +10,28 @@ is the annotated template). Layout::
     [gains]      # robot_agent.params.TrackingGains fields
     [repulsion]  # robot_agent.params.RepulsionParams fields
     [safety]     # robot_agent.params.SafetyParams fields (s)
+    [safety_filter]  # robot_agent.params.SafetyFilterParams fields (barrier-certificate filter)
+
+    [arena]      # optional: the rectangle the robot's body stays inside (m)
+    x_min = -2.0
+    y_min = -1.5
+    x_max = 2.0
+    y_max = 1.5
+
+    [[obstacle]] # optional, any number: static obstacles the safety filter keeps clear of
+    kind = "circle"                       # x, y, radius_m
+    x = 0.5
+    y = 0.0
+    radius_m = 0.1
+    [[obstacle]]
+    kind = "segment"                      # x1, y1, x2, y2, radius_m (default 0: a thin wall)
+    x1 = -1.0
+    y1 = 1.0
+    x2 = 1.0
+    y2 = 1.0
+    [[obstacle]]
+    kind = "polygon"                      # points = [[x, y], ...] (>= 3), its closed outline
+    points = [[1.0, -1.0], [1.2, -1.0], [1.2, -0.8]]
 
     [zenoh]
     mode = "client"                       # "client" (default) or "peer"
@@ -46,7 +68,7 @@ from pathlib import Path
 from typing import Any
 
 from robot_agent.motors.roboclaw import RoboClawConfig
-from robot_agent.params import AgentConfig
+from robot_agent.params import AgentConfig, Arena, CircleObstacle, SegmentObstacle, WorldMap
 
 __all__ = [
     "ID_PATTERN",
@@ -189,7 +211,7 @@ def robot_config_from_dict(
     """Validate already-parsed TOML data (the same rules as :func:`load_robot_config`)."""
     problems: list[str] = []
     agent_sections = _agent_sections()
-    allowed = ["robot_id", "fleet", *agent_sections, "zenoh", "motor"]
+    allowed = ["robot_id", "fleet", *agent_sections, "arena", "obstacle", "zenoh", "motor"]
     for key in data:
         if key not in allowed:
             problems.append(f"{key}: unknown key (allowed: {', '.join(allowed)})")
@@ -202,6 +224,11 @@ def robot_config_from_dict(
         table = _table(data, section, problems)
         if table is not None:
             parts[section] = _build(cls, table, section, problems)
+    world = _world(data, problems)
+    if world is None:
+        parts["world"] = None
+    elif world.obstacles or world.arena is not None:
+        parts["world"] = world
     agent: AgentConfig | None = None
     if all(v is not None for v in parts.values()):
         try:
@@ -224,9 +251,113 @@ def robot_config_from_dict(
 
 
 def _agent_sections() -> dict[str, type]:
-    """AgentConfig's fields: section name -> parameter dataclass (e.g. geometry)."""
+    """AgentConfig's parameter fields: section name -> dataclass (e.g. geometry); the world map
+    is read from ``[arena]`` and ``[[obstacle]]`` instead (``_world``)."""
     hints = typing.get_type_hints(AgentConfig)
-    return {f.name: hints[f.name] for f in dataclasses.fields(AgentConfig)}
+    return {f.name: hints[f.name] for f in dataclasses.fields(AgentConfig) if f.name != "world"}
+
+
+_OBSTACLE_KEYS = {
+    "circle": ("x", "y", "radius_m"),
+    "segment": ("x1", "y1", "x2", "y2", "radius_m"),
+    "polygon": ("points", "radius_m"),
+}
+
+
+def _finite_number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    f = float(value)
+    return f if math.isfinite(f) else None
+
+
+def _world(data: Mapping[str, Any], problems: list[str]) -> WorldMap | None:
+    """``[arena]`` and ``[[obstacle]]`` as a WorldMap, or None with problems appended."""
+    start = len(problems)
+    arena: Arena | None = None
+    if "arena" in data:
+        table = _table(data, "arena", problems)
+        if table is not None:
+            keys = ("x_min", "y_min", "x_max", "y_max")
+            vals: dict[str, float] = {}
+            for key in table:
+                if key not in keys:
+                    problems.append(f"arena.{key}: unknown key (allowed: {', '.join(keys)})")
+            for key in keys:
+                if key not in table:
+                    problems.append(f"arena.{key}: required")
+                    continue
+                f = _finite_number(table[key])
+                if f is None:
+                    problems.append(f"arena.{key}: expected a finite number, got {table[key]!r}")
+                else:
+                    vals[key] = f
+            if len(vals) == 4 and len(problems) == start:
+                try:
+                    arena = Arena(**vals)
+                except ValueError as exc:
+                    problems.append(f"arena: {exc}")
+    obstacles: list[CircleObstacle | SegmentObstacle] = []
+    raw = data.get("obstacle", [])
+    if not isinstance(raw, list):
+        problems.append("obstacle: expected an array of tables [[obstacle]]")
+        raw = []
+    for j, item in enumerate(raw):
+        where = f"obstacle[{j}]"
+        if not isinstance(item, Mapping):
+            problems.append(f"{where}: expected a table")
+            continue
+        kind = item.get("kind")
+        if kind not in _OBSTACLE_KEYS:
+            problems.append(
+                f"{where}.kind: must be one of {', '.join(_OBSTACLE_KEYS)}, got {kind!r}"
+            )
+            continue
+        allowed = ("kind", *_OBSTACLE_KEYS[kind])
+        bad = False
+        for key in item:
+            if key not in allowed:
+                problems.append(f"{where}.{key}: unknown key (allowed: {', '.join(allowed)})")
+                bad = True
+        nums: dict[str, float] = {}
+        for key in _OBSTACLE_KEYS[kind]:
+            if key == "points" or (key == "radius_m" and kind != "circle" and key not in item):
+                continue
+            if key not in item:
+                problems.append(f"{where}.{key}: required")
+                bad = True
+                continue
+            f = _finite_number(item[key])
+            if f is None or (key == "radius_m" and f < 0.0):
+                problems.append(f"{where}.{key}: expected a finite number (>= 0 for a radius), "
+                                f"got {item[key]!r}")  # fmt: skip
+                bad = True
+            else:
+                nums[key] = f
+        if bad:
+            continue
+        if kind == "circle":
+            obstacles.append(CircleObstacle(nums["x"], nums["y"], nums["radius_m"]))
+        elif kind == "segment":
+            obstacles.append(SegmentObstacle(**nums))
+        else:
+            pts = item.get("points")
+            coords: list[tuple[float, float]] = []
+            if isinstance(pts, list) and len(pts) >= 3:
+                for p in pts:
+                    if isinstance(p, list) and len(p) == 2:
+                        x, y = _finite_number(p[0]), _finite_number(p[1])
+                        if x is not None and y is not None:
+                            coords.append((x, y))
+            if len(coords) < 3 or len(coords) != len(pts):  # type: ignore[arg-type]
+                problems.append(f"{where}.points: expected >= 3 points [x, y] of finite numbers")
+                continue
+            r = nums.get("radius_m", 0.0)
+            for (x1, y1), (x2, y2) in zip(coords, coords[1:] + coords[:1], strict=True):
+                obstacles.append(SegmentObstacle(x1, y1, x2, y2, r))
+    if len(problems) > start:
+        return None
+    return WorldMap(obstacles=tuple(obstacles), arena=arena)
 
 
 def _identifier(

@@ -11,14 +11,16 @@ from hypothesis import strategies as st
 
 from robot_agent.firmware import _TRANSITIONS, Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.kinematics import (
+    ref_point_velocity,
     reference_point,
     saturate_wheels,
     twist_from_ref_velocity,
     twist_from_wheels,
     wheels_from_twist,
 )
-from robot_agent.params import AgentConfig, RepulsionParams, SafetyParams
+from robot_agent.params import AgentConfig, RepulsionParams, SafetyFilterParams, SafetyParams
 from robot_agent.repulsion import repulsion_velocity
+from robot_agent.safety_filter import SafetyFilter
 from robot_agent.tracking import TrackingController
 
 CFG = AgentConfig()
@@ -145,20 +147,31 @@ small = st.floats(min_value=-1.0, max_value=1.0)
 def test_pipeline_is_the_composition_of_the_public_functions(
     x: float, y: float, th: float, gx: float, gy: float, fx: float, fy: float, nx: float, ny: float
 ) -> None:
-    """step() = eqs 10-11 -> PID+FF -> cap -> repulsion -> eq 16 -> eq 8 -> saturation, bit for
+    """step() = eqs 10-11 -> PID+FF -> cap -> repulsion -> safety filter -> eq 16 -> eq 8 ->
+    saturation (uniform rescale if keeping the turn leaves the filter's constraints), bit for
     bit (the firmware inlines eqs 16 and 8 for speed)."""
     fw = Firmware(CFG)
     ctl = TrackingController(CFG.gains)
+    flt = SafetyFilter(CFG)
     sat_prev = False
     for k in range(3):
         now = k * DT
+        dt = now - (k - 1) * DT if k else 0.0
         cmd = tick(fw, now, Pose(x, y, th, now), make_sp(x=gx, y=gy, vx=fx, vy=fy),
                    neighbours=[(nx, ny)])  # fmt: skip
         xr, yr = reference_point(x, y, th, L_REF)
         vx, vy = ctl.update(gx - xr, gy - yr, fx, fy, DT if k else 0.0, sat_prev)
         rvx, rvy = repulsion_velocity(x, y, [(nx, ny)], [], CFG.repulsion)
-        v, w = twist_from_ref_velocity(vx + rvx, vy + rvy, th, L_REF)
-        wr, wl, sat = saturate_wheels(*wheels_from_twist(v, w, GEOM), WMAX)
+        ux, uy = flt.filter(now, xr, yr, vx + rvx, vy + rvy, gx - xr, gy - yr, [(nx, ny)], (),
+                            0.0, dt)  # fmt: skip
+        v, w = twist_from_ref_velocity(ux, uy, th, L_REF)
+        wr0, wl0 = wheels_from_twist(v, w, GEOM)
+        wr, wl, sat = saturate_wheels(wr0, wl0, WMAX)
+        if sat and flt.in_range:
+            sv, sw = twist_from_wheels(wr, wl, GEOM)
+            if not flt.admissible(*ref_point_velocity(sv, sw, th, L_REF)):
+                f = WMAX / max(abs(wr0), abs(wl0))
+                wr, wl = wr0 * f, wl0 * f
         sat_prev = sat
         assert (cmd.omega_r, cmd.omega_l, cmd.saturated) == (wr, wl, sat)
         assert (cmd.power_r, cmd.power_l) == (wr / WMAX, wl / WMAX)
@@ -500,16 +513,24 @@ def test_integrator_frozen_while_wheels_saturate() -> None:
 
 
 def test_neighbour_ahead_slows_the_robot() -> None:
+    """The potential field alone (safety filter off): the Khatib push at 0.15 m (contact)."""
+    rep_only = AgentConfig(safety_filter=SafetyFilterParams(enabled=False))
     pose, sp = Pose(0.0, 0.0, 0.0, 0.0), make_sp(x=0.55)
-    free = tick(Firmware(CFG), 0.0, pose, sp)
-    near = tick(Firmware(CFG), 0.0, pose, sp, neighbours=[(0.15, 0.0)])
-    far = tick(Firmware(CFG), 0.0, pose, sp, neighbours=[(0.31, 0.0)])
+    free = tick(Firmware(rep_only), 0.0, pose, sp)
+    near = tick(Firmware(rep_only), 0.0, pose, sp, neighbours=[(0.15, 0.0)])
+    far = tick(Firmware(rep_only), 0.0, pose, sp, neighbours=[(0.31, 0.0)])
     v_free, _ = twist_from_wheels(free.omega_r, free.omega_l, GEOM)
     v_near, _ = twist_from_wheels(near.omega_r, near.omega_l, GEOM)
-    assert v_free - v_near == pytest.approx(0.1, rel=0.02)  # the documented 0.1 m/s at contact
+    assert v_free - v_near == pytest.approx(rep_only.repulsion.speed_at(0.15), rel=0.02)
     assert far == free
-    off = AgentConfig(repulsion=RepulsionParams(enabled=False))
+    off = AgentConfig(
+        repulsion=RepulsionParams(enabled=False), safety_filter=SafetyFilterParams(enabled=False)
+    )
     assert tick(Firmware(off), 0.0, pose, sp, neighbours=[(0.15, 0.0)]) == free
+    # with the filter on, a robot touching the one ahead does not drive on into it
+    blocked = tick(Firmware(CFG), 0.0, pose, sp, neighbours=[(0.15, 0.0)])
+    v_blocked, _ = twist_from_wheels(blocked.omega_r, blocked.omega_l, GEOM)
+    assert v_blocked <= 1e-12
 
 
 def test_obstacles_are_used() -> None:

@@ -38,6 +38,7 @@ from bus_schemas import (
 )
 from robot_agent.host import HostNode, expand_ids
 from robot_agent.params import AgentConfig
+from robot_agent.safety_filter import SafetyFilter
 from scenario import load
 
 FLEET = "demo"
@@ -97,11 +98,14 @@ def test_spatial_hash_neighbours_equal_the_full_list_within_d0() -> None:
     for j, rid in enumerate(ids[:50]):
         got = host._neighbours_of(host.nodes[rid], now)
         # what `formation agent` passes: every other robot, frame order; the firmware ignores
-        # those at or beyond d0, so the host may leave them out but must keep the order
+        # those beyond d0 and the safety filter's range, so the host may leave them out but
+        # must keep the order
+        reach = max(d0, SafetyFilter(cfg).neighbour_range_m)
+        assert host.cell_m == reach
         full = [(float(x), float(y)) for k, (x, y) in enumerate(xy) if k != j]
-        near = [p for p in full if math.dist(p, xy[j]) < d0]
-        assert [p for p in got if math.dist(p, xy[j]) < d0] == near
-        assert all(math.dist(p, xy[j]) < 3 * d0 for p in got)  # only the 3 x 3 cells
+        near = [p for p in full if math.dist(p, xy[j]) < reach]
+        assert [p for p in got if math.dist(p, xy[j]) < reach] == near
+        assert all(math.dist(p, xy[j]) < 3 * reach for p in got)  # only the 3 x 3 cells
 
 
 def test_host_steps_on_a_frame_and_answers_in_one_batch() -> None:

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robot_agent.params import DEFAULT_K_REP, RepulsionParams, RobotGeometry
+from robot_agent.params import DEFAULT_K_REP, AgentConfig, RepulsionParams, RobotGeometry
 from robot_agent.repulsion import repulsion_velocity, repulsion_velocity_counted
 
 P = RepulsionParams()
@@ -17,7 +17,7 @@ any_float = st.floats(allow_nan=True, allow_infinity=True)
 
 
 def law(d: float, p: RepulsionParams = P) -> float:
-    return p.k_rep * (1.0 / d - 1.0 / p.d0_m) / d**2
+    return p.k_rep * (1.0 / d - 1.0 / p.influence_m) / d**2
 
 
 def test_all_zero() -> None:
@@ -26,18 +26,31 @@ def test_all_zero() -> None:
 
 def test_default_gain_gives_0p1_mps_at_contact() -> None:
     """Documented choice: two default robots touching (d = 2 * body radius = 0.15 m) push at
-    about 0.1 m/s with d0 = 0.30 m."""
+    about 0.1 m/s with d0 = 0.30 m (how k_rep was chosen)."""
     d = 2 * RobotGeometry().body_radius_m
     assert d == pytest.approx(0.15)
-    assert P.d0_m == 0.30
-    assert P.k_rep == DEFAULT_K_REP
-    vx, vy = repulsion_velocity(0.0, 0.0, [(d, 0.0)], [], P)
+    p30 = RepulsionParams(d0_m=0.30)
+    assert p30.k_rep == DEFAULT_K_REP
+    vx, vy = repulsion_velocity(0.0, 0.0, [(d, 0.0)], [], p30)
     assert vy == 0.0
     assert vx == pytest.approx(-0.1, rel=0.01)
-    assert P.speed_at(d) == pytest.approx(0.1, rel=0.01)
+    assert p30.speed_at(d) == pytest.approx(0.1, rel=0.01)
 
 
-@pytest.mark.parametrize("d", [0.14, 0.2, 0.25, 0.29])
+def test_default_d0_is_derived_from_the_body_not_the_spacing() -> None:
+    """d0 = 2 * body radius + 0.10 m: 0.25 m for the default body (0.08 m/s at contact), below a
+    0.3 m formation spacing; AgentConfig derives it from its own geometry."""
+    assert P.d0_m is None
+    assert P.influence_m == pytest.approx(0.25)
+    assert P.speed_at(0.15) == pytest.approx(0.08, rel=0.02)
+    assert P.speed_at(0.3) == 0.0
+    assert AgentConfig().repulsion.d0_m == pytest.approx(0.25)
+    big = AgentConfig(geometry=RobotGeometry(body_radius_m=0.1))
+    assert big.repulsion.d0_m == pytest.approx(0.30)
+    assert AgentConfig(repulsion=RepulsionParams(d0_m=0.4)).repulsion.d0_m == 0.4
+
+
+@pytest.mark.parametrize("d", [0.14, 0.2, 0.22, 0.245])
 def test_magnitude_follows_khatib_law(d: float) -> None:
     ang = 0.7
     vx, vy = repulsion_velocity(0.0, 0.0, [(d * math.cos(ang), d * math.sin(ang))], [], P)
@@ -52,7 +65,7 @@ def test_magnitude_follows_khatib_law(d: float) -> None:
 def test_zero_beyond_d0_and_pointing_away(px: float, py: float, nx: float, ny: float) -> None:
     vx, vy = repulsion_velocity(px, py, [(nx, ny)], [], P)
     d = math.hypot(px - nx, py - ny)
-    if d >= P.d0_m:
+    if d >= P.influence_m:
         assert (vx, vy) == (0.0, 0.0)
     else:
         assert math.hypot(vx, vy) <= P.max_speed_mps * (1 + 1e-12)

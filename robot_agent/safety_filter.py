@@ -1,0 +1,700 @@
+"""Barrier-certificate safety filter on the reference-point velocity (last before eq 16).
+
+Stdlib only, pure (time is passed in), one instance per robot. Each robot filters its own
+command with what it knows (decentralised, as the paper's agents are): the positions of the other
+robots, static obstacles (circles, segments; a polygon is its edges) and the arena rectangle.
+
+Model and notation
+==================
+``p`` is this robot's reference point (eqs 10-11), ``c = p - l (cos theta, sin theta)`` its axle
+centre, ``l`` the reference offset, ``r_b`` the body radius. Eq 16 gives the reference point
+exactly the commanded velocity ``u`` (``p' = u``: the single integrator under the unicycle,
+Robotarium's ``si_to_uni``), so the filter works on ``u`` and every barrier is a function of
+``p``. ``Ds = 2 r_b + margin`` is the least centre distance between two robots; a robot's centre
+keeps ``r_b + margin`` from an obstacle's surface and from the arena walls. ``rho`` is the extra
+radius for this robot's own pose uncertainty (``extra_radius_m``, from the estimator).
+
+Barriers (all distances, ``h >= 0`` is safe)::
+
+    obstacle (circle centre o, radius r):  h = |p - o| - (r + r_b + margin + l + rho)
+    segment (closest point q on it):       h = |p - q| - (r_seg + r_b + margin + l + rho)
+    arena wall (x >= x_min, ...):          h = p_x - (x_min + r_b + margin + l + rho), ...
+    neighbour j, not cooperative:          h = |p - c_j| - (Ds + l + rho + V a_j + rho_j)
+    neighbour j, cooperative:              h = |p - p_j| - (Ds + 2 l + rho + V a_j + rho_j)
+
+where ``c_j`` is the neighbour's measured centre, ``p_j = c_j + l (cos theta_j, sin theta_j)``
+its reference point, ``a_j`` the age of that measurement (capped at ``max_age_s``), ``V`` the
+neighbour top speed and ``rho_j`` its own extra radius.
+
+Why ``h >= 0`` keeps the BODIES apart (the offset l): ``|p - c| = l``, so by the triangle
+inequality ``|c - o| >= |p - o| - l`` and ``|c_i - c_j| >= |p_i - c_j| - l >=
+|p_i - p_j| - 2 l``. Hence ``h >= 0`` in the circle row gives ``|c - o| >= r + r_b + margin``
+(centre clear of the surface by a body plus margin), in the neighbour rows ``|c_i - c_j| >= Ds``
+(with the measured positions; the inflation ``V a_j`` covers where the neighbour can have gone
+since), and in the wall row ``c_x >= p_x - l >= x_min + r_b + margin``. The segment row is the
+same argument with the distance to a convex set.
+
+The filter: ``u* = argmin |u - u_nom|^2`` subject to, for every barrier in range,
+``n . u >= b`` with ``n = grad h`` (a unit vector) and
+
+    b = -gamma * h                          obstacle, segment, wall, non-cooperative neighbour
+        + n . v_j                           (non-cooperative neighbour with known velocity v_j)
+    b = -gamma * h / 2                      cooperative neighbour (reciprocal, half each)
+
+and ``|u| <= |u_nom|``: it never increases speed, except when some ``b > 0`` (the robot is
+already inside a boundary, or a neighbour with a known velocity comes at it): then it may use
+up to ``max_ref_speed_mps`` to get out. Discrete-time proof of invariance (the loop
+holds ``u`` for one tick ``dt``): every ``h`` above is a distance to a convex set minus a
+constant, hence a CONVEX function of ``p`` (of ``(p_i, p_j)`` for the pair row), so it lies
+above its tangent: ``h(p + u dt) >= h(p) + dt n . u >= h(p) (1 - gamma dt) >= 0`` whenever
+``h(p) >= 0`` and ``gamma dt <= 1`` (the filter lowers gamma to ``1 / dt`` on long ticks). For a
+cooperative pair both robots run this filter and each contributes ``>= -gamma h / 2``, so the
+pair's ``h`` obeys the same inequality (the reciprocal barrier of Wang, Ames and Egerstedt,
+2017, the scheme of Robotarium's barrier certificates). Against a stationary or non-cooperative
+neighbour, an obstacle or a wall the robot takes the full responsibility (``b = -gamma h``,
+plus the neighbour's known velocity). A neighbour is treated as cooperative only when the shell
+says so (``Neighbour.cooperative``: a fresh status says it is TRACKING with this firmware) and
+its heading is known; even then, if it stops (e-stop, HOLD), ``n . u_i >= -gamma h / 2`` alone
+still gives ``h(t + dt) >= (1 - gamma dt / 2) h >= 0``: halving only slows the approach, the
+safety against a robot that stands still does not depend on it moving away. What is assumed:
+the reference point moves at ``u`` during the tick (exact for eq 16 up to the heading change
+within a tick, second order in dt, covered by ``margin_m``), a non-cooperative neighbour moves
+at its given velocity (0 if none given) and a cooperative one runs this filter.
+
+Solving: the QP is two-dimensional, so its optimum has at most two active constraints; the
+filter enumerates the candidates exactly (``u_nom`` itself; the projection on each constraint
+line; each pair of lines' intersection; each line's intersections with the speed circle) and
+keeps the feasible one nearest to ``u_nom``. If none is feasible (e.g. already inside a
+boundary, or pinched between constraints that ask for more speed than ``|u_nom|``) the
+fallback is to stop (``u = 0``), which keeps every static barrier where it is. The work is
+``O(m^3)`` in the ``m`` constraints in range (typically 0-2; ``m = 0`` returns ``u_nom``
+untouched: the identity when nothing is near).
+
+Wheel saturation after eq 16: ``admissible(ux, uy)`` tells the firmware whether the reference
+velocity of the saturated wheels still meets the constraints; when it does not, the firmware
+scales both wheels by one factor instead (the twist, and so ``u``, scales by ``s in (0, 1]``):
+``n . (s u) >= b`` holds for every ``b <= 0`` (either ``n . u >= 0`` or ``n . s u >= n . u``).
+
+Deadlock tie-break: with a constraint in range and more than ``stuck_error_m`` of tracking
+error, an error that has not shrunk by ``stuck_speed_mps * stuck_time_s`` within
+``stuck_time_s`` (zero progress, whether the filter or a potential-field minimum holds the
+robot, and also when it only trails a moving robot that blocks its way) triggers a tie-break
+of ``tiebreak_time_s``: the nominal command is replaced by one toward the setpoint rotated
+``tiebreak_angle_rad`` to the RIGHT (clockwise), at ``max(|u_nom|, tiebreak_speed_mps)``, and
+filtered as usual. Every robot turns right, so two robots head-on pass each other (each keeps
+the other on its left), and a robot blocked by a stationary one goes around it clockwise.
+After two tie-breaks in a row that did not bring the robot within ``stuck_error_m`` of its
+setpoint, the next two turn LEFT (a dead end on the right, e.g. a gap too narrow between a
+pillar and a wall), then right again, and so on: still deterministic. It is the one place the
+command can be faster than the nominal one besides leaving a boundary (at most
+``tiebreak_speed_mps`` when the nominal is slower); it is counted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+from .params import AgentConfig, CircleObstacle, SegmentObstacle
+
+__all__ = [
+    "Neighbour",
+    "SafetyFilter",
+    "SafetyFilterStatus",
+    "solve_qp",
+]
+
+_hypot = math.hypot
+_sqrt = math.sqrt
+_isfinite = math.isfinite
+_NAN = math.nan
+_TOL = 1e-9  # feasibility tolerance of a constraint (m/s)
+_VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
+
+
+class Neighbour(NamedTuple):
+    """What a robot knows of another robot. A plain ``(x, y)`` tuple means ``Neighbour(x, y)``.
+
+    Attributes:
+        x, y: the neighbour's measured axle centre (m).
+        theta: its heading (rad), NaN if unknown (needed for ``cooperative``).
+        age_s: age of the measurement (s, >= 0): capture time to now on this robot's clock.
+        vx, vy: the centre's velocity if known (m/s), used for a non-cooperative neighbour; a
+            component beyond 10 x the neighbour top speed is rejected (counted, taken as 0).
+        cooperative: it is TRACKING and runs this filter (fresh status): half responsibility.
+        radius_m: extra radius for the neighbour's own uncertainty (m).
+    """
+
+    x: float
+    y: float
+    theta: float = _NAN
+    age_s: float = 0.0
+    vx: float = 0.0
+    vy: float = 0.0
+    cooperative: bool = False
+    radius_m: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class SafetyFilterStatus:
+    """Counters of the filter (for the status message, logs and run metrics).
+
+    Attributes:
+        ticks: calls to ``filter``.
+        active_ticks: ticks whose output differs from the nominal command.
+        violations: ticks on which some barrier was already below zero at the input (the
+            robot was inside a boundary it should keep: noise, a neighbour that moved in, a
+            start inside; Robotarium counts these as violations).
+        infeasible: ticks with no feasible command: the robot stopped (the fallback).
+        tiebreaks: deadlock tie-breaks triggered.
+        tiebreak_active: a tie-break is running now.
+        rescaled: ticks on which the firmware rescaled saturated wheels uniformly to keep the
+            constraints (see ``admissible``).
+        rejected: neighbour / obstacle entries skipped as non-finite.
+        min_clearance_m: the least barrier value ``h`` seen (m, inf if none in range).
+        constraints: constraints in range on the last tick.
+    """
+
+    ticks: int
+    active_ticks: int
+    violations: int
+    infeasible: int
+    tiebreaks: int
+    tiebreak_active: bool
+    rescaled: int
+    rejected: int
+    min_clearance_m: float
+    constraints: int
+
+    def as_dict(self) -> dict[str, Any]:
+        """msgpack-friendly dict (``min_clearance_m`` is None while infinite)."""
+        return {
+            "ticks": self.ticks,
+            "active": self.active_ticks,
+            "violations": self.violations,
+            "infeasible": self.infeasible,
+            "tiebreaks": self.tiebreaks,
+            "tiebreak_active": self.tiebreak_active,
+            "rescaled": self.rescaled,
+            "rejected": self.rejected,
+            "min_clearance_m": self.min_clearance_m if _isfinite(self.min_clearance_m) else None,
+            "constraints": self.constraints,
+        }
+
+
+def solve_qp(
+    ux: float, uy: float, cons: Sequence[tuple[float, float, float]], cap: float
+) -> tuple[float, float, bool]:
+    """``argmin |u - (ux, uy)|^2`` s.t. ``ax*u_x + ay*u_y >= b`` for each ``(ax, ay, b)`` in
+    ``cons`` (``(ax, ay)`` unit vectors) and ``|u| <= cap``; exact (see the module docstring).
+
+    Returns ``(u_x, u_y, feasible)``; ``(0.0, 0.0, False)`` when no candidate is feasible.
+    """
+    cap2 = cap * cap * (1.0 + 1e-12) + 1e-18
+
+    def ok(x: float, y: float) -> bool:
+        if x * x + y * y > cap2:
+            return False
+        for ax, ay, b in cons:  # noqa: SIM110 (a plain loop: no generator on the hot path)
+            if ax * x + ay * y < b - _TOL:
+                return False
+        return True
+
+    if ok(ux, uy):
+        return ux, uy, True
+    best_x = best_y = 0.0
+    best = math.inf
+    m = len(cons)
+    for i in range(m):
+        ax, ay, b = cons[i]
+        # projection of u_nom onto the line a . u = b
+        t = b - (ax * ux + ay * uy)
+        x = ux + t * ax
+        y = uy + t * ay
+        d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
+        if d < best and ok(x, y):
+            best, best_x, best_y = d, x, y
+        # the line's intersections with the speed circle |u| = cap
+        r2 = cap * cap - b * b
+        if r2 >= 0.0:
+            r = _sqrt(r2)
+            for sgn in (1.0, -1.0):
+                x = b * ax - sgn * r * ay
+                y = b * ay + sgn * r * ax
+                d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
+                if d < best and ok(x, y):
+                    best, best_x, best_y = d, x, y
+        # intersections with the other lines
+        for j in range(i + 1, m):
+            bx, by, c = cons[j]
+            det = ax * by - ay * bx
+            if -1e-12 < det < 1e-12:
+                continue
+            x = (b * by - ay * c) / det
+            y = (ax * c - b * bx) / det
+            d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
+            if d < best and ok(x, y):
+                best, best_x, best_y = d, x, y
+    if best == math.inf:
+        return 0.0, 0.0, False
+    return best_x, best_y, True
+
+
+class SafetyFilter:
+    """One robot's safety filter and deadlock tie-break (see the module docstring)."""
+
+    __slots__ = (
+        "_active",
+        "_arena",
+        "_circles",
+        "_cons",
+        "_d_coop",
+        "_d_plain",
+        "_gamma",
+        "_gamma_slow",
+        "_has_world",
+        "_infeasible",
+        "_l",
+        "_last_now",
+        "_max_age",
+        "_min_h",
+        "_obs_clear",
+        "_params",
+        "_rejected",
+        "_rescaled",
+        "_segments",
+        "_stuck_e",
+        "_stuck_error",
+        "_stuck_since",
+        "_tb_cos",
+        "_tb_sin",
+        "_tb_streak",
+        "_tb_until",
+        "_ticks",
+        "_tiebreaks",
+        "_vbad",
+        "_vcap",
+        "_violations",
+        "_vnb",
+        "enabled",
+        "safety_distance_m",
+    )
+
+    def __init__(self, config: AgentConfig) -> None:
+        g = config.geometry
+        p = config.safety_filter
+        self._params = p
+        self.enabled = p.enabled
+        l_m = g.ref_offset_m
+        self._l = l_m
+        ds = 2.0 * g.body_radius_m + p.margin_m
+        self.safety_distance_m = ds
+        self._d_plain = ds + l_m  # p_i to c_j
+        self._d_coop = ds + 2.0 * l_m  # p_i to p_j
+        clear = g.body_radius_m + p.margin_m + l_m  # p to an obstacle's surface / a wall
+        self._obs_clear = clear
+        self._gamma = p.gamma_per_s
+        self._gamma_slow = min(p.gamma_per_s, 1.0 / config.safety.max_dt_s)
+        self._vnb = p.neighbour_speed_mps if p.neighbour_speed_mps > 0.0 else g.max_speed_mps
+        self._vbad = 10.0 * self._vnb  # a neighbour velocity beyond this is absurd: rejected
+        self._max_age = p.max_age_s
+        self._vcap = config.gains.max_ref_speed_mps
+        self._tb_cos = math.cos(p.tiebreak_angle_rad)
+        self._tb_sin = math.sin(p.tiebreak_angle_rad)
+        circles: list[tuple[float, float, float]] = []
+        segments: list[tuple[float, float, float, float, float, float]] = []
+        for o in config.world.obstacles:
+            if isinstance(o, CircleObstacle):
+                circles.append((o.x, o.y, o.radius_m + clear))
+            elif isinstance(o, SegmentObstacle):
+                dx = o.x2 - o.x1
+                dy = o.y2 - o.y1
+                segments.append((o.x1, o.y1, dx, dy, dx * dx + dy * dy, o.radius_m + clear))
+        self._circles = tuple(circles)
+        self._segments = tuple(segments)
+        a = config.world.arena
+        self._arena = (
+            None
+            if a is None
+            else (a.x_min + clear, a.y_min + clear, a.x_max - clear, a.y_max - clear)
+        )
+        self._has_world = bool(circles or segments or a is not None)
+        self._stuck_error = p.stuck_error_m
+        self._cons: list[tuple[float, float, float]] = []
+        self._last_now = _NAN
+        self._stuck_since = _NAN
+        self._stuck_e = math.inf
+        self._tb_until = -math.inf
+        self._tb_streak = 0
+        self._ticks = 0
+        self._active = 0
+        self._violations = 0
+        self._infeasible = 0
+        self._tiebreaks = 0
+        self._rescaled = 0
+        self._rejected = 0
+        self._min_h = math.inf
+
+    # ------------------------------------------------------------------ public API
+
+    def status(self) -> SafetyFilterStatus:
+        """Snapshot of the counters."""
+        return SafetyFilterStatus(
+            ticks=self._ticks,
+            active_ticks=self._active,
+            violations=self._violations,
+            infeasible=self._infeasible,
+            tiebreaks=self._tiebreaks,
+            tiebreak_active=self._last_now < self._tb_until,
+            rescaled=self._rescaled,
+            rejected=self._rejected,
+            min_clearance_m=self._min_h,
+            constraints=len(self._cons),
+        )
+
+    @property
+    def neighbour_range_m(self) -> float:
+        """The farthest centre-to-centre distance (m) at which a neighbour can constrain this
+        robot (any age up to ``max_age_s``, a neighbour radius up to 0.1 m, any command up to
+        ``max_ref_speed_mps``): a shell that pre-selects neighbours by distance must pass at
+        least every neighbour within this range."""
+        return (
+            self._d_coop
+            + self._l
+            + self._vnb * self._max_age
+            + 0.1
+            + self._vcap / (0.5 * self._gamma_slow)
+        )
+
+    @property
+    def in_range(self) -> bool:
+        """Some constraint was in range on the last ``filter`` call."""
+        return bool(self._cons)
+
+    def admissible(self, ux: float, uy: float) -> bool:
+        """Whether ``u`` meets the constraints of the last ``filter`` call."""
+        for ax, ay, b in self._cons:  # noqa: SIM110 (a plain loop: faster than all())
+            if ax * ux + ay * uy < b - _TOL:
+                return False
+        return True
+
+    def count_rescaled(self) -> None:
+        """The firmware rescaled saturated wheels uniformly to stay admissible."""
+        self._rescaled += 1
+
+    def reset_deadlock(self) -> None:
+        """Forget deadlock timing (the robot left TRACKING)."""
+        self._stuck_since = _NAN
+        self._tb_until = -math.inf
+
+    def constraints(
+        self,
+        px: float,
+        py: float,
+        cap: float,
+        neighbours: Sequence[Any],
+        obstacles: Sequence[tuple[float, float, float]] = (),
+        extra_radius_m: float = 0.0,
+        dt_s: float = 0.0,
+    ) -> list[tuple[float, float, float]]:
+        """The constraints ``(ax, ay, b)`` (``a . u >= b``) in range of a command of speed
+        ``cap`` at reference point ``(px, py)``; updates the violation / clearance counters.
+        ``dt_s`` is the tick (0 = unknown): gamma is lowered to ``1 / dt_s`` if larger."""
+        rho = extra_radius_m if extra_radius_m > 0.0 else 0.0
+        gamma = self._gamma
+        if not 0.0 < dt_s * gamma <= 1.0:
+            gamma = 1.0 / dt_s if dt_s * self._gamma_slow > 1.0 else self._gamma_slow
+        cons: list[tuple[float, float, float]] = []
+        min_h = math.inf
+        # A constraint n.u >= b can bind a command of speed <= cap only if b > -cap, that is
+        # h < (cap + n.v) / (share * gamma): the reach beyond the boundary.
+        reach = (cap + _TOL) / gamma
+        d_plain = self._d_plain + rho
+        lim_plain = d_plain + reach + _TOL
+        two_over_g = 2.0 / gamma
+        quick = self._d_coop + self._l + self._vnb * self._max_age + rho + 2.0 * reach + _TOL
+        for nb in neighbours:
+            if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
+                qx, qy = nb
+                dx = px - qx
+                dy = py - qy
+                if not (-lim_plain < dx < lim_plain and -lim_plain < dy < lim_plain):
+                    if not _isfinite(dx + dy):
+                        self._rejected += 1
+                    continue
+                d = _hypot(dx, dy)
+                h = d - d_plain
+                if h < min_h:
+                    min_h = h
+                if h < reach:
+                    if d > 0.0:
+                        cons.append((dx / d, dy / d, -gamma * h))
+                    else:
+                        cons.append((1.0, 0.0, -gamma * h))
+                continue
+            else:
+                qx, qy, th, age, vx, vy, coop, rad = nb
+                # quick reject of a far neighbour (any share, age, shift by l); a non-finite
+                # field makes the bound NaN and takes the full path below
+                lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
+                dx = px - qx
+                dy = py - qy
+                if not (-lim < dx < lim and -lim < dy < lim) and lim < math.inf:
+                    if not _isfinite(dx + dy):
+                        self._rejected += 1
+                    continue
+                if not (
+                    _isfinite(age)
+                    and _isfinite(rad)
+                    and -self._vbad < vx < self._vbad
+                    and -self._vbad < vy < self._vbad
+                ):  # non-finite or absurd: keep the position, as old as allowed, not moving
+                    self._rejected += 1
+                    vx = vy = 0.0
+                    age = self._max_age
+                    rad = 0.0
+                if age < 0.0:
+                    age = 0.0
+                elif age > self._max_age:
+                    age = self._max_age
+                infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
+                if coop and _isfinite(th):
+                    qx += self._l * math.cos(th)
+                    qy += self._l * math.sin(th)
+                    share = 0.5
+                    dd = self._d_coop + infl
+                    vx = vy = 0.0
+                else:
+                    share = 1.0
+                    dd = self._d_plain + infl
+            dx = px - qx
+            dy = py - qy
+            lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
+            if not (-lim < dx < lim and -lim < dy < lim):
+                if not _isfinite(dx + dy):
+                    self._rejected += 1
+                continue
+            d = _hypot(dx, dy)
+            if d > 0.0:
+                nx = dx / d
+                ny = dy / d
+            else:
+                nx, ny = 1.0, 0.0
+            h = d - dd
+            if h < min_h:
+                min_h = h
+            b = -share * gamma * h + nx * vx + ny * vy
+            if b > -cap - _TOL:
+                cons.append((nx, ny, b))
+        if obstacles or self._has_world:
+            min_h = self._world(px, py, reach, gamma, rho, obstacles, cons, min_h)
+        if min_h < -_VIOLATION_M:
+            self._violations += 1
+        if min_h < self._min_h:
+            self._min_h = min_h
+        return cons
+
+    def _world(
+        self,
+        px: float,
+        py: float,
+        reach: float,
+        gamma: float,
+        rho: float,
+        obstacles: Sequence[tuple[float, float, float]],
+        cons: list[tuple[float, float, float]],
+        min_h: float,
+    ) -> float:
+        """Append the obstacle / wall constraints in range; returns the least barrier value."""
+        for ox, oy, r in obstacles:  # (x, y, radius_m) circles given per tick
+            if not (0.0 <= r < math.inf):
+                self._rejected += 1
+                continue
+            h = self._circle(px, py, ox, oy, r + self._obs_clear + rho, reach, gamma, cons)
+            if h < min_h:
+                min_h = h
+        for ox, oy, rr in self._circles:
+            h = self._circle(px, py, ox, oy, rr + rho, reach, gamma, cons)
+            if h < min_h:
+                min_h = h
+        for x1, y1, sx, sy, len2, rr in self._segments:
+            t = ((px - x1) * sx + (py - y1) * sy) / len2 if len2 > 0.0 else 0.0
+            t = 0.0 if t < 0.0 else (1.0 if t > 1.0 else t)
+            dx = px - (x1 + t * sx)
+            dy = py - (y1 + t * sy)
+            d = _hypot(dx, dy)
+            h = d - rr - rho
+            if h < min_h:
+                min_h = h
+            if h < reach:
+                if d > 0.0:
+                    cons.append((dx / d, dy / d, -gamma * h))
+                elif len2 > 0.0:  # on the wall itself: push along its (left) normal
+                    nrm = _sqrt(len2)
+                    cons.append((-sy / nrm, sx / nrm, -gamma * h))
+                else:
+                    cons.append((1.0, 0.0, -gamma * h))
+        arena = self._arena
+        if arena is not None:
+            x0, y0, x1, y1 = arena
+            for h, ax, ay in (
+                (px - x0 - rho, 1.0, 0.0),
+                (x1 - px - rho, -1.0, 0.0),
+                (py - y0 - rho, 0.0, 1.0),
+                (y1 - py - rho, 0.0, -1.0),
+            ):
+                if h < min_h:
+                    min_h = h
+                if h < reach:
+                    cons.append((ax, ay, -gamma * h))
+        return min_h
+
+    def filter(
+        self,
+        now_s: float,
+        px: float,
+        py: float,
+        ux: float,
+        uy: float,
+        ex: float = 0.0,
+        ey: float = 0.0,
+        neighbours: Sequence[Any] = (),
+        obstacles: Sequence[tuple[float, float, float]] = (),
+        extra_radius_m: float = 0.0,
+        dt_s: float = 0.0,
+    ) -> tuple[float, float]:
+        """The safe reference-point velocity nearest to ``(ux, uy)`` (m/s).
+
+        Args:
+            now_s: local clock (s), for the deadlock timer only.
+            px, py: this robot's reference point (m), eqs 10-11.
+            ux, uy: nominal reference-point velocity (m/s).
+            ex, ey: tracking error, setpoint minus reference point (m): the goal direction of
+                the deadlock tie-break.
+            neighbours: ``(x, y)`` tuples or ``Neighbour``s (axle centres).
+            obstacles: extra circles ``(x, y, radius_m)`` given per tick (besides the
+                configured ``world``).
+            extra_radius_m: this robot's own position uncertainty (m), added to every barrier.
+            dt_s: this tick's length (s), 0 if unknown; see ``constraints``.
+
+        Returns:
+            ``(ux, uy)``: ``|u| <= |u_nom|`` except during a tie-break or to leave a boundary
+            (``b > 0``; module docstring).
+        """
+        self._ticks += 1
+        if not self.enabled:
+            self._cons = []
+            return ux, uy
+        last = self._last_now
+        self._last_now = now_s
+        if not (0.0 < now_s - last <= 0.5):  # first call, or the loop left TRACKING for a while
+            self._stuck_since = _NAN
+            if not now_s - last <= 0.5:
+                self._tb_until = -math.inf
+        tiebreak = False
+        if now_s < self._tb_until:
+            e = _hypot(ex, ey)
+            tiebreak = e > self._stuck_error
+        if tiebreak:
+            gx = ex / e
+            gy = ey / e
+            c = self._tb_cos
+            s = self._tb_sin
+            speed = _hypot(ux, uy)
+            if speed < self._params.tiebreak_speed_mps:
+                speed = self._params.tiebreak_speed_mps
+            if speed > self._vcap:
+                speed = self._vcap
+            # the goal direction rotated clockwise (to the right) by the tie-break angle; after
+            # two tie-breaks that did not get the robot home, two to the left, and so on
+            if (self._tb_streak - 1) // 2 % 2:
+                s = -s
+            ux = speed * (gx * c + gy * s)
+            uy = speed * (gy * c - gx * s)
+        cons = self.constraints(px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s)
+        self._cons = cons
+        if not cons:
+            fx, fy = ux, uy
+        else:
+            cap = _hypot(ux, uy)
+            for con in cons:
+                if con[2] > 0.0:  # must move away (inside a boundary / approached): may speed up
+                    cap = self._vcap
+                    break
+            if len(cons) == 1:  # the common case, in closed form (same result as solve_qp)
+                ax, ay, b = cons[0]
+                dot = ax * ux + ay * uy
+                if dot >= b - _TOL:
+                    fx, fy = ux, uy
+                else:
+                    t = b - dot
+                    fx = ux + t * ax
+                    fy = uy + t * ay
+                    cap2 = cap * cap
+                    if fx * fx + fy * fy > cap2 * (1.0 + 1e-12) + 1e-18:
+                        r2 = cap2 - b * b
+                        if r2 < 0.0:  # asks for more than cap away: stop
+                            fx = fy = 0.0
+                            self._infeasible += 1
+                        else:  # the end of the chord nearest the projection
+                            r = _sqrt(r2) if ax * uy - ay * ux >= 0.0 else -_sqrt(r2)
+                            fx = b * ax - r * ay
+                            fy = b * ay + r * ax
+                    self._active += 1
+            else:
+                fx, fy, feasible = solve_qp(ux, uy, cons, cap)
+                if not feasible:
+                    self._infeasible += 1
+                if fx != ux or fy != uy:
+                    self._active += 1
+        # deadlock detection: something in range and the tracking error has not shrunk by
+        # stuck_speed_mps * stuck_time_s within stuck_time_s
+        if not tiebreak and (cons or self._tb_streak):
+            p = self._params
+            since = self._stuck_since
+            e = _hypot(ex, ey)
+            if e <= p.stuck_error_m:
+                self._stuck_since = _NAN
+                self._tb_streak = 0
+            elif not cons:
+                self._stuck_since = _NAN
+            elif since != since or e < self._stuck_e - p.stuck_speed_mps * p.stuck_time_s:
+                self._stuck_since = now_s  # (re)start the window: progress was made
+                self._stuck_e = e
+            elif now_s - since >= p.stuck_time_s:
+                self._tb_until = now_s + p.tiebreak_time_s
+                self._tiebreaks += 1
+                self._tb_streak += 1
+                self._stuck_since = _NAN
+        elif not cons:
+            self._stuck_since = _NAN
+        return fx, fy
+
+    # ------------------------------------------------------------------ internals
+
+    def _circle(
+        self,
+        px: float,
+        py: float,
+        ox: float,
+        oy: float,
+        rr: float,
+        reach: float,
+        gamma: float,
+        cons: list[tuple[float, float, float]],
+    ) -> float:
+        dx = px - ox
+        dy = py - oy
+        lim = rr + reach
+        if not (-lim < dx < lim and -lim < dy < lim):
+            return math.inf
+        d = _hypot(dx, dy)
+        h = d - rr
+        if h < reach:
+            if d > 0.0:
+                cons.append((dx / d, dy / d, -gamma * h))
+            else:
+                cons.append((1.0, 0.0, -gamma * h))
+        return h

@@ -1,0 +1,733 @@
+"""The barrier-certificate safety filter (robot_agent.safety_filter) and its firmware integration.
+
+Pure properties (hypothesis): the QP's answer is feasible and optimal; for any state and any
+nominal command within limits the filtered command satisfies every barrier condition in discrete
+time (checked by moving the point, independent of the filter's own gradients), never increases
+speed, and is the identity when nothing is near; the firmware's wheels after saturation still
+satisfy them.
+
+Closed loops (the plant and the firmware directly, no Zenoh), each with and without camera
+noise, camera latency and a delayed command link: a stationary robot in the path (aligned,
+offset, from many headings), a head-on swap, an e-stopped robot in a moving formation, a robot
+dragged through a formation, 7 robots from 100 random starts, a corridor with obstacles. In
+every one the centres never come closer than 2 x body radius (and never into an obstacle or
+out of the arena), and the deadlock tie-break gets the robots to their goals.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from robot_agent.firmware import Firmware, Mode, Pose, Setpoint
+from robot_agent.kinematics import ref_point_velocity, reference_point, twist_from_wheels
+from robot_agent.params import (
+    AgentConfig,
+    Arena,
+    CircleObstacle,
+    SafetyFilterParams,
+    SegmentObstacle,
+    WorldMap,
+)
+from robot_agent.robot_config import ConfigError, robot_config_from_dict
+from robot_agent.safety_filter import Neighbour, SafetyFilter, solve_qp
+from sim_plant.plant import Plant
+from sim_plant.sensors import Camera, CommandLink
+
+CFG = AgentConfig()
+GEOM = CFG.geometry
+L = GEOM.ref_offset_m
+RB = GEOM.body_radius_m
+DS = CFG.safety_distance_m
+MARGIN = CFG.safety_filter.margin_m
+GAMMA = CFG.safety_filter.gamma_per_s
+VCAP = CFG.gains.max_ref_speed_mps
+TOUCH = 2 * RB  # bodies touch at this centre distance
+TOL = 1e-9
+
+# ----------------------------------------------------------------------------- the QP
+
+unit_angle = st.floats(min_value=-math.pi, max_value=math.pi)
+speed = st.floats(min_value=0.0, max_value=0.3)
+
+
+@st.composite
+def constraint_sets(draw: st.DrawFn) -> list[tuple[float, float, float]]:
+    m = draw(st.integers(min_value=0, max_value=6))
+    out = []
+    for _ in range(m):
+        a = draw(unit_angle)
+        out.append((math.cos(a), math.sin(a), draw(st.floats(min_value=-0.4, max_value=0.1))))
+    return out
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(cons=constraint_sets(), ang=unit_angle, s=speed, seed=st.integers(0, 2**32 - 1))
+def test_qp_is_feasible_never_faster_and_optimal(
+    cons: list[tuple[float, float, float]], ang: float, s: float, seed: int
+) -> None:
+    ux, uy = s * math.cos(ang), s * math.sin(ang)
+    x, y, ok = solve_qp(ux, uy, cons, s)
+    assert math.isfinite(x) and math.isfinite(y)
+    if not ok:
+        assert (x, y) == (0.0, 0.0)
+    else:
+        assert math.hypot(x, y) <= s * (1 + 1e-9) + 1e-12
+        for ax, ay, b in cons:
+            assert ax * x + ay * y >= b - 1e-8
+    # Optimality: no feasible point of a random sample of the disc is nearer to u_nom.
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-s, s, size=(400, 2))
+    d_best = math.hypot(x - ux, y - uy)
+    for px, py in pts:
+        if px * px + py * py > s * s:
+            continue
+        if all(ax * px + ay * py >= b for ax, ay, b in cons):
+            assert ok, "a feasible point exists but the QP reported none"
+            assert math.hypot(px - ux, py - uy) >= d_best - 1e-7
+
+
+def test_qp_examples() -> None:
+    # one half-plane: the projection
+    assert solve_qp(0.2, 0.0, [(-1.0, 0.0, 0.0)], 0.2) == pytest.approx((0.0, 0.0, True))
+    x, y, ok = solve_qp(0.2, 0.1, [(-1.0, 0.0, 0.0)], math.hypot(0.2, 0.1))
+    assert ok and (x, y) == pytest.approx((0.0, 0.1))
+    # a wedge whose apex is the only point: stop
+    x, y, ok = solve_qp(0.2, 0.0, [(-0.8, 0.6, 0.0), (-0.8, -0.6, 0.0)], 0.2)
+    assert ok and (x, y) == pytest.approx((0.0, 0.0), abs=1e-12)
+    # infeasible (must move away at 0.1 m/s, only 0.05 allowed): the stop fallback
+    assert solve_qp(0.05, 0.0, [(-1.0, 0.0, 0.1)], 0.05) == (0.0, 0.0, False)
+
+
+# ----------------------------------------------------------------------------- barriers
+
+
+def _seg_dist(px: float, py: float, s: SegmentObstacle) -> float:
+    sx, sy = s.x2 - s.x1, s.y2 - s.y1
+    n2 = sx * sx + sy * sy
+    t = 0.0 if n2 == 0 else max(0.0, min(1.0, ((px - s.x1) * sx + (py - s.y1) * sy) / n2))
+    return math.hypot(px - (s.x1 + t * sx), py - (s.y1 + t * sy))
+
+
+def _dist_barrier(qx: float, qy: float, d: float) -> Callable[[float, float], float]:
+    return lambda x, y: math.hypot(x - qx, y - qy) - d
+
+
+def _seg_barrier(o: SegmentObstacle, d: float) -> Callable[[float, float], float]:
+    return lambda x, y: _seg_dist(x, y, o) - d
+
+
+def barriers(
+    px: float,
+    py: float,
+    nbrs: Sequence[Neighbour],
+    world: WorldMap,
+    cfg: AgentConfig = CFG,
+    rho: float = 0.0,
+) -> list[tuple[Callable[[float, float], float], float]]:
+    """Independent statement of every barrier: (h as a function of the reference point, the
+    share of gamma this robot must honour)."""
+    g = cfg.geometry
+    ds = cfg.safety_distance_m
+    clear = g.body_radius_m + cfg.safety_filter.margin_m + g.ref_offset_m + rho
+    vnb = cfg.safety_filter.neighbour_speed_mps or g.max_speed_mps
+    out: list[tuple[Callable[[float, float], float], float]] = []
+    for nb in nbrs:
+        infl = vnb * min(max(nb.age_s, 0.0), cfg.safety_filter.max_age_s) + nb.radius_m + rho
+        if nb.cooperative and math.isfinite(nb.theta):
+            qx = nb.x + g.ref_offset_m * math.cos(nb.theta)
+            qy = nb.y + g.ref_offset_m * math.sin(nb.theta)
+            d = ds + 2 * g.ref_offset_m + infl
+            out.append((_dist_barrier(qx, qy, d), 0.5))
+        else:
+            d = ds + g.ref_offset_m + infl
+            out.append((_dist_barrier(nb.x, nb.y, d), 1.0))
+    for o in world.obstacles:
+        if isinstance(o, CircleObstacle):
+            d = o.radius_m + clear
+            out.append((_dist_barrier(o.x, o.y, d), 1.0))
+        else:
+            d = o.radius_m + clear
+            out.append((_seg_barrier(o, d), 1.0))
+    a = world.arena
+    if a is not None:
+        out.append((lambda x, y: x - a.x_min - clear, 1.0))
+        out.append((lambda x, y: a.x_max - x - clear, 1.0))
+        out.append((lambda x, y: y - a.y_min - clear, 1.0))
+        out.append((lambda x, y: a.y_max - y - clear, 1.0))
+    return out
+
+
+coord = st.floats(min_value=-1.0, max_value=1.0)
+nbr = st.builds(
+    Neighbour,
+    x=coord,
+    y=coord,
+    theta=st.one_of(st.just(math.nan), unit_angle),
+    age_s=st.floats(min_value=0.0, max_value=0.3),
+    vx=st.just(0.0),
+    vy=st.just(0.0),
+    cooperative=st.booleans(),
+    radius_m=st.floats(min_value=0.0, max_value=0.05),
+)
+circle = st.builds(
+    CircleObstacle, x=coord, y=coord, radius_m=st.floats(min_value=0.0, max_value=0.3)
+)
+segment = st.builds(SegmentObstacle, x1=coord, y1=coord, x2=coord, y2=coord, radius_m=st.just(0.0))
+arena = st.one_of(
+    st.none(),
+    st.builds(
+        Arena,
+        x_min=st.just(-1.5),
+        y_min=st.just(-1.5),
+        x_max=st.floats(min_value=0.5, max_value=1.5),
+        y_max=st.floats(min_value=0.5, max_value=1.5),
+    ),
+)
+
+
+@settings(max_examples=250, deadline=None, derandomize=True)
+@given(
+    px=coord,
+    py=coord,
+    ang=unit_angle,
+    s=st.floats(min_value=0.0, max_value=VCAP),
+    nbrs=st.lists(nbr, max_size=4),
+    circles=st.lists(circle, max_size=2),
+    segments=st.lists(segment, max_size=2),
+    box=arena,
+    rho=st.floats(min_value=0.0, max_value=0.05),
+)
+def test_filtered_command_keeps_every_barrier_and_never_speeds_up(
+    px: float,
+    py: float,
+    ang: float,
+    s: float,
+    nbrs: list[Neighbour],
+    circles: list[CircleObstacle],
+    segments: list[SegmentObstacle],
+    box: Arena | None,
+    rho: float,
+) -> None:
+    """For any state with every barrier >= 0 (a safe state) and any nominal command within
+    limits: h(p + u dt) >= (1 - share * gamma * dt) h(p) for every barrier and every dt with
+    gamma * dt <= 1 (stationary neighbours: the worst case the filter must survive), and
+    |u| <= |u_nom|."""
+    world = WorldMap(obstacles=(*circles, *segments), arena=box)
+    cfg = AgentConfig(world=world)
+    hs = barriers(px, py, nbrs, world, cfg, rho)
+    assume(all(h(px, py) >= 0.0 for h, _ in hs))
+    flt = SafetyFilter(cfg)
+    ux, uy = s * math.cos(ang), s * math.sin(ang)
+    fx, fy = flt.filter(0.0, px, py, ux, uy, 0.0, 0.0, nbrs, (), rho, 0.02)
+    assert math.isfinite(fx) and math.isfinite(fy)
+    assert math.hypot(fx, fy) <= s * (1 + 1e-9) + 1e-12
+    for dt in (0.01, 0.05, 1.0 / GAMMA):
+        for h, share in hs:
+            h0 = h(px, py)
+            assert h(px + fx * dt, py + fy * dt) >= (1 - share * GAMMA * dt) * h0 - 1e-7
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(
+    px=coord,
+    py=coord,
+    ang=unit_angle,
+    s=st.floats(min_value=0.0, max_value=VCAP),
+    q=st.tuples(coord, coord),
+    v=st.tuples(st.floats(-0.3, 0.3), st.floats(-0.3, 0.3)),
+)
+def test_moving_non_cooperative_neighbour_with_known_velocity(
+    px: float, py: float, ang: float, s: float, q: tuple[float, float], v: tuple[float, float]
+) -> None:
+    """A neighbour moving at a known velocity v (not running the filter): the robot takes the
+    full responsibility, h(p + u dt, q + v dt) >= (1 - gamma dt) h, or stops if it cannot."""
+    d0 = DS + L
+    h = lambda x, y, qx, qy: math.hypot(x - qx, y - qy) - d0  # noqa: E731
+    h0 = h(px, py, *q)
+    assume(h0 >= 0.0)
+    flt = SafetyFilter(CFG)
+    nb = Neighbour(q[0], q[1], vx=v[0], vy=v[1])
+    fx, fy = flt.filter(0.0, px, py, s * math.cos(ang), s * math.sin(ang), 0, 0, [nb], (), 0, 0.02)
+    assert math.hypot(fx, fy) <= VCAP * (1 + 1e-9)
+    if flt.status().infeasible:
+        assert (fx, fy) == (0.0, 0.0)
+        return
+    for dt in (0.01, 0.05, 1.0 / GAMMA):
+        after = h(px + fx * dt, py + fy * dt, q[0] + v[0] * dt, q[1] + v[1] * dt)
+        assert after >= (1 - GAMMA * dt) * h0 - 1e-7
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(
+    px=coord,
+    py=coord,
+    ux=st.floats(min_value=-VCAP / 1.5, max_value=VCAP / 1.5),
+    uy=st.floats(min_value=-VCAP / 1.5, max_value=VCAP / 1.5),
+    nbrs=st.lists(nbr, max_size=5),
+    far=st.floats(min_value=0.01, max_value=5.0),
+)
+def test_identity_when_nothing_is_near(
+    px: float, py: float, ux: float, uy: float, nbrs: list[Neighbour], far: float
+) -> None:
+    """Neighbours, obstacles and walls all beyond the filter's reach: exactly the nominal."""
+    reach = DS + 2 * L + 0.1 + 0.05 + 0.3 * 0.5 + VCAP / (0.5 * GAMMA) + far
+    moved = [nb._replace(x=px + reach + abs(nb.x), y=py - reach - abs(nb.y)) for nb in nbrs]
+    world = WorldMap(
+        obstacles=(CircleObstacle(px - reach - 0.2, py, 0.2),),
+        arena=Arena(px - 10, py - 10, px + 10, py + 10),
+    )
+    flt = SafetyFilter(AgentConfig(world=world))
+    assert flt.filter(0.0, px, py, ux, uy, 0.3, 0.0, moved, (), 0.0, 0.02) == (ux, uy)
+    st_ = flt.status()
+    assert st_.active_ticks == 0 and st_.constraints == 0 and st_.violations == 0
+
+
+def test_age_inflates_a_neighbour() -> None:
+    """A neighbour just outside the barrier when fresh constrains a robot heading at it once its
+    position is 0.2 s old (it could have come 0.3 m/s * 0.2 s = 6 cm closer)."""
+    flt = SafetyFilter(CFG)
+    gap = DS + L + 0.05
+    fresh = Neighbour(gap, 0.0, age_s=0.0)
+    old = Neighbour(gap, 0.0, age_s=0.2)
+    assert flt.filter(0.0, 0.0, 0.0, 0.2, 0.0, 1.0, 0.0, [fresh]) == (0.2, 0.0)
+    fx, _ = SafetyFilter(CFG).filter(0.0, 0.0, 0.0, 0.2, 0.0, 1.0, 0.0, [old])
+    assert fx <= 0.0  # inside the inflated barrier: no approach at all
+    # and the plain (x, y) tuple is a fresh, non-cooperative neighbour
+    assert SafetyFilter(CFG).filter(0.0, 0.0, 0.0, 0.2, 0.0, 1.0, 0.0, [(gap, 0.0)]) == (0.2, 0.0)
+
+
+def test_extra_radius_and_obstacles_given_per_tick() -> None:
+    flt = SafetyFilter(CFG)
+    gap = RB + MARGIN + L + 0.2 + 0.03  # 3 cm outside a 0.2 m circle's barrier
+    fx, _ = flt.filter(0.0, 0.0, 0.0, 0.25, 0.0, 1.0, 0.0, (), [(gap, 0.0, 0.2)])
+    assert 0.0 < fx < 0.25  # may approach at gamma * 3 cm = 0.3 m/s... capped by the nominal
+    fx2, _ = flt.filter(0.02, 0.0, 0.0, 0.25, 0.0, 1.0, 0.0, (), [(gap, 0.0, 0.2)], 0.05)
+    assert fx2 <= 0.0  # own uncertainty 5 cm: already inside, must not approach
+    assert flt.status().violations == 1
+
+
+def test_non_finite_entries_are_counted_and_never_nan() -> None:
+    flt = SafetyFilter(CFG)
+    bad = [Neighbour(math.nan, 0.0), (math.inf, 1.0), Neighbour(0.3, 0.0, age_s=math.nan)]
+    fx, fy = flt.filter(0.0, 0.0, 0.0, 0.2, 0.0, 1.0, 0.0, bad, [(0.0, 0.0, math.nan)])
+    assert math.isfinite(fx) and math.isfinite(fy)
+    assert flt.status().rejected >= 3
+
+
+def test_disabled_filter_is_the_identity() -> None:
+    off = AgentConfig(safety_filter=SafetyFilterParams(enabled=False))
+    flt = SafetyFilter(off)
+    assert flt.filter(0.0, 0.0, 0.0, 0.2, 0.1, 1.0, 0.0, [(0.05, 0.0)]) == (0.2, 0.1)
+
+
+# ----------------------------------------------------------------------------- firmware
+
+
+def test_firmware_keeps_the_old_signature_and_reports_the_filter() -> None:
+    fw = Firmware(CFG)
+    sp = Setpoint(1.0, 0.0, 0.0, 0.0, 0.0, 1, 0.0)
+    cmd = fw.step(0.0, pose=Pose(0.0, 0.0, 0.0, 0.0), pose_rx_s=0.0, setpoint=sp, setpoint_rx_s=0.0)
+    assert cmd.mode is Mode.TRACKING and cmd.omega_r > 0
+    # a robot 0.2 m ahead (inside Ds + l of the reference point): no forward motion
+    blocked = fw.step(
+        0.02,
+        pose=Pose(0.0, 0.0, 0.0, 0.02),
+        pose_rx_s=0.02,
+        setpoint=sp,
+        setpoint_rx_s=0.02,
+        neighbours=[Neighbour(0.2, 0.0)],
+        extra_radius_m=0.01,
+    )
+    v, _ = twist_from_wheels(blocked.omega_r, blocked.omega_l, GEOM)
+    assert v <= 1e-12
+    d = fw.status().as_dict()["filter"]
+    assert d["ticks"] == 2 and d["active"] == 1 and d["violations"] == 1
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(
+    x=coord,
+    y=coord,
+    th=unit_angle,
+    gx=st.floats(min_value=-3.0, max_value=3.0),
+    gy=st.floats(min_value=-3.0, max_value=3.0),
+    nbrs=st.lists(nbr, max_size=3),
+    circles=st.lists(circle, max_size=2),
+)
+def test_firmware_wheels_after_saturation_keep_the_barriers(
+    x: float,
+    y: float,
+    th: float,
+    gx: float,
+    gy: float,
+    nbrs: list[Neighbour],
+    circles: list[CircleObstacle],
+) -> None:
+    """End to end: the reference-point velocity of the wheels the firmware outputs (after eq 16,
+    eq 8 and saturation) satisfies every barrier condition, for setpoints far enough away to
+    saturate the wheels."""
+    world = WorldMap(obstacles=tuple(circles))
+    cfg = AgentConfig(world=world)
+    px, py = reference_point(x, y, th, L)
+    hs = barriers(px, py, nbrs, world, cfg)
+    assume(all(h(px, py) >= 0.0 for h, _ in hs))
+    fw = Firmware(cfg)
+    sp = Setpoint(gx, gy, 0.0, 0.0, 0.0, 1, 0.0)
+    cmd = fw.step(0.0, pose=Pose(x, y, th, 0.0), pose_rx_s=0.0, setpoint=sp, setpoint_rx_s=0.0,
+                  neighbours=nbrs)  # fmt: skip
+    v, w = twist_from_wheels(cmd.omega_r, cmd.omega_l, GEOM)
+    ux, uy = ref_point_velocity(v, w, th, L)
+    for dt in (0.01, 0.05):
+        for h, share in hs:
+            h0 = h(px, py)
+            # the filter ran with gamma for an unknown dt (first tick): 1 / max_dt_s
+            g = min(GAMMA, 1.0 / CFG.safety.max_dt_s)
+            assert h(px + ux * dt, py + uy * dt) >= (1 - share * g * dt) * h0 - 1e-7
+
+
+# ----------------------------------------------------------------------------- closed loops
+
+NOISY = {"pos_std_m": 0.003, "theta_std_rad": 0.01, "cam_latency_s": 0.03, "link_s": 0.01}
+EXACT = {"pos_std_m": 0.0, "theta_std_rad": 0.0, "cam_latency_s": 0.0, "link_s": 0.0}
+SENSING = pytest.mark.parametrize("sensing", [EXACT, NOISY], ids=["exact", "noisy"])
+
+GoalFn = Callable[[int, float], tuple[float, float, float, float] | None]
+
+
+class Outcome:
+    def __init__(self, min_sep: float, truth: np.ndarray, fws: list[Firmware], errs: list[float]):
+        self.min_sep = min_sep
+        self.truth = truth
+        self.fws = fws
+        self.errs = errs  # final distance of each reference point to its goal (m)
+
+    def tiebreaks(self) -> int:
+        total = 0
+        for fw in self.fws:
+            st_ = fw.status().safety_filter
+            assert st_ is not None
+            total += st_.tiebreaks
+        return total
+
+
+def closed_loop(
+    initial: Sequence[tuple[float, float, float]],
+    goal: GoalFn,
+    duration_s: float,
+    sensing: dict[str, float],
+    *,
+    cfg: AgentConfig = CFG,
+    dt: float = 0.04,
+    seed: int = 1,
+    estop: dict[int, float] | None = None,
+    drag: tuple[int, float, float, float, float] | None = None,
+    monitor: Callable[[np.ndarray], None] | None = None,
+) -> Outcome:
+    """The plant, a camera, a command link and one firmware per robot, stepped in lockstep.
+
+    ``goal(i, t)`` gives robot i's setpoint (x, y, vx, vy) of the REFERENCE POINT, or None (the
+    robot idles: stationary, not cooperative). ``estop`` latches robot i's e-stop at a time;
+    ``drag = (i, t0, dx, dy, duration)`` carries robot i (its firmware keeps running).
+    Neighbours are given as ``Neighbour`` with the age of the measurement, whether the robot was
+    TRACKING on the previous tick, and (for a carried robot) its velocity from two frames.
+    """
+    rng = np.random.default_rng(seed)
+    n = len(initial)
+    plant = Plant(np.array(initial, dtype=float), cfg.geometry, motor_tau_s=0.0)
+    cam = Camera(
+        n,
+        rate_hz=30.0,
+        pos_std_m=sensing["pos_std_m"],
+        theta_std_rad=sensing["theta_std_rad"],
+        latency_s=sensing["cam_latency_s"],
+        rng=rng,
+    )
+    link: CommandLink[tuple[float, float]] = CommandLink(
+        latency_s=sensing["link_s"], jitter_s=0.0, loss_prob=0.0, rng=rng
+    )
+    fws = [Firmware(cfg) for _ in range(n)]
+    poses: list[Pose | None] = [None] * n
+    prev: list[Pose | None] = [None] * n
+    rx = [-math.inf] * n
+    applied = [(0.0, 0.0)] * n
+    tracking = [False] * n
+    min_sep = math.inf
+    estop = estop or {}
+    ticks = round(duration_s / dt)
+    iu = np.triu_indices(n, 1)
+    for k in range(ticks):
+        t = k * dt
+        if drag is not None and abs(t - drag[1]) < dt / 2:
+            plant.drag(drag[0], drag[2], drag[3], drag[4])
+        truth = plant.truth
+        if n > 1:
+            d = np.hypot(*(truth[:, None, :2] - truth[None, :, :2]).transpose(2, 0, 1))[iu]
+            min_sep = min(min_sep, float(d.min()))
+        if monitor is not None:
+            monitor(truth)
+        cam.capture(t, truth)
+        for i, stamp, x, y, th in cam.poll(t):
+            prev[i] = poses[i]
+            poses[i] = Pose(x, y, th, stamp)
+            rx[i] = t
+        nbs: list[Neighbour | None] = []
+        for j, p in enumerate(poses):
+            if p is None:
+                nbs.append(None)
+                continue
+            vx = vy = 0.0
+            q = prev[j]
+            if drag is not None and j == drag[0] and q is not None and p.t > q.t:
+                vx, vy = (p.x - q.x) / (p.t - q.t), (p.y - q.y) / (p.t - q.t)
+            nbs.append(Neighbour(p.x, p.y, p.theta, t - p.t, vx, vy, tracking[j]))
+        cmds = []
+        for i, fw in enumerate(fws):
+            if i in estop and t >= estop[i] and fw.mode is not Mode.ESTOP:
+                fw.engage_estop()
+            g = goal(i, t)
+            sp = None if g is None else Setpoint(g[0], g[1], g[2], g[3], 0.0, i, t)
+            cmd = fw.step(
+                t,
+                pose=poses[i],
+                pose_rx_s=rx[i],
+                setpoint=sp,
+                setpoint_rx_s=t,
+                neighbours=[q for j, q in enumerate(nbs) if j != i and q is not None],
+            )
+            cmds.append(cmd)
+        tracking = [c.mode is Mode.TRACKING for c in cmds]
+        link.send_all(t, [(c.omega_r, c.omega_l) for c in cmds])
+        for i, wheels in link.poll(t):
+            applied[i] = wheels
+        plant.step(dt, applied)
+    truth = plant.truth
+    errs = []
+    for i in range(n):
+        g = goal(i, ticks * dt)
+        if g is None:
+            errs.append(0.0)
+        else:
+            rxp, ryp = reference_point(truth[i, 0], truth[i, 1], truth[i, 2], L)
+            errs.append(math.hypot(g[0] - rxp, g[1] - ryp))
+    return Outcome(min_sep, truth, fws, errs)
+
+
+def _static(goals: Sequence[tuple[float, float] | None]) -> GoalFn:
+    def goal(i: int, t: float) -> tuple[float, float, float, float] | None:
+        g = goals[i]
+        return None if g is None else (g[0], g[1], 0.0, 0.0)
+
+    return goal
+
+
+@SENSING
+@pytest.mark.parametrize("lateral_m", [0.0, 0.01, 0.03, 0.05])
+@pytest.mark.parametrize("start_m", [1.2, 3.0])
+def test_stationary_robot_in_the_path(
+    sensing: dict[str, float], lateral_m: float, start_m: float
+) -> None:
+    """The issue's cases: an idle robot 1.2 m or 3 m straight ahead (or 1-5 cm off the line),
+    the slot 0.6 m beyond it. Before: closest approach 0.000-0.105 m, or stuck at 0.136 m."""
+    initial = [(0.0, 0.0, 0.0), (-start_m, lateral_m, 0.0)]
+    goals = [None, (0.6, lateral_m)]
+    out = closed_loop(initial, _static(goals), 30.0 + 10 * start_m, sensing)
+    assert out.min_sep >= TOUCH, out.min_sep
+    assert out.min_sep >= DS - 0.01, out.min_sep  # the filter's own distance, up to noise
+    assert out.errs[1] < 0.03, out.errs  # got past and reached its slot (the tie-break)
+
+
+@SENSING
+def test_stationary_robot_approached_from_many_headings(sensing: dict[str, float]) -> None:
+    for k in range(8):
+        a = 2 * math.pi * k / 8 + 0.3
+        initial = [(0.0, 0.0, 1.0), (-1.0 * math.cos(a), -1.0 * math.sin(a), a + 0.5 * (k % 3))]
+        goals = [None, (0.5 * math.cos(a), 0.5 * math.sin(a))]
+        out = closed_loop(initial, _static(goals), 35.0, sensing, seed=k)
+        assert out.min_sep >= TOUCH, (k, out.min_sep)
+        assert out.errs[1] < 0.03, (k, out.errs)
+
+
+@SENSING
+def test_head_on_swap(sensing: dict[str, float]) -> None:
+    """Two robots swap places along one line: both reach the other's start (pass on the right)."""
+    initial = [(-0.8, 0.0, 0.0), (0.8, 0.0, math.pi)]
+    goals = [(0.8 + L, 0.0), (-0.8 - L, 0.0)]
+    out = closed_loop(initial, _static(goals), 40.0, sensing)
+    assert out.min_sep >= TOUCH, out.min_sep
+    assert max(out.errs) < 0.03, out.errs
+
+
+def _line_formation(n: int, spacing: float, speed: float) -> GoalFn:
+    """Slots on a line across the direction of travel (+x), moving at ``speed``."""
+
+    def goal(i: int, t: float) -> tuple[float, float, float, float]:
+        return (-1.0 + speed * t, (i - (n - 1) / 2) * spacing, speed, 0.0)
+
+    return goal
+
+
+@SENSING
+def test_estopped_robot_in_a_moving_formation(sensing: dict[str, float]) -> None:
+    """Two ranks of robots moving at 0.1 m/s; the robot ahead of robot 4 is e-stopped at 8 s:
+    robot 4 must go round it, never touch it, and catch up with its slot."""
+    ranks = 2
+    per = 3
+    spacing = 0.4
+
+    def goal(i: int, t: float) -> tuple[float, float, float, float]:
+        r, c = divmod(i, per)
+        return (-1.0 + 0.1 * t - 0.4 * r, (c - 1) * spacing, 0.1, 0.0)
+
+    initial = [(goal(i, 0)[0] - L, goal(i, 0)[1], 0.0) for i in range(ranks * per)]
+    out = closed_loop(initial, goal, 40.0, sensing, estop={1: 8.0})
+    assert out.min_sep >= TOUCH, out.min_sep
+    errs = [e for i, e in enumerate(out.errs) if i != 1]
+    assert max(errs) < 0.05, out.errs
+
+
+@SENSING
+def test_robot_dragged_through_the_formation(sensing: dict[str, float]) -> None:
+    """A robot carried by hand at 0.1 m/s straight through a line of robots holding their slots:
+    they make way (its velocity is known from two frames) and return; no contact."""
+    goals: list[tuple[float, float] | None] = [(-0.6 + 0.4 * i + L, 0.0) for i in range(4)]
+    goals.append(None)
+    initial = [(-0.6 + 0.4 * i, 0.0, 0.0) for i in range(4)] + [(-0.4, -1.0, math.pi / 2)]
+    out = closed_loop(initial, _static(goals), 40.0, sensing, drag=(4, 2.0, 0.0, 2.0, 20.0))
+    assert out.min_sep >= TOUCH, out.min_sep
+    assert max(out.errs[:4]) < 0.05, out.errs
+
+
+def _random_starts(rng: np.random.Generator, n: int, box: float, min_d: float) -> list[tuple]:
+    pts: list[tuple[float, float]] = []
+    while len(pts) < n:
+        p = tuple(rng.uniform(-box, box, 2))
+        if all(math.hypot(p[0] - q[0], p[1] - q[1]) >= min_d for q in pts):
+            pts.append((float(p[0]), float(p[1])))
+    return pts
+
+
+@SENSING
+def test_seven_robots_from_100_random_starts(sensing: dict[str, float]) -> None:
+    """7 robots, random starts and headings, random goals (all at least 0.35 m apart) in a
+    1.8 m square: contact never; at least 90 % of the robots within 5 cm of their goals after
+    25 s (measured: 95 % exact, 92 % with noise; the paper's slow gains take ~15 s from 1 m,
+    the rest are multi-robot deadlocks the tie-break has not resolved yet)."""
+    n = 7
+    reached = 0
+    worst = math.inf
+    for trial in range(100):
+        rng = np.random.default_rng(1000 + trial)
+        starts = _random_starts(rng, n, 0.9, DS + 2 * L + 0.02)
+        goals = _random_starts(rng, n, 0.9, 0.35)
+        initial = [(x, y, float(rng.uniform(-math.pi, math.pi))) for x, y in starts]
+        out = closed_loop(initial, _static(goals), 25.0, sensing, dt=0.05, seed=trial)
+        worst = min(worst, out.min_sep)
+        assert out.min_sep >= TOUCH, (trial, out.min_sep)
+        reached += sum(e < 0.05 for e in out.errs)
+    print(f"7 robots x 100 starts ({'noisy' if sensing is NOISY else 'exact'}): min separation "
+          f"{worst:.3f} m, {reached}/{100 * n} robots reached their goals")  # fmt: skip
+    assert reached >= 0.90 * 100 * n
+
+
+@SENSING
+def test_corridor_with_obstacles(sensing: dict[str, float]) -> None:
+    """Two robots swap ends of a 1 m wide corridor (two walls) with a pillar in it, inside an
+    arena: no contact, no centre within a body of a wall, the pillar or the arena's edge."""
+    walls = (
+        SegmentObstacle(-1.0, 0.5, 1.0, 0.5),
+        SegmentObstacle(-1.0, -0.5, 1.0, -0.5),
+    )
+    pillar = CircleObstacle(0.0, 0.15, 0.05)
+    box = Arena(-2.0, -1.0, 2.0, 1.0)
+    cfg = AgentConfig(world=WorldMap(obstacles=(*walls, pillar), arena=box))
+    worst = [math.inf]
+
+    def monitor(truth: np.ndarray) -> None:
+        for x, y, _ in truth:
+            clear = min(
+                _seg_dist(x, y, walls[0]),
+                _seg_dist(x, y, walls[1]),
+                math.hypot(x - pillar.x, y - pillar.y) - pillar.radius_m,
+                x - box.x_min,
+                box.x_max - x,
+                y - box.y_min,
+                box.y_max - y,
+            )
+            worst[0] = min(worst[0], clear)
+
+    initial = [(-1.5, 0.0, 0.0), (1.5, 0.0, math.pi)]
+    goals = [(1.5, 0.0), (-1.5, 0.0)]
+    out = closed_loop(initial, _static(goals), 60.0, sensing, cfg=cfg, monitor=monitor)
+    assert out.min_sep >= TOUCH, out.min_sep
+    assert worst[0] >= RB, worst[0]
+    assert max(out.errs) < 0.05, out.errs
+
+
+# ----------------------------------------------------------------------------- robot config
+
+
+def _robot(extra: dict[str, object]) -> dict[str, object]:
+    return {"robot_id": "r1", "zenoh": {"endpoints": ["tcp/127.0.0.1:7447"]}, **extra}
+
+
+def test_robot_config_reads_arena_obstacles_and_filter_params() -> None:
+    cfg = robot_config_from_dict(
+        _robot(
+            {
+                "safety_filter": {"margin_m": 0.05, "gamma_per_s": 8.0},
+                "arena": {"x_min": -2, "y_min": -1.5, "x_max": 2.0, "y_max": 1.5},
+                "obstacle": [
+                    {"kind": "circle", "x": 0.5, "y": 0.0, "radius_m": 0.1},
+                    {"kind": "segment", "x1": -1, "y1": 1, "x2": 1, "y2": 1},
+                    {"kind": "polygon", "points": [[1, -1], [1.2, -1], [1.2, -0.8]]},
+                ],
+            }
+        )
+    )
+    agent = cfg.agent
+    assert agent.safety_filter.margin_m == 0.05 and agent.safety_filter.gamma_per_s == 8.0
+    assert agent.world.arena == Arena(-2.0, -1.5, 2.0, 1.5)
+    obs = agent.world.obstacles
+    assert obs[0] == CircleObstacle(0.5, 0.0, 0.1)
+    assert obs[1] == SegmentObstacle(-1.0, 1.0, 1.0, 1.0, 0.0)
+    assert len(obs) == 2 + 3  # the polygon's three edges, closed
+    assert obs[-1] == SegmentObstacle(1.2, -0.8, 1.0, -1.0, 0.0)
+    # the firmware uses them: a robot at the arena's edge does not drive out
+    fw = Firmware(agent)
+    sp = Setpoint(3.0, 0.0, 0.0, 0.0, 0.0, 1, 0.0)
+    x = 2.0 - RB - agent.safety_filter.margin_m - L  # reference point on the wall barrier
+    cmd = fw.step(0.0, pose=Pose(x, 0.0, 0.0, 0.0), pose_rx_s=0.0, setpoint=sp, setpoint_rx_s=0.0)
+    v, _ = twist_from_wheels(cmd.omega_r, cmd.omega_l, GEOM)
+    assert v <= 1e-9
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        ({"arena": {"x_min": 1.0, "y_min": 0.0, "x_max": 0.0, "y_max": 1.0}}, "arena"),
+        ({"arena": {"x_min": 0.0, "y_min": 0.0, "x_max": 1.0}}, "arena.y_max: required"),
+        ({"arena": {"x_min": "a", "y_min": 0, "x_max": 1, "y_max": 1}}, "arena.x_min"),
+        ({"obstacle": [{"kind": "blob"}]}, "obstacle[0].kind"),
+        ({"obstacle": [{"kind": "circle", "x": 0, "y": 0}]}, "obstacle[0].radius_m: required"),
+        ({"obstacle": [{"kind": "circle", "x": 0, "y": 0, "radius_m": -1}]}, "radius_m"),
+        ({"obstacle": [{"kind": "circle", "x": math.nan, "y": 0, "radius_m": 1}]}, "obstacle[0].x"),
+        (
+            {"obstacle": [{"kind": "circle", "x": 0, "y": 0, "radius_m": 1, "z": 1}]},
+            "obstacle[0].z",
+        ),
+        ({"obstacle": [{"kind": "polygon", "points": [[0, 0], [1, 0]]}]}, "obstacle[0].points"),
+        ({"obstacle": {"kind": "circle"}}, "obstacle: expected an array"),
+        ({"safety_filter": {"gamma_per_s": 0}}, "safety_filter"),
+        ({"safety_filter": {"margin": 0.1}}, "safety_filter.margin: unknown key"),
+    ],
+)
+def test_robot_config_rejects_bad_world_and_filter(extra: dict[str, object], needle: str) -> None:
+    with pytest.raises(ConfigError) as exc:
+        robot_config_from_dict(_robot(extra))
+    assert any(needle in p for p in exc.value.problems), exc.value.problems
