@@ -37,7 +37,7 @@ from formation.runlog import RunLog
 from formation.scenario import Scenario
 from robot_agent.firmware import Firmware, Pose, Setpoint, WheelCommand
 from sim_plant.accounting import SeparationMonitor
-from sim_plant.plant import Plant
+from sim_plant.plant import Plant, WheelEncoders
 from sim_plant.sensors import Camera, CommandLink
 
 # Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
@@ -97,6 +97,14 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     link: CommandLink[tuple[float, float]] = CommandLink(
         latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=rng
     )
+    encoders = (
+        WheelEncoders(
+            n, scenario.plant.encoder_counts_per_rev, scenario.plant.encoder_slip_std, rng
+        )
+        if scenario.plant.encoder_counts_per_rev > 0.0
+        else None
+    )
+    wheel_meas: list[tuple[float, float]] | None = None
     monitor = SeparationMonitor(geom.body_radius_m)
     firmwares = [Firmware(scenario.agent) for _ in ids]
 
@@ -105,12 +113,21 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     slot_ids = list(coord.formation.slot_ids)
     slot_row = {s: k for k, s in enumerate(slot_ids)}
     stale = scenario.agent.safety.stale_pose_s
+    est_p = scenario.agent.estimator
+    if est_p.enabled:
+        # The robots ride through camera dropouts on their estimators: the coordinator keeps
+        # a robot (and its slot) as long as its firmware may still be tracking.
+        stale = max(
+            stale,
+            est_p.max_dropout_odom_s if encoders is not None else est_p.max_dropout_cmd_s,
+        )
 
     # Per-robot state of the loop. poses[i] is robot i's latest measured pose, as its firmware
     # sees it; xyt[i] the same (x, y, theta) as the coordinator sees it.
     poses: list[Pose | None] = [None] * n
     xyt: list[tuple[float, float, float] | None] = [None] * n
     pose_rx = [-math.inf] * n
+    pose_cap: list[float | None] = [None] * n
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
     neighbours: list[list[tuple[float, float]]] = [[] for _ in ids]
     pending = list(scenario.disturbances)
@@ -136,6 +153,8 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
             i = index[d.robot]
             if d.kind == "drag":
                 plant.drag(i, d.dx, d.dy, d.duration_s)
+            elif d.kind == "camera_loss":
+                camera.occlude(i, d.t_s, d.t_s + d.duration_s)
             else:
                 x_i, y_i, _ = plant.truth_rows()[i]
                 plant.teleport(
@@ -145,12 +164,15 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                     d.theta,
                 )
         truth = plant.truth_rows()
+        if encoders is not None:  # mean wheel speeds over the last tick, as measured
+            wheel_meas = encoders.read(t, plant.wheel_angles())
         # 2. camera
         camera.capture(t, truth)
         delivered = camera.poll(t)
         if delivered:
             for i, stamp, x, y, th in delivered:
                 poses[i] = _tuple_new(Pose, (x, y, th, stamp))
+                pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
                 xyt[i] = (x, y, th)
                 pose_rx[i] = t
             # every other robot's latest measured position, for repulsion
@@ -197,6 +219,8 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                     setpoint=sp,
                     setpoint_rx_s=t_prev,
                     neighbours=neighbours[i],
+                    pose_capture_s=pose_cap[i],
+                    wheel_speeds=None if wheel_meas is None else wheel_meas[i],
                 )
             )
         # 5. command link

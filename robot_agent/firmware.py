@@ -67,6 +67,7 @@ from dataclasses import dataclass
 from enum import Enum, StrEnum
 from typing import Any, Final, NamedTuple
 
+from .estimator import Estimator
 from .kinematics import saturate_wheels
 from .params import AgentConfig
 from .repulsion import repulsion_velocity_counted
@@ -281,7 +282,12 @@ class Firmware:
 
     __slots__ = (
         "_cfg",
+        "_act_delay",
         "_dt_faults",
+        "_est",
+        "_est_xyt",
+        "_extrap",
+        "_fused_pose",
         "_ex",
         "_ey",
         "_geom",
@@ -309,6 +315,7 @@ class Firmware:
         "_stale_sp",
         "_steps",
         "_tracker",
+        "_unc",
         "_wheel_r",
         "_wmax",
     )
@@ -348,6 +355,13 @@ class Firmware:
         self._rej_reason = ""
         self._role_changes = 0
         self._dt_faults = 0
+        ep = cfg.estimator
+        self._est: Estimator | None = Estimator(ep) if ep.enabled else None
+        self._extrap = ep.extrapolate_setpoint
+        self._act_delay = ep.actuation_delay_s
+        self._fused_pose: Pose | None = None
+        self._unc = _NAN
+        self._est_xyt: tuple[float, float, float] | None = None
 
     # ------------------------------------------------------------------ public API
 
@@ -365,6 +379,24 @@ class Firmware:
     def tracker(self) -> TrackingController:
         """The tracking controller (for inspection in tests and logs)."""
         return self._tracker
+
+    @property
+    def estimator(self) -> Estimator | None:
+        """The pose estimator (None when ``config.estimator.enabled`` is False)."""
+        return self._est
+
+    @property
+    def pose_uncertainty_m(self) -> float:
+        """Uncertainty (m) of the pose used on the last tick: ``n_sigma`` standard deviations
+        of the estimator's position (the safety filter's extra radius); NaN without a valid
+        estimate on that tick, 0.0 with the estimator disabled."""
+        return self._unc
+
+    @property
+    def pose_estimate(self) -> tuple[float, float, float] | None:
+        """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
+        the measured pose with the estimator disabled), or None."""
+        return self._est_xyt
 
     def reject(self, reason: str) -> None:
         """Count one bad input (e.g. a message the shell could not decode) with its reason."""
@@ -420,6 +452,8 @@ class Firmware:
         setpoint_rx_s: float,
         neighbours: Sequence[tuple[float, float]] = (),
         obstacles: Sequence[tuple[float, float, float]] = (),
+        pose_capture_s: float | None = None,
+        wheel_speeds: tuple[float, float] | None = None,
     ) -> WheelCommand:
         """Run one control tick.
 
@@ -431,6 +465,12 @@ class Firmware:
             setpoint_rx_s: local time the setpoint was received (s).
             neighbours: other robots' axle-centre positions (m), for repulsion.
             obstacles: static circles ``(x, y, radius_m)`` (m), for repulsion.
+            pose_capture_s: capture time of ``pose`` on the shell's clock (s), for latency
+                compensation; None takes ``pose_rx_s`` (no latency known). Used only with the
+                estimator. In lockstep and in-process ``pose.t`` is on that clock.
+            wheel_speeds: ``(omega_r, omega_l)`` (rad/s) the encoders measured, mean over the
+                interval since the previous ``step``; None when the motor backend has no
+                encoders (the estimator then predicts from the commanded speeds).
 
         Returns:
             The wheel command; exactly zero wheels in every mode but TRACKING. Never raises.
@@ -453,6 +493,14 @@ class Firmware:
                     self._dt_faults += 1
                     self._tracker.reset_derivative()
                     dt = 0.0
+
+            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current) ----
+            est = self._est
+            if est is not None:
+                if wheel_speeds is not None and last is not None:
+                    self._odometry(wheel_speeds, last, now_s)
+                if pose is not None and pose is not self._fused_pose:
+                    self._fuse_pose(now_s, pose, pose_rx_s, pose_capture_s)
 
             if self._mode is _ESTOP:
                 return self._hold(_EV_ESTOP, "estop")
@@ -479,27 +527,50 @@ class Firmware:
             self._setpoint_age = sp_age
 
             # --- pose -----------------------------------------------------------------------
-            if pose is None:
-                self._pose_age = _NAN
-                return self._hold(_EV_STALE, "no pose")
-            x, y, th, pose_t = pose
-            if not _isfinite(x + y + th + pose_t + pose_rx_s):
-                self._reject_pose(pose, "non-finite pose")
-                return self._hold(_EV_INVALID, "pose rejected")
-            self._last_pose_t = pose_t
-            pose_age = now_s - pose_rx_s
-            self._pose_age = pose_age
+            if est is None:
+                if pose is None:
+                    self._pose_age = _NAN
+                    return self._hold(_EV_STALE, "no pose")
+                x, y, th, pose_t = pose
+                if not _isfinite(x + y + th + pose_t + pose_rx_s):
+                    self._reject_pose(pose, "non-finite pose")
+                    return self._hold(_EV_INVALID, "pose rejected")
+                self._last_pose_t = pose_t
+                pose_age = now_s - pose_rx_s
+                self._pose_age = pose_age
+                # staleness (|age|: a receive time in the future is as wrong as an old one)
+                lim = self._stale_pose
+                if not -lim <= pose_age <= lim:
+                    return self._hold(_EV_STALE, "pose stale")
+                self._unc = 0.0
+            else:
+                # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
+                # dropout bound, or too uncertain) holds the robot
+                self._pose_age = now_s - pose_rx_s if pose is not None else _NAN
+                r = est.estimate(now_s)
+                if r is None:
+                    self._unc = _NAN
+                    self._est_xyt = None
+                    if est.last_capture_s is None:
+                        return self._hold(_EV_STALE, "no pose")
+                    return self._hold(_EV_STALE, "pose estimate invalid")
+                x, y, th, self._unc = r
+                pose_t = self._last_pose_t
+            self._est_xyt = (x, y, th)
 
-            # --- staleness (|age|: a receive time in the future is as wrong as an old one) --
-            lim = self._stale_pose
-            if not -lim <= pose_age <= lim:
-                return self._hold(_EV_STALE, "pose stale")
+            # --- setpoint staleness -----------------------------------------------------------
             lim = self._stale_sp
             if not -lim <= sp_age <= lim:
                 return self._hold(_EV_STALE, "setpoint stale")
 
             if self._mode is not _TRACKING:
                 self._transition(_EV_FRESH, "tracking")
+
+            # --- setpoint extrapolation: where the setpoint is now, advanced by its
+            # feed-forward velocity over its receive age (exactly one tick in lockstep) ------
+            if self._extrap and sp_age > 0.0:
+                spx += spvx * sp_age
+                spy += spvy * sp_age
 
             # --- eqs 10-11 (reference point), 17-18 (error), 21-22 (PID + FF, speed cap) ----
             l_m = self._l
@@ -544,6 +615,12 @@ class Firmware:
                 if sat:
                     self._saturated += 1
             self._last_saturated = sat
+            if est is not None:  # eq 7: the twist these wheels give, for the prediction
+                est.add_command(
+                    now_s + self._act_delay,
+                    0.5 * r * (wr + wl),
+                    0.5 * r * (wr - wl) / self._half_track,
+                )
             return _new_command(wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat)
         except Exception as exc:
             self.reject(f"internal error: {type(exc).__name__}")
@@ -593,8 +670,49 @@ class Firmware:
             self._last_rejected_setpoint = setpoint
             self.reject(reason)
 
+    def _odometry(self, wheel_speeds: tuple[float, float], last: float, now_s: float) -> None:
+        """Measured wheel speeds over ``[last, now_s)`` into the estimator (eq 7)."""
+        est = self._est
+        assert est is not None
+        try:
+            wr, wl = wheel_speeds
+            r = self._wheel_r
+            ok = (
+                now_s > last
+                and est.add_odometry(
+                    last, now_s, 0.5 * r * (wr + wl), 0.5 * r * (wr - wl) / self._half_track
+                )
+                if _isfinite(wr + wl)
+                else False
+            )
+        except (TypeError, ValueError):
+            ok = False
+        if not ok and now_s > last:
+            self.reject("bad wheel speeds")
+
+    def _fuse_pose(
+        self, now_s: float, pose: Pose, pose_rx_s: float, capture_s: float | None
+    ) -> None:
+        """A new camera pose into the estimator (each Pose object once)."""
+        est = self._est
+        assert est is not None
+        self._fused_pose = pose
+        x, y, th, pose_t = pose
+        cap = pose_rx_s if capture_s is None else capture_s
+        if not _isfinite(pose_t):
+            self.reject("non-finite pose")
+            return
+        reason = est.add_measurement(now_s, cap, x, y, th)
+        if reason is None:
+            self._last_pose_t = pose_t
+        else:
+            self.reject(reason)
+
     def _hold(self, event: _Event, reason: str) -> WheelCommand:
         """Non-tracking tick: apply the event, zero wheels."""
         self._transition(event, reason)
         self._last_saturated = False
+        est = self._est
+        if est is not None and self._last_now is not None:
+            est.add_command(self._last_now + self._act_delay, 0.0, 0.0)
         return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, self._last_pose_t, False)

@@ -1,0 +1,494 @@
+"""Pose estimator of one robot: wheel odometry between camera frames, latency compensation.
+
+Theory of operation
+===================
+
+Pure core, stdlib only: no clock is read, every call gets its time (the shell's one local clock,
+the same as ``Firmware.step``'s ``now_s``).
+
+**Motion model (paper eq 9).** The robot is a unicycle driven by a piecewise-constant twist
+``(v, omega)``. The estimator keeps a short history of *segments* ``(t_start, v, omega,
+measured)``: a segment's twist holds from its start to the next segment's start. Two sources:
+
+* ``add_command(t_s, v, omega)``: the twist the firmware commanded, assumed to act from ``t_s``
+  (the firmware passes ``now + actuation_delay_s``) on. Used where nothing better is known.
+* ``add_odometry(t0_s, t1_s, v, omega)``: the mean twist the wheel encoders measured over
+  ``[t0, t1)`` (eq 7 from the encoder wheel speeds). It replaces every segment from ``t0`` on
+  (the commanded guesses for that interval) and holds from ``t0`` until the next segment.
+
+Over each piece of constant twist the pose is integrated exactly (the arc: chord
+``v dt sin(h) / h`` along the mid-piece heading ``theta + h``, ``h = omega dt / 2``), the same
+formula as the simulated plant.
+
+**Measurement model.** A camera pose ``z = (x, y, theta)`` captured at ``t`` (local clock) is
+the true pose at ``t`` plus white noise of standard deviation ``meas_pos_std_m`` per axis and
+``meas_theta_std_rad``.
+
+**Fusion (EKF-lite).** Position and heading each carry one scalar variance, ``P`` (m^2, the
+same for x and y) and ``Pth`` (rad^2); cross-covariances are not kept. Propagating over a
+piece of length ``d = |v| dt``, turn ``|omega dt|`` and duration ``dt``::
+
+    P   += q_m * d + q_s * dt + Pth * d^2     (heading error swings the path sideways)
+    Pth += q_rad * |omega dt| + q_thm * d + q_ths * dt
+
+with ``q_m, q_s`` the odometry or commanded rates of ``EstimatorParams`` depending on the
+segment's source. A camera pose then updates each axis with the Kalman gain
+``K = P / (P + R)`` (``R`` the measurement variance; ``K = 1`` when both are 0), the heading
+innovation wrapped to (-pi, pi]: ``x += K (z - x)``, ``P = (1 - K) P``.
+
+**Late measurements: replay.** Each fused camera pose leaves an *anchor*: the posterior at its
+capture time together with the measurement. A pose that arrives after younger ones (it was
+delayed longer) is fused at its own capture time: the estimator propagates from the anchor just
+before it, updates, then re-fuses every younger measurement in capture order. The result is the
+one a batch filter gets by processing all measurements in capture order (the arithmetic is the
+same, so equal to rounding; the tests check it). Odometry for an interval that already holds an
+anchor triggers the same replay from there. History is bounded to ``history_s``: older
+measurements are rejected.
+
+**The estimate at now.** ``estimate(now_s)`` propagates the newest anchor to ``now`` through
+the segments; this is the pose the controller uses. It is *valid* while the newest camera
+capture is at most ``max_dropout_odom_s`` old when encoder speeds arrived within
+``odom_timeout_s``, else ``max_dropout_cmd_s``, and while the uncertainty
+``n_sigma * sqrt(P)`` stays within ``max_uncertainty_m``. The firmware holds otherwise.
+The uncertainty is what the safety filter adds to the robot's radius.
+
+**Rejections** (each counted, and the firmware adds them to its own rejected count):
+non-finite values; capture after ``now + future_tolerance_s``; capture older than
+``max_latency_s`` or than the history; a second, different pose with the capture time of one
+already fused (a repeated identical pose is ignored silently); a pose farther than
+``gate_m + n_sigma * sqrt(P + R)`` from the prediction (implausible jump); ``reset_after``
+implausible poses in a row re-initialise the estimate at the last one (the robot was carried or
+put down elsewhere), counted in ``resets``. Non-finite or backwards odometry is rejected too.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+from dataclasses import dataclass
+from typing import Any
+
+from .params import EstimatorParams
+
+__all__ = ["Estimator", "EstimatorStatus", "propagate_pose"]
+
+_isfinite = math.isfinite
+_sin = math.sin
+_cos = math.cos
+_sqrt = math.sqrt
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+
+# anchor tuple fields: (t, x, y, theta, P, Pth, zx, zy, zth)
+_Anchor = tuple[float, float, float, float, float, float, float, float, float]
+# segment tuple fields: (t_start, v, omega, measured)
+_Segment = tuple[float, float, float, bool]
+
+
+def _wrap(a: float) -> float:
+    """Angle to (-pi, pi] (finite input)."""
+    r = (_PI - a) % _TWO_PI
+    if not r < _TWO_PI:
+        r = 0.0
+    return _PI - r
+
+
+def propagate_pose(
+    x: float, y: float, theta: float, v: float, omega: float, dt: float
+) -> tuple[float, float, float]:
+    """Exact unicycle integration (eq 9) of a constant twist over ``dt`` s; theta not wrapped."""
+    h = omega * dt * 0.5
+    chord = v * dt * (_sin(h) / h) if h != 0.0 else v * dt
+    mid = theta + h
+    return x + chord * _cos(mid), y + chord * _sin(mid), mid + h
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorStatus:
+    """Counters and state of the estimator (for status messages and logs)."""
+
+    initialised: bool
+    last_capture_s: float | None
+    accepted: int
+    replayed: int
+    rejected_nonfinite: int
+    rejected_future: int
+    rejected_old: int
+    rejected_duplicate: int
+    rejected_implausible: int
+    rejected_odometry: int
+    resets: int
+    anchors: int
+    segments: int
+
+    @property
+    def rejected(self) -> int:
+        """All rejected inputs."""
+        return (
+            self.rejected_nonfinite
+            + self.rejected_future
+            + self.rejected_old
+            + self.rejected_duplicate
+            + self.rejected_implausible
+            + self.rejected_odometry
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict (msgpack / JSON friendly)."""
+        return {
+            "initialised": self.initialised,
+            "last_capture_s": self.last_capture_s,
+            "accepted": self.accepted,
+            "replayed": self.replayed,
+            "rejected": self.rejected,
+            "rejected_nonfinite": self.rejected_nonfinite,
+            "rejected_future": self.rejected_future,
+            "rejected_old": self.rejected_old,
+            "rejected_duplicate": self.rejected_duplicate,
+            "rejected_implausible": self.rejected_implausible,
+            "rejected_odometry": self.rejected_odometry,
+            "resets": self.resets,
+        }
+
+
+class Estimator:
+    """Pose of one robot's axle centre at ``now`` (see the module docstring)."""
+
+    __slots__ = (
+        "_anch",
+        "_anch_t",
+        "_cmd_q",
+        "_gated_run",
+        "_last_odom_t",
+        "_odom_q",
+        "_p",
+        "_r_pos",
+        "_r_th",
+        "_seg",
+        "_seg_t",
+        "accepted",
+        "rejected_duplicate",
+        "rejected_future",
+        "rejected_implausible",
+        "rejected_nonfinite",
+        "rejected_odometry",
+        "rejected_old",
+        "replayed",
+        "resets",
+    )
+
+    def __init__(self, params: EstimatorParams | None = None) -> None:
+        p = params if params is not None else EstimatorParams()
+        if not isinstance(p, EstimatorParams):
+            raise TypeError(f"params must be EstimatorParams, got {type(p).__name__}")
+        self._p = p
+        self._r_pos = p.meas_pos_std_m * p.meas_pos_std_m
+        self._r_th = p.meas_theta_std_rad * p.meas_theta_std_rad
+        self._odom_q = (p.odom_pos_var_per_m, p.odom_pos_var_per_s)
+        self._cmd_q = (p.cmd_pos_var_per_m, p.cmd_pos_var_per_s)
+        self._seg: list[_Segment] = []
+        self._seg_t: list[float] = []
+        self._anch: list[_Anchor] = []
+        self._anch_t: list[float] = []
+        self._last_odom_t = -math.inf
+        self._gated_run = 0
+        self.accepted = 0
+        self.replayed = 0
+        self.rejected_nonfinite = 0
+        self.rejected_future = 0
+        self.rejected_old = 0
+        self.rejected_duplicate = 0
+        self.rejected_implausible = 0
+        self.rejected_odometry = 0
+        self.resets = 0
+
+    # ------------------------------------------------------------------ inputs
+
+    @property
+    def params(self) -> EstimatorParams:
+        """The parameters."""
+        return self._p
+
+    def reset(self) -> None:
+        """Forget everything but the counters (the next camera pose initialises)."""
+        self._seg.clear()
+        self._seg_t.clear()
+        self._anch.clear()
+        self._anch_t.clear()
+        self._last_odom_t = -math.inf
+        self._gated_run = 0
+
+    def add_command(self, t_s: float, v_mps: float, omega_radps: float) -> None:
+        """The commanded twist acts from ``t_s`` on (replaces guesses from ``t_s`` on)."""
+        if not _isfinite(t_s + v_mps + omega_radps):
+            return  # the firmware never commands non-finite speeds; nothing to learn
+        seg_t = self._seg_t
+        if seg_t and t_s <= seg_t[-1]:
+            if self._seg[-1][3] and t_s < seg_t[-1]:
+                return  # never overwrite measured odometry with a guess
+            self._truncate(t_s)
+        elif self._seg and self._seg[-1][1] == v_mps and self._seg[-1][2] == omega_radps:
+            return  # same twist continues: one segment
+        self._seg.append((t_s, v_mps, omega_radps, False))
+        seg_t.append(t_s)
+        anch_t = self._anch_t
+        if anch_t and anch_t[-1] > t_s:
+            self._replay_after(t_s)
+
+    def add_odometry(self, t0_s: float, t1_s: float, v_mps: float, omega_radps: float) -> bool:
+        """Encoders measured the mean twist ``(v, omega)`` over ``[t0_s, t1_s)``.
+
+        Returns False (and counts it) for non-finite values or ``t1_s < t0_s``.
+        """
+        if not (_isfinite(t0_s + t1_s + v_mps + omega_radps) and t1_s >= t0_s):
+            self.rejected_odometry += 1
+            return False
+        self._truncate(t0_s)
+        self._seg.append((t0_s, v_mps, omega_radps, True))
+        self._seg_t.append(t0_s)
+        if t1_s > self._last_odom_t:
+            self._last_odom_t = t1_s
+        anch_t = self._anch_t
+        if anch_t and anch_t[-1] > t0_s:
+            self._replay_after(t0_s)
+        return True
+
+    def add_measurement(
+        self, now_s: float, t_s: float, x: float, y: float, theta: float
+    ) -> str | None:
+        """Fuse a camera pose captured at ``t_s`` (local clock). Returns None when fused (or
+        an exact repeat of a fused pose, ignored), else the rejection reason (counted)."""
+        p = self._p
+        if not _isfinite(now_s + t_s + x + y + theta):
+            self.rejected_nonfinite += 1
+            return "non-finite pose or capture time"
+        if t_s > now_s:
+            if t_s > now_s + p.future_tolerance_s:
+                self.rejected_future += 1
+                return "pose captured in the future"
+            t_s = now_s
+        if now_s - t_s > p.max_latency_s:
+            self.rejected_old += 1
+            return "pose too old"
+        theta = _wrap(theta)
+        anch = self._anch
+        anch_t = self._anch_t
+        if not anch:
+            self._init(t_s, x, y, theta)
+            self.accepted += 1
+            return None
+        if t_s < anch_t[0]:
+            self.rejected_old += 1
+            return "pose older than the replay history"
+        i = bisect_right(anch_t, t_s) - 1
+        a = anch[i]
+        if a[0] == t_s:
+            if a[6] == x and a[7] == y and a[8] == theta:
+                return None  # the same pose presented again
+            self.rejected_duplicate += 1
+            return "second pose with the same capture time"
+        px, py, pth, pp, ppth = self._propagate(a, t_s)
+        # plausibility gate on the position innovation
+        dx = x - px
+        dy = y - py
+        if dx * dx + dy * dy > (p.gate_m + p.n_sigma * _sqrt(pp + self._r_pos)) ** 2:
+            self._gated_run += 1
+            if self._gated_run >= p.reset_after:
+                self.resets += 1
+                self.reset()
+                self._init(t_s, x, y, theta)
+                self.accepted += 1
+                return None
+            self.rejected_implausible += 1
+            return "implausible pose (jump)"
+        self._gated_run = 0
+        new = self._fuse(t_s, px, py, pth, pp, ppth, x, y, theta)
+        self.accepted += 1
+        if i == len(anch) - 1:
+            anch.append(new)
+            anch_t.append(t_s)
+        else:
+            self.replayed += 1
+            later = anch[i + 1 :]
+            del anch[i + 1 :]
+            del anch_t[i + 1 :]
+            anch.append(new)
+            anch_t.append(t_s)
+            self._refuse(later)
+        self._trim(now_s)
+        return None
+
+    # ------------------------------------------------------------------ outputs
+
+    def estimate(self, now_s: float) -> tuple[float, float, float, float] | None:
+        """``(x, y, theta, uncertainty_m)`` at ``now_s``, or None when invalid (see module doc).
+
+        ``uncertainty_m`` = ``n_sigma * sqrt(P)`` (m), for the safety filter's extra radius.
+        """
+        anch = self._anch
+        if not anch:
+            return None
+        a = anch[-1]
+        p = self._p
+        age = now_s - a[0]
+        bound = (
+            p.max_dropout_odom_s
+            if now_s - self._last_odom_t <= p.odom_timeout_s
+            else p.max_dropout_cmd_s
+        )
+        if not age <= bound:  # also False for NaN
+            return None
+        x, y, th, pp, _ = self._propagate(a, now_s)
+        u = p.n_sigma * _sqrt(pp)
+        if not u <= p.max_uncertainty_m:
+            return None
+        return x, y, _wrap(th), u
+
+    def status(self) -> EstimatorStatus:
+        """Counters and state."""
+        return EstimatorStatus(
+            initialised=bool(self._anch),
+            last_capture_s=self._anch_t[-1] if self._anch_t else None,
+            accepted=self.accepted,
+            replayed=self.replayed,
+            rejected_nonfinite=self.rejected_nonfinite,
+            rejected_future=self.rejected_future,
+            rejected_old=self.rejected_old,
+            rejected_duplicate=self.rejected_duplicate,
+            rejected_implausible=self.rejected_implausible,
+            rejected_odometry=self.rejected_odometry,
+            resets=self.resets,
+            anchors=len(self._anch),
+            segments=len(self._seg),
+        )
+
+    @property
+    def last_capture_s(self) -> float | None:
+        """Capture time of the newest fused camera pose (local clock), or None."""
+        return self._anch_t[-1] if self._anch_t else None
+
+    # ------------------------------------------------------------------ internals
+
+    def _init(self, t_s: float, x: float, y: float, theta: float) -> None:
+        self._anch.append((t_s, x, y, theta, self._r_pos, self._r_th, x, y, theta))
+        self._anch_t.append(t_s)
+        self._gated_run = 0
+
+    def _truncate(self, t_s: float) -> None:
+        """Drop every segment starting at or after ``t_s``."""
+        seg = self._seg
+        seg_t = self._seg_t
+        while seg_t and seg_t[-1] >= t_s:
+            seg_t.pop()
+            seg.pop()
+
+    def _fuse(
+        self,
+        t_s: float,
+        px: float,
+        py: float,
+        pth: float,
+        pp: float,
+        ppth: float,
+        zx: float,
+        zy: float,
+        zth: float,
+    ) -> _Anchor:
+        """Kalman update of the prior at ``t_s`` with a measurement: the new anchor."""
+        s = pp + self._r_pos
+        k = pp / s if s > 0.0 else 1.0
+        s = ppth + self._r_th
+        kt = ppth / s if s > 0.0 else 1.0
+        return (
+            t_s,
+            px + k * (zx - px),
+            py + k * (zy - py),
+            _wrap(pth + kt * _wrap(zth - pth)),
+            (1.0 - k) * pp,
+            (1.0 - kt) * ppth,
+            zx,
+            zy,
+            zth,
+        )
+
+    def _refuse(self, later: list[_Anchor]) -> None:
+        """Fuse the measurements of ``later`` again, in order, after the newest anchor."""
+        anch = self._anch
+        anch_t = self._anch_t
+        for b in later:
+            t = b[0]
+            px, py, pth, pp, ppth = self._propagate(anch[-1], t)
+            anch.append(self._fuse(t, px, py, pth, pp, ppth, b[6], b[7], b[8]))
+            anch_t.append(t)
+
+    def _replay_after(self, t_s: float) -> None:
+        """Segments from ``t_s`` on changed: re-fuse every anchor captured after ``t_s``."""
+        anch_t = self._anch_t
+        i = bisect_right(anch_t, t_s)
+        if i >= len(anch_t):
+            return
+        if i == 0:  # the first anchor is an initialisation: keep it, replay the rest
+            i = 1
+            if i >= len(anch_t):
+                return
+        later = self._anch[i:]
+        del self._anch[i:]
+        del anch_t[i:]
+        self.replayed += 1
+        self._refuse(later)
+
+    def _trim(self, now_s: float) -> None:
+        """Bound the history: anchors older than ``history_s`` (keeping the newest) and the
+        segments before the oldest anchor kept."""
+        cutoff = now_s - self._p.history_s
+        anch_t = self._anch_t
+        n = bisect_right(anch_t, cutoff)
+        if n >= len(anch_t):
+            n = len(anch_t) - 1
+        if n > 0:
+            del anch_t[:n]
+            del self._anch[:n]
+        if anch_t:
+            j = bisect_right(self._seg_t, anch_t[0]) - 1
+            if j > 0:
+                del self._seg_t[:j]
+                del self._seg[:j]
+
+    def _propagate(self, a: _Anchor, t_end: float) -> tuple[float, float, float, float, float]:
+        """Anchor ``a`` propagated through the segments to ``t_end``: (x, y, theta, P, Pth)."""
+        t, x, y, th, pp, ppth = a[0], a[1], a[2], a[3], a[4], a[5]
+        if t_end <= t:
+            return x, y, th, pp, ppth
+        seg = self._seg
+        seg_t = self._seg_t
+        n = len(seg_t)
+        i = bisect_right(seg_t, t) - 1
+        p = self._p
+        q_rad = p.theta_var_per_rad
+        q_thm = p.theta_var_per_m
+        q_ths = p.theta_var_per_s
+        # Invariant: seg_t[i] <= t < seg_t[i + 1] (i = -1: before the first segment); the
+        # last segment's twist holds up to t_end.
+        while t < t_end:
+            if i >= 0:
+                _, v, w, measured = seg[i]
+                qm, qs = self._odom_q if measured else self._cmd_q
+            else:  # before any known twist: assume standing still
+                v = w = 0.0
+                qm, qs = self._cmd_q
+            nxt = seg_t[i + 1] if i + 1 < n else t_end
+            if nxt > t_end:
+                nxt = t_end
+            dt = nxt - t
+            h = w * dt * 0.5
+            chord = v * dt * (_sin(h) / h) if h != 0.0 else v * dt
+            mid = th + h
+            x += chord * _cos(mid)
+            y += chord * _sin(mid)
+            th = mid + h
+            d = abs(v) * dt
+            pp += qm * d + qs * dt + ppth * d * d
+            ppth += q_rad * abs(h + h) + q_thm * d + q_ths * dt
+            t = nxt
+            i += 1
+        return x, y, th, pp, ppth
