@@ -28,10 +28,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from formation import scenario as scenario_mod  # noqa: E402
-from formation import simulate  # noqa: E402
-from formation.metrics import formation_error  # noqa: E402
-from formation.runlog import MODE_CODES  # noqa: E402
+from formation import scenario as scenario_mod
+from formation import simulate
+from formation.metrics import formation_error
+from formation.runlog import MODE_CODES
 
 DEFAULT = Path(__file__).resolve().parent.parent / "formation" / "scenarios"
 

@@ -31,6 +31,10 @@ piece of length ``d = |v| dt``, turn ``|omega dt|`` and duration ``dt``::
     P   += q_m * d + q_s * dt + Pth * d^2     (heading error swings the path sideways)
     Pth += q_rad * |omega dt| + q_thm * d + q_ths * dt
 
+over one propagation (from a camera pose to the next one, or to ``now``): ``d``, the turn and
+``dt`` are the sums over its pieces of constant twist, ``q_m d`` and ``q_s dt`` the sums of each
+piece's rates.
+
 with ``q_m, q_s`` the odometry or commanded rates of ``EstimatorParams`` depending on the
 segment's source. A camera pose then updates each axis with the Kalman gain
 ``K = P / (P + R)`` (``R`` the measurement variance; ``K = 1`` when both are 0), the heading
@@ -81,8 +85,8 @@ _TWO_PI = 2.0 * math.pi
 
 # anchor tuple fields: (t, x, y, theta, P, Pth, zx, zy, zth)
 _Anchor = tuple[float, float, float, float, float, float, float, float, float]
-# segment tuple fields: (t_start, v, omega, measured)
-_Segment = tuple[float, float, float, bool]
+# segment tuple fields: (t_start, v, omega, measured, position variance per m, per s)
+_Segment = tuple[float, float, float, bool, float, float]
 
 
 def _wrap(a: float) -> float:
@@ -93,12 +97,20 @@ def _wrap(a: float) -> float:
     return _PI - r
 
 
+def _sinc(h: float) -> float:
+    """sin(h) / h, 1 at 0 (a series below |h| = 0.1: relative error < 3e-10)."""
+    if -0.1 < h < 0.1:
+        h2 = h * h
+        return 1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0))
+    return _sin(h) / h
+
+
 def propagate_pose(
     x: float, y: float, theta: float, v: float, omega: float, dt: float
 ) -> tuple[float, float, float]:
     """Exact unicycle integration (eq 9) of a constant twist over ``dt`` s; theta not wrapped."""
     h = omega * dt * 0.5
-    chord = v * dt * (_sin(h) / h) if h != 0.0 else v * dt
+    chord = v * dt * _sinc(h)
     mid = theta + h
     return x + chord * _cos(mid), y + chord * _sin(mid), mid + h
 
@@ -157,11 +169,24 @@ class Estimator:
     __slots__ = (
         "_anch",
         "_anch_t",
+        "_b_cmd",
+        "_b_odom",
+        "_fut_tol",
+        "_gate",
+        "_hist",
+        "_max_lat",
+        "_max_unc",
+        "_nsig",
+        "_odom_to",
         "_cmd_q",
+        "_first_is_init",
         "_gated_run",
         "_last_odom_t",
         "_odom_q",
         "_p",
+        "_q_rad",
+        "_q_ths",
+        "_q_thm",
         "_r_pos",
         "_r_th",
         "_seg",
@@ -186,12 +211,25 @@ class Estimator:
         self._r_th = p.meas_theta_std_rad * p.meas_theta_std_rad
         self._odom_q = (p.odom_pos_var_per_m, p.odom_pos_var_per_s)
         self._cmd_q = (p.cmd_pos_var_per_m, p.cmd_pos_var_per_s)
+        self._q_rad = p.theta_var_per_rad
+        self._b_cmd = p.max_dropout_cmd_s
+        self._b_odom = p.max_dropout_odom_s
+        self._fut_tol = p.future_tolerance_s
+        self._gate = p.gate_m
+        self._hist = p.history_s
+        self._max_lat = p.max_latency_s
+        self._max_unc = p.max_uncertainty_m
+        self._nsig = p.n_sigma
+        self._odom_to = p.odom_timeout_s
+        self._q_thm = p.theta_var_per_m
+        self._q_ths = p.theta_var_per_s
         self._seg: list[_Segment] = []
         self._seg_t: list[float] = []
         self._anch: list[_Anchor] = []
         self._anch_t: list[float] = []
         self._last_odom_t = -math.inf
         self._gated_run = 0
+        self._first_is_init = False
         self.accepted = 0
         self.replayed = 0
         self.rejected_nonfinite = 0
@@ -229,7 +267,8 @@ class Estimator:
             self._truncate(t_s)
         elif self._seg and self._seg[-1][1] == v_mps and self._seg[-1][2] == omega_radps:
             return  # same twist continues: one segment
-        self._seg.append((t_s, v_mps, omega_radps, False))
+        qm, qs = self._cmd_q
+        self._seg.append((t_s, v_mps, omega_radps, False, qm, qs))
         seg_t.append(t_s)
         anch_t = self._anch_t
         if anch_t and anch_t[-1] > t_s:
@@ -244,7 +283,8 @@ class Estimator:
             self.rejected_odometry += 1
             return False
         self._truncate(t0_s)
-        self._seg.append((t0_s, v_mps, omega_radps, True))
+        qm, qs = self._odom_q
+        self._seg.append((t0_s, v_mps, omega_radps, True, qm, qs))
         self._seg_t.append(t0_s)
         if t1_s > self._last_odom_t:
             self._last_odom_t = t1_s
@@ -258,19 +298,19 @@ class Estimator:
     ) -> str | None:
         """Fuse a camera pose captured at ``t_s`` (local clock). Returns None when fused (or
         an exact repeat of a fused pose, ignored), else the rejection reason (counted)."""
-        p = self._p
         if not _isfinite(now_s + t_s + x + y + theta):
             self.rejected_nonfinite += 1
             return "non-finite pose or capture time"
         if t_s > now_s:
-            if t_s > now_s + p.future_tolerance_s:
+            if t_s > now_s + self._fut_tol:
                 self.rejected_future += 1
                 return "pose captured in the future"
             t_s = now_s
-        if now_s - t_s > p.max_latency_s:
+        if now_s - t_s > self._max_lat:
             self.rejected_old += 1
             return "pose too old"
-        theta = _wrap(theta)
+        if not -_PI < theta <= _PI:
+            theta = _wrap(theta)
         anch = self._anch
         anch_t = self._anch_t
         if not anch:
@@ -278,9 +318,20 @@ class Estimator:
             self.accepted += 1
             return None
         if t_s < anch_t[0]:
+            if self._first_is_init and now_s - t_s <= self._hist:
+                # older than the pose we started from (cold start, arrivals out of order):
+                # start from this one and re-fuse the others, as a batch filter would
+                later = anch[:]
+                anch.clear()
+                anch_t.clear()
+                self._init(t_s, x, y, theta)
+                self._refuse(later)
+                self.accepted += 1
+                self.replayed += 1
+                return None
             self.rejected_old += 1
             return "pose older than the replay history"
-        i = bisect_right(anch_t, t_s) - 1
+        i = len(anch_t) - 1 if t_s > anch_t[-1] else bisect_right(anch_t, t_s) - 1
         a = anch[i]
         if a[0] == t_s:
             if a[6] == x and a[7] == y and a[8] == theta:
@@ -291,9 +342,10 @@ class Estimator:
         # plausibility gate on the position innovation
         dx = x - px
         dy = y - py
-        if dx * dx + dy * dy > (p.gate_m + p.n_sigma * _sqrt(pp + self._r_pos)) ** 2:
+        g = self._gate + self._nsig * _sqrt(pp + self._r_pos)
+        if dx * dx + dy * dy > g * g:
             self._gated_run += 1
-            if self._gated_run >= p.reset_after:
+            if self._gated_run >= self._p.reset_after:
                 self.resets += 1
                 self.reset()
                 self._init(t_s, x, y, theta)
@@ -315,7 +367,8 @@ class Estimator:
             anch.append(new)
             anch_t.append(t_s)
             self._refuse(later)
-        self._trim(now_s)
+        if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
+            self._trim(now_s)
         return None
 
     # ------------------------------------------------------------------ outputs
@@ -329,20 +382,20 @@ class Estimator:
         if not anch:
             return None
         a = anch[-1]
-        p = self._p
         age = now_s - a[0]
-        bound = (
-            p.max_dropout_odom_s
-            if now_s - self._last_odom_t <= p.odom_timeout_s
-            else p.max_dropout_cmd_s
-        )
+        bound = self._b_odom if now_s - self._last_odom_t <= self._odom_to else self._b_cmd
         if not age <= bound:  # also False for NaN
             return None
-        x, y, th, pp, _ = self._propagate(a, now_s)
-        u = p.n_sigma * _sqrt(pp)
-        if not u <= p.max_uncertainty_m:
+        if age > 0.0:
+            x, y, th, pp, _ = self._propagate(a, now_s)
+            if not -_PI < th <= _PI:
+                th = _wrap(th)
+        else:
+            x, y, th, pp = a[1], a[2], a[3], a[4]
+        u = self._nsig * _sqrt(pp)
+        if not u <= self._max_unc:
             return None
-        return x, y, _wrap(th), u
+        return x, y, th, u
 
     def status(self) -> EstimatorStatus:
         """Counters and state."""
@@ -373,6 +426,7 @@ class Estimator:
         self._anch.append((t_s, x, y, theta, self._r_pos, self._r_th, x, y, theta))
         self._anch_t.append(t_s)
         self._gated_run = 0
+        self._first_is_init = True
 
     def _truncate(self, t_s: float) -> None:
         """Drop every segment starting at or after ``t_s``."""
@@ -399,17 +453,14 @@ class Estimator:
         k = pp / s if s > 0.0 else 1.0
         s = ppth + self._r_th
         kt = ppth / s if s > 0.0 else 1.0
-        return (
-            t_s,
-            px + k * (zx - px),
-            py + k * (zy - py),
-            _wrap(pth + kt * _wrap(zth - pth)),
-            (1.0 - k) * pp,
-            (1.0 - kt) * ppth,
-            zx,
-            zy,
-            zth,
-        )
+        d = zth - pth
+        if not -_PI < d <= _PI:
+            d = _wrap(d)
+        th = pth + kt * d
+        if not -_PI < th <= _PI:
+            th = _wrap(th)
+        return (t_s, px + k * (zx - px), py + k * (zy - py), th, (1.0 - k) * pp,
+                (1.0 - kt) * ppth, zx, zy, zth)  # fmt: skip
 
     def _refuse(self, later: list[_Anchor]) -> None:
         """Fuse the measurements of ``later`` again, in order, after the newest anchor."""
@@ -448,8 +499,9 @@ class Estimator:
         if n > 0:
             del anch_t[:n]
             del self._anch[:n]
+            self._first_is_init = False
         if anch_t:
-            j = bisect_right(self._seg_t, anch_t[0]) - 1
+            j = bisect_right(self._seg_t, min(cutoff, anch_t[0])) - 1
             if j > 0:
                 del self._seg_t[:j]
                 del self._seg[:j]
@@ -462,17 +514,14 @@ class Estimator:
         seg = self._seg
         seg_t = self._seg_t
         n = len(seg_t)
-        i = bisect_right(seg_t, t) - 1
-        p = self._p
-        q_rad = p.theta_var_per_rad
-        q_thm = p.theta_var_per_m
-        q_ths = p.theta_var_per_s
+        i = n - 1 if n and seg_t[-1] <= t else bisect_right(seg_t, t) - 1
+        t0 = t
+        dist = turn = qd = qt = 0.0
         # Invariant: seg_t[i] <= t < seg_t[i + 1] (i = -1: before the first segment); the
         # last segment's twist holds up to t_end.
         while t < t_end:
             if i >= 0:
-                _, v, w, measured = seg[i]
-                qm, qs = self._odom_q if measured else self._cmd_q
+                _, v, w, _, qm, qs = seg[i]
             else:  # before any known twist: assume standing still
                 v = w = 0.0
                 qm, qs = self._cmd_q
@@ -481,14 +530,24 @@ class Estimator:
                 nxt = t_end
             dt = nxt - t
             h = w * dt * 0.5
-            chord = v * dt * (_sin(h) / h) if h != 0.0 else v * dt
+            if -0.1 < h < 0.1:  # _sinc inlined
+                h2 = h * h
+                chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
+            else:
+                chord = v * dt * (_sin(h) / h)
             mid = th + h
             x += chord * _cos(mid)
             y += chord * _sin(mid)
             th = mid + h
-            d = abs(v) * dt
-            pp += qm * d + qs * dt + ppth * d * d
-            ppth += q_rad * abs(h + h) + q_thm * d + q_ths * dt
+            d = v * dt if v >= 0.0 else -v * dt
+            dist += d
+            turn += h if h >= 0.0 else -h
+            qd += qm * d
+            qt += qs * dt
             t = nxt
             i += 1
+        # variances over the whole interval (the heading variance at its start swings the
+        # whole distance sideways)
+        pp += qd + qt + ppth * dist * dist
+        ppth += self._q_rad * 2.0 * turn + self._q_thm * dist + self._q_ths * (t_end - t0)
         return x, y, th, pp, ppth

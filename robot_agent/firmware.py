@@ -281,15 +281,16 @@ class Firmware:
     """One robot's controller: call ``step`` once per tick (see the module docstring)."""
 
     __slots__ = (
-        "_cfg",
         "_act_delay",
+        "_cfg",
         "_dt_faults",
         "_est",
         "_est_xyt",
-        "_extrap",
-        "_fused_pose",
         "_ex",
+        "_extrap",
         "_ey",
+        "_fused_pose",
+        "_pending_cmd",
         "_geom",
         "_half_track",
         "_have_setpoint",
@@ -360,6 +361,9 @@ class Firmware:
         self._extrap = ep.extrapolate_setpoint
         self._act_delay = ep.actuation_delay_s
         self._fused_pose: Pose | None = None
+        # (t, omega_r, omega_l) of the last command, handed to the estimator on the next tick
+        # unless encoder speeds replace it (it only matters for times after that tick)
+        self._pending_cmd: tuple[float, float, float] | None = None
         self._unc = _NAN
         self._est_xyt: tuple[float, float, float] | None = None
 
@@ -497,8 +501,16 @@ class Firmware:
             # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current) ----
             est = self._est
             if est is not None:
+                pending = self._pending_cmd
                 if wheel_speeds is not None and last is not None:
                     self._odometry(wheel_speeds, last, now_s)
+                elif pending is not None:
+                    pt_s, pwr, pwl = pending
+                    r = self._wheel_r
+                    est.add_command(
+                        pt_s, 0.5 * r * (pwr + pwl), 0.5 * r * (pwr - pwl) / self._half_track
+                    )
+                self._pending_cmd = None
                 if pose is not None and pose is not self._fused_pose:
                     self._fuse_pose(now_s, pose, pose_rx_s, pose_capture_s)
 
@@ -527,6 +539,7 @@ class Firmware:
             self._setpoint_age = sp_age
 
             # --- pose -----------------------------------------------------------------------
+            pose_t: float | None
             if est is None:
                 if pose is None:
                     self._pose_age = _NAN
@@ -547,14 +560,14 @@ class Firmware:
                 # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
                 # dropout bound, or too uncertain) holds the robot
                 self._pose_age = now_s - pose_rx_s if pose is not None else _NAN
-                r = est.estimate(now_s)
-                if r is None:
+                got = est.estimate(now_s)
+                if got is None:
                     self._unc = _NAN
                     self._est_xyt = None
                     if est.last_capture_s is None:
                         return self._hold(_EV_STALE, "no pose")
                     return self._hold(_EV_STALE, "pose estimate invalid")
-                x, y, th, self._unc = r
+                x, y, th, self._unc = got
                 pose_t = self._last_pose_t
             self._est_xyt = (x, y, th)
 
@@ -615,12 +628,8 @@ class Firmware:
                 if sat:
                     self._saturated += 1
             self._last_saturated = sat
-            if est is not None:  # eq 7: the twist these wheels give, for the prediction
-                est.add_command(
-                    now_s + self._act_delay,
-                    0.5 * r * (wr + wl),
-                    0.5 * r * (wr - wl) / self._half_track,
-                )
+            if est is not None:  # for the prediction (see _pending_cmd)
+                self._pending_cmd = (now_s + self._act_delay, wr, wl)
             return _new_command(wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat)
         except Exception as exc:
             self.reject(f"internal error: {type(exc).__name__}")
@@ -712,7 +721,6 @@ class Firmware:
         """Non-tracking tick: apply the event, zero wheels."""
         self._transition(event, reason)
         self._last_saturated = False
-        est = self._est
-        if est is not None and self._last_now is not None:
-            est.add_command(self._last_now + self._act_delay, 0.0, 0.0)
+        if self._est is not None and self._last_now is not None:
+            self._pending_cmd = (self._last_now + self._act_delay, 0.0, 0.0)
         return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, self._last_pose_t, False)

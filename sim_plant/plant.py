@@ -64,9 +64,9 @@ import numpy.typing as npt
 __all__ = [
     "SMALL_N",
     "GeometryLike",
-    "WheelEncoders",
     "Plant",
     "PoseRows",
+    "WheelEncoders",
     "unicycle_integrate",
     "wrap_angle",
     "wrap_angles",

@@ -167,6 +167,9 @@ class Camera:
         hand over the tag): those measurements are never delivered (counted in
         ``measurements_occluded``). One window per robot; a new one replaces it."""
         self._occluded[int(i)] = (float(t0_s), float(t1_s))
+
+    @property
+    def n(self) -> int:
         """Number of robots the camera expects in each truth array."""
         return self._n
 
