@@ -12,7 +12,11 @@ Runs a scenario (default: the anchor triangle, docs/scenarios.md) in-process, in
 Prints, per variant, the RMS formation error of the reference points after ``settle_s`` over all
 robots together (and per robot), the minimum separation, HOLD ticks, and for ``loss`` the
 largest error during and after the loss and when the robot is back within 2x its pre-loss RMS
-error + 1 mm. Run: ``.venv/bin/python bench/bench_estimator.py [--scenario FILE]``.
+error + 1 mm. With ``--paper`` it runs the
+paper's scenarios (paper-sim, paper-exp1, paper-exp2, with their own camera noise, latency,
+link and motor lag) with the firmware of before and with the estimator + extrapolation, and
+prints RMS error, minimum separation, collisions, slot changes and HOLD ticks.
+Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper]``.
 A measurement, not a test.
 """
 
@@ -101,10 +105,33 @@ def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[s
     return out
 
 
+def paper() -> int:
+    for name in ("paper-sim", "paper-exp1", "paper-exp2"):
+        base = scenario_mod.load(name)
+        for label, est in (("before", False), ("estimator", True)):
+            e = dataclasses.replace(base.agent.estimator, enabled=est, extrapolate_setpoint=est)
+            scn = base.with_overrides(agent=dataclasses.replace(base.agent, estimator=e))
+            res = simulate.run(scn)
+            log = res.log
+            err = formation_error(log)[log.t_s >= scn.settle_s]
+            changes = int(np.sum(log.slot_of[1:] != log.slot_of[:-1]))
+            print(
+                f"{name:<11} {label:<10} RMS {np.sqrt(np.nanmean(err**2)) * 1e3:7.3f} mm "
+                f"min sep {log.min_separation_m:.4f} m collisions {len(log.collisions)} "
+                f"slot changes {changes} final leader "
+                f"{log.robot_ids[int(np.flatnonzero(log.slot_of[-1] == 0)[0])]} "
+                f"HOLD ticks {int(np.sum(log.mode == MODE_CODES['hold']))}"
+            )
+    return 0
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="/work/shared/anchor-task/anchor-triangle.toml")
+    ap.add_argument("--scenario", default="anchor-triangle")
+    ap.add_argument("--paper", action="store_true", help="the paper scenarios, with and without")
     args = ap.parse_args(argv)
+    if args.paper:
+        return paper()
     scn = scenario_mod.load(args.scenario)
     rows = []
     for rep in (True, False):

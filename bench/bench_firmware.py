@@ -25,6 +25,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -46,7 +47,7 @@ GOAL_US = 10.0
 # --estimator: the firmware with its pose estimator, fed a 40 ms old capture time and encoder
 # speeds every tick (latency compensation over two segments + odometry: the costly case).
 _CFG = AgentConfig()
-_EST_KW: dict[str, object] = {}
+_EST_KW: dict[str, Any] = {}
 DT_S = 0.02
 RING = 1024  # pre-built inputs, cycled: the bench measures step(), not message construction
 
@@ -64,7 +65,7 @@ def _inputs(n: int) -> tuple[list[Pose], list[Setpoint], list[list[tuple[float, 
     return poses, sps, nbrs
 
 
-def _extra(now: float) -> dict[str, object]:
+def _extra(now: float) -> dict[str, Any]:
     """Keyword arguments of ``step`` beyond the defaults (only with --estimator)."""
     if not _EST_KW:
         return _EST_KW

@@ -171,22 +171,22 @@ class Estimator:
         "_anch_t",
         "_b_cmd",
         "_b_odom",
+        "_cmd_q",
+        "_first_is_init",
         "_fut_tol",
         "_gate",
+        "_gated_run",
         "_hist",
+        "_last_odom_t",
         "_max_lat",
         "_max_unc",
         "_nsig",
-        "_odom_to",
-        "_cmd_q",
-        "_first_is_init",
-        "_gated_run",
-        "_last_odom_t",
         "_odom_q",
+        "_odom_to",
         "_p",
         "_q_rad",
-        "_q_ths",
         "_q_thm",
+        "_q_ths",
         "_r_pos",
         "_r_th",
         "_seg",
@@ -354,12 +354,23 @@ class Estimator:
             self.rejected_implausible += 1
             return "implausible pose (jump)"
         self._gated_run = 0
-        new = self._fuse(t_s, px, py, pth, pp, ppth, x, y, theta)
         self.accepted += 1
-        if i == len(anch) - 1:
-            anch.append(new)
+        if i == len(anch) - 1:  # in capture order: _fuse inlined (hot path)
+            sv = pp + self._r_pos
+            k = pp / sv if sv > 0.0 else 1.0
+            sv = ppth + self._r_th
+            kt = ppth / sv if sv > 0.0 else 1.0
+            d = theta - pth
+            if not -_PI < d <= _PI:
+                d = _wrap(d)
+            th = pth + kt * d
+            if not -_PI < th <= _PI:
+                th = _wrap(th)
+            anch.append((t_s, px + k * dx, py + k * dy, th, (1.0 - k) * pp, (1.0 - kt) * ppth,
+                         x, y, theta))  # fmt: skip
             anch_t.append(t_s)
         else:
+            new = self._fuse(t_s, px, py, pth, pp, ppth, x, y, theta)
             self.replayed += 1
             later = anch[i + 1 :]
             del anch[i + 1 :]

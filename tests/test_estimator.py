@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import random
 
@@ -96,9 +97,7 @@ def test_late_measurements_replayed_equal_the_batch_solution(seed: int, latency_
         if k % 2 == 0:
             t = k * DT + rng.uniform(0.0, DT * 0.9)
             delay = rng.uniform(0.0, latency_ticks * DT)  # random: arrivals out of order
-            meas.append(
-                (t, t + delay, x + rng.gauss(0, 0.003), y + rng.gauss(0, 0.003), th + 0.01)
-            )
+            meas.append((t, t + delay, x + rng.gauss(0, 0.003), y + rng.gauss(0, 0.003), th + 0.01))
         x, y, th = propagate_pose(x, y, th, *twists[k], DT)
     a, b, live = _run_live_and_batch(twists, meas)
     assert _close(a, b, 1e-9)
@@ -170,7 +169,7 @@ def test_dropout_bound_valid_up_to_it_invalid_after(odometry: bool) -> None:
             assert got is None, now
             break
         k += 1
-    assert all(b > a for a, b in zip(unc, unc[1:], strict=False))  # grows with time
+    assert all(b > a for a, b in itertools.pairwise(unc))  # grows with time
 
 
 def test_odometry_stops_counting_after_its_timeout() -> None:
