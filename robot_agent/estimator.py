@@ -81,6 +81,9 @@ _sin = math.sin
 _cos = math.cos
 _sqrt = math.sqrt
 _PI = math.pi
+# Pieces of constant twist shorter than this are skipped (a segment boundary and a capture time
+# a few ulps apart, both computed as float sums of ticks): at most nanometres of motion.
+_TINY_S = 1e-9
 _TWO_PI = 2.0 * math.pi
 
 # anchor tuple fields: (t, x, y, theta, P, Pth, zx, zy, zth)
@@ -540,6 +543,10 @@ class Estimator:
             if nxt > t_end:
                 nxt = t_end
             dt = nxt - t
+            if dt < _TINY_S:  # a boundary a rounding error away (ticks as float sums)
+                t = nxt
+                i += 1
+                continue
             h = w * dt * 0.5
             if -0.1 < h < 0.1:  # _sinc inlined
                 h2 = h * h
