@@ -174,6 +174,8 @@ class Estimator:
         "_anch_t",
         "_b_cmd",
         "_b_odom",
+        "_ck",
+        "_ck_anchor",
         "_cmd_q",
         "_first_is_init",
         "_fut_tol",
@@ -233,6 +235,9 @@ class Estimator:
         self._last_odom_t = -math.inf
         self._gated_run = 0
         self._first_is_init = False
+        # checkpoints (t, x, y, theta, dist, turn, qd, qt) of the propagation from _ck_anchor
+        self._ck: list[tuple[float, float, float, float, float, float, float, float]] = []
+        self._ck_anchor: _Anchor | None = None
         self.accepted = 0
         self.replayed = 0
         self.rejected_nonfinite = 0
@@ -258,6 +263,8 @@ class Estimator:
         self._anch_t.clear()
         self._last_odom_t = -math.inf
         self._gated_run = 0
+        self._ck.clear()
+        self._ck_anchor = None
 
     def add_command(self, t_s: float, v_mps: float, omega_radps: float) -> None:
         """The commanded twist acts from ``t_s`` on (replaces guesses from ``t_s`` on)."""
@@ -270,6 +277,10 @@ class Estimator:
             self._truncate(t_s)
         elif self._seg and self._seg[-1][1] == v_mps and self._seg[-1][2] == omega_radps:
             return  # same twist continues: one segment
+        else:
+            ck = self._ck
+            while ck and ck[-1][0] > t_s:  # they assumed the previous twist beyond t_s
+                ck.pop()
         qm, qs = self._cmd_q
         self._seg.append((t_s, v_mps, omega_radps, False, qm, qs))
         seg_t.append(t_s)
@@ -401,7 +412,7 @@ class Estimator:
         if not age <= bound:  # also False for NaN
             return None
         if age > 0.0:
-            x, y, th, pp, _ = self._propagate(a, now_s)
+            x, y, th, pp, _ = self._propagate(a, now_s, True)
             if not -_PI < th <= _PI:
                 th = _wrap(th)
         else:
@@ -449,6 +460,9 @@ class Estimator:
         while seg_t and seg_t[-1] >= t_s:
             seg_t.pop()
             seg.pop()
+        ck = self._ck
+        while ck and ck[-1][0] > t_s:
+            ck.pop()
 
     def _fuse(
         self,
@@ -520,17 +534,42 @@ class Estimator:
                 del self._seg_t[:j]
                 del self._seg[:j]
 
-    def _propagate(self, a: _Anchor, t_end: float) -> tuple[float, float, float, float, float]:
-        """Anchor ``a`` propagated through the segments to ``t_end``: (x, y, theta, P, Pth)."""
+    def _propagate(
+        self, a: _Anchor, t_end: float, record: bool = False
+    ) -> tuple[float, float, float, float, float]:
+        """Anchor ``a`` propagated through the segments to ``t_end``: (x, y, theta, P, Pth).
+
+        Checkpoints: with ``record`` the state at every segment boundary passed is kept (for the
+        newest anchor); a later call from the same anchor resumes from the last checkpoint at
+        or before ``t_end`` (up to ``_TINY_S`` after it: float tick sums), which is the same
+        arithmetic in the same order as starting from the anchor (so the same bits, but for
+        that nanosecond). Segment changes drop the checkpoints after them.
+        """
         t, x, y, th, pp, ppth = a[0], a[1], a[2], a[3], a[4], a[5]
         if t_end <= t:
             return x, y, th, pp, ppth
+        t0 = t
         seg = self._seg
         seg_t = self._seg_t
         n = len(seg_t)
-        i = n - 1 if n and seg_t[-1] <= t else bisect_right(seg_t, t) - 1
-        t0 = t
-        dist = turn = qd = qt = 0.0
+        ck = self._ck
+        start = None
+        if a is self._ck_anchor:
+            j = len(ck) - 1
+            while j >= 0 and ck[j][0] > t_end + _TINY_S:
+                j -= 1
+            if j >= 0:
+                start = ck[j]
+        elif record:
+            self._ck_anchor = a
+            ck.clear()
+        if start is not None:
+            t, x, y, th, dist, turn, qd, qt = start
+            i = bisect_right(seg_t, t) - 1
+        else:
+            i = n - 1 if n and seg_t[-1] <= t else bisect_right(seg_t, t) - 1
+            dist = turn = qd = qt = 0.0
+        record = record and a is self._ck_anchor
         # Invariant: seg_t[i] <= t < seg_t[i + 1] (i = -1: before the first segment); the
         # last segment's twist holds up to t_end.
         while t < t_end:
@@ -564,6 +603,8 @@ class Estimator:
             qt += qs * dt
             t = nxt
             i += 1
+            if record and t < t_end and (not ck or ck[-1][0] < t):
+                ck.append((t, x, y, th, dist, turn, qd, qt))
         # variances over the whole interval (the heading variance at its start swings the
         # whole distance sideways)
         pp += qd + qt + ppth * dist * dist
