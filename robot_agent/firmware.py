@@ -33,9 +33,25 @@ In TRACKING the controller can still fail (overflow from absurd but finite input
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
 
+Estimator (``config.estimator.enabled``, off by default; ``robot_agent/estimator.py``): every
+tick, in any mode, a new ``Pose`` object (each object once) is fused at its capture time
+``pose_capture_s`` (the shell's clock; ``pose_rx_s`` when not given) and the encoder speeds
+``wheel_speeds`` (mean over the interval since the previous tick) extend the odometry; the
+wheels commanded on a tick are the prediction's input from that tick on when no encoder speeds
+replace them. The pose the controller uses is the estimate at ``now_s``; an invalid estimate
+(no pose yet, the camera lost beyond the dropout bound, too uncertain) is a STALE event (HOLD)
+and replaces the ``stale_pose_s`` rule. A rejected pose is counted and the estimate rides on.
+``pose_uncertainty_m`` is the estimate's uncertainty (m), for the safety filter.
+
+Setpoint extrapolation (``config.estimator.extrapolate_setpoint``, on by default): the setpoint
+is advanced by its feed-forward velocity over its receive age ``now_s - setpoint_rx_s`` (one
+tick in lockstep, where the setpoint of tick k-1 is used at tick k), so a one-tick-old setpoint
+leaves no steady lag.
+
 Pipeline in TRACKING (one tick)::
 
-    reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
+    [estimator: pose at now_s] -> [setpoint + ff * age]
+    -> reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
     -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
     -> + repulsion from neighbours / obstacles, evaluated at the axle centre (safety, last
        Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)

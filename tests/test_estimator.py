@@ -345,3 +345,43 @@ def test_firmware_with_encoder_speeds_uses_the_odometry_bound() -> None:
             wheel_speeds=(0.0, 0.0),
         )
         assert cmd.mode is Mode.TRACKING  # 1.2 s without a camera pose, on odometry
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(
+    gaps=st.lists(st.integers(1, 30), min_size=1, max_size=8),
+    latency=st.floats(0.0, 0.1),
+    odometry=st.booleans(),
+)
+def test_firmware_never_moves_past_the_dropout_bound(
+    gaps: list[int], latency: float, odometry: bool
+) -> None:
+    """Camera poses every ``gap`` ticks, ``latency`` s old: whenever the newest capture is older
+    than the bound for the odometry state, the wheels are exactly zero (HOLD)."""
+    fw = Firmware(CFG)
+    p = CFG.estimator
+    bound = p.max_dropout_odom_s if odometry else p.max_dropout_cmd_s
+    dt = 0.1
+    k = 0
+    last_cap: float | None = None
+    pose: Pose | None = None  # the shell presents its latest pose every tick
+    for gap in gaps:
+        for g in range(gap):
+            now = k * dt
+            if g == 0:
+                last_cap = now - latency
+                pose = Pose(0.0, 0.0, 0.0, last_cap)
+            cmd = fw.step(
+                now,
+                pose=pose,
+                pose_rx_s=now,
+                pose_capture_s=last_cap,
+                setpoint=_sp(0.3, 0.1, 0.05, 0.0, now),
+                setpoint_rx_s=now,
+                wheel_speeds=(0.0, 0.0) if odometry else None,
+            )
+            assert last_cap is not None
+            if now - last_cap > bound + 1e-9:
+                assert cmd.mode is Mode.HOLD
+                assert (cmd.omega_r, cmd.omega_l) == (0.0, 0.0)
+            k += 1
