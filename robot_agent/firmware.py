@@ -381,7 +381,10 @@ class Firmware:
         # unless encoder speeds replace it (it only matters for times after that tick)
         self._pending_cmd: tuple[float, float, float] | None = None
         self._unc = _NAN
-        self._est_xyt: tuple[float, float, float] | None = None
+        # the pose (first three fields: x, y, theta) the last tick used: a Pose or an estimate
+        self._est_xyt: tuple[float, ...] | None = None
+        if self._est is None:
+            self._unc = 0.0
 
     # ------------------------------------------------------------------ public API
 
@@ -416,7 +419,8 @@ class Firmware:
     def pose_estimate(self) -> tuple[float, float, float] | None:
         """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
         the measured pose with the estimator disabled), or None."""
-        return self._est_xyt
+        xyt = self._est_xyt
+        return None if xyt is None else (xyt[0], xyt[1], xyt[2])
 
     def reject(self, reason: str) -> None:
         """Count one bad input (e.g. a message the shell could not decode) with its reason."""
@@ -571,7 +575,7 @@ class Firmware:
                 lim = self._stale_pose
                 if not -lim <= pose_age <= lim:
                     return self._hold(_EV_STALE, "pose stale")
-                self._unc = 0.0
+                self._est_xyt = pose
             else:
                 # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
                 # dropout bound, or too uncertain) holds the robot
@@ -585,7 +589,7 @@ class Firmware:
                     return self._hold(_EV_STALE, "pose estimate invalid")
                 x, y, th, self._unc = got
                 pose_t = self._last_pose_t
-            self._est_xyt = (x, y, th)
+                self._est_xyt = got
 
             # --- setpoint staleness -----------------------------------------------------------
             lim = self._stale_sp

@@ -10,6 +10,7 @@ is the annotated template). Layout::
     [gains]      # robot_agent.params.TrackingGains fields
     [repulsion]  # robot_agent.params.RepulsionParams fields
     [safety]     # robot_agent.params.SafetyParams fields (s)
+    [estimator]  # robot_agent.params.EstimatorParams fields (pose estimator, extrapolation)
 
     [zenoh]
     mode = "client"                       # "client" (default) or "peer"
