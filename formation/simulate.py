@@ -197,7 +197,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                         oldest_rx = pose_rx[i]
         out = coord.tick(t, fresh)
         # 4. firmware, on the setpoints of the previous tick
-        t_prev = t - dt
+        t_prev = (k - 1) * dt  # the previous tick's time, exactly as the bus carries it
         cmds: list[WheelCommand] = []
         if prev_out is not None:
             prev_asg = prev_out.assignment
