@@ -25,11 +25,13 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from robot_agent import (
     AgentConfig,
+    EstimatorParams,
     Firmware,
     Pose,
     SafetyFilter,
@@ -43,6 +45,10 @@ from robot_agent import (
 )
 
 GOAL_US = 10.0
+# --estimator: the firmware with its pose estimator, fed a 40 ms old capture time and encoder
+# speeds every tick (latency compensation over two segments + odometry: the costly case).
+_CFG = AgentConfig()
+_EST_KW: dict[str, Any] = {}
 DT_S = 0.02
 RING = 1024  # pre-built inputs, cycled: the bench measures step(), not message construction
 
@@ -60,6 +66,13 @@ def _inputs(n: int) -> tuple[list[Pose], list[Setpoint], list[list[tuple[float, 
     return poses, sps, nbrs
 
 
+def _extra(now: float) -> dict[str, Any]:
+    """Keyword arguments of ``step`` beyond the defaults (only with --estimator)."""
+    if not _EST_KW:
+        return _EST_KW
+    return {"pose_capture_s": now - 0.04, "wheel_speeds": (3.0, 3.2)}
+
+
 def _percentile(sorted_ns: list[int], q: float) -> float:
     i = min(len(sorted_ns) - 1, max(0, round(q * (len(sorted_ns) - 1))))
     return sorted_ns[i] / 1000.0
@@ -67,7 +80,7 @@ def _percentile(sorted_ns: list[int], q: float) -> float:
 
 def bench_step(ticks: int) -> dict[str, float]:
     """Time ``Firmware.step`` tick by tick; returns statistics in microseconds."""
-    fw = Firmware(AgentConfig())
+    fw = Firmware(_CFG)
     poses, sps, nbrs = _inputs(RING)
     clock = time.perf_counter_ns
     samples = [0] * ticks
@@ -76,15 +89,21 @@ def bench_step(ticks: int) -> dict[str, float]:
         j = k % RING
         now = k * DT_S
         pose = poses[j]
+        kw = _extra(now)
         t0 = clock()
-        step(
-            now,
-            pose=pose,
-            pose_rx_s=now,
-            setpoint=sps[j],
-            setpoint_rx_s=now,
-            neighbours=nbrs[j],
-        )
+        if kw:  # (a call with **{} costs more than one without: keep the default path exact)
+            step(
+                now,
+                pose=pose,
+                pose_rx_s=now,
+                setpoint=sps[j],
+                setpoint_rx_s=now,
+                neighbours=nbrs[j],
+                **kw,
+            )
+        else:
+            step(now, pose=pose, pose_rx_s=now, setpoint=sps[j], setpoint_rx_s=now,
+                 neighbours=nbrs[j])  # fmt: skip
         samples[k] = clock() - t0
     status = fw.status()
     assert status.mode == "tracking", status
@@ -107,7 +126,7 @@ def bench_step(ticks: int) -> dict[str, float]:
 
 def bench_step_cpu(ticks: int, block: int = 10_000) -> dict[str, float]:
     """CPU time (us/tick) of ``step`` in blocks of ``block`` ticks: best and median block."""
-    fw = Firmware(AgentConfig())
+    fw = Firmware(_CFG)
     poses, sps, nbrs = _inputs(RING)
     cpu = time.thread_time_ns
     step = fw.step
@@ -118,14 +137,19 @@ def bench_step_cpu(ticks: int, block: int = 10_000) -> dict[str, float]:
         for _ in range(block):
             j = k % RING
             now = k * DT_S
-            step(
-                now,
-                pose=poses[j],
-                pose_rx_s=now,
-                setpoint=sps[j],
-                setpoint_rx_s=now,
-                neighbours=nbrs[j],
-            )
+            if _EST_KW:
+                step(
+                    now,
+                    pose=poses[j],
+                    pose_rx_s=now,
+                    setpoint=sps[j],
+                    setpoint_rx_s=now,
+                    neighbours=nbrs[j],
+                    **_extra(now),
+                )
+            else:
+                step(now, pose=poses[j], pose_rx_s=now, setpoint=sps[j], setpoint_rx_s=now,
+                     neighbours=nbrs[j])  # fmt: skip
             k += 1
         means.append((cpu() - t0) / block / 1000.0)
     means.sort()
@@ -200,7 +224,14 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ticks", type=int, default=200_000, help="ticks to time (default 200000)")
     ap.add_argument("--json", action="store_true", help="also print the results as JSON")
+    ap.add_argument(
+        "--estimator", action="store_true", help="enable the pose estimator (see _EST_KW)"
+    )
     args = ap.parse_args(argv)
+    if args.estimator:
+        global _CFG
+        _CFG = AgentConfig(estimator=EstimatorParams(enabled=True))
+        _EST_KW["on"] = True
     ticks = max(1000, args.ticks)
 
     print(f"python {platform.python_version()} ({platform.python_implementation()}), {ticks} ticks")

@@ -40,6 +40,7 @@ from robot_agent.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.safety_filter import Neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, plant_models
+from sim_plant.plant import WheelEncoders
 
 # Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
 # firmware builds its WheelCommand the same way).
@@ -76,6 +77,14 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
 
     coord = coordinator_core(scenario)
     plant, camera, link, monitor = plant_models(scenario, rng)
+    encoders = (
+        WheelEncoders(
+            n, scenario.plant.encoder_counts_per_rev, scenario.plant.encoder_slip_std, rng
+        )
+        if scenario.plant.encoder_counts_per_rev > 0.0
+        else None
+    )
+    wheel_meas: list[tuple[float, float]] | None = None
     firmwares = [Firmware(scenario.agent) for _ in ids]
 
     dt = scenario.dt_s
@@ -83,12 +92,21 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     slot_ids = list(coord.formation.slot_ids)
     slot_row = {s: k for k, s in enumerate(slot_ids)}
     stale = scenario.agent.safety.stale_pose_s
+    est_p = scenario.agent.estimator
+    if est_p.enabled:
+        # The robots ride through camera dropouts on their estimators: the coordinator keeps
+        # a robot (and its slot) as long as its firmware may still be tracking.
+        stale = max(
+            stale,
+            est_p.max_dropout_odom_s if encoders is not None else est_p.max_dropout_cmd_s,
+        )
 
     # Per-robot state of the loop. poses[i] is robot i's latest measured pose, as its firmware
     # sees it; xyt[i] the same (x, y, theta) as the coordinator sees it.
     poses: list[Pose | None] = [None] * n
     xyt: list[tuple[float, float, float] | None] = [None] * n
     pose_rx = [-math.inf] * n
+    pose_cap: list[float | None] = [None] * n
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
     neighbours: list[list[Any]] = [[] for _ in ids]
     tracking = [False] * n  # robot j's firmware was TRACKING on the previous tick
@@ -112,14 +130,17 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
         # 1. disturbances
         while pending and pending[0].t_s <= t + 1e-9:
             d = pending.pop(0)
-            apply_scheduled(plant, index[d.robot], d)
+            apply_scheduled(plant, index[d.robot], d, camera)
         truth = plant.truth_rows()
+        if encoders is not None:  # mean wheel speeds over the last tick, as measured
+            wheel_meas = encoders.read(t, plant.wheel_angles())
         # 2. camera
         camera.capture(t, truth)
         delivered = camera.poll(t)
         if delivered:
             for i, stamp, x, y, th in delivered:
                 poses[i] = _tuple_new(Pose, (x, y, th, stamp))
+                pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
                 xyt[i] = (x, y, th)
                 pose_rx[i] = t
         # every other robot's latest measured pose, for repulsion and the safety filter, with
@@ -172,6 +193,8 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                     setpoint=sp,
                     setpoint_rx_s=t_prev,
                     neighbours=neighbours[i],
+                    pose_capture_s=pose_cap[i],
+                    wheel_speeds=None if wheel_meas is None else wheel_meas[i],
                 )
             )
         tracking = [c[4] is Mode.TRACKING for c in cmds]

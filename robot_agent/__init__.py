@@ -5,6 +5,7 @@ potential-field repulsion and the ``Firmware`` mode machine. No I/O, no clock re
 it could be ported to a microcontroller loop. The I/O shell lives in separate modules.
 """
 
+from .estimator import Estimator, EstimatorStatus
 from .firmware import Firmware, FirmwareStatus, Mode, Pose, Setpoint, WheelCommand
 from .kinematics import (
     ref_point_velocity,
@@ -18,6 +19,7 @@ from .kinematics import (
 from .params import (
     DEFAULT_K_REP,
     AgentConfig,
+    EstimatorParams,
     RepulsionParams,
     RobotGeometry,
     SafetyFilterParams,
@@ -33,6 +35,9 @@ __all__ = [
     "DEFAULT_K_REP",
     "AgentConfig",
     "AxisPID",
+    "Estimator",
+    "EstimatorParams",
+    "EstimatorStatus",
     "Firmware",
     "FirmwareStatus",
     "Mode",

@@ -33,9 +33,25 @@ In TRACKING the controller can still fail (overflow from absurd but finite input
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
 
+Estimator (``config.estimator.enabled``, off by default; ``robot_agent/estimator.py``): every
+tick, in any mode, a new ``Pose`` object (each object once) is fused at its capture time
+``pose_capture_s`` (the shell's clock; ``pose_rx_s`` when not given) and the encoder speeds
+``wheel_speeds`` (mean over the interval since the previous tick) extend the odometry; the
+wheels commanded on a tick are the prediction's input from that tick on when no encoder speeds
+replace them. The pose the controller uses is the estimate at ``now_s``; an invalid estimate
+(no pose yet, the camera lost beyond the dropout bound, too uncertain) is a STALE event (HOLD)
+and replaces the ``stale_pose_s`` rule. A rejected pose is counted and the estimate rides on.
+``pose_uncertainty_m`` is the estimate's uncertainty (m), for the safety filter.
+
+Setpoint extrapolation (``config.estimator.extrapolate_setpoint``, on by default): the setpoint
+is advanced by its feed-forward velocity over its receive age ``now_s - setpoint_rx_s`` (one
+tick in lockstep, where the setpoint of tick k-1 is used at tick k), so a one-tick-old setpoint
+leaves no steady lag.
+
 Pipeline in TRACKING (one tick)::
 
-    reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
+    [estimator: pose at now_s] -> [setpoint + ff * age]
+    -> reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
     -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
     -> + repulsion from neighbours / obstacles, evaluated at the axle centre (the paper's
        potential field) -> safety filter (barrier certificate on the reference-point velocity,
@@ -70,6 +86,7 @@ from dataclasses import dataclass
 from enum import Enum, StrEnum
 from typing import Any, Final, NamedTuple
 
+from .estimator import Estimator
 from .kinematics import saturate_wheels
 from .params import AgentConfig
 from .repulsion import repulsion_velocity_counted
@@ -287,13 +304,18 @@ class Firmware:
     """One robot's controller: call ``step`` once per tick (see the module docstring)."""
 
     __slots__ = (
+        "_act_delay",
         "_cfg",
         "_dt_faults",
+        "_est",
+        "_est_xyt",
         "_ex",
+        "_extrap",
         "_ey",
         "_filter",
         "_filter_fn",
         "_filter_on",
+        "_fused_pose",
         "_geom",
         "_half_track",
         "_have_setpoint",
@@ -305,6 +327,7 @@ class Firmware:
         "_last_saturated",
         "_max_dt",
         "_mode",
+        "_pending_cmd",
         "_pose_age",
         "_reason",
         "_rej_reason",
@@ -319,6 +342,7 @@ class Firmware:
         "_stale_sp",
         "_steps",
         "_tracker",
+        "_unc",
         "_wheel_r",
         "_wmax",
     )
@@ -361,6 +385,19 @@ class Firmware:
         self._rej_reason = ""
         self._role_changes = 0
         self._dt_faults = 0
+        ep = cfg.estimator
+        self._est: Estimator | None = Estimator(ep) if ep.enabled else None
+        self._extrap = ep.extrapolate_setpoint
+        self._act_delay = ep.actuation_delay_s
+        self._fused_pose: Pose | None = None
+        # (t, omega_r, omega_l) of the last command, handed to the estimator on the next tick
+        # unless encoder speeds replace it (it only matters for times after that tick)
+        self._pending_cmd: tuple[float, float, float] | None = None
+        self._unc = _NAN
+        # the pose (first three fields: x, y, theta) the last tick used: a Pose or an estimate
+        self._est_xyt: tuple[float, ...] | None = None
+        if self._est is None:
+            self._unc = 0.0
 
     # ------------------------------------------------------------------ public API
 
@@ -383,6 +420,25 @@ class Firmware:
     def tracker(self) -> TrackingController:
         """The tracking controller (for inspection in tests and logs)."""
         return self._tracker
+
+    @property
+    def estimator(self) -> Estimator | None:
+        """The pose estimator (None when ``config.estimator.enabled`` is False)."""
+        return self._est
+
+    @property
+    def pose_uncertainty_m(self) -> float:
+        """Uncertainty (m) of the pose used on the last tick: ``n_sigma`` standard deviations
+        of the estimator's position (the safety filter's extra radius); NaN without a valid
+        estimate on that tick, 0.0 with the estimator disabled."""
+        return self._unc
+
+    @property
+    def pose_estimate(self) -> tuple[float, float, float] | None:
+        """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
+        the measured pose with the estimator disabled), or None."""
+        xyt = self._est_xyt
+        return None if xyt is None else (xyt[0], xyt[1], xyt[2])
 
     def reject(self, reason: str) -> None:
         """Count one bad input (e.g. a message the shell could not decode) with its reason."""
@@ -440,6 +496,8 @@ class Firmware:
         neighbours: Sequence[tuple[float, float] | Neighbour] = (),
         obstacles: Sequence[tuple[float, float, float]] = (),
         extra_radius_m: float = 0.0,
+        pose_capture_s: float | None = None,
+        wheel_speeds: tuple[float, float] | None = None,
     ) -> WheelCommand:
         """Run one control tick.
 
@@ -456,6 +514,12 @@ class Firmware:
                 (on top of the configured ``AgentConfig.world``).
             extra_radius_m: this robot's own position uncertainty (m), which the safety filter
                 adds to every clearance (from the estimator; 0 = exact pose).
+            pose_capture_s: capture time of ``pose`` on the shell's clock (s), for latency
+                compensation; None takes ``pose_rx_s`` (no latency known). Used only with the
+                estimator. In lockstep and in-process ``pose.t`` is on that clock.
+            wheel_speeds: ``(omega_r, omega_l)`` (rad/s) the encoders measured, mean over the
+                interval since the previous ``step``; None when the motor backend has no
+                encoders (the estimator then predicts from the commanded speeds).
 
         Returns:
             The wheel command; exactly zero wheels in every mode but TRACKING. Never raises.
@@ -478,6 +542,22 @@ class Firmware:
                     self._dt_faults += 1
                     self._tracker.reset_derivative()
                     dt = 0.0
+
+            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current) ----
+            est = self._est
+            if est is not None:
+                pending = self._pending_cmd
+                if wheel_speeds is not None and last is not None:
+                    self._odometry(wheel_speeds, last, now_s)
+                elif pending is not None:
+                    pt_s, pwr, pwl = pending
+                    r = self._wheel_r
+                    est.add_command(
+                        pt_s, 0.5 * r * (pwr + pwl), 0.5 * r * (pwr - pwl) / self._half_track
+                    )
+                self._pending_cmd = None
+                if pose is not None and pose is not self._fused_pose:
+                    self._fuse_pose(now_s, pose, pose_rx_s, pose_capture_s)
 
             if self._mode is _ESTOP:
                 return self._hold(_EV_ESTOP, "estop")
@@ -504,27 +584,51 @@ class Firmware:
             self._setpoint_age = sp_age
 
             # --- pose -----------------------------------------------------------------------
-            if pose is None:
-                self._pose_age = _NAN
-                return self._hold(_EV_STALE, "no pose")
-            x, y, th, pose_t = pose
-            if not _isfinite(x + y + th + pose_t + pose_rx_s):
-                self._reject_pose(pose, "non-finite pose")
-                return self._hold(_EV_INVALID, "pose rejected")
-            self._last_pose_t = pose_t
-            pose_age = now_s - pose_rx_s
-            self._pose_age = pose_age
+            pose_t: float | None
+            if est is None:
+                if pose is None:
+                    self._pose_age = _NAN
+                    return self._hold(_EV_STALE, "no pose")
+                x, y, th, pose_t = pose
+                if not _isfinite(x + y + th + pose_t + pose_rx_s):
+                    self._reject_pose(pose, "non-finite pose")
+                    return self._hold(_EV_INVALID, "pose rejected")
+                self._last_pose_t = pose_t
+                pose_age = now_s - pose_rx_s
+                self._pose_age = pose_age
+                # staleness (|age|: a receive time in the future is as wrong as an old one)
+                lim = self._stale_pose
+                if not -lim <= pose_age <= lim:
+                    return self._hold(_EV_STALE, "pose stale")
+                self._est_xyt = pose
+            else:
+                # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
+                # dropout bound, or too uncertain) holds the robot
+                self._pose_age = now_s - pose_rx_s if pose is not None else _NAN
+                got = est.estimate(now_s)
+                if got is None:
+                    self._unc = _NAN
+                    self._est_xyt = None
+                    if est.last_capture_s is None:
+                        return self._hold(_EV_STALE, "no pose")
+                    return self._hold(_EV_STALE, "pose estimate invalid")
+                x, y, th, self._unc = got
+                pose_t = self._last_pose_t
+                self._est_xyt = got
 
-            # --- staleness (|age|: a receive time in the future is as wrong as an old one) --
-            lim = self._stale_pose
-            if not -lim <= pose_age <= lim:
-                return self._hold(_EV_STALE, "pose stale")
+            # --- setpoint staleness -----------------------------------------------------------
             lim = self._stale_sp
             if not -lim <= sp_age <= lim:
                 return self._hold(_EV_STALE, "setpoint stale")
 
             if self._mode is not _TRACKING:
                 self._transition(_EV_FRESH, "tracking")
+
+            # --- setpoint extrapolation: where the setpoint is now, advanced by its
+            # feed-forward velocity over its receive age (exactly one tick in lockstep) ------
+            if self._extrap and sp_age > 0.0:
+                spx += spvx * sp_age
+                spy += spvy * sp_age
 
             # --- eqs 10-11 (reference point), 17-18 (error), 21-22 (PID + FF, speed cap) ----
             l_m = self._l
@@ -601,6 +705,8 @@ class Firmware:
                             wl = wl0 * k
                             flt.count_rescaled()
             self._last_saturated = sat
+            if est is not None:  # for the prediction (see _pending_cmd)
+                self._pending_cmd = (now_s + self._act_delay, wr, wl)
             return _new_command(wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat)
         except Exception as exc:
             self.reject(f"internal error: {type(exc).__name__}")
@@ -652,8 +758,48 @@ class Firmware:
             self._last_rejected_setpoint = setpoint
             self.reject(reason)
 
+    def _odometry(self, wheel_speeds: tuple[float, float], last: float, now_s: float) -> None:
+        """Measured wheel speeds over ``[last, now_s)`` into the estimator (eq 7)."""
+        est = self._est
+        assert est is not None
+        try:
+            wr, wl = wheel_speeds
+            r = self._wheel_r
+            ok = (
+                now_s > last
+                and est.add_odometry(
+                    last, now_s, 0.5 * r * (wr + wl), 0.5 * r * (wr - wl) / self._half_track
+                )
+                if _isfinite(wr + wl)
+                else False
+            )
+        except (TypeError, ValueError):
+            ok = False
+        if not ok and now_s > last:
+            self.reject("bad wheel speeds")
+
+    def _fuse_pose(
+        self, now_s: float, pose: Pose, pose_rx_s: float, capture_s: float | None
+    ) -> None:
+        """A new camera pose into the estimator (each Pose object once)."""
+        est = self._est
+        assert est is not None
+        self._fused_pose = pose
+        x, y, th, pose_t = pose
+        cap = pose_rx_s if capture_s is None else capture_s
+        if not _isfinite(pose_t):
+            self.reject("non-finite pose")
+            return
+        reason = est.add_measurement(now_s, cap, x, y, th)
+        if reason is None:
+            self._last_pose_t = pose_t
+        else:
+            self.reject(reason)
+
     def _hold(self, event: _Event, reason: str) -> WheelCommand:
         """Non-tracking tick: apply the event, zero wheels."""
         self._transition(event, reason)
         self._last_saturated = False
+        if self._est is not None and self._last_now is not None:
+            self._pending_cmd = (self._last_now + self._act_delay, 0.0, 0.0)
         return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, self._last_pose_t, False)

@@ -20,6 +20,7 @@ __all__ = [
     "AgentConfig",
     "Arena",
     "CircleObstacle",
+    "EstimatorParams",
     "RepulsionParams",
     "RobotGeometry",
     "SafetyFilterParams",
@@ -340,6 +341,99 @@ class WorldMap:
 
 
 @dataclass(frozen=True, slots=True)
+class EstimatorParams:
+    """Pose estimator (``robot_agent.estimator``) and setpoint extrapolation.
+
+    Variances grow per metre travelled, per radian turned and per second while the estimate is
+    predicted from wheel speeds; a camera pose shrinks them (scalar Kalman gain per axis). See
+    the model in ``robot_agent/estimator.py`` and the defaults in docs/defaults.md.
+
+    Attributes:
+        enabled: False gives the firmware of before the estimator: the last measured pose is
+            used as if current and a pose older than ``SafetyParams.stale_pose_s`` (receive age)
+            holds the robot.
+        extrapolate_setpoint: advance a setpoint by its feed-forward velocity over its receive
+            age (one tick in lockstep), so a one-tick-old setpoint leaves no steady lag.
+        history_s: how far back (s) a late camera pose is still replayed at its own capture
+            time; older ones are rejected. Must be >= both dropout bounds.
+        max_dropout_odom_s: the estimate stays valid this long (s) after the capture of the last
+            camera pose while encoder speeds keep arriving (odometry).
+        max_dropout_cmd_s: the same bound predicting from the commanded wheel speeds only.
+        odom_timeout_s: encoder speeds older than this (s) no longer count as odometry.
+        max_latency_s: a camera pose captured longer than this before ``now`` is rejected (s).
+        future_tolerance_s: a capture time up to this far after ``now`` is taken as ``now``
+            (clock rounding); later ones are rejected (s).
+        actuation_delay_s: a commanded wheel speed is assumed to act this long after the tick
+            that computed it (command link latency + motor lag, s).
+        meas_pos_std_m: camera position noise (standard deviation per axis, m).
+        meas_theta_std_rad: camera heading noise (rad).
+        odom_pos_var_per_m: position variance added per metre travelled with encoder odometry
+            (m^2/m).
+        cmd_pos_var_per_m: the same predicting from commanded wheel speeds (m^2/m).
+        odom_pos_var_per_s: position variance added per second with odometry (m^2/s).
+        cmd_pos_var_per_s: the same from commanded speeds (m^2/s): a pushed or stalled robot
+            is invisible to its own commands.
+        theta_var_per_rad: heading variance per radian turned (rad^2/rad).
+        theta_var_per_m: heading variance per metre travelled (rad^2/m).
+        theta_var_per_s: heading variance per second (rad^2/s).
+        gate_m: a camera pose farther than ``gate_m + n_sigma * sigma`` from the prediction at
+            its capture time is implausible: rejected and counted (m).
+        reset_after: this many implausible poses in a row re-initialise the estimate at the
+            last one (the robot was carried or put down elsewhere).
+        n_sigma: the reported uncertainty is ``n_sigma`` standard deviations (m).
+        max_uncertainty_m: an uncertainty above this makes the estimate invalid (m).
+    """
+
+    enabled: bool = False
+    extrapolate_setpoint: bool = True
+    history_s: float = 1.5
+    max_dropout_odom_s: float = 1.5
+    max_dropout_cmd_s: float = 0.3
+    odom_timeout_s: float = 0.1
+    max_latency_s: float = 0.5
+    future_tolerance_s: float = 0.005
+    actuation_delay_s: float = 0.0
+    meas_pos_std_m: float = 0.003
+    meas_theta_std_rad: float = 0.01
+    odom_pos_var_per_m: float = 1.0e-4
+    cmd_pos_var_per_m: float = 4.0e-4
+    odom_pos_var_per_s: float = 1.0e-6
+    cmd_pos_var_per_s: float = 1.0e-5
+    theta_var_per_rad: float = 4.0e-4
+    theta_var_per_m: float = 1.0e-3
+    theta_var_per_s: float = 1.0e-6
+    gate_m: float = 0.2
+    reset_after: int = 3
+    n_sigma: float = 3.0
+    max_uncertainty_m: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("enabled", "extrapolate_setpoint"):
+            value = getattr(self, name)
+            _require(isinstance(value, bool), f"{name} must be a bool, got {value!r}")
+        for name in ("history_s", "max_dropout_odom_s", "max_dropout_cmd_s", "odom_timeout_s",
+                     "max_latency_s", "max_uncertainty_m"):  # fmt: skip
+            _positive(name, getattr(self, name))
+        for name in (
+            "future_tolerance_s", "actuation_delay_s", "meas_pos_std_m", "meas_theta_std_rad",
+            "odom_pos_var_per_m", "cmd_pos_var_per_m", "odom_pos_var_per_s", "cmd_pos_var_per_s",
+            "theta_var_per_rad", "theta_var_per_m", "theta_var_per_s", "gate_m", "n_sigma",
+        ):  # fmt: skip
+            _non_negative(name, getattr(self, name))
+        _require(
+            isinstance(self.reset_after, int)
+            and not isinstance(self.reset_after, bool)
+            and self.reset_after >= 1,
+            f"reset_after must be an integer >= 1, got {self.reset_after!r}",
+        )
+        _require(
+            self.history_s >= max(self.max_dropout_odom_s, self.max_dropout_cmd_s),
+            "history_s must be >= max_dropout_odom_s and max_dropout_cmd_s",
+        )
+        _require(self.history_s >= self.max_latency_s, "history_s must be >= max_latency_s")
+
+
+@dataclass(frozen=True, slots=True)
 class AgentConfig:
     """Everything one robot's firmware needs.
 
@@ -352,6 +446,7 @@ class AgentConfig:
     safety: SafetyParams = field(default_factory=SafetyParams)
     safety_filter: SafetyFilterParams = field(default_factory=SafetyFilterParams)
     world: WorldMap = field(default_factory=WorldMap)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
 
     def __post_init__(self) -> None:
         _require(isinstance(self.geometry, RobotGeometry), "geometry must be a RobotGeometry")
@@ -374,3 +469,4 @@ class AgentConfig:
     def safety_distance_m(self) -> float:
         """Ds: the least centre distance the filter keeps between two robots (m)."""
         return 2.0 * self.geometry.body_radius_m + self.safety_filter.margin_m
+        _require(isinstance(self.estimator, EstimatorParams), "estimator must be EstimatorParams")

@@ -32,6 +32,7 @@ is the annotated template). Layout::
     [[obstacle]]
     kind = "polygon"                      # points = [[x, y], ...] (>= 3), its closed outline
     points = [[1.0, -1.0], [1.2, -1.0], [1.2, -0.8]]
+    [estimator]  # robot_agent.params.EstimatorParams fields (pose estimator, extrapolation)
 
     [zenoh]
     mode = "client"                       # "client" (default) or "peer"

@@ -68,11 +68,18 @@ def plant_models(
     return plant, camera, link, SeparationMonitor(geom.body_radius_m)
 
 
-def apply_scheduled(plant: Plant, i: int, d: Disturbance) -> None:
-    """Start scheduled disturbance ``d`` on robot ``i``: a drag, or a teleport to ``(x, y)``
-    (each defaulting to the current truth plus ``dx``/``dy``) and ``theta``."""
+def apply_scheduled(
+    plant: Plant, i: int, d: Disturbance, camera: Camera | None = None, t0_s: float = 0.0
+) -> None:
+    """Start scheduled disturbance ``d`` on robot ``i``: a drag, a camera loss (robot ``i``
+    out of ``camera``'s view for ``duration_s``; scenario times are relative to ``t0_s``), or a
+    teleport to ``(x, y)`` (each defaulting to the current truth plus ``dx``/``dy``) and
+    ``theta``."""
     if d.kind == "drag":
         plant.drag(i, d.dx, d.dy, d.duration_s)
+    elif d.kind == "camera_loss":
+        if camera is not None:
+            camera.occlude(i, t0_s + d.t_s, t0_s + d.t_s + d.duration_s)
     else:
         x_i, y_i, _ = plant.truth_rows()[i]
         plant.teleport(

@@ -20,6 +20,7 @@ from typing import Any
 from bus_schemas import keys
 from robot_agent.params import (
     AgentConfig,
+    EstimatorParams,
     RepulsionParams,
     RobotGeometry,
     SafetyParams,
@@ -51,6 +52,8 @@ class LinkModel:
 @dataclass(frozen=True)
 class PlantModel:
     motor_tau_s: float = 0.05
+    encoder_counts_per_rev: float = 0.0  # > 0: emulate wheel encoders (feed the estimator)
+    encoder_slip_std: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -64,7 +67,7 @@ class AssignmentConfig:
 class Disturbance:
     t_s: float
     robot: str
-    kind: str  # "drag" | "teleport"
+    kind: str  # "drag" | "teleport" | "camera_loss" (robot out of the camera's view)
     dx: float = 0.0
     dy: float = 0.0
     duration_s: float = 1.0
@@ -181,6 +184,8 @@ def _dataclass_from(cls: Any, d: dict[str, Any], where: str) -> Any:
             if not isinstance(v, bool):
                 raise ScenarioError(f"{where}.{k}: expected true/false, got {v!r}")
             kwargs[k] = v
+        elif isinstance(default, int) and isinstance(v, int) and not isinstance(v, bool):
+            kwargs[k] = v
         elif isinstance(default, int | float):
             kwargs[k] = _num(d, k, where, lo=0.0)
         else:
@@ -194,7 +199,7 @@ def _dataclass_from(cls: Any, d: dict[str, Any], where: str) -> Any:
 TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
-    "camera", "link", "disturbance",
+    "camera", "link", "disturbance", "estimator",
 }  # fmt: skip
 
 
@@ -256,6 +261,7 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         gains=_dataclass_from(TrackingGains, _table(data, "gains", ""), "gains"),
         repulsion=_dataclass_from(RepulsionParams, _table(data, "repulsion", ""), "repulsion"),
         safety=_dataclass_from(SafetyParams, _table(data, "safety", ""), "safety"),
+        estimator=_dataclass_from(EstimatorParams, _table(data, "estimator", ""), "estimator"),
     )
 
     trajectory = _table(data, "trajectory", "")
@@ -277,8 +283,12 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
     )
 
     p = _table(data, "plant", "")
-    _only(p, {"motor_tau_s"}, "plant")
-    plant = PlantModel(motor_tau_s=_num(p, "motor_tau_s", "plant", 0.05, lo=0.0, hi=10.0))
+    _only(p, {"motor_tau_s", "encoder_counts_per_rev", "encoder_slip_std"}, "plant")
+    plant = PlantModel(
+        motor_tau_s=_num(p, "motor_tau_s", "plant", 0.05, lo=0.0, hi=10.0),
+        encoder_counts_per_rev=_num(p, "encoder_counts_per_rev", "plant", 0.0, lo=0.0, hi=1e7),
+        encoder_slip_std=_num(p, "encoder_slip_std", "plant", 0.0, lo=0.0, hi=0.5),
+    )
     c = _table(data, "camera", "")
     _only(c, {f.name for f in dataclasses.fields(CameraModel)}, "camera")
     camera = CameraModel(
@@ -305,8 +315,10 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
             raise ScenarioError(f"{where}: expected a table")
         _only(d, {"t_s", "robot", "kind", "dx", "dy", "duration_s", "x", "y", "theta"}, where)
         kind = d.get("kind")
-        if kind not in ("drag", "teleport"):
-            raise ScenarioError(f"{where}.kind: {kind!r} is not 'drag' or 'teleport'")
+        if kind not in ("drag", "teleport", "camera_loss"):
+            raise ScenarioError(
+                f"{where}.kind: {kind!r} is not 'drag', 'teleport' or 'camera_loss'"
+            )
         robot = d.get("robot")
         if robot not in ids:
             raise ScenarioError(f"{where}.robot: {robot!r} is not one of the scenario's robots")

@@ -169,7 +169,7 @@ class PlantNode(PlantInputs):
             d = self.scheduled.popleft()
             i = self.index[d.robot]
             try:
-                apply_scheduled(plant, i, d)
+                apply_scheduled(plant, i, d, sim.camera, sim.t0_s)
                 self.log.info(f"t={t_s:.3f} s: scheduled {d.kind} of {d.robot}")
             except (ValueError, IndexError) as exc:
                 self._internal("scheduled disturbance", exc)

@@ -66,6 +66,7 @@ __all__ = [
     "GeometryLike",
     "Plant",
     "PoseRows",
+    "WheelEncoders",
     "unicycle_integrate",
     "wrap_angle",
     "wrap_angles",
@@ -223,6 +224,8 @@ class Plant:
         pose[:, 2] = wrap_angles(pose[:, 2])
         self._pose: FloatArray = pose
         self._wheels: FloatArray = np.zeros((n, 2))
+        # Cumulative wheel angles (rad): what ideal encoders count (also while carried).
+        self._angles: list[list[float]] = [[0.0, 0.0] for _ in range(n)]
         # Drag schedule per robot; t0 = +inf means "no drag".
         self._drag_t0: FloatArray = np.full(n, np.inf)
         self._drag_dur: FloatArray = np.zeros(n)
@@ -285,6 +288,12 @@ class Plant:
         """Copy of the true wheel speeds, ``(n, 2)`` ``[omega_r, omega_l]`` in rad/s."""
         self._sync_arrays()
         return self._wheels.copy()
+
+    def wheel_angles(self) -> list[tuple[float, float]]:
+        """Cumulative angle of each wheel since the start, ``(angle_r, angle_l)`` in rad: the
+        integral of the (lagged) wheel speed, what an ideal encoder counts. The wheels turn
+        (and count) while the robot is carried, too."""
+        return [(a[0], a[1]) for a in self._angles]
 
     @property
     def body_twist(self) -> FloatArray:
@@ -418,8 +427,12 @@ class Plant:
             v, w = self._twist(mean)
             self._pose = unicycle_integrate(self._pose, v, w, dt)
         else:
+            mean = self._mean_wheels(cmd, 0.0, np.full(self.n, dt))
             self._step_with_drags(cmd, ta, tb, dt)
             self._any_drag = bool(np.isfinite(self._drag_t0).any())
+        for a, (mr, ml) in zip(self._angles, mean.tolist(), strict=True):
+            a[0] += mr * dt
+            a[1] += ml * dt
 
         if tau > 0.0:
             self._wheels = cmd + (self._wheels - cmd) * math.exp(-dt / tau)
@@ -468,6 +481,7 @@ class Plant:
         sin, cos = math.sin, math.cos
         new_rows: list[PoseRow] = []
         new_w: list[WheelRow] = []
+        angles: list[tuple[float, float]] = []
         try:
             for (x, y, th), (w0r, w0l), (cr, cl) in zip(rows, wrows, cmds, strict=True):
                 # False for NaN, for +-inf and beyond the limit: those go the general way to be
@@ -482,6 +496,7 @@ class Plant:
                     mr = cr = float(cr)  # the wheel state holds floats, as the arrays do
                     ml = cl = float(cl)
                     new_w.append((cr, cl))
+                angles.append((mr * dt, ml * dt))
                 v = kv * (mr + ml)  # eq 7 (corrected), as _twist
                 half_turn = radius * (mr - ml) / track * half_dt
                 ratio = sin(half_turn) / half_turn if half_turn != 0.0 else 1.0
@@ -496,6 +511,9 @@ class Plant:
         if self._sat_any:
             self._saturated = np.zeros(len(rows), dtype=np.bool_)
             self._sat_any = False
+        for a, (dr, dl) in zip(self._angles, angles, strict=True):
+            a[0] += dr
+            a[1] += dl
         self._rows = PoseRows(new_rows)
         self._wrows = tuple(new_w)
         self._np_stale = True
@@ -622,6 +640,7 @@ class Plant:
         self._saturated = np.append(self._saturated, False)
         self._clamp_counts = np.append(self._clamp_counts, np.int64(0))
         self._nonfinite_counts = np.append(self._nonfinite_counts, np.int64(0))
+        self._angles.append([0.0, 0.0])
         return self.n - 1
 
     def remove_robot(self, i: int) -> None:
@@ -640,5 +659,66 @@ class Plant:
         self._saturated = np.delete(self._saturated, idx)
         self._clamp_counts = np.delete(self._clamp_counts, idx)
         self._nonfinite_counts = np.delete(self._nonfinite_counts, idx)
+        del self._angles[idx]
         self._any_drag = bool(np.isfinite(self._drag_t0).any())
         self._sat_any = bool(self._saturated.any())
+
+
+class WheelEncoders:
+    """Quadrature encoders on every wheel, read once per control tick (emulation).
+
+    ``read(angles)`` takes :meth:`Plant.wheel_angles` and returns, per robot, the mean wheel
+    speeds ``(omega_r, omega_l)`` (rad/s) over the interval since the previous read, as a
+    RoboClaw-style speed computed from count differences: angles are scaled by
+    ``1 + slip`` (a per-wheel constant drawn once from N(0, ``slip_std``): the wheel slips or its
+    radius differs, so the counts over- or under-state the ground motion) and quantised to whole
+    counts (``counts_per_rev`` per wheel revolution; 0 = no quantisation). The first read
+    returns None (no interval yet).
+    """
+
+    def __init__(
+        self,
+        n: int,
+        counts_per_rev: float,
+        slip_std: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        cpr = _check_finite_scalar("counts_per_rev", counts_per_rev)
+        slip = _check_finite_scalar("slip_std", slip_std)
+        if cpr < 0.0 or slip < 0.0:
+            raise ValueError("counts_per_rev and slip_std must be >= 0")
+        if slip > 0.0 and rng is None:
+            raise ValueError("rng is required when slip_std > 0")
+        self._per_rad = cpr / _TWO_PI
+        self.slip: list[tuple[float, float]] = (
+            [(float(a), float(b)) for a, b in rng.normal(0.0, slip, (n, 2)).tolist()]
+            if slip > 0.0 and rng is not None
+            else [(0.0, 0.0)] * n
+        )
+        self._last: list[tuple[float, float]] | None = None
+        self._last_t = math.nan
+
+    def _counts(self, angles: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        k = self._per_rad
+        out = []
+        for (ar, al), (sr, sl) in zip(angles, self.slip, strict=True):
+            cr, cl = ar * (1.0 + sr), al * (1.0 + sl)
+            if k > 0.0:
+                cr, cl = math.floor(cr * k) / k, math.floor(cl * k) / k
+            out.append((cr, cl))
+        return out
+
+    def read(
+        self, t_s: float, angles: list[tuple[float, float]]
+    ) -> list[tuple[float, float]] | None:
+        """Mean wheel speeds per robot since the previous read at ``t_s`` (s), or None."""
+        counts = self._counts(angles)
+        last, last_t = self._last, self._last_t
+        self._last, self._last_t = counts, t_s
+        if last is None or not t_s > last_t:
+            return None
+        dt = t_s - last_t
+        return [
+            ((r - r0) / dt, (lft - l0) / dt)
+            for (r, lft), (r0, l0) in zip(counts, last, strict=True)
+        ]

@@ -159,6 +159,14 @@ class Camera:
         self.frames_missed = 0
         self.measurements_missed = 0
         self.measurements_delivered = 0
+        self.measurements_occluded = 0
+        self._occluded: dict[int, tuple[float, float]] = {}
+
+    def occlude(self, i: int, t0_s: float, t1_s: float) -> None:
+        """Robot ``i`` is out of view for captures stamped in ``[t0_s, t1_s)`` (an occlusion, a
+        hand over the tag): those measurements are never delivered (counted in
+        ``measurements_occluded``). One window per robot; a new one replaces it."""
+        self._occluded[int(i)] = (float(t0_s), float(t1_s))
 
     @property
     def n(self) -> int:
@@ -290,9 +298,33 @@ class Camera:
         # Constant latency and increasing stamps: the deque is sorted by delivery time.
         while queue and queue[0].deliver_t <= t:
             frame = queue.popleft()
+            if self._occluded:
+                frame = self._without_occluded(frame)
             self.measurements_delivered += len(frame.ids)
             out.append(frame)
         return out
+
+    def _without_occluded(self, frame: CameraFrame | _RowFrame) -> CameraFrame | _RowFrame:
+        stamp = frame.stamp_t
+        ids = list(frame.ids) if isinstance(frame, _RowFrame) else frame.ids.tolist()
+        keep = [
+            j
+            for j, i in enumerate(ids)
+            if not (i in self._occluded and self._occluded[i][0] <= stamp < self._occluded[i][1])
+        ]
+        if len(keep) == len(ids):
+            return frame
+        self.measurements_occluded += len(ids) - len(keep)
+        if isinstance(frame, _RowFrame):
+            return _RowFrame(
+                frame.stamp_t,
+                frame.deliver_t,
+                [ids[j] for j in keep],
+                [frame.poses[j] for j in keep],
+            )
+        return CameraFrame(
+            frame.stamp_t, frame.deliver_t, frame.ids[keep], frame.poses[keep].reshape(-1, 3)
+        )
 
     def poll_frames(self, t_s: float) -> list[CameraFrame]:
         """Frames whose delivery time is <= ``t_s``, oldest first (array form, for large n)."""

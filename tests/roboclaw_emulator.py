@@ -6,7 +6,9 @@ the controller on the master side:
 
 - parses packets addressed to it, checks their CRC16 and answers ``0xFF`` (writes) or the
   data + CRC (reads); a packet with a bad CRC gets no answer and changes nothing;
-- implements commands 14 (set serial timeout), 15 (read serial timeout), 21 (read firmware
+- implements commands 14 (set serial timeout), 15 (read serial timeout), 18 / 19 (read encoder
+  speed M1 / M2: the commanded QPPS in speed mode, an ideal velocity loop, or ``encoder_qpps``
+  when set; signed 32 bits + a status byte whose bit 0 is the direction), 21 (read firmware
   version), 34 (M1/M2 duty) and 37 (M1/M2 speed), recording every drive command;
 - implements the serial timeout: when no valid packet arrived for the configured time, both
   motors are stopped (``timeout_stops`` counts it);
@@ -36,7 +38,7 @@ INTER_BYTE_TIMEOUT_S = 0.05
 
 # command -> number of data bytes of a write (CRC follows), or None for a read (no CRC sent)
 _WRITE_LENGTHS = {14: 1, 34: 4, 37: 8}
-_READS = {15, 21}
+_READS = {15, 18, 19, 21}
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,6 +77,7 @@ class RoboClawEmulator:
         self.crc_errors = 0
         self.timeout_stops = 0
         self.silent = False
+        self.encoder_qpps: tuple[int, int] | None = None  # measured speeds to report (18/19)
         self._corrupt_rx = 0
         self._corrupt_reply = 0
         self._thread = threading.Thread(target=self._run, name="roboclaw-emulator", daemon=True)
@@ -231,8 +234,18 @@ class RoboClawEmulator:
             if corrupt:
                 self._corrupt_reply -= 1
             tenths = self.serial_timeout_tenths
-        # 21: firmware string + LF + NUL; 15: the serial timeout setting
-        data = self.firmware.encode("ascii") + b"\n\x00" if command == 21 else bytes((tenths,))
+            if self.encoder_qpps is not None:
+                enc = self.encoder_qpps
+            else:
+                enc = (self.m1, self.m2) if self.mode == "speed" else (0, 0)
+        # 21: firmware string + LF + NUL; 15: the serial timeout setting; 18/19 encoder speed
+        if command in (18, 19):
+            qpps = enc[0] if command == 18 else enc[1]
+            data = struct.pack(">i", qpps) + bytes((1 if qpps < 0 else 0,))
+        elif command == 21:
+            data = self.firmware.encode("ascii") + b"\n\x00"
+        else:
+            data = bytes((tenths,))
         crc = crc16(header + data)
         if corrupt:
             crc ^= 0xFFFF

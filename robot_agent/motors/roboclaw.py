@@ -20,6 +20,11 @@ Commands:
                                                     value in 100 ms units (0..255 = 0..25.5
                                                     s): the controller stops both motors
                                                     when no packet arrives for that long.
+ 18   Read Encoder Speed M1                         ``[addr, 18]`` -> ``speed(4), status,
+ 19   Read Encoder Speed M2                         CRC``; speed in quadrature pulses per
+                                                    second (signed 32 bits), status bit 0 =
+                                                    direction (1 backwards); a magnitude
+                                                    with the direction bit set is negated.
  21   Read Firmware Version                         ``[addr, 21]`` -> ``"text", 10, 0,
                                                     CRC`` (at most 48 bytes of text).
  34   Drive M1/M2 With Signed Duty Cycle            ``[addr, 34, duty1(2), duty2(2), CRC]``
@@ -57,6 +62,8 @@ __all__ = [
     "CMD_DRIVE_DUTY_M1M2",
     "CMD_DRIVE_SPEED_M1M2",
     "CMD_READ_FIRMWARE",
+    "CMD_READ_SPEED_M1",
+    "CMD_READ_SPEED_M2",
     "CMD_SET_SERIAL_TIMEOUT",
     "RoboClawBackend",
     "RoboClawConfig",
@@ -68,6 +75,8 @@ __all__ = [
 ]
 
 CMD_SET_SERIAL_TIMEOUT = 14
+CMD_READ_SPEED_M1 = 18
+CMD_READ_SPEED_M2 = 19
 CMD_READ_FIRMWARE = 21
 CMD_DRIVE_DUTY_M1M2 = 34
 CMD_DRIVE_SPEED_M1M2 = 37
@@ -356,6 +365,30 @@ class RoboClawBackend:
                 break
         return False
 
+    def read_wheel_speeds(self) -> tuple[float, float] | None:
+        """Wheel speeds ``(omega_r, omega_l)`` (rad/s, positive = forward) the encoders
+        measure (commands 18 and 19), for the firmware's estimator (``Firmware.step``'s
+        ``wheel_speeds``). None in duty mode (no encoder scale), with the port closed, or when a
+        reply is missing or fails its CRC (counted in ``no_ack`` / ``crc_errors``). Never
+        raises. Optional: the shell calls it when the backend has it."""
+        cfg = self.config
+        if self._port is None or cfg.mode != "speed" or cfg.qpps_per_radps <= 0.0:
+            return None
+        m1 = self._read_speed(CMD_READ_SPEED_M1)
+        if m1 is None:
+            return None
+        m2 = self._read_speed(CMD_READ_SPEED_M2)
+        if m2 is None:
+            return None
+        k = cfg.qpps_per_radps
+        right, left = (m1, m2) if cfg.right_channel == "m1" else (m2, m1)
+        omega_r, omega_l = right / k, left / k
+        if cfg.invert_right:
+            omega_r = -omega_r
+        if cfg.invert_left:
+            omega_l = -omega_l
+        return omega_r, omega_l
+
     def close(self) -> None:
         """Stop the wheels (best effort) and close the port. Idempotent, never raises."""
         if self._port is not None:
@@ -551,6 +584,35 @@ class RoboClawBackend:
         if self._consecutive >= self.config.max_consecutive_failures:
             self._lose_port(now_s)
         return False
+
+    def _read_speed(self, command: int) -> int | None:
+        """Command 18 / 19: one channel's encoder speed (QPPS, signed), or None."""
+        port = self._port
+        header = bytes((self.config.address, command))
+        try:
+            port.reset_input_buffer()
+            port.write(header)
+            self._commands += 1
+            reply = port.read(7)  # speed (4), status (1), CRC (2)
+        except _SERIAL_ERRORS as exc:
+            self._io_errors += 1
+            self._fail(f"serial I/O error on {self.config.port}: {exc}")
+            self._lose_port(self._last_now_s)
+            return None
+        if len(reply) < 7:
+            self._no_ack += 1
+            self._fail(f"incomplete reply to command {command} ({len(reply)} bytes)")
+            return None
+        if crc16(header + reply[:5]) != int.from_bytes(reply[5:7], "big"):
+            self._crc_errors += 1
+            self._fail(f"reply to command {command} failed its CRC check")
+            return None
+        (qpps,) = struct.unpack(">i", reply[:4])
+        if reply[4] & 0x01 and qpps > 0:  # magnitude + direction bit
+            qpps = -qpps
+        self._acks += 1
+        self._consecutive = 0
+        return int(qpps)
 
     def _read_firmware(self) -> str | None:
         """Command 21: the controller's name and version, or None (reason in last_error)."""

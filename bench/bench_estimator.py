@@ -1,0 +1,166 @@
+"""The estimator and setpoint extrapolation measured on the Robotarium side-by-side task.
+
+Runs a scenario (default: the anchor triangle, docs/scenarios.md) in-process, in variants:
+
+* ``exact``: as given (exact poses), firmware of before (no estimator, no extrapolation);
+* ``exact+extrap``: setpoint extrapolation only; ``exact+est``: estimator and extrapolation;
+* the same with ``--no-repulsion`` to isolate this work from the potential field's push;
+* ``noisy``: 60 ms camera latency, 3 mm / 0.01 rad noise, with and without the estimator;
+* ``loss``: ``noisy`` plus robot r2's camera lost for 1 s at t = 45 s, with encoder emulation
+  (1000 counts/rev, 1 % slip) so the estimator rides through on odometry.
+
+Prints, per variant, the RMS formation error of the reference points after ``settle_s`` over all
+robots together (and per robot), the minimum separation, HOLD ticks, and for ``loss`` the
+largest error during and after the loss and when the robot is back within 2x its pre-loss RMS
+error + 1 mm. With ``--paper`` it runs the
+paper's scenarios (paper-sim, paper-exp1, paper-exp2, with their own camera noise, latency,
+link and motor lag) with the firmware of before and with the estimator + extrapolation, and
+prints RMS error, minimum separation, collisions, slot changes and HOLD ticks.
+Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper]``.
+A measurement, not a test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import scenario as scenario_mod
+from formation import simulate
+from formation.metrics import formation_error
+from formation.runlog import MODE_CODES
+
+DEFAULT = Path(__file__).resolve().parent.parent / "formation" / "scenarios"
+
+
+def variant(
+    scn: scenario_mod.Scenario,
+    *,
+    est: bool,
+    extrap: bool,
+    repulsion: bool,
+    noisy: bool = False,
+    loss: bool = False,
+) -> scenario_mod.Scenario:
+    agent = scn.agent
+    e = dataclasses.replace(
+        agent.estimator,
+        enabled=est,
+        extrapolate_setpoint=extrap,
+        meas_pos_std_m=0.003 if noisy else 0.0,
+        meas_theta_std_rad=0.01 if noisy else 0.0,
+    )
+    rep = dataclasses.replace(agent.repulsion, enabled=repulsion)
+    agent = dataclasses.replace(agent, estimator=e, repulsion=rep)
+    changes: dict[str, Any] = {"agent": agent}
+    if noisy:
+        changes["camera"] = dataclasses.replace(
+            scn.camera, latency_s=0.06, pos_std_m=0.003, theta_std_rad=0.01
+        )
+    if loss:
+        changes["plant"] = dataclasses.replace(
+            scn.plant, encoder_counts_per_rev=1000.0, encoder_slip_std=0.01
+        )
+        changes["disturbances"] = (
+            *scn.disturbances,
+            scenario_mod.Disturbance(t_s=45.0, robot="r2", kind="camera_loss", duration_s=1.0),
+        )
+    return scn.with_overrides(**changes)
+
+
+def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[str, Any]:
+    res = simulate.run(scn)
+    log = res.log
+    err = formation_error(log)
+    after = log.t_s >= scn.settle_s
+    e = err[after]
+    out: dict[str, Any] = {
+        "rms_mm": float(np.sqrt(np.nanmean(e**2))) * 1e3,
+        "per_robot_mm": {
+            rid: float(np.sqrt(np.nanmean(e[:, j] ** 2))) * 1e3
+            for j, rid in enumerate(log.robot_ids)
+        },
+        "min_sep_m": float(log.min_separation_m),
+        "hold_ticks_after_settle": int(np.sum(log.mode[after] == MODE_CODES["hold"])),
+    }
+    if loss_robot is not None:
+        j = log.robot_ids.index(loss_robot)
+        t = log.t_s
+        t0, t1 = 45.0, 46.0
+        pre = err[(t >= scn.settle_s) & (t < t0), j]
+        pre_rms = float(np.sqrt(np.mean(pre**2)))
+        during = (t >= t0) & (t < t1 + 2.0)
+        out["loss_max_err_mm"] = float(np.max(err[during, j])) * 1e3
+        ok = err[:, j] <= 2 * pre_rms + 1e-3
+        late = np.flatnonzero((t >= t1) & ~ok)
+        out["loss_back_after_s"] = float(t[late[-1]] + scn.dt_s - t1) if late.size else 0.0
+        out["loss_hold_ticks"] = int(np.sum(log.mode[(t >= t0) & (t < t1 + 2.0), j] == 2))
+    return out
+
+
+def paper() -> int:
+    for name in ("paper-sim", "paper-exp1", "paper-exp2"):
+        base = scenario_mod.load(name)
+        for label, est in (("before", False), ("estimator", True)):
+            e = dataclasses.replace(base.agent.estimator, enabled=est, extrapolate_setpoint=est)
+            scn = base.with_overrides(agent=dataclasses.replace(base.agent, estimator=e))
+            res = simulate.run(scn)
+            log = res.log
+            err = formation_error(log)[log.t_s >= scn.settle_s]
+            changes = int(np.sum(log.slot_of[1:] != log.slot_of[:-1]))
+            print(
+                f"{name:<11} {label:<10} RMS {np.sqrt(np.nanmean(err**2)) * 1e3:7.3f} mm "
+                f"min sep {log.min_separation_m:.4f} m collisions {len(log.collisions)} "
+                f"slot changes {changes} final leader "
+                f"{log.robot_ids[int(np.flatnonzero(log.slot_of[-1] == 0)[0])]} "
+                f"HOLD ticks {int(np.sum(log.mode == MODE_CODES['hold']))}"
+            )
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="anchor-triangle")
+    ap.add_argument("--paper", action="store_true", help="the paper scenarios, with and without")
+    args = ap.parse_args(argv)
+    if args.paper:
+        return paper()
+    scn = scenario_mod.load(args.scenario)
+    rows = []
+    for rep in (True, False):
+        tag = "" if rep else " (repulsion off)"
+        for name, est, extrap in (
+            ("exact", False, False),
+            ("exact+extrap", False, True),
+            ("exact+est", True, True),
+        ):
+            rows.append((name + tag, measure(variant(scn, est=est, extrap=extrap, repulsion=rep))))
+        for name, est in (("noisy 60ms", False), ("noisy 60ms+est", True)):
+            v = variant(scn, est=est, extrap=True, repulsion=rep, noisy=True)
+            rows.append((name + tag, measure(v)))
+        v = variant(scn, est=True, extrap=True, repulsion=rep, noisy=True, loss=True)
+        rows.append(("noisy+loss 1s r2+est+enc" + tag, measure(v, "r2")))
+    for name, m in rows:
+        per = " ".join(f"{k}={v:.3f}" for k, v in m["per_robot_mm"].items())
+        extra = ""
+        if "loss_max_err_mm" in m:
+            extra = (
+                f" | loss: max err {m['loss_max_err_mm']:.2f} mm, back after "
+                f"{m['loss_back_after_s']:.2f} s, HOLD ticks {m['loss_hold_ticks']}"
+            )
+        print(
+            f"{name:<38} RMS {m['rms_mm']:.3f} mm ({per}) min sep {m['min_sep_m']:.4f} m "
+            f"HOLD {m['hold_ticks_after_settle']}{extra}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
