@@ -23,6 +23,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "record": ("formation.record", "record the fleet's keys to MCAP"),
     "report": ("formation.report", "metrics and figures from an MCAP recording"),
     "top": ("formation.top", "live fleet status table"),
+    "camera": ("localization.node", "overhead-camera tracker; `camera calibrate` writes its file"),
 }
 
 
