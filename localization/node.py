@@ -62,6 +62,8 @@ __all__ = ["CameraPipeline", "FrameResult", "build_parser", "camera_status_key",
 
 STATUS_PERIOD_S: Final = 0.5
 LATENCY_SAMPLES: Final = 1000
+LIVE_QUEUE: Final = 4
+FAST_QUEUE: Final = 256
 
 Frame = npt.NDArray[np.uint8]
 
@@ -381,7 +383,11 @@ async def _node(
             pubs.get(node.poses_key, tp.QOS_CONTROL)
         for key in node.pose_keys.values():
             pubs.get(key, tp.QOS_CONTROL)
-        results: asyncio.Queue[FrameResult | None] = asyncio.Queue(maxsize=4)
+        # A live or paced source: the newest frames win (a backlog is stale). --fast on a
+        # recording: every frame is published (the grabber is the slow side; bounded anyway).
+        results: asyncio.Queue[FrameResult | None] = asyncio.Queue(
+            maxsize=FAST_QUEUE if ns.fast else LIVE_QUEUE
+        )
 
         def deliver(res: FrameResult | None) -> None:  # grabber thread
             def put() -> None:

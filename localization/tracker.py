@@ -104,9 +104,9 @@ class Tracker:
                 continue
             fresh = tr.valid and t_s - tr.t <= p.lost_after_s
             if fresh and not self._plausible(tr, m, max(t_s - tr.t, 0.0)):
-                tr.jumps += 1
                 tr.pending.append(m)
                 if len(tr.pending) < p.reacquire_after or not self._consistent(tr.pending):
+                    tr.jumps += 1  # rejected
                     if len(tr.pending) >= p.reacquire_after:
                         tr.pending = tr.pending[-(p.reacquire_after - 1) :]
                     continue

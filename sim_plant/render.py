@@ -34,6 +34,7 @@ __all__ = [
     "Renderer",
     "Occluder",
     "floor_to_image",
+    "moving_scene",
     "write_video",
 ]
 
@@ -323,3 +324,27 @@ def write_video(path: str | Path, frames: Iterable[Frame], fps: float) -> int:
 def _chain(first: Frame, rest: Iterable[Frame]) -> Iterable[Frame]:
     yield first
     yield from rest
+
+
+def moving_scene(
+    n: int, t_s: float, *, spacing_m: float = 0.19, centre: tuple[float, float] = (0.0, 0.0),
+    radius_m: float = 0.03, speed_mps: float = 0.15,
+) -> FloatArray:
+    """``(n, 3)`` poses of ``n`` robots at time ``t_s`` for tests and benches: a grid (up to 8
+    per row, ``spacing_m`` apart around ``centre``), each driving a circle of ``radius_m`` at
+    ``speed_mps`` counter-clockwise (heading tangent), with a per-robot phase."""
+    cols = min(n, 8)
+    rows = (n + cols - 1) // cols
+    out = np.empty((n, 3))
+    omega = speed_mps / radius_m
+    for i in range(n):
+        r, c = divmod(i, cols)
+        cx = centre[0] + (c - (cols - 1) / 2.0) * spacing_m
+        cy = centre[1] + ((rows - 1) / 2.0 - r) * spacing_m
+        phase = omega * t_s + 2.399963 * i  # golden angle: robots out of step
+        out[i] = (
+            cx + radius_m * math.cos(phase),
+            cy + radius_m * math.sin(phase),
+            math.remainder(phase + math.pi / 2.0, 2.0 * math.pi),
+        )
+    return out
