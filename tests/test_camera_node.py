@@ -1,0 +1,185 @@
+"""``formation camera`` as a real process on a real router, fed a rendered video file: every
+robot's pose on the bus within the goals (median < 2 mm, < 0.5 deg with the true homography),
+``t`` = capture time, the batch and the status key; a file at its own frame rate; clean SIGTERM
+exit; ``formation camera calibrate`` round trip through the CLI."""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+from conftest import RouterHandle, Spawner
+from test_node_agent import Recorder, decoder_of
+
+pytest.importorskip("cv2")
+
+from bus_schemas import Pose, PoseBatch, keys
+from localization.calibration import Calibration, TrackerParams, load, write
+from sim_plant.render import CameraPose, Renderer, moving_scene, write_video
+
+FLEET = "demo"
+FPS = 30.0
+N_ROBOTS = 6
+N_FRAMES = 36
+EXIT_BOUND_S = 1.5  # requirement: 1 s after SIGTERM; 0.5 s margin for a loaded 2-core box
+RENDERER = Renderer(CameraPose(tilt_deg=8.0))
+
+
+def scene(k: int) -> np.ndarray:
+    return moving_scene(N_ROBOTS, k / FPS)
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A rendered MJPG video of N_ROBOTS moving robots (blur + noise) and its true calibration."""
+    d = tmp_path_factory.mktemp("camera")
+    rng = np.random.default_rng(7)
+    frames = (
+        RENDERER.render(scene(k), list(range(N_ROBOTS)), blur_sigma_px=0.8, noise_std=2.0, rng=rng)
+        for k in range(N_FRAMES)
+    )
+    path = d / "scene.avi"
+    assert write_video(path, frames, FPS) == N_FRAMES
+    cal = Calibration(
+        homography=RENDERER.h_image_to_floor.tolist(),
+        tags={f"r{i + 1}": i for i in range(N_ROBOTS)},
+        tag_size_m=RENDERER.tag_size_m,
+        tracker=TrackerParams(lost_after_s=60.0),
+    )
+    cal_path = d / "calibration.toml"
+    write(cal, cal_path)
+    return path, cal_path
+
+
+@pytest.fixture
+def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
+    return session()
+
+
+def _status(rec: Recorder) -> list[dict[str, object]]:
+    return [m for _, _, m in rec.snapshot()]
+
+
+def test_rendered_video_poses_on_the_bus_within_goals(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, video: tuple[Path, Path]
+) -> None:
+    path, cal_path = video
+    poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
+    batches = Recorder(client, keys.poses_key(FLEET), decoder_of(PoseBatch))
+    status = Recorder(client, f"formation/{FLEET}/camera/*/status", msgpack.unpackb)
+    cam = spawn(
+        "camera", "--source", str(path), "--calibration", str(cal_path),
+        "--endpoint", router.endpoint, "--fast", ready="camera ready",
+    )  # fmt: skip
+    cam.proc.wait(timeout=60)  # a recording ends: exit 0
+    assert cam.proc.returncode == 0, cam.describe()
+    assert "detector " in cam.stdout()
+    time.sleep(0.2)
+    final = _status(status)[-1]
+    assert final["state"] == "done" and final["frames"] == N_FRAMES, final
+    assert final["dropped"] == 0 and final["internal_errors"] == 0, final
+    assert final["misses"] == {f"r{i + 1}": 0 for i in range(N_ROBOTS)}, final
+    assert final["rejects"] == {"jump": 0, "bad_size": 0, "unknown": 0, "duplicate": 0}
+    assert final["latency_ms"] is not None and final["detect_ms"] is not None
+    # Every frame published every robot: the n-th pose of a robot (seq n) is frame n-1.
+    pos_err, head_err = [], []
+    by_robot: dict[str, list[Pose]] = {}
+    for _, key, msg in poses.snapshot():
+        assert key == keys.pose_key(FLEET, msg.robot)
+        by_robot.setdefault(msg.robot, []).append(msg)
+    assert sorted(by_robot) == [f"r{i + 1}" for i in range(N_ROBOTS)]
+    for rid, msgs in by_robot.items():
+        assert [m.seq for m in msgs] == list(range(1, N_FRAMES + 1)), rid
+        ts = [m.t for m in msgs]
+        assert all(b > a for a, b in zip(ts, ts[1:], strict=False)), "t = capture time, increasing"
+        i = int(rid[1:]) - 1
+        for k, m in enumerate(msgs):
+            x, y, th = scene(k)[i]
+            pos_err.append(math.hypot(m.x - x, m.y - y) * 1e3)
+            head_err.append(abs(math.remainder(m.theta - th, 2 * math.pi)) * 180 / math.pi)
+    assert np.median(pos_err) < 2.0 and np.median(head_err) < 0.5, (
+        np.median(pos_err), np.median(head_err),
+    )  # fmt: skip
+    assert max(pos_err) < 6.0 and max(head_err) < 2.0
+    # one batch per frame, published before the frame's poses, stamp = the poses' t
+    b = [m for _, _, m in batches.snapshot()]
+    assert len(b) == N_FRAMES
+    assert all(len(m.robots) == N_ROBOTS for m in b)
+    stamps = {m.t for ms in by_robot.values() for m in ms}
+    assert {m.stamp for m in b} == stamps
+
+
+def test_file_at_its_own_rate_and_clean_sigterm(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, video: tuple[Path, Path]
+) -> None:
+    path, cal_path = video
+    poses = Recorder(client, keys.pose_key(FLEET, "r1"), decoder_of(Pose))
+    cam = spawn(
+        "camera", "--source", str(path), "--calibration", str(cal_path),
+        "--endpoint", router.endpoint, "--loop", ready="camera ready",
+    )  # fmt: skip
+    poses.wait_for(lambda *_: True, timeout_s=10.0)
+    time.sleep(1.5)
+    msgs = [m for _, _, m in poses.snapshot()]
+    span = msgs[-1].t - msgs[0].t
+    # never faster than the file's 30 fps (frames may be dropped on a loaded machine)
+    assert len(msgs) - 1 <= FPS * span * 1.1 + 1, (len(msgs), span)
+    assert span > 1.0
+    dt = time.monotonic()
+    assert cam.stop(signal.SIGTERM, timeout_s=5.0) < EXIT_BOUND_S
+    assert cam.proc.returncode == 0, cam.describe()
+    assert time.monotonic() - dt < 5.0
+
+
+def test_bad_inputs_exit_2(spawn: Spawner, tmp_path: Path, video: tuple[Path, Path]) -> None:
+    path, cal_path = video
+    bad = tmp_path / "bad.toml"
+    bad.write_text('homography = [[0,0,0],[0,0,0],[0,0,0]]\n[tags]\nr1 = 0\n')
+    for argv in (
+        ["--source", str(path), "--calibration", str(bad)],
+        ["--source", str(tmp_path / "missing.avi"), "--calibration", str(cal_path)],
+    ):
+        child = spawn("camera", *argv)
+        child.proc.wait(timeout=20)
+        assert child.proc.returncode == 2, child.describe()
+        assert "camera:" in child.stderr()
+
+
+def test_calibrate_cli_round_trip(spawn: Spawner, tmp_path: Path) -> None:
+    """Floor markers at known places in a rendered frame -> the calibration file, the error
+    reported in mm, and a homography within a few mm of the true one over the whole view."""
+    import cv2
+
+    r = Renderer(CameraPose(tilt_deg=8.0), tag_size_m=0.08, body_radius_m=0.06)
+    places = [(-0.7, -0.3), (0.0, -0.33), (0.7, -0.3), (-0.7, 0.3), (0.0, 0.0), (0.7, 0.33)]
+    truth = np.array([[x, y, 0.0] for x, y in places])
+    img = tmp_path / "floor.png"
+    frame = r.render(truth, [200 + i for i in range(len(places))], blur_sigma_px=0.7)
+    cv2.imwrite(str(img), frame)
+    out = tmp_path / "cal.toml"
+    args = ["camera", "calibrate", "--image", str(img), "--out", str(out), "--marker-size", "0.08"]
+    for i, (x, y) in enumerate(places):
+        args += ["--marker", f"{200 + i},{x},{y},0"]
+    args += ["--tags", "r1=0,r2=1"]
+    child = spawn(*args)
+    child.proc.wait(timeout=30)
+    assert child.proc.returncode == 0, child.describe()
+    line = [s for s in child.stdout().splitlines() if s.startswith("reprojection error")]
+    assert line and " mm" in line[0], child.stdout()
+    rms = float(line[0].split("rms ")[1].split(" mm")[0])
+    cal = load(out)
+    assert cal.tags == {"r1": 0, "r2": 1}
+    assert cal.reprojection_error_mm is not None and abs(cal.reprojection_error_mm - rms) < 0.01
+    h = np.array(cal.homography)
+    us, vs = np.meshgrid(np.linspace(100, 1180, 7), np.linspace(60, 660, 5))
+    pix = np.column_stack([us.ravel(), vs.ravel(), np.ones(us.size)])
+    a, b = pix @ h.T, pix @ r.h_image_to_floor.T
+    err = np.linalg.norm(a[:, :2] / a[:, 2:] - b[:, :2] / b[:, 2:], axis=1) * 1e3
+    assert err.max() < 3.0, err
