@@ -86,9 +86,20 @@ class CameraPipeline:
     """Frame -> published measurements: detector, floor mapping, tracker. No Zenoh, no clock
     reads (the capture time is passed in)."""
 
-    def __init__(self, calibration: Calibration, detector_choice: str | None = None) -> None:
+    def __init__(
+        self,
+        calibration: Calibration,
+        detector_choice: str | None = None,
+        *,
+        windows: bool = True,
+    ) -> None:
         self.cal = calibration
-        self.detector = make_detector(calibration.family, detector_choice or calibration.detector)
+        self.detector = make_detector(
+            calibration.family,
+            detector_choice or calibration.detector,
+            windows=windows,
+            expected=set(calibration.tags.values()),
+        )
         self.estimator = PoseEstimator(calibration)
         self.tracker = Tracker(
             calibration.robots,

@@ -229,3 +229,33 @@ def test_fit_homography_from_rendered_floor_markers() -> None:
     assert err.max() < 3.0, err
     with pytest.raises(ValueError):
         fit_homography(img[:3], floor[:3])
+
+
+@pytest.mark.skipif(not pupil_available(), reason="windows wrap pupil-apriltags only")
+def test_windows_find_what_the_full_frame_finds() -> None:
+    """Window detection (pupil-apriltags): same poses as the full frame; a robot that leaves its
+    window (teleported) is found in the same frame; a new tag shows up at the next full frame."""
+    from localization.detectors import PupilTagDetector, RoiTagDetector
+
+    r = Renderer(CAM)
+    roi = RoiTagDetector(PupilTagDetector(), expected={0, 1, 2}, full_every=8)
+    full = PupilTagDetector()
+    truth = moving_scene(3, 0.0)
+    ids = [0, 1, 2]
+    for k in range(4):
+        truth = moving_scene(3, k / 30.0)
+        frame = r.render(truth, ids)
+        a = sorted((d.tag_id, d.corners.round(3).tolist()) for d in roi.detect(frame))
+        b = sorted((d.tag_id, d.corners.round(3).tolist()) for d in full.detect(frame))
+        assert [x[0] for x in a] == [0, 1, 2]
+        assert np.allclose([x[1] for x in a], [x[1] for x in b], atol=0.2)  # px; ~0.25 mm
+    assert roi.window_frames == 3 and roi.full_frames == 1
+    jumped = truth.copy()
+    jumped[1, :2] = (0.5, 0.3)  # far outside its window
+    found = {d.tag_id: d for d in roi.detect(r.render(jumped, ids))}
+    assert set(found) == {0, 1, 2} and roi.full_frames == 2  # fell back in the same frame
+    # an unknown tag appears: not looked for in windows, found at the next full frame (k = 8)
+    extra = np.vstack([jumped, [[-0.5, -0.3, 0.0]]])
+    seen = [{d.tag_id for d in roi.detect(r.render(extra, [*ids, 40]))} for _ in range(3)]
+    assert seen == [{0, 1, 2}, {0, 1, 2}, {0, 1, 2, 40}]
+    assert roi.full_frames == 3
