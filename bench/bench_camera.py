@@ -30,14 +30,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import cv2  # noqa: E402
-import msgpack  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import msgpack
+import numpy as np
 
-from localization.calibration import Calibration, write  # noqa: E402
-from localization.detectors import pupil_available  # noqa: E402
-from localization.node import CameraPipeline  # noqa: E402
-from sim_plant.render import CameraPose, Renderer, moving_scene, write_video  # noqa: E402
+from localization.calibration import Calibration, write
+from localization.detectors import pupil_available
+from localization.node import CameraPipeline
+from sim_plant.render import CameraPose, Renderer, moving_scene, write_video
 
 CONDITIONS = {
     "mild": {"blur_sigma_px": 0.8, "noise_std": 3.0},
@@ -120,8 +120,13 @@ def bench_process(seconds: float) -> None:
         write_video(
             video,
             (
-                r.render(moving_scene(n, k / fps), list(range(n)), blur_sigma_px=0.8,
-                         noise_std=3.0, rng=rng)  # fmt: skip
+                r.render(
+                    moving_scene(n, k / fps),
+                    list(range(n)),
+                    blur_sigma_px=0.8,
+                    noise_std=3.0,
+                    rng=rng,
+                )
                 for k in range(count)
             ),
             fps,

@@ -34,7 +34,7 @@ from localization.calibration import Calibration, CalibrationError, load, write
 from localization.detectors import TagDetection, make_detector
 from localization.sources import SourceError, open_source
 
-__all__ = ["FloorMarker", "Fit", "fit_homography", "main", "marker_points"]
+__all__ = ["Fit", "FloorMarker", "fit_homography", "main", "marker_points"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -183,7 +183,8 @@ def main(argv: list[str]) -> int:
         print(f"calibrate: {exc}", file=sys.stderr)
         return 2
     markers = {m.tag_id: m for m in ns.marker}
-    img_pts, floor_pts, found = np.zeros((0, 2)), np.zeros((0, 2)), []
+    img_pts, floor_pts = np.zeros((0, 2)), np.zeros((0, 2))
+    found: list[int] = []
     if markers:
         detector = make_detector("tag36h11", ns.detector)
         print(f"calibrate: detector {detector.name}")
@@ -203,7 +204,7 @@ def main(argv: list[str]) -> int:
     if not tags:
         print("calibrate: give the robots' tags (--tags r1=0,...) or --base", file=sys.stderr)
         return 2
-    h = tuple(tuple(float(x) for x in row) for row in fit.homography)
+    h = tuple((float(r[0]), float(r[1]), float(r[2])) for r in fit.homography.tolist())
     try:
         if base is not None:
             cal = dataclasses.replace(

@@ -223,9 +223,7 @@ def from_mapping(data: Mapping[str, Any]) -> Calibration:
     for rid, off in _table(data, "offsets").items():
         if not isinstance(off, dict) or set(off) - {"forward_m", "left_m", "yaw_rad"}:
             raise _fail(f"offsets.{rid}", "keys: forward_m, left_m, yaw_rad")
-        offsets[rid] = TagOffset(
-            **{k: _finite(v, f"offsets.{rid}.{k}") for k, v in off.items()}
-        )
+        offsets[rid] = TagOffset(**{k: _finite(v, f"offsets.{rid}.{k}") for k, v in off.items()})
     tr = _table(data, "tracker")
     fields = TrackerParams.__dataclass_fields__
     if set(tr) - set(fields):

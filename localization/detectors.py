@@ -29,8 +29,8 @@ import numpy.typing as npt
 
 __all__ = [
     "ArucoTagDetector",
-    "PatchDetector",
     "PatchDetections",
+    "PatchDetector",
     "PupilTagDetector",
     "RoiTagDetector",
     "TagDetection",
@@ -67,7 +67,7 @@ def _gray(frame: Frame) -> Frame:
 
 
 def pupil_available() -> bool:
-    """True if the ``pupil_apriltags`` module imports (x86_64 wheels; built from source elsewhere)."""
+    """True if ``pupil_apriltags`` imports (x86_64 wheels; built from source elsewhere)."""
     try:
         import pupil_apriltags  # noqa: F401
     except ImportError:
@@ -96,9 +96,8 @@ class PupilTagDetector:
             refine_edges=1,
             decode_sharpening=0.25,
         )
-        self.name = (
-            f"pupil-apriltags {_version('pupil-apriltags')} tag36h11 (quad_decimate {quad_decimate:g})"
-        )
+        version = _version("pupil-apriltags")
+        self.name = f"pupil-apriltags {version} tag36h11 (quad_decimate {quad_decimate:g})"
 
     def detect(self, frame: Frame) -> list[TagDetection]:
         gray = np.ascontiguousarray(_gray(frame))
@@ -161,10 +160,9 @@ class PatchDetector:
         if frame.ndim != 3:
             raise ValueError("colour patches need a colour (BGR) frame")
         hsv = cv2.cvtColor(frame, cv2.COLOR_BGR2HSV)
-        red = cv2.inRange(hsv, (0, 110, 60), (10, 255, 255)) | cv2.inRange(
-            hsv, (170, 110, 60), (180, 255, 255)
-        )
-        blue = cv2.inRange(hsv, (95, 110, 60), (130, 255, 255))
+        red = np.asarray(cv2.inRange(hsv, (0, 110, 60), (10, 255, 255)), dtype=np.uint8)
+        red |= np.asarray(cv2.inRange(hsv, (170, 110, 60), (180, 255, 255)), dtype=np.uint8)
+        blue = np.asarray(cv2.inRange(hsv, (95, 110, 60), (130, 255, 255)), dtype=np.uint8)
         return PatchDetections(self._centroids(red), self._centroids(blue))
 
 

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import math
 import sys
 import threading
@@ -321,17 +322,31 @@ def build_parser() -> argparse.ArgumentParser:
         "a folder of images or a stream (docs/localization.md). "
         "`formation camera calibrate --help` for the calibration tool.",
     )
-    p.add_argument("--source", required=True, metavar="SRC",
-                   help="device index or /dev/videoN, video file, image folder, or stream URL")  # fmt: skip
+    p.add_argument(
+        "--source",
+        required=True,
+        metavar="SRC",
+        help="device index or /dev/videoN, video file, image folder, or stream URL",
+    )
     p.add_argument("--calibration", required=True, metavar="FILE", help="calibration TOML")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
     p.add_argument("--name", default="camera", help="this tracker's name in its status key")
-    p.add_argument("--detector", choices=("auto", "apriltag", "aruco"),
-                   help="override the calibration's detector choice")  # fmt: skip
-    p.add_argument("--fps", type=_positive, metavar="HZ",
-                   help="rate of a folder / file (default: the file's own, 30 for a folder)")  # fmt: skip
-    p.add_argument("--fast", action="store_true",
-                   help="a recording: every frame as fast as possible (not at its own rate)")  # fmt: skip
+    p.add_argument(
+        "--detector",
+        choices=("auto", "apriltag", "aruco"),
+        help="override the calibration's detector choice",
+    )
+    p.add_argument(
+        "--fps",
+        type=_positive,
+        metavar="HZ",
+        help="rate of a folder / file (default: the file's own, 30 for a folder)",
+    )
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="a recording: every frame as fast as possible (not at its own rate)",
+    )
     p.add_argument("--loop", action="store_true", help="a recording: start again at its end")
     p.add_argument("--no-batch", action="store_true", help="no `poses` batch, per-robot keys only")
     p.add_argument("--duration", type=_positive, metavar="S", help="stop after S s and exit 0")
@@ -347,7 +362,9 @@ def main(argv: list[str]) -> int:
         return calibrate.main(argv[1:])
     ns = build_parser().parse_args(argv)
     if not keys.is_name(ns.fleet) or not keys.is_name(ns.name):
-        print(f"camera: invalid --fleet or --name (must match {keys.NAME_PATTERN})", file=sys.stderr)
+        print(
+            f"camera: invalid --fleet or --name (must match {keys.NAME_PATTERN})", file=sys.stderr
+        )
         return 2
     try:
         cal = load(ns.calibration)
@@ -408,10 +425,8 @@ async def _node(
                         node.grabber.dropped += 1
                 results.put_nowait(res)
 
-            try:
+            with contextlib.suppress(RuntimeError):  # loop closed: exiting
                 loop.call_soon_threadsafe(put)
-            except RuntimeError:  # loop closed: exiting
-                pass
 
         grabber = Grabber(source, pipeline, deliver, fast=ns.fast, loop_file=ns.loop)
         node.grabber = grabber
@@ -423,8 +438,8 @@ async def _node(
         grabber.start()
         end = math.inf if ns.duration is None else time.monotonic() + ns.duration
         next_status = time.monotonic()
-        stopping = asyncio.ensure_future(stop.wait())
-        getting: asyncio.Future[FrameResult | None] | None = None
+        stopping: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
+        getting: asyncio.Future[Any] | None = None
         try:
             while not stop.is_set():
                 now = time.monotonic()
@@ -436,7 +451,7 @@ async def _node(
                 if getting is None:
                     getting = asyncio.ensure_future(results.get())
                 await asyncio.wait(
-                    {getting, stopping},
+                    (getting, stopping),
                     timeout=max(0.0, min(next_status, end) - now),
                     return_when=asyncio.FIRST_COMPLETED,
                 )

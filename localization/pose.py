@@ -76,9 +76,8 @@ class PoseEstimator:
         if len(pts) == 0:
             return pts
         if self.k is not None:
-            pts = cv2.undistortPoints(pts.reshape(-1, 1, 2), self.k, self.d, P=self.k).reshape(
-                -1, 2
-            )
+            und = cv2.undistortPoints(pts.reshape(-1, 1, 2), self.k, self.d, P=self.k)
+            pts = np.asarray(und, dtype=np.float64).reshape(-1, 2)
         hom = np.column_stack([pts, np.ones(len(pts))]) @ self.h.T
         return np.asarray(hom[:, :2] / hom[:, 2:3], dtype=np.float64)
 
@@ -91,9 +90,7 @@ class PoseEstimator:
         # +90 deg: both point along the tag's "up"; their sum averages the two directions.
         ux = (tl[0] + tr[0] - bl[0] - br[0]) - (tr[1] + br[1] - tl[1] - bl[1])
         uy = (tl[1] + tr[1] - bl[1] - br[1]) + (tr[0] + br[0] - tl[0] - bl[0])
-        edge = (
-            math.dist(tl, tr) + math.dist(tr, br) + math.dist(br, bl) + math.dist(bl, tl)
-        ) / 4.0
+        edge = (math.dist(tl, tr) + math.dist(tr, br) + math.dist(br, bl) + math.dist(bl, tl)) / 4.0
         return cx, cy, math.atan2(uy, ux), edge
 
     def from_tags(self, detections: Iterable[TagDetection]) -> list[Measurement]:

@@ -67,14 +67,16 @@ class VideoSource:
         self.fps = fps if fps is not None else (native if 0.0 < native <= 1000.0 else DEFAULT_FPS)
         w = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
         h = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
-        kind = "device" if isinstance(target, int) or spec.startswith("/dev/") else (
-            "stream" if "://" in spec else "file"
+        kind = (
+            "device"
+            if isinstance(target, int) or spec.startswith("/dev/")
+            else ("stream" if "://" in spec else "file")
         )
         self.description = f"{kind} {spec} ({w}x{h} @ {self.fps:g} fps, {cap.getBackendName()})"
 
     def read(self) -> Frame | None:
         ok, frame = self._cap.read()
-        return frame if ok else None
+        return np.asarray(frame, dtype=np.uint8) if ok else None
 
     def skip(self) -> bool:
         """Drop the next frame without decoding it (a paced file running late)."""

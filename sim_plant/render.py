@@ -31,8 +31,8 @@ import numpy.typing as npt
 __all__ = [
     "PATCH_COLOURS_BGR",
     "CameraPose",
-    "Renderer",
     "Occluder",
+    "Renderer",
     "floor_to_image",
     "moving_scene",
     "write_video",
@@ -169,7 +169,8 @@ class Renderer:
         self._dict = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
         self._tags: dict[tuple[int, int], Frame] = {}
         # pixels per metre near the image centre: sets the source resolution of the tags
-        c = floor_to_image(self._h, [self.camera.look_at, np.add(self.camera.look_at, (0.01, 0))])
+        lx, ly = self.camera.look_at
+        c = floor_to_image(self._h, [(lx, ly), (lx + 0.01, ly)])
         self._px_per_m = float(np.linalg.norm(c[1] - c[0])) / 0.01
 
     @property
@@ -184,11 +185,15 @@ class Renderer:
     def _tag_image(self, tag_id: int, ppc: int) -> Frame:
         """Tag ``tag_id`` with a one-cell white quiet zone, ``ppc`` source pixels per cell."""
         key = (tag_id, ppc)
-        img = self._tags.get(key)
-        if img is None:
-            marker = cv2.aruco.generateImageMarker(self._dict, tag_id, _TAG_CELLS * ppc)
-            img = cv2.copyMakeBorder(marker, ppc, ppc, ppc, ppc, cv2.BORDER_CONSTANT, value=255)
-            self._tags[key] = img
+        cached = self._tags.get(key)
+        if cached is not None:
+            return cached
+        marker = cv2.aruco.generateImageMarker(self._dict, tag_id, _TAG_CELLS * ppc)
+        img = np.asarray(
+            cv2.copyMakeBorder(marker, ppc, ppc, ppc, ppc, cv2.BORDER_CONSTANT, value=255),
+            dtype=np.uint8,
+        )
+        self._tags[key] = img
         return img
 
     def _disc(self, frame: Frame, cx: float, cy: float, r: float, colour: Any) -> None:
@@ -198,9 +203,7 @@ class Renderer:
         poly = np.round(pts * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
         cv2.fillPoly(frame, [poly], colour, lineType=cv2.LINE_AA, shift=shift)
 
-    def _draw_tag(
-        self, frame: Frame, tag_id: int, x: float, y: float, theta: float
-    ) -> None:
+    def _draw_tag(self, frame: Frame, tag_id: int, x: float, y: float, theta: float) -> None:
         fwd_m, left_m, yaw = self.tag_offsets.get(tag_id, (0.0, 0.0, 0.0))
         c, s = math.cos(theta), math.sin(theta)
         tx, ty = x + c * fwd_m - s * left_m, y + s * fwd_m + c * left_m
@@ -228,10 +231,10 @@ class Renderer:
         hc = np.column_stack([corners, np.ones(4)]) @ m.T
         pix = hc[:, :2] / hc[:, 2:3]
         hgt, wid = frame.shape[:2]
-        u0 = max(0, int(math.floor(pix[:, 0].min())) - 1)
-        v0 = max(0, int(math.floor(pix[:, 1].min())) - 1)
-        u1 = min(wid, int(math.ceil(pix[:, 0].max())) + 2)
-        v1 = min(hgt, int(math.ceil(pix[:, 1].max())) + 2)
+        u0 = max(0, math.floor(pix[:, 0].min()) - 1)
+        v0 = max(0, math.floor(pix[:, 1].min()) - 1)
+        u1 = min(wid, math.ceil(pix[:, 0].max()) + 2)
+        v1 = min(hgt, math.ceil(pix[:, 1].max()) + 2)
         if u1 <= u0 or v1 <= v0:
             return
         shift = np.array([[1.0, 0.0, -u0], [0.0, 1.0, -v0], [0.0, 0.0, 1.0]])
@@ -284,7 +287,7 @@ class Renderer:
         for occ in occluders:
             cv2.rectangle(frame, (occ.u0, occ.v0), (occ.u1, occ.v1), (occ.grey,) * 3, -1)
         if blur_sigma_px > 0.0:
-            frame = cv2.GaussianBlur(frame, (0, 0), blur_sigma_px)
+            frame = np.asarray(cv2.GaussianBlur(frame, (0, 0), blur_sigma_px), dtype=np.uint8)
         if gain != 1.0 or gradient != 0.0 or noise_std > 0.0:
             img = frame.astype(np.float32)
             if gain != 1.0 or gradient != 0.0:
@@ -307,7 +310,7 @@ def write_video(path: str | Path, frames: Iterable[Frame], fps: float) -> int:
     if first is None:
         raise ValueError("no frames to write")
     h, w = first.shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), float(fps), (w, h))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), float(fps), (w, h))
     if not writer.isOpened():
         raise OSError(f"cannot open a video writer for {path}")
     writer.set(cv2.VIDEOWRITER_PROP_QUALITY, 100)
@@ -327,8 +330,13 @@ def _chain(first: Frame, rest: Iterable[Frame]) -> Iterable[Frame]:
 
 
 def moving_scene(
-    n: int, t_s: float, *, spacing_m: float = 0.19, centre: tuple[float, float] = (0.0, 0.0),
-    radius_m: float = 0.03, speed_mps: float = 0.15,
+    n: int,
+    t_s: float,
+    *,
+    spacing_m: float = 0.19,
+    centre: tuple[float, float] = (0.0, 0.0),
+    radius_m: float = 0.03,
+    speed_mps: float = 0.15,
 ) -> FloatArray:
     """``(n, 3)`` poses of ``n`` robots at time ``t_s`` for tests and benches: a grid (up to 8
     per row, ``spacing_m`` apart around ``centre``), each driving a circle of ``radius_m`` at

@@ -111,7 +111,8 @@ def test_occluded_robot_is_missed_not_published() -> None:
     r = Renderer(CAM)
     truth = moving_scene(3, 0.0)
     pipe = CameraPipeline(_cal(r, 3), "aruco")
-    pix = true_corner_pixels(r.h_floor_to_image, *truth[1], 0.06)
+    x1, y1, th1 = truth[1]
+    pix = true_corner_pixels(r.h_floor_to_image, x1, y1, th1, 0.06)
     u0, v0 = (pix.min(axis=0) - 15).astype(int)
     u1, v1 = (pix.max(axis=0) + 15).astype(int)
     frame = r.render(truth, [0, 1, 2], occluders=[Occluder(u0, v0, u1, v1)])

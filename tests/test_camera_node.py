@@ -5,6 +5,7 @@ exit; ``formation camera calibrate`` round trip through the CLI."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import signal
 import time
@@ -98,7 +99,7 @@ def test_rendered_video_poses_on_the_bus_within_goals(
     for rid, msgs in by_robot.items():
         assert [m.seq for m in msgs] == list(range(1, N_FRAMES + 1)), rid
         ts = [m.t for m in msgs]
-        assert all(b > a for a, b in zip(ts, ts[1:], strict=False)), "t = capture time, increasing"
+        assert all(b > a for a, b in itertools.pairwise(ts)), "t = capture time, increasing"
         i = int(rid[1:]) - 1
         for k, m in enumerate(msgs):
             x, y, th = scene(k)[i]
@@ -141,7 +142,7 @@ def test_file_at_its_own_rate_and_clean_sigterm(
 def test_bad_inputs_exit_2(spawn: Spawner, tmp_path: Path, video: tuple[Path, Path]) -> None:
     path, cal_path = video
     bad = tmp_path / "bad.toml"
-    bad.write_text('homography = [[0,0,0],[0,0,0],[0,0,0]]\n[tags]\nr1 = 0\n')
+    bad.write_text("homography = [[0,0,0],[0,0,0],[0,0,0]]\n[tags]\nr1 = 0\n")
     for argv in (
         ["--source", str(path), "--calibration", str(bad)],
         ["--source", str(tmp_path / "missing.avi"), "--calibration", str(cal_path)],
