@@ -184,3 +184,28 @@ def test_calibrate_cli_round_trip(spawn: Spawner, tmp_path: Path) -> None:
     a, b = pix @ h.T, pix @ r.h_image_to_floor.T
     err = np.linalg.norm(a[:, :2] / a[:, 2:] - b[:, :2] / b[:, 2:], axis=1) * 1e3
     assert err.max() < 3.0, err
+
+
+def test_systemd_unit_verifies(tmp_path: Path) -> None:
+    """deploy/systemd/formation-camera.service passes ``systemd-analyze verify`` (no warnings)."""
+    import os
+    import subprocess
+
+    from conftest import REPO_ROOT
+
+    analyze = "/usr/bin/systemd-analyze"
+    if not os.access(analyze, os.X_OK):
+        pytest.skip(f"{analyze} is not installed")
+    fake = tmp_path / "formation"
+    fake.write_text("#!/bin/sh\nexit 0\n")
+    fake.chmod(0o755)
+    text = (REPO_ROOT / "deploy" / "systemd" / "formation-camera.service").read_text()
+    assert "ExecStart=/opt/formation/venv/bin/formation camera " in text
+    unit = tmp_path / "formation-camera.service"
+    unit.write_text(text.replace("/opt/formation/venv/bin/formation ", f"{fake} "))
+    result = subprocess.run(
+        [analyze, "verify", "--man=no", str(unit)], capture_output=True, text=True, timeout=60
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output
+    assert [s for s in output.splitlines() if "formation-camera" in s] == [], output
