@@ -51,7 +51,7 @@ import msgpack
 import numpy as np
 import numpy.typing as npt
 
-from bus_schemas import Pose, PoseBatch, encode, keys
+from bus_schemas import DecodeError, Pose, PoseBatch, Truth, TruthBatch, decode, encode, keys
 from bus_schemas import transport as tp
 from localization.calibration import Calibration, CalibrationError, load
 from localization.detectors import PatchDetections, make_detector
@@ -64,6 +64,7 @@ __all__ = ["CameraPipeline", "FrameResult", "build_parser", "camera_status_key",
 STATUS_PERIOD_S: Final = 0.5
 LATENCY_SAMPLES: Final = 1000
 LIVE_QUEUE: Final = 4
+RENDERED: Final = "rendered"
 FAST_QUEUE: Final = 256
 
 Frame = npt.NDArray[np.uint8]
@@ -177,7 +178,9 @@ class Grabber:
                         k += 1
                         self.dropped += 1
                 frame = self.source.read()
-                stamp = time.monotonic()
+                # capture time: right after the read, or the source's own (rendered: the truth's)
+                own = getattr(self.source, "frame_stamp_s", None)
+                stamp = time.monotonic() if own is None else float(own)
                 k += 1
                 if frame is None:
                     if self.loop_file and not self.source.live and self.source.rewind():
@@ -222,6 +225,7 @@ class CameraNode:
         self.detect_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.frames = 0
         self.internal_errors = 0
+        self.truth_rejected = 0
         self.state = "running"
         self._fps_mark = (time.monotonic(), 0)
         self.fps = 0.0
@@ -293,6 +297,7 @@ class CameraNode:
             "rejects": self.pipeline.rejects(),
             "reacquired": st["reacquired"],
             "internal_errors": self.internal_errors + (g.errors if g is not None else 0),
+            "truth_rejected": self.truth_rejected,
         }
 
     def publish_status(self) -> None:
@@ -350,6 +355,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--loop", action="store_true", help="a recording: start again at its end")
     p.add_argument("--no-batch", action="store_true", help="no `poses` batch, per-robot keys only")
     p.add_argument("--duration", type=_positive, metavar="S", help="stop after S s and exit 0")
+    g = p.add_argument_group(
+        "--source rendered (simulation: frames rendered from the plant's truth)"
+    )
+    g.add_argument("--render-height", type=_positive, default=1.14, metavar="M",
+                   help="camera height above the floor (1.14 m, the paper's)")  # fmt: skip
+    g.add_argument("--render-tilt", type=float, default=0.0, metavar="DEG", help="camera tilt")
+    g.add_argument("--render-look-at", default="0,0", metavar="X,Y",
+                   help="floor point at the image centre (0,0)")  # fmt: skip
+    g.add_argument("--render-noise", type=float, default=2.0, help="pixel noise std (grey levels)")
+    g.add_argument("--render-blur", type=float, default=0.8, help="blur sigma (px)")
     tp.add_zenoh_arguments(p)
     return p
 
@@ -373,8 +388,8 @@ def main(argv: list[str]) -> int:
         print(f"camera: {exc}", file=sys.stderr)
         return 2
     try:
-        source = open_source(ns.source, fps=ns.fps)
-    except SourceError as exc:
+        source = _open(ns, cal)
+    except (SourceError, ValueError) as exc:
         print(f"camera: {exc}", file=sys.stderr)
         return 2
     try:
@@ -386,6 +401,44 @@ def main(argv: list[str]) -> int:
         return tp.run_node(lambda stop: _node(stop, ns, pipeline, source, settings))
     finally:
         source.close()
+
+
+def _open(ns: argparse.Namespace, cal: Calibration) -> FrameSource:
+    if ns.source != RENDERED:
+        return open_source(ns.source, fps=ns.fps)
+    from localization.rendered import RenderedSource, RenderSettings
+    from sim_plant.render import CameraPose
+
+    lx, ly = (float(v) for v in ns.render_look_at.split(","))
+    camera = CameraPose(height_m=ns.render_height, tilt_deg=ns.render_tilt, look_at=(lx, ly))
+    settings = RenderSettings(camera, blur_sigma_px=ns.render_blur, noise_std=ns.render_noise)
+    return RenderedSource(cal, settings, fps=ns.fps or 30.0)
+
+
+def _feed_truth(
+    session: Any, loop: asyncio.AbstractEventLoop, fleet: str, source: Any, node: CameraNode
+) -> None:
+    """``--source rendered``: the plant's truth (per robot and batched) into the source."""
+    feed = source.feed
+
+    def on_truth(rx: tp.Received) -> None:
+        msg = decode(rx.payload, Truth)
+        parsed = keys.parse_robot_key(rx.key)
+        if isinstance(msg, DecodeError) or parsed is None:
+            node.truth_rejected += 1
+            return
+        feed.push(parsed[1], msg.t, msg.x, msg.y, msg.theta)
+
+    def on_truths(rx: tp.Received) -> None:
+        msg = decode(rx.payload, TruthBatch)
+        if isinstance(msg, DecodeError):
+            node.truth_rejected += 1
+            return
+        for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
+            feed.push(rid, msg.stamp, x, y, th)
+
+    tp.subscribe(session, keys.all_truth_pattern(fleet), loop, on_truth)
+    tp.subscribe(session, keys.truths_key(fleet), loop, on_truths)
 
 
 async def _node(
@@ -428,6 +481,8 @@ async def _node(
             with contextlib.suppress(RuntimeError):  # loop closed: exiting
                 loop.call_soon_threadsafe(put)
 
+        if ns.source == RENDERED:
+            _feed_truth(session, loop, ns.fleet, source, node)
         grabber = Grabber(source, pipeline, deliver, fast=ns.fast, loop_file=ns.loop)
         node.grabber = grabber
         print(
@@ -471,6 +526,8 @@ async def _node(
     finally:
         if grabber is not None:
             grabber.stop.set()
+        if ns.source == RENDERED:
+            source.close()  # wakes a grabber waiting for truth
         session.close()
 
 

@@ -209,3 +209,71 @@ def test_systemd_unit_verifies(tmp_path: Path) -> None:
     output = result.stdout + result.stderr
     assert result.returncode == 0, output
     assert [s for s in output.splitlines() if "formation-camera" in s] == [], output
+
+
+def test_rendered_source_tracks_the_truth_on_the_bus(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, tmp_path: Path
+) -> None:
+    """``--source rendered``: truth published on the bus (here by the test, as the plant does in
+    realtime, one instant per camera frame) is rendered and tracked; each pose's ``t`` is the
+    truth instant it was rendered from, and it matches that truth within the goals."""
+    import threading
+
+    from bus_schemas import Truth, TruthBatch, encode
+    from bus_schemas import transport as tp
+    from localization.rendered import RenderSettings, rendered_calibration
+
+    settings = RenderSettings(CameraPose(tilt_deg=8.0))
+    cal_path = tmp_path / "rendered.toml"
+    write(rendered_calibration(settings, {f"r{i + 1}": i for i in range(N_ROBOTS)}), cal_path)
+    poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
+    cam = spawn(
+        "camera", "--source", "rendered", "--calibration", str(cal_path), "--render-tilt", "8",
+        "--endpoint", router.endpoint, ready="camera ready",
+    )  # fmt: skip
+    pubs = tp.Publishers(client)
+    sent: dict[float, np.ndarray] = {}
+    stop = threading.Event()
+
+    def publish_truth() -> None:  # 30 Hz; half the instants per robot, half as a batch
+        k = 0
+        t0 = time.monotonic()
+        while not stop.is_set():
+            t = time.monotonic()
+            truth = moving_scene(N_ROBOTS, t - t0)
+            sent[t] = truth
+            if k % 2:
+                for i, (x, y, th) in enumerate(truth.tolist()):
+                    rid = f"r{i + 1}"
+                    msg = Truth(t=t, seq=k + 1, x=x, y=y, theta=th, robot=rid)
+                    pubs.put(keys.truth_key(FLEET, rid), encode(msg))
+            else:
+                batch = TruthBatch(
+                    t=t, seq=k + 1, robots=tuple(f"r{i + 1}" for i in range(N_ROBOTS)),
+                    x=tuple(truth[:, 0]), y=tuple(truth[:, 1]), theta=tuple(truth[:, 2]), stamp=t,
+                )  # fmt: skip
+                pubs.put(keys.truths_key(FLEET), encode(batch))
+            k += 1
+            stop.wait(max(0.0, t0 + k / FPS - time.monotonic()))
+
+    feeder = threading.Thread(target=publish_truth, daemon=True)
+    feeder.start()
+    try:
+        deadline = time.monotonic() + 20.0
+        while len(poses.snapshot()) < 20 * N_ROBOTS and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        stop.set()
+        feeder.join(2.0)
+    got = [m for _, _, m in poses.snapshot()]
+    assert len(got) >= 20 * N_ROBOTS, cam.describe()
+    pos_err, head_err = [], []
+    for m in got:
+        truth = sent[m.t]  # t is exactly the truth instant the frame was rendered from
+        x, y, th = truth[int(m.robot[1:]) - 1]
+        pos_err.append(math.hypot(m.x - x, m.y - y) * 1e3)
+        head_err.append(abs(math.remainder(m.theta - th, 2 * math.pi)) * 180 / math.pi)
+    assert np.median(pos_err) < 2.0 and np.median(head_err) < 0.5
+    assert {m.robot for m in got} == {f"r{i + 1}" for i in range(N_ROBOTS)}
+    assert cam.stop(signal.SIGTERM, timeout_s=5.0) < EXIT_BOUND_S
+    assert cam.proc.returncode == 0, cam.describe()
