@@ -150,6 +150,7 @@ class UpConfig:
     standby: bool = False  # run a second, hot-standby coordinator
     respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
     hosts: int = 0  # > 0: that many agent-host processes run the robots, batched bus (scale)
+    camera: str = "emulated"  # "rendered": formation camera tracks rendered frames (realtime)
 
 
 @dataclass(frozen=True)
@@ -757,6 +758,16 @@ class _Launcher:
             "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock, *common,
         ]  # fmt: skip
         out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
+        if self.cfg.camera == "rendered":  # docs/localization.md: the real tracker in the loop
+            from localization.rendered import scenario_camera_args
+
+            plant.append("--no-poses")
+            cam = scenario_camera_args(
+                self.scn.robot_ids, self.scn.initial, self.scn.trajectory,
+                float(self.scn.formation.get("b_m", 0.4)), self.plan.duration_s,
+                str(self.plan.out_dir / "camera.toml"),
+            )  # fmt: skip
+            out.insert(1, ("camera", ["camera", *cam, *common], "camera ready"))
         if self.cfg.standby:
             standby = [
                 "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",
@@ -1266,6 +1277,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve a live Foxglove WebSocket (default port 8765; 0: any free port)",
     )
     p.add_argument(
+        "--camera",
+        choices=("emulated", "rendered"),
+        default="emulated",
+        help="poses from the plant's camera emulation (default) or from `formation camera` "
+        "tracking rendered frames of the plant's truth (realtime only; docs/localization.md)",
+    )
+    p.add_argument(
         "--foxglove-host",
         default="127.0.0.1",
         metavar="HOST",
@@ -1295,6 +1313,7 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         standby=ns.standby,
         respawn_s=ns.respawn,
         hosts=ns.hosts,
+        camera=ns.camera,
     )
 
 
@@ -1303,6 +1322,9 @@ def main(argv: list[str]) -> int:
     cfg = config_from_args(build_parser().parse_args(argv))
     if not 0 <= cfg.hosts <= 256:
         print(f"formation up: --hosts: expected 0..256, got {cfg.hosts}", file=sys.stderr)
+        return 2
+    if cfg.camera == "rendered" and cfg.lockstep:
+        print("formation up: --camera rendered runs in realtime only", file=sys.stderr)
         return 2
     if cfg.foxglove_port is not None and not 0 <= cfg.foxglove_port <= 65535:
         print(f"formation up: --foxglove: bad port {cfg.foxglove_port}", file=sys.stderr)

@@ -26,7 +26,14 @@ import numpy.typing as npt
 from localization.calibration import Calibration
 from sim_plant.render import CameraPose, Renderer
 
-__all__ = ["RenderSettings", "RenderedSource", "TruthFeed", "rendered_calibration"]
+__all__ = [
+    "RenderSettings",
+    "RenderedSource",
+    "TruthFeed",
+    "camera_args",
+    "camera_covering",
+    "rendered_calibration",
+]
 
 Frame = npt.NDArray[np.uint8]
 
@@ -152,3 +159,73 @@ class RenderedSource:
 
     def close(self) -> None:
         self.feed.close()
+
+
+def camera_covering(
+    points: Sequence[tuple[float, float]],
+    *,
+    margin_m: float = 0.3,
+    min_height_m: float = 1.14,
+    base: CameraPose | None = None,
+) -> CameraPose:
+    """A straight-down camera (``base``'s intrinsics) whose view covers ``points`` (floor, m)
+    with ``margin_m`` around them: centred on their bounding box, no lower than
+    ``min_height_m`` (the paper's 1.14 m), higher if the box needs it."""
+    cam = base if base is not None else CameraPose()
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    if len(pts) == 0:
+        raise ValueError("no points to cover")
+    lo, hi = pts.min(axis=0) - margin_m, pts.max(axis=0) + margin_m
+    centre = (float(lo[0] + hi[0]) / 2.0, float(lo[1] + hi[1]) / 2.0)
+    # the view at height h spans width * h / fx metres across and height * h / fy along
+    need = max(
+        float(hi[0] - lo[0]) * cam.fx / cam.width, float(hi[1] - lo[1]) * cam.fy / cam.height
+    )
+    return CameraPose(
+        height_m=max(min_height_m, need),
+        look_at=centre,
+        tilt_deg=0.0,
+        yaw_deg=0.0,
+        width=cam.width,
+        height=cam.height,
+        fx=cam.fx,
+        fy=cam.fy,
+    )
+
+
+def camera_args(camera: CameraPose) -> list[str]:
+    """``formation camera`` options rendering from ``camera`` (straight down)."""
+    x, y = camera.look_at
+    return [
+        "--source", "rendered", "--render-height", repr(camera.height_m),
+        "--render-look-at", f"{x!r},{y!r}", "--render-tilt", repr(camera.tilt_deg),
+    ]  # fmt: skip
+
+
+def scenario_camera_args(
+    robot_ids: Sequence[str],
+    initial: Sequence[Sequence[float]],
+    trajectory: Mapping[str, object],
+    formation_size_m: float,
+    duration_s: float,
+    calibration_path: str,
+) -> list[str]:
+    """For ``formation up --camera rendered``: a straight-down camera covering the robots' start
+    and the virtual leader's path over ``duration_s`` (plus ``formation_size_m``), its true
+    calibration written to ``calibration_path`` (robot k -> tag k-1 in ``robot_ids`` order);
+    returns the ``formation camera`` options (without the Zenoh ones)."""
+    from coordinator.trajectory import make_trajectory
+
+    params = {k: v for k, v in trajectory.items() if k != "kind"}
+    traj = make_trajectory(str(trajectory["kind"]), params)
+    pts = [(float(p[0]), float(p[1])) for p in initial]
+    steps = max(2, int(duration_s) + 1)
+    for k in range(steps):
+        s = traj.sample(duration_s * k / (steps - 1))
+        pts.append((s.x, s.y))
+    camera = camera_covering(pts, margin_m=formation_size_m + 0.3)
+    settings = RenderSettings(camera)
+    from localization.calibration import write
+
+    write(rendered_calibration(settings, {r: i for i, r in enumerate(robot_ids)}), calibration_path)
+    return [*camera_args(camera), "--calibration", calibration_path]

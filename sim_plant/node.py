@@ -153,9 +153,11 @@ class PlantNode:
         duration_s: float | None = None,
         batch: bool = False,
         log: NodeLog | None = None,
+        poses: bool = True,
     ) -> None:
         self.scenario = scenario
         self.batch = batch
+        self.poses = poses  # False: a real tracker (formation camera) publishes the poses
         self.fleet = keys.check_fleet(fleet)
         self.seed = scenario.seed if seed is None else seed
         self.lockstep = lockstep
@@ -463,6 +465,8 @@ class PlantNode:
         self, t_s: float, stamp_t: float, rows: list[tuple[int, float, float, float, float]]
     ) -> None:
         """One camera frame: the batch first, then each robot's pose (``t`` = capture time)."""
+        if not self.poses:
+            return  # --no-poses: the camera emulation is off (localization/rendered.py)
         stamp = max(stamp_t, 0.0)
         for start in range(0, len(rows), BATCH_CHUNK):
             chunk = rows[start : start + BATCH_CHUNK]
@@ -830,6 +834,11 @@ def build_parser() -> argparse.ArgumentParser:
         "pose/truth keys); docs/scale.md",
     )
     parser.add_argument(
+        "--no-poses",
+        action="store_true",
+        help="publish no emulated camera poses (a `formation camera --source rendered` does)",
+    )
+    parser.add_argument(
         "--stats-out",
         metavar="FILE.json",
         help="at exit, write the run's statistics (latency, frames, lateness, rx) as JSON",
@@ -896,6 +905,7 @@ async def _node(
             duration_s=ns.duration,
             batch=ns.batch,
             log=log,
+            poses=not ns.no_poses,
         )
         pubs.get(node.poses_key, node.data_qos)
         for key in () if ns.batch else node.pose_keys:
