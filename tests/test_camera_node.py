@@ -277,3 +277,23 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
     assert {m.robot for m in got} == {f"r{i + 1}" for i in range(N_ROBOTS)}
     assert cam.stop(signal.SIGTERM, timeout_s=5.0) < EXIT_BOUND_S
     assert cam.proc.returncode == 0, cam.describe()
+
+
+def test_plant_no_poses_publishes_truth_only(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    """``formation plant --no-poses`` (used by ``formation up --camera rendered``): the camera
+    emulation is off, truth still flows at the camera rate for the rendered source."""
+    from bus_schemas import Truth
+
+    poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
+    batches = Recorder(client, keys.poses_key(FLEET), decoder_of(PoseBatch))
+    truth = Recorder(client, keys.all_truth_pattern(FLEET), decoder_of(Truth))
+    spawn(
+        "plant", "--scenario", "paper-exp1", "--no-poses", "--endpoint", router.endpoint,
+        ready="plant ready",
+    )  # fmt: skip
+    truth.wait_for(lambda *_: True, timeout_s=10.0)
+    time.sleep(0.5)
+    assert len(truth.snapshot()) >= 3 * 5
+    assert poses.snapshot() == [] and batches.snapshot() == []
