@@ -146,6 +146,7 @@ class RenderedSource:
                 blur_sigma_px=s.blur_sigma_px,
                 noise_std=s.noise_std,
                 rng=self.rng,
+                gray=True,
             )
             self.frame_stamp_s = stamp
             return frame

@@ -168,6 +168,7 @@ class Renderer:
         self._h = self.camera.floor_to_image()
         self._dict = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
         self._tags: dict[tuple[int, int], Frame] = {}
+        self._noise_bank: dict[float, list[npt.NDArray[np.float32]]] = {}
         # pixels per metre near the image centre: sets the source resolution of the tags
         lx, ly = self.camera.look_at
         c = floor_to_image(self._h, [(lx, ly), (lx + 0.01, ly)])
@@ -238,7 +239,9 @@ class Renderer:
         if u1 <= u0 or v1 <= v0:
             return
         shift = np.array([[1.0, 0.0, -u0], [0.0, 1.0, -v0], [0.0, 0.0, 1.0]])
-        roi = np.ascontiguousarray(frame[v0:v1, u0:u1, 0])
+        roi = np.ascontiguousarray(
+            frame[v0:v1, u0:u1] if frame.ndim == 2 else frame[v0:v1, u0:u1, 0]
+        )
         cv2.warpPerspective(
             src,
             shift @ m,
@@ -247,7 +250,7 @@ class Renderer:
             flags=cv2.INTER_LINEAR,
             borderMode=cv2.BORDER_TRANSPARENT,
         )
-        frame[v0:v1, u0:u1] = roi[:, :, None]
+        frame[v0:v1, u0:u1] = roi if frame.ndim == 2 else roi[:, :, None]
 
     def render(
         self,
@@ -260,18 +263,24 @@ class Renderer:
         gradient: float = 0.0,
         occluders: Iterable[Occluder] = (),
         rng: np.random.Generator | None = None,
+        gray: bool = False,
     ) -> Frame:
         """One BGR frame of robots at ``poses`` (``(n, 3)``: x_m, y_m, theta_rad).
 
         ``tag_ids[i]`` is robot i's tag (tag mode). ``gain`` scales the brightness, ``gradient``
         adds a left-to-right lighting ramp (fraction of the brightness), ``noise_std`` is the
-        standard deviation of additive Gaussian noise in grey levels (needs ``rng``).
+        standard deviation of additive Gaussian noise in grey levels (needs ``rng``; drawn from a
+        bank of 4 noise images shifted at random, so a frame costs no new normal draws).
+        ``gray``: a single-channel frame (tag mode; 3x cheaper, what a tag detector reads).
         """
         p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         if self.mode == "tag" and (tag_ids is None or len(tag_ids) != len(p)):
             raise ValueError("tag mode needs one tag id per robot")
+        if gray and self.mode != "tag":
+            raise ValueError("colour patches need a colour frame")
         cam = self.camera
-        frame = np.full((cam.height, cam.width, 3), _FLOOR_GREY, dtype=np.uint8)
+        shape = (cam.height, cam.width) if gray else (cam.height, cam.width, 3)
+        frame = np.full(shape, _FLOOR_GREY, dtype=np.uint8)
         for i, (x, y, theta) in enumerate(p.tolist()):
             self._disc(frame, x, y, self.body_radius_m, (_BODY_GREY,) * 3)
             if self.mode == "tag":
@@ -293,13 +302,25 @@ class Renderer:
             if gain != 1.0 or gradient != 0.0:
                 ramp = gain * (1.0 + gradient * (np.arange(cam.width, dtype=np.float32)
                                                  / (cam.width - 1) - 0.5))  # fmt: skip
-                img *= ramp[None, :, None]
+                img *= ramp[None, :, None] if img.ndim == 3 else ramp[None, :]
             if noise_std > 0.0:
                 if rng is None:
                     raise ValueError("noise needs an rng")
-                img += rng.normal(0.0, noise_std, img.shape[:2]).astype(np.float32)[:, :, None]
+                noise = self._noise(noise_std, rng)
+                img += noise[:, :, None] if img.ndim == 3 else noise
             frame = np.clip(img + 0.5, 0, 255).astype(np.uint8)
         return frame
+
+    def _noise(self, std: float, rng: np.random.Generator) -> npt.NDArray[np.float32]:
+        """A (height, width) Gaussian noise image: one of a bank of 4, rolled at random."""
+        cam = self.camera
+        bank = self._noise_bank.get(std)
+        if bank is None:
+            shape = (cam.height, cam.width)
+            bank = [rng.normal(0.0, std, shape).astype(np.float32) for _ in range(4)]
+            self._noise_bank[std] = bank
+        k, dv, du = (int(v) for v in rng.integers(0, (4, cam.height, cam.width)))
+        return np.roll(bank[k], (dv, du), axis=(0, 1))
 
 
 def write_video(path: str | Path, frames: Iterable[Frame], fps: float) -> int:
@@ -310,6 +331,8 @@ def write_video(path: str | Path, frames: Iterable[Frame], fps: float) -> int:
     if first is None:
         raise ValueError("no frames to write")
     h, w = first.shape[:2]
+    if first.ndim == 2:  # the MJPG writer takes BGR
+        first, it = _bgr(first), (_bgr(f) for f in it)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"MJPG"), float(fps), (w, h))
     if not writer.isOpened():
         raise OSError(f"cannot open a video writer for {path}")
@@ -322,6 +345,10 @@ def write_video(path: str | Path, frames: Iterable[Frame], fps: float) -> int:
     finally:
         writer.release()
     return n
+
+
+def _bgr(frame: Frame) -> Frame:
+    return frame if frame.ndim == 3 else np.asarray(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
 
 
 def _chain(first: Frame, rest: Iterable[Frame]) -> Iterable[Frame]:
