@@ -227,6 +227,7 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
     cal_path = tmp_path / "rendered.toml"
     write(rendered_calibration(settings, {f"r{i + 1}": i for i in range(N_ROBOTS)}), cal_path)
     poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
+    status = Recorder(client, f"formation/{FLEET}/camera/*/status", msgpack.unpackb)
     cam = spawn(
         "camera", "--source", "rendered", "--calibration", str(cal_path), "--render-tilt", "8",
         "--endpoint", router.endpoint, ready="camera ready",
@@ -258,6 +259,9 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
 
     feeder = threading.Thread(target=publish_truth, daemon=True)
     feeder.start()
+    # hostile input: garbage on the truth keys is counted, never rendered
+    pubs.put(keys.truth_key(FLEET, "r1"), b"\xc1garbage")
+    pubs.put(keys.truths_key(FLEET), b"\x93\x01\x02\x03")
     try:
         deadline = time.monotonic() + 20.0
         while len(poses.snapshot()) < 20 * N_ROBOTS and time.monotonic() < deadline:
@@ -275,6 +279,7 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
         head_err.append(abs(math.remainder(m.theta - th, 2 * math.pi)) * 180 / math.pi)
     assert np.median(pos_err) < 2.0 and np.median(head_err) < 0.5
     assert {m.robot for m in got} == {f"r{i + 1}" for i in range(N_ROBOTS)}
+    status.wait_for(lambda _r, _k, s: s["truth_rejected"] == 2, timeout_s=3.0)
     assert cam.stop(signal.SIGTERM, timeout_s=5.0) < EXIT_BOUND_S
     assert cam.proc.returncode == 0, cam.describe()
 
