@@ -260,3 +260,77 @@ def test_windows_find_what_the_full_frame_finds() -> None:
     seen = [{d.tag_id for d in roi.detect(r.render(extra, [*ids, 40]))} for _ in range(3)]
     assert seen == [{0, 1, 2}, {0, 1, 2}, {0, 1, 2, 40}]
     assert roi.full_frames == 3
+
+
+def test_lens_distortion_is_undone_before_the_homography() -> None:
+    """With ``camera_matrix`` and ``dist_coeffs``, distorted pixels map to the floor through the
+    homography of undistorted pixels (floor points projected with OpenCV's lens model)."""
+    import cv2
+
+    rot, t = CAM.extrinsics()
+    k = CAM.camera_matrix
+    dist = np.array([-0.25, 0.08, 0.001, -0.0005, -0.01])
+    floor = np.array([[x, y, 0.0] for x in np.linspace(-0.6, 0.6, 5) for y in (-0.3, 0.0, 0.3)])
+    rvec, _ = cv2.Rodrigues(rot)
+    pix, _ = cv2.projectPoints(floor, rvec, t, k, dist)
+    pix = pix.reshape(-1, 2)
+    cal = Calibration(
+        homography=CAM.image_to_floor().tolist(),
+        tags={"r1": 0},
+        camera_matrix=k.tolist(),
+        dist_coeffs=tuple(dist.tolist()),
+    )
+    got = PoseEstimator(cal).to_floor(pix)
+    assert np.abs(got - floor[:, :2]).max() < 1e-4  # 0.1 mm
+    # without the lens model the same pixels are centimetres off near the edges
+    plain = PoseEstimator(Calibration(homography=CAM.image_to_floor().tolist(), tags={"r1": 0}))
+    assert np.abs(plain.to_floor(pix) - floor[:, :2]).max() > 0.01
+
+
+def test_tracker_never_publishes_an_unconfirmed_jump() -> None:
+    """Property (hypothesis): whatever the measurements, a published pose is within the motion
+    limits of the previous published one, unless the track was lost (lost_after_s) or the jump
+    was confirmed by ``reacquire_after`` consistent measurements in a row."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    p = TrackerParams(max_speed_mps=1.0, lost_after_s=0.5, reacquire_after=3)
+    step = st.tuples(
+        st.floats(0.005, 0.6),  # dt
+        st.booleans(),  # seen
+        st.floats(-2.0, 2.0),
+        st.floats(-2.0, 2.0),
+        st.floats(-math.pi, math.pi),
+    )
+
+    @settings(max_examples=200, deadline=None)
+    @given(st.lists(step, min_size=1, max_size=60))
+    def check(steps: list[tuple[float, bool, float, float, float]]) -> None:
+        tr = Tracker(["r1"], p)
+        t = 0.0
+        last: tuple[float, Measurement] | None = None
+        history: list[Measurement] = []
+        for dt, seen, x, y, th in steps:
+            t += dt
+            m = Measurement("r1", x, y, th)
+            out = tr.update(t, [m] if seen else [])
+            if seen:
+                history.append(m)
+            if not out:
+                continue
+            assert out == [m]
+            if last is not None and t - last[0] <= p.lost_after_s:
+                t0, prev = last
+                ok_move = math.hypot(x - prev.x, y - prev.y) <= (
+                    p.max_speed_mps * (t - t0) + p.jump_slack_m
+                )
+                ok_turn = abs(wrap_angle(th - prev.theta)) <= (
+                    p.max_turn_radps * (t - t0) + p.turn_slack_rad
+                )
+                if not (ok_move and ok_turn):  # must be a confirmed relocation
+                    recent = history[-p.reacquire_after :]
+                    assert len(recent) == p.reacquire_after
+                    assert all(math.hypot(r.x - x, r.y - y) <= 2 * p.jump_slack_m for r in recent)
+            last = (t, m)
+
+    check()

@@ -302,3 +302,31 @@ def test_plant_no_poses_publishes_truth_only(
     time.sleep(0.5)
     assert len(truth.snapshot()) >= 3 * 5
     assert poses.snapshot() == [] and batches.snapshot() == []
+
+
+def test_folder_of_images_source(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, tmp_path: Path,
+    video: tuple[Path, Path],
+) -> None:  # fmt: skip
+    """A folder of PNGs is read in name order (non-images ignored) and published."""
+    import cv2
+
+    _, cal_path = video
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(5):
+        cv2.imwrite(str(folder / f"f{k:03d}.png"), RENDERER.render(scene(k), list(range(N_ROBOTS))))
+    (folder / "notes.txt").write_text("not an image")
+    poses = Recorder(client, keys.pose_key(FLEET, "r2"), decoder_of(Pose))
+    cam = spawn(
+        "camera", "--source", str(folder), "--calibration", str(cal_path), "--fps", "50",
+        "--fast", "--endpoint", router.endpoint, ready="camera ready",
+    )  # fmt: skip
+    assert "folder " in cam.stdout() and "5 images @ 50 fps" in cam.stdout()
+    cam.proc.wait(timeout=20)
+    assert cam.proc.returncode == 0, cam.describe()
+    got = [m for _, _, m in poses.snapshot()]
+    assert [m.seq for m in got] == [1, 2, 3, 4, 5]
+    for k, m in enumerate(got):
+        x, y, _ = scene(k)[1]
+        assert math.hypot(m.x - x, m.y - y) < 0.002
