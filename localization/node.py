@@ -65,6 +65,8 @@ STATUS_PERIOD_S: Final = 0.5
 LATENCY_SAMPLES: Final = 1000
 LIVE_QUEUE: Final = 4
 RENDERED: Final = "rendered"
+JOIN_S: Final = 0.3
+"""At stop, how long the grabber gets to finish its frame and release the source (s)."""
 FAST_QUEUE: Final = 256
 
 Frame = npt.NDArray[np.uint8]
@@ -196,6 +198,9 @@ class Grabber:
                 self.frames += 1
                 self.deliver(result)
         finally:
+            # The source is released by the thread that reads it: releasing a VideoCapture
+            # while another thread is inside read() aborts the process (std::terminate).
+            self.source.close()
             self.deliver(None)  # end of stream (or stop)
 
 
@@ -397,10 +402,12 @@ def main(argv: list[str]) -> int:
     except (TypeError, ValueError) as exc:
         print(f"camera: zenoh settings: {exc}", file=sys.stderr)
         return 2
+    started: list[Grabber] = []
     try:
-        return tp.run_node(lambda stop: _node(stop, ns, pipeline, source, settings))
+        return tp.run_node(lambda stop: _node(stop, ns, pipeline, source, settings, started))
     finally:
-        source.close()
+        if not started:  # else the grabber thread closes it (see Grabber._run)
+            source.close()
 
 
 def _open(ns: argparse.Namespace, cal: Calibration) -> FrameSource:
@@ -447,6 +454,7 @@ async def _node(
     pipeline: CameraPipeline,
     source: FrameSource,
     settings: tp.ZenohSettings,
+    started: list[Grabber],
 ) -> int:
     loop = asyncio.get_running_loop()
     try:
@@ -490,6 +498,7 @@ async def _node(
             f"{len(pipeline.cal.robots)} robots",
             flush=True,
         )
+        started.append(grabber)
         grabber.start()
         end = math.inf if ns.duration is None else time.monotonic() + ns.duration
         next_status = time.monotonic()
@@ -526,8 +535,10 @@ async def _node(
     finally:
         if grabber is not None:
             grabber.stop.set()
-        if ns.source == RENDERED:
-            source.close()  # wakes a grabber waiting for truth
+            if ns.source == RENDERED:
+                source.close()  # wakes a grabber waiting for truth (only closes the feed)
+            # let the frame in progress finish, so the thread releases the source itself
+            grabber.thread.join(JOIN_S)
         session.close()
 
 

@@ -334,3 +334,17 @@ def test_tracker_never_publishes_an_unconfirmed_jump() -> None:
             last = (t, m)
 
     check()
+
+
+def test_auto_falls_back_to_opencv_without_pupil(monkeypatch: pytest.MonkeyPatch) -> None:
+    """aarch64 has no pupil-apriltags wheel: ``auto`` then uses OpenCV's ArucoDetector (and no
+    windows), and still measures within the goals."""
+    import localization.detectors as det_mod
+
+    monkeypatch.setattr(det_mod, "pupil_available", lambda: False)
+    r = Renderer(CAM)
+    pipe = CameraPipeline(_cal(r, 3), "auto")
+    assert pipe.detector.name.startswith("opencv-aruco")
+    truth = moving_scene(3, 0.2)
+    pos, head = _errors(pipe.measure(r.render(truth, [0, 1, 2])), truth)
+    assert len(pos) == 3 and max(pos) < 2.0 and max(head) < 0.5

@@ -260,8 +260,9 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
     feeder = threading.Thread(target=publish_truth, daemon=True)
     feeder.start()
     # hostile input: garbage on the truth keys is counted, never rendered
-    pubs.put(keys.truth_key(FLEET, "r1"), b"\xc1garbage")
-    pubs.put(keys.truths_key(FLEET), b"\x93\x01\x02\x03")
+    block = zenoh.CongestionControl.BLOCK
+    client.put(keys.truth_key(FLEET, "r1"), b"\xc1garbage", congestion_control=block)
+    client.put(keys.truths_key(FLEET), b"\x93\x01\x02\x03", congestion_control=block)
     try:
         deadline = time.monotonic() + 20.0
         while len(poses.snapshot()) < 20 * N_ROBOTS and time.monotonic() < deadline:
