@@ -336,7 +336,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--source",
         required=True,
         metavar="SRC",
-        help="device index or /dev/videoN, video file, image folder, or stream URL",
+        help="device index or /dev/videoN, video file, image folder, stream URL, or `rendered` "
+        "(simulation: frames rendered from the plant's truth)",
     )
     p.add_argument("--calibration", required=True, metavar="FILE", help="calibration TOML")
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
@@ -368,8 +369,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--render-tilt", type=float, default=0.0, metavar="DEG", help="camera tilt")
     g.add_argument("--render-look-at", default="0,0", metavar="X,Y",
                    help="floor point at the image centre (0,0)")  # fmt: skip
-    g.add_argument("--render-noise", type=float, default=2.0, help="pixel noise std (grey levels)")
-    g.add_argument("--render-blur", type=float, default=0.8, help="blur sigma (px)")
+    g.add_argument("--render-noise", type=float, default=2.0, metavar="STD",
+                   help="pixel noise std (grey levels, 2)")  # fmt: skip
+    g.add_argument("--render-blur", type=float, default=0.8, metavar="PX",
+                   help="blur sigma (px, 0.8)")  # fmt: skip
     tp.add_zenoh_arguments(p)
     return p
 
