@@ -201,10 +201,13 @@ class RoiTagDetector:
     """Speeds a tag detector up by looking only around where tags were in the previous frame.
 
     A full-frame detection runs on the first frame, every ``full_every`` frames (new tags,
-    forged duplicates, robots that entered the view) and whenever a tag of ``expected`` seen
+    forged duplicates, robots that entered the view), whenever a tag of ``expected`` seen
     in the previous frame is not found again in its window (so a robot lost by the windows is
-    looked for in the whole frame of the same image). Windows are the previous corners' bounding
-    box grown by ``margin`` tag edges (motion between frames) plus ``min_margin_px``.
+    looked for in the whole frame of the same image), and every ``search_every`` frames while a
+    robot of ``expected`` is missing (covered, or out of view: it is found again within
+    ``search_every`` frames of reappearing, at the cost of a whole-frame detection that often).
+    Windows are the previous corners' bounding box grown by ``margin`` tag edges (motion between
+    frames) plus ``min_margin_px``.
     The same tag found in two overlapping windows at the same place is kept once; found at two
     different places it is kept twice (the pose estimator then drops both as duplicates).
 
@@ -217,12 +220,15 @@ class RoiTagDetector:
         *,
         expected: set[int] | None = None,
         full_every: int = 15,
+        search_every: int = 3,
         margin: float = 0.6,
         min_margin_px: int = 12,
     ) -> None:
         self.inner = inner
         self.expected = expected
         self.full_every = max(1, full_every)
+        self.search_every = max(1, search_every)
+        self._last_full = 0
         self.margin = margin
         self.min_margin_px = min_margin_px
         self.name = f"{inner.name} + windows (full frame every {self.full_every})"
@@ -268,7 +274,14 @@ class RoiTagDetector:
                 wanted &= self.expected
             if not wanted <= found:
                 full = True  # a robot slipped out of its window: look everywhere
+            elif (
+                self.expected is not None
+                and not self.expected <= found
+                and self._k - self._last_full >= self.search_every
+            ):
+                full = True  # a robot is missing: look for it now and then
         if full:
+            self._last_full = self._k
             self.full_frames += 1
             out = self.inner.detect(gray)
         self._prev = out

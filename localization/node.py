@@ -121,11 +121,22 @@ class CameraPipeline:
             return self.estimator.from_patches(det, self.tracker.positions())
         return self.estimator.from_tags(self.detector.detect(frame))
 
-    def process(self, frame: Frame, stamp_s: float, clock: Callable[[], float]) -> FrameResult:
+    def process(
+        self,
+        frame: Frame,
+        stamp_s: float,
+        clock: Callable[[], float],
+        media_s: float | None = None,
+    ) -> FrameResult:
+        """One frame captured at ``stamp_s``. ``media_s``: the frame's time in a recording
+        (frame index / fps): the tracker's motion limits then use it, so a file read faster or
+        slower than real time (``--fast``, a loaded machine) is judged at the speed it was
+        recorded; default: the capture time (live sources)."""
         start = clock()
         meas = self.measure(frame)
         detect_s = clock() - start
-        return FrameResult(stamp_s, self.tracker.update(stamp_s, meas), detect_s)
+        t_track = stamp_s if media_s is None else media_s
+        return FrameResult(stamp_s, self.tracker.update(t_track, meas), detect_s)
 
     def rejects(self) -> dict[str, int]:
         st = self.tracker.stats()
@@ -168,6 +179,7 @@ class Grabber:
         period = 1.0 / self.source.fps
         t0 = time.monotonic()
         k = 0  # index of the next frame of the recording
+        base = 0.0  # media time of the recording's start (grows at each --loop)
         try:
             while not self.stop.is_set():
                 if self.paced:
@@ -186,11 +198,12 @@ class Grabber:
                 k += 1
                 if frame is None:
                     if self.loop_file and not self.source.live and self.source.rewind():
-                        t0, k = time.monotonic(), 0
+                        t0, k, base = time.monotonic(), 0, base + (k - 1) * period
                         continue
                     break
+                media = None if self.source.live else base + (k - 1) * period
                 try:
-                    result = self.pipeline.process(frame, stamp, time.perf_counter)
+                    result = self.pipeline.process(frame, stamp, time.perf_counter, media)
                 except Exception as exc:  # a bug or a corrupt frame: count, go on
                     self.errors += 1
                     self.last_error = repr(exc)

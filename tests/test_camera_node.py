@@ -331,3 +331,61 @@ def test_folder_of_images_source(
     for k, m in enumerate(got):
         x, y, _ = scene(k)[1]
         assert math.hypot(m.x - x, m.y - y) < 0.002
+
+
+def test_misses_jumps_and_unknown_tags_on_the_bus(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, tmp_path: Path,
+    video: tuple[Path, Path],
+) -> None:  # fmt: skip
+    """A video where r2 is covered for 4 frames, r3 flickers 0.25 m away for one frame and an
+    unknown tag lies on the floor: r2 is not published while covered (misses), the flicker is
+    rejected (a jump, never published), the unknown tag is counted; the status says so."""
+    from sim_plant.render import Occluder
+
+    _, cal_path = video
+    n_frames = 20
+    unknown = np.array([[0.0, -0.33, 0.0]])
+
+    def frame(k: int) -> np.ndarray:
+        truth = scene(k).copy()
+        if k == 10:
+            truth[2, 1] += 0.25  # an empty part of the floor
+        occ = []
+        if 5 <= k <= 8:
+            from localization.pose import true_corner_pixels
+
+            x, y, th = scene(k)[1]
+            pix = true_corner_pixels(RENDERER.h_floor_to_image, x, y, th, 0.06)
+            (u0, v0), (u1, v1) = pix.min(axis=0) - 12, pix.max(axis=0) + 12
+            occ = [Occluder(int(u0), int(v0), int(u1), int(v1))]
+        poses = np.vstack([truth, unknown])
+        return RENDERER.render(poses, [*range(N_ROBOTS), 40], occluders=occ)
+
+    path = tmp_path / "events.avi"
+    write_video(path, (frame(k) for k in range(n_frames)), FPS)
+    poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
+    status = Recorder(client, f"formation/{FLEET}/camera/*/status", msgpack.unpackb)
+    cam = spawn(
+        "camera", "--source", str(path), "--calibration", str(cal_path), "--fast",
+        "--endpoint", router.endpoint, ready="camera ready",
+    )  # fmt: skip
+    cam.proc.wait(timeout=30)
+    assert cam.proc.returncode == 0, cam.describe()
+    time.sleep(0.2)
+    final = _status(status)[-1]
+    assert final["frames"] == n_frames and final["state"] == "done"
+    # covered in frames 5-8; found again within search_every (3) frames of reappearing
+    missed = final["misses"]["r2"]
+    assert 4 <= missed <= 6 and final["misses"]["r1"] == 0
+    assert final["rejects"]["jump"] == 1
+    assert final["rejects"]["unknown"] >= 1
+    got: dict[str, list[Pose]] = {}
+    for _, _, m in poses.snapshot():
+        got.setdefault(m.robot, []).append(m)
+    assert len(got["r1"]) == n_frames
+    assert len(got["r2"]) == n_frames - missed
+    assert len(got["r3"]) == n_frames - 1
+    for m in got["r3"]:  # the flicker never reached the bus
+        assert (
+            min(math.hypot(m.x - scene(k)[2][0], m.y - scene(k)[2][1]) for k in range(20)) < 0.003
+        )
