@@ -20,6 +20,7 @@ rotation in the frame. The tag's top edge (TL -> TR) faces the robot's front.
 from __future__ import annotations
 
 import importlib.metadata
+import threading
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -82,27 +83,56 @@ def _version(dist: str) -> str:
         return "?"
 
 
+_PUPIL_SHARED: dict[tuple[float, int], tuple[Any, threading.Lock]] = {}
+_PUPIL_SHARED_LOCK = threading.Lock()
+
+
+def _shared_pupil(quad_decimate: float, nthreads: int) -> tuple[Any, threading.Lock]:
+    """One pupil-apriltags detector per configuration and process, never destroyed.
+
+    Measured here (pupil-apriltags 1.0.4.post11): with ``nthreads=1``, destroying a detector
+    after whole-frame detections crashed in ``apriltag_detector_destroy`` (segfault / heap
+    corruption; upstream pupil-labs/apriltags issue 39 reports the same corruption) within a few
+    dozen create/detect/destroy cycles; one long-lived detector ran 600 detections cleanly. So
+    detectors are shared and kept (their ``__del__`` does nothing); the lock serialises callers.
+    """
+    key = (quad_decimate, nthreads)
+    with _PUPIL_SHARED_LOCK:
+        shared = _PUPIL_SHARED.get(key)
+        if shared is None:
+            import pupil_apriltags
+
+            class _Kept(pupil_apriltags.Detector):  # type: ignore[misc]
+                def __del__(self) -> None:  # never call apriltag_detector_destroy (see above)
+                    pass
+
+            det = _Kept(
+                families="tag36h11",
+                nthreads=nthreads,
+                quad_decimate=quad_decimate,
+                quad_sigma=0.0,
+                refine_edges=1,
+                decode_sharpening=0.25,
+            )
+            shared = (det, threading.Lock())
+            _PUPIL_SHARED[key] = shared
+        return shared
+
+
 class PupilTagDetector:
     """tag36h11 with pupil-apriltags (``quad_decimate`` 2: ~33 ms per 720p frame, one thread)."""
 
     def __init__(self, *, quad_decimate: float = 2.0, nthreads: int = 1) -> None:
-        import pupil_apriltags
-
-        self._det = pupil_apriltags.Detector(
-            families="tag36h11",
-            nthreads=nthreads,
-            quad_decimate=quad_decimate,
-            quad_sigma=0.0,
-            refine_edges=1,
-            decode_sharpening=0.25,
-        )
+        self._det, self._lock = _shared_pupil(quad_decimate, nthreads)
         version = _version("pupil-apriltags")
         self.name = f"pupil-apriltags {version} tag36h11 (quad_decimate {quad_decimate:g})"
 
     def detect(self, frame: Frame) -> list[TagDetection]:
         gray = np.ascontiguousarray(_gray(frame))
         out = []
-        for d in self._det.detect(gray):
+        with self._lock:
+            found = self._det.detect(gray)
+        for d in found:
             if d.hamming > 1:  # more than one corrected bit: not trusted
                 continue
             corners = np.asarray(d.corners, dtype=np.float64)[_PUPIL_TO_CANONICAL] - 0.5
