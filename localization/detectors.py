@@ -221,7 +221,7 @@ def make_detector(
     else:
         raise ValueError(f"unknown detector {choice!r}")
     # Windows only for pupil-apriltags: OpenCV's ArucoDetector on small crops was measured
-    # ~50x slower per pixel than on the whole frame, and one such run aborted in malloc.
+    # ~50x slower per pixel than on the whole frame (3 windows: ~200 ms).
     if windows and isinstance(inner, PupilTagDetector):
         return RoiTagDetector(inner, expected=expected)
     return inner
