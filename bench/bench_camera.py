@@ -38,7 +38,7 @@ import numpy as np
 
 from localization.calibration import Calibration, write
 from localization.detectors import pupil_available
-from localization.node import CameraPipeline
+from localization.pipeline import CameraPipeline
 from sim_plant.render import CameraPose, Renderer, moving_scene, write_video
 
 CONDITIONS = {

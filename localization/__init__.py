@@ -2,6 +2,7 @@
 
 Pure-ish cores (numpy + OpenCV, no Zenoh, no clock reads): ``calibration`` (the TOML file),
 ``detectors`` (tag / colour-patch detection), ``pose`` (corners -> floor pose), ``tracker``
-(plausibility, misses, stats), ``sources`` (frame sources). Shells: ``node`` (``formation
+(plausibility, misses, stats), ``sources`` (frame sources), ``pipeline`` (one frame through all of
+them), ``rendered`` (frames rendered from the plant's truth). Shells: ``node`` (``formation
 camera``) and ``calibrate`` (``formation camera calibrate``). See docs/localization.md.
 """

@@ -44,7 +44,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, Final
 
 import msgpack
@@ -54,10 +53,8 @@ import numpy.typing as npt
 from bus_schemas import DecodeError, Pose, PoseBatch, Truth, TruthBatch, decode, encode, keys
 from bus_schemas import transport as tp
 from localization.calibration import Calibration, CalibrationError, load
-from localization.detectors import PatchDetections, make_detector
-from localization.pose import Measurement, PoseEstimator
+from localization.pipeline import CameraPipeline, FrameResult
 from localization.sources import FrameSource, SourceError, open_source
-from localization.tracker import Tracker
 
 __all__ = ["CameraPipeline", "FrameResult", "build_parser", "camera_status_key", "main"]
 
@@ -75,77 +72,6 @@ Frame = npt.NDArray[np.uint8]
 def camera_status_key(fleet: str, name: str) -> str:
     """``formation/<fleet>/camera/<name>/status``: the tracker's status map."""
     return f"{keys.ROOT}/{keys.check_fleet(fleet)}/camera/{keys.check_name(name)}/status"
-
-
-@dataclass(frozen=True, slots=True)
-class FrameResult:
-    """One processed frame: capture time, what to publish, detection time (s)."""
-
-    stamp_s: float
-    measurements: list[Measurement]
-    detect_s: float
-
-
-class CameraPipeline:
-    """Frame -> published measurements: detector, floor mapping, tracker. No Zenoh, no clock
-    reads (the capture time is passed in)."""
-
-    def __init__(
-        self,
-        calibration: Calibration,
-        detector_choice: str | None = None,
-        *,
-        windows: bool = True,
-    ) -> None:
-        self.cal = calibration
-        self.detector = make_detector(
-            calibration.family,
-            detector_choice or calibration.detector,
-            windows=windows,
-            expected=set(calibration.tags.values()),
-        )
-        self.estimator = PoseEstimator(calibration)
-        self.tracker = Tracker(
-            calibration.robots,
-            calibration.tracker,
-            tag_size_m=calibration.tag_size_m if calibration.family == "tag36h11" else None,
-        )
-        for rid, (x, y) in calibration.start.items():
-            self.tracker.seed(rid, x, y, -math.inf)
-
-    def measure(self, frame: Frame) -> list[Measurement]:
-        """Detections of one frame as floor measurements (before the tracker)."""
-        if self.cal.family == "patches":
-            det = self.detector.detect(frame)
-            assert isinstance(det, PatchDetections)
-            return self.estimator.from_patches(det, self.tracker.positions())
-        return self.estimator.from_tags(self.detector.detect(frame))
-
-    def process(
-        self,
-        frame: Frame,
-        stamp_s: float,
-        clock: Callable[[], float],
-        media_s: float | None = None,
-    ) -> FrameResult:
-        """One frame captured at ``stamp_s``. ``media_s``: the frame's time in a recording
-        (frame index / fps): the tracker's motion limits then use it, so a file read faster or
-        slower than real time (``--fast``, a loaded machine) is judged at the speed it was
-        recorded; default: the capture time (live sources)."""
-        start = clock()
-        meas = self.measure(frame)
-        detect_s = clock() - start
-        t_track = stamp_s if media_s is None else media_s
-        return FrameResult(stamp_s, self.tracker.update(t_track, meas), detect_s)
-
-    def rejects(self) -> dict[str, int]:
-        st = self.tracker.stats()
-        return {
-            "jump": st["jumps"],
-            "bad_size": st["bad_size"],
-            "unknown": self.estimator.unknown_tags,
-            "duplicate": self.estimator.duplicates,
-        }
 
 
 class Grabber:

@@ -15,7 +15,7 @@ from localization import calibration as calmod
 from localization.calibrate import FloorMarker, fit_homography, marker_points
 from localization.calibration import Calibration, CalibrationError, TagOffset, TrackerParams
 from localization.detectors import ArucoTagDetector, make_detector, pupil_available
-from localization.node import CameraPipeline
+from localization.pipeline import CameraPipeline
 from localization.pose import Measurement, PoseEstimator, true_corner_pixels, wrap_angle
 from localization.tracker import Tracker
 from sim_plant.render import CameraPose, Occluder, Renderer, moving_scene
