@@ -11,7 +11,7 @@ venv: $(STAMP)
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[agent,sim,dev]'
+	$(BIN)/python -m pip install -q -e '.[agent,sim,camera,dev]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -25,7 +25,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 typecheck: $(STAMP)
-	$(BIN)/mypy coordinator robot_agent bus_schemas sim_plant formation runtime scenario
+	$(BIN)/mypy coordinator robot_agent bus_schemas sim_plant formation runtime scenario localization
 
 bench: $(STAMP)
 	$(BIN)/python bench/run_all.py

@@ -25,6 +25,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "top": ("formation.top", "live fleet status table"),
     "acl": ("bus_schemas.acl", "write the Zenoh router ACL and client configs of a fleet"),
     "certs": ("formation.pki", "make the fleet CA and a certificate per identity"),
+    "camera": ("localization.node", "overhead-camera tracker; `camera calibrate` writes its file"),
 }
 
 

@@ -184,6 +184,16 @@ class _Launcher:
             "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock, *common,
         ]  # fmt: skip
         out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
+        if self.cfg.camera == "rendered":  # docs/localization.md: the real tracker in the loop
+            from localization.rendered import scenario_camera_args
+
+            plant.append("--no-poses")
+            cam = scenario_camera_args(
+                self.scn.robot_ids, self.scn.initial, self.scn.trajectory,
+                float(self.scn.formation.get("b_m", 0.4)), self.plan.duration_s,
+                str(self.plan.out_dir / "camera.toml"),
+            )  # fmt: skip
+            out.insert(1, ("camera", ["camera", *cam, *common], "camera ready"))
         if self.cfg.standby:
             standby = [
                 "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",

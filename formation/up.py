@@ -173,6 +173,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="serve a live Foxglove WebSocket (default port 8765; 0: any free port)",
     )
     p.add_argument(
+        "--camera",
+        choices=("emulated", "rendered"),
+        default="emulated",
+        help="poses from the plant's camera emulation (default) or from `formation camera` "
+        "tracking rendered frames of the plant's truth (realtime only; docs/localization.md)",
+    )
+    p.add_argument(
         "--foxglove-host",
         default="127.0.0.1",
         metavar="HOST",
@@ -202,6 +209,7 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         standby=ns.standby,
         respawn_s=ns.respawn,
         hosts=ns.hosts,
+        camera=ns.camera,
     )
 
 
@@ -210,6 +218,9 @@ def main(argv: list[str]) -> int:
     cfg = config_from_args(build_parser().parse_args(argv))
     if not 0 <= cfg.hosts <= 256:
         print(f"formation up: --hosts: expected 0..256, got {cfg.hosts}", file=sys.stderr)
+        return 2
+    if cfg.camera == "rendered" and cfg.lockstep:
+        print("formation up: --camera rendered runs in realtime only", file=sys.stderr)
         return 2
     if cfg.foxglove_port is not None and not 0 <= cfg.foxglove_port <= 65535:
         print(f"formation up: --foxglove: bad port {cfg.foxglove_port}", file=sys.stderr)

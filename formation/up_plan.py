@@ -54,6 +54,7 @@ class UpConfig:
     standby: bool = False  # run a second, hot-standby coordinator
     respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
     hosts: int = 0  # > 0: that many agent-host processes run the robots, batched bus (scale)
+    camera: str = "emulated"  # "rendered": formation camera tracks rendered frames (realtime)
 
 
 @dataclass(frozen=True)

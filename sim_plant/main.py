@@ -66,6 +66,11 @@ def build_parser() -> argparse.ArgumentParser:
         "pose/truth keys); docs/scale.md",
     )
     parser.add_argument(
+        "--no-poses",
+        action="store_true",
+        help="publish no emulated camera poses (a `formation camera --source rendered` does)",
+    )
+    parser.add_argument(
         "--stats-out",
         metavar="FILE.json",
         help="at exit, write the run's statistics (latency, frames, lateness, rx) as JSON",
@@ -122,6 +127,7 @@ async def _node(
         physics_hz=ns.physics_hz,
         duration_s=ns.duration,
         batch=ns.batch,
+        poses=not ns.no_poses,
         log=io.log,
     )
     io.pubs.get(node.poses_key, node.data_qos)

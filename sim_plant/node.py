@@ -79,9 +79,11 @@ class PlantNode(PlantInputs):
         duration_s: float | None = None,
         batch: bool = False,
         log: rt.NodeLog | None = None,
+        poses: bool = True,
     ) -> None:
         self.scenario = scenario
         self.batch = batch
+        self.poses = poses  # False: a real tracker (formation camera) publishes the poses
         self.fleet = keys.check_fleet(fleet)
         self.seed = scenario.seed if seed is None else seed
         self.lockstep = lockstep
@@ -218,6 +220,8 @@ class PlantNode(PlantInputs):
         self, t_s: float, stamp_t: float, rows: list[tuple[int, float, float, float, float]]
     ) -> None:
         """One camera frame: the batch first, then each robot's pose (``t`` = capture time)."""
+        if not self.poses:
+            return  # --no-poses: the camera emulation is off (localization/rendered.py)
         stamp = max(stamp_t, 0.0)
         for start in range(0, len(rows), BATCH_CHUNK):
             chunk = rows[start : start + BATCH_CHUNK]

@@ -23,6 +23,7 @@ PACKAGES = (
     "robot_agent",
     "coordinator",
     "sim_plant",
+    "localization",
     "scenario",
     "runtime",
     "formation",
@@ -41,6 +42,8 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "coordinator.*",
             "sim_plant",
             "sim_plant.*",
+            "localization",
+            "localization.*",
         ),
     ),
     ("scenario", ("scenario.*", "scenario")),
@@ -56,6 +59,8 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "sim_plant.node",
             "sim_plant.inputs",
             "sim_plant.main",
+            "localization.node",
+            "localization.calibrate",
         ),
     ),
     ("tools", ("formation", "formation.*")),
@@ -263,7 +268,7 @@ def test_contract_imports_neither_zenoh_nor_asyncio() -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 8
+    assert len(shells) == 10
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 

@@ -1,0 +1,488 @@
+"""``formation camera``: the overhead-camera tracker as a process.
+
+Usage::
+
+    formation camera --source SRC --calibration FILE [--fleet demo] [--name camera]
+                     [--fast] [--loop] [--fps HZ] [--detector auto|apriltag|aruco]
+                     [--no-batch] [--duration S] [zenoh options: --endpoint EP ...]
+    formation camera calibrate ...        (localization.calibrate)
+
+Theory of operation
+-------------------
+A grabber thread reads frames from the source (localization.sources), stamps each with
+``time.monotonic()`` right after the frame was read (the *capture time*; a device's exposure
+started up to one frame period earlier), detects the markers, maps them to the floor and runs the
+tracker (:class:`CameraPipeline`, no Zenoh). It hands each frame's result to the event loop,
+which publishes, per frame: one ``poses`` batch (``PoseBatch``, ``stamp`` = capture time) then
+``robot/<id>/pose`` for each robot seen (``t`` = capture time, ``robot`` set), the same keys and
+order as the plant's camera emulation, so agents and the coordinator cannot tell the difference.
+A robot not seen is not published (the firmware's staleness rule stops it).
+
+A recording (file, folder) is read at its own frame rate, frames dropped when processing falls
+behind (counted), unless ``--fast`` (every frame, as fast as possible); at its end the process
+exits 0 (``--loop``: start again). A live source (device, stream) is read as fast as it delivers.
+
+Status (not part of bus contract v1; a plain msgpack map any decoder reads):
+``formation/<fleet>/camera/<name>/status`` at 2 Hz: ``v``, ``t``, ``seq``, ``state``
+(``running``/``done``), ``detector``, ``source``, ``frames``, ``dropped``, ``fps`` (frames
+processed per second over the last period), ``detect_ms`` and ``latency_ms`` (capture ->
+published, p50/p99/max over the last 1000 frames), ``detections``/``published``/``misses``
+(per robot), ``rejects`` (``jump``, ``bad_size``, ``unknown``, ``duplicate``), ``reacquired``,
+``internal_errors``.
+
+Exits 0 within a second of SIGINT/SIGTERM, closing its Zenoh session (runtime).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import math
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any, Final
+
+import msgpack
+import numpy as np
+import numpy.typing as npt
+
+import runtime as rt
+from bus_schemas import DecodeError, Pose, PoseBatch, Truth, TruthBatch, decode, encode, keys
+from localization.calibration import Calibration, CalibrationError, load
+from localization.pipeline import CameraPipeline, FrameResult
+from localization.sources import FrameSource, SourceError, open_source
+
+__all__ = ["CameraPipeline", "FrameResult", "build_parser", "camera_status_key", "main"]
+
+STATUS_PERIOD_S: Final = 0.5
+LATENCY_SAMPLES: Final = 1000
+LIVE_QUEUE: Final = 4
+RENDERED: Final = "rendered"
+JOIN_S: Final = 0.3
+"""At stop, how long the grabber gets to finish its frame and release the source (s)."""
+FAST_QUEUE: Final = 256
+
+Frame = npt.NDArray[np.uint8]
+
+
+def camera_status_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/camera/<name>/status``: the tracker's status map."""
+    return f"{keys.ROOT}/{keys.check_fleet(fleet)}/camera/{keys.check_name(name)}/status"
+
+
+class Grabber:
+    """The frame thread: read (paced for recordings), stamp, process, hand over to the loop."""
+
+    def __init__(
+        self,
+        source: FrameSource,
+        pipeline: CameraPipeline,
+        deliver: Callable[[FrameResult | None], None],
+        *,
+        fast: bool,
+        loop_file: bool,
+    ) -> None:
+        self.source = source
+        self.pipeline = pipeline
+        self.deliver = deliver
+        self.paced = not source.live and not fast
+        self.loop_file = loop_file
+        self.stop = threading.Event()
+        self.frames = 0
+        self.dropped = 0
+        self.errors = 0
+        self.last_error = ""
+        self.thread = threading.Thread(target=self._run, name="camera-grabber", daemon=True)
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def _run(self) -> None:
+        period = 1.0 / self.source.fps
+        t0 = time.monotonic()
+        k = 0  # index of the next frame of the recording
+        base = 0.0  # media time of the recording's start (grows at each --loop)
+        try:
+            while not self.stop.is_set():
+                if self.paced:
+                    now = time.monotonic()
+                    due = t0 + k * period
+                    if due > now and self.stop.wait(due - now):
+                        break
+                    # late by more than a frame: drop frames as a live camera would
+                    while time.monotonic() > t0 + (k + 1) * period and self.source.skip():
+                        k += 1
+                        self.dropped += 1
+                frame = self.source.read()
+                # capture time: right after the read, or the source's own (rendered: the truth's)
+                own = getattr(self.source, "frame_stamp_s", None)
+                stamp = time.monotonic() if own is None else float(own)
+                k += 1
+                if frame is None:
+                    if self.loop_file and not self.source.live and self.source.rewind():
+                        t0, k, base = time.monotonic(), 0, base + (k - 1) * period
+                        continue
+                    break
+                media = None if self.source.live else base + (k - 1) * period
+                try:
+                    result = self.pipeline.process(frame, stamp, time.perf_counter, media)
+                except Exception as exc:  # a bug or a corrupt frame: count, go on
+                    self.errors += 1
+                    self.last_error = repr(exc)
+                    continue
+                self.frames += 1
+                self.deliver(result)
+        finally:
+            # The source is released by the thread that reads it: releasing a VideoCapture
+            # while another thread is inside read() aborts the process (std::terminate).
+            self.source.close()
+            self.deliver(None)  # end of stream (or stop)
+
+
+class CameraNode:
+    """The loop side: publishes each frame's poses and the status; Zenoh only via ``publish``."""
+
+    def __init__(
+        self,
+        fleet: str,
+        name: str,
+        pipeline: CameraPipeline,
+        source_desc: str,
+        publish: Callable[[str, bytes, rt.QoS], None],
+        *,
+        batch: bool = True,
+    ) -> None:
+        self.fleet = fleet
+        self.pipeline = pipeline
+        self.source_desc = source_desc
+        self.publish = publish
+        self.batch = batch
+        self.poses_key = keys.poses_key(fleet)
+        self.pose_keys = {r: keys.pose_key(fleet, r) for r in pipeline.cal.robots}
+        self.status_key = camera_status_key(fleet, name)
+        self.seq: dict[str, int] = {}
+        self.latency_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.detect_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.frames = 0
+        self.internal_errors = 0
+        self.truth_rejected = 0
+        self.state = "running"
+        self._fps_mark = (time.monotonic(), 0)
+        self.fps = 0.0
+        self.grabber: Grabber | None = None
+
+    def _next(self, key: str) -> int:
+        n = self.seq.get(key, 0) + 1
+        self.seq[key] = n
+        return n
+
+    def on_frame(self, res: FrameResult) -> None:
+        """Publish one frame: the batch first, then each robot's pose (t = capture time)."""
+        try:
+            stamp = max(res.stamp_s, 0.0)
+            ms = res.measurements
+            if ms and self.batch:
+                batch = PoseBatch(
+                    t=max(time.monotonic(), 0.0),
+                    seq=self._next(self.poses_key),
+                    robots=tuple(m.robot for m in ms),
+                    x=tuple(m.x for m in ms),
+                    y=tuple(m.y for m in ms),
+                    theta=tuple(m.theta for m in ms),
+                    stamp=stamp,
+                )
+                self.publish(self.poses_key, encode(batch), rt.QOS_CONTROL)
+            for m in ms:
+                key = self.pose_keys[m.robot]
+                msg = Pose(t=stamp, seq=self._next(key), x=m.x, y=m.y, theta=m.theta, robot=m.robot)
+                self.publish(key, encode(msg), rt.QOS_CONTROL)
+            self.frames += 1
+            self.detect_s.append(res.detect_s)
+            self.latency_s.append(time.monotonic() - res.stamp_s)
+        except Exception as exc:
+            self.internal_errors += 1
+            print(f"camera: internal error publishing a frame: {exc!r}", file=sys.stderr)
+
+    @staticmethod
+    def _percentiles(samples: deque[float]) -> dict[str, float] | None:
+        if not samples:
+            return None
+        arr = np.fromiter(samples, dtype=float) * 1e3
+        p50, p99 = np.percentile(arr, [50.0, 99.0])
+        return {"p50": float(p50), "p99": float(p99), "max": float(arr.max())}
+
+    def status_map(self) -> dict[str, Any]:
+        now = time.monotonic()
+        t_mark, n_mark = self._fps_mark
+        if now - t_mark >= 0.2:
+            self.fps = (self.frames - n_mark) / (now - t_mark)
+            self._fps_mark = (now, self.frames)
+        st = self.pipeline.tracker.stats()
+        g = self.grabber
+        return {
+            "v": 1,
+            "t": now,
+            "seq": self._next(self.status_key),
+            "state": self.state,
+            "detector": self.pipeline.detector.name,
+            "source": self.source_desc,
+            "frames": self.frames,
+            "dropped": g.dropped if g is not None else 0,
+            "fps": self.fps,
+            "detect_ms": self._percentiles(self.detect_s),
+            "latency_ms": self._percentiles(self.latency_s),
+            "detections": st["detections"],
+            "published": st["published"],
+            "misses": st["misses"],
+            "rejects": self.pipeline.rejects(),
+            "reacquired": st["reacquired"],
+            "internal_errors": self.internal_errors + (g.errors if g is not None else 0),
+            "truth_rejected": self.truth_rejected,
+        }
+
+    def publish_status(self) -> None:
+        try:
+            payload: bytes = msgpack.packb(self.status_map(), use_bin_type=True)
+            self.publish(self.status_key, payload, rt.QOS_TELEMETRY)
+        except Exception as exc:
+            self.internal_errors += 1
+            print(f"camera: internal error in status: {exc!r}", file=sys.stderr)
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation camera`` argument parser."""
+    p = argparse.ArgumentParser(
+        prog="formation camera",
+        description="Overhead-camera tracker: publishes robot poses from a camera, a video file, "
+        "a folder of images or a stream (docs/localization.md). "
+        "`formation camera calibrate --help` for the calibration tool.",
+    )
+    p.add_argument(
+        "--source",
+        required=True,
+        metavar="SRC",
+        help="device index or /dev/videoN, video file, image folder, stream URL, or `rendered` "
+        "(simulation: frames rendered from the plant's truth)",
+    )
+    p.add_argument("--calibration", required=True, metavar="FILE", help="calibration TOML")
+    p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
+    p.add_argument("--name", default="camera", help="this tracker's name in its status key")
+    p.add_argument(
+        "--detector",
+        choices=("auto", "apriltag", "aruco"),
+        help="override the calibration's detector choice",
+    )
+    p.add_argument(
+        "--fps",
+        type=_positive,
+        metavar="HZ",
+        help="rate of a folder / file (default: the file's own, 30 for a folder)",
+    )
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="a recording: every frame as fast as possible (not at its own rate)",
+    )
+    p.add_argument("--loop", action="store_true", help="a recording: start again at its end")
+    p.add_argument("--no-batch", action="store_true", help="no `poses` batch, per-robot keys only")
+    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S s and exit 0")
+    g = p.add_argument_group(
+        "--source rendered (simulation: frames rendered from the plant's truth)"
+    )
+    g.add_argument("--render-height", type=_positive, default=1.14, metavar="M",
+                   help="camera height above the floor (1.14 m, the paper's)")  # fmt: skip
+    g.add_argument("--render-tilt", type=float, default=0.0, metavar="DEG", help="camera tilt")
+    g.add_argument("--render-look-at", default="0,0", metavar="X,Y",
+                   help="floor point at the image centre (0,0)")  # fmt: skip
+    g.add_argument("--render-noise", type=float, default=2.0, metavar="STD",
+                   help="pixel noise std (grey levels, 2)")  # fmt: skip
+    g.add_argument("--render-blur", type=float, default=0.8, metavar="PX",
+                   help="blur sigma (px, 0.8)")  # fmt: skip
+    rt.add_zenoh_arguments(p)
+    return p
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation camera``; returns the exit status."""
+    if argv and argv[0] == "calibrate":
+        from localization import calibrate
+
+        return calibrate.main(argv[1:])
+    ns = build_parser().parse_args(argv)
+    if not keys.is_name(ns.fleet) or not keys.is_name(ns.name):
+        print(
+            f"camera: invalid --fleet or --name (must match {keys.NAME_PATTERN})", file=sys.stderr
+        )
+        return 2
+    try:
+        cal = load(ns.calibration)
+        pipeline = CameraPipeline(cal, ns.detector)
+    except (CalibrationError, ImportError, ValueError) as exc:
+        print(f"camera: {exc}", file=sys.stderr)
+        return 2
+    try:
+        source = _open(ns, cal)
+    except (SourceError, ValueError) as exc:
+        print(f"camera: {exc}", file=sys.stderr)
+        return 2
+    try:
+        settings = rt.settings_from_args(ns)
+    except (TypeError, ValueError) as exc:
+        print(f"camera: zenoh settings: {exc}", file=sys.stderr)
+        return 2
+    started: list[Grabber] = []
+    try:
+        return rt.run_node(lambda stop: _node(stop, ns, pipeline, source, settings, started))
+    finally:
+        if not started:  # else the grabber thread closes it (see Grabber._run)
+            source.close()
+
+
+def _open(ns: argparse.Namespace, cal: Calibration) -> FrameSource:
+    if ns.source != RENDERED:
+        return open_source(ns.source, fps=ns.fps)
+    from localization.rendered import RenderedSource, RenderSettings
+    from sim_plant.render import CameraPose
+
+    lx, ly = (float(v) for v in ns.render_look_at.split(","))
+    camera = CameraPose(height_m=ns.render_height, tilt_deg=ns.render_tilt, look_at=(lx, ly))
+    settings = RenderSettings(camera, blur_sigma_px=ns.render_blur, noise_std=ns.render_noise)
+    return RenderedSource(cal, settings, fps=ns.fps or 30.0)
+
+
+def _feed_truth(
+    session: Any, loop: asyncio.AbstractEventLoop, fleet: str, source: Any, node: CameraNode
+) -> None:
+    """``--source rendered``: the plant's truth (per robot and batched) into the source."""
+    feed = source.feed
+
+    def on_truth(rx: rt.Received) -> None:
+        msg = decode(rx.payload, Truth)
+        parsed = keys.parse_robot_key(rx.key)
+        if isinstance(msg, DecodeError) or parsed is None:
+            node.truth_rejected += 1
+            return
+        feed.push(parsed[1], msg.t, msg.x, msg.y, msg.theta)
+
+    def on_truths(rx: rt.Received) -> None:
+        msg = decode(rx.payload, TruthBatch)
+        if isinstance(msg, DecodeError):
+            node.truth_rejected += 1
+            return
+        for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
+            feed.push(rid, msg.stamp, x, y, th)
+
+    rt.subscribe(session, keys.all_truth_pattern(fleet), loop, on_truth)
+    rt.subscribe(session, keys.truths_key(fleet), loop, on_truths)
+
+
+async def _node(
+    stop: asyncio.Event,
+    ns: argparse.Namespace,
+    pipeline: CameraPipeline,
+    source: FrameSource,
+    settings: rt.ZenohSettings,
+    started: list[Grabber],
+) -> int:
+    loop = asyncio.get_running_loop()
+    try:
+        session = await rt.open_session_async(settings)
+    except (rt.TransportError, ValueError) as exc:
+        print(f"camera: {exc}", file=sys.stderr)
+        return 1
+    grabber: Grabber | None = None
+    try:
+        pubs = rt.Publishers(session)
+        node = CameraNode(
+            ns.fleet, ns.name, pipeline, source.description, pubs.put, batch=not ns.no_batch
+        )
+        if node.batch:
+            pubs.get(node.poses_key, rt.QOS_CONTROL)
+        for key in node.pose_keys.values():
+            pubs.get(key, rt.QOS_CONTROL)
+        # A live or paced source: the newest frames win (a backlog is stale). --fast on a
+        # recording: every frame is published (the grabber is the slow side; bounded anyway).
+        results: asyncio.Queue[FrameResult | None] = asyncio.Queue(
+            maxsize=FAST_QUEUE if ns.fast else LIVE_QUEUE
+        )
+
+        def deliver(res: FrameResult | None) -> None:  # grabber thread
+            def put() -> None:
+                if res is not None and results.full():  # the loop is behind: newest wins
+                    results.get_nowait()
+                    if node.grabber is not None:
+                        node.grabber.dropped += 1
+                results.put_nowait(res)
+
+            with contextlib.suppress(RuntimeError):  # loop closed: exiting
+                loop.call_soon_threadsafe(put)
+
+        if ns.source == RENDERED:
+            _feed_truth(session, loop, ns.fleet, source, node)
+        grabber = Grabber(source, pipeline, deliver, fast=ns.fast, loop_file=ns.loop)
+        node.grabber = grabber
+        print(
+            f"camera ready: detector {pipeline.detector.name}; source {source.description}; "
+            f"{len(pipeline.cal.robots)} robots",
+            flush=True,
+        )
+        started.append(grabber)
+        grabber.start()
+        end = math.inf if ns.duration is None else time.monotonic() + ns.duration
+        next_status = time.monotonic()
+        stopping: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
+        getting: asyncio.Future[Any] | None = None
+        try:
+            while not stop.is_set():
+                now = time.monotonic()
+                if now >= end:
+                    break
+                if now >= next_status:
+                    node.publish_status()
+                    next_status = now + STATUS_PERIOD_S
+                if getting is None:
+                    getting = asyncio.ensure_future(results.get())
+                await asyncio.wait(
+                    (getting, stopping),
+                    timeout=max(0.0, min(next_status, end) - now),
+                    return_when=asyncio.FIRST_COMPLETED,
+                )
+                if not getting.done():
+                    continue
+                res, getting = getting.result(), None
+                if res is None:
+                    break
+                node.on_frame(res)
+        finally:
+            stopping.cancel()
+            if getting is not None:
+                getting.cancel()
+        node.state = "done"
+        node.publish_status()
+        return 0
+    finally:
+        if grabber is not None:
+            grabber.stop.set()
+            if ns.source == RENDERED:
+                source.close()  # wakes a grabber waiting for truth (only closes the feed)
+            # let the frame in progress finish, so the thread releases the source itself
+            grabber.thread.join(JOIN_S)
+        session.close()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))
