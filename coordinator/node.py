@@ -51,7 +51,7 @@ from coordinator.core import CoordinatorOutput
 from coordinator.election import Election, Takeover
 from robot_agent.lockstep import Arrivals, Replay
 from scenario import Scenario
-from scenario.assemble import coordinator_core
+from scenario.assemble import coordinator_core, path_conflicts
 
 __all__ = ["CoordinatorNode"]
 
@@ -99,6 +99,11 @@ class CoordinatorNode:
         # Realtime: a stop of this process (runtime.stall) makes an active instance step down.
         self.stall = rt.StallDetector(gap_s=rt.HANG_GAP_NO_LEASE_S)
         self.log = log if log is not None else rt.NodeLog(f"coordinator {name}")
+        # issue 14: the coordinator does not plan around obstacles; it says when a slot's path
+        # crosses one (a pure check, coordinator/path_check.py), once, at start
+        self.path_warnings = [c.message() for c in path_conflicts(scenario)]
+        for w in self.path_warnings:
+            self.log.info(f"warning: {w}")
         self._publish = publish
         self._order = {rid: i for i, rid in enumerate(scenario.robot_ids)}
 

@@ -186,6 +186,40 @@ def _nanmax(a: np.ndarray, axis: int | None = None) -> Any:
 # -- trajectories ----------------------------------------------------------------------------
 
 
+def draw_world(ax: Any, world: Any, scale: float = 100.0) -> int:
+    """Draw a ``WorldMap``'s obstacles (grey: discs, thick lines for segments) and its arena
+    (a dotted rectangle) on ``ax`` in units of ``1 / scale`` m; returns how many were drawn."""
+    if world is None:
+        return 0
+    from matplotlib.patches import Circle, Rectangle
+
+    from robot_agent.params import CircleObstacle
+
+    drawn = 0
+    label: str | None = "obstacles"
+    for o in world.obstacles:
+        if isinstance(o, CircleObstacle):
+            ax.add_patch(
+                Circle((o.x * scale, o.y * scale), o.radius_m * scale, fc="0.6", ec="0.2",
+                       lw=0.8, zorder=2, label=label)
+            )  # fmt: skip
+        else:
+            lw = max(2.0, 2.0 * o.radius_m * scale * 0.5)
+            ax.plot([o.x1 * scale, o.x2 * scale], [o.y1 * scale, o.y2 * scale], "-",
+                    color="0.35", lw=lw, solid_capstyle="round", zorder=2, label=label)  # fmt: skip
+        label = None
+        drawn += 1
+    a = world.arena
+    if a is not None:
+        ax.add_patch(
+            Rectangle((a.x_min * scale, a.y_min * scale), (a.x_max - a.x_min) * scale,
+                      (a.y_max - a.y_min) * scale, fill=False, ec="0.3", ls=":", lw=1.0,
+                      zorder=1, label="arena")
+        )  # fmt: skip
+        drawn += 1
+    return drawn
+
+
 def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
     if not log.t_s.size:
         _save(_no_data(title or "Trajectories"), path)
@@ -204,6 +238,7 @@ def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
             segs, colors="0.55", linestyles="--", linewidths=slot_lw, label="virtual trajectories"
         )
     )
+    draw_world(ax, log.world, scale=100.0)
     if few_slots and log.t_s.size:
         for s in range(m):
             end = log.slot_xy[-1, s, :] * 100

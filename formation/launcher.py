@@ -297,6 +297,7 @@ class _Launcher:
                     port=self.cfg.foxglove_port,
                     ref_offset_m=geom.ref_offset_m,
                     body_radius_m=geom.body_radius_m,
+                    world=self.scn.agent.world,
                 )
             except RuntimeError as exc:
                 raise LaunchError(f"--foxglove {self.cfg.foxglove_port}: {exc}") from exc

@@ -84,12 +84,13 @@ class LiveServer:
         scene_hz: float = 10.0,
         ref_offset_m: float = RobotGeometry().ref_offset_m,
         body_radius_m: float = RobotGeometry().body_radius_m,
+        world: Any = None,
     ) -> None:
         if not scene_hz > 0:
             raise ValueError(f"scene_hz must be > 0, got {scene_hz!r}")
         self.fleet = keys.check_fleet(fleet)
         self.scene_period_s = 1.0 / scene_hz
-        self.model = SceneModel(fleet, ref_offset_m, body_radius_m)
+        self.model = SceneModel(fleet, ref_offset_m, body_radius_m, world=world)
         self.context = foxglove.Context()
         self.server = foxglove.start_server(
             name=f"formation {fleet}", host=host, port=port, context=self.context
@@ -220,6 +221,7 @@ def start_live(
     scene_hz: float = 10.0,
     ref_offset_m: float = RobotGeometry().ref_offset_m,
     body_radius_m: float = RobotGeometry().body_radius_m,
+    world: Any = None,
 ) -> LiveHandle:
     """Start a Foxglove WebSocket server for ``fleet`` fed from ``session``.
 
@@ -240,6 +242,7 @@ def start_live(
         scene_hz=scene_hz,
         ref_offset_m=ref_offset_m,
         body_radius_m=body_radius_m,
+        world=world,
     )
     try:
         live.attach(session)

@@ -6,6 +6,15 @@ tolerance to the end of the run), peak motor power. For the run: minimum pairwis
 axle centres, collisions (pairs closer than two body radii, counted once per contact), each
 robot's initial assignment, every role change after it with its time (a clean run has none), and
 the leader's identity over time.
+
+Safety (issue 14), under the ``safety`` key (not ``run``: a recording and the simulator agree on
+``run`` tick for tick, while the filter counters are known only where the firmware is):
+minimum separation, the time some pair of centres is closer than the safety distance Ds, the
+boundary violations (a body overlapping an obstacle or over the arena's edge, from the truth,
+counted once per entry like a collision), and from the robots' safety filter counters the
+filter-active fraction, the deadlock tie-breaks, the barrier violations and the infeasible ticks
+(``filter_source`` says where those came from: ``"firmware"`` in-process; ``null`` when the run
+did not report them, e.g. a recording whose status messages do not carry them).
 """
 
 from __future__ import annotations
@@ -108,6 +117,132 @@ def _finite_or_none(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def _tick_weights(t_s: np.ndarray) -> np.ndarray:
+    """How long each row stands for (s): the gap to the next row, the last one the median."""
+    if t_s.size == 0:
+        return np.zeros(0)
+    if t_s.size == 1:
+        return np.zeros(1)
+    gaps = np.diff(t_s)
+    return np.append(gaps, float(np.median(gaps)))
+
+
+def min_pair_distance(truth: np.ndarray, block_ticks: int = 0) -> np.ndarray:
+    """(T,) least centre distance over all robot pairs at each tick (inf with < 2 robots;
+    NaN positions are ignored)."""
+    ticks, n = truth.shape[0], truth.shape[1]
+    out = np.full(ticks, np.inf)
+    if n < 2 or ticks == 0:
+        return out
+    iu, ju = np.triu_indices(n, k=1)
+    block = block_ticks or max(1, (1 << 20) // len(iu))
+    for k0 in range(0, ticks, block):
+        xy = truth[k0 : k0 + block, :, :2]
+        d = np.hypot(xy[:, iu, 0] - xy[:, ju, 0], xy[:, iu, 1] - xy[:, ju, 1])
+        d = np.where(np.isnan(d), np.inf, d)
+        out[k0 : k0 + block] = d.min(axis=1)
+    return out
+
+
+def boundary_clearance(log: RunLog) -> list[tuple[str, np.ndarray]]:
+    """Per obstacle of ``log.world`` (``"obstacle[k]"``) and the arena (``"arena"``): the (T, n)
+    gap between each robot's body (disc of ``log.body_radius_m`` at the axle centre) and it (m,
+    < 0: overlap / over the edge)."""
+    world = log.world
+    if world is None:
+        return []
+    from robot_agent.params import CircleObstacle
+
+    r_b = log.body_radius_m if math.isfinite(log.body_radius_m) else 0.0
+    x = log.truth[:, :, 0]
+    y = log.truth[:, :, 1]
+    out: list[tuple[str, np.ndarray]] = []
+    for k, o in enumerate(world.obstacles):
+        if isinstance(o, CircleObstacle):
+            gap = np.hypot(x - o.x, y - o.y) - o.radius_m - r_b
+        else:
+            sx, sy = o.x2 - o.x1, o.y2 - o.y1
+            len2 = sx * sx + sy * sy
+            t = ((x - o.x1) * sx + (y - o.y1) * sy) / len2 if len2 > 0.0 else np.zeros_like(x)
+            t = np.clip(t, 0.0, 1.0)
+            gap = np.hypot(x - (o.x1 + t * sx), y - (o.y1 + t * sy)) - o.radius_m - r_b
+        out.append((f"obstacle[{k}]", gap))
+    a = world.arena
+    if a is not None:
+        gap = np.minimum(np.minimum(x - a.x_min, a.x_max - x), np.minimum(y - a.y_min, a.y_max - y))
+        out.append(("arena", gap - r_b))
+    return out
+
+
+def _entries(bad: np.ndarray) -> np.ndarray:
+    """(k, 2) (tick, robot) where ``bad`` (T, n) becomes true (counted once per entry)."""
+    prev = np.zeros((1, bad.shape[1]), dtype=bool)
+    starts = bad & ~np.concatenate([prev, bad[:-1]], axis=0)
+    return np.argwhere(starts)
+
+
+def safety_metrics(log: RunLog) -> dict[str, Any]:
+    """The run's safety figures (see the module docstring), JSON-ready."""
+    w = _tick_weights(log.t_s)
+    ds = log.safety_distance_m
+    dmin = min_pair_distance(log.truth)
+    out: dict[str, Any] = {
+        "safety_distance_m": _finite_or_none(ds),
+        "body_radius_m": _finite_or_none(log.body_radius_m),
+        "min_separation_m": _finite_or_none(float(dmin.min())) if dmin.size else None,
+        "time_below_ds_s": float(w[dmin < ds].sum()) if math.isfinite(ds) else None,
+        "time_touching_s": (
+            float(w[dmin < 2.0 * log.body_radius_m].sum())
+            if math.isfinite(log.body_radius_m)
+            else None
+        ),
+    }
+    events: list[dict[str, Any]] = []
+    min_gap = math.inf
+    for what, gap in boundary_clearance(log):
+        finite = gap[np.isfinite(gap)]
+        if finite.size:
+            min_gap = min(min_gap, float(finite.min()))
+        for k, j in _entries(gap < 0.0).tolist():
+            events.append(
+                {
+                    "t_s": round(float(log.t_s[k]), 6),
+                    "robot": log.robot_ids[j],
+                    "boundary": what,
+                    "clearance_m": float(gap[k, j]),
+                }
+            )
+    events.sort(key=lambda e: (e["t_s"], e["robot"], e["boundary"]))
+    out["boundary_violations"] = len(events)
+    out["boundary_violation_events"] = events[:100]
+    out["min_boundary_clearance_m"] = _finite_or_none(min_gap)
+    counts = log.filter_counts
+    if counts:
+        ticks = sum(int(c.get("ticks", 0)) for c in counts.values())
+        active = sum(int(c.get("active", 0)) for c in counts.values())
+        out["filter_source"] = "firmware"
+        out["filter_active_fraction"] = active / ticks if ticks else 0.0
+        out["tiebreaks"] = sum(int(c.get("tiebreaks", 0)) for c in counts.values())
+        out["filter_violations"] = sum(int(c.get("violations", 0)) for c in counts.values())
+        out["filter_infeasible"] = sum(int(c.get("infeasible", 0)) for c in counts.values())
+        out["filter_per_robot"] = {
+            rid: {
+                "active_fraction": int(c.get("active", 0)) / int(c["ticks"])
+                if c.get("ticks")
+                else 0.0,
+                "tiebreaks": int(c.get("tiebreaks", 0)),
+                "violations": int(c.get("violations", 0)),
+            }
+            for rid, c in sorted(counts.items())
+        }
+    else:
+        out["filter_source"] = None
+        for name in ("filter_active_fraction", "tiebreaks", "filter_violations",
+                     "filter_infeasible", "filter_per_robot"):  # fmt: skip
+            out[name] = None
+    return out
+
+
 def compute(log: RunLog, settle_s: float, settle_tol_m: float) -> dict[str, Any]:
     """All metrics of a run as a JSON-ready dictionary."""
     err = formation_error(log)
@@ -145,5 +280,6 @@ def compute(log: RunLog, settle_s: float, settle_tol_m: float) -> dict[str, Any]
             "leader_timeline": leader_timeline(log),
             "final_leader": leader_timeline(log)[-1]["leader"] if log.t_s.size else None,
         },
+        "safety": safety_metrics(log),
         "meta": log.meta,
     }

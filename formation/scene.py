@@ -3,9 +3,10 @@
 :class:`SceneModel` keeps the latest pose, slot, leader and assignment of a fleet and renders
 ``foxglove.SceneUpdate`` / ``foxglove.FrameTransforms`` messages: each robot as a cylinder with
 a heading arrow and label, its reference point (eqs 10-11), every slot coloured by role, the
-virtual leader, the leader-follower tree (eqs 3-5) and each robot's tracking error vector
-(eqs 17-18). The live server (:mod:`formation.live`) and the recorder (:mod:`formation.record`)
-both draw with it, so a recording looks like the live view.
+virtual leader, the leader-follower tree (eqs 3-5), each robot's tracking error vector
+(eqs 17-18) and the scenario's obstacles and arena (``world``, issue 14). The live server
+(:mod:`formation.live`) and the recorder (:mod:`formation.record`) both draw with it, so a
+recording looks like the live view.
 """
 
 from __future__ import annotations
@@ -54,6 +55,7 @@ WORLD_FRAME: Final = "world"
 ROBOT_HEIGHT_M: Final = 0.06
 SLOT_DIAMETER_M: Final = 0.04
 REF_DIAMETER_M: Final = 0.02
+OBSTACLE_HEIGHT_M: Final = 0.1
 
 _PALETTE: Final = [
     (0.84, 0.15, 0.16),
@@ -85,6 +87,58 @@ def _yaw(theta: float) -> Quaternion:
 
 def _pose(x: float, y: float, z: float = 0.0, theta: float = 0.0) -> Pose:
     return Pose(position=Vector3(x=x, y=y, z=z), orientation=_yaw(theta))
+
+
+def world_entity(world: Any, stamp: Timestamp) -> SceneEntity | None:
+    """A ``WorldMap``'s obstacles (grey cylinders for discs, grey lines for segments and polygon
+    edges) and its arena (a white outline) as one ``"world"`` entity; None if it has none."""
+    if world is None or (not world.obstacles and world.arena is None):
+        return None
+    from robot_agent.params import CircleObstacle
+
+    cylinders: list[CylinderPrimitive] = []
+    walls: list[Point3] = []
+    grey = _color((0.6, 0.6, 0.6), 0.9)
+    for o in world.obstacles:
+        if isinstance(o, CircleObstacle):
+            d = 2.0 * o.radius_m
+            cylinders.append(
+                CylinderPrimitive(
+                    pose=_pose(o.x, o.y, OBSTACLE_HEIGHT_M / 2.0),
+                    size=Vector3(x=d, y=d, z=OBSTACLE_HEIGHT_M),
+                    bottom_scale=1.0,
+                    top_scale=1.0,
+                    color=grey,
+                )
+            )
+        else:
+            walls += [Point3(x=o.x1, y=o.y1, z=0.02), Point3(x=o.x2, y=o.y2, z=0.02)]
+    lines: list[LinePrimitive] = []
+    if walls:
+        lines.append(
+            LinePrimitive(
+                type=LinePrimitiveLineType.LineList,
+                thickness=5.0,
+                scale_invariant=True,
+                points=walls,
+                color=grey,
+            )
+        )
+    a = world.arena
+    if a is not None:
+        corners = [(a.x_min, a.y_min), (a.x_max, a.y_min), (a.x_max, a.y_max), (a.x_min, a.y_max)]
+        lines.append(
+            LinePrimitive(
+                type=LinePrimitiveLineType.LineLoop,
+                thickness=2.0,
+                scale_invariant=True,
+                points=[Point3(x=x, y=y, z=0.0) for x, y in corners],
+                color=_color((0.95, 0.95, 0.95), 0.8),
+            )
+        )
+    return SceneEntity(
+        timestamp=stamp, frame_id=WORLD_FRAME, id="world", cylinders=cylinders, lines=lines
+    )
 
 
 def _stamp(wall_ns: int) -> Timestamp:
@@ -122,6 +176,7 @@ class SceneModel:
     slots: dict[int, Slot] = field(default_factory=dict)
     assignment: dict[str, int] = field(default_factory=dict)
     leader: Leader | None = None
+    world: Any = None  # robot_agent.params.WorldMap: obstacles and arena (issue 14), or None
 
     def _robot(self, rid: str) -> _Robot:
         r = self.robots.get(rid)
@@ -310,6 +365,9 @@ class SceneModel:
                     ],
                 )
             )
+        world = world_entity(self.world, stamp)
+        if world is not None:
+            entities.append(world)
         return SceneUpdate(entities=entities)
 
     def transforms(self, wall_ns: int) -> FrameTransforms:

@@ -60,6 +60,10 @@ def run_and_write(
     return m
 
 
+def _m(x: float | None) -> str:
+    return "-" if x is None else f"{x:.3f} m"
+
+
 def summary(m: dict[str, Any]) -> str:
     run = m["run"]
     lines = [
@@ -79,6 +83,20 @@ def summary(m: dict[str, Any]) -> str:
         f"min separation {sep:.3f} m, collisions {run['collisions']}, "
         f"role changes {run['role_change_count']}, final leader {run['final_leader']}"
     )
+    saf = m.get("safety")
+    if saf:
+        below = saf["time_below_ds_s"]
+        act = saf["filter_active_fraction"]
+        lines.append(
+            f"safety: Ds {_m(saf['safety_distance_m'])}, time below Ds "
+            f"{'-' if below is None else f'{below:.2f} s'}, boundary violations "
+            f"{saf['boundary_violations']}, filter active "
+            f"{'-' if act is None else f'{act * 100:.1f}%'}, tie-breaks "
+            f"{'-' if saf['tiebreaks'] is None else saf['tiebreaks']}"
+            + ("" if saf["filter_source"] else " (filter counters not reported: truth only)")
+        )
+    for w in m.get("meta", {}).get("path_warnings", []):
+        lines.append(f"warning: {w}")
     return "\n".join(lines)
 
 

@@ -39,7 +39,7 @@ from robot_agent.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.safety_filter import Neighbour
 from scenario import Scenario
-from scenario.assemble import apply_scheduled, coordinator_core, plant_models
+from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
 from sim_plant.plant import WheelEncoders
 
 # Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
@@ -225,6 +225,12 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
 
     log.min_separation_m = float(monitor.min_separation_m)
     log.collisions = [_event_dict(e, ids) for e in monitor.collisions]
+    log.body_radius_m = geom.body_radius_m
+    log.safety_distance_m = scenario.agent.safety_distance_m
+    log.world = scenario.agent.world
+    log.filter_counts = {
+        rid: fw.safety_filter.status().as_dict() for rid, fw in zip(ids, firmwares, strict=True)
+    }
     log.meta = {
         "scenario": scenario.name,
         "seed": seed,
@@ -232,6 +238,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
         "mode": "in-process",
         "wall_s": wall,
         "link": {"sent": link.sent, "dropped": link.dropped},
+        "path_warnings": [c.message() for c in path_conflicts(scenario, duration)],
     }
     status = {rid: _status_dict(fw) for rid, fw in zip(ids, firmwares, strict=True)}
     return SimResult(log=log, wall_s=wall, firmware_status=status)

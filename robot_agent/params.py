@@ -458,6 +458,7 @@ class AgentConfig:
             "safety_filter must be SafetyFilterParams",
         )
         _require(isinstance(self.world, WorldMap), "world must be a WorldMap")
+        _require(isinstance(self.estimator, EstimatorParams), "estimator must be EstimatorParams")
         if self.repulsion.d0_m is None:
             object.__setattr__(
                 self,
@@ -469,4 +470,3 @@ class AgentConfig:
     def safety_distance_m(self) -> float:
         """Ds: the least centre distance the filter keeps between two robots (m)."""
         return 2.0 * self.geometry.body_radius_m + self.safety_filter.margin_m
-        _require(isinstance(self.estimator, EstimatorParams), "estimator must be EstimatorParams")

@@ -15,12 +15,13 @@ from typing import Any
 import numpy as np
 
 from coordinator.core import CoordinatorCore
+from coordinator.path_check import PathConflict, slot_path_conflicts
 from scenario.load import Disturbance, Scenario
 from sim_plant.accounting import SeparationMonitor
 from sim_plant.plant import Plant
 from sim_plant.sensors import Camera, CommandLink
 
-__all__ = ["apply_scheduled", "coordinator_core", "plant_models"]
+__all__ = ["apply_scheduled", "coordinator_core", "path_conflicts", "plant_models"]
 
 
 def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
@@ -33,6 +34,20 @@ def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
         scenario.assignment.tie_tol_m,
         ref_offset_m=scenario.agent.geometry.ref_offset_m,
         t0_s=t0_s,
+    )
+
+
+def path_conflicts(scenario: Scenario, duration_s: float | None = None) -> list[PathConflict]:
+    """The slots whose paths cross an obstacle of ``scenario.agent.world`` or leave its arena
+    over ``duration_s`` (default: the scenario's); what the coordinator warns about."""
+    geom = scenario.agent.geometry
+    return slot_path_conflicts(
+        scenario.trajectory,
+        scenario.formation,
+        scenario.agent.world,
+        scenario.duration_s if duration_s is None else duration_s,
+        body_radius_m=geom.body_radius_m,
+        ref_offset_m=geom.ref_offset_m,
     )
 
 

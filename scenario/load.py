@@ -23,9 +23,12 @@ from robot_agent.params import (
     EstimatorParams,
     RepulsionParams,
     RobotGeometry,
+    SafetyFilterParams,
     SafetyParams,
     TrackingGains,
+    WorldMap,
 )
+from robot_agent.robot_config import _world as _robot_config_world
 
 SCENARIO_DIR = Path(__file__).parent / "builtin"
 
@@ -199,8 +202,24 @@ def _dataclass_from(cls: Any, d: dict[str, Any], where: str) -> Any:
 TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
-    "camera", "link", "disturbance", "estimator",
+    "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
 }  # fmt: skip
+
+
+def parse_world(data: dict[str, Any]) -> WorldMap:
+    """``[arena]`` and ``[[obstacle]]`` of a scenario as the firmware's ``WorldMap``.
+
+    The same tables and rules as a robot's configuration file (``robot_agent.robot_config``):
+    ``kind = "circle"`` (``x``, ``y``, ``radius_m``), ``"segment"`` (``x1``, ``y1``, ``x2``,
+    ``y2``, ``radius_m`` default 0) or ``"polygon"`` (``points`` >= 3 ``[x, y]``, its closed
+    outline, as segments), and an ``[arena]`` rectangle (``x_min``, ``y_min``, ``x_max``,
+    ``y_max``). Raises ScenarioError naming every problem.
+    """
+    problems: list[str] = []
+    world = _robot_config_world(data, problems)
+    if world is None or problems:
+        raise ScenarioError("; ".join(problems) or "obstacle/arena: invalid")
+    return world
 
 
 def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
@@ -262,6 +281,10 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         repulsion=_dataclass_from(RepulsionParams, _table(data, "repulsion", ""), "repulsion"),
         safety=_dataclass_from(SafetyParams, _table(data, "safety", ""), "safety"),
         estimator=_dataclass_from(EstimatorParams, _table(data, "estimator", ""), "estimator"),
+        safety_filter=_dataclass_from(
+            SafetyFilterParams, _table(data, "safety_filter", ""), "safety_filter"
+        ),
+        world=parse_world(data),
     )
 
     trajectory = _table(data, "trajectory", "")
