@@ -581,6 +581,7 @@ class _Launcher:
             return result
         from formation import metrics as metrics_mod
 
+        metrics_mod.attach_agent(log, self.scn.agent)  # safety metrics (issue 14): truth only
         m = metrics_mod.compute(log, self.plan.settle_s, self.scn.settle_tol_m)
         sim_s = float(log.t_s[-1] - log.t_s[0])
         m["meta"]["realtime_factor"] = sim_s / run_wall if run_wall else None

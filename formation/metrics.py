@@ -181,6 +181,15 @@ def _entries(bad: np.ndarray) -> np.ndarray:
     return np.argwhere(starts)
 
 
+def attach_agent(log: RunLog, agent: Any) -> RunLog:
+    """Give ``log`` what the safety metrics need from the run's ``AgentConfig`` (body radius,
+    Ds, the world map); returns ``log``. The filter counters stay as they are."""
+    log.body_radius_m = agent.geometry.body_radius_m
+    log.safety_distance_m = agent.safety_distance_m
+    log.world = agent.world
+    return log
+
+
 def safety_metrics(log: RunLog) -> dict[str, Any]:
     """The run's safety figures (see the module docstring), JSON-ready."""
     w = _tick_weights(log.t_s)

@@ -270,9 +270,7 @@ def analyze(
         raise ReportError(f"{rec.path}: no complete truth frame of fleet {fleet!r}")
     if scn is not None:  # safety accounting (issue 14): from the truth; no filter counters on
         # the bus, so the filter-active fraction and tie-breaks are null (metrics.safety_metrics)
-        log.body_radius_m = scn.agent.geometry.body_radius_m
-        log.safety_distance_m = scn.agent.safety_distance_m
-        log.world = scn.agent.world
+        metrics_mod.attach_agent(log, scn.agent)
     duration = float(log.t_s[-1] - log.t_s[0])
     if settle_s is None:
         if "settle_s" in rec.run:

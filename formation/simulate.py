@@ -225,7 +225,7 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
 
     log.min_separation_m = float(monitor.min_separation_m)
     log.collisions = [_event_dict(e, ids) for e in monitor.collisions]
-    log.body_radius_m = geom.body_radius_m
+    log.body_radius_m = geom.body_radius_m  # safety accounting (formation.metrics)
     log.safety_distance_m = scenario.agent.safety_distance_m
     log.world = scenario.agent.world
     log.filter_counts = {

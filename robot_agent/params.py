@@ -245,7 +245,7 @@ class SafetyFilterParams:
     stuck_time_s: float = 1.0
     stuck_speed_mps: float = 0.02
     stuck_error_m: float = 0.05
-    tiebreak_time_s: float = 2.0
+    tiebreak_time_s: float = 3.0
     tiebreak_angle_rad: float = 1.0
     tiebreak_speed_mps: float = 0.1
 

