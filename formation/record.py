@@ -107,6 +107,22 @@ DEFAULT_CHUNK_BYTES: Final = 256 * 1024
 # --------------------------------------------------------------------------------------------
 
 
+def _world_of(run: Mapping[str, str] | None) -> Any:
+    """The obstacles and arena of the scenario embedded in the run metadata (``scenario_toml``),
+    for the 3D scene; None without one or if it does not load."""
+    text = (run or {}).get("scenario_toml")
+    if not text:
+        return None
+    try:
+        import tomllib
+
+        import scenario as scenario_mod
+
+        return scenario_mod.parse(tomllib.loads(text)).agent.world
+    except (ValueError, TypeError):  # ScenarioError and TOMLDecodeError are ValueErrors
+        return None
+
+
 @dataclass
 class RecorderStats:
     """Counters of one recording."""
@@ -199,7 +215,7 @@ class Recorder:
             except ImportError:  # foxglove-sdk not installed: no 3D scene in the file
                 pass
             else:
-                self._scene = SceneModel(self.fleet)
+                self._scene = SceneModel(self.fleet, world=_world_of(run))
                 self._scene_period_ns = int(1e9 / scene_hz)
         self._writer.add_metadata(
             METADATA_NAME,

@@ -149,7 +149,7 @@ def test_coordinator_node_warns_once_about_the_pillar(capsys: pytest.CaptureFixt
 def _log(truth: np.ndarray, dt: float = 0.1) -> RunLog:
     ticks, n = truth.shape[:2]
     log = RunLog.allocate([f"r{i + 1}" for i in range(n)], [0], ticks)
-    log.t_s = np.arange(ticks) * dt
+    log.t_s = np.asarray(np.arange(ticks) * dt, dtype=np.float64)
     log.truth = truth
     log.body_radius_m = BODY_RADIUS_M
     log.safety_distance_m = 0.19
