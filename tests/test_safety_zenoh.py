@@ -123,7 +123,7 @@ async def test_estopped_robot_in_a_moving_formation_over_zenoh(
     finally:
         obs.close()
     print(
-        f"\ne-stopped {stopped} (slot 1) at {t_stop - t0 + ESTOP_AFTER_S:.1f} s; {behind} was on"
+        f"\ne-stopped {stopped} (slot 1) {t_stop - t0:.1f} s after all were assigned; {behind} was on"
         f" slot 3; min separation from truth {sep:.3f} m"
     )
     assert math.isfinite(sep)
@@ -142,5 +142,6 @@ async def test_estopped_robot_in_a_moving_formation_over_zenoh(
         if rid == stopped:
             continue
         err = math.hypot(getattr(msg, "ex", 0.0) or 0.0, getattr(msg, "ey", 0.0) or 0.0)
-        assert getattr(msg, "mode", None) in ("tracking", "idle"), (rid, msg)
+        # (at the end of the run the setpoints stop: a robot may already be in HOLD)
+        assert getattr(msg, "mode", None) in ("tracking", "hold"), (rid, msg)
         assert err < 0.10, (rid, err, msg)
