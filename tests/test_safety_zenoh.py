@@ -123,7 +123,7 @@ async def test_estopped_robot_in_a_moving_formation_over_zenoh(
     finally:
         obs.close()
     print(
-        f"\ne-stopped {stopped} (slot 1) {t_stop - t0:.1f} s after all were assigned; {behind} was on"
+        f"\ne-stopped {stopped} (slot 1) {t_stop - t0:.1f} s after all had slots; {behind} was on"
         f" slot 3; min separation from truth {sep:.3f} m"
     )
     assert math.isfinite(sep)
