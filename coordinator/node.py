@@ -40,6 +40,7 @@ from bus_schemas import (
     Leader,
     Pose,
     PoseBatch,
+    RejectCounts,
     Setpoint,
     SetpointBatch,
     Slot,
@@ -125,7 +126,7 @@ class CoordinatorNode:
         # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
         self.poses: dict[str, list[Any]] = {}
         self._pending: Arrivals[str] = Arrivals()  # lockstep: poses since the last clock
-        self.rejected = 0
+        self.rejects = RejectCounts()  # by "<message>:<reason>" (status "rejects")
         self.internal_errors = 0
         self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0}
         self.ticks = 0
@@ -152,8 +153,17 @@ class CoordinatorNode:
         self._seq[key] = n
         return n
 
-    def _reject(self, what: str, why: DecodeError | str) -> None:
-        self.rejected += 1
+    @property
+    def rejected(self) -> int:
+        """Inputs rejected so far (every drop counted, by reason in :attr:`rejects`)."""
+        return self.rejects.total
+
+    def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
+        """Count a rejected ``what`` message under ``<what>:<reason>`` (a DecodeError's reason,
+        else ``reason``, else ``invalid``) and log it (rate limited)."""
+        if reason is None:
+            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
+        self.rejects.add(f"{what}:{reason}")
         self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
 
     def _internal(self, where: str, exc: BaseException) -> None:
@@ -221,6 +231,9 @@ class CoordinatorNode:
             # loser stops at once, so the robots get one coordinator's setpoints again within
             # one heartbeat period.
             why = self.election.heartbeat(msg.name, msg.active, msg.epoch, msg.leader_t0)
+            refusal = self.election.last_refusal
+            if refusal is not None:
+                self._reject("heartbeat", f"from {msg.name}: {refusal}", refusal)
             if why is not None:
                 self.step_down(why)
         except Exception as exc:
@@ -286,7 +299,7 @@ class CoordinatorNode:
             self.rx["pose"] += 1
             parsed = keys.parse_robot_key(rx.key)
             if parsed is None or parsed[2] != keys.POSE:
-                self._reject("pose", f"not a pose key: {rx.key[:100]!r}")
+                self._reject("pose", f"not a pose key: {rx.key[:100]!r}", "bad_key")
                 return
             rid = parsed[1]
             msg = decode(rx.payload, Pose)
@@ -294,12 +307,12 @@ class CoordinatorNode:
                 self._reject("pose", msg)
                 return
             if msg.robot is not None and msg.robot != rid:
-                self._reject("pose", f"robot {msg.robot!r} on {rid}'s key")
+                self._reject("pose", f"robot {msg.robot!r} on {rid}'s key", "misaddressed")
                 return
             rx_s: float | None = None if self.lockstep else rx.rx_s
             why = self._store_pose(rid, msg.x, msg.y, msg.theta, msg.t, rx_s)
             if why is not None:
-                self._reject("pose", why)
+                self._reject("pose", why, "implausible")
         except Exception as exc:
             self._internal("on_pose", exc)
 
@@ -334,7 +347,9 @@ class CoordinatorNode:
                 if (why := store(rid, x, y, th, stamp, rx_s)) is not None
             ]
             if refused:
-                self._reject("poses", f"{len(refused)} entries refused, e.g. {refused[0]}")
+                self._reject(
+                    "poses", f"{len(refused)} entries refused, e.g. {refused[0]}", "implausible"
+                )
         except Exception as exc:
             self._internal("on_poses", exc)
 
@@ -394,6 +409,8 @@ class CoordinatorNode:
             if self.t0_s is None:
                 self.t0_s = now_s
                 self.core.t0_s = now_s
+            if self.election.leader_t0 != self.t0_s:
+                self.election.observe_t0(self.t0_s)
             started = time.perf_counter()
             out = self.core.tick(now_s, self.fresh_poses(now_s))
             self.ticks += 1
@@ -521,6 +538,7 @@ class CoordinatorNode:
             "name": self.name,
             "mode": "lockstep" if self.lockstep else "realtime",
             "rejected": self.rejected,
+            "rejects": self.rejects.as_dict(),
             "internal_errors": self.internal_errors,
             "rx": dict(self.rx),
             "ticks": self.ticks,
