@@ -36,6 +36,7 @@ from bus_schemas import (
     Assignment,
     Clock,
     DecodeError,
+    Estop,
     Heartbeat,
     Leader,
     Pose,
@@ -50,11 +51,12 @@ from bus_schemas import (
 )
 from coordinator.core import CoordinatorOutput
 from coordinator.election import Election, Takeover
+from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
 from robot_agent.lockstep import Arrivals, Replay
 from scenario import Scenario
 from scenario.assemble import coordinator_core
 
-__all__ = ["CoordinatorNode"]
+__all__ = ["CoordinatorNode", "attach_estop_source"]
 
 STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
@@ -126,9 +128,9 @@ class CoordinatorNode:
         # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
         self.poses: dict[str, list[Any]] = {}
         self._pending: Arrivals[str] = Arrivals()  # lockstep: poses since the last clock
-        self.rejects = RejectCounts()  # by "<message>:<reason>" (status "rejects")
+        self.rejects = RejectCounts()  # by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
-        self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0}
+        self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0, "estop": 0}
         self.ticks = 0
         self.tick_s: deque[float] = deque(maxlen=250)  # compute + publish time of recent ticks
         self.t0_s: float | None = 0.0 if lockstep else None
@@ -146,6 +148,13 @@ class CoordinatorNode:
         self.heartbeats_pattern = keys.all_heartbeats_pattern(fleet)
         self.coordinators_pattern = keys.alive_coordinators_pattern(fleet)
 
+        # -- the latched e-stop state (robot_agent.estop): every instance, active or standby,
+        # keeps it from the estop messages and answers queries on the estop key with it
+        self.estop_key = keys.estop_key(fleet)
+        self.estop = EstopLatch()
+        self.estop_answer: tuple[bytes, ...] = self._estop_payloads()
+        self.on_estop_answer: Any = None  # called with the new answer (the shell's queryable)
+
     # -- bookkeeping ---------------------------------------------------------------------------
 
     def _next_seq(self, key: str) -> int:
@@ -159,11 +168,11 @@ class CoordinatorNode:
         return self.rejects.total
 
     def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
-        """Count a rejected ``what`` message under ``<what>:<reason>`` (a DecodeError's reason,
+        """Count a rejected ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
         else ``reason``, else ``invalid``) and log it (rate limited)."""
         if reason is None:
             reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
-        self.rejects.add(f"{what}:{reason}")
+        self.rejects.add(f"{what}-{reason}")
         self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
 
     def _internal(self, where: str, exc: BaseException) -> None:
@@ -238,6 +247,53 @@ class CoordinatorNode:
                 self.step_down(why)
         except Exception as exc:
             self._internal("on_heartbeat", exc)
+
+    def _estop_payloads(self) -> tuple[bytes, ...]:
+        now = self.sim_t if self.lockstep else time.monotonic()
+        return tuple(
+            encode(Estop(t=max(now, 0.0), engage=e, robot=r)) for e, r in self.estop.answer()
+        )
+
+    def _estop_changed(self) -> None:
+        self.estop_answer = self._estop_payloads()
+        if self.on_estop_answer is not None:
+            self.on_estop_answer(self.estop_answer)
+
+    def on_estop(self, rx: rt.Received) -> None:
+        """An operator's ``estop``: latch or release its scope (the fleet's durable state)."""
+        try:
+            self.rx["estop"] += 1
+            msg = decode(rx.payload, Estop)
+            if isinstance(msg, DecodeError):
+                self._reject("estop", msg)
+                return
+            if self.estop.apply(msg.engage, msg.robot):
+                scope = "fleet" if msg.robot is None else msg.robot
+                self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({scope})")
+                self._estop_changed()
+        except Exception as exc:
+            self._internal("on_estop", exc)
+
+    def on_estop_state(self, payloads: Any) -> None:
+        """Another coordinator's latched state (queried at start): its engagements are added."""
+        try:
+            answers: list[tuple[bool, str | None]] = []
+            for payload in payloads:
+                msg = decode(payload, Estop)
+                if isinstance(msg, DecodeError):
+                    self._reject("estop_state", msg)
+                    continue
+                answers.append((msg.engage, msg.robot))
+            if self.estop.merge_answer(answers, replace=False):
+                self.log.info(f"estop state from the other coordinators: {self.estop_text()}")
+                self._estop_changed()
+        except Exception as exc:
+            self._internal("on_estop_state", exc)
+
+    def estop_text(self) -> str:
+        """The latched scopes, for logs."""
+        parts = ["fleet"] if self.estop.fleet else []
+        return ", ".join([*parts, *sorted(self.estop.robots)]) or "none"
 
     def on_assignment(self, rx: rt.Received) -> None:
         """The active instance's assignment: a standby keeps it to seed its hysteresis."""
@@ -552,6 +608,7 @@ class CoordinatorNode:
             "pid": os.getpid(),
             "host": _HOST,
             "tick_ms": _tick_ms(self.tick_s),
+            "estop": {"fleet": self.estop.fleet, "robots": sorted(self.estop.robots)[:64]},
         }
 
     def publish_status(self) -> None:
@@ -609,6 +666,32 @@ class CoordinatorNode:
             turned = time.monotonic()
             self.stall.turned(turned)
             await asyncio.sleep(max(0.0, wake - turned))
+
+
+async def attach_estop_source(node: CoordinatorNode, io: rt.NodeIO) -> None:
+    """Make ``node`` a durable source of the latched e-stop state: subscribe to ``estop``, learn
+    what the other coordinators hold (a respawned instance must not forget an e-stop), then
+    answer every query on the ``estop`` key with the state (docs/faults.md)."""
+    from runtime.query import Answerer, Querier
+
+    io.subscribe(node.estop_key, node.on_estop)
+    querier = Querier(
+        io.session, io.loop, node.estop_key, lambda p, _t: None, timeout_s=ESTOP_QUERY_TIMEOUT_S
+    )
+    try:
+        payloads = await io.loop.run_in_executor(None, querier.run_now)
+    except Exception as exc:
+        node._internal("estop_query", exc)
+        payloads = []
+    node.on_estop_state(payloads)
+    answerer = Answerer(io.session, node.estop_key)
+    answerer.snapshot = node.estop_answer
+
+    def update(answer: tuple[bytes, ...]) -> None:
+        answerer.snapshot = answer
+
+    node.on_estop_answer = update
+    io._keep.append(answerer)
 
 
 _HOST: Final = socket.gethostname()[:255] or "unknown"

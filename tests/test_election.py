@@ -179,7 +179,7 @@ def test_epochs_saturate_at_the_contract_bound() -> None:
 
 
 def test_epochs_are_monotonic_per_token_lifetime() -> None:
-    main, b = running_pair()
+    _, b = running_pair()
     assert b.heartbeat("main", True, 3, 100.0) is None
     assert b.heartbeat("main", True, 2, 100.0) is None
     assert b.rejects == {"epoch_regress": 1} and b.peers["main"].epoch == 3
