@@ -24,8 +24,10 @@ in :attr:`Election.rejects` by reason, no effect on the election) when
 * ``epoch_jump``: its epoch exceeds the highest epoch this instance knows by more than
   :data:`EPOCH_JUMP_MAX` (epochs grow by one per takeover; a forged ``EPOCH_MAX`` is refused).
   The very first heartbeat an instance accepts sets that baseline (a standby joining a fleet
-  at epoch 40 must learn it), so the bound applies from then on;
-* ``epoch_regress``: a live peer's epoch went down (epochs are monotonic per token lifetime);
+  at epoch 40 must learn it), so the bound applies from then on. Epochs are monotonic: what
+  this instance knows of a peer's epoch (and its own) never goes down; a lower one (a forged
+  one, or a peer's older heartbeat) is no step back, and refusing it would let one forged
+  in-bound epoch lock the real peer's heartbeats out;
 * ``leader_t0``: an *active* heartbeat whose ``leader_t0`` differs by more than
   :data:`LEADER_T0_TOL_S` from the trajectory origin this instance has observed (its own while
   it ticks, else the first active heartbeat it accepted): the virtual leader is never moved.
@@ -169,9 +171,6 @@ class Election:
         if known is not None and epoch > known + EPOCH_JUMP_MAX:
             self.last_refusal = self._refuse("epoch_jump")
             return None
-        if peer.active is not None and epoch < peer.epoch:
-            self.last_refusal = self._refuse("epoch_regress")
-            return None
         observed = self.leader_t0
         if active and observed is not None and abs(leader_t0 - observed) > LEADER_T0_TOL_S:
             self.last_refusal = self._refuse("leader_t0")
@@ -182,7 +181,7 @@ class Election:
                 return f"coordinator {name} is active with epoch {epoch} (another origin)"
             return None
         peer.active = active
-        peer.epoch = epoch
+        peer.epoch = max(peer.epoch, epoch)  # monotonic: a lower one (forged or not) is no step
         self.max_epoch = epoch if self.max_epoch is None else max(self.max_epoch, epoch)
         if active:
             peer.leader_t0 = leader_t0
