@@ -99,6 +99,12 @@ class CoordinatorNode:
         self.lockstep = lockstep
         self.core = coordinator_core(scenario)
         self.stale_pose_s = scenario.agent.safety.stale_pose_s
+        # Realtime: one late pose (a loaded machine) must not re-assign a robot whose token is
+        # alive (issue 13 item 7): it keeps its slot while its pose is younger than the
+        # estimator's odometry dropout bound (its firmware may still be tracking; with stale
+        # data it holds, so keeping the slot moves nobody); liveliness removes a gone robot at
+        # once. Lockstep keeps the sim-time rule of formation/simulate.py (no wall clock).
+        self.hold_pose_s = max(self.stale_pose_s, scenario.agent.estimator.max_dropout_odom_s)
         # Realtime: a stop of this process (runtime.stall) makes an active instance step down.
         self.stall = rt.StallDetector(gap_s=rt.HANG_GAP_NO_LEASE_S)
         self.log = log if log is not None else rt.NodeLog(f"coordinator {name}")
@@ -439,8 +445,9 @@ class CoordinatorNode:
     # -- the tick ------------------------------------------------------------------------------
 
     def fresh_poses(self, now_s: float) -> dict[str, tuple[float, float, float]]:
-        """Poses of alive robots received within ``stale_pose_s`` of ``now_s``, in robot order."""
-        lim = self.stale_pose_s
+        """Poses of alive robots received within ``stale_pose_s`` (lockstep) or ``hold_pose_s``
+        (realtime) of ``now_s``, in robot order."""
+        lim = self.stale_pose_s if self.lockstep else self.hold_pose_s
         big = len(self._order)
         out: dict[str, tuple[float, float, float]] = {}
         for rid in sorted(self.alive, key=lambda r: (self._order.get(r, big), r)):
@@ -644,6 +651,8 @@ class CoordinatorNode:
         next_status = now
         next_hb = now
         self.election.start(self.sim_t if self.lockstep else now)
+        if not self.lockstep:
+            self.stall.watch_sigcont()  # a late loop is no stop (runtime.stall)
         self.stall.turned(now)
         while not stop.is_set():
             now = time.monotonic()

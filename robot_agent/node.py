@@ -575,6 +575,8 @@ class AgentNode:
 
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime control/watchdog timer and the 5 Hz status."""
+        if not self.lockstep:
+            self.stall.watch_sigcont()  # a late loop is no stop (runtime.stall)
         await run_timers(self, stop, notifier)
 
 
