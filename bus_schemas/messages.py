@@ -301,6 +301,13 @@ class Status:
         default=None, metadata=f_count_map("message name -> count of messages received")
     )
     robot: str | None = field(default=None, metadata=f_robot_id("robot (= the key's id)"))
+    rejects: Mapping[str, int] | None = field(
+        default=None,
+        metadata=f_count_map(
+            "`<message>-<reason>` -> count of inputs dropped (decode reasons, `misaddressed`, "
+            "`quarantine` after a resume, ...); the values sum to `rejected`"
+        ),
+    )
 
 
 @message(name=keys.ESTOP, publisher="operator / tools", periodic=False)

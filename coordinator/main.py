@@ -15,7 +15,7 @@ import runtime as rt
 from bus_schemas import (
     keys,
 )
-from coordinator.node import CoordinatorNode
+from coordinator.node import CoordinatorNode, attach_estop_source
 from scenario import Scenario, ScenarioError, load
 from scenario.assemble import coordinator_core
 
@@ -104,6 +104,7 @@ async def _node(
     io.watch_liveliness(node.coordinators_pattern, node.on_alive)
     io.subscribe(node.heartbeats_pattern, node.on_heartbeat)
     io.subscribe(node.assignment_key, node.on_assignment)
+    await attach_estop_source(node, io)  # the durable e-stop state (docs/faults.md)
     if batch:
         io.pubs.get(node.setpoints_key, node.sp_qos)
         io.subscribe(node.poses_key, node.on_poses)

@@ -36,10 +36,12 @@ from bus_schemas import (
     Assignment,
     Clock,
     DecodeError,
+    Estop,
     Heartbeat,
     Leader,
     Pose,
     PoseBatch,
+    RejectCounts,
     Setpoint,
     SetpointBatch,
     Slot,
@@ -49,11 +51,12 @@ from bus_schemas import (
 )
 from coordinator.core import CoordinatorOutput
 from coordinator.election import Election, Takeover
+from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
 from robot_agent.lockstep import Arrivals, Replay
 from scenario import Scenario
 from scenario.assemble import coordinator_core, path_conflicts
 
-__all__ = ["CoordinatorNode"]
+__all__ = ["CoordinatorNode", "attach_estop_source"]
 
 STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
@@ -96,6 +99,12 @@ class CoordinatorNode:
         self.lockstep = lockstep
         self.core = coordinator_core(scenario)
         self.stale_pose_s = scenario.agent.safety.stale_pose_s
+        # Realtime: one late pose (a loaded machine) must not re-assign a robot whose token is
+        # alive (issue 13 item 7): it keeps its slot while its pose is younger than the
+        # estimator's odometry dropout bound (its firmware may still be tracking; with stale
+        # data it holds, so keeping the slot moves nobody); liveliness removes a gone robot at
+        # once. Lockstep keeps the sim-time rule of formation/simulate.py (no wall clock).
+        self.hold_pose_s = max(self.stale_pose_s, scenario.agent.estimator.max_dropout_odom_s)
         # Realtime: a stop of this process (runtime.stall) makes an active instance step down.
         self.stall = rt.StallDetector(gap_s=rt.HANG_GAP_NO_LEASE_S)
         self.log = log if log is not None else rt.NodeLog(f"coordinator {name}")
@@ -130,9 +139,9 @@ class CoordinatorNode:
         # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
         self.poses: dict[str, list[Any]] = {}
         self._pending: Arrivals[str] = Arrivals()  # lockstep: poses since the last clock
-        self.rejected = 0
+        self.rejects = RejectCounts()  # by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
-        self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0}
+        self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0, "estop": 0}
         self.ticks = 0
         self.tick_s: deque[float] = deque(maxlen=250)  # compute + publish time of recent ticks
         self.t0_s: float | None = 0.0 if lockstep else None
@@ -150,6 +159,13 @@ class CoordinatorNode:
         self.heartbeats_pattern = keys.all_heartbeats_pattern(fleet)
         self.coordinators_pattern = keys.alive_coordinators_pattern(fleet)
 
+        # -- the latched e-stop state (robot_agent.estop): every instance, active or standby,
+        # keeps it from the estop messages and answers queries on the estop key with it
+        self.estop_key = keys.estop_key(fleet)
+        self.estop = EstopLatch()
+        self.estop_answer: tuple[bytes, ...] = self._estop_payloads()
+        self.on_estop_answer: Any = None  # called with the new answer (the shell's queryable)
+
     # -- bookkeeping ---------------------------------------------------------------------------
 
     def _next_seq(self, key: str) -> int:
@@ -157,8 +173,17 @@ class CoordinatorNode:
         self._seq[key] = n
         return n
 
-    def _reject(self, what: str, why: DecodeError | str) -> None:
-        self.rejected += 1
+    @property
+    def rejected(self) -> int:
+        """Inputs rejected so far (every drop counted, by reason in :attr:`rejects`)."""
+        return self.rejects.total
+
+    def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
+        """Count a rejected ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
+        else ``reason``, else ``invalid``) and log it (rate limited)."""
+        if reason is None:
+            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
+        self.rejects.add(f"{what}-{reason}")
         self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
 
     def _internal(self, where: str, exc: BaseException) -> None:
@@ -226,10 +251,60 @@ class CoordinatorNode:
             # loser stops at once, so the robots get one coordinator's setpoints again within
             # one heartbeat period.
             why = self.election.heartbeat(msg.name, msg.active, msg.epoch, msg.leader_t0)
+            refusal = self.election.last_refusal
+            if refusal is not None:
+                self._reject("heartbeat", f"from {msg.name}: {refusal}", refusal)
             if why is not None:
                 self.step_down(why)
         except Exception as exc:
             self._internal("on_heartbeat", exc)
+
+    def _estop_payloads(self) -> tuple[bytes, ...]:
+        now = self.sim_t if self.lockstep else time.monotonic()
+        return tuple(
+            encode(Estop(t=max(now, 0.0), engage=e, robot=r)) for e, r in self.estop.answer()
+        )
+
+    def _estop_changed(self) -> None:
+        self.estop_answer = self._estop_payloads()
+        if self.on_estop_answer is not None:
+            self.on_estop_answer(self.estop_answer)
+
+    def on_estop(self, rx: rt.Received) -> None:
+        """An operator's ``estop``: latch or release its scope (the fleet's durable state)."""
+        try:
+            self.rx["estop"] += 1
+            msg = decode(rx.payload, Estop)
+            if isinstance(msg, DecodeError):
+                self._reject("estop", msg)
+                return
+            if self.estop.apply(msg.engage, msg.robot):
+                scope = "fleet" if msg.robot is None else msg.robot
+                self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({scope})")
+                self._estop_changed()
+        except Exception as exc:
+            self._internal("on_estop", exc)
+
+    def on_estop_state(self, payloads: Any) -> None:
+        """Another coordinator's latched state (queried at start): its engagements are added."""
+        try:
+            answers: list[tuple[bool, str | None]] = []
+            for payload in payloads:
+                msg = decode(payload, Estop)
+                if isinstance(msg, DecodeError):
+                    self._reject("estop_state", msg)
+                    continue
+                answers.append((msg.engage, msg.robot))
+            if self.estop.merge_answer(answers, replace=False):
+                self.log.info(f"estop state from the other coordinators: {self.estop_text()}")
+                self._estop_changed()
+        except Exception as exc:
+            self._internal("on_estop_state", exc)
+
+    def estop_text(self) -> str:
+        """The latched scopes, for logs."""
+        parts = ["fleet"] if self.estop.fleet else []
+        return ", ".join([*parts, *sorted(self.estop.robots)]) or "none"
 
     def on_assignment(self, rx: rt.Received) -> None:
         """The active instance's assignment: a standby keeps it to seed its hysteresis."""
@@ -291,7 +366,7 @@ class CoordinatorNode:
             self.rx["pose"] += 1
             parsed = keys.parse_robot_key(rx.key)
             if parsed is None or parsed[2] != keys.POSE:
-                self._reject("pose", f"not a pose key: {rx.key[:100]!r}")
+                self._reject("pose", f"not a pose key: {rx.key[:100]!r}", "bad_key")
                 return
             rid = parsed[1]
             msg = decode(rx.payload, Pose)
@@ -299,12 +374,12 @@ class CoordinatorNode:
                 self._reject("pose", msg)
                 return
             if msg.robot is not None and msg.robot != rid:
-                self._reject("pose", f"robot {msg.robot!r} on {rid}'s key")
+                self._reject("pose", f"robot {msg.robot!r} on {rid}'s key", "misaddressed")
                 return
             rx_s: float | None = None if self.lockstep else rx.rx_s
             why = self._store_pose(rid, msg.x, msg.y, msg.theta, msg.t, rx_s)
             if why is not None:
-                self._reject("pose", why)
+                self._reject("pose", why, "implausible")
         except Exception as exc:
             self._internal("on_pose", exc)
 
@@ -339,7 +414,9 @@ class CoordinatorNode:
                 if (why := store(rid, x, y, th, stamp, rx_s)) is not None
             ]
             if refused:
-                self._reject("poses", f"{len(refused)} entries refused, e.g. {refused[0]}")
+                self._reject(
+                    "poses", f"{len(refused)} entries refused, e.g. {refused[0]}", "implausible"
+                )
         except Exception as exc:
             self._internal("on_poses", exc)
 
@@ -373,8 +450,9 @@ class CoordinatorNode:
     # -- the tick ------------------------------------------------------------------------------
 
     def fresh_poses(self, now_s: float) -> dict[str, tuple[float, float, float]]:
-        """Poses of alive robots received within ``stale_pose_s`` of ``now_s``, in robot order."""
-        lim = self.stale_pose_s
+        """Poses of alive robots received within ``stale_pose_s`` (lockstep) or ``hold_pose_s``
+        (realtime) of ``now_s``, in robot order."""
+        lim = self.stale_pose_s if self.lockstep else self.hold_pose_s
         big = len(self._order)
         out: dict[str, tuple[float, float, float]] = {}
         for rid in sorted(self.alive, key=lambda r: (self._order.get(r, big), r)):
@@ -399,6 +477,8 @@ class CoordinatorNode:
             if self.t0_s is None:
                 self.t0_s = now_s
                 self.core.t0_s = now_s
+            if self.election.leader_t0 != self.t0_s:
+                self.election.observe_t0(self.t0_s)
             started = time.perf_counter()
             out = self.core.tick(now_s, self.fresh_poses(now_s))
             self.ticks += 1
@@ -526,6 +606,7 @@ class CoordinatorNode:
             "name": self.name,
             "mode": "lockstep" if self.lockstep else "realtime",
             "rejected": self.rejected,
+            "rejects": self.rejects.as_dict(),
             "internal_errors": self.internal_errors,
             "rx": dict(self.rx),
             "ticks": self.ticks,
@@ -539,6 +620,7 @@ class CoordinatorNode:
             "pid": os.getpid(),
             "host": _HOST,
             "tick_ms": _tick_ms(self.tick_s),
+            "estop": {"fleet": self.estop.fleet, "robots": sorted(self.estop.robots)[:64]},
         }
 
     def publish_status(self) -> None:
@@ -574,6 +656,8 @@ class CoordinatorNode:
         next_status = now
         next_hb = now
         self.election.start(self.sim_t if self.lockstep else now)
+        if not self.lockstep:
+            self.stall.watch_sigcont()  # a late loop is no stop (runtime.stall)
         self.stall.turned(now)
         while not stop.is_set():
             now = time.monotonic()
@@ -596,6 +680,32 @@ class CoordinatorNode:
             turned = time.monotonic()
             self.stall.turned(turned)
             await asyncio.sleep(max(0.0, wake - turned))
+
+
+async def attach_estop_source(node: CoordinatorNode, io: rt.NodeIO) -> None:
+    """Make ``node`` a durable source of the latched e-stop state: subscribe to ``estop``, learn
+    what the other coordinators hold (a respawned instance must not forget an e-stop), then
+    answer every query on the ``estop`` key with the state (docs/faults.md)."""
+    from runtime.query import Answerer, Querier
+
+    io.subscribe(node.estop_key, node.on_estop)
+    querier = Querier(
+        io.session, io.loop, node.estop_key, lambda p, _t: None, timeout_s=ESTOP_QUERY_TIMEOUT_S
+    )
+    try:
+        payloads = await io.loop.run_in_executor(None, querier.run_now)
+    except Exception as exc:
+        node._internal("estop_query", exc)
+        payloads = []
+    node.on_estop_state(payloads)
+    answerer = Answerer(io.session, node.estop_key)
+    answerer.snapshot = node.estop_answer
+
+    def update(answer: tuple[bytes, ...]) -> None:
+        answerer.snapshot = answer
+
+    node.on_estop_answer = update
+    io._keep.append(answerer)
 
 
 _HOST: Final = socket.gethostname()[:255] or "unknown"

@@ -45,7 +45,7 @@ from typing import Any
 import msgpack
 
 import runtime as rt
-from bus_schemas import Assignment, DecodeError, Disturbance, Estop, Status, decode, encode, keys
+from bus_schemas import Assignment, DecodeError, Disturbance, Status, decode, encode, keys
 
 __all__ = ["build_parser", "find_agent_pids", "main"]
 
@@ -217,14 +217,13 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:
             await asyncio.sleep(0.05)  # let it leave before the session closes
             return f"dragged {robot} by ({ns.dx:g}, {ns.dy:g}) m over {ns.duration:g} s"
         if cmd in ("estop", "release"):
+            from formation.estop_tool import send_estop  # publish + acknowledgements
+
             target = keys.check_robot_id(ns.robot) if ns.robot is not None else None
-            t = time.monotonic()
-            for _ in range(2):
-                emsg = Estop(t=time.monotonic(), engage=cmd == "estop", robot=target)
-                session.put(keys.estop_key(fleet), encode(emsg))
-                await asyncio.sleep(0.02)
-            what = "engaged" if cmd == "estop" else "released"
-            return f"estop {what} for {target or 'the fleet'} at t={t:.6f}"
+            report = await send_estop(session, fleet, cmd == "estop", target)
+            if not report.ok:
+                raise FaultError(report.line() + " (no robot acknowledged)")
+            return report.line()
         raise FaultError(f"unknown command {cmd!r}")
     finally:
         session.close()

@@ -357,12 +357,11 @@ class HostNode:
                 targets = [self.nodes[msg.robot]]
             else:
                 return
-            for node in targets:
+            for node in targets:  # each robot's latched scopes (robot_agent.estop)
                 node.rx["estop"] += 1
-                if msg.engage:
-                    node.firmware.engage_estop()
-                else:
-                    node.firmware.release_estop()
+                node.estop_messages += 1
+                node.estop.apply(msg.engage, msg.robot)
+                node.sync_estop()
             what = "all robots" if msg.robot is None else msg.robot
             self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")
             if msg.engage and not self.lockstep:

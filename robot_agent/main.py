@@ -20,7 +20,7 @@ from bus_schemas import (
     keys,
 )
 from robot_agent.motors import MotorBackend, create_backend
-from robot_agent.node import AgentNode, LoopMode, MotorOutput
+from robot_agent.node import AgentNode, LoopMode, MotorOutput, attach_estop_state
 from robot_agent.params import AgentConfig
 from runtime.sdnotify import Notifier
 
@@ -197,9 +197,9 @@ async def _node(
         # Declare the publishers first, so the first command is not delayed by a declaration.
         io.pubs.get(node.wheels_key, node.wheels_qos)
         io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
+        await attach_estop_state(node, io)  # comes up stopped under a latched e-stop
         io.subscribe(node.setpoint_key, node.on_setpoint)
         io.subscribe(node.poses_key, node.on_poses)
-        io.subscribe(node.estop_key, node.on_estop)
         if lockstep:
             io.subscribe(node.clock_key, node.on_clock)
         io.subscribe(node.pose_key, node.on_pose)

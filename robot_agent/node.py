@@ -21,7 +21,7 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Literal
 
@@ -32,6 +32,7 @@ from bus_schemas import (
     Estop,
     Pose,
     PoseBatch,
+    RejectCounts,
     Setpoint,
     Status,
     Wheels,
@@ -39,6 +40,7 @@ from bus_schemas import (
     encode,
     keys,
 )
+from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, ESTOP_REFRESH_S, EstopLatch
 from robot_agent.firmware import Firmware, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
@@ -48,7 +50,7 @@ from robot_agent.params import AgentConfig
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
-__all__ = ["NEIGHBOUR_STALE_S", "AgentNode", "MotorOutput"]
+__all__ = ["NEIGHBOUR_STALE_S", "AgentNode", "MotorOutput", "attach_estop_state"]
 
 NEIGHBOUR_STALE_S: Final = 1.0
 """A neighbour's batched pose older than this (s, receive time) no longer repels."""
@@ -233,7 +235,15 @@ class AgentNode:
         self._pending_neighbours: Arrivals[str] = Arrivals()  # lockstep
 
         self.rx: dict[str, int] = {"pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0}
+        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
+        # E-stop as latched fleet state (robot_agent.estop): the scopes this robot obeys, the
+        # count of estop messages seen (a query answer older than one must not undo it), and
+        # the hook that queries the coordinators' latched state (set by the shell).
+        self.estop = EstopLatch()
+        self.estop_messages = 0
+        self.estop_query: Callable[[], None] | None = None
+        self.estop_queried_s = -math.inf
         self.steps = 0
         self.last_step_s = -math.inf
         self.sim_t = 0.0  # lockstep: t of the last clock
@@ -248,7 +258,12 @@ class AgentNode:
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
-    def _reject(self, what: str, why: DecodeError | str) -> None:
+    def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
+        """Count a dropped ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
+        else ``reason``, else ``invalid``) and log it (rate limited)."""
+        if reason is None:
+            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
+        self.rejects.add(f"{what}-{reason}")
         self.firmware.reject(f"{what}: {why}")
         self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
 
@@ -271,6 +286,7 @@ class AgentNode:
             self.setpoint = None
             self.pose = None
             self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
+            self.request_estop_state(now_s)  # an e-stop engaged or released meanwhile
         return self.stall.quarantined(now_s)
 
     # -- input handlers (event loop) -----------------------------------------------------------
@@ -280,13 +296,16 @@ class AgentNode:
         try:
             self.rx["pose"] += 1
             if self.check_resume(rx.rx_s):
+                self._reject("pose", "received during the resume quarantine", "quarantine")
                 return
             msg = decode(rx.payload, Pose)
             if isinstance(msg, DecodeError):
                 self._reject("pose", msg)
                 return
             if msg.robot is not None and msg.robot != self.robot_id:
-                self._reject("pose", f"robot {msg.robot!r} on {self.robot_id}'s key")
+                self._reject(
+                    "pose", f"robot {msg.robot!r} on {self.robot_id}'s key", "misaddressed"
+                )
                 return
             self.pose = FwPose(msg.x, msg.y, msg.theta, msg.t)
             if self.lockstep:
@@ -303,13 +322,16 @@ class AgentNode:
         try:
             self.rx["setpoint"] += 1
             if self.check_resume(rx.rx_s):
+                self._reject("setpoint", "received during the resume quarantine", "quarantine")
                 return
             msg = decode(rx.payload, Setpoint)
             if isinstance(msg, DecodeError):
                 self._reject("setpoint", msg)
                 return
             if msg.robot != self.robot_id:
-                self._reject("setpoint", f"robot {msg.robot!r} on {self.robot_id}'s key")
+                self._reject(
+                    "setpoint", f"robot {msg.robot!r} on {self.robot_id}'s key", "misaddressed"
+                )
                 return
             sp = FwSetpoint(msg.x, msg.y, msg.vx, msg.vy, msg.theta, msg.slot, msg.t)
             tick = msg.tick if self.lockstep else None
@@ -321,7 +343,7 @@ class AgentNode:
         """Keep a valid setpoint: the newest (realtime) or the last two with ticks (lockstep)."""
         if self.lockstep:
             if tick is None:
-                self._reject("setpoint", "lockstep setpoint without a valid tick")
+                self._reject("setpoint", "lockstep setpoint without a valid tick", "no_tick")
                 return
             # In lockstep the setpoint's t is the sim time of its tick, which is when
             # simulate.py considers it received.
@@ -362,7 +384,8 @@ class AgentNode:
             self._internal("on_poses", exc)
 
     def on_estop(self, rx: rt.Received) -> None:
-        """Fleet or own estop: engage (zero wheels at once in realtime) or release."""
+        """Fleet or own estop: latch or release that scope (robot_agent.estop); the firmware is
+        in ESTOP (zero wheels at once in realtime) while the fleet's or this robot's is latched."""
         try:
             self.rx["estop"] += 1
             msg = decode(rx.payload, Estop)
@@ -371,16 +394,45 @@ class AgentNode:
                 return
             if msg.robot is not None and msg.robot != self.robot_id:
                 return  # another robot's estop
-            if msg.engage:
-                self.firmware.engage_estop()
-                self.log.info("estop engaged")
-                if not self.lockstep:
-                    self.step(time.monotonic())  # zero wheels now, not at the next tick
-            else:
-                self.firmware.release_estop()
-                self.log.info("estop released")
+            self.estop_messages += 1
+            self.estop.apply(msg.engage, msg.robot)
+            self.sync_estop()
         except Exception as exc:
             self._internal("on_estop", exc)
+
+    def on_estop_state(self, answers: list[tuple[bool, str | None]], messages_before: int) -> None:
+        """The coordinators' latched e-stop state (a query's answers, any robots'), queried when
+        :attr:`estop_messages` was ``messages_before``. No answer: nothing changes."""
+        try:
+            if not answers:
+                return
+            mine = [(e, r) for e, r in answers if r is None or r == self.robot_id]
+            self.estop.merge_answer(mine, replace=messages_before == self.estop_messages)
+            self.sync_estop()
+        except Exception as exc:
+            self._internal("on_estop_state", exc)
+
+    def sync_estop(self) -> None:
+        """Engage or release the firmware's e-stop to match the latched scopes."""
+        stop = self.estop.stopped(self.robot_id)
+        latched = self.firmware.status().estop_latched
+        if stop and not latched:
+            self.firmware.engage_estop()
+            self.log.info("estop engaged" + (" (fleet)" if self.estop.fleet else ""))
+            if not self.lockstep:
+                self.step(time.monotonic())  # zero wheels now, not at the next tick
+        elif latched and not stop:
+            self.firmware.release_estop()
+            self.log.info("estop released")
+
+    def request_estop_state(self, now_s: float) -> None:
+        """Ask the coordinators for the latched e-stop state (through :attr:`estop_query`)."""
+        self.estop_queried_s = now_s
+        if self.estop_query is not None:
+            try:
+                self.estop_query()
+            except Exception as exc:
+                self._internal("estop_query", exc)
 
     def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: step at t_k and answer with wheels(tick=k)."""
@@ -503,12 +555,15 @@ class AgentNode:
             role=self.role,
             rx=dict(self.rx),
             robot=self.robot_id,
+            rejects=self.rejects.as_dict(),
         )
 
     def publish_status(self) -> None:
         """Publish one status message (never raises)."""
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
+            if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
+                self.request_estop_state(now)
             self._publish(self.status_key, encode(self.status_message(now)), rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("status", exc)
@@ -520,4 +575,54 @@ class AgentNode:
 
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime control/watchdog timer and the 5 Hz status."""
+        if not self.lockstep:
+            self.stall.watch_sigcont()  # a late loop is no stop (runtime.stall)
         await run_timers(self, stop, notifier)
+
+
+# ---------------------------------------------------------------------------------------------
+# The latched e-stop state (robot_agent.estop) over a query
+# ---------------------------------------------------------------------------------------------
+
+
+def estop_answers(node: AgentNode, payloads: Sequence[bytes]) -> list[tuple[bool, str | None]]:
+    """Decode a query's answer (Estop messages); invalid ones are counted as rejects."""
+    out: list[tuple[bool, str | None]] = []
+    for payload in payloads:
+        msg = decode(payload, Estop)
+        if isinstance(msg, DecodeError):
+            node._reject("estop_state", msg)
+            continue
+        out.append((msg.engage, msg.robot))
+    return out
+
+
+async def attach_estop_state(node: AgentNode, io: rt.NodeIO) -> None:
+    """Subscribe to ``estop``, ask the coordinators for the latched state *now* (so an agent
+    that starts or restarts under an e-stop comes up stopped) and install the hook that asks
+    again on resume and every ``ESTOP_REFRESH_S`` (realtime). Call it before the subscriptions
+    that make the robot move."""
+    from runtime.query import Querier
+
+    io.subscribe(node.estop_key, node.on_estop)
+
+    def on_replies(payloads: Sequence[bytes], before: int) -> None:
+        node.on_estop_state(estop_answers(node, payloads), before)
+
+    querier = Querier(
+        io.session, io.loop, node.estop_key, on_replies, timeout_s=ESTOP_QUERY_TIMEOUT_S
+    )
+    before = node.estop_messages
+    try:
+        payloads = await io.loop.run_in_executor(None, querier.run_now)
+    except Exception as exc:  # no answer: start from the messages alone
+        node._internal("estop_query", exc)
+        payloads = []
+    node.on_estop_state(estop_answers(node, payloads), before)
+    node.estop_queried_s = time.monotonic()
+    io._keep.append(querier)
+
+    def ask() -> None:
+        querier.request(node.estop_messages)
+
+    node.estop_query = ask

@@ -9,6 +9,12 @@ again long after the last turn. Such a gap means two things for a node of this s
   times on delivery, so an agent drops its inputs for a short quarantine and holds until fresh
   data arrives (a resumed robot must not fight the one that took its slot).
 
+Scheduling delay is not a stop (issue 13 item 7: on a machine at load 50-100 the coordinator's
+loop was idle 0.64 s and it stepped down for nothing). A SIGSTOP/SIGCONT pair is told apart by
+the SIGCONT itself: with :meth:`StallDetector.watch_sigcont` (every realtime node) a gap counts
+as a stop only if a SIGCONT arrived during it, or if it is longer than ``unsignalled_gap_s``
+(a stop that sends no SIGCONT, e.g. a suspended VM; default :data:`HANG_GAP_NO_LEASE_S`).
+
 The gap is :data:`HANG_GAP_S` by default. With a Zenoh lease the others only notice a stop
 after the whole lease, so :func:`hang_gap_for` uses 0.9 lease (0.1 margin for the lease timer):
 a shorter stop cannot have cost the process its token. Lockstep nodes never use this (their
@@ -17,8 +23,11 @@ time is the plant's clock, not the wall clock).
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
 from dataclasses import dataclass
+from types import FrameType
 from typing import Final
 
 __all__ = [
@@ -64,17 +73,58 @@ class StallDetector:
     last_turn_s: float | None = None
     quarantine_until_s: float = -math.inf
     resumes: int = 0
+    require_continue: bool = False
+    """A gap is a stop only with a SIGCONT during it (or longer than ``unsignalled_gap_s``)."""
+    unsignalled_gap_s: float = HANG_GAP_NO_LEASE_S
+    continued: int = 0
+    """SIGCONTs received (:meth:`watch_sigcont`); ``_seen`` is the count at the last turn."""
+    _seen: int = 0
+    ignored_gaps: int = 0
+    """Gaps longer than ``gap_s`` not counted as stops (scheduling delay: no SIGCONT)."""
+
+    def watch_sigcont(self) -> bool:
+        """Count SIGCONTs (chaining any previous Python handler) and require one for a stop;
+        False (and nothing changes) off the main thread or where signals are unavailable."""
+        sigcont = getattr(signal, "SIGCONT", None)
+        if sigcont is None:
+            return False
+        previous = signal.getsignal(sigcont)
+
+        def on_cont(signum: int, frame: FrameType | None) -> None:
+            self.continued += 1
+            if callable(previous):
+                with contextlib.suppress(Exception):
+                    previous(signum, frame)
+
+        try:
+            signal.signal(sigcont, on_cont)
+        except (ValueError, OSError):  # not the main thread
+            return False
+        self.require_continue = True
+        return True
+
+    def note_continue(self) -> None:
+        """A SIGCONT arrived (what the handler of :meth:`watch_sigcont` does; for tests)."""
+        self.continued += 1
 
     def turned(self, now_s: float) -> None:
         """The loop completed a turn at ``now_s``."""
+        last = self.last_turn_s
+        if last is not None and now_s - last > self.gap_s and self._seen == self.continued:
+            self.ignored_gaps += 1  # a long turn that was no stop (scheduling delay)
         self.last_turn_s = now_s
+        self._seen = self.continued
 
     def stalled_for(self, now_s: float) -> float | None:
-        """Seconds since the last turn if more than ``gap_s``, else None (no side effect)."""
+        """Seconds since the last turn if more than ``gap_s`` and it was a stop (module
+        docstring), else None (no side effect)."""
         last = self.last_turn_s
-        if last is not None and now_s - last > self.gap_s:
-            return now_s - last
-        return None
+        if last is None or now_s - last <= self.gap_s:
+            return None
+        gap = now_s - last
+        if self.require_continue and self.continued == self._seen and gap <= self.unsignalled_gap_s:
+            return None  # no SIGCONT: the loop was only late
+        return gap
 
     def resume(self, now_s: float) -> float | None:
         """If the loop was stopped, record the resume at ``now_s``, start the quarantine and
@@ -83,6 +133,7 @@ class StallDetector:
         if stopped is None:
             return None
         self.last_turn_s = now_s
+        self._seen = self.continued
         self.quarantine_until_s = now_s + self.quarantine_s
         self.resumes += 1
         return stopped

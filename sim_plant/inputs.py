@@ -17,7 +17,16 @@ import numpy as np
 import numpy.typing as npt
 
 import runtime as rt
-from bus_schemas import DecodeError, Disturbance, Leader, Wheels, WheelsBatch, decode, keys
+from bus_schemas import (
+    DecodeError,
+    Disturbance,
+    Leader,
+    RejectCounts,
+    Wheels,
+    WheelsBatch,
+    decode,
+    keys,
+)
 from sim_plant.accounting import SeparationMonitor
 from sim_plant.plant import Plant
 from sim_plant.sensors import Camera, CommandLink
@@ -62,6 +71,7 @@ class PlantInputs:
     bus_disturbances: deque[Disturbance]
     changed: asyncio.Event
     rejected: int
+    rejects: RejectCounts
     internal_errors: int
     ignored: int
     rx: dict[str, int]
@@ -71,7 +81,11 @@ class PlantInputs:
     _answered: list[float | None]
 
     def _reject(self, what: str, why: DecodeError | str) -> None:
+        """Count a dropped ``what`` message (``rejected``, and by ``<what>-<reason>`` in
+        ``rejects``: a DecodeError's reason, else ``invalid``) and log it (rate limited)."""
         self.rejected += 1
+        reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
+        self.rejects.add(f"{what.replace(' ', '_')}-{reason}")
         self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
 
     def _internal(self, where: str, exc: BaseException) -> None:

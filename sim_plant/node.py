@@ -37,6 +37,7 @@ from bus_schemas import (
     Disturbance,
     Pose,
     PoseBatch,
+    RejectCounts,
     Truth,
     TruthBatch,
     encode,
@@ -128,6 +129,7 @@ class PlantNode(PlantInputs):
         self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
 
         self.rejected = 0
+        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
         self.ignored = 0  # valid messages for robots this plant does not simulate
         self.rx: dict[str, int] = {
@@ -456,6 +458,7 @@ class PlantNode(PlantInputs):
             "mode": "lockstep" if self.lockstep else "realtime",
             "state": self.state,
             "rejected": self.rejected,
+            "rejects": self.rejects.as_dict(),
             "ignored": self.ignored,
             "internal_errors": self.internal_errors,
             "rx": dict(self.rx),

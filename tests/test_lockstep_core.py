@@ -137,3 +137,33 @@ def test_resumes_count_exactly_the_gaps_above_the_limit(gaps: list[float], gap_s
         d.turned(now)
     assert d.resumes == expected
     assert math.isfinite(d.quarantine_until_s) == (expected > 0)
+
+
+def test_a_late_loop_without_sigcont_is_no_stop() -> None:
+    """Scheduling delay (a loaded machine) is not a stop: with SIGCONTs watched, only a gap
+    with a SIGCONT in it (or longer than the unsignalled bound) counts (issue 13 item 7)."""
+    d = StallDetector(gap_s=0.5, require_continue=True, unsignalled_gap_s=5.0)
+    d.turned(10.0)
+    assert d.stalled_for(11.0) is None and d.resume(11.0) is None  # 1 s late, no SIGCONT
+    d.turned(11.0)
+    assert d.ignored_gaps == 1
+    d.note_continue()  # SIGSTOP ... SIGCONT
+    assert d.stalled_for(12.0) == pytest.approx(1.0)
+    assert d.resume(12.0) == pytest.approx(1.0) and d.quarantined(12.1)
+    d.turned(12.0)
+    assert d.stalled_for(12.9) is None  # the SIGCONT was consumed by that resume
+    assert d.stalled_for(17.5) == pytest.approx(5.5)  # a suspend that sends no SIGCONT
+
+
+def test_watch_sigcont_counts_real_signals() -> None:
+    import os
+    import signal
+
+    d = StallDetector(gap_s=0.5)
+    previous = signal.getsignal(signal.SIGCONT)
+    try:
+        assert d.watch_sigcont() and d.require_continue
+        os.kill(os.getpid(), signal.SIGCONT)
+        assert d.continued == 1
+    finally:
+        signal.signal(signal.SIGCONT, previous)

@@ -279,10 +279,22 @@ def test_estop_zeroes_the_wheels_within_100_ms_and_latches_until_release(
         assert len(latched) >= 10 and all(not nonzero(w) for w in latched)
         _, _, st = status.wait_for(lambda r, _k, _s: r > r_zero)
         assert st.mode == "estop"
+        # scopes (issue 13 item 4): r1's own release does not clear the fleet's e-stop ...
         t_release = estop(False, "r1")
+        time.sleep(0.3)
+        assert all(not nonzero(w) for r, _, w in wheels.snapshot() if r > t_release)
+        t_release = estop(False, None)  # ... the fleet's release does
         wheels.wait_for(lambda r, _k, w: r > t_release and nonzero(w), timeout_s=1.0)
         t_engage = estop(True, "r1")  # own id
         wheels.wait_for(lambda r, _k, w: r > t_engage and not nonzero(w), timeout_s=0.1)
+        estop(True, None)
+        t_release = estop(False, None)  # the fleet's release does not clear r1's own e-stop
+        time.sleep(0.3)
+        assert all(not nonzero(w) for r, _, w in wheels.snapshot() if r > t_release)
+        _, _, st = status.wait_for(lambda r, _k, _s: r > t_release + 0.25)
+        assert st.mode == "estop"
+        t_release = estop(False, "r1")
+        wheels.wait_for(lambda r, _k, w: r > t_release and nonzero(w), timeout_s=1.0)
 
 
 def test_fixed_loop_steps_at_the_timer_rate_not_at_the_pose_rate(

@@ -99,9 +99,16 @@ def test_setpoints_for_alive_robots_and_reassignment_when_the_leader_dies(
         late = [sp for r, _, sp in setpoints.snapshot() if r > t_dead + 0.1]
         assert late and "r1" not in {sp.robot for sp in late}
 
-        feeder.robots.discard("r3")  # r3 still alive but its poses stop: stale after 0.2 s
+        # r3 still alive but its poses stop: it keeps its slot while its last pose is younger
+        # than the hold bound (one late pose on a loaded machine re-assigns nobody), then goes
+        feeder.robots.discard("r3")
         t_blind = time.monotonic()
-        _, _, blind = assignments.wait_for(lambda r, _k, a: r > t_blind and "r3" not in a.robots)
+        r_gone, _, blind = assignments.wait_for(
+            lambda r, _k, a: r > t_blind and "r3" not in a.robots
+        )
+        kept = [a for r, _, a in assignments.snapshot() if t_blind < r < t_blind + 1.0]
+        assert all("r3" in a.robots for a in kept), kept
+        assert r_gone - t_blind > 1.0  # the hold bound (1.5 s), not stale_pose_s (0.2 s)
         assert dict(blind.robots) == {"r2": 0}
         _, _, st = status.wait_for(lambda r, _k, _s: r > t_blind)
     assert st["rejected"] == 0 and st["alive"] == ["r2", "r3"] and st["leader"] == "r2"

@@ -1,0 +1,134 @@
+"""``formation fault estop|release``: publish an e-stop and report who acknowledged it.
+
+The e-stop is latched fleet state (robot_agent.estop, docs/faults.md): the coordinators keep it
+and answer agents that start or resume. This tool publishes the operator's ``estop`` message
+(twice, 20 ms apart, against a lost sample), then watches the robots' ``status`` for
+``ack_s`` seconds: a robot *acknowledged* an e-stop when a status received after the publish
+says mode ``estop``, a release when it says another mode. It also reads the coordinators'
+latched state from their status (``estop``), so the report says whether a durable source holds
+it. ``estop`` with no acknowledging robot is a failure (the caller exits non-zero); a release
+reports the robots still stopped (another scope may hold them).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import msgpack
+
+import runtime as rt
+from bus_schemas import DecodeError, Estop, Status, decode, encode, keys
+
+__all__ = ["ACK_WAIT_S", "EstopReport", "send_estop"]
+
+ACK_WAIT_S: Final = 1.0
+"""How long acknowledgements are collected (s): five status periods of the agents (5 Hz)."""
+
+
+@dataclass
+class EstopReport:
+    """What ``send_estop`` saw."""
+
+    engage: bool
+    robot: str | None
+    t: float
+    """``time.monotonic()`` of the first publish."""
+    acked: set[str] = field(default_factory=set)
+    """Robots whose status after the publish agreed (mode estop, or not estop on a release)."""
+    other: set[str] = field(default_factory=set)
+    """Robots in scope heard after the publish that did not agree (yet)."""
+    coordinators: dict[str, bool] = field(default_factory=dict)
+    """Coordinator name -> its latched state covers the scope (engage) / released it."""
+
+    @property
+    def ok(self) -> bool:
+        """An e-stop is confirmed when at least one robot acknowledged it; a release always."""
+        return bool(self.acked) or not self.engage
+
+    def line(self) -> str:
+        """The one-line report."""
+        what = "engaged" if self.engage else "released"
+        scope = self.robot or "the fleet"
+        acked = ", ".join(sorted(self.acked)) or "none"
+        parts = [f"estop {what} for {scope} at t={self.t:.6f}; acknowledged by {acked}"]
+        if self.other:
+            verb = "not stopped" if self.engage else "still stopped"
+            parts.append(f"{verb}: {', '.join(sorted(self.other))}")
+        held = sorted(n for n, ok in self.coordinators.items() if ok)
+        if self.engage:
+            parts.append(
+                f"latched by coordinator {', '.join(held)}" if held else "no coordinator holds it"
+            )
+        return "; ".join(parts)
+
+
+def _coordinator_latched(
+    payload: bytes, engage: bool, robot: str | None
+) -> tuple[str, bool] | None:
+    try:
+        m = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        return None
+    if not isinstance(m, dict) or not isinstance(m.get("name"), str):
+        return None
+    st = m.get("estop")
+    if not isinstance(st, dict):
+        return None
+    fleet = st.get("fleet") is True
+    listed = st.get("robots")
+    robots: list[Any] = listed if isinstance(listed, list) else []
+    held = fleet if robot is None else robot in robots
+    return m["name"], held == engage
+
+
+async def send_estop(
+    session: Any, fleet: str, engage: bool, robot: str | None, ack_s: float = ACK_WAIT_S
+) -> EstopReport:
+    """Publish the e-stop (or release) of ``robot`` (None: the fleet) and collect the
+    acknowledgements for up to ``ack_s`` seconds (module docstring)."""
+    loop = asyncio.get_running_loop()
+    report = EstopReport(engage=engage, robot=robot, t=time.monotonic())
+    t_pub = report.t
+
+    def on_status(rx: rt.Received) -> None:
+        parsed = keys.parse_robot_key(rx.key)
+        if parsed is None or rx.rx_s <= t_pub:
+            return
+        rid = parsed[1]
+        if robot is not None and rid != robot:
+            return
+        msg = decode(rx.payload, Status)
+        if isinstance(msg, DecodeError):
+            return
+        agrees = (msg.mode == "estop") == engage
+        (report.acked if agrees else report.other).add(rid)
+        if agrees:
+            report.other.discard(rid)
+
+    def on_coordinator(rx: rt.Received) -> None:
+        if rx.rx_s <= t_pub:
+            return
+        got = _coordinator_latched(rx.payload, engage, robot)
+        if got is not None:
+            report.coordinators[got[0]] = got[1]
+
+    subs = [
+        rt.subscribe(session, keys.all_status_pattern(fleet), loop, on_status),
+        rt.subscribe(session, f"{keys.ROOT}/{fleet}/coordinator/*/status", loop, on_coordinator),
+    ]
+    try:
+        for _ in range(2):
+            msg = Estop(t=time.monotonic(), engage=engage, robot=robot)
+            session.put(keys.estop_key(fleet), encode(msg))
+            await asyncio.sleep(0.02)
+        deadline = t_pub + ack_s
+        while time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+    finally:
+        for sub in subs:
+            sub.undeclare()
+    report.other -= report.acked
+    return report

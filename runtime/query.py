@@ -1,0 +1,106 @@
+"""Queries of latched state: a queryable that answers from a snapshot, and a query off the loop.
+
+Used for the e-stop as latched fleet state (``robot_agent.estop``): every coordinator answers
+queries on ``formation/<fleet>/estop`` with its latched state, and an agent asks when it starts,
+when it resumes from a stop and periodically (docs/faults.md).
+
+* :class:`Answerer`: a queryable whose callback (a Zenoh thread) replies with the payloads of
+  the current snapshot; the loop replaces the snapshot (one reference assignment, so the Zenoh
+  thread never sees a half-built answer) and never blocks on Zenoh.
+* :func:`query`: one ``get`` run on a worker thread (it blocks until every reply came or the
+  timeout), the payloads handed to a callback on the loop. At most one query is in flight per
+  :class:`Querier`; a request while one runs is merged into it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+from collections.abc import Callable, Sequence
+
+import zenoh
+
+from runtime.bridge import _post
+
+__all__ = ["Answerer", "Querier"]
+
+
+class Answerer:
+    """A queryable on ``key`` answering every query with the payloads of :attr:`snapshot`."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.key = key
+        self.snapshot: tuple[bytes, ...] = ()
+        self.answered = 0
+        self._queryable = session.declare_queryable(key, self._on_query)
+
+    def _on_query(self, query: zenoh.Query) -> None:  # Zenoh thread
+        payloads = self.snapshot
+        with contextlib.suppress(Exception):  # a closed session at shutdown
+            for payload in payloads:
+                query.reply(self.key, payload)
+            self.answered += 1
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._queryable.undeclare()
+
+
+class Querier:
+    """Runs ``get(key)`` off the loop and calls ``on_replies(payloads, token)`` on the loop;
+    ``token`` is what :meth:`request` was given (e.g. a message count at the time of asking)."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        loop: asyncio.AbstractEventLoop,
+        key: str,
+        on_replies: Callable[[Sequence[bytes], int], object],
+        *,
+        timeout_s: float = 0.5,
+        max_replies: int = 4096,
+    ) -> None:
+        self.session = session
+        self.loop = loop
+        self.key = key
+        self.on_replies = on_replies
+        self.timeout_s = timeout_s
+        self.max_replies = max_replies
+        self.errors = 0
+        self._busy = threading.Lock()
+
+    def request(self, token: int = 0) -> bool:
+        """Start a query unless one is in flight; returns True if it started."""
+        if not self._busy.acquire(blocking=False):
+            return False
+        try:
+            thread = threading.Thread(target=self._run, args=(token,), name="query", daemon=True)
+            thread.start()
+        except Exception:
+            self._busy.release()
+            raise
+        return True
+
+    def run_now(self) -> list[bytes]:
+        """Query synchronously (blocks up to the timeout); the payloads (no callback)."""
+        return self._get()
+
+    def _get(self) -> list[bytes]:
+        out: list[bytes] = []
+        replies = self.session.get(self.key, timeout=self.timeout_s)
+        for reply in replies:
+            ok = reply.ok
+            if ok is not None and len(out) < self.max_replies:
+                out.append(ok.payload.to_bytes())
+        return out
+
+    def _run(self, token: int) -> None:  # worker thread
+        try:
+            payloads = self._get()
+        except Exception:
+            self.errors += 1
+            payloads = []
+        finally:
+            self._busy.release()
+        _post(self.loop, self.on_replies, payloads, token)

@@ -1,0 +1,140 @@
+"""Fleets next to a CPU hog of twice the cores (issue 13 item 7).
+
+A realtime ``paper-exp1`` fleet and a lockstep ``paper-exp1`` fleet start side by side; once
+both run (seen on the bus), ``2 x cores`` processes ``python -c 'while True: pass'`` load the
+machine until both end (the realtime fleet holds its formation ~15 s under the hog). The
+realtime run must have 0 collisions, no role change, no death, no coordinator step-down and no
+false hang; the lockstep run's metrics must equal those of the same run without the hog (a
+lockstep result never depends on wall-clock timing). The hog starts after the processes are
+ready only because process start-up (numpy imports) under load 20+ exceeds any ready timeout.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from conftest import child_env, free_port
+
+pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
+
+HOGS = 2 * (os.cpu_count() or 2)
+
+
+def up(out: Path, *args: str, endpoint: str | None = None) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [
+            sys.executable, "-m", "formation", "up", "--scenario", "paper-exp1",
+            "--endpoint", endpoint or f"tcp/127.0.0.1:{free_port()}", "--fleet", out.name,
+            "--out", str(out), "--no-figures", "--quiet", "--ready-timeout", "60", *args,
+        ],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env(),
+    )  # fmt: skip
+
+
+def finish(proc: subprocess.Popen[str], out: Path) -> dict[str, Any]:
+    """The run's metrics. A child that needed more than the launcher's 2 s after SIGTERM at the
+    very end (seen at load 30+ from other work on this machine; the launcher's shutdown is
+    another item of the issue) makes ``up`` exit 1 after writing its metrics: tolerated, any
+    other complaint is not."""
+    _, stderr = proc.communicate(timeout=200)
+    complaints = [
+        line
+        for line in stderr.splitlines()
+        if line.strip()
+        and "did not exit 2.0 s after SIGTERM" not in line
+        and "Unknown child process pid" not in line
+    ]
+    assert proc.returncode == 0 or not complaints, stderr[-2000:]
+    assert (out / "metrics.json").exists(), stderr[-2000:]
+    metrics: dict[str, Any] = json.loads((out / "metrics.json").read_text())
+    return metrics
+
+
+def lockstep_result(m: dict[str, Any]) -> dict[str, Any]:
+    """What a lockstep run decides (no wall-clock field)."""
+    run = {k: v for k, v in m["run"].items() if k != "duration_s"}
+    return {"run": run, "robots": m["robots"]}
+
+
+def wait_running(endpoints: dict[str, str], timeout_s: float = 120.0) -> None:
+    """Until the realtime fleet's 3 robots publish status and the lockstep fleet's clock ticks."""
+    import threading
+
+    import runtime as rt
+
+    seen: dict[str, set[str]] = {"realtime": set(), "lockstep1": set()}
+    lock = threading.Lock()
+    sessions = []
+    try:
+        for fleet, endpoint in endpoints.items():
+            s = rt.open_session(rt.ZenohSettings(connect=(endpoint,)), timeout_s=timeout_s)
+            sessions.append(s)
+            key = (
+                f"formation/{fleet}/robot/*/status"
+                if fleet == "realtime"
+                else (f"formation/{fleet}/clock")
+            )
+
+            def on(sample: Any, fleet: str = fleet) -> None:
+                with lock:
+                    seen[fleet].add(str(sample.key_expr))
+
+            s.declare_subscriber(key, on)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with lock:
+                if len(seen["realtime"]) == 3 and seen["lockstep1"]:
+                    return
+            time.sleep(0.1)
+        raise AssertionError(f"fleets not running within {timeout_s} s: {seen}")
+    finally:
+        for s in sessions:
+            s.close()
+
+
+def test_fleets_next_to_a_cpu_hog(tmp_path: Path) -> None:
+    base = up(tmp_path / "lockstep0", "--lockstep", "--duration", "30")
+    unloaded = lockstep_result(finish(base, tmp_path / "lockstep0"))
+    endpoints = {f: f"tcp/127.0.0.1:{free_port()}" for f in ("realtime", "lockstep1")}
+    realtime = up(tmp_path / "realtime", "--duration", "20", endpoint=endpoints["realtime"])
+    lockstep = up(
+        tmp_path / "lockstep1", "--lockstep", "--duration", "30", endpoint=endpoints["lockstep1"]
+    )
+    hogs: list[subprocess.Popen[bytes]] = []
+    try:
+        wait_running(endpoints)
+        hogs = [
+            subprocess.Popen([sys.executable, "-c", "while True: pass"], env=child_env())
+            for _ in range(HOGS)
+        ]
+        rt_metrics = finish(realtime, tmp_path / "realtime")
+        loaded = lockstep_result(finish(lockstep, tmp_path / "lockstep1"))
+    finally:
+        for h in hogs:
+            h.send_signal(signal.SIGKILL)
+        for h in hogs:
+            h.wait(5)
+        for p in (realtime, lockstep):
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                p.wait(10)
+    run = rt_metrics["run"]
+    assert run["collisions"] == 0 and run["min_separation_m"] > 0.15, run
+    assert run["role_change_count"] == 0, run["role_changes"]
+    events = rt_metrics["meta"].get("events") or []
+    assert not [e for e in events if "died" in json.dumps(e)], events
+    coord_log = (tmp_path / "realtime" / "logs" / "coordinator.log").read_text()
+    assert "standby:" not in coord_log, coord_log[-2000:]
+    agent_logs = "".join(
+        p.read_text() for p in (tmp_path / "realtime" / "logs").glob("agent-*.log")
+    )
+    assert "resumed after" not in agent_logs  # no false hang of an agent either
+    assert loaded == unloaded
