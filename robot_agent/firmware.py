@@ -543,21 +543,54 @@ class Firmware:
                     self._tracker.reset_derivative()
                     dt = 0.0
 
-            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current) ----
+            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current): one
+            # Estimator.tick per step (twist, camera pose, estimate at now_s) -----------------
             est = self._est
+            got: tuple[float, float, float, float] | None = None
             if est is not None:
-                pending = self._pending_cmd
+                seg_t = _NAN  # no twist this tick
+                v = w = 0.0
+                odo = False
                 if wheel_speeds is not None and last is not None:
-                    self._odometry(wheel_speeds, last, now_s)
-                elif pending is not None:
-                    pt_s, pwr, pwl = pending
-                    r = self._wheel_r
-                    est.add_command(
-                        pt_s, 0.5 * r * (pwr + pwl), 0.5 * r * (pwr - pwl) / self._half_track
-                    )
+                    # measured wheel speeds over [last, now_s) (eq 7)
+                    try:
+                        wr, wl = wheel_speeds
+                        ok = now_s > last and _isfinite(wr + wl)
+                    except (TypeError, ValueError):
+                        ok = False
+                    if ok:
+                        r = self._wheel_r
+                        v = 0.5 * r * (wr + wl)
+                        w = 0.5 * r * (wr - wl) / self._half_track
+                        seg_t = last
+                        odo = True
+                    elif now_s > last:
+                        self.reject("bad wheel speeds")
+                else:
+                    pending = self._pending_cmd
+                    if pending is not None:
+                        seg_t, pwr, pwl = pending
+                        r = self._wheel_r
+                        v = 0.5 * r * (pwr + pwl)
+                        w = 0.5 * r * (pwr - pwl) / self._half_track
                 self._pending_cmd = None
+                cap: float | None = None
                 if pose is not None and pose is not self._fused_pose:
-                    self._fuse_pose(now_s, pose, pose_rx_s, pose_capture_s)
+                    self._fused_pose = pose
+                    mx, my, mth, mt = pose
+                    if _isfinite(mt):
+                        cap = pose_rx_s if pose_capture_s is None else pose_capture_s
+                    else:
+                        self.reject("non-finite pose")
+                    got = est.tick(now_s, seg_t, v, w, odo, cap, mx, my, mth)
+                    if cap is not None:
+                        reason = est.last_reason
+                        if reason is None:
+                            self._last_pose_t = mt
+                        else:
+                            self.reject(reason)
+                else:
+                    got = est.tick(now_s, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
 
             if self._mode is _ESTOP:
                 return self._hold(_EV_ESTOP, "estop")
@@ -605,7 +638,6 @@ class Firmware:
                 # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
                 # dropout bound, or too uncertain) holds the robot
                 self._pose_age = now_s - pose_rx_s if pose is not None else _NAN
-                got = est.estimate(now_s)
                 if got is None:
                     self._unc = _NAN
                     self._est_xyt = None
@@ -756,44 +788,6 @@ class Firmware:
     def _reject_setpoint(self, setpoint: Setpoint, reason: str) -> None:
         if setpoint is not self._last_rejected_setpoint:
             self._last_rejected_setpoint = setpoint
-            self.reject(reason)
-
-    def _odometry(self, wheel_speeds: tuple[float, float], last: float, now_s: float) -> None:
-        """Measured wheel speeds over ``[last, now_s)`` into the estimator (eq 7)."""
-        est = self._est
-        assert est is not None
-        try:
-            wr, wl = wheel_speeds
-            r = self._wheel_r
-            ok = (
-                now_s > last
-                and est.add_odometry(
-                    last, now_s, 0.5 * r * (wr + wl), 0.5 * r * (wr - wl) / self._half_track
-                )
-                if _isfinite(wr + wl)
-                else False
-            )
-        except (TypeError, ValueError):
-            ok = False
-        if not ok and now_s > last:
-            self.reject("bad wheel speeds")
-
-    def _fuse_pose(
-        self, now_s: float, pose: Pose, pose_rx_s: float, capture_s: float | None
-    ) -> None:
-        """A new camera pose into the estimator (each Pose object once)."""
-        est = self._est
-        assert est is not None
-        self._fused_pose = pose
-        x, y, th, pose_t = pose
-        cap = pose_rx_s if capture_s is None else capture_s
-        if not _isfinite(pose_t):
-            self.reject("non-finite pose")
-            return
-        reason = est.add_measurement(now_s, cap, x, y, th)
-        if reason is None:
-            self._last_pose_t = pose_t
-        else:
             self.reject(reason)
 
     def _hold(self, event: _Event, reason: str) -> WheelCommand:
