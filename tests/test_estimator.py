@@ -286,6 +286,36 @@ def test_non_finite_future_old_and_duplicate_poses_rejected_and_counted() -> Non
     assert est.accepted == 2
 
 
+def test_non_finite_or_backwards_odometry_rejected_and_counted() -> None:
+    est = Estimator(P)
+    est.add_measurement(0.0, 0.0, 0.0, 0.0, 0.0)
+    assert est.add_odometry(0.0, DT, 0.1, 0.0)
+    before = est.estimate(DT)
+    for t0, t1, v, w in ((DT, 2 * DT, math.nan, 0.0), (DT, 2 * DT, 0.1, math.inf),
+                         (math.nan, 2 * DT, 0.1, 0.0), (2 * DT, DT, 0.1, 0.0)):  # fmt: skip
+        assert not est.add_odometry(t0, t1, v, w)
+    assert est.rejected_odometry == 4
+    assert est.status().rejected == 4
+    assert est.estimate(DT) == before  # nothing of them was used
+
+
+def test_firmware_counts_bad_wheel_speeds_and_rides_on_the_prediction() -> None:
+    fw = Firmware(CFG)
+    sp = _sp(0.05, 0.0, 0.0, 0.0, 0.0)
+    pose = Pose(0.0, 0.0, 0.0, 0.0)
+    fw.step(0.0, pose=pose, pose_rx_s=0.0, pose_capture_s=0.0, setpoint=sp, setpoint_rx_s=0.0)
+    bad: list[object] = [(math.nan, 1.0), (1.0, math.inf), ("a", 1.0), (1.0,), None]
+    for k, ws in enumerate(bad, start=1):
+        now = k * DT
+        cmd = fw.step(now, pose=pose, pose_rx_s=0.0, pose_capture_s=0.0, setpoint=sp,
+                      setpoint_rx_s=now, wheel_speeds=ws)  # type: ignore[arg-type]  # fmt: skip
+        assert cmd.mode is Mode.TRACKING
+        assert all(math.isfinite(c) for c in cmd[:4])
+    st_ = fw.status()
+    assert st_.rejected_count == 4  # None means "no encoders": not a rejection
+    assert st_.last_reject_reason == "bad wheel speeds"
+
+
 def test_implausible_jump_rejected_then_reset_after_a_run() -> None:
     est = Estimator(P)
     est.add_measurement(0.0, 0.0, 0.0, 0.0, 0.0)
