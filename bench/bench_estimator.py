@@ -16,8 +16,10 @@ error + 1 mm; then the issue-16 goals, each PASS or MISS, and the firmware step'
 with the estimator and the safety filter (``bench_firmware.py --estimator``). With ``--paper`` it
 runs the
 paper's scenarios (paper-sim, paper-exp1, paper-exp2, with their own camera noise, latency,
-link and motor lag) with the firmware of before and with the estimator + extrapolation, and
-prints RMS error, minimum separation, collisions, slot changes and HOLD ticks.
+link and motor lag) with the firmware of before, with extrapolation, with the estimator +
+extrapolation, and both again with ``setpoint_lead_s`` = link latency + motor time constant + one
+tick (the actuation lag), and prints RMS error, minimum separation, collisions, slot changes
+and HOLD ticks.
 Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper] [--ticks N]``.
 A measurement, not a test.
 """
@@ -113,15 +115,26 @@ def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[s
 def paper() -> int:
     for name in ("paper-sim", "paper-exp1", "paper-exp2"):
         base = scenario_mod.load(name)
-        for label, est in (("before", False), ("estimator", True)):
-            e = dataclasses.replace(base.agent.estimator, enabled=est, extrapolate_setpoint=est)
+        # the actuation lag: command link latency + motor time constant + one tick
+        lag = base.link.latency_s + base.plant.motor_tau_s + base.dt_s
+        for label, est, extrap, lead in (
+            ("before", False, False, 0.0),
+            ("extrap", False, True, 0.0),
+            ("estimator", True, True, 0.0),
+            ("extrap+lead", False, True, lag),
+            ("est+lead", True, True, lag),
+        ):
+            e = dataclasses.replace(
+                base.agent.estimator, enabled=est, extrapolate_setpoint=extrap, setpoint_lead_s=lead
+            )
             scn = base.with_overrides(agent=dataclasses.replace(base.agent, estimator=e))
             res = simulate.run(scn)
             log = res.log
             err = formation_error(log)[log.t_s >= scn.settle_s]
             changes = int(np.sum(log.slot_of[1:] != log.slot_of[:-1]))
             print(
-                f"{name:<11} {label:<10} RMS {np.sqrt(np.nanmean(err**2)) * 1e3:7.3f} mm "
+                f"{name:<11} {label:<11} lead {lead:.2f} s "
+                f"RMS {np.sqrt(np.nanmean(err**2)) * 1e3:7.3f} mm "
                 f"min sep {log.min_separation_m:.4f} m collisions {len(log.collisions)} "
                 f"slot changes {changes} final leader "
                 f"{log.robot_ids[int(np.flatnonzero(log.slot_of[-1] == 0)[0])]} "

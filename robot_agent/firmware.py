@@ -46,7 +46,9 @@ and replaces the ``stale_pose_s`` rule. A rejected pose is counted and the estim
 Setpoint extrapolation (``config.estimator.extrapolate_setpoint``, on by default): the setpoint
 is advanced by its feed-forward velocity over its receive age ``now_s - setpoint_rx_s`` (one
 tick in lockstep, where the setpoint of tick k-1 is used at tick k), so a one-tick-old setpoint
-leaves no steady lag.
+leaves no steady lag; and by ``setpoint_lead_s`` more (default 0), the actuation lag (command
+link + motor time constant + one tick): the command computed now moves the robot that much
+later, so it aims where the slot will be then.
 
 Pipeline in TRACKING (one tick)::
 
@@ -325,6 +327,7 @@ class Firmware:
         "_last_rejected_pose",
         "_last_rejected_setpoint",
         "_last_saturated",
+        "_lead",
         "_max_dt",
         "_mode",
         "_pending_cmd",
@@ -389,6 +392,7 @@ class Firmware:
         self._est: Estimator | None = Estimator(ep) if ep.enabled else None
         self._extrap = ep.extrapolate_setpoint
         self._act_delay = ep.actuation_delay_s
+        self._lead = ep.setpoint_lead_s
         self._fused_pose: Pose | None = None
         # (t, omega_r, omega_l) of the last command, handed to the estimator on the next tick
         # unless encoder speeds replace it (it only matters for times after that tick)
@@ -659,8 +663,9 @@ class Firmware:
             # --- setpoint extrapolation: where the setpoint is now, advanced by its
             # feed-forward velocity over its receive age (exactly one tick in lockstep) ------
             if self._extrap and sp_age > 0.0:
-                spx += spvx * sp_age
-                spy += spvy * sp_age
+                lead = sp_age + self._lead
+                spx += spvx * lead
+                spy += spvy * lead
 
             # --- eqs 10-11 (reference point), 17-18 (error), 21-22 (PID + FF, speed cap) ----
             l_m = self._l

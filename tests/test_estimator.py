@@ -415,6 +415,34 @@ def test_setpoint_extrapolation_removes_the_one_tick_lag() -> None:
         assert (abs(ex) < 1e-12) == extrap, ex
 
 
+def test_setpoint_lead_aims_where_the_slot_will_be_after_the_actuation_lag() -> None:
+    """``setpoint_lead_s`` advances the setpoint by ff * (age + lead): a robot whose reference
+    point sits at x + v (dt + lead) has zero error; without extrapolation no lead is applied."""
+    lead = 0.08
+    for extrap in (False, True):
+        cfg = AgentConfig(
+            estimator=EstimatorParams(extrapolate_setpoint=extrap, setpoint_lead_s=lead)
+        )
+        fw = Firmware(cfg)
+        l_m = cfg.geometry.ref_offset_m
+        now = 1.0
+        x_sp = 0.1 - 0.05 * (DT + lead)
+        fw.step(
+            now,
+            pose=Pose(0.1 - l_m, 0.0, 0.0, now),
+            pose_rx_s=now,
+            setpoint=_sp(x_sp, 0.0, 0.05, 0.0, now - DT),
+            setpoint_rx_s=now - DT,
+        )
+        ex = fw.status().ex
+        if extrap:
+            assert abs(ex) < 1e-12, ex
+        else:
+            assert ex == pytest.approx(-0.05 * (DT + lead))
+    with pytest.raises(ValueError):
+        EstimatorParams(setpoint_lead_s=-0.01)
+
+
 def test_firmware_with_encoder_speeds_uses_the_odometry_bound() -> None:
     fw = Firmware(CFG)
     for k in range(60):
