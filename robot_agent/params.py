@@ -351,7 +351,9 @@ class EstimatorParams:
     Attributes:
         enabled: False gives the firmware of before the estimator: the last measured pose is
             used as if current and a pose older than ``SafetyParams.stale_pose_s`` (receive age)
-            holds the robot.
+            holds the robot. Off by default for now (docs/benchmarks.md, "Issue 16"): the step
+            costs ~2x with it, and with the safety filter the anchor task under latency is not
+            better with it until the filter's neighbour inputs and margin are settled.
         extrapolate_setpoint: advance a setpoint by its feed-forward velocity over its receive
             age (one tick in lockstep), so a one-tick-old setpoint leaves no steady lag.
         setpoint_lead_s: with ``extrapolate_setpoint``, advance it by this much more (s): the
