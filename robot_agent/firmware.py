@@ -559,16 +559,17 @@ class Firmware:
                     # measured wheel speeds over [last, now_s) (eq 7)
                     try:
                         wr, wl = wheel_speeds
-                        ok = now_s > last and _isfinite(wr + wl)
-                    except (TypeError, ValueError):
-                        ok = False
-                    if ok:
                         r = self._wheel_r
                         v = 0.5 * r * (wr + wl)
                         w = 0.5 * r * (wr - wl) / self._half_track
+                        ok = now_s > last and _isfinite(v + w)  # (also catches overflow)
+                    except (TypeError, ValueError):
+                        ok = False
+                    if ok:
                         seg_t = last
                         odo = True
                     elif now_s > last:
+                        v = w = 0.0
                         self.reject("bad wheel speeds")
                 else:
                     pending = self._pending_cmd

@@ -304,7 +304,14 @@ def test_firmware_counts_bad_wheel_speeds_and_rides_on_the_prediction() -> None:
     sp = _sp(0.05, 0.0, 0.0, 0.0, 0.0)
     pose = Pose(0.0, 0.0, 0.0, 0.0)
     fw.step(0.0, pose=pose, pose_rx_s=0.0, pose_capture_s=0.0, setpoint=sp, setpoint_rx_s=0.0)
-    bad: list[object] = [(math.nan, 1.0), (1.0, math.inf), ("a", 1.0), (1.0,), None]
+    bad: list[object] = [
+        (math.nan, 1.0),
+        (1.0, math.inf),
+        ("a", 1.0),
+        (1.0,),
+        None,
+        (1e308, -1e308),
+    ]
     for k, ws in enumerate(bad, start=1):
         now = k * DT
         cmd = fw.step(now, pose=pose, pose_rx_s=0.0, pose_capture_s=0.0, setpoint=sp,
@@ -312,7 +319,7 @@ def test_firmware_counts_bad_wheel_speeds_and_rides_on_the_prediction() -> None:
         assert cmd.mode is Mode.TRACKING
         assert all(math.isfinite(c) for c in cmd[:4])
     st_ = fw.status()
-    assert st_.rejected_count == 4  # None means "no encoders": not a rejection
+    assert st_.rejected_count == 5  # None means "no encoders": not a rejection
     assert st_.last_reject_reason == "bad wheel speeds"
 
 
