@@ -182,7 +182,25 @@ def breakdown(n: int) -> dict[str, float]:
         now = clock[0]
         return hold.step(now, pose=pose, pose_rx_s=-1.0, setpoint=sp, setpoint_rx_s=now)
 
-    return {
+    parts: dict[str, float] = {}
+    if _EST_KW:  # the estimator alone: what one Firmware.step asks of it (odometry, a 40 ms
+        # old camera pose, the estimate at now), on the bench's poses
+        from robot_agent import Estimator
+
+        est = Estimator(EstimatorParams(enabled=True))
+        ring, _, _ = _inputs(RING)
+        r, half = cfg.geometry.wheel_radius_m, cfg.geometry.half_track_m
+        v, w = 0.5 * r * (_WHEELS[0] + _WHEELS[1]), 0.5 * r * (_WHEELS[0] - _WHEELS[1]) / half
+        k = [0]
+
+        def est_tick() -> object:
+            k[0] += 1
+            now = k[0] * DT_S
+            p = ring[k[0] % RING]
+            return est.tick(now, now - DT_S, v, w, True, now - 0.04, p.x, p.y, p.theta)
+
+        parts["Estimator.tick (odometry, 40 ms old pose)"] = _loop_us(est_tick, n)
+    return parts | {
         "reference_point (eqs 10-11)": _loop_us(
             lambda: reference_point(pose.x, pose.y, pose.theta, g.ref_offset_m), n
         ),
