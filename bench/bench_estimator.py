@@ -4,7 +4,7 @@ Runs a scenario (default: the anchor triangle, docs/scenarios.md) in-process, in
 
 * ``exact``: as given (exact poses), firmware of before (no estimator, no extrapolation);
 * ``exact+extrap``: setpoint extrapolation only; ``exact+est``: estimator and extrapolation;
-* the same with ``--no-repulsion`` to isolate this work from the potential field's push;
+* the same with the safety filter off, to isolate this work from the filter's constraints;
 * ``noisy``: 60 ms camera latency, 3 mm / 0.01 rad noise, with and without the estimator;
 * ``loss``: ``noisy`` plus robot r2's camera lost for 1 s at t = 45 s, with encoder emulation
   (1000 counts/rev, 1 % slip) so the estimator rides through on odometry.
@@ -12,11 +12,15 @@ Runs a scenario (default: the anchor triangle, docs/scenarios.md) in-process, in
 Prints, per variant, the RMS formation error of the reference points after ``settle_s`` over all
 robots together (and per robot), the minimum separation, HOLD ticks, and for ``loss`` the
 largest error during and after the loss and when the robot is back within 2x its pre-loss RMS
-error + 1 mm. With ``--paper`` it runs the
+error + 1 mm; then the issue-16 goals, each PASS or MISS, and the firmware step's median time
+with the estimator and the safety filter (``bench_firmware.py --estimator``). With ``--paper`` it
+runs the
 paper's scenarios (paper-sim, paper-exp1, paper-exp2, with their own camera noise, latency,
-link and motor lag) with the firmware of before and with the estimator + extrapolation, and
-prints RMS error, minimum separation, collisions, slot changes and HOLD ticks.
-Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper]``.
+link and motor lag) with the firmware of before, with extrapolation, with the estimator +
+extrapolation, and both again with ``setpoint_lead_s`` = link latency + motor time constant + one
+tick (the actuation lag), and prints RMS error, minimum separation, collisions, slot changes
+and HOLD ticks.
+Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper] [--ticks N]``.
 A measurement, not a test.
 """
 
@@ -31,6 +35,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import scenario as scenario_mod
 from formation import simulate
@@ -45,9 +50,10 @@ def variant(
     *,
     est: bool,
     extrap: bool,
-    repulsion: bool,
+    repulsion: bool = True,
     noisy: bool = False,
     loss: bool = False,
+    safety_filter: bool = True,
 ) -> scenario_mod.Scenario:
     agent = scn.agent
     e = dataclasses.replace(
@@ -58,7 +64,8 @@ def variant(
         meas_theta_std_rad=0.01 if noisy else 0.0,
     )
     rep = dataclasses.replace(agent.repulsion, enabled=repulsion)
-    agent = dataclasses.replace(agent, estimator=e, repulsion=rep)
+    flt = dataclasses.replace(agent.safety_filter, enabled=safety_filter)
+    agent = dataclasses.replace(agent, estimator=e, repulsion=rep, safety_filter=flt)
     changes: dict[str, Any] = {"agent": agent}
     if noisy:
         changes["camera"] = dataclasses.replace(
@@ -108,15 +115,26 @@ def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[s
 def paper() -> int:
     for name in ("paper-sim", "paper-exp1", "paper-exp2"):
         base = scenario_mod.load(name)
-        for label, est in (("before", False), ("estimator", True)):
-            e = dataclasses.replace(base.agent.estimator, enabled=est, extrapolate_setpoint=est)
+        # the actuation lag: command link latency + motor time constant + one tick
+        lag = base.link.latency_s + base.plant.motor_tau_s + base.dt_s
+        for label, est, extrap, lead in (
+            ("before", False, False, 0.0),
+            ("extrap", False, True, 0.0),
+            ("estimator", True, True, 0.0),
+            ("extrap+lead", False, True, lag),
+            ("est+lead", True, True, lag),
+        ):
+            e = dataclasses.replace(
+                base.agent.estimator, enabled=est, extrapolate_setpoint=extrap, setpoint_lead_s=lead
+            )
             scn = base.with_overrides(agent=dataclasses.replace(base.agent, estimator=e))
             res = simulate.run(scn)
             log = res.log
             err = formation_error(log)[log.t_s >= scn.settle_s]
             changes = int(np.sum(log.slot_of[1:] != log.slot_of[:-1]))
             print(
-                f"{name:<11} {label:<10} RMS {np.sqrt(np.nanmean(err**2)) * 1e3:7.3f} mm "
+                f"{name:<11} {label:<11} lead {lead:.2f} s "
+                f"RMS {np.sqrt(np.nanmean(err**2)) * 1e3:7.3f} mm "
                 f"min sep {log.min_separation_m:.4f} m collisions {len(log.collisions)} "
                 f"slot changes {changes} final leader "
                 f"{log.robot_ids[int(np.flatnonzero(log.slot_of[-1] == 0)[0])]} "
@@ -125,40 +143,82 @@ def paper() -> int:
     return 0
 
 
+def firmware_step_p50_us(ticks: int = 50_000) -> float:
+    """Median wall time (us) of ``Firmware.step`` with the estimator and the safety filter,
+    3 neighbours: ``bench/bench_firmware.py --estimator``'s measurement."""
+    import bench_firmware as bf
+
+    from robot_agent import AgentConfig, EstimatorParams
+
+    bf._CFG = AgentConfig(estimator=EstimatorParams(enabled=True))
+    bf._EST_KW["on"] = True
+    return float(bf.bench_step(ticks)["p50_us"])
+
+
+def _row(name: str, m: dict[str, Any]) -> None:
+    per = " ".join(f"{k}={v:.3f}" for k, v in m["per_robot_mm"].items())
+    extra = ""
+    if "loss_max_err_mm" in m:
+        extra = (
+            f" | loss: max err {m['loss_max_err_mm']:.2f} mm, back after "
+            f"{m['loss_back_after_s']:.2f} s, HOLD ticks {m['loss_hold_ticks']}"
+        )
+    print(
+        f"{name:<34} RMS {m['rms_mm']:7.3f} mm ({per}) min sep {m['min_sep_m']:.4f} m "
+        f"HOLD {m['hold_ticks_after_settle']}{extra}",
+        flush=True,
+    )
+
+
+def _verdict(ok: bool) -> str:
+    return "PASS" if ok else "MISS"
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="anchor-triangle")
     ap.add_argument("--paper", action="store_true", help="the paper scenarios, with and without")
+    ap.add_argument("--ticks", type=int, default=50_000, help="firmware step bench ticks")
     args = ap.parse_args(argv)
     if args.paper:
         return paper()
     scn = scenario_mod.load(args.scenario)
-    rows = []
-    for rep in (True, False):
-        tag = "" if rep else " (repulsion off)"
+    res: dict[tuple[str, bool], dict[str, Any]] = {}
+    for flt in (True, False):
+        tag = "" if flt else " (filter off)"
         for name, est, extrap in (
             ("exact", False, False),
             ("exact+extrap", False, True),
             ("exact+est", True, True),
         ):
-            rows.append((name + tag, measure(variant(scn, est=est, extrap=extrap, repulsion=rep))))
+            res[name, flt] = m = measure(variant(scn, est=est, extrap=extrap, safety_filter=flt))
+            _row(name + tag, m)
         for name, est in (("noisy 60ms", False), ("noisy 60ms+est", True)):
-            v = variant(scn, est=est, extrap=True, repulsion=rep, noisy=True)
-            rows.append((name + tag, measure(v)))
-        v = variant(scn, est=True, extrap=True, repulsion=rep, noisy=True, loss=True)
-        rows.append(("noisy+loss 1s r2+est+enc" + tag, measure(v, "r2")))
-    for name, m in rows:
-        per = " ".join(f"{k}={v:.3f}" for k, v in m["per_robot_mm"].items())
-        extra = ""
-        if "loss_max_err_mm" in m:
-            extra = (
-                f" | loss: max err {m['loss_max_err_mm']:.2f} mm, back after "
-                f"{m['loss_back_after_s']:.2f} s, HOLD ticks {m['loss_hold_ticks']}"
-            )
-        print(
-            f"{name:<38} RMS {m['rms_mm']:.3f} mm ({per}) min sep {m['min_sep_m']:.4f} m "
-            f"HOLD {m['hold_ticks_after_settle']}{extra}"
-        )
+            v = variant(scn, est=est, extrap=True, noisy=True, safety_filter=flt)
+            res[name, flt] = m = measure(v)
+            _row(name + tag, m)
+        v = variant(scn, est=True, extrap=True, noisy=True, loss=True, safety_filter=flt)
+        res["loss", flt] = m = measure(v, "r2")
+        _row("noisy+loss 1s r2+est+enc" + tag, m)
+    step_us = firmware_step_p50_us(args.ticks)
+    # the issue-16 goals, on the variants with the estimator and extrapolation
+    print("issue 16 goals (estimator + extrapolation; safety filter on / off):")
+    for flt in (True, False):
+        tag = "filter on " if flt else "filter off"
+        ex, no, lo = res["exact+est", flt], res["noisy 60ms+est", flt], res["loss", flt]
+        bound = 2.0 * ex["rms_mm"] + 1.0
+        print(f"  [{tag}] exact RMS {ex['rms_mm']:.3f} mm <= 0.255: "
+              f"{_verdict(ex['rms_mm'] <= 0.255)}; min sep {ex['min_sep_m']:.4f} m >= 0.2625: "
+              f"{_verdict(ex['min_sep_m'] >= 0.2625)}")  # fmt: skip
+        print(f"  [{tag}] 60 ms + 3 mm RMS {no['rms_mm']:.3f} mm <= 2x exact + 1 mm = "
+              f"{bound:.3f}: {_verdict(no['rms_mm'] <= bound)}")  # fmt: skip
+        ok = lo["loss_hold_ticks"] == 0 and lo["loss_max_err_mm"] < 50.0
+        ok = ok and lo["loss_back_after_s"] <= 2.0
+        print(f"  [{tag}] r2 camera lost 1 s: HOLD ticks {lo['loss_hold_ticks']}, max err "
+              f"{lo['loss_max_err_mm']:.2f} mm < 50, back after {lo['loss_back_after_s']:.2f} s "
+              f"<= 2: {_verdict(ok)}")  # fmt: skip
+    print(f"  firmware step p50 {step_us:.2f} us < 10 (estimator + filter, 3 neighbours): "
+          f"{_verdict(step_us < 10.0)}")  # fmt: skip
     return 0
 
 

@@ -197,6 +197,7 @@ class Estimator:
         "_seg",
         "_seg_t",
         "accepted",
+        "last_reason",
         "rejected_duplicate",
         "rejected_future",
         "rejected_implausible",
@@ -239,6 +240,8 @@ class Estimator:
         self._ck: list[tuple[float, float, float, float, float, float, float, float]] = []
         self._ck_anchor: _Anchor | None = None
         self.accepted = 0
+        #: ``tick``'s camera pose: None when fused (or none given), else the rejection reason
+        self.last_reason: str | None = None
         self.replayed = 0
         self.rejected_nonfinite = 0
         self.rejected_future = 0
@@ -395,6 +398,181 @@ class Estimator:
         if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
             self._trim(now_s)
         return None
+
+    def tick(
+        self,
+        now_s: float,
+        seg_t_s: float,
+        v_mps: float,
+        omega_radps: float,
+        odometry: bool,
+        capture_s: float | None,
+        x: float,
+        y: float,
+        theta: float,
+    ) -> tuple[float, float, float, float] | None:
+        """One firmware tick in one call: a twist, a camera pose, then ``estimate(now_s)``.
+
+        The same as ``add_odometry(seg_t_s, now_s, v, omega)`` (``odometry``; the caller has
+        checked the values are finite and ``seg_t_s < now_s``) or ``add_command(seg_t_s, v,
+        omega)`` (no twist when ``seg_t_s`` is NaN), then ``add_measurement(now_s, capture_s,
+        x, y, theta)`` (none when ``capture_s`` is None; its result in ``last_reason``), then
+        ``estimate(now_s)``, returned. The common case (inputs in time order) is inlined: the
+        arithmetic is the same operations in the same order as the three calls, so the same
+        bits (tests/test_estimator.py checks it).
+        """
+        # --- twist --------------------------------------------------------------------------
+        seg_t = self._seg_t
+        if seg_t_s == seg_t_s:  # not NaN
+            seg = self._seg
+            if odometry:
+                if seg_t and seg_t[-1] >= seg_t_s:
+                    self._truncate(seg_t_s)
+                else:
+                    ck = self._ck
+                    while ck and ck[-1][0] > seg_t_s:
+                        ck.pop()
+                qm, qs = self._odom_q
+                seg.append((seg_t_s, v_mps, omega_radps, True, qm, qs))
+                seg_t.append(seg_t_s)
+                if now_s > self._last_odom_t:
+                    self._last_odom_t = now_s
+                anch_t = self._anch_t
+                if anch_t and anch_t[-1] > seg_t_s:
+                    self._replay_after(seg_t_s)
+            elif seg_t and seg_t_s <= seg_t[-1]:
+                self.add_command(seg_t_s, v_mps, omega_radps)
+            elif not (seg and seg[-1][1] == v_mps and seg[-1][2] == omega_radps):
+                ck = self._ck
+                while ck and ck[-1][0] > seg_t_s:
+                    ck.pop()
+                qm, qs = self._cmd_q
+                seg.append((seg_t_s, v_mps, omega_radps, False, qm, qs))
+                seg_t.append(seg_t_s)
+                anch_t = self._anch_t
+                if anch_t and anch_t[-1] > seg_t_s:
+                    self._replay_after(seg_t_s)
+        # --- camera pose ----------------------------------------------------------------------
+        anch = self._anch
+        if capture_s is not None:
+            anch_t = self._anch_t
+            t_s = capture_s
+            if (
+                anch
+                and anch_t[-1] < t_s <= now_s
+                and now_s - t_s <= self._max_lat
+                and _isfinite(now_s + t_s + x + y + theta)
+            ):  # in capture order: add_measurement's hot path
+                if not -_PI < theta <= _PI:
+                    theta = _wrap(theta)
+                a = anch[-1]
+                ck = self._ck
+                j = len(ck) - 1
+                if a is self._ck_anchor and j >= 0:
+                    lim = t_s + _TINY_S
+                    while j >= 0 and ck[j][0] > lim:
+                        j -= 1
+                if j >= 0 and a is self._ck_anchor and t_s - ck[j][0] < _TINY_S:
+                    # the prior at a checkpoint of the last estimate (capture times on ticks):
+                    # what _propagate returns from there, without the call
+                    _, px, py, pth, dist, turn, qd, qt = ck[j]
+                    ppth = a[5]
+                    pp = a[4] + (qd + qt + ppth * dist * dist)
+                    ppth += (
+                        self._q_rad * 2.0 * turn + self._q_thm * dist + self._q_ths * (t_s - a[0])
+                    )
+                else:
+                    px, py, pth, pp, ppth = self._propagate(a, t_s)
+                dx = x - px
+                dy = y - py
+                rp = self._r_pos
+                g = self._gate + self._nsig * _sqrt(pp + rp)
+                if dx * dx + dy * dy > g * g:
+                    self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
+                else:
+                    self._gated_run = 0
+                    self.accepted += 1
+                    sv = pp + rp
+                    k = pp / sv if sv > 0.0 else 1.0
+                    sv = ppth + self._r_th
+                    kt = ppth / sv if sv > 0.0 else 1.0
+                    d = theta - pth
+                    if not -_PI < d <= _PI:
+                        d = _wrap(d)
+                    th = pth + kt * d
+                    if not -_PI < th <= _PI:
+                        th = _wrap(th)
+                    anch.append((t_s, px + k * dx, py + k * dy, th, (1.0 - k) * pp,
+                                 (1.0 - kt) * ppth, x, y, theta))  # fmt: skip
+                    anch_t.append(t_s)
+                    if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
+                        self._trim(now_s)
+                    self.last_reason = None
+            else:
+                self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
+        # --- estimate at now_s (estimate() inlined) -------------------------------------------
+        if not anch:
+            return None
+        a = anch[-1]
+        age = now_s - a[0]
+        bound = self._b_odom if now_s - self._last_odom_t <= self._odom_to else self._b_cmd
+        if not age <= bound:  # also False for NaN
+            return None
+        if age <= 0.0:
+            ex, ey, eth, pp = a[1], a[2], a[3], a[4]
+        elif a is self._ck_anchor:
+            ex, ey, eth, pp, _ = self._propagate(a, now_s, True)
+        else:
+            # a fresh anchor (a camera pose every tick: the common case): _propagate(a, now_s,
+            # True) inlined, the same operations in the same order
+            self._ck_anchor = a
+            ck = self._ck
+            ck.clear()
+            t, ex, ey, eth, pp, ppth, _, _, _ = a
+            seg = self._seg
+            n = len(seg_t)
+            i = bisect_right(seg_t, t) - 1
+            dist = turn = qd = qt = 0.0
+            while t < now_s:
+                if i >= 0:
+                    _, v, w, _, qm, qs = seg[i]
+                else:  # before any known twist: assume standing still
+                    v = w = 0.0
+                    qm, qs = self._cmd_q
+                nxt = seg_t[i + 1] if i + 1 < n else now_s
+                if nxt > now_s:
+                    nxt = now_s
+                dt = nxt - t
+                if dt < _TINY_S:
+                    t = nxt
+                    i += 1
+                    continue
+                h = w * dt * 0.5
+                if -0.1 < h < 0.1:
+                    h2 = h * h
+                    chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
+                else:
+                    chord = v * dt * (_sin(h) / h)
+                mid = eth + h
+                ex += chord * _cos(mid)
+                ey += chord * _sin(mid)
+                eth = mid + h
+                d = v * dt if v >= 0.0 else -v * dt
+                dist += d
+                turn += h if h >= 0.0 else -h
+                qd += qm * d
+                qt += qs * dt
+                t = nxt
+                i += 1
+                if t < now_s:  # t only grows and ck was cleared: always after ck[-1]
+                    ck.append((t, ex, ey, eth, dist, turn, qd, qt))
+            pp += qd + qt + ppth * dist * dist
+        if not -_PI < eth <= _PI:
+            eth = _wrap(eth)
+        u = self._nsig * _sqrt(pp)
+        if not u <= self._max_unc:
+            return None
+        return ex, ey, eth, u
 
     # ------------------------------------------------------------------ outputs
 

@@ -46,7 +46,9 @@ and replaces the ``stale_pose_s`` rule. A rejected pose is counted and the estim
 Setpoint extrapolation (``config.estimator.extrapolate_setpoint``, on by default): the setpoint
 is advanced by its feed-forward velocity over its receive age ``now_s - setpoint_rx_s`` (one
 tick in lockstep, where the setpoint of tick k-1 is used at tick k), so a one-tick-old setpoint
-leaves no steady lag.
+leaves no steady lag; and by ``setpoint_lead_s`` more (default 0), the actuation lag (command
+link + motor time constant + one tick): the command computed now moves the robot that much
+later, so it aims where the slot will be then.
 
 Pipeline in TRACKING (one tick)::
 
@@ -325,6 +327,7 @@ class Firmware:
         "_last_rejected_pose",
         "_last_rejected_setpoint",
         "_last_saturated",
+        "_lead",
         "_max_dt",
         "_mode",
         "_pending_cmd",
@@ -389,6 +392,7 @@ class Firmware:
         self._est: Estimator | None = Estimator(ep) if ep.enabled else None
         self._extrap = ep.extrapolate_setpoint
         self._act_delay = ep.actuation_delay_s
+        self._lead = ep.setpoint_lead_s
         self._fused_pose: Pose | None = None
         # (t, omega_r, omega_l) of the last command, handed to the estimator on the next tick
         # unless encoder speeds replace it (it only matters for times after that tick)
@@ -543,21 +547,55 @@ class Firmware:
                     self._tracker.reset_derivative()
                     dt = 0.0
 
-            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current) ----
+            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current): one
+            # Estimator.tick per step (twist, camera pose, estimate at now_s) -----------------
             est = self._est
+            got: tuple[float, float, float, float] | None = None
             if est is not None:
-                pending = self._pending_cmd
+                seg_t = _NAN  # no twist this tick
+                v = w = 0.0
+                odo = False
                 if wheel_speeds is not None and last is not None:
-                    self._odometry(wheel_speeds, last, now_s)
-                elif pending is not None:
-                    pt_s, pwr, pwl = pending
-                    r = self._wheel_r
-                    est.add_command(
-                        pt_s, 0.5 * r * (pwr + pwl), 0.5 * r * (pwr - pwl) / self._half_track
-                    )
+                    # measured wheel speeds over [last, now_s) (eq 7)
+                    try:
+                        wr, wl = wheel_speeds
+                        r = self._wheel_r
+                        v = 0.5 * r * (wr + wl)
+                        w = 0.5 * r * (wr - wl) / self._half_track
+                        ok = now_s > last and _isfinite(v + w)  # (also catches overflow)
+                    except (TypeError, ValueError):
+                        ok = False
+                    if ok:
+                        seg_t = last
+                        odo = True
+                    elif now_s > last:
+                        v = w = 0.0
+                        self.reject("bad wheel speeds")
+                else:
+                    pending = self._pending_cmd
+                    if pending is not None:
+                        seg_t, pwr, pwl = pending
+                        r = self._wheel_r
+                        v = 0.5 * r * (pwr + pwl)
+                        w = 0.5 * r * (pwr - pwl) / self._half_track
                 self._pending_cmd = None
+                cap: float | None = None
                 if pose is not None and pose is not self._fused_pose:
-                    self._fuse_pose(now_s, pose, pose_rx_s, pose_capture_s)
+                    self._fused_pose = pose
+                    mx, my, mth, mt = pose
+                    if _isfinite(mt):
+                        cap = pose_rx_s if pose_capture_s is None else pose_capture_s
+                    else:
+                        self.reject("non-finite pose")
+                    got = est.tick(now_s, seg_t, v, w, odo, cap, mx, my, mth)
+                    if cap is not None:
+                        reason = est.last_reason
+                        if reason is None:
+                            self._last_pose_t = mt
+                        else:
+                            self.reject(reason)
+                else:
+                    got = est.tick(now_s, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
 
             if self._mode is _ESTOP:
                 return self._hold(_EV_ESTOP, "estop")
@@ -605,7 +643,6 @@ class Firmware:
                 # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
                 # dropout bound, or too uncertain) holds the robot
                 self._pose_age = now_s - pose_rx_s if pose is not None else _NAN
-                got = est.estimate(now_s)
                 if got is None:
                     self._unc = _NAN
                     self._est_xyt = None
@@ -627,8 +664,9 @@ class Firmware:
             # --- setpoint extrapolation: where the setpoint is now, advanced by its
             # feed-forward velocity over its receive age (exactly one tick in lockstep) ------
             if self._extrap and sp_age > 0.0:
-                spx += spvx * sp_age
-                spy += spvy * sp_age
+                lead = sp_age + self._lead
+                spx += spvx * lead
+                spy += spvy * lead
 
             # --- eqs 10-11 (reference point), 17-18 (error), 21-22 (PID + FF, speed cap) ----
             l_m = self._l
@@ -756,44 +794,6 @@ class Firmware:
     def _reject_setpoint(self, setpoint: Setpoint, reason: str) -> None:
         if setpoint is not self._last_rejected_setpoint:
             self._last_rejected_setpoint = setpoint
-            self.reject(reason)
-
-    def _odometry(self, wheel_speeds: tuple[float, float], last: float, now_s: float) -> None:
-        """Measured wheel speeds over ``[last, now_s)`` into the estimator (eq 7)."""
-        est = self._est
-        assert est is not None
-        try:
-            wr, wl = wheel_speeds
-            r = self._wheel_r
-            ok = (
-                now_s > last
-                and est.add_odometry(
-                    last, now_s, 0.5 * r * (wr + wl), 0.5 * r * (wr - wl) / self._half_track
-                )
-                if _isfinite(wr + wl)
-                else False
-            )
-        except (TypeError, ValueError):
-            ok = False
-        if not ok and now_s > last:
-            self.reject("bad wheel speeds")
-
-    def _fuse_pose(
-        self, now_s: float, pose: Pose, pose_rx_s: float, capture_s: float | None
-    ) -> None:
-        """A new camera pose into the estimator (each Pose object once)."""
-        est = self._est
-        assert est is not None
-        self._fused_pose = pose
-        x, y, th, pose_t = pose
-        cap = pose_rx_s if capture_s is None else capture_s
-        if not _isfinite(pose_t):
-            self.reject("non-finite pose")
-            return
-        reason = est.add_measurement(now_s, cap, x, y, th)
-        if reason is None:
-            self._last_pose_t = pose_t
-        else:
             self.reject(reason)
 
     def _hold(self, event: _Event, reason: str) -> WheelCommand:

@@ -351,9 +351,14 @@ class EstimatorParams:
     Attributes:
         enabled: False gives the firmware of before the estimator: the last measured pose is
             used as if current and a pose older than ``SafetyParams.stale_pose_s`` (receive age)
-            holds the robot.
+            holds the robot. Off by default for now (docs/benchmarks.md, "Issue 16"): the step
+            costs ~2x with it, and with the safety filter the anchor task under latency is not
+            better with it until the filter's neighbour inputs and margin are settled.
         extrapolate_setpoint: advance a setpoint by its feed-forward velocity over its receive
             age (one tick in lockstep), so a one-tick-old setpoint leaves no steady lag.
+        setpoint_lead_s: with ``extrapolate_setpoint``, advance it by this much more (s): the
+            actuation lag (command link latency + motor time constant + one tick), so the
+            command aims where the slot will be when the wheels follow it. 0 = none.
         history_s: how far back (s) a late camera pose is still replayed at its own capture
             time; older ones are rejected. Must be >= both dropout bounds.
         max_dropout_odom_s: the estimate stays valid this long (s) after the capture of the last
@@ -386,6 +391,7 @@ class EstimatorParams:
 
     enabled: bool = False
     extrapolate_setpoint: bool = True
+    setpoint_lead_s: float = 0.0
     history_s: float = 1.5
     max_dropout_odom_s: float = 1.5
     max_dropout_cmd_s: float = 0.3
@@ -415,7 +421,8 @@ class EstimatorParams:
                      "max_latency_s", "max_uncertainty_m"):  # fmt: skip
             _positive(name, getattr(self, name))
         for name in (
-            "future_tolerance_s", "actuation_delay_s", "meas_pos_std_m", "meas_theta_std_rad",
+            "future_tolerance_s", "actuation_delay_s", "setpoint_lead_s", "meas_pos_std_m",
+            "meas_theta_std_rad",
             "odom_pos_var_per_m", "cmd_pos_var_per_m", "odom_pos_var_per_s", "cmd_pos_var_per_s",
             "theta_var_per_rad", "theta_var_per_m", "theta_var_per_s", "gate_m", "n_sigma",
         ):  # fmt: skip

@@ -143,6 +143,60 @@ def test_odometry_for_an_interval_already_fused_replays() -> None:
     assert late.replayed == 1
 
 
+@settings(max_examples=80, deadline=None, derandomize=True)
+@given(
+    seed=st.integers(0, 10_000),
+    latency_ticks=st.integers(0, 4),
+    odometry=st.booleans(),
+    delay_s=st.sampled_from([0.0, 0.007, 0.02]),
+)
+def test_tick_is_bit_for_bit_the_three_calls(
+    seed: int, latency_ticks: int, odometry: bool, delay_s: float
+) -> None:
+    """``Estimator.tick`` (the firmware's one call per step, hot paths inlined) gives exactly the
+    bits of ``add_odometry`` / ``add_command``, ``add_measurement`` and ``estimate``, with
+    capture times on and off the ticks, late, out of order, repeated, implausible or
+    non-finite, gaps in the camera and encoder speeds, and rejections."""
+    rng = random.Random(seed)
+    params = dataclasses.replace(P, meas_pos_std_m=0.003, meas_theta_std_rad=0.01)
+    calls, tick = Estimator(params), Estimator(params)
+    x = y = 0.0
+    th = 3.0  # crosses +-pi: wrapping on both paths
+    last = math.nan
+    for k in range(120):
+        now = k * DT
+        v, w = rng.uniform(-0.3, 0.3), rng.uniform(-3.0, 3.0)
+        seg = last if (k > 0 and rng.random() < 0.9) else math.nan
+        if seg == seg:
+            if odometry:
+                calls.add_odometry(seg, now, v, w)
+            else:
+                seg = now - DT + delay_s
+                calls.add_command(seg, v, w)
+        cap: float | None = None
+        r = rng.random()
+        if r < 0.75:  # a pose captured 0..latency ticks ago, on a tick or between
+            cap = now - rng.randint(0, latency_ticks) * DT - (0.0 if r < 0.5 else 0.003)
+        elif r < 0.8:
+            cap = now - rng.uniform(0.0, 0.3)  # late: replayed
+        mx, my, mth = x + rng.gauss(0, 0.003), y + rng.gauss(0, 0.003), th + rng.gauss(0, 0.01)
+        if rng.random() < 0.03:
+            mx = math.nan
+        elif rng.random() < 0.03:
+            mx += 1.0  # implausible
+        want_reason = None
+        if cap is not None:
+            want_reason = calls.add_measurement(now, cap, mx, my, mth)
+        want = calls.estimate(now)
+        got = tick.tick(now, seg, v, w, odometry, cap, mx, my, mth)
+        assert got == want, (k, got, want)
+        if cap is not None:
+            assert tick.last_reason == want_reason
+        assert tick.status() == calls.status()
+        x, y, th = propagate_pose(x, y, th, v, w, DT)
+        last = now
+
+
 # ---------------------------------------------------------------- dropout bound, uncertainty
 
 
@@ -230,6 +284,43 @@ def test_non_finite_future_old_and_duplicate_poses_rejected_and_counted() -> Non
     assert est.rejected_old == 2
     assert est.status().rejected == 10
     assert est.accepted == 2
+
+
+def test_non_finite_or_backwards_odometry_rejected_and_counted() -> None:
+    est = Estimator(P)
+    est.add_measurement(0.0, 0.0, 0.0, 0.0, 0.0)
+    assert est.add_odometry(0.0, DT, 0.1, 0.0)
+    before = est.estimate(DT)
+    for t0, t1, v, w in ((DT, 2 * DT, math.nan, 0.0), (DT, 2 * DT, 0.1, math.inf),
+                         (math.nan, 2 * DT, 0.1, 0.0), (2 * DT, DT, 0.1, 0.0)):  # fmt: skip
+        assert not est.add_odometry(t0, t1, v, w)
+    assert est.rejected_odometry == 4
+    assert est.status().rejected == 4
+    assert est.estimate(DT) == before  # nothing of them was used
+
+
+def test_firmware_counts_bad_wheel_speeds_and_rides_on_the_prediction() -> None:
+    fw = Firmware(CFG)
+    sp = _sp(0.05, 0.0, 0.0, 0.0, 0.0)
+    pose = Pose(0.0, 0.0, 0.0, 0.0)
+    fw.step(0.0, pose=pose, pose_rx_s=0.0, pose_capture_s=0.0, setpoint=sp, setpoint_rx_s=0.0)
+    bad: list[object] = [
+        (math.nan, 1.0),
+        (1.0, math.inf),
+        ("a", 1.0),
+        (1.0,),
+        None,
+        (1e308, -1e308),
+    ]
+    for k, ws in enumerate(bad, start=1):
+        now = k * DT
+        cmd = fw.step(now, pose=pose, pose_rx_s=0.0, pose_capture_s=0.0, setpoint=sp,
+                      setpoint_rx_s=now, wheel_speeds=ws)  # type: ignore[arg-type]  # fmt: skip
+        assert cmd.mode is Mode.TRACKING
+        assert all(math.isfinite(c) for c in cmd[:4])
+    st_ = fw.status()
+    assert st_.rejected_count == 5  # None means "no encoders": not a rejection
+    assert st_.last_reject_reason == "bad wheel speeds"
 
 
 def test_implausible_jump_rejected_then_reset_after_a_run() -> None:
@@ -329,6 +420,34 @@ def test_setpoint_extrapolation_removes_the_one_tick_lag() -> None:
         )
         ex = fw.status().ex
         assert (abs(ex) < 1e-12) == extrap, ex
+
+
+def test_setpoint_lead_aims_where_the_slot_will_be_after_the_actuation_lag() -> None:
+    """``setpoint_lead_s`` advances the setpoint by ff * (age + lead): a robot whose reference
+    point sits at x + v (dt + lead) has zero error; without extrapolation no lead is applied."""
+    lead = 0.08
+    for extrap in (False, True):
+        cfg = AgentConfig(
+            estimator=EstimatorParams(extrapolate_setpoint=extrap, setpoint_lead_s=lead)
+        )
+        fw = Firmware(cfg)
+        l_m = cfg.geometry.ref_offset_m
+        now = 1.0
+        x_sp = 0.1 - 0.05 * (DT + lead)
+        fw.step(
+            now,
+            pose=Pose(0.1 - l_m, 0.0, 0.0, now),
+            pose_rx_s=now,
+            setpoint=_sp(x_sp, 0.0, 0.05, 0.0, now - DT),
+            setpoint_rx_s=now - DT,
+        )
+        ex = fw.status().ex
+        if extrap:
+            assert abs(ex) < 1e-12, ex
+        else:
+            assert ex == pytest.approx(-0.05 * (DT + lead))
+    with pytest.raises(ValueError):
+        EstimatorParams(setpoint_lead_s=-0.01)
 
 
 def test_firmware_with_encoder_speeds_uses_the_odometry_bound() -> None:
