@@ -47,7 +47,7 @@ from bus_schemas import (
     encode,
     keys,
 )
-from coordinator.core import CoordinatorOutput
+from coordinator.core import CoordinatorOutput, pose_stale_s
 from coordinator.election import Election, Takeover
 from robot_agent.lockstep import Arrivals, Replay
 from scenario import Scenario
@@ -95,7 +95,11 @@ class CoordinatorNode:
         self.fleet = keys.check_fleet(fleet)
         self.lockstep = lockstep
         self.core = coordinator_core(scenario)
-        self.stale_pose_s = scenario.agent.safety.stale_pose_s
+        # the in-process simulator's rule (coordinator.core.pose_stale_s); the robots have
+        # encoders when the scenario's plant emulates them
+        self.stale_pose_s = pose_stale_s(
+            scenario.agent, odometry=scenario.plant.encoder_counts_per_rev > 0.0
+        )
         # Realtime: a stop of this process (runtime.stall) makes an active instance step down.
         self.stall = rt.StallDetector(gap_s=rt.HANG_GAP_NO_LEASE_S)
         self.log = log if log is not None else rt.NodeLog(f"coordinator {name}")
