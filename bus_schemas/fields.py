@@ -344,9 +344,7 @@ class SameLength:
     def check(self, msg: Any) -> None:
         """Raise `Invalid(inconsistent)` unless all listed fields have the same length (an
         optional field that is absent is not compared)."""
-        lengths = {
-            name: len(v) for name in self.fields if (v := getattr(msg, name)) is not None
-        }
+        lengths = {name: len(v) for name in self.fields if (v := getattr(msg, name)) is not None}
         if len(set(lengths.values())) > 1:
             raise Invalid(Reason.INCONSISTENT, f"list lengths differ: {lengths}", self.fields[0])
 
