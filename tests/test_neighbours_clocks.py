@@ -6,12 +6,29 @@ from __future__ import annotations
 
 import math
 import random
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
+import zenoh
+from conftest import REPO_ROOT, RouterHandle, Spawner
+from test_node_agent import Recorder, decoder_of, setpoint_msg
 
 import runtime as rt
-from bus_schemas import Clock, Pose, PoseBatch, Setpoint, Status, StatusBatch, encode, keys
+from bus_schemas import (
+    Clock,
+    Pose,
+    PoseBatch,
+    Setpoint,
+    Status,
+    StatusBatch,
+    Wheels,
+    encode,
+    keys,
+)
 from robot_agent.clocksync import ClockOffset, ClockOffsets
 from robot_agent.firmware import Mode
 from robot_agent.host import HostNode
@@ -190,3 +207,60 @@ def test_status_carries_the_safety_filter_counters() -> None:
     assert msg.filter is not None and set(msg.filter) >= {"ticks", "active", "violations"}
     assert msg.min_clearance_m is None  # nothing in range yet
     encode(msg)  # within the schema's bounds
+
+
+# -- over a real router ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("skew_s", [-30.0, 20.0])
+def test_agent_process_tracks_on_a_camera_whose_clock_is_off_by_seconds(
+    skew_s: float,
+    spawn: Spawner,
+    router: RouterHandle,
+    session: Callable[..., zenoh.Session],
+    tmp_path: Path,
+) -> None:
+    """``formation agent`` with the estimator on, fed by a "camera host" (this test) whose
+    monotonic clock reads ``skew_s`` off: poses carry ``t`` (capture, 30 ms before
+    publication) and ``pub_t`` on that clock. The agent tracks (status ``tracking``, wheels
+    forward) and rejects nothing: the capture times reach the estimator on the agent's clock.
+    Without the conversion every capture would lie seconds outside the estimator's bounds."""
+    base = (REPO_ROOT / "scenario" / "builtin" / "paper-exp1.toml").read_text()
+    path = tmp_path / "est.toml"
+    path.write_text(base + "\n[estimator]\nenabled = true\n")
+    client = session()
+    pubs = rt.Publishers(client)
+    spawn("agent", "--id", "r1", "--scenario", str(path), "--endpoint", router.endpoint,
+          ready="agent")  # fmt: skip
+    status = Recorder(client, keys.status_key(FLEET, "r1"), decoder_of(Status))
+    wheels = Recorder(client, keys.wheels_key(FLEET, "r1"), decoder_of(Wheels))
+    stop = threading.Event()
+
+    def camera() -> None:
+        seq = 0
+        while not stop.is_set():
+            seq += 1
+            capture = time.monotonic() - 0.03  # the frame was exposed 30 ms ago
+            sp = setpoint_msg("r1", 0.45, 0.0, t=time.monotonic(), seq=seq)
+            pubs.put(keys.setpoint_key(FLEET, "r1"), encode(sp), rt.QOS_CRITICAL)
+            pose = Pose(
+                t=capture + skew_s, seq=seq, x=0.0, y=0.0, theta=0.0, robot="r1",
+                pub_t=time.monotonic() + skew_s,
+            )  # fmt: skip
+            pubs.put(keys.pose_key(FLEET, "r1"), encode(pose), rt.QOS_CRITICAL)
+            stop.wait(0.02)
+
+    feeder = threading.Thread(target=camera, daemon=True)
+    feeder.start()
+    try:
+        wheels.wait_for(lambda _r, _k, w: w.mode == "tracking" and w.omega_r > 0.5, 10.0)
+        t_ok = time.monotonic()
+        time.sleep(1.0)
+        _, _, st = status.wait_for(lambda r, _k, _s: r > t_ok + 0.8, 5.0)
+    finally:
+        stop.set()
+        feeder.join(2.0)
+    late = [w for r, _, w in wheels.snapshot() if r > t_ok]
+    assert late and all(w.mode == "tracking" for w in late)  # never HOLD after starting
+    assert st.mode == "tracking" and st.rejected == 0, st
+    assert st.filter is not None and st.filter["ticks"] > 0
