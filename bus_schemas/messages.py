@@ -580,8 +580,15 @@ class WheelsBatch:
     publisher="agent host (batched), >= 5 Hz",
     periodic=True,
     rate=">= 5 Hz",
-    rules=(SameLength(("robots", "mode", "slot", "rejected", "ex", "ey")),),
-)
+    rules=(
+        SameLength(
+            (
+                "robots", "mode", "slot", "rejected", "ex", "ey",
+                "filter_active", "filter_violations", "filter_infeasible", "filter_tiebreaks",
+            )
+        ),
+    ),
+)  # fmt: skip
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StatusBatch:
     """Health of the robots an agent host runs (the batched form of `robot/<id>/status`)."""
@@ -608,6 +615,20 @@ class StatusBatch:
         metadata=f_float_list(
             "tracking error along y (eq 18), 0 without a setpoint", "m", lo=-2 * _POS, hi=2 * _POS
         )
+    )
+    filter_active: tuple[int, ...] | None = field(
+        default=None,
+        metadata=f_int_list("safety filter: ticks its output differed from the nominal command"),
+    )
+    filter_violations: tuple[int, ...] | None = field(
+        default=None,
+        metadata=f_int_list("safety filter: ticks a barrier was already below zero at the input"),
+    )
+    filter_infeasible: tuple[int, ...] | None = field(
+        default=None, metadata=f_int_list("safety filter: ticks with no feasible command (stop)")
+    )
+    filter_tiebreaks: tuple[int, ...] | None = field(
+        default=None, metadata=f_int_list("safety filter: deadlock tie-breaks triggered")
     )
 
 

@@ -532,6 +532,7 @@ class HostNode:
         for i in range(0, len(self.order), BATCH_CHUNK):
             ids = self.order[i : i + BATCH_CHUNK]
             sts = [self.nodes[r].firmware.status() for r in ids]
+            flts = [self.nodes[r].firmware.safety_filter.status() for r in ids]
             self._seq_status += 1
             out.append(
                 StatusBatch(
@@ -545,6 +546,10 @@ class HostNode:
                     rejected=tuple(s.rejected_count for s in sts),
                     ex=tuple(rt.finite_or_none(s.ex) or 0.0 for s in sts),
                     ey=tuple(rt.finite_or_none(s.ey) or 0.0 for s in sts),
+                    filter_active=tuple(f.active_ticks for f in flts),
+                    filter_violations=tuple(f.violations for f in flts),
+                    filter_infeasible=tuple(f.infeasible for f in flts),
+                    filter_tiebreaks=tuple(f.tiebreaks for f in flts),
                 )
             )
         return out

@@ -117,6 +117,10 @@ def test_host_neighbours_carry_age_and_cooperative() -> None:
     assert set(nb) == {(0.3, 0.0), (0.0, 0.3)}
     assert nb[(0.0, 0.3)].cooperative and not nb[(0.3, 0.0)].cooperative
     assert nb[(0.3, 0.0)].age_s == pytest.approx(0.06) and nb[(0.3, 0.0)].theta == 0.2
+    (batch,) = host.status_batches(0.1)  # the hosted robots' safety filter counters
+    assert batch.filter_active is not None and len(batch.filter_active) == 2
+    assert batch.filter_tiebreaks == (0, 0)
+    encode(batch)
 
 
 # -- clocks across hosts -------------------------------------------------------------------

@@ -200,6 +200,10 @@ SAMPLES: dict[type, Any] = {
         rejected=(0, 3),
         ex=(0.01, 0.0),
         ey=(-0.02, 0.0),
+        filter_active=(5, 0),
+        filter_violations=(0, 0),
+        filter_infeasible=(1, 0),
+        filter_tiebreaks=(0, 2),
     ),
 }
 
