@@ -213,6 +213,41 @@ def test_status_carries_the_safety_filter_counters() -> None:
     encode(msg)  # within the schema's bounds
 
 
+def test_realtime_neighbour_ages_from_a_skewed_frame_clock_are_right_within_the_jitter() -> None:
+    node = AgentNode("r1", FLEET, AgentConfig(), _sink, loop_mode="fixed")
+    rng = random.Random(3)
+    skew, latency, d_min, jitter = -1234.5, 0.03, 0.0002, 0.002
+    worst = 0.0
+    for k in range(200):
+        capture = 5000.0 + 1 / 30 * k  # local time of the frame's exposure
+        pub = capture + latency
+        rx = pub + d_min + rng.random() * jitter
+        frame = _batch(pub + skew, capture + skew, {"r2": (0.5, 0.0, 0.0)})
+        node.on_poses(rt.Received(keys.poses_key(FLEET), frame, rx))
+        now = rx + 0.005
+        (nb,) = node.neighbours(now)
+        if k >= 10:
+            worst = max(worst, abs(nb.age_s - (now - capture)))
+    assert worst <= d_min + jitter
+
+
+def test_coordinator_keeps_robots_for_the_estimators_dropout_bound_like_the_simulator() -> None:
+    from coordinator.core import pose_stale_s
+    from coordinator.node import CoordinatorNode
+    from scenario import load
+
+    sc = load("paper-exp1")
+    est = replace(sc.agent.estimator, enabled=True, max_dropout_cmd_s=0.35)
+    on = sc.with_overrides(agent=replace(sc.agent, estimator=est))
+    assert pose_stale_s(sc.agent, odometry=False) == sc.agent.safety.stale_pose_s
+    assert pose_stale_s(on.agent, odometry=False) == 0.35
+    assert pose_stale_s(on.agent, odometry=True) == max(
+        est.max_dropout_odom_s, sc.agent.safety.stale_pose_s
+    )
+    node = CoordinatorNode(on, "main", FLEET, _sink, lockstep=True)
+    assert node.stale_pose_s == 0.35  # the scenario's plant has no encoders
+
+
 # -- over a real router ----------------------------------------------------------------------
 
 
