@@ -202,9 +202,10 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.TRUTH: KeyRoles((_P,)),
     keys.TRUTHS: KeyRoles((_P,)),
     keys.WHEELS: KeyRoles(((_R, OWN),), (_P,)),
-    keys.STATUS: KeyRoles(((_R, OWN),), (_C,)),
+    # robots and hosts: the others' modes (cooperative neighbours, robot_agent.neighbours)
+    keys.STATUS: KeyRoles(((_R, OWN),), (_C, _R, _H)),
     keys.HOST_WHEELS: KeyRoles(((_H, OWN),), (_P,)),
-    keys.HOST_STATUS: KeyRoles(((_H, OWN),), (_C,)),
+    keys.HOST_STATUS: KeyRoles(((_H, OWN),), (_C, _R, _H)),
     keys.ESTOP: KeyRoles((_O,), (_R, _H, _C)),
     keys.CLOCK: KeyRoles((_P,), (_R, _H, _C)),
     keys.DISTURBANCE: KeyRoles((_O,), (_P,)),

@@ -342,14 +342,15 @@ class SameLength:
     fields: tuple[str, ...]
 
     def check(self, msg: Any) -> None:
-        """Raise `Invalid(inconsistent)` unless all listed fields have the same length."""
-        lengths = {name: len(getattr(msg, name)) for name in self.fields}
+        """Raise `Invalid(inconsistent)` unless all listed fields have the same length (an
+        optional field that is absent is not compared)."""
+        lengths = {name: len(v) for name in self.fields if (v := getattr(msg, name)) is not None}
         if len(set(lengths.values())) > 1:
             raise Invalid(Reason.INCONSISTENT, f"list lengths differ: {lengths}", self.fields[0])
 
     def describe(self) -> str:
         """One line for docs/bus.md."""
-        return "`" + "`, `".join(self.fields) + "` have the same length"
+        return "`" + "`, `".join(self.fields) + "` have the same length (when present)"
 
 
 @dataclass(frozen=True, slots=True)

@@ -218,6 +218,15 @@ class Pose:
     y: float = field(metadata=_POSE_Y)
     theta: float = field(metadata=_POSE_THETA)
     robot: str | None = field(default=None, metadata=f_robot_id("robot measured (= the key's id)"))
+    pub_t: float | None = field(
+        default=None,
+        metadata=f_float(
+            "publication time, same clock as `t` (receivers estimate the clock offset from it)",
+            "s",
+            lo=0.0,
+            hi=_TMAX,
+        ),
+    )
 
 
 @message(name=keys.TRUTH, publisher="plant only", periodic=True)
@@ -269,6 +278,9 @@ class Wheels:
     saturated: bool | None = field(
         default=None, metadata=f_bool("the wheel speeds were scaled down to the limit")
     )
+    mode: str | None = field(
+        default=None, metadata=f_enum("firmware mode after the step of this command", Mode)
+    )
 
 
 @message(name=keys.STATUS, publisher="agent", periodic=True, rate=">= 5 Hz")
@@ -308,6 +320,22 @@ class Status:
             "`quarantine` after a resume, ...); the values sum to `rejected`"
         ),
     )
+    filter: Mapping[str, int] | None = field(
+        default=None,
+        metadata=f_count_map(
+            "safety filter counters: ticks, active, violations, infeasible, tiebreaks, "
+            "tiebreak_active (0/1), rescaled, rejected, constraints"
+        ),
+    )
+    min_clearance_m: float | None = field(
+        default=None,
+        metadata=f_float(
+            "safety filter: least barrier value seen (nil while none in range)",
+            "m",
+            lo=-2 * _POS,
+            hi=2 * _POS,
+        ),
+    )
 
 
 @message(name=keys.ESTOP, publisher="operator / tools", periodic=False)
@@ -332,6 +360,13 @@ class Clock:
     t: float = field(metadata=_T)
     seq: int = field(metadata=_SEQ)
     tick: int = field(metadata=f_int("step number of the simulation"))
+    tracking: tuple[str, ...] | None = field(
+        default=None,
+        metadata=f_robot_id_list(
+            "robots whose wheels answering the previous tick said mode `tracking` (for the "
+            "safety filter's cooperative neighbours)"
+        ),
+    )
 
 
 @message(
@@ -505,7 +540,7 @@ class SetpointBatch:
     name=keys.HOST_WHEELS,
     publisher="agent host (batched)",
     periodic=True,
-    rules=(SameLength(("robots", "omega_r", "omega_l", "power_r", "power_l", "pose_t")),),
+    rules=(SameLength(("robots", "omega_r", "omega_l", "power_r", "power_l", "pose_t", "mode")),),
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
 class WheelsBatch:
@@ -542,6 +577,9 @@ class WheelsBatch:
     tick: int | None = field(
         default=None, metadata=f_int("lockstep: the clock `tick` these commands answer")
     )
+    mode: tuple[str, ...] | None = field(
+        default=None, metadata=f_enum_list("firmware mode of each robot after its step", Mode)
+    )
 
 
 @message(
@@ -549,8 +587,15 @@ class WheelsBatch:
     publisher="agent host (batched), >= 5 Hz",
     periodic=True,
     rate=">= 5 Hz",
-    rules=(SameLength(("robots", "mode", "slot", "rejected", "ex", "ey")),),
-)
+    rules=(
+        SameLength(
+            (
+                "robots", "mode", "slot", "rejected", "ex", "ey",
+                "filter_active", "filter_violations", "filter_infeasible", "filter_tiebreaks",
+            )
+        ),
+    ),
+)  # fmt: skip
 @dataclass(frozen=True, slots=True, kw_only=True)
 class StatusBatch:
     """Health of the robots an agent host runs (the batched form of `robot/<id>/status`)."""
@@ -577,6 +622,20 @@ class StatusBatch:
         metadata=f_float_list(
             "tracking error along y (eq 18), 0 without a setpoint", "m", lo=-2 * _POS, hi=2 * _POS
         )
+    )
+    filter_active: tuple[int, ...] | None = field(
+        default=None,
+        metadata=f_int_list("safety filter: ticks its output differed from the nominal command"),
+    )
+    filter_violations: tuple[int, ...] | None = field(
+        default=None,
+        metadata=f_int_list("safety filter: ticks a barrier was already below zero at the input"),
+    )
+    filter_infeasible: tuple[int, ...] | None = field(
+        default=None, metadata=f_int_list("safety filter: ticks with no feasible command (stop)")
+    )
+    filter_tiebreaks: tuple[int, ...] | None = field(
+        default=None, metadata=f_int_list("safety filter: deadlock tie-breaks triggered")
     )
 
 

@@ -27,10 +27,27 @@ from coordinator.formation import (
 )
 from coordinator.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.kinematics import reference_point
+from robot_agent.params import AgentConfig
 
-__all__ = ["CoordinatorCore", "CoordinatorOutput"]
+__all__ = ["CoordinatorCore", "CoordinatorOutput", "pose_stale_s"]
 
 _new = object.__new__
+
+
+def pose_stale_s(agent: AgentConfig, *, odometry: bool) -> float:
+    """How long (s, receive time) the coordinator keeps a robot whose pose stopped coming: the
+    one rule of the in-process simulator and the Zenoh coordinator.
+
+    ``safety.stale_pose_s``, or, with the estimator enabled, at least the estimator's dropout
+    bound (``max_dropout_odom_s`` when the robots have wheel encoders, ``odometry``, else
+    ``max_dropout_cmd_s``): the robots ride through camera dropouts on their estimators, so the
+    coordinator keeps a robot (and its slot) as long as its firmware may still be tracking.
+    """
+    stale = agent.safety.stale_pose_s
+    est = agent.estimator
+    if est.enabled:
+        stale = max(stale, est.max_dropout_odom_s if odometry else est.max_dropout_cmd_s)
+    return stale
 
 
 class CoordinatorOutput:

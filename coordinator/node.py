@@ -49,7 +49,7 @@ from bus_schemas import (
     encode,
     keys,
 )
-from coordinator.core import CoordinatorOutput
+from coordinator.core import CoordinatorOutput, pose_stale_s
 from coordinator.election import Election, Takeover
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
 from robot_agent.lockstep import Arrivals, Replay
@@ -98,7 +98,11 @@ class CoordinatorNode:
         self.fleet = keys.check_fleet(fleet)
         self.lockstep = lockstep
         self.core = coordinator_core(scenario)
-        self.stale_pose_s = scenario.agent.safety.stale_pose_s
+        # the in-process simulator's rule (coordinator.core.pose_stale_s); the robots have
+        # encoders when the scenario's plant emulates them
+        self.stale_pose_s = pose_stale_s(
+            scenario.agent, odometry=scenario.plant.encoder_counts_per_rev > 0.0
+        )
         # Realtime: one late pose (a loaded machine) must not re-assign a robot whose token is
         # alive (issue 13 item 7): it keeps its slot while its pose is younger than the
         # estimator's odometry dropout bound (its firmware may still be tracking; with stale

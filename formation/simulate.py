@@ -33,11 +33,11 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.core import CoordinatorOutput
+from coordinator.core import CoordinatorOutput, pose_stale_s
 from formation.runlog import RunLog
 from robot_agent.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
-from robot_agent.safety_filter import Neighbour
+from robot_agent.neighbours import is_current, neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
 from sim_plant.plant import WheelEncoders
@@ -91,15 +91,9 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     ticks = round(duration / dt) + 1
     slot_ids = list(coord.formation.slot_ids)
     slot_row = {s: k for k, s in enumerate(slot_ids)}
-    stale = scenario.agent.safety.stale_pose_s
-    est_p = scenario.agent.estimator
-    if est_p.enabled:
-        # The robots ride through camera dropouts on their estimators: the coordinator keeps
-        # a robot (and its slot) as long as its firmware may still be tracking.
-        stale = max(
-            stale,
-            est_p.max_dropout_odom_s if encoders is not None else est_p.max_dropout_cmd_s,
-        )
+    # how long the coordinator keeps a robot whose pose stopped coming (with the estimator:
+    # its dropout bound), the Zenoh coordinator's rule too
+    stale = pose_stale_s(scenario.agent, odometry=encoders is not None)
 
     # Per-robot state of the loop. poses[i] is robot i's latest measured pose, as its firmware
     # sees it; xyt[i] the same (x, y, theta) as the coordinator sees it.
@@ -143,13 +137,14 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
                 pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
                 xyt[i] = (x, y, th)
                 pose_rx[i] = t
-        # every other robot's latest measured pose, for repulsion and the safety filter, with
-        # its age now (capture to this tick) and whether it was TRACKING on the previous tick
-        # (then it runs the same filter: cooperative)
+        # every other robot's latest measured pose received within NEIGHBOUR_STALE_S, for
+        # repulsion and the safety filter, with its age now (capture to this tick) and whether
+        # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
+        # rule of robot_agent.neighbours, which the Zenoh agents and hosts use too
         pts = [
             None
-            if p is None
-            else _tuple_new(Neighbour, (p[0], p[1], p[2], t - p[3], 0.0, 0.0, tracking[j], 0.0))
+            if p is None or not is_current(t, pose_rx[j])
+            else neighbour(p[0], p[1], p[2], p[3], t, tracking[j])
             for j, p in enumerate(poses)
         ]
         if None in pts:

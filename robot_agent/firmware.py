@@ -41,7 +41,8 @@ wheels commanded on a tick are the prediction's input from that tick on when no 
 replace them. The pose the controller uses is the estimate at ``now_s``; an invalid estimate
 (no pose yet, the camera lost beyond the dropout bound, too uncertain) is a STALE event (HOLD)
 and replaces the ``stale_pose_s`` rule. A rejected pose is counted and the estimate rides on.
-``pose_uncertainty_m`` is the estimate's uncertainty (m), for the safety filter.
+``pose_uncertainty_m`` is the estimate's uncertainty (m); the safety filter adds it (or the
+shell's ``extra_radius_m`` if larger) to the robot's radius on the same tick.
 
 Setpoint extrapolation (``config.estimator.extrapolate_setpoint``, on by default): the setpoint
 is advanced by its feed-forward velocity over its receive age ``now_s - setpoint_rx_s`` (one
@@ -516,8 +517,9 @@ class Firmware:
                 or ``safety_filter.Neighbour``s (with heading, age, velocity, cooperative).
             obstacles: circles ``(x, y, radius_m)`` (m), for repulsion and the safety filter
                 (on top of the configured ``AgentConfig.world``).
-            extra_radius_m: this robot's own position uncertainty (m), which the safety filter
-                adds to every clearance (from the estimator; 0 = exact pose).
+            extra_radius_m: extra position uncertainty (m) of this robot, which the safety
+                filter adds to every clearance; with the estimator the firmware uses at least
+                this tick's ``pose_uncertainty_m`` on its own, so shells pass nothing.
             pose_capture_s: capture time of ``pose`` on the shell's clock (s), for latency
                 compensation; None takes ``pose_rx_s`` (no latency known). Used only with the
                 estimator. In lockstep and in-process ``pose.t`` is on that clock.
@@ -696,8 +698,12 @@ class Firmware:
                 vy += rvy
 
             # --- safety filter (barrier certificate on the reference-point velocity), last
-            # before eq 16: keeps Ds to neighbours / obstacles / walls (safety_filter.py) ----
+            # before eq 16: keeps Ds to neighbours / obstacles / walls (safety_filter.py); the
+            # own extra radius is at least this tick's estimate uncertainty ----------------
             if self._filter_on:
+                unc = self._unc
+                if unc > extra_radius_m:
+                    extra_radius_m = unc
                 vx, vy = self._filter_fn(
                     now_s,
                     rx,

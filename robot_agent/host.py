@@ -60,19 +60,22 @@ from bus_schemas import (
     Estop,
     PoseBatch,
     SetpointBatch,
+    Status,
     StatusBatch,
     WheelsBatch,
     decode,
     encode,
     keys,
 )
+from robot_agent.clocksync import ClockOffsets
+from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
-from robot_agent.firmware import WheelCommand
 from robot_agent.lockstep import Arrivals, Replay
-from robot_agent.node import NEIGHBOUR_STALE_S, AgentNode, Publish
+from robot_agent.neighbours import NEIGHBOUR_STALE_S, is_cooperative, is_current, neighbour
+from robot_agent.node import AgentNode, Publish
 from robot_agent.params import AgentConfig
-from robot_agent.safety_filter import SafetyFilter
+from robot_agent.safety_filter import Neighbour, SafetyFilter
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
@@ -85,8 +88,9 @@ MAX_TRACKED: Final = 20000
 REALTIME_CHUNK: Final = 32
 """Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
 
-_Grid = dict[tuple[int, int], list[tuple[int, str, float, float]]]
-"""Spatial hash: cell -> (frame order, robot id, x, y) of the robots in it."""
+_Entry = tuple[int, str, float, float, float, float]
+_Grid = dict[tuple[int, int], list[_Entry]]
+"""Spatial hash: cell -> (frame order, robot id, x, y, theta, capture_s) of the robots in it."""
 
 _RANGE = re.compile(r"([a-z_-]*)(\d+)\.\.\1?(\d+)")
 
@@ -120,10 +124,12 @@ def expand_ids(spec: str) -> list[str]:
 
 @dataclass(slots=True)
 class _Seen:
-    """Latest position of a robot from the pose frames (for repulsion)."""
+    """Latest pose of a robot from the pose frames (for repulsion and the safety filter)."""
 
     x: float
     y: float
+    theta: float
+    capture_s: float  # capture time on this host's clock (robot_agent.clocksync)
     rx_s: float | None  # receive time; None while pending (lockstep, until the next clock)
     order: int  # first-seen order (= frame order): neighbours are passed in this order
 
@@ -192,10 +198,17 @@ class HostNode:
         self.wheels_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
 
         self._seen: dict[str, _Seen] = {}
+        self.clocks = ClockOffsets()  # realtime: the pose frames' clock on this host's
+        # cooperative neighbours (robot_agent.neighbours rule 3): lockstep, what the clock
+        # relays; realtime, the hosted robots' own modes and the others' status messages
+        self.tracking_ids: frozenset[str] = frozenset()
+        self._status_modes: dict[str, list[float | bool]] = {}
         self._pending: Arrivals[_Seen] = Arrivals()  # lockstep: received since the last clock
         self._grid: _Grid | None = None
         self._grid_now = -math.inf
-        self.rx: dict[str, int] = {"poses": 0, "setpoints": 0, "estop": 0, "clock": 0}
+        self.rx: dict[str, int] = {
+            "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0,
+        }  # fmt: skip
         self.rejected = 0
         self.internal_errors = 0
         self.batches = 0
@@ -235,18 +248,15 @@ class HostNode:
 
     # -- neighbours ----------------------------------------------------------------------------
 
-    def _build_grid(
-        self, now_s: float
-    ) -> dict[tuple[int, int], list[tuple[int, str, float, float]]]:
-        grid: dict[tuple[int, int], list[tuple[int, str, float, float]]] = {}
+    def _build_grid(self, now_s: float) -> _Grid:
+        grid: _Grid = {}
         c = self.cell_m
-        stale = NEIGHBOUR_STALE_S
         for rid, e in self._seen.items():
             rx_s = e.rx_s
-            if rx_s is None or not -stale <= now_s - rx_s <= stale:
+            if rx_s is None or not is_current(now_s, rx_s):
                 continue
             cell = (math.floor(e.x / c), math.floor(e.y / c))
-            entry = (e.order, rid, e.x, e.y)
+            entry = (e.order, rid, e.x, e.y, e.theta, e.capture_s)
             bucket = grid.get(cell)
             if bucket is None:
                 grid[cell] = [entry]
@@ -254,8 +264,20 @@ class HostNode:
                 bucket.append(entry)
         return grid
 
-    def _neighbours_of(self, node: AgentNode, now_s: float) -> list[tuple[float, float]]:
-        """The other robots within the 3 x 3 cells around ``node``'s pose, in frame order."""
+    def cooperative(self, rid: str, now_s: float) -> bool:
+        """Rule 3 of ``robot_agent.neighbours``: relayed by the clock (lockstep); realtime, a
+        hosted robot's own mode, another robot's fresh status."""
+        if self.lockstep:
+            return rid in self.tracking_ids
+        node = self.nodes.get(rid)
+        if node is not None:
+            return node.firmware.mode is Mode.TRACKING
+        entry = self._status_modes.get(rid)
+        return entry is not None and is_cooperative(now_s, bool(entry[0]), float(entry[1]))
+
+    def _neighbours_of(self, node: AgentNode, now_s: float) -> list[Neighbour]:
+        """The other robots within the 3 x 3 cells around ``node``'s pose, in frame order, as
+        the safety filter sees them (``robot_agent.neighbours``)."""
         pose = node.pose
         if pose is None:
             return []
@@ -265,7 +287,7 @@ class HostNode:
             self._grid_now = now_s
         c = self.cell_m
         cx, cy = math.floor(pose.x / c), math.floor(pose.y / c)
-        found: list[tuple[int, str, float, float]] = []
+        found: list[_Entry] = []
         me = node.robot_id
         for dx in (-1, 0, 1):
             for dy in (-1, 0, 1):
@@ -274,7 +296,8 @@ class HostNode:
                     found.extend(e for e in bucket if e[1] != me)
         if len(found) > 1:
             found.sort()
-        return [(e[2], e[3]) for e in found]
+        coop = self.cooperative
+        return [neighbour(e[2], e[3], e[4], e[5], now_s, coop(e[1], now_s)) for e in found]
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -293,21 +316,26 @@ class HostNode:
             seen = self._seen
             nodes = self.nodes
             stamp = msg.stamp
+            if self.lockstep:
+                cap = stamp  # sim time: one clock for every node
+            else:
+                cap = self.clocks.capture_to_local(rx.key, msg.t, stamp, rx.rx_s)
             mine: list[AgentNode] = []
             for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
                 e = seen.get(rid)
                 if e is None:
                     if len(seen) >= MAX_TRACKED:
                         continue
-                    e = seen[rid] = _Seen(x, y, rx_s, len(seen))
+                    e = seen[rid] = _Seen(x, y, th, cap, rx_s, len(seen))
                 else:
-                    e.x, e.y, e.rx_s = x, y, rx_s
+                    e.x, e.y, e.theta, e.capture_s, e.rx_s = x, y, th, cap, rx_s
                 if rx_s is None:
                     self._pending.add(e)
                 node = nodes.get(rid)
                 if node is not None:
                     node.rx["pose"] += 1
                     node.pose = FwPose(x, y, th, stamp)
+                    node.pose_capture_s = cap
                     if rx_s is None:
                         node._pose_pending = True
                     else:
@@ -370,6 +398,49 @@ class HostNode:
         except Exception as exc:
             self._internal("on_estop", exc)
 
+    def on_status(self, rx: rt.Received) -> None:
+        """Realtime: a robot's status (``formation agent``); its mode, while fresh, makes it a
+        cooperative neighbour."""
+        try:
+            self.rx["status"] += 1
+            parsed = keys.parse_robot_key(rx.key)
+            msg = decode(rx.payload, Status)
+            if isinstance(msg, DecodeError):
+                self._reject("status", msg)
+                return
+            if parsed is None or (msg.robot is not None and msg.robot != parsed[1]):
+                self._reject("status", f"robot {msg.robot!r} on key {rx.key[:100]!r}")
+                return
+            self._note_mode(parsed[1], msg.mode == "tracking", rx.rx_s)
+        except Exception as exc:
+            self._internal("on_status", exc)
+
+    def on_host_status(self, rx: rt.Received) -> None:
+        """Realtime: another agent host's status batch (its own is ignored)."""
+        try:
+            self.rx["status"] += 1
+            if rx.key == self.status_key:
+                return
+            msg = decode(rx.payload, StatusBatch)
+            if isinstance(msg, DecodeError):
+                self._reject("status", msg)
+                return
+            for rid, mode in zip(msg.robots, msg.mode, strict=True):
+                self._note_mode(rid, mode == "tracking", rx.rx_s)
+        except Exception as exc:
+            self._internal("on_host_status", exc)
+
+    def _note_mode(self, rid: str, tracking: bool, rx_s: float) -> None:
+        if rid in self.nodes:
+            return
+        modes = self._status_modes
+        if rid not in modes and len(modes) >= MAX_TRACKED:
+            for old in [r for r, e in modes.items() if rx_s - float(e[1]) > NEIGHBOUR_STALE_S]:
+                del modes[old]
+            if len(modes) >= MAX_TRACKED:
+                return
+        modes[rid] = [tracking, rx_s]
+
     def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: every robot steps at t_k; one batch with ``tick: k`` answers."""
         try:
@@ -385,6 +456,7 @@ class HostNode:
                     self._publish(self.wheels_key, payload, self.wheels_qos)
                 return
             self.sim_t = t_k
+            self.tracking_ids = frozenset(msg.tracking or ())
             for e in self._pending.take():
                 if e.rx_s is None:
                     e.rx_s = t_k
@@ -439,6 +511,7 @@ class HostNode:
                 power_l=tuple(c.power_l for _, c in chunk),
                 pose_t=tuple(-1.0 if c.pose_t is None else c.pose_t for _, c in chunk),
                 tick=tick,
+                mode=tuple(str(c.mode) for _, c in chunk),
             )
         )
         self._publish(self.wheels_key, payload, self.wheels_qos)
@@ -458,6 +531,7 @@ class HostNode:
         for i in range(0, len(self.order), BATCH_CHUNK):
             ids = self.order[i : i + BATCH_CHUNK]
             sts = [self.nodes[r].firmware.status() for r in ids]
+            flts = [self.nodes[r].firmware.safety_filter.status() for r in ids]
             self._seq_status += 1
             out.append(
                 StatusBatch(
@@ -471,6 +545,10 @@ class HostNode:
                     rejected=tuple(s.rejected_count for s in sts),
                     ex=tuple(rt.finite_or_none(s.ex) or 0.0 for s in sts),
                     ey=tuple(rt.finite_or_none(s.ey) or 0.0 for s in sts),
+                    filter_active=tuple(f.active_ticks for f in flts),
+                    filter_violations=tuple(f.violations for f in flts),
+                    filter_infeasible=tuple(f.infeasible for f in flts),
+                    filter_tiebreaks=tuple(f.tiebreaks for f in flts),
                 )
             )
         return out
@@ -586,6 +664,9 @@ async def _node(
         if lockstep:
             io.subscribe(host.clock_key, host.on_clock)
         io.subscribe(host.poses_key, host.on_poses)
+        if not lockstep:  # the other robots' modes: cooperative neighbours
+            io.subscribe(keys.all_status_pattern(fleet), host.on_status)
+            io.subscribe(keys.all_host_status_pattern(fleet), host.on_host_status)
         for r in ids:
             io.declare_token(keys.alive_robot_key(fleet, r))
         print(f"agent-host {name} ready", flush=True)

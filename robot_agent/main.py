@@ -202,6 +202,9 @@ async def _node(
         io.subscribe(node.poses_key, node.on_poses)
         if lockstep:
             io.subscribe(node.clock_key, node.on_clock)
+        else:  # the other robots' modes: cooperative neighbours (robot_agent.neighbours)
+            io.subscribe(keys.all_status_pattern(setup.fleet), node.on_status)
+            io.subscribe(keys.all_host_status_pattern(setup.fleet), node.on_host_status)
         io.subscribe(node.pose_key, node.on_pose)
         io.declare_token(node.alive_key)
         print(f"agent {setup.robot_id} ready", flush=True)

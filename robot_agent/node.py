@@ -35,25 +35,28 @@ from bus_schemas import (
     RejectCounts,
     Setpoint,
     Status,
+    StatusBatch,
     Wheels,
     decode,
     encode,
     keys,
 )
+from bus_schemas.spec import POSITION_MAX_M
+from robot_agent.clocksync import ClockOffsets
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, ESTOP_REFRESH_S, EstopLatch
 from robot_agent.firmware import Firmware, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
 from robot_agent.lockstep import Arrivals, Replay, SetpointWindow
 from robot_agent.motors import MotorBackend, MotorStatus
+from robot_agent.neighbours import NEIGHBOUR_STALE_S, is_cooperative, is_current, neighbour
 from robot_agent.params import AgentConfig
+from robot_agent.safety_filter import Neighbour, SafetyFilterStatus
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
 __all__ = ["NEIGHBOUR_STALE_S", "AgentNode", "MotorOutput", "attach_estop_state"]
 
-NEIGHBOUR_STALE_S: Final = 1.0
-"""A neighbour's batched pose older than this (s, receive time) no longer repels."""
 MAX_NEIGHBOURS: Final = 1024
 """Distinct neighbour ids kept (a flood of made-up ids cannot grow memory without bound)."""
 LoopMode = Literal["on-pose", "fixed"]
@@ -83,6 +86,12 @@ class MotorOutput:
         self._cond = threading.Condition()
         self._pending: tuple[float, float, float, bool] | None = None
         self._closing = False
+        # encoder speeds (omega_r, omega_l) read after the last command, not yet taken
+        read = getattr(backend, "read_wheel_speeds", None)
+        self._read_speeds: Callable[[], tuple[float, float] | None] | None = (
+            read if callable(read) else None
+        )
+        self._speeds: tuple[float, float] | None = None
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
@@ -106,6 +115,27 @@ class MotorOutput:
                 self.superseded += 1
             self._pending = (omega_r, omega_l, now_s, zero)
             self._cond.notify()
+
+    @property
+    def has_encoders(self) -> bool:
+        """The backend has ``read_wheel_speeds()`` (the estimator gets measured speeds)."""
+        return self._read_speeds is not None
+
+    def take_wheel_speeds(self) -> tuple[float, float] | None:
+        """The encoder speeds read since the last call (rad/s), once; None if none (the
+        firmware's estimator then predicts from the commanded speeds). Inline backends are
+        read here; a threaded backend is read by its worker after each command."""
+        if self._read_speeds is None:
+            return None
+        if not self.threaded:
+            try:
+                return self._read_speeds()
+            except Exception:
+                self.faults += 1
+                return None
+        with self._cond:
+            got, self._speeds = self._speeds, None
+        return got
 
     def status(self) -> MotorStatus | None:
         """The backend's status snapshot, or None if it failed."""
@@ -148,6 +178,15 @@ class MotorOutput:
                 self._guard(self.backend.stop)
             else:
                 self._guard(self.backend.apply, omega_r, omega_l, now_s)
+            if self._read_speeds is not None:
+                try:
+                    speeds = self._read_speeds()
+                except Exception:
+                    self.faults += 1
+                    speeds = None
+                if speeds is not None:
+                    with self._cond:
+                        self._speeds = speeds
         self._guard(self.backend.close)
 
 
@@ -226,15 +265,26 @@ class AgentNode:
 
         self.pose: FwPose | None = None
         self.pose_rx_s = -math.inf
+        # capture time of self.pose on this node's clock (robot_agent.clocksync), for the
+        # estimator: the pose's t in lockstep (sim time), converted in realtime
+        self.pose_capture_s: float | None = None
+        self.clocks = ClockOffsets()  # realtime: one offset estimate per source key
         self._pose_pending = False  # lockstep: received since the last clock
         self.setpoint: _SetpointIn | None = None  # realtime: the newest
         self._setpoints: SetpointWindow[_SetpointIn] = SetpointWindow()  # lockstep
         self.role: str | None = None
-        # neighbour id -> [x_m, y_m, rx_s]; rx_s is None while pending (lockstep)
+        # neighbour id -> [x_m, y_m, theta_rad, capture_s, rx_s] (capture on this node's
+        # clock); rx_s is None while pending (lockstep)
         self._neighbours: dict[str, list[Any]] = {}
         self._pending_neighbours: Arrivals[str] = Arrivals()  # lockstep
+        # cooperative neighbours (robot_agent.neighbours rule 3): lockstep, the ids the clock
+        # relays; realtime, id -> [status said tracking, rx_s] from the status messages
+        self.tracking_ids: frozenset[str] = frozenset()
+        self._status_modes: dict[str, list[Any]] = {}
 
-        self.rx: dict[str, int] = {"pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0}
+        self.rx: dict[str, int] = {
+            "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
+        }  # fmt: skip
         self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
         # E-stop as latched fleet state (robot_agent.estop): the scopes this robot obeys, the
@@ -254,7 +304,7 @@ class AgentNode:
         # Agent host (robot_agent.host): the host publishes the wheels of all its robots in one
         # batch and answers neighbour queries from its shared spatial index.
         self.publish_wheels = True
-        self.neighbour_fn: Callable[[AgentNode, float], list[tuple[float, float]]] | None = None
+        self.neighbour_fn: Callable[[AgentNode, float], list[Neighbour]] | None = None
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -309,9 +359,12 @@ class AgentNode:
                 return
             self.pose = FwPose(msg.x, msg.y, msg.theta, msg.t)
             if self.lockstep:
+                self.pose_capture_s = msg.t  # sim time: one clock for every node
                 self._pose_pending = True
                 return
             self.pose_rx_s = rx.rx_s
+            pub_t = msg.t if msg.pub_t is None else msg.pub_t
+            self.pose_capture_s = self.clocks.capture_to_local(rx.key, pub_t, msg.t, rx.rx_s)
             if self.loop_mode == "on-pose":
                 self.step(time.monotonic())
         except Exception as exc:
@@ -352,7 +405,8 @@ class AgentNode:
             self.setpoint = _SetpointIn(sp, role, rx_s, None)
 
     def on_poses(self, rx: rt.Received) -> None:
-        """Batched poses: the other robots' positions, for repulsion."""
+        """Batched poses: the other robots' poses and capture times, for repulsion and the
+        safety filter (``robot_agent.neighbours``)."""
         try:
             self.rx["poses"] += 1
             msg = decode(rx.payload, PoseBatch)
@@ -362,7 +416,11 @@ class AgentNode:
             me = self.robot_id
             nb = self._neighbours
             rx_s: float | None = None if self.lockstep else rx.rx_s
-            for rid, x, y in zip(msg.robots, msg.x, msg.y, strict=True):
+            if self.lockstep:
+                cap = msg.stamp
+            else:
+                cap = self.clocks.capture_to_local(rx.key, msg.t, msg.stamp, rx.rx_s)
+            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
                 if rid == me:
                     continue
                 entry = nb.get(rid)
@@ -371,17 +429,73 @@ class AgentNode:
                         self._prune_neighbours()
                         if len(nb) >= MAX_NEIGHBOURS:
                             continue
-                    nb[rid] = [x, y, rx_s]
+                    nb[rid] = [x, y, th, cap, rx_s]
                 else:
                     entry[0] = x
                     entry[1] = y
-                    entry[2] = rx_s
+                    entry[2] = th
+                    entry[3] = cap
+                    entry[4] = rx_s
                 if rx_s is None:
                     self._pending_neighbours.add(rid)
             if len(self._pending_neighbours) > 4 * MAX_NEIGHBOURS:  # no clock for ages
                 self._pending_neighbours.compact()
         except Exception as exc:
             self._internal("on_poses", exc)
+
+    def on_status(self, rx: rt.Received) -> None:
+        """Realtime: another robot's status; its mode makes it cooperative while fresh."""
+        try:
+            self.rx["status"] += 1
+            parsed = keys.parse_robot_key(rx.key)
+            msg = decode(rx.payload, Status)
+            if isinstance(msg, DecodeError):
+                self._reject("status", msg)
+                return
+            if parsed is None or (msg.robot is not None and msg.robot != parsed[1]):
+                self._reject("status", f"robot {msg.robot!r} on key {rx.key[:100]!r}")
+                return
+            self.note_mode(parsed[1], msg.mode == "tracking", rx.rx_s)
+        except Exception as exc:
+            self._internal("on_status", exc)
+
+    def on_host_status(self, rx: rt.Received) -> None:
+        """Realtime: an agent host's status batch (each robot as its own status)."""
+        try:
+            self.rx["status"] += 1
+            msg = decode(rx.payload, StatusBatch)
+            if isinstance(msg, DecodeError):
+                self._reject("status", msg)
+                return
+            for rid, mode in zip(msg.robots, msg.mode, strict=True):
+                self.note_mode(rid, mode == "tracking", rx.rx_s)
+        except Exception as exc:
+            self._internal("on_host_status", exc)
+
+    def note_mode(self, rid: str, tracking: bool, rx_s: float) -> None:
+        """Realtime: robot ``rid`` said (``tracking``) at local time ``rx_s``."""
+        if rid == self.robot_id:
+            return
+        modes = self._status_modes
+        entry = modes.get(rid)
+        if entry is None:
+            if len(modes) >= MAX_NEIGHBOURS:
+                for old in [r for r, (_, t) in modes.items() if rx_s - t > NEIGHBOUR_STALE_S]:
+                    del modes[old]
+                if len(modes) >= MAX_NEIGHBOURS:
+                    return
+            modes[rid] = [tracking, rx_s]
+        else:
+            entry[0] = tracking
+            entry[1] = rx_s
+
+    def cooperative(self, rid: str, now_s: float) -> bool:
+        """Whether neighbour ``rid`` counts as cooperative at ``now_s`` (rule 3 of
+        ``robot_agent.neighbours``): relayed by the clock (lockstep) or a fresh status."""
+        if self.lockstep:
+            return rid in self.tracking_ids
+        entry = self._status_modes.get(rid)
+        return entry is not None and is_cooperative(now_s, entry[0], entry[1])
 
     def on_estop(self, rx: rt.Received) -> None:
         """Fleet or own estop: latch or release that scope (robot_agent.estop); the firmware is
@@ -447,6 +561,7 @@ class AgentNode:
             if again is not None:
                 self._publish(self.wheels_key, again, self.wheels_qos)  # re-announced clock
                 return
+            self.tracking_ids = frozenset(msg.tracking or ())
             self.clock_step(k, msg.t)
         except Exception as exc:
             self._internal("on_clock", exc)
@@ -463,8 +578,8 @@ class AgentNode:
                 nb = self._neighbours
                 for rid in self._pending_neighbours.take():
                     entry = nb.get(rid)
-                    if entry is not None and entry[2] is None:
-                        entry[2] = t_k
+                    if entry is not None and entry[4] is None:
+                        entry[4] = t_k
             self.setpoint = self._setpoints.for_clock(k)
             self._replay.last_tick = k
             return self.step(t_k, tick=k)
@@ -478,18 +593,20 @@ class AgentNode:
         now = self.sim_t if self.lockstep else time.monotonic()
         stale = [
             rid
-            for rid, (_, _, rx_s) in self._neighbours.items()
-            if rx_s is not None and now - rx_s > NEIGHBOUR_STALE_S
+            for rid, e in self._neighbours.items()
+            if e[4] is not None and now - e[4] > NEIGHBOUR_STALE_S
         ]
         for rid in stale:
             del self._neighbours[rid]
 
-    def neighbours(self, now_s: float) -> list[tuple[float, float]]:
-        """Positions (m) of the other robots seen within :data:`NEIGHBOUR_STALE_S` of ``now_s``."""
+    def neighbours(self, now_s: float) -> list[Neighbour]:
+        """The other robots whose poses were received within :data:`NEIGHBOUR_STALE_S` of
+        ``now_s``, as the safety filter sees them (``robot_agent.neighbours``)."""
+        coop = self.cooperative
         return [
-            (x, y)
-            for x, y, rx_s in self._neighbours.values()
-            if rx_s is not None and -NEIGHBOUR_STALE_S <= now_s - rx_s <= NEIGHBOUR_STALE_S
+            neighbour(x, y, th, cap, now_s, coop(rid, now_s))
+            for rid, (x, y, th, cap, rx_s) in self._neighbours.items()
+            if rx_s is not None and is_current(now_s, rx_s)
         ]
 
     def step(self, now_s: float, tick: int | None = None) -> WheelCommand | None:
@@ -507,6 +624,8 @@ class AgentNode:
                     if self.neighbour_fn is None
                     else self.neighbour_fn(self, now_s)
                 ),
+                pose_capture_s=self.pose_capture_s,
+                wheel_speeds=None if self.motor is None else self.motor.take_wheel_speeds(),
             )
             if sp is not None:
                 self.role = sp.role
@@ -529,6 +648,7 @@ class AgentNode:
                     pose_t=cmd.pose_t,
                     tick=tick,
                     saturated=cmd.saturated,
+                    mode=str(cmd.mode),
                 )
             )
             self._replay.answer = payload
@@ -542,6 +662,7 @@ class AgentNode:
         """The status message for ``now_s`` (s, this node's bus clock)."""
         st = self.firmware.status()
         self._seq_status += 1
+        flt = st.safety_filter
         return Status(
             t=max(now_s, 0.0),
             seq=self._seq_status,
@@ -556,6 +677,8 @@ class AgentNode:
             rx=dict(self.rx),
             robot=self.robot_id,
             rejects=self.rejects.as_dict(),
+            filter=None if flt is None else filter_counters(flt),
+            min_clearance_m=None if flt is None else _clearance(flt.min_clearance_m),
         )
 
     def publish_status(self) -> None:
@@ -578,6 +701,28 @@ class AgentNode:
         if not self.lockstep:
             self.stall.watch_sigcont()  # a late loop is no stop (runtime.stall)
         await run_timers(self, stop, notifier)
+
+
+def filter_counters(flt: SafetyFilterStatus) -> dict[str, int]:
+    """The safety filter's counters as the status message carries them (``Status.filter``)."""
+    return {
+        "ticks": flt.ticks,
+        "active": flt.active_ticks,
+        "violations": flt.violations,
+        "infeasible": flt.infeasible,
+        "tiebreaks": flt.tiebreaks,
+        "tiebreak_active": int(flt.tiebreak_active),
+        "rescaled": flt.rescaled,
+        "rejected": flt.rejected,
+        "constraints": flt.constraints,
+    }
+
+
+def _clearance(h: float) -> float | None:
+    """``Status.min_clearance_m``: nil while nothing was in range (inf), clamped to its bounds."""
+    if not math.isfinite(h):
+        return None
+    return max(-2.0 * POSITION_MAX_M, min(2.0 * POSITION_MAX_M, h))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -67,6 +67,7 @@ class PlantInputs:
     applied: npt.NDArray[np.float64]
     generation: list[int]
     answer_tick: list[int | None]
+    answer_tracking: list[bool]
     leader_tick: int | None
     bus_disturbances: deque[Disturbance]
     changed: asyncio.Event
@@ -147,7 +148,8 @@ class PlantInputs:
             if i is None:
                 self.ignored += 1
                 return
-            self._command(i, msg.omega_r, msg.omega_l, msg.tick, msg.pose_t, rx.rx_s)
+            tracking = msg.mode == "tracking"
+            self._command(i, msg.omega_r, msg.omega_l, msg.tick, msg.pose_t, rx.rx_s, tracking)
         except Exception as exc:
             self._internal("on_wheels", exc)
 
@@ -161,23 +163,35 @@ class PlantInputs:
                 return
             index = self.index
             rows = zip(msg.robots, msg.omega_r, msg.omega_l, msg.pose_t, strict=True)
-            for rid, wr, wl, pose_t in rows:
+            modes = msg.mode
+            for j, (rid, wr, wl, pose_t) in enumerate(rows):
                 i = index.get(rid)
                 if i is None:
                     self.ignored += 1
                     continue
-                self._command(i, wr, wl, msg.tick, pose_t if pose_t >= 0.0 else None, rx.rx_s)
+                tracking = modes is not None and modes[j] == "tracking"
+                p_t = pose_t if pose_t >= 0.0 else None
+                self._command(i, wr, wl, msg.tick, p_t, rx.rx_s, tracking)
         except Exception as exc:
             self._internal("on_host_wheels", exc)
 
     def _command(
-        self, i: int, wr: float, wl: float, tick: int | None, pose_t: float | None, rx_s: float
+        self,
+        i: int,
+        wr: float,
+        wl: float,
+        tick: int | None,
+        pose_t: float | None,
+        rx_s: float,
+        tracking: bool = False,
     ) -> None:
-        """Robot ``i``'s command: into the link now (realtime) or at the tick's end (lockstep)."""
+        """Robot ``i``'s command: into the link now (realtime) or at the tick's end (lockstep);
+        ``tracking``: the command said mode TRACKING (relayed in the next clock)."""
         self.last_cmd[i] = (wr, wl)
         if self.lockstep:
             if tick is not None:
                 self.answer_tick[i] = tick
+                self.answer_tracking[i] = tracking
                 if tick == self.tick:
                     self.changed.set()
         elif self.sim is not None:

@@ -33,6 +33,7 @@ import numpy.typing as npt
 import runtime as rt
 from bus_schemas import (
     BATCH_CHUNK,
+    MAX_LIST_LEN,
     Clock,
     Disturbance,
     Pose,
@@ -123,6 +124,9 @@ class PlantNode(PlantInputs):
         self.applied: npt.NDArray[np.float64] = np.zeros((self.n, 2))
         self.generation = [0] * self.n
         self.answer_tick: list[int | None] = [None] * self.n
+        # lockstep: the answer's mode was TRACKING (Wheels.mode); relayed in the next clock
+        self.answer_tracking: list[bool] = [False] * self.n
+        self.clock_tracking: tuple[str, ...] = ()  # what the current clock carries
         self.leader_tick: int | None = None
         self.scheduled = deque(scenario.disturbances)
         self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
@@ -245,7 +249,15 @@ class PlantNode(PlantInputs):
             return  # agent hosts and a --batch coordinator read the batches only
         for i, _, x, y, theta in rows:
             key = self.pose_keys[i]
-            msg = Pose(t=stamp, seq=self._next_seq(key), x=x, y=y, theta=theta, robot=self.ids[i])
+            msg = Pose(
+                t=stamp,
+                seq=self._next_seq(key),
+                x=x,
+                y=y,
+                theta=theta,
+                robot=self.ids[i],
+                pub_t=max(t_s, 0.0),
+            )
             self._publish(key, encode(msg), self.data_qos)
 
     def _frame_published(self, stamp: float, due_s: float) -> None:
@@ -311,8 +323,17 @@ class PlantNode(PlantInputs):
                 return False
         return not self.coordinators or self.leader_tick == k
 
+    def tracking_answers(self, k: int) -> tuple[str, ...]:
+        """The robots whose answer to tick ``k`` said TRACKING (in robot order), what clock
+        ``k + 1`` relays so every agent knows which neighbours were cooperative
+        (``robot_agent.neighbours``, rule 3); at most a list's bound."""
+        tick = self.answer_tick
+        tr = self.answer_tracking
+        out = tuple(rid for i, rid in enumerate(self.ids) if tr[i] and tick[i] == k)
+        return out[:MAX_LIST_LEN]
+
     def _publish_clock(self, k: int, t_s: float) -> None:
-        msg = Clock(t=t_s, seq=self._next_seq(self.clock_key), tick=k)
+        msg = Clock(t=t_s, seq=self._next_seq(self.clock_key), tick=k, tracking=self.clock_tracking)
         self._publish(self.clock_key, encode(msg), rt.QOS_CRITICAL)
 
     async def _wait_answers(self, stop: asyncio.Event, k: int, t_s: float) -> None:
@@ -357,6 +378,7 @@ class PlantNode(PlantInputs):
                 self.sim_t = t
                 self._apply_disturbances(sim, t)
                 truth = self.sense(sim, t)
+                self.clock_tracking = self.tracking_answers(k - 1)
                 self._publish_clock(k, t)
                 await self._wait_answers(stop, k, t)
                 if stop.is_set():

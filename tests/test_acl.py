@@ -120,15 +120,18 @@ EXPECT_TOKEN: dict[str, set[str]] = {
 }
 # What each identity may read (subscribe to and be delivered).
 _ALL_POSES = {*(_f(f"robot/{r}/pose") for r in ROBOTS), _f("poses")}
+# every status: robots and hosts learn which neighbours are TRACKING (cooperative)
+_ALL_STATUS = {*(_f(f"robot/{r}/status") for r in ROBOTS), _f("host/h1/status")}
 EXPECT_READ: dict[str, set[str]] = {
     "robot.r1": {
         _f("robot/r1/setpoint"),
         _f("setpoints"),
         *_ALL_POSES,
+        *_ALL_STATUS,
         _f("estop"),
         _f("clock"),
     },
-    "host.h1": {_f("setpoints"), _f("poses"), _f("estop"), _f("clock")},
+    "host.h1": {_f("setpoints"), _f("poses"), *_ALL_STATUS, _f("estop"), _f("clock")},
     "coordinator.main": {
         *_ALL_POSES,
         *(_f(f"robot/{r}/status") for r in ROBOTS),

@@ -96,7 +96,7 @@ def test_spatial_hash_neighbours_equal_the_full_list_within_d0() -> None:
     host.on_poses(_rx(keys.poses_key(FLEET), _frame(ids, xy)))
     now = time.monotonic()
     for j, rid in enumerate(ids[:50]):
-        got = host._neighbours_of(host.nodes[rid], now)
+        got = [(n.x, n.y) for n in host._neighbours_of(host.nodes[rid], now)]
         # what `formation agent` passes: every other robot, frame order; the firmware ignores
         # those beyond d0 and the safety filter's range, so the host may leave them out but
         # must keep the order

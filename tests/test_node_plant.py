@@ -12,6 +12,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
+from typing import Any
 
 import msgpack
 import pytest
@@ -225,29 +226,34 @@ def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
     del tokens
 
 
-def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> None:
-    """Plant, coordinator and agents wired through an in-memory bus (every message encoded and
-    decoded, delivered in publication order, as Zenoh does within one priority) run the lockstep
-    protocol; the wheel commands and the truth equal ``formation.simulate.run``'s exactly. (The
-    same holds over a real router: ``formation up --lockstep``.)"""
+def _lockstep_equals_simulate(
+    scenario: Any, duration: float, *, hosts: bool = False
+) -> dict[str, Any]:
+    """Plant, coordinator and agents (or one agent host) wired through an in-memory bus (every
+    message encoded and decoded, delivered in publication order, as Zenoh does within one
+    priority) run the lockstep protocol; asserts the wheel commands and the truth equal
+    ``formation.simulate.run``'s exactly. Returns what the test may look at further."""
     import asyncio
 
-    from bus_schemas import decode
+    from bus_schemas import TruthBatch, WheelsBatch, decode
     from coordinator.node import CoordinatorNode
     from formation.simulate import run
+    from robot_agent.host import HostNode
     from robot_agent.node import AgentNode
     from sim_plant.node import PlantNode
 
-    # The scenario's drag comes at 30 s; one at 0.3 s exercises the scheduled disturbances.
-    drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
-    scenario = SCENARIO.with_overrides(disturbances=(drag,))
-    duration = 1.0
     routes: list[tuple[Callable[[str], bool], Callable[[rt.Received], None]]] = []
     wheels: dict[tuple[int, str], tuple[float, float]] = {}
     truth: dict[tuple[float, str], tuple[float, float, float]] = {}
+    clocks: list[Clock] = []
 
     def publish(key: str, payload: bytes, qos: rt.QoS) -> None:
-        if key.endswith("/wheels"):
+        if key.endswith("/wheels") and "/host/" in key:
+            b = decode(payload, WheelsBatch)
+            assert isinstance(b, WheelsBatch) and b.tick is not None
+            for rid, pr, pl in zip(b.robots, b.power_r, b.power_l, strict=True):
+                wheels[(b.tick, rid)] = (pr, pl)
+        elif key.endswith("/wheels"):
             w = decode(payload, Wheels)
             assert isinstance(w, Wheels) and w.tick is not None
             wheels[(w.tick, key.split("/")[3])] = (w.power_r, w.power_l)
@@ -255,25 +261,44 @@ def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> No
             tr = decode(payload, Truth)
             assert isinstance(tr, Truth) and tr.robot is not None
             truth[(tr.t, tr.robot)] = (tr.x, tr.y, tr.theta)
+        elif key == keys.truths_key(FLEET):
+            tb = decode(payload, TruthBatch)
+            assert isinstance(tb, TruthBatch)
+            for rid, x, y, th in zip(tb.robots, tb.x, tb.y, tb.theta, strict=True):
+                truth[(tb.stamp, rid)] = (x, y, th)
+        elif key.endswith("/clock"):
+            c = decode(payload, Clock)
+            assert isinstance(c, Clock)
+            clocks.append(c)
         for match, handler in routes:
             if match(key):
                 handler(rt.Received(key, payload, time.monotonic()))
 
-    plant = PlantNode(scenario, FLEET, publish, lockstep=True, duration_s=duration)
-    coord = CoordinatorNode(scenario, "main", FLEET, publish, lockstep=True)
-    agents = [AgentNode(r, FLEET, scenario.agent, publish, lockstep=True) for r in plant.ids]
-    routes.append((lambda k: k.endswith("/wheels"), plant.on_wheels))
+    plant = PlantNode(scenario, FLEET, publish, lockstep=True, duration_s=duration, batch=hosts)
+    coord = CoordinatorNode(scenario, "main", FLEET, publish, lockstep=True, batch=hosts)
+    if hosts:
+        host = HostNode("h1", plant.ids, FLEET, scenario.agent, publish, lockstep=True)
+        routes.append((lambda k: k.endswith("/wheels") and "/host/" in k, plant.on_host_wheels))
+        routes.append((host.setpoints_key.__eq__, host.on_setpoints))
+        routes.append((host.poses_key.__eq__, host.on_poses))
+        routes.append((host.clock_key.__eq__, host.on_clock))
+    else:
+        agents = [AgentNode(r, FLEET, scenario.agent, publish, lockstep=True) for r in plant.ids]
+        routes.append((lambda k: k.endswith("/wheels"), plant.on_wheels))
+        for a in agents:
+            for key, handler in (
+                (a.setpoint_key, a.on_setpoint),
+                (a.poses_key, a.on_poses),
+                (a.pose_key, a.on_pose),
+                (a.clock_key, a.on_clock),
+            ):
+                routes.append((key.__eq__, handler))
     routes.append((lambda k: k == plant.leader_key, plant.on_leader))
-    routes.append((lambda k: k.endswith("/pose"), coord.on_pose))
+    if hosts:
+        routes.append((lambda k: k == plant.poses_key, coord.on_poses))
+    else:
+        routes.append((lambda k: k.endswith("/pose"), coord.on_pose))
     routes.append((lambda k: k == coord.clock_key, coord.on_clock))
-    for a in agents:
-        for key, handler in (
-            (a.setpoint_key, a.on_setpoint),
-            (a.poses_key, a.on_poses),
-            (a.pose_key, a.on_pose),
-            (a.clock_key, a.on_clock),
-        ):
-            routes.append((key.__eq__, handler))
     for rid in plant.ids:
         plant.on_alive_robot(keys.alive_robot_key(FLEET, rid), True)
         coord.on_alive(keys.alive_robot_key(FLEET, rid), True)
@@ -282,7 +307,8 @@ def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> No
     assert asyncio.run(plant.run_lockstep(asyncio.Event())) is True
     assert plant.timeouts == 0 and plant.rejected == coord.rejected == 0
 
-    log = run(scenario, duration_s=duration).log
+    res = run(scenario, duration_s=duration)
+    log = res.log
     ticks = round(duration / scenario.dt_s) + 1
     assert len(wheels) == ticks * len(plant.ids)
     for (k, rid), power in wheels.items():
@@ -292,3 +318,42 @@ def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> No
     for (t, rid), pose in truth.items():
         k, j = round(t / scenario.dt_s), plant.ids.index(rid)
         assert pose == tuple(log.truth[k, j]), (t, rid)
+    return {"clocks": clocks, "result": res, "ids": plant.ids}
+
+
+def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> None:
+    """The lockstep protocol over the shells equals ``formation.simulate.run`` exactly. (The
+    same holds over a real router: ``formation up --lockstep``.) The clocks relay which robots
+    were TRACKING on the previous tick (the safety filter's cooperative neighbours)."""
+    # The scenario's drag comes at 30 s; one at 0.3 s exercises the scheduled disturbances.
+    drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
+    scenario = SCENARIO.with_overrides(disturbances=(drag,))
+    got = _lockstep_equals_simulate(scenario, 1.0)
+    relayed = [c.tracking for c in got["clocks"]]
+    assert relayed[0] == ()  # nobody answered a tick before clock 0
+    assert any(set(r or ()) == set(got["ids"]) for r in relayed)  # everyone tracking later
+
+
+def test_lockstep_equals_the_simulator_with_the_estimator_and_camera_latency() -> None:
+    """With the estimator on, 60 ms of camera latency and a camera loss, the shells still equal
+    the in-process simulator bit for bit: pose capture times (the estimator's input) and the
+    pose uncertainty handed to the safety filter follow one rule in both runtimes."""
+    from robot_agent.params import EstimatorParams
+
+    agent = replace(SCENARIO.agent, estimator=replace(EstimatorParams(), enabled=True))
+    loss = ScheduledDisturbance(t_s=0.4, robot="r2", kind="camera_loss", duration_s=0.3)
+    drag = ScheduledDisturbance(t_s=0.2, robot="r1", kind="drag", dx=-0.15, duration_s=0.4)
+    scenario = SCENARIO.with_overrides(
+        agent=agent,
+        camera=replace(SCENARIO.camera, latency_s=0.06),
+        disturbances=(drag, loss),
+    )
+    got = _lockstep_equals_simulate(scenario, 1.2)
+    status = got["result"].firmware_status
+    assert all(s["mode"] == "tracking" for s in status.values()), status  # rode through
+
+
+def test_lockstep_agent_host_equals_the_simulator_bit_for_bit() -> None:
+    """The same with one agent host running every robot (batched poses, setpoints, wheels)."""
+    drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
+    _lockstep_equals_simulate(SCENARIO.with_overrides(disturbances=(drag,)), 1.0, hosts=True)

@@ -107,7 +107,7 @@ SAMPLES: dict[type, Any] = {
         vy=0.0,
     ),
     Assignment: Assignment(t=1.0, seq=4, leader="r1", robots={"r1": 0, "r2": 1, "r3": 2}),
-    Pose: Pose(t=1.0, seq=5, x=0.1, y=0.2, theta=3.0, robot="r1"),
+    Pose: Pose(t=1.0, seq=5, x=0.1, y=0.2, theta=3.0, robot="r1", pub_t=1.03),
     Truth: Truth(t=1.0, seq=6, x=0.1, y=0.2, theta=-3.0, robot="r1"),
     Wheels: Wheels(
         t=1.0,
@@ -119,6 +119,7 @@ SAMPLES: dict[type, Any] = {
         pose_t=0.98,
         tick=99,
         saturated=False,
+        mode="tracking",
     ),
     Status: Status(
         t=1.0,
@@ -133,9 +134,11 @@ SAMPLES: dict[type, Any] = {
         role="follower",
         rx={"pose": 10, "setpoint": 9},
         robot="r2",
+        filter={"ticks": 10, "active": 2},
+        min_clearance_m=0.05,
     ),
     Estop: Estop(t=1.0, engage=True, robot="r3"),
-    Clock: Clock(t=1.0, seq=9, tick=100),
+    Clock: Clock(t=1.0, seq=9, tick=100, tracking=("r1", "r2")),
     Disturbance: Disturbance(
         t=1.0,
         robot="r1",
@@ -184,6 +187,7 @@ SAMPLES: dict[type, Any] = {
         power_l=(-0.5, 0.1),
         pose_t=(0.98, -1.0),
         tick=7,
+        mode=("tracking", "hold"),
     ),
     StatusBatch: StatusBatch(
         t=1.0,
@@ -196,6 +200,10 @@ SAMPLES: dict[type, Any] = {
         rejected=(0, 3),
         ex=(0.01, 0.0),
         ey=(-0.02, 0.0),
+        filter_active=(5, 0),
+        filter_violations=(0, 0),
+        filter_infeasible=(1, 0),
+        filter_tiebreaks=(0, 2),
     ),
 }
 
