@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import json
 import math
+import os
 import sys
 import threading
 import time
@@ -220,11 +221,18 @@ async def _boot(
     motor: MotorOutput | None = None
     try:
         if setup.motor is not None:
+            port = getattr(getattr(setup.motor, "config", None), "port", None)
+            if isinstance(port, str) and not os.path.exists(port):
+                log.info(
+                    f"motor backend {setup.motor.name}: serial port {port} does not exist "
+                    "(controller unplugged or powered off? udev rule not installed? "
+                    "[motor] port in the robot config)"
+                )
+                return EX_NO_MOTOR
             if not setup.motor.open():
-                port = getattr(getattr(setup.motor, "config", None), "port", None)
                 reason = setup.motor.status().last_error or "no answer"
-                where = f" serial port {port}" if port else ""
-                log.info(f"motor backend {setup.motor.name}: cannot open{where}: {reason}")
+                where = f" on serial port {port}" if port else ""
+                log.info(f"motor backend {setup.motor.name}: no controller{where}: {reason}")
                 return EX_NO_MOTOR
             setup.motor.stop()  # hold zero (open already did; say it again, it is cheap)
             motor = MotorOutput(setup.motor)
