@@ -249,12 +249,19 @@ async def _boot(
         if session is None:
             notifier.stopping()
             return 0
-        io = rt.NodeIO(session, asyncio.get_running_loop(), rt.Publishers(session), log,
-                       setup.settings)
+        io = rt.NodeIO(
+            session, asyncio.get_running_loop(), rt.Publishers(session), log, setup.settings
+        )
         try:
             return await _node(
-                io, stop, setup, notifier, motor,
-                lockstep=lockstep, loop_mode=loop_mode, rate_hz=rate_hz,
+                io,
+                stop,
+                setup,
+                notifier,
+                motor,
+                lockstep=lockstep,
+                loop_mode=loop_mode,
+                rate_hz=rate_hz,
             )
         finally:
             io.close()
@@ -282,10 +289,8 @@ async def _connect(
 
     def worker() -> None:
         try:
-            result: object = rt.open_session(
-                settings, timeout_s=math.inf
-            )
-        except BaseException as exc:  # noqa: BLE001  (handed over to the loop)
+            result: object = rt.open_session(settings, timeout_s=math.inf)
+        except BaseException as exc:
             result = exc
         with contextlib.suppress(RuntimeError):  # the loop is closed: nobody waits any more
             loop.call_soon_threadsafe(_settle, opened, result)
@@ -318,14 +323,14 @@ async def _connect(
 
 
 def _settle(fut: asyncio.Future[Any], result: object) -> None:
-    if fut.done():
-        if isinstance(result, zenoh.Session):
-            result.close()
-        return
+    """On the loop: hand the opened session (or the error) to ``_connect``."""
     if isinstance(result, BaseException):
-        fut.set_exception(result)
+        if not fut.done():
+            fut.set_exception(result)
+    elif fut.done():
+        result.close()  # type: ignore[attr-defined]  # opened after the stop: close it
     else:
-        fut.set_result(result)  # type: ignore[arg-type]
+        fut.set_result(result)
 
 
 async def _node(

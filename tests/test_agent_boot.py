@@ -11,6 +11,7 @@ datagram socket of the test passed as $NOTIFY_SOCKET.
 
 from __future__ import annotations
 
+import json
 import signal
 import socket
 import threading
@@ -90,12 +91,18 @@ def write_config(tmp_path: Path, port: str, zenoh_port: int) -> Path:
     """A robot config like the shipped one: a Zenoh config file that retries forever
     (``timeout_ms: -1``, as deploy/zenoh/robot-mtls.json5, without TLS) and a RoboClaw."""
     zconf = tmp_path / "robot.json5"
-    zconf.write_text(
-        '{"mode": "client", "connect": {"endpoints": ["tcp/127.0.0.1:%d"], "timeout_ms": -1,'
-        ' "exit_on_failure": false, "retry": {"period_init_ms": 100, "period_max_ms": 500,'
-        ' "period_increase_factor": 2}}, "scouting": {"multicast": {"enabled": false}},'
-        ' "transport": {"link": {"tx": {"lease": 700, "keep_alive": 4}}}}' % zenoh_port
-    )
+    conf = {
+        "mode": "client",
+        "connect": {
+            "endpoints": [f"tcp/127.0.0.1:{zenoh_port}"],
+            "timeout_ms": -1,
+            "exit_on_failure": False,
+            "retry": {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2},
+        },
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tx": {"lease": 700, "keep_alive": 4}}},
+    }
+    zconf.write_text(json.dumps(conf))
     path = tmp_path / "r1.toml"
     path.write_text(
         'robot_id = "r1"\n'

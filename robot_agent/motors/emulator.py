@@ -31,10 +31,10 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import signal
-import sys
 import select
+import signal
 import struct
+import sys
 import threading
 import time
 import tty
