@@ -533,11 +533,12 @@ def deploy_configs(
     """File name -> JSON5 text of the configs shipped in deploy/zenoh/.
 
     ``router-mtls.json5`` (the fleet router, ACL of every identity), then one client config per
-    kind (and ``coordinator-<name>-mtls.json5`` per coordinator instance): ``robot-mtls.json5`` (a robot holds one identity: its files are directly in
+    kind: ``robot-mtls.json5`` (a robot holds one identity: its files are directly in
     ``<cert_root>/``), ``coordinator-mtls.json5``, ``localization-mtls.json5``,
     ``operator-mtls.json5``, ``observer-mtls.json5`` (the coordinator host holds several: each
-    reads its files from ``<cert_root>/<cn>/``, for the first identity of that kind), and
-    ``client.json5`` (no TLS, for a trusted lab network only)."""
+    reads its files from ``<cert_root>/<cn>/``, for the first identity of that kind), one
+    ``coordinator-<name>-mtls.json5`` per coordinator instance, and ``client.json5`` (no TLS,
+    for a trusted lab network only)."""
     names = ", ".join(i.cn for i in identities)
     router = router_config(
         identities, tls_files(cert_root, "router"), fleet=fleet, listen=(f"tls/0.0.0.0:{port}",)

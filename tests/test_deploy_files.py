@@ -287,9 +287,7 @@ def test_udev_parser_rejects_broken_rules() -> None:
 # ---------------------------------------------------------------------- zenoh and certs
 
 
-@pytest.mark.parametrize(
-    "name", sorted(p.name for p in (DEPLOY / "zenoh").glob("*.json5"))
-)
+@pytest.mark.parametrize("name", sorted(p.name for p in (DEPLOY / "zenoh").glob("*.json5")))
 def test_zenoh_configs_parse_with_the_installed_zenoh(name: str) -> None:
     zenoh = pytest.importorskip("zenoh")
     conf = zenoh.Config.from_file(str(DEPLOY / "zenoh" / name))  # strict: unknown keys fail
