@@ -179,6 +179,8 @@ restart it (RestartPreventExitStatus=78)."""
 EX_NO_MOTOR: Final = 69
 """Exit status when the motor backend cannot be opened (EX_UNAVAILABLE): systemd restarts the
 unit after RestartSec (a USB controller may be powered after the board)."""
+SESSION_CLOSE_S: Final = 0.3
+"""How long the agent waits for its Zenoh session to close at exit before leaving without it."""
 HOLD_PERIOD_S: Final = 0.1
 """While Zenoh is not connected yet, the wheels are commanded to zero this often."""
 
@@ -252,8 +254,9 @@ async def _boot(
         io = rt.NodeIO(
             session, asyncio.get_running_loop(), rt.Publishers(session), log, setup.settings
         )
+        status = 1
         try:
-            return await _node(
+            status = await _node(
                 io,
                 stop,
                 setup,
@@ -263,9 +266,22 @@ async def _boot(
                 loop_mode=loop_mode,
                 rate_hz=rate_hz,
             )
+            return status
         finally:
-            io.close()
-            session.close()
+            # Wheels to zero and the port released first, then the session: closing it can
+            # block while the router is unreachable (measured: > 1 s with the link down).
+            if motor is not None:
+                motor.close()
+                motor = None
+            if not _close_within(io, session, SESSION_CLOSE_S):
+                log.info(
+                    f"Zenoh session close still blocked after {SESSION_CLOSE_S:g} s (router "
+                    "unreachable?); wheels are at zero, exiting without it"
+                )
+                notifier.stopping()
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(status)
     finally:
         if motor is not None:
             motor.close()
@@ -320,6 +336,20 @@ async def _connect(
         return None
     log.info(f"connected to Zenoh at {where} after {time.monotonic() - started:.1f} s")
     return session
+
+
+def _close_within(io: rt.NodeIO, session: Any, timeout_s: float) -> bool:
+    """Drop ``io``'s declarations and close ``session`` in a daemon thread; True if that
+    finished within ``timeout_s``."""
+
+    def close() -> None:
+        io.close()
+        session.close()
+
+    thread = threading.Thread(target=close, name="zenoh-close", daemon=True)
+    thread.start()
+    thread.join(timeout_s)
+    return not thread.is_alive()
 
 
 def _settle(fut: asyncio.Future[Any], result: object) -> None:
