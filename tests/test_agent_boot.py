@@ -12,6 +12,7 @@ datagram socket of the test passed as $NOTIFY_SOCKET.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import socket
 import threading
@@ -190,3 +191,40 @@ def test_missing_serial_port_is_an_error_naming_it(
     assert agent.proc.returncode == 69, agent.describe()
     assert f"serial port {missing} does not exist" in agent.stderr(), agent.describe()
     assert not systemd.times("READY=1")  # never READY without motors at zero
+
+
+def test_motor_emulator_command(spawn: Spawner, tmp_path: Path) -> None:
+    """``formation motor-emulator --link PATH``: a RoboClaw the backend opens by that path."""
+    from robot_agent.motors import RoboClawBackend, RoboClawConfig
+
+    link = tmp_path / "roboclaw"
+    emu = spawn("motor-emulator", "--link", str(link), ready="roboclaw emulator at address 0x80")
+    assert link.is_symlink() and os.readlink(link).startswith("/dev/pts/")
+    backend = RoboClawBackend(RoboClawConfig(port=str(link), mode="duty"), 10.0)
+    try:
+        assert backend.open(), backend.status().last_error
+        assert backend.apply(5.0, 5.0, 0.0)
+        line = emu.wait_for_line("mode duty m1 ", timeout_s=5.0)
+        assert int(line.split()[3]) > 0, line
+    finally:
+        backend.close()
+    elapsed = emu.stop(signal.SIGTERM, timeout_s=3.0)
+    assert elapsed < 1.0 and emu.proc.returncode == 0, emu.describe()
+    assert not link.exists() and not link.is_symlink()
+
+
+def test_missing_extra_names_the_extra(spawn: Spawner) -> None:
+    """`formation record` in a robot venv (no mcap): the message names the extra to install."""
+    from formation.cli import missing_extra_message
+
+    code = (
+        "import sys; sys.modules['mcap'] = None; from formation.cli import main; "
+        "sys.exit(main(['record', '--out', 'x.mcap']))"
+    )
+    child = spawn.python(code)
+    child.proc.wait(timeout=30.0)
+    assert child.proc.returncode == 2, child.describe()
+    assert "formation record: needs the sim extra" in child.stderr(), child.describe()
+    assert "pip install 'formation-control[sim]'" in child.stderr()
+    assert "camera extra" in missing_extra_message(ModuleNotFoundError("x", name="cv2"))
+    assert "not available" in missing_extra_message(ModuleNotFoundError("x", name="nothing"))
