@@ -228,3 +228,29 @@ def test_missing_extra_names_the_extra(spawn: Spawner) -> None:
     assert "pip install 'formation-control[sim]'" in child.stderr()
     assert "camera extra" in missing_extra_message(ModuleNotFoundError("x", name="cv2"))
     assert "not available" in missing_extra_message(ModuleNotFoundError("x", name="nothing"))
+
+
+def test_router_and_coordinator_notify_systemd(spawn: Spawner, tmp_path: Path) -> None:
+    """The coordinator host's units are Type=notify with a watchdog: READY when ready,
+    WATCHDOG from the event loop, STOPPING at SIGTERM (the router and a coordinator here)."""
+    fleet = Path(__file__).resolve().parents[1] / "deploy" / "config" / "fleet.example.toml"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    fakes = {name: FakeSystemd(tmp_path / f"{name}.sock") for name in ("router", "coord")}
+    try:
+        router = spawn("router", "--listen", endpoint, env=fakes["router"].env(),
+                       ready=ROUTER_READY)  # fmt: skip
+        coord = spawn("coordinator", "--fleet-file", str(fleet), "--endpoint", endpoint,
+                      env=fakes["coord"].env(), ready="coordinator ready")  # fmt: skip
+        for fake in fakes.values():
+            ready_t = fake.wait("READY=1")
+            time.sleep(0.1)
+            fake.wait("WATCHDOG=1")
+            time.sleep(0.6)
+            assert len([t for t in fake.times("WATCHDOG=1") if t >= ready_t]) >= 2
+        for child, fake in ((coord, fakes["coord"]), (router, fakes["router"])):
+            assert child.stop(signal.SIGTERM, timeout_s=3.0) < 1.0, child.describe()
+            assert child.proc.returncode == 0, child.describe()
+            assert fake.times("STOPPING=1"), fake.messages
+    finally:
+        for fake in fakes.values():
+            fake.close()
