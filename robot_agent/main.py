@@ -181,6 +181,10 @@ EX_NO_MOTOR: Final = 69
 unit after RestartSec (a USB controller may be powered after the board)."""
 SESSION_CLOSE_S: Final = 0.3
 """How long the agent waits for its Zenoh session to close at exit before leaving without it."""
+MOTOR_OPEN_ATTEMPTS: Final = 5
+MOTOR_OPEN_RETRY_S: Final = 0.2
+"""The motor backend is opened up to this many times, this far apart, before the agent gives up
+(exit 69; systemd restarts it): the controller must confirm the zero command before READY."""
 HOLD_PERIOD_S: Final = 0.1
 """While Zenoh is not connected yet, the wheels are commanded to zero this often."""
 
@@ -231,11 +235,17 @@ async def _boot(
                     "[motor] port in the robot config)"
                 )
                 return EX_NO_MOTOR
-            if not setup.motor.open():
+            opened = setup.motor.open()
+            for _ in range(MOTOR_OPEN_ATTEMPTS - 1):
+                if opened or stop.is_set():
+                    break
+                await asyncio.sleep(MOTOR_OPEN_RETRY_S)  # a busy board may miss one answer
+                opened = setup.motor.open()
+            if not opened:
                 reason = setup.motor.status().last_error or "no answer"
                 where = f" on serial port {port}" if port else ""
                 log.info(f"motor backend {setup.motor.name}: no controller{where}: {reason}")
-                return EX_NO_MOTOR
+                return EX_NO_MOTOR if not stop.is_set() else 0
             setup.motor.stop()  # hold zero (open already did; say it again, it is cheap)
             motor = MotorOutput(setup.motor)
             motor.start()
