@@ -188,8 +188,13 @@ def fleet_file(out: Path) -> Path:
     return path
 
 
+READY_S = 60.0  # python + numpy imports on a loaded 2-core machine (load ~30 measured)
+
+
 def in_ns(spawn: Spawner, ns: str, *argv: str, ready: str | None = None) -> Child:
-    return spawn.command(["ip", "netns", "exec", ns, sys.executable, *argv], ready=ready)
+    return spawn.command(
+        ["ip", "netns", "exec", ns, sys.executable, *argv], ready=ready, timeout_s=READY_S
+    )
 
 
 def formation_in_ns(
@@ -335,11 +340,11 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
     main = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
                  "--name", "main", "--zenoh-config",
                  str(hub_conf("coordinator-main-mtls.json5")))  # fmt: skip
-    main.wait_for_line("coordinator ready")
+    main.wait_for_line("coordinator ready", timeout_s=READY_S)
     standby = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
                     "--name", "standby", "--standby", "--zenoh-config",
                     str(hub_conf("coordinator-standby-mtls.json5")))  # fmt: skip
-    standby.wait_for_line("coordinator ready")
+    standby.wait_for_line("coordinator ready", timeout_s=READY_S)
 
     agents: dict[str, Child] = {}
     for robot in ROBOTS:
@@ -356,7 +361,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         agents[robot] = in_ns(spawn, net.hosts[robot], "-m", "formation", "agent",
                               "--config", str(cfg))  # fmt: skip
     for robot, child in agents.items():
-        child.wait_for_line(f"agent {robot} ready", timeout_s=20.0)
+        child.wait_for_line(f"agent {robot} ready", timeout_s=READY_S)
 
     obs = Observer(shipped_zenoh("observer-mtls.json5", certs, net.observer_addr, conf))
     try:
@@ -400,7 +405,8 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         for r, xs in obs.positions(t_kill).items():
             lowest = min(x for _, x in xs)
             assert lowest > pos_before[r] - BACKWARDS_TOL_M, (r, pos_before[r], lowest)
-        assert tracking(obs, set(ROBOTS), time.monotonic() - 1.0)
+        until(lambda: tracking(obs, set(ROBOTS), time.monotonic() - 1.0), 5.0,
+              "every robot tracking after the takeover")  # fmt: skip
 
         # ---- 3. robot host 3 loses its link: the fleet re-forms with r1 and r2
         t_cut = time.monotonic()
