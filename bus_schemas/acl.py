@@ -537,8 +537,9 @@ def deploy_configs(
     kind: ``robot-mtls.json5`` (a robot holds one identity: its files are directly in
     ``<cert_root>/``), ``coordinator-mtls.json5``, ``localization-mtls.json5``,
     ``operator-mtls.json5``, ``observer-mtls.json5`` (the coordinator host holds several: each
-    reads its files from ``<cert_root>/<cn>/``, for the first identity of that kind), and
-    ``client.json5`` (no TLS, for a trusted lab network only)."""
+    reads its files from ``<cert_root>/<cn>/``, for the first identity of that kind), one
+    ``coordinator-<name>-mtls.json5`` per coordinator instance, and ``client.json5`` (no TLS,
+    for a trusted lab network only)."""
     names = ", ".join(i.cn for i in identities)
     router = router_config(
         identities, tls_files(cert_root, "router"), fleet=fleet, listen=(f"tls/0.0.0.0:{port}",)
@@ -576,6 +577,19 @@ def deploy_configs(
             f"Change {router_host!r} to the router host's name (it must be\nin the router "
             "certificate's subjectAltName: formation certs --router-host).",
         )
+        if kind == "coordinator":
+            # One file per instance (the active one and its standby run side by side on the
+            # coordinator host, each with its own certificate): coordinator-<name>-mtls.json5,
+            # read by formation-coordinator@<name>.service.
+            for ident in matching:
+                out[f"coordinator-{ident.name}-mtls.json5"] = to_json5(
+                    client_config(tls_files(cert_root, ident.cn), connect=connect),
+                    f"{GENERATED}\nZenoh session of coordinator instance {ident.name!r} "
+                    f"(formation-coordinator@{ident.name}.service), certificate CN "
+                    f"{ident.cn!r}:\nclient of the fleet router over mTLS. Change "
+                    f"{router_host!r} to the router host's name (it must be\nin the router "
+                    "certificate's subjectAltName: formation certs --router-host).",
+                )
     plain: dict[str, Any] = {
         "mode": "client",
         "connect": {"endpoints": [f"tcp/{router_host}:{port}"]},

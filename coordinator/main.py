@@ -16,6 +16,7 @@ from bus_schemas import (
     keys,
 )
 from coordinator.node import CoordinatorNode, attach_estop_source
+from runtime.sdnotify import Notifier, pet_watchdog
 from scenario import Scenario, ScenarioError, load
 from scenario.assemble import coordinator_core
 
@@ -28,9 +29,21 @@ def build_parser() -> argparse.ArgumentParser:
         prog="formation coordinator",
         description="Run the coordinator (virtual leader, slots, roles, setpoints) as a node.",
     )
-    parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
+    task = parser.add_mutually_exclusive_group(required=True)
+    task.add_argument("--scenario", metavar="NAME|FILE", help="scenario (simulation)")
+    task.add_argument(
+        "--fleet-file",
+        metavar="FLEET.toml",
+        help="real robots: the fleet file (robots, arena, trajectory, formation; "
+        "deploy/config/fleet.example.toml); no simulator scenario needed",
+    )
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="check the scenario or fleet file, print OK or the problems, exit 0/2 (no Zenoh)",
+    )
     parser.add_argument("--name", default="main", help="coordinator instance name (main)")
-    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
+    parser.add_argument("--fleet", default=None, help="fleet name (demo, or the fleet file's)")
     parser.add_argument(
         "--rate-hz", type=rt.rate_hz, default=50.0, metavar="HZ", help="realtime tick rate (50)"
     )
@@ -56,15 +69,33 @@ def main(argv: list[str]) -> int:
     """Entry point of ``formation coordinator``; returns the exit status."""
     ns = build_parser().parse_args(argv)
     log = rt.NodeLog(f"coordinator {ns.name}")
+    if ns.fleet_file is not None:
+        from scenario.fleet import load_fleet
+
+        try:
+            fleet_file = load_fleet(ns.fleet_file)
+        except ScenarioError as exc:
+            log.info(str(exc))
+            return 2
+        scenario = fleet_file.scenario
+        ns.fleet = ns.fleet or fleet_file.fleet
+    else:
+        try:
+            scenario = load(ns.scenario)
+            coordinator_core(scenario)  # fail now, before the ready line, on a bad trajectory
+        except (ScenarioError, OSError, ValueError, KeyError, TypeError) as exc:
+            log.info(f"scenario: {exc}")
+            return 2
+    ns.fleet = ns.fleet or keys.DEFAULT_FLEET
     if not keys.is_name(ns.name) or not keys.is_name(ns.fleet):
         log.info(f"invalid --name {ns.name!r} or --fleet {ns.fleet!r}: {keys.NAME_PATTERN}")
         return 2
-    try:
-        scenario = load(ns.scenario)
-        coordinator_core(scenario)  # fail now, before the ready line, on a bad trajectory
-    except (ScenarioError, OSError, ValueError, KeyError, TypeError) as exc:
-        log.info(f"scenario: {exc}")
-        return 2
+    if ns.check:
+        robots = ", ".join(scenario.robot_ids)
+        task = f"trajectory {scenario.trajectory.get('kind')}, "
+        task += f"formation {scenario.formation.get('kind')}"
+        print(f"OK: fleet {ns.fleet}, robots {robots}, {task}", flush=True)
+        return 0
     try:
         settings = rt.settings_from_args(ns)
     except (TypeError, ValueError) as exc:
@@ -117,7 +148,17 @@ async def _node(
     mode = "lockstep" if lockstep else f"realtime at {rate_hz:g} Hz"
     role = "standby" if standby else "active"
     io.log.info(f"fleet {fleet}, scenario {scenario.name}, {mode}, {role}")
-    await node.run(stop, rate_hz)
+    # Type=notify under systemd (deploy/systemd/formation-coordinator@.service): READY once the
+    # subscriptions are declared; WATCHDOG from this event loop, the one the ticks run on.
+    notifier = Notifier()
+    notifier.ready(f"coordinator {name}: {role}, fleet {fleet}")
+    pet = asyncio.ensure_future(pet_watchdog(notifier, stop))
+    try:
+        await node.run(stop, rate_hz)
+        notifier.stopping()
+    finally:
+        pet.cancel()
+        notifier.close()
     return 0
 
 

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Install the formation robot agent on a robot (Raspberry Pi class Linux board, systemd).
+# Install the formation robot agent on a robot (Raspberry Pi class Linux board, systemd), or,
+# with --coordinator-host, the coordinator host (router, coordinators, camera tracker).
 #
 # What it does (each step is idempotent: running it again upgrades in place):
 #   1. builds a wheel of this project (`python -m build` if available, else
@@ -15,8 +16,15 @@
 #      (an existing robot config is never overwritten);
 #   5. reloads systemd and udev. It does not enable or start the unit.
 #
-# usage: sudo deploy/install.sh [--prefix DIR] [--dry-run] [--robot-id ID] [--files-only]
-#                               [--wheel FILE] [--python PYTHON]
+# With --coordinator-host instead: the wheel with the `sim` and `camera` extras; the user
+# `formation` (group `video` for the camera); the units formation-router.service,
+# formation-coordinator@.service and formation-camera.service; every Zenoh config but the
+# robot's; /etc/formation/fleet.toml (from the example, if absent), camera.env (if absent) and
+# coordinator-standby.env (--standby for formation-coordinator@standby).
+#
+# usage: sudo deploy/install.sh [--coordinator-host] [--prefix DIR] [--dry-run] [--robot-id ID]
+#                               [--files-only] [--wheel FILE] [--python PYTHON]
+#   --coordinator-host  install the coordinator host instead of a robot.
 #   --prefix DIR   stage everything under DIR instead of / (paths inside the files stay the
 #                  final ones, like DESTDIR); no user is created and nothing is reloaded.
 #   --dry-run      print every command instead of running it; changes nothing.
@@ -33,6 +41,7 @@ prefix=""
 dry_run=0
 robot_id=""
 files_only=0
+coordinator_host=0
 wheel=""
 python="python3"
 
@@ -46,6 +55,7 @@ while [[ $# -gt 0 ]]; do
         --dry-run) dry_run=1; shift ;;
         --robot-id) robot_id="${2:?--robot-id needs an id}"; shift 2 ;;
         --files-only) files_only=1; shift ;;
+        --coordinator-host) coordinator_host=1; shift ;;
         --wheel) wheel="${2:?--wheel needs a file}"; shift 2 ;;
         --python) python="${2:?--python needs an interpreter}"; shift 2 ;;
         -h|--help) usage; exit 0 ;;
@@ -53,6 +63,12 @@ while [[ $# -gt 0 ]]; do
     esac
 done
 
+if [[ $coordinator_host -eq 1 && -n "$robot_id" ]]; then
+    echo "install.sh: --robot-id is for a robot, not with --coordinator-host" >&2
+    exit 2
+fi
+extras="agent"
+[[ $coordinator_host -eq 1 ]] && extras="sim,camera"
 if [[ -n "$robot_id" && ! "$robot_id" =~ ^[a-z0-9_-]+$ ]]; then
     echo "install.sh: --robot-id '$robot_id' must match [a-z0-9_-]+" >&2
     exit 2
@@ -129,9 +145,9 @@ if [[ $files_only -eq 0 ]]; then
     else
         run "$python" -m venv "$venv"
     fi
-    # the agent extra pulls the robot's dependencies; the second call replaces this
-    # project's code even when the version number did not change
-    run "$venv/bin/python" -m pip install --upgrade "$wheel[agent]"
+    # the agent extra pulls the robot's dependencies (sim,camera: the coordinator host's); the
+    # second call replaces this project's code even when the version number did not change
+    run "$venv/bin/python" -m pip install --upgrade "$wheel[$extras]"
     run "$venv/bin/python" -m pip install --force-reinstall --no-deps "$wheel"
 else
     say "--files-only: skipping the wheel and the virtualenv"
@@ -145,26 +161,56 @@ if [[ $system_install -eq 1 ]]; then
         run useradd --system --user-group --no-create-home --home-dir /nonexistent \
             --shell /usr/sbin/nologin --comment "formation robot agent" formation
     fi
-    if getent group dialout >/dev/null; then
-        run usermod --append --groups dialout formation
+    device_group="dialout"
+    [[ $coordinator_host -eq 1 ]] && device_group="video"
+    if getent group "$device_group" >/dev/null; then
+        run usermod --append --groups "$device_group" formation
     else
-        say "warning: no dialout group on this system; the serial port needs another group"
+        say "warning: no $device_group group on this system; the device needs another group"
     fi
 else
     say "prefix install: not creating the user formation (done by a system install)"
 fi
 
 # ---------------------------------------------------------------- 4. files
-put 0644 "$script_dir/systemd/formation-agent@.service" "$unit_dir/formation-agent@.service"
-put 0644 "$script_dir/udev/99-formation-roboclaw.rules" "$udev_dir/99-formation-roboclaw.rules"
-for f in client.json5 robot-mtls.json5 coordinator-mtls.json5 router-mtls.json5; do
-    put 0644 "$script_dir/zenoh/$f" "$etc_dir/zenoh/$f"
-done
-put 0644 "$script_dir/config/r1.example.toml" "$etc_dir/r1.example.toml"
+# keep SRC DEST: install SRC at DEST only if DEST is absent (site files are never overwritten)
+keep() {
+    if [[ -e "$prefix$2" ]]; then
+        say "keeping the existing $2"
+    else
+        run install -D -m 0640 "$1" "$prefix$2"
+        if [[ $system_install -eq 1 && $dry_run -eq 0 ]]; then chown root:formation "$2"; fi
+    fi
+}
+if [[ $coordinator_host -eq 1 ]]; then
+    for u in formation-router.service formation-coordinator@.service formation-camera.service; do
+        put 0644 "$script_dir/systemd/$u" "$unit_dir/$u"
+    done
+    for f in "$script_dir"/zenoh/*.json5; do
+        name="$(basename "$f")"
+        [[ "$name" == robot-mtls.json5 ]] && continue
+        put 0644 "$f" "$etc_dir/zenoh/$name"
+    done
+    put 0644 "$script_dir/config/fleet.example.toml" "$etc_dir/fleet.example.toml"
+    put 0644 "$script_dir/config/camera.env.example" "$etc_dir/camera.env.example"
+    keep "$script_dir/config/fleet.example.toml" "$etc_dir/fleet.toml"
+    keep "$script_dir/config/camera.env.example" "$etc_dir/camera.env"
+    keep "$script_dir/config/coordinator-standby.env" "$etc_dir/coordinator-standby.env"
+else
+    put 0644 "$script_dir/systemd/formation-agent@.service" "$unit_dir/formation-agent@.service"
+    put 0644 "$script_dir/udev/99-formation-roboclaw.rules" "$udev_dir/99-formation-roboclaw.rules"
+    for f in client.json5 robot-mtls.json5; do
+        put 0644 "$script_dir/zenoh/$f" "$etc_dir/zenoh/$f"
+    done
+    put 0644 "$script_dir/config/r1.example.toml" "$etc_dir/r1.example.toml"
+fi
 put 0755 "$script_dir/security/gen-certs.sh" "$share_dir/gen-certs.sh"
 put 0644 "$script_dir/install.sh" "$share_dir/install.sh"
 if [[ -f "$repo_dir/docs/deploy.md" ]]; then
     put 0644 "$repo_dir/docs/deploy.md" "$share_dir/docs/deploy.md"
+fi
+if [[ -f "$repo_dir/docs/localization.md" ]]; then
+    put 0644 "$repo_dir/docs/localization.md" "$share_dir/docs/localization.md"
 fi
 run install -d -m 0750 "$prefix$etc_dir/certs"
 if [[ $system_install -eq 1 ]]; then
@@ -198,9 +244,18 @@ if [[ $system_install -eq 1 ]]; then
     fi
 fi
 
+if [[ $coordinator_host -eq 1 ]]; then
+    say "done. Next steps (docs/deploy.md):"
+    echo "  1. certificates: copy router/, coordinator.main/, coordinator.standby/, localization/, operator/, observer/ from formation certs into $etc_dir/certs/"
+    echo "  2. fleet:        edit $etc_dir/fleet.toml, then: $venv_dir/bin/formation coordinator --check --fleet-file $etc_dir/fleet.toml"
+    echo "  3. camera:       $etc_dir/camera.toml (formation camera calibrate) and $etc_dir/camera.env"
+    echo "  4. start:        systemctl enable --now formation-router formation-coordinator@main formation-coordinator@standby formation-camera"
+    echo "  5. watch:        $venv_dir/bin/formation top --zenoh-config $etc_dir/zenoh/observer-mtls.json5"
+    exit 0
+fi
 id_hint="${robot_id:-<id>}"
 say "done. Next steps:"
-echo "  1. certificates: copy robot.$id_hint/{ca,cert,key}.pem from gen-certs.sh (or formation certs) into $etc_dir/certs/"
+echo "  1. certificates: copy robot.$id_hint/{ca,cert,key}.pem from formation certs (or gen-certs.sh) into $etc_dir/certs/"
 echo "  2. config:       $etc_dir/$id_hint.toml (template: $etc_dir/r1.example.toml)"
 echo "  3. check:        $venv_dir/bin/formation agent --check-config $etc_dir/$id_hint.toml"
 echo "  4. start:        systemctl enable --now formation-agent@$id_hint"

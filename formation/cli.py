@@ -25,8 +25,38 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "top": ("formation.top", "live fleet status table"),
     "acl": ("bus_schemas.acl", "write the Zenoh router ACL and client configs of a fleet"),
     "certs": ("formation.pki", "make the fleet CA and a certificate per identity"),
+    "motor-emulator": (
+        "robot_agent.motors.emulator",
+        "an emulated RoboClaw on a pty: try the motor backend without hardware",
+    ),
     "camera": ("localization.node", "overhead-camera tracker; `camera calibrate` writes its file"),
 }
+
+
+# top-level module of a dependency -> the extra of pyproject.toml that installs it
+EXTRA_OF_MODULE: dict[str, str] = {
+    "numpy": "sim",
+    "scipy": "sim",
+    "matplotlib": "sim",
+    "mcap": "sim",
+    "foxglove": "sim",
+    "cryptography": "sim",
+    "cv2": "camera",
+    "pupil_apriltags": "camera",
+    "serial": "agent",
+}
+
+
+def missing_extra_message(exc: ImportError) -> str:
+    """One line naming the extra that provides the module ``exc`` could not import."""
+    module = (exc.name or "").split(".")[0]
+    extra = EXTRA_OF_MODULE.get(module)
+    if extra is None:
+        return f"not available in this install ({exc})"
+    return (
+        f"needs the {extra} extra ({module} is not installed): "
+        f"pip install 'formation-control[{extra}]'"
+    )
 
 
 def _usage() -> str:
@@ -51,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:  # e.g. the sim extra is not installed on a robot
-        print(f"formation {name}: not available in this install ({exc})", file=sys.stderr)
+        print(f"formation {name}: {missing_extra_message(exc)}", file=sys.stderr)
         return 2
     result: int = module.main(rest)
     return result

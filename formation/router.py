@@ -20,6 +20,7 @@ import json
 import sys
 
 import runtime as rt
+from runtime.sdnotify import Notifier, pet_watchdog
 
 READY_PREFIX = "router listening on "
 """Start of the single line printed on stdout once the router accepts connections."""
@@ -90,12 +91,18 @@ async def _serve(stop: asyncio.Event, settings: rt.ZenohSettings) -> int:
     except (rt.TransportError, ValueError) as exc:
         print(f"formation router: {exc}", file=sys.stderr)
         return 1
+    notifier = Notifier()  # Type=notify under systemd (deploy/systemd/formation-router.service)
     try:
-        print(f"{READY_PREFIX}{_listen_endpoints(settings)}", flush=True)
+        where = _listen_endpoints(settings)
+        print(f"{READY_PREFIX}{where}", flush=True)
+        notifier.ready(f"router listening on {where}")
+        await pet_watchdog(notifier, stop)
         await stop.wait()
+        notifier.stopping()
         return 0
     finally:
         session.close()
+        notifier.close()
 
 
 def main(argv: list[str]) -> int:

@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import math
 import sys
 import threading
@@ -55,6 +56,7 @@ from bus_schemas import DecodeError, Pose, PoseBatch, Truth, TruthBatch, decode,
 from localization.calibration import Calibration, CalibrationError, load
 from localization.pipeline import CameraPipeline, FrameResult
 from localization.sources import FrameSource, SourceError, open_source
+from runtime.sdnotify import Notifier
 
 __all__ = ["CameraPipeline", "FrameResult", "build_parser", "camera_status_key", "main"]
 
@@ -253,6 +255,17 @@ class CameraNode:
             print(f"camera: internal error in status: {exc!r}", file=sys.stderr)
 
 
+def with_tags(cal: Calibration, tags: dict[str, int]) -> Calibration:
+    """``cal`` tracking the fleet file's robots and tags (``--fleet-file``) instead of its own
+    ``[tags]``; tag offsets of robots no longer tracked are dropped."""
+    if cal.family != "tag36h11":
+        raise CalibrationError(
+            f"--fleet-file gives tag ids, but the calibration's family is {cal.family!r}"
+        )
+    offsets = {rid: off for rid, off in cal.offsets.items() if rid in tags}
+    return dataclasses.replace(cal, tags=dict(tags), offsets=offsets)
+
+
 def _positive(text: str) -> float:
     try:
         value = float(text)
@@ -279,7 +292,13 @@ def build_parser() -> argparse.ArgumentParser:
         "(simulation: frames rendered from the plant's truth)",
     )
     p.add_argument("--calibration", required=True, metavar="FILE", help="calibration TOML")
-    p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
+    p.add_argument("--fleet", default=None, help="fleet name (demo, or the fleet file's)")
+    p.add_argument(
+        "--fleet-file",
+        metavar="FLEET.toml",
+        help="real robots: take the fleet name and the robot -> tag ids from the fleet file "
+        "(they replace the calibration's [tags])",
+    )
     p.add_argument("--name", default="camera", help="this tracker's name in its status key")
     p.add_argument(
         "--detector",
@@ -323,6 +342,18 @@ def main(argv: list[str]) -> int:
 
         return calibrate.main(argv[1:])
     ns = build_parser().parse_args(argv)
+    tags: dict[str, int] | None = None
+    if ns.fleet_file is not None:
+        from scenario.fleet import load_fleet
+
+        try:
+            fleet_file = load_fleet(ns.fleet_file)
+        except ValueError as exc:
+            print(f"camera: {exc}", file=sys.stderr)
+            return 2
+        ns.fleet = ns.fleet or fleet_file.fleet
+        tags = fleet_file.tags
+    ns.fleet = ns.fleet or keys.DEFAULT_FLEET
     if not keys.is_name(ns.fleet) or not keys.is_name(ns.name):
         print(
             f"camera: invalid --fleet or --name (must match {keys.NAME_PATTERN})", file=sys.stderr
@@ -330,6 +361,8 @@ def main(argv: list[str]) -> int:
         return 2
     try:
         cal = load(ns.calibration)
+        if tags is not None:
+            cal = with_tags(cal, tags)
         pipeline = CameraPipeline(cal, ns.detector)
     except (CalibrationError, ImportError, ValueError) as exc:
         print(f"camera: {exc}", file=sys.stderr)
@@ -405,6 +438,7 @@ async def _node(
         print(f"camera: {exc}", file=sys.stderr)
         return 1
     grabber: Grabber | None = None
+    notifier = Notifier()
     try:
         pubs = rt.Publishers(session)
         node = CameraNode(
@@ -442,6 +476,11 @@ async def _node(
         )
         started.append(grabber)
         grabber.start()
+        # Type=notify under systemd (deploy/systemd/formation-camera.service): READY now, and
+        # WATCHDOG from the loop below (it turns at least every STATUS_PERIOD_S).
+        notifier.ready(f"camera {ns.name}: {source.description}")
+        wd_period = notifier.watchdog_interval_s()
+        next_wd = time.monotonic()
         end = math.inf if ns.duration is None else time.monotonic() + ns.duration
         next_status = time.monotonic()
         stopping: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
@@ -454,6 +493,9 @@ async def _node(
                 if now >= next_status:
                     node.publish_status()
                     next_status = now + STATUS_PERIOD_S
+                if wd_period is not None and now >= next_wd:
+                    notifier.watchdog()
+                    next_wd = now + wd_period
                 if getting is None:
                     getting = asyncio.ensure_future(results.get())
                 await asyncio.wait(
@@ -481,6 +523,8 @@ async def _node(
                 source.close()  # wakes a grabber waiting for truth (only closes the feed)
             # let the frame in progress finish, so the thread releases the source itself
             grabber.thread.join(JOIN_S)
+        notifier.stopping()
+        notifier.close()
         session.close()
 
 

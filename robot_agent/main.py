@@ -10,10 +10,17 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
+import json
+import math
+import os
 import sys
+import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Final
 
 import runtime as rt
 from bus_schemas import (
@@ -158,18 +165,46 @@ def main(argv: list[str]) -> int:
     errlog = rt.NodeLog("formation agent")
     setup = _setup(ns, errlog.info)
     if setup is None:
-        return 2
-    return rt.serve(
-        f"agent {setup.robot_id}",
-        setup.settings,
-        lambda io, stop: _node(
-            io, stop, setup, lockstep=bool(ns.lockstep), loop_mode=ns.loop, rate_hz=ns.rate_hz
-        ),
+        return EX_CONFIG if ns.config is not None else 2
+    return rt.run_node(
+        lambda stop: _boot(
+            stop, setup, lockstep=bool(ns.lockstep), loop_mode=ns.loop, rate_hz=ns.rate_hz
+        )
     )
 
 
-async def _node(
-    io: rt.NodeIO,
+EX_CONFIG: Final = 78
+"""Exit status for an invalid configuration (sysexits EX_CONFIG): the systemd unit does not
+restart it (RestartPreventExitStatus=78)."""
+EX_NO_MOTOR: Final = 69
+"""Exit status when the motor backend cannot be opened (EX_UNAVAILABLE): systemd restarts the
+unit after RestartSec (a USB controller may be powered after the board)."""
+SESSION_CLOSE_S: Final = 0.3
+"""How long the agent waits for its Zenoh session to close at exit before leaving without it."""
+MOTOR_OPEN_ATTEMPTS: Final = 5
+MOTOR_OPEN_RETRY_S: Final = 0.2
+"""The motor backend is opened up to this many times, this far apart, before the agent gives up
+(exit 69; systemd restarts it): the controller must confirm the zero command before READY."""
+HOLD_PERIOD_S: Final = 0.1
+"""While Zenoh is not connected yet, the wheels are commanded to zero this often."""
+
+
+def _where(settings: rt.ZenohSettings) -> str:
+    """Where a session with ``settings`` tries to connect, for the log."""
+    endpoints = list(settings.connect)
+    if not endpoints and settings.config_file is not None:
+        try:
+            conf = rt.make_config(settings)
+            endpoints = json.loads(conf.get_json("connect/endpoints")) or []
+        except (ValueError, RuntimeError):
+            endpoints = []
+    where = ", ".join(str(e) for e in endpoints) or "(no endpoint)"
+    if settings.config_file is not None:
+        where += f" (config {settings.config_file})"
+    return where
+
+
+async def _boot(
     stop: asyncio.Event,
     setup: _Setup,
     *,
@@ -177,48 +212,211 @@ async def _node(
     loop_mode: LoopMode,
     rate_hz: float,
 ) -> int:
-    motor = MotorOutput(setup.motor) if setup.motor is not None else None
+    """The documented boot order (docs/deploy.md, deploy/systemd/formation-agent@.service):
+
+    1. open the motor backend and command zero (this also arms the RoboClaw's own serial
+       timeout); a port that cannot be opened is an error naming it (exit 69);
+    2. READY=1 to systemd;
+    3. connect to Zenoh in a background thread (``zenoh.open`` may block for as long as the
+       router is unreachable), logging where; meanwhile the wheels are held at zero and the
+       WATCHDOG is petted by that hold loop, and SIGINT/SIGTERM end the process at once;
+    4. run the control loop (which pets the WATCHDOG from then on) until stopped.
+    """
+    log = rt.NodeLog(f"agent {setup.robot_id}")
     notifier = Notifier()
+    motor: MotorOutput | None = None
     try:
-        node = AgentNode(
-            setup.robot_id,
-            setup.fleet,
-            setup.config,
-            io.pubs.put,
-            lockstep=lockstep,
-            loop_mode=loop_mode,
-            rate_hz=rate_hz,
-            motor=motor,
-            log=io.log,
-        )
-        node.stall.gap_s = rt.hang_gap_for(setup.settings.lease_ms)
-        if motor is not None:
+        if setup.motor is not None:
+            port = getattr(getattr(setup.motor, "config", None), "port", None)
+            if isinstance(port, str) and not os.path.exists(port):
+                log.info(
+                    f"motor backend {setup.motor.name}: serial port {port} does not exist "
+                    "(controller unplugged or powered off? udev rule not installed? "
+                    "[motor] port in the robot config)"
+                )
+                return EX_NO_MOTOR
+            opened = setup.motor.open()
+            for _ in range(MOTOR_OPEN_ATTEMPTS - 1):
+                if opened or stop.is_set():
+                    break
+                await asyncio.sleep(MOTOR_OPEN_RETRY_S)  # a busy board may miss one answer
+                opened = setup.motor.open()
+            if not opened:
+                reason = setup.motor.status().last_error or "no answer"
+                where = f" on serial port {port}" if port else ""
+                log.info(f"motor backend {setup.motor.name}: no controller{where}: {reason}")
+                return EX_NO_MOTOR if not stop.is_set() else 0
+            setup.motor.stop()  # hold zero (open already did; say it again, it is cheap)
+            motor = MotorOutput(setup.motor)
             motor.start()
-        # Declare the publishers first, so the first command is not delayed by a declaration.
-        io.pubs.get(node.wheels_key, node.wheels_qos)
-        io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
-        await attach_estop_state(node, io)  # comes up stopped under a latched e-stop
-        io.subscribe(node.setpoint_key, node.on_setpoint)
-        io.subscribe(node.poses_key, node.on_poses)
-        if lockstep:
-            io.subscribe(node.clock_key, node.on_clock)
-        else:  # the other robots' modes: cooperative neighbours (robot_agent.neighbours)
-            io.subscribe(keys.all_status_pattern(setup.fleet), node.on_status)
-            io.subscribe(keys.all_host_status_pattern(setup.fleet), node.on_host_status)
-        io.subscribe(node.pose_key, node.on_pose)
-        io.declare_token(node.alive_key)
-        print(f"agent {setup.robot_id} ready", flush=True)
-        notifier.ready(f"agent {setup.robot_id} connected")
-        mode = "lockstep" if lockstep else f"realtime, loop {loop_mode} at {rate_hz:g} Hz"
         backend = setup.motor.name if setup.motor is not None else "bus"
-        io.log.info(f"fleet {setup.fleet}, {mode}, motor backend {backend}")
-        await node.run(stop, notifier)
-        notifier.stopping()
-        return 0
+        notifier.ready(f"agent {setup.robot_id}: motors at zero ({backend}), connecting")
+        where = _where(setup.settings)
+        log.info(f"motor backend {backend} open, wheels at zero; connecting to Zenoh at {where}")
+        try:
+            session = await _connect(stop, setup.settings, notifier, motor, log, where)
+        except rt.TransportError as exc:
+            log.info(f"zenoh: {exc}")
+            return 1
+        if session is None:
+            notifier.stopping()
+            return 0
+        io = rt.NodeIO(
+            session, asyncio.get_running_loop(), rt.Publishers(session), log, setup.settings
+        )
+        status = 1
+        try:
+            status = await _node(
+                io,
+                stop,
+                setup,
+                notifier,
+                motor,
+                lockstep=lockstep,
+                loop_mode=loop_mode,
+                rate_hz=rate_hz,
+            )
+            return status
+        finally:
+            # Wheels to zero and the port released first, then the session: closing it can
+            # block while the router is unreachable (measured: > 1 s with the link down).
+            if motor is not None:
+                motor.close()
+                motor = None
+            if not _close_within(io, session, SESSION_CLOSE_S):
+                log.info(
+                    f"Zenoh session close still blocked after {SESSION_CLOSE_S:g} s (router "
+                    "unreachable?); wheels are at zero, exiting without it"
+                )
+                notifier.stopping()
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os._exit(status)
     finally:
         if motor is not None:
             motor.close()
+        elif setup.motor is not None:
+            setup.motor.close()
         notifier.close()
+
+
+async def _connect(
+    stop: asyncio.Event,
+    settings: rt.ZenohSettings,
+    notifier: Notifier,
+    motor: MotorOutput | None,
+    log: rt.NodeLog,
+    where: str,
+) -> Any:
+    """Open the session in a daemon thread, holding the wheels at zero until it is open; None
+    if ``stop`` came first (the thread is abandoned: the process is about to exit)."""
+    loop = asyncio.get_running_loop()
+    opened: asyncio.Future[Any] = loop.create_future()
+
+    def worker() -> None:
+        try:
+            result: object = rt.open_session(settings, timeout_s=math.inf)
+        except BaseException as exc:
+            result = exc
+        with contextlib.suppress(RuntimeError):  # the loop is closed: nobody waits any more
+            loop.call_soon_threadsafe(_settle, opened, result)
+
+    threading.Thread(target=worker, name="zenoh-connect", daemon=True).start()
+    wd_period = notifier.watchdog_interval_s()
+    started = next_note = time.monotonic()
+    while not opened.done() and not stop.is_set():
+        now = time.monotonic()
+        if motor is not None:
+            motor.command(0.0, 0.0, now, True)
+        if wd_period is not None:
+            notifier.watchdog()  # this loop is what commands the wheels now
+        if now >= next_note + 10.0:
+            next_note = now
+            log.info(f"still connecting to Zenoh at {where} ({now - started:.0f} s)")
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(opened), HOLD_PERIOD_S)
+    if stop.is_set() and not opened.done():
+        return None
+    exc = opened.exception()
+    if exc is not None:
+        raise rt.TransportError(str(exc)) from exc
+    session = opened.result()
+    if stop.is_set():
+        session.close()
+        return None
+    log.info(f"connected to Zenoh at {where} after {time.monotonic() - started:.1f} s")
+    return session
+
+
+def _close_within(io: rt.NodeIO, session: Any, timeout_s: float) -> bool:
+    """Drop ``io``'s declarations and close ``session`` in a daemon thread; True if that
+    finished within ``timeout_s``."""
+
+    def close() -> None:
+        io.close()
+        session.close()
+
+    thread = threading.Thread(target=close, name="zenoh-close", daemon=True)
+    thread.start()
+    thread.join(timeout_s)
+    return not thread.is_alive()
+
+
+def _settle(fut: asyncio.Future[Any], result: object) -> None:
+    """On the loop: hand the opened session (or the error) to ``_connect``."""
+    if isinstance(result, BaseException):
+        if not fut.done():
+            fut.set_exception(result)
+    elif fut.done():
+        result.close()  # type: ignore[attr-defined]  # opened after the stop: close it
+    else:
+        fut.set_result(result)
+
+
+async def _node(
+    io: rt.NodeIO,
+    stop: asyncio.Event,
+    setup: _Setup,
+    notifier: Notifier,
+    motor: MotorOutput | None,
+    *,
+    lockstep: bool,
+    loop_mode: LoopMode,
+    rate_hz: float,
+) -> int:
+    node = AgentNode(
+        setup.robot_id,
+        setup.fleet,
+        setup.config,
+        io.pubs.put,
+        lockstep=lockstep,
+        loop_mode=loop_mode,
+        rate_hz=rate_hz,
+        motor=motor,
+        log=io.log,
+    )
+    node.stall.gap_s = rt.hang_gap_for(setup.settings.lease_ms)
+    # Declare the publishers first, so the first command is not delayed by a declaration.
+    io.pubs.get(node.wheels_key, node.wheels_qos)
+    io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
+    await attach_estop_state(node, io)  # comes up stopped under a latched e-stop
+    io.subscribe(node.setpoint_key, node.on_setpoint)
+    io.subscribe(node.poses_key, node.on_poses)
+    if lockstep:
+        io.subscribe(node.clock_key, node.on_clock)
+    else:  # the other robots' modes: cooperative neighbours (robot_agent.neighbours)
+        io.subscribe(keys.all_status_pattern(setup.fleet), node.on_status)
+        io.subscribe(keys.all_host_status_pattern(setup.fleet), node.on_host_status)
+    io.subscribe(node.pose_key, node.on_pose)
+    io.declare_token(node.alive_key)
+    print(f"agent {setup.robot_id} ready", flush=True)
+    notifier.status(f"agent {setup.robot_id}: connected, control loop running")
+    mode = "lockstep" if lockstep else f"realtime, loop {loop_mode} at {rate_hz:g} Hz"
+    backend = setup.motor.name if setup.motor is not None else "bus"
+    io.log.info(f"fleet {setup.fleet}, {mode}, motor backend {backend}")
+    await node.run(stop, notifier)
+    notifier.stopping()
+    return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -21,11 +21,13 @@ counted in :attr:`Notifier.errors` (the control loop must never die because syst
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import os
 import socket
 from collections.abc import Mapping
 
-__all__ = ["Notifier"]
+__all__ = ["Notifier", "pet_watchdog"]
 
 
 class Notifier:
@@ -156,3 +158,17 @@ def _parse_watchdog(env: Mapping[str, str], pid: int) -> float | None:
         except ValueError:
             return None
     return usec / 1_000_000.0
+
+
+async def pet_watchdog(notifier: Notifier, stop: asyncio.Event) -> None:
+    """Send ``WATCHDOG=1`` every :meth:`Notifier.watchdog_interval_s` until ``stop`` (no-op
+    without a watchdog). Run it as a task on the node's event loop: it proves that loop turns
+    (a loop stuck in blocking code misses the pings and systemd restarts the service). The
+    agent pets from its control loop instead (runtime.timers)."""
+    period = notifier.watchdog_interval_s()
+    if period is None:
+        return
+    while not stop.is_set():
+        notifier.watchdog()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), period)

@@ -287,9 +287,7 @@ def test_udev_parser_rejects_broken_rules() -> None:
 # ---------------------------------------------------------------------- zenoh and certs
 
 
-@pytest.mark.parametrize(
-    "name", ["client.json5", "robot-mtls.json5", "coordinator-mtls.json5", "router-mtls.json5"]
-)
+@pytest.mark.parametrize("name", sorted(p.name for p in (DEPLOY / "zenoh").glob("*.json5")))
 def test_zenoh_configs_parse_with_the_installed_zenoh(name: str) -> None:
     zenoh = pytest.importorskip("zenoh")
     conf = zenoh.Config.from_file(str(DEPLOY / "zenoh" / name))  # strict: unknown keys fail
@@ -307,3 +305,101 @@ def test_gen_certs_rejects_bad_identity(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert "[a-z0-9_-]+" in result.stderr
     assert not (tmp_path / "ca").exists()
+
+
+# ---------------------------------------------------------------------- coordinator host
+
+COORDINATOR_UNITS = (
+    "formation-router.service",
+    "formation-coordinator@.service",
+    "formation-camera.service",
+)
+FLEET_EXAMPLE = DEPLOY / "config" / "fleet.example.toml"
+
+
+@pytest.mark.parametrize("name", COORDINATOR_UNITS)
+def test_coordinator_host_units_are_notify_with_a_watchdog(name: str) -> None:
+    unit = parse_unit((DEPLOY / "systemd" / name).read_text())
+    service = {k: v[-1] for k, v in unit["Service"].items()}
+    assert service["Type"] == "notify" and service["NotifyAccess"] == "main"
+    assert 0 < int(service["WatchdogSec"]) <= 5
+    assert service["KillSignal"] == "SIGTERM" and service["TimeoutStopSec"] == "2"
+    assert (service["User"], service["Group"]) == ("formation", "formation")
+    assert service["ExecStart"].startswith("/opt/formation/venv/bin/formation ")
+    assert "--zenoh-config /etc/formation/zenoh/" in service["ExecStart"]
+    if name != "formation-router.service":
+        assert "--fleet-file /etc/formation/fleet.toml" in service["ExecStart"]
+        assert "formation-router.service" in unit["Unit"]["After"][-1]
+    assert unit["Install"]["WantedBy"] == ["multi-user.target"]
+
+
+def test_coordinator_unit_files_name_shipped_configs() -> None:
+    text = (DEPLOY / "systemd" / "formation-coordinator@.service").read_text()
+    assert "/etc/formation/zenoh/coordinator-%i-mtls.json5" in text
+    for instance in ("main", "standby"):
+        assert (DEPLOY / "zenoh" / f"coordinator-{instance}-mtls.json5").is_file()
+    env = (DEPLOY / "config" / "coordinator-standby.env").read_text()
+    assert "FORMATION_COORDINATOR_ARGS=--standby" in env
+
+
+@pytest.mark.skipif(
+    not os.access(SYSTEMD_ANALYZE, os.X_OK), reason=f"{SYSTEMD_ANALYZE} is not installed"
+)
+def test_coordinator_host_units_pass_systemd_analyze_verify(tmp_path: Path) -> None:
+    fake = tmp_path / "formation"
+    fake.write_text("#!/bin/sh\nexit 0\n")
+    fake.chmod(0o755)
+    paths = []
+    for name in COORDINATOR_UNITS:
+        text = (DEPLOY / "systemd" / name).read_text()
+        text = text.replace("/opt/formation/venv/bin/formation ", f"{fake} ")
+        (tmp_path / name).write_text(text)
+        target = name.replace("@.", "@main.")
+        if target != name:
+            (tmp_path / target).write_text(text)
+        paths.append(str(tmp_path / target))
+    result = subprocess.run(
+        [SYSTEMD_ANALYZE, "verify", "--man=no", *paths], capture_output=True, text=True, timeout=60
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output
+    assert [line for line in output.splitlines() if "formation-" in line] == [], output
+
+
+def test_fleet_example_is_valid_and_read_by_the_coordinator() -> None:
+    from scenario.fleet import load_fleet
+
+    fleet = load_fleet(FLEET_EXAMPLE)
+    assert fleet.robot_ids == ("r1", "r2", "r3")
+    assert fleet.tags == {"r1": 1, "r2": 2, "r3": 3}
+    result = subprocess.run(
+        [sys.executable, "-m", "formation", "coordinator", "--check", "--fleet-file",
+         str(FLEET_EXAMPLE)],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith("OK: fleet demo, robots r1, r2, r3")
+
+
+def test_install_coordinator_host_into_prefix(tmp_path: Path) -> None:
+    stage = tmp_path / "stage"
+    first = run_install("--coordinator-host", "--files-only", "--prefix", str(stage))
+    assert first.returncode == 0, first.stderr
+    for name in COORDINATOR_UNITS:
+        installed = stage / "etc/systemd/system" / name
+        assert installed.read_text() == (DEPLOY / "systemd" / name).read_text()
+    assert not (stage / "etc/systemd/system/formation-agent@.service").exists()
+    zenoh = {p.name for p in (stage / "etc/formation/zenoh").iterdir()}
+    assert "router-mtls.json5" in zenoh and "coordinator-standby-mtls.json5" in zenoh
+    assert "robot-mtls.json5" not in zenoh
+    fleet = stage / "etc/formation/fleet.toml"
+    assert fleet.read_text() == FLEET_EXAMPLE.read_text()
+    fleet.write_text(fleet.read_text() + "# edited\n")
+    second = run_install("--coordinator-host", "--files-only", "--prefix", str(stage))
+    assert "keeping the existing /etc/formation/fleet.toml" in second.stdout
+    assert fleet.read_text().endswith("# edited\n")
+    dry = run_install("--coordinator-host", "--dry-run", "--prefix", str(tmp_path / "d"),
+                      "--python", sys.executable)  # fmt: skip
+    assert dry.returncode == 0, dry.stderr
+    assert "[sim,camera]" in dry.stdout.replace("\\", "")
+    assert run_install("--coordinator-host", "--robot-id", "r1", "--dry-run").returncode == 2

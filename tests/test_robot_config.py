@@ -97,22 +97,24 @@ def test_integer_accepted_for_a_float(tmp_path: Path) -> None:
     [
         ("[geometry]\nwheel_radius = 0.03\n", "geometry.wheel_radius: unknown key"),
         ("[geometry]\nwheel_radius_m = 'big'\n", "geometry.wheel_radius_m: expected a number"),
-        ("[geometry]\nwheel_radius_m = -0.03\n", "wheel_radius_m must be a finite number > 0"),
+        (
+            "[geometry]\nwheel_radius_m = -0.03\n",
+            "geometry.wheel_radius_m: -0.03 is outside the plausible range",
+        ),
         ("[gains]\nkp = true\n", "gains.kp: expected a number"),
         ("[safety]\nstale_pose_s = 0.0\n", "stale_pose_s"),
         ("[repulsion]\nenabled = 1\n", "repulsion.enabled: expected true or false"),
         ("colour = 'red'\n", "colour: unknown key"),
         ("geometry = 3\n", "geometry: expected a table"),
         ("[motor]\nbackend = 'stepper'\n", "motor.backend: must be one of bus, roboclaw"),
-        ("[motor]\nport = '/dev/ttyACM0'\n", 'motor.port: only valid with backend = "roboclaw"'),
         ("[motor]\nbackend = 'roboclaw'\nmode = 'duty'\n", "motor.port: required"),
         (
             "[motor]\nbackend = 'roboclaw'\nport = '/dev/x'\naddress = 0x90\nmode = 'duty'\n",
-            "address must be an integer 0x80..0x87",
+            "motor.address: 144 is outside the plausible range [128, 135]",
         ),
         (
             "[motor]\nbackend = 'roboclaw'\nport = '/dev/x'\n",
-            "encoder_counts_per_rev must be > 0 in speed mode",
+            "motor.encoder_counts_per_rev: encoder_counts_per_rev must be > 0 in speed mode",
         ),
         (
             "[motor]\nbackend = 'roboclaw'\nport = '/dev/x'\nmode = 'duty'\nbaud = '9600'\n",
@@ -227,3 +229,64 @@ def test_from_dict_roboclaw() -> None:
     assert (rc.address, rc.encoder_counts_per_rev, rc.gear_ratio) == (0x81, 64.0, 30.0)
     assert rc.right_channel == "m2"
     assert cfg.zenoh.mode == "peer" and cfg.fleet == "lab_1"
+
+
+def test_absurd_values_are_refused_with_their_dotted_names(tmp_path: Path) -> None:
+    text = MINIMAL + "[gains]\nkp = 1e9\n[safety]\nstale_pose_s = 1e6\n"
+    problems = problems_of(tmp_path, text)
+    assert any(p.startswith("gains.kp: 1000000000.0 is outside") for p in problems), problems
+    assert any(p.startswith("safety.stale_pose_s: 1000000.0 is outside") for p in problems)
+    assert len(problems) == 2, problems
+
+
+def test_every_numeric_parameter_has_a_plausible_range() -> None:
+    import dataclasses
+    import typing
+
+    from robot_agent.motors.roboclaw import RoboClawConfig
+    from robot_agent.robot_config import PLAUSIBLE, _agent_sections
+
+    sections: dict[str, type] = dict(_agent_sections())
+    sections["motor"] = RoboClawConfig
+    missing = []
+    for section, cls in sections.items():
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            numeric = hints[f.name] in (int, float) or hints[f.name] == (float | None)
+            if numeric and f"{section}.{f.name}" not in PLAUSIBLE:
+                missing.append(f"{section}.{f.name}")
+            if f"{section}.{f.name}" in PLAUSIBLE and f.default is not dataclasses.MISSING:
+                lo, hi = PLAUSIBLE[f"{section}.{f.name}"]
+                if f.default is not None:
+                    assert lo <= f.default <= hi, (section, f.name, f.default)
+    assert not missing, f"add a plausible range for: {missing}"
+    assert set(PLAUSIBLE) <= {
+        f"{s}.{f.name}" for s, c in sections.items() for f in dataclasses.fields(c)
+    }
+
+
+def test_every_motor_problem_is_listed_not_only_the_first(tmp_path: Path) -> None:
+    text = MINIMAL + (
+        "[motor]\nbackend = 'roboclaw'\nport = '/dev/x'\nbaud = 12\naddress = 0x10\n"
+        "serial_timeout_s = 100.0\ngear_ratio = -1.0\nmode = 'duty'\n"
+    )
+    problems = problems_of(tmp_path, text)
+    for name in ("motor.baud", "motor.address", "motor.serial_timeout_s", "motor.gear_ratio"):
+        assert any(p.startswith(name + ":") for p in problems), (name, problems)
+
+
+def test_bus_backend_ignores_the_roboclaw_keys_of_the_example() -> None:
+    example = Path(__file__).resolve().parents[1] / "deploy" / "config" / "r1.example.toml"
+    import tomllib
+
+    data = tomllib.loads(example.read_text())
+    assert check_config(example, check_files=False) == []
+    data["motor"]["backend"] = "bus"
+    cfg = robot_config_from_dict(data)  # no ConfigError: 0 problems
+    assert cfg.motor.backend == "bus" and cfg.motor.roboclaw is None
+    # ... but with backend = "roboclaw" the same keys are checked
+    data["motor"]["backend"] = "roboclaw"
+    data["motor"]["baud"] = 7
+    with pytest.raises(ConfigError) as info:
+        robot_config_from_dict(data)
+    assert [p for p in info.value.problems if p.startswith("motor.baud:")], info.value.problems
