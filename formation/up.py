@@ -180,6 +180,13 @@ def build_parser() -> argparse.ArgumentParser:
         "tracking rendered frames of the plant's truth (realtime only; docs/localization.md)",
     )
     p.add_argument(
+        "--secure",
+        action="store_true",
+        help="authenticated run: ephemeral CA, one certificate per process, mutual TLS on the "
+        "router and the access control generated from the contract; local tools find the "
+        "credentials by themselves (docs/security.md)",
+    )
+    p.add_argument(
         "--foxglove-host",
         default="127.0.0.1",
         metavar="HOST",
@@ -210,6 +217,7 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         respawn_s=ns.respawn,
         hosts=ns.hosts,
         camera=ns.camera,
+        secure=ns.secure,
     )
 
 
