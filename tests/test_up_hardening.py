@@ -31,8 +31,30 @@ pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 UP_READY_S = 90.0  # python start of ~8 processes on a loaded 2-core box
 
 
+@pytest.fixture
+def ups(spawn: Spawner) -> Iterator[list[Child]]:
+    """Launchers started by a test: SIGTERMed at teardown with time to write their results
+    (torn down before ``spawn``, whose 2 s SIGTERM patience is for nodes)."""
+    started: list[Child] = []
+    yield started
+    for up in started:
+        if up.proc.poll() is None:
+            up.send_signal(signal.SIGTERM)
+    for up in started:
+        try:
+            up.proc.wait(20)
+        except subprocess.TimeoutExpired:
+            up.send_signal(signal.SIGKILL)
+            pytest.fail(f"formation up ignored SIGTERM for 20 s: {up.describe()}")
+
+
 def start_up(
-    spawn: Spawner, out: Path, *extra: str, robots: int = 3, duration: float = 120.0
+    spawn: Spawner,
+    out: Path,
+    *extra: str,
+    robots: int = 3,
+    duration: float = 120.0,
+    ups: list[Child] | None = None,
 ) -> tuple[Child, int]:
     """``formation up`` (realtime) on a free port, returned once every node is ready."""
     port = free_port()
@@ -40,6 +62,8 @@ def start_up(
         "up", "--robots", str(robots), "--duration", repr(duration),
         "--endpoint", f"tcp/127.0.0.1:{port}", "--out", str(out), "--no-figures", *extra,
     )  # fmt: skip
+    if ups is not None:
+        ups.append(child)
     hosts = [a for i, a in enumerate(extra) if i > 0 and extra[i - 1] == "--hosts"]
     n = int(hosts[0]) if hosts else robots
     child.wait_for_line(f"  {n} agents", timeout_s=UP_READY_S)
@@ -122,9 +146,9 @@ class Publisher:
 
 
 def test_sigkill_of_the_launcher_leaves_no_process_and_frees_the_port(
-    spawn: Spawner, tmp_path: Path
+    spawn: Spawner, ups: list[Child], tmp_path: Path
 ) -> None:
-    up, port = start_up(spawn, tmp_path / "run", "--secure", robots=3)
+    up, port = start_up(spawn, tmp_path / "run", "--secure", robots=3, ups=ups)
     kids = children_of(up.pid)
     assert len(kids) >= 5, kids  # router, plant, coordinator, 3 agents
     paused = next(p for p in kids if "agent" in Path(f"/proc/{p}/cmdline").read_text())
@@ -143,9 +167,11 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_frees_the_port(
 # ---------------------------------------------------------------------------------------------
 
 
-def test_router_and_plant_deaths_are_events_with_respawn(spawn: Spawner, tmp_path: Path) -> None:
+def test_router_and_plant_deaths_are_events_with_respawn(
+    spawn: Spawner, ups: list[Child], tmp_path: Path
+) -> None:
     out = tmp_path / "run"
-    up, port = start_up(spawn, out, "--respawn", "0.3", robots=3, duration=30.0)
+    up, port = start_up(spawn, out, "--respawn", "0.3", robots=3, duration=30.0, ups=ups)
     time.sleep(2.0)
     os.kill(run_info(port).children["router"], signal.SIGKILL)
     up.wait_for_line("formation up: router respawned", timeout_s=30)
@@ -172,8 +198,8 @@ def test_router_and_plant_deaths_are_events_with_respawn(spawn: Spawner, tmp_pat
 
 
 @pytest.fixture
-def secure_run(spawn: Spawner, tmp_path: Path) -> Iterator[tuple[Child, int]]:
-    yield start_up(spawn, tmp_path / "run", "--secure", robots=3, duration=120.0)
+def secure_run(spawn: Spawner, ups: list[Child], tmp_path: Path) -> Iterator[tuple[Child, int]]:
+    yield start_up(spawn, tmp_path / "run", "--secure", robots=3, duration=120.0, ups=ups)
 
 
 def test_secure_run_refuses_clients_without_the_fleet_certificate(
@@ -293,10 +319,10 @@ def test_secure_run_refuses_forged_setpoints_poses_and_estop(
 
 
 def test_fault_tool_never_touches_another_fleet_and_refuses_forged_status(
-    spawn: Spawner, tmp_path: Path
+    spawn: Spawner, ups: list[Child], tmp_path: Path
 ) -> None:
-    up_a, port_a = start_up(spawn, tmp_path / "a", robots=3)
-    up_b, port_b = start_up(spawn, tmp_path / "b", robots=3)
+    up_a, port_a = start_up(spawn, tmp_path / "a", robots=3, ups=ups)
+    up_b, port_b = start_up(spawn, tmp_path / "b", robots=3, ups=ups)
     ep_a = f"tcp/127.0.0.1:{port_a}"
     a, b = run_info(port_a), run_info(port_b)
     b_pids = dict(b.children)
@@ -371,8 +397,10 @@ def test_fault_tool_never_touches_another_fleet_and_refuses_forged_status(
     assert up_a.proc.poll() is None and up_b.proc.poll() is None
 
 
-def test_fault_tool_on_an_agent_host_fleet(spawn: Spawner, tmp_path: Path) -> None:
-    up, port = start_up(spawn, tmp_path / "h", "--hosts", "1", robots=3)
+def test_fault_tool_on_an_agent_host_fleet(
+    spawn: Spawner, ups: list[Child], tmp_path: Path
+) -> None:
+    up, port = start_up(spawn, tmp_path / "h", "--hosts", "1", robots=3, ups=ups)
     ep = f"tcp/127.0.0.1:{port}"
     host_pid = run_info(port).children["agent-host-h1"]
     res = fault("kill", "r2", "--endpoint", ep)
