@@ -31,8 +31,13 @@ DRAIN_S: Final = 0.25
 """Lockstep: time given to the last messages in flight after the plant ended, seconds."""
 REALTIME_END_GRACE_S: Final = 1.5
 """Realtime: how long after --duration the launcher stops a plant that did not end the run."""
-FIFO_CAPACITY: Final = 1 << 18
-"""Samples Zenoh buffers per subscription for the collector (drained every CONSUME_PERIOD_S)."""
+FIFO_CAPACITY: Final = 1 << 14
+"""Samples Zenoh buffers per subscription for the collector (drained every CONSUME_PERIOD_S): a
+bound on the launcher's memory (each sample is at most runtime.transport.MAX_MESSAGE_BYTES); a
+300-robot batched fleet puts ~10 samples per key expression in one period."""
+COLLECTOR_MAX_ENTRIES: Final = 1_500_000
+"""Realtime: values the collector keeps before it thins the run's history (formation.collector,
+``max_entries``; ~200 MiB at most). 300 robots fill it in ~30 s, 10 robots in ~50 min."""
 CONSUME_PERIOD_S: Final = 0.02
 TABLE_PERIOD_S: Final = 0.5
 LINE_PERIOD_S: Final = 5.0
@@ -61,7 +66,9 @@ class _Launcher:
         self.kill_now = False
         self.signals: list[int] = []
         self.failures: list[str] = []
-        self.collector = RunCollector.for_scenario(self.scn, fleet=cfg.fleet, lockstep=cfg.lockstep)
+        self.collector = RunCollector.for_scenario(
+            self.scn, fleet=cfg.fleet, lockstep=cfg.lockstep, max_entries=COLLECTOR_MAX_ENTRIES
+        )
         self.router: Child | None = None
         self.group: int | None = None  # process group of every child (the first router's pid)
         self.secure: Any = None  # formation.pki.RunConfigs with --secure
