@@ -151,10 +151,9 @@ class _Series:
         return 1
 
     def halve(self) -> None:
-        """Keep every other stored value (the newest kept) and double the stride."""
-        start = (len(self.keys) - 1) % 2
-        self.keys = self.keys[start::2]
-        self.values = self.values[start::2]
+        """Keep every other stored value (the first kept) and double the stride."""
+        self.keys = self.keys[::2]
+        self.values = self.values[::2]
         self.stride *= 2
 
     def sorted(self) -> tuple[F64, list[Any]]:
@@ -305,9 +304,7 @@ class RunCollector:
         if self.max_entries is None or self._entries <= self.max_entries:
             return
         while self._entries > self.max_entries // 2:
-            rows = sorted(self._truth)
-            start = (len(rows) - 1) % 2
-            kept = set(rows[start::2])
+            kept = set(sorted(self._truth)[::2])  # the first row (time 0 of the log) stays
             self._truth = {k: v for k, v in self._truth.items() if k in kept}
             for series in self._thinned_series():
                 series.halve()

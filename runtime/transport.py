@@ -272,6 +272,11 @@ def make_config(settings: ZenohSettings) -> zenoh.Config:
     configured = json.loads(config.get_json("transport/link/rx/max_message_size"))
     if not isinstance(configured, int) or configured > MAX_MESSAGE_BYTES:
         put("transport/link/rx/max_message_size", MAX_MESSAGE_BYTES)
+    # Zenoh's shared-memory transport (on by default between processes of one host) carries
+    # messages over 3 KiB outside the link, past this cap, in segments mapped by every
+    # receiver (measured here: a 4 MiB put reached a capped subscriber). The bus's payloads
+    # are at most 64 KiB: keep everything on the link.
+    put("transport/shared_memory/enabled", False)
     if settings.lease_ms is not None:
         put("transport/link/tx/lease", int(settings.lease_ms))
         put("transport/link/tx/keep_alive", _KEEP_ALIVES_PER_LEASE)
