@@ -273,15 +273,18 @@ class _Launcher:
         port = endpoint_port(self.cfg.endpoint)
         if port is None:
             raise LaunchError(f"--secure needs a loopback endpoint, got {self.cfg.endpoint}")
-        self.secure_dir = runtime_dir() / f"secure-{port}-{os.getpid()}"
-        self.secure = pki_mod.write_run_configs(
-            self.secure_dir,
-            self.identities(),
-            port=port,
-            fleet=self.cfg.fleet,
-            lease_ms=self.cfg.lease_ms or pki_mod.acl.LEASE_MS,
-        )
-        (self.secure.pki.root / "ca" / "ca.key").unlink()
+        try:
+            self.secure_dir = runtime_dir() / f"secure-{port}-{os.getpid()}"
+            self.secure = pki_mod.write_run_configs(
+                self.secure_dir,
+                self.identities(),
+                port=port,
+                fleet=self.cfg.fleet,
+                lease_ms=self.cfg.lease_ms or pki_mod.acl.LEASE_MS,
+            )
+            (self.secure.pki.root / "ca" / "ca.key").unlink()
+        except OSError as exc:
+            raise LaunchError(f"--secure: cannot write the run's certificates: {exc}") from exc
 
     def _register(self) -> None:
         """Write the run file (formation.runfile) tools use to find this run."""

@@ -120,7 +120,7 @@ def _is_launcher(pid: int) -> bool:
 def lookup(port: int) -> RunInfo | None:
     """The live run registered on ``port``, or None (a stale file is removed)."""
     try:
-        path = run_file(port)
+        path = run_file(port)  # OSError (PermissionError) if the directory is not safe
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
