@@ -60,7 +60,8 @@ def start_up(
     port = free_port()
     child = spawn(
         "up", "--robots", str(robots), "--duration", repr(duration),
-        "--endpoint", f"tcp/127.0.0.1:{port}", "--out", str(out), "--no-figures", *extra,
+        "--endpoint", f"tcp/127.0.0.1:{port}", "--out", str(out), "--no-figures",
+        "--ready-timeout", "80", *extra,
     )  # fmt: skip
     if ups is not None:
         ups.append(child)
