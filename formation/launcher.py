@@ -13,6 +13,7 @@ import signal
 import sys
 import time
 from collections.abc import Awaitable
+from pathlib import Path
 from typing import Any, Final
 
 from bus_schemas import keys
@@ -274,6 +275,12 @@ class _Launcher:
         if port is None:
             raise LaunchError(f"--secure needs a loopback endpoint, got {self.cfg.endpoint}")
         try:
+            import shutil
+
+            for old in runtime_dir().glob("secure-*-*"):  # left by a SIGKILLed launcher
+                pid = old.name.rsplit("-", 1)[-1]
+                if pid.isdigit() and not Path(f"/proc/{pid}").exists():
+                    shutil.rmtree(old, ignore_errors=True)
             self.secure_dir = runtime_dir() / f"secure-{port}-{os.getpid()}"
             self.secure = pki_mod.write_run_configs(
                 self.secure_dir,
