@@ -31,6 +31,8 @@ def child_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH")) if p)
     env["PYTHONUNBUFFERED"] = "1"
+    # runtime.lifecycle.bind_to_parent (formation/__main__.py): the child dies with this process
+    env["FORMATION_PARENT_PID"] = str(os.getpid())
     return env
 
 

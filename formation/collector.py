@@ -131,14 +131,30 @@ class LiveView:
 
 @dataclass
 class _Series:
-    """Time-stamped values of one quantity, appended in arrival order."""
+    """Time-stamped values of one quantity, appended in arrival order.
+
+    A decimated series (``stride`` > 1, set by the collector's memory bound) keeps one value in
+    ``stride`` of those added."""
 
     keys: list[float] = field(default_factory=list)
     values: list[Any] = field(default_factory=list)
+    stride: int = 1
+    _seen: int = 0
 
-    def add(self, key: float, value: Any) -> None:
+    def add(self, key: float, value: Any) -> int:
+        """Store the value (or skip it, decimated); returns how many entries were stored."""
+        self._seen += 1
+        if self.stride > 1 and self._seen % self.stride:
+            return 0
         self.keys.append(key)
         self.values.append(value)
+        return 1
+
+    def halve(self) -> None:
+        """Keep every other stored value (the first kept) and double the stride."""
+        self.keys = self.keys[::2]
+        self.values = self.values[::2]
+        self.stride *= 2
 
     def sorted(self) -> tuple[F64, list[Any]]:
         order = sorted(range(len(self.keys)), key=self.keys.__getitem__)  # stable: arrival order
@@ -169,6 +185,13 @@ class RunCollector:
         ref_offset_m: distance ``l`` of the reference point ahead of the axle (eqs 10-11), m.
         body_radius_m: robot body radius for the separation monitor, m.
         t0_s: realtime only: bus time that becomes 0 s in the log (default: the first frame's).
+        max_entries: realtime only: memory bound, the number of stored values (truth poses,
+            wheel commands, slot positions, leader poses) above which the history is thinned:
+            every other row (and value) is dropped and from then on one in two is kept, then
+            one in four, ... (``stats()["decimation"]``: the current stride). A long run of a
+            large fleet is so measured at a lower time resolution instead of growing without
+            bound (issue 13: the launcher grew ~5.9 MiB/s with 300 robots). ``None``: no bound
+            (lockstep is never thinned: its rows must equal the simulator's).
     """
 
     def __init__(
@@ -181,6 +204,7 @@ class RunCollector:
         ref_offset_m: float,
         body_radius_m: float,
         t0_s: float | None = None,
+        max_entries: int | None = None,
     ) -> None:
         if not robot_ids:
             raise ValueError("a run needs at least one robot")
@@ -197,6 +221,13 @@ class RunCollector:
         self.ref_offset_m = float(ref_offset_m)
         self.body_radius_m = float(body_radius_m)
         self.t0_s = t0_s
+        if max_entries is not None and max_entries < 1000:
+            raise ValueError(f"max_entries must be >= 1000, got {max_entries}")
+        self.max_entries = max_entries if dt_s is None else None
+        self.stride = 1
+        self._entries = 0
+        self._row_decision: tuple[float, bool] | None = None  # (row key, kept) of the last row
+        self._new_rows = 0
         self._index = {rid: i for i, rid in enumerate(self.robot_ids)}
         # truth rows: row key -> {robot index: (x, y, theta)}
         self._truth: dict[float, dict[int, tuple[float, float, float]]] = {}
@@ -218,7 +249,12 @@ class RunCollector:
 
     @classmethod
     def for_scenario(
-        cls, scn: Scenario, *, fleet: str = keys.DEFAULT_FLEET, lockstep: bool
+        cls,
+        scn: Scenario,
+        *,
+        fleet: str = keys.DEFAULT_FLEET,
+        lockstep: bool,
+        max_entries: int | None = None,
     ) -> RunCollector:
         """A collector for a run of ``scn`` (robots, slots, dt and geometry from the scenario)."""
         geom = scn.agent.geometry
@@ -229,6 +265,7 @@ class RunCollector:
             dt_s=scn.dt_s if lockstep else None,
             ref_offset_m=geom.ref_offset_m,
             body_radius_m=geom.body_radius_m,
+            max_entries=max_entries,
         )
 
     @property
@@ -243,6 +280,43 @@ class RunCollector:
         if self.dt_s is None:
             return t
         return float(tick if tick is not None else round(t / self.dt_s))
+
+    def _keep_row(self, row: float) -> bool:
+        """Whether truth row ``row`` is stored (always, unless decimated)."""
+        if row in self._truth:
+            return True
+        if self.stride == 1:
+            return True
+        last = self._row_decision
+        if last is not None and last[0] == row:
+            return last[1]
+        self._new_rows += 1
+        keep = self._new_rows % self.stride == 0
+        self._row_decision = (row, keep)
+        return keep
+
+    def _thinned_series(self) -> list[_Series]:
+        return [self._leader, *self._wheels, *self._slots.values()]
+
+    def _stored(self, n: int) -> None:
+        """``n`` more values stored: thin the history when over the memory bound."""
+        self._entries += n
+        if self.max_entries is None or self._entries <= self.max_entries:
+            return
+        while self._entries > self.max_entries // 2:
+            kept = set(sorted(self._truth)[::2])  # the first row (time 0 of the log) stays
+            self._truth = {k: v for k, v in self._truth.items() if k in kept}
+            for series in self._thinned_series():
+                series.halve()
+            self.stride *= 2
+            self._entries = sum(len(r) for r in self._truth.values()) + sum(
+                len(ser.keys) for ser in self._thinned_series()
+            )
+            if self.stride >= 1 << 20:
+                break
+
+    def _series(self) -> _Series:
+        return _Series(stride=self.stride)
 
     def _reject(self, reason: str) -> bool:
         self.rejected += 1
@@ -274,23 +348,29 @@ class RunCollector:
                 return self._reject(f"truth: {truth.reason}")
             row = self._row_key(truth.t)
             pose = (truth.x, truth.y, truth.theta)
-            self._truth.setdefault(row, {})[i] = pose
             self._latest_truth[i] = pose
+            if self._keep_row(row):
+                frame = self._truth.setdefault(row, {})
+                fresh = i not in frame
+                frame[i] = pose
+                self._stored(int(fresh))
             if self._last_truth_key is None or row > self._last_truth_key:
                 self._last_truth_key = row
         elif leaf == keys.LEADER:
             leader = decode(payload, Leader)
             if isinstance(leader, DecodeError):
                 return self._reject(f"leader: {leader.reason}")
-            self._leader.add(self._row_key(leader.t), (leader.x, leader.y, leader.theta))
+            self._stored(
+                self._leader.add(self._row_key(leader.t), (leader.x, leader.y, leader.theta))
+            )
         elif leaf == keys.SLOT:
             slot = decode(payload, Slot)
             if isinstance(slot, DecodeError):
                 return self._reject(f"slot: {slot.reason}")
             if slot.slot != info.slot:
                 return self._reject("slot: field does not match the key")
-            series = self._slots.setdefault(slot.slot, _Series())
-            series.add(self._row_key(slot.t), (slot.x, slot.y))
+            series = self._slots.setdefault(slot.slot, self._series())
+            self._stored(series.add(self._row_key(slot.t), (slot.x, slot.y)))
         elif leaf == keys.ASSIGNMENT:
             assignment = decode(payload, Assignment)
             if isinstance(assignment, DecodeError):
@@ -301,8 +381,10 @@ class RunCollector:
             wheels = decode(payload, Wheels)
             if isinstance(wheels, DecodeError):
                 return self._reject(f"wheels: {wheels.reason}")
-            self._wheels[i].add(
-                self._row_key(wheels.t, wheels.tick), (wheels.power_r, wheels.power_l)
+            self._stored(
+                self._wheels[i].add(
+                    self._row_key(wheels.t, wheels.tick), (wheels.power_r, wheels.power_l)
+                )
             )
         elif leaf == keys.STATUS:
             assert i is not None
@@ -326,11 +408,15 @@ class RunCollector:
             if isinstance(tb, DecodeError):
                 return self._reject(f"truths: {tb.reason}")
             row = self._row_key(tb.stamp)
-            frame = self._truth.setdefault(row, {})
+            keep = self._keep_row(row)
+            frame = self._truth.setdefault(row, {}) if keep else {}
+            before = len(frame)
             for rid, x, y, th in zip(tb.robots, tb.x, tb.y, tb.theta, strict=True):
                 i = index.get(rid)
                 if i is not None:
                     frame[i] = self._latest_truth[i] = (x, y, th)
+            if keep:
+                self._stored(len(frame) - before)
             if self._last_truth_key is None or row > self._last_truth_key:
                 self._last_truth_key = row
         elif leaf == keys.HOST_WHEELS:
@@ -338,10 +424,12 @@ class RunCollector:
             if isinstance(wb, DecodeError):
                 return self._reject(f"host wheels: {wb.reason}")
             row = self._row_key(wb.t, wb.tick)
+            stored = 0
             for rid, pr, pl in zip(wb.robots, wb.power_r, wb.power_l, strict=True):
                 i = index.get(rid)
                 if i is not None:
-                    self._wheels[i].add(row, (pr, pl))
+                    stored += self._wheels[i].add(row, (pr, pl))
+            self._stored(stored)
         elif leaf == keys.HOST_STATUS:
             sb = decode(payload, StatusBatch)
             if isinstance(sb, DecodeError):
@@ -361,8 +449,10 @@ class RunCollector:
             if isinstance(sp, DecodeError):
                 return self._reject(f"setpoints: {sp.reason}")
             row = self._row_key(sp.t, sp.tick)
+            stored = 0
             for slot, x, y in zip(sp.slot, sp.x, sp.y, strict=True):
-                self._slots.setdefault(slot, _Series()).add(row, (x, y))
+                stored += self._slots.setdefault(slot, self._series()).add(row, (x, y))
+            self._stored(stored)
         return True
 
     def feed_alive(self, key: str, alive: bool) -> None:
@@ -576,6 +666,8 @@ class RunCollector:
             "ignored": self.ignored,
             "frames": self.frames,
             "first_tick": self.first_tick,
+            "decimation": self.stride,
+            "max_entries": self.max_entries,
         }
         if rows_info is not None:
             out.update(rows_info)

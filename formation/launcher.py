@@ -13,6 +13,7 @@ import signal
 import sys
 import time
 from collections.abc import Awaitable
+from pathlib import Path
 from typing import Any, Final
 
 from bus_schemas import keys
@@ -31,8 +32,13 @@ DRAIN_S: Final = 0.25
 """Lockstep: time given to the last messages in flight after the plant ended, seconds."""
 REALTIME_END_GRACE_S: Final = 1.5
 """Realtime: how long after --duration the launcher stops a plant that did not end the run."""
-FIFO_CAPACITY: Final = 1 << 18
-"""Samples Zenoh buffers per subscription for the collector (drained every CONSUME_PERIOD_S)."""
+FIFO_CAPACITY: Final = 1 << 14
+"""Samples Zenoh buffers per subscription for the collector (drained every CONSUME_PERIOD_S): a
+bound on the launcher's memory (each sample is at most runtime.transport.MAX_MESSAGE_BYTES); a
+300-robot batched fleet puts ~10 samples per key expression in one period."""
+COLLECTOR_MAX_ENTRIES: Final = 1_500_000
+"""Realtime: values the collector keeps before it thins the run's history (formation.collector,
+``max_entries``; ~200 MiB at most). 300 robots fill it in ~30 s, 10 robots in ~50 min."""
 CONSUME_PERIOD_S: Final = 0.02
 TABLE_PERIOD_S: Final = 0.5
 LINE_PERIOD_S: Final = 5.0
@@ -61,8 +67,14 @@ class _Launcher:
         self.kill_now = False
         self.signals: list[int] = []
         self.failures: list[str] = []
-        self.collector = RunCollector.for_scenario(self.scn, fleet=cfg.fleet, lockstep=cfg.lockstep)
+        self.collector = RunCollector.for_scenario(
+            self.scn, fleet=cfg.fleet, lockstep=cfg.lockstep, max_entries=COLLECTOR_MAX_ENTRIES
+        )
         self.router: Child | None = None
+        self.group: int | None = None  # process group of every child (the first router's pid)
+        self.secure: Any = None  # formation.pki.RunConfigs with --secure
+        self.secure_dir: Any = None
+        self.registered_port: int | None = None
         self.nodes: list[Child] = []
         self.retired: list[Child] = []  # dead nodes replaced by a respawn
         self.events: list[dict[str, Any]] = []  # deaths and respawns during the run
@@ -168,11 +180,46 @@ class _Launcher:
 
     # -- start ----------------------------------------------------------------------------------
 
+    def _bus_args(self, cn: str) -> list[str]:
+        """How a node joins the bus: ``--endpoint EP``, or (``--secure``) its identity's client
+        config, never both (the config's endpoint is the TLS one)."""
+        if self.secure is None:
+            return ["--endpoint", self.cfg.endpoint]
+        return ["--zenoh-config", str(self.secure.clients[cn])]
+
+    def identities(self) -> list[Any]:
+        """The identities of this run (bus_schemas.acl): one per process kind, robot and host."""
+        from bus_schemas import acl
+
+        out = [acl.Identity(acl.Kind.PLANT), acl.coordinator("main")]
+        if self.cfg.standby:
+            out.append(acl.coordinator("standby"))
+        if self.cfg.camera == "rendered":
+            out.append(acl.Identity(acl.Kind.LOCALIZATION))
+        for name, part in self._host_parts():
+            out.append(acl.agent_host(name, part))
+        if self.cfg.hosts <= 0:
+            out += [acl.robot(rid) for rid in self.scn.robot_ids]
+        out += [acl.Identity(acl.Kind.OPERATOR), acl.Identity(acl.Kind.OBSERVER)]
+        return out
+
+    def _host_parts(self) -> list[tuple[str, list[str]]]:
+        ids = list(self.scn.robot_ids)
+        if self.cfg.hosts <= 0:
+            return []
+        h = min(self.cfg.hosts, len(ids))
+        return [(f"h{k + 1}", ids[k * len(ids) // h : (k + 1) * len(ids) // h]) for k in range(h)]
+
     def _node_args(self) -> list[tuple[str, list[str], str]]:
-        ep, fleet, scn_arg = self.cfg.endpoint, self.cfg.fleet, self.plan.scenario_arg
-        common = ["--endpoint", ep, "--fleet", fleet]
+        fleet, scn_arg = self.cfg.fleet, self.plan.scenario_arg
+        base = ["--fleet", fleet]
         if self.cfg.lease_ms is not None:
-            common += ["--lease-ms", str(self.cfg.lease_ms)]
+            base += ["--lease-ms", str(self.cfg.lease_ms)]
+
+        def common_of(cn: str) -> list[str]:
+            return [*self._bus_args(cn), *base]
+
+        common = common_of("plant")
         lock = ["--lockstep"] if self.cfg.lockstep else []
         plant = [
             "plant", "--scenario", scn_arg, "--seed", str(self.plan.seed),
@@ -181,7 +228,8 @@ class _Launcher:
         batch = ["--batch"] if self.cfg.hosts > 0 else []
         plant += batch
         coord = [
-            "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock, *common,
+            "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock,
+            *common_of("coordinator.main"),
         ]  # fmt: skip
         out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
         if self.cfg.camera == "rendered":  # docs/localization.md: the real tracker in the loop
@@ -193,45 +241,107 @@ class _Launcher:
                 float(self.scn.formation.get("b_m", 0.4)), self.plan.duration_s,
                 str(self.plan.out_dir / "camera.toml"),
             )  # fmt: skip
-            out.insert(1, ("camera", ["camera", *cam, *common], "camera ready"))
+            out.insert(1, ("camera", ["camera", *cam, *common_of("localization")], "camera ready"))
         if self.cfg.standby:
             standby = [
                 "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",
-                *batch, *lock, *common,
+                *batch, *lock, *common_of("coordinator.standby"),
             ]  # fmt: skip
             out.append(("coordinator-standby", standby, "coordinator ready"))
-        ids = list(self.scn.robot_ids)
         if self.cfg.hosts > 0:  # agent hosts, each running a contiguous share of the robots
-            h = min(self.cfg.hosts, len(ids))
-            for k in range(h):
-                part = ids[k * len(ids) // h : (k + 1) * len(ids) // h]
-                name = f"h{k + 1}"
+            for name, part in self._host_parts():
                 host = [
                     "agent-host", "--ids", ",".join(part), "--name", name, "--scenario", scn_arg,
-                    *lock, *common,
+                    *lock, *common_of(f"host.{name}"),
                 ]  # fmt: skip
                 out.append((f"agent-host-{name}", host, f"agent-host {name} ready"))
             return out
-        for rid in ids:
-            agent = ["agent", "--id", rid, "--scenario", scn_arg, *lock, *common]
+        for rid in self.scn.robot_ids:
+            agent = [
+                "agent", "--id", rid, "--scenario", scn_arg, *lock, *common_of(f"robot.{rid}"),
+            ]  # fmt: skip
             out.append((f"agent-{rid}", agent, f"agent {rid} ready"))
         return out
 
+    def _make_secure(self) -> None:
+        """``--secure``: an ephemeral CA, one certificate per identity, the router's mTLS config
+        with the access control generated from the contract, one client config per identity,
+        all in a 0700 directory of this user (formation.runfile); the CA's private key is
+        deleted as soon as the certificates are issued (no more can be signed)."""
+        from formation import pki as pki_mod
+        from formation.runfile import endpoint_port, runtime_dir
+
+        port = endpoint_port(self.cfg.endpoint)
+        if port is None:
+            raise LaunchError(f"--secure needs a loopback endpoint, got {self.cfg.endpoint}")
+        try:
+            import shutil
+
+            for old in runtime_dir().glob("secure-*-*"):  # left by a SIGKILLed launcher
+                pid = old.name.rsplit("-", 1)[-1]
+                if pid.isdigit() and not Path(f"/proc/{pid}").exists():
+                    shutil.rmtree(old, ignore_errors=True)
+            self.secure_dir = runtime_dir() / f"secure-{port}-{os.getpid()}"
+            self.secure = pki_mod.write_run_configs(
+                self.secure_dir,
+                self.identities(),
+                port=port,
+                fleet=self.cfg.fleet,
+                lease_ms=self.cfg.lease_ms or pki_mod.acl.LEASE_MS,
+            )
+            (self.secure.pki.root / "ca" / "ca.key").unlink()
+        except OSError as exc:
+            raise LaunchError(f"--secure: cannot write the run's certificates: {exc}") from exc
+
+    def _register(self) -> None:
+        """Write the run file (formation.runfile) tools use to find this run."""
+        from formation import runfile
+
+        port = runfile.endpoint_port(self.cfg.endpoint)
+        if port is None:
+            return
+        configs = {}
+        if self.secure is not None:
+            configs = {cn: str(self.secure.clients[cn]) for cn in ("operator", "observer")}
+        info = runfile.RunInfo(
+            endpoint=self.secure.endpoint if self.secure is not None else self.cfg.endpoint,
+            port=port,
+            fleet=self.cfg.fleet,
+            pid=os.getpid(),
+            out=str(self.out_dir.resolve()),
+            secure=self.secure is not None,
+            configs=configs,
+            children={c.name: c.pid for c in self._live_children() if c.pid is not None},
+        )
+        try:
+            runfile.register(info)
+            self.registered_port = port
+        except OSError as exc:
+            self.warn(f"could not write the run file: {exc}")
+
+    def _live_children(self) -> list[Child]:
+        return [*self.nodes, *([self.router] if self.router is not None else [])]
+
+    def _router_args(self) -> list[str]:
+        if self.secure is None:
+            return ["router", "--listen", self.cfg.endpoint]
+        return ["router", "--zenoh-config", str(self.secure.router)]
+
     async def _start(self) -> None:
         env = child_env()
-        self.router = Child(
-            "router", ["router", "--listen", self.cfg.endpoint], "router listening on ",
-            self.log_dir,
-        )  # fmt: skip
+        if self.cfg.secure:
+            self._make_secure()
+        self.router = Child("router", self._router_args(), "router listening on ", self.log_dir)
         await self.router.spawn(env, process_group=0)
         assert self.router.pid is not None
-        group = self.router.pid
+        self.group = group = self.router.pid
         await self._or_stop(self.router.wait_ready(self.cfg.ready_timeout_s))
         self.say(f"  router       pid {self.router.pid:<7} ready in {self.router.ready_s:.2f} s")
         for name, args, ready in self._node_args():
             child = Child(name, args, ready, self.log_dir)
             self.nodes.append(child)
             await child.spawn(env, process_group=group)
+        self._register()
         # Every child exists: only now may this process start Zenoh (no fork after Zenoh).
         await self._or_stop(self._open_session())
         await self._or_stop(
@@ -250,7 +360,15 @@ class _Launcher:
         import runtime as rt
 
         loop = asyncio.get_running_loop()
-        settings = rt.ZenohSettings(connect=(self.cfg.endpoint,), open_timeout_s=5.0)
+        if self.secure is None:
+            settings = rt.ZenohSettings(connect=(self.cfg.endpoint,), open_timeout_s=5.0)
+        else:  # the launcher reads the whole fleet: identity observer
+            settings = rt.ZenohSettings(
+                connect=(),
+                mode=None,
+                config_file=str(self.secure.clients["observer"]),
+                open_timeout_s=5.0,
+            )
         self.session = await rt.open_session_async(settings)
         # Zenoh buffers the samples in its own FIFO and the loop drains it every CONSUME_PERIOD_S:
         # no Python callback per sample on Zenoh's threads, no loop wake-up per burst. On two
@@ -349,9 +467,15 @@ class _Launcher:
 
     def _survivable(self, child: Child) -> bool:
         """An agent's death is an event of the run (issue 4: the fleet re-forms without it); a
-        coordinator's too while another coordinator process is running (``--standby``)."""
+        coordinator's too while another coordinator process is running (``--standby``); the
+        router's and (realtime) the plant's with ``--respawn`` (every node survives them: the
+        clients reconnect, agents HOLD without poses; docs/faults.md)."""
         if child.name.startswith("agent-"):
             return True
+        if child is self.router:
+            return self.cfg.respawn_s is not None
+        if child.name == "plant":
+            return self.cfg.respawn_s is not None and not self.cfg.lockstep
         if child.name.startswith("coordinator"):
             return any(
                 c is not child and c.name.startswith("coordinator") and c.returncode is None
@@ -366,25 +490,34 @@ class _Launcher:
     async def _respawn(self, old: Child) -> Child:
         """Start ``old``'s command again after ``--respawn`` seconds (a coordinator always as a
         standby: the survivor took over and must not be fought)."""
-        assert self.cfg.respawn_s is not None and self.router is not None
+        assert self.cfg.respawn_s is not None and self.group is not None
         await asyncio.sleep(self.cfg.respawn_s)
         args = list(old.argv[3:])
         if old.name.startswith("coordinator") and "--standby" not in args:
             args.append("--standby")
+        if old.name == "plant" and "--duration" in args:
+            # the restarted plant (from the scenario's start poses) runs what is left of the run
+            i = args.index("--duration") + 1
+            ran = 0.0 if self.first_truth_rx is None else time.monotonic() - self.first_truth_rx
+            args[i] = repr(max(1.0, self.plan.duration_s - ran))
         child = Child(old.name, args, old.ready_prefix, self.log_dir, generation=old.generation + 1)
         # fork+exec of a fresh interpreter: the child never runs this process's Zenoh state
-        # (the fork hazard of the field notes is a forked child *using* it).
-        assert self.router.pid is not None
-        await child.spawn(child_env(), process_group=self.router.pid)
+        # (the fork hazard of the field notes is a forked child *using* it); it joins the run's
+        # process group (which outlives its first leader, the first router, while any member
+        # lives).
+        await child.spawn(child_env(), process_group=self.group)
         self.retired.append(old)
-        self.nodes[self.nodes.index(old)] = child
+        if old is self.router:
+            self.router = child
+        else:
+            self.nodes[self.nodes.index(old)] = child
         await child.wait_ready(self.cfg.ready_timeout_s)
         self._event(f"{child.name} respawned (pid {child.pid}), ready in {child.ready_s:.2f} s")
+        self._register()
         return child
 
     async def _run(self) -> None:
-        plant = self.nodes[0]
-        assert plant.proc is not None
+        assert self.nodes[0].proc is not None
         waits: dict[asyncio.Future[Any], Child] = {
             asyncio.ensure_future(c.proc.wait()): c for c in self.nodes if c.proc is not None
         }
@@ -432,7 +565,7 @@ class _Launcher:
                     if child is None:
                         continue
                     rc = child.returncode
-                    if child is plant and rc == 0:
+                    if child.name == "plant" and rc == 0:
                         return  # the plant ran its duration
                     if self._survivable(child):
                         what = "killed by SIGKILL" if rc == -signal.SIGKILL else f"status {rc}"
@@ -474,8 +607,8 @@ class _Launcher:
                 self.session.close()
         if self.router is not None:
             await self._stop_children([self.router])
-            group = self.router.pid
-            assert group is not None
+        if self.group is not None:
+            group = self.group
             leftovers = group_members(group)
             if leftovers:
                 with contextlib.suppress(ProcessLookupError):
@@ -485,6 +618,14 @@ class _Launcher:
                 self.warn(msg)
         for c in self._all_children():
             await c.close()
+        if self.registered_port is not None:
+            from formation import runfile
+
+            runfile.unregister(self.registered_port, os.getpid())
+        if self.secure_dir is not None:  # the run's keys die with it
+            import shutil
+
+            shutil.rmtree(self.secure_dir, ignore_errors=True)
         self.stop_s = time.monotonic() - t0
 
     # -- main -----------------------------------------------------------------------------------
@@ -560,6 +701,7 @@ class _Launcher:
             "run_wall_s": run_wall,
             "stop_s": self.stop_s,
             "endpoint": self.cfg.endpoint,
+            "secure": self.cfg.secure,
             "fleet": self.cfg.fleet,
             "record": None if self.cfg.record is None else str(self.cfg.record),
             "interrupted": interrupted,

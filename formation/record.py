@@ -563,7 +563,9 @@ def main(argv: list[str]) -> int:
     except ValueError as exc:  # ScenarioError
         print(f"formation record: {exc}", file=sys.stderr)
         return 2
-    settings = rt.settings_from_args(args)
+    from formation.runfile import tool_settings  # a --secure run: its observer credentials
+
+    settings = tool_settings(args, "observer")
 
     async def node(stop: asyncio.Event) -> int:
         try:

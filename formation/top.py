@@ -258,7 +258,9 @@ def main(argv: Sequence[str]) -> int:
         if not (value > 0 and math.isfinite(value)):
             print(f"formation top: --{name} must be > 0", file=sys.stderr)
             return 2
-    settings = rt.settings_from_args(args)
+    from formation.runfile import tool_settings  # a --secure run: its observer credentials
+
+    settings = tool_settings(args, "observer")
     interactive = sys.stdout.isatty() and not args.once
 
     async def node(stop: asyncio.Event) -> int:

@@ -5,7 +5,7 @@ Usage::
     formation up [--scenario NAME|FILE] [--robots N] [--duration S] [--lockstep]
                  [--endpoint tcp/127.0.0.1:7447] [--fleet F] [--out DIR] [--seed N]
                  [--no-figures] [--quiet] [--record FILE.mcap] [--foxglove [PORT]]
-                 [--standby] [--respawn S] [--lease-ms MS] [--hosts H]
+                 [--standby] [--respawn S] [--lease-ms MS] [--hosts H] [--secure]
 
 Theory of operation
 -------------------
@@ -23,7 +23,13 @@ Theory of operation
    ``coordinator ready``, ``agent rK ready``) and names the process and its stderr tail if one
    does not come. The children share one process group of their own, so a terminal's Ctrl-C
    reaches only the launcher, which is then the only one signalling them (a second signal to a
-   node would force its exit).
+   node would force its exit). Every child dies with the launcher, even a SIGKILLed one
+   (``FORMATION_PARENT_PID`` -> ``runtime.lifecycle.bind_to_parent``: parent-death signal and a
+   ppid watch). With ``--secure`` (docs/security.md) the launcher first makes an ephemeral CA
+   and one certificate per process identity, and the router and every node get
+   ``--zenoh-config`` (mTLS, access control from the contract) instead of ``--endpoint``. The
+   run registers itself (formation.runfile: ``run-<port>.json`` in the user's runtime
+   directory) so ``formation fault``/``top``/``record`` find it and its credentials.
 3. **Collect.** Right after the last spawn the launcher opens its client session and subscribes
    a :class:`formation.collector.RunCollector` to truth, leader, slots, assignment, wheels,
    status, clock and the liveliness tokens. The plant (``--wait-robots``) starts its clock only
@@ -38,8 +44,10 @@ Theory of operation
    exits during the run (e.g. ``formation fault kill r2``) is an *event*, printed and kept in
    ``metrics.json`` (``meta.events``): the fleet re-forms without it, and with ``--respawn S`` it
    is started again S s later and rejoins. So is a coordinator while another one runs
-   (``--standby``; it is respawned as a standby). Any other child that exits ends the run as a
-   failure. Every node gets ``--lease-ms`` (default 700): a hung node's tokens vanish within 1 s.
+   (``--standby``; it is respawned as a standby), and, with ``--respawn``, the router (restarted
+   on the same endpoint: the nodes reconnect) and in realtime the plant (restarted for what is
+   left of the duration). Any other child that exits ends the run as a failure. Every node
+   gets ``--lease-ms`` (default 700): a hung node's tokens vanish within 1 s.
 5. **Stop.** SIGTERM to plant, coordinator and agents, at most 2 s wait, then SIGKILL (said on
    stderr); the launcher's session is closed; then the router gets the same treatment. SIGINT or
    SIGTERM to the launcher starts this at once; a second one kills everything immediately.
@@ -180,6 +188,13 @@ def build_parser() -> argparse.ArgumentParser:
         "tracking rendered frames of the plant's truth (realtime only; docs/localization.md)",
     )
     p.add_argument(
+        "--secure",
+        action="store_true",
+        help="authenticated run: ephemeral CA, one certificate per process, mutual TLS on the "
+        "router and the access control generated from the contract; local tools find the "
+        "credentials by themselves (docs/security.md)",
+    )
+    p.add_argument(
         "--foxglove-host",
         default="127.0.0.1",
         metavar="HOST",
@@ -210,6 +225,7 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         respawn_s=ns.respawn,
         hosts=ns.hosts,
         camera=ns.camera,
+        secure=ns.secure,
     )
 
 

@@ -55,6 +55,7 @@ class UpConfig:
     respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
     hosts: int = 0  # > 0: that many agent-host processes run the robots, batched bus (scale)
     camera: str = "emulated"  # "rendered": formation camera tracks rendered frames (realtime)
+    secure: bool = False  # mTLS + access control, per-process identities (docs/security.md)
 
 
 @dataclass(frozen=True)

@@ -35,6 +35,7 @@ from runtime.stall import (
 )
 from runtime.transport import (
     DEFAULT_ENDPOINT,
+    MAX_MESSAGE_BYTES,
     QOS_CONTROL,
     QOS_CRITICAL,
     QOS_TELEMETRY,
@@ -54,6 +55,7 @@ __all__ = [
     "FORCED_EXIT_CODE",
     "HANG_GAP_NO_LEASE_S",
     "HANG_GAP_S",
+    "MAX_MESSAGE_BYTES",
     "QOS_CONTROL",
     "QOS_CRITICAL",
     "QOS_TELEMETRY",

@@ -29,7 +29,15 @@ from runtime import transport as _tp
 from runtime.bridge import LivelinessHandler, Received, declare_token, subscribe, watch_liveliness
 from runtime.log import NodeLog
 
-__all__ = ["FORCED_EXIT_CODE", "NodeIO", "NodeMain", "run_node", "serve"]
+__all__ = [
+    "FORCED_EXIT_CODE",
+    "PARENT_ENV",
+    "NodeIO",
+    "NodeMain",
+    "bind_to_parent",
+    "run_node",
+    "serve",
+]
 
 # --------------------------------------------------------------------------------------------
 # Process lifecycle
@@ -249,3 +257,75 @@ def serve(
             session.close()
 
     return run_node(main, grace_s=grace_s, hard_exit_s=hard_exit_s)
+
+
+# --------------------------------------------------------------------------------------------
+# Children of a launcher die with it
+# --------------------------------------------------------------------------------------------
+
+PARENT_ENV: Final = "FORMATION_PARENT_PID"
+"""Set by a launcher (``formation up``) in its children's environment: the launcher's pid. A
+process started with it calls :func:`bind_to_parent` first thing, so it never outlives the
+launcher (issue 13: 101 orphans of a SIGKILLed launcher held the port and two cores)."""
+_PR_SET_PDEATHSIG: Final = 1
+PARENT_WATCH_PERIOD_S: Final = 0.2
+
+
+def _set_pdeathsig(sig: int) -> bool:
+    """``prctl(PR_SET_PDEATHSIG, sig)`` through libc (Linux); False where unavailable."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        return int(libc.prctl(_PR_SET_PDEATHSIG, sig, 0, 0, 0)) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def bind_to_parent(env: dict[str, str] | None = None) -> bool:
+    """Die with the launcher that started this process (a no-op unless :data:`PARENT_ENV`
+    names this process's parent). Returns True when bound.
+
+    Two layers: the kernel's parent-death signal (``PR_SET_PDEATHSIG`` = SIGKILL: when the
+    launcher dies, whatever way, the kernel kills this process; a stopped (SIGSTOPped) process
+    dies too, and its sockets close, so the port is free), and a daemon thread that polls
+    ``getppid()`` every :data:`PARENT_WATCH_PERIOD_S` and exits the process (status 70) if the
+    parent changed (systems without prctl; the signal covers the race of a launcher dying
+    before the prctl: the ppid check right after it). The variable is removed from this
+    process's environment so its own children (none today) are not bound to the wrong pid."""
+    environ = os.environ if env is None else env
+    raw = environ.pop(PARENT_ENV, None)
+    if raw is None:
+        return False
+    try:
+        parent = int(raw)
+    except ValueError:
+        return False
+    if os.getppid() != parent:
+        if parent > 1 and not _pid_alive(parent):
+            _forced_exit(f"bind_to_parent: launcher {parent} is gone before this process started")
+        return False  # started by something else with the variable inherited: not ours
+    _set_pdeathsig(signal.SIGKILL)
+    if os.getppid() != parent:  # the launcher died between the check and the prctl
+        _forced_exit(f"bind_to_parent: launcher {parent} died while this process started")
+
+    def watch() -> None:
+        import time
+
+        while os.getppid() == parent:
+            time.sleep(PARENT_WATCH_PERIOD_S)
+        _forced_exit(f"bind_to_parent: launcher {parent} is gone: exiting")
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+    return True
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

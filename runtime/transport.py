@@ -33,6 +33,7 @@ import zenoh
 
 __all__ = [
     "DEFAULT_ENDPOINT",
+    "MAX_MESSAGE_BYTES",
     "QOS_CONTROL",
     "QOS_CRITICAL",
     "QOS_TELEMETRY",
@@ -58,6 +59,11 @@ _MODES: Final = ("client", "peer", "router")
 _KEEP_ALIVES_PER_LEASE: Final = 4
 _MIN_LEASE_MS: Final = 100
 _RETRY_PERIOD_S: Final = 0.1
+MAX_MESSAGE_BYTES: Final = 128 * 1024
+"""Largest Zenoh message any session reassembles (``transport/link/rx/max_message_size``): twice
+the contract's largest payload (``bus_schemas.MAX_PAYLOAD_BYTES``, 64 KiB; bigger ones are
+rejected by decode anyway). Zenoh's default is 1 GiB: a flood of large messages grew every
+receiver by ~20 MiB per burst (issue 13). The same cap as the deploy configs (bus_schemas.acl)."""
 _CONNECT_RETRY: Final = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
 """Client reconnection to its router after the link was lost (see :func:`make_config`)."""
 
@@ -261,6 +267,16 @@ def make_config(settings: ZenohSettings) -> zenoh.Config:
         # router or peer that connects to another router (a robot host's router across a link
         # that went down: Zenoh's default took up to 4.5 s to bring it back, tests/test_multihost).
         put("connect/retry", dict(_CONNECT_RETRY))
+    # Cap what a session reassembles, unless a config file already set a cap as small (every
+    # session of every process: nodes, tools, the launcher).
+    configured = json.loads(config.get_json("transport/link/rx/max_message_size"))
+    if not isinstance(configured, int) or configured > MAX_MESSAGE_BYTES:
+        put("transport/link/rx/max_message_size", MAX_MESSAGE_BYTES)
+    # Zenoh's shared-memory transport (on by default between processes of one host) carries
+    # messages over 3 KiB outside the link, past this cap, in segments mapped by every
+    # receiver (measured here: a 4 MiB put reached a capped subscriber). The bus's payloads
+    # are at most 64 KiB: keep everything on the link.
+    put("transport/shared_memory/enabled", False)
     if settings.lease_ms is not None:
         put("transport/link/tx/lease", int(settings.lease_ms))
         put("transport/link/tx/keep_alive", _KEEP_ALIVES_PER_LEASE)
