@@ -15,9 +15,10 @@ Batched fleets (``formation up --hosts H``, docs/scale.md) have no per-robot key
 are read out of the batches, with the same columns. ``host/<name>/status`` (``StatusBatch``)
 gives each robot's mode, slot, tracking error and rejected count; ``poses``, ``setpoints``,
 ``truths`` and ``host/<name>/wheels`` count as one message of each robot they carry (a robot's
-pose rate is the rate of the frames that carry it); the ``host`` column names the agent host. Redrawn every ``--period`` seconds (0.5) on a
-terminal; ``--once`` prints one table after ``--wait`` seconds (1.5) and exits 0, for scripts
-and tests. Only subscribes: it never publishes, so it is safe on a live fleet.
+pose rate is the rate of the frames that carry it); the ``host`` column names the agent host.
+Redrawn every ``--period`` seconds (0.5) on a terminal; ``--once`` prints one table after
+``--wait`` seconds (1.5) and exits 0, for scripts and tests. Only subscribes: it never
+publishes, so it is safe on a live fleet.
 """
 
 from __future__ import annotations

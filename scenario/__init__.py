@@ -7,7 +7,8 @@ process per node over Zenoh) read the same file, so both runs are the same exper
 
 * :mod:`scenario.load`: the loader and the one validator (errors name the field);
 * :mod:`scenario.write`: TOML writer (``to_toml``);
-* :mod:`scenario.resize`: ``--robots N`` / ``--spares K`` (``scenario_with_robots``, ``fleet_shape``);
+* :mod:`scenario.resize`: ``--robots N`` / ``--spares K`` (``scenario_with_robots``,
+  ``fleet_shape``);
 * ``scenario/builtin/*.toml``: the built-in scenarios, named without the extension.
 
 This package sits above the pure cores and below the runtime's process shells
@@ -35,8 +36,8 @@ __all__ = [
     "SCENARIO_DIR",
     "AssignmentConfig",
     "CameraModel",
-    "FleetShape",
     "Disturbance",
+    "FleetShape",
     "LinkModel",
     "PlantModel",
     "Scenario",

@@ -55,9 +55,9 @@ def scenario_with_robots(data: Mapping[str, Any], n: int | None, spares: int = 0
     docstring); ``n`` None keeps the scenario's robot count as the slot count. Robots that
     existed keep their start pose; new ones start on their slot (robot ``rK`` on the K-th slot
     of the formation, in definition order) or, beyond the last slot (the spares), in rows 0.5 m
-    behind the formation, 0.4 m apart, five to a row, centred on the leader's line. A disturbance of a robot that no longer
-    exists is dropped. Raises :class:`ScenarioError` for ``n < 1``, ``spares < 0`` or a
-    formation that cannot be grown.
+    behind the formation, 0.4 m apart, five to a row, centred on the leader's line. A
+    disturbance of a robot that no longer exists is dropped. Raises :class:`ScenarioError` for
+    ``n < 1``, ``spares < 0`` or a formation that cannot be grown.
     """
     if n is None:
         n = len(_robot_ids(dict(data.get("robots", {}))))
