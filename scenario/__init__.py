@@ -29,7 +29,7 @@ from scenario.load import (
     parse,
     resolve,
 )
-from scenario.resize import FleetShape, fleet_shape, scenario_with_robots
+from scenario.resize import FleetShape, fleet_shape, load_with_robots, scenario_with_robots
 from scenario.write import to_toml
 
 __all__ = [
@@ -45,6 +45,7 @@ __all__ = [
     "builtin_names",
     "fleet_shape",
     "load",
+    "load_with_robots",
     "parse",
     "resolve",
     "scenario_with_robots",

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from robot_agent.kinematics import axle_from_reference_point
-from scenario.load import ScenarioError
+from scenario.load import Scenario, ScenarioError, parse, resolve
 
-__all__ = ["FleetShape", "fleet_shape", "scenario_with_robots"]
+__all__ = ["FleetShape", "fleet_shape", "load_with_robots", "scenario_with_robots"]
 
 
 def _robot_ids(robots: Mapping[str, Any]) -> list[str]:
@@ -140,3 +140,16 @@ def fleet_shape(formation: Mapping[str, Any], n_robots: int) -> FleetShape:
 
     spec = FormationSpec.from_dict(dict(formation))
     return FleetShape(slots=len(spec), robots=n_robots, stages=spec.n_stages)
+
+
+def load_with_robots(name_or_path: str, n: int | None, spares: int = 0) -> Scenario:
+    """Load a built-in scenario or a TOML file resized by :func:`scenario_with_robots` (what
+    ``formation sim --robots N --spares K`` runs); raises :class:`ScenarioError`."""
+    import tomllib
+
+    path = resolve(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    return parse(scenario_with_robots(data, n, spares), source=str(path))
