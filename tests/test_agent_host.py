@@ -212,7 +212,7 @@ def test_lockstep_agent_hosts_reproduce_per_robot_agents_bit_for_bit(
     spawn: Spawner, tmp_path: Path
 ) -> None:
     common = ("--scenario", "chevron7", "--lockstep", "--duration", "3")
-    a = _up(spawn, tmp_path / "agents", *common)
+    a = _up(spawn, tmp_path / "agents", *common, "--hosts", "0")  # one process per robot
     b = _up(spawn, tmp_path / "hosts", *common, "--hosts", "2")
     assert set(b["meta"]["children"]) >= {"agent-host-h1", "agent-host-h2"}
     assert b["meta"]["collector"]["received"].get("host_wheels", 0) > 0
