@@ -64,8 +64,10 @@ def run_up(robots: int, duration_s: float, out: Path) -> dict[str, object] | Non
     banner = next((ln.strip() for ln in stdout.splitlines() if "fleet:" in ln), "(no banner)")
     print(f"  {banner}")
     if proc.returncode != 0:
-        print(f"  formation up failed with status {proc.returncode}; see {out}/logs/")
-        return None
+        print(f"  formation up exited with status {proc.returncode}; see {out}/logs/")
+        if not (out / "plant_stats.json").exists() or not (out / "metrics.json").exists():
+            return None
+        print("  (the run itself completed: its figures follow)")
     stats = json.loads((out / "plant_stats.json").read_text())
     m = json.loads((out / "metrics.json").read_text())
     import scenario
