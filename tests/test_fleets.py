@@ -242,3 +242,15 @@ def test_top_shows_every_robot_of_a_real_agent_host_fleet(spawn: Spawner, tmp_pa
         assert cols[6] == "0", (rid, text)  # nothing rejected
     assert slots == set(range(12)), text
     run.proc.wait(timeout=30)
+
+
+def test_formation_sim_takes_robots_and_spares(tmp_path: Path) -> None:
+    from formation.sim_cli import main as sim_main
+
+    out = tmp_path / "sim"
+    argv = ["--robots", "5", "--spares", "1", "--duration", "1", "--out", str(out)]
+    assert sim_main([*argv, "--no-figures", "--quiet"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert len(m["robots"]) == 6 and m["robots"]["r6"]["final_slot"] is None  # the spare
+    assert sorted(r["final_slot"] for r in list(m["robots"].values())[:5]) == list(range(5))
+    assert sim_main(["--spares", "-1", "--out", str(out)]) == 2
