@@ -253,5 +253,9 @@ def main(argv: list[str]) -> int:
     except (scenario_mod.ScenarioError, ValueError) as exc:
         print(f"formation up: {exc}", file=sys.stderr)
         return 2
-    result = asyncio.run(run_up(cfg, plan))
+    try:
+        result = asyncio.run(run_up(cfg, plan))
+    except KeyboardInterrupt:  # a second Ctrl-C while the results of a stopped run are written
+        print("formation up: interrupted while writing the results", file=sys.stderr)
+        return 130
     return result.exit_code
