@@ -198,16 +198,16 @@ class _Launcher:
             out.append(acl.Identity(acl.Kind.LOCALIZATION))
         for name, part in self._host_parts():
             out.append(acl.agent_host(name, part))
-        if self.cfg.hosts <= 0:
+        if self.plan.hosts <= 0:
             out += [acl.robot(rid) for rid in self.scn.robot_ids]
         out += [acl.Identity(acl.Kind.OPERATOR), acl.Identity(acl.Kind.OBSERVER)]
         return out
 
     def _host_parts(self) -> list[tuple[str, list[str]]]:
         ids = list(self.scn.robot_ids)
-        if self.cfg.hosts <= 0:
+        if self.plan.hosts <= 0:
             return []
-        h = min(self.cfg.hosts, len(ids))
+        h = min(self.plan.hosts, len(ids))
         return [(f"h{k + 1}", ids[k * len(ids) // h : (k + 1) * len(ids) // h]) for k in range(h)]
 
     def _node_args(self) -> list[tuple[str, list[str], str]]:
@@ -225,7 +225,10 @@ class _Launcher:
             "plant", "--scenario", scn_arg, "--seed", str(self.plan.seed),
             "--duration", repr(self.plan.duration_s), "--wait-robots", *lock, *common,
         ]  # fmt: skip
-        batch = ["--batch"] if self.cfg.hosts > 0 else []
+        # the plant's control-loop latency statistics (realtime: pose frame -> wheel command
+        # computed from it, docs/scale.md), written when it exits (bench/bench_up.py reads them)
+        plant += ["--stats-out", str(self.out_dir.resolve() / "plant_stats.json")]
+        batch = ["--batch"] if self.plan.hosts > 0 else []
         plant += batch
         coord = [
             "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock,
@@ -248,7 +251,7 @@ class _Launcher:
                 *batch, *lock, *common_of("coordinator.standby"),
             ]  # fmt: skip
             out.append(("coordinator-standby", standby, "coordinator ready"))
-        if self.cfg.hosts > 0:  # agent hosts, each running a contiguous share of the robots
+        if self.plan.hosts > 0:  # agent hosts, each running a contiguous share of the robots
             for name, part in self._host_parts():
                 host = [
                     "agent-host", "--ids", ",".join(part), "--name", name, "--scenario", scn_arg,
@@ -352,7 +355,8 @@ class _Launcher:
             if not c.name.startswith("agent-"):
                 self.say(f"  {c.name:<12} pid {c.pid:<7} ready in {c.ready_s:.2f} s")
         slowest = max((c.ready_s or 0.0) for c in agents)
-        self.say(f"  {len(agents)} agents    ready in {slowest:.2f} s (slowest)")
+        what = "agent hosts" if self.plan.hosts > 0 else "agents"
+        self.say(f"  {len(agents)} {what:<9} ready in {slowest:.2f} s (slowest)")
 
     async def _open_session(self) -> None:
         import zenoh
@@ -644,6 +648,7 @@ class _Launcher:
             f"{self.plan.duration_s:g} s, seed {self.plan.seed}) on {self.cfg.endpoint}, "
             f"fleet {self.cfg.fleet}; logs in {self.log_dir}/"
         )
+        self.say(f"  {self.plan.banner()}")
         interrupted = False
         consumer: asyncio.Task[None] | None = None
         display: asyncio.Task[None] | None = None
@@ -731,15 +736,30 @@ class _Launcher:
         (self.out_dir / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
         log.save_npz(str(self.out_dir / "run.npz"))
         result.metrics = m
-        if self.cfg.figures and not interrupted:
+        wrote = "metrics"
+        if self.cfg.figures:
             from formation import figures as fig_mod
 
-            fig_mod.write_all(
-                log,
-                self.out_dir,
-                title=f"{self.scn.name} over Zenoh ({m['meta']['mode']}): reference points "
-                "(solid), virtual trajectories (dashed)",
-                settle_s=self.plan.settle_s,
+            cut = f", interrupted after {sim_s:.1f} s" if interrupted else ""
+            try:
+                fig_mod.write_all(
+                    log,
+                    self.out_dir,
+                    title=f"{self.scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
+                    "points (solid), virtual trajectories (dashed)",
+                    settle_s=self.plan.settle_s,
+                )
+                wrote = "metrics and figures"
+            except Exception as exc:  # a run cut after a few ticks may not make every figure
+                if not interrupted:
+                    raise
+                self.warn(f"figures of the interrupted run failed: {exc!r}")
+        if interrupted:  # one line, even with --quiet: what was written is of a partial run
+            print(
+                f"formation up: interrupted: {wrote} of the {sim_s:.1f} s recorded so far "
+                f"in {self.out_dir}/",
+                file=sys.stderr,
+                flush=True,
             )
         if not self.cfg.quiet:
             from formation.sim_cli import summary
@@ -747,8 +767,7 @@ class _Launcher:
             print(summary(m))
             rf = m["meta"]["realtime_factor"]
             speed = f", {rf:.1f}x real time" if rf else ""
-            what = "metrics" if interrupted or not self.cfg.figures else "metrics and figures"
-            print(f"{sim_s:.2f} s of {m['meta']['mode']} run{speed}; {what} in {self.out_dir}/")
+            print(f"{sim_s:.2f} s of {m['meta']['mode']} run{speed}; {wrote} in {self.out_dir}/")
         return result
 
 

@@ -26,6 +26,7 @@ Everything random comes from one seeded generator, so a seed gives the same run.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 from operator import itemgetter
@@ -53,6 +54,7 @@ class SimResult:
     log: RunLog
     wall_s: float
     firmware_status: dict[str, Any]
+    interrupted: bool = False  # ``stop`` was set: the log holds the ticks run before it
 
     @property
     def realtime_factor(self) -> float:
@@ -60,11 +62,18 @@ class SimResult:
         return sim_s / self.wall_s if self.wall_s > 0 else math.inf
 
 
-def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = None) -> SimResult:
+def run(
+    scenario: Scenario,
+    seed: int | None = None,
+    duration_s: float | None = None,
+    stop: threading.Event | None = None,
+) -> SimResult:
     """Run ``scenario`` in-process for ``duration_s`` (default: the scenario's) of sim time.
 
     ``seed`` overrides the scenario's seed. The returned ``wall_s`` is the wall-clock time of the
-    loop and of building the log arrays at the end.
+    loop and of building the log arrays at the end. ``stop`` (e.g. set by a SIGINT handler) ends
+    the run early, between two ticks: the result holds the ticks run so far (at least one) and
+    ``interrupted`` is True.
     """
     seed = scenario.seed if seed is None else seed
     duration = scenario.duration_s if duration_s is None else duration_s
@@ -119,7 +128,11 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
     steps = [fw.step for fw in firmwares]
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
+    interrupted = False
     for k in range(ticks):
+        if k and stop is not None and stop.is_set():
+            interrupted = True
+            break
         t = tick_time(k, dt)
         # 1. disturbances
         while pending and pending[0].t_s <= t + 1e-9:
@@ -235,8 +248,10 @@ def run(scenario: Scenario, seed: int | None = None, duration_s: float | None = 
         "link": {"sent": link.sent, "dropped": link.dropped},
         "path_warnings": [c.message() for c in path_conflicts(scenario, duration)],
     }
+    if interrupted:
+        log.meta["interrupted"] = True
     status = {rid: _status_dict(fw) for rid, fw in zip(ids, firmwares, strict=True)}
-    return SimResult(log=log, wall_s=wall, firmware_status=status)
+    return SimResult(log=log, wall_s=wall, firmware_status=status, interrupted=interrupted)
 
 
 def _event_dict(e: Any, ids: list[str]) -> dict[str, Any]:

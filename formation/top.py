@@ -9,9 +9,16 @@ and role (the coordinator's ``assignment`` and ``slot/<k>``), firmware mode and 
 (the agent's ``status``: hypot(ex, ey), eqs 17-18), message rates per key over the last
 ``--window`` seconds (pose, setpoint, wheels, status, truth), the agent's count of rejected
 messages, and the age of its last message. A header says who is alive (plant, coordinators),
-who leads, and the latest clock tick (lockstep). Redrawn every ``--period`` seconds (0.5) on a
-terminal; ``--once`` prints one table after ``--wait`` seconds (1.5) and exits 0, for scripts
-and tests. Only subscribes: it never publishes, so it is safe on a live fleet.
+who leads, and the latest clock tick (lockstep).
+
+Batched fleets (``formation up --hosts H``, docs/scale.md) have no per-robot keys: their robots
+are read out of the batches, with the same columns. ``host/<name>/status`` (``StatusBatch``)
+gives each robot's mode, slot, tracking error and rejected count; ``poses``, ``setpoints``,
+``truths`` and ``host/<name>/wheels`` count as one message of each robot they carry (a robot's
+pose rate is the rate of the frames that carry it); the ``host`` column names the agent host.
+Redrawn every ``--period`` seconds (0.5) on a terminal; ``--once`` prints one table after
+``--wait`` seconds (1.5) and exits 0, for scripts and tests. Only subscribes: it never
+publishes, so it is safe on a live fleet.
 """
 
 from __future__ import annotations
@@ -33,8 +40,13 @@ from bus_schemas import (
     Assignment,
     Clock,
     DecodeError,
+    PoseBatch,
+    SetpointBatch,
     Slot,
     Status,
+    StatusBatch,
+    TruthBatch,
+    WheelsBatch,
     keys,
 )
 from formation.bus_json import alive_kind, decode_sample
@@ -50,6 +62,15 @@ _RATE_HEAD: Final = {
     keys.TRUTH: "truth",
 }
 CLEAR: Final = "\x1b[H\x1b[2J"
+BATCH_LEAVES: Final = {
+    keys.POSES: keys.POSE,
+    keys.SETPOINTS: keys.SETPOINT,
+    keys.TRUTHS: keys.TRUTH,
+    keys.HOST_WHEELS: keys.WHEELS,
+    keys.HOST_STATUS: keys.STATUS,
+}
+"""Batched leaf -> the per-robot leaf whose rate each robot of a batch counts for."""
+_Batch = PoseBatch | SetpointBatch | TruthBatch | WheelsBatch | StatusBatch
 
 
 def _natural(rid: str) -> tuple[str, int, str]:
@@ -66,6 +87,7 @@ class RobotState:
     status: Status | None = None
     last_rx_ns: int | None = None
     arrivals: dict[str, deque[int]] = field(default_factory=dict)
+    host: str | None = None  # the agent host that runs it (batched fleets)
 
 
 @dataclass(frozen=True)
@@ -81,6 +103,7 @@ class RobotRow:
     rates_hz: dict[str, float]
     rejected: int | None
     age_s: float | None
+    host: str | None = None
 
 
 class FleetStatus:
@@ -127,14 +150,14 @@ class FleetStatus:
                 self._first_rx_ns = item.rx_ns
             parsed = keys.parse_robot_key(item.key)
             if parsed is not None:
-                st = self._robot(parsed[1])
-                st.last_rx_ns = item.rx_ns
-                q = st.arrivals.setdefault(parsed[2], deque())
-                q.append(item.rx_ns)
-                while q and item.rx_ns - q[0] > self.window_ns:
-                    q.popleft()
+                self._arrival(parsed[1], parsed[2], item.rx_ns)
                 if parsed[2] != keys.STATUS:
                     return  # rates only: no need to decode poses, wheels, ...
+            else:
+                info = keys.parse_key(item.key)
+                if info is not None and info.leaf in BATCH_LEAVES:
+                    self._observe_batch(item, info)
+                    return
             decoded = decode_sample(item.key, item.payload)
             if decoded is None:
                 return
@@ -150,6 +173,45 @@ class FleetStatus:
                 self.slot_roles[msg.slot] = msg.role
             elif isinstance(msg, Clock):
                 self.tick = msg.tick
+
+    def _arrival(self, rid: str, leaf: str, rx_ns: int) -> None:
+        st = self._robot(rid)
+        st.last_rx_ns = rx_ns
+        q = st.arrivals.setdefault(leaf, deque())
+        q.append(rx_ns)
+        while q and rx_ns - q[0] > self.window_ns:
+            q.popleft()
+
+    def _observe_batch(self, item: BusItem, info: keys.KeyInfo) -> None:
+        """One batch: an arrival of its leaf for every robot it carries; a status batch also
+        sets each robot's status (lock held)."""
+        decoded = decode_sample(item.key, item.payload)
+        if decoded is None:
+            return
+        if isinstance(decoded, DecodeError):
+            self.rejected += 1
+            return
+        msg: _Batch = decoded.msg  # type: ignore[assignment]
+        leaf = BATCH_LEAVES[info.leaf]
+        for rid in msg.robots:
+            self._arrival(rid, leaf, item.rx_ns)
+        if isinstance(msg, StatusBatch):
+            for k, rid in enumerate(msg.robots):
+                st = self._robot(rid)
+                st.host = info.name
+                slot = msg.slot[k]
+                st.status = Status(
+                    t=msg.t,
+                    seq=msg.seq,
+                    mode=msg.mode[k],
+                    slot=None if slot < 0 else slot,
+                    pid=msg.pid,
+                    host=msg.host,
+                    rejected=msg.rejected[k],
+                    ex=msg.ex[k],
+                    ey=msg.ey[k],
+                    robot=rid,
+                )
 
     def rows(self, now_ns: int) -> list[RobotRow]:
         """The table's rows at ``now_ns`` (monotonic ns), robots in natural order."""
@@ -184,6 +246,7 @@ class FleetStatus:
                         rates_hz=rates,
                         rejected=s.rejected if s is not None else None,
                         age_s=None if st.last_rx_ns is None else (now_ns - st.last_rx_ns) / 1e9,
+                        host=st.host,
                     )
                 )
             return out
@@ -207,10 +270,11 @@ class FleetStatus:
         """The whole table as text."""
         rows = self.rows(now_ns)
         rate_cols = "".join(f"{_RATE_HEAD[leaf]:>7}" for leaf in RATE_LEAVES)
+        hosted = any(r.host is not None for r in rows)
         lines = [
             self.header(),
             f"{'robot':<8}{'alive':<7}{'slot':>5} {'role':<10}{'mode':<9}{'err cm':>8}"
-            f"{rate_cols}{'rej':>6}{'age s':>7}",
+            f"{rate_cols}{'rej':>6}{'age s':>7}" + ("  host" if hosted else ""),
         ]
         for r in rows:
             alive = {True: "yes", False: "LOST", None: "?"}[r.alive]
@@ -221,7 +285,7 @@ class FleetStatus:
             age = "-" if r.age_s is None else f"{r.age_s:.1f}"
             lines.append(
                 f"{r.robot:<8}{alive:<7}{slot:>5} {r.role or '-':<10}{r.mode or '-':<9}{err:>8}"
-                f"{rates}{rej:>6}{age:>7}"
+                f"{rates}{rej:>6}{age:>7}" + (f"  {r.host or '-'}" if hosted else "")
             )
         if not rows:
             lines.append("(no robots seen yet)")

@@ -2,7 +2,7 @@
 
 Usage::
 
-    formation up [--scenario NAME|FILE] [--robots N] [--duration S] [--lockstep]
+    formation up [--scenario NAME|FILE] [--robots N] [--spares K] [--duration S] [--lockstep]
                  [--endpoint tcp/127.0.0.1:7447] [--fleet F] [--out DIR] [--seed N]
                  [--no-figures] [--quiet] [--record FILE.mcap] [--foxglove [PORT]]
                  [--standby] [--respawn S] [--lease-ms MS] [--hosts H] [--secure]
@@ -10,9 +10,15 @@ Usage::
 Theory of operation
 -------------------
 1. **Plan.** The scenario is loaded and validated (a bad one exits with status 2 before anything
-   starts). ``--robots N`` rewrites it with ids ``r1..rN`` (start poses kept for the first robots,
-   new ones placed on their formation slots, chevron/lattice formations resized to N slots) and
-   writes it to ``<out>/scenario.toml``, which every process then loads.
+   starts). ``--robots N`` rewrites it with N formation slots, grown by the paper's staged rule
+   (Fig 2b: a triangle becomes the triangular lattice; scenario.resize), and ids ``r1..rN``
+   (start poses kept for the first robots, new ones placed on their slots); ``--spares K`` adds
+   K idle hot spares ``r(N+1)..r(N+K)`` in rows behind the formation. The rewrite goes to
+   ``<out>/scenario.toml``, which every process then loads. The plan also decides the agent
+   processes: ``--hosts H`` agent hosts, ``--hosts 0`` one process per robot, and without
+   ``--hosts`` the automatic rule of ``up_plan.auto_hosts`` (per-robot processes up to 4 robots
+   per core, agent hosts beyond; docs/scale.md). The start banner's ``fleet:`` line says slots,
+   stages, spares and processes, and why.
 2. **Spawn** (fork+exec, ``asyncio.create_subprocess_exec``; this process opens no Zenoh session
    before every child exists): ``formation router --listen EP``, then ``formation plant``,
    ``formation coordinator`` and one ``formation agent --id rK`` per robot, all connecting to EP
@@ -61,8 +67,9 @@ Theory of operation
 6. **Results.** ``metrics.json`` (``formation.metrics.compute`` on the RunLog built from truth),
    ``run.npz`` and the figures (``formation.figures.write_all``) in ``--out``. Exit status: 0,
    1 if a child failed (did not start, died, exited non-zero, had to be killed), 130 after an
-   interrupt (then figures are skipped, metrics of the partial run are still written), 2 for bad
-   arguments.
+   interrupt (metrics and figures of what was recorded so far are still written, and one line on
+   stderr says so), 2 for bad arguments. The plant writes its control-loop latency statistics
+   to ``plant_stats.json`` (docs/scale.md; bench/bench_up.py reads them).
 """
 
 from __future__ import annotations
@@ -112,7 +119,21 @@ def build_parser() -> argparse.ArgumentParser:
         default="paper-exp2",
         help=f"built-in name ({', '.join(scenario_mod.builtin_names())}) or a TOML file",
     )
-    p.add_argument("--robots", type=int, default=None, help="number of robots r1..rN")
+    p.add_argument(
+        "--robots",
+        type=int,
+        default=None,
+        metavar="N",
+        help="grow (or cut) the formation to N slots by the paper's staged rule (Fig 2b) with "
+        "robots r1..rN (default: the scenario's)",
+    )
+    p.add_argument(
+        "--spares",
+        type=int,
+        default=0,
+        metavar="K",
+        help="add K idle hot spares behind the formation (robots = slots + K; default 0)",
+    )
     p.add_argument(
         "--duration",
         type=float,
@@ -143,10 +164,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--hosts",
         type=int,
-        default=0,
+        default=None,
         metavar="H",
-        help="run the robots in H agent-host processes with the batched bus instead of one "
-        "agent process per robot (large fleets, docs/scale.md)",
+        help="run the robots in H agent-host processes with the batched bus; 0: one agent "
+        "process per robot (default: automatic, per-robot processes up to 4 robots per core, "
+        "agent hosts beyond; docs/scale.md)",
     )
     p.add_argument(
         "--respawn",
@@ -208,6 +230,7 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
     return UpConfig(
         scenario=ns.scenario,
         robots=ns.robots,
+        spares=ns.spares,
         duration_s=ns.duration,
         lockstep=ns.lockstep,
         endpoint=ns.endpoint,
@@ -232,7 +255,7 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
 def main(argv: list[str]) -> int:
     """Entry point of ``formation up`` (dispatched by ``formation.cli``)."""
     cfg = config_from_args(build_parser().parse_args(argv))
-    if not 0 <= cfg.hosts <= 256:
+    if cfg.hosts is not None and not 0 <= cfg.hosts <= 256:
         print(f"formation up: --hosts: expected 0..256, got {cfg.hosts}", file=sys.stderr)
         return 2
     if cfg.camera == "rendered" and cfg.lockstep:
@@ -246,5 +269,9 @@ def main(argv: list[str]) -> int:
     except (scenario_mod.ScenarioError, ValueError) as exc:
         print(f"formation up: {exc}", file=sys.stderr)
         return 2
-    result = asyncio.run(run_up(cfg, plan))
+    try:
+        result = asyncio.run(run_up(cfg, plan))
+    except KeyboardInterrupt:  # a second Ctrl-C while the results of a stopped run are written
+        print("formation up: interrupted while writing the results", file=sys.stderr)
+        return 130
     return result.exit_code

@@ -6,6 +6,7 @@ option exits with status 2 before any process exists."""
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,13 +14,48 @@ from typing import Any, Final
 
 import scenario as scenario_mod
 from bus_schemas import keys
-from scenario import scenario_with_robots, to_toml
+from scenario import FleetShape, fleet_shape, scenario_with_robots, to_toml
 
 DEFAULT_ENDPOINT: Final = "tcp/127.0.0.1:7447"
 DEFAULT_LEASE_MS: Final = 700
 """Zenoh lease every node announces: a hung (SIGSTOPped) node's tokens vanish ~0.7 s after it
 stopped, inside issue 4's 1 s (keep-alives every lease/4 = 175 ms, sent by Zenoh's own threads,
 so a busy Python loop does not expire it)."""
+
+
+PER_ROBOT_PROCESSES_PER_CORE: Final = 4
+"""Automatic agent hosts: one ``formation agent`` process per robot while the fleet has at most
+this many robots per core of the machine (``os.cpu_count()``); beyond, agent hosts. One agent
+process costs about 2-3 % of a core at 50 Hz and ~13 MiB plus a Python start, but every process
+also adds a Zenoh session and a scheduling slot: on this 2-core machine 100 agent processes gave
+pose->wheels p99 of 677-889 ms (issue 18) where one agent host gives ~6 ms (docs/scale.md)."""
+ROBOTS_PER_HOST: Final = 300
+"""Automatic agent hosts: robots one agent host is given at most (docs/scale.md: one host holds
+300 robots at 50 Hz with p99 ~15 ms on this machine; it steps them one after another)."""
+
+
+def auto_hosts(n_robots: int, cores: int | None = None) -> tuple[int, str]:
+    """How many agent hosts ``formation up`` runs when ``--hosts`` is not given, and why.
+
+    The rule (docs/scale.md): one process per robot (0 hosts) while ``n_robots <=``
+    :data:`PER_ROBOT_PROCESSES_PER_CORE` ``x cores``; otherwise
+    ``hosts = min(cores, ceil(n_robots /`` :data:`ROBOTS_PER_HOST` ``))``, at least 1 (more hosts
+    than cores only compete with plant, coordinator and router for them). Returns
+    ``(hosts, reason)``; ``reason`` is the one line the banner prints.
+    """
+    c = max(1, cores if cores is not None else (os.cpu_count() or 1))
+    limit = PER_ROBOT_PROCESSES_PER_CORE * c
+    if n_robots <= limit:
+        return (
+            0,
+            f"automatic: {n_robots} robots <= {limit} ({PER_ROBOT_PROCESSES_PER_CORE} x {c} cores)",
+        )
+    hosts = max(1, min(c, math.ceil(n_robots / ROBOTS_PER_HOST)))
+    return hosts, (
+        f"automatic: {n_robots} robots > {limit} ({PER_ROBOT_PROCESSES_PER_CORE} x {c} cores), "
+        f"{ROBOTS_PER_HOST} robots per host at most, at most one host per core; "
+        "--hosts 0 forces one process per robot"
+    )
 
 
 class LaunchError(RuntimeError):
@@ -36,7 +72,8 @@ class UpConfig:
     """Options of one ``formation up`` run (the CLI's, see :func:`build_parser`)."""
 
     scenario: str = "paper-exp2"
-    robots: int | None = None
+    robots: int | None = None  # formation slots (grown by the staged rule, Fig 2b)
+    spares: int = 0  # idle hot spares beyond the slots (robots = slots + spares)
     duration_s: float | None = None
     lockstep: bool = False
     endpoint: str = DEFAULT_ENDPOINT
@@ -53,7 +90,7 @@ class UpConfig:
     lease_ms: int | None = DEFAULT_LEASE_MS  # Zenoh lease of every node (hang detection)
     standby: bool = False  # run a second, hot-standby coordinator
     respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
-    hosts: int = 0  # > 0: that many agent-host processes run the robots, batched bus (scale)
+    hosts: int | None = None  # agent hosts (batched bus); 0: one process per robot; None: auto
     camera: str = "emulated"  # "rendered": formation camera tracks rendered frames (realtime)
     secure: bool = False  # mTLS + access control, per-process identities (docs/security.md)
 
@@ -69,6 +106,19 @@ class Plan:
     seed: int
     settle_s: float
     out_dir: Path
+    hosts: int = 0  # agent-host processes (0: one agent process per robot)
+    hosts_reason: str = "--hosts"  # why (the banner's line): "--hosts" or auto_hosts' reason
+    shape: FleetShape | None = None  # slots, robots, spares, stages
+
+    def banner(self) -> str:
+        """One line saying what the fleet is and which processes run it."""
+        n = len(self.scenario.robot_ids)
+        shape = self.shape.describe() if self.shape is not None else f"{n} robots"
+        if self.hosts > 0:
+            procs = f"{self.hosts} agent host{'s' if self.hosts > 1 else ''} (batched bus)"
+        else:
+            procs = f"{n} agent process{'es' if n > 1 else ''}"
+        return f"fleet: {shape}; robots run in {procs} [{self.hosts_reason}]"
 
 
 @dataclass
@@ -101,10 +151,21 @@ def plan_run(cfg: UpConfig) -> Plan:
         raise scenario_mod.ScenarioError(f"{path}: not valid TOML: {exc}") from exc
     scenario_arg = cfg.scenario if path.parent == scenario_mod.SCENARIO_DIR else str(path.resolve())
     toml_text: str | None = None
-    if cfg.robots is not None:
-        data = scenario_with_robots(data, cfg.robots)
+    if cfg.robots is not None or cfg.spares:
+        data = scenario_with_robots(data, cfg.robots, cfg.spares)
         toml_text = to_toml(data)
     scn = scenario_mod.parse(data, source=str(path))
+    n = len(scn.robot_ids)
+    if cfg.hosts is None:
+        hosts, reason = auto_hosts(n)
+    elif not 0 <= cfg.hosts <= 256:
+        raise ValueError(f"--hosts: expected 0..256, got {cfg.hosts}")
+    else:
+        hosts, reason = min(cfg.hosts, n), f"--hosts {cfg.hosts}"
+    try:
+        shape: FleetShape | None = fleet_shape(scn.formation, n)
+    except (KeyError, TypeError, ValueError):
+        shape = None
     out_dir = cfg.out if cfg.out is not None else Path("runs") / f"up-{scn.name}"
     if toml_text is not None:
         scenario_arg = str((out_dir / "scenario.toml").resolve())
@@ -120,6 +181,9 @@ def plan_run(cfg: UpConfig) -> Plan:
         seed=scn.seed if cfg.seed is None else cfg.seed,
         settle_s=settle,
         out_dir=out_dir,
+        hosts=hosts,
+        hosts_reason=reason,
+        shape=shape,
     )
 
 

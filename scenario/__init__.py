@@ -7,7 +7,8 @@ process per node over Zenoh) read the same file, so both runs are the same exper
 
 * :mod:`scenario.load`: the loader and the one validator (errors name the field);
 * :mod:`scenario.write`: TOML writer (``to_toml``);
-* :mod:`scenario.resize`: ``--robots N`` (``scenario_with_robots``);
+* :mod:`scenario.resize`: ``--robots N`` / ``--spares K`` (``scenario_with_robots``,
+  ``fleet_shape``);
 * ``scenario/builtin/*.toml``: the built-in scenarios, named without the extension.
 
 This package sits above the pure cores and below the runtime's process shells
@@ -28,7 +29,7 @@ from scenario.load import (
     parse,
     resolve,
 )
-from scenario.resize import scenario_with_robots
+from scenario.resize import FleetShape, fleet_shape, load_with_robots, scenario_with_robots
 from scenario.write import to_toml
 
 __all__ = [
@@ -36,12 +37,15 @@ __all__ = [
     "AssignmentConfig",
     "CameraModel",
     "Disturbance",
+    "FleetShape",
     "LinkModel",
     "PlantModel",
     "Scenario",
     "ScenarioError",
     "builtin_names",
+    "fleet_shape",
     "load",
+    "load_with_robots",
     "parse",
     "resolve",
     "scenario_with_robots",

@@ -1,9 +1,13 @@
-"""``--robots N``: a scenario table resized to robots ``r1..rN``.
+"""``--robots N`` / ``--spares K``: a scenario table resized to N formation slots and robots
+``r1..r(N+K)``.
 
-New robots start with their reference point on their slot (eqs 10-11), so a resized fleet
-starts in formation; chevron and lattice formations grow to N slots. The coordinator cores are
-imported inside the function that needs them, so loading a scenario (what an agent does) never
-pulls in numpy.
+The formation is grown (or cut) to exactly N slots by the paper's staged rule (Fig 2b,
+:func:`coordinator.formation.resized_formation_table`: a triangle grows into the triangular
+lattice, chevron and lattice keep their kind with N slots, an explicit formation grows by its
+first stage's pattern). New robots start with their reference point on their slot (eqs 10-11),
+so a resized fleet starts in formation; the K spares start idle in rows behind it. The
+coordinator cores are imported inside the function that needs them, so loading a scenario (what
+an agent does) never pulls in numpy.
 """
 
 from __future__ import annotations
@@ -11,12 +15,13 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from robot_agent.kinematics import axle_from_reference_point
-from scenario.load import ScenarioError
+from scenario.load import Scenario, ScenarioError, parse, resolve
 
-__all__ = ["scenario_with_robots"]
+__all__ = ["FleetShape", "fleet_shape", "load_with_robots", "scenario_with_robots"]
 
 
 def _robot_ids(robots: Mapping[str, Any]) -> list[str]:
@@ -42,28 +47,35 @@ def _slot_poses(data: Mapping[str, Any]) -> list[tuple[float, float, float]]:
     ]
 
 
-def scenario_with_robots(data: Mapping[str, Any], n: int) -> dict[str, Any]:
-    """A copy of the scenario table ``data`` with robots ``r1..rN``.
+def scenario_with_robots(data: Mapping[str, Any], n: int | None, spares: int = 0) -> dict[str, Any]:
+    """A copy of the scenario table ``data`` with ``n`` formation slots and robots ``r1..r(n+K)``
+    (``K = spares``).
 
-    Robots that existed keep their start pose; new ones start on their slot (robot ``rK`` on the
-    K-th slot of the formation, in definition order) or, beyond the last slot, in rows 0.5 m
-    behind the formation, 0.4 m apart. A chevron or lattice formation gets ``n`` slots; a
-    disturbance of a robot that no longer exists is dropped.
+    The formation is grown (or cut) to exactly ``n`` slots by the staged rule (module
+    docstring); ``n`` None keeps the scenario's robot count as the slot count. Robots that
+    existed keep their start pose; new ones start on their slot (robot ``rK`` on the K-th slot
+    of the formation, in definition order) or, beyond the last slot (the spares), in rows 0.5 m
+    behind the formation, 0.4 m apart, five to a row, centred on the leader's line. A
+    disturbance of a robot that no longer exists is dropped. Raises :class:`ScenarioError` for
+    ``n < 1``, ``spares < 0`` or a formation that cannot be grown.
     """
-    if n < 1:
+    if n is None:
+        n = len(_robot_ids(dict(data.get("robots", {}))))
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
         raise ScenarioError(f"--robots: need at least 1 robot, got {n}")
+    if isinstance(spares, bool) or not isinstance(spares, int) or spares < 0:
+        raise ScenarioError(f"--spares: expected an integer >= 0, got {spares}")
+    from coordinator.formation import resized_formation_table
+
     out = copy.deepcopy(dict(data))
     robots = dict(out.get("robots", {}))
     old_ids = _robot_ids(robots)
     old_initial = robots.get("initial")
-    ids = [f"r{i + 1}" for i in range(n)]
-    formation = dict(out.get("formation", {}))
-    if formation.get("kind") in ("chevron", "lattice"):
-        if isinstance(formation.get("params"), Mapping):
-            formation["params"] = {**formation["params"], "n": n}
-        else:
-            formation["n"] = n
-        out["formation"] = formation
+    ids = [f"r{i + 1}" for i in range(n + spares)]
+    try:
+        out["formation"] = resized_formation_table(dict(out.get("formation", {})), n)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ScenarioError(f"--robots: cannot grow the formation to {n} slots: {exc}") from exc
     try:
         slot_poses = _slot_poses(out)
     except (KeyError, TypeError, ValueError) as exc:
@@ -81,8 +93,9 @@ def scenario_with_robots(data: Mapping[str, Any], n: int) -> dict[str, Any]:
         else:
             extra = i - len(slot_poses)
             row, col = divmod(extra, 5)
+            in_row = min(5, len(ids) - len(slot_poses) - 5 * row)  # a short last row is centred
             back = rear - 0.5 * (row + 1)
-            side = 0.4 * (col - 2)
+            side = 0.4 * (col - (in_row - 1) / 2)
             initial.append(
                 [
                     round(leader_x + back * c - side * s, 6),
@@ -98,3 +111,45 @@ def scenario_with_robots(data: Mapping[str, Any], n: int) -> dict[str, Any]:
         else:
             del out["disturbance"]
     return out
+
+
+@dataclass(frozen=True)
+class FleetShape:
+    """What a fleet is: formation slots, robots, idle spares (robots beyond the slots) and
+    formation stages (the leader's stage 0 included)."""
+
+    slots: int
+    robots: int
+    stages: int
+
+    @property
+    def spares(self) -> int:
+        return max(0, self.robots - self.slots)
+
+    def describe(self) -> str:
+        """``100 robots: 100 slots in 14 stages, 0 spares`` (for banners)."""
+        return (
+            f"{self.robots} robots: {self.slots} slots in {self.stages} stages, "
+            f"{self.spares} idle spare{'' if self.spares == 1 else 's'}"
+        )
+
+
+def fleet_shape(formation: Mapping[str, Any], n_robots: int) -> FleetShape:
+    """The :class:`FleetShape` of a scenario's ``[formation]`` table and robot count."""
+    from coordinator.formation import FormationSpec
+
+    spec = FormationSpec.from_dict(dict(formation))
+    return FleetShape(slots=len(spec), robots=n_robots, stages=spec.n_stages)
+
+
+def load_with_robots(name_or_path: str, n: int | None, spares: int = 0) -> Scenario:
+    """Load a built-in scenario or a TOML file resized by :func:`scenario_with_robots` (what
+    ``formation sim --robots N --spares K`` runs); raises :class:`ScenarioError`."""
+    import tomllib
+
+    path = resolve(name_or_path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
+    return parse(scenario_with_robots(data, n, spares), source=str(path))

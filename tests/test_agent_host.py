@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import random
 import signal
 import sys
@@ -23,7 +24,7 @@ from typing import Any
 import msgpack
 import numpy as np
 import pytest
-from conftest import RouterHandle, Spawner
+from conftest import RouterHandle, Spawner, free_port
 
 import runtime as rt
 from bus_schemas import (
@@ -201,7 +202,11 @@ def test_plant_and_coordinator_take_the_batched_forms() -> None:
 
 
 def _up(spawn: Spawner, out: Path, *args: str, timeout_s: float = 90.0) -> dict[str, Any]:
-    child = spawn("up", "--out", str(out), "--quiet", "--no-figures", *args)
+    # a free port and a fleet of its own: the default 7447 may be another run's on a shared box
+    child = spawn(
+        "up", "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet", f"t{os.getpid()}{out.name}",
+        "--out", str(out), "--quiet", "--no-figures", *args,
+    )  # fmt: skip
     child.proc.wait(timeout=timeout_s)
     assert child.proc.returncode == 0, child.describe()
     metrics: dict[str, Any] = json.loads((out / "metrics.json").read_text())
@@ -212,7 +217,7 @@ def test_lockstep_agent_hosts_reproduce_per_robot_agents_bit_for_bit(
     spawn: Spawner, tmp_path: Path
 ) -> None:
     common = ("--scenario", "chevron7", "--lockstep", "--duration", "3")
-    a = _up(spawn, tmp_path / "agents", *common)
+    a = _up(spawn, tmp_path / "agents", *common, "--hosts", "0")  # one process per robot
     b = _up(spawn, tmp_path / "hosts", *common, "--hosts", "2")
     assert set(b["meta"]["children"]) >= {"agent-host-h1", "agent-host-h2"}
     assert b["meta"]["collector"]["received"].get("host_wheels", 0) > 0
