@@ -158,6 +158,8 @@ class Access(StrEnum):
     READ = "read"  # subscribe and be delivered samples
     TOKEN = "token"  # declare a liveliness token
     WATCH = "watch"  # subscribe to / query liveliness tokens
+    ANSWER = "answer"  # declare a queryable and reply to the queries it is sent
+    ASK = "ask"  # query a key and be delivered the replies
 
 
 # (flow, messages) pairs that each access needs at the router.
@@ -169,6 +171,8 @@ ZENOH_MESSAGES: Final[dict[Access, tuple[tuple[str, tuple[str, ...]], ...]]] = {
         ("ingress", ("declare_liveliness_subscriber", "liveliness_query")),
         ("egress", ("liveliness_token",)),
     ),
+    Access.ANSWER: (("ingress", ("declare_queryable", "reply")), ("egress", ("query",))),
+    Access.ASK: (("ingress", ("query",)), ("egress", ("reply",))),
 }
 
 # Who: a Kind (any identity of that kind) or (Kind, OWN) (only the identity named in the key, or,
@@ -186,6 +190,8 @@ class KeyRoles:
     writers: tuple[Who, ...]
     readers: tuple[Who, ...] = ()
     token: bool = False  # a liveliness token key (TOKEN/WATCH instead of PUBLISH/READ)
+    answerers: tuple[Kind, ...] = ()  # hold a queryable on the key (durable state)
+    askers: tuple[Kind, ...] = ()  # query it (a process that starts or resumes)
 
 
 _R, _H, _C = Kind.ROBOT, Kind.HOST, Kind.COORDINATOR
@@ -206,7 +212,10 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.STATUS: KeyRoles(((_R, OWN),), (_C, _R, _H)),
     keys.HOST_WHEELS: KeyRoles(((_H, OWN),), (_P,)),
     keys.HOST_STATUS: KeyRoles(((_H, OWN),), (_C, _R, _H)),
-    keys.ESTOP: KeyRoles((_O,), (_R, _H, _C)),
+    # the latched e-stop state: coordinators answer queries (robot_agent.estop, docs/faults.md);
+    # agents and hosts ask when they start or resume, coordinators when they start, the
+    # operator's tool to report who holds it
+    keys.ESTOP: KeyRoles((_O,), (_R, _H, _C), answerers=(_C,), askers=(_R, _H, _C, _O)),
     keys.CLOCK: KeyRoles((_P,), (_R, _H, _C)),
     keys.DISTURBANCE: KeyRoles((_O,), (_P,)),
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),
@@ -260,6 +269,11 @@ def grants(ident: Identity, fleet: str = keys.DEFAULT_FLEET) -> tuple[tuple[Acce
                 add(read, _fill(template, fleet))
             else:
                 add(read, _fill(template, fleet, robot=ident.name, name=ident.name))
+        template_all = _fill(template, fleet)
+        if ident.kind in roles.answerers:
+            add(Access.ANSWER, template_all)
+        if ident.kind in roles.askers:
+            add(Access.ASK, template_all)
     if ident.kind in _READ_ALL:
         add(Access.READ, keys.fleet_pattern(fleet))
         add(Access.WATCH, keys.alive_pattern(fleet))

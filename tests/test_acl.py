@@ -164,6 +164,19 @@ EXPECT_WATCH: dict[str, set[str]] = {
 }
 
 
+# The latched e-stop state (robot_agent.estop): coordinators answer queries on `estop`; agents,
+# hosts, coordinators and the operator's tool ask.
+EXPECT_ANSWER: dict[str, set[str]] = {
+    "coordinator.main": {_f("estop")},
+    "coordinator.standby": {_f("estop")},
+}
+EXPECT_ASK: dict[str, set[str]] = {
+    cn: {_f("estop")}
+    for cn in ("robot.r1", "robot.r2", "host.h1", "coordinator.main", "coordinator.standby",
+               "operator")
+}  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def acl_section() -> dict[str, object]:
     return acl.access_control(IDENTS, FLEET)
@@ -179,6 +192,8 @@ def test_static_permissions_match_the_contract(
         (Access.READ, DATA, EXPECT_READ.get(cn, set())),
         (Access.TOKEN, TOKENS, EXPECT_TOKEN.get(cn, set())),
         (Access.WATCH, TOKENS, EXPECT_WATCH.get(cn, set())),
+        (Access.ANSWER, DATA, EXPECT_ANSWER.get(cn, set())),
+        (Access.ASK, DATA, EXPECT_ASK.get(cn, set())),
     ):
         allowed = {k for k in universe if acl.may(acl_section, cn, access, k)}
         assert allowed == expect, (cn, access, sorted(allowed ^ expect))
@@ -437,6 +452,43 @@ def test_live_reads_are_limited(router: int, pki) -> None:  # type: ignore[no-un
     finally:
         r1.close()
         coord.close()
+
+
+def _ask(session, key: str) -> list[bytes]:  # type: ignore[no-untyped-def]
+    """The payloads of the replies to one query of ``key`` (none when the ACL refuses it)."""
+    out: list[bytes] = []
+    for reply in session.get(key, timeout=1.0):
+        if reply.ok is not None:
+            out.append(bytes(reply.ok.payload))
+    return out
+
+
+@pytest.mark.zenoh
+def test_live_estop_state_query(router: int, pki) -> None:  # type: ignore[no-untyped-def]
+    """A coordinator answers the latched e-stop query; a robot and the operator get the answer;
+    an observer's query and a robot's queryable are refused (robot_agent.estop)."""
+    fleet, _ = pki
+    coord = _client(router, fleet.identities["coordinator.main"].tls())
+    r1 = _client(router, fleet.identities["robot.r1"].tls())
+    r2 = _client(router, fleet.identities["robot.r2"].tls())
+    op = _client(router, fleet.identities["operator"].tls())
+    obs = _client(router, fleet.identities["observer.rec"].tls())
+    key = _f("estop")
+    try:
+        coord_q = coord.declare_queryable(key, lambda q: q.reply(key, b"latched"))
+        forged_q = r2.declare_queryable(key, lambda q: q.reply(key, b"forged"))
+        deadline = time.monotonic() + 5.0
+        answers: list[bytes] = []
+        while time.monotonic() < deadline and not answers:
+            answers = _ask(r1, key)
+        assert answers == [b"latched"]  # the robot's forged queryable never answers
+        assert _ask(op, key) == [b"latched"]
+        assert _ask(obs, key) == []
+        coord_q.undeclare()
+        forged_q.undeclare()
+    finally:
+        for session in (coord, r1, r2, op, obs):
+            session.close()
 
 
 @pytest.mark.zenoh
