@@ -114,7 +114,12 @@ def test_forged_heartbeats_never_move_the_leader_or_hijack_the_election(
                 assert st["epoch"] <= 1, st
                 rejects = st["rejects"]
                 assert rejects.get("heartbeat-no_token", 0) > 0, rejects  # zz, aaa
-                assert rejects.get("heartbeat-epoch_jump", 0) > 0, rejects  # main/b spoofed
+                # main/b spoofed: refused for the epoch jump or, checked first when the forged
+                # heartbeat also carries another trajectory origin, for its leader_t0
+                spoofed = rejects.get("heartbeat-epoch_jump", 0) + rejects.get(
+                    "heartbeat-leader_t0", 0
+                )
+                assert spoofed > 0, rejects
                 assert set(rejects) <= {
                     "heartbeat-no_token",
                     "heartbeat-epoch_jump",

@@ -67,7 +67,7 @@ def start_up(
         ups.append(child)
     hosts = [a for i, a in enumerate(extra) if i > 0 and extra[i - 1] == "--hosts"]
     n = int(hosts[0]) if hosts else robots
-    child.wait_for_line(f"  {n} agents", timeout_s=UP_READY_S)
+    child.wait_for_line(f"  {n} agent" + (" hosts" if hosts else "s"), timeout_s=UP_READY_S)
     return child, port
 
 
