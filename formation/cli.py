@@ -2,12 +2,25 @@
 
 Each subcommand lives in its own module with ``main(argv: list[str]) -> int`` and is imported only
 when it is run, so ``formation agent`` on a robot never imports numpy, scipy or matplotlib.
+
+The entry point also fixes how every subcommand reports a mistake, in one place:
+
+* a command-line mistake (unknown option, bad value, missing argument) is one line on stderr,
+  ``formation <cmd>: error: <what> (see `formation <cmd> --help`)``, exit status 2, no usage
+  dump and no traceback (:func:`_one_line_error` replaces ``argparse.ArgumentParser.error`` for
+  the parsers of this process);
+* a scenario mistake that escapes a subcommand (``ScenarioError``, whose message names the
+  field) is one line, exit 2;
+* Ctrl-C (SIGINT) that is not handled by the subcommand itself is one line
+  (``formation <cmd>: interrupted``), exit status 130 (128 + SIGINT), no traceback.
 """
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -28,14 +41,34 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "camera": ("localization.node", "overhead-camera tracker; `camera calibrate` writes its file"),
 }
 
+EXIT_USAGE = 2  # a mistake on the command line or in a scenario file
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+
+
+def version() -> str:
+    """The installed package's version (``importlib.metadata``), or ``unknown``."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as _version
+
+    try:
+        return _version("formation-control")
+    except PackageNotFoundError:
+        return "unknown"
+
 
 def _usage() -> str:
-    lines = ["usage: formation <command> [options]", "", "commands:"]
+    lines = ["usage: formation [--version] <command> [options]", "", "commands:"]
     for name, (_, help_text) in SUBCOMMANDS.items():
         lines.append(f"  {name:<12} {help_text}")
     lines.append("")
     lines.append("`formation <command> --help` for the options of one command.")
+    lines.append("example: formation sim --scenario paper-exp2 --duration 20")
     return "\n".join(lines)
+
+
+def _one_line_error(self: argparse.ArgumentParser, message: str) -> NoReturn:
+    """``ArgumentParser.error`` as one line: what is wrong and where to look, exit 2."""
+    self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,18 +76,41 @@ def main(argv: list[str] | None = None) -> int:
     if not args or args[0] in ("-h", "--help", "help"):
         print(_usage())
         return 0
+    if args[0] in ("-V", "--version"):
+        print(f"formation {version()}")
+        return 0
     name, rest = args[0], args[1:]
     if name not in SUBCOMMANDS:
-        print(f"formation: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
-        return 2
-    module_name = SUBCOMMANDS[name][0]
+        known = ", ".join(SUBCOMMANDS)
+        what = "option" if name.startswith("-") else "command"
+        print(
+            f"formation: error: unknown {what} {name!r} "
+            f"(commands: {known}; see `formation --help`)",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    argparse.ArgumentParser.error = _one_line_error  # type: ignore[method-assign]
+    prog = f"formation {name}"
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:  # e.g. the sim extra is not installed on a robot
-        print(f"formation {name}: not available in this install ({exc})", file=sys.stderr)
-        return 2
-    result: int = module.main(rest)
-    return result
+        module_name = SUBCOMMANDS[name][0]
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:  # e.g. the sim extra is not installed on a robot
+            print(f"{prog}: not available in this install ({exc})", file=sys.stderr)
+            return EXIT_USAGE
+        result: int = module.main(rest)
+        return result
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BaseException as exc:
+        # A scenario mistake that a subcommand did not catch: one line naming the field.
+        from scenario.load import ScenarioError  # stdlib-only module: fine on a robot
+
+        if isinstance(exc, ScenarioError):
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        raise
 
 
 if __name__ == "__main__":
