@@ -5,6 +5,7 @@ when it is run, so ``formation agent`` on a robot never imports numpy, scipy or 
 
 The entry point also fixes how every subcommand reports a mistake, in one place:
 
+* every ``--help`` shows the defaults and ends with an example (:data:`EXAMPLES`);
 * a command-line mistake (unknown option, bad value, missing argument) is one line on stderr,
   ``formation <cmd>: error: <what> (see `formation <cmd> --help`)``, exit status 2, no usage
   dump and no traceback (:func:`_one_line_error` replaces ``argparse.ArgumentParser.error`` for
@@ -41,6 +42,38 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "camera": ("localization.node", "overhead-camera tracker; `camera calibrate` writes its file"),
 }
 
+# prog -> examples shown at the end of its --help (the epilog), one command per line.
+# tests/test_cli_mistakes.py checks every subcommand has one; docs/runtime.md explains them.
+EXAMPLES: dict[str, tuple[str, ...]] = {
+    "formation sim": ("formation sim --scenario chevron7 --duration 30 --seed 4",),
+    "formation demo": ("formation demo --duration 20 --no-figures",),
+    "formation up": (
+        "formation up --scenario paper-exp1 --duration 20",
+        "formation up --lockstep --robots 7 --scenario chevron7 --duration 10 --no-figures",
+    ),
+    "formation router": ("formation router --listen tcp/127.0.0.1:7447",),
+    "formation coordinator": (
+        "formation coordinator --scenario paper-exp2 --endpoint tcp/127.0.0.1:7447",
+    ),
+    "formation agent": ("formation agent --id r1 --scenario paper-exp2",),
+    "formation agent-host": ("formation agent-host --ids r1..r50 --scenario lattice --name h1",),
+    "formation plant": ("formation plant --scenario paper-exp2 --wait-robots",),
+    "formation fault": (
+        "formation fault kill-leader",
+        "formation fault drag r1 -0.6 0",
+    ),
+    "formation record": ("formation record --out run.mcap --duration 30 --scenario paper-exp2",),
+    "formation report": ("formation report run.mcap --out run-report",),
+    "formation top": ("formation top --once --wait 2",),
+    "formation acl": ("formation acl --out acl/ --robots r1,r2,r3",),
+    "formation certs": ("formation certs --out pki/ --robots r1,r2,r3",),
+    "formation camera": (
+        "formation camera --source rendered --calibration cam.toml",
+        "formation camera calibrate --help",
+    ),
+    "formation camera calibrate": ("formation camera calibrate --image floor.png --out cam.toml",),
+}
+
 EXIT_USAGE = 2  # a mistake on the command line or in a scenario file
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
 
@@ -71,6 +104,31 @@ def _one_line_error(self: argparse.ArgumentParser, message: str) -> NoReturn:
     self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
+def _format_help(self: argparse.ArgumentParser) -> str:
+    """--help with defaults shown and the examples of :data:`EXAMPLES` as the epilog."""
+    from runtime.args import HelpFormatter
+
+    if self.formatter_class is argparse.HelpFormatter:
+        self.formatter_class = HelpFormatter
+    examples = EXAMPLES.get(self.prog)
+    if examples and "example" not in (self.epilog or ""):
+        block = "examples:\n" + "\n".join(f"  {e}" for e in examples)
+        self.epilog = f"{self.epilog}\n\n{block}" if self.epilog else block
+        if self.formatter_class is argparse.ArgumentDefaultsHelpFormatter:
+            self.formatter_class = HelpFormatter  # keep the examples' lines
+    return _PLAIN_FORMAT_HELP(self)
+
+
+_PLAIN_FORMAT_HELP = argparse.ArgumentParser.format_help
+
+
+def install_conventions() -> None:
+    """The CLI's conventions for every argparse parser of this process: one-line errors,
+    defaults shown and an example in every --help."""
+    argparse.ArgumentParser.error = _one_line_error  # type: ignore[method-assign]
+    argparse.ArgumentParser.format_help = _format_help  # type: ignore[method-assign]
+
+
 def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help", "help"):
@@ -89,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
-    argparse.ArgumentParser.error = _one_line_error  # type: ignore[method-assign]
+    install_conventions()
     prog = f"formation {name}"
     try:
         module_name = SUBCOMMANDS[name][0]

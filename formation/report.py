@@ -447,9 +447,21 @@ def build_parser() -> argparse.ArgumentParser:
         "power) and the paper's figures from an MCAP recording.",
     )
     p.add_argument("file", type=Path, help="MCAP file from `formation record` / `up --record`")
-    p.add_argument("--out", type=Path, default=None, help="output folder (<file>-report/)")
-    p.add_argument("--settle", type=float, default=None, metavar="S", help="settling time (s)")
-    p.add_argument("--tol", type=float, default=None, metavar="M", help="error band (m)")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: <file>-report/)")
+    p.add_argument(
+        "--settle",
+        type=float,
+        default=None,
+        metavar="S",
+        help="settling time in s (default: the run's)",
+    )
+    p.add_argument(
+        "--tol",
+        type=float,
+        default=None,
+        metavar="M",
+        help="error band in m (default: the scenario's)",
+    )
     p.add_argument("--scenario", default=None, help="scenario of the run (overrides the file's)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument(
@@ -464,8 +476,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str]) -> int:
-    """``formation report``: 0 on success, 1 if the file cannot be used, 2 for bad arguments."""
+    """``formation report``: 0 on success, 1 if the file cannot be used, 2 for bad arguments
+    (a FILE that does not exist or is not a file counts as a bad argument)."""
     args = build_parser().parse_args(argv)
+    if not args.file.is_file():
+        what = "no such file" if not args.file.exists() else "not a file"
+        print(f"formation report: {args.file}: {what}", file=sys.stderr)
+        return 2
     if args.settle is not None and not (args.settle >= 0 and math.isfinite(args.settle)):
         print("formation report: --settle must be >= 0", file=sys.stderr)
         return 2

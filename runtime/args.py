@@ -24,6 +24,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         text = action.help or ""
         if (
             "default" in text
+            or str(action.default) in text
             or action.default in (None, False, argparse.SUPPRESS)
             or (not action.option_strings and action.nargs not in ("?", "*"))
         ):
