@@ -144,9 +144,12 @@ def report_recording(path: Path, live: dict[str, Any], figures: bool = True) -> 
     rep.metrics["simulator_comparison"] = cmp
     report_mod.write(rep, out, figures=figures)
     print(report_mod.summary(rep.metrics))
-    same_live = rep.metrics["robots"] == live["robots"] and rep.metrics["run"] == live["run"]
-    verdict = "equal" if same_live else "DIFFER"
+    live_diffs = metrics_differences(rep.metrics, live)
+    same_live = not live_diffs
+    verdict = "equal" if same_live else f"DIFFER ({len(live_diffs)}: MCAP != live)"
     print(f"metrics from the MCAP file vs the live run's metrics.json: {verdict}")
+    if not same_live:
+        print(report_mod.differences_text(live_diffs))
     print(report_mod.comparison_line(cmp))
     print(f"metrics.json{' and figures' if figures else ''} in {out}/")
     return same_live and cmp["robots_equal"] and cmp["run_equal"]
@@ -204,8 +207,10 @@ def main(argv: list[str]) -> int:
     print(_comparison_text(result.metrics, ref, cmp))
     diffs = metrics_differences(result.metrics, ref)
     same = not diffs
-    verdict = "equal" if same else "DIFFER: " + "; ".join(diffs[:5])
+    verdict = "equal" if same else f"DIFFER ({len(diffs)}: over Zenoh != in-process)"
     print(f"metrics.json over Zenoh vs in-process (robots, run): {verdict}")
+    if not same:
+        print(report_mod.differences_text(diffs))
     print(f"\nfigures and metrics.json: {zenoh_out}/ (over Zenoh), {ref_out}/ (in-process)")
     if cfg.record is not None:
         print(

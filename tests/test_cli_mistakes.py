@@ -335,3 +335,34 @@ def test_short_sim_output_is_unchanged_by_progress(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     assert r.stderr == ""
     assert "metrics and figures in" in r.stdout
+
+
+def test_a_failed_metrics_comparison_names_the_metric_and_by_how_much() -> None:
+    """`make demo`'s comparison: short lines (metric, both values, difference), not two lists."""
+    from formation.demo import metrics_differences
+    from formation.report import differences_text
+
+    a = {
+        "meta": {"wall_s": 1.0},
+        "robots": {"r1": {"formation_error_rms_m": 0.0123, "final_slot": 0}},
+        "run": {"min_separation_m": 0.36, "role_changes": [[0.0, "r1", 0]] * 400},
+    }
+    b = {
+        "meta": {"wall_s": 2.0},
+        "robots": {"r1": {"formation_error_rms_m": 0.0125, "final_slot": 0}},
+        "run": {"min_separation_m": 0.36, "role_changes": [[0.0, "r1", 0]] * 401},
+    }
+    diffs = metrics_differences(a, b)
+    assert diffs == [
+        "robots.r1.formation_error_rms_m: 0.0123 != 0.0125 (diff +0.0002)",
+        "run.role_changes: 400 items != 401 items",
+    ]
+    b["run"]["role_changes"] = [[0.0, "r1", 0]] * 399 + [[0.5, "r2", 1]]
+    assert metrics_differences(a, b)[1:] == [
+        "run.role_changes[399][0]: 0 != 0.5 (diff +0.5)",
+        "run.role_changes[399][1]: 'r1' != 'r2'",
+        "run.role_changes[399][2]: 0 != 1 (diff +1)",
+    ]
+    text = differences_text([f"m{i}: 1 != 2 (diff +1)" for i in range(20)], limit=8)
+    assert text.splitlines()[-1] == "  ... and 12 more" and len(text.splitlines()) == 9
+    assert max(len(line) for line in text.splitlines()) < 100
