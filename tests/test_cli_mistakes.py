@@ -21,6 +21,7 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import REPO_ROOT, child_env
@@ -342,12 +343,12 @@ def test_a_failed_metrics_comparison_names_the_metric_and_by_how_much() -> None:
     from formation.demo import metrics_differences
     from formation.report import differences_text
 
-    a = {
+    a: dict[str, Any] = {
         "meta": {"wall_s": 1.0},
         "robots": {"r1": {"formation_error_rms_m": 0.0123, "final_slot": 0}},
         "run": {"min_separation_m": 0.36, "role_changes": [[0.0, "r1", 0]] * 400},
     }
-    b = {
+    b: dict[str, Any] = {
         "meta": {"wall_s": 2.0},
         "robots": {"r1": {"formation_error_rms_m": 0.0125, "final_slot": 0}},
         "run": {"min_separation_m": 0.36, "role_changes": [[0.0, "r1", 0]] * 401},

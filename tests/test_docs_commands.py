@@ -94,8 +94,7 @@ def documented_commands() -> list[tuple[str, str]]:
         if path.name == "README.md":  # the command table
             for row in re.findall(r"^\| `(formation [^`]*)`", text, re.M):
                 found += [(name, c) for c in _clean(row.replace("\\|", "|"))]
-    seen: set[tuple[str, str]] = set()
-    return [x for x in found if not (x in seen or seen.add(x))]
+    return list(dict.fromkeys(found))  # in order, without repeats
 
 
 # Placeholders of README's table that have an obvious value here.
@@ -161,14 +160,20 @@ def test_a_documented_command_runs(doc: str, cmd: str, tmp_path: Path) -> None:
     if reason is not None:
         pytest.skip(reason)
     argv = _shorten(shlex.split(fill(cmd)), tmp_path)
-    r = subprocess.run(
-        [sys.executable, "-m", *argv],
-        cwd=tmp_path,
-        env=child_env(),
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    for attempt in range(2):
+        r = subprocess.run(
+            [sys.executable, "-m", *argv],
+            cwd=tmp_path,
+            env=child_env(),
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        # On a 2-core machine shared by several test runs (load 20-30 seen), a child of
+        # `formation up` starved of CPU can miss the launcher's shutdown grace ("did not exit
+        # 2.0 s after SIGTERM", exit 1) although the command is right: one more try, then fail.
+        if r.returncode == 0 or "after SIGTERM" not in r.stderr or attempt == 1:
+            break
     assert r.returncode == 0, (doc, argv, r.stdout[-1500:], r.stderr[-1500:])
 
 
