@@ -157,12 +157,19 @@ def report_recording(path: Path, live: dict[str, Any], figures: bool = True) -> 
 
 def main(argv: list[str]) -> int:
     """Entry point of ``formation demo`` (``make demo``)."""
+    from runtime.args import positive_float
+
     p = argparse.ArgumentParser(prog="formation demo", description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=Path("runs/demo"), help="output folder")
     p.add_argument(
         "--endpoint", default=None, help="router endpoint (default: a free loopback port)"
     )
-    p.add_argument("--duration", type=float, default=None, help="sim seconds (scenario's)")
+    p.add_argument(
+        "--duration",
+        type=positive_float,
+        default=None,
+        help="sim seconds (default: the scenario's)",
+    )
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument(
         "--no-record", action="store_true", help="do not record the run to MCAP (no report)"

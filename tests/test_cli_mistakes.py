@@ -115,6 +115,7 @@ MISTAKES: list[tuple[tuple[str, ...], tuple[str, ...]]] = [
     (("up", "--bogus"), ("--bogus",)),
     # the other subcommands
     (("demo", "--bogus"), ("--bogus",)),
+    (("demo", "--duration", "-1"), ("--duration",)),
     (("router", "--listen", "nonsense"), ("nonsense", "endpoint")),
     (("router", "--lease-ms", "-5"), ("lease",)),
     (("router", "--bogus"), ("--bogus",)),
