@@ -2,12 +2,26 @@
 
 Each subcommand lives in its own module with ``main(argv: list[str]) -> int`` and is imported only
 when it is run, so ``formation agent`` on a robot never imports numpy, scipy or matplotlib.
+
+The entry point also fixes how every subcommand reports a mistake, in one place:
+
+* every ``--help`` shows the defaults and ends with an example (:data:`EXAMPLES`);
+* a command-line mistake (unknown option, bad value, missing argument) is one line on stderr,
+  ``formation <cmd>: error: <what> (see `formation <cmd> --help`)``, exit status 2, no usage
+  dump and no traceback (:func:`_one_line_error` replaces ``argparse.ArgumentParser.error`` for
+  the parsers of this process);
+* a scenario mistake that escapes a subcommand (``ScenarioError``, whose message names the
+  field) is one line, exit 2;
+* Ctrl-C (SIGINT) that is not handled by the subcommand itself is one line
+  (``formation <cmd>: interrupted``), exit status 130 (128 + SIGINT), no traceback.
 """
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import sys
+from typing import NoReturn
 
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -31,6 +45,52 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
     "camera": ("localization.node", "overhead-camera tracker; `camera calibrate` writes its file"),
 }
+
+# prog -> examples shown at the end of its --help (the epilog), one command per line.
+# tests/test_cli_mistakes.py checks every subcommand has one; docs/runtime.md explains them.
+EXAMPLES: dict[str, tuple[str, ...]] = {
+    "formation sim": ("formation sim --scenario chevron7 --duration 30 --seed 4",),
+    "formation demo": ("formation demo --duration 20 --no-figures",),
+    "formation up": (
+        "formation up --scenario paper-exp1 --duration 20",
+        "formation up --lockstep --robots 7 --scenario chevron7 --duration 10 --no-figures",
+    ),
+    "formation router": ("formation router --listen tcp/127.0.0.1:7447",),
+    "formation coordinator": (
+        "formation coordinator --scenario paper-exp2 --endpoint tcp/127.0.0.1:7447",
+    ),
+    "formation agent": ("formation agent --id r1 --scenario paper-exp2",),
+    "formation agent-host": ("formation agent-host --ids r1..r50 --scenario lattice --name h1",),
+    "formation plant": ("formation plant --scenario paper-exp2 --wait-robots",),
+    "formation fault": (
+        "formation fault kill-leader",
+        "formation fault drag r1 -0.6 0",
+    ),
+    "formation record": ("formation record --out run.mcap --duration 30 --scenario paper-exp2",),
+    "formation report": ("formation report run.mcap --out run-report",),
+    "formation top": ("formation top --once --wait 2",),
+    "formation acl": ("formation acl --out acl/ --robots r1,r2,r3",),
+    "formation certs": ("formation certs --out pki/ --robots r1,r2,r3",),
+    "formation camera": (
+        "formation camera --source rendered --calibration cam.toml",
+        "formation camera calibrate --help",
+    ),
+    "formation camera calibrate": ("formation camera calibrate --image floor.png --out cam.toml",),
+}
+
+EXIT_USAGE = 2  # a mistake on the command line or in a scenario file
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, what a shell reports for Ctrl-C
+
+
+def version() -> str:
+    """The installed package's version (``importlib.metadata``), or ``unknown``."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as _version
+
+    try:
+        return _version("formation-control")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 # top-level module of a dependency -> the extra of pyproject.toml that installs it
@@ -60,12 +120,43 @@ def missing_extra_message(exc: ImportError) -> str:
 
 
 def _usage() -> str:
-    lines = ["usage: formation <command> [options]", "", "commands:"]
+    lines = ["usage: formation [--version] <command> [options]", "", "commands:"]
     for name, (_, help_text) in SUBCOMMANDS.items():
         lines.append(f"  {name:<12} {help_text}")
     lines.append("")
     lines.append("`formation <command> --help` for the options of one command.")
+    lines.append("example: formation sim --scenario paper-exp2 --duration 20")
     return "\n".join(lines)
+
+
+def _one_line_error(self: argparse.ArgumentParser, message: str) -> NoReturn:
+    """``ArgumentParser.error`` as one line: what is wrong and where to look, exit 2."""
+    self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
+def _format_help(self: argparse.ArgumentParser) -> str:
+    """--help with defaults shown and the examples of :data:`EXAMPLES` as the epilog."""
+    from runtime.args import HelpFormatter
+
+    if self.formatter_class is argparse.HelpFormatter:
+        self.formatter_class = HelpFormatter
+    examples = EXAMPLES.get(self.prog)
+    if examples and "example" not in (self.epilog or ""):
+        block = "examples:\n" + "\n".join(f"  {e}" for e in examples)
+        self.epilog = f"{self.epilog}\n\n{block}" if self.epilog else block
+        if self.formatter_class is argparse.ArgumentDefaultsHelpFormatter:
+            self.formatter_class = HelpFormatter  # keep the examples' lines
+    return _PLAIN_FORMAT_HELP(self)
+
+
+_PLAIN_FORMAT_HELP = argparse.ArgumentParser.format_help
+
+
+def install_conventions() -> None:
+    """The CLI's conventions for every argparse parser of this process: one-line errors,
+    defaults shown and an example in every --help."""
+    argparse.ArgumentParser.error = _one_line_error  # type: ignore[method-assign]
+    argparse.ArgumentParser.format_help = _format_help  # type: ignore[method-assign]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,18 +164,41 @@ def main(argv: list[str] | None = None) -> int:
     if not args or args[0] in ("-h", "--help", "help"):
         print(_usage())
         return 0
+    if args[0] in ("-V", "--version"):
+        print(f"formation {version()}")
+        return 0
     name, rest = args[0], args[1:]
     if name not in SUBCOMMANDS:
-        print(f"formation: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
-        return 2
-    module_name = SUBCOMMANDS[name][0]
+        known = ", ".join(SUBCOMMANDS)
+        what = "option" if name.startswith("-") else "command"
+        print(
+            f"formation: error: unknown {what} {name!r} "
+            f"(commands: {known}; see `formation --help`)",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
+    install_conventions()
+    prog = f"formation {name}"
     try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:  # e.g. the sim extra is not installed on a robot
-        print(f"formation {name}: {missing_extra_message(exc)}", file=sys.stderr)
-        return 2
-    result: int = module.main(rest)
-    return result
+        module_name = SUBCOMMANDS[name][0]
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:  # e.g. the sim extra is not installed on a robot
+            print(f"{prog}: {missing_extra_message(exc)}", file=sys.stderr)
+            return EXIT_USAGE
+        result: int = module.main(rest)
+        return result
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BaseException as exc:
+        # A scenario mistake that a subcommand did not catch: one line naming the field.
+        from scenario.load import ScenarioError  # stdlib-only module: fine on a robot
+
+        if isinstance(exc, ScenarioError):
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        raise
 
 
 if __name__ == "__main__":

@@ -144,9 +144,12 @@ def report_recording(path: Path, live: dict[str, Any], figures: bool = True) -> 
     rep.metrics["simulator_comparison"] = cmp
     report_mod.write(rep, out, figures=figures)
     print(report_mod.summary(rep.metrics))
-    same_live = rep.metrics["robots"] == live["robots"] and rep.metrics["run"] == live["run"]
-    verdict = "equal" if same_live else "DIFFER"
+    live_diffs = metrics_differences(rep.metrics, live)
+    same_live = not live_diffs
+    verdict = "equal" if same_live else f"DIFFER ({len(live_diffs)}: MCAP != live)"
     print(f"metrics from the MCAP file vs the live run's metrics.json: {verdict}")
+    if not same_live:
+        print(report_mod.differences_text(live_diffs))
     print(report_mod.comparison_line(cmp))
     print(f"metrics.json{' and figures' if figures else ''} in {out}/")
     return same_live and cmp["robots_equal"] and cmp["run_equal"]
@@ -154,12 +157,19 @@ def report_recording(path: Path, live: dict[str, Any], figures: bool = True) -> 
 
 def main(argv: list[str]) -> int:
     """Entry point of ``formation demo`` (``make demo``)."""
+    from runtime.args import positive_float
+
     p = argparse.ArgumentParser(prog="formation demo", description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=Path("runs/demo"), help="output folder")
     p.add_argument(
         "--endpoint", default=None, help="router endpoint (default: a free loopback port)"
     )
-    p.add_argument("--duration", type=float, default=None, help="sim seconds (scenario's)")
+    p.add_argument(
+        "--duration",
+        type=positive_float,
+        default=None,
+        help="sim seconds (default: the scenario's)",
+    )
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument(
         "--no-record", action="store_true", help="do not record the run to MCAP (no report)"
@@ -204,8 +214,10 @@ def main(argv: list[str]) -> int:
     print(_comparison_text(result.metrics, ref, cmp))
     diffs = metrics_differences(result.metrics, ref)
     same = not diffs
-    verdict = "equal" if same else "DIFFER: " + "; ".join(diffs[:5])
+    verdict = "equal" if same else f"DIFFER ({len(diffs)}: over Zenoh != in-process)"
     print(f"metrics.json over Zenoh vs in-process (robots, run): {verdict}")
+    if not same:
+        print(report_mod.differences_text(diffs))
     print(f"\nfigures and metrics.json: {zenoh_out}/ (over Zenoh), {ref_out}/ (in-process)")
     if cfg.record is not None:
         print(

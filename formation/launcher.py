@@ -25,6 +25,7 @@ from formation.children import (
     tail_of,
 )
 from formation.collector import RunCollector, key_patterns
+from formation.progress import eta_text
 from formation.up_plan import LaunchError, Plan, UpConfig, UpResult, plan_run
 from formation.up_view import format_line, format_table
 
@@ -126,6 +127,17 @@ class _Launcher:
             return None
         return (last - first) * self.scn.dt_s
 
+    def _progress(self) -> str:
+        """``"37% of 110 s, ETA 1 min 09 s"`` once the run's clock has started, else ""."""
+        if self.cfg.lockstep:
+            done = self._sim_elapsed()
+            return "" if done is None else eta_text(done, self.plan.duration_s, self._speed())
+        if self.first_truth_rx is None:
+            return ""
+        # realtime: the duration counts from the first truth frame, at 1x
+        done = time.monotonic() - self.first_truth_rx
+        return eta_text(done, self.plan.duration_s, 1.0)
+
     async def _display_loop(self) -> None:
         if self.display == "none":
             return
@@ -138,14 +150,15 @@ class _Launcher:
         while True:
             await asyncio.sleep(period)
             view = self.collector.live()
+            progress = self._progress()
             if self.display == "table":
-                lines = format_table(view, header, self._speed())
+                lines = format_table(view, header, self._speed(), progress)
                 self._clear_table()
                 sys.stdout.write("\n".join(lines) + "\n")
                 sys.stdout.flush()
                 self._table_lines = len(lines)
             else:
-                print(format_line(view, self._speed()), flush=True)
+                print(format_line(view, self._speed(), progress), flush=True)
 
     # -- signals --------------------------------------------------------------------------------
 

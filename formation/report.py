@@ -329,14 +329,45 @@ def at_instants(log: RunLog, t_s: np.ndarray) -> tuple[RunLog, int]:
     return dataclasses.replace(log, **rows), int(ib.size)
 
 
+def _short(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list | tuple):
+        return f"[{len(v)} items]"
+    text = repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
 def differences(a: Any, b: Any, path: str = "") -> list[str]:
-    """Every leaf where two nested dictionaries differ: ``path: a != b``."""
+    """Every leaf where two nested dictionaries/lists differ, one short line each:
+    ``path: a != b`` (numbers with their difference, ``b - a``; lists item by item, or their
+    lengths when those differ), so a failed comparison names the metric and by how much."""
     if isinstance(a, dict) and isinstance(b, dict):
         out: list[str] = []
         for k in sorted(set(a) | set(b), key=str):
             out += differences(a.get(k), b.get(k), f"{path}.{k}" if path else str(k))
         return out
-    return [] if a == b else [f"{path}: {a!r} != {b!r}"]
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        if len(a) != len(b):
+            return [f"{path}: {len(a)} items != {len(b)} items"]
+        out = []
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            out += differences(x, y, f"{path}[{i}]")
+        return out
+    if a == b or (isinstance(a, float) and isinstance(b, float) and a != a and b != b):
+        return []
+    numbers = all(isinstance(v, int | float) and not isinstance(v, bool) for v in (a, b))
+    if numbers:
+        return [f"{path}: {_short(a)} != {_short(b)} (diff {b - a:+.3g})"]
+    return [f"{path}: {_short(a)} != {_short(b)}"]
+
+
+def differences_text(diffs: list[str], limit: int = 8) -> str:
+    """At most ``limit`` differences, one per line, and how many more there are."""
+    shown = [f"  {d}" for d in diffs[:limit]]
+    if len(diffs) > limit:
+        shown.append(f"  ... and {len(diffs) - limit} more")
+    return "\n".join(shown)
 
 
 def compare_with_simulator(
@@ -450,9 +481,21 @@ def build_parser() -> argparse.ArgumentParser:
         "power) and the paper's figures from an MCAP recording.",
     )
     p.add_argument("file", type=Path, help="MCAP file from `formation record` / `up --record`")
-    p.add_argument("--out", type=Path, default=None, help="output folder (<file>-report/)")
-    p.add_argument("--settle", type=float, default=None, metavar="S", help="settling time (s)")
-    p.add_argument("--tol", type=float, default=None, metavar="M", help="error band (m)")
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: <file>-report/)")
+    p.add_argument(
+        "--settle",
+        type=float,
+        default=None,
+        metavar="S",
+        help="settling time in s (default: the run's)",
+    )
+    p.add_argument(
+        "--tol",
+        type=float,
+        default=None,
+        metavar="M",
+        help="error band in m (default: the scenario's)",
+    )
     p.add_argument("--scenario", default=None, help="scenario of the run (overrides the file's)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument(
@@ -467,8 +510,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str]) -> int:
-    """``formation report``: 0 on success, 1 if the file cannot be used, 2 for bad arguments."""
+    """``formation report``: 0 on success, 1 if the file cannot be used, 2 for bad arguments
+    (a FILE that does not exist or is not a file counts as a bad argument)."""
     args = build_parser().parse_args(argv)
+    if not args.file.is_file():
+        what = "no such file" if not args.file.exists() else "not a file"
+        print(f"formation report: {args.file}: {what}", file=sys.stderr)
+        return 2
     if args.settle is not None and not (args.settle >= 0 and math.isfinite(args.settle)):
         print("formation report: --settle must be >= 0", file=sys.stderr)
         return 2

@@ -90,7 +90,7 @@ async def _serve(stop: asyncio.Event, settings: rt.ZenohSettings) -> int:
         session = rt.open_session(settings)  # a router opens at once or fails (port in use)
     except (rt.TransportError, ValueError) as exc:
         print(f"formation router: {exc}", file=sys.stderr)
-        return 1
+        return 2  # a busy port or an endpoint that cannot be opened: the caller's to fix
     notifier = Notifier()  # Type=notify under systemd (deploy/systemd/formation-router.service)
     try:
         where = _listen_endpoints(settings)

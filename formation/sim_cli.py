@@ -9,17 +9,36 @@ import json
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import scenario as scenario_mod
 
+CONFIRM_DURATION_S = 3600.0
+"""Sim durations above this (1 h of sim time) need ``--yes``: the run log grows with it."""
+MAX_DURATION_S = 1e6
+"""Sim durations above this are refused (the bound a scenario file's ``duration_s`` has)."""
+
+EPILOG = """\
+examples:
+  formation sim                                   # paper-exp2, writes runs/paper-exp2/
+  formation sim --scenario chevron7 --duration 30 --seed 4 --out runs/c7
+  formation sim --scenario my.toml --no-figures --quiet
+
+durations: > 0 and finite; above 3600 s of sim time needs --yes; above 1e6 s is refused.
+Progress (with an ETA) goes to stderr: redrawn on a terminal, a line every 10 s otherwise."""
+
 
 def build_parser() -> argparse.ArgumentParser:
+    from runtime.args import HelpFormatter, non_negative_int, positive_float
+
     p = argparse.ArgumentParser(
         prog="formation sim",
         description="Run a scenario in-process (no Zenoh): deterministic for a seed, "
         "much faster than real time. Writes metrics.json and PNG figures.",
+        epilog=EPILOG,
+        formatter_class=HelpFormatter,
     )
     p.add_argument(
         "--scenario",
@@ -28,7 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--robots",
-        type=int,
+        type=non_negative_int,
         default=None,
         metavar="N",
         help="grow (or cut) the formation to N slots by the paper's staged rule (Fig 2b) with "
@@ -36,17 +55,40 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--spares",
-        type=int,
+        type=non_negative_int,
         default=0,
         metavar="K",
         help="add K idle hot spares behind the formation (default 0)",
     )
-    p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
-    p.add_argument("--duration", type=float, default=None, help="override the duration (s)")
-    p.add_argument("--out", type=Path, default=None, help="output folder (default runs/<name>)")
+    p.add_argument(
+        "--seed", type=non_negative_int, default=None, help="override the scenario's seed (>= 0)"
+    )
+    p.add_argument(
+        "--duration",
+        type=positive_float,
+        default=None,
+        metavar="S",
+        help="override the duration in s of sim time (default: the scenario's)",
+    )
+    p.add_argument("--out", type=Path, default=None, help="output folder (default: runs/<name>)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument(
+        "--yes", action="store_true", help=f"run durations above {CONFIRM_DURATION_S:g} s"
+    )
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return p
+
+
+def check_duration(duration_s: float, yes: bool) -> str | None:
+    """Why ``duration_s`` of sim time is refused (an error message), or None if it may run."""
+    if duration_s > MAX_DURATION_S:
+        return f"--duration: {duration_s:g} s is more than the {MAX_DURATION_S:g} s limit"
+    if duration_s > CONFIRM_DURATION_S and not yes:
+        return (
+            f"--duration: {duration_s:g} s of sim time is long (the run log grows with it); "
+            f"add --yes to run more than {CONFIRM_DURATION_S:g} s"
+        )
+    return None
 
 
 def run_and_write(
@@ -56,12 +98,13 @@ def run_and_write(
     duration: float | None = None,
     figures: bool = True,
     stop: threading.Event | None = None,
+    progress: Callable[[float, float], None] | None = None,
 ) -> dict[str, Any]:
     """Run ``scn`` in-process and write metrics.json, run.npz and the figures to ``out``; the
     metrics' ``meta.interrupted`` is True if ``stop`` ended the run early."""
     from formation import metrics, simulate
 
-    result = simulate.run(scn, seed=seed, duration_s=duration, stop=stop)
+    result = simulate.run(scn, seed=seed, duration_s=duration, stop=stop, progress=progress)
     # the same settling time as `formation up` / `formation report` for this duration
     settle_s = metrics.settle_for(scn.settle_s, scn.duration_s if duration is None else duration)
     m = metrics.compute(result.log, settle_s, scn.settle_tol_m)
@@ -133,19 +176,39 @@ def main(argv: list[str]) -> int:
             scn = scenario_mod.load_with_robots(args.scenario, args.robots, args.spares)
         else:
             scn = scenario_mod.load(args.scenario)
+        from scenario.check import check_cores
+
+        check_cores(scn)
     except scenario_mod.ScenarioError as exc:
         print(f"formation sim: {exc}", file=sys.stderr)
         return 2
+    why = check_duration(scn.duration_s if args.duration is None else args.duration, args.yes)
+    if why is not None:
+        print(f"formation sim: error: {why}", file=sys.stderr)
+        return 2
     out = args.out or Path("runs") / scn.name
+    if out.exists() and not out.is_dir():
+        print(f"formation sim: error: --out: {out} exists and is not a folder", file=sys.stderr)
+        return 2
+    from formation.progress import Progress
+
+    bar = Progress("formation sim", enabled=not args.quiet)
     stop = threading.Event()
     previous = signal.getsignal(signal.SIGINT)
     signal.signal(signal.SIGINT, lambda *_: stop.set())  # ends the run between two ticks
     try:
         m = run_and_write(
-            scn, out, args.seed, args.duration, figures=not args.no_figures, stop=stop
+            scn,
+            out,
+            args.seed,
+            args.duration,
+            figures=not args.no_figures,
+            stop=stop,
+            progress=bar.update,
         )
     finally:
         signal.signal(signal.SIGINT, previous)
+        bar.close()
     if m["meta"]["interrupted"]:
         what = "metrics" if args.no_figures else "metrics and figures"
         print(

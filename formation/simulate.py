@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from operator import itemgetter
 from typing import Any
@@ -62,18 +63,23 @@ class SimResult:
         return sim_s / self.wall_s if self.wall_s > 0 else math.inf
 
 
+PROGRESS_EVERY_TICKS = 500  # how often run() calls its progress callback
+
+
 def run(
     scenario: Scenario,
     seed: int | None = None,
     duration_s: float | None = None,
     stop: threading.Event | None = None,
+    progress: Callable[[float, float], None] | None = None,
 ) -> SimResult:
     """Run ``scenario`` in-process for ``duration_s`` (default: the scenario's) of sim time.
 
     ``seed`` overrides the scenario's seed. The returned ``wall_s`` is the wall-clock time of the
     loop and of building the log arrays at the end. ``stop`` (e.g. set by a SIGINT handler) ends
     the run early, between two ticks: the result holds the ticks run so far (at least one) and
-    ``interrupted`` is True.
+    ``interrupted`` is True. ``progress(t_s, duration_s)``, if given, is
+    called every :data:`PROGRESS_EVERY_TICKS` ticks (it must not touch the run's state).
     """
     seed = scenario.seed if seed is None else seed
     duration = scenario.duration_s if duration_s is None else duration_s
@@ -134,6 +140,8 @@ def run(
             interrupted = True
             break
         t = tick_time(k, dt)
+        if progress is not None and k % PROGRESS_EVERY_TICKS == 0:
+            progress(t, duration)
         # 1. disturbances
         while pending and pending[0].t_s <= t + 1e-9:
             d = pending.pop(0)

@@ -91,6 +91,7 @@ from formation.up_plan import (
     UpResult,
     plan_run,
 )
+from runtime.args import non_negative_int, positive_float
 
 __all__ = [
     "LaunchError",
@@ -136,7 +137,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--duration",
-        type=float,
+        type=positive_float,
         default=None,
         help="seconds to run: sim time in lockstep, wall time in realtime (default: scenario's)",
     )
@@ -148,12 +149,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name in the keys")
     p.add_argument("--out", type=Path, default=None, help="output folder (runs/up-<scenario>)")
-    p.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    p.add_argument(
+        "--seed", type=non_negative_int, default=None, help="override the scenario's seed"
+    )
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.add_argument(
         "--ready-timeout",
-        type=float,
+        type=positive_float,
         default=30.0,
         metavar="S",
         help="seconds each process gets to print its ready line (default 30)",

@@ -134,6 +134,34 @@ class UpResult:
     run_wall_s: float | None = None  # from the first to the last truth frame received
 
 
+MAX_DURATION_S = 1e6  # the bound of a scenario file's duration_s
+
+
+def busy_endpoint(endpoint: str) -> str | None:
+    """Why the router cannot listen on a local TCP ``endpoint`` (one line), or None.
+
+    ``formation up`` starts its own router on ``--endpoint``; checking the port first turns a
+    busy port into one line before anything starts (not the router's Zenoh error).
+    """
+    import socket
+
+    proto, _, addr = endpoint.partition("/")
+    host, _, port_text = addr.rpartition(":")
+    host = host.strip("[]")
+    if proto != "tcp" or not port_text.isdigit() or host not in ("127.0.0.1", "localhost", "::1"):
+        return None
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        try:
+            s.bind((host, int(port_text)))
+        except OSError as exc:
+            return (
+                f"--endpoint {endpoint}: port busy ({exc.strerror}); is another `formation up` "
+                "or `formation router` running? stop it or pass another --endpoint"
+            )
+    return None
+
+
 def plan_run(cfg: UpConfig) -> Plan:
     """Validate the config and the scenario; raise ``ScenarioError``/``ValueError`` (exit 2)."""
     keys.check_fleet(cfg.fleet)
@@ -142,6 +170,11 @@ def plan_run(cfg: UpConfig) -> Plan:
     ZenohSettings(connect=(cfg.endpoint,))  # validates the endpoint's shape
     if cfg.duration_s is not None and not (cfg.duration_s > 0 and math.isfinite(cfg.duration_s)):
         raise ValueError(f"--duration must be positive, got {cfg.duration_s}")
+    if cfg.duration_s is not None and cfg.duration_s > MAX_DURATION_S:
+        raise ValueError(f"--duration: {cfg.duration_s:g} s is more than {MAX_DURATION_S:g} s")
+    port_busy = busy_endpoint(cfg.endpoint)
+    if port_busy is not None:
+        raise ValueError(port_busy)
     if cfg.seed is not None and cfg.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {cfg.seed}")
     path = scenario_mod.resolve(cfg.scenario)
@@ -155,6 +188,9 @@ def plan_run(cfg: UpConfig) -> Plan:
         data = scenario_with_robots(data, cfg.robots, cfg.spares)
         toml_text = to_toml(data)
     scn = scenario_mod.parse(data, source=str(path))
+    from scenario.check import check_cores
+
+    check_cores(scn)  # trajectory/formation tables: one ScenarioError, before anything starts
     n = len(scn.robot_ids)
     if cfg.hosts is None:
         hosts, reason = auto_hosts(n)

@@ -13,8 +13,8 @@ def _fmt_opt(v: Any, fmt: str = "{}", none: str = "-") -> str:
     return none if v is None else fmt.format(v)
 
 
-def format_table(view: LiveView, header: str, speed: float | None) -> list[str]:
-    """The live status table as lines (no terminal control codes)."""
+def format_table(view: LiveView, header: str, speed: float | None, progress: str = "") -> list[str]:
+    """The live status table as lines (no terminal control codes); ``progress``: ETA text."""
     t = _fmt_opt(view.t_s, "{:7.2f} s")
     sp = f"  {speed:5.1f}x real time" if speed is not None and math.isfinite(speed) else ""
     lines = [
@@ -36,8 +36,8 @@ def format_table(view: LiveView, header: str, speed: float | None) -> list[str]:
     return lines
 
 
-def format_line(view: LiveView, speed: float | None) -> str:
-    """One-line summary of the live view (for logs and pipes)."""
+def format_line(view: LiveView, speed: float | None, progress: str = "") -> str:
+    """One-line summary of the live view (for logs and pipes); ``progress``: ETA text."""
     errs = [r.error_m for r in view.robots if r.error_m is not None]
     modes: dict[str, int] = {}
     for r in view.robots:
@@ -48,4 +48,5 @@ def format_line(view: LiveView, speed: float | None) -> str:
         f"max error {_fmt_opt(max(errs) * 100 if errs else None, '{:.2f} cm')}  "
         f"min distance {_fmt_opt(view.min_distance_m, '{:.3f} m')}  "
         f"modes {' '.join(f'{k}:{v}' for k, v in sorted(modes.items()))}"
+        + (f"  {progress}" if progress else "")
     )

@@ -6,11 +6,30 @@ import argparse
 import math
 from typing import Final
 
-__all__ = ["MAX_RATE_HZ", "MIN_RATE_HZ", "finite_or_none", "non_negative_int", "positive_float",
-           "rate_hz"]  # fmt: skip
+__all__ = ["MAX_RATE_HZ", "MIN_RATE_HZ", "HelpFormatter", "finite_or_none", "non_negative_int",
+           "positive_float", "rate_hz"]  # fmt: skip
 
 MIN_RATE_HZ: Final = 0.5
 MAX_RATE_HZ: Final = 2000.0
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """--help with each option's default shown and the description/epilog kept as written.
+
+    Adds ``(default: X)`` to an option's help unless the help already says "default" or the
+    default is None/False (a flag, or "not set"), so examples in an epilog keep their layout.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if (
+            "default" in text
+            or str(action.default) in text
+            or action.default in (None, False, argparse.SUPPRESS)
+            or (not action.option_strings and action.nargs not in ("?", "*"))
+        ):
+            return action.help
+        return text + " (default: %(default)s)"
 
 
 def rate_hz(text: str) -> float:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import re
 import threading
 import time
 from collections.abc import Sequence
@@ -321,11 +322,27 @@ def _close_node_sessions() -> int:
     return closed
 
 
+_RUST_SOURCE = re.compile(r"\s*\bat /\S+\.rs:\d+\.?")
+
+
+def zenoh_error_text(exc: BaseException) -> str:
+    """A Zenoh error as one line for a user: no Rust source paths, no brackets, no newlines."""
+    text = _RUST_SOURCE.sub("", str(exc)).replace("[", "").replace("]", "")
+    return " ".join(text.split()).rstrip(".")
+
+
 def _open_error(settings: ZenohSettings, waited_s: float, exc: BaseException) -> TransportError:
+    text = zenoh_error_text(exc)
+    if "Address already in use" in text:
+        where = ", ".join(settings.listen) or "(config file endpoints)"
+        return TransportError(
+            f"cannot listen on {where}: address already in use (another `formation router` or "
+            "`formation up` running? stop it or choose another endpoint)"
+        )
     where = ", ".join(settings.connect) or "(config file endpoints)"
     return TransportError(
         f"could not open a Zenoh {settings.mode or 'session'} session to {where} "
-        f"within {waited_s:.1f} s: {exc}. Is `formation router` (or `formation up`) running?"
+        f"within {waited_s:.1f} s: {text}. Is `formation router` (or `formation up`) running?"
     )
 
 
