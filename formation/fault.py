@@ -496,6 +496,7 @@ examples:
   formation fault pause r2; formation fault resume r2
   formation fault kill-host h1                         # a `formation up --hosts` fleet
   formation fault estop; formation fault release
+  formation fault drag r1 -0.6 0                       # push r1 0.6 m back (simulated plant)
 An authenticated run (`formation up --secure`) is found by its endpoint's port: no certificate
 options needed. Exit status: 0 done, 1 target not found / not verified, 2 bad arguments."""
 

@@ -253,4 +253,6 @@ def test_formation_sim_takes_robots_and_spares(tmp_path: Path) -> None:
     m = json.loads((out / "metrics.json").read_text())
     assert len(m["robots"]) == 6 and m["robots"]["r6"]["final_slot"] is None  # the spare
     assert sorted(r["final_slot"] for r in list(m["robots"].values())[:5]) == list(range(5))
-    assert sim_main(["--spares", "-1", "--out", str(out)]) == 2
+    with pytest.raises(SystemExit) as refused:  # argparse: one line, exit 2
+        sim_main(["--spares", "-1", "--out", str(out)])
+    assert refused.value.code == 2

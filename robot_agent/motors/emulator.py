@@ -271,8 +271,9 @@ def main(argv: list[str] | None = None) -> int:
         prog="formation motor-emulator",
         description="An emulated RoboClaw (packet serial) on a pseudo-terminal, to try the "
         "roboclaw motor backend without hardware.",
-        epilog="example: formation motor-emulator --link /tmp/roboclaw  (then port = "
+        epilog="examples:\n  formation motor-emulator --link /tmp/roboclaw  (then port = "
         '"/tmp/roboclaw" in the robot config\'s [motor] section)',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument(
         "--link", metavar="PATH", help="also make PATH a symlink to the pty (removed at exit)"
