@@ -618,6 +618,10 @@ def first_stage_pattern(spec: FormationSpec) -> tuple[tuple[float, float], ...]:
     return tuple((s.b_m, s.phi_rad) for s in spec.slots if s.parent == LEADER_SLOT)
 
 
+COINCIDE_M = 1e-9
+"""Two slots closer than this (m) are one point: a formation with such a pair cannot grow."""
+
+
 def formation_spacing_m(spec: FormationSpec) -> float:
     """The smallest distance (m) between two slots of ``spec`` (inf for a single slot)."""
     d = spec.body_offsets_m
@@ -671,7 +675,7 @@ def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
             "pattern to repeat; give it at least one follower of the leader"
         )
     spacing = formation_spacing_m(spec)
-    if not spacing > 0.0:
+    if not spacing > COINCIDE_M:
         raise ValueError(f"{owner}: two slots of the formation coincide (spacing {spacing} m)")
     min_d = spacing * (1.0 - _GROW_TOL)
     merge_d = spacing * _GROW_TOL

@@ -66,6 +66,7 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
         "formation fault kill-leader",
         "formation fault drag r1 -0.6 0",
     ),
+    "formation motor-emulator": ("formation motor-emulator --link /tmp/roboclaw",),
     "formation record": ("formation record --out run.mcap --duration 30 --scenario paper-exp2",),
     "formation report": ("formation report run.mcap --out run-report",),
     "formation top": ("formation top --once --wait 2",),
