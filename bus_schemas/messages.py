@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 from bus_schemas import keys
 from bus_schemas.spec import DURATION_MAX_S as _DUR
@@ -26,17 +25,12 @@ from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
 from bus_schemas.spec import WHEEL_RATE_MAX_RADPS as _WHEEL
 from bus_schemas.spec import (
     RequiredWhen,
-    SameLength,
     f_angle,
-    f_angle_list,
     f_bool,
     f_count_map,
     f_enum,
-    f_enum_list,
     f_float,
-    f_float_list,
     f_int,
-    f_int_list,
     f_name,
     f_robot_id,
     f_robot_id_list,
@@ -46,68 +40,35 @@ from bus_schemas.spec import (
     spec_of,
 )
 
-
-class Role(StrEnum):
-    """Role of a formation slot."""
-
-    LEADER = "leader"
-    SUBLEADER = "subleader"
-    FOLLOWER = "follower"
-
-
-class Mode(StrEnum):
-    """Mode of a robot agent's firmware state machine."""
-
-    IDLE = "idle"
-    TRACKING = "tracking"
-    HOLD = "hold"
-    ESTOP = "estop"
-
-
-class DisturbanceKind(StrEnum):
-    """What a disturbance does to a simulated robot."""
-
-    DRAG = "drag"
-    TELEPORT = "teleport"
-
-
-# Field specs shared by several messages.
-_V = f_int("schema version; a decoder rejects any other value", lo=1, hi=1)
-_T = f_float(
-    "timestamp: sim time in lockstep, the publisher's time.monotonic() in realtime",
-    "s",
-    lo=0.0,
-    hi=_TMAX,
+from .messages_batch import (
+    PoseBatch,
+    SetpointBatch,
+    StatusBatch,
+    TruthBatch,
+    WheelsBatch,
 )
-_SEQ = f_int("sequence number, +1 per message on this key (per publisher)")
-_X = f_float("x position, world frame", "m", lo=-_POS, hi=_POS)
-_Y = f_float("y position, world frame", "m", lo=-_POS, hi=_POS)
-_SLOT = f_slot("slot number, 0 = virtual leader")
-_ROLE = f_enum("role of the slot", Role)
-_STAGE = f_int("stage of the slot in the formation tree (0 = leader, 1 = first stage, ...)", hi=255)
-_PARENT = f_slot("slot number of the (sub-)leader this slot follows; nil for slot 0", nullable=True)
-_SLOT_X = f_float(
-    "x where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)",
-    "m",
-    lo=-_POS,
-    hi=_POS,
+from .messages_fields import (
+    _PARENT,
+    _POSE_THETA,
+    _POSE_X,
+    _POSE_Y,
+    _ROLE,
+    _SEQ,
+    _SLOT,
+    _SLOT_THETA,
+    _SLOT_VX,
+    _SLOT_VY,
+    _SLOT_X,
+    _SLOT_Y,
+    _STAGE,
+    _T,
+    _V,
+    _X,
+    _Y,
+    DisturbanceKind,
+    Mode,
+    Role,
 )
-_SLOT_Y = f_float(
-    "y where the assigned robot's reference point (eqs 10-11) should be (slot, eqs 1-5)",
-    "m",
-    lo=-_POS,
-    hi=_POS,
-)
-_SLOT_THETA = f_angle("heading of the slot (= its parent's heading, rigid formation)")
-_SLOT_VX = f_float(
-    "feed-forward velocity of the slot point along x (eqs 21-22)", "m/s", lo=-_SPEED, hi=_SPEED
-)
-_SLOT_VY = f_float(
-    "feed-forward velocity of the slot point along y (eqs 21-22)", "m/s", lo=-_SPEED, hi=_SPEED
-)
-_POSE_X = f_float("x of the robot's axle centre, world frame", "m", lo=-_POS, hi=_POS)
-_POSE_Y = f_float("y of the robot's axle centre, world frame", "m", lo=-_POS, hi=_POS)
-_POSE_THETA = f_angle("heading of the robot, world frame, counter-clockwise from +x")
 
 
 @message(name=keys.LEADER, publisher="coordinator", periodic=True)
@@ -426,216 +387,6 @@ class Heartbeat:
             lo=-_TMAX,
             hi=_TMAX,
         )
-    )
-
-
-@message(
-    name=keys.POSES,
-    publisher="localization (batched frame)",
-    periodic=True,
-    rules=(SameLength(("robots", "x", "y", "theta")),),
-)
-@dataclass(frozen=True, slots=True, kw_only=True)
-class PoseBatch:
-    """Poses of many robots measured at one instant `stamp`, as parallel arrays (one frame).
-
-    `t` is when the frame was published. A fleet larger than the list bound is sent as several
-    frames with the same `stamp`.
-    """
-
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
-    x: tuple[float, ...] = field(
-        metadata=f_float_list("x of each axle centre", "m", lo=-_POS, hi=_POS)
-    )
-    y: tuple[float, ...] = field(
-        metadata=f_float_list("y of each axle centre", "m", lo=-_POS, hi=_POS)
-    )
-    theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
-    stamp: float = field(
-        metadata=f_float(
-            "measurement (capture) time of the frame, same clock as t", "s", lo=0.0, hi=_TMAX
-        )
-    )
-
-
-@message(
-    name=keys.TRUTHS,
-    publisher="plant only (batched frame)",
-    periodic=True,
-    rules=(SameLength(("robots", "x", "y", "theta")),),
-)
-@dataclass(frozen=True, slots=True, kw_only=True)
-class TruthBatch:
-    """True poses of many simulated robots at one instant `stamp`, as parallel arrays.
-
-    The batched form of `robot/<id>/truth` for large fleets; a fleet larger than the list bound
-    (or than :data:`BATCH_CHUNK`) is sent as several messages with the same `stamp`.
-    """
-
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
-    x: tuple[float, ...] = field(
-        metadata=f_float_list("x of each axle centre", "m", lo=-_POS, hi=_POS)
-    )
-    y: tuple[float, ...] = field(
-        metadata=f_float_list("y of each axle centre", "m", lo=-_POS, hi=_POS)
-    )
-    theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
-    stamp: float = field(
-        metadata=f_float("sim time of these true poses, same clock as t", "s", lo=0.0, hi=_TMAX)
-    )
-
-
-@message(
-    name=keys.SETPOINTS,
-    publisher="coordinator (batched)",
-    periodic=True,
-    rules=(SameLength(("robots", "slot", "role", "stage", "x", "y", "vx", "vy")),),
-)
-@dataclass(frozen=True, slots=True, kw_only=True)
-class SetpointBatch:
-    """The setpoints of many robots of one coordinator tick, as parallel arrays.
-
-    The batched form of `robot/<id>/setpoint` for large fleets (agent hosts read it); the
-    meaning of each entry is that of `Setpoint` (where the reference point should be, eqs 10-11,
-    and the feed-forward velocity). Every slot of a formation shares one heading, `theta`. Sent
-    as several messages (same `t`, consecutive `seq`) when the fleet exceeds one batch.
-    """
-
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per setpoint"))
-    slot: tuple[int, ...] = field(
-        metadata=f_int_list("assigned slot of each robot", hi=keys.MAX_SLOT)
-    )
-    role: tuple[str, ...] = field(metadata=f_enum_list("role of each robot's slot", Role))
-    stage: tuple[int, ...] = field(
-        metadata=f_int_list("formation stage of each slot (0 = leader)", hi=keys.MAX_SLOT)
-    )
-    x: tuple[float, ...] = field(
-        metadata=f_float_list("x of each slot (reference point)", "m", lo=-_POS, hi=_POS)
-    )
-    y: tuple[float, ...] = field(
-        metadata=f_float_list("y of each slot (reference point)", "m", lo=-_POS, hi=_POS)
-    )
-    theta: float = field(metadata=f_angle("heading of the formation (every slot's)"))
-    vx: tuple[float, ...] = field(
-        metadata=f_float_list("feed-forward velocity x of each slot", "m/s", lo=-_SPEED, hi=_SPEED)
-    )
-    vy: tuple[float, ...] = field(
-        metadata=f_float_list("feed-forward velocity y of each slot", "m/s", lo=-_SPEED, hi=_SPEED)
-    )
-    tick: int | None = field(
-        default=None, metadata=f_int("lockstep: the clock `tick` these setpoints were computed on")
-    )
-
-
-@message(
-    name=keys.HOST_WHEELS,
-    publisher="agent host (batched)",
-    periodic=True,
-    rules=(SameLength(("robots", "omega_r", "omega_l", "power_r", "power_l", "pose_t", "mode")),),
-)
-@dataclass(frozen=True, slots=True, kw_only=True)
-class WheelsBatch:
-    """Wheel commands of the robots an agent host runs, from one control step, parallel arrays.
-
-    The batched form of `robot/<id>/wheels` (same meaning per entry). `pose_t` of an entry is
-    negative when no pose was used (the robot is idle): `Wheels.pose_t` nil.
-    """
-
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per command"))
-    omega_r: tuple[float, ...] = field(
-        metadata=f_float_list("right wheel angular speed command", "rad/s", lo=-_WHEEL, hi=_WHEEL)
-    )
-    omega_l: tuple[float, ...] = field(
-        metadata=f_float_list("left wheel angular speed command", "rad/s", lo=-_WHEEL, hi=_WHEEL)
-    )
-    power_r: tuple[float, ...] = field(
-        metadata=f_float_list("right wheel command as a fraction of max", "1", lo=-1.0, hi=1.0)
-    )
-    power_l: tuple[float, ...] = field(
-        metadata=f_float_list("left wheel command as a fraction of max", "1", lo=-1.0, hi=1.0)
-    )
-    pose_t: tuple[float, ...] = field(
-        metadata=f_float_list(
-            "`t` of the pose each command was computed from; -1 if none was used (idle)",
-            "s",
-            lo=-1.0,
-            hi=_TMAX,
-        )
-    )
-    tick: int | None = field(
-        default=None, metadata=f_int("lockstep: the clock `tick` these commands answer")
-    )
-    mode: tuple[str, ...] | None = field(
-        default=None, metadata=f_enum_list("firmware mode of each robot after its step", Mode)
-    )
-
-
-@message(
-    name=keys.HOST_STATUS,
-    publisher="agent host (batched), >= 5 Hz",
-    periodic=True,
-    rate=">= 5 Hz",
-    rules=(
-        SameLength(
-            (
-                "robots", "mode", "slot", "rejected", "ex", "ey",
-                "filter_active", "filter_violations", "filter_infeasible", "filter_tiebreaks",
-            )
-        ),
-    ),
-)  # fmt: skip
-@dataclass(frozen=True, slots=True, kw_only=True)
-class StatusBatch:
-    """Health of the robots an agent host runs (the batched form of `robot/<id>/status`)."""
-
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    pid: int = field(metadata=f_int("OS process id of the agent host", hi=2**31 - 1))
-    host: str = field(metadata=f_str("host name the agent host runs on"))
-    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids"))
-    mode: tuple[str, ...] = field(metadata=f_enum_list("firmware mode of each robot", Mode))
-    slot: tuple[int, ...] = field(
-        metadata=f_int_list("assigned slot of each robot, -1 if none", lo=-1, hi=keys.MAX_SLOT)
-    )
-    rejected: tuple[int, ...] = field(
-        metadata=f_int_list("messages rejected by each robot's firmware")
-    )
-    ex: tuple[float, ...] = field(
-        metadata=f_float_list(
-            "tracking error along x (eq 17), 0 without a setpoint", "m", lo=-2 * _POS, hi=2 * _POS
-        )
-    )
-    ey: tuple[float, ...] = field(
-        metadata=f_float_list(
-            "tracking error along y (eq 18), 0 without a setpoint", "m", lo=-2 * _POS, hi=2 * _POS
-        )
-    )
-    filter_active: tuple[int, ...] | None = field(
-        default=None,
-        metadata=f_int_list("safety filter: ticks its output differed from the nominal command"),
-    )
-    filter_violations: tuple[int, ...] | None = field(
-        default=None,
-        metadata=f_int_list("safety filter: ticks a barrier was already below zero at the input"),
-    )
-    filter_infeasible: tuple[int, ...] | None = field(
-        default=None, metadata=f_int_list("safety filter: ticks with no feasible command (stop)")
-    )
-    filter_tiebreaks: tuple[int, ...] | None = field(
-        default=None, metadata=f_int_list("safety filter: deadlock tie-breaks triggered")
     )
 
 

@@ -94,10 +94,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 from .params import AgentConfig, CircleObstacle, SegmentObstacle
+from .qp import (
+    _TOL,
+    _sqrt,
+    solve_qp,
+)
+from .safety_types import (
+    _NAN,
+    Neighbour,
+    SafetyFilterStatus,
+    _isfinite,
+)
 
 __all__ = [
     "Neighbour",
@@ -107,139 +117,7 @@ __all__ = [
 ]
 
 _hypot = math.hypot
-_sqrt = math.sqrt
-_isfinite = math.isfinite
-_NAN = math.nan
-_TOL = 1e-9  # feasibility tolerance of a constraint (m/s)
 _VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
-
-
-class Neighbour(NamedTuple):
-    """What a robot knows of another robot. A plain ``(x, y)`` tuple means ``Neighbour(x, y)``.
-
-    Attributes:
-        x, y: the neighbour's measured axle centre (m).
-        theta: its heading (rad), NaN if unknown (needed for ``cooperative``).
-        age_s: age of the measurement (s, >= 0): capture time to now on this robot's clock.
-        vx, vy: the centre's velocity if known (m/s), used for a non-cooperative neighbour; a
-            component beyond 10 x the neighbour top speed is rejected (counted, taken as 0).
-        cooperative: it is TRACKING and runs this filter (fresh status): half responsibility.
-        radius_m: extra radius for the neighbour's own uncertainty (m).
-    """
-
-    x: float
-    y: float
-    theta: float = _NAN
-    age_s: float = 0.0
-    vx: float = 0.0
-    vy: float = 0.0
-    cooperative: bool = False
-    radius_m: float = 0.0
-
-
-@dataclass(frozen=True, slots=True)
-class SafetyFilterStatus:
-    """Counters of the filter (for the status message, logs and run metrics).
-
-    Attributes:
-        ticks: calls to ``filter``.
-        active_ticks: ticks whose output differs from the nominal command.
-        violations: ticks on which some barrier was already below zero at the input (the
-            robot was inside a boundary it should keep: noise, a neighbour that moved in, a
-            start inside; Robotarium counts these as violations).
-        infeasible: ticks with no feasible command: the robot stopped (the fallback).
-        tiebreaks: deadlock tie-breaks triggered.
-        tiebreak_active: a tie-break is running now.
-        rescaled: ticks on which the firmware rescaled saturated wheels uniformly to keep the
-            constraints (see ``admissible``).
-        rejected: neighbour / obstacle entries skipped as non-finite.
-        min_clearance_m: the least barrier value ``h`` seen (m, inf if none in range).
-        constraints: constraints in range on the last tick.
-    """
-
-    ticks: int
-    active_ticks: int
-    violations: int
-    infeasible: int
-    tiebreaks: int
-    tiebreak_active: bool
-    rescaled: int
-    rejected: int
-    min_clearance_m: float
-    constraints: int
-
-    def as_dict(self) -> dict[str, Any]:
-        """msgpack-friendly dict (``min_clearance_m`` is None while infinite)."""
-        return {
-            "ticks": self.ticks,
-            "active": self.active_ticks,
-            "violations": self.violations,
-            "infeasible": self.infeasible,
-            "tiebreaks": self.tiebreaks,
-            "tiebreak_active": self.tiebreak_active,
-            "rescaled": self.rescaled,
-            "rejected": self.rejected,
-            "min_clearance_m": self.min_clearance_m if _isfinite(self.min_clearance_m) else None,
-            "constraints": self.constraints,
-        }
-
-
-def solve_qp(
-    ux: float, uy: float, cons: Sequence[tuple[float, float, float]], cap: float
-) -> tuple[float, float, bool]:
-    """``argmin |u - (ux, uy)|^2`` s.t. ``ax*u_x + ay*u_y >= b`` for each ``(ax, ay, b)`` in
-    ``cons`` (``(ax, ay)`` unit vectors) and ``|u| <= cap``; exact (see the module docstring).
-
-    Returns ``(u_x, u_y, feasible)``; ``(0.0, 0.0, False)`` when no candidate is feasible.
-    """
-    cap2 = cap * cap * (1.0 + 1e-12) + 1e-18
-
-    def ok(x: float, y: float) -> bool:
-        if x * x + y * y > cap2:
-            return False
-        for ax, ay, b in cons:  # noqa: SIM110 (a plain loop: no generator on the hot path)
-            if ax * x + ay * y < b - _TOL:
-                return False
-        return True
-
-    if ok(ux, uy):
-        return ux, uy, True
-    best_x = best_y = 0.0
-    best = math.inf
-    m = len(cons)
-    for i in range(m):
-        ax, ay, b = cons[i]
-        # projection of u_nom onto the line a . u = b
-        t = b - (ax * ux + ay * uy)
-        x = ux + t * ax
-        y = uy + t * ay
-        d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
-        if d < best and ok(x, y):
-            best, best_x, best_y = d, x, y
-        # the line's intersections with the speed circle |u| = cap
-        r2 = cap * cap - b * b
-        if r2 >= 0.0:
-            r = _sqrt(r2)
-            for sgn in (1.0, -1.0):
-                x = b * ax - sgn * r * ay
-                y = b * ay + sgn * r * ax
-                d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
-                if d < best and ok(x, y):
-                    best, best_x, best_y = d, x, y
-        # intersections with the other lines
-        for j in range(i + 1, m):
-            bx, by, c = cons[j]
-            det = ax * by - ay * bx
-            if -1e-12 < det < 1e-12:
-                continue
-            x = (b * by - ay * c) / det
-            y = (ax * c - b * bx) / det
-            d = (x - ux) * (x - ux) + (y - uy) * (y - uy)
-            if d < best and ok(x, y):
-                best, best_x, best_y = d, x, y
-    if best == math.inf:
-        return 0.0, 0.0, False
-    return best_x, best_y, True
 
 
 class SafetyFilter:

@@ -56,10 +56,26 @@ from __future__ import annotations
 
 import math
 import sys
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+
+from .encoders import (
+    _TWO_PI,
+    WheelEncoders,
+    _check_finite_scalar,
+)
+from .kinematics import (
+    _PI,
+    FloatArray,
+    GeometryLike,
+    PoseRow,
+    PoseRows,
+    unicycle_integrate,
+    wrap_angle,
+    wrap_angles,
+)
 
 __all__ = [
     "SMALL_N",
@@ -72,18 +88,8 @@ __all__ = [
     "wrap_angles",
 ]
 
-FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
-PoseRow = tuple[float, float, float]
 WheelRow = tuple[float, float]
-
-
-class PoseRows(tuple[PoseRow, ...]):
-    """Poses as the plant hands them out: an immutable tuple of ``(x_m, y_m, theta_rad)`` float
-    triples, theta in (-pi, pi]. Only the plant builds these, so a consumer that sees this exact
-    type (the camera) can skip re-validating it."""
-
-    __slots__ = ()
 
 
 #: Largest fleet stepped in plain Python; larger fleets use the vectorised path. The camera uses
@@ -92,86 +98,9 @@ class PoseRows(tuple[PoseRow, ...]):
 #: 128; a camera frame 82 vs 94 us for 64 robots, 157 vs 124 us for 128.
 SMALL_N = 64
 
-_TWO_PI = 2.0 * math.pi
-_PI = math.pi
 _MAX_FLOAT = sys.float_info.max
 # Sim time is a float sum of steps; events this close to a step boundary happen at it.
 _TIME_EPS_S = 1e-9
-
-
-class GeometryLike(Protocol):
-    """What the plant needs of a robot's geometry (``robot_agent.params.RobotGeometry`` fits)."""
-
-    @property
-    def wheel_radius_m(self) -> float:
-        """Wheel radius R in metres."""
-        ...
-
-    @property
-    def half_track_m(self) -> float:
-        """Half the distance between the wheels, L in metres (track width is 2L)."""
-        ...
-
-    @property
-    def max_wheel_radps(self) -> float:
-        """Largest wheel speed magnitude the motors reach, rad/s."""
-        ...
-
-
-def wrap_angles(a: npt.ArrayLike) -> FloatArray:
-    """Wrap angles (rad) elementwise to the half-open interval (-pi, pi]."""
-    arr = np.asarray(a, dtype=np.float64)
-    # np.mod lies in [0, 2 pi], so pi - mod lies in [-pi, pi]; mod rounds up to exactly 2 pi only
-    # for a hair above pi (pi - a a tiny negative number), whose wrap is pi.
-    r = np.mod(math.pi - arr, _TWO_PI)
-    r = np.where(r >= _TWO_PI, 0.0, r)  # NaN stays NaN (as robot_agent.kinematics.wrap_angle)
-    return np.asarray(math.pi - r, dtype=np.float64)
-
-
-def wrap_angle(a: float) -> float:
-    """Scalar :func:`wrap_angles`: ``a`` (rad) to (-pi, pi], the same bits for the same input.
-
-    The plant keeps this pair (not ``robot_agent.kinematics.wrap_angle``, which uses
-    ``math.remainder``) because its vectorised and scalar paths must agree bit for bit; both
-    give NaN for a non-finite angle, as the firmware's does."""
-    r = (_PI - a) % _TWO_PI  # float % is fmod adjusted to the divisor's sign, as np.mod
-    if r >= _TWO_PI:
-        r = 0.0
-    return _PI - r
-
-
-def unicycle_integrate(
-    pose: FloatArray, v_mps: FloatArray, omega_radps: FloatArray, dt_s: FloatArray | float
-) -> FloatArray:
-    """Exact integration of the unicycle (paper eq. 9) for constant ``(v, omega)`` over ``dt_s``.
-
-    ``pose`` is ``(n, 3)`` ``[x_m, y_m, theta_rad]``; ``v_mps``, ``omega_radps`` are ``(n,)``;
-    ``dt_s`` is a scalar or ``(n,)`` (seconds, >= 0). Returns a new ``(n, 3)`` array.
-
-    The displacement is the chord of the arc, ``v dt sin(omega dt / 2) / (omega dt / 2)``, along
-    the mid-step heading ``theta + omega dt / 2``; at ``omega = 0`` this is the straight line
-    ``v dt`` along ``theta`` (the ratio ``sin(h)/h`` is taken as its limit 1 at ``h = 0``).
-    """
-    theta = pose[:, 2]
-    half_turn = omega_radps * (0.5 * dt_s)
-    # sin(h) / h with the limit 1 at h == 0 (cheaper than np.sinc, same value).
-    ratio = np.divide(
-        np.sin(half_turn), half_turn, out=np.ones_like(half_turn), where=half_turn != 0.0
-    )
-    chord = v_mps * dt_s * ratio
-    mid_heading = theta + half_turn
-    out = np.empty_like(pose)
-    out[:, 0] = pose[:, 0] + chord * np.cos(mid_heading)
-    out[:, 1] = pose[:, 1] + chord * np.sin(mid_heading)
-    out[:, 2] = wrap_angles(mid_heading + half_turn)
-    return out
-
-
-def _check_finite_scalar(name: str, value: float) -> float:
-    x = float(value)
-    if not math.isfinite(x):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return x
 
 
 class Plant:
@@ -662,63 +591,3 @@ class Plant:
         del self._angles[idx]
         self._any_drag = bool(np.isfinite(self._drag_t0).any())
         self._sat_any = bool(self._saturated.any())
-
-
-class WheelEncoders:
-    """Quadrature encoders on every wheel, read once per control tick (emulation).
-
-    ``read(angles)`` takes :meth:`Plant.wheel_angles` and returns, per robot, the mean wheel
-    speeds ``(omega_r, omega_l)`` (rad/s) over the interval since the previous read, as a
-    RoboClaw-style speed computed from count differences: angles are scaled by
-    ``1 + slip`` (a per-wheel constant drawn once from N(0, ``slip_std``): the wheel slips or its
-    radius differs, so the counts over- or under-state the ground motion) and quantised to whole
-    counts (``counts_per_rev`` per wheel revolution; 0 = no quantisation). The first read
-    returns None (no interval yet).
-    """
-
-    def __init__(
-        self,
-        n: int,
-        counts_per_rev: float,
-        slip_std: float = 0.0,
-        rng: np.random.Generator | None = None,
-    ) -> None:
-        cpr = _check_finite_scalar("counts_per_rev", counts_per_rev)
-        slip = _check_finite_scalar("slip_std", slip_std)
-        if cpr < 0.0 or slip < 0.0:
-            raise ValueError("counts_per_rev and slip_std must be >= 0")
-        if slip > 0.0 and rng is None:
-            raise ValueError("rng is required when slip_std > 0")
-        self._per_rad = cpr / _TWO_PI
-        self.slip: list[tuple[float, float]] = (
-            [(float(a), float(b)) for a, b in rng.normal(0.0, slip, (n, 2)).tolist()]
-            if slip > 0.0 and rng is not None
-            else [(0.0, 0.0)] * n
-        )
-        self._last: list[tuple[float, float]] | None = None
-        self._last_t = math.nan
-
-    def _counts(self, angles: list[tuple[float, float]]) -> list[tuple[float, float]]:
-        k = self._per_rad
-        out = []
-        for (ar, al), (sr, sl) in zip(angles, self.slip, strict=True):
-            cr, cl = ar * (1.0 + sr), al * (1.0 + sl)
-            if k > 0.0:
-                cr, cl = math.floor(cr * k) / k, math.floor(cl * k) / k
-            out.append((cr, cl))
-        return out
-
-    def read(
-        self, t_s: float, angles: list[tuple[float, float]]
-    ) -> list[tuple[float, float]] | None:
-        """Mean wheel speeds per robot since the previous read at ``t_s`` (s), or None."""
-        counts = self._counts(angles)
-        last, last_t = self._last, self._last_t
-        self._last, self._last_t = counts, t_s
-        if last is None or not t_s > last_t:
-            return None
-        dt = t_s - last_t
-        return [
-            ((r - r0) / dt, (lft - l0) / dt)
-            for (r, lft), (r0, l0) in zip(counts, last, strict=True)
-        ]
