@@ -60,7 +60,6 @@ from bus_schemas import (
     Estop,
     PoseBatch,
     SetpointBatch,
-    Status,
     StatusBatch,
     WheelsBatch,
     decode,
@@ -72,8 +71,13 @@ from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
 from robot_agent.lockstep import Arrivals, Replay
-from robot_agent.neighbours import NEIGHBOUR_STALE_S, is_cooperative, is_current, neighbour
-from robot_agent.node import AgentNode, Publish
+from robot_agent.neighbours import (
+    NEIGHBOUR_STALE_S,
+    is_cooperative,
+    is_current,
+    neighbour,
+)
+from robot_agent.node import AgentNode, Publish, status_tracking
 from robot_agent.params import AgentConfig
 from robot_agent.safety_filter import Neighbour, SafetyFilter
 from runtime.sdnotify import Notifier
@@ -403,15 +407,11 @@ class HostNode:
         cooperative neighbour."""
         try:
             self.rx["status"] += 1
-            parsed = keys.parse_robot_key(rx.key)
-            msg = decode(rx.payload, Status)
-            if isinstance(msg, DecodeError):
-                self._reject("status", msg)
+            got = status_tracking(rx.key, rx.payload)
+            if not isinstance(got, tuple):
+                self._reject("status", got)
                 return
-            if parsed is None or (msg.robot is not None and msg.robot != parsed[1]):
-                self._reject("status", f"robot {msg.robot!r} on key {rx.key[:100]!r}")
-                return
-            self._note_mode(parsed[1], msg.mode == "tracking", rx.rx_s)
+            self._note_mode(got[0], got[1], rx.rx_s)
         except Exception as exc:
             self._internal("on_status", exc)
 

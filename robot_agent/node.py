@@ -47,7 +47,12 @@ from robot_agent.firmware import Firmware, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
 from robot_agent.lockstep import Arrivals, Replay, SetpointWindow
-from robot_agent.neighbours import NEIGHBOUR_STALE_S, is_cooperative, is_current, neighbour
+from robot_agent.neighbours import (
+    NEIGHBOUR_STALE_S,
+    is_cooperative,
+    is_current,
+    neighbour,
+)
 from robot_agent.params import AgentConfig
 from robot_agent.safety_filter import Neighbour, SafetyFilterStatus
 from runtime.sdnotify import Notifier
@@ -85,6 +90,19 @@ class _SetpointIn:
 
 
 Publish = Callable[[str, bytes, rt.QoS], None]
+
+
+def status_tracking(key: str, payload: bytes) -> tuple[str, bool] | DecodeError | str:
+    """A robot's ``status`` on ``key``: ``(robot id, its mode is TRACKING)``, or why it is
+    refused (a decode error, or a ``robot`` field that is not the key's id). The one reading of
+    a neighbour's status for the agent and the agent host."""
+    parsed = keys.parse_robot_key(key)
+    msg = decode(payload, Status)
+    if isinstance(msg, DecodeError):
+        return msg
+    if parsed is None or (msg.robot is not None and msg.robot != parsed[1]):
+        return f"robot {msg.robot!r} on key {key[:100]!r}"
+    return parsed[1], msg.mode == "tracking"
 
 
 class AgentNode:
@@ -326,15 +344,11 @@ class AgentNode:
         """Realtime: another robot's status; its mode makes it cooperative while fresh."""
         try:
             self.rx["status"] += 1
-            parsed = keys.parse_robot_key(rx.key)
-            msg = decode(rx.payload, Status)
-            if isinstance(msg, DecodeError):
-                self._reject("status", msg)
+            got = status_tracking(rx.key, rx.payload)
+            if not isinstance(got, tuple):
+                self._reject("status", got)
                 return
-            if parsed is None or (msg.robot is not None and msg.robot != parsed[1]):
-                self._reject("status", f"robot {msg.robot!r} on key {rx.key[:100]!r}")
-                return
-            self.note_mode(parsed[1], msg.mode == "tracking", rx.rx_s)
+            self.note_mode(got[0], got[1], rx.rx_s)
         except Exception as exc:
             self._internal("on_status", exc)
 
