@@ -259,11 +259,13 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
 
     feeder = threading.Thread(target=publish_truth, daemon=True)
     feeder.start()
-    # hostile input: garbage on the truth keys is counted, never rendered
-    block = zenoh.CongestionControl.BLOCK
-    client.put(keys.truth_key(FLEET, "r1"), b"\xc1garbage", congestion_control=block)
-    client.put(keys.truths_key(FLEET), b"\x93\x01\x02\x03", congestion_control=block)
     try:
+        # hostile input: garbage on the truth keys is counted, never rendered. Sent once a pose
+        # proves the camera's truth subscription has reached the router (earlier puts are dropped).
+        poses.wait_for(lambda *_: True, timeout_s=20.0)
+        block = zenoh.CongestionControl.BLOCK
+        client.put(keys.truth_key(FLEET, "r1"), b"\xc1garbage", congestion_control=block)
+        client.put(keys.truths_key(FLEET), b"\x93\x01\x02\x03", congestion_control=block)
         deadline = time.monotonic() + 20.0
         while len(poses.snapshot()) < 20 * N_ROBOTS and time.monotonic() < deadline:
             time.sleep(0.05)
