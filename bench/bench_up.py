@@ -91,10 +91,19 @@ def run_up(robots: int, duration_s: float, out: Path) -> dict[str, object] | Non
             f"  latency pose->wheels p50 {lat['p50']:.2f} ms p99 {lat['p99']:.2f} ms "
             f"max {lat['max']:.1f} ms; frame lateness p99 {late.get('p99', float('nan')):.2f} ms"
         )
+    steady = stats.get("latency_steady_ms")
+    if steady:
+        print(
+            f"  steady state (from 2 s after the first answer to 0.5 s before the end): "
+            f"p50 {steady['p50']:.2f} ms p99 {steady['p99']:.2f} ms max {steady['max']:.1f} ms"
+        )
     row = ", ".join(f"{k} {v:.1f}" for k, v in sorted(by_name.items(), key=lambda kv: -kv[1]))
     print(f"  CPU seconds: {row}")
     print(f"  load average (1 min) before {load0:.2f}, after {load1:.2f}", flush=True)
-    return {"latency_ms": lat, "lateness_ms": late, "frames": frames, "commands": commands}
+    return {
+        "latency_ms": lat, "latency_steady_ms": steady, "lateness_ms": late, "frames": frames,
+        "commands": commands,
+    }  # fmt: skip
 
 
 def main() -> int:

@@ -78,6 +78,7 @@ class PlantInputs:
     rx: dict[str, int]
     tick: int
     latencies_s: deque[float]
+    latency_pub_s: deque[float]
     _frame_pub: dict[float, float]
     _answered: list[float | None]
 
@@ -201,6 +202,7 @@ class PlantInputs:
                 if published is not None:  # the first command computed from this frame
                     self._answered[i] = pose_t
                     self.latencies_s.append(rx_s - published)
+                    self.latency_pub_s.append(published)
 
     def on_leader(self, rx: rt.Received) -> None:
         """Lockstep: the coordinator's leader message closes its answer to a tick."""

@@ -59,7 +59,21 @@ WAIT_ROBOTS_S: Final = 30.0
 LATENCY_SAMPLES: Final = 500_000
 """Realtime latency / lateness samples kept (the newest)."""
 FRAMES_REMEMBERED: Final = 64
+STEADY_WARMUP_S: Final = 2.0
+"""Steady-state latency excludes frames published in the first 2 s after the first answer (the
+agents' start: imports, first assignment, first-call costs) ..."""
+STEADY_TAIL_S: Final = 0.5
+"""... and in the last 0.5 s of frames (the run's shutdown: agents stop before the plant)."""
 """Published frames whose stamps a returning command may still name (2 s at 30 Hz)."""
+
+
+def _percentiles_ms(samples_s: Any) -> dict[str, float] | None:
+    """p50 / p99 / max of a numpy array of seconds, in ms (None when empty)."""
+    if not samples_s.size:
+        return None
+    arr = samples_s * 1e3
+    p50, p99 = np.percentile(arr, [50.0, 99.0])
+    return {"p50": float(p50), "p99": float(p99), "max": float(arr.max())}
 
 
 class PlantNode(PlantInputs):
@@ -144,6 +158,7 @@ class PlantNode(PlantInputs):
         self._frame_pub: dict[float, float] = {}
         self._frame_order: deque[float] = deque()
         self.latencies_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.latency_pub_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)  # when each frame left
         self.frames_published = 0
         self._answered: list[float | None] = [None] * self.n  # last frame stamp answered
         self.frame_lateness_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
@@ -272,18 +287,26 @@ class PlantNode(PlantInputs):
 
     def latency_stats(self) -> dict[str, Any]:
         """Control-loop latency (frame published -> command received, ms) and frame lateness
-        (frame published after its due time, ms), p50/p99/max over the run (realtime)."""
+        (frame published after its due time, ms), p50/p99/max over the run (realtime).
+
+        ``latency_steady_ms`` is the same over the steady state: frames published from
+        STEADY_WARMUP_S after the first answered frame to STEADY_TAIL_S before the last one.
+        """
         out: dict[str, Any] = {"frames": self.frames_published, "commands": len(self.latencies_s)}
         for name, samples in (
             ("latency_ms", self.latencies_s),
             ("lateness_ms", self.frame_lateness_s),
         ):
-            if samples:
-                arr = np.fromiter(samples, dtype=float) * 1e3
-                p50, p99 = np.percentile(arr, [50.0, 99.0])
-                out[name] = {"p50": float(p50), "p99": float(p99), "max": float(arr.max())}
-            else:
-                out[name] = None
+            out[name] = _percentiles_ms(np.fromiter(samples, dtype=float))
+        lat = np.fromiter(self.latencies_s, dtype=float)
+        pub = np.fromiter(self.latency_pub_s, dtype=float)
+        if lat.size and pub.size == lat.size:
+            lo, hi = pub.min() + STEADY_WARMUP_S, pub.max() - STEADY_TAIL_S
+            steady = lat[(pub >= lo) & (pub <= hi)]
+            out["latency_steady_ms"] = _percentiles_ms(steady)
+            out["steady_window_s"] = [STEADY_WARMUP_S, STEADY_TAIL_S]
+        else:
+            out["latency_steady_ms"] = None
         return out
 
     def publish_due_frames(self, sim: _Sim, t_s: float) -> None:
