@@ -6,7 +6,10 @@ Topology (pid-tagged names, deleted at teardown)::
       formation router   (router-mtls.json5)  <-veth->   formation agent --config rN.toml
       coordinator main   (coordinator-main-mtls)          (robot-mtls.json5, motor backend
       coordinator standby (coordinator-standby-mtls)       roboclaw on the emulator's pty)
-      world: motor emulators + kinematics + camera (localization-mtls.json5)
+      formation camera   (localization-mtls.json5,
+                          the shipped unit's command line)
+      world: motor emulators + kinematics, the truth
+             on its own loopback session (the light)
       operator tools: top, fault, record (operator-mtls.json5)
     root ns: this test's observer (observer-mtls.json5) over one more veth to the hub
 
@@ -14,9 +17,14 @@ Every Zenoh config is the file shipped in deploy/zenoh/ with only the certificat
 the router address substituted; the robot configs are deploy/config/r1.example.toml with only
 the id, paths and address substituted; the certificates come from ``formation certs``; the
 coordinators read a fleet file (``--fleet-file``, deploy/config/fleet.example.toml with a
-faster line). The camera is the world's emulated camera (poses of the simulated bodies through
-the localization certificate), not rendered frames: rendering three robots at 30 fps next to
-ten processes is too heavy for this 2-core machine.
+faster line). The camera is the real tracker on rendered frames: the ExecStart of
+deploy/systemd/formation-camera.service with only its paths substituted and ``CAMERA_SOURCE``
+(the unit's environment file) set to ``rendered`` with the render options (systemd splits
+``${CAMERA_SOURCE}`` into words the same way): 640x360 frames of a straight-down camera over the
+robots' path, at most 15 fps, 10 cm tags, the truth read from the world's loopback session
+(``--truth-endpoint``). That costs ~6 ms of one core per frame (render + windowed detection),
+light enough next to ten processes on 2 cores. The world compares every pose the camera
+published with the truth instant it was rendered from.
 
 The test forms the fleet, kills the active coordinator with ``formation fault kill-coordinator``
 run with the operator certificate (the standby continues the trajectory: no jump back of the
@@ -74,6 +82,16 @@ TAKEOVER_BOUND_S = 4.0
 DROP_BOUND_S = 4.0
 EXIT_BOUND_S = 2.0
 BACKWARDS_TOL_M = 0.03
+TRUTH_ENDPOINT = "tcp/127.0.0.1:7449"  # the world's own session, in the hub namespace
+# The rendered camera: 640x360 (the default lens at a quarter of the pixels), straight down over
+# the robots' path (x from the followers' start to ~50 s of the line at SPEED_MPS), 15 fps,
+# 10 cm tags (~30 px; 6 cm tags would be ~18 px, too small at this resolution)
+CAMERA_SIZE = (640, 360)
+CAMERA_VIEW = ((-1.1, -0.3), (1.0, 0.3))  # floor box the view must cover (m)
+CAMERA_FPS = 15.0
+TAG_SIZE_M = 0.10
+POSE_MEDIAN_MM = 2.0  # the camera's poses against the truth they were rendered from
+POSE_MAX_MM = 10.0
 
 
 def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
@@ -188,12 +206,66 @@ def fleet_file(out: Path) -> Path:
     return path
 
 
+def camera_files(conf: Path) -> tuple[Path, list[str]]:
+    """The camera's calibration (the rendered camera's true homography, the fleet's tags) and the
+    ``CAMERA_SOURCE`` words of its environment file (rendered, with the render options)."""
+    from localization.calibration import write
+    from localization.rendered import (
+        RenderSettings,
+        camera_args,
+        camera_covering,
+        rendered_calibration,
+    )
+    from sim_plant.render import CameraPose
+
+    base = CameraPose().with_resolution(*CAMERA_SIZE)
+    camera = camera_covering(CAMERA_VIEW, margin_m=0.0, base=base)
+    tags = {r: i for i, r in enumerate(ROBOTS, start=1)}  # the fleet file's
+    calibration = conf / "camera.toml"
+    write(rendered_calibration(RenderSettings(camera), tags, TAG_SIZE_M), calibration)
+    words = [*camera_args(camera, max_fps=CAMERA_FPS), "--truth-endpoint", TRUTH_ENDPOINT]
+    assert words[:2] == ["--source", "rendered"]
+    env = conf / "camera.env"
+    env.write_text(f"CAMERA_SOURCE={' '.join(words[1:])}\n")
+    return calibration, words[1:]
+
+
+def camera_unit_command(
+    source: list[str], substitutions: dict[str, str]
+) -> tuple[list[str], dict[str, str]]:
+    """deploy/systemd/formation-camera.service's ExecStart and Environment= with only the paths
+    substituted: ``${CAMERA_SOURCE}`` expands to ``source`` (systemd splits ``${VAR}`` at
+    whitespace), the installed ``formation`` is this interpreter's ``-m formation``."""
+    unit = (DEPLOY / "systemd" / "formation-camera.service").read_text()
+    lines = unit.splitlines()
+    exec_start = [ln.removeprefix("ExecStart=") for ln in lines if ln.startswith("ExecStart=")]
+    assert len(exec_start) == 1, exec_start
+    env = dict(
+        ln.removeprefix("Environment=").split("=", 1)
+        for ln in lines
+        if ln.startswith("Environment=")
+    )
+    words = exec_start[0].split()
+    assert words[0] == "/opt/formation/venv/bin/formation", words
+    argv: list[str] = []
+    for word in words[1:]:
+        if word == "${CAMERA_SOURCE}":
+            argv += source
+        else:
+            argv.append(substitutions.pop(word, word))
+    assert not substitutions, f"not in the unit's command line: {substitutions}"
+    assert not any("/etc/formation" in w for w in argv), argv
+    return argv, env
+
+
 READY_S = 60.0  # python + numpy imports on a loaded 2-core machine (load ~30 measured)
 
 
-def in_ns(spawn: Spawner, ns: str, *argv: str, ready: str | None = None) -> Child:
+def in_ns(
+    spawn: Spawner, ns: str, *argv: str, ready: str | None = None, env: dict[str, str] | None = None
+) -> Child:
     return spawn.command(
-        ["ip", "netns", "exec", ns, sys.executable, *argv], ready=ready, timeout_s=READY_S
+        ["ip", "netns", "exec", ns, sys.executable, *argv], ready=ready, env=env, timeout_s=READY_S
     )
 
 
@@ -330,13 +402,22 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
 
     world = in_ns(
         spawn, net.hub, str(REPO_ROOT / "tests" / "deploy_world.py"),
-        str(hub_conf("localization-mtls.json5")), str(DEPLOY / "config" / "r1.example.toml"),
+        TRUTH_ENDPOINT, str(DEPLOY / "config" / "r1.example.toml"),
         *[f"{r}:{','.join(str(v) for v in INITIAL[r])}" for r in ROBOTS],
+        "--observer", str(hub_conf("observer-mtls.json5")),
         ready="world ready",
     )  # fmt: skip
     ports = dict(p.split("=", 1) for p in world.wait_for_line("world ports ").split()[2:])
 
     fleet = fleet_file(conf)
+    # the camera tracker as its unit runs it, on frames rendered from the world's truth
+    calibration, source = camera_files(conf)
+    camera_argv, camera_env = camera_unit_command(source, {
+        "/etc/formation/camera.toml": str(calibration),
+        "/etc/formation/fleet.toml": str(fleet),
+        "/etc/formation/zenoh/localization-mtls.json5": str(hub_conf("localization-mtls.json5")),
+    })  # fmt: skip
+    camera = in_ns(spawn, net.hub, "-m", "formation", *camera_argv, env=camera_env)
     main = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
                  "--name", "main", "--zenoh-config",
                  str(hub_conf("coordinator-main-mtls.json5")))  # fmt: skip
@@ -362,6 +443,9 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
                               "--config", str(cfg))  # fmt: skip
     for robot, child in agents.items():
         child.wait_for_line(f"agent {robot} ready", timeout_s=READY_S)
+    ready = camera.wait_for_line("camera ready", timeout_s=READY_S)
+    assert f"rendered {CAMERA_SIZE[0]}x{CAMERA_SIZE[1]}" in ready, ready
+    assert "pupil-apriltags" in ready or "opencv-aruco" in ready, ready
 
     obs = Observer(shipped_zenoh("observer-mtls.json5", certs, net.observer_addr, conf))
     try:
@@ -370,14 +454,20 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         formed_s = until(lambda: tracking(obs, set(ROBOTS), t0), FORM_BOUND_S, "fleet formed")
         until(lambda: max_error(obs, set(ROBOTS), time.monotonic() - 1.0) < 0.1, 20.0,
               "tracking errors below 0.1 m")  # fmt: skip
-        # neighbour positions reach every agent: its `poses` count grows, nothing rejected
+        # neighbour positions (the camera's `poses` batches) reach every agent: its `poses`
+        # count grows, nothing rejected
         first = {r: obs.latest_status(r, t0) for r in ROBOTS}
-        time.sleep(1.0)
         for r in ROBOTS:
-            a, b = first[r], obs.latest_status(r, t0)
-            assert a is not None and b is not None and a.rx and b.rx
-            assert b.rx["poses"] > a.rx["poses"] + 10, (r, a.rx, b.rx)
-            assert b.rejected == 0, (r, b)
+            a = first[r]
+            assert a is not None and a.rx, (r, a)
+
+            def grew(r: str = r, n0: int = a.rx["poses"]) -> bool:
+                b = obs.latest_status(r, t0)
+                return b is not None and bool(b.rx) and b.rx["poses"] > n0 + 10
+
+            until(grew, 10.0, f"{r} received 10 more neighbour position batches")
+            b = obs.latest_status(r, t0)
+            assert b is not None and b.rejected == 0, (r, b)
 
         # ---- 2. the operator kills the active coordinator; the standby continues
         leaders = obs.since(obs.leader, time.monotonic() - 1.0)
@@ -447,7 +537,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
 
     # ---- 6. every process stops on SIGTERM within the bound, status 0 (all signalled at once;
     # the cut robot's agent too: it leaves without closing its session, see robot_agent.main)
-    children = [*agents.values(), standby, world]
+    children = [*agents.values(), standby, camera, world]
     sent = time.monotonic()
     for child in children:
         child.send_signal(signal.SIGTERM)
@@ -458,3 +548,12 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         assert child.proc.returncode == 0, child.describe()
     assert router.stop(signal.SIGTERM, timeout_s=5.0) < EXIT_BOUND_S
     assert router.proc.returncode == 0, router.describe()
+
+    # ---- 7. the poses the fleet ran on were the camera's, tracked on the rendered frames: every
+    # `poses` batch the world saw is a truth instant it published, within the bounds of truth
+    line = world.wait_for_line("world camera ")
+    stats = dict(kv.split("=", 1) for kv in line.split()[2:])
+    print(line)
+    assert int(stats["matched"]) > 100 and int(stats["unmatched"]) == 0, line
+    assert float(stats["median_mm"]) < POSE_MEDIAN_MM, line
+    assert float(stats["max_mm"]) < POSE_MAX_MM, line
