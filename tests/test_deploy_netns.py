@@ -446,6 +446,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
     ready = camera.wait_for_line("camera ready", timeout_s=READY_S)
     assert f"rendered {CAMERA_SIZE[0]}x{CAMERA_SIZE[1]}" in ready, ready
     assert "pupil-apriltags" in ready or "opencv-aruco" in ready, ready
+    ready_s = time.monotonic() - t_start
 
     obs = Observer(shipped_zenoh("observer-mtls.json5", certs, net.observer_addr, conf))
     try:
@@ -528,7 +529,8 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
             st = obs.latest_status(r, t_end)
             assert st is not None and st.rx and st.rx["poses"] > 0 and st.rejected == 0
         print(
-            f"\nformed in {formed_s:.1f} s, standby active {takeover_s:.2f} s after the kill, "
+            f"\nevery process ready {ready_s:.1f} s after the start, formed in {formed_s:.1f} s, "
+            f"standby active {takeover_s:.2f} s after the kill, "
             f"r3 dropped {drop_s:.2f} s after the cut, final max error {err * 1000:.0f} mm, "
             f"total {time.monotonic() - t_start:.0f} s"
         )
