@@ -5,6 +5,9 @@ Usage::
     formation camera --source SRC --calibration FILE [--fleet demo] [--name camera]
                      [--fast] [--loop] [--fps HZ] [--detector auto|apriltag|aruco]
                      [--no-batch] [--duration S] [zenoh options: --endpoint EP ...]
+    formation camera --source rendered ... [--render-size WxH] [--render-height M]
+                     [--render-look-at=X,Y] [--render-tilt DEG] [--render-blur PX]
+                     [--render-noise STD] [--fps HZ (a cap)] [--truth-endpoint EP]
     formation camera calibrate ...        (localization.calibrate)
 
 Theory of operation
@@ -17,6 +20,11 @@ which publishes, per frame: one ``poses`` batch (``PoseBatch``, ``stamp`` = capt
 ``robot/<id>/pose`` for each robot seen (``t`` = capture time, ``robot`` set), the same keys and
 order as the plant's camera emulation, so agents and the coordinator cannot tell the difference.
 A robot not seen is not published (the firmware's staleness rule stops it).
+
+``--source rendered`` (localization.rendered) renders the plant's truth instants instead of
+reading a camera: at most ``--fps`` of them a second of truth time, at ``--render-size``; the
+truth comes over the fleet session, or with ``--truth-endpoint`` over a second plain session
+(a simulated world's own), so the fleet identity needs no grant to read truth.
 
 A recording (file, folder) is read at its own frame rate, frames dropped when processing falls
 behind (counted), unless ``--fast`` (every frame, as fast as possible); at its end the process

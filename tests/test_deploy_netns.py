@@ -421,26 +421,31 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
     main = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
                  "--name", "main", "--zenoh-config",
                  str(hub_conf("coordinator-main-mtls.json5")))  # fmt: skip
-    main.wait_for_line("coordinator ready", timeout_s=READY_S)
-    standby = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
-                    "--name", "standby", "--standby", "--zenoh-config",
-                    str(hub_conf("coordinator-standby-mtls.json5")))  # fmt: skip
-    standby.wait_for_line("coordinator ready", timeout_s=READY_S)
-
-    agents: dict[str, Child] = {}
+    # the robots' configs, each checked as docs/deploy.md says (in parallel with the starts)
+    configs: dict[str, Path] = {}
+    checks: dict[str, subprocess.Popen[str]] = {}
     for robot in ROBOTS:
         rdir = tmp_path / robot
         rdir.mkdir()
         addr = net.hub_addrs[robot]
         zfile = shipped_zenoh("robot-mtls.json5", certs / f"robot.{robot}", addr, rdir)
-        cfg = robot_config(robot, zfile, addr, ports[robot], rdir)
-        check = subprocess.run(
-            [sys.executable, "-m", "formation", "agent", "--check-config", str(cfg)],
-            cwd=REPO_ROOT, capture_output=True, text=True, timeout=30,
+        configs[robot] = robot_config(robot, zfile, addr, ports[robot], rdir)
+        checks[robot] = subprocess.Popen(
+            [sys.executable, "-m", "formation", "agent", "--check-config", str(configs[robot])],
+            cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
-        assert check.stdout.strip() == "OK", check.stdout
-        agents[robot] = in_ns(spawn, net.hosts[robot], "-m", "formation", "agent",
-                              "--config", str(cfg))  # fmt: skip
+    for robot, proc in checks.items():
+        out, err = proc.communicate(timeout=60)
+        assert out.strip() == "OK", (robot, out, err)
+    main.wait_for_line("coordinator ready", timeout_s=READY_S)
+    standby = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
+                    "--name", "standby", "--standby", "--zenoh-config",
+                    str(hub_conf("coordinator-standby-mtls.json5")))  # fmt: skip
+    agents = {
+        robot: in_ns(spawn, net.hosts[robot], "-m", "formation", "agent", "--config", str(cfg))
+        for robot, cfg in configs.items()
+    }
+    standby.wait_for_line("coordinator ready", timeout_s=READY_S)
     for robot, child in agents.items():
         child.wait_for_line(f"agent {robot} ready", timeout_s=READY_S)
     ready = camera.wait_for_line("camera ready", timeout_s=READY_S)
@@ -471,6 +476,15 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
             assert b is not None and b.rejected == 0, (r, b)
 
         # ---- 2. the operator kills the active coordinator; the standby continues
+        def only_main_active() -> bool:
+            recent = [h for _, h in obs.since(obs.heartbeats, time.monotonic() - 1.0)]
+            return {h.name for h in recent} == {"main", "standby"} and all(
+                h.active == (h.name == "main") for h in recent
+            )
+
+        # main is the active one (a standby starved on a loaded machine may have taken over
+        # for a moment, then yielded: wait for one second of a settled election)
+        until(only_main_active, 15.0, "main the only active coordinator for 1 s")
         leaders = obs.since(obs.leader, time.monotonic() - 1.0)
         assert leaders, "no leader messages"
         x_before = leaders[-1][1].x
@@ -478,7 +492,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         operator = str(hub_conf("operator-mtls.json5"))
         t_kill = time.monotonic()
         killed = formation_in_ns(net.hub, "fault", "--fleet", FLEET, "--zenoh-config", operator,
-                                 "kill-coordinator")  # fmt: skip
+                                 "kill-coordinator", "main")  # fmt: skip
         assert killed.returncode == 0, killed.stdout + killed.stderr
         assert "killed coordinator main" in killed.stdout, killed.stdout
         main.proc.wait(timeout=5.0)
@@ -557,5 +571,6 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
     stats = dict(kv.split("=", 1) for kv in line.split()[2:])
     print(line)
     assert int(stats["matched"]) > 100 and int(stats["unmatched"]) == 0, line
+    assert int(stats["misses"]) <= int(stats["matched"]) // 100, line  # seen in >= 99 % of frames
     assert float(stats["median_mm"]) < POSE_MEDIAN_MM, line
     assert float(stats["max_mm"]) < POSE_MAX_MM, line
