@@ -435,8 +435,8 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
             cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
     for robot, proc in checks.items():
-        out, err = proc.communicate(timeout=60)
-        assert out.strip() == "OK", (robot, out, err)
+        out, problems = proc.communicate(timeout=60)
+        assert out.strip() == "OK", (robot, out, problems)
     main.wait_for_line("coordinator ready", timeout_s=READY_S)
     standby = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
                     "--name", "standby", "--standby", "--zenoh-config",
@@ -469,7 +469,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
 
             def grew(r: str = r, n0: int = a.rx["poses"]) -> bool:
                 b = obs.latest_status(r, t0)
-                return b is not None and bool(b.rx) and b.rx["poses"] > n0 + 10
+                return b is not None and b.rx is not None and b.rx["poses"] > n0 + 10
 
             until(grew, 10.0, f"{r} received 10 more neighbour position batches")
             b = obs.latest_status(r, t0)
