@@ -536,17 +536,30 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         for r in ("r1", "r2"):
             assert r in top.stdout, top.stdout
 
-        # ---- 5. formation kept after the re-forming, neighbours still seen
+        # ---- 5. formation kept after the re-forming, neighbours still seen: both robots
+        # tracking their slots of the r1+r2 assignment with errors below 0.1 m for 2 s. A
+        # condition, not a snapshot: at load ~20 on the 2 cores a robot's 700 ms lease was seen
+        # to lapse once (the coordinator then re-forms without it and with it again, as
+        # designed); the formation must be back within the bound.
+        pair = {"r1", "r2"}
+
+        def kept() -> bool:
+            t = time.monotonic() - 2.0
+            with contextlib.suppress(AssertionError):  # no tracking status yet
+                return tracking(obs, pair, t) and max_error(obs, pair, t) < 0.1
+            return False
+
+        kept_s = until(kept, 20.0, "r1 and r2 in formation (errors < 0.1 m) for 2 s")
         t_end = time.monotonic() - 2.0
-        err = max_error(obs, {"r1", "r2"}, t_end)
-        assert err < 0.1, f"tracking error {err:.3f} m after re-forming"
+        err = max_error(obs, pair, t_end)
         for r in ("r1", "r2"):
             st = obs.latest_status(r, t_end)
             assert st is not None and st.rx and st.rx["poses"] > 0 and st.rejected == 0
         print(
             f"\nevery process ready {ready_s:.1f} s after the start, formed in {formed_s:.1f} s, "
             f"standby active {takeover_s:.2f} s after the kill, "
-            f"r3 dropped {drop_s:.2f} s after the cut, final max error {err * 1000:.0f} mm, "
+            f"r3 dropped {drop_s:.2f} s after the cut, final max error {err * 1000:.0f} mm "
+            f"({kept_s:.1f} s to confirm), "
             f"total {time.monotonic() - t_start:.0f} s"
         )
     finally:
