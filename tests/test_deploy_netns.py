@@ -22,9 +22,10 @@ deploy/systemd/formation-camera.service with only its paths substituted and ``CA
 (the unit's environment file) set to ``rendered`` with the render options (systemd splits
 ``${CAMERA_SOURCE}`` into words the same way): 640x360 frames of a straight-down camera over the
 robots' path, at most 15 fps, 10 cm tags, the truth read from the world's loopback session
-(``--truth-endpoint``). That costs ~6 ms of one core per frame (render + windowed detection),
-light enough next to ten processes on 2 cores. The world compares every pose the camera
-published with the truth instant it was rendered from.
+(``--truth-endpoint``). The camera used ~12 % of one core over a run, its start included (the
+test prints it; bench/bench_render_size.py has the per-frame figures), light enough next to ten
+processes on 2 cores. The world compares every pose the camera published with the truth instant
+it was rendered from.
 
 The test forms the fleet, kills the active coordinator with ``formation fault kill-coordinator``
 run with the operator certificate (the standby continues the trajectory: no jump back of the
@@ -258,6 +259,14 @@ def camera_unit_command(
     return argv, env
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of ``pid`` so far (s), from /proc (``ip netns exec`` execs the
+    command, so a child's pid is the process itself)."""
+    raw = Path(f"/proc/{pid}/stat").read_text()
+    fields = raw[raw.rfind(")") + 2 :].split()  # fields from the 3rd (state) on
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 READY_S = 60.0  # python + numpy imports on a loaded 2-core machine (load ~30 measured)
 
 
@@ -419,6 +428,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         "/etc/formation/zenoh/localization-mtls.json5": str(hub_conf("localization-mtls.json5")),
     })  # fmt: skip
     camera = in_ns(spawn, net.hub, "-m", "formation", *camera_argv, env=camera_env)
+    camera_started = time.monotonic()
     main = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
                  "--name", "main", "--zenoh-config",
                  str(hub_conf("coordinator-main-mtls.json5")))  # fmt: skip
@@ -564,6 +574,11 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         )
     finally:
         obs.close()
+
+    cpu_s, alive_s = cpu_seconds(camera.pid), time.monotonic() - camera_started
+    print(
+        f"camera: {cpu_s:.1f} s of CPU in {alive_s:.0f} s ({100 * cpu_s / alive_s:.0f} % of a core)"
+    )
 
     # ---- 6. every process stops on SIGTERM within the bound, status 0 (all signalled at once;
     # the cut robot's agent too: it leaves without closing its session, see robot_agent.main)
