@@ -50,8 +50,9 @@ class RenderSettings:
     """Camera pose and image conditions of the rendered source.
 
     ``max_fps``: at most this many frames per second of truth time are rendered (truth instants
-    closer than ``1 / max_fps`` to the last rendered one are skipped, as a slower camera would
-    miss them); ``None`` renders every truth instant the plant publishes. With the camera's
+    closer than ``0.9 / max_fps`` to the last rendered one are skipped, as a slower camera would
+    miss them; the 10 % slack keeps every instant of a plant publishing at exactly ``max_fps``);
+    ``None`` renders every truth instant the plant publishes. With the camera's
     resolution (``camera.with_resolution``), the knob that makes the rendered loop light.
     """
 
