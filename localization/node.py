@@ -5,6 +5,9 @@ Usage::
     formation camera --source SRC --calibration FILE [--fleet demo] [--name camera]
                      [--fast] [--loop] [--fps HZ] [--detector auto|apriltag|aruco]
                      [--no-batch] [--duration S] [zenoh options: --endpoint EP ...]
+    formation camera --source rendered ... [--render-size WxH] [--render-height M]
+                     [--render-look-at=X,Y] [--render-tilt DEG] [--render-blur PX]
+                     [--render-noise STD] [--fps HZ (a cap)] [--truth-endpoint EP]
     formation camera calibrate ...        (localization.calibrate)
 
 Theory of operation
@@ -17,6 +20,11 @@ which publishes, per frame: one ``poses`` batch (``PoseBatch``, ``stamp`` = capt
 ``robot/<id>/pose`` for each robot seen (``t`` = capture time, ``robot`` set), the same keys and
 order as the plant's camera emulation, so agents and the coordinator cannot tell the difference.
 A robot not seen is not published (the firmware's staleness rule stops it).
+
+``--source rendered`` (localization.rendered) renders the plant's truth instants instead of
+reading a camera: at most ``--fps`` of them a second of truth time, at ``--render-size``; the
+truth comes over the fleet session, or with ``--truth-endpoint`` over a second plain session
+(a simulated world's own), so the fleet identity needs no grant to read truth.
 
 A recording (file, folder) is read at its own frame rate, frames dropped when processing falls
 behind (counted), unless ``--fast`` (every frame, as fast as possible); at its end the process
@@ -276,6 +284,20 @@ def _positive(text: str) -> float:
     return value
 
 
+def _size(text: str) -> tuple[int, int]:
+    from sim_plant.render import MAX_SIDE_PX, MIN_SIDE_PX
+
+    w, sep, h = text.lower().partition("x")
+    if not (sep and w.isdigit() and h.isdigit()):
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, got {text!r}")
+    size = int(w), int(h)
+    if not all(MIN_SIDE_PX <= v <= MAX_SIDE_PX for v in size):
+        raise argparse.ArgumentTypeError(
+            f"each side must be {MIN_SIDE_PX}..{MAX_SIDE_PX} px, got {text}"
+        )
+    return size
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``formation camera`` argument parser."""
     p = argparse.ArgumentParser(
@@ -309,7 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--fps",
         type=_positive,
         metavar="HZ",
-        help="rate of a folder / file (default: the file's own, 30 for a folder)",
+        help="rate of a folder / file (default: the file's own, 30 for a folder); with "
+        "--source rendered: at most HZ frames per second (default: every truth instant)",
     )
     p.add_argument(
         "--fast",
@@ -331,6 +354,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pixel noise std (grey levels, 2)")  # fmt: skip
     g.add_argument("--render-blur", type=float, default=0.8, metavar="PX",
                    help="blur sigma (px, 0.8)")  # fmt: skip
+    g.add_argument("--render-size", type=_size, default=(1280, 720), metavar="WxH",
+                   help="image size in pixels (1280x720); the lens is kept (the focal length "
+                   "scales with the width: 900 px at 1280), so a smaller size sees the same "
+                   "floor in fewer pixels (cheaper to render and detect, smaller tags)",
+                   )  # fmt: skip
+    g.add_argument("--truth-endpoint", metavar="EP",
+                   help="read the truth from a separate plain Zenoh session connected to EP "
+                   "(the simulated world's own, e.g. tcp/127.0.0.1:7600) instead of the fleet "
+                   "session, whose identity (the localization certificate) may only publish "
+                   "poses")  # fmt: skip
     rt.add_zenoh_arguments(p)
     return p
 
@@ -374,15 +407,28 @@ def main(argv: list[str]) -> int:
         return 2
     try:
         settings = rt.settings_from_args(ns)
+        truth_settings = _truth_settings(ns)
     except (TypeError, ValueError) as exc:
         print(f"camera: zenoh settings: {exc}", file=sys.stderr)
+        source.close()
         return 2
     started: list[Grabber] = []
     try:
-        return rt.run_node(lambda stop: _node(stop, ns, pipeline, source, settings, started))
+        return rt.run_node(
+            lambda stop: _node(stop, ns, pipeline, source, settings, truth_settings, started)
+        )
     finally:
         if not started:  # else the grabber thread closes it (see Grabber._run)
             source.close()
+
+
+def _truth_settings(ns: argparse.Namespace) -> rt.ZenohSettings | None:
+    """``--truth-endpoint``: the plain client session the truth comes through (else None)."""
+    if ns.truth_endpoint is None:
+        return None
+    if ns.source != RENDERED:
+        raise ValueError("--truth-endpoint needs --source rendered")
+    return rt.ZenohSettings(connect=(ns.truth_endpoint,), mode="client", open_timeout_s=10.0)
 
 
 def _open(ns: argparse.Namespace, cal: Calibration) -> FrameSource:
@@ -392,9 +438,13 @@ def _open(ns: argparse.Namespace, cal: Calibration) -> FrameSource:
     from sim_plant.render import CameraPose
 
     lx, ly = (float(v) for v in ns.render_look_at.split(","))
-    camera = CameraPose(height_m=ns.render_height, tilt_deg=ns.render_tilt, look_at=(lx, ly))
-    settings = RenderSettings(camera, blur_sigma_px=ns.render_blur, noise_std=ns.render_noise)
-    return RenderedSource(cal, settings, fps=ns.fps or 30.0)
+    camera = CameraPose(
+        height_m=ns.render_height, tilt_deg=ns.render_tilt, look_at=(lx, ly)
+    ).with_resolution(*ns.render_size)
+    settings = RenderSettings(
+        camera, blur_sigma_px=ns.render_blur, noise_std=ns.render_noise, max_fps=ns.fps
+    )
+    return RenderedSource(cal, settings)
 
 
 def _feed_truth(
@@ -429,6 +479,7 @@ async def _node(
     pipeline: CameraPipeline,
     source: FrameSource,
     settings: rt.ZenohSettings,
+    truth_settings: rt.ZenohSettings | None,
     started: list[Grabber],
 ) -> int:
     loop = asyncio.get_running_loop()
@@ -437,6 +488,14 @@ async def _node(
     except (rt.TransportError, ValueError) as exc:
         print(f"camera: {exc}", file=sys.stderr)
         return 1
+    truth_session = None
+    if truth_settings is not None:
+        try:
+            truth_session = await rt.open_session_async(truth_settings)
+        except (rt.TransportError, ValueError) as exc:
+            print(f"camera: truth: {exc}", file=sys.stderr)
+            session.close()
+            return 1
     grabber: Grabber | None = None
     notifier = Notifier()
     try:
@@ -466,7 +525,8 @@ async def _node(
                 loop.call_soon_threadsafe(put)
 
         if ns.source == RENDERED:
-            _feed_truth(session, loop, ns.fleet, source, node)
+            truth_from = session if truth_session is None else truth_session
+            _feed_truth(truth_from, loop, ns.fleet, source, node)
         grabber = Grabber(source, pipeline, deliver, fast=ns.fast, loop_file=ns.loop)
         node.grabber = grabber
         print(
@@ -525,6 +585,8 @@ async def _node(
             grabber.thread.join(JOIN_S)
         notifier.stopping()
         notifier.close()
+        if truth_session is not None:
+            truth_session.close()
         session.close()
 
 

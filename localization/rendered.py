@@ -19,6 +19,7 @@ import math
 import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
@@ -38,14 +39,38 @@ __all__ = [
 Frame = npt.NDArray[np.uint8]
 
 
+MAX_FPS: Final = 240.0
+"""Upper bound of the rendered source's frame-rate cap (frames per second)."""
+MAX_BLUR_PX: Final = 20.0
+MAX_NOISE_STD: Final = 100.0
+
+
 @dataclass(frozen=True)
 class RenderSettings:
-    """Camera pose and image conditions of the rendered source."""
+    """Camera pose and image conditions of the rendered source.
+
+    ``max_fps``: at most this many frames per second of truth time are rendered (truth instants
+    closer than ``0.9 / max_fps`` to the last rendered one are skipped, as a slower camera would
+    miss them; the 10 % slack keeps every instant of a plant publishing at exactly ``max_fps``);
+    ``None`` renders every truth instant the plant publishes. With the camera's
+    resolution (``camera.with_resolution``), the knob that makes the rendered loop light.
+    """
 
     camera: CameraPose = field(default_factory=CameraPose)
     blur_sigma_px: float = 0.8
     noise_std: float = 2.0
     seed: int = 0
+    max_fps: float | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.blur_sigma_px) and 0.0 <= self.blur_sigma_px <= MAX_BLUR_PX):
+            raise ValueError(f"blur must be in [0, {MAX_BLUR_PX:g}] px, got {self.blur_sigma_px}")
+        if not (math.isfinite(self.noise_std) and 0.0 <= self.noise_std <= MAX_NOISE_STD):
+            raise ValueError(f"noise must be in [0, {MAX_NOISE_STD:g}], got {self.noise_std}")
+        if self.max_fps is not None and not (
+            math.isfinite(self.max_fps) and 0.0 < self.max_fps <= MAX_FPS
+        ):
+            raise ValueError(f"max_fps must be in (0, {MAX_FPS:g}], got {self.max_fps}")
 
 
 def rendered_calibration(
@@ -115,20 +140,24 @@ class RenderedSource:
 
     live = True
 
-    def __init__(
-        self, calibration: Calibration, settings: RenderSettings, fps: float = 30.0
-    ) -> None:
+    def __init__(self, calibration: Calibration, settings: RenderSettings) -> None:
         self.tag_of = dict(calibration.tags)
         self.feed = TruthFeed(sorted(self.tag_of))
         self.renderer = Renderer(settings.camera, tag_size_m=calibration.tag_size_m)
         self.settings = settings
         self.rng = np.random.default_rng(settings.seed)
-        self.fps = fps
+        self.fps = 30.0 if settings.max_fps is None else settings.max_fps  # nominal (live)
+        # a truth instant this close after the last rendered one is skipped (rate cap): a
+        # tenth of a period of slack, so a plant publishing at exactly max_fps loses nothing
+        self._min_gap_s = 0.0 if settings.max_fps is None else 0.9 / settings.max_fps
+        self._last_stamp = -math.inf
+        self.skipped = 0
         self.frame_stamp_s: float | None = None
         cam = settings.camera
+        rate = "every truth instant" if settings.max_fps is None else f"<= {settings.max_fps:g} fps"
         self.description = (
             f"rendered {cam.width}x{cam.height} from the plant's truth (camera {cam.height_m:g} m "
-            f"above {cam.look_at}, tilt {cam.tilt_deg:g} deg)"
+            f"above {cam.look_at}, tilt {cam.tilt_deg:g} deg, {rate})"
         )
 
     def read(self) -> Frame | None:
@@ -137,6 +166,10 @@ class RenderedSource:
             if got is None:
                 continue
             stamp, poses = got
+            if stamp - self._last_stamp < self._min_gap_s:
+                self.skipped += 1  # faster than the camera's rate cap
+                continue
+            self._last_stamp = stamp
             known = [r for r in sorted(poses) if r in self.tag_of]
             truth = np.array([poses[r] for r in known], dtype=np.float64).reshape(-1, 3)
             s = self.settings
@@ -194,13 +227,23 @@ def camera_covering(
     )
 
 
-def camera_args(camera: CameraPose) -> list[str]:
-    """``formation camera`` options rendering from ``camera`` (straight down)."""
+def camera_args(camera: CameraPose, *, max_fps: float | None = None) -> list[str]:
+    """``formation camera`` options rendering from ``camera`` (its pose, and its resolution with
+    the default lens scaled to it: ``CameraPose().with_resolution``), at most ``max_fps``."""
     x, y = camera.look_at
-    return [
+    lens = CameraPose(height_m=camera.height_m, look_at=camera.look_at, tilt_deg=camera.tilt_deg)
+    if camera != lens.with_resolution(camera.width, camera.height):
+        raise ValueError("the options give only yaw 0 and the default lens scaled to the size")
+    out = [
         "--source", "rendered", "--render-height", repr(camera.height_m),
-        "--render-look-at", f"{x!r},{y!r}", "--render-tilt", repr(camera.tilt_deg),
+        # one word with `=`: a value starting with '-' would be taken for an option
+        f"--render-look-at={x!r},{y!r}", "--render-tilt", repr(camera.tilt_deg),
     ]  # fmt: skip
+    if (camera.width, camera.height) != (CameraPose.width, CameraPose.height):
+        out += ["--render-size", f"{camera.width}x{camera.height}"]
+    if max_fps is not None:
+        out += ["--fps", repr(max_fps)]
+    return out
 
 
 def scenario_camera_args(

@@ -18,6 +18,7 @@ Only numpy and OpenCV (the ``camera`` extra); nothing here touches the bus.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -29,6 +30,8 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = [
+    "MAX_SIDE_PX",
+    "MIN_SIDE_PX",
     "PATCH_COLOURS_BGR",
     "CameraPose",
     "Occluder",
@@ -46,6 +49,10 @@ PATCH_COLOURS_BGR: dict[str, tuple[int, int, int]] = {
     "rear": (220, 120, 30),  # blue
 }
 """Colours of the paper's two patches per robot (front, rear), BGR."""
+
+MIN_SIDE_PX = 16
+MAX_SIDE_PX = 8192
+"""Bounds of a rendered image's width and height (pixels)."""
 
 _TAG_CELLS = 8  # tag36h11: 6x6 data + a one-cell black border
 _FLOOR_GREY = 150
@@ -78,10 +85,31 @@ class CameraPose:
             raise ValueError(f"height_m must be > 0.05, got {self.height_m!r}")
         if not -60.0 <= self.tilt_deg <= 60.0:
             raise ValueError(f"tilt_deg must be in [-60, 60], got {self.tilt_deg!r}")
-        if self.width < 16 or self.height < 16:
-            raise ValueError("image must be at least 16x16")
+        if not (
+            MIN_SIDE_PX <= self.width <= MAX_SIDE_PX and MIN_SIDE_PX <= self.height <= MAX_SIDE_PX
+        ):
+            raise ValueError(
+                f"image must be {MIN_SIDE_PX}..{MAX_SIDE_PX} px on each side, "
+                f"got {self.width}x{self.height}"
+            )
         if not (self.fx > 0 and self.fy > 0):
             raise ValueError("fx and fy must be > 0")
+
+    def with_resolution(self, width: int, height: int) -> CameraPose:
+        """The same camera read out at ``width`` x ``height`` pixels: the lens and the field of
+        view are kept (focal lengths and principal point scale with the image), as a camera's
+        lower-resolution mode (binning) does; the pose is unchanged. Cheaper to render and to
+        detect in (4x fewer pixels at half the size), at the cost of smaller tags in pixels."""
+        sx, sy = width / self.width, height / self.height
+        return dataclasses.replace(
+            self,
+            width=int(width),
+            height=int(height),
+            fx=self.fx * sx,
+            fy=self.fy * sy,
+            cx=None if self.cx is None else (self.cx + 0.5) * sx - 0.5,
+            cy=None if self.cy is None else (self.cy + 0.5) * sy - 0.5,
+        )
 
     @property
     def camera_matrix(self) -> FloatArray:

@@ -6,7 +6,10 @@ Topology (pid-tagged names, deleted at teardown)::
       formation router   (router-mtls.json5)  <-veth->   formation agent --config rN.toml
       coordinator main   (coordinator-main-mtls)          (robot-mtls.json5, motor backend
       coordinator standby (coordinator-standby-mtls)       roboclaw on the emulator's pty)
-      world: motor emulators + kinematics + camera (localization-mtls.json5)
+      formation camera   (localization-mtls.json5,
+                          the shipped unit's command line)
+      world: motor emulators + kinematics, the truth
+             on its own loopback session (the light)
       operator tools: top, fault, record (operator-mtls.json5)
     root ns: this test's observer (observer-mtls.json5) over one more veth to the hub
 
@@ -14,9 +17,15 @@ Every Zenoh config is the file shipped in deploy/zenoh/ with only the certificat
 the router address substituted; the robot configs are deploy/config/r1.example.toml with only
 the id, paths and address substituted; the certificates come from ``formation certs``; the
 coordinators read a fleet file (``--fleet-file``, deploy/config/fleet.example.toml with a
-faster line). The camera is the world's emulated camera (poses of the simulated bodies through
-the localization certificate), not rendered frames: rendering three robots at 30 fps next to
-ten processes is too heavy for this 2-core machine.
+faster line). The camera is the real tracker on rendered frames: the ExecStart of
+deploy/systemd/formation-camera.service with only its paths substituted and ``CAMERA_SOURCE``
+(the unit's environment file) set to ``rendered`` with the render options (systemd splits
+``${CAMERA_SOURCE}`` into words the same way): 640x360 frames of a straight-down camera over the
+robots' path, at most 15 fps, 10 cm tags, the truth read from the world's loopback session
+(``--truth-endpoint``). The camera used ~12 % of one core over a run, its start included (the
+test prints it; bench/bench_render_size.py has the per-frame figures), light enough next to ten
+processes on 2 cores. The world compares every pose the camera published with the truth instant
+it was rendered from.
 
 The test forms the fleet, kills the active coordinator with ``formation fault kill-coordinator``
 run with the operator certificate (the standby continues the trajectory: no jump back of the
@@ -74,6 +83,16 @@ TAKEOVER_BOUND_S = 4.0
 DROP_BOUND_S = 4.0
 EXIT_BOUND_S = 2.0
 BACKWARDS_TOL_M = 0.03
+TRUTH_ENDPOINT = "tcp/127.0.0.1:7449"  # the world's own session, in the hub namespace
+# The rendered camera: 640x360 (the default lens at a quarter of the pixels), straight down over
+# the robots' path (x from the followers' start to ~50 s of the line at SPEED_MPS), 15 fps,
+# 10 cm tags (~30 px; 6 cm tags would be ~18 px, too small at this resolution)
+CAMERA_SIZE = (640, 360)
+CAMERA_VIEW = ((-1.1, -0.3), (1.0, 0.3))  # floor box the view must cover (m)
+CAMERA_FPS = 15.0
+TAG_SIZE_M = 0.10
+POSE_MEDIAN_MM = 2.0  # the camera's poses against the truth they were rendered from
+POSE_MAX_MM = 10.0
 
 
 def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
@@ -188,12 +207,74 @@ def fleet_file(out: Path) -> Path:
     return path
 
 
+def camera_files(conf: Path) -> tuple[Path, list[str]]:
+    """The camera's calibration (the rendered camera's true homography, the fleet's tags) and the
+    ``CAMERA_SOURCE`` words of its environment file (rendered, with the render options)."""
+    from localization.calibration import write
+    from localization.rendered import (
+        RenderSettings,
+        camera_args,
+        camera_covering,
+        rendered_calibration,
+    )
+    from sim_plant.render import CameraPose
+
+    base = CameraPose().with_resolution(*CAMERA_SIZE)
+    camera = camera_covering(CAMERA_VIEW, margin_m=0.0, base=base)
+    tags = {r: i for i, r in enumerate(ROBOTS, start=1)}  # the fleet file's
+    calibration = conf / "camera.toml"
+    write(rendered_calibration(RenderSettings(camera), tags, TAG_SIZE_M), calibration)
+    words = [*camera_args(camera, max_fps=CAMERA_FPS), "--truth-endpoint", TRUTH_ENDPOINT]
+    assert words[:2] == ["--source", "rendered"]
+    env = conf / "camera.env"
+    env.write_text(f"CAMERA_SOURCE={' '.join(words[1:])}\n")
+    return calibration, words[1:]
+
+
+def camera_unit_command(
+    source: list[str], substitutions: dict[str, str]
+) -> tuple[list[str], dict[str, str]]:
+    """deploy/systemd/formation-camera.service's ExecStart and Environment= with only the paths
+    substituted: ``${CAMERA_SOURCE}`` expands to ``source`` (systemd splits ``${VAR}`` at
+    whitespace), the installed ``formation`` is this interpreter's ``-m formation``."""
+    unit = (DEPLOY / "systemd" / "formation-camera.service").read_text()
+    lines = unit.splitlines()
+    exec_start = [ln.removeprefix("ExecStart=") for ln in lines if ln.startswith("ExecStart=")]
+    assert len(exec_start) == 1, exec_start
+    env = dict(
+        ln.removeprefix("Environment=").split("=", 1)
+        for ln in lines
+        if ln.startswith("Environment=")
+    )
+    words = exec_start[0].split()
+    assert words[0] == "/opt/formation/venv/bin/formation", words
+    argv: list[str] = []
+    for word in words[1:]:
+        if word == "${CAMERA_SOURCE}":
+            argv += source
+        else:
+            argv.append(substitutions.pop(word, word))
+    assert not substitutions, f"not in the unit's command line: {substitutions}"
+    assert not any("/etc/formation" in w for w in argv), argv
+    return argv, env
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of ``pid`` so far (s), from /proc (``ip netns exec`` execs the
+    command, so a child's pid is the process itself)."""
+    raw = Path(f"/proc/{pid}/stat").read_text()
+    fields = raw[raw.rfind(")") + 2 :].split()  # fields from the 3rd (state) on
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 READY_S = 60.0  # python + numpy imports on a loaded 2-core machine (load ~30 measured)
 
 
-def in_ns(spawn: Spawner, ns: str, *argv: str, ready: str | None = None) -> Child:
+def in_ns(
+    spawn: Spawner, ns: str, *argv: str, ready: str | None = None, env: dict[str, str] | None = None
+) -> Child:
     return spawn.command(
-        ["ip", "netns", "exec", ns, sys.executable, *argv], ready=ready, timeout_s=READY_S
+        ["ip", "netns", "exec", ns, sys.executable, *argv], ready=ready, env=env, timeout_s=READY_S
     )
 
 
@@ -311,6 +392,7 @@ def max_error(obs: Observer, robots: set[str], t0: float) -> float:
 
 
 def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Path) -> None:
+    pytest.importorskip("cv2", reason="the camera tracker needs the camera extra (OpenCV)")
     t_start = time.monotonic()
     certs = tmp_path / "certs"
     hosts = ["127.0.0.1", net.observer_addr, *net.hub_addrs.values()]
@@ -330,38 +412,57 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
 
     world = in_ns(
         spawn, net.hub, str(REPO_ROOT / "tests" / "deploy_world.py"),
-        str(hub_conf("localization-mtls.json5")), str(DEPLOY / "config" / "r1.example.toml"),
+        TRUTH_ENDPOINT, str(DEPLOY / "config" / "r1.example.toml"),
         *[f"{r}:{','.join(str(v) for v in INITIAL[r])}" for r in ROBOTS],
+        "--observer", str(hub_conf("observer-mtls.json5")),
         ready="world ready",
     )  # fmt: skip
     ports = dict(p.split("=", 1) for p in world.wait_for_line("world ports ").split()[2:])
 
     fleet = fleet_file(conf)
+    # the camera tracker as its unit runs it, on frames rendered from the world's truth
+    calibration, source = camera_files(conf)
+    camera_argv, camera_env = camera_unit_command(source, {
+        "/etc/formation/camera.toml": str(calibration),
+        "/etc/formation/fleet.toml": str(fleet),
+        "/etc/formation/zenoh/localization-mtls.json5": str(hub_conf("localization-mtls.json5")),
+    })  # fmt: skip
+    camera = in_ns(spawn, net.hub, "-m", "formation", *camera_argv, env=camera_env)
+    camera_started = time.monotonic()
     main = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
                  "--name", "main", "--zenoh-config",
                  str(hub_conf("coordinator-main-mtls.json5")))  # fmt: skip
-    main.wait_for_line("coordinator ready", timeout_s=READY_S)
-    standby = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
-                    "--name", "standby", "--standby", "--zenoh-config",
-                    str(hub_conf("coordinator-standby-mtls.json5")))  # fmt: skip
-    standby.wait_for_line("coordinator ready", timeout_s=READY_S)
-
-    agents: dict[str, Child] = {}
+    # the robots' configs, each checked as docs/deploy.md says (in parallel with the starts)
+    configs: dict[str, Path] = {}
+    checks: dict[str, subprocess.Popen[str]] = {}
     for robot in ROBOTS:
         rdir = tmp_path / robot
         rdir.mkdir()
         addr = net.hub_addrs[robot]
         zfile = shipped_zenoh("robot-mtls.json5", certs / f"robot.{robot}", addr, rdir)
-        cfg = robot_config(robot, zfile, addr, ports[robot], rdir)
-        check = subprocess.run(
-            [sys.executable, "-m", "formation", "agent", "--check-config", str(cfg)],
-            cwd=REPO_ROOT, capture_output=True, text=True, timeout=30,
+        configs[robot] = robot_config(robot, zfile, addr, ports[robot], rdir)
+        checks[robot] = subprocess.Popen(
+            [sys.executable, "-m", "formation", "agent", "--check-config", str(configs[robot])],
+            cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
-        assert check.stdout.strip() == "OK", check.stdout
-        agents[robot] = in_ns(spawn, net.hosts[robot], "-m", "formation", "agent",
-                              "--config", str(cfg))  # fmt: skip
+    for robot, proc in checks.items():
+        out, problems = proc.communicate(timeout=60)
+        assert out.strip() == "OK", (robot, out, problems)
+    main.wait_for_line("coordinator ready", timeout_s=READY_S)
+    standby = in_ns(spawn, net.hub, "-m", "formation", "coordinator", "--fleet-file", str(fleet),
+                    "--name", "standby", "--standby", "--zenoh-config",
+                    str(hub_conf("coordinator-standby-mtls.json5")))  # fmt: skip
+    agents = {
+        robot: in_ns(spawn, net.hosts[robot], "-m", "formation", "agent", "--config", str(cfg))
+        for robot, cfg in configs.items()
+    }
+    standby.wait_for_line("coordinator ready", timeout_s=READY_S)
     for robot, child in agents.items():
         child.wait_for_line(f"agent {robot} ready", timeout_s=READY_S)
+    ready = camera.wait_for_line("camera ready", timeout_s=READY_S)
+    assert f"rendered {CAMERA_SIZE[0]}x{CAMERA_SIZE[1]}" in ready, ready
+    assert "pupil-apriltags" in ready or "opencv-aruco" in ready, ready
+    ready_s = time.monotonic() - t_start
 
     obs = Observer(shipped_zenoh("observer-mtls.json5", certs, net.observer_addr, conf))
     try:
@@ -370,16 +471,31 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         formed_s = until(lambda: tracking(obs, set(ROBOTS), t0), FORM_BOUND_S, "fleet formed")
         until(lambda: max_error(obs, set(ROBOTS), time.monotonic() - 1.0) < 0.1, 20.0,
               "tracking errors below 0.1 m")  # fmt: skip
-        # neighbour positions reach every agent: its `poses` count grows, nothing rejected
+        # neighbour positions (the camera's `poses` batches) reach every agent: its `poses`
+        # count grows, nothing rejected
         first = {r: obs.latest_status(r, t0) for r in ROBOTS}
-        time.sleep(1.0)
         for r in ROBOTS:
-            a, b = first[r], obs.latest_status(r, t0)
-            assert a is not None and b is not None and a.rx and b.rx
-            assert b.rx["poses"] > a.rx["poses"] + 10, (r, a.rx, b.rx)
-            assert b.rejected == 0, (r, b)
+            a = first[r]
+            assert a is not None and a.rx, (r, a)
+
+            def grew(r: str = r, n0: int = a.rx["poses"]) -> bool:
+                b = obs.latest_status(r, t0)
+                return b is not None and b.rx is not None and b.rx["poses"] > n0 + 10
+
+            until(grew, 10.0, f"{r} received 10 more neighbour position batches")
+            b = obs.latest_status(r, t0)
+            assert b is not None and b.rejected == 0, (r, b)
 
         # ---- 2. the operator kills the active coordinator; the standby continues
+        def only_main_active() -> bool:
+            recent = [h for _, h in obs.since(obs.heartbeats, time.monotonic() - 1.0)]
+            return {h.name for h in recent} == {"main", "standby"} and all(
+                h.active == (h.name == "main") for h in recent
+            )
+
+        # main is the active one (a standby starved on a loaded machine may have taken over
+        # for a moment, then yielded: wait for one second of a settled election)
+        until(only_main_active, 15.0, "main the only active coordinator for 1 s")
         leaders = obs.since(obs.leader, time.monotonic() - 1.0)
         assert leaders, "no leader messages"
         x_before = leaders[-1][1].x
@@ -387,7 +503,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         operator = str(hub_conf("operator-mtls.json5"))
         t_kill = time.monotonic()
         killed = formation_in_ns(net.hub, "fault", "--fleet", FLEET, "--zenoh-config", operator,
-                                 "kill-coordinator")  # fmt: skip
+                                 "kill-coordinator", "main")  # fmt: skip
         assert killed.returncode == 0, killed.stdout + killed.stderr
         assert "killed coordinator main" in killed.stdout, killed.stdout
         main.proc.wait(timeout=5.0)
@@ -430,24 +546,43 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         for r in ("r1", "r2"):
             assert r in top.stdout, top.stdout
 
-        # ---- 5. formation kept after the re-forming, neighbours still seen
+        # ---- 5. formation kept after the re-forming, neighbours still seen: both robots
+        # tracking their slots of the r1+r2 assignment with errors below 0.1 m for 2 s. A
+        # condition, not a snapshot: at load ~20 on the 2 cores a robot's 700 ms lease was seen
+        # to lapse once (the coordinator then re-forms without it and with it again, as
+        # designed); the formation must be back within the bound.
+        pair = {"r1", "r2"}
+
+        def kept() -> bool:
+            t = time.monotonic() - 2.0
+            with contextlib.suppress(AssertionError):  # no tracking status yet
+                return tracking(obs, pair, t) and max_error(obs, pair, t) < 0.1
+            return False
+
+        kept_s = until(kept, 20.0, "r1 and r2 in formation (errors < 0.1 m) for 2 s")
         t_end = time.monotonic() - 2.0
-        err = max_error(obs, {"r1", "r2"}, t_end)
-        assert err < 0.1, f"tracking error {err:.3f} m after re-forming"
+        err = max_error(obs, pair, t_end)
         for r in ("r1", "r2"):
             st = obs.latest_status(r, t_end)
             assert st is not None and st.rx and st.rx["poses"] > 0 and st.rejected == 0
         print(
-            f"\nformed in {formed_s:.1f} s, standby active {takeover_s:.2f} s after the kill, "
-            f"r3 dropped {drop_s:.2f} s after the cut, final max error {err * 1000:.0f} mm, "
+            f"\nevery process ready {ready_s:.1f} s after the start, formed in {formed_s:.1f} s, "
+            f"standby active {takeover_s:.2f} s after the kill, "
+            f"r3 dropped {drop_s:.2f} s after the cut, final max error {err * 1000:.0f} mm "
+            f"({kept_s:.1f} s to confirm), "
             f"total {time.monotonic() - t_start:.0f} s"
         )
     finally:
         obs.close()
 
+    cpu_s, alive_s = cpu_seconds(camera.pid), time.monotonic() - camera_started
+    print(
+        f"camera: {cpu_s:.1f} s of CPU in {alive_s:.0f} s ({100 * cpu_s / alive_s:.0f} % of a core)"
+    )
+
     # ---- 6. every process stops on SIGTERM within the bound, status 0 (all signalled at once;
     # the cut robot's agent too: it leaves without closing its session, see robot_agent.main)
-    children = [*agents.values(), standby, world]
+    children = [*agents.values(), standby, camera, world]
     sent = time.monotonic()
     for child in children:
         child.send_signal(signal.SIGTERM)
@@ -458,3 +593,13 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
         assert child.proc.returncode == 0, child.describe()
     assert router.stop(signal.SIGTERM, timeout_s=5.0) < EXIT_BOUND_S
     assert router.proc.returncode == 0, router.describe()
+
+    # ---- 7. the poses the fleet ran on were the camera's, tracked on the rendered frames: every
+    # `poses` batch the world saw is a truth instant it published, within the bounds of truth
+    line = world.wait_for_line("world camera ")
+    stats = dict(kv.split("=", 1) for kv in line.split()[2:])
+    print(line)
+    assert int(stats["matched"]) > 100 and int(stats["unmatched"]) == 0, line
+    assert int(stats["misses"]) <= int(stats["matched"]) // 100, line  # seen in >= 99 % of frames
+    assert float(stats["median_mm"]) < POSE_MEDIAN_MM, line
+    assert float(stats["max_mm"]) < POSE_MAX_MM, line
