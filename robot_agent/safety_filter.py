@@ -94,6 +94,18 @@ velocity of the saturated wheels still meets the constraints; when it does not, 
 scales both wheels by one factor instead (the twist, and so ``u``, scales by ``s in (0, 1]``):
 ``n . (s u) >= b`` holds for every ``b <= 0`` (either ``n . u >= 0`` or ``n . s u >= n . u``).
 
+What the filter costs a formation (a design rule, measured by ``bench/bench_estimator.py
+--diagnose``): a cooperative neighbour leaves a robot's command untouched in steady state only
+if their reference points are at least ``Ds + 2 l + V a + (rho_own - beta)+ + (rho_j - beta)+ +
+2 s / gamma`` apart, ``s`` being the speed at which the robot's nominal command approaches the
+neighbour's MEASURED reference point: the reciprocal half ``gamma h / 2`` allows no more, even
+when the neighbour moves away as fast (a follower chasing its leader; the filter cannot count
+on that: the leader may stop at any time, and a stopped neighbour must stay an obstacle).
+Below that the filter holds the robot back until ``h`` is that large. On the Robotarium task
+(triangle b = 0.3 m, this project's 0.075 m bodies: ``Ds + 2 l`` = 0.29 m) 60 ms of camera
+latency alone (``V a`` = 0.2 m/s x 66 ms = 13 mm) puts the slots inside the barrier, and the
+followers approach the leader's measured point at 43-55 mm/s (``2 s / gamma`` = 9-11 mm).
+
 Deadlock tie-break: with a constraint in range and more than ``stuck_error_m`` of tracking
 error, an error that has not shrunk by ``stuck_speed_mps * stuck_time_s`` within
 ``stuck_time_s`` (zero progress, whether the filter or a potential-field minimum holds the
