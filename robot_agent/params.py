@@ -211,8 +211,9 @@ class SafetyFilterParams:
         margin_m: safety distance between two robots' centres is ``Ds = 2 * body_radius_m +
             margin_m`` (0.19 m with the defaults); a robot's centre keeps ``body_radius_m +
             margin_m`` from an obstacle's surface and from the arena's walls. The margin
-            absorbs what the proof leaves out: camera noise on two positions (3 sigma of
-            3 mm each: 13 mm), one tick of motion (0.3 m/s x 33 ms: 10 mm), the heading change
+            absorbs what the proof leaves out: camera noise on two positions
+            (``noise_budget_m`` each, 3 sigma of 3 mm: 2 x 9 mm in the worst case, 13 mm in
+            quadrature), one tick of motion (0.3 m/s x 33 ms: 10 mm), the heading change
             within a tick (about 1 mm) and a residual of latency: 0.04 m. Bodies touch at
             ``2 * body_radius_m``; the tests check that is never reached.
         noise_budget_m: the part of ``margin_m`` that pays for ONE position's measurement noise
