@@ -559,6 +559,7 @@ def closed_loop(
         latency_s=sensing["link_s"], jitter_s=0.0, loss_prob=0.0, rng=rng
     )
     fws = [Firmware(cfg) for _ in range(n)]
+    est_on = cfg.estimator.enabled  # then the firmware gets each pose's capture time too
     poses: list[Pose | None] = [None] * n
     prev: list[Pose | None] = [None] * n
     rx = [-math.inf] * n
@@ -599,13 +600,15 @@ def closed_loop(
                 fw.engage_estop()
             g = goal(i, t)
             sp = None if g is None else Setpoint(g[0], g[1], g[2], g[3], 0.0, i, t)
+            p = poses[i]
             cmd = fw.step(
                 t,
-                pose=poses[i],
+                pose=p,
                 pose_rx_s=rx[i],
                 setpoint=sp,
                 setpoint_rx_s=t,
                 neighbours=[q for j, q in enumerate(nbs) if j != i and q is not None],
+                pose_capture_s=p.t if est_on and p is not None else None,
             )
             cmds.append(cmd)
         tracking = [c.mode is Mode.TRACKING for c in cmds]
@@ -720,12 +723,13 @@ def _random_starts(rng: np.random.Generator, n: int, box: float, min_d: float) -
 
 
 def random_starts_run(
-    trials: int, sensing: dict[str, float], first: int = 0
+    trials: int, sensing: dict[str, float], first: int = 0, cfg: AgentConfig = CFG
 ) -> tuple[float, int, int, list[float]]:
     """7 robots, random starts and headings, random goals (all at least 0.35 m apart) in a
     1.8 m square, 25 s each: (least separation, robots that reached their goals within 5 cm,
     robots in all, per-trial separations). Asserts no contact in any trial.
-    bench/bench_safety.py runs the issue's 100 starts."""
+    bench/bench_safety.py runs the issue's 100 starts (``--estimator``: with ``cfg``'s
+    estimator on)."""
     n = 7
     reached = 0
     seps: list[float] = []
@@ -734,7 +738,7 @@ def random_starts_run(
         starts = _random_starts(rng, n, 0.9, DS + 2 * L + 0.02)
         goals = _random_starts(rng, n, 0.9, 0.35)
         initial = [(x, y, float(rng.uniform(-math.pi, math.pi))) for x, y in starts]
-        out = closed_loop(initial, _static(goals), 25.0, sensing, dt=0.05, seed=trial)
+        out = closed_loop(initial, _static(goals), 25.0, sensing, cfg=cfg, dt=0.05, seed=trial)
         seps.append(out.min_sep)
         assert out.min_sep >= TOUCH, (trial, out.min_sep)
         reached += sum(e < 0.05 for e in out.errs)
