@@ -19,16 +19,28 @@ paper's scenarios (paper-sim, paper-exp1, paper-exp2, with their own camera nois
 link and motor lag) with the firmware of before, with extrapolation, with the estimator +
 extrapolation, and both again with ``setpoint_lead_s`` = link latency + motor time constant + one
 tick (the actuation lag), and prints RMS error, minimum separation, collisions, slot changes
-and HOLD ticks.
-Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper] [--ticks N]``.
-A measurement, not a test.
+and HOLD ticks. Each row ends with the safety filter's share of active ticks per robot (whole
+run, from the firmware's counters). With ``--diagnose`` it runs the ``noisy 60ms+est`` variant
+only, with the filter's inputs recorded after ``settle_s``, and prints for every robot and
+cooperative neighbour the barrier's budget: the measured reference-point distance against
+``Ds + 2 l``, the age inflation ``V a``, the own uncertainty and the part of it beyond the
+noise budget, the barrier value ``h``, and the clearance a nominal approach at speed ``s`` needs
+(``h >= 2 s / gamma``: the reciprocal half of the barrier). With ``--what-if`` it runs the exact
+and the ``noisy 60ms+est`` variants with filter settings that are NOT safe defaults, to show what
+each part of the barrier costs: no age inflation (``neighbour_speed_mps`` ~ 0: unsound, a
+neighbour could have moved), that with a higher barrier gain, and the Robotarium robot's body
+(radius 0.055 m, 0.11 m wide, instead of this project's 0.075 m).
+Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper] [--diagnose]
+[--what-if] [--ticks N]``. A measurement, not a test.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
+from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +108,9 @@ def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[s
         },
         "min_sep_m": float(log.min_separation_m),
         "hold_ticks_after_settle": int(np.sum(log.mode[after] == MODE_CODES["hold"])),
+        "filter_active": {
+            rid: c["active"] / max(1, c["ticks"]) for rid, c in log.filter_counts.items()
+        },
     }
     if loss_robot is not None:
         j = log.robot_ids.index(loss_robot)
@@ -110,6 +125,91 @@ def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[s
         out["loss_back_after_s"] = float(t[late[-1]] + scn.dt_s - t1) if late.size else 0.0
         out["loss_hold_ticks"] = int(np.sum(log.mode[(t >= t0) & (t < t1 + 2.0), j] == 2))
     return out
+
+
+def diagnose(scn: scenario_mod.Scenario) -> int:
+    """The safety filter's barrier budget on the ``noisy 60ms+est`` variant (module doc)."""
+    from robot_agent import safety_filter as sf
+
+    v = variant(scn, est=True, extrap=True, noisy=True)
+    cfg = v.agent
+    g, p = cfg.geometry, cfg.safety_filter
+    l_m = g.ref_offset_m
+    vnb = p.neighbour_speed_mps or g.max_speed_mps
+    d_coop = cfg.safety_distance_m + 2.0 * l_m
+    rows: dict[tuple[int, int], list[tuple[float, ...]]] = defaultdict(list)
+    active: dict[int, list[bool]] = defaultdict(list)
+    order: dict[int, int] = {}
+    orig = sf.SafetyFilter.filter
+
+    def spy(self: Any, now_s: float, px: float, py: float, ux: float, uy: float,
+            *args: Any) -> tuple[float, float]:  # fmt: skip
+        out = orig(self, now_s, px, py, ux, uy, *args)
+        if now_s < v.settle_s:
+            return out
+        me = order.setdefault(id(self), len(order))
+        nbs, rho = args[2], args[4]
+        active[me].append(out != (ux, uy))
+        for k, nb in enumerate(nbs):
+            if len(nb) < 8 or not (nb[6] and math.isfinite(nb[2])):
+                continue
+            qx = nb[0] + l_m * math.cos(nb[2])
+            qy = nb[1] + l_m * math.sin(nb[2])
+            d = math.hypot(px - qx, py - qy)
+            age = min(max(nb[3], 0.0), p.max_age_s)
+            excess = max(0.0, rho - p.noise_budget_m) + max(0.0, nb[7] - p.noise_budget_m)
+            h = d - d_coop - vnb * age - excess
+            approach = max(0.0, -((px - qx) * ux + (py - qy) * uy) / d) if d > 0 else 0.0
+            rows[me, k].append((d, vnb * age, rho, excess, h, approach))
+        return out
+
+    sf.SafetyFilter.filter = spy  # type: ignore[method-assign,assignment]
+    try:
+        simulate.run(v)
+    finally:
+        sf.SafetyFilter.filter = orig  # type: ignore[method-assign]
+    ids = list(v.robot_ids)
+    print(f"diagnose: {v.name} with 60 ms latency + 3 mm noise + estimator, t >= {v.settle_s} s; "
+          f"Ds + 2 l = {d_coop:.3f} m, V = {vnb:.2f} m/s, gamma = {p.gamma_per_s:g} /s, "
+          f"noise budget {p.noise_budget_m * 1e3:.1f} mm")  # fmt: skip
+    for (me, k), r in sorted(rows.items()):
+        a = np.asarray(r)
+        need = 2.0 * a[:, 5] / p.gamma_per_s
+        others = [x for x in ids if x != ids[me]]
+        print(f"  {ids[me]} (filter active {np.mean(active[me]):5.1%}) vs {others[k]}: ref-point "
+              f"distance {a[:, 0].mean():.4f} m (min {a[:, 0].min():.4f}); inflation V a "
+              f"{a[:, 1].mean() * 1e3:.1f} mm, own uncertainty {a[:, 2].mean() * 1e3:.1f} mm "
+              f"(beyond budget {a[:, 3].mean() * 1e3:.1f} mm); h mean "
+              f"{a[:, 4].mean() * 1e3:+.1f} mm (min {a[:, 4].min() * 1e3:+.1f}); nominal approach "
+              f"mean {a[:, 5].mean() * 1e3:.0f} "
+              f"mm/s needs h >= {need.mean() * 1e3:.1f} mm (max {a[:, 5].max() * 1e3:.0f} mm/s: "
+              f"{need.max() * 1e3:.1f} mm)")  # fmt: skip
+    return 0
+
+
+def what_if(scn: scenario_mod.Scenario) -> int:
+    """Exact and noisy+estimator runs with non-default filter settings (module doc)."""
+    cases: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
+        ("as shipped", {}, {}),
+        ("no age inflation (unsound)", {"neighbour_speed_mps": 1e-9}, {}),
+        ("no age inflation, gamma 20", {"neighbour_speed_mps": 1e-9, "gamma_per_s": 20.0}, {}),
+        ("no age inflation, gamma 30", {"neighbour_speed_mps": 1e-9, "gamma_per_s": 30.0}, {}),
+        ("Robotarium body r_b 0.055 m", {}, {"body_radius_m": 0.055}),
+    ]
+    for label, flt, geom in cases:
+        out = []
+        for noisy in (False, True):
+            v = variant(scn, est=True, extrap=True, noisy=noisy)
+            a = v.agent
+            a = dataclasses.replace(
+                a,
+                safety_filter=dataclasses.replace(a.safety_filter, **flt),
+                geometry=dataclasses.replace(a.geometry, **geom),
+            )
+            m = measure(v.with_overrides(agent=a))
+            out.append(f"RMS {m['rms_mm']:6.3f} mm, min sep {m['min_sep_m']:.4f} m")
+        print(f"{label:<30} exact: {out[0]} | 60 ms + 3 mm + est: {out[1]}", flush=True)
+    return 0
 
 
 def paper() -> int:
@@ -163,9 +263,10 @@ def _row(name: str, m: dict[str, Any]) -> None:
             f" | loss: max err {m['loss_max_err_mm']:.2f} mm, back after "
             f"{m['loss_back_after_s']:.2f} s, HOLD ticks {m['loss_hold_ticks']}"
         )
+    act = "/".join(f"{100 * v:.0f}" for v in m["filter_active"].values())
     print(
         f"{name:<34} RMS {m['rms_mm']:7.3f} mm ({per}) min sep {m['min_sep_m']:.4f} m "
-        f"HOLD {m['hold_ticks_after_settle']}{extra}",
+        f"HOLD {m['hold_ticks_after_settle']} filter active % {act}{extra}",
         flush=True,
     )
 
@@ -178,11 +279,17 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="anchor-triangle")
     ap.add_argument("--paper", action="store_true", help="the paper scenarios, with and without")
+    ap.add_argument("--diagnose", action="store_true", help="the filter's barrier budget")
+    ap.add_argument("--what-if", action="store_true", help="non-default filter settings")
     ap.add_argument("--ticks", type=int, default=50_000, help="firmware step bench ticks")
     args = ap.parse_args(argv)
     if args.paper:
         return paper()
     scn = scenario_mod.load(args.scenario)
+    if args.diagnose:
+        return diagnose(scn)
+    if args.what_if:
+        return what_if(scn)
     res: dict[tuple[str, bool], dict[str, Any]] = {}
     for flt in (True, False):
         tag = "" if flt else " (filter off)"

@@ -6,8 +6,11 @@ Prints, per sensing model, the least centre separation over all 100 trials (bodi
 separations; then the anchor task (``anchor-triangle``): minimum separation and the RMS
 formation error after settling; and paper-exp2's leader (the role swap must be kept).
 
-Run: ``.venv/bin/python bench/bench_safety.py [--trials N]``. A measurement: it fails only if
-two bodies touch (the tests' assertion, reused).
+``--estimator`` runs everything with the firmware's estimator on (its pose at now, its
+uncertainty handed to the filter beyond ``noise_budget_m``): the default to come.
+
+Run: ``.venv/bin/python bench/bench_safety.py [--trials N] [--estimator]``. A measurement: it
+fails only if two bodies touch (the tests' assertion, reused).
 """
 
 from __future__ import annotations
@@ -26,19 +29,31 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=100, help="random starts (default 100)")
     ap.add_argument("--skip-random", action="store_true", help="only the scenario figures")
+    ap.add_argument("--estimator", action="store_true", help="the firmware's estimator on")
     args = ap.parse_args(argv)
+
+    import dataclasses
 
     import numpy as np
 
     from formation import metrics, simulate
+    from robot_agent import AgentConfig, EstimatorParams
     from scenario import load
+
+    def est_on(agent: AgentConfig) -> AgentConfig:
+        if not args.estimator:
+            return agent
+        return dataclasses.replace(
+            agent, estimator=dataclasses.replace(agent.estimator, enabled=True)
+        )
 
     if not args.skip_random:
         from test_safety_filter import EXACT, NOISY, random_starts_run
 
+        cfg = AgentConfig(estimator=EstimatorParams(enabled=args.estimator))
         for name, sensing in (("exact", EXACT), ("noisy", NOISY)):
             t0 = time.perf_counter()
-            worst, reached, total, seps = random_starts_run(args.trials, sensing)
+            worst, reached, total, seps = random_starts_run(args.trials, sensing, cfg=cfg)
             print(
                 f"7 robots x {args.trials} random starts ({name}): min separation {worst:.4f} m, "
                 f"reached {reached}/{total} ({100 * reached / total:.1f} %), "
@@ -48,6 +63,7 @@ def main(argv: list[str] | None = None) -> int:
             )
     for name in ("anchor-triangle", "paper-exp2", "corridor"):
         scn = load(name)
+        scn = scn.with_overrides(agent=est_on(scn.agent))
         res = simulate.run(scn)
         m = metrics.compute(res.log, metrics.settle_for(scn.settle_s, scn.duration_s),
                             scn.settle_tol_m)  # fmt: skip

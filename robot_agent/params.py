@@ -211,10 +211,19 @@ class SafetyFilterParams:
         margin_m: safety distance between two robots' centres is ``Ds = 2 * body_radius_m +
             margin_m`` (0.19 m with the defaults); a robot's centre keeps ``body_radius_m +
             margin_m`` from an obstacle's surface and from the arena's walls. The margin
-            absorbs what the proof leaves out: camera noise on two positions (3 sigma of
-            3 mm each: 13 mm), one tick of motion (0.3 m/s x 33 ms: 10 mm), the heading change
+            absorbs what the proof leaves out: camera noise on two positions
+            (``noise_budget_m`` each, 3 sigma of 3 mm: 2 x 9 mm in the worst case, 13 mm in
+            quadrature), one tick of motion (0.3 m/s x 33 ms: 10 mm), the heading change
             within a tick (about 1 mm) and a residual of latency: 0.04 m. Bodies touch at
             ``2 * body_radius_m``; the tests check that is never reached.
+        noise_budget_m: the part of ``margin_m`` that pays for ONE position's measurement noise
+            (m; 3 sigma of the camera's 3 mm per axis: 9 mm). The margin holds it for each of
+            the two positions of a pair, so ``2 * noise_budget_m <= margin_m``. An uncertainty
+            radius handed to the filter (this robot's estimate uncertainty or
+            ``extra_radius_m``, a neighbour's ``radius_m``) inflates a barrier only by its
+            excess over this budget: the noise it stands for is already in the margin. The true
+            centres then keep at least ``2 * body_radius_m + margin_m - 2 * noise_budget_m``
+            (proof: ``safety_filter.py``, "Noise model").
         gamma_per_s: barrier gain gamma (1/s): ``dh/dt >= -gamma * h``; the robot may approach a
             boundary no faster than gamma times its remaining clearance. The filter uses
             ``min(gamma, 1 / dt)`` with the tick's ``dt`` (``1 / max_dt_s`` when unknown) so
@@ -239,6 +248,7 @@ class SafetyFilterParams:
 
     enabled: bool = True
     margin_m: float = 0.04
+    noise_budget_m: float = 0.009
     gamma_per_s: float = 10.0
     neighbour_speed_mps: float = 0.0
     max_age_s: float = 0.5
@@ -252,6 +262,12 @@ class SafetyFilterParams:
     def __post_init__(self) -> None:
         _require(isinstance(self.enabled, bool), f"enabled must be a bool, got {self.enabled!r}")
         _non_negative("margin_m", self.margin_m)
+        _non_negative("noise_budget_m", self.noise_budget_m)
+        _require(
+            2.0 * self.noise_budget_m <= self.margin_m,
+            f"noise_budget_m ({self.noise_budget_m}) must be at most half of margin_m "
+            f"({self.margin_m}): the margin pays for the noise of both positions of a pair",
+        )
         _positive("gamma_per_s", self.gamma_per_s)
         _non_negative("neighbour_speed_mps", self.neighbour_speed_mps)
         _non_negative("max_age_s", self.max_age_s)

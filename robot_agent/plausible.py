@@ -34,6 +34,7 @@ PLAUSIBLE: dict[str, tuple[float, float]] = {
     "safety.max_dt_s": (0.001, 5.0),
     # safety filter
     "safety_filter.margin_m": (0.0, 1.0),
+    "safety_filter.noise_budget_m": (0.0, 0.5),
     "safety_filter.gamma_per_s": (0.01, 1000.0),
     "safety_filter.neighbour_speed_mps": (0.0, 5.0),
     "safety_filter.max_age_s": (0.01, 10.0),

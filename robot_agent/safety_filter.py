@@ -12,7 +12,10 @@ exactly the commanded velocity ``u`` (``p' = u``: the single integrator under th
 Robotarium's ``si_to_uni``), so the filter works on ``u`` and every barrier is a function of
 ``p``. ``Ds = 2 r_b + margin`` is the least centre distance between two robots; a robot's centre
 keeps ``r_b + margin`` from an obstacle's surface and from the arena walls. ``rho`` is the extra
-radius for this robot's own pose uncertainty (``extra_radius_m``, from the estimator).
+radius for this robot's own pose uncertainty beyond the noise the margin already pays for:
+``rho = max(0, rho_own - beta)`` with ``rho_own`` the larger of ``extra_radius_m`` and the
+estimator's ``pose_uncertainty_m`` and ``beta = noise_budget_m`` (see "Noise model" below);
+``rho_j = max(0, radius_m - beta)`` likewise for a neighbour's own uncertainty.
 
 Barriers (all distances, ``h >= 0`` is safe)::
 
@@ -25,6 +28,22 @@ Barriers (all distances, ``h >= 0`` is safe)::
 where ``c_j`` is the neighbour's measured centre, ``p_j = c_j + l (cos theta_j, sin theta_j)``
 its reference point, ``a_j`` the age of that measurement (capped at ``max_age_s``), ``V`` the
 neighbour top speed and ``rho_j`` its own extra radius.
+
+Noise model (what ``margin`` pays for, so nothing is paid twice). A measured or estimated
+position is within its uncertainty radius of the truth: ``r = 3 sigma`` of the camera noise for
+a raw camera pose (``beta = noise_budget_m``, 9 mm for 3 mm per axis), ``rho_own`` for this
+robot's estimate (the estimator's ``n_sigma * sqrt(P)``; below ``beta`` in steady state, as
+fusing camera poses only shrinks their noise; above it while the camera is lost), ``radius_m``
+for a neighbour that reports one. The margin holds ``beta`` for EACH of the two positions of a
+pair (``2 beta <= margin``, enforced by ``SafetyFilterParams``): a neighbour's raw camera
+position (``radius_m = 0``) has always been covered that way, and this robot's own position now
+is too, so only an uncertainty beyond ``beta`` inflates a barrier. Then with ``h >= 0`` on the
+positions the filter has, the TRUE centres keep ``|c_i - c_j| >= Ds - r_i - r_j + (r_i - beta)+
++ (r_j - beta)+ >= Ds - 2 beta = 2 r_b + (margin - 2 beta)`` (0.172 m with the defaults, bodies
+touch at 0.15 m), and a true centre keeps ``r_b + margin - beta`` from an obstacle or a wall.
+Adding the full ``rho_own`` on top of the margin (as before) counted this robot's noise twice: on
+the anchor task with 60 ms latency and 3 mm noise it moved the formation's steady state 6-7 mm
+further into the barrier (bench/bench_estimator.py, docs/benchmarks.md).
 
 Why ``h >= 0`` keeps the BODIES apart (the offset l): ``|p - c| = l``, so by the triangle
 inequality ``|c - o| >= |p - o| - l`` and ``|c_i - c_j| >= |p_i - c_j| - l >=
@@ -74,6 +93,18 @@ Wheel saturation after eq 16: ``admissible(ux, uy)`` tells the firmware whether 
 velocity of the saturated wheels still meets the constraints; when it does not, the firmware
 scales both wheels by one factor instead (the twist, and so ``u``, scales by ``s in (0, 1]``):
 ``n . (s u) >= b`` holds for every ``b <= 0`` (either ``n . u >= 0`` or ``n . s u >= n . u``).
+
+What the filter costs a formation (a design rule, measured by ``bench/bench_estimator.py
+--diagnose``): a cooperative neighbour leaves a robot's command untouched in steady state only
+if their reference points are at least ``Ds + 2 l + V a + (rho_own - beta)+ + (rho_j - beta)+ +
+2 s / gamma`` apart, ``s`` being the speed at which the robot's nominal command approaches the
+neighbour's MEASURED reference point: the reciprocal half ``gamma h / 2`` allows no more, even
+when the neighbour moves away as fast (a follower chasing its leader; the filter cannot count
+on that: the leader may stop at any time, and a stopped neighbour must stay an obstacle).
+Below that the filter holds the robot back until ``h`` is that large. On the Robotarium task
+(triangle b = 0.3 m, this project's 0.075 m bodies: ``Ds + 2 l`` = 0.29 m) 60 ms of camera
+latency alone (``V a`` = 0.2 m/s x 66 ms = 13 mm) puts the slots inside the barrier, and the
+followers approach the leader's measured point at 43-55 mm/s (``2 s / gamma`` = 9-11 mm).
 
 Deadlock tie-break: with a constraint in range and more than ``stuck_error_m`` of tracking
 error, an error that has not shrunk by ``stuck_speed_mps * stuck_time_s`` within
@@ -126,6 +157,7 @@ class SafetyFilter:
     __slots__ = (
         "_active",
         "_arena",
+        "_budget",
         "_circles",
         "_cons",
         "_d_coop",
@@ -178,6 +210,7 @@ class SafetyFilter:
         self._vnb = p.neighbour_speed_mps if p.neighbour_speed_mps > 0.0 else g.max_speed_mps
         self._vbad = 10.0 * self._vnb  # a neighbour velocity beyond this is absurd: rejected
         self._max_age = p.max_age_s
+        self._budget = p.noise_budget_m
         self._vcap = config.gains.max_ref_speed_mps
         self._tb_cos = math.cos(p.tiebreak_angle_rad)
         self._tb_sin = math.sin(p.tiebreak_angle_rad)
@@ -280,7 +313,10 @@ class SafetyFilter:
         """The constraints ``(ax, ay, b)`` (``a . u >= b``) in range of a command of speed
         ``cap`` at reference point ``(px, py)``; updates the violation / clearance counters.
         ``dt_s`` is the tick (0 = unknown): gamma is lowered to ``1 / dt_s`` if larger."""
-        rho = extra_radius_m if extra_radius_m > 0.0 else 0.0
+        # only the uncertainty beyond the margin's noise budget inflates (module docstring)
+        rho = extra_radius_m - self._budget
+        if not rho > 0.0:  # also NaN
+            rho = 0.0
         gamma = self._gamma
         if not 0.0 < dt_s * gamma <= 1.0:
             gamma = 1.0 / dt_s if dt_s * self._gamma_slow > 1.0 else self._gamma_slow
@@ -337,6 +373,7 @@ class SafetyFilter:
                     age = 0.0
                 elif age > self._max_age:
                     age = self._max_age
+                rad -= self._budget
                 infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
                 if coop and _isfinite(th):
                     qx += self._l * math.cos(th)
