@@ -178,8 +178,9 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.ASSIGNMENT: KeyRoles((_C,), (_C,)),  # a standby follows the active one's
     keys.POSE: KeyRoles((_L, _P), (_R, _C)),  # robots: neighbours' poses (repulsion)
     keys.POSES: KeyRoles((_L, _P), (_R, _H, _C)),
-    keys.TRUTH: KeyRoles((_P,)),
-    keys.TRUTHS: KeyRoles((_P,)),
+    # the camera tracker's rendered source (`formation up --camera rendered`) renders the truth
+    keys.TRUTH: KeyRoles((_P,), (_L,)),
+    keys.TRUTHS: KeyRoles((_P,), (_L,)),
     keys.WHEELS: KeyRoles(((_R, OWN),), (_P,)),
     # robots and hosts: the others' modes (cooperative neighbours, robot_agent.neighbours)
     keys.STATUS: KeyRoles(((_R, OWN),), (_C, _R, _H)),

@@ -141,7 +141,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("clock"),
         *(_f(f"coordinator/{c}/{x}") for c in ("main", "standby") for x in ("heartbeat", "status")),
     },
-    "localization": set(),
+    "localization": {*(_f(f"robot/{r}/truth") for r in ROBOTS), _f("truths")},
     "plant": {
         *(_f(f"robot/{r}/wheels") for r in ROBOTS),
         _f("host/h1/wheels"),

@@ -1,6 +1,7 @@
 """``formation up --camera rendered``: the real tracker (``formation camera --source rendered``)
 in the closed loop in place of the plant's camera emulation (the plant runs ``--no-poses``):
-paper-exp1 converges with no collision on poses measured from rendered images."""
+paper-exp1 converges with no collision on poses measured from rendered images, in an
+authenticated run (``--secure``: the generated ACL lets the localization identity read truth)."""
 
 from __future__ import annotations
 
@@ -23,8 +24,12 @@ def test_paper_exp1_converges_with_the_rendered_camera(spawn: Spawner, tmp_path:
 
     out = tmp_path / "exp1-camera"
     m = finish(
-        up(spawn, out, "--scenario", "paper-exp1", "--duration", "15", "--camera", "rendered"), out
-    )
+        up(
+            spawn, out, "--scenario", "paper-exp1", "--duration", "15", "--camera", "rendered",
+            "--secure",  # the ACL must let the tracker read the truth it renders
+        ),
+        out,
+    )  # fmt: skip
     children = m["meta"]["children"]
     assert children["camera"]["returncode"] == 0 and not children["camera"]["killed"]
     assert (out / "camera.toml").exists()
