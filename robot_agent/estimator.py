@@ -416,7 +416,12 @@ class Estimator(_EstimatorMath):
                     st = self._chain_at(t_s)
                 else:
                     n = nodes[j]
-                    st = n[1] if t_s - n[0] < _TINY_S else _arc(n, t_s - n[0])
+                    if t_s - n[0] < _TINY_S:
+                        st = n[1]
+                    else:
+                        st = _arc(n, t_s - n[0])
+                        if j == len(nt) - 1:  # after the newest node: the next segment's start
+                            self._head = (t_s, n, st)
                 # the prior through the newest anchor's frame (_prior inlined)
                 ox, oy, oth, d_, tu, q = st
                 a = anch[-1]
