@@ -45,10 +45,12 @@ from robot_agent import (
 )
 
 GOAL_US = 10.0
-# --estimator: the firmware with its pose estimator, fed a 40 ms old capture time and encoder
-# speeds every tick (latency compensation over two segments + odometry: the costly case).
+# --estimator: the firmware with its pose estimator, fed a camera pose captured --latency-ms ago
+# (default 40) and encoder speeds every tick (a fused camera pose, odometry and the latency
+# compensation on every tick: the costly case).
 _CFG = AgentConfig()
 _EST_KW: dict[str, Any] = {}
+LATENCY_S = [0.04]
 DT_S = 0.02
 RING = 1024  # pre-built inputs, cycled: the bench measures step(), not message construction
 
@@ -82,12 +84,13 @@ def bench_step(ticks: int) -> dict[str, float]:
     samples = [0] * ticks
     step = fw.step
     est = bool(_EST_KW)
+    lat = LATENCY_S[0]
     for k in range(ticks):
         j = k % RING
         now = k * DT_S
         pose = poses[j]
         if est:  # keywords written out as a shell does (a **dict call costs ~0.4 us more)
-            cap = now - 0.04
+            cap = now - lat
             t0 = clock()
             step(now, pose=pose, pose_rx_s=now, setpoint=sps[j], setpoint_rx_s=now,
                  neighbours=nbrs[j], pose_capture_s=cap, wheel_speeds=_WHEELS)  # fmt: skip
@@ -122,6 +125,7 @@ def bench_step_cpu(ticks: int, block: int = 10_000) -> dict[str, float]:
     cpu = time.thread_time_ns
     step = fw.step
     est = bool(_EST_KW)
+    lat = LATENCY_S[0]
     means: list[float] = []
     k = 0
     for _ in range(max(1, ticks // block)):
@@ -130,7 +134,7 @@ def bench_step_cpu(ticks: int, block: int = 10_000) -> dict[str, float]:
             j = k % RING
             now = k * DT_S
             if est:
-                cap = now - 0.04
+                cap = now - lat
                 step(now, pose=poses[j], pose_rx_s=now, setpoint=sps[j], setpoint_rx_s=now,
                      neighbours=nbrs[j], pose_capture_s=cap, wheel_speeds=_WHEELS)  # fmt: skip
             else:
@@ -197,9 +201,10 @@ def breakdown(n: int) -> dict[str, float]:
             k[0] += 1
             now = k[0] * DT_S
             p = ring[k[0] % RING]
-            return est.tick(now, now - DT_S, v, w, True, now - 0.04, p.x, p.y, p.theta)
+            return est.tick(now, now - DT_S, v, w, True, now - lat, p.x, p.y, p.theta)
 
-        parts["Estimator.tick (odometry, 40 ms old pose)"] = _loop_us(est_tick, n)
+        lat = LATENCY_S[0]
+        parts[f"Estimator.tick (odometry, {lat * 1e3:g} ms old pose)"] = _loop_us(est_tick, n)
     return parts | {
         "reference_point (eqs 10-11)": _loop_us(
             lambda: reference_point(pose.x, pose.y, pose.theta, g.ref_offset_m), n
@@ -231,7 +236,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--estimator", action="store_true", help="enable the pose estimator (see _EST_KW)"
     )
+    ap.add_argument(
+        "--latency-ms",
+        type=float,
+        default=40.0,
+        help="--estimator: age of the camera pose each tick (default 40 ms)",
+    )
     args = ap.parse_args(argv)
+    LATENCY_S[0] = args.latency_ms / 1000.0
     if args.estimator:
         global _CFG
         _CFG = AgentConfig(estimator=EstimatorParams(enabled=True))

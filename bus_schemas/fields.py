@@ -354,6 +354,27 @@ class SameLength:
 
 
 @dataclass(frozen=True, slots=True)
+class Together:
+    """The listed optional fields are all present or all absent."""
+
+    fields: tuple[str, ...]
+
+    def check(self, msg: Any) -> None:
+        """Raise `Invalid(missing_field)` naming the first absent field when some are present."""
+        present = [getattr(msg, name) is not None for name in self.fields]
+        if any(present) and not all(present):
+            raise Invalid(
+                Reason.MISSING_FIELD,
+                "present together or not at all",
+                self.fields[present.index(False)],
+            )
+
+    def describe(self) -> str:
+        """One line for docs/bus.md."""
+        return "`" + "`, `".join(self.fields) + "` are present together or not at all"
+
+
+@dataclass(frozen=True, slots=True)
 class RequiredWhen:
     """The `required` optional fields must be present when `field` equals `value`."""
 

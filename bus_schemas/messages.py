@@ -25,11 +25,14 @@ from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
 from bus_schemas.spec import WHEEL_RATE_MAX_RADPS as _WHEEL
 from bus_schemas.spec import (
     RequiredWhen,
+    SameLength,
+    Together,
     f_angle,
     f_bool,
     f_count_map,
     f_enum,
     f_float,
+    f_float_list,
     f_int,
     f_name,
     f_robot_id,
@@ -312,10 +315,24 @@ class Estop:
     )
 
 
-@message(name=keys.CLOCK, publisher="plant, lockstep only", periodic=True)
+_ENC = ("enc_robots", "enc_wr", "enc_wl")
+
+
+@message(
+    name=keys.CLOCK,
+    publisher="plant, lockstep only",
+    periodic=True,
+    rules=(Together(_ENC), SameLength(_ENC)),
+)
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Clock:
-    """Lockstep tick: the plant advanced to sim time `t`; agents answer with Wheels(tick=...)."""
+    """Lockstep tick: the plant advanced to sim time `t`; agents answer with Wheels(tick=...).
+
+    With the plant's encoder emulation (scenario `[plant] encoder_counts_per_rev > 0`) the clock
+    carries each robot's emulated encoder reading of this tick (`enc_*`): the firmware's
+    `wheel_speeds`, as the in-process simulator hands them over. A real robot reads its own
+    encoders (the motor backend); a realtime plant emulates none.
+    """
 
     v: int = field(default=1, metadata=_V)
     t: float = field(metadata=_T)
@@ -326,6 +343,28 @@ class Clock:
         metadata=f_robot_id_list(
             "robots whose wheels answering the previous tick said mode `tracking` (for the "
             "safety filter's cooperative neighbours)"
+        ),
+    )
+    enc_robots: tuple[str, ...] | None = field(
+        default=None,
+        metadata=f_robot_id_list("robots whose encoder speeds follow (`enc_wr`, `enc_wl`)"),
+    )
+    enc_wr: tuple[float, ...] | None = field(
+        default=None,
+        metadata=f_float_list(
+            "right wheel speed each encoder measured, mean over the tick before `t`",
+            "rad/s",
+            lo=-_WHEEL,
+            hi=_WHEEL,
+        ),
+    )
+    enc_wl: tuple[float, ...] | None = field(
+        default=None,
+        metadata=f_float_list(
+            "left wheel speed each encoder measured, mean over the tick before `t`",
+            "rad/s",
+            lo=-_WHEEL,
+            hi=_WHEEL,
         ),
     )
 

@@ -49,6 +49,7 @@ from bus_schemas.fields import (
     RequiredWhen,
     Rule,
     SameLength,
+    Together,
     f_angle,
     f_angle_list,
     f_bool,
@@ -91,6 +92,7 @@ __all__ = [
     "RequiredWhen",
     "Rule",
     "SameLength",
+    "Together",
     "compile_check",
     "f_angle",
     "f_angle_list",
@@ -332,7 +334,7 @@ def message(
 
 
 def _rule_fields(rule: Rule) -> tuple[str, ...]:
-    if isinstance(rule, SameLength):
+    if isinstance(rule, SameLength | Together):
         return rule.fields
     if isinstance(rule, RequiredWhen):
         return (rule.field, *rule.required)

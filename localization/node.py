@@ -17,8 +17,11 @@ A grabber thread reads frames from the source (localization.sources), stamps eac
 started up to one frame period earlier), detects the markers, maps them to the floor and runs the
 tracker (:class:`CameraPipeline`, no Zenoh). It hands each frame's result to the event loop,
 which publishes, per frame: one ``poses`` batch (``PoseBatch``, ``stamp`` = capture time) then
-``robot/<id>/pose`` for each robot seen (``t`` = capture time, ``robot`` set), the same keys and
-order as the plant's camera emulation, so agents and the coordinator cannot tell the difference.
+``robot/<id>/pose`` for each robot seen (``t`` = capture time, ``robot`` set, ``pub_t`` = its
+publication time on the clock of ``t``), the same keys and order as the plant's camera emulation,
+so agents and the coordinator cannot tell the difference. ``pub_t`` (and the batch's ``t``) is
+the capture time plus the time elapsed on this host since the frame was read: receivers estimate
+the clock offset from it and so compensate the pipeline's latency (docs/clocks.md).
 A robot not seen is not published (the firmware's staleness rule stops it).
 
 ``--source rendered`` (localization.rendered) renders the plant's truth instants instead of
@@ -91,7 +94,7 @@ class Grabber:
         self,
         source: FrameSource,
         pipeline: CameraPipeline,
-        deliver: Callable[[FrameResult | None], None],
+        deliver: Callable[[tuple[FrameResult, float] | None], None],
         *,
         fast: bool,
         loop_file: bool,
@@ -130,7 +133,8 @@ class Grabber:
                 frame = self.source.read()
                 # capture time: right after the read, or the source's own (rendered: the truth's)
                 own = getattr(self.source, "frame_stamp_s", None)
-                stamp = time.monotonic() if own is None else float(own)
+                read_s = time.monotonic()  # this host's clock, for the publication time
+                stamp = read_s if own is None else float(own)
                 k += 1
                 if frame is None:
                     if self.loop_file and not self.source.live and self.source.rewind():
@@ -145,7 +149,7 @@ class Grabber:
                     self.last_error = repr(exc)
                     continue
                 self.frames += 1
-                self.deliver(result)
+                self.deliver((result, read_s))
         finally:
             # The source is released by the thread that reads it: releasing a VideoCapture
             # while another thread is inside read() aborts the process (std::terminate).
@@ -190,14 +194,21 @@ class CameraNode:
         self.seq[key] = n
         return n
 
-    def on_frame(self, res: FrameResult) -> None:
-        """Publish one frame: the batch first, then each robot's pose (t = capture time)."""
+    def on_frame(self, res: FrameResult, read_s: float | None = None) -> None:
+        """Publish one frame: the batch first, then each robot's pose (t = capture time).
+
+        ``read_s``: this host's ``time.monotonic()`` when the frame was read (the capture time
+        for a camera; a rendered frame's capture time is the truth's, another clock). The
+        publication time on the clock of ``t`` is ``stamp + (now - read_s)``; None: now.
+        """
         try:
             stamp = max(res.stamp_s, 0.0)
+            now = time.monotonic()
+            pub_t = max(now if read_s is None else stamp + (now - read_s), stamp)
             ms = res.measurements
             if ms and self.batch:
                 batch = PoseBatch(
-                    t=max(time.monotonic(), 0.0),
+                    t=pub_t,
                     seq=self._next(self.poses_key),
                     robots=tuple(m.robot for m in ms),
                     x=tuple(m.x for m in ms),
@@ -208,7 +219,8 @@ class CameraNode:
                 self.publish(self.poses_key, encode(batch), rt.QOS_CONTROL)
             for m in ms:
                 key = self.pose_keys[m.robot]
-                msg = Pose(t=stamp, seq=self._next(key), x=m.x, y=m.y, theta=m.theta, robot=m.robot)
+                msg = Pose(t=stamp, seq=self._next(key), x=m.x, y=m.y, theta=m.theta, robot=m.robot,
+                           pub_t=pub_t)  # fmt: skip
                 self.publish(key, encode(msg), rt.QOS_CONTROL)
             self.frames += 1
             self.detect_s.append(res.detect_s)
@@ -509,11 +521,11 @@ async def _node(
             pubs.get(key, rt.QOS_CONTROL)
         # A live or paced source: the newest frames win (a backlog is stale). --fast on a
         # recording: every frame is published (the grabber is the slow side; bounded anyway).
-        results: asyncio.Queue[FrameResult | None] = asyncio.Queue(
+        results: asyncio.Queue[tuple[FrameResult, float] | None] = asyncio.Queue(
             maxsize=FAST_QUEUE if ns.fast else LIVE_QUEUE
         )
 
-        def deliver(res: FrameResult | None) -> None:  # grabber thread
+        def deliver(res: tuple[FrameResult, float] | None) -> None:  # grabber thread
             def put() -> None:
                 if res is not None and results.full():  # the loop is behind: newest wins
                     results.get_nowait()
@@ -568,7 +580,7 @@ async def _node(
                 res, getting = getting.result(), None
                 if res is None:
                     break
-                node.on_frame(res)
+                node.on_frame(*res)
         finally:
             stopping.cancel()
             if getting is not None:

@@ -33,24 +33,31 @@ piece of length ``d = |v| dt``, turn ``|omega dt|`` and duration ``dt``::
 
 over one propagation (from a camera pose to the next one, or to ``now``): ``d``, the turn and
 ``dt`` are the sums over its pieces of constant twist, ``q_m d`` and ``q_s dt`` the sums of each
-piece's rates.
+piece's rates (kept as running sums along the odometry chain, see below),
 
 with ``q_m, q_s`` the odometry or commanded rates of ``EstimatorParams`` depending on the
 segment's source. A camera pose then updates each axis with the Kalman gain
 ``K = P / (P + R)`` (``R`` the measurement variance; ``K = 1`` when both are 0), the heading
 innovation wrapped to (-pi, pi]: ``x += K (z - x)``, ``P = (1 - K) P``.
 
-**Late measurements: replay.** Each fused camera pose leaves an *anchor*: the posterior at its
-capture time together with the measurement. A pose that arrives after younger ones (it was
-delayed longer) is fused at its own capture time: the estimator propagates from the anchor just
+**Odometry chain and correction frames** (estimator_math.py). The twists are integrated once,
+segment by segment, into a dead-reckoned *chain* in an odometry frame; each fused camera pose
+leaves an *anchor*: the posterior at its capture time, the measurement, and the rigid
+correction frame that maps the chain onto the world from then on (the ``odom`` -> ``map``
+transform of ROS REP 105). The unicycle's motion is the same in any rigid frame, so propagating
+an anchor to a later time is the chain there through that frame: one arc per tick and one
+transform, however old the camera pose is.
+
+**Late measurements: replay.** A pose that arrives after younger ones (it was delayed longer) is
+fused at its own capture time: the estimator predicts it through the frame of the anchor just
 before it, updates, then re-fuses every younger measurement in capture order. The result is the
 one a batch filter gets by processing all measurements in capture order (the arithmetic is the
 same, so equal to rounding; the tests check it). Odometry for an interval that already holds an
 anchor triggers the same replay from there. History is bounded to ``history_s``: older
 measurements are rejected.
 
-**The estimate at now.** ``estimate(now_s)`` propagates the newest anchor to ``now`` through
-the segments; this is the pose the controller uses. It is *valid* while the newest camera
+**The estimate at now.** ``estimate(now_s)`` is the chain at ``now`` through the newest
+anchor's frame; this is the pose the controller uses. It is *valid* while the newest camera
 capture is at most ``max_dropout_odom_s`` old when encoder speeds arrived within
 ``odom_timeout_s``, else ``max_dropout_cmd_s``, and while the uncertainty
 ``n_sigma * sqrt(P)`` stays within ``max_uncertainty_m``. The firmware holds otherwise.
@@ -72,17 +79,16 @@ from bisect import bisect_right
 from dataclasses import dataclass
 from typing import Any
 
-from .estimator_math import (  # noqa: F401  (moved to estimator_math.py; re-exported)
+from .estimator_math import (
     _PI,
     _TINY_S,
-    _TWO_PI,
     _Anchor,
+    _arc,
     _cos,
     _EstimatorMath,
     _isfinite,
-    _Segment,
+    _Node,
     _sin,
-    _sinc,
     _sqrt,
     _wrap,
     propagate_pose,
@@ -187,16 +193,14 @@ class Estimator(_EstimatorMath):
         self._odom_to = p.odom_timeout_s
         self._q_thm = p.theta_var_per_m
         self._q_ths = p.theta_var_per_s
-        self._seg: list[_Segment] = []
-        self._seg_t: list[float] = []
+        self._nodes: list[_Node] = []
+        self._node_t: list[float] = []
         self._anch: list[_Anchor] = []
         self._anch_t: list[float] = []
+        self._head = None
         self._last_odom_t = -math.inf
         self._gated_run = 0
         self._first_is_init = False
-        # checkpoints (t, x, y, theta, dist, turn, qd, qt) of the propagation from _ck_anchor
-        self._ck: list[tuple[float, float, float, float, float, float, float, float]] = []
-        self._ck_anchor: _Anchor | None = None
         self.accepted = 0
         #: ``tick``'s camera pose: None when fused (or none given), else the rejection reason
         self.last_reason: str | None = None
@@ -218,33 +222,27 @@ class Estimator(_EstimatorMath):
 
     def reset(self) -> None:
         """Forget everything but the counters (the next camera pose initialises)."""
-        self._seg.clear()
-        self._seg_t.clear()
+        self._nodes.clear()
+        self._node_t.clear()
         self._anch.clear()
         self._anch_t.clear()
+        self._head = None
         self._last_odom_t = -math.inf
         self._gated_run = 0
-        self._ck.clear()
-        self._ck_anchor = None
 
     def add_command(self, t_s: float, v_mps: float, omega_radps: float) -> None:
         """The commanded twist acts from ``t_s`` on (replaces guesses from ``t_s`` on)."""
         if not _isfinite(t_s + v_mps + omega_radps):
             return  # the firmware never commands non-finite speeds; nothing to learn
-        seg_t = self._seg_t
-        if seg_t and t_s <= seg_t[-1]:
-            if self._seg[-1][3] and t_s < seg_t[-1]:
+        nt = self._node_t
+        nodes = self._nodes
+        if nt and t_s <= nt[-1]:
+            if nodes[-1][4] and t_s < nt[-1]:
                 return  # never overwrite measured odometry with a guess
             self._truncate(t_s)
-        elif self._seg and self._seg[-1][1] == v_mps and self._seg[-1][2] == omega_radps:
+        elif nodes and nodes[-1][2] == v_mps and nodes[-1][3] == omega_radps:
             return  # same twist continues: one segment
-        else:
-            ck = self._ck
-            while ck and ck[-1][0] > t_s:  # they assumed the previous twist beyond t_s
-                ck.pop()
-        qm, qs = self._cmd_q
-        self._seg.append((t_s, v_mps, omega_radps, False, qm, qs))
-        seg_t.append(t_s)
+        self._start_segment(t_s, v_mps, omega_radps, False)
         anch_t = self._anch_t
         if anch_t and anch_t[-1] > t_s:
             self._replay_after(t_s)
@@ -257,10 +255,10 @@ class Estimator(_EstimatorMath):
         if not (_isfinite(t0_s + t1_s + v_mps + omega_radps) and t1_s >= t0_s):
             self.rejected_odometry += 1
             return False
-        self._truncate(t0_s)
-        qm, qs = self._odom_q
-        self._seg.append((t0_s, v_mps, omega_radps, True, qm, qs))
-        self._seg_t.append(t0_s)
+        nt = self._node_t
+        if nt and nt[-1] >= t0_s:
+            self._truncate(t0_s)
+        self._start_segment(t0_s, v_mps, omega_radps, True)
         if t1_s > self._last_odom_t:
             self._last_odom_t = t1_s
         anch_t = self._anch_t
@@ -313,8 +311,8 @@ class Estimator(_EstimatorMath):
                 return None  # the same pose presented again
             self.rejected_duplicate += 1
             return "second pose with the same capture time"
-        px, py, pth, pp, ppth = self._propagate(a, t_s)
         # plausibility gate on the position innovation
+        px, py, _, pp, _ = self._prior(a, t_s, self._chain_at(t_s))
         dx = x - px
         dy = y - py
         g = self._gate + self._nsig * _sqrt(pp + self._r_pos)
@@ -330,22 +328,8 @@ class Estimator(_EstimatorMath):
             return "implausible pose (jump)"
         self._gated_run = 0
         self.accepted += 1
-        if i == len(anch) - 1:  # in capture order: _fuse inlined (hot path)
-            sv = pp + self._r_pos
-            k = pp / sv if sv > 0.0 else 1.0
-            sv = ppth + self._r_th
-            kt = ppth / sv if sv > 0.0 else 1.0
-            d = theta - pth
-            if not -_PI < d <= _PI:
-                d = _wrap(d)
-            th = pth + kt * d
-            if not -_PI < th <= _PI:
-                th = _wrap(th)
-            anch.append((t_s, px + k * dx, py + k * dy, th, (1.0 - k) * pp, (1.0 - kt) * ppth,
-                         x, y, theta))  # fmt: skip
-            anch_t.append(t_s)
-        else:
-            new = self._fuse(t_s, px, py, pth, pp, ppth, x, y, theta)
+        new = self._fuse(a, t_s, x, y, theta)
+        if i < len(anch) - 1:
             self.replayed += 1
             later = anch[i + 1 :]
             del anch[i + 1 :]
@@ -353,6 +337,9 @@ class Estimator(_EstimatorMath):
             anch.append(new)
             anch_t.append(t_s)
             self._refuse(later)
+        else:
+            anch.append(new)
+            anch_t.append(t_s)
         if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
             self._trim(now_s)
         return None
@@ -379,38 +366,33 @@ class Estimator(_EstimatorMath):
         arithmetic is the same operations in the same order as the three calls, so the same
         bits (tests/test_estimator.py checks it).
         """
-        # --- twist --------------------------------------------------------------------------
-        seg_t = self._seg_t
+        nt = self._node_t
+        nodes = self._nodes
+        # --- twist: a new segment after every node (_start_segment inlined) -----------------
         if seg_t_s == seg_t_s:  # not NaN
-            seg = self._seg
-            if odometry:
-                if seg_t and seg_t[-1] >= seg_t_s:
-                    self._truncate(seg_t_s)
+            if nt and seg_t_s <= nt[-1]:
+                if odometry:
+                    self.add_odometry(seg_t_s, now_s, v_mps, omega_radps)
                 else:
-                    ck = self._ck
-                    while ck and ck[-1][0] > seg_t_s:
-                        ck.pop()
-                qm, qs = self._odom_q
-                seg.append((seg_t_s, v_mps, omega_radps, True, qm, qs))
-                seg_t.append(seg_t_s)
-                if now_s > self._last_odom_t:
-                    self._last_odom_t = now_s
+                    self.add_command(seg_t_s, v_mps, omega_radps)
+            elif odometry or not (nodes and nodes[-1][2] == v_mps and nodes[-1][3] == omega_radps):
+                head = self._head
+                if head is not None and head[0] == seg_t_s and nodes and head[1] is nodes[-1]:
+                    st = head[2]
+                else:
+                    st = self._chain_at(seg_t_s)
+                if odometry:
+                    qm, qs = self._odom_q
+                    if now_s > self._last_odom_t:
+                        self._last_odom_t = now_s
+                else:
+                    qm, qs = self._cmd_q
+                nodes.append((seg_t_s, st, v_mps, omega_radps, odometry, qm, qs))
+                nt.append(seg_t_s)
                 anch_t = self._anch_t
                 if anch_t and anch_t[-1] > seg_t_s:
                     self._replay_after(seg_t_s)
-            elif seg_t and seg_t_s <= seg_t[-1]:
-                self.add_command(seg_t_s, v_mps, omega_radps)
-            elif not (seg and seg[-1][1] == v_mps and seg[-1][2] == omega_radps):
-                ck = self._ck
-                while ck and ck[-1][0] > seg_t_s:
-                    ck.pop()
-                qm, qs = self._cmd_q
-                seg.append((seg_t_s, v_mps, omega_radps, False, qm, qs))
-                seg_t.append(seg_t_s)
-                anch_t = self._anch_t
-                if anch_t and anch_t[-1] > seg_t_s:
-                    self._replay_after(seg_t_s)
-        # --- camera pose ----------------------------------------------------------------------
+        # --- camera pose in capture order: add_measurement's hot path ----------------------------
         anch = self._anch
         if capture_s is not None:
             anch_t = self._anch_t
@@ -420,27 +402,39 @@ class Estimator(_EstimatorMath):
                 and anch_t[-1] < t_s <= now_s
                 and now_s - t_s <= self._max_lat
                 and _isfinite(now_s + t_s + x + y + theta)
-            ):  # in capture order: add_measurement's hot path
+            ):
                 if not -_PI < theta <= _PI:
                     theta = _wrap(theta)
-                a = anch[-1]
-                ck = self._ck
-                j = len(ck) - 1
-                if a is self._ck_anchor and j >= 0:
-                    lim = t_s + _TINY_S
-                    while j >= 0 and ck[j][0] > lim:
-                        j -= 1
-                if j >= 0 and a is self._ck_anchor and t_s - ck[j][0] < _TINY_S:
-                    # the prior at a checkpoint of the last estimate (capture times on ticks):
-                    # what _propagate returns from there, without the call
-                    _, px, py, pth, dist, turn, qd, qt = ck[j]
-                    ppth = a[5]
-                    pp = a[4] + (qd + qt + ppth * dist * dist)
-                    ppth += (
-                        self._q_rad * 2.0 * turn + self._q_thm * dist + self._q_ths * (t_s - a[0])
-                    )
+                # the chain at t_s (_chain_at inlined: usually a node, no arc)
+                j = len(nt) - 1
+                lim = t_s + _TINY_S
+                if j >= 0 and nt[j] > lim:
+                    j -= 1
+                    if j >= 0 and nt[j] > lim:
+                        j = bisect_right(nt, lim) - 1
+                if j < 0:
+                    st = self._chain_at(t_s)
                 else:
-                    px, py, pth, pp, ppth = self._propagate(a, t_s)
+                    n = nodes[j]
+                    if t_s - n[0] < _TINY_S:
+                        st = n[1]
+                    else:
+                        st = _arc(n, t_s - n[0])
+                        if j == len(nt) - 1:  # after the newest node: the next segment's start
+                            self._head = (t_s, n, st)
+                # the prior through the newest anchor's frame (_prior inlined)
+                ox, oy, oth, d_, tu, q = st
+                a = anch[-1]
+                c, s, tx, ty, fa = a[9]
+                _, _, _, ad, atu, aq = a[10]
+                ppth = a[5]
+                dist = d_ - ad
+                px = c * ox - s * oy + tx
+                py = s * ox + c * oy + ty
+                pth = oth + fa
+                pp = a[4] + (q - aq) + ppth * dist * dist
+                ppth = (ppth + self._q_rad * 2.0 * (tu - atu) + self._q_thm * dist
+                        + self._q_ths * (t_s - a[0]))  # fmt: skip
                 dx = x - px
                 dy = y - py
                 rp = self._r_pos
@@ -448,6 +442,7 @@ class Estimator(_EstimatorMath):
                 if dx * dx + dy * dy > g * g:
                     self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
                 else:
+                    # _fuse and _anchor inlined
                     self._gated_run = 0
                     self.accepted += 1
                     sv = pp + rp
@@ -460,15 +455,21 @@ class Estimator(_EstimatorMath):
                     th = pth + kt * d
                     if not -_PI < th <= _PI:
                         th = _wrap(th)
-                    anch.append((t_s, px + k * dx, py + k * dy, th, (1.0 - k) * pp,
-                                 (1.0 - kt) * ppth, x, y, theta))  # fmt: skip
+                    wx = px + k * (x - px)
+                    wy = py + k * (y - py)
+                    fa = th - oth
+                    c = _cos(fa)
+                    s = _sin(fa)
+                    anch.append((t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
+                                 (c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa),
+                                 st))  # fmt: skip
                     anch_t.append(t_s)
                     if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
                         self._trim(now_s)
                     self.last_reason = None
             else:
                 self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
-        # --- estimate at now_s (estimate() inlined) -------------------------------------------
+        # --- estimate at now_s (estimate() inlined) ---------------------------------------------
         if not anch:
             return None
         a = anch[-1]
@@ -478,55 +479,23 @@ class Estimator(_EstimatorMath):
             return None
         if age <= 0.0:
             ex, ey, eth, pp = a[1], a[2], a[3], a[4]
-        elif a is self._ck_anchor:
-            ex, ey, eth, pp, _ = self._propagate(a, now_s, True)
         else:
-            # a fresh anchor (a camera pose every tick: the common case): _propagate(a, now_s,
-            # True) inlined, the same operations in the same order
-            self._ck_anchor = a
-            ck = self._ck
-            ck.clear()
-            t, ex, ey, eth, pp, ppth, _, _, _ = a
-            seg = self._seg
-            n = len(seg_t)
-            i = bisect_right(seg_t, t) - 1
-            dist = turn = qd = qt = 0.0
-            while t < now_s:
-                if i >= 0:
-                    _, v, w, _, qm, qs = seg[i]
-                else:  # before any known twist: assume standing still
-                    v = w = 0.0
-                    qm, qs = self._cmd_q
-                nxt = seg_t[i + 1] if i + 1 < n else now_s
-                if nxt > now_s:
-                    nxt = now_s
-                dt = nxt - t
-                if dt < _TINY_S:
-                    t = nxt
-                    i += 1
-                    continue
-                h = w * dt * 0.5
-                if -0.1 < h < 0.1:
-                    h2 = h * h
-                    chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
-                else:
-                    chord = v * dt * (_sin(h) / h)
-                mid = eth + h
-                ex += chord * _cos(mid)
-                ey += chord * _sin(mid)
-                eth = mid + h
-                d = v * dt if v >= 0.0 else -v * dt
-                dist += d
-                turn += h if h >= 0.0 else -h
-                qd += qm * d
-                qt += qs * dt
-                t = nxt
-                i += 1
-                if t < now_s:  # t only grows and ck was cleared: always after ck[-1]
-                    ck.append((t, ex, ey, eth, dist, turn, qd, qt))
-            pp += qd + qt + ppth * dist * dist
-        if not -_PI < eth <= _PI:
-            eth = _wrap(eth)
+            if nt and nt[-1] <= now_s + _TINY_S:
+                n = nodes[-1]
+                dt = now_s - n[0]
+                st = n[1] if dt < _TINY_S else _arc(n, dt)
+                self._head = (now_s, n, st)
+            else:
+                st = self._chain_at(now_s)
+            ox, oy, oth, d_, tu, q = st
+            c, s, tx, ty, fa = a[9]
+            dist = d_ - a[10][3]
+            ex = c * ox - s * oy + tx
+            ey = s * ox + c * oy + ty
+            eth = oth + fa
+            pp = a[4] + (q - a[10][5]) + a[5] * dist * dist
+            if not -_PI < eth <= _PI:
+                eth = _wrap(eth)
         u = self._nsig * _sqrt(pp)
         if not u <= self._max_unc:
             return None
@@ -548,7 +517,15 @@ class Estimator(_EstimatorMath):
         if not age <= bound:  # also False for NaN
             return None
         if age > 0.0:
-            x, y, th, pp, _ = self._propagate(a, now_s, True)
+            nt = self._node_t
+            if nt and nt[-1] <= now_s + _TINY_S:
+                n = self._nodes[-1]
+                dt = now_s - n[0]
+                st = n[1] if dt < _TINY_S else _arc(n, dt)
+                self._head = (now_s, n, st)
+            else:
+                st = self._chain_at(now_s)
+            x, y, th, pp, _ = self._prior(a, now_s, st)
             if not -_PI < th <= _PI:
                 th = _wrap(th)
         else:
@@ -573,7 +550,7 @@ class Estimator(_EstimatorMath):
             rejected_odometry=self.rejected_odometry,
             resets=self.resets,
             anchors=len(self._anch),
-            segments=len(self._seg),
+            segments=len(self._nodes),
         )
 
     @property

@@ -1,11 +1,36 @@
-"""The estimator's arithmetic: the exact arc integration of the unicycle (``propagate_pose``,
-paper eq 9 over constant ``(v, omega)``) and the history internals of ``Estimator`` (anchors of
-fused camera poses, odometry/command segments, the fusion of one pose and the replay of later
-ones), as the base class ``_EstimatorMath``.
+"""The estimator's arithmetic: the exact arc of the unicycle (``propagate_pose``, paper eq 9 over
+constant ``(v, omega)``), the odometry chain and the correction frames of ``Estimator``, as the
+base class ``_EstimatorMath``.
 
-Split out of estimator.py (issue 12) so estimator.py reads as the public inputs (commands,
-odometry, measurements), ``tick`` and ``estimate``; the methods here moved verbatim and
-``propagate_pose`` is still importable from ``robot_agent.estimator``.
+Odometry chain and correction frame (the ``odom`` / ``map`` pair of ROS REP 105)
+===============================================================================
+
+The twists (segments of constant ``(v, omega)``) are integrated once, in an arbitrary *odometry
+frame*, into a chain of **nodes**: a node is the start of a segment, with the dead-reckoned pose
+there and the running sums the variances need (distance, turn, process noise)::
+
+    node     = (t, state, v, omega, measured, q_m, q_s),  state = (ox, oy, oth, D, TU, Q)
+    chain(t) = the state of the node at or before t, advanced along its segment's arc
+
+``D`` is the distance travelled since the chain's origin, ``TU`` the sum of ``|omega dt| / 2``,
+``Q`` the sum of the position process noise ``q_m |v| dt + q_s dt``; a propagation from ``t_a``
+to ``t_b`` adds the differences ``D(t_b) - D(t_a)`` etc. Before the first node the robot stands
+still (with the commanded-speed noise rate).
+
+Each fused camera pose is an **anchor**: the posterior (x, y, theta, P, Pth) at its capture time
+in the world, the measurement, and the *correction frame* that maps the chain onto the world
+from that capture on (a rotation by ``A`` and a translation)::
+
+    anchor   = (t, x, y, th, P, Pth, zx, zy, zth, frame, state),  frame = (cos A, sin A, tx, ty, A)
+    world(t) = R(A) chain(t) + (tx, ty),  theta = chain_theta(t) + A     (t >= anchor.t)
+
+The unicycle's motion over a twist is the same in any rigid frame, so this is the pose a
+propagation from the anchor gives (equal to rounding). The estimate at ``now`` is then one arc
+(from the newest node) and a rigid transform, whatever the camera latency; a camera pose's prior
+is the chain at its capture time (usually a node: no arc) through the frame before it. A change
+of the twists from ``t`` on rebuilds the nodes from ``t`` and re-fuses the anchors after it (the
+oldest kept anchor is re-based: same posterior, frame recomputed on the new chain); a late camera
+pose re-fuses the anchors after it. Live and batch runs do the same operations in the same order.
 """
 
 from __future__ import annotations
@@ -16,34 +41,24 @@ from bisect import bisect_right
 from .params import EstimatorParams
 
 _isfinite = math.isfinite
-
-
 _sin = math.sin
-
-
 _cos = math.cos
-
-
 _sqrt = math.sqrt
-
-
 _PI = math.pi
-
-
-# Pieces of constant twist shorter than this are skipped (a segment boundary and a capture time
-# a few ulps apart, both computed as float sums of ticks): at most nanometres of motion.
-_TINY_S = 1e-9
-
-
 _TWO_PI = 2.0 * math.pi
 
+# A capture time within this of a node (both float sums of ticks) is taken at the node: at most
+# nanometres of motion.
+_TINY_S = 1e-9
 
-# anchor tuple fields: (t, x, y, theta, P, Pth, zx, zy, zth)
-_Anchor = tuple[float, float, float, float, float, float, float, float, float]
-
-
-# segment tuple fields: (t_start, v, omega, measured, position variance per m, per s)
-_Segment = tuple[float, float, float, bool, float, float]
+# chain state at a time: (ox, oy, oth, D, TU, Q)
+_State = tuple[float, float, float, float, float, float]
+# node tuple fields: (t, state, v, omega, measured, q_m, q_s)
+_Node = tuple[float, _State, float, float, bool, float, float]
+# correction frame: (cos A, sin A, tx, ty, A)
+_Frame = tuple[float, float, float, float, float]
+# anchor tuple fields: (t, x, y, th, P, Pth, zx, zy, zth, frame, state)
+_Anchor = tuple[float, float, float, float, float, float, float, float, float, _Frame, _State]
 
 
 def _wrap(a: float) -> float:
@@ -72,27 +87,41 @@ def propagate_pose(
     return x + chord * _cos(mid), y + chord * _sin(mid), mid + h
 
 
+def _arc(n: _Node, dt: float) -> _State:
+    """The chain ``dt`` s after node ``n`` (its segment's twist held): eq 9, and the sums."""
+    _, st, v, w, _, qm, qs = n
+    ox, oy, oth, d_, tu, q = st
+    h = w * dt * 0.5
+    if -0.1 < h < 0.1:  # _sinc inlined
+        h2 = h * h
+        chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
+    else:
+        chord = v * dt * (_sin(h) / h)
+    mid = oth + h
+    d = v * dt if v >= 0.0 else -v * dt
+    return (ox + chord * _cos(mid), oy + chord * _sin(mid), mid + h, d_ + d,
+            tu + (h if h >= 0.0 else -h), q + (qm * d + qs * dt))  # fmt: skip
+
+
 class _EstimatorMath:
-    """The history internals of :class:`robot_agent.estimator.Estimator` (its base class): the
-    methods below moved here verbatim; the state they use is declared and set by ``Estimator``
-    (its ``__slots__`` and ``__init__``)."""
+    """The chain and anchor internals of :class:`robot_agent.estimator.Estimator` (its base
+    class); the state is declared here and set by ``Estimator.__init__``."""
 
     __slots__ = (
         "_anch",
         "_anch_t",
-        "_ck",
-        "_ck_anchor",
         "_cmd_q",
         "_first_is_init",
         "_gated_run",
+        "_head",
+        "_node_t",
+        "_nodes",
         "_p",
         "_q_rad",
         "_q_thm",
         "_q_ths",
         "_r_pos",
         "_r_th",
-        "_seg",
-        "_seg_t",
         "replayed",
     )
     _p: EstimatorParams
@@ -102,90 +131,158 @@ class _EstimatorMath:
     _q_rad: float
     _q_thm: float
     _q_ths: float
-    _seg: list[_Segment]
-    _seg_t: list[float]
+    _nodes: list[_Node]
+    _node_t: list[float]
     _anch: list[_Anchor]
     _anch_t: list[float]
     _gated_run: int
     _first_is_init: bool
-    _ck: list[tuple[float, float, float, float, float, float, float, float]]
-    _ck_anchor: _Anchor | None
+    # (t, node, state): the chain at t computed from that node (the last estimate's); reused
+    # when a segment starts at t
+    _head: tuple[float, _Node, _State] | None
     replayed: int
 
-    # ------------------------------------------------------------------ internals
+    # ------------------------------------------------------------------ the chain
 
-    def _init(self, t_s: float, x: float, y: float, theta: float) -> None:
-        self._anch.append((t_s, x, y, theta, self._r_pos, self._r_th, x, y, theta))
-        self._anch_t.append(t_s)
-        self._gated_run = 0
-        self._first_is_init = True
+    def _chain_at(self, t: float) -> _State:
+        """The chain's state at ``t`` (see the module docstring)."""
+        nt = self._node_t
+        i = len(nt) - 1
+        lim = t + _TINY_S
+        if i >= 0 and nt[i] > lim:
+            i = bisect_right(nt, lim) - 1
+        if i < 0:  # before any known twist: standing still
+            qs = self._cmd_q[1]
+            if not nt:
+                return 0.0, 0.0, 0.0, 0.0, 0.0, qs * t
+            n = self._nodes[0]
+            ox, oy, oth, d_, tu, q = n[1]
+            return ox, oy, oth, d_, tu, q + qs * (t - n[0])
+        n = self._nodes[i]
+        dt = t - n[0]
+        if dt < _TINY_S:
+            return n[1]
+        return _arc(n, dt)
+
+    def _start_segment(self, t_s: float, v: float, w: float, measured: bool) -> None:
+        """Append a segment starting at ``t_s`` (after every node) with its node."""
+        head = self._head
+        nodes = self._nodes
+        if head is not None and head[0] == t_s and nodes and head[1] is nodes[-1]:
+            st = head[2]
+        else:
+            st = self._chain_at(t_s)
+        qm, qs = self._p_rates(measured)
+        nodes.append((t_s, st, v, w, measured, qm, qs))
+        self._node_t.append(t_s)
+
+    def _p_rates(self, measured: bool) -> tuple[float, float]:
+        p = self._p
+        if measured:
+            return p.odom_pos_var_per_m, p.odom_pos_var_per_s
+        return self._cmd_q
 
     def _truncate(self, t_s: float) -> None:
         """Drop every segment starting at or after ``t_s``."""
-        seg = self._seg
-        seg_t = self._seg_t
-        while seg_t and seg_t[-1] >= t_s:
-            seg_t.pop()
-            seg.pop()
-        ck = self._ck
-        while ck and ck[-1][0] > t_s:
-            ck.pop()
+        nodes = self._nodes
+        nt = self._node_t
+        while nt and nt[-1] >= t_s:
+            nt.pop()
+            nodes.pop()
+        self._head = None
 
-    def _fuse(
+    # ------------------------------------------------------------------ anchors
+
+    def _anchor(
         self,
-        t_s: float,
-        px: float,
-        py: float,
-        pth: float,
+        t: float,
+        x: float,
+        y: float,
+        th: float,
         pp: float,
         ppth: float,
         zx: float,
         zy: float,
         zth: float,
+        st: _State,
     ) -> _Anchor:
-        """Kalman update of the prior at ``t_s`` with a measurement: the new anchor."""
-        s = pp + self._r_pos
-        k = pp / s if s > 0.0 else 1.0
-        s = ppth + self._r_th
-        kt = ppth / s if s > 0.0 else 1.0
+        """The anchor of the posterior ``(x, y, th, pp, ppth)`` at ``t`` on chain state ``st``:
+        its correction frame maps ``st`` onto the posterior."""
+        ox, oy, oth, _, _, _ = st
+        a = th - oth
+        c = _cos(a)
+        s = _sin(a)
+        return (t, x, y, th, pp, ppth, zx, zy, zth,
+                (c, s, x - (c * ox - s * oy), y - (s * ox + c * oy), a), st)  # fmt: skip
+
+    def _prior(self, a: _Anchor, t: float, st: _State) -> tuple[float, float, float, float, float]:
+        """Anchor ``a`` propagated to ``t`` (chain state ``st``): (x, y, theta, P, Pth)."""
+        ox, oy, oth, d_, tu, q = st
+        c, s, tx, ty, fa = a[9]
+        _, _, _, ad, atu, aq = a[10]
+        ppth = a[5]
+        dist = d_ - ad
+        return (c * ox - s * oy + tx, s * ox + c * oy + ty, oth + fa,
+                a[4] + (q - aq) + ppth * dist * dist,
+                ppth + self._q_rad * 2.0 * (tu - atu) + self._q_thm * dist
+                + self._q_ths * (t - a[0]))  # fmt: skip
+
+    def _init(self, t_s: float, x: float, y: float, theta: float) -> None:
+        st = self._chain_at(t_s)
+        self._anch.append(self._anchor(t_s, x, y, theta, self._r_pos, self._r_th, x, y, theta, st))
+        self._anch_t.append(t_s)
+        self._gated_run = 0
+        self._first_is_init = True
+
+    def _fuse(self, a: _Anchor, t_s: float, zx: float, zy: float, zth: float) -> _Anchor:
+        """Kalman update of anchor ``a``'s prediction at ``t_s`` with a measurement."""
+        st = self._chain_at(t_s)
+        px, py, pth, pp, ppth = self._prior(a, t_s, st)
+        sv = pp + self._r_pos
+        k = pp / sv if sv > 0.0 else 1.0
+        sv = ppth + self._r_th
+        kt = ppth / sv if sv > 0.0 else 1.0
         d = zth - pth
         if not -_PI < d <= _PI:
             d = _wrap(d)
         th = pth + kt * d
         if not -_PI < th <= _PI:
             th = _wrap(th)
-        return (t_s, px + k * (zx - px), py + k * (zy - py), th, (1.0 - k) * pp,
-                (1.0 - kt) * ppth, zx, zy, zth)  # fmt: skip
+        return self._anchor(t_s, px + k * (zx - px), py + k * (zy - py), th, (1.0 - k) * pp,
+                            (1.0 - kt) * ppth, zx, zy, zth, st)  # fmt: skip
 
     def _refuse(self, later: list[_Anchor]) -> None:
         """Fuse the measurements of ``later`` again, in order, after the newest anchor."""
         anch = self._anch
         anch_t = self._anch_t
         for b in later:
-            t = b[0]
-            px, py, pth, pp, ppth = self._propagate(anch[-1], t)
-            anch.append(self._fuse(t, px, py, pth, pp, ppth, b[6], b[7], b[8]))
-            anch_t.append(t)
+            anch.append(self._fuse(anch[-1], b[0], b[6], b[7], b[8]))
+            anch_t.append(b[0])
 
     def _replay_after(self, t_s: float) -> None:
-        """Segments from ``t_s`` on changed: re-fuse every anchor captured after ``t_s``."""
+        """The twists from ``t_s`` on changed: re-fuse every anchor captured after ``t_s`` (the
+        oldest is kept and re-based on the new chain)."""
+        anch = self._anch
         anch_t = self._anch_t
         i = bisect_right(anch_t, t_s)
         if i >= len(anch_t):
             return
-        if i == 0:  # the first anchor is an initialisation: keep it, replay the rest
+        if i == 0:
+            a = anch[0]
+            anch[0] = self._anchor(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8],
+                                   self._chain_at(a[0]))  # fmt: skip
             i = 1
             if i >= len(anch_t):
                 return
-        later = self._anch[i:]
-        del self._anch[i:]
+        later = anch[i:]
+        del anch[i:]
         del anch_t[i:]
         self.replayed += 1
         self._refuse(later)
 
     def _trim(self, now_s: float) -> None:
         """Bound the history: anchors older than ``history_s`` (keeping the newest) and the
-        segments before the oldest anchor kept."""
+        nodes before the oldest anchor kept."""
         cutoff = now_s - self._p.history_s
         anch_t = self._anch_t
         n = bisect_right(anch_t, cutoff)
@@ -196,84 +293,7 @@ class _EstimatorMath:
             del self._anch[:n]
             self._first_is_init = False
         if anch_t:
-            j = bisect_right(self._seg_t, min(cutoff, anch_t[0])) - 1
+            j = bisect_right(self._node_t, min(cutoff, anch_t[0])) - 1
             if j > 0:
-                del self._seg_t[:j]
-                del self._seg[:j]
-
-    def _propagate(
-        self, a: _Anchor, t_end: float, record: bool = False
-    ) -> tuple[float, float, float, float, float]:
-        """Anchor ``a`` propagated through the segments to ``t_end``: (x, y, theta, P, Pth).
-
-        Checkpoints: with ``record`` the state at every segment boundary passed is kept (for the
-        newest anchor); a later call from the same anchor resumes from the last checkpoint at
-        or before ``t_end`` (up to ``_TINY_S`` after it: float tick sums), which is the same
-        arithmetic in the same order as starting from the anchor (so the same bits, but for
-        that nanosecond). Segment changes drop the checkpoints after them.
-        """
-        t, x, y, th, pp, ppth = a[0], a[1], a[2], a[3], a[4], a[5]
-        if t_end <= t:
-            return x, y, th, pp, ppth
-        t0 = t
-        seg = self._seg
-        seg_t = self._seg_t
-        n = len(seg_t)
-        ck = self._ck
-        start = None
-        if a is self._ck_anchor:
-            j = len(ck) - 1
-            while j >= 0 and ck[j][0] > t_end + _TINY_S:
-                j -= 1
-            if j >= 0:
-                start = ck[j]
-        elif record:
-            self._ck_anchor = a
-            ck.clear()
-        if start is not None:
-            t, x, y, th, dist, turn, qd, qt = start
-            i = bisect_right(seg_t, t) - 1
-        else:
-            i = n - 1 if n and seg_t[-1] <= t else bisect_right(seg_t, t) - 1
-            dist = turn = qd = qt = 0.0
-        record = record and a is self._ck_anchor
-        # Invariant: seg_t[i] <= t < seg_t[i + 1] (i = -1: before the first segment); the
-        # last segment's twist holds up to t_end.
-        while t < t_end:
-            if i >= 0:
-                _, v, w, _, qm, qs = seg[i]
-            else:  # before any known twist: assume standing still
-                v = w = 0.0
-                qm, qs = self._cmd_q
-            nxt = seg_t[i + 1] if i + 1 < n else t_end
-            if nxt > t_end:
-                nxt = t_end
-            dt = nxt - t
-            if dt < _TINY_S:  # a boundary a rounding error away (ticks as float sums)
-                t = nxt
-                i += 1
-                continue
-            h = w * dt * 0.5
-            if -0.1 < h < 0.1:  # _sinc inlined
-                h2 = h * h
-                chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
-            else:
-                chord = v * dt * (_sin(h) / h)
-            mid = th + h
-            x += chord * _cos(mid)
-            y += chord * _sin(mid)
-            th = mid + h
-            d = v * dt if v >= 0.0 else -v * dt
-            dist += d
-            turn += h if h >= 0.0 else -h
-            qd += qm * d
-            qt += qs * dt
-            t = nxt
-            i += 1
-            if record and t < t_end and (not ck or ck[-1][0] < t):
-                ck.append((t, x, y, th, dist, turn, qd, qt))
-        # variances over the whole interval (the heading variance at its start swings the
-        # whole distance sideways)
-        pp += qd + qt + ppth * dist * dist
-        ppth += self._q_rad * 2.0 * turn + self._q_thm * dist + self._q_ths * (t_end - t0)
-        return x, y, th, pp, ppth
+                del self._node_t[:j]
+                del self._nodes[:j]

@@ -11,7 +11,9 @@ core reads no clock: ``now_s`` and the ``*_rx_s`` stamps come from the shell's o
 so staleness never compares two hosts' clocks, and ``dt_s`` is the difference of successive
 ``now_s``.
 
-Modes, events and the transition table: ``firmware_types.py`` (its docstring).
+Modes, events and the transition table: ``firmware_types.py`` (its docstring); entering a
+mode, HOLD ticks, the e-stop latch, rejection counting and the status snapshot:
+``firmware_modes.py`` (the base class); this module holds ``__init__`` and the tick.
 In TRACKING the controller can still fail (overflow from absurd but finite input): that tick
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
@@ -67,6 +69,7 @@ import math
 from collections.abc import Sequence
 
 from .estimator import Estimator
+from .firmware_modes import _FirmwareModes
 from .firmware_types import (  # noqa: F401  (moved to firmware_types.py; re-exported)
     _E,
     _ESTOP,
@@ -108,7 +111,7 @@ _cos = math.cos
 _sin = math.sin
 
 
-class Firmware:
+class Firmware(_FirmwareModes):
     """One robot's controller: call ``step`` once per tick (see the module docstring)."""
 
     __slots__ = (
@@ -130,17 +133,9 @@ class Firmware:
         "_l",
         "_last_now",
         "_last_pose_t",
-        "_last_rejected_pose",
-        "_last_rejected_setpoint",
-        "_last_saturated",
         "_lead",
         "_max_dt",
-        "_mode",
-        "_pending_cmd",
         "_pose_age",
-        "_reason",
-        "_rej_reason",
-        "_rejected",
         "_rep",
         "_rep_on",
         "_role_changes",
@@ -208,92 +203,6 @@ class Firmware:
         self._est_xyt: tuple[float, ...] | None = None
         if self._est is None:
             self._unc = 0.0
-
-    # ------------------------------------------------------------------ public API
-
-    @property
-    def config(self) -> AgentConfig:
-        """The configuration this firmware runs with."""
-        return self._cfg
-
-    @property
-    def mode(self) -> Mode:
-        """Current mode."""
-        return self._mode
-
-    @property
-    def safety_filter(self) -> SafetyFilter:
-        """The safety filter (counters via ``status().safety_filter``)."""
-        return self._filter
-
-    @property
-    def tracker(self) -> TrackingController:
-        """The tracking controller (for inspection in tests and logs)."""
-        return self._tracker
-
-    @property
-    def estimator(self) -> Estimator | None:
-        """The pose estimator (None when ``config.estimator.enabled`` is False)."""
-        return self._est
-
-    @property
-    def pose_uncertainty_m(self) -> float:
-        """Uncertainty (m) of the pose used on the last tick: ``n_sigma`` standard deviations
-        of the estimator's position (the safety filter's extra radius); NaN without a valid
-        estimate on that tick, 0.0 with the estimator disabled."""
-        return self._unc
-
-    @property
-    def pose_estimate(self) -> tuple[float, float, float] | None:
-        """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
-        the measured pose with the estimator disabled), or None."""
-        xyt = self._est_xyt
-        return None if xyt is None else (xyt[0], xyt[1], xyt[2])
-
-    def reject(self, reason: str) -> None:
-        """Count one bad input (e.g. a message the shell could not decode) with its reason."""
-        self._rejected += 1
-        self._rej_reason = reason
-
-    def engage_estop(self) -> None:
-        """Latch the emergency stop: wheels are zero from now until ``release_estop()``."""
-        self._transition(_Event.ESTOP, "estop")
-
-    def release_estop(self) -> None:
-        """Release a latched emergency stop, to HOLD (or IDLE if no setpoint was ever valid).
-
-        The next ``step`` with fresh data resumes TRACKING. No-op when not latched.
-        """
-        if self._mode is not Mode.ESTOP:
-            return
-        if self._have_setpoint:
-            self._transition(_Event.RELEASE, "estop released")
-        else:
-            self._transition(_Event.RELEASE_UNCONFIGURED, "estop released, no setpoint yet")
-
-    def status(self) -> FirmwareStatus:
-        """Snapshot for the status message."""
-        pid_x, pid_y = self._tracker.snapshot()
-        return FirmwareStatus(
-            mode=self._mode,
-            slot=self._slot,
-            ex=self._ex,
-            ey=self._ey,
-            saturated_count=self._saturated,
-            rejected_count=self._rejected,
-            last_pose_t=self._last_pose_t,
-            steps=self._steps,
-            reason=self._reason,
-            last_reject_reason=self._rej_reason,
-            estop_latched=self._mode is Mode.ESTOP,
-            role_changes=self._role_changes,
-            dt_faults=self._dt_faults,
-            pose_age_s=self._pose_age,
-            setpoint_age_s=self._setpoint_age,
-            pid_x=pid_x,
-            pid_y=pid_y,
-            safety_filter=self._filter.status(),
-        )
 
     def step(
         self,
@@ -563,54 +472,3 @@ class Firmware:
             if self._mode is not _ESTOP:
                 self._set_mode(Mode.HOLD, "internal error")
             return self._zero(self._last_pose_t)
-
-    # ------------------------------------------------------------------ internals
-
-    def _set_mode(self, new: Mode, reason: str) -> None:
-        """Enter ``new`` (running its on-entry action if it differs from the current mode)."""
-        self._reason = reason
-        old = self._mode
-        if new is old:
-            return
-        self._mode = new
-        if new is not Mode.TRACKING:
-            self._filter.reset_deadlock()
-        tracker = self._tracker
-        if new is Mode.HOLD:
-            # Integrators are frozen simply by not being updated; a fresh derivative means
-            # the first tick after resuming has edot = 0 (no kick).
-            tracker.reset_derivative()
-        elif new is Mode.TRACKING:
-            tracker.reset_derivative()
-            if old is Mode.IDLE:
-                tracker.reset()
-        else:  # IDLE or ESTOP: start again from scratch
-            tracker.reset()
-        self._last_saturated = False
-
-    def _transition(self, event: _Event, reason: str) -> Mode:
-        new = _TRANSITIONS[self._mode].get(event, self._mode)
-        self._set_mode(new, reason)
-        return new
-
-    def _zero(self, pose_t: float | None) -> WheelCommand:
-        """Zero command in the current mode."""
-        return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, pose_t, False)
-
-    def _reject_pose(self, pose: Pose, reason: str) -> None:
-        if pose is not self._last_rejected_pose:
-            self._last_rejected_pose = pose
-            self.reject(reason)
-
-    def _reject_setpoint(self, setpoint: Setpoint, reason: str) -> None:
-        if setpoint is not self._last_rejected_setpoint:
-            self._last_rejected_setpoint = setpoint
-            self.reject(reason)
-
-    def _hold(self, event: _Event, reason: str) -> WheelCommand:
-        """Non-tracking tick: apply the event, zero wheels."""
-        self._transition(event, reason)
-        self._last_saturated = False
-        if self._est is not None and self._last_now is not None:
-            self._pending_cmd = (self._last_now + self._act_delay, 0.0, 0.0)
-        return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, self._last_pose_t, False)

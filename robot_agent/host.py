@@ -77,7 +77,7 @@ from robot_agent.neighbours import (
     is_current,
     neighbour,
 )
-from robot_agent.node import AgentNode, Publish, status_tracking
+from robot_agent.node import AgentNode, Publish, clock_wheels, status_tracking
 from robot_agent.params import AgentConfig
 from robot_agent.safety_filter import Neighbour, SafetyFilter
 from runtime.sdnotify import Notifier
@@ -457,6 +457,9 @@ class HostNode:
                 return
             self.sim_t = t_k
             self.tracking_ids = frozenset(msg.tracking or ())
+            enc = clock_wheels(msg)
+            for n in self.nodes.values():
+                n.clock_wheels = enc.get(n.robot_id)
             for e in self._pending.take():
                 if e.rx_s is None:
                     e.rx_s = t_k

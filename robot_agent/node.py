@@ -92,6 +92,13 @@ class _SetpointIn:
 Publish = Callable[[str, bytes, rt.QoS], None]
 
 
+def clock_wheels(msg: Clock) -> dict[str, tuple[float, float]]:
+    """The emulated encoder speeds a lockstep clock carries, by robot (empty without)."""
+    if msg.enc_robots is None or msg.enc_wr is None or msg.enc_wl is None:
+        return {}
+    return {r: (a, b) for r, a, b in zip(msg.enc_robots, msg.enc_wr, msg.enc_wl, strict=True)}
+
+
 def status_tracking(key: str, payload: bytes) -> tuple[str, bool] | DecodeError | str:
     """A robot's ``status`` on ``key``: ``(robot id, its mode is TRACKING)``, or why it is
     refused (a decode error, or a ``robot`` field that is not the key's id). The one reading of
@@ -177,6 +184,8 @@ class AgentNode:
         # cooperative neighbours (robot_agent.neighbours rule 3): lockstep, the ids the clock
         # relays; realtime, id -> [status said tracking, rx_s] from the status messages
         self.tracking_ids: frozenset[str] = frozenset()
+        # lockstep: this robot's emulated encoder speeds of the current clock (Clock.enc_*)
+        self.clock_wheels: tuple[float, float] | None = None
         self._status_modes: dict[str, list[Any]] = {}
 
         self.rx: dict[str, int] = {
@@ -455,6 +464,7 @@ class AgentNode:
                 self._publish(self.wheels_key, again, self.wheels_qos)  # re-announced clock
                 return
             self.tracking_ids = frozenset(msg.tracking or ())
+            self.clock_wheels = clock_wheels(msg).get(self.robot_id)
             self.clock_step(k, msg.t)
         except Exception as exc:
             self._internal("on_clock", exc)
@@ -518,7 +528,9 @@ class AgentNode:
                     else self.neighbour_fn(self, now_s)
                 ),
                 pose_capture_s=self.pose_capture_s,
-                wheel_speeds=None if self.motor is None else self.motor.take_wheel_speeds(),
+                wheel_speeds=(
+                    self.clock_wheels if self.motor is None else self.motor.take_wheel_speeds()
+                ),
             )
             if sp is not None:
                 self.role = sp.role

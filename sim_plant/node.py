@@ -48,6 +48,7 @@ from robot_agent.lockstep import tick_time
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, plant_models
 from sim_plant.inputs import _DRAG, ARENA_LIMIT_M, PlantInputs, _Sim
+from sim_plant.plant import WheelEncoders
 
 __all__ = ["ARENA_LIMIT_M", "PlantNode"]
 
@@ -114,6 +115,9 @@ class PlantNode(PlantInputs):
         self.index = {rid: i for i, rid in enumerate(self.ids)}
         self.rng = np.random.default_rng(self.seed)
         self.sim: _Sim | None = None
+        # lockstep with encoder emulation: the readings of the current tick, relayed in its clock
+        self.encoders: WheelEncoders | None = None
+        self.clock_enc: list[tuple[float, float]] | None = None
 
         self.clock_key = keys.clock_key(fleet)
         self.leader_key = keys.leader_key(fleet)
@@ -182,6 +186,11 @@ class PlantNode(PlantInputs):
         """Build plant, camera, link and monitor as ``formation/simulate.py`` does, at ``t0_s``."""
         plant, camera, link, monitor = plant_models(self.scenario, self.rng, t0_s)
         self.sim = _Sim(plant, camera, link, monitor, t0_s)
+        cfg = self.scenario.plant
+        if self.lockstep and cfg.encoder_counts_per_rev > 0.0:  # after the models: same draws
+            self.encoders = WheelEncoders(
+                self.n, cfg.encoder_counts_per_rev, cfg.encoder_slip_std, self.rng
+            )
         return self.sim
 
     def _apply_disturbances(self, sim: _Sim, t_s: float) -> None:
@@ -326,6 +335,8 @@ class PlantNode(PlantInputs):
         ticks), capture a frame if due, publish the frames due; returns truth."""
         truth = sim.plant.truth
         self._publish_truth(t_s, truth)
+        if self.encoders is not None:  # mean wheel speeds over the last tick, as measured
+            self.clock_enc = self.encoders.read(t_s, sim.plant.wheel_angles())
         sim.camera.capture(t_s, truth)
         self.publish_due_frames(sim, t_s)
         return truth
@@ -356,7 +367,23 @@ class PlantNode(PlantInputs):
         return out[:MAX_LIST_LEN]
 
     def _publish_clock(self, k: int, t_s: float) -> None:
-        msg = Clock(t=t_s, seq=self._next_seq(self.clock_key), tick=k, tracking=self.clock_tracking)
+        enc = self.clock_enc
+        if enc is None:
+            robots = wr = wl = None
+        else:  # the encoder readings of this tick (within a list's bound)
+            m = min(self.n, MAX_LIST_LEN)
+            robots = tuple(self.ids[:m])
+            wr = tuple(float(e[0]) for e in enc[:m])
+            wl = tuple(float(e[1]) for e in enc[:m])
+        msg = Clock(
+            t=t_s,
+            seq=self._next_seq(self.clock_key),
+            tick=k,
+            tracking=self.clock_tracking,
+            enc_robots=robots,
+            enc_wr=wr,
+            enc_wl=wl,
+        )
         self._publish(self.clock_key, encode(msg), rt.QOS_CRITICAL)
 
     async def _wait_answers(self, stop: asyncio.Event, k: int, t_s: float) -> None:

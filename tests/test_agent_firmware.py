@@ -18,12 +18,23 @@ from robot_agent.kinematics import (
     twist_from_wheels,
     wheels_from_twist,
 )
-from robot_agent.params import AgentConfig, RepulsionParams, SafetyFilterParams, SafetyParams
+from robot_agent.params import (
+    AgentConfig,
+    EstimatorParams,
+    RepulsionParams,
+    SafetyFilterParams,
+    SafetyParams,
+)
 from robot_agent.repulsion import repulsion_velocity
 from robot_agent.safety_filter import SafetyFilter
 from robot_agent.tracking import TrackingController
 
-CFG = AgentConfig()
+# The firmware without its pose estimator: the measured pose is used as if current and the
+# stale-pose rule holds the robot (receive age > safety.stale_pose_s). Pinned here (not the
+# default) so these tests keep describing that rule whatever the default; the estimator's
+# ride-through rule is ported below ("ride-through") and in tests/test_estimator.py.
+CFG = AgentConfig(estimator=EstimatorParams(enabled=False))
+EST = AgentConfig(estimator=EstimatorParams(enabled=True))
 GEOM = CFG.geometry
 WMAX = GEOM.max_wheel_radps
 L_REF = GEOM.ref_offset_m
@@ -634,3 +645,137 @@ def test_config_validation() -> None:
         Firmware("not a config")  # type: ignore[arg-type]
     with pytest.raises(ValueError):
         SafetyParams(stale_pose_s=0.0)
+
+
+# ----------------------------------------------------------------------------- ride-through
+# The stale-pose tests above, ported to the estimator's rule (EstimatorParams.enabled): the age
+# of the newest *capture* decides, not the receive age of the last message; the robot rides on
+# the prediction up to the dropout bound (here max_dropout_cmd_s: no encoder speeds) and holds
+# within one step beyond it; a rejected pose is counted and the estimate rides on.
+
+BOUND = EST.estimator.max_dropout_cmd_s
+
+
+def tracking_est(n: int = 5) -> tuple[Firmware, float]:
+    """``tracking_fw`` with the estimator: a fresh pose captured every tick."""
+    fw = Firmware(EST)
+    now = 0.0
+    for k in range(n):
+        now = k * DT
+        cmd = tick(fw, now, Pose(0.0, 0.0, 0.0, now), make_sp(t=now), pose_capture_s=now)
+        assert cmd.mode is Mode.TRACKING
+    return fw, now
+
+
+def test_ride_through_a_pose_older_than_stale_pose_s_then_hold_beyond_the_bound() -> None:
+    fw, now = tracking_est()
+    last = Pose(0.0, 0.0, 0.0, now)  # the shell presents its latest pose again every tick
+    cap = now
+    assert CFG.safety.stale_pose_s < BOUND  # the old rule would have held in between
+    while True:
+        now += DT
+        cmd = tick(fw, now, last, make_sp(), pose_rx=cap, pose_capture_s=cap)
+        if now - cap <= BOUND - 1e-9:
+            assert cmd.mode is Mode.TRACKING and not is_zero(cmd), now - cap
+            assert 0.0 < fw.pose_uncertainty_m < EST.estimator.max_uncertainty_m
+        elif now - cap > BOUND + 1e-9:  # one step past the bound: zero wheels at once
+            assert cmd.mode is Mode.HOLD and is_zero(cmd)
+            assert fw.status().reason == "pose estimate invalid"
+            assert math.isnan(fw.pose_uncertainty_m)
+            break
+
+
+def test_ride_through_a_capture_in_the_future_is_rejected_not_used() -> None:
+    fw, now = tracking_est()
+    est = fw.estimator
+    assert est is not None
+    now += DT
+    bad = Pose(1.0, 1.0, 0.0, now)  # a jump "captured" 5 s from now
+    cmd = tick(fw, now, bad, make_sp(), pose_capture_s=now + 5.0)
+    assert cmd.mode is Mode.TRACKING  # rides on the estimate, which ignored the pose
+    assert est.rejected_future == 1 and fw.status().rejected_count == 1
+    got = fw.pose_estimate
+    assert got is not None and abs(got[0]) < 0.05 and abs(got[1]) < 0.05
+    # with nothing else ever received, the same pose leaves the robot without a pose: HOLD
+    fresh = Firmware(EST)
+    cmd = tick(fresh, 0.0, Pose(0.0, 0.0, 0.0, 0.0), make_sp(), pose_capture_s=5.0)
+    assert cmd.mode is Mode.HOLD and is_zero(cmd) and fresh.status().reason == "no pose"
+
+
+def test_ride_through_a_missing_pose_and_hold_when_there_never_was_one() -> None:
+    fw, now = tracking_est()
+    cmd = tick(fw, now + DT, None, make_sp())
+    assert cmd.mode is Mode.TRACKING and not is_zero(cmd)  # the estimate rides on
+    fw, now = tracking_est()
+    cmd = tick(fw, now + DT, Pose(0.0, 0.0, 0.0, now), None, pose_capture_s=now)
+    assert cmd.mode is Mode.HOLD and is_zero(cmd)  # no setpoint: as before
+    fw = Firmware(EST)  # a setpoint but never a pose: HOLD from IDLE
+    assert tick(fw, 0.0, None, make_sp()).mode is Mode.HOLD
+    assert fw.status().reason == "no pose"
+
+
+def test_ride_through_hold_then_fresh_data_resumes_tracking() -> None:
+    fw, now = tracking_est()
+    while tick(fw, now, None, make_sp()).mode is not Mode.HOLD:  # the camera is lost
+        now += DT
+        assert now < 1.0
+    now += DT
+    cmd = tick(fw, now, Pose(0.0, 0.0, 0.0, now), make_sp(), pose_capture_s=now)
+    assert cmd.mode is Mode.TRACKING and not is_zero(cmd)
+
+
+@pytest.mark.parametrize("bad", BAD)
+@pytest.mark.parametrize("field", POSE_FIELDS)
+def test_ride_through_non_finite_pose_rejected_counted_once(field: str, bad: float) -> None:
+    fw, now = tracking_est()
+    pose = Pose(0.0, 0.0, 0.0, now)._replace(**{field: bad})
+    for _ in range(3):  # the same bad message presented three times counts once
+        now += DT
+        cmd = tick(fw, now, pose, make_sp(), pose_capture_s=now)
+        assert cmd.mode is Mode.TRACKING and all(math.isfinite(c) for c in cmd[:4])
+    assert fw.status().rejected_count == 1
+    now += DT
+    cmd = tick(fw, now, Pose(0.0, 0.0, 0.0, now), make_sp(), pose_capture_s=now)
+    assert cmd.mode is Mode.TRACKING
+
+
+@pytest.mark.parametrize("bad", BAD)
+def test_ride_through_non_finite_receive_time_rejected(bad: float) -> None:
+    """Without ``pose_capture_s`` the receive time is the capture time: a non-finite one is
+    rejected and counted, and the estimate rides on."""
+    fw, now = tracking_est()
+    now += DT
+    cmd = fw.step(now, pose=Pose(0.0, 0.0, 0.0, now), pose_rx_s=bad, setpoint=make_sp(),
+                  setpoint_rx_s=now)  # fmt: skip
+    assert cmd.mode is Mode.TRACKING and all(math.isfinite(c) for c in cmd[:4])
+    assert fw.status().rejected_count == 1
+    est = fw.estimator
+    assert est is not None and est.rejected_nonfinite == 1
+
+
+def test_ride_through_resume_after_hold_has_no_kick() -> None:
+    """HOLD (the camera lost beyond the bound) freezes the integrators; the first tick after a
+    fresh pose has a zero derivative term and the integral part is bounded."""
+    fw, now = tracking_est(30)
+    i_before = (fw.tracker.x.integral_ms, fw.tracker.y.integral_ms)
+    assert i_before[0] > 0.0
+    held = 0
+    while held < 10:  # lost: ride through, then hold for 10 ticks
+        now += DT
+        cmd = tick(fw, now, None, make_sp())
+        if cmd.mode is Mode.HOLD:
+            assert is_zero(cmd)
+            if held == 0:
+                i_before = (fw.tracker.x.integral_ms, fw.tracker.y.integral_ms)
+            held += 1
+    assert (fw.tracker.x.integral_ms, fw.tracker.y.integral_ms) == i_before
+    now += DT
+    cmd = tick(fw, now, Pose(0.0, 0.0, 0.0, now), make_sp(), pose_capture_s=now)
+    assert cmd.mode is Mode.TRACKING
+    assert fw.tracker.x.snapshot().d_term == 0.0
+    g = EST.gains
+    ex = fw.status().ex
+    assert fw.tracker.x.snapshot().output - g.kp * ex == pytest.approx(
+        g.kp * fw.tracker.x.integral_ms / g.ti_s
+    )
+    assert abs(fw.tracker.x.integral_ms) <= g.integral_limit_ms

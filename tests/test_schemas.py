@@ -60,6 +60,7 @@ from bus_schemas.spec import (
     Kind,
     RequiredWhen,
     SameLength,
+    Together,
     f_float,
     message,
 )
@@ -138,7 +139,15 @@ SAMPLES: dict[type, Any] = {
         min_clearance_m=0.05,
     ),
     Estop: Estop(t=1.0, engage=True, robot="r3"),
-    Clock: Clock(t=1.0, seq=9, tick=100, tracking=("r1", "r2")),
+    Clock: Clock(
+        t=1.0,
+        seq=9,
+        tick=100,
+        tracking=("r1", "r2"),
+        enc_robots=("r1", "r2"),
+        enc_wr=(1.5, -0.25),
+        enc_wl=(1.0, 0.0),
+    ),
     Disturbance: Disturbance(
         t=1.0,
         robot="r1",
@@ -543,6 +552,15 @@ def test_every_field_presence(cls: type, info: FieldInfo) -> None:
                 err = rejected(data, cls)
                 assert err.reason is Reason.MISSING_FIELD and err.field == info.name
             absent["kind"] = nil["kind"] = "drag"
+        together = [r.fields for r in spec_of(cls).rules if isinstance(r, Together)]
+        group = next((g for g in together if info.name in g), None)
+        if group is not None:
+            # present together or not at all: alone it is missing; the whole group may go
+            for data in (pack(absent), pack(nil)):
+                err = rejected(data, cls)
+                assert err.reason is Reason.MISSING_FIELD, err
+            absent = {k: v for k, v in absent.items() if k not in group}
+            nil = m | dict.fromkeys(group)
         ok: Any = decode_or_raise(pack(absent), cls)
         assert getattr(ok, info.name) is None
         assert decode_or_raise(pack(nil), cls) == ok  # nil reads as absent
