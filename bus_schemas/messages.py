@@ -69,6 +69,46 @@ from .messages_fields import (
     Mode,
     Role,
 )
+from .messages_status import (
+    CoordinatorRole,
+    CoordinatorStatus,
+    PlantState,
+    PlantStatus,
+    RunMode,
+)
+
+__all__ = [
+    "BATCH_CHUNK",
+    "MESSAGE_TYPES",
+    "Assignment",
+    "Clock",
+    "CoordinatorRole",
+    "CoordinatorStatus",
+    "Disturbance",
+    "DisturbanceKind",
+    "Estop",
+    "Heartbeat",
+    "Leader",
+    "Message",
+    "Mode",
+    "PlantState",
+    "PlantStatus",
+    "Pose",
+    "PoseBatch",
+    "Role",
+    "RunMode",
+    "Setpoint",
+    "SetpointBatch",
+    "Slot",
+    "Status",
+    "StatusBatch",
+    "Truth",
+    "TruthBatch",
+    "Wheels",
+    "WheelsBatch",
+    "message_type",
+    "message_type_for_key",
+]
 
 
 @message(name=keys.LEADER, publisher="coordinator", periodic=True)
@@ -408,6 +448,8 @@ Message = (
     | SetpointBatch
     | WheelsBatch
     | StatusBatch
+    | CoordinatorStatus
+    | PlantStatus
 )
 """Any bus message."""
 
@@ -429,6 +471,8 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     SetpointBatch,
     WheelsBatch,
     StatusBatch,
+    CoordinatorStatus,
+    PlantStatus,
 )
 
 BATCH_CHUNK = 256

@@ -356,7 +356,7 @@ def synthetic_stream(ticks: int = 100) -> list[BusItem]:
     items.append(BusItem("put", keys.pose_key(FLEET, "r1"), b"\xc1", rx))  # malformed
     rx += 1000
     items.append(
-        BusItem("put", f"formation/{FLEET}/plant/status", msgpack.packb({"v": 1, "t": 2.0}), rx)
+        BusItem("put", f"formation/{FLEET}/camera/c1/status", msgpack.packb({"v": 1, "t": 2.0}), rx)
     )
     rx += 1000
     items.append(BusItem("dead", f"formation/{FLEET}/alive/robot/r2", b"", rx))
@@ -397,7 +397,7 @@ def test_recorder_writes_one_json_channel_per_key_with_schemas_and_times(tmp_pat
         assert counts[f"/formation/{FLEET}/clock"] == 100
         assert counts[f"/formation/{FLEET}/alive/robot/r2"] == 2  # alive, then lost
         assert counts["/recorder/rejected"] == 1
-        assert counts[f"/formation/{FLEET}/plant/status"] == 1  # unknown key: schemaless
+        assert counts[f"/formation/{FLEET}/camera/c1/status"] == 1  # unknown key: schemaless
         assert counts["/derived/robot/r1/tracking_error"] == 10
         assert counts["/derived/robot/r2/latency"] == 100
         assert counts["/scene"] > 0 and counts["/tf"] > 0
@@ -474,7 +474,7 @@ def test_raw_and_json_recordings_replay_the_same_payloads_and_metrics(tmp_path: 
     valid = [
         it
         for it in items
-        if it.kind == "put" and it.payload != b"\xc1" and "plant/status" not in it.key
+        if it.kind == "put" and it.payload != b"\xc1" and "camera/c1/status" not in it.key
     ]
     assert [e.payload for e in a.events if e.payload is not None] == [it.payload for it in valid]
     ma = report_mod.analyze(a).metrics
