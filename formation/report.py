@@ -268,8 +268,8 @@ def analyze(
     log = collector.build(meta)
     if log.t_s.size == 0:
         raise ReportError(f"{rec.path}: no complete truth frame of fleet {fleet!r}")
-    if scn is not None:  # safety accounting (issue 14): from the truth; no filter counters on
-        # the bus, so the filter-active fraction and tie-breaks are null (metrics.safety_metrics)
+    if scn is not None:  # safety accounting (issue 14): from the truth; the filter counters
+        # come from the agents' status (formation.collector, metrics.safety_metrics)
         metrics_mod.attach_agent(log, scn.agent)
     duration = float(log.t_s[-1] - log.t_s[0])
     if settle_s is None:

@@ -43,9 +43,11 @@ from bus_schemas import (
     to_map,
 )
 from bus_schemas.messages import (
+    CoordinatorStatus,
     Disturbance,
     Estop,
     Heartbeat,
+    PlantStatus,
     PoseBatch,
     Setpoint,
     SetpointBatch,
@@ -229,7 +231,18 @@ EXAMPLES = [
         ex=(0.0,),
         ey=(0.0,),
     ),
-]
+    CoordinatorStatus(
+        t=1.0, seq=1, name="main", mode="realtime", role="standby", epoch=0, takeovers=0,
+        stepdowns=0, ticks=0, alive=(), assignment={}, leader=None, estop_fleet=True,
+        estop_robots=(), rejected=0, rejects={}, internal_errors=0, rx={}, pid=8, host="h",
+    ),
+    PlantStatus(
+        t=1.0, seq=1, mode="lockstep", state="waiting", tick=0, sim_t=0.0, timeouts=0,
+        alive=("r1",), coordinators=("main",), link_sent=0, link_dropped=0,
+        min_separation_m=None, collisions=0, frames=0, batch=True, ignored=0, rejected=0,
+        rejects={}, internal_errors=0, rx={"wheels": 0},
+    ),
+]  # fmt: skip
 
 
 def test_every_message_type_has_an_example() -> None:
