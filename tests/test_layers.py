@@ -52,6 +52,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "shells",
         (
             "robot_agent.node",
+            "robot_agent.node_estop",
             "robot_agent.host",
             "robot_agent.main",
             "coordinator.node",
@@ -268,7 +269,7 @@ def test_contract_imports_neither_zenoh_nor_asyncio() -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 10
+    assert len(shells) == 11
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 
