@@ -31,7 +31,7 @@ from bus_schemas.spec import (
     message,
 )
 
-from .messages_fields import _SEQ, _T, _V
+from .messages_fields import _Periodic
 
 
 class RunMode(StrEnum):
@@ -56,13 +56,19 @@ class PlantState(StrEnum):
     DONE = "done"
 
 
-_PID = f_int("OS process id (0 if none)", hi=2**31 - 1)
-_HOST = f_str("host name the process runs on")
-_MODE = f_enum("lockstep or realtime", RunMode)
-_REJECTED = f_int("count of received messages rejected (the sum of `rejects`)")
-_REJECTS = f_count_map("`<message>-<reason>` -> count of inputs dropped; sums to `rejected`")
-_INTERNAL = f_int("internal errors caught (a bug, never a bad input); 0 in a healthy run")
-_RX = f_count_map("input name -> count of messages received")
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _NodeStatus(_Periodic):
+    """What every node's status starts with: its run mode and its input counters."""
+
+    mode: str = field(metadata=f_enum("lockstep or realtime", RunMode))
+    rejected: int = field(metadata=f_int("count of received messages rejected (sum of `rejects`)"))
+    rejects: Mapping[str, int] = field(
+        metadata=f_count_map("`<message>-<reason>` -> count of inputs dropped; sums to `rejected`")
+    )
+    internal_errors: int = field(
+        metadata=f_int("internal errors caught (a bug, never a bad input); 0 in a healthy run")
+    )
+    rx: Mapping[str, int] = field(metadata=f_count_map("input name -> count of messages received"))
 
 
 @message(
@@ -72,14 +78,10 @@ _RX = f_count_map("input name -> count of messages received")
     rate="5 Hz",
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
-class CoordinatorStatus:
+class CoordinatorStatus(_NodeStatus):
     """Health and counters of one coordinator instance."""
 
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
     name: str = field(metadata=f_name("coordinator instance name (= the key's name)"))
-    mode: str = field(metadata=_MODE)
     role: str = field(metadata=f_enum("active: publishes setpoints; standby", CoordinatorRole))
     epoch: int = field(metadata=f_int("leadership epoch (as in its heartbeat)", hi=_EPOCH_MAX))
     takeovers: int = field(metadata=f_int("times this instance took over as active"))
@@ -100,12 +102,8 @@ class CoordinatorStatus:
     estop_robots: tuple[str, ...] = field(
         metadata=f_robot_id_list("robots whose own e-stop is latched (sorted, first 64)")
     )
-    rejected: int = field(metadata=_REJECTED)
-    rejects: Mapping[str, int] = field(metadata=_REJECTS)
-    internal_errors: int = field(metadata=_INTERNAL)
-    rx: Mapping[str, int] = field(metadata=_RX)
-    pid: int = field(metadata=_PID)
-    host: str = field(metadata=_HOST)
+    pid: int = field(metadata=f_int("OS process id of the coordinator", hi=2**31 - 1))
+    host: str = field(metadata=f_str("host name the coordinator runs on"))
     tick_p50_ms: float | None = field(
         default=None,
         metadata=f_float("median compute-and-publish time of the recent ticks", "ms", lo=0.0),
@@ -118,13 +116,9 @@ class CoordinatorStatus:
 
 @message(name=keys.PLANT_STATUS, publisher="plant only", periodic=True, rate="5 Hz")
 @dataclass(frozen=True, slots=True, kw_only=True)
-class PlantStatus:
+class PlantStatus(_NodeStatus):
     """Health and counters of the plant simulator (its link, camera and separation monitor)."""
 
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    mode: str = field(metadata=_MODE)
     state: str = field(metadata=f_enum("phase of the run", PlantState))
     tick: int = field(metadata=f_int("lockstep: the last clock tick published (0 before any)"))
     sim_t: float = field(
@@ -150,7 +144,3 @@ class PlantStatus:
     frames: int = field(metadata=f_int("pose frames published"))
     batch: bool = field(metadata=f_bool("poses and truth are published batched (`poses`)"))
     ignored: int = field(metadata=f_int("valid messages for robots this plant does not simulate"))
-    rejected: int = field(metadata=_REJECTED)
-    rejects: Mapping[str, int] = field(metadata=_REJECTS)
-    internal_errors: int = field(metadata=_INTERNAL)
-    rx: Mapping[str, int] = field(metadata=_RX)
