@@ -9,8 +9,9 @@ all drive it.
 What it listens to (the bus contract, docs/bus.md): ``robot/<id>/truth`` (rows), ``leader``,
 ``slot/<k>``, ``assignment``, ``robot/<id>/wheels`` (motor power), ``robot/<id>/status`` (mode,
 live view, and the safety filter counters ``filter`` / ``min_clearance_m`` of each robot's newest
-status: ``RunLog.filter_counts``, ``filter_source`` ``"status"``) and ``clock``. Every payload is decoded with the strict ``bus_schemas`` decoder; a bad
-one is counted (``rejected``) and otherwise ignored.
+status: ``RunLog.filter_counts``, ``filter_source`` ``"status"``) and ``clock``. Every payload
+is decoded with the strict ``bus_schemas`` decoder; a bad one is counted (``rejected``) and
+otherwise ignored.
 
 Rows
 ----

@@ -52,6 +52,7 @@ from bus_schemas import (
     keys,
 )
 from formation import metrics as metrics_mod
+from formation.latency import LatencySample
 from formation.replay import (
     LivenessChange,
     Recording,
@@ -65,7 +66,6 @@ from formation.replay import (
     scenario_of,
 )
 from formation.runlog import RunLog
-from formation.tap import LatencySample
 
 MIN_RUN_AFTER_LOSS_S: Final = 1.0
 """A leader's token loss counts only if the run went on at least this long after it (s): the

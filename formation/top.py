@@ -50,7 +50,7 @@ from bus_schemas import (
     keys,
 )
 from formation.bus_json import alive_kind, decode_sample
-from formation.tap import BusItem, BusTap
+from runtime.tap import BusItem, BusTap
 
 RATE_LEAVES: Final = (keys.POSE, keys.SETPOINT, keys.WHEELS, keys.STATUS, keys.TRUTH)
 """Per-robot keys whose message rate is shown, in column order."""

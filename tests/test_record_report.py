@@ -61,7 +61,7 @@ from formation.record import READY_PREFIX, Recorder, start_recorder
 from formation.replay import LivenessChange, Replay, read_recording
 from formation.report import leader_losses
 from formation.runlog import RunLog
-from formation.tap import BusItem, BusTap
+from runtime.tap import BusItem, BusTap
 
 FLEET = "demo"
 DT = 0.02

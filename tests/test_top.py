@@ -12,9 +12,9 @@ from conftest import RouterHandle, Spawner
 from test_live_foxglove import FLEET, FleetPublisher
 
 from bus_schemas import Assignment, Message, Pose, Slot, Status, encode, keys
-from formation.tap import BusItem
 from formation.top import FleetStatus
 from formation.top import main as top_main
+from runtime.tap import BusItem
 
 S = 1_000_000_000  # ns
 
