@@ -24,7 +24,6 @@ from bus_schemas.messages import (
     MESSAGE_TYPES,
     Assignment,
     Clock,
-    CoordinatorRole,
     CoordinatorStatus,
     Disturbance,
     DisturbanceKind,
@@ -33,12 +32,10 @@ from bus_schemas.messages import (
     Leader,
     Message,
     Mode,
-    PlantState,
     PlantStatus,
     Pose,
     PoseBatch,
     Role,
-    RunMode,
     Setpoint,
     SetpointBatch,
     Slot,
@@ -51,6 +48,7 @@ from bus_schemas.messages import (
     message_type,
     message_type_for_key,
 )
+from bus_schemas.messages_status import CoordinatorRole, PlantState, RunMode
 from bus_schemas.spec import (
     MAX_LIST_LEN,
     MAX_MAP_LEN,

@@ -69,46 +69,7 @@ from .messages_fields import (
     Mode,
     Role,
 )
-from .messages_status import (
-    CoordinatorRole,
-    CoordinatorStatus,
-    PlantState,
-    PlantStatus,
-    RunMode,
-)
-
-__all__ = [
-    "BATCH_CHUNK",
-    "MESSAGE_TYPES",
-    "Assignment",
-    "Clock",
-    "CoordinatorRole",
-    "CoordinatorStatus",
-    "Disturbance",
-    "DisturbanceKind",
-    "Estop",
-    "Heartbeat",
-    "Leader",
-    "Message",
-    "Mode",
-    "PlantState",
-    "PlantStatus",
-    "Pose",
-    "PoseBatch",
-    "Role",
-    "RunMode",
-    "Setpoint",
-    "SetpointBatch",
-    "Slot",
-    "Status",
-    "StatusBatch",
-    "Truth",
-    "TruthBatch",
-    "Wheels",
-    "WheelsBatch",
-    "message_type",
-    "message_type_for_key",
-]
+from .messages_status import CoordinatorStatus, PlantStatus
 
 
 @message(name=keys.LEADER, publisher="coordinator", periodic=True)
