@@ -204,7 +204,7 @@ def measure(
         "rss_mib": rss,
         "collisions": plant.get("collisions"),
         "min_separation_m": plant.get("min_separation_m"),
-        "coordinator": {"tick_ms": s1.get("tick_ms")},
+        "coordinator": {"tick_ms": {"p50": s1.get("tick_p50_ms"), "max": s1.get("tick_max_ms")}},
     }
 
 

@@ -302,6 +302,13 @@ def f_robot_id_list(description: str) -> dict[str, FieldSpec]:
     )
 
 
+def f_name_list(description: str) -> dict[str, FieldSpec]:
+    """A list of fleet / coordinator names (``keys.NAME_PATTERN``)."""
+    return _meta(
+        FieldSpec(Kind.STR_LIST, description, pattern=keys.NAME_PATTERN, max_len=MAX_LIST_LEN)
+    )
+
+
 def f_count_map(
     description: str,
     *,

@@ -69,7 +69,7 @@ KEY_TEMPLATES: dict[str, str] = {
     ALIVE_ROBOT: "formation/{fleet}/alive/robot/{robot}",
     ALIVE_COORDINATOR: "formation/{fleet}/alive/coordinator/{name}",
     ALIVE_PLANT: "formation/{fleet}/alive/plant",
-    # node status maps (free-form msgpack maps, not contract messages: see docs/observability.md)
+    # the status of the fleet's processes (bus_schemas.messages_status)
     COORDINATOR_STATUS: "formation/{fleet}/coordinator/{name}/status",
     PLANT_STATUS: "formation/{fleet}/plant/status",
 }
@@ -78,6 +78,8 @@ KEY_TEMPLATES: dict[str, str] = {
 _FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS})
 # formation/<fleet>/host/<name>/<leaf> -> message name
 _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
+# formation/<fleet>/coordinator/<name>/<leaf> -> message name
+_COORDINATOR_LEAVES = {HEARTBEAT: HEARTBEAT, STATUS: COORDINATOR_STATUS}
 
 
 class KeyInfo(NamedTuple):
@@ -312,6 +314,11 @@ def all_host_status_pattern(fleet: str) -> str:
     return f"{_fleet_prefix(fleet)}/host/*/{STATUS}"
 
 
+def all_coordinator_status_pattern(fleet: str) -> str:
+    """``formation/<fleet>/coordinator/*/status``: the status of every coordinator instance."""
+    return f"{_fleet_prefix(fleet)}/coordinator/*/{STATUS}"
+
+
 def all_heartbeats_pattern(fleet: str) -> str:
     """``formation/<fleet>/coordinator/*/heartbeat``."""
     return f"{_fleet_prefix(fleet)}/coordinator/*/{HEARTBEAT}"
@@ -365,8 +372,11 @@ def parse_key(key: str) -> KeyInfo | None:
         if _NAME_MATCH(parts[3]) is None:
             return None
         return KeyInfo(fleet, _HOST_LEAVES[parts[4]], name=parts[3])
-    if kind == "coordinator" and n == 5 and parts[4] == HEARTBEAT:
-        return KeyInfo(fleet, HEARTBEAT, name=parts[3]) if _NAME_MATCH(parts[3]) else None
+    if kind == "coordinator" and n == 5 and parts[4] in _COORDINATOR_LEAVES:
+        leaf = _COORDINATOR_LEAVES[parts[4]]
+        return KeyInfo(fleet, leaf, name=parts[3]) if _NAME_MATCH(parts[3]) else None
+    if kind == "plant" and n == 4 and parts[3] == STATUS:
+        return KeyInfo(fleet, PLANT_STATUS)
     if kind == "alive":
         if n == 4 and parts[3] == "plant":
             return KeyInfo(fleet, ALIVE_PLANT)

@@ -72,6 +72,7 @@ from .messages_fields import (
     Mode,
     Role,
 )
+from .messages_status import CoordinatorStatus, PlantStatus
 
 
 @message(name=keys.LEADER, publisher="coordinator", periodic=True)
@@ -447,6 +448,8 @@ Message = (
     | SetpointBatch
     | WheelsBatch
     | StatusBatch
+    | CoordinatorStatus
+    | PlantStatus
 )
 """Any bus message."""
 
@@ -468,6 +471,8 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     SetpointBatch,
     WheelsBatch,
     StatusBatch,
+    CoordinatorStatus,
+    PlantStatus,
 )
 
 BATCH_CHUNK = 256

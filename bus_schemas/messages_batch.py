@@ -29,32 +29,13 @@ from bus_schemas.spec import (
     message,
 )
 
-from .messages_fields import (
-    _SEQ,
-    _T,
-    _V,
-    Mode,
-    Role,
-)
+from .messages_fields import Mode, Role, _Periodic
 
 
-@message(
-    name=keys.POSES,
-    publisher="localization (batched frame)",
-    periodic=True,
-    rules=(SameLength(("robots", "x", "y", "theta")),),
-)
 @dataclass(frozen=True, slots=True, kw_only=True)
-class PoseBatch:
-    """Poses of many robots measured at one instant `stamp`, as parallel arrays (one frame).
+class _PoseFrame(_Periodic):
+    """Poses of many robots as parallel arrays (PoseBatch, TruthBatch)."""
 
-    `t` is when the frame was published. A fleet larger than the list bound is sent as several
-    frames with the same `stamp`.
-    """
-
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
     x: tuple[float, ...] = field(
         metadata=f_float_list("x of each axle centre", "m", lo=-_POS, hi=_POS)
@@ -63,6 +44,25 @@ class PoseBatch:
         metadata=f_float_list("y of each axle centre", "m", lo=-_POS, hi=_POS)
     )
     theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
+
+
+_FRAME_RULES = (SameLength(("robots", "x", "y", "theta")),)
+
+
+@message(
+    name=keys.POSES,
+    publisher="localization (batched frame)",
+    periodic=True,
+    rules=_FRAME_RULES,
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PoseBatch(_PoseFrame):
+    """Poses of many robots measured at one instant `stamp`, as parallel arrays (one frame).
+
+    `t` is when the frame was published. A fleet larger than the list bound is sent as several
+    frames with the same `stamp`.
+    """
+
     stamp: float = field(
         metadata=f_float(
             "measurement (capture) time of the frame, same clock as t", "s", lo=0.0, hi=_TMAX
@@ -74,27 +74,16 @@ class PoseBatch:
     name=keys.TRUTHS,
     publisher="plant only (batched frame)",
     periodic=True,
-    rules=(SameLength(("robots", "x", "y", "theta")),),
+    rules=_FRAME_RULES,
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
-class TruthBatch:
+class TruthBatch(_PoseFrame):
     """True poses of many simulated robots at one instant `stamp`, as parallel arrays.
 
     The batched form of `robot/<id>/truth` for large fleets; a fleet larger than the list bound
     (or than :data:`BATCH_CHUNK`) is sent as several messages with the same `stamp`.
     """
 
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per pose"))
-    x: tuple[float, ...] = field(
-        metadata=f_float_list("x of each axle centre", "m", lo=-_POS, hi=_POS)
-    )
-    y: tuple[float, ...] = field(
-        metadata=f_float_list("y of each axle centre", "m", lo=-_POS, hi=_POS)
-    )
-    theta: tuple[float, ...] = field(metadata=f_angle_list("heading of each robot"))
     stamp: float = field(
         metadata=f_float("sim time of these true poses, same clock as t", "s", lo=0.0, hi=_TMAX)
     )
@@ -107,7 +96,7 @@ class TruthBatch:
     rules=(SameLength(("robots", "slot", "role", "stage", "x", "y", "vx", "vy")),),
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
-class SetpointBatch:
+class SetpointBatch(_Periodic):
     """The setpoints of many robots of one coordinator tick, as parallel arrays.
 
     The batched form of `robot/<id>/setpoint` for large fleets (agent hosts read it); the
@@ -116,9 +105,6 @@ class SetpointBatch:
     as several messages (same `t`, consecutive `seq`) when the fleet exceeds one batch.
     """
 
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per setpoint"))
     slot: tuple[int, ...] = field(
         metadata=f_int_list("assigned slot of each robot", hi=keys.MAX_SLOT)
@@ -152,16 +138,13 @@ class SetpointBatch:
     rules=(SameLength(("robots", "omega_r", "omega_l", "power_r", "power_l", "pose_t", "mode")),),
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
-class WheelsBatch:
+class WheelsBatch(_Periodic):
     """Wheel commands of the robots an agent host runs, from one control step, parallel arrays.
 
     The batched form of `robot/<id>/wheels` (same meaning per entry). `pose_t` of an entry is
     negative when no pose was used (the robot is idle): `Wheels.pose_t` nil.
     """
 
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per command"))
     omega_r: tuple[float, ...] = field(
         metadata=f_float_list("right wheel angular speed command", "rad/s", lo=-_WHEEL, hi=_WHEEL)
@@ -206,12 +189,9 @@ class WheelsBatch:
     ),
 )  # fmt: skip
 @dataclass(frozen=True, slots=True, kw_only=True)
-class StatusBatch:
+class StatusBatch(_Periodic):
     """Health of the robots an agent host runs (the batched form of `robot/<id>/status`)."""
 
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
     pid: int = field(metadata=f_int("OS process id of the agent host", hi=2**31 - 1))
     host: str = field(metadata=f_str("host name the agent host runs on"))
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids"))

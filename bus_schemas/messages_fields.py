@@ -8,6 +8,7 @@ Split out of messages.py (issue 12); the enums are still importable from
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 from bus_schemas.spec import POSITION_MAX_M as _POS
@@ -115,3 +116,12 @@ _POSE_Y = f_float("y of the robot's axle centre, world frame", "m", lo=-_POS, hi
 
 
 _POSE_THETA = f_angle("heading of the robot, world frame, counter-clockwise from +x")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _Periodic:
+    """The head of a periodic message (v, t, seq), for the tables that inherit it."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)

@@ -30,6 +30,7 @@ import numpy.typing as npt
 
 from coordinator.trajectory import LeaderState, wrap_angle
 
+from .shapes import chevron_rows, grow_rows, lattice_rows
 from .slots import (
     FORMATION_KINDS,
     LEADER_SLOT,
@@ -219,29 +220,7 @@ class FormationSpec:
         stays centred. No two slots are closer than ``b_m``.
         """
         owner = "FormationSpec.chevron"
-        n_i = _count(owner, n)
-        b = _finite(owner, "b_m", b_m)
-        rows: list[tuple[int, int | None, float, float]] = [(0, None, 0.0, 0.0)]
-        ids: dict[tuple[int, int, int], int] = {}  # (stage, side +1 left / -1 right, k) -> slot
-        stage = 1
-        while len(rows) < n_i:
-            for k in range(1, stage + 1):
-                for side in (1, -1):
-                    if len(rows) >= n_i:
-                        break
-                    slot = len(rows)
-                    if stage == 1:
-                        parent, bb = LEADER_SLOT, b
-                        phi = math.pi / 3.0 if side > 0 else 2.0 * math.pi / 3.0
-                    elif k < stage:
-                        parent, bb, phi = ids[(stage - 1, side, k)], b, math.pi / 2.0
-                    else:
-                        parent, bb = ids[(stage - 1, side, k - 1)], math.sqrt(2.0) * b
-                        phi = math.pi / 4.0 if side > 0 else 3.0 * math.pi / 4.0
-                    ids[(stage, side, k)] = slot
-                    rows.append((slot, parent, bb, phi))
-            stage += 1
-        return cls.from_tree(rows)
+        return cls.from_tree(chevron_rows(_count(owner, n), _finite(owner, "b_m", b_m)))
 
     @classmethod
     def lattice(cls, n: int, b_m: float = 0.4) -> FormationSpec:
@@ -254,26 +233,7 @@ class FormationSpec:
         before right. ``lattice(3)`` is the triangle.
         """
         owner = "FormationSpec.lattice"
-        n_i = _count(owner, n)
-        b = _finite(owner, "b_m", b_m)
-        rows: list[tuple[int, int | None, float, float]] = [(0, None, 0.0, 0.0)]
-        ids: dict[tuple[int, int], int] = {(0, 0): LEADER_SLOT}  # (stage, 2 y / b) -> slot
-        stage = 1
-        while len(rows) < n_i:
-            # 2 y / b for the s + 1 slots of the row, ordered centre out, left (+y) first.
-            keys = sorted(range(-stage, stage + 1, 2), key=lambda q: (abs(q), -q))
-            for q in keys:
-                if len(rows) >= n_i:
-                    break
-                slot = len(rows)
-                if q > 0:  # left half: behind-left of the neighbour ahead on the centre side
-                    parent, phi = ids[(stage - 1, q - 1)], math.pi / 3.0
-                else:  # right half and centre: behind-right of the neighbour ahead on its left
-                    parent, phi = ids[(stage - 1, q + 1)], 2.0 * math.pi / 3.0
-                ids[(stage, q)] = slot
-                rows.append((slot, parent, b, phi))
-            stage += 1
-        return cls.from_tree(rows)
+        return cls.from_tree(lattice_rows(_count(owner, n), _finite(owner, "b_m", b_m)))
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> FormationSpec:
@@ -538,8 +498,6 @@ def slot_arrays(spec: FormationSpec, leader: LeaderState) -> tuple[FloatArray, F
 
 # -- staged growth (paper Fig 2b) ----------------------------------------------------------------
 
-_GROW_TOL: Final = 1e-6  # relative tolerance on the spacing (float noise of summed offsets)
-
 
 def first_stage_pattern(spec: FormationSpec) -> tuple[tuple[float, float], ...]:
     """The ``(b_m, phi_rad)`` of the leader's children (the first stage), in definition order:
@@ -606,57 +564,10 @@ def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
     spacing = formation_spacing_m(spec)
     if not spacing > COINCIDE_M:
         raise ValueError(f"{owner}: two slots of the formation coincide (spacing {spacing} m)")
-    min_d = spacing * (1.0 - _GROW_TOL)
-    merge_d = spacing * _GROW_TOL
-    q = spacing * _GROW_TOL  # quantum for ordering keys (float noise must not reorder)
-    offs = spec.body_offsets_m
-    pts: list[tuple[float, float]] = [(float(x), float(y)) for x, y in offs]
-    stage_of: dict[int, int] = {s.slot: s.stage for s in spec.slots}
-    off_of: dict[int, tuple[float, float]] = {s.slot: pts[i] for i, s in enumerate(spec.slots)}
-    last_spec_stage = spec.n_stages - 1
-    next_id = max(stage_of) + 1
-    placed = np.array(pts, dtype=np.float64)
-    stage = 1
-    while len(rows) < n_i:
-        parents = [r[0] for r in rows if stage_of[r[0]] == stage - 1]
-        # candidates: [x, y, parent, b, phi, (parent |y|, -parent y, generation index)]
-        cands: list[list[Any]] = []
-        gen = 0
-        for p in parents:
-            px, py = off_of[p]
-            for b, phi in pattern:
-                x, y = px - b * math.sin(phi), py + b * math.cos(phi)
-                pref = (round(abs(py) / q), -round(py / q), gen)
-                for c in cands:
-                    if math.hypot(c[0] - x, c[1] - y) <= merge_d:
-                        if pref < c[5]:  # a parent nearer the centre line takes the shared slot
-                            c[2:6] = [p, b, phi, pref]
-                        break
-                else:
-                    cands.append([x, y, p, b, phi, pref])
-                gen += 1
-
-        added = 0
-        # centre out, left (+y) before right, front to back, then generation order
-        cands.sort(key=lambda c: (round(abs(c[1]) / q), -round(c[1] / q), -round(c[0] / q), c[5]))
-        for c in cands:
-            if len(rows) >= n_i:
-                break
-            x, y = c[0], c[1]
-            if float(np.min(np.hypot(placed[:, 0] - x, placed[:, 1] - y))) < min_d:
-                continue
-            rows.append((next_id, c[2], c[3], c[4]))
-            stage_of[next_id] = stage
-            off_of[next_id] = (x, y)
-            placed = np.vstack([placed, [[x, y]]])
-            next_id += 1
-            added += 1
-        if added == 0 and stage > last_spec_stage:
-            raise ValueError(
-                f"{owner}: the first-stage pattern cannot place slot {len(rows)} at stage {stage} "
-                f"without coming closer than {spacing:.3g} m to another slot"
-            )
-        stage += 1
+    stages = [s.stage for s in spec.slots]
+    return FormationSpec.from_tree(
+        grow_rows(rows, stages, spec.body_offsets_m, pattern, n_i, spacing, owner)
+    )
     return FormationSpec.from_tree(rows)
 
 

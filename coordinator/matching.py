@@ -25,7 +25,7 @@ from __future__ import annotations
 import functools
 import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Final, Literal
 
 import numpy as np
@@ -204,6 +204,40 @@ def greedy_ordered(
     return _greedy_np(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst, tol)
 
 
+def _incumbent_slots(
+    robot_ids: Sequence[str], incumbent: Mapping[str, int] | None, hyst: float
+) -> list[int | None] | None:
+    """Each robot's incumbent slot (column order), or None when no hysteresis applies."""
+    return list(map(incumbent.get, robot_ids)) if (incumbent and hyst > 0.0) else None
+
+
+def _slot_costs(
+    srow: Sequence[float],
+    sid: int,
+    rxy: Sequence[tuple[float, float]],
+    cols: Iterable[int],
+    inc: list[int | None] | None,
+    hyst: float,
+) -> list[float]:
+    """The costs of slot ``sid`` at ``srow`` (x, y first) for the robots of columns ``cols``, in
+    plain Python: eq 6 as cdist computes it (sqrt(dx*dx + dy*dy)), less the hysteresis margin
+    ``hyst`` (m) where the robot is the slot's incumbent (``inc``: :func:`_incumbent_slots`).
+    The one cost rule of the plain-Python greedy and optimal solvers."""
+    sqrt = math.sqrt
+    sx = srow[0]
+    sy = srow[1]
+    out: list[float] = []
+    for i in cols:
+        rx, ry = rxy[i]
+        dx = sx - rx
+        dy = sy - ry
+        c = sqrt(dx * dx + dy * dy)
+        if inc is not None and inc[i] == sid:
+            c -= hyst
+        out.append(c)
+    return out
+
+
 def greedy_py(
     robot_ids: Sequence[str],
     rxy: Sequence[tuple[float, float]],
@@ -226,26 +260,15 @@ def greedy_py(
     one, raising the errors of :meth:`RoleAssigner.update_ordered`.
     """
     n = len(robot_ids)
-    inc = list(map(incumbent.get, robot_ids)) if (incumbent and hyst > 0.0) else None
-    sqrt = math.sqrt
+    inc = _incumbent_slots(robot_ids, incumbent, hyst)
     free = list(range(n))  # untaken columns, ascending = natural id order
     got: list[int | None] = [None] * n  # robot column -> slot id
     total = 0.0
     for j in range(k):
         sid = slot_ids[j]
-        srow = sxy[j]
-        sx = srow[0]
-        sy = srow[1]
-        costs: list[float] = []
+        costs = _slot_costs(sxy[j], sid, rxy, free, inc, hyst)
         best = math.inf
-        for i in free:
-            rx, ry = rxy[i]
-            dx = sx - rx
-            dy = sy - ry
-            c = sqrt(dx * dx + dy * dy)
-            if inc is not None and inc[i] == sid:
-                c -= hyst
-            costs.append(c)
+        for c in costs:
             total += c
             if c < best:
                 best = c
@@ -315,22 +338,9 @@ def _cost_matrix_py(
 ) -> FloatArray:
     """:func:`_costs`' adjusted cost (first ``k`` slots x robots) built in plain Python: for small
     fleets cheaper than cdist's call overhead, and the same numbers (sqrt(dx*dx + dy*dy))."""
-    inc = list(map(incumbent.get, robot_ids)) if (incumbent and hyst > 0.0) else None
-    sqrt = math.sqrt
-    rows: list[list[float]] = []
-    for j in range(k):
-        sid = slot_ids[j]
-        sx = sxy[j][0]
-        sy = sxy[j][1]
-        row: list[float] = []
-        for i, (rx, ry) in enumerate(rxy):
-            dx = sx - rx
-            dy = sy - ry
-            c = sqrt(dx * dx + dy * dy)
-            if inc is not None and inc[i] == sid:
-                c -= hyst
-            row.append(c)
-        rows.append(row)
+    inc = _incumbent_slots(robot_ids, incumbent, hyst)
+    cols = range(len(robot_ids))
+    rows = [_slot_costs(sxy[j], slot_ids[j], rxy, cols, inc, hyst) for j in range(k)]
     return np.array(rows, dtype=np.float64).reshape(k, len(robot_ids))
 
 

@@ -28,13 +28,12 @@ from collections.abc import Iterable, Mapping
 from dataclasses import replace
 from typing import Any, Final
 
-import msgpack
-
 import runtime as rt
 from bus_schemas import (
     BATCH_CHUNK,
     Assignment,
     Clock,
+    CoordinatorStatus,
     DecodeError,
     Estop,
     Heartbeat,
@@ -48,6 +47,7 @@ from bus_schemas import (
     decode,
     encode,
     keys,
+    to_map,
 )
 from coordinator.core import CoordinatorOutput, pose_stale_s
 from coordinator.election import Election, Takeover
@@ -600,39 +600,44 @@ class CoordinatorNode:
 
     # -- periodic ------------------------------------------------------------------------------
 
-    def status_map(self, now_s: float) -> dict[str, Any]:
-        """The status map (see the module docstring)."""
+    def status(self, now_s: float) -> CoordinatorStatus:
+        """The status message (bus_schemas.CoordinatorStatus)."""
         last = self.last
-        return {
-            "v": 1,
-            "t": max(now_s, 0.0),
-            "seq": self._next_seq(self.status_key),
-            "name": self.name,
-            "mode": "lockstep" if self.lockstep else "realtime",
-            "rejected": self.rejected,
-            "rejects": self.rejects.as_dict(),
-            "internal_errors": self.internal_errors,
-            "rx": dict(self.rx),
-            "ticks": self.ticks,
-            "alive": sorted(self.alive),
-            "assignment": dict(sorted(last.assignment.items())) if last is not None else {},
-            "leader": last.leader_robot if last is not None else None,
-            "role": "active" if self.active else "standby",
-            "epoch": self.epoch,
-            "takeovers": self.election.takeovers,
-            "stepdowns": self.election.stepdowns,
-            "pid": os.getpid(),
-            "host": _HOST,
-            "tick_ms": _tick_ms(self.tick_s),
-            "estop": {"fleet": self.estop.fleet, "robots": sorted(self.estop.robots)[:64]},
-        }
+        tick_ms = sorted(self.tick_s)
+        return CoordinatorStatus(
+            t=max(now_s, 0.0),
+            seq=self._next_seq(self.status_key),
+            name=self.name,
+            mode="lockstep" if self.lockstep else "realtime",
+            role="active" if self.active else "standby",
+            epoch=self.epoch,
+            takeovers=self.election.takeovers,
+            stepdowns=self.election.stepdowns,
+            ticks=self.ticks,
+            alive=tuple(sorted(self.alive)),
+            assignment=dict(last.assignment) if last is not None else {},
+            leader=last.leader_robot if last is not None else None,
+            estop_fleet=self.estop.fleet,
+            estop_robots=tuple(sorted(self.estop.robots)[:64]),
+            rejected=self.rejected,
+            rejects=self.rejects.as_dict(),
+            internal_errors=self.internal_errors,
+            rx=dict(self.rx),
+            pid=os.getpid(),
+            host=_HOST,
+            tick_p50_ms=1e3 * tick_ms[len(tick_ms) // 2] if tick_ms else None,
+            tick_max_ms=1e3 * tick_ms[-1] if tick_ms else None,
+        )
+
+    def status_map(self, now_s: float) -> dict[str, Any]:
+        """The status as its wire map (what :meth:`publish_status` encodes)."""
+        return to_map(self.status(now_s))
 
     def publish_status(self) -> None:
-        """Publish the status map and (every call) nothing else; never raises."""
+        """Publish the status and (every call) nothing else; never raises."""
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
-            payload: bytes = msgpack.packb(self.status_map(now), use_bin_type=True)
-            self._publish(self.status_key, payload, rt.QOS_TELEMETRY)
+            self._publish(self.status_key, encode(self.status(now)), rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("status", exc)
 
@@ -713,14 +718,6 @@ async def attach_estop_source(node: CoordinatorNode, io: rt.NodeIO) -> None:
 
 
 _HOST: Final = socket.gethostname()[:255] or "unknown"
-
-
-def _tick_ms(samples: Iterable[float]) -> dict[str, float] | None:
-    """p50 and max (ms) of the recent ticks' compute-and-publish times, None before any."""
-    ordered = sorted(samples)
-    if not ordered:
-        return None
-    return {"p50": 1e3 * ordered[len(ordered) // 2], "max": 1e3 * ordered[-1]}
 
 
 def _describe(assignment: Mapping[str, int]) -> str:

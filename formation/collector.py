@@ -8,8 +8,10 @@ all drive it.
 
 What it listens to (the bus contract, docs/bus.md): ``robot/<id>/truth`` (rows), ``leader``,
 ``slot/<k>``, ``assignment``, ``robot/<id>/wheels`` (motor power), ``robot/<id>/status`` (mode,
-live view) and ``clock``. Every payload is decoded with the strict ``bus_schemas`` decoder; a bad
-one is counted (``rejected``) and otherwise ignored.
+live view, and the safety filter counters ``filter`` / ``min_clearance_m`` of each robot's newest
+status: ``RunLog.filter_counts``, ``filter_source`` ``"status"``) and ``clock``. Every payload
+is decoded with the strict ``bus_schemas`` decoder; a bad one is counted (``rejected``) and
+otherwise ignored.
 
 Rows
 ----
@@ -36,7 +38,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any, Final
 
 import numpy as np
@@ -58,10 +59,12 @@ from bus_schemas import (
     decode,
     keys,
 )
+from formation.collector_build import RowSources, fill_rows
+from formation.collector_series import Series
 from formation.runlog import MODE_CODES, RunLog
+from formation.up_view import LiveRobot, LiveView
 from robot_agent.kinematics import reference_point
 from scenario import Scenario
-from sim_plant.accounting import SeparationMonitor
 
 __all__ = ["LiveRobot", "LiveView", "RunCollector", "key_patterns", "slot_ids_of"]
 
@@ -101,76 +104,6 @@ def slot_ids_of(scn: Scenario) -> list[int]:
     from coordinator.formation import FormationSpec
 
     return [s.slot for s in FormationSpec.from_dict(dict(scn.formation)).slots]
-
-
-@dataclass(frozen=True)
-class LiveRobot:
-    """One robot as last seen on the bus (for a status display)."""
-
-    robot: str
-    alive: bool | None  # liveliness token present (None: not watched)
-    slot: int | None  # from the latest assignment
-    role: str | None  # from the latest status
-    mode: str | None  # from the latest status
-    error_m: float | None  # |reference point (truth) - assigned slot|, metres
-    rejected: int | None  # the agent's own count of rejected messages
-    power: tuple[float, float] | None  # latest wheel command (right, left), fraction of max
-
-
-@dataclass(frozen=True)
-class LiveView:
-    """Snapshot of a run in progress."""
-
-    t_s: float | None  # time of the latest truth frame (sim time / since the first frame), s
-    tick: int | None  # latest clock tick (lockstep)
-    leader: str | None  # robot holding slot 0
-    min_distance_m: float | None  # smallest centre distance, latest truth of each robot, m
-    robots: list[LiveRobot]
-    rejected: int  # payloads the collector itself rejected
-
-
-@dataclass
-class _Series:
-    """Time-stamped values of one quantity, appended in arrival order.
-
-    A decimated series (``stride`` > 1, set by the collector's memory bound) keeps one value in
-    ``stride`` of those added."""
-
-    keys: list[float] = field(default_factory=list)
-    values: list[Any] = field(default_factory=list)
-    stride: int = 1
-    _seen: int = 0
-
-    def add(self, key: float, value: Any) -> int:
-        """Store the value (or skip it, decimated); returns how many entries were stored."""
-        self._seen += 1
-        if self.stride > 1 and self._seen % self.stride:
-            return 0
-        self.keys.append(key)
-        self.values.append(value)
-        return 1
-
-    def halve(self) -> None:
-        """Keep every other stored value (the first kept) and double the stride."""
-        self.keys = self.keys[::2]
-        self.values = self.values[::2]
-        self.stride *= 2
-
-    def sorted(self) -> tuple[F64, list[Any]]:
-        order = sorted(range(len(self.keys)), key=self.keys.__getitem__)  # stable: arrival order
-        return np.array([self.keys[i] for i in order], dtype=float), [self.values[i] for i in order]
-
-    def latest(self) -> Any:
-        return self.values[-1] if self.values else None
-
-
-def _sample_at(series: _Series, rows: F64) -> list[Any]:
-    """For every row key, the latest value with key <= the row key (None before the first)."""
-    k, v = series.sorted()
-    if k.size == 0:
-        return [None] * rows.size
-    idx = np.searchsorted(k, rows, side="right") - 1
-    return [v[i] if i >= 0 else None for i in idx.tolist()]
 
 
 class RunCollector:
@@ -231,12 +164,15 @@ class RunCollector:
         self._index = {rid: i for i, rid in enumerate(self.robot_ids)}
         # truth rows: row key -> {robot index: (x, y, theta)}
         self._truth: dict[float, dict[int, tuple[float, float, float]]] = {}
-        self._leader = _Series()
-        self._slots: dict[int, _Series] = {}
-        self._assignment = _Series()
-        self._wheels = [_Series() for _ in self.robot_ids]
-        self._modes = [_Series() for _ in self.robot_ids]
+        self._leader = Series()
+        self._slots: dict[int, Series] = {}
+        self._assignment = Series()
+        self._wheels = [Series() for _ in self.robot_ids]
+        self._modes = [Series() for _ in self.robot_ids]
         self._status: list[Status | None] = [None] * len(self.robot_ids)
+        # the safety filter counters of each robot's newest status (by t), None before any
+        self._filter: list[dict[str, Any] | None] = [None] * len(self.robot_ids)
+        self._filter_t: list[float] = [-math.inf] * len(self.robot_ids)
         self._latest_truth: list[tuple[float, float, float] | None] = [None] * len(robot_ids)
         self._alive: dict[str, bool] = {}
         self._last_truth_key: float | None = None
@@ -295,7 +231,7 @@ class RunCollector:
         self._row_decision = (row, keep)
         return keep
 
-    def _thinned_series(self) -> list[_Series]:
+    def _thinned_series(self) -> list[Series]:
         return [self._leader, *self._wheels, *self._slots.values()]
 
     def _stored(self, n: int) -> None:
@@ -315,8 +251,8 @@ class RunCollector:
             if self.stride >= 1 << 20:
                 break
 
-    def _series(self) -> _Series:
-        return _Series(stride=self.stride)
+    def _series(self) -> Series:
+        return Series(stride=self.stride)
 
     def _reject(self, reason: str) -> bool:
         self.rejected += 1
@@ -393,6 +329,9 @@ class RunCollector:
                 return self._reject(f"status: {status.reason}")
             self._status[i] = status
             self._modes[i].add(self._row_key(status.t), MODE_CODES.get(status.mode, 0))
+            if status.filter is not None:
+                counts = {**status.filter, "min_clearance_m": status.min_clearance_m}
+                self._filter_counters(i, status.t, counts)
         else:  # clock
             clock = decode(payload, Clock)
             if isinstance(clock, DecodeError):
@@ -444,6 +383,17 @@ class RunCollector:
                     host=sb.host, rejected=rejected, ex=ex, ey=ey, robot=rid,
                 )  # fmt: skip
                 self._modes[i].add(self._row_key(sb.t), MODE_CODES.get(mode, 0))
+            if sb.filter_active is not None:  # no tick count in the batched form
+                filters = zip(
+                    sb.robots, sb.filter_active, sb.filter_violations or (),
+                    sb.filter_infeasible or (), sb.filter_tiebreaks or (), strict=False,
+                )  # fmt: skip
+                for rid, active, violations, infeasible, tiebreaks in filters:
+                    i = index.get(rid)
+                    if i is not None:
+                        counts = {"active": active, "violations": violations,
+                                  "infeasible": infeasible, "tiebreaks": tiebreaks}  # fmt: skip
+                        self._filter_counters(i, sb.t, counts)
         else:  # setpoints: the assigned slots' positions of every tick (slot keys come at 1 Hz)
             sp = decode(payload, SetpointBatch)
             if isinstance(sp, DecodeError):
@@ -454,6 +404,12 @@ class RunCollector:
                 stored += self._slots.setdefault(slot, self._series()).add(row, (x, y))
             self._stored(stored)
         return True
+
+    def _filter_counters(self, i: int, t: float, counts: dict[str, Any]) -> None:
+        """Robot ``i``'s safety filter counters as of its status at ``t`` (the newest kept: the
+        counters only grow, and a status may arrive after a newer one)."""
+        if t >= self._filter_t[i]:
+            self._filter[i], self._filter_t[i] = counts, t
 
     def feed_alive(self, key: str, alive: bool) -> None:
         """A liveliness token of this fleet appeared (``alive``) or vanished."""
@@ -581,78 +537,33 @@ class RunCollector:
         slot_ids = (
             self.slot_ids if self.slot_ids is not None else sorted(self._slots)  # seen on the bus
         )
-        n, T = len(self.robot_ids), rows.size
-        log = RunLog.allocate(self.robot_ids, slot_ids, T)
-        if T == 0:
-            log.meta = {**dict(meta or {}), "collector": self.stats(info)}
-            return log
-
-        # truth, holding a robot's previous pose across a dropped sample
-        gaps = 0
-        last: list[tuple[float, float, float] | None] = [None] * n
-        for r, k in enumerate(rows.tolist()):
-            frame = self._truth[k]
-            for i in range(n):
-                pose = frame.get(i)
-                if pose is None:
-                    gaps += last[i] is not None
-                    pose = last[i]
-                if pose is not None:
-                    log.truth[r, i] = pose
-                    last[i] = pose
-        info["truth_gaps"] = gaps
-        if self.dt_s is not None:
-            log.t_s[:] = rows * self.dt_s
-        else:
-            t0 = self.t0_s if self.t0_s is not None else float(rows[0])
-            log.t_s[:] = rows - t0
-        l_m = self.ref_offset_m
-        log.ref[:, :, 0] = log.truth[:, :, 0] + l_m * np.cos(log.truth[:, :, 2])
-        log.ref[:, :, 1] = log.truth[:, :, 1] + l_m * np.sin(log.truth[:, :, 2])
-
-        for r, v in enumerate(_sample_at(self._leader, rows)):
-            if v is not None:
-                log.leader[r] = v
-        slot_row = {s: m for m, s in enumerate(slot_ids)}
-        for s, series in self._slots.items():
-            m = slot_row.get(s)
-            if m is None:
-                continue
-            for r, v in enumerate(_sample_at(series, rows)):
-                if v is not None:
-                    log.slot_xy[r, m] = v
-        for r, a in enumerate(_sample_at(self._assignment, rows)):
-            if a is None:
-                continue
-            for rid, slot in a.items():
-                j = self._index.get(rid)
-                if j is None:
-                    continue
-                log.slot_of[r, j] = slot
-                m = slot_row.get(slot)
-                if m is not None:
-                    log.target[r, j] = log.slot_xy[r, m]
-        for i in range(n):
-            for r, v in enumerate(_sample_at(self._wheels[i], rows)):
-                if v is not None:
-                    log.power[r, i] = v
-            for r, v in enumerate(_sample_at(self._modes[i], rows)):
-                if v is not None:
-                    log.mode[r, i] = v
-
-        monitor = SeparationMonitor(self.body_radius_m)
-        for r in range(T):
-            monitor.update(float(log.t_s[r]), log.truth[r])
-        log.min_separation_m = float(monitor.min_separation_m)
-        log.collisions = [
-            {
-                "t_s": float(e.t_s),
-                "i": self.robot_ids[e.i],
-                "j": self.robot_ids[e.j],
-                "distance_m": float(e.distance_m),
-            }
-            for e in monitor.collisions
-        ]
+        log = RunLog.allocate(self.robot_ids, slot_ids, rows.size)
+        if rows.size:
+            if self.dt_s is not None:
+                t_s = rows * self.dt_s
+            else:
+                t_s = rows - (self.t0_s if self.t0_s is not None else float(rows[0]))
+            info["truth_gaps"] = fill_rows(
+                log,
+                rows,
+                t_s,
+                RowSources(
+                    truth=self._truth,
+                    leader=self._leader,
+                    slots=self._slots,
+                    assignment=self._assignment,
+                    wheels=self._wheels,
+                    modes=self._modes,
+                ),
+                ref_offset_m=self.ref_offset_m,
+                body_radius_m=self.body_radius_m,
+            )
+        log.filter_counts = {
+            rid: dict(counts)
+            for rid, counts in zip(self.robot_ids, self._filter, strict=True)
+            if counts is not None
+        }
+        log.filter_source = "status" if log.filter_counts else None
         log.meta = {**dict(meta or {}), "collector": self.stats(info)}
         return log
 

@@ -5,9 +5,10 @@ and answer agents that start or resume. This tool publishes the operator's ``est
 (twice, 20 ms apart, against a lost sample), then watches the robots' ``status`` for
 ``ack_s`` seconds: a robot *acknowledged* an e-stop when a status received after the publish
 says mode ``estop``, a release when it says another mode. It also reads the coordinators'
-latched state from their status (``estop``), so the report says whether a durable source holds
-it. ``estop`` with no acknowledging robot is a failure (the caller exits non-zero); a release
-reports the robots still stopped (another scope may hold them).
+latched state from their status (``CoordinatorStatus.estop_fleet``, ``estop_robots``), so the
+report says whether a durable source holds it. ``estop`` with no acknowledging robot is a
+failure (the caller exits non-zero); a release reports the robots still stopped (another scope
+may hold them).
 """
 
 from __future__ import annotations
@@ -17,10 +18,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-import msgpack
-
 import runtime as rt
-from bus_schemas import DecodeError, Estop, Status, decode, encode, keys
+from bus_schemas import CoordinatorStatus, DecodeError, Estop, Status, decode, encode, keys
 
 __all__ = ["ACK_WAIT_S", "EstopReport", "send_estop"]
 
@@ -68,20 +67,12 @@ class EstopReport:
 def _coordinator_latched(
     payload: bytes, engage: bool, robot: str | None
 ) -> tuple[str, bool] | None:
-    try:
-        m = msgpack.unpackb(payload, raw=False)
-    except Exception:
+    """``(name, the coordinator's latched state matches engage)`` from its status, or None."""
+    st = decode(payload, CoordinatorStatus)
+    if isinstance(st, DecodeError):
         return None
-    if not isinstance(m, dict) or not isinstance(m.get("name"), str):
-        return None
-    st = m.get("estop")
-    if not isinstance(st, dict):
-        return None
-    fleet = st.get("fleet") is True
-    listed = st.get("robots")
-    robots: list[Any] = listed if isinstance(listed, list) else []
-    held = fleet if robot is None else robot in robots
-    return m["name"], held == engage
+    held = st.estop_fleet if robot is None else robot in st.estop_robots
+    return st.name, held == engage
 
 
 async def send_estop(
@@ -117,7 +108,7 @@ async def send_estop(
 
     subs = [
         rt.subscribe(session, keys.all_status_pattern(fleet), loop, on_status),
-        rt.subscribe(session, f"{keys.ROOT}/{fleet}/coordinator/*/status", loop, on_coordinator),
+        rt.subscribe(session, keys.all_coordinator_status_pattern(fleet), loop, on_coordinator),
     ]
     try:
         for _ in range(2):

@@ -63,11 +63,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import msgpack
-
 import runtime as rt
 from bus_schemas import (
     Assignment,
+    CoordinatorStatus,
     DecodeError,
     Disturbance,
     Status,
@@ -271,14 +270,6 @@ def _decoded(kind: Any, accept: Callable[[Any], bool] = lambda m: True) -> Calla
     return parse
 
 
-def _plain_map(payload: bytes) -> Any:
-    try:
-        value = msgpack.unpackb(payload, raw=False)
-    except Exception:
-        return None
-    return value if isinstance(value, dict) else None
-
-
 def _check_local(host: Any, what: str) -> None:
     here = socket.gethostname()[:255] or "unknown"
     if host != here:
@@ -427,25 +418,18 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:
             t = _signal(pid, _SIG[action])
             return f"{_DONE[action]} agent host {name} (pid {pid}) at t={t:.6f}"
         if cmd == "kill-coordinator":
-            key = f"{keys.ROOT}/{fleet}/coordinator/*/status"
+            key = keys.all_coordinator_status_pattern(fleet)
             name = ns.name
 
-            def parse(payload: bytes) -> Any:
-                m = _plain_map(payload)
-                if m is None or not isinstance(m.get("pid"), int):
-                    return None
-                if not isinstance(m.get("name"), str):
-                    return None
-                if name is not None:
-                    return m if m.get("name") == name else None
-                return m if m.get("role", "active") == "active" else None
+            def wanted(m: CoordinatorStatus) -> bool:
+                return m.name == name if name is not None else m.role == "active"
 
-            st = await bus.newest(key, parse)
+            st = await bus.newest(key, _decoded(CoordinatorStatus, wanted))
             if st is None:
                 raise FaultError(f"no status of coordinator {name or '(active)'} within timeout")
-            cname = str(st["name"])
-            _check_local(st.get("host"), f"coordinator {cname}")
-            pid = _verified(int(st["pid"]), "coordinator", cname, where, f"coordinator {cname}")
+            cname = st.name
+            _check_local(st.host, f"coordinator {cname}")
+            pid = _verified(st.pid, "coordinator", cname, where, f"coordinator {cname}")
             t = _signal(pid, signal.SIGKILL)
             return f"killed coordinator {cname} (pid {pid}) at t={t:.6f}"
         if cmd == "drag":

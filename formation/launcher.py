@@ -34,9 +34,10 @@ DRAIN_S: Final = 0.25
 REALTIME_END_GRACE_S: Final = 1.5
 """Realtime: how long after --duration the launcher stops a plant that did not end the run."""
 FIFO_CAPACITY: Final = 1 << 14
-"""Samples Zenoh buffers per subscription for the collector (drained every CONSUME_PERIOD_S): a
-bound on the launcher's memory (each sample is at most runtime.transport.MAX_MESSAGE_BYTES); a
-300-robot batched fleet puts ~10 samples per key expression in one period."""
+"""Samples buffered per collector key expression (the inbox holds this many per pattern, drained
+every CONSUME_PERIOD_S): a bound on the launcher's memory (each sample is at most
+runtime.transport.MAX_MESSAGE_BYTES); a 300-robot batched fleet puts ~10 samples per key
+expression in one period. Overflow drops the oldest and counts (``inbox.dropped``)."""
 COLLECTOR_MAX_ENTRIES: Final = 1_500_000
 """Realtime: values the collector keeps before it thins the run's history (formation.collector,
 ``max_entries``; ~200 MiB at most). 300 robots fill it in ~30 s, 10 robots in ~50 min."""
@@ -83,6 +84,7 @@ class _Launcher:
         self.first_truth_rx: float | None = None
         self.last_truth_rx: float | None = None
         self._subscribers: list[Any] = []
+        self._inbox: Any = None  # runtime.Inbox("queue") of the collector's samples
         display = cfg.display
         if cfg.quiet:
             display = "none"
@@ -372,8 +374,6 @@ class _Launcher:
         self.say(f"  {len(agents)} {what:<9} ready in {slowest:.2f} s (slowest)")
 
     async def _open_session(self) -> None:
-        import zenoh
-
         import runtime as rt
 
         loop = asyncio.get_running_loop()
@@ -387,14 +387,12 @@ class _Launcher:
                 open_timeout_s=5.0,
             )
         self.session = await rt.open_session_async(settings)
-        # Zenoh buffers the samples in its own FIFO and the loop drains it every CONSUME_PERIOD_S:
-        # no Python callback per sample on Zenoh's threads, no loop wake-up per burst. On two
-        # cores this keeps the launcher from slowing down the lockstep it is watching. The
-        # collector does not need the order across keys (it places samples by tick / time).
-        self._subscribers = [
-            self.session.declare_subscriber(p, zenoh.handlers.FifoChannel(FIFO_CAPACITY))
-            for p in key_patterns(self.cfg.fleet)
-        ]
+        # The one bridge (runtime.bridge) into a queue inbox that the loop drains every
+        # CONSUME_PERIOD_S: one loop wake-up per burst, not per sample, so on two cores the
+        # launcher does not slow down the lockstep it is watching.
+        patterns = key_patterns(self.cfg.fleet)
+        self._inbox = rt.Inbox("queue", maxlen=FIFO_CAPACITY * len(patterns))
+        self._subscribers = [rt.subscribe(self.session, p, loop, self._inbox) for p in patterns]
         rt.watch_liveliness(
             self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive
         )
@@ -459,13 +457,13 @@ class _Launcher:
             )
 
     def _drain_subscribers(self) -> None:
-        """Feed every sample buffered by Zenoh to the collector."""
+        """Feed every sample the inbox holds to the collector."""
         truth_leaves = (f"/{keys.TRUTH}", f"/{keys.TRUTHS}")  # per robot, or batched
         feed = self.collector.feed
-        for sub in self._subscribers:
-            while (sample := sub.try_recv()) is not None:
-                key = str(sample.key_expr)
-                if feed(key, sample.payload.to_bytes()) and key.endswith(truth_leaves):
+        if self._inbox is not None:
+            for rx in self._inbox.drain():
+                key = rx.key
+                if feed(key, rx.payload) and key.endswith(truth_leaves):
                     now = time.monotonic()
                     if self.first_truth_rx is None:
                         self.first_truth_rx = now
@@ -617,8 +615,11 @@ class _Launcher:
         t0 = time.monotonic()
         await self._stop_children(self.nodes)
         if self.session is not None:
+            await asyncio.sleep(0)  # the inbox takes what the bridge handed over
             self._drain_subscribers()  # what arrived before the nodes stopped
             self._subscribers = []
+            if self._inbox is not None and self._inbox.dropped:
+                self.warn(f"the collector's inbox overflowed: {self._inbox.dropped} samples lost")
             await self._stop_observers()
             with contextlib.suppress(Exception):
                 self.session.close()

@@ -21,7 +21,7 @@ Foxglove layout serves both):
   so a 3D panel can follow one robot.
 
 Robots are drawn at their measured ``pose`` (what the controllers see), or at ``truth`` when no
-pose has arrived (simulation only). Threading: a :class:`formation.tap.BusTap` worker decodes
+pose has arrived (simulation only). Threading: a :class:`runtime.tap.BusTap` worker decodes
 and logs; the SDK's server runs on its own threads.
 """
 
@@ -54,8 +54,8 @@ from formation.bus_json import (
     unpack_map,
 )
 from formation.scene import SCENE_TOPIC, TF_TOPIC, SceneModel
-from formation.tap import BusItem, BusTap
 from robot_agent.params import RobotGeometry
+from runtime.tap import BusItem, BusTap
 
 DEFAULT_HOST: Final = "127.0.0.1"
 DEFAULT_PORT: Final = 8765

@@ -8,13 +8,15 @@ robot's initial assignment, every role change after it with its time (a clean ru
 the leader's identity over time.
 
 Safety (issue 14), under the ``safety`` key (not ``run``: a recording and the simulator agree on
-``run`` tick for tick, while the filter counters are known only where the firmware is):
+``run`` tick for tick, while a distributed run knows the filter counters only as of each agent's
+last status):
 minimum separation, the time some pair of centres is closer than the safety distance Ds, the
 boundary violations (a body overlapping an obstacle or over the arena's edge, from the truth,
 counted once per entry like a collision), and from the robots' safety filter counters the
 filter-active fraction, the deadlock tie-breaks, the barrier violations and the infeasible ticks
-(``filter_source`` says where those came from: ``"firmware"`` in-process; ``null`` when the run
-did not report them, e.g. a recording whose status messages do not carry them).
+(``filter_source`` says where those came from: ``"firmware"`` in-process; ``"status"`` from the
+agents' ``Status.filter`` on the bus (formation.collector: each robot's last status, so up to
+one status period behind the end of the run); ``null`` when the run did not report them).
 """
 
 from __future__ import annotations
@@ -227,18 +229,24 @@ def safety_metrics(log: RunLog) -> dict[str, Any]:
     out["min_boundary_clearance_m"] = _finite_or_none(min_gap)
     counts = log.filter_counts
     if counts:
+        # an agent host's batched status carries no tick count: no fraction for its robots
+        fraction_known = all("ticks" in c for c in counts.values())
         ticks = sum(int(c.get("ticks", 0)) for c in counts.values())
         active = sum(int(c.get("active", 0)) for c in counts.values())
-        out["filter_source"] = "firmware"
-        out["filter_active_fraction"] = active / ticks if ticks else 0.0
+        out["filter_source"] = log.filter_source
+        out["filter_active_fraction"] = (
+            (active / ticks if ticks else 0.0) if fraction_known else None
+        )
         out["tiebreaks"] = sum(int(c.get("tiebreaks", 0)) for c in counts.values())
         out["filter_violations"] = sum(int(c.get("violations", 0)) for c in counts.values())
         out["filter_infeasible"] = sum(int(c.get("infeasible", 0)) for c in counts.values())
         out["filter_per_robot"] = {
             rid: {
-                "active_fraction": int(c.get("active", 0)) / int(c["ticks"])
-                if c.get("ticks")
-                else 0.0,
+                "active_fraction": (
+                    int(c.get("active", 0)) / int(c["ticks"]) if c["ticks"] else 0.0
+                )
+                if "ticks" in c
+                else None,
                 "tiebreaks": int(c.get("tiebreaks", 0)),
                 "violations": int(c.get("violations", 0)),
             }

@@ -86,7 +86,8 @@ from formation.bus_json import (
     tracking_error,
     unpack_map,
 )
-from formation.tap import DEFAULT_QUEUE_LEN, BusItem, BusTap, LatencyTracker
+from formation.latency import LatencyTracker
+from runtime.tap import DEFAULT_QUEUE_LEN, BusItem, BusTap
 
 READY_PREFIX: Final = "recording "
 """Start of the line ``formation record`` prints on stdout once it is subscribed."""

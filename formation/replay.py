@@ -30,8 +30,8 @@ from bus_schemas import (
     message_type_for_key,
 )
 from formation.collector import RunCollector
+from formation.latency import LatencySample, LatencyTracker
 from formation.record import METADATA_NAME, RAW_PREFIX, RUN_METADATA_NAME, STATS_METADATA_NAME
-from formation.tap import LatencySample, LatencyTracker
 from robot_agent.params import RobotGeometry
 
 

@@ -52,6 +52,7 @@ from bus_schemas import (
     keys,
 )
 from formation import metrics as metrics_mod
+from formation.latency import LatencySample
 from formation.replay import (
     LivenessChange,
     Recording,
@@ -65,7 +66,6 @@ from formation.replay import (
     scenario_of,
 )
 from formation.runlog import RunLog
-from formation.tap import LatencySample
 
 MIN_RUN_AFTER_LOSS_S: Final = 1.0
 """A leader's token loss counts only if the run went on at least this long after it (s): the
@@ -268,8 +268,8 @@ def analyze(
     log = collector.build(meta)
     if log.t_s.size == 0:
         raise ReportError(f"{rec.path}: no complete truth frame of fleet {fleet!r}")
-    if scn is not None:  # safety accounting (issue 14): from the truth; no filter counters on
-        # the bus, so the filter-active fraction and tie-breaks are null (metrics.safety_metrics)
+    if scn is not None:  # safety accounting (issue 14): from the truth; the filter counters
+        # come from the agents' status (formation.collector, metrics.safety_metrics)
         metrics_mod.attach_agent(log, scn.agent)
     duration = float(log.t_s[-1] - log.t_s[0])
     if settle_s is None:

@@ -48,11 +48,14 @@ class RunLog:
     # Safety accounting (issue 14; formation.metrics.safety_metrics). body_radius_m and
     # safety_distance_m (Ds) NaN when unknown; world the scenario's WorldMap (obstacles, arena)
     # or None; filter_counts robot id -> the firmware's safety filter counters
-    # (SafetyFilterStatus.as_dict()), empty when unknown (a recording without them).
+    # (SafetyFilterStatus.as_dict()), empty when unknown (a recording without them);
+    # filter_source where they come from: "firmware" (the in-process simulator's objects),
+    # "status" (the agents' last Status on the bus: formation.collector), None (unknown).
     body_radius_m: float = float("nan")
     safety_distance_m: float = float("nan")
     world: Any = None
     filter_counts: dict[str, dict[str, Any]] = field(default_factory=dict)
+    filter_source: str | None = "firmware"
 
     @classmethod
     def allocate(cls, robot_ids: list[str], slot_ids: list[int], ticks: int) -> RunLog:

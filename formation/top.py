@@ -8,8 +8,9 @@ One row per robot (every robot seen in a key or a liveliness token): liveliness,
 and role (the coordinator's ``assignment`` and ``slot/<k>``), firmware mode and tracking error
 (the agent's ``status``: hypot(ex, ey), eqs 17-18), message rates per key over the last
 ``--window`` seconds (pose, setpoint, wheels, status, truth), the agent's count of rejected
-messages, and the age of its last message. A header says who is alive (plant, coordinators),
-who leads, and the latest clock tick (lockstep).
+messages, and the age of its last message. A header says who is alive (plant, coordinators,
+with the plant's state and each coordinator's role and epoch from their status), who leads, and
+the latest clock tick (lockstep).
 
 Batched fleets (``formation up --hosts H``, docs/scale.md) have no per-robot keys: their robots
 are read out of the batches, with the same columns. ``host/<name>/status`` (``StatusBatch``)
@@ -39,7 +40,9 @@ import runtime as rt
 from bus_schemas import (
     Assignment,
     Clock,
+    CoordinatorStatus,
     DecodeError,
+    PlantStatus,
     PoseBatch,
     SetpointBatch,
     Slot,
@@ -50,7 +53,7 @@ from bus_schemas import (
     keys,
 )
 from formation.bus_json import alive_kind, decode_sample
-from formation.tap import BusItem, BusTap
+from runtime.tap import BusItem, BusTap
 
 RATE_LEAVES: Final = (keys.POSE, keys.SETPOINT, keys.WHEELS, keys.STATUS, keys.TRUTH)
 """Per-robot keys whose message rate is shown, in column order."""
@@ -121,6 +124,7 @@ class FleetStatus:
         self.slot_roles: dict[int, str] = {}
         self.tick: int | None = None
         self.others: dict[str, bool] = {}  # "plant", "coordinator/<name>" -> alive
+        self.node_status: dict[str, str] = {}  # the same names -> a word from their status
         self.samples = 0
         self.rejected = 0
         self._first_rx_ns: int | None = None  # rates over min(window, time listened)
@@ -173,6 +177,10 @@ class FleetStatus:
                 self.slot_roles[msg.slot] = msg.role
             elif isinstance(msg, Clock):
                 self.tick = msg.tick
+            elif isinstance(msg, CoordinatorStatus):
+                self.node_status[f"coordinator/{msg.name}"] = f"{msg.role}, epoch {msg.epoch}"
+            elif isinstance(msg, PlantStatus):
+                self.node_status["plant"] = msg.state
 
     def _arrival(self, rid: str, leaf: str, rx_ns: int) -> None:
         st = self._robot(rid)
@@ -256,7 +264,9 @@ class FleetStatus:
         with self._lock:
             parts = [f"fleet {self.fleet}"]
             for name in sorted(self.others):
-                parts.append(f"{name} {'up' if self.others[name] else 'DOWN'}")
+                said = self.node_status.get(name)
+                extra = f" ({said})" if said and self.others[name] else ""
+                parts.append(f"{name} {'up' if self.others[name] else 'DOWN'}{extra}")
             leader = self.assignment.leader if self.assignment is not None else None
             parts.append(f"leader {leader or '-'}")
             if self.tick is not None:

@@ -1,12 +1,40 @@
 """What ``formation up`` shows while a run goes: the live table (robot, slot, role, mode,
-tracking error, rejected) on a terminal, or a one-line summary."""
+tracking error, rejected) on a terminal, or a one-line summary, from a :class:`LiveView` (the
+snapshot ``formation.collector.RunCollector.live()`` takes)."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
-from formation.collector import LiveView
+__all__ = ["LiveRobot", "LiveView", "format_line", "format_table"]
+
+
+@dataclass(frozen=True)
+class LiveRobot:
+    """One robot as last seen on the bus (for a status display)."""
+
+    robot: str
+    alive: bool | None  # liveliness token present (None: not watched)
+    slot: int | None  # from the latest assignment
+    role: str | None  # from the latest status
+    mode: str | None  # from the latest status
+    error_m: float | None  # |reference point (truth) - assigned slot|, metres
+    rejected: int | None  # the agent's own count of rejected messages
+    power: tuple[float, float] | None  # latest wheel command (right, left), fraction of max
+
+
+@dataclass(frozen=True)
+class LiveView:
+    """Snapshot of a run in progress."""
+
+    t_s: float | None  # time of the latest truth frame (sim time / since the first frame), s
+    tick: int | None  # latest clock tick (lockstep)
+    leader: str | None  # robot holding slot 0
+    min_distance_m: float | None  # smallest centre distance, latest truth of each robot, m
+    robots: list[LiveRobot]
+    rejected: int  # payloads the collector itself rejected
 
 
 def _fmt_opt(v: Any, fmt: str = "{}", none: str = "-") -> str:

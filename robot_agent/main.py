@@ -27,7 +27,8 @@ from bus_schemas import (
     keys,
 )
 from robot_agent.motors import MotorBackend, create_backend
-from robot_agent.node import AgentNode, LoopMode, MotorOutput, attach_estop_state
+from robot_agent.node import AgentNode, LoopMode, MotorOutput
+from robot_agent.node_estop import attach_estop_state
 from robot_agent.params import AgentConfig
 from runtime.sdnotify import Notifier
 

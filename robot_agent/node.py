@@ -20,7 +20,7 @@ import math
 import os
 import socket
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final, Literal
 
@@ -40,9 +40,8 @@ from bus_schemas import (
     encode,
     keys,
 )
-from bus_schemas.spec import POSITION_MAX_M
 from robot_agent.clocksync import ClockOffsets
-from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, ESTOP_REFRESH_S, EstopLatch
+from robot_agent.estop import ESTOP_REFRESH_S, EstopLatch
 from robot_agent.firmware import Firmware, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
@@ -54,24 +53,20 @@ from robot_agent.neighbours import (
     neighbour,
 )
 from robot_agent.params import AgentConfig
-from robot_agent.safety_filter import Neighbour, SafetyFilterStatus
+from robot_agent.safety_filter import Neighbour
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
 from .node_motor import (
     MotorOutput,
 )
+from .node_status import clearance_or_none, filter_counters, status_tracking
 
-__all__ = ["NEIGHBOUR_STALE_S", "AgentNode", "MotorOutput", "attach_estop_state"]
+__all__ = ["NEIGHBOUR_STALE_S", "AgentNode", "MotorOutput", "Publish", "status_tracking"]
 
 MAX_NEIGHBOURS: Final = 1024
 """Distinct neighbour ids kept (a flood of made-up ids cannot grow memory without bound)."""
 LoopMode = Literal["on-pose", "fixed"]
-
-
-# ---------------------------------------------------------------------------------------------
-# Motor seam
-# ---------------------------------------------------------------------------------------------
 
 
 # ---------------------------------------------------------------------------------------------
@@ -97,19 +92,6 @@ def clock_wheels(msg: Clock) -> dict[str, tuple[float, float]]:
     if msg.enc_robots is None or msg.enc_wr is None or msg.enc_wl is None:
         return {}
     return {r: (a, b) for r, a, b in zip(msg.enc_robots, msg.enc_wr, msg.enc_wl, strict=True)}
-
-
-def status_tracking(key: str, payload: bytes) -> tuple[str, bool] | DecodeError | str:
-    """A robot's ``status`` on ``key``: ``(robot id, its mode is TRACKING)``, or why it is
-    refused (a decode error, or a ``robot`` field that is not the key's id). The one reading of
-    a neighbour's status for the agent and the agent host."""
-    parsed = keys.parse_robot_key(key)
-    msg = decode(payload, Status)
-    if isinstance(msg, DecodeError):
-        return msg
-    if parsed is None or (msg.robot is not None and msg.robot != parsed[1]):
-        return f"robot {msg.robot!r} on key {key[:100]!r}"
-    return parsed[1], msg.mode == "tracking"
 
 
 class AgentNode:
@@ -583,7 +565,7 @@ class AgentNode:
             robot=self.robot_id,
             rejects=self.rejects.as_dict(),
             filter=None if flt is None else filter_counters(flt),
-            min_clearance_m=None if flt is None else _clearance(flt.min_clearance_m),
+            min_clearance_m=None if flt is None else clearance_or_none(flt.min_clearance_m),
         )
 
     def publish_status(self) -> None:
@@ -606,73 +588,3 @@ class AgentNode:
         if not self.lockstep:
             self.stall.watch_sigcont()  # a late loop is no stop (runtime.stall)
         await run_timers(self, stop, notifier)
-
-
-def filter_counters(flt: SafetyFilterStatus) -> dict[str, int]:
-    """The safety filter's counters as the status message carries them (``Status.filter``)."""
-    return {
-        "ticks": flt.ticks,
-        "active": flt.active_ticks,
-        "violations": flt.violations,
-        "infeasible": flt.infeasible,
-        "tiebreaks": flt.tiebreaks,
-        "tiebreak_active": int(flt.tiebreak_active),
-        "rescaled": flt.rescaled,
-        "rejected": flt.rejected,
-        "constraints": flt.constraints,
-    }
-
-
-def _clearance(h: float) -> float | None:
-    """``Status.min_clearance_m``: nil while nothing was in range (inf), clamped to its bounds."""
-    if not math.isfinite(h):
-        return None
-    return max(-2.0 * POSITION_MAX_M, min(2.0 * POSITION_MAX_M, h))
-
-
-# ---------------------------------------------------------------------------------------------
-# The latched e-stop state (robot_agent.estop) over a query
-# ---------------------------------------------------------------------------------------------
-
-
-def estop_answers(node: AgentNode, payloads: Sequence[bytes]) -> list[tuple[bool, str | None]]:
-    """Decode a query's answer (Estop messages); invalid ones are counted as rejects."""
-    out: list[tuple[bool, str | None]] = []
-    for payload in payloads:
-        msg = decode(payload, Estop)
-        if isinstance(msg, DecodeError):
-            node._reject("estop_state", msg)
-            continue
-        out.append((msg.engage, msg.robot))
-    return out
-
-
-async def attach_estop_state(node: AgentNode, io: rt.NodeIO) -> None:
-    """Subscribe to ``estop``, ask the coordinators for the latched state *now* (so an agent
-    that starts or restarts under an e-stop comes up stopped) and install the hook that asks
-    again on resume and every ``ESTOP_REFRESH_S`` (realtime). Call it before the subscriptions
-    that make the robot move."""
-    from runtime.query import Querier
-
-    io.subscribe(node.estop_key, node.on_estop)
-
-    def on_replies(payloads: Sequence[bytes], before: int) -> None:
-        node.on_estop_state(estop_answers(node, payloads), before)
-
-    querier = Querier(
-        io.session, io.loop, node.estop_key, on_replies, timeout_s=ESTOP_QUERY_TIMEOUT_S
-    )
-    before = node.estop_messages
-    try:
-        payloads = await io.loop.run_in_executor(None, querier.run_now)
-    except Exception as exc:  # no answer: start from the messages alone
-        node._internal("estop_query", exc)
-        payloads = []
-    node.on_estop_state(estop_answers(node, payloads), before)
-    node.estop_queried_s = time.monotonic()
-    io._keep.append(querier)
-
-    def ask() -> None:
-        querier.request(node.estop_messages)
-
-    node.estop_query = ask

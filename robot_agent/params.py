@@ -51,6 +51,34 @@ def _non_negative(name: str, value: float) -> None:
     )
 
 
+def _finite(name: str, value: float) -> None:
+    _require(
+        isinstance(value, (int, float)) and math.isfinite(value),
+        f"{name} must be finite, got {value!r}",
+    )
+
+
+def _check_fields(
+    obj: object,
+    *,
+    positive: tuple[str, ...] = (),
+    non_negative: tuple[str, ...] = (),
+    finite: tuple[str, ...] = (),
+    flags: tuple[str, ...] = (),
+) -> None:
+    """The bounds checks of a parameter set, by field name: bools, finite numbers, finite numbers
+    > 0, finite numbers >= 0 (in that order). Raises ValueError naming the first bad field."""
+    for name in flags:
+        value = getattr(obj, name)
+        _require(isinstance(value, bool), f"{name} must be a bool, got {value!r}")
+    for name in finite:
+        _finite(name, getattr(obj, name))
+    for name in positive:
+        _positive(name, getattr(obj, name))
+    for name in non_negative:
+        _non_negative(name, getattr(obj, name))
+
+
 @dataclass(frozen=True, slots=True)
 class RobotGeometry:
     """Geometry and actuator limits of a differential-drive robot.
@@ -71,11 +99,13 @@ class RobotGeometry:
     ref_offset_m: float = 0.05
 
     def __post_init__(self) -> None:
-        _positive("wheel_radius_m", self.wheel_radius_m)
-        _positive("half_track_m", self.half_track_m)
-        _positive("max_wheel_radps", self.max_wheel_radps)
-        _positive("body_radius_m", self.body_radius_m)
-        _positive("ref_offset_m", self.ref_offset_m)
+        _check_fields(
+            self,
+            positive=(
+                "wheel_radius_m", "half_track_m", "max_wheel_radps", "body_radius_m",
+                "ref_offset_m",
+            ),
+        )  # fmt: skip
 
     @property
     def max_speed_mps(self) -> float:
@@ -109,12 +139,11 @@ class TrackingGains:
     max_ref_speed_mps: float = 0.25
 
     def __post_init__(self) -> None:
-        _non_negative("kp", self.kp)
-        _positive("ti_s", self.ti_s)
-        _non_negative("td_s", self.td_s)
-        _non_negative("d_filter_tau_s", self.d_filter_tau_s)
-        _non_negative("integral_limit_ms", self.integral_limit_ms)
-        _positive("max_ref_speed_mps", self.max_ref_speed_mps)
+        _check_fields(
+            self,
+            non_negative=("kp", "td_s", "d_filter_tau_s", "integral_limit_ms"),
+            positive=("ti_s", "max_ref_speed_mps"),
+        )
 
 
 # Default repulsion gain. The push at distance d (< d0) is k_rep * (1/d - 1/d0) / d^2. It was
@@ -197,9 +226,7 @@ class SafetyParams:
     max_dt_s: float = 0.2
 
     def __post_init__(self) -> None:
-        _positive("stale_pose_s", self.stale_pose_s)
-        _positive("stale_setpoint_s", self.stale_setpoint_s)
-        _positive("max_dt_s", self.max_dt_s)
+        _check_fields(self, positive=("stale_pose_s", "stale_setpoint_s", "max_dt_s"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -289,13 +316,7 @@ class CircleObstacle:
     radius_m: float
 
     def __post_init__(self) -> None:
-        for name in ("x", "y"):
-            v = getattr(self, name)
-            _require(
-                isinstance(v, (int, float)) and math.isfinite(v),
-                f"{name} must be finite, got {v!r}",
-            )
-        _non_negative("radius_m", self.radius_m)
+        _check_fields(self, finite=("x", "y"), non_negative=("radius_m",))
 
 
 @dataclass(frozen=True, slots=True)
@@ -310,13 +331,7 @@ class SegmentObstacle:
     radius_m: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("x1", "y1", "x2", "y2"):
-            v = getattr(self, name)
-            _require(
-                isinstance(v, (int, float)) and math.isfinite(v),
-                f"{name} must be finite, got {v!r}",
-            )
-        _non_negative("radius_m", self.radius_m)
+        _check_fields(self, finite=("x1", "y1", "x2", "y2"), non_negative=("radius_m",))
 
 
 @dataclass(frozen=True, slots=True)
@@ -329,12 +344,7 @@ class Arena:
     y_max: float
 
     def __post_init__(self) -> None:
-        for name in ("x_min", "y_min", "x_max", "y_max"):
-            v = getattr(self, name)
-            _require(
-                isinstance(v, (int, float)) and math.isfinite(v),
-                f"{name} must be finite, got {v!r}",
-            )
+        _check_fields(self, finite=("x_min", "y_min", "x_max", "y_max"))
         _require(self.x_min < self.x_max, "arena x_min must be < x_max")
         _require(self.y_min < self.y_max, "arena y_min must be < y_max")
 

@@ -3,8 +3,9 @@
 One floor above the contract (``bus_schemas``) and below the process shells (docs/architecture.md):
 
 * :mod:`runtime.transport`: Zenoh settings, config, sessions, QoS, publishers;
-* :mod:`runtime.bridge`: the one subscription bridge (Zenoh thread -> event loop, ordered),
-  ``Inbox``, liveliness tokens and watches;
+* :mod:`runtime.bridge`: the one subscription bridge (Zenoh's network thread -> a loop
+  callback in arrival order, an ``Inbox``, or :mod:`runtime.tap`'s worker thread), liveliness
+  tokens and watches;
 * :mod:`runtime.lifecycle`: ``run_node`` (signals, bounded shutdown) and ``serve``, the one node
   bootstrap;
 * :mod:`runtime.log` (``NodeLog``), :mod:`runtime.timers` (the agent timer loop),
@@ -22,7 +23,9 @@ from runtime.bridge import (
     SampleHandler,
     declare_token,
     subscribe,
+    subscribe_on_thread,
     watch_liveliness,
+    watch_liveliness_on_thread,
 )
 from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve
 from runtime.log import NodeLog
@@ -86,5 +89,7 @@ __all__ = [
     "serve",
     "settings_from_args",
     "subscribe",
+    "subscribe_on_thread",
     "watch_liveliness",
+    "watch_liveliness_on_thread",
 ]

@@ -1,15 +1,23 @@
-"""The one bridge from Zenoh's threads to a node's asyncio event loop, and liveliness.
+"""The one bridge from Zenoh's threads to the code that consumes a sample, and liveliness.
 
-Zenoh runs subscriber callbacks on its own threads. :func:`subscribe` installs a callback that
-runs on Zenoh's network thread (``indirect=False``): it only copies the sample (key, payload
-bytes, ``time.monotonic()`` receive time) and hands it to the loop, never blocks and never calls
-Zenoh. Running on the network thread keeps the order of samples *across* keys of one session
-(zenoh-python's default runs each subscriber on a thread of its own, so a plant's pose could be
-overtaken by its next clock); lockstep relies on that order (docs/runtime.md).
+Zenoh runs subscriber callbacks on its own threads. Every subscription of the project is
+declared here (:func:`subscribe_on_thread`, :func:`watch_liveliness_on_thread`): the callback
+runs on Zenoh's network thread (``indirect=False`` for samples), only copies the sample into a
+:class:`Received` (key, payload bytes, receive time) and pushes it on, never blocks, never calls
+Zenoh and never lets an exception escape. Running on the network thread keeps the order of
+samples *across* keys of one session (zenoh-python's default runs each subscriber on a thread
+of its own, so a plant's pose could be overtaken by its next clock); lockstep relies on that
+order (docs/runtime.md).
 
-The handler is either a callable run on the loop with one :class:`Received` per sample, in
-arrival order (every process shell), or an :class:`Inbox` that keeps the newest sample per key
-or a bounded FIFO and wakes the loop once per burst (tools and benches that poll).
+Where the sample goes is the consumer's choice, one of three:
+
+* a callable run on an asyncio loop with one :class:`Received` per sample, in arrival order
+  (:func:`subscribe` with a callable: every process shell);
+* an :class:`Inbox` read from the loop: the newest sample per key, or a bounded FIFO drained in
+  batches, waking the loop once per burst (:func:`subscribe` with an Inbox: the launcher's
+  collector, tools and benches that poll);
+* one worker thread fed through a bounded queue (:class:`runtime.tap.BusTap`: the recorder, the
+  live view and ``formation top``, whose handlers may be slow and must not hold up a loop).
 """
 
 from __future__ import annotations
@@ -28,11 +36,14 @@ import zenoh
 __all__ = [
     "Inbox",
     "LivelinessHandler",
+    "Push",
     "Received",
     "SampleHandler",
     "declare_token",
     "subscribe",
+    "subscribe_on_thread",
     "watch_liveliness",
+    "watch_liveliness_on_thread",
 ]
 
 # --------------------------------------------------------------------------------------------
@@ -56,14 +67,18 @@ class Received:
     payload: bytes
     rx_s: float
     deleted: bool = False
+    rx_ns: int = 0
+    """``rx_s`` in integer nanoseconds (``time.monotonic_ns()``; 0 where a test built it)."""
 
 
 def _to_received(sample: zenoh.Sample) -> Received:
+    ns = time.monotonic_ns()
     return Received(
-        key=str(sample.key_expr),
-        payload=sample.payload.to_bytes(),
-        rx_s=time.monotonic(),
-        deleted=sample.kind == zenoh.SampleKind.DELETE,
+        str(sample.key_expr),
+        sample.payload.to_bytes(),
+        ns / 1e9,  # == time.monotonic() at that instant
+        sample.kind == zenoh.SampleKind.DELETE,
+        ns,
     )
 
 
@@ -221,6 +236,24 @@ class Inbox:
 
 
 SampleHandler = Callable[[Received], object]
+Push = Callable[[Received], object]
+"""Called on Zenoh's network thread with each sample: must be quick, must not block."""
+
+
+def subscribe_on_thread(
+    session: zenoh.Session, key_expr: str, push: Push
+) -> zenoh.Subscriber[None]:
+    """The Zenoh-thread half of the bridge: call ``push(Received)`` on Zenoh's network thread
+    for every sample on ``key_expr``, in the order the session received them (across keys too).
+    Exceptions of ``push`` are dropped (nothing may escape into Zenoh's thread). The subscriber
+    stays declared until ``undeclare()`` or the session closes, even if the returned object is
+    dropped (zenoh 1.x)."""
+
+    def on_sample(sample: zenoh.Sample) -> None:  # Zenoh network thread
+        with contextlib.suppress(Exception):  # e.g. the loop closed at shutdown: drop it
+            push(_to_received(sample))
+
+    return session.declare_subscriber(key_expr, zenoh.handlers.Callback(on_sample, indirect=False))
 
 
 def subscribe(
@@ -233,29 +266,14 @@ def subscribe(
     order the session received them (across keys too: see the module docstring).
 
     ``handler`` is a callable run on the loop thread with one :class:`Received` per sample, or
-    an :class:`Inbox`. A callback subscriber stays declared until ``undeclare()`` or the session
-    closes, even if the returned object is dropped (zenoh 1.x).
+    an :class:`Inbox`.
     """
     if isinstance(handler, Inbox):
-        inbox = handler
-        inbox.bind(loop)
-
-        def on_sample_inbox(sample: zenoh.Sample) -> None:  # Zenoh network thread
-            with contextlib.suppress(Exception):  # nothing may escape into Zenoh's thread
-                inbox.push(_to_received(sample))
-
-        return session.declare_subscriber(
-            key_expr, zenoh.handlers.Callback(on_sample_inbox, indirect=False)
-        )
-
+        handler.bind(loop)
+        return subscribe_on_thread(session, key_expr, handler.push)
     fn = handler
-
-    def on_sample(sample: zenoh.Sample) -> None:  # Zenoh network thread
-        # The loop closed at shutdown: drop the sample; nothing may escape into Zenoh's thread.
-        with contextlib.suppress(Exception):
-            loop.call_soon_threadsafe(fn, _to_received(sample))
-
-    return session.declare_subscriber(key_expr, zenoh.handlers.Callback(on_sample, indirect=False))
+    call_soon = loop.call_soon_threadsafe
+    return subscribe_on_thread(session, key_expr, lambda rx: call_soon(fn, rx))
 
 
 # --------------------------------------------------------------------------------------------
@@ -273,6 +291,20 @@ def declare_token(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
 LivelinessHandler = Callable[[str, bool], object]
 
 
+def watch_liveliness_on_thread(
+    session: zenoh.Session, pattern: str, push: Push, *, history: bool = True
+) -> zenoh.Subscriber[None]:
+    """The Zenoh-thread half for liveliness: ``push(Received)`` on a Zenoh thread when a token
+    matching ``pattern`` appears (``deleted`` False) or disappears (``deleted`` True); the
+    payload is empty. With ``history`` the tokens already alive are reported once."""
+
+    def on_sample(sample: zenoh.Sample) -> None:  # Zenoh thread
+        with contextlib.suppress(Exception):
+            push(_to_received(sample))
+
+    return session.liveliness().declare_subscriber(pattern, on_sample, history=history)
+
+
 def watch_liveliness(
     session: zenoh.Session,
     pattern: str,
@@ -285,10 +317,10 @@ def watch_liveliness(
     appears (``True``) or disappears (``False``). With ``history`` the tokens already alive are
     reported once at declaration."""
 
-    def on_sample(sample: zenoh.Sample) -> None:  # Zenoh thread
-        _post(loop, on_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+    def push(rx: Received) -> None:
+        _post(loop, on_change, rx.key, not rx.deleted)
 
-    return session.liveliness().declare_subscriber(pattern, on_sample, history=history)
+    return watch_liveliness_on_thread(session, pattern, push, history=history)
 
 
 # --------------------------------------------------------------------------------------------

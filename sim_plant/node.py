@@ -26,7 +26,6 @@ import time
 from collections import deque
 from typing import Any, Final
 
-import msgpack
 import numpy as np
 import numpy.typing as npt
 
@@ -36,6 +35,7 @@ from bus_schemas import (
     MAX_LIST_LEN,
     Clock,
     Disturbance,
+    PlantStatus,
     Pose,
     PoseBatch,
     RejectCounts,
@@ -43,6 +43,7 @@ from bus_schemas import (
     TruthBatch,
     encode,
     keys,
+    to_map,
 )
 from robot_agent.lockstep import tick_time
 from scenario import Scenario
@@ -519,39 +520,41 @@ class PlantNode(PlantInputs):
                 pass
         return False
 
-    def status_map(self) -> dict[str, Any]:
-        """The status map (see the module docstring)."""
+    def status(self) -> PlantStatus:
+        """The status message (bus_schemas.PlantStatus)."""
         sim = self.sim
         min_sep = sim.monitor.min_separation_m if sim is not None else math.inf
-        return {
-            "v": 1,
-            "t": max(self._now(), 0.0),
-            "seq": self._next_seq(self.status_key),
-            "mode": "lockstep" if self.lockstep else "realtime",
-            "state": self.state,
-            "rejected": self.rejected,
-            "rejects": self.rejects.as_dict(),
-            "ignored": self.ignored,
-            "internal_errors": self.internal_errors,
-            "rx": dict(self.rx),
-            "tick": max(self.tick, 0),
-            "sim_t": self.sim_t - (sim.t0_s if sim is not None else 0.0),
-            "timeouts": self.timeouts,
-            "alive": sorted(self.alive),
-            "coordinators": sorted(self.coordinators),
-            "link_sent": sim.link.sent if sim is not None else 0,
-            "link_dropped": sim.link.dropped if sim is not None else 0,
-            "min_separation_m": min_sep if math.isfinite(min_sep) else None,
-            "collisions": sim.monitor.collision_count if sim is not None else 0,
-            "frames": self.frames_published,
-            "batch": self.batch,
-        }
+        return PlantStatus(
+            t=max(self._now(), 0.0),
+            seq=self._next_seq(self.status_key),
+            mode="lockstep" if self.lockstep else "realtime",
+            state=self.state,
+            tick=max(self.tick, 0),
+            sim_t=self.sim_t - (sim.t0_s if sim is not None else 0.0),
+            timeouts=self.timeouts,
+            alive=tuple(sorted(self.alive)),
+            coordinators=tuple(sorted(self.coordinators)),
+            link_sent=sim.link.sent if sim is not None else 0,
+            link_dropped=sim.link.dropped if sim is not None else 0,
+            min_separation_m=min_sep if math.isfinite(min_sep) else None,
+            collisions=sim.monitor.collision_count if sim is not None else 0,
+            frames=self.frames_published,
+            batch=self.batch,
+            ignored=self.ignored,
+            rejected=self.rejected,
+            rejects=self.rejects.as_dict(),
+            internal_errors=self.internal_errors,
+            rx=dict(self.rx),
+        )
+
+    def status_map(self) -> dict[str, Any]:
+        """The status as its wire map (what :meth:`publish_status` encodes)."""
+        return to_map(self.status())
 
     def publish_status(self) -> None:
-        """Publish the status map; never raises."""
+        """Publish the status; never raises."""
         try:
-            payload: bytes = msgpack.packb(self.status_map(), use_bin_type=True)
-            self._publish(self.status_key, payload, rt.QOS_TELEMETRY)
+            self._publish(self.status_key, encode(self.status()), rt.QOS_TELEMETRY)
         except Exception as exc:
             self._internal("status", exc)
 

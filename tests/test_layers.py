@@ -52,6 +52,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
         "shells",
         (
             "robot_agent.node",
+            "robot_agent.node_estop",
             "robot_agent.host",
             "robot_agent.main",
             "coordinator.node",
@@ -265,10 +266,43 @@ def test_contract_imports_neither_zenoh_nor_asyncio() -> None:
                 assert name.split(".")[0] not in ("zenoh", "asyncio"), f"{module} imports {name}"
 
 
+def subscriber_declarations(root: Path) -> list[str]:
+    """``module:line`` of every ``declare_subscriber`` call in the project's packages."""
+    out: list[str] = []
+    for module, path in module_files(root).items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "declare_subscriber"
+            ):
+                out.append(f"{module}:{node.lineno}")
+    return out
+
+
+def test_one_subscription_bridge() -> None:
+    """Every subscription goes through runtime.bridge (docs/architecture.md, *One subscription
+    bridge*): no other module of the packages declares a subscriber."""
+    found = subscriber_declarations(ROOT)
+    assert found, "the bridge itself declares subscribers"
+    assert all(f.startswith("runtime.bridge:") for f in found), found
+
+
+def test_one_subscription_bridge_has_teeth(tmp_path: Path) -> None:
+    root = _copy_tree(tmp_path)
+    _append(
+        root / "formation" / "top.py",
+        "def _tap(session):\n    return session.declare_subscriber('formation/**', print)\n",
+    )
+    assert [f for f in subscriber_declarations(root) if not f.startswith("runtime.bridge:")] == [
+        f"formation.top:{len((root / 'formation' / 'top.py').read_text().splitlines()) - 1}"
+    ]
+
+
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 10
+    assert len(shells) == 11
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 

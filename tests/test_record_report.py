@@ -43,9 +43,11 @@ from bus_schemas import (
     to_map,
 )
 from bus_schemas.messages import (
+    CoordinatorStatus,
     Disturbance,
     Estop,
     Heartbeat,
+    PlantStatus,
     PoseBatch,
     Setpoint,
     SetpointBatch,
@@ -59,7 +61,7 @@ from formation.record import READY_PREFIX, Recorder, start_recorder
 from formation.replay import LivenessChange, Replay, read_recording
 from formation.report import leader_losses
 from formation.runlog import RunLog
-from formation.tap import BusItem, BusTap
+from runtime.tap import BusItem, BusTap
 
 FLEET = "demo"
 DT = 0.02
@@ -229,7 +231,18 @@ EXAMPLES = [
         ex=(0.0,),
         ey=(0.0,),
     ),
-]
+    CoordinatorStatus(
+        t=1.0, seq=1, name="main", mode="realtime", role="standby", epoch=0, takeovers=0,
+        stepdowns=0, ticks=0, alive=(), assignment={}, leader=None, estop_fleet=True,
+        estop_robots=(), rejected=0, rejects={}, internal_errors=0, rx={}, pid=8, host="h",
+    ),
+    PlantStatus(
+        t=1.0, seq=1, mode="lockstep", state="waiting", tick=0, sim_t=0.0, timeouts=0,
+        alive=("r1",), coordinators=("main",), link_sent=0, link_dropped=0,
+        min_separation_m=None, collisions=0, frames=0, batch=True, ignored=0, rejected=0,
+        rejects={}, internal_errors=0, rx={"wheels": 0},
+    ),
+]  # fmt: skip
 
 
 def test_every_message_type_has_an_example() -> None:
@@ -356,7 +369,7 @@ def synthetic_stream(ticks: int = 100) -> list[BusItem]:
     items.append(BusItem("put", keys.pose_key(FLEET, "r1"), b"\xc1", rx))  # malformed
     rx += 1000
     items.append(
-        BusItem("put", f"formation/{FLEET}/plant/status", msgpack.packb({"v": 1, "t": 2.0}), rx)
+        BusItem("put", f"formation/{FLEET}/camera/c1/status", msgpack.packb({"v": 1, "t": 2.0}), rx)
     )
     rx += 1000
     items.append(BusItem("dead", f"formation/{FLEET}/alive/robot/r2", b"", rx))
@@ -397,7 +410,7 @@ def test_recorder_writes_one_json_channel_per_key_with_schemas_and_times(tmp_pat
         assert counts[f"/formation/{FLEET}/clock"] == 100
         assert counts[f"/formation/{FLEET}/alive/robot/r2"] == 2  # alive, then lost
         assert counts["/recorder/rejected"] == 1
-        assert counts[f"/formation/{FLEET}/plant/status"] == 1  # unknown key: schemaless
+        assert counts[f"/formation/{FLEET}/camera/c1/status"] == 1  # unknown key: schemaless
         assert counts["/derived/robot/r1/tracking_error"] == 10
         assert counts["/derived/robot/r2/latency"] == 100
         assert counts["/scene"] > 0 and counts["/tf"] > 0
@@ -474,7 +487,7 @@ def test_raw_and_json_recordings_replay_the_same_payloads_and_metrics(tmp_path: 
     valid = [
         it
         for it in items
-        if it.kind == "put" and it.payload != b"\xc1" and "plant/status" not in it.key
+        if it.kind == "put" and it.payload != b"\xc1" and "camera/c1/status" not in it.key
     ]
     assert [e.payload for e in a.events if e.payload is not None] == [it.payload for it in valid]
     ma = report_mod.analyze(a).metrics

@@ -86,4 +86,4 @@ def test_coordinator_counts_heartbeat_refusals_by_reason() -> None:
     node.on_estop(
         rt.Received(keys.estop_key("demo"), encode(Estop(t=1.0, engage=True, robot="r2")), 1.0)
     )
-    assert len(node.estop_answer) == 2 and node.status_map(1.0)["estop"]["robots"] == ["r2"]
+    assert len(node.estop_answer) == 2 and node.status(1.0).estop_robots == ("r2",)

@@ -136,7 +136,9 @@ async def test_estopped_robot_in_a_moving_formation_over_zenoh(
     assert saf["safety_distance_m"] == pytest.approx(0.19)
     assert saf["time_touching_s"] == 0.0
     assert saf["boundary_violations"] == 0
-    assert saf["filter_source"] is None  # the bus status carries no filter counters (yet)
+    # the filter counters, from each agent's status (formation.collector)
+    assert saf["filter_source"] == "status" and set(saf["filter_per_robot"]) == set(last)
+    assert saf["filter_active_fraction"] > 0.0  # the one behind went round the stopped one
     # the robot that was behind the stopped one went round it (before the filter: stuck 0.86 m
     # from its slot, behind it): it ends well ahead of it (the formation moved on >= 1 m)
     assert final[behind][0] > final[stopped][0] + 0.3, (final[behind], final[stopped])

@@ -18,6 +18,7 @@ from bus_schemas import (
     MESSAGE_TYPES,
     Assignment,
     Clock,
+    CoordinatorStatus,
     DecodeError,
     Disturbance,
     DisturbanceKind,
@@ -25,6 +26,7 @@ from bus_schemas import (
     Heartbeat,
     Leader,
     Mode,
+    PlantStatus,
     Pose,
     PoseBatch,
     Reason,
@@ -213,6 +215,52 @@ SAMPLES: dict[type, Any] = {
         filter_violations=(0, 0),
         filter_infeasible=(1, 0),
         filter_tiebreaks=(0, 2),
+    ),
+    CoordinatorStatus: CoordinatorStatus(
+        t=12.5,
+        seq=63,
+        name="main",
+        mode="lockstep",
+        role="active",
+        epoch=1,
+        takeovers=1,
+        stepdowns=0,
+        ticks=625,
+        alive=("r1", "r2"),
+        assignment={"r2": 1, "r1": 0},
+        leader="r1",
+        estop_fleet=False,
+        estop_robots=("r2",),
+        rejected=2,
+        rejects={"pose-malformed": 2},
+        internal_errors=0,
+        rx={"pose": 1250, "clock": 625},
+        pid=4244,
+        host="ws-1",
+        tick_p50_ms=0.25,
+        tick_max_ms=1.5,
+    ),
+    PlantStatus: PlantStatus(
+        t=12.5,
+        seq=64,
+        mode="lockstep",
+        state="running",
+        tick=625,
+        sim_t=12.5,
+        timeouts=0,
+        alive=("r1", "r2"),
+        coordinators=("main",),
+        link_sent=1250,
+        link_dropped=3,
+        min_separation_m=None,
+        collisions=0,
+        frames=375,
+        batch=False,
+        ignored=0,
+        rejected=0,
+        rejects={},
+        internal_errors=0,
+        rx={"wheels": 1250},
     ),
 }
 
@@ -617,7 +665,7 @@ def _out_of_range_values(info: FieldInfo, current: Any) -> list[Any]:
             out.append([*current[:-1], fs.lo - 1e-6])
         return out
     if fs.kind is Kind.STR_LIST:
-        return [["r1"] * (MAX_LIST_LEN + 1), [*current[:-1], "Bad"]]
+        return [["r1"] * (MAX_LIST_LEN + 1), [*current[:-1], "Bad 1"]]
     if fs.kind is Kind.INT_LIST:
         bad_ints: list[Any] = [[0] * (MAX_LIST_LEN + 1)]
         if fs.lo is not None:
@@ -1048,6 +1096,12 @@ def test_key_parse_round_trip(fleet: str, robot: str, name: str, slot: int) -> N
     key = keys.heartbeat_key(fleet, name)
     assert keys.parse_key(key) == keys.KeyInfo(fleet, keys.HEARTBEAT, name=name)
     assert message_type_for_key(key) is Heartbeat
+    key = keys.coordinator_status_key(fleet, name)
+    assert keys.parse_key(key) == keys.KeyInfo(fleet, keys.COORDINATOR_STATUS, name=name)
+    assert message_type_for_key(key) is CoordinatorStatus
+    key = keys.plant_status_key(fleet)
+    assert keys.parse_key(key) == keys.KeyInfo(fleet, keys.PLANT_STATUS)
+    assert message_type_for_key(key) is PlantStatus
     assert keys.parse_alive_key(keys.alive_robot_key(fleet, robot)) == (fleet, "robot", robot)
     assert keys.parse_alive_key(keys.alive_coordinator_key(fleet, name)) == (
         fleet,
@@ -1076,6 +1130,9 @@ def test_parse_rejects_foreign_and_malformed_keys() -> None:
         "formation/demo/slot/x",
         "formation/demo/unknown",
         "formation/demo/coordinator/a/b",
+        "formation/demo/coordinator/a b/status",
+        "formation/demo/plant/truth",
+        "formation/demo/plant/status/x",
         "formation/demo/alive/robot/R1",
         "formation/demo/alive/thing/x",
         "formation/**",

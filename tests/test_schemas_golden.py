@@ -18,10 +18,12 @@ from bus_schemas import (
     MESSAGE_TYPES,
     Assignment,
     Clock,
+    CoordinatorStatus,
     Disturbance,
     Estop,
     Heartbeat,
     Leader,
+    PlantStatus,
     Pose,
     PoseBatch,
     Setpoint,
@@ -188,6 +190,52 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         ex=(0.01, 0.0),
         ey=(-0.02, 0.0),
     ),
+    "coordinator_status": CoordinatorStatus(
+        t=12.5,
+        seq=63,
+        name="main",
+        mode="lockstep",
+        role="active",
+        epoch=1,
+        takeovers=1,
+        stepdowns=0,
+        ticks=625,
+        alive=("r1", "r2"),
+        assignment={"r2": 1, "r1": 0},
+        leader="r1",
+        estop_fleet=False,
+        estop_robots=("r2",),
+        rejected=2,
+        rejects={"pose-malformed": 2},
+        internal_errors=0,
+        rx={"pose": 1250, "clock": 625},
+        pid=4244,
+        host="ws-1",
+        tick_p50_ms=0.25,
+        tick_max_ms=1.5,
+    ),
+    "plant_status": PlantStatus(
+        t=12.5,
+        seq=64,
+        mode="lockstep",
+        state="running",
+        tick=625,
+        sim_t=12.5,
+        timeouts=0,
+        alive=("r1", "r2"),
+        coordinators=("main",),
+        link_sent=1250,
+        link_dropped=3,
+        min_separation_m=0.5,
+        collisions=0,
+        frames=375,
+        batch=False,
+        ignored=0,
+        rejected=0,
+        rejects={},
+        internal_errors=0,
+        rx={"wheels": 1250},
+    ),
 }
 
 # fmt: off
@@ -263,6 +311,12 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "host_status": (
         "8ba17601a174cb4029000000000000a37365713fa3706964cd1093a4686f7374a477732d31a6726f626f747392a27231a27232a46d6f646592a8747261636b696e67a469646c65a4736c6f749200ffa872656a6563746564920002a2657892cb3f847ae147ae147bcb0000000000000000a2657992cbbf947ae147ae147bcb0000000000000000"
+    ),
+    "coordinator_status": (
+        "de0017a17601a174cb4029000000000000a37365713fa46d6f6465a86c6f636b73746570a872656a656374656402a772656a6563747381ae706f73652d6d616c666f726d656402af696e7465726e616c5f6572726f727300a2727882a5636c6f636bcd0271a4706f7365cd04e2a46e616d65a46d61696ea4726f6c65a6616374697665a565706f636801a974616b656f7665727301a973746570646f776e7300a57469636b73cd0271a5616c69766592a27231a27232aa61737369676e6d656e7482a2723100a2723201a66c6561646572a27231ab6573746f705f666c656574c2ac6573746f705f726f626f747391a27232a3706964cd1094a4686f7374a477732d31ab7469636b5f7035305f6d73cb3fd0000000000000ab7469636b5f6d61785f6d73cb3ff8000000000000"
+    ),
+    "plant_status": (
+        "de0015a17601a174cb4029000000000000a373657140a46d6f6465a86c6f636b73746570a872656a656374656400a772656a6563747380af696e7465726e616c5f6572726f727300a2727881a6776865656c73cd04e2a57374617465a772756e6e696e67a47469636bcd0271a573696d5f74cb4029000000000000a874696d656f75747300a5616c69766592a27231a27232ac636f6f7264696e61746f727391a46d61696ea96c696e6b5f73656e74cd04e2ac6c696e6b5f64726f7070656403b06d696e5f73657061726174696f6e5f6dcb3fe0000000000000aa636f6c6c6973696f6e7300a66672616d6573cd0177a56261746368c2a769676e6f72656400"
     ),
 }
 # fmt: on

@@ -11,12 +11,34 @@ import zenoh
 from conftest import RouterHandle, Spawner
 from test_live_foxglove import FLEET, FleetPublisher
 
-from bus_schemas import Assignment, Message, Pose, Slot, Status, encode, keys
-from formation.tap import BusItem
+from bus_schemas import (
+    Assignment,
+    CoordinatorStatus,
+    Message,
+    PlantStatus,
+    Pose,
+    Slot,
+    Status,
+    encode,
+    keys,
+)
 from formation.top import FleetStatus
 from formation.top import main as top_main
+from runtime.tap import BusItem
 
 S = 1_000_000_000  # ns
+
+
+PLANT_STATUS = PlantStatus(
+    t=2.0, seq=1, mode="realtime", state="running", tick=0, sim_t=2.0, timeouts=0, alive=("r1",),
+    coordinators=("main",), link_sent=0, link_dropped=0, min_separation_m=None, collisions=0,
+    frames=60, batch=False, ignored=0, rejected=0, rejects={}, internal_errors=0, rx={},
+)  # fmt: skip
+COORDINATOR_STATUS = CoordinatorStatus(
+    t=2.0, seq=1, name="main", mode="realtime", role="active", epoch=2, takeovers=0, stepdowns=0,
+    ticks=100, alive=("r1",), assignment={"r1": 0}, leader="r1", estop_fleet=False,
+    estop_robots=(), rejected=0, rejects={}, internal_errors=0, rx={}, pid=1, host="h",
+)  # fmt: skip
 
 
 def put(key: str, msg: Message, rx_ns: int) -> BusItem:
@@ -83,6 +105,11 @@ def test_fleet_status_rates_roles_errors_and_liveliness() -> None:
     assert fs.rows(now + 3 * S)[0].rates_hz[keys.POSE] == 0.0  # all older than the window
     text = fs.render(now)
     assert "coordinator/main up, plant up, leader r1" in text
+    # the coordinator's and the plant's status (contract messages) add a word each
+    fs.observe(put(keys.plant_status_key(FLEET), PLANT_STATUS, now))
+    fs.observe(put(keys.coordinator_status_key(FLEET, "main"), COORDINATOR_STATUS, now))
+    assert "coordinator/main up (active, epoch 2), plant up (running), leader r1" in fs.header()
+    text = fs.render(now)
     assert "1 rejected here" in text
     assert re.search(r"^r10\s+LOST", text, re.M)
     assert re.search(r"^r1\s+yes\s+0 leader\s+tracking\s+5\.0\s+30\.0", text, re.M), text

@@ -29,7 +29,17 @@ import pytest
 from conftest import REPO_ROOT, Child, Spawner, child_env, free_port
 
 import scenario
-from bus_schemas import Assignment, Leader, Slot, Truth, Wheels, encode, keys
+from bus_schemas import (
+    Assignment,
+    Leader,
+    Slot,
+    Status,
+    StatusBatch,
+    Truth,
+    Wheels,
+    encode,
+    keys,
+)
 from formation import metrics, simulate
 from formation.collector import RunCollector, slot_ids_of
 from formation.runlog import RunLog
@@ -188,6 +198,51 @@ def test_live_view_reports_error_and_leader(reference: tuple[scenario.Scenario, 
         assert robot.error_m == pytest.approx(float(err[j]), abs=1e-12)
     assert [r.alive for r in view.robots] == [True, None, None]
     assert view.min_distance_m is not None and view.min_distance_m > 0.15
+
+
+def test_collector_reports_the_agents_safety_filter_counters(
+    reference: tuple[scenario.Scenario, RunLog],
+) -> None:
+    """The filter counters of a distributed run come from each robot's newest status (an older
+    status arriving late does not roll them back; a host's batch has no tick count)."""
+    scn, ref = reference
+    col = RunCollector.for_scenario(scn, fleet=FLEET, lockstep=True)
+    msgs = bus_messages(ref, scn.dt_s)
+    col.feed_all(msgs)
+    assert col.build().filter_counts == {}
+    assert metrics.safety_metrics(col.build())["filter_source"] is None
+
+    def status(rid: str, t: float, active: int, clearance: float | None) -> tuple[str, bytes]:
+        counts = {"ticks": 100, "active": active, "violations": 1, "infeasible": 0,
+                  "tiebreaks": 2, "tiebreak_active": 0, "rescaled": 0, "rejected": 0,
+                  "constraints": 1}  # fmt: skip
+        msg = Status(t=t, seq=1, mode="tracking", slot=0, pid=1, host="h", rejected=0,
+                     filter=counts, min_clearance_m=clearance)  # fmt: skip
+        return keys.status_key(FLEET, rid), encode(msg)
+
+    col.feed(*status("r1", 2.0, 25, 0.05))
+    col.feed(*status("r1", 1.0, 10, 0.5))  # older, late: ignored
+    col.feed(*status("r2", 1.0, 0, None))
+    batch = StatusBatch(t=1.0, seq=1, pid=2, host="h", robots=("r3", "r9"),
+                        mode=("tracking", "idle"), slot=(2, -1), rejected=(0, 0), ex=(0.0, 0.0),
+                        ey=(0.0, 0.0), filter_active=(4, 0), filter_violations=(0, 0),
+                        filter_infeasible=(1, 0), filter_tiebreaks=(0, 0))  # fmt: skip
+    col.feed(keys.host_status_key(FLEET, "h"), encode(batch))
+    log = col.build()
+    assert log.filter_source == "status"
+    assert log.filter_counts["r1"]["active"] == 25 and log.filter_counts["r1"]["ticks"] == 100
+    assert log.filter_counts["r1"]["min_clearance_m"] == 0.05
+    assert log.filter_counts["r2"]["min_clearance_m"] is None
+    assert log.filter_counts["r3"] == {"active": 4, "violations": 0, "infeasible": 1,
+                                       "tiebreaks": 0}  # fmt: skip
+    s = metrics.safety_metrics(log)
+    assert s["filter_source"] == "status"
+    assert (s["tiebreaks"], s["filter_violations"], s["filter_infeasible"]) == (4, 2, 1)
+    assert s["filter_active_fraction"] is None  # r3's batch has no tick count
+    assert s["filter_per_robot"]["r1"]["active_fraction"] == 0.25
+    assert s["filter_per_robot"]["r3"]["active_fraction"] is None
+    del log.filter_counts["r3"]
+    assert metrics.safety_metrics(log)["filter_active_fraction"] == 25 / 200
 
 
 # ---------------------------------------------------------------------------------------------

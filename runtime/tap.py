@@ -1,9 +1,12 @@
-"""The bus tap: every key and liveliness token of a fleet, handed to one worker thread.
+"""The bridge's worker-thread delivery: every key and liveliness token of a fleet, handed to one
+worker thread in arrival order.
 
-Zenoh calls subscriber callbacks on its own threads; :class:`BusTap` only copies each sample
-into a bounded queue (a full queue drops and counts), and one worker thread handles them in
-arrival order. :class:`LatencyTracker` pairs each wheel command with the pose it was computed
-from (pose-to-wheels latency). Used by the recorder, the live view and ``formation top``.
+For consumers whose handler may be slow (the recorder writes MCAP, the live view encodes
+scenes) and must not hold up an event loop. The Zenoh side is the one bridge of
+:mod:`runtime.bridge` (:func:`~runtime.bridge.subscribe_on_thread`,
+:func:`~runtime.bridge.watch_liveliness_on_thread`): its callback only copies each sample and
+puts it into a bounded queue (a full queue drops and counts); one worker thread handles them.
+Used by ``formation record``, ``formation top`` and the Foxglove live view.
 """
 
 from __future__ import annotations
@@ -13,86 +16,18 @@ import queue
 import sys
 import threading
 import time
-from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, Final, Literal, NamedTuple
 
 import zenoh
 
-from bus_schemas import (
-    Wheels,
-    keys,
-)
+from bus_schemas import keys
+from runtime.bridge import Received, subscribe_on_thread, watch_liveliness_on_thread
+
+__all__ = ["DEFAULT_QUEUE_LEN", "BusItem", "BusTap", "ItemKind"]
 
 DEFAULT_QUEUE_LEN: Final = 200_000
 """Samples the tap buffers between Zenoh threads and the worker (~1 min of a 3-robot fleet)."""
-
-
-# --------------------------------------------------------------------------------------------
-# Latency of wheel commands
-# --------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class LatencySample:
-    """One wheel command's latency (see :data:`LATENCY_SCHEMA`); times in seconds."""
-
-    robot: str
-    t: float
-    pose_t: float
-    rx_latency_s: float | None
-    pose_age_s: float
-
-
-class LatencyTracker:
-    """Matches each robot's wheel command to the pose it was computed from (``pose_t``).
-
-    Feed every pose and wheels sample with its receive time (seconds, one monotonic clock);
-    :meth:`on_wheels` returns the command's latency. Remembers the last ``window`` poses per
-    robot (a command uses a pose of the last few frames). Lockstep is detected from the
-    ``clock`` key: then ``pose_age_s`` is sim time (wheels ``t`` - ``pose_t``), otherwise the
-    wheels receive time minus ``pose_t`` (meaningful when the publisher's monotonic clock is this
-    host's, i.e. a local run).
-    """
-
-    def __init__(self, window: int = 64) -> None:
-        self.window = window
-        self.lockstep = False
-        self._pose_rx: dict[str, OrderedDict[float, float]] = {}
-
-    def on_clock(self) -> None:
-        """A ``clock`` message was seen: the run is lockstep."""
-        self.lockstep = True
-
-    def on_pose(self, robot: str, t: float, rx_s: float) -> None:
-        """A pose of ``robot`` with ``t`` arrived at ``rx_s``."""
-        seen = self._pose_rx.get(robot)
-        if seen is None:
-            seen = self._pose_rx[robot] = OrderedDict()
-        seen.setdefault(t, rx_s)  # the first arrival counts
-        while len(seen) > self.window:
-            seen.popitem(last=False)
-
-    def on_wheels(self, robot: str, msg: Wheels, rx_s: float) -> LatencySample | None:
-        """The latency of a wheel command, or None if it used no pose."""
-        if msg.pose_t is None:
-            return None
-        seen = self._pose_rx.get(robot)
-        pose_rx = None if seen is None else seen.get(msg.pose_t)
-        age = (msg.t - msg.pose_t) if self.lockstep else (rx_s - msg.pose_t)
-        return LatencySample(
-            robot=robot,
-            t=msg.t,
-            pose_t=msg.pose_t,
-            rx_latency_s=None if pose_rx is None else rx_s - pose_rx,
-            pose_age_s=age,
-        )
-
-
-# --------------------------------------------------------------------------------------------
-# The tap: Zenoh threads -> one worker thread
-# --------------------------------------------------------------------------------------------
 
 ItemKind = Literal["put", "delete", "alive", "dead"]
 
@@ -147,18 +82,18 @@ class BusTap:
         self._subs: list[Any] = []
         try:
             self._subs.append(
-                session.declare_subscriber(keys.fleet_pattern(fleet), self._on_sample)
+                subscribe_on_thread(session, keys.fleet_pattern(fleet), self._on_sample)
             )
             self._subs.append(
-                session.liveliness().declare_subscriber(
-                    keys.alive_pattern(fleet), self._on_liveliness, history=True
+                watch_liveliness_on_thread(
+                    session, keys.alive_pattern(fleet), self._on_liveliness, history=True
                 )
             )
         except BaseException:
             self.close()
             raise
 
-    # Zenoh threads ------------------------------------------------------------------------
+    # Zenoh threads (through runtime.bridge) -------------------------------------------------
 
     def _push(self, item: BusItem) -> None:
         if self._closed:
@@ -172,15 +107,11 @@ class BusTap:
         with self._lock:
             self.received += 1
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        kind: ItemKind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
-        self._push(
-            BusItem(kind, str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns())
-        )
+    def _on_sample(self, rx: Received) -> None:
+        self._push(BusItem("delete" if rx.deleted else "put", rx.key, rx.payload, rx.rx_ns))
 
-    def _on_liveliness(self, sample: zenoh.Sample) -> None:
-        kind: ItemKind = "alive" if sample.kind == zenoh.SampleKind.PUT else "dead"
-        self._push(BusItem(kind, str(sample.key_expr), b"", time.monotonic_ns()))
+    def _on_liveliness(self, rx: Received) -> None:
+        self._push(BusItem("dead" if rx.deleted else "alive", rx.key, b"", rx.rx_ns))
 
     # Local feeding (tests, replays) -------------------------------------------------------
 

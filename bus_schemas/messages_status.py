@@ -1,0 +1,146 @@
+"""The status messages of the fleet's own processes: the coordinator's and the plant's health and
+counters, as declarative tables like those of ``messages.py`` (see its docstring for the common
+fields). The agents' status is ``messages.Status`` (``StatusBatch`` for an agent host).
+
+Tools read them (``formation fault`` finds a coordinator's process, ``formation estop`` its
+latched e-stop, benches the tick timing, recorders and ``formation top`` record and show them);
+no controller acts on them. Every class here is importable from ``bus_schemas``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from bus_schemas import keys
+from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
+from bus_schemas.spec import POSITION_MAX_M as _POS
+from bus_schemas.spec import TIME_MAX_S as _TMAX
+from bus_schemas.spec import (
+    f_bool,
+    f_count_map,
+    f_enum,
+    f_float,
+    f_int,
+    f_name,
+    f_name_list,
+    f_robot_id,
+    f_robot_id_list,
+    f_str,
+    message,
+)
+
+from .messages_fields import _Periodic
+
+
+class RunMode(StrEnum):
+    """How a process runs: on the plant's clock (lockstep) or on its own (realtime)."""
+
+    LOCKSTEP = "lockstep"
+    REALTIME = "realtime"
+
+
+class CoordinatorRole(StrEnum):
+    """Whether a coordinator instance publishes setpoints (active) or watches (standby)."""
+
+    ACTIVE = "active"
+    STANDBY = "standby"
+
+
+class PlantState(StrEnum):
+    """Phase of the plant simulator's run."""
+
+    WAITING = "waiting"
+    RUNNING = "running"
+    DONE = "done"
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class _NodeStatus(_Periodic):
+    """What every node's status starts with: its run mode and its input counters."""
+
+    mode: str = field(metadata=f_enum("lockstep or realtime", RunMode))
+    rejected: int = field(metadata=f_int("count of received messages rejected (sum of `rejects`)"))
+    rejects: Mapping[str, int] = field(
+        metadata=f_count_map("`<message>-<reason>` -> count of inputs dropped; sums to `rejected`")
+    )
+    internal_errors: int = field(
+        metadata=f_int("internal errors caught (a bug, never a bad input); 0 in a healthy run")
+    )
+    rx: Mapping[str, int] = field(metadata=f_count_map("input name -> count of messages received"))
+
+
+@message(
+    name=keys.COORDINATOR_STATUS,
+    publisher="coordinator (each instance, active or standby)",
+    periodic=True,
+    rate="5 Hz",
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CoordinatorStatus(_NodeStatus):
+    """Health and counters of one coordinator instance."""
+
+    name: str = field(metadata=f_name("coordinator instance name (= the key's name)"))
+    role: str = field(metadata=f_enum("active: publishes setpoints; standby", CoordinatorRole))
+    epoch: int = field(metadata=f_int("leadership epoch (as in its heartbeat)", hi=_EPOCH_MAX))
+    takeovers: int = field(metadata=f_int("times this instance took over as active"))
+    stepdowns: int = field(metadata=f_int("times this instance stepped down to standby"))
+    ticks: int = field(metadata=f_int("control ticks computed so far"))
+    alive: tuple[str, ...] = field(metadata=f_robot_id_list("robots whose token is alive"))
+    assignment: Mapping[str, int] = field(
+        metadata=f_count_map(
+            "robot id -> slot of the last tick (encoded sorted by id)",
+            key_pattern=keys.ROBOT_ID_PATTERN,
+            value_hi=keys.MAX_SLOT,
+        )
+    )
+    leader: str | None = field(
+        metadata=f_robot_id("robot holding slot 0 on the last tick, nil if none", nullable=True)
+    )
+    estop_fleet: bool = field(metadata=f_bool("the fleet-wide e-stop is latched"))
+    estop_robots: tuple[str, ...] = field(
+        metadata=f_robot_id_list("robots whose own e-stop is latched (sorted, first 64)")
+    )
+    pid: int = field(metadata=f_int("OS process id of the coordinator", hi=2**31 - 1))
+    host: str = field(metadata=f_str("host name the coordinator runs on"))
+    tick_p50_ms: float | None = field(
+        default=None,
+        metadata=f_float("median compute-and-publish time of the recent ticks", "ms", lo=0.0),
+    )
+    tick_max_ms: float | None = field(
+        default=None,
+        metadata=f_float("largest compute-and-publish time of the recent ticks", "ms", lo=0.0),
+    )
+
+
+@message(name=keys.PLANT_STATUS, publisher="plant only", periodic=True, rate="5 Hz")
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlantStatus(_NodeStatus):
+    """Health and counters of the plant simulator (its link, camera and separation monitor)."""
+
+    state: str = field(metadata=f_enum("phase of the run", PlantState))
+    tick: int = field(metadata=f_int("lockstep: the last clock tick published (0 before any)"))
+    sim_t: float = field(
+        metadata=f_float("simulated time since the start of the run", "s", lo=-_TMAX, hi=_TMAX)
+    )
+    timeouts: int = field(metadata=f_int("lockstep: ticks that went on without every answer"))
+    alive: tuple[str, ...] = field(metadata=f_robot_id_list("robots whose token is alive"))
+    coordinators: tuple[str, ...] = field(
+        metadata=f_name_list("coordinator instances whose token is alive")
+    )
+    link_sent: int = field(metadata=f_int("wheel commands handed to the emulated radio link"))
+    link_dropped: int = field(metadata=f_int("of those, dropped by the link (its loss model)"))
+    min_separation_m: float | None = field(
+        metadata=f_float(
+            "least distance between two robots' axle centres so far, nil before two are seen",
+            "m",
+            lo=0.0,
+            hi=4 * _POS,
+            nullable=True,
+        )
+    )
+    collisions: int = field(metadata=f_int("bodies touching (events, from the truth)"))
+    frames: int = field(metadata=f_int("pose frames published"))
+    batch: bool = field(metadata=f_bool("poses and truth are published batched (`poses`)"))
+    ignored: int = field(metadata=f_int("valid messages for robots this plant does not simulate"))

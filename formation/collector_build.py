@@ -1,0 +1,113 @@
+"""The rows of a collected run: what :meth:`formation.collector.RunCollector.build` writes into a
+:class:`~formation.runlog.RunLog` from the series it stored.
+
+Row ``r`` holds the truth of every robot at the row's key (a robot's previous pose stands in for
+a dropped sample), the reference points computed from it (eqs 10-11), and, sampled as "the
+latest value at or before the row", the leader, the slots, the assignment, the wheel commands
+and the firmware modes. Separation and collisions come from
+:class:`sim_plant.accounting.SeparationMonitor` fed with the rows in order, as in the simulator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from formation.collector_series import Series, sample_at
+from formation.runlog import RunLog
+from sim_plant.accounting import SeparationMonitor
+
+__all__ = ["RowSources", "fill_rows"]
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class RowSources:
+    """What the collector stored, by row key (tick in lockstep, bus time in realtime)."""
+
+    truth: Mapping[float, Mapping[int, tuple[float, float, float]]]  # row -> robot index -> pose
+    leader: Series  # (x, y, theta)
+    slots: Mapping[int, Series]  # slot -> (x, y)
+    assignment: Series  # {robot id: slot}
+    wheels: Sequence[Series]  # per robot index: (power_r, power_l)
+    modes: Sequence[Series]  # per robot index: formation.runlog.MODE_CODES value
+
+
+def fill_rows(
+    log: RunLog,
+    rows: F64,
+    t_s: F64,
+    src: RowSources,
+    *,
+    ref_offset_m: float,
+    body_radius_m: float,
+) -> int:
+    """Fill ``log`` (allocated with ``rows.size`` rows) from ``src``; return the truth gaps (robot
+    poses held over a dropped sample). ``t_s`` is the time of each row in the log."""
+    robot_ids = log.robot_ids
+    n = len(robot_ids)
+    gaps = 0
+    last: list[tuple[float, float, float] | None] = [None] * n
+    for r, k in enumerate(rows.tolist()):
+        frame = src.truth[k]
+        for i in range(n):
+            pose = frame.get(i)
+            if pose is None:
+                gaps += last[i] is not None
+                pose = last[i]
+            if pose is not None:
+                log.truth[r, i] = pose
+                last[i] = pose
+    log.t_s[:] = t_s
+    log.ref[:, :, 0] = log.truth[:, :, 0] + ref_offset_m * np.cos(log.truth[:, :, 2])
+    log.ref[:, :, 1] = log.truth[:, :, 1] + ref_offset_m * np.sin(log.truth[:, :, 2])
+
+    for r, v in enumerate(sample_at(src.leader, rows)):
+        if v is not None:
+            log.leader[r] = v
+    slot_row = {s: m for m, s in enumerate(log.slot_ids)}
+    for s, series in src.slots.items():
+        m = slot_row.get(s)
+        if m is None:
+            continue
+        for r, v in enumerate(sample_at(series, rows)):
+            if v is not None:
+                log.slot_xy[r, m] = v
+    index = {rid: j for j, rid in enumerate(robot_ids)}
+    for r, a in enumerate(sample_at(src.assignment, rows)):
+        if a is None:
+            continue
+        for rid, slot in a.items():
+            j = index.get(rid)
+            if j is None:
+                continue
+            log.slot_of[r, j] = slot
+            m = slot_row.get(slot)
+            if m is not None:
+                log.target[r, j] = log.slot_xy[r, m]
+    for i in range(n):
+        for r, v in enumerate(sample_at(src.wheels[i], rows)):
+            if v is not None:
+                log.power[r, i] = v
+        for r, v in enumerate(sample_at(src.modes[i], rows)):
+            if v is not None:
+                log.mode[r, i] = v
+
+    monitor = SeparationMonitor(body_radius_m)
+    for r in range(rows.size):
+        monitor.update(float(log.t_s[r]), log.truth[r])
+    log.min_separation_m = float(monitor.min_separation_m)
+    log.collisions = [
+        {
+            "t_s": float(e.t_s),
+            "i": robot_ids[e.i],
+            "j": robot_ids[e.j],
+            "distance_m": float(e.distance_m),
+        }
+        for e in monitor.collisions
+    ]
+    return gaps
