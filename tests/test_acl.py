@@ -502,7 +502,8 @@ def test_live_liveliness_tokens(router: int, pki) -> None:  # type: ignore[no-un
     standby = _client(router, fleet.identities["coordinator.standby"].tls())
     try:
         seen, too_wide = Inbox(), Inbox()
-        watch = coord.liveliness().declare_subscriber(_f("alive/robot/*"), seen)
+        # history: the tokens below may reach the router before this watcher's declaration
+        watch = coord.liveliness().declare_subscriber(_f("alive/robot/*"), seen, history=True)
         # wider than any grant (alive/** is not within alive/robot/*, alive/coordinator/*,
         # alive/plant): that watcher gets nothing, on a session of its own
         wide_watch = standby.liveliness().declare_subscriber(_f("alive/**"), too_wide)
