@@ -87,8 +87,10 @@ class TickOutputs:
         fleet = self.fleet
         setpoints = self._setpoint_batches(out, t, tick) if self.batch else []
         by_slot = out.slots_by_id
+        approach = out.approach  # newly assigned robots on their way (coordinator.core)
         for rid, slot_id in () if self.batch else out.assignment.items():
-            s = by_slot[slot_id]
+            s = by_slot[slot_id] if rid not in approach else out.setpoint_for(rid)
+            assert s is not None
             key = keys.setpoint_key(fleet, rid)
             sp = Setpoint(
                 t=t,
@@ -159,8 +161,12 @@ class TickOutputs:
         rows = sorted(out.assignment.items(), key=lambda a: (order.get(a[0], 1 << 30), a[0]))
         msgs: Outgoing = []
         theta = out.theta
+        approach = out.approach
         for i in range(0, len(rows), BATCH_CHUNK):
-            chunk = [(rid, by_slot[sid]) for rid, sid in rows[i : i + BATCH_CHUNK]]
+            chunk = [
+                (rid, (out.setpoint_for(rid) if rid in approach else None) or by_slot[sid])
+                for rid, sid in rows[i : i + BATCH_CHUNK]
+            ]
             msg = SetpointBatch(
                 t=t,
                 seq=self.next_seq(self.setpoints_key),

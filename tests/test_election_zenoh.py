@@ -84,14 +84,6 @@ def jumps(leaders: list[tuple[float, str, Leader]]) -> list[tuple[float, float]]
     return out
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="open (issue 13): on an unauthenticated bus a forger that spoofs the active "
-    "coordinator's name before the standby has accepted a real heartbeat can give the standby "
-    "its trajectory origin, so a later takeover may move the leader; the ACL of `formation up "
-    "--secure` forbids the spoofing. The fix is to check leader_t0 against the observed Leader "
-    "messages.",
-)
 def test_forged_heartbeats_never_move_the_leader_or_hijack_the_election(
     spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
 ) -> None:
