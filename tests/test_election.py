@@ -92,7 +92,9 @@ def test_split_brain_lower_epoch_steps_down() -> None:
     assert not e.step_down(6.0)  # already a standby
     same = Election("b", active=True)
     same.peer_alive("a", True)
-    assert same.heartbeat("a", True, 0, 0.0, now_s=0.0) is not None  # same epoch: the earlier name wins
+    assert (
+        same.heartbeat("a", True, 0, 0.0, now_s=0.0) is not None
+    )  # same epoch: the earlier name wins
 
 
 def test_own_messages_and_repeats_are_ignored() -> None:
@@ -158,7 +160,9 @@ def test_a_forged_epoch_max_is_refused_and_the_epoch_cannot_overflow() -> None:
     main, b = running_pair()
     # spoofing main's own name (its token is present) with the largest epoch of the contract
     assert b.heartbeat("main", True, EPOCH_MAX, 100.0, now_s=0.0) is None
-    assert main.heartbeat("b", True, EPOCH_MAX, 100.0, now_s=0.0) is None  # would have made main step down
+    assert (
+        main.heartbeat("b", True, EPOCH_MAX, 100.0, now_s=0.0) is None
+    )  # would have made main step down
     assert main.active and b.rejects == {"epoch_jump": 1} and main.rejects == {"epoch_jump": 1}
     # a real takeover afterwards takes the next epoch, not EPOCH_MAX + 1
     b.peer_alive("main", False)
@@ -184,7 +188,9 @@ def test_epochs_saturate_at_the_contract_bound() -> None:
 def test_epochs_are_monotonic_per_token_lifetime() -> None:
     _, b = running_pair()
     assert b.heartbeat("main", True, 3, 100.0, now_s=0.0) is None  # e.g. a forged, in-bound epoch
-    assert b.heartbeat("main", True, 1, 100.0, now_s=0.0) is None  # main's real one is not locked out
+    assert (
+        b.heartbeat("main", True, 1, 100.0, now_s=0.0) is None
+    )  # main's real one is not locked out
     assert b.rejects == {} and b.peers["main"].epoch == 3 and b.peers["main"].active
     b.peer_alive("main", False)
     b.peer_alive("main", True)  # restarted: a new token lifetime
@@ -195,7 +201,9 @@ def test_a_forged_leader_t0_never_moves_the_virtual_leader() -> None:
     main, b = running_pair()
     for t0 in (0.0, 0.0 - 100.0, 100.0 - 100.0, 1e8):
         assert b.heartbeat("main", True, 1, t0, now_s=0.0) is None
-        assert main.heartbeat("b", False, 0, t0, now_s=0.0) is None  # a standby's t0 is not looked at
+        assert (
+            main.heartbeat("b", False, 0, t0, now_s=0.0) is None
+        )  # a standby's t0 is not looked at
     assert b.rejects == {"leader_t0": 4} and b.leader_t0 == 100.0
     assert b.peers["main"].leader_t0 == 100.0
     # forged "b is active" with another origin and a higher epoch: main steps down (split brain
