@@ -318,6 +318,11 @@ class CoordinatorCore:
         ids, xy = self._ref_points(poses)
         return dict(zip(ids, xy, strict=True))
 
+    def leader_xy(self, t_s: float) -> tuple[float, float]:
+        """The virtual leader's position (m) at trajectory time ``t_s`` (now - t0)."""
+        state = self.trajectory.sample(t_s)
+        return state.x, state.y
+
     def tick(
         self, now_s: float, poses: Mapping[str, tuple[float, float, float]]
     ) -> CoordinatorOutput:

@@ -7,7 +7,9 @@ Usage::
 
 A thin asyncio shell over :class:`coordinator.core.CoordinatorCore`, built from the scenario by
 ``scenario.assemble`` (the assembly ``formation/simulate.py`` uses too); the standby election
-is :mod:`coordinator.election`, the lockstep rules :mod:`robot_agent.lockstep`. It prints
+is :mod:`coordinator.election`, the lockstep rules :mod:`robot_agent.lockstep`; what a tick
+publishes is encoded by :mod:`coordinator.outputs`, the latched e-stop is held by
+:mod:`coordinator.estop_source`. It prints
 exactly one line ``coordinator ready`` on stdout once its session is open, its subscriptions
 and its liveliness token ``formation/<fleet>/alive/coordinator/<name>`` are declared, and exits
 0 within a second of SIGINT/SIGTERM.
@@ -45,18 +47,13 @@ from bus_schemas import (
 from coordinator.core import CoordinatorOutput, pose_stale_s
 from coordinator.election import Election, Takeover
 from coordinator.estop_source import EstopSource, attach_estop_source
-from coordinator.outputs import ASSIGNMENT_REPEAT_S, BATCH_SLOT_PERIOD_S, TickOutputs
+from coordinator.outputs import TickOutputs
 from robot_agent.estop import EstopLatch
 from robot_agent.lockstep import Arrivals, Replay
 from scenario import Scenario
 from scenario.assemble import coordinator_core, path_conflicts
 
-__all__ = [
-    "ASSIGNMENT_REPEAT_S",
-    "BATCH_SLOT_PERIOD_S",
-    "CoordinatorNode",
-    "attach_estop_source",
-]
+__all__ = ["CoordinatorNode", "attach_estop_source"]
 
 STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
@@ -155,13 +152,7 @@ class CoordinatorNode:
 
         # -- election (module docstring, *Standby*; the decisions are coordinator.election's):
         # a standby checks every origin against the leader messages it observes
-        trajectory = self.core.trajectory
-
-        def position_at(t_s: float) -> tuple[float, float]:
-            state = trajectory.sample(t_s)
-            return state.x, state.y
-
-        self.election = Election(self.name, active=not standby, position_at=position_at)
+        self.election = Election(self.name, active=not standby, position_at=self.core.leader_xy)
         self.peer_assignment: dict[str, int] = {}  # the last assignment seen on the bus
         self.heartbeats_pattern = keys.all_heartbeats_pattern(fleet)
         self.coordinators_pattern = keys.alive_coordinators_pattern(fleet)
