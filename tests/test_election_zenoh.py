@@ -164,3 +164,58 @@ def test_forged_heartbeats_never_move_the_leader_or_hijack_the_election(
     assert not bad, bad[:5]
     assert any(r > t_active for r, _, _ in leader_msgs)  # b publishes the leader now
     del tokens
+
+
+class Spoofer(Forger):
+    """Spoofs the active ``main`` only, with other origins and in-bound epochs, from before the
+    standby starts (the gap of the last session: a standby that heard the forger first)."""
+
+    def _run(self) -> None:
+        seq = 0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            for t0 in (now - 100.0, 0.0, now + 50.0):
+                seq += 1
+                hb = Heartbeat(t=now, seq=seq, name="main", active=True, epoch=1, leader_t0=t0)
+                self.pubs.put(keys.heartbeat_key(FLEET, "main"), encode(hb), rt.QOS_TELEMETRY)
+                self.sent += 1
+            self._stop.wait(0.01)
+
+
+def test_a_standby_that_hears_a_spoofed_active_first_never_moves_the_leader(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    client = session()
+    pubs = rt.Publishers(client)
+    tokens = {r: rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START}
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, f"formation/{FLEET}/coordinator/*/status", msgpack.unpackb)
+    main = spawn(
+        "coordinator", "--scenario", "paper-exp2", "--endpoint", router.endpoint, ready="coord"
+    )
+    with PoseFeeder(pubs, set(START)), Spoofer(rt.Publishers(session())) as spoofer:
+        leaders.wait_for(lambda *_: True)  # main ticks; the spoofer is already at work
+        spawn(
+            "coordinator", "--scenario", "paper-exp2", "--endpoint", router.endpoint,
+            "--standby", "--name", "b", ready="coord",
+        )  # fmt: skip
+        status.wait_for(
+            lambda _r, _k, s: (
+                s.get("name") == "b" and s["rejects"].get("heartbeat-leader_t0", 0) > 0
+            ),
+            timeout_s=10.0,
+        )
+        t_kill = time.monotonic()
+        main.stop(signal.SIGKILL)
+        status.wait_for(
+            lambda r, _k, s: r > t_kill and s.get("name") == "b" and s.get("role") == "active",
+            timeout_s=5.0,
+        )
+        t_active = time.monotonic()
+        leaders.wait_for(lambda r, *_: r > t_active + 1.0, timeout_s=10.0)
+        assert spoofer.sent > 100
+    msgs = leaders.snapshot()
+    assert any(r > t_active for r, _, _ in msgs)  # b publishes the leader
+    bad = jumps(msgs)
+    assert not bad, bad[:5]
+    del tokens
