@@ -51,7 +51,11 @@ in :attr:`Election.rejects` by reason, no effect on the election) when
 
 Without a ``position_at`` (the trajectory), a standby cannot verify: it then adopts the origin
 of the first active heartbeat it accepts and refuses any other (the rule before issue 13's
-spoofing fix, kept for cores built without a trajectory).
+spoofing fix, kept for cores built without a trajectory). A standby that has a trajectory but
+has *never* received a ``leader`` message (lockstep, where it does not subscribe, or an access
+control that does not let it read ``leader``) falls back to the same rule at a takeover rather
+than restart the trajectory: nothing can be spoofed where nothing is observed, and a verified
+origin always replaces the fallback.
 
 Epochs saturate at :data:`bus_schemas.fields.EPOCH_MAX` (never an overflow; at equal epochs the
 rank decides), so a heartbeat always encodes.
@@ -184,6 +188,10 @@ class Election:
         """Recent ``leader`` messages: (t, x, y, received at)."""
         self._bucket = float(EPOCH_JUMP_MAX)
         self._bucket_s: float | None = None
+        self._leaders_seen = False
+        self._fallback_t0: float | None = None
+        """Origin of the first active heartbeat accepted unverified (used only if no ``leader``
+        message was ever observed)."""
 
     def observe_t0(self, leader_t0: float) -> None:
         """This instance started ticking with the trajectory origin ``leader_t0`` (its own)."""
@@ -193,6 +201,7 @@ class Election:
         """A ``leader`` message (stamp ``t``, position ``x``, ``y``) received at ``now_s``."""
         if math.isfinite(t) and math.isfinite(x) and math.isfinite(y):
             self._leaders.append((t, x, y, now_s))
+            self._leaders_seen = True
 
     def origin_verdict(self, leader_t0: float, now_s: float) -> bool | None:
         """Does origin ``leader_t0`` agree with the ``leader`` messages of the last
@@ -306,6 +315,8 @@ class Election:
                 peer.leader_t0 = leader_t0
             if verified:
                 self.leader_t0 = leader_t0  # the running trajectory's origin
+            elif self._fallback_t0 is None and not self.active:
+                self._fallback_t0 = leader_t0
             if self.active and (epoch, rank(self.name)) > (self.epoch, rank(name)):
                 return f"coordinator {name} is active with epoch {epoch}"
         return None
@@ -329,6 +340,8 @@ class Election:
         self.max_epoch = self.epoch
         self.active = True
         self.takeovers += 1
+        if self.leader_t0 is None and not self._leaders_seen:
+            self.leader_t0 = self._fallback_t0  # nothing observed: the first heartbeat's
         return Takeover(self.epoch, self.leader_t0)
 
     def step_down(self, now_s: float) -> bool:

@@ -428,3 +428,19 @@ def test_a_real_takeover_epoch_is_accepted_after_a_forger_drained_the_bucket() -
     assert b.last_refusal == "epoch_rate"
     assert b.heartbeat("main", True, known + 1, 100.0, now_s=0.5) is None  # a moment later
     assert b.last_refusal is None and b.peers["main"].epoch == known + 1
+
+
+def test_a_standby_that_never_sees_a_leader_message_falls_back_to_the_first_origin() -> None:
+    """No leader message ever observed (lockstep, or an ACL that hides them): a takeover uses the
+    first active heartbeat's origin rather than restart the trajectory; once leader messages
+    were seen, only a verified origin is used."""
+    b = watcher()
+    assert b.heartbeat("main", True, 1, T0, now_s=1.0) is None
+    assert b.heartbeat("main", True, 1, T0 - 9.0, now_s=1.1) is None  # cannot tell either
+    b.peer_alive("main", False)
+    assert b.take_over().leader_t0 == T0
+    seen = watcher()
+    real_leaders(seen, 1.0, 1.02)  # fewer than LEADER_CHECK_MIN: no verdict, but seen
+    assert seen.heartbeat("main", True, 1, T0 - 9.0, now_s=1.03) is None
+    seen.peer_alive("main", False)
+    assert seen.take_over().leader_t0 is None
