@@ -55,7 +55,10 @@ spoofing fix, kept for cores built without a trajectory). A standby that has a t
 has *never* received a ``leader`` message (lockstep, where it does not subscribe, or an access
 control that does not let it read ``leader``) falls back to the same rule at a takeover rather
 than restart the trajectory: nothing can be spoofed where nothing is observed, and a verified
-origin always replaces the fallback.
+origin always replaces the fallback. A standby that takes over before it could verify any
+origin (the active died within a few ``leader`` messages of the standby's start) uses the
+latest origin of an accepted active heartbeat that agrees with *every* ``leader`` message it
+holds (at least one): only an origin that keeps the leader where it was can pass.
 
 Epochs saturate at :data:`bus_schemas.fields.EPOCH_MAX` (never an overflow; at equal epochs the
 rank decides), so a heartbeat always encodes.
@@ -189,6 +192,8 @@ class Election:
         self._bucket = float(EPOCH_JUMP_MAX)
         self._bucket_s: float | None = None
         self._leaders_seen = False
+        self._candidates: deque[float] = deque(maxlen=8)
+        """Origins of active heartbeats accepted unverified (latest last)."""
         self._fallback_t0: float | None = None
         """Origin of the first active heartbeat accepted unverified (used only if no ``leader``
         message was ever observed)."""
@@ -315,8 +320,11 @@ class Election:
                 peer.leader_t0 = leader_t0
             if verified:
                 self.leader_t0 = leader_t0  # the running trajectory's origin
-            elif self._fallback_t0 is None and not self.active:
-                self._fallback_t0 = leader_t0
+            elif not self.active:
+                if self._fallback_t0 is None:
+                    self._fallback_t0 = leader_t0
+                if leader_t0 not in self._candidates:
+                    self._candidates.append(leader_t0)
             if self.active and (epoch, rank(self.name)) > (self.epoch, rank(name)):
                 return f"coordinator {name} is active with epoch {epoch}"
         return None
@@ -340,9 +348,31 @@ class Election:
         self.max_epoch = self.epoch
         self.active = True
         self.takeovers += 1
-        if self.leader_t0 is None and not self._leaders_seen:
-            self.leader_t0 = self._fallback_t0  # nothing observed: the first heartbeat's
+        if self.leader_t0 is None:
+            self.leader_t0 = self._unverified_origin()
         return Takeover(self.epoch, self.leader_t0)
+
+    def _unverified_origin(self) -> float | None:
+        """At a takeover with no verified origin (module docstring): the latest candidate that
+        agrees with every ``leader`` message held, or with nothing observed the first
+        heartbeat's origin, else None."""
+        if not self._leaders_seen:
+            return self._fallback_t0
+        position_at = self.position_at
+        if position_at is None or not self._leaders:
+            return None
+        for t0 in reversed(self._candidates):
+            try:
+                ok = all(
+                    math.hypot(px - x, py - y) <= LEADER_POS_TOL_M
+                    for t, x, y, _ in self._leaders
+                    for px, py in (position_at(t - t0),)
+                )
+            except (ArithmeticError, ValueError):
+                ok = False
+            if ok:
+                return t0
+        return None
 
     def step_down(self, now_s: float) -> bool:
         """Become a standby at ``now_s`` (the settle time restarts); False if already one."""

@@ -444,3 +444,18 @@ def test_a_standby_that_never_sees_a_leader_message_falls_back_to_the_first_orig
     assert seen.heartbeat("main", True, 1, T0 - 9.0, now_s=1.03) is None
     seen.peer_alive("main", False)
     assert seen.take_over().leader_t0 is None
+
+
+def test_a_takeover_before_any_verification_uses_an_origin_that_agrees_with_every_leader() -> None:
+    b = watcher()
+    b.observe_leader(5.0, *line(5.0 - T0), now_s=5.0)  # one leader message: no verdict yet
+    for t0 in (T0 - 100.0, T0):  # a spoof (refused: it disagrees) and the real one (unverified)
+        b.heartbeat("main", True, 1, t0, now_s=5.0)
+    assert b.rejects == {"leader_t0": 1} and b.leader_t0 is None
+    b.peer_alive("main", False)
+    assert b.take_over().leader_t0 == T0
+    spoofed = watcher()
+    spoofed.heartbeat("main", True, 1, T0 - 100.0, now_s=5.0)  # before any leader message
+    spoofed.observe_leader(5.0, *line(5.0 - T0), now_s=5.01)
+    spoofed.peer_alive("main", False)
+    assert spoofed.take_over().leader_t0 is None  # it disagrees with what was observed
