@@ -13,6 +13,9 @@ and prints per run and as medians:
 * **pose->wheels latency** p50 / p99 / max, measured inside the plant (``plant_stats.json``: a
   frame's poses published -> the wheel command computed from that frame received back; two
   hops through the router, TLS-encrypted with ``--secure``), as in bench_up.py;
+* **PKI**: the launcher's share of the startup measured alone, ``formation.pki.write_run_configs``
+  for the run's identities (CA, keys, certificates, router and client configs), wall and CPU
+  time, a few repetitions (the startup figures above are dominated by the machine's load);
 * **CPU**: CPU seconds of every process of the run (``/proc``, router, plant, coordinator,
   agents summed, launcher) over the whole run, and their sum per wall second of the run.
 
@@ -92,6 +95,29 @@ def run_up(robots: int, duration_s: float, out: Path, secure: bool) -> dict[str,
     }
 
 
+def time_pki(robots: int, repeat: int = 5) -> None:
+    """``write_run_configs`` for a ``--secure`` fleet of ``robots`` agents, timed alone."""
+    from bus_schemas import acl
+    from formation import pki
+
+    idents = acl.fleet_identities(
+        [f"r{k}" for k in range(1, robots + 1)], ("main",), plant=True, observers=("",)
+    )
+    walls, cpus = [], []
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory(prefix="bench-pki-") as tmp:
+            w0, c0 = time.perf_counter(), time.process_time()
+            pki.write_run_configs(tmp, idents, port=free_port())
+            walls.append(time.perf_counter() - w0)
+            cpus.append(time.process_time() - c0)
+    print(
+        f"  PKI of {len(idents)} identities (write_run_configs): wall median "
+        f"{1e3 * statistics.median(walls):.0f} ms, CPU median {1e3 * statistics.median(cpus):.0f} "
+        f"ms ({1e3 * statistics.median(cpus) / len(idents):.1f} ms per identity)",
+        flush=True,
+    )
+
+
 def show(tag: str, r: dict[str, Any]) -> None:
     row = ", ".join(f"{k} {v:.1f}" for k, v in sorted(r["cpu"].items(), key=lambda kv: -kv[1]))
     print(
@@ -113,6 +139,7 @@ def main() -> int:
         f"{args.repeat} interleaved pairs, {os.cpu_count()} CPUs, "
         f"load {os.getloadavg()[0]:.1f}"
     )
+    time_pki(args.robots)
     results: dict[str, list[dict[str, Any]]] = {"plain": [], "secure": []}
     with tempfile.TemporaryDirectory(prefix="bench-secure-") as tmp:
         for k in range(args.repeat):
