@@ -11,8 +11,8 @@ Rules:
   tokens and heartbeats of the instances already running have arrived.
 * It takes over only when no live instance is active or of unknown role (token present, no
   heartbeat yet) and no live standby comes before it in :func:`rank` order (``main`` first, then
-  by name). It then takes ``epoch`` = the highest seen + 1 and the ``leader_t0`` of the
-  highest-epoch instance that was active, so the virtual leader continues without a jump.
+  by name). It then takes ``epoch`` = the highest seen + 1 and the trajectory origin it adopted
+  (``leader_t0``, checked as below), so the virtual leader continues without a jump.
 * Two actives (a split brain, or two instances started without ``--standby``): on the other's
   heartbeat, the one with the lower epoch, then the later name, steps down.
 
@@ -54,11 +54,12 @@ of the first active heartbeat it accepts and refuses any other (the rule before 
 spoofing fix, kept for cores built without a trajectory). A standby that has a trajectory but
 has *never* received a ``leader`` message (lockstep, where it does not subscribe, or an access
 control that does not let it read ``leader``) falls back to the same rule at a takeover rather
-than restart the trajectory: nothing can be spoofed where nothing is observed, and a verified
-origin always replaces the fallback. A standby that takes over before it could verify any
-origin (the active died within a few ``leader`` messages of the standby's start) uses the
-latest origin of an accepted active heartbeat that agrees with *every* ``leader`` message it
-holds (at least one): only an origin that keeps the leader where it was can pass.
+than restart the trajectory (spoofable on an unauthenticated bus, like the old rule, but such a
+standby has nothing to check with; a verified origin always replaces the fallback). A standby
+that takes over before it could verify any origin (the active died within a few ``leader``
+messages of the standby's start) uses the latest origin of an accepted active heartbeat that
+agrees with *every* ``leader`` message it holds (at least one): only an origin that keeps the
+leader where it was can pass.
 
 Epochs saturate at :data:`bus_schemas.fields.EPOCH_MAX` (never an overflow; at equal epochs the
 rank decides), so a heartbeat always encodes.
