@@ -9,6 +9,12 @@ virtual leader never jumps (consecutive ``leader`` messages at most the trajecto
 times their interval + 5 mm), main stays active and b a standby, both keep publishing encodable
 heartbeats with small epochs, every refused heartbeat is counted by reason in the status; then
 main is killed while the forger keeps going: b takes over, still without a jump.
+
+The second test is the gap the last session left open: the forger spoofs ``main`` (active,
+in-bound epoch, origins 100 s earlier, 0 and 50 s later) from *before* b starts, so b may hear
+the forger first; b checks origins against the ``leader`` messages it observes, refuses the
+spoofs, and after main's SIGKILL continues main's trajectory (with the old first-heartbeat rule
+this test saw a 1.86 m jump).
 """
 
 from __future__ import annotations
