@@ -171,7 +171,8 @@ _L, _P, _O = Kind.LOCALIZATION, Kind.PLANT, Kind.OPERATOR
 
 
 KEY_ROLES: Final[dict[str, KeyRoles]] = {
-    keys.LEADER: KeyRoles((_C,), (_P,)),  # the plant reads it in lockstep
+    # the plant reads it in lockstep; a standby coordinator checks trajectory origins against it
+    keys.LEADER: KeyRoles((_C,), (_P, _C)),
     keys.SLOT: KeyRoles((_C,)),
     keys.SETPOINT: KeyRoles((_C,), ((_R, OWN),)),
     keys.SETPOINTS: KeyRoles((_C,), (_R, _H)),

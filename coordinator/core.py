@@ -3,6 +3,19 @@
 One call per control tick, time passed in. The in-process simulator and the Zenoh coordinator
 process both run exactly this, so they make the same decisions from the same poses.
 
+**Approach of a newly assigned robot** (issue 13: spares never sprint). A robot that gets a slot
+while the formation is already running (a spare replacing a dead robot, a robot back after its
+pose was stale) and whose reference point is farther than :data:`APPROACH_JOIN_M` from that slot
+is not given the slot itself, which would make its controller saturate toward a far target.
+Its setpoint is an *approach point* that starts at its reference point and moves with the slot's
+velocity plus at most :data:`APPROACH_SPEED_MPS` toward the slot, with that velocity as the
+feed-forward, until it reaches the slot; from then on the robot tracks the slot as every other
+one. Robots assigned at the start (the paper's convergence from the start poses) and robots
+that move from one slot to another (the refill after a death) go straight to their slot. The
+rule is here, in the core, so the in-process simulator and the Zenoh coordinator share it:
+:attr:`CoordinatorOutput.approach` holds the approach setpoints and
+:meth:`CoordinatorOutput.setpoint_for` applies them.
+
 The tick is on the simulator's hot path (one call per 20 ms tick of sim time, and the sim runs
 some thousand times faster than real time), so it works on plain floats and tuples: the slots are
 computed by :func:`~coordinator.formation.slot_rows`, the assignment by
@@ -14,8 +27,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from types import MappingProxyType
-from typing import Any
+from typing import Any, Final
 
 from coordinator.assignment import RoleAssigner
 from coordinator.formation import (
@@ -29,9 +43,23 @@ from coordinator.trajectory import LeaderState, Trajectory, make_trajectory, wra
 from robot_agent.kinematics import reference_point
 from robot_agent.params import AgentConfig
 
-__all__ = ["CoordinatorCore", "CoordinatorOutput", "pose_stale_s"]
+__all__ = [
+    "APPROACH_JOIN_M",
+    "APPROACH_SPEED_MPS",
+    "CoordinatorCore",
+    "CoordinatorOutput",
+    "pose_stale_s",
+]
 
 _new = object.__new__
+
+APPROACH_SPEED_MPS: Final = 0.1
+"""Closing speed (m/s, relative to its slot) of a newly assigned robot's approach point: 40 % of
+the firmware's reference-speed clamp (``TrackingGains.max_ref_speed_mps``, 0.25 m/s), so the
+slot's own speed (the paper's leaders: 0.02-0.1 m/s), the PID's correction and the turn toward
+the slot fit under the wheel limit instead of saturating it."""
+APPROACH_JOIN_M: Final = 0.05
+"""A newly assigned robot whose reference point is this close to its slot goes straight to it."""
 
 
 def pose_stale_s(agent: AgentConfig, *, odometry: bool) -> float:
@@ -61,6 +89,7 @@ class CoordinatorOutput:
     """
 
     __slots__ = (
+        "_approach",
         "_assignment",
         "_by_id",
         "_changed",
@@ -72,6 +101,7 @@ class CoordinatorOutput:
         "_theta",
     )
 
+    _approach: Mapping[str, SlotRow]
     _assignment: dict[str, int]
     _by_id: Mapping[int, SlotState] | None
     _changed: bool
@@ -99,6 +129,7 @@ class CoordinatorOutput:
         self._assignment = assignment
         self._changed = changed
         self._by_id = None
+        self._approach = _NO_APPROACH
 
     @classmethod
     def from_rows(
@@ -109,6 +140,7 @@ class CoordinatorOutput:
         rows: list[SlotRow],
         assignment: dict[str, int],
         changed: bool,
+        approach: Mapping[str, SlotRow] | None = None,
     ) -> CoordinatorOutput:
         """Build from :func:`~coordinator.formation.slot_rows` output without making the
         :class:`SlotState` objects (they are made on first access to :attr:`slots`)."""
@@ -122,6 +154,7 @@ class CoordinatorOutput:
         out._assignment = assignment
         out._changed = changed
         out._by_id = None
+        out._approach = _NO_APPROACH if approach is None else approach
         return out
 
     @property
@@ -162,11 +195,23 @@ class CoordinatorOutput:
         """Slot id of each entry of :attr:`rows` / :attr:`slots`."""
         return self._slot_ids
 
+    @property
+    def approach(self) -> Mapping[str, SlotRow]:
+        """Robot id -> ``(x, y, vx, vy)`` of its approach setpoint, for the newly assigned
+        robots still on their way to their slot (module docstring); the others track their
+        slot's row."""
+        return self._approach
+
     def setpoint_for(self, robot: str) -> SlotState | None:
+        """Robot ``robot``'s setpoint: its slot's state, or its approach point on the way."""
         slot = self._assignment.get(robot)
         if slot is None:
             return None
-        return self.slots_by_id[slot]
+        state = self.slots_by_id[slot]
+        row = self._approach.get(robot)
+        if row is not None:
+            state = replace(state, x=row[0], y=row[1], vx=row[2], vy=row[3])
+        return state
 
     @property
     def slots_by_id(self) -> Mapping[int, SlotState]:
@@ -191,6 +236,7 @@ class CoordinatorOutput:
             and self.slots == other.slots
             and self._assignment == other._assignment
             and self._changed == other._changed
+            and dict(self._approach) == dict(other._approach)
         )
 
     __hash__ = None  # type: ignore[assignment]  # mutable assignment dict inside
@@ -200,6 +246,9 @@ class CoordinatorOutput:
             f"CoordinatorOutput(leader={self._leader!r}, slots={self.slots!r}, "
             f"assignment={self._assignment!r}, changed={self._changed!r})"
         )
+
+
+_NO_APPROACH: Mapping[str, SlotRow] = MappingProxyType({})
 
 
 class CoordinatorCore:
@@ -221,6 +270,11 @@ class CoordinatorCore:
         self.ref_offset_m = ref_offset_m
         self.t0_s = t0_s
         self.assignment: dict[str, int] = {}
+        self.approach_speed_mps = APPROACH_SPEED_MPS
+        self._approach: dict[str, list[float]] = {}  # robot -> approach point [x, y]
+        self._running = False  # a tick has assigned robots (later assignments approach)
+        self._last_now: float | None = None
+        self._row_of: dict[int, int] | None = None
 
     @classmethod
     def from_config(
@@ -264,6 +318,11 @@ class CoordinatorCore:
         ids, xy = self._ref_points(poses)
         return dict(zip(ids, xy, strict=True))
 
+    def leader_xy(self, t_s: float) -> tuple[float, float]:
+        """The virtual leader's position (m) at trajectory time ``t_s`` (now - t0)."""
+        state = self.trajectory.sample(t_s)
+        return state.x, state.y
+
     def tick(
         self, now_s: float, poses: Mapping[str, tuple[float, float, float]]
     ) -> CoordinatorOutput:
@@ -275,5 +334,53 @@ class CoordinatorCore:
         assignment, changed = self.assigner.update_ordered(
             ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))
         )
-        self.assignment = assignment
-        return CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed)
+        previous, self.assignment = self.assignment, assignment
+        dt = 0.0 if self._last_now is None else max(0.0, now_s - self._last_now)
+        self._last_now = now_s
+        approach = None
+        if self._approach or (changed and self._running):
+            approach = self._approaches(previous, assignment, ids, xy, rows, dt)
+        self._running = self._running or bool(assignment)
+        return CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
+
+    def _approaches(
+        self,
+        previous: Mapping[str, int],
+        assignment: Mapping[str, int],
+        ids: list[str],
+        xy: list[tuple[float, float]],
+        rows: list[SlotRow],
+        dt: float,
+    ) -> dict[str, SlotRow] | None:
+        """Advance the approach points by ``dt`` and start those of the robots newly assigned
+        far from their slot (module docstring); the approach setpoints, or None."""
+        row_of = self._row_of
+        if row_of is None:
+            row_of = self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+        points = self._approach
+        for rid in [r for r in points if r not in assignment]:
+            del points[rid]
+        if self._running:
+            where = dict(zip(ids, xy, strict=True))
+            for rid, slot in assignment.items():
+                if rid in points or rid in previous or rid not in where:
+                    continue
+                px, py = where[rid]
+                sx, sy, _, _ = rows[row_of[slot]]
+                if math.hypot(sx - px, sy - py) > APPROACH_JOIN_M:
+                    points[rid] = [px, py]
+        out: dict[str, SlotRow] = {}
+        closing = self.approach_speed_mps
+        for rid, p in list(points.items()):
+            sx, sy, vx, vy = rows[row_of[assignment[rid]]]
+            # the point moves with the slot, and closes in on it at most `closing`
+            qx, qy = p[0] + vx * dt, p[1] + vy * dt
+            dx, dy = sx - qx, sy - qy
+            d = math.hypot(dx, dy)
+            if not math.isfinite(d) or d <= closing * dt:
+                del points[rid]  # reached: the slot itself from now on
+                continue
+            ux, uy = dx / d, dy / d
+            p[0], p[1] = qx + ux * closing * dt, qy + uy * closing * dt
+            out[rid] = (p[0], p[1], vx + ux * closing, vy + uy * closing)
+        return out or None

@@ -135,7 +135,9 @@ async def _node(
     io.watch_liveliness(node.coordinators_pattern, node.on_alive)
     io.subscribe(node.heartbeats_pattern, node.on_heartbeat)
     io.subscribe(node.assignment_key, node.on_assignment)
-    await attach_estop_source(node, io)  # the durable e-stop state (docs/faults.md)
+    if not lockstep:  # a standby checks trajectory origins against the leader (election)
+        io.subscribe(node.leader_key, node.on_leader)
+    await attach_estop_source(node.estop_source, io)  # durable e-stop state (docs/faults.md)
     if batch:
         io.pubs.get(node.setpoints_key, node.sp_qos)
         io.subscribe(node.poses_key, node.on_poses)

@@ -7,7 +7,9 @@ Usage::
 
 A thin asyncio shell over :class:`coordinator.core.CoordinatorCore`, built from the scenario by
 ``scenario.assemble`` (the assembly ``formation/simulate.py`` uses too); the standby election
-is :mod:`coordinator.election`, the lockstep rules :mod:`robot_agent.lockstep`. It prints
+is :mod:`coordinator.election`, the lockstep rules :mod:`robot_agent.lockstep`; what a tick
+publishes is encoded by :mod:`coordinator.outputs`, the latched e-stop is held by
+:mod:`coordinator.estop_source`. It prints
 exactly one line ``coordinator ready`` on stdout once its session is open, its subscriptions
 and its liveliness token ``formation/<fleet>/alive/coordinator/<name>`` are declared, and exits
 0 within a second of SIGINT/SIGTERM.
@@ -19,31 +21,23 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import os
 import socket
 import time
 from collections import deque
-from collections.abc import Iterable, Mapping
-from dataclasses import replace
 from typing import Any, Final
 
 import runtime as rt
 from bus_schemas import (
-    BATCH_CHUNK,
     Assignment,
     Clock,
     CoordinatorStatus,
     DecodeError,
-    Estop,
     Heartbeat,
     Leader,
     Pose,
     PoseBatch,
     RejectCounts,
-    Setpoint,
-    SetpointBatch,
-    Slot,
     decode,
     encode,
     keys,
@@ -51,7 +45,9 @@ from bus_schemas import (
 )
 from coordinator.core import CoordinatorOutput, pose_stale_s
 from coordinator.election import Election, Takeover
-from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
+from coordinator.estop_source import EstopSource, attach_estop_source
+from coordinator.outputs import TickOutputs
+from robot_agent.estop import EstopLatch
 from robot_agent.lockstep import Arrivals, Replay
 from scenario import Scenario
 from scenario.assemble import coordinator_core, path_conflicts
@@ -62,11 +58,6 @@ STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
 """Heartbeat period (s): a standby learns the active's state (``leader_t0``, epoch) from it, and
 an instance resuming from a hang learns from it that it was replaced."""
-ASSIGNMENT_REPEAT_S: Final = 1.0
-"""The assignment is re-published at least this often (s; sim time in lockstep)."""
-BATCH_SLOT_PERIOD_S: Final = 1.0
-"""``--batch``: every ``slot/<k>`` is published this often (s) instead of every tick; the
-setpoint batches carry the assigned slots' positions every tick (docs/scale.md)."""
 MAX_ROBOTS: Final = 4096
 """Distinct robot ids tracked (made-up ids cannot grow memory without bound)."""
 POSITION_LIMIT_M: Final = 1.0e4
@@ -119,25 +110,23 @@ class CoordinatorNode:
             self.log.info(f"warning: {w}")
         self._publish = publish
         self._order = {rid: i for i, rid in enumerate(scenario.robot_ids)}
-
-        self.leader_key = keys.leader_key(fleet)
-        self.assignment_key = keys.assignment_key(fleet)
+        # what a tick publishes, encoded (coordinator.outputs: keys, QoS, sequence numbers)
+        self.outputs = TickOutputs(
+            self.fleet, self._order, lockstep=lockstep, batch=batch, log=self.log
+        )
+        self.leader_key = self.outputs.leader_key
+        self.assignment_key = self.outputs.assignment_key
+        self.setpoints_key = self.outputs.setpoints_key
+        self.sp_qos = self.outputs.sp_qos
+        self.leader_qos = self.outputs.leader_qos
+        self.data_qos = self.outputs.data_qos
         self.clock_key = keys.clock_key(fleet)
         self.status_key = keys.coordinator_status_key(fleet, name)
         self.heartbeat_key = keys.heartbeat_key(fleet, name)
         self.alive_key = keys.alive_coordinator_key(fleet, name)
         self.poses_pattern = keys.all_poses_pattern(fleet)
         self.poses_key = keys.poses_key(fleet)
-        self.setpoints_key = keys.setpoints_key(fleet)
-        self._last_slots_t = -math.inf
         self.alive_pattern = keys.alive_robots_pattern(fleet)
-        # Lockstep: setpoints and leader are what the plant and the agents wait for, so they
-        # must arrive (BLOCK) and keep their order (one priority, the clock's).
-        # Slots and assignment too: a lower priority would let the leader overtake them, and a
-        # recorder would see tick k's slots after the plant moved on.
-        self.sp_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
-        self.leader_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
-        self.data_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
 
         self.alive: set[str] = set()
         # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
@@ -145,20 +134,24 @@ class CoordinatorNode:
         self._pending: Arrivals[str] = Arrivals()  # lockstep: poses since the last clock
         self.rejects = RejectCounts()  # by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
-        self.rx: dict[str, int] = {"pose": 0, "poses": 0, "clock": 0, "alive": 0, "estop": 0}
+        self.rx: dict[str, int] = {
+            "pose": 0, "poses": 0, "clock": 0, "alive": 0, "estop": 0, "leader": 0,
+        }  # fmt: skip
+        # lockstep: a robot's token lost while the run goes on is a fault event only (the
+        # plant owns sim time and waits for its answers; membership never follows a lease)
+        self.token_losses = 0
         self.ticks = 0
         self.tick_s: deque[float] = deque(maxlen=250)  # compute + publish time of recent ticks
         self.t0_s: float | None = 0.0 if lockstep else None
         self.last: CoordinatorOutput | None = None
-        self._last_assignment_t = -math.inf
         # lockstep: the last clock and the outputs that answered it (realtime: the last tick's)
         self._replay: Replay[list[tuple[str, bytes, rt.QoS]]] = Replay()
         self._replay.answer = []
-        self._seq: dict[str, int] = {}
         self.sim_t = 0.0
 
-        # -- election (module docstring, *Standby*; the decisions are coordinator.election's)
-        self.election = Election(self.name, active=not standby)
+        # -- election (module docstring, *Standby*; the decisions are coordinator.election's):
+        # a standby checks every origin against the leader messages it observes
+        self.election = Election(self.name, active=not standby, position_at=self.core.leader_xy)
         self.peer_assignment: dict[str, int] = {}  # the last assignment seen on the bus
         self.heartbeats_pattern = keys.all_heartbeats_pattern(fleet)
         self.coordinators_pattern = keys.alive_coordinators_pattern(fleet)
@@ -166,16 +159,28 @@ class CoordinatorNode:
         # -- the latched e-stop state (robot_agent.estop): every instance, active or standby,
         # keeps it from the estop messages and answers queries on the estop key with it
         self.estop_key = keys.estop_key(fleet)
-        self.estop = EstopLatch()
-        self.estop_answer: tuple[bytes, ...] = self._estop_payloads()
-        self.on_estop_answer: Any = None  # called with the new answer (the shell's queryable)
+        self.estop_source = EstopSource(
+            self.estop_key, self._now, self._reject, self._internal, self.log
+        )
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
+    def _now(self) -> float:
+        """This node's clock: sim time in lockstep, ``time.monotonic()`` in realtime."""
+        return self.sim_t if self.lockstep else time.monotonic()
+
     def _next_seq(self, key: str) -> int:
-        n = self._seq.get(key, 0) + 1
-        self._seq[key] = n
-        return n
+        return self.outputs.next_seq(key)
+
+    @property
+    def estop(self) -> EstopLatch:
+        """The latched e-stop scopes (coordinator.estop_source)."""
+        return self.estop_source.latch
+
+    @property
+    def estop_answer(self) -> tuple[bytes, ...]:
+        """What a query on the ``estop`` key is answered with."""
+        return self.estop_source.answer
 
     @property
     def rejected(self) -> int:
@@ -211,6 +216,12 @@ class CoordinatorNode:
                 if rid not in self.alive and len(self.alive) < MAX_ROBOTS:
                     self.alive.add(rid)
                     self.log.info(f"robot {rid} alive")
+            elif rid in self.alive and self.lockstep:
+                # A fault event only: in lockstep membership never follows a wall-clock lease
+                # (an agent paused past it under load still answers the plant's clocks when it
+                # resumes, and the result must be that of the unpaused run; issue 13 item 7).
+                self.token_losses += 1
+                self.log.info(f"robot {rid}'s token is gone (lockstep: kept, a fault event)")
             elif rid in self.alive:
                 self.alive.discard(rid)
                 self.poses.pop(rid, None)  # its last pose must not be reused if it comes back
@@ -254,7 +265,9 @@ class CoordinatorNode:
             # Two actives (a split brain, or two instances started without --standby): the
             # loser stops at once, so the robots get one coordinator's setpoints again within
             # one heartbeat period.
-            why = self.election.heartbeat(msg.name, msg.active, msg.epoch, msg.leader_t0)
+            why = self.election.heartbeat(
+                msg.name, msg.active, msg.epoch, msg.leader_t0, now_s=self._now()
+            )
             refusal = self.election.last_refusal
             if refusal is not None:
                 self._reject("heartbeat", f"from {msg.name}: {refusal}", refusal)
@@ -263,52 +276,33 @@ class CoordinatorNode:
         except Exception as exc:
             self._internal("on_heartbeat", exc)
 
-    def _estop_payloads(self) -> tuple[bytes, ...]:
-        now = self.sim_t if self.lockstep else time.monotonic()
-        return tuple(
-            encode(Estop(t=max(now, 0.0), engage=e, robot=r)) for e, r in self.estop.answer()
-        )
-
-    def _estop_changed(self) -> None:
-        self.estop_answer = self._estop_payloads()
-        if self.on_estop_answer is not None:
-            self.on_estop_answer(self.estop_answer)
+    def on_leader(self, rx: rt.Received) -> None:
+        """The active instance's ``leader``: a standby checks trajectory origins against it
+        (coordinator.election, spoofed heartbeats)."""
+        try:
+            if self.active:
+                return
+            self.rx["leader"] += 1
+            msg = decode(rx.payload, Leader)
+            if isinstance(msg, DecodeError):
+                self._reject("leader", msg)
+                return
+            self.election.observe_leader(msg.t, msg.x, msg.y, self._now())
+        except Exception as exc:
+            self._internal("on_leader", exc)
 
     def on_estop(self, rx: rt.Received) -> None:
-        """An operator's ``estop``: latch or release its scope (the fleet's durable state)."""
-        try:
-            self.rx["estop"] += 1
-            msg = decode(rx.payload, Estop)
-            if isinstance(msg, DecodeError):
-                self._reject("estop", msg)
-                return
-            if self.estop.apply(msg.engage, msg.robot):
-                scope = "fleet" if msg.robot is None else msg.robot
-                self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({scope})")
-                self._estop_changed()
-        except Exception as exc:
-            self._internal("on_estop", exc)
+        """An operator's ``estop``: latch or release its scope (coordinator.estop_source)."""
+        self.rx["estop"] += 1
+        self.estop_source.on_estop(rx)
 
     def on_estop_state(self, payloads: Any) -> None:
         """Another coordinator's latched state (queried at start): its engagements are added."""
-        try:
-            answers: list[tuple[bool, str | None]] = []
-            for payload in payloads:
-                msg = decode(payload, Estop)
-                if isinstance(msg, DecodeError):
-                    self._reject("estop_state", msg)
-                    continue
-                answers.append((msg.engage, msg.robot))
-            if self.estop.merge_answer(answers, replace=False):
-                self.log.info(f"estop state from the other coordinators: {self.estop_text()}")
-                self._estop_changed()
-        except Exception as exc:
-            self._internal("on_estop_state", exc)
+        self.estop_source.on_state(payloads)
 
     def estop_text(self) -> str:
         """The latched scopes, for logs."""
-        parts = ["fleet"] if self.estop.fleet else []
-        return ", ".join([*parts, *sorted(self.estop.robots)]) or "none"
+        return self.estop_source.text()
 
     def on_assignment(self, rx: rt.Received) -> None:
         """The active instance's assignment: a standby keeps it to seed its hysteresis."""
@@ -487,7 +481,7 @@ class CoordinatorNode:
             out = self.core.tick(now_s, self.fresh_poses(now_s))
             self.ticks += 1
             self.last = out
-            outputs = self._outputs(out, now_s, tick)
+            outputs = self.outputs.encode_tick(out, now_s, tick, self.t0_s or 0.0)
             for key, payload, qos in outputs:
                 self._publish(key, payload, qos)
             self._replay.answer = outputs
@@ -496,107 +490,6 @@ class CoordinatorNode:
         except Exception as exc:
             self._internal("tick", exc)
             return None
-
-    def _outputs(
-        self, out: CoordinatorOutput, now_s: float, tick: int | None
-    ) -> list[tuple[str, bytes, rt.QoS]]:
-        t = max(now_s, 0.0)
-        fleet = self.fleet
-        # --batch: SetpointBatch chunks instead of one key per robot
-        setpoints = self._setpoint_batches(out, t, tick) if self.batch else []
-        by_slot = out.slots_by_id
-        for rid, slot_id in () if self.batch else out.assignment.items():
-            s = by_slot[slot_id]
-            key = keys.setpoint_key(fleet, rid)
-            sp = Setpoint(
-                t=t,
-                seq=self._next_seq(key),
-                robot=rid,
-                slot=s.slot,
-                role=s.role,
-                stage=s.stage,
-                parent=s.parent,
-                x=s.x,
-                y=s.y,
-                theta=s.theta,
-                vx=s.vx,
-                vy=s.vy,
-            )
-            setpoints.append((key, encode(replace(sp, tick=tick)), self.sp_qos))
-        slots: list[tuple[str, bytes, rt.QoS]] = []
-        slots_due = not self.batch or now_s - self._last_slots_t >= BATCH_SLOT_PERIOD_S
-        if slots_due:
-            self._last_slots_t = now_s
-        for s in out.slots if slots_due else ():
-            key = keys.slot_key(fleet, s.slot)
-            msg = Slot(
-                t=t,
-                seq=self._next_seq(key),
-                slot=s.slot,
-                role=s.role,
-                stage=s.stage,
-                parent=s.parent,
-                x=s.x,
-                y=s.y,
-                theta=s.theta,
-                vx=s.vx,
-                vy=s.vy,
-            )
-            slots.append((key, encode(replace(msg, tick=tick)), self.data_qos))
-        extra: list[tuple[str, bytes, rt.QoS]] = []
-        if out.changed or now_s - self._last_assignment_t >= ASSIGNMENT_REPEAT_S:
-            self._last_assignment_t = now_s
-            amsg = Assignment(
-                t=t,
-                seq=self._next_seq(self.assignment_key),
-                leader=out.leader_robot,
-                robots=dict(out.assignment),
-            )
-            extra.append((self.assignment_key, encode(amsg), self.data_qos))
-            if out.changed:
-                t_traj = now_s - (self.t0_s or 0.0)
-                self.log.info(f"t={t_traj:.3f} s: assignment {_describe(out.assignment)}")
-        ld = out.leader
-        leader = Leader(
-            t=t,
-            seq=self._next_seq(self.leader_key),
-            x=ld.x,
-            y=ld.y,
-            theta=ld.theta,
-            v_mps=ld.v_mps,
-            omega_radps=ld.omega_radps,
-        )
-        leader_out = (self.leader_key, encode(replace(leader, tick=tick)), self.leader_qos)
-        if self.lockstep:  # slots, setpoints, assignment, then the leader LAST
-            return [*slots, *setpoints, *extra, leader_out]
-        return [*setpoints, leader_out, *slots, *extra]  # realtime: setpoints first (latency)
-
-    def _setpoint_batches(
-        self, out: CoordinatorOutput, t: float, tick: int | None
-    ) -> list[tuple[str, bytes, rt.QoS]]:
-        """``--batch``: every assigned robot's setpoint in SetpointBatch chunks (robot order)."""
-        by_slot = out.slots_by_id
-        rows = sorted(out.assignment.items(), key=lambda a: (self._order.get(a[0], 1 << 30), a[0]))
-        msgs: list[tuple[str, bytes, rt.QoS]] = []
-        theta = out.theta
-        for i in range(0, len(rows), BATCH_CHUNK):
-            chunk = [(rid, by_slot[sid]) for rid, sid in rows[i : i + BATCH_CHUNK]]
-            msg = SetpointBatch(
-                t=t,
-                seq=self._next_seq(self.setpoints_key),
-                robots=tuple(r for r, _ in chunk),
-                slot=tuple(s.slot for _, s in chunk),
-                role=tuple(s.role for _, s in chunk),
-                stage=tuple(s.stage for _, s in chunk),
-                x=tuple(s.x for _, s in chunk),
-                y=tuple(s.y for _, s in chunk),
-                theta=theta,
-                vx=tuple(s.vx for _, s in chunk),
-                vy=tuple(s.vy for _, s in chunk),
-                tick=tick,
-            )
-            msgs.append((self.setpoints_key, encode(msg), self.sp_qos))
-        return msgs
 
     # -- periodic ------------------------------------------------------------------------------
 
@@ -617,8 +510,8 @@ class CoordinatorNode:
             alive=tuple(sorted(self.alive)),
             assignment=dict(last.assignment) if last is not None else {},
             leader=last.leader_robot if last is not None else None,
-            estop_fleet=self.estop.fleet,
-            estop_robots=tuple(sorted(self.estop.robots)[:64]),
+            estop_fleet=self.estop_source.latch.fleet,
+            estop_robots=tuple(sorted(self.estop_source.latch.robots)[:64]),
             rejected=self.rejected,
             rejects=self.rejects.as_dict(),
             internal_errors=self.internal_errors,
@@ -691,36 +584,6 @@ class CoordinatorNode:
             await asyncio.sleep(max(0.0, wake - turned))
 
 
-async def attach_estop_source(node: CoordinatorNode, io: rt.NodeIO) -> None:
-    """Make ``node`` a durable source of the latched e-stop state: subscribe to ``estop``, learn
-    what the other coordinators hold (a respawned instance must not forget an e-stop), then
-    answer every query on the ``estop`` key with the state (docs/faults.md)."""
-    from runtime.query import Answerer, Querier
-
-    io.subscribe(node.estop_key, node.on_estop)
-    querier = Querier(
-        io.session, io.loop, node.estop_key, lambda p, _t: None, timeout_s=ESTOP_QUERY_TIMEOUT_S
-    )
-    try:
-        payloads = await io.loop.run_in_executor(None, querier.run_now)
-    except Exception as exc:
-        node._internal("estop_query", exc)
-        payloads = []
-    node.on_estop_state(payloads)
-    answerer = Answerer(io.session, node.estop_key)
-    answerer.snapshot = node.estop_answer
-
-    def update(answer: tuple[bytes, ...]) -> None:
-        answerer.snapshot = answer
-
-    node.on_estop_answer = update
-    io._keep.append(answerer)
-
-
 _HOST: Final = socket.gethostname()[:255] or "unknown"
 
 
-def _describe(assignment: Mapping[str, int]) -> str:
-    parts: Iterable[str] = (f"{rid}->{slot}" for rid, slot in sorted(assignment.items()))
-    leader = next((rid for rid, slot in assignment.items() if slot == 0), None)
-    return f"{' '.join(parts) or '(none)'}; leader {leader or '-'}"

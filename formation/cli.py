@@ -31,7 +31,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "router": ("formation.router", "run an embedded Zenoh router"),
     "coordinator": ("coordinator.main", "run the coordinator process"),
     "agent": ("robot_agent.main", "run one robot agent process"),
-    "agent-host": ("robot_agent.host", "run the agents of many robots in one process (scale)"),
+    "agent-host": ("robot_agent.host_main", "run the agents of many robots in one process (scale)"),
     "plant": ("sim_plant.main", "run the plant simulator process"),
     "fault": ("formation.fault", "inject a fault into a running fleet"),
     "record": ("formation.record", "record the fleet's keys to MCAP"),

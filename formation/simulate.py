@@ -193,13 +193,15 @@ def run(
             prev_asg = prev_out.assignment
             prev_rows = prev_out.rows
             prev_theta = prev_out.theta
+            prev_approach = prev_out.approach  # newly assigned robots on their way (core)
         else:
             prev_asg = {}
+            prev_approach = {}
         for i, rid, step in robots:
             sp = None
             slot = prev_asg.get(rid)
             if slot is not None:
-                x, y, vx, vy = prev_rows[slot_row[slot]]
+                x, y, vx, vy = prev_approach.get(rid) or prev_rows[slot_row[slot]]
                 sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
             cmds.append(
                 step(

@@ -5,6 +5,8 @@ Usage::
     formation agent-host --ids r1..r100 [--name NAME] [--scenario NAME|FILE] [--fleet demo]
                          [--lockstep] [--rate-hz 50] [zenoh options]
 
+The command line and bootstrap are :mod:`robot_agent.host_main`; this module is the node.
+
 A workstation simulating hundreds of robots cannot afford one process (and ~40 MB, and one Zenoh
 session) per robot; a real robot runs ``formation agent``. This process runs one
 :class:`~robot_agent.node.AgentNode` per robot, each with its own
@@ -32,6 +34,12 @@ timer steps every robot that was not stepped for a period, so stale data still d
 Lockstep: on ``clock`` k every robot steps at ``t_k`` (``AgentNode.clock_step``) and one batch
 (``tick: k``) answers; a repeated clock gets the same batch again.
 
+E-stop as latched fleet state (``robot_agent.estop``, docs/faults.md): every hosted robot keeps
+its own latch. Like ``formation agent``, the host asks the coordinators for the latched state
+before it subscribes to anything that moves its robots (so robots of a host that starts or is
+respawned under an e-stop come up in ESTOP), again when it resumes from a stop, and every
+``ESTOP_REFRESH_S`` in realtime (:meth:`HostNode.on_estop_state`).
+
 Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
 logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
 session closed (``runtime.transport.run_node``). Prints ``agent-host <name> ready`` once its
@@ -40,15 +48,12 @@ subscriptions and every robot's token are declared.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import math
 import os
-import re
 import socket
-import sys
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Final
 
@@ -67,6 +72,7 @@ from bus_schemas import (
     keys,
 )
 from robot_agent.clocksync import ClockOffsets
+from robot_agent.estop import ESTOP_REFRESH_S
 from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
@@ -83,7 +89,7 @@ from robot_agent.safety_filter import Neighbour, SafetyFilter
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
-__all__ = ["MAX_HOSTED", "HostNode", "build_parser", "expand_ids", "main"]
+__all__ = ["MAX_HOSTED", "HostNode"]
 
 MAX_HOSTED: Final = 4096
 """Robots one host runs at most."""
@@ -95,35 +101,6 @@ REALTIME_CHUNK: Final = 32
 _Entry = tuple[int, str, float, float, float, float]
 _Grid = dict[tuple[int, int], list[_Entry]]
 """Spatial hash: cell -> (frame order, robot id, x, y, theta, capture_s) of the robots in it."""
-
-_RANGE = re.compile(r"([a-z_-]*)(\d+)\.\.\1?(\d+)")
-
-
-def expand_ids(spec: str) -> list[str]:
-    """``"r1..r3,x7"`` -> ``["r1", "r2", "r3", "x7"]``; raises ValueError on a bad id or range."""
-    out: list[str] = []
-    for part in (p.strip() for p in spec.split(",")):
-        if not part:
-            continue
-        m = _RANGE.fullmatch(part)
-        if m is not None:
-            prefix, lo, hi = m.group(1), int(m.group(2)), int(m.group(3))
-            if hi < lo or hi - lo >= MAX_HOSTED:
-                raise ValueError(f"bad id range {part!r}")
-            out.extend(f"{prefix}{i}" for i in range(lo, hi + 1))
-        elif keys.is_robot_id(part):
-            out.append(part)
-        else:
-            raise ValueError(f"invalid robot id {part!r}: must match {keys.ROBOT_ID_PATTERN}")
-    if not out:
-        raise ValueError("no robot ids")
-    if len(set(out)) != len(out):
-        raise ValueError("duplicate robot id")
-    if len(out) > MAX_HOSTED:
-        raise ValueError(f"at most {MAX_HOSTED} robots per host")
-    for rid in out:
-        keys.check_robot_id(rid)
-    return out
 
 
 @dataclass(slots=True)
@@ -221,6 +198,11 @@ class HostNode:
         self._seq_wheels = 0
         self._seq_status = 0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
+        # the latched e-stop (robot_agent.estop): estop messages seen (a query's answer older
+        # than one must not undo it) and the hook that asks the coordinators (host_main)
+        self.estop_messages = 0
+        self.estop_query: Callable[[], None] | None = None
+        self.estop_queried_s = -math.inf
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -248,7 +230,44 @@ class HostNode:
             self._seen.clear()
             self._grid = None
             self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
+            self.request_estop_state(now_s)  # an e-stop engaged or released meanwhile
         return self.stall.quarantined(now_s)
+
+    # -- the latched e-stop --------------------------------------------------------------------
+
+    def on_estop_state(self, payloads: Sequence[bytes], messages_before: int) -> None:
+        """The coordinators' latched e-stop state (a query's answer), asked when
+        :attr:`estop_messages` was ``messages_before``: each hosted robot merges its scopes
+        (``AgentNode.on_estop_state``). No answer: nothing changes."""
+        try:
+            if not payloads:
+                return
+            answers: list[tuple[bool, str | None]] = []
+            for payload in payloads:
+                msg = decode(payload, Estop)
+                if isinstance(msg, DecodeError):
+                    self._reject("estop_state", msg)
+                else:
+                    answers.append((msg.engage, msg.robot))
+            replace = messages_before == self.estop_messages
+            for node in self.nodes.values():
+                # the robot's own count stands for the host's: replace only if no estop
+                # message reached the host since the query was sent
+                node.on_estop_state(answers, node.estop_messages if replace else -1)
+            stopped = sum(n.estop.stopped(n.robot_id) for n in self.nodes.values())
+            if stopped:
+                self.log.limited("estop-state", f"latched e-stop: {stopped} robot(s) stopped")
+        except Exception as exc:
+            self._internal("on_estop_state", exc)
+
+    def request_estop_state(self, now_s: float) -> None:
+        """Ask the coordinators for the latched e-stop state (through :attr:`estop_query`)."""
+        self.estop_queried_s = now_s
+        if self.estop_query is not None:
+            try:
+                self.estop_query()
+            except Exception as exc:
+                self._internal("estop_query", exc)
 
     # -- neighbours ----------------------------------------------------------------------------
 
@@ -379,6 +398,7 @@ class HostNode:
         """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
         try:
             self.rx["estop"] += 1
+            self.estop_messages += 1
             msg = decode(rx.payload, Estop)
             if isinstance(msg, DecodeError):
                 self._reject("estop", msg)
@@ -560,6 +580,8 @@ class HostNode:
         """Publish the status batches (never raises)."""
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
+            if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
+                self.request_estop_state(now)
             for msg in self.status_batches(now):
                 self._publish(self.status_key, encode(msg), rt.QOS_TELEMETRY)
         except Exception as exc:
@@ -575,113 +597,3 @@ class HostNode:
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime watchdog step and the 5 Hz status."""
         await run_timers(self, stop, notifier)
-
-
-# ---------------------------------------------------------------------------------------------
-# CLI
-# ---------------------------------------------------------------------------------------------
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The ``formation agent-host`` argument parser."""
-    parser = argparse.ArgumentParser(
-        prog="formation agent-host",
-        description="Run the firmware of many robots in one process (simulation at scale).",
-    )
-    parser.add_argument(
-        "--ids", required=True, metavar="IDS", help="robot ids: r1..r100 or r1,r2,r5..r9"
-    )
-    parser.add_argument(
-        "--name", metavar="NAME", help="host name in the keys (default: host-<pid>)"
-    )
-    parser.add_argument("--scenario", metavar="NAME|FILE", help="robot parameters of a scenario")
-    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, metavar="NAME", help="fleet name")
-    parser.add_argument(
-        "--lockstep", action="store_true", help="step on the plant's clock (docs/runtime.md)"
-    )
-    parser.add_argument(
-        "--rate-hz",
-        type=rt.rate_hz,
-        default=50.0,
-        metavar="HZ",
-        help="watchdog timer rate (50 Hz)",
-    )
-    rt.add_zenoh_arguments(parser)
-    return parser
-
-
-def main(argv: list[str]) -> int:
-    """Entry point of ``formation agent-host``; returns the exit status."""
-    ns = build_parser().parse_args(argv)
-    log = rt.NodeLog("formation agent-host")
-    try:
-        ids = expand_ids(ns.ids)
-    except ValueError as exc:
-        log.info(f"--ids: {exc}")
-        return 2
-    name = ns.name or f"host-{os.getpid()}"
-    if not keys.is_name(name) or not keys.is_name(ns.fleet):
-        log.info(f"invalid --name {name!r} or --fleet {ns.fleet!r}: must match {keys.NAME_PATTERN}")
-        return 2
-    config = AgentConfig()
-    if ns.scenario is not None:
-        from scenario import ScenarioError, load
-
-        try:
-            config = load(ns.scenario).agent
-        except (ScenarioError, OSError) as exc:
-            log.info(f"scenario: {exc}")
-            return 2
-    try:
-        settings = rt.settings_from_args(ns)
-    except (TypeError, ValueError) as exc:
-        log.info(f"zenoh settings: {exc}")
-        return 2
-    return rt.serve(
-        f"agent-host {name}",
-        settings,
-        lambda io, stop: _node(io, stop, name, ids, ns.fleet, config, ns.lockstep, ns.rate_hz),
-    )
-
-
-async def _node(
-    io: rt.NodeIO,
-    stop: asyncio.Event,
-    name: str,
-    ids: list[str],
-    fleet: str,
-    config: AgentConfig,
-    lockstep: bool,
-    rate_hz: float,
-) -> int:
-    notifier = Notifier()
-    try:
-        host = HostNode(
-            name, ids, fleet, config, io.pubs.put, lockstep=lockstep, rate_hz=rate_hz, log=io.log
-        )
-        host.stall.gap_s = rt.hang_gap_for(io.settings.lease_ms)
-        io.pubs.get(host.wheels_key, host.wheels_qos)
-        io.pubs.get(host.status_key, rt.QOS_TELEMETRY)
-        io.subscribe(host.setpoints_key, host.on_setpoints)
-        io.subscribe(host.estop_key, host.on_estop)
-        if lockstep:
-            io.subscribe(host.clock_key, host.on_clock)
-        io.subscribe(host.poses_key, host.on_poses)
-        if not lockstep:  # the other robots' modes: cooperative neighbours
-            io.subscribe(keys.all_status_pattern(fleet), host.on_status)
-            io.subscribe(keys.all_host_status_pattern(fleet), host.on_host_status)
-        for r in ids:
-            io.declare_token(keys.alive_robot_key(fleet, r))
-        print(f"agent-host {name} ready", flush=True)
-        notifier.ready(f"agent-host {name} connected ({len(ids)} robots)")
-        mode = "lockstep" if lockstep else f"realtime, watchdog {rate_hz:g} Hz"
-        io.log.info(f"fleet {fleet}, {len(ids)} robots ({ids[0]}..{ids[-1]}), {mode}")
-        await host.run(stop, notifier)
-        notifier.stopping()
-        return 0
-    finally:
-        notifier.close()
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main(sys.argv[1:]))

@@ -62,6 +62,7 @@ class PlantInputs:
     index: dict[str, int]
     sim: _Sim | None
     alive: set[str]
+    lost: set[str]
     coordinators: set[str]
     last_cmd: npt.NDArray[np.float64]
     applied: npt.NDArray[np.float64]
@@ -104,19 +105,39 @@ class PlantInputs:
             if parsed is None or parsed[2] is None or parsed[2] not in self.index:
                 return
             rid = parsed[2]
-            i = self.index[rid]
             if alive:
                 self.alive.add(rid)
+                self.lost.discard(rid)
+            elif rid in self.alive and self.lockstep:
+                # A fault event only (issue 13 item 7): a lease is wall-clock time, and an agent
+                # paused past it under load still answers this tick when it resumes, so the
+                # plant keeps waiting for it; only a lost agent that misses the lockstep timeout
+                # is dropped (drop_lost), so the result is that of the unpaused run.
+                if rid not in self.lost:
+                    self.lost.add(rid)
+                    self.log.info(f"robot {rid}'s token is gone (lockstep: still waited for)")
             elif rid in self.alive:
-                self.alive.discard(rid)
-                self.generation[i] += 1  # commands in flight for it are discarded
-                self.last_cmd[i] = 0.0
-                self.applied[i] = 0.0
-                self.answer_tick[i] = None
-                self.log.info(f"robot {rid}'s agent is gone: its wheels stop")
+                self.drop_agent(rid)
             self.changed.set()
         except Exception as exc:
             self._internal("on_alive_robot", exc)
+
+    def drop_agent(self, rid: str) -> None:
+        """Robot ``rid``'s agent is gone: its wheels stop and nobody waits for it."""
+        i = self.index[rid]
+        self.alive.discard(rid)
+        self.lost.discard(rid)
+        self.generation[i] += 1  # commands in flight for it are discarded
+        self.last_cmd[i] = 0.0
+        self.applied[i] = 0.0
+        self.answer_tick[i] = None
+        self.log.info(f"robot {rid}'s agent is gone: its wheels stop")
+
+    def drop_lost(self, missing: list[str]) -> None:
+        """Lockstep timeout: the robots of ``missing`` whose token is gone are dropped."""
+        for rid in missing:
+            if rid in self.lost:
+                self.drop_agent(rid)
 
     def on_alive_coordinator(self, key: str, alive: bool) -> None:
         """A coordinator token appeared or vanished."""

@@ -138,6 +138,7 @@ class PlantNode(PlantInputs):
         self.truth_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
 
         self.alive: set[str] = set()
+        self.lost: set[str] = set()  # lockstep: token gone, still waited for (inputs.py)
         self.coordinators: set[str] = set()
         self.last_cmd: npt.NDArray[np.float64] = np.zeros((self.n, 2))
         self.applied: npt.NDArray[np.float64] = np.zeros((self.n, 2))
@@ -405,6 +406,7 @@ class PlantNode(PlantInputs):
                     f"tick {k}: no answer from {', '.join(missing)} within "
                     f"{self.lockstep_timeout_s:g} s; going on ({self.timeouts} timeouts)",
                 )
+                self.drop_lost(missing)
                 return
             if now >= next_announce:
                 self._publish_clock(k, t_s)

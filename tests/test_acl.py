@@ -137,6 +137,7 @@ EXPECT_READ: dict[str, set[str]] = {
         *(_f(f"robot/{r}/status") for r in ROBOTS),
         _f("host/h1/status"),
         _f("assignment"),
+        _f("leader"),  # a standby checks trajectory origins against it (coordinator.election)
         _f("estop"),
         _f("clock"),
         *(_f(f"coordinator/{c}/{x}") for c in ("main", "standby") for x in ("heartbeat", "status")),

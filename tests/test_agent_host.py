@@ -37,7 +37,8 @@ from bus_schemas import (
     encode,
     keys,
 )
-from robot_agent.host import HostNode, expand_ids
+from robot_agent.host import HostNode
+from robot_agent.host_main import expand_ids
 from robot_agent.params import AgentConfig
 from robot_agent.safety_filter import SafetyFilter
 from scenario import load

@@ -24,7 +24,7 @@ def _is_shell(path: Path) -> bool:
     name = path.name
     return (
         "node" in name
-        or name == "host.py"  # the agent-host process shell (Zenoh I/O around AgentNode)
+        or name in ("host.py", "host_main.py")  # the agent-host process shell and its CLI
         or name == "main.py"  # the agent process's command line and bootstrap
         or "shell" in name
         or name.startswith("motors")

@@ -1,0 +1,119 @@
+"""The coordinator as the durable source of the latched e-stop state (docs/faults.md).
+
+Part of the coordinator's process shell. Every coordinator instance, active or standby, keeps
+the latched scopes (:class:`robot_agent.estop.EstopLatch`) from the ``estop`` messages, asks the
+other coordinators for theirs when it starts (a respawned instance must not forget an e-stop)
+and answers every query on the ``estop`` key with its state: one ``Estop`` of the fleet scope,
+engaged or not, then one engaged ``Estop`` per latched robot.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import runtime as rt
+from bus_schemas import DecodeError, Estop, decode, encode
+from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
+
+__all__ = ["EstopSource", "attach_estop_source"]
+
+
+class EstopSource:
+    """The latched state and its answer; handlers never raise.
+
+    ``now``: the node's clock (sim time in lockstep); ``reject(what, why)`` and
+    ``internal(where, exc)``: the node's counters."""
+
+    def __init__(
+        self,
+        key: str,
+        now: Callable[[], float],
+        reject: Callable[[str, DecodeError | str], None],
+        internal: Callable[[str, BaseException], None],
+        log: rt.NodeLog,
+    ) -> None:
+        self.key = key
+        self.latch = EstopLatch()
+        self._now = now
+        self._reject = reject
+        self._internal = internal
+        self.log = log
+        self.messages = 0
+        self.answer: tuple[bytes, ...] = self._payloads()
+        self.on_answer: Callable[[tuple[bytes, ...]], None] | None = None
+        """Called with the new answer (the shell's queryable)."""
+
+    def _payloads(self) -> tuple[bytes, ...]:
+        now = max(self._now(), 0.0)
+        return tuple(encode(Estop(t=now, engage=e, robot=r)) for e, r in self.latch.answer())
+
+    def _changed(self) -> None:
+        self.answer = self._payloads()
+        if self.on_answer is not None:
+            self.on_answer(self.answer)
+
+    def on_estop(self, rx: rt.Received) -> None:
+        """An operator's ``estop``: latch or release its scope (the fleet's durable state)."""
+        try:
+            self.messages += 1
+            msg = decode(rx.payload, Estop)
+            if isinstance(msg, DecodeError):
+                self._reject("estop", msg)
+                return
+            if self.latch.apply(msg.engage, msg.robot):
+                scope = "fleet" if msg.robot is None else msg.robot
+                self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({scope})")
+                self._changed()
+        except Exception as exc:
+            self._internal("on_estop", exc)
+
+    def on_state(self, payloads: Iterable[Any]) -> None:
+        """Another coordinator's latched state (queried at start): its engagements are added."""
+        try:
+            answers: list[tuple[bool, str | None]] = []
+            for payload in payloads:
+                msg = decode(payload, Estop)
+                if isinstance(msg, DecodeError):
+                    self._reject("estop_state", msg)
+                    continue
+                answers.append((msg.engage, msg.robot))
+            if self.latch.merge_answer(answers, replace=False):
+                self.log.info(f"estop state from the other coordinators: {self.text()}")
+                self._changed()
+        except Exception as exc:
+            self._internal("on_estop_state", exc)
+
+    def text(self) -> str:
+        """The latched scopes, for logs."""
+        parts = ["fleet"] if self.latch.fleet else []
+        return ", ".join([*parts, *sorted(self.latch.robots)]) or "none"
+
+    def status(self) -> dict[str, Any]:
+        """The ``estop`` entry of the coordinator status."""
+        return {"fleet": self.latch.fleet, "robots": sorted(self.latch.robots)[:64]}
+
+
+async def attach_estop_source(source: EstopSource, io: rt.NodeIO) -> None:
+    """Make ``source`` durable on ``io``: subscribe to ``estop``, learn what the other
+    coordinators hold, then answer every query on the ``estop`` key with the state."""
+    from runtime.query import Answerer, Querier
+
+    io.subscribe(source.key, source.on_estop)
+    querier = Querier(
+        io.session, io.loop, source.key, lambda p, _t: None, timeout_s=ESTOP_QUERY_TIMEOUT_S
+    )
+    try:
+        payloads = await io.loop.run_in_executor(None, querier.run_now)
+    except Exception as exc:
+        source._internal("estop_query", exc)
+        payloads = []
+    source.on_state(payloads)
+    answerer = Answerer(io.session, source.key)
+    answerer.snapshot = source.answer
+
+    def update(answer: tuple[bytes, ...]) -> None:
+        answerer.snapshot = answer
+
+    source.on_answer = update
+    io._keep.append(answerer)

@@ -1,0 +1,111 @@
+"""A lockstep agent whose liveliness lease expires is a fault event, never a change of result.
+
+Issue 13 item 7: under extreme load a lockstep agent can be descheduled longer than its
+wall-clock lease; its token vanishes although it will answer the tick it owes. The plant and
+the coordinator must treat that as an event only (the plant keeps waiting for the agent up to
+its lockstep timeout, the coordinator keeps its slot), so the result equals the unpaused run.
+Reproduced deterministically: r2's agent is SIGSTOPped mid-run until its token is seen gone
+(lease 300 ms here), then resumed; the metrics must equal those of the same run without pause.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import pytest
+import zenoh
+from conftest import free_port
+from test_overload import finish, lockstep_result, up
+
+import runtime as rt
+
+pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
+
+ARGS = ("--lockstep", "--duration", "12", "--lease-ms", "300")
+
+
+class Watch:
+    """r2's status pid, the lockstep clock's tick and r2's token events of a running fleet."""
+
+    def __init__(self, endpoint: str, fleet: str) -> None:
+        self.lock = threading.Lock()
+        self.cond = threading.Condition(self.lock)
+        self.pid: int | None = None
+        self.tick = -1
+        self.token: list[str] = []  # "put" / "delete" in arrival order
+        self.session = rt.open_session(rt.ZenohSettings(connect=(endpoint,)), timeout_s=60.0)
+        s = self.session
+        self._subs = [
+            s.declare_subscriber(f"formation/{fleet}/robot/r2/status", self._on_status),
+            s.declare_subscriber(f"formation/{fleet}/clock", self._on_clock),
+            s.liveliness().declare_subscriber(
+                f"formation/{fleet}/alive/robot/r2", self._on_token, history=True
+            ),
+        ]
+
+    def _on_status(self, sample: Any) -> None:
+        st = msgpack.unpackb(bytes(sample.payload.to_bytes()))
+        with self.cond:
+            self.pid = int(st["pid"])
+            self.cond.notify_all()
+
+    def _on_clock(self, sample: Any) -> None:
+        st = msgpack.unpackb(bytes(sample.payload.to_bytes()))
+        with self.cond:
+            self.tick = max(self.tick, int(st["tick"]))
+            self.cond.notify_all()
+
+    def _on_token(self, sample: Any) -> None:
+        kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
+        with self.cond:
+            self.token.append(kind)
+            self.cond.notify_all()
+
+    def wait(self, what: str, pred: Any, timeout_s: float = 60.0) -> None:
+        with self.cond:
+            if not self.cond.wait_for(pred, timeout_s):
+                raise AssertionError(f"{what} not within {timeout_s} s")
+
+    def close(self) -> None:
+        self.session.close()
+
+
+def agent_cmdline(pid: int) -> str:
+    return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+
+
+def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -> None:
+    base = up(tmp_path / "pause0", *ARGS)
+    unpaused = lockstep_result(finish(base, tmp_path / "pause0"))
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run = up(tmp_path / "pause1", *ARGS, endpoint=endpoint)
+    watch = Watch(endpoint, "pause1")
+    pid: int | None = None
+    try:
+        watch.wait("r2's status and tick 150", lambda: watch.pid and watch.tick >= 150)
+        pid = watch.pid
+        assert pid is not None
+        cmd = agent_cmdline(pid)
+        assert "agent" in cmd and "r2" in cmd and "pause1" in cmd, cmd  # ours, r2's agent
+        tokens_before = len(watch.token)
+        os.kill(pid, signal.SIGSTOP)
+        stopped_at = watch.tick
+        # the lease expires: r2's token vanishes while the plant waits for r2's answer
+        watch.wait("r2's token gone", lambda: "delete" in watch.token[tokens_before:], 10.0)
+        assert watch.tick <= stopped_at + 1  # the plant waits: no tick went on without r2
+        os.kill(pid, signal.SIGCONT)
+        pid = None
+        watch.wait("r2's token back", lambda: watch.token[-1] == "put", 30.0)
+        watch.wait("the run goes on", lambda: watch.tick > stopped_at + 20, 60.0)
+    finally:
+        if pid is not None:
+            os.kill(pid, signal.SIGCONT)
+        watch.close()
+    paused = lockstep_result(finish(run, tmp_path / "pause1"))
+    assert paused == unpaused
