@@ -585,5 +585,3 @@ class CoordinatorNode:
 
 
 _HOST: Final = socket.gethostname()[:255] or "unknown"
-
-
