@@ -22,7 +22,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # the closed-loop harness of tests/test_safety_filter.py
+sys.path.insert(0, str(ROOT / "tests"))  # the closed-loop harness of tests/test_safety_closed_loop.py
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
         )
 
     if not args.skip_random:
-        from test_safety_filter import EXACT, NOISY, random_starts_run
+        from test_safety_closed_loop import EXACT, NOISY, random_starts_run
 
         cfg = AgentConfig(estimator=EstimatorParams(enabled=args.estimator))
         for name, sensing in (("exact", EXACT), ("noisy", NOISY)):
