@@ -23,6 +23,7 @@ from bus_schemas.messages import (
     BATCH_CHUNK,
     MESSAGE_TYPES,
     Assignment,
+    CameraStatus,
     Clock,
     CoordinatorStatus,
     Disturbance,
@@ -48,7 +49,13 @@ from bus_schemas.messages import (
     message_type,
     message_type_for_key,
 )
-from bus_schemas.messages_status import CoordinatorRole, PlantState, RunMode
+from bus_schemas.messages_status import (
+    CAMERA_MS_MAX,
+    CameraState,
+    CoordinatorRole,
+    PlantState,
+    RunMode,
+)
 from bus_schemas.spec import (
     MAX_LIST_LEN,
     MAX_MAP_LEN,
@@ -61,6 +68,7 @@ from bus_schemas.spec import (
 
 __all__ = [
     "BATCH_CHUNK",
+    "CAMERA_MS_MAX",
     "MAX_LIST_LEN",
     "MAX_MAP_LEN",
     "MAX_PAYLOAD_BYTES",
@@ -68,6 +76,8 @@ __all__ = [
     "MESSAGE_TYPES",
     "VERSION",
     "Assignment",
+    "CameraState",
+    "CameraStatus",
     "Clock",
     "CoordinatorRole",
     "CoordinatorStatus",

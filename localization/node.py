@@ -33,13 +33,13 @@ A recording (file, folder) is read at its own frame rate, frames dropped when pr
 behind (counted), unless ``--fast`` (every frame, as fast as possible); at its end the process
 exits 0 (``--loop``: start again). A live source (device, stream) is read as fast as it delivers.
 
-Status (not part of bus contract v1; a plain msgpack map any decoder reads):
-``formation/<fleet>/camera/<name>/status`` at 2 Hz: ``v``, ``t``, ``seq``, ``state``
-(``running``/``done``), ``detector``, ``source``, ``frames``, ``dropped``, ``fps`` (frames
-processed per second over the last period), ``detect_ms`` and ``latency_ms`` (capture ->
-published, p50/p99/max over the last 1000 frames), ``detections``/``published``/``misses``
-(per robot), ``rejects`` (``jump``, ``bad_size``, ``unknown``, ``duplicate``), ``reacquired``,
-``internal_errors``.
+Status: ``formation/<fleet>/camera/<name>/status`` at 2 Hz, ``CameraStatus`` of the bus contract
+(bus_schemas.messages_status; every field in docs/bus.md): ``state`` (``running``/``done``),
+``detector``, ``source``, ``frames``, ``dropped``, ``fps`` (frames processed per second over the
+last period), ``detect_{p50,p99,max}_ms`` and ``latency_{p50,p99,max}_ms`` (capture -> published,
+over the last 1000 frames; absent before the first), ``detections``/``published``/``misses`` (per
+robot), ``rejects`` (``jump``, ``bad_size``, ``unknown``, ``duplicate``), ``reacquired``,
+``internal_errors``, ``truth_rejected``.
 
 Exits 0 within a second of SIGINT/SIGTERM, closing its Zenoh session (runtime).
 """
@@ -58,18 +58,29 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any, Final
 
-import msgpack
 import numpy as np
 import numpy.typing as npt
 
 import runtime as rt
-from bus_schemas import DecodeError, Pose, PoseBatch, Truth, TruthBatch, decode, encode, keys
+from bus_schemas import (
+    CAMERA_MS_MAX,
+    MAX_STR_LEN,
+    CameraStatus,
+    DecodeError,
+    Pose,
+    PoseBatch,
+    Truth,
+    TruthBatch,
+    decode,
+    encode,
+    keys,
+)
 from localization.calibration import Calibration, CalibrationError, load
 from localization.pipeline import CameraPipeline, FrameResult
 from localization.sources import FrameSource, SourceError, open_source
 from runtime.sdnotify import Notifier
 
-__all__ = ["CameraPipeline", "FrameResult", "build_parser", "camera_status_key", "main"]
+__all__ = ["CameraPipeline", "FrameResult", "build_parser", "main"]
 
 STATUS_PERIOD_S: Final = 0.5
 LATENCY_SAMPLES: Final = 1000
@@ -80,11 +91,6 @@ JOIN_S: Final = 0.3
 FAST_QUEUE: Final = 256
 
 Frame = npt.NDArray[np.uint8]
-
-
-def camera_status_key(fleet: str, name: str) -> str:
-    """``formation/<fleet>/camera/<name>/status``: the tracker's status map."""
-    return f"{keys.ROOT}/{keys.check_fleet(fleet)}/camera/{keys.check_name(name)}/status"
 
 
 class Grabber:
@@ -177,7 +183,7 @@ class CameraNode:
         self.batch = batch
         self.poses_key = keys.poses_key(fleet)
         self.pose_keys = {r: keys.pose_key(fleet, r) for r in pipeline.cal.robots}
-        self.status_key = camera_status_key(fleet, name)
+        self.status_key = keys.camera_status_key(fleet, name)
         self.seq: dict[str, int] = {}
         self.latency_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.detect_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
@@ -230,14 +236,19 @@ class CameraNode:
             print(f"camera: internal error publishing a frame: {exc!r}", file=sys.stderr)
 
     @staticmethod
-    def _percentiles(samples: deque[float]) -> dict[str, float] | None:
+    def _percentiles(samples: deque[float]) -> tuple[float, float, float] | tuple[None, None, None]:
+        """(p50, p99, max) in ms of ``samples`` (s); Nones when there are none."""
         if not samples:
-            return None
+            return None, None, None
         arr = np.fromiter(samples, dtype=float) * 1e3
         p50, p99 = np.percentile(arr, [50.0, 99.0])
-        return {"p50": float(p50), "p99": float(p99), "max": float(arr.max())}
+        out = float(p50), float(p99), float(arr.max())
+        if not all(-CAMERA_MS_MAX <= v <= CAMERA_MS_MAX for v in out):
+            return None, None, None  # clocks 11 days apart (rendered source): not a latency
+        return out
 
-    def status_map(self) -> dict[str, Any]:
+    def status_msg(self) -> CameraStatus:
+        """The tracker's status now (``CameraStatus``); advances the status ``seq``."""
         now = time.monotonic()
         t_mark, n_mark = self._fps_mark
         if now - t_mark >= 0.2:
@@ -245,31 +256,35 @@ class CameraNode:
             self._fps_mark = (now, self.frames)
         st = self.pipeline.tracker.stats()
         g = self.grabber
-        return {
-            "v": 1,
-            "t": now,
-            "seq": self._next(self.status_key),
-            "state": self.state,
-            "detector": self.pipeline.detector.name,
-            "source": self.source_desc,
-            "frames": self.frames,
-            "dropped": g.dropped if g is not None else 0,
-            "fps": self.fps,
-            "detect_ms": self._percentiles(self.detect_s),
-            "latency_ms": self._percentiles(self.latency_s),
-            "detections": st["detections"],
-            "published": st["published"],
-            "misses": st["misses"],
-            "rejects": self.pipeline.rejects(),
-            "reacquired": st["reacquired"],
-            "internal_errors": self.internal_errors + (g.errors if g is not None else 0),
-            "truth_rejected": self.truth_rejected,
-        }
+        d50, d99, dmax = self._percentiles(self.detect_s)
+        l50, l99, lmax = self._percentiles(self.latency_s)
+        return CameraStatus(
+            t=now,
+            seq=self._next(self.status_key),
+            state=self.state,
+            detector=self.pipeline.detector.name[:MAX_STR_LEN],
+            source=self.source_desc[:MAX_STR_LEN],
+            frames=self.frames,
+            dropped=g.dropped if g is not None else 0,
+            fps=self.fps,
+            detect_p50_ms=d50,
+            detect_p99_ms=d99,
+            detect_max_ms=dmax,
+            latency_p50_ms=l50,
+            latency_p99_ms=l99,
+            latency_max_ms=lmax,
+            detections=st["detections"],
+            published=st["published"],
+            misses=st["misses"],
+            rejects=self.pipeline.rejects(),
+            reacquired=st["reacquired"],
+            internal_errors=self.internal_errors + (g.errors if g is not None else 0),
+            truth_rejected=self.truth_rejected,
+        )
 
     def publish_status(self) -> None:
         try:
-            payload: bytes = msgpack.packb(self.status_map(), use_bin_type=True)
-            self.publish(self.status_key, payload, rt.QOS_TELEMETRY)
+            self.publish(self.status_key, encode(self.status_msg()), rt.QOS_TELEMETRY)
         except Exception as exc:
             self.internal_errors += 1
             print(f"camera: internal error in status: {exc!r}", file=sys.stderr)
