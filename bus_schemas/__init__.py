@@ -17,7 +17,15 @@ docs/bus.md is rendered from the same tables (`python -m bus_schemas.docs`).
 """
 
 from bus_schemas import keys
-from bus_schemas.codec import decode, decode_or_raise, encode, from_map, to_map, validate
+from bus_schemas.codec import (
+    decode,
+    decode_estop_answer,
+    decode_or_raise,
+    encode,
+    from_map,
+    to_map,
+    validate,
+)
 from bus_schemas.errors import DecodeError, Reason, RejectCounts, SchemaError
 from bus_schemas.messages import (
     BATCH_CHUNK,
@@ -109,6 +117,7 @@ __all__ = [
     "Wheels",
     "WheelsBatch",
     "decode",
+    "decode_estop_answer",
     "decode_or_raise",
     "encode",
     "from_map",
