@@ -29,13 +29,14 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import cv2
-import msgpack
 import numpy as np
 
+from bus_schemas import CameraStatus, DecodeError, decode, keys
 from localization.calibration import Calibration, write
 from localization.detectors import pupil_available
 from localization.pipeline import CameraPipeline
@@ -142,11 +143,14 @@ def bench_process(seconds: float) -> None:
 
         with router() as ep:
             session = tp.open_session(tp.ZenohSettings(connect=(ep,)))
-            statuses: list[dict] = []
-            sub = session.declare_subscriber(
-                "formation/demo/camera/*/status",
-                lambda s: statuses.append(msgpack.unpackb(s.payload.to_bytes())),
-            )
+            statuses: list[CameraStatus] = []
+
+            def on_status(s: Any) -> None:  # a zenoh.Sample
+                msg = decode(s.payload.to_bytes(), CameraStatus)
+                if not isinstance(msg, DecodeError):
+                    statuses.append(msg)
+
+            sub = session.declare_subscriber(keys.all_camera_status_pattern("demo"), on_status)
             argv = [
                 sys.executable, "-m", "formation", "camera", "--source", str(video),
                 "--calibration", str(cal), "--endpoint", ep, "--loop",
@@ -159,19 +163,20 @@ def bench_process(seconds: float) -> None:
             sub.undeclare()
             session.close()
             del zenoh
-    last = [s for s in statuses if s.get("latency_ms")][-1]
-    lat = last["latency_ms"]
-    det = last["detect_ms"]
+    last = [s for s in statuses if s.latency_p50_ms is not None][-1]
     print(f"\n## formation camera process: {n} robots, 720p MJPG file at its own {fps:g} fps\n")
-    print(f"detector: {last['detector']}")
+    print(f"detector: {last.detector}")
     print(
-        f"frames {last['frames']} in ~{seconds:g} s, dropped {last['dropped']}, "
-        f"fps (last status period) {last['fps']:.1f}, process CPU {cpu:.1f} s"
+        f"frames {last.frames} in ~{seconds:g} s, dropped {last.dropped}, "
+        f"fps (last status period) {last.fps:.1f}, process CPU {cpu:.1f} s"
     )
-    print(f"detect ms p50 {det['p50']:.1f} p99 {det['p99']:.1f} max {det['max']:.1f}")
     print(
-        f"capture -> published latency ms p50 {lat['p50']:.1f} p99 {lat['p99']:.1f} "
-        f"max {lat['max']:.1f}"
+        f"detect ms p50 {last.detect_p50_ms:.1f} p99 {last.detect_p99_ms:.1f} "
+        f"max {last.detect_max_ms:.1f}"
+    )
+    print(
+        f"capture -> published latency ms p50 {last.latency_p50_ms:.1f} "
+        f"p99 {last.latency_p99_ms:.1f} max {last.latency_max_ms:.1f}"
     )
 
 

@@ -17,12 +17,21 @@ docs/bus.md is rendered from the same tables (`python -m bus_schemas.docs`).
 """
 
 from bus_schemas import keys
-from bus_schemas.codec import decode, decode_or_raise, encode, from_map, to_map, validate
+from bus_schemas.codec import (
+    decode,
+    decode_estop_answer,
+    decode_or_raise,
+    encode,
+    from_map,
+    to_map,
+    validate,
+)
 from bus_schemas.errors import DecodeError, Reason, RejectCounts, SchemaError
 from bus_schemas.messages import (
     BATCH_CHUNK,
     MESSAGE_TYPES,
     Assignment,
+    CameraStatus,
     Clock,
     CoordinatorStatus,
     Disturbance,
@@ -48,7 +57,13 @@ from bus_schemas.messages import (
     message_type,
     message_type_for_key,
 )
-from bus_schemas.messages_status import CoordinatorRole, PlantState, RunMode
+from bus_schemas.messages_status import (
+    CAMERA_MS_MAX,
+    CameraState,
+    CoordinatorRole,
+    PlantState,
+    RunMode,
+)
 from bus_schemas.spec import (
     MAX_LIST_LEN,
     MAX_MAP_LEN,
@@ -61,6 +76,7 @@ from bus_schemas.spec import (
 
 __all__ = [
     "BATCH_CHUNK",
+    "CAMERA_MS_MAX",
     "MAX_LIST_LEN",
     "MAX_MAP_LEN",
     "MAX_PAYLOAD_BYTES",
@@ -68,6 +84,8 @@ __all__ = [
     "MESSAGE_TYPES",
     "VERSION",
     "Assignment",
+    "CameraState",
+    "CameraStatus",
     "Clock",
     "CoordinatorRole",
     "CoordinatorStatus",
@@ -99,6 +117,7 @@ __all__ = [
     "Wheels",
     "WheelsBatch",
     "decode",
+    "decode_estop_answer",
     "decode_or_raise",
     "encode",
     "from_map",

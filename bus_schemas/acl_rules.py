@@ -196,6 +196,8 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),
     keys.COORDINATOR_STATUS: KeyRoles(((_C, OWN),), (_C,)),
     keys.PLANT_STATUS: KeyRoles((_P,)),
+    # the camera tracker's health (`formation camera`, localization/node.py): tools read it
+    keys.CAMERA_STATUS: KeyRoles((_L,)),
     keys.ALIVE_ROBOT: KeyRoles(((_R, OWN), (_H, OWN_ROBOTS)), (_C, _P), token=True),
     keys.ALIVE_COORDINATOR: KeyRoles(((_C, OWN),), (_C, _P), token=True),
     keys.ALIVE_PLANT: KeyRoles((_P,), (_C,), token=True),

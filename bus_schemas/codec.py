@@ -14,13 +14,13 @@ extra fields with str keys (forward compatible: a newer publisher may add fields
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, TypeVar
 
 import msgpack
 
 from bus_schemas.errors import DecodeError, Invalid, Reason, SchemaError
-from bus_schemas.messages import MESSAGE_TYPES, Message
+from bus_schemas.messages import MESSAGE_TYPES, Estop, Message
 from bus_schemas.spec import MAX_PAYLOAD_BYTES, spec_of
 
 M = TypeVar("M")
@@ -98,6 +98,24 @@ def decode_or_raise(data: bytes | bytearray | memoryview, expected: type[M]) -> 
     if isinstance(result, DecodeError):
         raise SchemaError(result)
     return result
+
+
+def decode_estop_answer(
+    payloads: Iterable[bytes], reject: Callable[[DecodeError], None]
+) -> list[tuple[bool, str | None]]:
+    """A query's answer on the ``estop`` key (the coordinators' latched e-stop state, one
+    ``Estop`` per scope: ``robot_agent.estop.EstopLatch.answer``) as the ``(engage, robot)``
+    pairs ``EstopLatch.merge_answer`` takes, in order; each invalid payload is handed to
+    ``reject`` and skipped. The one decoder of that answer (agents, agent hosts, coordinators).
+    """
+    out: list[tuple[bool, str | None]] = []
+    for payload in payloads:
+        msg = decode(payload, Estop)
+        if isinstance(msg, DecodeError):
+            reject(msg)
+        else:
+            out.append((msg.engage, msg.robot))
+    return out
 
 
 def from_map(obj: Mapping[Any, Any], expected: type[M]) -> M | DecodeError:

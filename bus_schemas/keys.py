@@ -46,6 +46,7 @@ ALIVE_COORDINATOR = "alive_coordinator"
 ALIVE_PLANT = "alive_plant"
 COORDINATOR_STATUS = "coordinator_status"
 PLANT_STATUS = "plant_status"
+CAMERA_STATUS = "camera_status"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -72,6 +73,7 @@ KEY_TEMPLATES: dict[str, str] = {
     # the status of the fleet's processes (bus_schemas.messages_status)
     COORDINATOR_STATUS: "formation/{fleet}/coordinator/{name}/status",
     PLANT_STATUS: "formation/{fleet}/plant/status",
+    CAMERA_STATUS: "formation/{fleet}/camera/{name}/status",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
@@ -234,6 +236,11 @@ def plant_status_key(fleet: str) -> str:
     return f"{_fleet_prefix(fleet)}/plant/{STATUS}"
 
 
+def camera_status_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/camera/<name>/status``: status of camera tracker ``name``."""
+    return f"{_fleet_prefix(fleet)}/camera/{check_name(name)}/{STATUS}"
+
+
 def host_status_key(fleet: str, name: str) -> str:
     """``formation/<fleet>/host/<name>/status``: status of an agent host's robots."""
     return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{STATUS}"
@@ -319,6 +326,11 @@ def all_coordinator_status_pattern(fleet: str) -> str:
     return f"{_fleet_prefix(fleet)}/coordinator/*/{STATUS}"
 
 
+def all_camera_status_pattern(fleet: str) -> str:
+    """``formation/<fleet>/camera/*/status``: the status of every camera tracker."""
+    return f"{_fleet_prefix(fleet)}/camera/*/{STATUS}"
+
+
 def all_heartbeats_pattern(fleet: str) -> str:
     """``formation/<fleet>/coordinator/*/heartbeat``."""
     return f"{_fleet_prefix(fleet)}/coordinator/*/{HEARTBEAT}"
@@ -377,6 +389,8 @@ def parse_key(key: str) -> KeyInfo | None:
         return KeyInfo(fleet, leaf, name=parts[3]) if _NAME_MATCH(parts[3]) else None
     if kind == "plant" and n == 4 and parts[3] == STATUS:
         return KeyInfo(fleet, PLANT_STATUS)
+    if kind == "camera" and n == 5 and parts[4] == STATUS:
+        return KeyInfo(fleet, CAMERA_STATUS, name=parts[3]) if _NAME_MATCH(parts[3]) else None
     if kind == "alive":
         if n == 4 and parts[3] == "plant":
             return KeyInfo(fleet, ALIVE_PLANT)

@@ -72,7 +72,7 @@ from .messages_fields import (
     Mode,
     Role,
 )
-from .messages_status import CoordinatorStatus, PlantStatus
+from .messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 
 
 @message(name=keys.LEADER, publisher="coordinator", periodic=True)
@@ -450,6 +450,7 @@ Message = (
     | StatusBatch
     | CoordinatorStatus
     | PlantStatus
+    | CameraStatus
 )
 """Any bus message."""
 
@@ -473,6 +474,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     StatusBatch,
     CoordinatorStatus,
     PlantStatus,
+    CameraStatus,
 )
 
 BATCH_CHUNK = 256

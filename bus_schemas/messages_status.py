@@ -1,6 +1,7 @@
-"""The status messages of the fleet's own processes: the coordinator's and the plant's health and
-counters, as declarative tables like those of ``messages.py`` (see its docstring for the common
-fields). The agents' status is ``messages.Status`` (``StatusBatch`` for an agent host).
+"""The status messages of the fleet's own processes: the coordinator's, the plant's and the camera
+tracker's health and counters, as declarative tables like those of ``messages.py`` (see its
+docstring for the common fields). The agents' status is ``messages.Status`` (``StatusBatch`` for
+an agent host).
 
 Tools read them (``formation fault`` finds a coordinator's process, ``formation estop`` its
 latched e-stop, benches the tick timing, recorders and ``formation top`` record and show them);
@@ -18,6 +19,7 @@ from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
 from bus_schemas.spec import POSITION_MAX_M as _POS
 from bus_schemas.spec import TIME_MAX_S as _TMAX
 from bus_schemas.spec import (
+    FieldSpec,
     f_bool,
     f_count_map,
     f_enum,
@@ -144,3 +146,88 @@ class PlantStatus(_NodeStatus):
     frames: int = field(metadata=f_int("pose frames published"))
     batch: bool = field(metadata=f_bool("poses and truth are published batched (`poses`)"))
     ignored: int = field(metadata=f_int("valid messages for robots this plant does not simulate"))
+
+
+class CameraState(StrEnum):
+    """Phase of a camera tracker's run."""
+
+    RUNNING = "running"
+    DONE = "done"
+
+
+CAMERA_MS_MAX = _TMAX
+"""Bound of ``CameraStatus``'s durations (ms, 11.6 days): a rendered frame's capture time is the
+truth's, maybe another host's clock, so the capture -> published latency may be negative."""
+
+
+def _f_ms(what: str, *, lo: float = 0.0) -> dict[str, FieldSpec]:
+    """A duration in ms in [lo, CAMERA_MS_MAX], left out before the first frame."""
+    return f_float(what + " (absent before the first frame)", "ms", lo=lo, hi=CAMERA_MS_MAX)
+
+
+@message(
+    name=keys.CAMERA_STATUS,
+    publisher="localization (`formation camera`, each tracker by its `--name`)",
+    periodic=True,
+    rate="2 Hz",
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CameraStatus(_Periodic):
+    """Health and counters of one overhead-camera tracker (localization/node.py)."""
+
+    state: str = field(metadata=f_enum("running, or done (a recording's end)", CameraState))
+    detector: str = field(metadata=f_str("marker detector in use"))
+    source: str = field(metadata=f_str("frame source (device, file, folder, stream, rendered)"))
+    frames: int = field(metadata=f_int("frames processed and published"))
+    dropped: int = field(metadata=f_int("frames dropped because processing fell behind"))
+    fps: float = field(
+        metadata=f_float("frames processed per second over the last period", "1/s", lo=0.0, hi=1e6)
+    )
+    detect_p50_ms: float | None = field(
+        default=None, metadata=_f_ms("median detection time over the last 1000 frames")
+    )
+    detect_p99_ms: float | None = field(
+        default=None, metadata=_f_ms("p99 detection time over the last 1000 frames")
+    )
+    detect_max_ms: float | None = field(
+        default=None, metadata=_f_ms("largest detection time over the last 1000 frames")
+    )
+    latency_p50_ms: float | None = field(
+        default=None,
+        metadata=_f_ms("median capture -> published time, last 1000 frames", lo=-CAMERA_MS_MAX),
+    )
+    latency_p99_ms: float | None = field(
+        default=None,
+        metadata=_f_ms("p99 capture -> published time, last 1000 frames", lo=-CAMERA_MS_MAX),
+    )
+    latency_max_ms: float | None = field(
+        default=None,
+        metadata=_f_ms("largest capture -> published time, last 1000 frames", lo=-CAMERA_MS_MAX),
+    )
+    detections: Mapping[str, int] = field(
+        metadata=f_count_map(
+            "robot id -> frames its tag was detected in", key_pattern=keys.ROBOT_ID_PATTERN
+        )
+    )
+    published: Mapping[str, int] = field(
+        metadata=f_count_map("robot id -> poses published", key_pattern=keys.ROBOT_ID_PATTERN)
+    )
+    misses: Mapping[str, int] = field(
+        metadata=f_count_map(
+            "robot id -> frames it was not found in", key_pattern=keys.ROBOT_ID_PATTERN
+        )
+    )
+    rejects: Mapping[str, int] = field(
+        metadata=f_count_map(
+            "reason (`jump`, `bad_size`, `unknown`, `duplicate`) -> detections dropped"
+        )
+    )
+    reacquired: int = field(
+        metadata=f_int("tracks started again (a robot put down elsewhere, lost)")
+    )
+    internal_errors: int = field(
+        metadata=f_int("internal errors caught (a bug, never a bad input); 0 in a healthy run")
+    )
+    truth_rejected: int = field(
+        metadata=f_int("rendered source: truth messages rejected by the decoder")
+    )

@@ -13,7 +13,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 import runtime as rt
-from bus_schemas import DecodeError, Estop, decode, encode
+from bus_schemas import DecodeError, Estop, decode, decode_estop_answer, encode
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
 
 __all__ = ["EstopSource", "attach_estop_source"]
@@ -71,13 +71,7 @@ class EstopSource:
     def on_state(self, payloads: Iterable[Any]) -> None:
         """Another coordinator's latched state (queried at start): its engagements are added."""
         try:
-            answers: list[tuple[bool, str | None]] = []
-            for payload in payloads:
-                msg = decode(payload, Estop)
-                if isinstance(msg, DecodeError):
-                    self._reject("estop_state", msg)
-                    continue
-                answers.append((msg.engage, msg.robot))
+            answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
             if self.latch.merge_answer(answers, replace=False):
                 self.log.info(f"estop state from the other coordinators: {self.text()}")
                 self._changed()

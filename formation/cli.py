@@ -43,7 +43,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "robot_agent.motors.emulator",
         "an emulated RoboClaw on a pty: try the motor backend without hardware",
     ),
-    "camera": ("localization.node", "overhead-camera tracker; `camera calibrate` writes its file"),
+    "camera": ("localization.main", "overhead-camera tracker; `camera calibrate` writes its file"),
 }
 
 # prog -> examples shown at the end of its --help (the epilog), one command per line.

@@ -68,6 +68,7 @@ from bus_schemas import (
     StatusBatch,
     WheelsBatch,
     decode,
+    decode_estop_answer,
     encode,
     keys,
 )
@@ -242,13 +243,7 @@ class HostNode:
         try:
             if not payloads:
                 return
-            answers: list[tuple[bool, str | None]] = []
-            for payload in payloads:
-                msg = decode(payload, Estop)
-                if isinstance(msg, DecodeError):
-                    self._reject("estop_state", msg)
-                else:
-                    answers.append((msg.engage, msg.robot))
+            answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
             replace = messages_before == self.estop_messages
             for node in self.nodes.values():
                 # the robot's own count stands for the host's: replace only if no estop

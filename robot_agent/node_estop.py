@@ -10,7 +10,7 @@ import time
 from collections.abc import Sequence
 
 import runtime as rt
-from bus_schemas import DecodeError, Estop, decode
+from bus_schemas import decode_estop_answer
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S
 from robot_agent.node import AgentNode
 
@@ -18,15 +18,9 @@ __all__ = ["attach_estop_state", "estop_answers"]
 
 
 def estop_answers(node: AgentNode, payloads: Sequence[bytes]) -> list[tuple[bool, str | None]]:
-    """Decode a query's answer (Estop messages); invalid ones are counted as rejects."""
-    out: list[tuple[bool, str | None]] = []
-    for payload in payloads:
-        msg = decode(payload, Estop)
-        if isinstance(msg, DecodeError):
-            node._reject("estop_state", msg)
-            continue
-        out.append((msg.engage, msg.robot))
-    return out
+    """Decode a query's answer (``bus_schemas.decode_estop_answer``); invalid ones are counted
+    as the node's rejects."""
+    return decode_estop_answer(payloads, lambda err: node._reject("estop_state", err))
 
 
 async def attach_estop_state(node: AgentNode, io: rt.NodeIO) -> None:

@@ -106,19 +106,9 @@ Below that the filter holds the robot back until ``h`` is that large. On the Rob
 latency alone (``V a`` = 0.2 m/s x 66 ms = 13 mm) puts the slots inside the barrier, and the
 followers approach the leader's measured point at 43-55 mm/s (``2 s / gamma`` = 9-11 mm).
 
-Deadlock tie-break: with a constraint in range and more than ``stuck_error_m`` of tracking
-error, an error that has not shrunk by ``stuck_speed_mps * stuck_time_s`` within
-``stuck_time_s`` (zero progress, whether the filter or a potential-field minimum holds the
-robot, and also when it only trails a moving robot that blocks its way) triggers a tie-break
-of ``tiebreak_time_s``: the nominal command is replaced by one toward the setpoint rotated
-``tiebreak_angle_rad`` to the RIGHT (clockwise), at ``max(|u_nom|, tiebreak_speed_mps)``, and
-filtered as usual. Every robot turns right, so two robots head-on pass each other (each keeps
-the other on its left), and a robot blocked by a stationary one goes around it clockwise.
-After two tie-breaks in a row that did not bring the robot within ``stuck_error_m`` of its
-setpoint, the next two turn LEFT (a dead end on the right, e.g. a gap too narrow between a
-pillar and a wall), then right again, and so on: still deterministic. It is the one place the
-command can be faster than the nominal one besides leaving a boundary (at most
-``tiebreak_speed_mps`` when the nominal is slower); it is counted.
+Deadlock tie-break: ``robot_agent.deadlock`` (when the filter holds a robot with no progress, its
+nominal command turns right, then left, for a while; the one other place the command can be
+faster than the nominal one).
 """
 
 from __future__ import annotations
@@ -127,6 +117,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from .deadlock import Deadlock
 from .params import AgentConfig, CircleObstacle, SegmentObstacle
 from .qp import (
     _TOL,
@@ -134,7 +125,6 @@ from .qp import (
     solve_qp,
 )
 from .safety_types import (
-    _NAN,
     Neighbour,
     SafetyFilterStatus,
     _isfinite,
@@ -152,7 +142,7 @@ _VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation 
 
 
 class SafetyFilter:
-    """One robot's safety filter and deadlock tie-break (see the module docstring)."""
+    """One robot's safety filter and its deadlock tie-break (see the module docstring)."""
 
     __slots__ = (
         "_active",
@@ -162,28 +152,19 @@ class SafetyFilter:
         "_cons",
         "_d_coop",
         "_d_plain",
+        "_deadlock",
         "_gamma",
         "_gamma_slow",
         "_has_world",
         "_infeasible",
         "_l",
-        "_last_now",
         "_max_age",
         "_min_h",
         "_obs_clear",
-        "_params",
         "_rejected",
         "_rescaled",
         "_segments",
-        "_stuck_e",
-        "_stuck_error",
-        "_stuck_since",
-        "_tb_cos",
-        "_tb_sin",
-        "_tb_streak",
-        "_tb_until",
         "_ticks",
-        "_tiebreaks",
         "_vbad",
         "_vcap",
         "_violations",
@@ -195,7 +176,6 @@ class SafetyFilter:
     def __init__(self, config: AgentConfig) -> None:
         g = config.geometry
         p = config.safety_filter
-        self._params = p
         self.enabled = p.enabled
         l_m = g.ref_offset_m
         self._l = l_m
@@ -212,8 +192,6 @@ class SafetyFilter:
         self._max_age = p.max_age_s
         self._budget = p.noise_budget_m
         self._vcap = config.gains.max_ref_speed_mps
-        self._tb_cos = math.cos(p.tiebreak_angle_rad)
-        self._tb_sin = math.sin(p.tiebreak_angle_rad)
         circles: list[tuple[float, float, float]] = []
         segments: list[tuple[float, float, float, float, float, float]] = []
         for o in config.world.obstacles:
@@ -232,18 +210,12 @@ class SafetyFilter:
             else (a.x_min + clear, a.y_min + clear, a.x_max - clear, a.y_max - clear)
         )
         self._has_world = bool(circles or segments or a is not None)
-        self._stuck_error = p.stuck_error_m
+        self._deadlock = Deadlock(p, self._vcap)
         self._cons: list[tuple[float, float, float]] = []
-        self._last_now = _NAN
-        self._stuck_since = _NAN
-        self._stuck_e = math.inf
-        self._tb_until = -math.inf
-        self._tb_streak = 0
         self._ticks = 0
         self._active = 0
         self._violations = 0
         self._infeasible = 0
-        self._tiebreaks = 0
         self._rescaled = 0
         self._rejected = 0
         self._min_h = math.inf
@@ -257,8 +229,8 @@ class SafetyFilter:
             active_ticks=self._active,
             violations=self._violations,
             infeasible=self._infeasible,
-            tiebreaks=self._tiebreaks,
-            tiebreak_active=self._last_now < self._tb_until,
+            tiebreaks=self._deadlock.tiebreaks,
+            tiebreak_active=self._deadlock.active,
             rescaled=self._rescaled,
             rejected=self._rejected,
             min_clearance_m=self._min_h,
@@ -297,8 +269,7 @@ class SafetyFilter:
 
     def reset_deadlock(self) -> None:
         """Forget deadlock timing (the robot left TRACKING)."""
-        self._stuck_since = _NAN
-        self._tb_until = -math.inf
+        self._deadlock.reset()
 
     def constraints(
         self,
@@ -502,32 +473,8 @@ class SafetyFilter:
         if not self.enabled:
             self._cons = []
             return ux, uy
-        last = self._last_now
-        self._last_now = now_s
-        if not (0.0 < now_s - last <= 0.5):  # first call, or the loop left TRACKING for a while
-            self._stuck_since = _NAN
-            if not now_s - last <= 0.5:
-                self._tb_until = -math.inf
-        tiebreak = False
-        if now_s < self._tb_until:
-            e = _hypot(ex, ey)
-            tiebreak = e > self._stuck_error
-        if tiebreak:
-            gx = ex / e
-            gy = ey / e
-            c = self._tb_cos
-            s = self._tb_sin
-            speed = _hypot(ux, uy)
-            if speed < self._params.tiebreak_speed_mps:
-                speed = self._params.tiebreak_speed_mps
-            if speed > self._vcap:
-                speed = self._vcap
-            # the goal direction rotated clockwise (to the right) by the tie-break angle; after
-            # two tie-breaks that did not get the robot home, two to the left, and so on
-            if (self._tb_streak - 1) // 2 % 2:
-                s = -s
-            ux = speed * (gx * c + gy * s)
-            uy = speed * (gy * c - gx * s)
+        deadlock = self._deadlock
+        ux, uy, tiebreak = deadlock.steer(now_s, ux, uy, ex, ey)
         cons = self.constraints(px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s)
         self._cons = cons
         if not cons:
@@ -564,27 +511,7 @@ class SafetyFilter:
                     self._infeasible += 1
                 if fx != ux or fy != uy:
                     self._active += 1
-        # deadlock detection: something in range and the tracking error has not shrunk by
-        # stuck_speed_mps * stuck_time_s within stuck_time_s
-        if not tiebreak and (cons or self._tb_streak):
-            p = self._params
-            since = self._stuck_since
-            e = _hypot(ex, ey)
-            if e <= p.stuck_error_m:
-                self._stuck_since = _NAN
-                self._tb_streak = 0
-            elif not cons:
-                self._stuck_since = _NAN
-            elif since != since or e < self._stuck_e - p.stuck_speed_mps * p.stuck_time_s:
-                self._stuck_since = now_s  # (re)start the window: progress was made
-                self._stuck_e = e
-            elif now_s - since >= p.stuck_time_s:
-                self._tb_until = now_s + p.tiebreak_time_s
-                self._tiebreaks += 1
-                self._tb_streak += 1
-                self._stuck_since = _NAN
-        elif not cons:
-            self._stuck_since = _NAN
+        deadlock.observe(now_s, ex, ey, bool(cons), tiebreak)
         return fx, fy
 
     # ------------------------------------------------------------------ internals

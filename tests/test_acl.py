@@ -74,6 +74,7 @@ def contract_keys() -> dict[str, str]:
 KEYS = contract_keys()
 TOKENS = {k for k, leaf in KEYS.items() if leaf.startswith("alive_")}
 DATA = set(KEYS) - TOKENS
+CAMERA_STATUS = {_f(f"camera/{n}/status") for n in ("main", "standby", "h1")}
 
 
 def _robot_keys(r: str, *leaves: str) -> set[str]:
@@ -95,7 +96,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("coordinator/main/heartbeat"),
         _f("coordinator/main/status"),
     },
-    "localization": {*(_f(f"robot/{r}/pose") for r in ROBOTS), _f("poses")},
+    "localization": {*(_f(f"robot/{r}/pose") for r in ROBOTS), _f("poses"), *CAMERA_STATUS},
     "plant": {
         *(_f(f"robot/{r}/pose") for r in ROBOTS),
         _f("poses"),
@@ -358,6 +359,7 @@ LIVE_PUBLISH: dict[str, tuple[list[str], list[str]]] = {
             _f("coordinator/main/heartbeat"),
             _f("assignment"),
             _f("clock"),
+            _f("camera/camera/status"),
         ],
     ),
     "host.h1": (
@@ -382,10 +384,11 @@ LIVE_PUBLISH: dict[str, tuple[list[str], list[str]]] = {
             _f("robot/r1/wheels"),
             _f("clock"),
             _f("disturbance"),
+            _f("camera/camera/status"),
         ],
     ),
     "localization": (
-        [_f("robot/r1/pose"), _f("poses")],
+        [_f("robot/r1/pose"), _f("poses"), _f("camera/camera/status")],
         [_f("robot/r1/setpoint"), _f("robot/r1/truth"), _f("estop"), _f("clock")],
     ),
     "plant": (

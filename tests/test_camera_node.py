@@ -12,7 +12,6 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import msgpack
 import numpy as np
 import pytest
 import zenoh
@@ -21,7 +20,7 @@ from test_node_agent import Recorder, decoder_of
 
 pytest.importorskip("cv2")
 
-from bus_schemas import Pose, PoseBatch, keys
+from bus_schemas import CameraStatus, Pose, PoseBatch, keys
 from localization.calibration import Calibration, TrackerParams, load, write
 from sim_plant.render import CameraPose, Renderer, moving_scene, write_video
 
@@ -64,7 +63,7 @@ def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
     return session()
 
 
-def _status(rec: Recorder) -> list[dict[str, object]]:
+def _status(rec: Recorder) -> list[CameraStatus]:
     return [m for _, _, m in rec.snapshot()]
 
 
@@ -74,7 +73,7 @@ def test_rendered_video_poses_on_the_bus_within_goals(
     path, cal_path = video
     poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
     batches = Recorder(client, keys.poses_key(FLEET), decoder_of(PoseBatch))
-    status = Recorder(client, f"formation/{FLEET}/camera/*/status", msgpack.unpackb)
+    status = Recorder(client, keys.all_camera_status_pattern(FLEET), decoder_of(CameraStatus))
     cam = spawn(
         "camera", "--source", str(path), "--calibration", str(cal_path),
         "--endpoint", router.endpoint, "--fast", ready="camera ready",
@@ -84,11 +83,11 @@ def test_rendered_video_poses_on_the_bus_within_goals(
     assert "detector " in cam.stdout()
     time.sleep(0.2)
     final = _status(status)[-1]
-    assert final["state"] == "done" and final["frames"] == N_FRAMES, final
-    assert final["dropped"] == 0 and final["internal_errors"] == 0, final
-    assert final["misses"] == {f"r{i + 1}": 0 for i in range(N_ROBOTS)}, final
-    assert final["rejects"] == {"jump": 0, "bad_size": 0, "unknown": 0, "duplicate": 0}
-    assert final["latency_ms"] is not None and final["detect_ms"] is not None
+    assert final.state == "done" and final.frames == N_FRAMES, final
+    assert final.dropped == 0 and final.internal_errors == 0, final
+    assert final.misses == {f"r{i + 1}": 0 for i in range(N_ROBOTS)}, final
+    assert final.rejects == {"jump": 0, "bad_size": 0, "unknown": 0, "duplicate": 0}
+    assert final.latency_p50_ms is not None and final.detect_max_ms is not None
     # Every frame published every robot: the n-th pose of a robot (seq n) is frame n-1.
     pos_err, head_err = [], []
     by_robot: dict[str, list[Pose]] = {}
@@ -227,7 +226,7 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
     cal_path = tmp_path / "rendered.toml"
     write(rendered_calibration(settings, {f"r{i + 1}": i for i in range(N_ROBOTS)}), cal_path)
     poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
-    status = Recorder(client, f"formation/{FLEET}/camera/*/status", msgpack.unpackb)
+    status = Recorder(client, keys.all_camera_status_pattern(FLEET), decoder_of(CameraStatus))
     cam = spawn(
         "camera", "--source", "rendered", "--calibration", str(cal_path), "--render-tilt", "8",
         "--endpoint", router.endpoint, ready="camera ready",
@@ -282,7 +281,7 @@ def test_rendered_source_tracks_the_truth_on_the_bus(
         head_err.append(abs(math.remainder(m.theta - th, 2 * math.pi)) * 180 / math.pi)
     assert np.median(pos_err) < 2.0 and np.median(head_err) < 0.5
     assert {m.robot for m in got} == {f"r{i + 1}" for i in range(N_ROBOTS)}
-    status.wait_for(lambda _r, _k, s: s["truth_rejected"] == 2, timeout_s=3.0)
+    status.wait_for(lambda _r, _k, s: s.truth_rejected == 2, timeout_s=3.0)
     assert cam.stop(signal.SIGTERM, timeout_s=5.0) < EXIT_BOUND_S
     assert cam.proc.returncode == 0, cam.describe()
 
@@ -366,7 +365,7 @@ def test_misses_jumps_and_unknown_tags_on_the_bus(
     path = tmp_path / "events.avi"
     write_video(path, (frame(k) for k in range(n_frames)), FPS)
     poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
-    status = Recorder(client, f"formation/{FLEET}/camera/*/status", msgpack.unpackb)
+    status = Recorder(client, keys.all_camera_status_pattern(FLEET), decoder_of(CameraStatus))
     cam = spawn(
         "camera", "--source", str(path), "--calibration", str(cal_path), "--fast",
         "--endpoint", router.endpoint, ready="camera ready",
@@ -375,12 +374,12 @@ def test_misses_jumps_and_unknown_tags_on_the_bus(
     assert cam.proc.returncode == 0, cam.describe()
     time.sleep(0.2)
     final = _status(status)[-1]
-    assert final["frames"] == n_frames and final["state"] == "done"
+    assert final.frames == n_frames and final.state == "done"
     # covered in frames 5-8; found again within search_every (3) frames of reappearing
-    missed = final["misses"]["r2"]
-    assert 4 <= missed <= 6 and final["misses"]["r1"] == 0
-    assert final["rejects"]["jump"] == 1
-    assert final["rejects"]["unknown"] >= 1
+    missed = final.misses["r2"]
+    assert 4 <= missed <= 6 and final.misses["r1"] == 0
+    assert final.rejects["jump"] == 1
+    assert final.rejects["unknown"] >= 1
     got: dict[str, list[Pose]] = {}
     for _, _, m in poses.snapshot():
         got.setdefault(m.robot, []).append(m)

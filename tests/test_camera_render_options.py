@@ -25,7 +25,7 @@ pytest.importorskip("cv2")
 import runtime as rt
 from bus_schemas import PoseBatch, TruthBatch, encode, keys
 from localization.calibration import write
-from localization.node import _open, _truth_settings, build_parser
+from localization.main import _open, _truth_settings, build_parser
 from localization.rendered import (
     RenderedSource,
     RenderSettings,

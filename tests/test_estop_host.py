@@ -54,7 +54,9 @@ def test_agent_hosts_come_up_in_the_latched_estop(
             t_sent = time.monotonic()
 
             def latched(r: float, _k: str, s: dict[str, object], t_sent: float = t_sent) -> bool:
-                return r > t_sent and want(s["estop"])  # type: ignore[arg-type]
+                # CoordinatorStatus: estop_fleet, estop_robots (the status map's old "estop")
+                state = {"fleet": s["estop_fleet"], "robots": s["estop_robots"]}
+                return r > t_sent and want(state)
 
             try:
                 coords.wait_for(latched, timeout_s=0.5)

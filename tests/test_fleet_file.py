@@ -89,7 +89,7 @@ def test_coordinator_check_and_bad_file_exit_codes(tmp_path: Path) -> None:
 def test_camera_takes_the_tags_from_the_fleet_file(tmp_path: Path) -> None:
     pytest.importorskip("cv2")
     from localization.calibration import Calibration, CalibrationError
-    from localization.node import with_tags
+    from localization.main import with_tags
 
     cal = Calibration(
         homography=((0.001, 0.0, 0.0), (0.0, 0.001, 0.0), (0.0, 0.0, 1.0)), tags={"a": 7}

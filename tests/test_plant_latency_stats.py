@@ -7,7 +7,8 @@ from __future__ import annotations
 import pytest
 
 from scenario import load
-from sim_plant.node import STEADY_TAIL_S, STEADY_WARMUP_S, PlantNode
+from sim_plant.node import PlantNode
+from sim_plant.outputs import STEADY_TAIL_S, STEADY_WARMUP_S
 
 
 def _plant() -> PlantNode:

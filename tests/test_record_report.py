@@ -43,6 +43,7 @@ from bus_schemas import (
     to_map,
 )
 from bus_schemas.messages import (
+    CameraStatus,
     CoordinatorStatus,
     Disturbance,
     Estop,
@@ -242,6 +243,11 @@ EXAMPLES = [
         min_separation_m=None, collisions=0, frames=0, batch=True, ignored=0, rejected=0,
         rejects={}, internal_errors=0, rx={"wheels": 0},
     ),
+    CameraStatus(
+        t=1.0, seq=1, state="done", detector="aruco", source="scene.avi", frames=3, dropped=0,
+        fps=30.0, latency_p50_ms=-2.5, detections={"r1": 3}, published={"r1": 3},
+        misses={"r1": 0}, rejects={"jump": 0}, reacquired=0, internal_errors=0, truth_rejected=0,
+    ),
 ]  # fmt: skip
 
 
@@ -369,7 +375,7 @@ def synthetic_stream(ticks: int = 100) -> list[BusItem]:
     items.append(BusItem("put", keys.pose_key(FLEET, "r1"), b"\xc1", rx))  # malformed
     rx += 1000
     items.append(
-        BusItem("put", f"formation/{FLEET}/camera/c1/status", msgpack.packb({"v": 1, "t": 2.0}), rx)
+        BusItem("put", f"formation/{FLEET}/lidar/c1/status", msgpack.packb({"v": 1, "t": 2.0}), rx)
     )
     rx += 1000
     items.append(BusItem("dead", f"formation/{FLEET}/alive/robot/r2", b"", rx))
@@ -410,7 +416,7 @@ def test_recorder_writes_one_json_channel_per_key_with_schemas_and_times(tmp_pat
         assert counts[f"/formation/{FLEET}/clock"] == 100
         assert counts[f"/formation/{FLEET}/alive/robot/r2"] == 2  # alive, then lost
         assert counts["/recorder/rejected"] == 1
-        assert counts[f"/formation/{FLEET}/camera/c1/status"] == 1  # unknown key: schemaless
+        assert counts[f"/formation/{FLEET}/lidar/c1/status"] == 1  # unknown key: schemaless
         assert counts["/derived/robot/r1/tracking_error"] == 10
         assert counts["/derived/robot/r2/latency"] == 100
         assert counts["/scene"] > 0 and counts["/tf"] > 0
@@ -487,7 +493,7 @@ def test_raw_and_json_recordings_replay_the_same_payloads_and_metrics(tmp_path: 
     valid = [
         it
         for it in items
-        if it.kind == "put" and it.payload != b"\xc1" and "camera/c1/status" not in it.key
+        if it.kind == "put" and it.payload != b"\xc1" and "lidar/c1/status" not in it.key
     ]
     assert [e.payload for e in a.events if e.payload is not None] == [it.payload for it in valid]
     ma = report_mod.analyze(a).metrics

@@ -17,6 +17,7 @@ from bus_schemas import (
     MAX_PAYLOAD_BYTES,
     MESSAGE_TYPES,
     Assignment,
+    CameraStatus,
     Clock,
     CoordinatorStatus,
     DecodeError,
@@ -261,6 +262,29 @@ SAMPLES: dict[type, Any] = {
         rejects={},
         internal_errors=0,
         rx={"wheels": 1250},
+    ),
+    CameraStatus: CameraStatus(
+        t=12.5,
+        seq=25,
+        state="running",
+        detector="apriltag",
+        source="rendered",
+        frames=375,
+        dropped=2,
+        fps=29.5,
+        detect_p50_ms=4.5,
+        detect_p99_ms=9.0,
+        detect_max_ms=12.0,
+        latency_p50_ms=6.0,
+        latency_p99_ms=11.5,
+        latency_max_ms=15.0,
+        detections={"r1": 375, "r2": 370},
+        published={"r1": 375, "r2": 369},
+        misses={"r1": 0, "r2": 5},
+        rejects={"jump": 1, "bad_size": 0, "unknown": 0, "duplicate": 0},
+        reacquired=0,
+        internal_errors=0,
+        truth_rejected=0,
     ),
 }
 
@@ -1102,6 +1126,9 @@ def test_key_parse_round_trip(fleet: str, robot: str, name: str, slot: int) -> N
     key = keys.plant_status_key(fleet)
     assert keys.parse_key(key) == keys.KeyInfo(fleet, keys.PLANT_STATUS)
     assert message_type_for_key(key) is PlantStatus
+    key = keys.camera_status_key(fleet, name)
+    assert keys.parse_key(key) == keys.KeyInfo(fleet, keys.CAMERA_STATUS, name=name)
+    assert message_type_for_key(key) is CameraStatus
     assert keys.parse_alive_key(keys.alive_robot_key(fleet, robot)) == (fleet, "robot", robot)
     assert keys.parse_alive_key(keys.alive_coordinator_key(fleet, name)) == (
         fleet,
