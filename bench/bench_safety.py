@@ -22,7 +22,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # the closed-loop harness of tests/test_safety_closed_loop.py
+sys.path.insert(
+    0, str(ROOT / "tests")
+)  # the closed-loop harness of tests/test_safety_closed_loop.py
 
 
 def main(argv: list[str] | None = None) -> int:

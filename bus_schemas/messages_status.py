@@ -108,11 +108,15 @@ class CoordinatorStatus(_NodeStatus):
     host: str = field(metadata=f_str("host name the coordinator runs on"))
     tick_p50_ms: float | None = field(
         default=None,
-        metadata=f_float("median compute-and-publish time of the recent ticks", "ms", lo=0.0),
+        metadata=f_float(
+            "median compute-and-publish time of the recent ticks", "ms", lo=0.0, hi=_TMAX
+        ),
     )
     tick_max_ms: float | None = field(
         default=None,
-        metadata=f_float("largest compute-and-publish time of the recent ticks", "ms", lo=0.0),
+        metadata=f_float(
+            "largest compute-and-publish time of the recent ticks", "ms", lo=0.0, hi=_TMAX
+        ),
     )
 
 

@@ -192,8 +192,11 @@ def test_absurd_positions_and_velocities_are_refused(cls: type) -> None:
             if name not in base:
                 continue
             fs = next(f.spec for f in spec_of(cls).fields if f.name == name)
-            assert fs.hi is not None and fs.hi <= 2 * bound, (cls.__name__, name)
-            for absurd in (1e300, -1e300, 2.5 * bound):
+            distance = fs.lo is not None and fs.lo >= 0.0  # between two positions (< 2 sqrt 2 P)
+            limit = (4 if distance else 2) * bound
+            assert fs.hi is not None and fs.hi <= limit, (cls.__name__, name)
+            edges = (0.0, fs.hi) if distance else (-bound, bound)
+            for absurd in (1e300, -1e300, 2.5 * limit):
                 value: Any = absurd
                 if fs.kind is Kind.FLOAT_LIST:
                     if not base[name]:
@@ -203,7 +206,7 @@ def test_absurd_positions_and_velocities_are_refused(cls: type) -> None:
                 assert isinstance(err, DecodeError), (cls.__name__, name, absurd)
                 assert err.reason is Reason.OUT_OF_RANGE
                 checked += 1
-            for edge in (-bound, bound):
+            for edge in edges:
                 value = [edge] * len(base[name]) if fs.kind is Kind.FLOAT_LIST else edge
                 ok = decode(msgpack.packb({**base, name: value}), cls)
                 assert not isinstance(ok, DecodeError), (cls.__name__, name, ok)
