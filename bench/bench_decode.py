@@ -33,7 +33,7 @@ from bus_schemas.codec import _strict_map
 
 
 def samples() -> dict[type, Any]:
-    from test_schemas import SAMPLES  # one valid message per type (tests/test_schemas.py)
+    from bus_samples import SAMPLES  # one valid message per type (tests/bus_samples.py)
 
     return dict(SAMPLES)
 

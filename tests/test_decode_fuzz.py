@@ -20,9 +20,9 @@ from typing import Any
 
 import msgpack
 import pytest
+from bus_samples import SAMPLES
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_schemas import SAMPLES
 
 from bus_schemas import (
     MESSAGE_TYPES,
