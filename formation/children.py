@@ -22,6 +22,8 @@ from formation.up_plan import LaunchError
 REPO_ROOT: Final = Path(__file__).resolve().parents[1]
 STOP_PATIENCE_S: Final = 2.0
 """How long a child gets between SIGTERM and SIGKILL, seconds."""
+ABORT_PATIENCE_S: Final = 0.5
+"""After the stop bound: how long a child's faulthandler gets to write its stacks on SIGABRT."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -31,6 +33,9 @@ def child_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH")) if p)
     env["PYTHONUNBUFFERED"] = "1"
+    # a child stuck past its stop bound gets SIGABRT before SIGKILL: faulthandler writes every
+    # thread's Python stack to its log (no GIL needed), so the hang can be diagnosed
+    env["PYTHONFAULTHANDLER"] = "1"
     # runtime.lifecycle.bind_to_parent (formation/__main__.py): the child dies with this process
     env["FORMATION_PARENT_PID"] = str(os.getpid())
     return env
@@ -146,11 +151,15 @@ class Child:
             except TimeoutError:
                 state = process_state(self.proc.pid)
                 self.killed = True
-                self.signal(signal.SIGKILL)
-                await self.proc.wait()
+                self.signal(signal.SIGABRT)  # faulthandler: the stacks to the log, then abort
+                try:
+                    await asyncio.wait_for(self.proc.wait(), timeout=ABORT_PATIENCE_S)
+                except TimeoutError:
+                    self.signal(signal.SIGKILL)
+                    await self.proc.wait()
                 return (
                     f"{self.name} (pid {self.pid}) did not exit {patience_s} s after SIGTERM: "
-                    f"killed ({state})"
+                    f"killed ({state}; its threads' stacks are in {self.log_path})"
                 )
         rc = self.proc.returncode
         if self.stop_sent and rc not in (0, -signal.SIGTERM):

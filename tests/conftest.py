@@ -16,16 +16,26 @@ Fixtures (function scope unless noted):
 * ``session``: factory of client sessions to ``router`` (``session(**ZenohSettings fields)``),
   all closed on teardown.
 * ``free_port()``: a plain helper, a TCP port on 127.0.0.1 that was free a moment ago.
-* Session scope, autouse: at the end of the run no child process (or member of a spawned
-  process group) may still be alive; leftovers are killed and reported as an error.
+* Nothing a test starts may outlive it (autouse, every test): every process this pytest run
+  starts, at any depth, carries ``FORMATION_TEST_RUN=<pytest pid>.<nonce>`` in its environment
+  (set once in ``os.environ``, inherited by every ``Popen``). After each test's teardown, one
+  still running that was not running before the test is killed and fails that test; at the end
+  of the run none may be left (session fixtures included). ``python -m formation`` children also
+  get ``FORMATION_PARENT_PID`` (runtime.lifecycle.bind_to_parent: the kernel SIGKILLs them
+  when pytest dies, even by SIGKILL; a ``formation up`` launcher's own children die with it).
+  SIGTERM/SIGHUP to pytest stop every process of the run (SIGTERM, then SIGKILL) before pytest
+  dies; SIGINT does through the normal teardown plus an ``atexit`` sweep. Processes of an earlier
+  run whose pytest is gone (it was SIGKILLed) are killed when a run starts.
 
 Tests using ``router``, ``start_router`` or ``session`` are marked ``zenoh`` automatically.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -50,6 +60,13 @@ _ZENOH_FIXTURES = frozenset({"router", "start_router", "session"})
 # Process groups created by `spawn`, checked again at the end of the whole run.
 _SPAWNED_GROUPS: set[int] = set()
 
+RUN_MARK_ENV = "FORMATION_TEST_RUN"
+"""In the environment of every process this pytest run starts (at any depth): ``<pid>.<nonce>``."""
+PARENT_ENV = "FORMATION_PARENT_PID"  # = runtime.lifecycle.PARENT_ENV (tests import no runtime here)
+OUTLIVE_GRACE_S = 5.0
+"""How long a process started by a test may take to finish exiting after the test's teardown
+(it was signalled and is on its way out, on a loaded machine) before it counts as left behind."""
+
 
 def free_port() -> int:
     """A TCP port on 127.0.0.1 that the kernel considered free a moment ago."""
@@ -60,11 +77,14 @@ def free_port() -> int:
 
 
 def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
-    """Environment for a child: the repository importable, unbuffered output, no ZENOH_CONFIG."""
+    """Environment for a child: the repository importable, unbuffered output, no ZENOH_CONFIG,
+    tied to this pytest (``FORMATION_PARENT_PID``: a ``python -m formation`` child dies with
+    it; the run's mark, inherited from ``os.environ``, lets the guard find it at any depth)."""
     env = dict(os.environ)
     env.pop("ZENOH_CONFIG", None)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
     env["PYTHONUNBUFFERED"] = "1"
+    env[PARENT_ENV] = str(os.getpid())
     if extra:
         env.update(extra)
     return env
@@ -382,19 +402,166 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.zenoh)
 
 
+# ---------------------------------------------------------------------------------------------
+# The guard: nothing a test starts outlives it (module docstring)
+# ---------------------------------------------------------------------------------------------
+
+_RUN_MARK = f"{os.getpid()}.{secrets.token_hex(6)}"
+os.environ[RUN_MARK_ENV] = _RUN_MARK  # inherited by every process this run starts
+os.environ["FORMATION_TEST_ROOT"] = str(REPO_ROOT)  # which checkout a leftover belongs to
+_MARK_BYTES = f"{RUN_MARK_ENV}=".encode()
+
+
+def _start_ticks(pid: int | str) -> int | None:
+    """The start time of ``pid`` (clock ticks since boot), or None if it is gone or a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as f:
+            raw = f.read()
+    except OSError:
+        return None
+    fields = raw[raw.rfind(")") + 2 :].split()
+    return None if fields[0] in ("Z", "X") else int(fields[19])
+
+
+def _environ(pid: int | str) -> dict[bytes, bytes]:
+    try:
+        with open(f"/proc/{pid}/environ", "rb") as f:
+            raw = f.read()
+    except OSError:
+        return {}
+    out = {}
+    for item in raw.split(b"\0"):
+        key, sep, value = item.partition(b"=")
+        if sep:
+            out[key] = value
+    return out
+
+
+_MY_START = _start_ticks(os.getpid()) or 0
+
+
+def _marked_processes(
+    match: Callable[[dict[bytes, bytes]], bool] | None = None, since: int = _MY_START
+) -> set[int]:
+    """Live processes started since ``since`` whose environment carries a run mark accepted by
+    ``match`` (default: this run's), pytest itself excluded."""
+    me = os.getpid()
+    mark = _RUN_MARK.encode()
+    found: set[int] = set()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit() or int(entry) == me:
+            continue
+        ticks = _start_ticks(entry)
+        if ticks is None or ticks < since:
+            continue
+        env = _environ(entry)
+        if RUN_MARK_ENV.encode() not in env:
+            continue
+        if (match(env) if match is not None else env[RUN_MARK_ENV.encode()] == mark) and (
+            _start_ticks(entry) is not None  # not a zombie by now
+        ):
+            found.add(int(entry))
+    return found
+
+
+def _run_processes() -> set[int]:
+    """Every live process this pytest run started, at any depth."""
+    return _marked_processes()
+
+
+def _describe(pids: set[int]) -> str:
+    return "; ".join(f"{p}: {_cmdline(p)}" for p in sorted(pids))
+
+
+def _wait_until_gone(find: Callable[[], set[int]], timeout_s: float) -> set[int]:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        left = find()
+        if not left or time.monotonic() > deadline:
+            return left
+        time.sleep(0.05)
+
+
+def _terminate(pids: set[int], patience_s: float = SIGTERM_PATIENCE_S) -> None:
+    """SIGTERM ``pids`` (a launcher stops its own children and cleans up), SIGKILL what is left
+    after ``patience_s``."""
+    for pid in pids:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, signal.SIGTERM)
+    left = _wait_until_gone(lambda: {p for p in pids if _start_ticks(p) is not None}, patience_s)
+    _kill_all(left)
+
+
+def _stop_run_processes(signum: int, _frame: Any) -> None:
+    """SIGTERM/SIGHUP to pytest: stop everything the run started, then die of the signal."""
+    _terminate(_run_processes())
+    signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)
+
+
+def _sweep_at_exit() -> None:
+    if os.getpid() != int(_RUN_MARK.split(".")[0]):
+        return  # a forked child of pytest exiting: not the run's end
+    left = _run_processes()
+    if left:
+        print(f"\nconftest: stopping processes of the test run at exit: {_describe(left)}")
+        _terminate(left)
+
+
+atexit.register(_sweep_at_exit)
+
+
+def _orphans_of_dead_runs() -> set[int]:
+    """Processes left by an earlier run of this checkout's tests whose pytest is gone."""
+    root = str(REPO_ROOT).encode()
+
+    def dead_run(env: dict[bytes, bytes]) -> bool:
+        if env.get(b"FORMATION_TEST_ROOT") != root:
+            return False
+        owner = env[RUN_MARK_ENV.encode()].split(b".")[0]
+        if not owner.isdigit() or int(owner) == os.getpid():
+            return False
+        return "pytest" not in _cmdline(int(owner))  # gone, or the pid is something else now
+
+    return _marked_processes(dead_run, since=0)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def no_leftover_processes() -> Iterator[None]:
-    """At the end of the run, no child of pytest and no spawned process group may be alive."""
+    """The run's frame: orphans of a SIGKILLed earlier run are stopped first; SIGTERM/SIGHUP
+    stop the run's processes; at the end nothing the run started may still be alive."""
+    orphans = _orphans_of_dead_runs()
+    if orphans:
+        print(f"\nconftest: stopping processes left by a killed test run: {_describe(orphans)}")
+        _terminate(orphans)
+    previous = {
+        sig: signal.signal(sig, _stop_run_processes) for sig in (signal.SIGTERM, signal.SIGHUP)
+    }
     me = os.getpid()
     before = _live_processes(ppid=me)
-    yield
-    deadline = time.monotonic() + SIGTERM_PATIENCE_S
-    while True:
-        leftover = _live_processes(ppid=me, pgrps=set(_SPAWNED_GROUPS)) - before
-        if not leftover or time.monotonic() > deadline:
-            break
-        time.sleep(0.05)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    leftover = _wait_until_gone(
+        lambda: (_live_processes(ppid=me, pgrps=set(_SPAWNED_GROUPS)) - before) | _run_processes(),
+        SIGTERM_PATIENCE_S,
+    )
     if leftover:
-        desc = "; ".join(f"{p}: {_cmdline(p)}" for p in sorted(leftover))
-        _kill_all(leftover)
+        desc = _describe(leftover)
+        _terminate(leftover)
         pytest.fail(f"processes left behind at the end of the test run (killed): {desc}")
+
+
+@pytest.fixture(autouse=True)
+def nothing_outlives_the_test(request: pytest.FixtureRequest) -> Iterator[None]:
+    """After the test's teardown (this fixture is set up first, so torn down last), a process
+    the test started that is still running fails it (and is stopped)."""
+    before = _run_processes()
+    yield
+    left = _wait_until_gone(lambda: _run_processes() - before, OUTLIVE_GRACE_S)
+    if left:
+        desc = _describe(left)
+        _terminate(left)
+        pytest.fail(f"{request.node.nodeid} left processes running (stopped): {desc}", False)
