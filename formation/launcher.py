@@ -465,6 +465,9 @@ class _Launcher:
 
             shutil.rmtree(self.secure_dir, ignore_errors=True)
         self.stop_s = time.monotonic() - t0
+        from runtime.lifecycle import request_fast_exit
+
+        request_fast_exit()  # every child and session is closed: no interpreter teardown needed
 
     # -- main -----------------------------------------------------------------------------------
 
@@ -552,6 +555,7 @@ class _Launcher:
                     "returncode": c.returncode,
                     "ready_s": c.ready_s,
                     "killed": c.killed,
+                    "stop_s": c.stop_s,
                 }
                 for c in self._all_children()
             },
