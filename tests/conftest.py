@@ -16,6 +16,8 @@ Fixtures (function scope unless noted):
 * ``session``: factory of client sessions to ``router`` (``session(**ZenohSettings fields)``),
   all closed on teardown.
 * ``free_port()``: a plain helper, a TCP port on 127.0.0.1 that was free a moment ago.
+* Hypothesis profile ``formation``: no deadline, no ``too_slow`` health check (wall-clock limits
+  fail on a loaded machine; a property is not a speed test).
 * Nothing a test starts may outlive it (autouse, every test): every process this pytest run
   starts, at any depth, carries ``FORMATION_TEST_RUN=<pytest pid>.<nonce>`` in its environment
   (set once in ``os.environ``, inherited by every ``Popen``). After each test's teardown, one
@@ -47,11 +49,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 if TYPE_CHECKING:
     import zenoh
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+# Hypothesis: no wall-clock limits (a property is not a speed test: next to a CPU hog one example
+# or the data generation can take longer than the 200 ms default deadline), loaded before any
+# test module builds its own settings on top of the default.
+settings.register_profile("formation", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("formation")
 READY_TIMEOUT_S = 15.0  # python start + zenoh import on a loaded 2-core CI box
 SIGTERM_PATIENCE_S = 2.0
 ROUTER_READY = "router listening on "
@@ -407,7 +416,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 # ---------------------------------------------------------------------------------------------
 
 _RUN_MARK = f"{os.getpid()}.{secrets.token_hex(6)}"
-os.environ[RUN_MARK_ENV] = _RUN_MARK  # inherited by every process this run starts
+# inherited by every process this run starts; a chain, so a pytest run by a test (whose own
+# processes carry its mark after this one's) keeps them visible to this run's guard
+os.environ[RUN_MARK_ENV] = ",".join(m for m in (os.environ.get(RUN_MARK_ENV, ""), _RUN_MARK) if m)
 os.environ["FORMATION_TEST_ROOT"] = str(REPO_ROOT)  # which checkout a leftover belongs to
 _MARK_BYTES = f"{RUN_MARK_ENV}=".encode()
 
@@ -457,7 +468,8 @@ def _marked_processes(
         env = _environ(entry)
         if RUN_MARK_ENV.encode() not in env:
             continue
-        if (match(env) if match is not None else env[RUN_MARK_ENV.encode()] == mark) and (
+        marks = env[RUN_MARK_ENV.encode()].split(b",")
+        if (match(env) if match is not None else mark in marks) and (
             _start_ticks(entry) is not None  # not a zombie by now
         ):
             found.add(int(entry))
@@ -518,7 +530,7 @@ def _orphans_of_dead_runs() -> set[int]:
     def dead_run(env: dict[bytes, bytes]) -> bool:
         if env.get(b"FORMATION_TEST_ROOT") != root:
             return False
-        owner = env[RUN_MARK_ENV.encode()].split(b".")[0]
+        owner = env[RUN_MARK_ENV.encode()].split(b",")[-1].split(b".")[0]  # the innermost run
         if not owner.isdigit() or int(owner) == os.getpid():
             return False
         return "pytest" not in _cmdline(int(owner))  # gone, or the pid is something else now
