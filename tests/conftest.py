@@ -566,13 +566,25 @@ def no_leftover_processes() -> Iterator[None]:
         pytest.fail(f"processes left behind at the end of the test run (killed): {desc}")
 
 
+def _now_ticks() -> int:
+    """Now on the clock of /proc's process start times (clock ticks since boot)."""
+    return int(time.clock_gettime(time.CLOCK_BOOTTIME) * os.sysconf("SC_CLK_TCK"))
+
+
 @pytest.fixture(autouse=True)
 def nothing_outlives_the_test(request: pytest.FixtureRequest) -> Iterator[None]:
     """After the test's teardown (this fixture is set up first, so torn down last), a process
-    the test started that is still running fails it (and is stopped)."""
-    before = _run_processes()
+    the test started that is still running fails it (and is stopped). "Started by the test":
+    carries the run's mark, started at or after this fixture's setup (so after any module or
+    session fixture of the test) and was not running then."""
+    running = set(os.listdir("/proc"))  # cheap: names only
+    since = _now_ticks()
     yield
-    left = _wait_until_gone(lambda: _run_processes() - before, OUTLIVE_GRACE_S)
+
+    def started_here() -> set[int]:
+        return {p for p in _marked_processes(since=since) if str(p) not in running}
+
+    left = _wait_until_gone(started_here, OUTLIVE_GRACE_S)
     if left:
         desc = _describe(left)
         _terminate(left)
