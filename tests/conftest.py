@@ -576,13 +576,32 @@ def nothing_outlives_the_test(request: pytest.FixtureRequest) -> Iterator[None]:
     """After the test's teardown (this fixture is set up first, so torn down last), a process
     the test started that is still running fails it (and is stopped). "Started by the test":
     carries the run's mark, started at or after this fixture's setup (so after any module or
-    session fixture of the test) and was not running then."""
+    session fixture of the test), was not running then, and no process that was running then
+    (other than pytest) is its ancestor: a process that a module fixture's launcher respawns
+    during the test belongs to the fixture."""
     running = set(os.listdir("/proc"))  # cheap: names only
     since = _now_ticks()
     yield
+    me = os.getpid()
+
+    def owned_by_an_older_process(pid: int) -> bool:
+        for _ in range(64):
+            stat = _proc_stat(pid)
+            if stat is None:
+                return False
+            pid = stat[1]
+            if pid in (me, 0, 1):
+                return False  # pytest's own child, or an orphan: the test's
+            if str(pid) in running:  # an older process of this run (else a reaper: orphan)
+                return _RUN_MARK.encode() in _environ(pid).get(RUN_MARK_ENV.encode(), b"")
+        return False
 
     def started_here() -> set[int]:
-        return {p for p in _marked_processes(since=since) if str(p) not in running}
+        return {
+            p
+            for p in _marked_processes(since=since)
+            if str(p) not in running and not owned_by_an_older_process(p)
+        }
 
     left = _wait_until_gone(started_here, OUTLIVE_GRACE_S)
     if left:
