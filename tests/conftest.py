@@ -420,7 +420,6 @@ _RUN_MARK = f"{os.getpid()}.{secrets.token_hex(6)}"
 # processes carry its mark after this one's) keeps them visible to this run's guard
 os.environ[RUN_MARK_ENV] = ",".join(m for m in (os.environ.get(RUN_MARK_ENV, ""), _RUN_MARK) if m)
 os.environ["FORMATION_TEST_ROOT"] = str(REPO_ROOT)  # which checkout a leftover belongs to
-_MARK_BYTES = f"{RUN_MARK_ENV}=".encode()
 
 
 def _start_ticks(pid: int | str) -> int | None:
