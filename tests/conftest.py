@@ -18,7 +18,8 @@ Fixtures (function scope unless noted):
 * ``free_port()``: a plain helper, a TCP port on 127.0.0.1 that was free a moment ago.
 * Hypothesis profile ``formation``: no deadline, no ``too_slow`` health check (wall-clock limits
   fail on a loaded machine; a property is not a speed test).
-* Nothing a test starts may outlive it (autouse, every test): every process this pytest run
+* Nothing a test starts may outlive it (autouse, every test; the /proc bookkeeping is in
+  ``tests/procguard.py``): every process this pytest run
   starts, at any depth, carries ``FORMATION_TEST_RUN=<pytest pid>.<nonce>`` in its environment
   (set once in ``os.environ``, inherited by every ``Popen``). After each test's teardown, one
   still running that was not running before the test is killed and fails that test; at the end
@@ -34,10 +35,8 @@ Tests using ``router``, ``start_router`` or ``session`` are marked ``zenoh`` aut
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import os
-import secrets
 import signal
 import socket
 import subprocess
@@ -50,6 +49,22 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 from hypothesis import HealthCheck, settings
+from procguard import (
+    SIGTERM_PATIENCE_S,
+    _cmdline,
+    _describe,
+    _has_run_mark,
+    _kill_all,
+    _live_processes,
+    _marked_processes,
+    _now_ticks,
+    _orphans_of_dead_runs,
+    _proc_stat,
+    _run_processes,
+    _stop_run_processes,
+    _terminate,
+    _wait_until_gone,
+)
 
 if TYPE_CHECKING:
     import zenoh
@@ -62,15 +77,12 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 settings.register_profile("formation", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("formation")
 READY_TIMEOUT_S = 15.0  # python start + zenoh import on a loaded 2-core CI box
-SIGTERM_PATIENCE_S = 2.0
 ROUTER_READY = "router listening on "
 _ZENOH_FIXTURES = frozenset({"router", "start_router", "session"})
 
 # Process groups created by `spawn`, checked again at the end of the whole run.
 _SPAWNED_GROUPS: set[int] = set()
 
-RUN_MARK_ENV = "FORMATION_TEST_RUN"
-"""In the environment of every process this pytest run starts (at any depth): ``<pid>.<nonce>``."""
 PARENT_ENV = "FORMATION_PARENT_PID"  # = runtime.lifecycle.PARENT_ENV (tests import no runtime here)
 OUTLIVE_GRACE_S = 5.0
 """How long a process started by a test may take to finish exiting after the test's teardown
@@ -97,52 +109,6 @@ def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
     if extra:
         env.update(extra)
     return env
-
-
-# ---------------------------------------------------------------------------------------------
-# /proc helpers (psutil is not a dependency)
-# ---------------------------------------------------------------------------------------------
-
-
-def _proc_stat(pid: int) -> tuple[str, int, int] | None:
-    """(state, ppid, pgrp) of ``pid`` from /proc, or None if it is gone."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as f:
-            raw = f.read()
-    except OSError:
-        return None
-    fields = raw[raw.rfind(")") + 2 :].split()  # the command name may contain spaces and ')'
-    return fields[0], int(fields[1]), int(fields[2])
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode(errors="replace").strip()
-    except OSError:
-        return "?"
-
-
-def _live_processes(
-    *, ppid: int | None = None, pgrps: set[int] | frozenset[int] = frozenset()
-) -> set[int]:
-    """Non-zombie processes whose parent is ``ppid`` or whose process group is in ``pgrps``."""
-    found: set[int] = set()
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        stat = _proc_stat(int(entry))
-        if stat is None or stat[0] in ("Z", "X"):
-            continue
-        if (ppid is not None and stat[1] == ppid) or stat[2] in pgrps:
-            found.add(int(entry))
-    return found
-
-
-def _kill_all(pids: set[int]) -> None:
-    for pid in pids:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -412,129 +378,8 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# The guard: nothing a test starts outlives it (module docstring)
+# The guard: nothing a test starts outlives it (module docstring; mechanics in procguard.py)
 # ---------------------------------------------------------------------------------------------
-
-_RUN_MARK = f"{os.getpid()}.{secrets.token_hex(6)}"
-# inherited by every process this run starts; a chain, so a pytest run by a test (whose own
-# processes carry its mark after this one's) keeps them visible to this run's guard
-os.environ[RUN_MARK_ENV] = ",".join(m for m in (os.environ.get(RUN_MARK_ENV, ""), _RUN_MARK) if m)
-os.environ["FORMATION_TEST_ROOT"] = str(REPO_ROOT)  # which checkout a leftover belongs to
-
-
-def _start_ticks(pid: int | str) -> int | None:
-    """The start time of ``pid`` (clock ticks since boot), or None if it is gone or a zombie."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as f:
-            raw = f.read()
-    except OSError:
-        return None
-    fields = raw[raw.rfind(")") + 2 :].split()
-    return None if fields[0] in ("Z", "X") else int(fields[19])
-
-
-def _environ(pid: int | str) -> dict[bytes, bytes]:
-    try:
-        with open(f"/proc/{pid}/environ", "rb") as f:
-            raw = f.read()
-    except OSError:
-        return {}
-    out = {}
-    for item in raw.split(b"\0"):
-        key, sep, value = item.partition(b"=")
-        if sep:
-            out[key] = value
-    return out
-
-
-_MY_START = _start_ticks(os.getpid()) or 0
-
-
-def _marked_processes(
-    match: Callable[[dict[bytes, bytes]], bool] | None = None, since: int = _MY_START
-) -> set[int]:
-    """Live processes started since ``since`` whose environment carries a run mark accepted by
-    ``match`` (default: this run's), pytest itself excluded."""
-    me = os.getpid()
-    mark = _RUN_MARK.encode()
-    found: set[int] = set()
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit() or int(entry) == me:
-            continue
-        ticks = _start_ticks(entry)
-        if ticks is None or ticks < since:
-            continue
-        env = _environ(entry)
-        if RUN_MARK_ENV.encode() not in env:
-            continue
-        marks = env[RUN_MARK_ENV.encode()].split(b",")
-        if (match(env) if match is not None else mark in marks) and (
-            _start_ticks(entry) is not None  # not a zombie by now
-        ):
-            found.add(int(entry))
-    return found
-
-
-def _run_processes() -> set[int]:
-    """Every live process this pytest run started, at any depth."""
-    return _marked_processes()
-
-
-def _describe(pids: set[int]) -> str:
-    return "; ".join(f"{p}: {_cmdline(p)}" for p in sorted(pids))
-
-
-def _wait_until_gone(find: Callable[[], set[int]], timeout_s: float) -> set[int]:
-    deadline = time.monotonic() + timeout_s
-    while True:
-        left = find()
-        if not left or time.monotonic() > deadline:
-            return left
-        time.sleep(0.05)
-
-
-def _terminate(pids: set[int], patience_s: float = SIGTERM_PATIENCE_S) -> None:
-    """SIGTERM ``pids`` (a launcher stops its own children and cleans up), SIGKILL what is left
-    after ``patience_s``."""
-    for pid in pids:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.kill(pid, signal.SIGTERM)
-    left = _wait_until_gone(lambda: {p for p in pids if _start_ticks(p) is not None}, patience_s)
-    _kill_all(left)
-
-
-def _stop_run_processes(signum: int, _frame: Any) -> None:
-    """SIGTERM/SIGHUP to pytest: stop everything the run started, then die of the signal."""
-    _terminate(_run_processes())
-    signal.signal(signum, signal.SIG_DFL)
-    os.kill(os.getpid(), signum)
-
-
-def _sweep_at_exit() -> None:
-    if os.getpid() != int(_RUN_MARK.split(".")[0]):
-        return  # a forked child of pytest exiting: not the run's end
-    left = _run_processes()
-    if left:
-        print(f"\nconftest: stopping processes of the test run at exit: {_describe(left)}")
-        _terminate(left)
-
-
-atexit.register(_sweep_at_exit)
-
-
-def _orphans_of_dead_runs() -> set[int]:
-    """Processes left by an earlier run of this checkout's tests whose pytest is gone."""
-    root = str(REPO_ROOT).encode()
-
-    def dead_run(env: dict[bytes, bytes]) -> bool:
-        if env.get(b"FORMATION_TEST_ROOT") != root:
-            return False
-        owner = env[RUN_MARK_ENV.encode()].split(b",")[-1].split(b".")[0]  # the innermost run
-        if not owner.isdigit() or int(owner) == os.getpid():
-            return False
-        return "pytest" not in _cmdline(int(owner))  # gone, or the pid is something else now
-
-    return _marked_processes(dead_run, since=0)
 
 
 @pytest.fixture(scope="session", autouse=True)
@@ -565,11 +410,6 @@ def no_leftover_processes() -> Iterator[None]:
         pytest.fail(f"processes left behind at the end of the test run (killed): {desc}")
 
 
-def _now_ticks() -> int:
-    """Now on the clock of /proc's process start times (clock ticks since boot)."""
-    return int(time.clock_gettime(time.CLOCK_BOOTTIME) * os.sysconf("SC_CLK_TCK"))
-
-
 @pytest.fixture(autouse=True)
 def nothing_outlives_the_test(request: pytest.FixtureRequest) -> Iterator[None]:
     """After the test's teardown (this fixture is set up first, so torn down last), a process
@@ -592,7 +432,7 @@ def nothing_outlives_the_test(request: pytest.FixtureRequest) -> Iterator[None]:
             if pid in (me, 0, 1):
                 return False  # pytest's own child, or an orphan: the test's
             if str(pid) in running:  # an older process of this run (else a reaper: orphan)
-                return _RUN_MARK.encode() in _environ(pid).get(RUN_MARK_ENV.encode(), b"")
+                return _has_run_mark(pid)
         return False
 
     def started_here() -> set[int]:

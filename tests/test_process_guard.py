@@ -24,6 +24,7 @@ pytestmark = pytest.mark.slow
 SUITE_CONFTEST = str(REPO_ROOT / "tests" / "conftest.py")
 CONFTEST = f"""
 import importlib.util, sys
+sys.path.insert(0, {str(REPO_ROOT / "tests")!r})
 spec = importlib.util.spec_from_file_location("suite_conftest", {SUITE_CONFTEST!r})
 mod = importlib.util.module_from_spec(spec)
 sys.modules["suite_conftest"] = mod
