@@ -22,6 +22,8 @@ from formation.up_plan import LaunchError
 REPO_ROOT: Final = Path(__file__).resolve().parents[1]
 STOP_PATIENCE_S: Final = 2.0
 """How long a child gets between SIGTERM and SIGKILL, seconds."""
+ABORT_PATIENCE_S: Final = 0.5
+"""After the stop bound: how long a child's faulthandler gets to write its stacks on SIGABRT."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -31,6 +33,9 @@ def child_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH")) if p)
     env["PYTHONUNBUFFERED"] = "1"
+    # a child stuck past its stop bound gets SIGABRT before SIGKILL: faulthandler writes every
+    # thread's Python stack to its log (no GIL needed), so the hang can be diagnosed
+    env["PYTHONFAULTHANDLER"] = "1"
     # runtime.lifecycle.bind_to_parent (formation/__main__.py): the child dies with this process
     env["FORMATION_PARENT_PID"] = str(os.getpid())
     return env
@@ -63,6 +68,7 @@ class Child:
         self.started_s = 0.0
         self.stop_sent = False
         self.killed = False
+        self.stop_s: float | None = None  # from this launcher's SIGTERM to the exit it saw
         self._out: TextIO | None = None
         self._drain: asyncio.Task[None] | None = None
         self.stdout_tail: deque[str] = deque(maxlen=20)
@@ -140,22 +146,38 @@ class Child:
             return None
         if self.proc.returncode is None:
             self.stop_sent = True
+            sent = time.monotonic()
             self.signal(signal.SIGTERM)
             try:
                 await asyncio.wait_for(self.proc.wait(), timeout=patience_s)
             except TimeoutError:
                 state = process_state(self.proc.pid)
-                self.killed = True
-                self.signal(signal.SIGKILL)
-                await self.proc.wait()
-                return (
-                    f"{self.name} (pid {self.pid}) did not exit {patience_s} s after SIGTERM: "
-                    f"killed ({state})"
-                )
+                if state.startswith(("state Z", "state X", "gone")):
+                    # it has exited (a zombie: the kernel is still tearing down its threads
+                    # and memory, or this loop has not reaped it yet): in time, not a hang
+                    await self.proc.wait()
+                else:
+                    return await self._abort(patience_s, state)
+            self.stop_s = time.monotonic() - sent
         rc = self.proc.returncode
         if self.stop_sent and rc not in (0, -signal.SIGTERM):
             return f"{self.name} exited with status {rc} after SIGTERM (expected 0)"
         return None
+
+    async def _abort(self, patience_s: float, state: str) -> str:
+        """A child still running ``patience_s`` after SIGTERM: SIGABRT, then SIGKILL."""
+        assert self.proc is not None
+        self.killed = True
+        self.signal(signal.SIGABRT)  # faulthandler: the stacks to the log, then abort
+        try:
+            await asyncio.wait_for(self.proc.wait(), timeout=ABORT_PATIENCE_S)
+        except TimeoutError:
+            self.signal(signal.SIGKILL)
+            await self.proc.wait()
+        return (
+            f"{self.name} (pid {self.pid}) did not exit {patience_s} s after SIGTERM: "
+            f"killed ({state}; its threads' stacks are in {self.log_path})"
+        )
 
     async def close(self) -> None:
         if self._drain is not None:

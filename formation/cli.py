@@ -161,7 +161,21 @@ def install_conventions() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
+    """The ``formation`` command; ``argv`` None: this process's command line (the entry point).
+
+    As the entry point, a subcommand that ran a node (``runtime.lifecycle.run_node``, sessions
+    closed) or a launcher ends the process at once (``runtime.lifecycle.exit_fast``: no
+    interpreter teardown, which under CPU load can exceed a node's stop bound)."""
+    code = _dispatch(sys.argv[1:] if argv is None else argv)
+    if argv is None:
+        lifecycle = sys.modules.get("runtime.lifecycle")  # loaded only by Zenoh subcommands
+        if lifecycle is not None and lifecycle.fast_exit_requested():
+            lifecycle.exit_fast(code)
+    return code
+
+
+def _dispatch(argv: list[str]) -> int:
+    args = list(argv)
     if not args or args[0] in ("-h", "--help", "help"):
         print(_usage())
         return 0

@@ -7,13 +7,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import os
 import signal
-import sys
 import time
 from collections.abc import Awaitable
-from pathlib import Path
 from typing import Any, Final
 
 from bus_schemas import keys
@@ -25,9 +22,10 @@ from formation.children import (
     tail_of,
 )
 from formation.collector import RunCollector, key_patterns
-from formation.progress import eta_text
+from formation.up_nodes import make_secure, node_commands, router_args
 from formation.up_plan import LaunchError, Plan, UpConfig, UpResult, plan_run
-from formation.up_view import format_line, format_table
+from formation.up_results import write_results
+from formation.up_view import RunDisplay
 
 DRAIN_S: Final = 0.25
 """Lockstep: time given to the last messages in flight after the plant ended, seconds."""
@@ -42,20 +40,11 @@ COLLECTOR_MAX_ENTRIES: Final = 1_500_000
 """Realtime: values the collector keeps before it thins the run's history (formation.collector,
 ``max_entries``; ~200 MiB at most). 300 robots fill it in ~30 s, 10 robots in ~50 min."""
 CONSUME_PERIOD_S: Final = 0.02
-TABLE_PERIOD_S: Final = 0.5
-LINE_PERIOD_S: Final = 5.0
 EXIT_INTERRUPTED: Final = 130
 
 
 class _Interrupted(Exception):
     """The launcher was asked to stop (SIGINT/SIGTERM)."""
-
-
-# ---------------------------------------------------------------------------------------------
-# The launcher
-
-
-# ---------------------------------------------------------------------------------------------
 
 
 class _Launcher:
@@ -85,82 +74,27 @@ class _Launcher:
         self.last_truth_rx: float | None = None
         self._subscribers: list[Any] = []
         self._inbox: Any = None  # runtime.Inbox("queue") of the collector's samples
-        display = cfg.display
-        if cfg.quiet:
-            display = "none"
-        elif display == "auto":
-            display = "table" if sys.stdout.isatty() else "lines"
-        self.display = display
-        self._table_lines = 0
+        self.view = RunDisplay(
+            self.collector,
+            mode=cfg.display,
+            quiet=cfg.quiet,
+            lockstep=cfg.lockstep,
+            dt_s=self.scn.dt_s,
+            duration_s=plan.duration_s,
+            truth_rx=lambda: (self.first_truth_rx, self.last_truth_rx),
+        )
+        self.say, self.warn = self.view.say, self.view.warn
         self.stop_s: float | None = None
         self.recorder: Any = None  # formation.record.RecorderHandle with --record
         self.live: Any = None  # formation.live.LiveHandle with --foxglove
         self.record_stats: Any = None
 
-    # -- output ---------------------------------------------------------------------------------
-
-    def say(self, text: str) -> None:
-        if not self.cfg.quiet:
-            self._clear_table()
-            print(text, flush=True)
-
-    def warn(self, text: str) -> None:
-        self._clear_table()
-        print(f"formation up: {text}", file=sys.stderr, flush=True)
-
-    def _clear_table(self) -> None:
-        if self._table_lines:
-            sys.stdout.write(f"\x1b[{self._table_lines}F\x1b[J")
-            sys.stdout.flush()
-            self._table_lines = 0
-
-    def _speed(self) -> float | None:
-        view_t = self._sim_elapsed()
-        if view_t is None or self.first_truth_rx is None or self.last_truth_rx is None:
-            return None
-        wall = self.last_truth_rx - self.first_truth_rx
-        return view_t / wall if wall > 0.5 else None
-
-    def _sim_elapsed(self) -> float | None:
-        if not self.cfg.lockstep:
-            return None
-        first, last = self.collector.first_tick, self.collector.last_clock_tick
-        if first is None or last is None:
-            return None
-        return (last - first) * self.scn.dt_s
-
-    def _progress(self) -> str:
-        """``"37% of 110 s, ETA 1 min 09 s"`` once the run's clock has started, else ""."""
-        if self.cfg.lockstep:
-            done = self._sim_elapsed()
-            return "" if done is None else eta_text(done, self.plan.duration_s, self._speed())
-        if self.first_truth_rx is None:
-            return ""
-        # realtime: the duration counts from the first truth frame, at 1x
-        done = time.monotonic() - self.first_truth_rx
-        return eta_text(done, self.plan.duration_s, 1.0)
-
-    async def _display_loop(self) -> None:
-        if self.display == "none":
-            return
+    def _header(self) -> str:
         mode = "lockstep" if self.cfg.lockstep else "realtime"
-        header = (
+        return (
             f"formation up: {self.scn.name}, {len(self.scn.robot_ids)} robots, {mode}, "
             f"fleet {self.cfg.fleet} on {self.cfg.endpoint}  (Ctrl-C stops)"
         )
-        period = TABLE_PERIOD_S if self.display == "table" else LINE_PERIOD_S
-        while True:
-            await asyncio.sleep(period)
-            view = self.collector.live()
-            progress = self._progress()
-            if self.display == "table":
-                lines = format_table(view, header, self._speed(), progress)
-                self._clear_table()
-                sys.stdout.write("\n".join(lines) + "\n")
-                sys.stdout.flush()
-                self._table_lines = len(lines)
-            else:
-                print(format_line(view, self._speed(), progress), flush=True)
 
     # -- signals --------------------------------------------------------------------------------
 
@@ -202,115 +136,6 @@ class _Launcher:
             return ["--endpoint", self.cfg.endpoint]
         return ["--zenoh-config", str(self.secure.clients[cn])]
 
-    def identities(self) -> list[Any]:
-        """The identities of this run (bus_schemas.acl): one per process kind, robot and host."""
-        from bus_schemas import acl
-
-        out = [acl.Identity(acl.Kind.PLANT), acl.coordinator("main")]
-        if self.cfg.standby:
-            out.append(acl.coordinator("standby"))
-        if self.cfg.camera == "rendered":
-            out.append(acl.Identity(acl.Kind.LOCALIZATION))
-        for name, part in self._host_parts():
-            out.append(acl.agent_host(name, part))
-        if self.plan.hosts <= 0:
-            out += [acl.robot(rid) for rid in self.scn.robot_ids]
-        out += [acl.Identity(acl.Kind.OPERATOR), acl.Identity(acl.Kind.OBSERVER)]
-        return out
-
-    def _host_parts(self) -> list[tuple[str, list[str]]]:
-        ids = list(self.scn.robot_ids)
-        if self.plan.hosts <= 0:
-            return []
-        h = min(self.plan.hosts, len(ids))
-        return [(f"h{k + 1}", ids[k * len(ids) // h : (k + 1) * len(ids) // h]) for k in range(h)]
-
-    def _node_args(self) -> list[tuple[str, list[str], str]]:
-        fleet, scn_arg = self.cfg.fleet, self.plan.scenario_arg
-        base = ["--fleet", fleet]
-        if self.cfg.lease_ms is not None:
-            base += ["--lease-ms", str(self.cfg.lease_ms)]
-
-        def common_of(cn: str) -> list[str]:
-            return [*self._bus_args(cn), *base]
-
-        common = common_of("plant")
-        lock = ["--lockstep"] if self.cfg.lockstep else []
-        plant = [
-            "plant", "--scenario", scn_arg, "--seed", str(self.plan.seed),
-            "--duration", repr(self.plan.duration_s), "--wait-robots", *lock, *common,
-        ]  # fmt: skip
-        # the plant's control-loop latency statistics (realtime: pose frame -> wheel command
-        # computed from it, docs/scale.md), written when it exits (bench/bench_up.py reads them)
-        plant += ["--stats-out", str(self.out_dir.resolve() / "plant_stats.json")]
-        batch = ["--batch"] if self.plan.hosts > 0 else []
-        plant += batch
-        coord = [
-            "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock,
-            *common_of("coordinator.main"),
-        ]  # fmt: skip
-        out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
-        if self.cfg.camera == "rendered":  # docs/localization.md: the real tracker in the loop
-            from localization.rendered import scenario_camera_args
-
-            plant.append("--no-poses")
-            cam = scenario_camera_args(
-                self.scn.robot_ids, self.scn.initial, self.scn.trajectory,
-                float(self.scn.formation.get("b_m", 0.4)), self.plan.duration_s,
-                str(self.plan.out_dir / "camera.toml"),
-            )  # fmt: skip
-            out.insert(1, ("camera", ["camera", *cam, *common_of("localization")], "camera ready"))
-        if self.cfg.standby:
-            standby = [
-                "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",
-                *batch, *lock, *common_of("coordinator.standby"),
-            ]  # fmt: skip
-            out.append(("coordinator-standby", standby, "coordinator ready"))
-        if self.plan.hosts > 0:  # agent hosts, each running a contiguous share of the robots
-            for name, part in self._host_parts():
-                host = [
-                    "agent-host", "--ids", ",".join(part), "--name", name, "--scenario", scn_arg,
-                    *lock, *common_of(f"host.{name}"),
-                ]  # fmt: skip
-                out.append((f"agent-host-{name}", host, f"agent-host {name} ready"))
-            return out
-        for rid in self.scn.robot_ids:
-            agent = [
-                "agent", "--id", rid, "--scenario", scn_arg, *lock, *common_of(f"robot.{rid}"),
-            ]  # fmt: skip
-            out.append((f"agent-{rid}", agent, f"agent {rid} ready"))
-        return out
-
-    def _make_secure(self) -> None:
-        """``--secure``: an ephemeral CA, one certificate per identity, the router's mTLS config
-        with the access control generated from the contract, one client config per identity,
-        all in a 0700 directory of this user (formation.runfile); the CA's private key is
-        deleted as soon as the certificates are issued (no more can be signed)."""
-        from formation import pki as pki_mod
-        from formation.runfile import endpoint_port, runtime_dir
-
-        port = endpoint_port(self.cfg.endpoint)
-        if port is None:
-            raise LaunchError(f"--secure needs a loopback endpoint, got {self.cfg.endpoint}")
-        try:
-            import shutil
-
-            for old in runtime_dir().glob("secure-*-*"):  # left by a SIGKILLed launcher
-                pid = old.name.rsplit("-", 1)[-1]
-                if pid.isdigit() and not Path(f"/proc/{pid}").exists():
-                    shutil.rmtree(old, ignore_errors=True)
-            self.secure_dir = runtime_dir() / f"secure-{port}-{os.getpid()}"
-            self.secure = pki_mod.write_run_configs(
-                self.secure_dir,
-                self.identities(),
-                port=port,
-                fleet=self.cfg.fleet,
-                lease_ms=self.cfg.lease_ms or pki_mod.acl.LEASE_MS,
-            )
-            (self.secure.pki.root / "ca" / "ca.key").unlink()
-        except OSError as exc:
-            raise LaunchError(f"--secure: cannot write the run's certificates: {exc}") from exc
-
     def _register(self) -> None:
         """Write the run file (formation.runfile) tools use to find this run."""
         from formation import runfile
@@ -340,23 +165,19 @@ class _Launcher:
     def _live_children(self) -> list[Child]:
         return [*self.nodes, *([self.router] if self.router is not None else [])]
 
-    def _router_args(self) -> list[str]:
-        if self.secure is None:
-            return ["router", "--listen", self.cfg.endpoint]
-        return ["router", "--zenoh-config", str(self.secure.router)]
-
     async def _start(self) -> None:
         env = child_env()
         if self.cfg.secure:
-            self._make_secure()
-        self.router = Child("router", self._router_args(), "router listening on ", self.log_dir)
+            self.secure, self.secure_dir = make_secure(self.cfg, self.plan)
+        args = router_args(self.cfg.endpoint, self.secure)
+        self.router = Child("router", args, "router listening on ", self.log_dir)
         await self.router.spawn(env, process_group=0)
         assert self.router.pid is not None
         self.group = group = self.router.pid
         await self._or_stop(self.router.wait_ready(self.cfg.ready_timeout_s))
         self.say(f"  router       pid {self.router.pid:<7} ready in {self.router.ready_s:.2f} s")
-        for name, args, ready in self._node_args():
-            child = Child(name, args, ready, self.log_dir)
+        for name, node_args, ready in node_commands(self.cfg, self.plan, self._bus_args):
+            child = Child(name, node_args, ready, self.log_dir)
             self.nodes.append(child)
             await child.spawn(env, process_group=group)
         self._register()
@@ -645,6 +466,9 @@ class _Launcher:
 
             shutil.rmtree(self.secure_dir, ignore_errors=True)
         self.stop_s = time.monotonic() - t0
+        from runtime.lifecycle import request_fast_exit
+
+        request_fast_exit()  # every child and session is closed: no interpreter teardown needed
 
     # -- main -----------------------------------------------------------------------------------
 
@@ -670,7 +494,7 @@ class _Launcher:
             try:
                 await self._start()
                 consumer = asyncio.ensure_future(self._consume())
-                display = asyncio.ensure_future(self._display_loop())
+                display = asyncio.ensure_future(self.view.loop(self._header()))
                 await self._run()
                 if self.cfg.lockstep:
                     await asyncio.sleep(DRAIN_S)  # the plant's last messages may be in flight
@@ -684,7 +508,7 @@ class _Launcher:
             finally:
                 if display is not None:
                     display.cancel()
-                self._clear_table()
+                self.view.clear_table()
                 if consumer is not None:
                     consumer.cancel()
                 await self._shutdown()
@@ -732,57 +556,14 @@ class _Launcher:
                     "returncode": c.returncode,
                     "ready_s": c.ready_s,
                     "killed": c.killed,
+                    "stop_s": c.stop_s,
                 }
                 for c in self._all_children()
             },
         }
-        log = self.collector.build(meta)
-        if log.t_s.size == 0:
-            self.warn("no truth was received: no metrics written")
-            return result
-        from formation import metrics as metrics_mod
-
-        metrics_mod.attach_agent(log, self.scn.agent)  # safety metrics (issue 14): truth only
-        m = metrics_mod.compute(log, self.plan.settle_s, self.scn.settle_tol_m)
-        sim_s = float(log.t_s[-1] - log.t_s[0])
-        m["meta"]["realtime_factor"] = sim_s / run_wall if run_wall else None
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        (self.out_dir / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
-        log.save_npz(str(self.out_dir / "run.npz"))
-        result.metrics = m
-        wrote = "metrics"
-        if self.cfg.figures:
-            from formation import figures as fig_mod
-
-            cut = f", interrupted after {sim_s:.1f} s" if interrupted else ""
-            try:
-                fig_mod.write_all(
-                    log,
-                    self.out_dir,
-                    title=f"{self.scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
-                    "points (solid), virtual trajectories (dashed)",
-                    settle_s=self.plan.settle_s,
-                )
-                wrote = "metrics and figures"
-            except Exception as exc:  # a run cut after a few ticks may not make every figure
-                if not interrupted:
-                    raise
-                self.warn(f"figures of the interrupted run failed: {exc!r}")
-        if interrupted:  # one line, even with --quiet: what was written is of a partial run
-            print(
-                f"formation up: interrupted: {wrote} of the {sim_s:.1f} s recorded so far "
-                f"in {self.out_dir}/",
-                file=sys.stderr,
-                flush=True,
-            )
-        if not self.cfg.quiet:
-            from formation.sim_cli import summary
-
-            print(summary(m))
-            rf = m["meta"]["realtime_factor"]
-            speed = f", {rf:.1f}x real time" if rf else ""
-            print(f"{sim_s:.2f} s of {m['meta']['mode']} run{speed}; {wrote} in {self.out_dir}/")
-        return result
+        return write_results(
+            self.collector.build(meta), self.cfg, self.plan, result, run_wall, self.warn
+        )
 
 
 async def run_up(cfg: UpConfig, plan: Plan | None = None) -> UpResult:

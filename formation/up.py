@@ -54,8 +54,11 @@ Theory of operation
    on the same endpoint: the nodes reconnect) and in realtime the plant (restarted for what is
    left of the duration). Any other child that exits ends the run as a failure. Every node
    gets ``--lease-ms`` (default 700): a hung node's tokens vanish within 1 s.
-5. **Stop.** SIGTERM to plant, coordinator and agents, at most 2 s wait, then SIGKILL (said on
-   stderr); the launcher's session is closed; then the router gets the same treatment. SIGINT or
+5. **Stop.** SIGTERM to plant, coordinator and agents, at most 2 s wait (a child that is a zombie
+   by then has exited: it counts as in time), then SIGABRT (the child's faulthandler writes
+   every thread's stack to its log) and SIGKILL, said on stderr; each child's time from SIGTERM
+   to exit is ``meta.children.<name>.stop_s`` in metrics.json. The launcher's session is closed;
+   then the router gets the same treatment. SIGINT or
    SIGTERM to the launcher starts this at once; a second one kills everything immediately.
    With ``--record FILE`` a :mod:`formation.record` recorder subscribes on the launcher's session
    right after the collector (so before the plant's clock starts) and writes every key of the

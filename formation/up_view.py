@@ -4,11 +4,23 @@ snapshot ``formation.collector.RunCollector.live()`` takes)."""
 
 from __future__ import annotations
 
+import asyncio
 import math
+import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, Final
 
-__all__ = ["LiveRobot", "LiveView", "format_line", "format_table"]
+from formation.progress import eta_text
+
+if TYPE_CHECKING:
+    from formation.collector import RunCollector
+
+__all__ = ["LiveRobot", "LiveView", "RunDisplay", "format_line", "format_table"]
+
+TABLE_PERIOD_S: Final = 0.5
+LINE_PERIOD_S: Final = 5.0
 
 
 @dataclass(frozen=True)
@@ -78,3 +90,95 @@ def format_line(view: LiveView, speed: float | None, progress: str = "") -> str:
         f"modes {' '.join(f'{k}:{v}' for k, v in sorted(modes.items()))}"
         + (f"  {progress}" if progress else "")
     )
+
+
+class RunDisplay:
+    """The launcher's terminal: messages, and the live table (or a line every few seconds).
+
+    ``truth_rx()`` gives the launcher's (first, last) receive times of truth frames (monotonic
+    seconds, None before the first)."""
+
+    def __init__(
+        self,
+        collector: RunCollector,
+        *,
+        mode: str,
+        quiet: bool,
+        lockstep: bool,
+        dt_s: float,
+        duration_s: float,
+        truth_rx: Callable[[], tuple[float | None, float | None]],
+    ) -> None:
+        if quiet:
+            mode = "none"
+        elif mode == "auto":
+            mode = "table" if sys.stdout.isatty() else "lines"
+        self.mode = mode
+        self.quiet = quiet
+        self.collector = collector
+        self.lockstep = lockstep
+        self.dt_s = dt_s
+        self.duration_s = duration_s
+        self.truth_rx = truth_rx
+        self._table_lines = 0
+
+    def say(self, text: str) -> None:
+        if not self.quiet:
+            self.clear_table()
+            print(text, flush=True)
+
+    def warn(self, text: str) -> None:
+        self.clear_table()
+        print(f"formation up: {text}", file=sys.stderr, flush=True)
+
+    def clear_table(self) -> None:
+        if self._table_lines:
+            sys.stdout.write(f"\x1b[{self._table_lines}F\x1b[J")
+            sys.stdout.flush()
+            self._table_lines = 0
+
+    def speed(self) -> float | None:
+        """Simulated seconds per wall second (lockstep), or None."""
+        view_t = self.sim_elapsed()
+        first, last = self.truth_rx()
+        if view_t is None or first is None or last is None:
+            return None
+        wall = last - first
+        return view_t / wall if wall > 0.5 else None
+
+    def sim_elapsed(self) -> float | None:
+        if not self.lockstep:
+            return None
+        first, last = self.collector.first_tick, self.collector.last_clock_tick
+        if first is None or last is None:
+            return None
+        return (last - first) * self.dt_s
+
+    def progress(self) -> str:
+        """``"37% of 110 s, ETA 1 min 09 s"`` once the run's clock has started, else ""."""
+        if self.lockstep:
+            done = self.sim_elapsed()
+            return "" if done is None else eta_text(done, self.duration_s, self.speed())
+        first, _ = self.truth_rx()
+        if first is None:
+            return ""
+        # realtime: the duration counts from the first truth frame, at 1x
+        return eta_text(time.monotonic() - first, self.duration_s, 1.0)
+
+    async def loop(self, header: str) -> None:
+        """Show the live view until cancelled."""
+        if self.mode == "none":
+            return
+        period = TABLE_PERIOD_S if self.mode == "table" else LINE_PERIOD_S
+        while True:
+            await asyncio.sleep(period)
+            view = self.collector.live()
+            progress = self.progress()
+            if self.mode == "table":
+                lines = format_table(view, header, self.speed(), progress)
+                self.clear_table()
+                sys.stdout.write("\n".join(lines) + "\n")
+                sys.stdout.flush()
+                self._table_lines = len(lines)
+            else:
+                print(format_line(view, self.speed(), progress), flush=True)

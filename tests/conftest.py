@@ -16,8 +16,19 @@ Fixtures (function scope unless noted):
 * ``session``: factory of client sessions to ``router`` (``session(**ZenohSettings fields)``),
   all closed on teardown.
 * ``free_port()``: a plain helper, a TCP port on 127.0.0.1 that was free a moment ago.
-* Session scope, autouse: at the end of the run no child process (or member of a spawned
-  process group) may still be alive; leftovers are killed and reported as an error.
+* Hypothesis profile ``formation``: no deadline, no ``too_slow`` health check (wall-clock limits
+  fail on a loaded machine; a property is not a speed test).
+* Nothing a test starts may outlive it (autouse, every test; the /proc bookkeeping is in
+  ``tests/procguard.py``): every process this pytest run
+  starts, at any depth, carries ``FORMATION_TEST_RUN=<pytest pid>.<nonce>`` in its environment
+  (set once in ``os.environ``, inherited by every ``Popen``). After each test's teardown, one
+  still running that was not running before the test is killed and fails that test; at the end
+  of the run none may be left (session fixtures included). ``python -m formation`` children also
+  get ``FORMATION_PARENT_PID`` (runtime.lifecycle.bind_to_parent: the kernel SIGKILLs them
+  when pytest dies, even by SIGKILL; a ``formation up`` launcher's own children die with it).
+  SIGTERM/SIGHUP to pytest stop every process of the run (SIGTERM, then SIGKILL) before pytest
+  dies; SIGINT does through the normal teardown plus an ``atexit`` sweep. Processes of an earlier
+  run whose pytest is gone (it was SIGKILLed) are killed when a run starts.
 
 Tests using ``router``, ``start_router`` or ``session`` are marked ``zenoh`` automatically.
 """
@@ -37,18 +48,45 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
+from hypothesis import HealthCheck, settings
+from procguard import (
+    SIGTERM_PATIENCE_S,
+    _cmdline,
+    _describe,
+    _has_run_mark,
+    _kill_all,
+    _live_processes,
+    _marked_processes,
+    _now_ticks,
+    _orphans_of_dead_runs,
+    _proc_stat,
+    _run_processes,
+    _stop_run_processes,
+    _terminate,
+    _wait_until_gone,
+)
 
 if TYPE_CHECKING:
     import zenoh
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+
+# Hypothesis: no wall-clock limits (a property is not a speed test: next to a CPU hog one example
+# or the data generation can take longer than the 200 ms default deadline), loaded before any
+# test module builds its own settings on top of the default.
+settings.register_profile("formation", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("formation")
 READY_TIMEOUT_S = 15.0  # python start + zenoh import on a loaded 2-core CI box
-SIGTERM_PATIENCE_S = 2.0
 ROUTER_READY = "router listening on "
 _ZENOH_FIXTURES = frozenset({"router", "start_router", "session"})
 
 # Process groups created by `spawn`, checked again at the end of the whole run.
 _SPAWNED_GROUPS: set[int] = set()
+
+PARENT_ENV = "FORMATION_PARENT_PID"  # = runtime.lifecycle.PARENT_ENV (tests import no runtime here)
+OUTLIVE_GRACE_S = 5.0
+"""How long a process started by a test may take to finish exiting after the test's teardown
+(it was signalled and is on its way out, on a loaded machine) before it counts as left behind."""
 
 
 def free_port() -> int:
@@ -60,60 +98,17 @@ def free_port() -> int:
 
 
 def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
-    """Environment for a child: the repository importable, unbuffered output, no ZENOH_CONFIG."""
+    """Environment for a child: the repository importable, unbuffered output, no ZENOH_CONFIG,
+    tied to this pytest (``FORMATION_PARENT_PID``: a ``python -m formation`` child dies with
+    it; the run's mark, inherited from ``os.environ``, lets the guard find it at any depth)."""
     env = dict(os.environ)
     env.pop("ZENOH_CONFIG", None)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
     env["PYTHONUNBUFFERED"] = "1"
+    env[PARENT_ENV] = str(os.getpid())
     if extra:
         env.update(extra)
     return env
-
-
-# ---------------------------------------------------------------------------------------------
-# /proc helpers (psutil is not a dependency)
-# ---------------------------------------------------------------------------------------------
-
-
-def _proc_stat(pid: int) -> tuple[str, int, int] | None:
-    """(state, ppid, pgrp) of ``pid`` from /proc, or None if it is gone."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as f:
-            raw = f.read()
-    except OSError:
-        return None
-    fields = raw[raw.rfind(")") + 2 :].split()  # the command name may contain spaces and ')'
-    return fields[0], int(fields[1]), int(fields[2])
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode(errors="replace").strip()
-    except OSError:
-        return "?"
-
-
-def _live_processes(
-    *, ppid: int | None = None, pgrps: set[int] | frozenset[int] = frozenset()
-) -> set[int]:
-    """Non-zombie processes whose parent is ``ppid`` or whose process group is in ``pgrps``."""
-    found: set[int] = set()
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        stat = _proc_stat(int(entry))
-        if stat is None or stat[0] in ("Z", "X"):
-            continue
-        if (ppid is not None and stat[1] == ppid) or stat[2] in pgrps:
-            found.add(int(entry))
-    return found
-
-
-def _kill_all(pids: set[int]) -> None:
-    for pid in pids:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -382,19 +377,73 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.zenoh)
 
 
+# ---------------------------------------------------------------------------------------------
+# The guard: nothing a test starts outlives it (module docstring; mechanics in procguard.py)
+# ---------------------------------------------------------------------------------------------
+
+
 @pytest.fixture(scope="session", autouse=True)
 def no_leftover_processes() -> Iterator[None]:
-    """At the end of the run, no child of pytest and no spawned process group may be alive."""
+    """The run's frame: orphans of a SIGKILLed earlier run are stopped first; SIGTERM/SIGHUP
+    stop the run's processes; at the end nothing the run started may still be alive."""
+    orphans = _orphans_of_dead_runs()
+    if orphans:
+        print(f"\nconftest: stopping processes left by a killed test run: {_describe(orphans)}")
+        _terminate(orphans)
+    previous = {
+        sig: signal.signal(sig, _stop_run_processes) for sig in (signal.SIGTERM, signal.SIGHUP)
+    }
     me = os.getpid()
     before = _live_processes(ppid=me)
-    yield
-    deadline = time.monotonic() + SIGTERM_PATIENCE_S
-    while True:
-        leftover = _live_processes(ppid=me, pgrps=set(_SPAWNED_GROUPS)) - before
-        if not leftover or time.monotonic() > deadline:
-            break
-        time.sleep(0.05)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    leftover = _wait_until_gone(
+        lambda: (_live_processes(ppid=me, pgrps=set(_SPAWNED_GROUPS)) - before) | _run_processes(),
+        SIGTERM_PATIENCE_S,
+    )
     if leftover:
-        desc = "; ".join(f"{p}: {_cmdline(p)}" for p in sorted(leftover))
-        _kill_all(leftover)
+        desc = _describe(leftover)
+        _terminate(leftover)
         pytest.fail(f"processes left behind at the end of the test run (killed): {desc}")
+
+
+@pytest.fixture(autouse=True)
+def nothing_outlives_the_test(request: pytest.FixtureRequest) -> Iterator[None]:
+    """After the test's teardown (this fixture is set up first, so torn down last), a process
+    the test started that is still running fails it (and is stopped). "Started by the test":
+    carries the run's mark, started at or after this fixture's setup (so after any module or
+    session fixture of the test), was not running then, and no process that was running then
+    (other than pytest) is its ancestor: a process that a module fixture's launcher respawns
+    during the test belongs to the fixture."""
+    running = set(os.listdir("/proc"))  # cheap: names only
+    since = _now_ticks()
+    yield
+    me = os.getpid()
+
+    def owned_by_an_older_process(pid: int) -> bool:
+        for _ in range(64):
+            stat = _proc_stat(pid)
+            if stat is None:
+                return False
+            pid = stat[1]
+            if pid in (me, 0, 1):
+                return False  # pytest's own child, or an orphan: the test's
+            if str(pid) in running:  # an older process of this run (else a reaper: orphan)
+                return _has_run_mark(pid)
+        return False
+
+    def started_here() -> set[int]:
+        return {
+            p
+            for p in _marked_processes(since=since)
+            if str(p) not in running and not owned_by_an_older_process(p)
+        }
+
+    left = _wait_until_gone(started_here, OUTLIVE_GRACE_S)
+    if left:
+        desc = _describe(left)
+        _terminate(left)
+        pytest.fail(f"{request.node.nodeid} left processes running (stopped): {desc}", False)

@@ -194,7 +194,7 @@ def fault(endpoint: str, fleet: str, *args: str) -> tuple[str, float]:
         ],
         capture_output=True,
         text=True,
-        timeout=20,
+        timeout=60,  # a bound on a Python start + one action, not a property: loaded machines
         env=child_env(),
     )
     assert proc.returncode == 0, proc.stderr

@@ -40,19 +40,10 @@ def up(out: Path, *args: str, endpoint: str | None = None) -> subprocess.Popen[s
 
 
 def finish(proc: subprocess.Popen[str], out: Path) -> dict[str, Any]:
-    """The run's metrics. A child that needed more than the launcher's 2 s after SIGTERM at the
-    very end (seen at load 30+ from other work on this machine; the launcher's shutdown is
-    another item of the issue) makes ``up`` exit 1 after writing its metrics: tolerated, any
-    other complaint is not."""
+    """The run's metrics; the launcher must exit 0: every child stopped within its bound (2 s
+    after SIGTERM) under the hog too (runtime.lifecycle.exit_fast)."""
     _, stderr = proc.communicate(timeout=200)
-    complaints = [
-        line
-        for line in stderr.splitlines()
-        if line.strip()
-        and "did not exit 2.0 s after SIGTERM" not in line
-        and "Unknown child process pid" not in line
-    ]
-    assert proc.returncode == 0 or not complaints, stderr[-2000:]
+    assert proc.returncode == 0, stderr[-2000:]
     assert (out / "metrics.json").exists(), stderr[-2000:]
     metrics: dict[str, Any] = json.loads((out / "metrics.json").read_text())
     return metrics

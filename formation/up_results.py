@@ -1,0 +1,72 @@
+"""What a ``formation up`` run leaves behind: ``metrics.json``, ``run.npz``, the figures, and the
+summary it prints (:func:`write_results`, called by :mod:`formation.launcher` once every child
+has stopped)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable
+
+from formation.runlog import RunLog
+from formation.up_plan import Plan, UpConfig, UpResult
+
+
+def write_results(
+    log: RunLog,
+    cfg: UpConfig,
+    plan: Plan,
+    result: UpResult,
+    run_wall_s: float | None,
+    warn: Callable[[str], None],
+) -> UpResult:
+    """Compute the run's metrics from ``log`` (the collector's view of the bus), write them,
+    the log and (``cfg.figures``) the figures to ``plan.out_dir``, print the summary (unless
+    ``cfg.quiet``) and return ``result`` with its metrics set."""
+    out_dir, scn, interrupted = plan.out_dir, plan.scenario, result.interrupted
+    if log.t_s.size == 0:
+        warn("no truth was received: no metrics written")
+        return result
+    from formation import metrics as metrics_mod
+
+    metrics_mod.attach_agent(log, scn.agent)  # safety metrics (issue 14): truth only
+    m = metrics_mod.compute(log, plan.settle_s, scn.settle_tol_m)
+    sim_s = float(log.t_s[-1] - log.t_s[0])
+    m["meta"]["realtime_factor"] = sim_s / run_wall_s if run_wall_s else None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
+    log.save_npz(str(out_dir / "run.npz"))
+    result.metrics = m
+    wrote = "metrics"
+    if cfg.figures:
+        from formation import figures as fig_mod
+
+        cut = f", interrupted after {sim_s:.1f} s" if interrupted else ""
+        try:
+            fig_mod.write_all(
+                log,
+                out_dir,
+                title=f"{scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
+                "points (solid), virtual trajectories (dashed)",
+                settle_s=plan.settle_s,
+            )
+            wrote = "metrics and figures"
+        except Exception as exc:  # a run cut after a few ticks may not make every figure
+            if not interrupted:
+                raise
+            warn(f"figures of the interrupted run failed: {exc!r}")
+    if interrupted:  # one line, even with --quiet: what was written is of a partial run
+        print(
+            f"formation up: interrupted: {wrote} of the {sim_s:.1f} s recorded so far "
+            f"in {out_dir}/",
+            file=sys.stderr,
+            flush=True,
+        )
+    if not cfg.quiet:
+        from formation.sim_cli import summary
+
+        print(summary(m))
+        rf = m["meta"]["realtime_factor"]
+        speed = f", {rf:.1f}x real time" if rf else ""
+        print(f"{sim_s:.2f} s of {m['meta']['mode']} run{speed}; {wrote} in {out_dir}/")
+    return result
