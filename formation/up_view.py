@@ -10,12 +10,9 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Final
+from typing import Any, Final, Protocol
 
 from formation.progress import eta_text
-
-if TYPE_CHECKING:
-    from formation.collector import RunCollector
 
 __all__ = ["LiveRobot", "LiveView", "RunDisplay", "format_line", "format_table"]
 
@@ -92,6 +89,19 @@ def format_line(view: LiveView, speed: float | None, progress: str = "") -> str:
     )
 
 
+class LiveSource(Protocol):
+    """What the display reads of a run (formation.collector.RunCollector; this module stays
+    below the collector, which imports LiveView from here)."""
+
+    @property
+    def first_tick(self) -> int | None: ...
+
+    @property
+    def last_clock_tick(self) -> int | None: ...
+
+    def live(self) -> LiveView: ...
+
+
 class RunDisplay:
     """The launcher's terminal: messages, and the live table (or a line every few seconds).
 
@@ -100,7 +110,7 @@ class RunDisplay:
 
     def __init__(
         self,
-        collector: RunCollector,
+        collector: LiveSource,
         *,
         mode: str,
         quiet: bool,
