@@ -409,7 +409,12 @@ def test_up_foxglove_serves_a_running_fleet_over_websocket(spawn: Spawner, tmp_p
     top = spawn("top", "--once", "--wait", "1.5", "--fleet", fleet, "--endpoint", endpoint)
     assert top.proc.wait(timeout=30) == 0, top.describe()
     text = top.stdout()
-    assert re.search(r"^fleet live1, coordinator/main up, plant up, leader r\d", text, re.M), text
+    assert re.search(
+        r"^fleet live1, coordinator/main up \(active, epoch \d+\), "
+        r"plant up \(running\), leader r\d",
+        text,
+        re.M,
+    ), text
     for rid in ("r1", "r2", "r3"):
         row = re.search(
             rf"^{rid}\s+yes\s+\d\s+\w+\s+\w+\s+\S+\s+(\S+)\s+(?:\S+\s+){{4}}(\d+)", text, re.M
