@@ -64,6 +64,24 @@ def descendants(root: int, table: dict[int, tuple[int, float, str]]) -> list[int
     return found
 
 
+def watch_tree_cpu(
+    proc: subprocess.Popen[str] | subprocess.Popen[bytes], period_s: float = 0.2
+) -> tuple[float, dict[int, tuple[str, float]]]:
+    """Until ``proc`` exits: its CPU seconds and, per descendant pid, (short command, CPU
+    seconds), each the largest value seen (a process that exited keeps its last reading)."""
+    cpu: dict[int, tuple[str, float]] = {}
+    launcher_cpu = 0.0
+    while proc.poll() is None:
+        table = proc_table()
+        if proc.pid in table:
+            launcher_cpu = table[proc.pid][1]
+        for pid in descendants(proc.pid, table):
+            name = cpu[pid][0] if pid in cpu else table[pid][2]  # a zombie has no cmdline
+            cpu[pid] = (name, max(table[pid][1], cpu.get(pid, ("", 0.0))[1]))
+        time.sleep(period_s)
+    return launcher_cpu, cpu
+
+
 def run_lockstep(robots: int, duration_s: float, out: Path, hosts: int = 0) -> None:
     argv = [
         sys.executable, "-m", "formation", "up", "--scenario", "paper-exp2", "--lockstep",
@@ -74,16 +92,7 @@ def run_lockstep(robots: int, duration_s: float, out: Path, hosts: int = 0) -> N
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     wall0 = time.monotonic()
     proc = subprocess.Popen(argv, cwd=REPO_ROOT, env=env)
-    cpu: dict[int, tuple[str, float]] = {}
-    launcher_cpu = 0.0
-    while proc.poll() is None:
-        table = proc_table()
-        if proc.pid in table:
-            launcher_cpu = table[proc.pid][1]
-        for pid in descendants(proc.pid, table):
-            name = cpu[pid][0] if pid in cpu else table[pid][2]  # a zombie has no cmdline
-            cpu[pid] = (name, max(table[pid][1], cpu.get(pid, ("", 0.0))[1]))
-        time.sleep(0.2)
+    launcher_cpu, cpu = watch_tree_cpu(proc, 0.2)
     wall = time.monotonic() - wall0
     if proc.returncode != 0:
         print(f"  formation up failed with status {proc.returncode}; see {out}/logs/")

@@ -38,7 +38,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench_lockstep import descendants, proc_table
+from bench_lockstep import watch_tree_cpu
 from common import REPO_ROOT, free_port
 
 
@@ -60,16 +60,7 @@ def run_up(robots: int, duration_s: float, out: Path, secure: bool) -> dict[str,
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
-    cpu: dict[int, tuple[str, float]] = {}
-    launcher_cpu = 0.0
-    while proc.poll() is None:
-        table = proc_table()
-        if proc.pid in table:
-            launcher_cpu = table[proc.pid][1]
-        for pid in descendants(proc.pid, table):
-            name = cpu[pid][0] if pid in cpu else table[pid][2]
-            cpu[pid] = (name, max(table[pid][1], cpu.get(pid, ("", 0.0))[1]))
-        time.sleep(0.25)
+    launcher_cpu, cpu = watch_tree_cpu(proc, 0.25)
     wall = time.monotonic() - t0
     reader.join(5.0)
     ready = [t for t, ln in lines if "ready in" in ln]

@@ -33,10 +33,9 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from bench_lockstep import descendants, proc_table
+from bench_lockstep import watch_tree_cpu
 from common import REPO_ROOT, free_port
 
 
@@ -49,16 +48,7 @@ def run_up(robots: int, duration_s: float, out: Path) -> dict[str, object] | Non
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     load0 = os.getloadavg()[0]
     proc = subprocess.Popen(argv, cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE, text=True)
-    cpu: dict[int, tuple[str, float]] = {}
-    launcher_cpu = 0.0
-    while proc.poll() is None:
-        table = proc_table()
-        if proc.pid in table:
-            launcher_cpu = table[proc.pid][1]
-        for pid in descendants(proc.pid, table):
-            name = cpu[pid][0] if pid in cpu else table[pid][2]
-            cpu[pid] = (name, max(table[pid][1], cpu.get(pid, ("", 0.0))[1]))
-        time.sleep(0.5)
+    launcher_cpu, cpu = watch_tree_cpu(proc, 0.5)
     stdout = proc.stdout.read() if proc.stdout is not None else ""
     load1 = os.getloadavg()[0]
     banner = next((ln.strip() for ln in stdout.splitlines() if "fleet:" in ln), "(no banner)")
