@@ -9,24 +9,11 @@ from pathlib import Path
 
 import pytest
 from conftest import free_port
-from test_acl import Inbox
+from test_acl import FLEET, Inbox
 
 from bus_schemas import acl, keys
 from bus_schemas.acl import Identity, Kind
 
-FLEET = "demo"
-ROBOTS = ("r1", "r2", "r3")  # r3 is run by agent host h1
-IDENTS = (
-    acl.robot("r1"),
-    acl.robot("r2"),
-    acl.agent_host("h1", ["r3"]),
-    acl.coordinator("main"),
-    acl.coordinator("standby"),
-    Identity(Kind.LOCALIZATION),
-    Identity(Kind.PLANT),
-    Identity(Kind.OPERATOR),
-    Identity(Kind.OBSERVER, "rec"),
-)
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 import pytest
-from test_safety_filter import seg_dist
+from test_safety_filter import CFG, DS, RB, TOUCH, L, seg_dist
 
 from robot_agent.firmware import Firmware, Mode, Pose, Setpoint
 from robot_agent.kinematics import reference_point
@@ -29,19 +29,6 @@ from robot_agent.params import (
 from robot_agent.safety_filter import Neighbour
 from sim_plant.plant import Plant
 from sim_plant.sensors import Camera, CommandLink
-
-CFG = AgentConfig()
-GEOM = CFG.geometry
-L = GEOM.ref_offset_m
-RB = GEOM.body_radius_m
-DS = CFG.safety_distance_m
-MARGIN = CFG.safety_filter.margin_m
-BETA = CFG.safety_filter.noise_budget_m  # one position's noise, paid by the margin
-GAMMA = CFG.safety_filter.gamma_per_s
-VCAP = CFG.gains.max_ref_speed_mps
-TOUCH = 2 * RB  # bodies touch at this centre distance
-TOL = 1e-9
-
 
 # ----------------------------------------------------------------------------- closed loops
 
