@@ -461,10 +461,18 @@ def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
     )
     try:
         assert up.proc.wait(timeout=120) == 0, up.describe()
+        live = json.loads((up_out / "metrics.json").read_text())
+        # Samples still in flight to the recorder's session when `up` exits (a starved machine):
+        # wait until it has every clock tick the live collector saw before closing it.
+        clocks = live["meta"]["collector"]["received"]["clock"]
+        deadline = time.monotonic() + 60.0
+        while time.monotonic() < deadline:
+            if handle.recorder.stats.per_key.get(keys.clock_key(FLEET), 0) >= clocks:
+                break
+            time.sleep(0.05)
     finally:
         stats = handle.close()
     assert stats.dropped == 0 and stats.handler_errors == 0 and stats.rejected == 0
-    live = json.loads((up_out / "metrics.json").read_text())
 
     rep_out = tmp_path / "report"
     settle = live["run"]["settle_s"]
