@@ -14,46 +14,17 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
-from conftest import Spawner, child_env, free_port
-from test_faults import SCENARIO, Observer, fault, formed, until
+from conftest import child_env
+from test_faults import Fleet, fleet_fixture, formed, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
 
-class Fleet:
-    def __init__(self, spawner: Spawner, tmp: Path) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.fleet = "latched"
-        scn = tmp / "latched.toml"
-        scn.write_text(SCENARIO)
-        self.up = spawner(
-            "up", "--scenario", str(scn), "--duration", "110", "--respawn", "1.0",
-            "--endpoint", self.endpoint, "--fleet", self.fleet, "--out", str(tmp / "out"),
-            "--no-figures", "--ready-timeout", "30",
-            ready="  3 agents", timeout_s=60.0,
-        )  # fmt: skip
-        self.obs = Observer(self.endpoint, self.fleet)
-
-    def fault(self, *args: str) -> tuple[str, float]:
-        return fault(self.endpoint, self.fleet, *args)
-
-
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
-    tmp = tmp_path_factory.mktemp("latched")
-    spawner = Spawner(tmp / "procs")
-    fl: Fleet | None = None
-    try:
-        fl = Fleet(spawner, tmp)
-        yield fl
-    finally:
-        if fl is not None:
-            fl.obs.close()
-        problems = spawner.cleanup()
-        assert not problems, problems
+    yield from fleet_fixture(tmp_path_factory, "latched")
 
 
 def zero(w: object) -> bool:

@@ -209,13 +209,16 @@ def fault(endpoint: str, fleet: str, *args: str) -> tuple[str, float]:
 
 
 class Fleet:
-    def __init__(self, spawner: Spawner, tmp: Path) -> None:
+    """A realtime ``formation up --respawn 1.0`` of SCENARIO named ``name`` on a free port
+    (``extra``: more ``up`` options, e.g. ``--standby``), with an Observer on its bus."""
+
+    def __init__(self, spawner: Spawner, tmp: Path, name: str = "faults", *extra: str) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.fleet = "faults"
-        scn = tmp / "faults.toml"
+        self.fleet = name
+        scn = tmp / f"{name}.toml"
         scn.write_text(SCENARIO)
         self.up = spawner(
-            "up", "--scenario", str(scn), "--duration", "110", "--standby", "--respawn", "1.0",
+            "up", "--scenario", str(scn), "--duration", "110", *extra, "--respawn", "1.0",
             "--endpoint", self.endpoint, "--fleet", self.fleet, "--out", str(tmp / "out"),
             "--no-figures", "--ready-timeout", "30",
             ready="  3 agents", timeout_s=60.0,
@@ -226,19 +229,26 @@ class Fleet:
         return fault(self.endpoint, self.fleet, *args)
 
 
-@pytest.fixture(scope="module")
-def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
-    tmp = tmp_path_factory.mktemp("faults")
+def fleet_fixture(
+    tmp_path_factory: pytest.TempPathFactory, name: str, *extra: str
+) -> Iterator[Fleet]:
+    """Body of a module-scoped fleet fixture: start, yield, stop and check nothing is left."""
+    tmp = tmp_path_factory.mktemp(name)
     spawner = Spawner(tmp / "procs")
     fl: Fleet | None = None
     try:
-        fl = Fleet(spawner, tmp)
+        fl = Fleet(spawner, tmp, name, *extra)
         yield fl
     finally:
         if fl is not None:
             fl.obs.close()
         problems = spawner.cleanup()
         assert not problems, problems
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
+    yield from fleet_fixture(tmp_path_factory, "faults", "--standby")
 
 
 async def wait_formed(fl: Fleet, robots: set[str] | None = None, timeout_s: float = 25.0) -> None:
