@@ -12,12 +12,10 @@ import asyncio
 import sys
 
 import runtime as rt
-from bus_schemas import (
-    keys,
-)
+from bus_schemas import keys
 from coordinator.node import CoordinatorNode, attach_estop_source
 from runtime.sdnotify import Notifier, pet_watchdog
-from scenario import Scenario, ScenarioError, load
+from scenario import Scenario
 from scenario.assemble import coordinator_core
 
 __all__ = ["build_parser", "main"]
@@ -69,38 +67,19 @@ def main(argv: list[str]) -> int:
     """Entry point of ``formation coordinator``; returns the exit status."""
     ns = build_parser().parse_args(argv)
     log = rt.NodeLog(f"coordinator {ns.name}")
-    if ns.fleet_file is not None:
-        from scenario.fleet import load_fleet
-
-        try:
-            fleet_file = load_fleet(ns.fleet_file)
-        except ScenarioError as exc:
-            log.info(str(exc))
-            return 2
-        scenario = fleet_file.scenario
-        ns.fleet = ns.fleet or fleet_file.fleet
-    else:
-        try:
-            scenario = load(ns.scenario)
-            coordinator_core(scenario)  # fail now, before the ready line, on a bad trajectory
-        except (ScenarioError, OSError, ValueError, KeyError, TypeError) as exc:
-            log.info(f"scenario: {exc}")
-            return 2
-    ns.fleet = ns.fleet or keys.DEFAULT_FLEET
-    if not keys.is_name(ns.name) or not keys.is_name(ns.fleet):
-        log.info(f"invalid --name {ns.name!r} or --fleet {ns.fleet!r}: {keys.NAME_PATTERN}")
-        return 2
-    if ns.check:
-        robots = ", ".join(scenario.robot_ids)
-        task = f"trajectory {scenario.trajectory.get('kind')}, "
-        task += f"formation {scenario.formation.get('kind')}"
-        print(f"OK: fleet {ns.fleet}, robots {robots}, {task}", flush=True)
-        return 0
     try:
-        settings = rt.settings_from_args(ns)
-    except (TypeError, ValueError) as exc:
-        log.info(f"zenoh settings: {exc}")
-        return 2
+        scenario = _scenario(ns)
+        rt.check_names(("--name", ns.name), ("--fleet", ns.fleet))
+        if ns.check:
+            robots = ", ".join(scenario.robot_ids)
+            task = f"trajectory {scenario.trajectory.get('kind')}, "
+            task += f"formation {scenario.formation.get('kind')}"
+            print(f"OK: fleet {ns.fleet}, robots {robots}, {task}", flush=True)
+            return 0
+        settings = rt.zenoh_settings(ns)
+    except rt.UsageError as exc:
+        log.info(str(exc))
+        return rt.USAGE_EXIT
     return rt.serve(
         f"coordinator {ns.name}",
         settings,
@@ -108,6 +87,18 @@ def main(argv: list[str]) -> int:
             io, stop, scenario, ns.name, ns.fleet, ns.lockstep, ns.rate_hz, ns.standby, ns.batch
         ),
     )
+
+
+def _scenario(ns: argparse.Namespace) -> Scenario:
+    """The task of ``--fleet-file`` or ``--scenario`` (``ns.fleet`` filled in); a bad one, or
+    one whose trajectory or formation the core refuses, as :class:`runtime.UsageError`."""
+    if ns.fleet_file is not None:
+        fleet_file = rt.load_fleet_file(ns.fleet_file)
+        ns.fleet = ns.fleet or fleet_file.fleet or keys.DEFAULT_FLEET
+        return fleet_file.scenario
+    ns.fleet = ns.fleet or keys.DEFAULT_FLEET
+    # the core is built now so that a bad trajectory fails before the ready line
+    return rt.load_scenario(ns.scenario, check=coordinator_core)
 
 
 async def _node(

@@ -45,16 +45,6 @@ def with_tags(cal: Calibration, tags: dict[str, int]) -> Calibration:
     return dataclasses.replace(cal, tags=dict(tags), offsets=offsets)
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not (math.isfinite(value) and value > 0.0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
 def _size(text: str) -> tuple[int, int]:
     from sim_plant.render import MAX_SIDE_PX, MIN_SIDE_PX
 
@@ -100,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--fps",
-        type=_positive,
+        type=rt.positive_float,
         metavar="HZ",
         help="rate of a folder / file (default: the file's own, 30 for a folder); with "
         "--source rendered: at most HZ frames per second (default: every truth instant)",
@@ -112,11 +102,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--loop", action="store_true", help="a recording: start again at its end")
     p.add_argument("--no-batch", action="store_true", help="no `poses` batch, per-robot keys only")
-    p.add_argument("--duration", type=_positive, metavar="S", help="stop after S s and exit 0")
+    p.add_argument(
+        "--duration", type=rt.positive_float, metavar="S", help="stop after S s and exit 0"
+    )
     g = p.add_argument_group(
         "--source rendered (simulation: frames rendered from the plant's truth)"
     )
-    g.add_argument("--render-height", type=_positive, default=1.14, metavar="M",
+    g.add_argument("--render-height", type=rt.positive_float, default=1.14, metavar="M",
                    help="camera height above the floor (1.14 m, the paper's)")  # fmt: skip
     g.add_argument("--render-tilt", type=float, default=0.0, metavar="DEG", help="camera tilt")
     g.add_argument("--render-look-at", default="0,0", metavar="X,Y",
@@ -146,43 +138,12 @@ def main(argv: list[str]) -> int:
 
         return calibrate.main(argv[1:])
     ns = build_parser().parse_args(argv)
-    tags: dict[str, int] | None = None
-    if ns.fleet_file is not None:
-        from scenario.fleet import load_fleet
-
-        try:
-            fleet_file = load_fleet(ns.fleet_file)
-        except ValueError as exc:
-            print(f"camera: {exc}", file=sys.stderr)
-            return 2
-        ns.fleet = ns.fleet or fleet_file.fleet
-        tags = fleet_file.tags
-    ns.fleet = ns.fleet or keys.DEFAULT_FLEET
-    if not keys.is_name(ns.fleet) or not keys.is_name(ns.name):
-        print(
-            f"camera: invalid --fleet or --name (must match {keys.NAME_PATTERN})", file=sys.stderr
-        )
-        return 2
     try:
-        cal = load(ns.calibration)
-        if tags is not None:
-            cal = with_tags(cal, tags)
-        pipeline = CameraPipeline(cal, ns.detector)
-    except (CalibrationError, ImportError, ValueError) as exc:
-        print(f"camera: {exc}", file=sys.stderr)
-        return 2
-    try:
-        source = _open(ns, cal)
-    except (SourceError, ValueError) as exc:
-        print(f"camera: {exc}", file=sys.stderr)
-        return 2
-    try:
-        settings = rt.settings_from_args(ns)
-        truth_settings = _truth_settings(ns)
-    except (TypeError, ValueError) as exc:
-        print(f"camera: zenoh settings: {exc}", file=sys.stderr)
-        source.close()
-        return 2
+        pipeline, settings, truth_settings = _checked(ns)
+        source = _open_checked(ns, pipeline.cal)
+    except rt.UsageError as exc:
+        rt.NodeLog("camera").info(str(exc))
+        return rt.USAGE_EXIT
     started: list[Grabber] = []
     try:
         return rt.run_node(
@@ -200,6 +161,41 @@ def _truth_settings(ns: argparse.Namespace) -> rt.ZenohSettings | None:
     if ns.source != RENDERED:
         raise ValueError("--truth-endpoint needs --source rendered")
     return rt.ZenohSettings(connect=(ns.truth_endpoint,), mode="client", open_timeout_s=10.0)
+
+
+def _checked(
+    ns: argparse.Namespace,
+) -> tuple[CameraPipeline, rt.ZenohSettings, rt.ZenohSettings | None]:
+    """The fleet and names (``ns.fleet`` filled in), the calibration's pipeline and the Zenoh
+    settings; a mistake as :class:`runtime.UsageError`, before any device is opened."""
+    tags: dict[str, int] | None = None
+    if ns.fleet_file is not None:
+        fleet_file = rt.load_fleet_file(ns.fleet_file)
+        ns.fleet = ns.fleet or fleet_file.fleet
+        tags = fleet_file.tags
+    ns.fleet = ns.fleet or keys.DEFAULT_FLEET
+    rt.check_names(("--fleet", ns.fleet), ("--name", ns.name))
+    try:
+        cal = load(ns.calibration)
+        if tags is not None:
+            cal = with_tags(cal, tags)
+        pipeline = CameraPipeline(cal, ns.detector)
+    except (CalibrationError, ImportError, ValueError) as exc:
+        raise rt.UsageError(str(exc)) from None
+    settings = rt.zenoh_settings(ns)
+    try:
+        truth_settings = _truth_settings(ns)
+    except (TypeError, ValueError) as exc:
+        raise rt.UsageError(f"zenoh settings: {exc}") from None
+    return pipeline, settings, truth_settings
+
+
+def _open_checked(ns: argparse.Namespace, cal: Calibration) -> FrameSource:
+    """:func:`_open`, a source that cannot be opened as :class:`runtime.UsageError`."""
+    try:
+        return _open(ns, cal)
+    except (SourceError, ValueError) as exc:
+        raise rt.UsageError(str(exc)) from None
 
 
 def _open(ns: argparse.Namespace, cal: Calibration) -> FrameSource:

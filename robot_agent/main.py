@@ -17,15 +17,12 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final
 
 import runtime as rt
-from bus_schemas import (
-    keys,
-)
+from bus_schemas import keys
 from robot_agent.motors import MotorBackend, create_backend
 from robot_agent.node import AgentNode, LoopMode, MotorOutput
 from robot_agent.node_estop import attach_estop_state
@@ -86,8 +83,9 @@ class _Setup:
     motor: MotorBackend | None
 
 
-def _setup(ns: argparse.Namespace, log_err: Callable[[str], None]) -> _Setup | None:
-    """Resolve id, fleet, parameters, Zenoh settings and motor backend; None after an error."""
+def _setup(ns: argparse.Namespace) -> _Setup:
+    """Resolve id, fleet, parameters, Zenoh settings and motor backend; a mistake as
+    :class:`runtime.UsageError`."""
     from robot_agent.robot_config import ConfigError, load_robot_config
 
     robot_id: str | None = ns.robot_id
@@ -98,11 +96,11 @@ def _setup(ns: argparse.Namespace, log_err: Callable[[str], None]) -> _Setup | N
         try:
             rc = load_robot_config(ns.config)
         except ConfigError as exc:
-            log_err(str(exc))
-            return None
+            raise rt.UsageError(str(exc)) from None
         if robot_id is not None and robot_id != rc.robot_id:
-            log_err(f"--id {robot_id} does not match robot_id {rc.robot_id!r} of {ns.config}")
-            return None
+            raise rt.UsageError(
+                f"--id {robot_id} does not match robot_id {rc.robot_id!r} of {ns.config}"
+            )
         robot_id = rc.robot_id
         fleet = fleet or rc.fleet
         config = rc.agent
@@ -114,39 +112,22 @@ def _setup(ns: argparse.Namespace, log_err: Callable[[str], None]) -> _Setup | N
             try:
                 motor = create_backend(rc.motor, config.geometry.max_wheel_radps)
             except ValueError as exc:
-                log_err(f"motor backend: {exc}")
-                return None
+                raise rt.UsageError(f"motor backend: {exc}") from None
     elif ns.scenario is not None:
-        from scenario import ScenarioError, load
-
-        try:
-            scenario = load(ns.scenario)
-        except (ScenarioError, OSError) as exc:
-            log_err(f"scenario: {exc}")
-            return None
+        scenario = rt.load_scenario(ns.scenario)
         if robot_id is not None and robot_id not in scenario.robot_ids:
-            log_err(
+            raise rt.UsageError(
                 f"robot {robot_id!r} is not in scenario {scenario.name!r} "
                 f"({', '.join(scenario.robot_ids)})"
             )
-            return None
         config = scenario.agent
     if robot_id is None:
-        log_err("--id is required (or --config with a robot_id)")
-        return None
+        raise rt.UsageError("--id is required (or --config with a robot_id)")
     fleet = fleet or keys.DEFAULT_FLEET
     if not keys.is_robot_id(robot_id):
-        log_err(f"invalid robot id {robot_id!r}: must match {keys.ROBOT_ID_PATTERN}")
-        return None
-    if not keys.is_name(fleet):
-        log_err(f"invalid fleet name {fleet!r}: must match {keys.NAME_PATTERN}")
-        return None
-    try:
-        settings = rt.settings_from_args(ns)
-    except (TypeError, ValueError) as exc:
-        log_err(f"zenoh settings: {exc}")
-        return None
-    return _Setup(robot_id, fleet, config, settings, motor)
+        raise rt.UsageError(f"invalid robot id {robot_id!r}: must match {keys.ROBOT_ID_PATTERN}")
+    rt.check_names(("--fleet", fleet))
+    return _Setup(robot_id, fleet, config, rt.zenoh_settings(ns), motor)
 
 
 def check_config_command(path: str) -> int:
@@ -163,10 +144,11 @@ def main(argv: list[str]) -> int:
     ns = build_parser().parse_args(argv)
     if ns.check_config is not None:
         return check_config_command(ns.check_config)
-    errlog = rt.NodeLog("formation agent")
-    setup = _setup(ns, errlog.info)
-    if setup is None:
-        return EX_CONFIG if ns.config is not None else 2
+    try:
+        setup = _setup(ns)
+    except rt.UsageError as exc:
+        rt.NodeLog("formation agent").info(str(exc))
+        return EX_CONFIG if ns.config is not None else rt.USAGE_EXIT
     return rt.run_node(
         lambda stop: _boot(
             stop, setup, lockstep=bool(ns.lockstep), loop_mode=ns.loop, rate_hz=ns.rate_hz

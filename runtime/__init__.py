@@ -9,13 +9,25 @@ One floor above the contract (``bus_schemas``) and below the process shells (doc
 * :mod:`runtime.lifecycle`: ``run_node`` (signals, bounded shutdown) and ``serve``, the one node
   bootstrap;
 * :mod:`runtime.log` (``NodeLog``), :mod:`runtime.timers` (the agent timer loop),
-  :mod:`runtime.args` (command-line value parsers), :mod:`runtime.stall` (stall/resume
-  detection, a pure core), :mod:`runtime.sdnotify` (systemd notifications).
+  :mod:`runtime.args` (command-line value parsers and the checks after parsing: ``UsageError``),
+  :mod:`runtime.stall` (stall/resume detection, a pure core), :mod:`runtime.sdnotify` (systemd
+  notifications).
 
 Everything is re-exported here, so a shell writes ``import runtime as rt`` and ``rt.serve``.
 """
 
-from runtime.args import finite_or_none, non_negative_int, positive_float, rate_hz
+from runtime.args import (
+    USAGE_EXIT,
+    UsageError,
+    check_names,
+    finite_or_none,
+    load_fleet_file,
+    load_scenario,
+    non_negative_int,
+    positive_float,
+    rate_hz,
+    zenoh_settings,
+)
 from runtime.bridge import (
     Inbox,
     LivelinessHandler,
@@ -63,6 +75,7 @@ __all__ = [
     "QOS_CRITICAL",
     "QOS_TELEMETRY",
     "RESUME_QUARANTINE_S",
+    "USAGE_EXIT",
     "Inbox",
     "LivelinessHandler",
     "NodeIO",
@@ -74,11 +87,15 @@ __all__ = [
     "SampleHandler",
     "StallDetector",
     "TransportError",
+    "UsageError",
     "ZenohSettings",
     "add_zenoh_arguments",
+    "check_names",
     "declare_token",
     "finite_or_none",
     "hang_gap_for",
+    "load_fleet_file",
+    "load_scenario",
     "make_config",
     "non_negative_int",
     "open_session",
@@ -92,4 +109,5 @@ __all__ = [
     "subscribe_on_thread",
     "watch_liveliness",
     "watch_liveliness_on_thread",
+    "zenoh_settings",
 ]

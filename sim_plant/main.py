@@ -10,15 +10,16 @@ from __future__ import annotations
 import argparse
 import asyncio
 import sys
+from typing import Final
 
 import runtime as rt
-from bus_schemas import (
-    keys,
-)
-from scenario import Scenario, ScenarioError, load
+from bus_schemas import keys
+from scenario import Scenario
 from sim_plant.node import WAIT_ROBOTS_S, PlantNode
 
-__all__ = ["build_parser", "main"]
+__all__ = ["MAX_PHYSICS_HZ", "build_parser", "main"]
+
+MAX_PHYSICS_HZ: Final = 10000.0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -83,22 +84,15 @@ def main(argv: list[str]) -> int:
     """Entry point of ``formation plant``; returns the exit status."""
     ns = build_parser().parse_args(argv)
     log = rt.NodeLog("plant")
-    if not keys.is_name(ns.fleet):
-        log.info(f"invalid --fleet {ns.fleet!r}: must match {keys.NAME_PATTERN}")
-        return 2
-    if ns.physics_hz > 10000.0:
-        log.info(f"--physics-hz {ns.physics_hz:g} is above 10000")
-        return 2
     try:
-        scenario = load(ns.scenario)
-    except (ScenarioError, OSError) as exc:
-        log.info(f"scenario: {exc}")
-        return 2
-    try:
-        settings = rt.settings_from_args(ns)
-    except (TypeError, ValueError) as exc:
-        log.info(f"zenoh settings: {exc}")
-        return 2
+        rt.check_names(("--fleet", ns.fleet))
+        if ns.physics_hz > MAX_PHYSICS_HZ:
+            raise rt.UsageError(f"--physics-hz {ns.physics_hz:g} is above {MAX_PHYSICS_HZ:g}")
+        scenario = rt.load_scenario(ns.scenario)
+        settings = rt.zenoh_settings(ns)
+    except rt.UsageError as exc:
+        log.info(str(exc))
+        return rt.USAGE_EXIT
     return rt.serve("plant", settings, lambda io, stop: _node(io, stop, scenario, ns))
 
 
