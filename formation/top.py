@@ -12,6 +12,11 @@ messages, and the age of its last message. A header says who is alive (plant, co
 with the plant's state and each coordinator's role and epoch from their status), who leads, and
 the latest clock tick (lockstep).
 
+One row per camera tracker (``camera/<name>/status``, ``CameraStatus``): its state, frames
+processed per second, tag detections per second (from the last two statuses, on the camera's
+clock), frames dropped, detection and capture -> published latency (p50/p99, ms, over its last
+1000 frames), detections rejected (with the reasons), robots missed, and the status's age.
+
 Batched fleets (``formation up --hosts H``, docs/scale.md) have no per-robot keys: their robots
 are read out of the batches, with the same columns. ``host/<name>/status`` (``StatusBatch``)
 gives each robot's mode, slot, tracking error and rejected count; ``poses``, ``setpoints``,
@@ -39,6 +44,7 @@ from typing import Final
 import runtime as rt
 from bus_schemas import (
     Assignment,
+    CameraStatus,
     Clock,
     CoordinatorStatus,
     DecodeError,
@@ -109,6 +115,36 @@ class RobotRow:
     host: str | None = None
 
 
+@dataclass(frozen=True)
+class CameraRow:
+    """One camera tracker's line."""
+
+    name: str
+    state: str
+    fps: float
+    detections_hz: float | None  # None before two statuses (or after a restart)
+    dropped: int
+    detect_ms: tuple[float | None, float | None]  # p50, p99
+    latency_ms: tuple[float | None, float | None]  # p50, p99
+    rejected: int
+    rejects: dict[str, int]
+    misses: int
+    truth_rejected: int
+    internal_errors: int
+    detector: str
+    source: str
+    age_s: float
+
+
+def _detections_hz(previous: CameraStatus | None, last: CameraStatus) -> float | None:
+    """Tag detections per second between two statuses of one camera (its own clock), or None
+    (a first status, a restart: counts or time going back)."""
+    if previous is None or last.t <= previous.t:
+        return None
+    done = sum(last.detections.values()) - sum(previous.detections.values())
+    return done / (last.t - previous.t) if done >= 0 else None
+
+
 class FleetStatus:
     """The fleet as seen on the bus: fed :class:`BusItem` s, read as :class:`RobotRow` s.
 
@@ -125,6 +161,8 @@ class FleetStatus:
         self.tick: int | None = None
         self.others: dict[str, bool] = {}  # "plant", "coordinator/<name>" -> alive
         self.node_status: dict[str, str] = {}  # the same names -> a word from their status
+        self.cameras: dict[str, tuple[CameraStatus | None, CameraStatus, int]] = {}
+        """Camera name -> (previous status, last status, last receive time ns)."""
         self.samples = 0
         self.rejected = 0
         self._first_rx_ns: int | None = None  # rates over min(window, time listened)
@@ -181,6 +219,11 @@ class FleetStatus:
                 self.node_status[f"coordinator/{msg.name}"] = f"{msg.role}, epoch {msg.epoch}"
             elif isinstance(msg, PlantStatus):
                 self.node_status["plant"] = msg.state
+            elif isinstance(msg, CameraStatus):
+                info = keys.parse_key(item.key)
+                if info is not None and info.name is not None:
+                    seen = self.cameras.get(info.name)
+                    self.cameras[info.name] = (seen[1] if seen else None, msg, item.rx_ns)
 
     def _arrival(self, rid: str, leaf: str, rx_ns: int) -> None:
         st = self._robot(rid)
@@ -259,6 +302,34 @@ class FleetStatus:
                 )
             return out
 
+    def camera_rows(self, now_ns: int) -> list[CameraRow]:
+        """One row per camera tracker seen, by name."""
+        with self._lock:
+            out: list[CameraRow] = []
+            for name in sorted(self.cameras):
+                previous, c, rx_ns = self.cameras[name]
+                rejects = {reason: n for reason, n in sorted(c.rejects.items()) if n}
+                out.append(
+                    CameraRow(
+                        name=name,
+                        state=c.state,
+                        fps=c.fps,
+                        detections_hz=_detections_hz(previous, c),
+                        dropped=c.dropped,
+                        detect_ms=(c.detect_p50_ms, c.detect_p99_ms),
+                        latency_ms=(c.latency_p50_ms, c.latency_p99_ms),
+                        rejected=sum(rejects.values()),
+                        rejects=rejects,
+                        misses=sum(c.misses.values()),
+                        truth_rejected=c.truth_rejected,
+                        internal_errors=c.internal_errors,
+                        detector=c.detector,
+                        source=c.source,
+                        age_s=(now_ns - rx_ns) / 1e9,
+                    )
+                )
+            return out
+
     def header(self) -> str:
         """One line: fleet, plant/coordinators alive, leader, tick, samples."""
         with self._lock:
@@ -299,8 +370,38 @@ class FleetStatus:
             )
         if not rows:
             lines.append("(no robots seen yet)")
+        cameras = self.camera_rows(now_ns)
+        if cameras:
+            lines.append(
+                f"{'camera':<10}{'state':<9}{'fps':>7}{'det/s':>8}{'drop':>6}"
+                f"{'detect ms':>12}{'latency ms':>13}{'rej':>6}{'miss':>6}{'age s':>7}  detail"
+            )
+            lines.extend(_camera_line(c) for c in cameras)
         lines.append(f"rates in Hz over the last {self.window_ns / 1e9:g} s")
+        if cameras:
+            lines.append("camera: ms are p50/p99 of its last 1000 frames; det/s from its clock")
         return "\n".join(lines)
+
+
+def _ms_pair(pair: tuple[float | None, float | None]) -> str:
+    return "/".join("-" if v is None else f"{v:.1f}" for v in pair)
+
+
+def _camera_line(c: CameraRow) -> str:
+    """One camera's line of the table: the columns, then what is worth a word."""
+    det = "-" if c.detections_hz is None else f"{c.detections_hz:.1f}"
+    detail = [f"{c.detector}, {c.source}"]
+    if c.rejects:
+        detail.append("rejects " + ", ".join(f"{k} {n}" for k, n in c.rejects.items()))
+    if c.truth_rejected:
+        detail.append(f"{c.truth_rejected} truth rejected")
+    if c.internal_errors:
+        detail.append(f"{c.internal_errors} INTERNAL ERRORS")
+    return (
+        f"{c.name:<10}{c.state:<9}{c.fps:>7.1f}{det:>8}{c.dropped:>6}"
+        f"{_ms_pair(c.detect_ms):>12}{_ms_pair(c.latency_ms):>13}{c.rejected:>6}{c.misses:>6}"
+        f"{c.age_s:>7.1f}  " + "; ".join(detail)
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -308,7 +409,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="formation top",
         description="Live status table of a fleet (robots, roles, modes, tracking error, "
-        "message rates, rejects, liveliness) from anywhere on its Zenoh network.",
+        "message rates, rejects, liveliness; camera trackers) from anywhere on its Zenoh "
+        "network.",
     )
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (default demo)")
     p.add_argument("--once", action="store_true", help="print one table after --wait s, exit")

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import re
-from collections.abc import Callable
+import threading
+import time
+from collections.abc import Callable, Iterator
 
 import msgpack
 import pytest
@@ -13,6 +17,7 @@ from test_live_foxglove import FLEET, FleetPublisher
 
 from bus_schemas import (
     Assignment,
+    CameraStatus,
     CoordinatorStatus,
     Message,
     PlantStatus,
@@ -24,7 +29,7 @@ from bus_schemas import (
 )
 from formation.top import FleetStatus
 from formation.top import main as top_main
-from runtime.tap import BusItem
+from runtime.tap import BusItem, BusTap
 
 S = 1_000_000_000  # ns
 
@@ -39,6 +44,47 @@ COORDINATOR_STATUS = CoordinatorStatus(
     ticks=100, alive=("r1",), assignment={"r1": 0}, leader="r1", estop_fleet=False,
     estop_robots=(), rejected=0, rejects={}, internal_errors=0, rx={}, pid=1, host="h",
 )  # fmt: skip
+
+
+def camera_status(k: int) -> CameraStatus:
+    """The ``k``-th status of a camera ``cam1`` tracking r1 and r2: 15 frames and 15 detections
+    of each robot per status, 0.5 s apart on the camera's clock (60 detections/s exactly)."""
+    return CameraStatus(
+        t=100.0 + 0.5 * k, seq=k, state="running", detector="apriltag", source="rendered",
+        frames=15 * k, dropped=2, fps=29.5, detect_p50_ms=3.25, detect_p99_ms=7.5,
+        detect_max_ms=9.0, latency_p50_ms=12.0, latency_p99_ms=21.0, latency_max_ms=30.0,
+        detections={"r1": 15 * k, "r2": 15 * k}, published={"r1": 15 * k, "r2": 15 * k},
+        misses={"r1": 1, "r2": 0}, rejects={"jump": 3, "bad_size": 1, "unknown": 0},
+        reacquired=0, internal_errors=0, truth_rejected=2,
+    )  # fmt: skip
+
+
+CAMERA_LINE = re.compile(
+    r"^cam1\s+running\s+29\.5\s+60\.0\s+2\s+3\.2/7\.5\s+12\.0/21\.0\s+4\s+1\s+\d+\.\d"
+    r"\s+apriltag, rendered; rejects bad_size 1, jump 3; 2 truth rejected$",
+    re.M,
+)
+
+
+@contextlib.contextmanager
+def publishing_camera(session: zenoh.Session, rate_hz: float = 20.0) -> Iterator[None]:
+    """Publishes :func:`camera_status` ``k`` = 1, 2, ... at ``rate_hz`` from a thread."""
+    stop = threading.Event()
+
+    def run() -> None:
+        key = keys.camera_status_key(FLEET, "cam1")
+        k = 1
+        while not stop.wait(1.0 / rate_hz):
+            session.put(key, encode(camera_status(k)))
+            k += 1
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)
 
 
 def put(key: str, msg: Message, rx_ns: int) -> BusItem:
@@ -115,14 +161,62 @@ def test_fleet_status_rates_roles_errors_and_liveliness() -> None:
     assert re.search(r"^r1\s+yes\s+0 leader\s+tracking\s+5\.0\s+30\.0", text, re.M), text
 
 
+def test_fleet_status_camera_rows() -> None:
+    """A camera's line: the counters of its last status, detections/s from its last two."""
+    fs = FleetStatus(FLEET)
+    key = keys.camera_status_key(FLEET, "cam1")
+    fs.observe(put(key, camera_status(4), 10 * S))
+    (first,) = fs.camera_rows(10 * S)
+    assert first.detections_hz is None  # one status: no rate yet
+    fs.observe(put(key, camera_status(5), 11 * S))
+    fs.observe(BusItem("put", keys.camera_status_key(FLEET, "cam2"), b"\xc1", 11 * S))
+    (row,) = fs.camera_rows(12 * S)
+    assert (row.name, row.state, row.fps, row.dropped) == ("cam1", "running", 29.5, 2)
+    assert row.detections_hz == pytest.approx(60.0)
+    assert (row.detect_ms, row.latency_ms) == ((3.25, 7.5), (12.0, 21.0))
+    assert (row.rejected, row.rejects, row.misses) == (4, {"bad_size": 1, "jump": 3}, 1)
+    assert (row.truth_rejected, row.internal_errors, row.age_s) == (2, 0, 1.0)
+    text = fs.render(12 * S)
+    assert CAMERA_LINE.search(text), text
+    assert "1 rejected here" in text  # cam2's undecodable status
+    # a restarted camera (counts back to the start): no rate until its next status
+    fs.observe(put(key, camera_status(1), 13 * S))
+    assert fs.camera_rows(13 * S)[0].detections_hz is None
+    empty = dataclasses.replace(camera_status(6), detect_p50_ms=None)  # before its first frame
+    fs.observe(put(key, empty, 14 * S))
+    assert " -/7.5 " in fs.render(14 * S)
+
+
+def test_fleet_status_reads_a_camera_on_a_real_session(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    """The camera's status through Zenoh (loopback router) into the table, via the bus tap."""
+    fs = FleetStatus(FLEET)
+    tap = BusTap(session(), FLEET, fs.observe, name="top-test")
+    try:
+        with publishing_camera(session(), rate_hz=20.0):
+            deadline = time.monotonic() + 20.0
+            while time.monotonic() < deadline:
+                rows = fs.camera_rows(time.monotonic_ns())
+                if rows and rows[0].detections_hz is not None:
+                    break
+                time.sleep(0.05)
+    finally:
+        tap.close()
+    (row,) = fs.camera_rows(time.monotonic_ns())
+    assert row.name == "cam1" and row.detections_hz == pytest.approx(60.0), row
+    assert CAMERA_LINE.search(fs.render(time.monotonic_ns())), fs.render(time.monotonic_ns())
+
+
 def test_top_once_shows_the_robots_of_a_live_fleet(
     spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
 ) -> None:
-    with FleetPublisher(session(), rate_hz=20.0):
+    with FleetPublisher(session(), rate_hz=20.0), publishing_camera(session(), rate_hz=20.0):
         child = spawn("top", "--once", "--wait", "1.5", "--endpoint", router.endpoint)
         assert child.proc.wait(timeout=20) == 0, child.describe()
     out = child.stdout()
     assert "fleet demo" in out and "plant up" in out and "leader r1" in out
+    assert re.search(r"^cam1\s+running\s+29\.5\s", out, re.M), out  # the camera's line
     row1 = re.search(r"^r1\s+yes\s+0 leader\s+tracking\s+5\.0\s+(\S+)", out, re.M)
     row2 = re.search(r"^r2\s+yes\s+1 follower\s+tracking\s+5\.0\s+(\S+)", out, re.M)
     assert row1 and row2, out
