@@ -42,7 +42,7 @@ SKIP_RULES: list[tuple[str, str]] = [
     (r"\.\.\.|<|\bNAME\b|\bFILE\b|\bHOST\b|\brK\b|\bDIR\b|\bS\b", "a template with placeholders"),
     (r"^formation fault\b", "needs a running fleet (tests/test_faults.py)"),
     (r"^formation (top|record)\b", "watches a running fleet (tests/test_top.py, "
-     "tests/test_record_report.py)"),
+     "tests/test_record_live.py)"),
     (r"^formation report\b", "needs a recording (tests/test_record_report.py)"),
     (r"^formation camera calibrate\b", "needs a photo of the floor markers "
      "(tests/test_camera_core.py calibrates on rendered frames)"),

@@ -1,8 +1,10 @@
-"""runtime.transport and formation.router: real Zenoh sessions and real processes on loopback.
+"""runtime.transport, runtime.bridge and formation.router: real Zenoh sessions and real processes
+on loopback (settings, the thread -> loop handoff, pub/sub, session open/retry, liveliness).
 
 No mocks: every session goes through a `formation router` subprocess on a free port (conftest
 fixtures), multicast scouting off. Timings are asserted with a margin for a loaded 2-core CI box;
-the bench (bench/bench_zenoh_rtt.py) measures, these tests only bound.
+the bench (bench/bench_zenoh_rtt.py) measures, these tests only bound. How processes end
+(signals, run_node) is in tests/test_lifecycle.py.
 """
 
 from __future__ import annotations
@@ -18,11 +20,10 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from async_wait import wait_until
 from conftest import Child, RouterHandle, Spawner, free_port
 
 import runtime as rt
-
-EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of the signal; 0.5 s margin for CI noise
 
 # A client holding one liveliness token; prints "ready" then idles (killed by the test).
 HOLDER = """
@@ -36,47 +37,6 @@ print("ready", flush=True)
 while True:
     time.sleep(1)
 """
-
-# A node written the documented way (run_node + session in try/finally), with misbehaviours.
-NODE = """
-import asyncio, sys, time
-import runtime as rt
-endpoint, behaviour = sys.argv[1], sys.argv[2]
-opened = []
-
-async def main(stop):
-    loop = asyncio.get_running_loop()
-    session = await rt.open_session_async(rt.ZenohSettings(connect=(endpoint,)))
-    opened.append(session)
-    try:
-        token = rt.declare_token(session, "test/alive/node")
-        rt.subscribe(session, "test/data/**", loop, rt.Inbox("latest"))
-        print("ready", flush=True)
-        if behaviour == "ignore-stop":
-            await asyncio.sleep(3600)
-        elif behaviour == "block":
-            time.sleep(30)
-        else:
-            await stop.wait()
-        return 0
-    finally:
-        if behaviour != "forget-close":
-            session.close()
-
-code = rt.run_node(main)
-print(f"run_node returned {code}; session closed: {opened[0].is_closed()}", flush=True)
-raise SystemExit(code)
-"""
-
-
-async def wait_until(predicate: Callable[[], bool], timeout_s: float = 5.0) -> float:
-    """Yield to the loop until ``predicate()``; return the seconds waited (fails on timeout)."""
-    start = time.monotonic()
-    while not predicate():
-        if time.monotonic() - start > timeout_s:
-            raise AssertionError(f"condition not met within {timeout_s} s")
-        await asyncio.sleep(0.001)
-    return time.monotonic() - start
 
 
 def ready_holder(spawn: Spawner, router: RouterHandle, key: str, *extra: str) -> Child:
@@ -444,163 +404,3 @@ async def test_short_lease_detects_a_hung_process_in_about_a_second(
     print(f"hung token gone {gone_s:.3f} s after SIGSTOP (lease 1000 ms)")
     assert events[1][0] is False
     assert 0.5 < gone_s < 2.5  # Zenoh's default lease would take ~10 s
-
-
-# ---------------------------------------------------------------------------------------------
-# Process lifecycle: router and nodes exit promptly on signals
-# ---------------------------------------------------------------------------------------------
-
-
-@pytest.mark.zenoh
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
-def test_router_exits_cleanly_within_a_second_of_a_signal(
-    start_router: Callable[..., RouterHandle], sig: signal.Signals
-) -> None:
-    router = start_router()
-    with rt.open_session(rt.ZenohSettings(connect=(router.endpoint,))) as client:
-        token = rt.declare_token(client, "test/alive/client")  # a connected, declaring client
-        elapsed = router.child.stop(sig)
-        del token
-    print(f"router exit {elapsed * 1e3:.0f} ms after {sig.name}")
-    assert router.proc.returncode == 0, router.child.describe()
-    assert elapsed < EXIT_BOUND_S
-    assert router.child.stdout().splitlines() == [f"router listening on {router.endpoint}"]
-
-
-@pytest.mark.zenoh
-def test_router_reports_a_port_in_use(spawn: Spawner, router: RouterHandle) -> None:
-    second = spawn("router", "--listen", router.endpoint)
-    assert second.proc.wait(timeout=10) == 2  # a busy port is the caller's mistake
-    err = second.stderr()
-    assert "address already in use" in err and router.endpoint in err, err
-    assert len(err.splitlines()) == 1 and ".rs" not in err, err  # one line, no Rust paths
-
-
-async def node_exit(
-    spawn: Spawner,
-    router: RouterHandle,
-    watcher: zenoh.Session,
-    behaviour: str,
-) -> tuple[Child, float, list[bool]]:
-    """Start NODE with ``behaviour``, SIGTERM it once ready; (child, seconds to exit, token log)."""
-    alive: list[bool] = []
-    rt.watch_liveliness(
-        watcher, "test/alive/node", asyncio.get_running_loop(), lambda k, a: alive.append(a)
-    )
-    node = spawn.python(NODE, router.endpoint, behaviour, ready="ready")
-    await wait_until(lambda: alive == [True])
-    elapsed = node.stop(signal.SIGTERM, timeout_s=5.0)
-    await wait_until(lambda: alive == [True, False], timeout_s=2.0)
-    print(f"node ({behaviour}) exit {elapsed * 1e3:.0f} ms after SIGTERM")
-    return node, elapsed, alive
-
-
-@pytest.mark.zenoh
-async def test_node_exits_within_a_second_of_sigterm_with_its_session_closed(
-    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
-) -> None:
-    node, elapsed, _ = await node_exit(spawn, router, session(), "well-behaved")
-    assert node.proc.returncode == 0, node.describe()
-    assert elapsed < EXIT_BOUND_S
-    assert "run_node returned 0; session closed: True" in node.stdout()
-    assert node.stderr() == ""
-
-
-@pytest.mark.zenoh
-async def test_run_node_closes_a_session_main_forgot(
-    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
-) -> None:
-    node, elapsed, _ = await node_exit(spawn, router, session(), "forget-close")
-    assert node.proc.returncode == 0, node.describe()
-    assert elapsed < EXIT_BOUND_S
-    assert "session closed: True" in node.stdout()
-    assert "closed 1 session(s) main left open" in node.stderr()
-
-
-@pytest.mark.zenoh
-async def test_run_node_cancels_a_main_that_ignores_stop(
-    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
-) -> None:
-    node, elapsed, _ = await node_exit(spawn, router, session(), "ignore-stop")
-    assert node.proc.returncode == 1, node.describe()
-    assert elapsed < EXIT_BOUND_S
-    assert "session closed: True" in node.stdout()
-    assert "cancelling" in node.stderr()
-
-
-@pytest.mark.zenoh
-async def test_watchdog_forces_out_a_node_blocked_in_sync_code(
-    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
-) -> None:
-    node, elapsed, _ = await node_exit(spawn, router, session(), "block")
-    assert node.proc.returncode == rt.FORCED_EXIT_CODE, node.describe()
-    assert elapsed < EXIT_BOUND_S
-    assert "forcing exit" in node.stderr()
-
-
-@pytest.mark.zenoh
-async def test_a_second_signal_forces_an_immediate_exit(
-    spawn: Spawner, router: RouterHandle
-) -> None:
-    node = spawn.python(NODE, router.endpoint, "ignore-stop", ready="ready")
-    node.send_signal(signal.SIGTERM)
-    await asyncio.sleep(0.05)  # inside the 0.4 s grace period
-    elapsed = node.stop(signal.SIGTERM)
-    assert node.proc.returncode == rt.FORCED_EXIT_CODE, node.describe()
-    assert elapsed < 0.3  # not the grace period nor the watchdog deadline
-    assert "second stop signal" in node.stderr()
-
-
-def test_run_node_must_run_on_the_main_thread() -> None:
-    async def main(stop: asyncio.Event) -> int:
-        return 0
-
-    errors: list[BaseException | None] = []
-    thread = threading.Thread(target=lambda: errors.append(_catch(lambda: rt.run_node(main))))
-    thread.start()
-    thread.join()
-    assert isinstance(errors[0], RuntimeError)
-
-
-def _catch(fn: Callable[[], object]) -> BaseException | None:
-    try:
-        fn()
-    except BaseException as exc:
-        return exc
-    return None
-
-
-def test_run_node_in_process_returns_main_status_and_restores_signals() -> None:
-    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-
-    async def main(stop: asyncio.Event) -> int:
-        assert not stop.is_set()
-        assert signal.getsignal(signal.SIGTERM) != before[signal.SIGTERM]  # installed
-        return 3
-
-    assert rt.run_node(main) == 3
-    assert {sig: signal.getsignal(sig) for sig in before} == before
-
-
-@pytest.mark.zenoh
-def test_run_node_closes_only_the_sessions_its_main_opened(
-    router: RouterHandle, session: Callable[..., zenoh.Session]
-) -> None:
-    outside = session()
-    inside: list[zenoh.Session] = []
-
-    async def main(stop: asyncio.Event) -> int:
-        inside.append(await rt.open_session_async(rt.ZenohSettings(connect=(router.endpoint,))))
-        return 0  # and "forgets" to close it
-
-    assert rt.run_node(main) == 0
-    assert inside[0].is_closed()
-    assert not outside.is_closed()
-
-
-def test_run_node_propagates_main_exceptions_after_cleanup() -> None:
-    async def main(stop: asyncio.Event) -> int:
-        raise KeyError("boom")
-
-    with pytest.raises(KeyError, match="boom"):
-        rt.run_node(main)
