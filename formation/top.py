@@ -48,6 +48,7 @@ from bus_schemas import (
     Clock,
     CoordinatorStatus,
     DecodeError,
+    Message,
     PlantStatus,
     PoseBatch,
     SetpointBatch,
@@ -200,13 +201,7 @@ class FleetStatus:
                 if info is not None and info.leaf in BATCH_LEAVES:
                     self._observe_batch(item, info)
                     return
-            decoded = decode_sample(item.key, item.payload)
-            if decoded is None:
-                return
-            if isinstance(decoded, DecodeError):
-                self.rejected += 1
-                return
-            msg = decoded.msg
+            msg = self._decode(item)
             if isinstance(msg, Status) and parsed is not None:
                 self._robot(parsed[1]).status = msg
             elif isinstance(msg, Assignment):
@@ -225,6 +220,15 @@ class FleetStatus:
                     seen = self.cameras.get(info.name)
                     self.cameras[info.name] = (seen[1] if seen else None, msg, item.rx_ns)
 
+    def _decode(self, item: BusItem) -> Message | None:
+        """The message of ``item``, strictly decoded; None for a key of no known type or a
+        payload rejected (counted) (lock held)."""
+        decoded = decode_sample(item.key, item.payload)
+        if isinstance(decoded, DecodeError):
+            self.rejected += 1
+            return None
+        return None if decoded is None else decoded.msg
+
     def _arrival(self, rid: str, leaf: str, rx_ns: int) -> None:
         st = self._robot(rid)
         st.last_rx_ns = rx_ns
@@ -236,13 +240,9 @@ class FleetStatus:
     def _observe_batch(self, item: BusItem, info: keys.KeyInfo) -> None:
         """One batch: an arrival of its leaf for every robot it carries; a status batch also
         sets each robot's status (lock held)."""
-        decoded = decode_sample(item.key, item.payload)
-        if decoded is None:
+        msg: _Batch | None = self._decode(item)  # type: ignore[assignment]
+        if msg is None:
             return
-        if isinstance(decoded, DecodeError):
-            self.rejected += 1
-            return
-        msg: _Batch = decoded.msg  # type: ignore[assignment]
         leaf = BATCH_LEAVES[info.leaf]
         for rid in msg.robots:
             self._arrival(rid, leaf, item.rx_ns)

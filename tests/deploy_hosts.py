@@ -12,7 +12,6 @@ import contextlib
 import os
 import secrets
 import shutil
-import signal
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
@@ -21,6 +20,7 @@ from pathlib import Path
 
 import pytest
 from conftest import REPO_ROOT, Child, Spawner
+from netns import delete_namespaces, ip
 
 ROBOTS = ("r1", "r2", "r3")
 DEPLOY = REPO_ROOT / "deploy"
@@ -35,13 +35,6 @@ CAMERA_VIEW = ((-1.1, -0.3), (1.0, 0.3))  # floor box the view must cover (m)
 CAMERA_FPS = 15.0
 TAG_SIZE_M = 0.10
 READY_S = 60.0  # python + numpy imports on a loaded 2-core machine (load ~30 measured)
-
-
-def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
-    proc = subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
-    if check and proc.returncode != 0:
-        raise AssertionError(f"ip {' '.join(args)}: status {proc.returncode}: {proc.stderr}")
-    return proc
 
 
 @dataclass
@@ -96,15 +89,7 @@ def hub_and_hosts(robots: Sequence[str] = ROBOTS) -> Iterator[Net]:
             ip("-n", ns, "link", "set", "lo", "up")
         yield network
     finally:
-        problems: list[str] = []
-        for ns in created:
-            pids = ip("netns", "pids", ns, check=False).stdout.split()
-            for pid in pids:  # only processes this test started can be in its namespaces
-                with contextlib.suppress(ProcessLookupError, ValueError):
-                    os.kill(int(pid), signal.SIGKILL)
-            if pids:
-                problems.append(f"namespace {ns} still had processes {pids} (killed)")
-            ip("netns", "del", ns, check=False)
+        problems = delete_namespaces(created)
         ip("link", "del", network.root_dev, check=False)
     if problems:
         pytest.fail("\n".join(problems), pytrace=False)

@@ -68,10 +68,10 @@ from deploy_hosts import (
     formation_in_ns,
     hub_and_hosts,
     in_ns,
-    ip,
     robot_config,
     shipped_zenoh,
 )
+from netns import ip
 
 import runtime as rt
 from bus_schemas import (

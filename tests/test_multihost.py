@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 import pytest
 import zenoh
 from conftest import Child, Spawner
+from netns import delete_namespaces, ip
 from test_faults import Observer, until
 
 from bus_schemas import Assignment, Status, keys
@@ -82,14 +83,6 @@ ROBOTS = tuple(r for robots, _, _ in HOSTS.values() for r in robots)
 # ---------------------------------------------------------------------------------------------
 
 
-def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
-    """Run ``ip args...``; with ``check`` raise AssertionError with its stderr on failure."""
-    proc = subprocess.run(["ip", *args], capture_output=True, text=True, timeout=10)
-    if check and proc.returncode != 0:
-        raise AssertionError(f"ip {' '.join(args)}: status {proc.returncode}: {proc.stderr}")
-    return proc
-
-
 @dataclass
 class Host:
     """One robot host: its namespace, its end of the veth and the hub's end."""
@@ -114,28 +107,6 @@ class Net:
     @property
     def namespaces(self) -> list[str]:
         return [self.hub, *(h.ns for h in self.hosts.values())]
-
-
-def _netns_names() -> set[str]:
-    out = ip("netns", "list", check=False).stdout
-    return {line.split()[0] for line in out.splitlines() if line.strip()}
-
-
-def _delete_namespaces(names: list[str]) -> list[str]:
-    """Kill what still runs in each namespace, delete it; return the problems found."""
-    problems: list[str] = []
-    for ns in names:
-        pids = ip("netns", "pids", ns, check=False).stdout.split()
-        for pid in pids:  # only processes this test started can be in its namespaces
-            with contextlib.suppress(ProcessLookupError, ValueError):
-                os.kill(int(pid), signal.SIGKILL)
-        if pids:
-            problems.append(f"namespace {ns} still had processes {pids} (killed)")
-        ip("netns", "del", ns, check=False)
-    left = _netns_names().intersection(names)
-    if left:
-        problems.append(f"namespaces not deleted: {sorted(left)}")
-    return problems
 
 
 @pytest.fixture
@@ -183,7 +154,7 @@ def net() -> Iterator[Net]:
             ip("-n", ns, "link", "set", "lo", "up")
         yield network
     finally:
-        problems = _delete_namespaces(created)
+        problems = delete_namespaces(created)
         shutil.rmtree(sockdir, ignore_errors=True)
         leftover_links = [
             dev
