@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
-import shutil
 import subprocess
 import sys
 from collections.abc import Iterator, Sequence
@@ -20,7 +19,7 @@ from pathlib import Path
 
 import pytest
 from conftest import REPO_ROOT, Child, Spawner
-from netns import delete_namespaces, ip
+from netns import add_namespace_or_skip, delete_namespaces, ip, skip_unless_root_with_ip
 
 ROBOTS = ("r1", "r2", "r3")
 DEPLOY = REPO_ROOT / "deploy"
@@ -52,17 +51,12 @@ def hub_and_hosts(robots: Sequence[str] = ROBOTS) -> Iterator[Net]:
     """The hub namespace joined by a veth to the root namespace and to one namespace a robot,
     addresses set and links up; on exit every process left in them is killed (and the test
     failed) and they are deleted. Skips the test unless root with ``ip`` and the permission."""
-    if os.geteuid() != 0:
-        pytest.skip("needs root to create network namespaces and veth links")
-    if shutil.which("ip") is None:
-        pytest.skip("needs the `ip` command (iproute2)")
+    skip_unless_root_with_ip()
     tag = f"{os.getpid() % 10000}{secrets.token_hex(1)}"
     network = Net(hub=f"fd{tag}h", root_dev=f"fd{tag}o")
     created: list[str] = []
     try:
-        probe = ip("netns", "add", network.hub, check=False)
-        if probe.returncode != 0:
-            pytest.skip(f"cannot create a network namespace: {probe.stderr.strip()}")
+        add_namespace_or_skip(network.hub)
         created.append(network.hub)
         veth = ip("link", "add", network.root_dev, "type", "veth", "peer", "name",
                   f"fd{tag}p", "netns", network.hub, check=False)  # fmt: skip

@@ -1,13 +1,17 @@
 """Network namespaces for the tests that run hosts on one machine (tests/test_multihost.py,
 tests/test_deploy_netns.py): ``ip`` with its errors as assertion failures, and the teardown
-that kills what still runs in a namespace and deletes it."""
+that kills what still runs in a namespace and deletes it. A test that cannot make namespaces
+(not root, no ``ip``, no permission) is skipped."""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import subprocess
+
+import pytest
 
 
 def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
@@ -16,6 +20,21 @@ def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
     if check and proc.returncode != 0:
         raise AssertionError(f"ip {' '.join(args)}: status {proc.returncode}: {proc.stderr}")
     return proc
+
+
+def skip_unless_root_with_ip() -> None:
+    """Skip the test unless it runs as root with the ``ip`` command."""
+    if os.geteuid() != 0:
+        pytest.skip("needs root to create network namespaces and veth links")
+    if shutil.which("ip") is None:
+        pytest.skip("needs the `ip` command (iproute2)")
+
+
+def add_namespace_or_skip(name: str) -> None:
+    """``ip netns add name``; skip the test if that is not permitted here."""
+    probe = ip("netns", "add", name, check=False)
+    if probe.returncode != 0:
+        pytest.skip(f"cannot create a network namespace: {probe.stderr.strip()}")
 
 
 def netns_names() -> set[str]:

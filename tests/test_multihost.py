@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import pytest
 import zenoh
 from conftest import Child, Spawner
-from netns import delete_namespaces, ip
+from netns import add_namespace_or_skip, delete_namespaces, ip, skip_unless_root_with_ip
 from test_faults import Observer, until
 
 from bus_schemas import Assignment, Status, keys
@@ -112,18 +112,13 @@ class Net:
 @pytest.fixture
 def net() -> Iterator[Net]:
     """Hub and robot-host namespaces joined by veth pairs; all deleted at teardown."""
-    if os.geteuid() != 0:
-        pytest.skip("needs root to create network namespaces and veth links")
-    if shutil.which("ip") is None:
-        pytest.skip("needs the `ip` command (iproute2)")
+    skip_unless_root_with_ip()
     tag = f"{os.getpid() % 100000}{secrets.token_hex(1)}"  # <= 7 chars: names stay <= 15
     sockdir = tempfile.mkdtemp(prefix=f"fmh{tag}-", dir="/tmp")  # short: sun_path <= 107
     network = Net(tag=tag, hub=f"fmh{tag}h", hub_sock=f"{sockdir}/h.sock")
     created: list[str] = []
     try:
-        probe = ip("netns", "add", network.hub, check=False)
-        if probe.returncode != 0:
-            pytest.skip(f"cannot create a network namespace: {probe.stderr.strip()}")
+        add_namespace_or_skip(network.hub)
         created.append(network.hub)
         for name, (robots, hub_addr, addr) in HOSTS.items():
             host = Host(
