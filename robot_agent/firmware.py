@@ -141,6 +141,7 @@ class Firmware(_FirmwareModes):
         "_role_changes",
         "_saturated",
         "_setpoint_age",
+        "_shared_frame",
         "_slot",
         "_stale_pose",
         "_stale_sp",
@@ -170,6 +171,7 @@ class Firmware(_FirmwareModes):
         self._filter = SafetyFilter(cfg)
         self._filter_on = self._filter.enabled
         self._filter_fn = self._filter.filter
+        self._shared_frame = self._filter.enabled and cfg.safety_filter.shared_frame
         self._mode = Mode.IDLE
         self._reason = "no setpoint yet"
         self._have_setpoint = False
@@ -418,6 +420,11 @@ class Firmware(_FirmwareModes):
                 unc = self._unc
                 if unc > extra_radius_m:
                     extra_radius_m = unc
+                # shared_frame: the own latest camera pose and its age, for the frame's plane
+                frame = None
+                if self._shared_frame and pose is not None:
+                    cap_t = pose[3] if pose_capture_s is None else pose_capture_s
+                    frame = (pose[0], pose[1], pose[2], now_s - cap_t)
                 vx, vy = self._filter_fn(
                     now_s,
                     rx,
@@ -430,6 +437,7 @@ class Firmware(_FirmwareModes):
                     obstacles,
                     extra_radius_m,
                     dt,
+                    frame,
                 )
 
             # --- eq 16, then eq 8: inlined copies of twist_from_ref_velocity and

@@ -150,20 +150,26 @@ class SafetyFilter:
         "_budget",
         "_circles",
         "_cons",
+        "_convoy",
+        "_cos0",
         "_d_coop",
         "_d_plain",
         "_deadlock",
+        "_frame_age",
         "_gamma",
         "_gamma_slow",
+        "_gap",
         "_has_world",
         "_infeasible",
         "_l",
+        "_last_t",
         "_max_age",
         "_min_h",
         "_obs_clear",
         "_rejected",
         "_rescaled",
         "_segments",
+        "_shared",
         "_ticks",
         "_vbad",
         "_vcap",
@@ -211,6 +217,12 @@ class SafetyFilter:
         )
         self._has_world = bool(circles or segments or a is not None)
         self._deadlock = Deadlock(p, self._vcap)
+        self._shared = p.shared_frame
+        self._convoy = p.convoy_share
+        self._cos0 = math.cos(p.convoy_angle_rad)
+        self._gap = p.convoy_gap_m
+        self._frame_age = p.frame_max_age_s
+        self._last_t = -math.inf  # now_s of the last filter() call (was TRACKING then)
         self._cons: list[tuple[float, float, float]] = []
         self._ticks = 0
         self._active = 0
@@ -280,10 +292,14 @@ class SafetyFilter:
         obstacles: Sequence[tuple[float, float, float]] = (),
         extra_radius_m: float = 0.0,
         dt_s: float = 0.0,
+        frame: tuple[float, float, float, float] | None = None,
     ) -> list[tuple[float, float, float]]:
         """The constraints ``(ax, ay, b)`` (``a . u >= b``) in range of a command of speed
         ``cap`` at reference point ``(px, py)``; updates the violation / clearance counters.
-        ``dt_s`` is the tick (0 = unknown): gamma is lowered to ``1 / dt_s`` if larger."""
+        ``dt_s`` is the tick (0 = unknown): gamma is lowered to ``1 / dt_s`` if larger.
+        ``frame``: this robot's own latest camera pose ``(x, y, theta, age_s)`` when the
+        shared-frame plane may be used (``filter`` passes it only with ``shared_frame`` on and
+        when this robot was TRACKING on the previous tick); None: never."""
         # only the uncertainty beyond the margin's noise budget inflates (module docstring)
         rho = extra_radius_m - self._budget
         if not rho > 0.0:  # also NaN
@@ -300,6 +316,23 @@ class SafetyFilter:
         lim_plain = d_plain + reach + _TOL
         two_over_g = 2.0 / gamma
         quick = self._d_coop + self._l + self._vnb * self._max_age + rho + 2.0 * reach + _TOL
+        pl = None  # the own frame's anchor (reference point, heading, age): "Shared-frame plane"
+        if frame is not None:
+            fx, fy, fth, fage = frame
+            if fage < 0.0:  # the rule of neighbours.neighbour: a capture in the future is age 0
+                fage = 0.0
+            if _isfinite(fx + fy + fth) and fage <= self._frame_age:
+                hix = math.cos(fth)
+                hiy = math.sin(fth)
+                qix = fx + self._l * hix
+                qiy = fy + self._l * hiy
+                off = _hypot(px - qix, py - qiy)
+                if _isfinite(off):
+                    pl = (qix, qiy, hix, hiy, fage)
+                    # a plane constraint binds only if G < reach (see _plane)
+                    q2 = self._d_coop + self._l + self._gap + 2.0 * (rho + reach) + 3.0 * off
+                    if q2 + _TOL > quick:
+                        quick = q2 + _TOL
         for nb in neighbours:
             if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
                 qx, qy = nb
@@ -330,6 +363,13 @@ class SafetyFilter:
                     if not _isfinite(dx + dy):
                         self._rejected += 1
                     continue
+                if pl is not None and coop and age == pl[4] and _isfinite(th):
+                    # same frame as this robot's own pose, both cooperative: the plane
+                    g = self._plane(px, py, qx, qy, th, pl, rho, gamma, cap, cons)
+                    if g is not None:
+                        if g < min_h:
+                            min_h = g
+                        continue
                 if not (
                     _isfinite(age)
                     and _isfinite(rad)
@@ -450,6 +490,7 @@ class SafetyFilter:
         obstacles: Sequence[tuple[float, float, float]] = (),
         extra_radius_m: float = 0.0,
         dt_s: float = 0.0,
+        frame: tuple[float, float, float, float] | None = None,
     ) -> tuple[float, float]:
         """The safe reference-point velocity nearest to ``(ux, uy)`` (m/s).
 
@@ -464,6 +505,10 @@ class SafetyFilter:
                 configured ``world``).
             extra_radius_m: this robot's own position uncertainty (m), added to every barrier.
             dt_s: this tick's length (s), 0 if unknown; see ``constraints``.
+            frame: this robot's own latest camera pose ``(x, y, theta, age_s)`` (axle centre,
+                heading, age on the same clock as the neighbours' ages), for the shared-frame
+                plane; ignored unless ``shared_frame`` is on and this robot was TRACKING (this
+                method was called) on the previous tick.
 
         Returns:
             ``(ux, uy)``: ``|u| <= |u_nom|`` except during a tie-break or to leave a boundary
@@ -475,7 +520,16 @@ class SafetyFilter:
             return ux, uy
         deadlock = self._deadlock
         ux, uy, tiebreak = deadlock.steer(now_s, ux, uy, ex, ey)
-        cons = self.constraints(px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s)
+        if frame is not None:
+            # the neighbours see this robot as cooperative iff it was TRACKING on the previous
+            # tick, that is iff this method was called then: only then may it use the plane
+            last = self._last_t
+            if not (dt_s > 0.0 and now_s - last <= 1.5 * dt_s and self._shared):
+                frame = None
+        self._last_t = now_s
+        cons = self.constraints(
+            px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s, frame
+        )
         self._cons = cons
         if not cons:
             fx, fy = ux, uy
@@ -515,6 +569,52 @@ class SafetyFilter:
         return fx, fy
 
     # ------------------------------------------------------------------ internals
+
+    def _plane(
+        self,
+        px: float,
+        py: float,
+        qx: float,
+        qy: float,
+        th: float,
+        pl: tuple[float, float, float, float, float],
+        rho: float,
+        gamma: float,
+        cap: float,
+        cons: list[tuple[float, float, float]],
+    ) -> float | None:
+        """The shared-frame plane against a cooperative neighbour measured at ``(qx, qy, th)``
+        in this robot's own frame ``pl`` (module docstring); appends its constraint when in
+        range and returns ``G``. Every operation on the pair's data is antisymmetric in
+        (this robot, the neighbour), so the neighbour, computing the same from the same frame,
+        gets the opposite normal, the same ``H`` and the complementary share."""
+        qix, qiy, hix, hiy, _ = pl
+        hjx = math.cos(th)
+        hjy = math.sin(th)
+        l_m = self._l
+        dx = qix - (qx + l_m * hjx)
+        dy = qiy - (qy + l_m * hjy)
+        d = _hypot(dx, dy)
+        if not 0.0 < d < math.inf:  # coincident (or absurd) anchors, both see it: no plane
+            return None
+        nx = dx / d
+        ny = dy / d
+        big_h = d - self._d_coop
+        # the convoy split: 1/2 + x for this robot, 1/2 - x for the neighbour (x antisymmetric)
+        share = 0.5
+        al = hix * hjx + hiy * hjy  # how parallel the headings are (symmetric)
+        cos0 = self._cos0
+        if al > cos0 and self._convoy > 0.0:
+            ci = -(hix * nx + hiy * ny)  # this robot heads toward the neighbour
+            cj = hjx * nx + hjy * ny  # the neighbour heads toward this robot
+            share += self._convoy * (ci - cj) * ((al - cos0) / (1.0 - cos0))
+            share = 0.0 if share < 0.0 else (1.0 if share > 1.0 else share)
+        a = big_h if big_h < self._gap else self._gap
+        g = nx * (px - qix) + ny * (py - qiy) + share * a + 0.5 * (big_h - a) - rho
+        b = -gamma * g
+        if b > -cap - _TOL:
+            cons.append((nx, ny, b))
+        return g
 
     def _circle(
         self,
