@@ -542,3 +542,11 @@ class AgentConfig:
     def safety_distance_m(self) -> float:
         """Ds: the least centre distance the filter keeps between two robots (m)."""
         return 2.0 * self.geometry.body_radius_m + self.safety_filter.margin_m
+
+    def realtime(self) -> AgentConfig:
+        """This config as a realtime shell runs it: ``safety_filter.shared_frame`` off (in
+        realtime two robots can be on different camera frames at the same moment, and the
+        shared-frame plane needs them on the same one; ``safety_filter.py``)."""
+        if not self.safety_filter.shared_frame:
+            return self
+        return replace(self, safety_filter=replace(self.safety_filter, shared_frame=False))
