@@ -467,8 +467,10 @@ class Firmware(_FirmwareModes):
                         sw = 0.5 * r * (wr - wl) / self._half_track
                         if not flt.admissible(c * sv - l_m * sw * s, s * sv + l_m * sw * c):
                             k = wmax / max(abs(wr0), abs(wl0))
-                            wr = wr0 * k
-                            wl = wl0 * k
+                            # (wr0 * k can round one ulp beyond wmax: power 1 + 2e-16 is an
+                            # invalid wheels message; clamp, a change of one ulp)
+                            wr = min(wmax, max(-wmax, wr0 * k))
+                            wl = min(wmax, max(-wmax, wl0 * k))
                             flt.count_rescaled()
             self._last_saturated = sat
             if est is not None:  # for the prediction (see _pending_cmd)
