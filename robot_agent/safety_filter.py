@@ -80,6 +80,69 @@ the reference point moves at ``u`` during the tick (exact for eq 16 up to the he
 within a tick, second order in dt, covered by ``margin_m``), a non-cooperative neighbour moves
 at its given velocity (0 if none given) and a cooperative one runs this filter.
 
+Shared-frame plane (``shared_frame``, issue 16)
+===============================================
+The inflation ``V a_j`` pays for where a neighbour may have gone since its pose was captured:
+13 mm for a 66 ms old pose at 0.2 m/s, more than the whole slack of a formation spaced 10 mm
+beyond ``Ds + 2 l``. For a cooperative pair measured in the SAME camera frame both robots can
+instead answer for their own motion since that frame, which each knows, and nobody needs a
+bound on the other's speed. Notation for robot i and neighbour j: ``q_i``, ``q_j`` the reference
+points of the two camera poses of the frame (the anchors: stale and noisy, it does not matter),
+``d = |q_i - q_j|``, ``n = (q_i - q_j) / d``, ``H = d - D`` with ``D = Ds + 2 l``, the split
+``s_i = 1/2 + x``, ``s_j = 1/2 - x`` in [0, 1], ``A = min(H, convoy_gap_m)``, and::
+
+    G_i = n . (p_i - q_i) + s_i A + (H - A) / 2 - (rho_own - beta)+
+    constraint:  n . u_i >= -gamma G_i
+
+(the plane ``n . p = n . q_i - s_i A - (H - A)/2`` split between the two anchors; ``p_i`` is
+this robot's reference point now, from its estimate). Proof of ``|c_i - c_j| >= Ds - 2 beta``:
+
+1. *Complementary.* Robot j computes from the same frame ``n_j = -n``, the same ``d`` and
+   ``H``, and ``s_j = 1 - s_i``: every operation on the pair's data is antisymmetric (negations
+   and differences are exact in floating point; the split's two sums differ by rounding only,
+   1e-16 of the gap). So ``G_i + G_j = n . (p_i - p_j) - D - excess_i - excess_j`` for any
+   anchors: their noise and age cancel; each robot pays its own uncertainty beyond ``beta``.
+2. *Each side.* ``G_i`` is affine in ``p_i`` (the anchors are fixed during the frame), so
+   ``G_i(t + dt) = G_i + dt n . u_i >= (1 - gamma dt) G_i`` for either sign of ``G_i`` (when it
+   is negative the constraint asks ``n . u_i >= gamma |G_i|``: move away). A robot that stops
+   dead (e-stop, HOLD, power cut) keeps its ``G``, which is no less when ``G >= 0``: with
+   ``s`` in [0, 1] no robot counts on the other moving away, so stopping stays safe.
+3. *The pair.* Hence ``S = G_i + G_j >= 0`` is invariant, and with the truth within
+   ``max(beta, rho)`` of each estimate, ``|c_i - c_j| >= |p_i - p_j| - 2 l >= n . (p_i - p_j) -
+   2 l >= Ds - 2 beta`` as in "Noise model".
+4. *A new frame* replaces ``n`` by ``n'``; at the same positions both ``n . r - D`` and
+   ``n' . r - D`` (``r = p_i - p_j``) are lower bounds of ``|r| - D``, the new one short by
+   ``|r| (1 - cos angle(n', r)) <= delta^2 / (2 |r|)``, ``delta = |(q_i - q_j) - r|``: the
+   anchors' noise, the estimates' error and the motion since the frame, at most ``4 beta + 2 V
+   frame_max_age_s`` (76 mm with the defaults at 0.2 m/s: <= 10 mm at ``|r| = D``; with
+   1-sigma noise and the anchor task's motion < 0.1 mm). A negative ``S`` recovers at rate
+   gamma (step 2), so with a new frame every ``T_c`` the loss cannot pile up beyond
+   ``e^(-gamma T_c) / (1 - e^(-gamma T_c))`` (2.5 at 30 Hz) times one: a second-order term
+   like the heading change within a tick, paid by the part of ``margin_m`` beyond the two noise
+   budgets (22 mm, sized for the latency and the tick of motion that the plane does not pay),
+   except for 3-sigma noise aligned against the pair on every frame in a row.
+
+It costs a robot its own approach toward the neighbour during the frame's age (a follower
+chasing its leader at 43 mm/s: 2.8 mm in 66 ms) instead of ``V a``. The split: ``x =
+convoy_share (c_i - c_j) g`` with ``c_i = -h_i . n`` (how much i heads toward j, ``h`` the unit
+heading of the camera pose), ``c_j = h_j . n`` and ``g = (h_i . h_j - cos a0) / (1 - cos a0)``
+clamped to [0, 1] (``a0 = convoy_angle_rad``): in a convoy (parallel headings, one behind the
+other) the robot behind gets the gap, as the one ahead drives away from it; side by side or
+crossing, half each. Only ``A`` (the first ``convoy_gap_m`` of the gap) is split unevenly, so a
+far neighbour stays out of range for both. Any split is safe (step 1); this one decides only who
+may use the gap.
+
+Both robots must use the plane or neither (they are then in the reciprocal barrier above):
+the plane is used only if ``shared_frame`` is on, the neighbour is cooperative with a heading,
+this robot was TRACKING on the previous tick too (the neighbour's view of it: ``filter`` checks
+that it was called then), the neighbour's age equals this robot's own camera pose's age (the
+same capture: in-process and in lockstep a frame reaches every robot at the same tick, so both
+robots see the match, or both a mismatch, e.g. one camera lost), that age is at most
+``frame_max_age_s`` and the anchors differ. In realtime two robots can be on different frames
+at the same moment: the realtime shells turn ``shared_frame`` off (``AgentConfig.realtime``).
+What breaks it, as it breaks the reciprocal barrier: a robot flagged cooperative that moves
+without its filter (carried by hand, coasting toward the other after a power cut).
+
 Solving: the QP is two-dimensional, so its optimum has at most two active constraints; the
 filter enumerates the candidates exactly (``u_nom`` itself; the projection on each constraint
 line; each pair of lines' intersection; each line's intersections with the speed circle) and
@@ -105,6 +168,13 @@ Below that the filter holds the robot back until ``h`` is that large. On the Rob
 (triangle b = 0.3 m, this project's 0.075 m bodies: ``Ds + 2 l`` = 0.29 m) 60 ms of camera
 latency alone (``V a`` = 0.2 m/s x 66 ms = 13 mm) puts the slots inside the barrier, and the
 followers approach the leader's measured point at 43-55 mm/s (``2 s / gamma`` = 9-11 mm).
+
+With the shared-frame plane (above) the same pair needs, for the robot with split ``s_i``,
+``s_i H >= s a + s / gamma + noise``: its own approach over the frame's age ``a`` instead of
+``V a``, and the whole gap when it is the one behind in a convoy. On the anchor task with 60 ms
+latency that leaves 10 - 2.8 - 4.3 = 2.9 mm for the neighbour's 3 mm camera noise (1.68 mm RMS
+instead of 12.6; ``bench/bench_estimator.py``): what a filter that is safe against a neighbour
+stopping dead, with no speed or acceleration bound, can do with 10 mm of slack.
 
 Deadlock tie-break: ``robot_agent.deadlock`` (when the filter holds a robot with no progress, its
 nominal command turns right, then left, for a while; the one other place the command can be
