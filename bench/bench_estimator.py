@@ -26,10 +26,13 @@ cooperative neighbour the barrier's budget: the measured reference-point distanc
 ``Ds + 2 l``, the age inflation ``V a``, the own uncertainty and the part of it beyond the
 noise budget, the barrier value ``h``, and the clearance a nominal approach at speed ``s`` needs
 (``h >= 2 s / gamma``: the reciprocal half of the barrier). With ``--what-if`` it runs the exact
-and the ``noisy 60ms+est`` variants with filter settings that are NOT safe defaults, to show what
-each part of the barrier costs: no age inflation (``neighbour_speed_mps`` ~ 0: unsound, a
-neighbour could have moved), that with a higher barrier gain, and the Robotarium robot's body
-(radius 0.055 m, 0.11 m wide, instead of this project's 0.075 m).
+and the ``noisy 60ms+est`` variants with other filter settings, to show what each part of the
+barrier costs: the shared-frame plane with equal halves or a higher gain, no plane (the
+reciprocal barrier inflated by ``V a``, as before issue 16's plane), no age inflation either
+(``neighbour_speed_mps`` ~ 0: unsound, a neighbour could have moved), that with a higher
+barrier gain, and the Robotarium robot's body (radius 0.055 m, 0.11 m wide, instead of this
+project's 0.075 m). ``--diagnose`` also prints, where the plane is used, its ``G`` against the
+``s / gamma`` the nominal approach needs (``safety_filter.py``, "Shared-frame plane").
 Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper] [--diagnose]
 [--what-if] [--ticks N]``. A measurement, not a test.
 """
@@ -141,9 +144,18 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
     active: dict[int, list[bool]] = defaultdict(list)
     order: dict[int, int] = {}
     orig = sf.SafetyFilter.filter
+    orig_plane = sf.SafetyFilter._plane
+    planes: dict[tuple[int, float, float], float] = {}  # this tick's plane G by neighbour
+
+    def plane_spy(self: Any, px: float, py: float, qx: float, qy: float, *args: Any) -> Any:
+        g = orig_plane(self, px, py, qx, qy, *args)
+        if g is not None:
+            planes[id(self), qx, qy] = g
+        return g
 
     def spy(self: Any, now_s: float, px: float, py: float, ux: float, uy: float,
             *args: Any) -> tuple[float, float]:  # fmt: skip
+        planes.clear()
         out = orig(self, now_s, px, py, ux, uy, *args)
         if now_s < v.settle_s:
             return out
@@ -160,14 +172,17 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
             excess = max(0.0, rho - p.noise_budget_m) + max(0.0, nb[7] - p.noise_budget_m)
             h = d - d_coop - vnb * age - excess
             approach = max(0.0, -((px - qx) * ux + (py - qy) * uy) / d) if d > 0 else 0.0
-            rows[me, k].append((d, vnb * age, rho, excess, h, approach))
+            g = planes.get((id(self), nb[0], nb[1]), math.nan)  # the shared-frame plane's G
+            rows[me, k].append((d, vnb * age, rho, excess, h, approach, g))
         return out
 
     sf.SafetyFilter.filter = spy  # type: ignore[method-assign,assignment]
+    sf.SafetyFilter._plane = plane_spy  # type: ignore[method-assign,assignment]
     try:
         simulate.run(v)
     finally:
         sf.SafetyFilter.filter = orig  # type: ignore[method-assign]
+        sf.SafetyFilter._plane = orig_plane  # type: ignore[method-assign]
     ids = list(v.robot_ids)
     print(f"diagnose: {v.name} with 60 ms latency + 3 mm noise + estimator, t >= {v.settle_s} s; "
           f"Ds + 2 l = {d_coop:.3f} m, V = {vnb:.2f} m/s, gamma = {p.gamma_per_s:g} /s, "
@@ -184,16 +199,28 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
               f"mean {a[:, 5].mean() * 1e3:.0f} "
               f"mm/s needs h >= {need.mean() * 1e3:.1f} mm (max {a[:, 5].max() * 1e3:.0f} mm/s: "
               f"{need.max() * 1e3:.1f} mm)")  # fmt: skip
+        g = a[:, 6]
+        if np.isfinite(g).any():
+            gp = g[np.isfinite(g)]
+            print(f"      shared-frame plane on {gp.size / g.size:.0%} of the ticks: G mean "
+                  f"{gp.mean() * 1e3:+.1f} mm (min {gp.min() * 1e3:+.1f}, 5th percentile "
+                  f"{np.percentile(gp, 5) * 1e3:+.1f}); the nominal approach needs G >= "
+                  f"{need.mean() / 2 * 1e3:.1f} mm (s / gamma)")  # fmt: skip
     return 0
 
 
 def what_if(scn: scenario_mod.Scenario) -> int:
     """Exact and noisy+estimator runs with non-default filter settings (module doc)."""
+    off = {"shared_frame": False}
+    free = {"shared_frame": False, "neighbour_speed_mps": 1e-9}
     cases: list[tuple[str, dict[str, Any], dict[str, Any]]] = [
-        ("as shipped", {}, {}),
-        ("no age inflation (unsound)", {"neighbour_speed_mps": 1e-9}, {}),
-        ("no age inflation, gamma 20", {"neighbour_speed_mps": 1e-9, "gamma_per_s": 20.0}, {}),
-        ("no age inflation, gamma 30", {"neighbour_speed_mps": 1e-9, "gamma_per_s": 30.0}, {}),
+        ("as shipped (plane, convoy split)", {}, {}),
+        ("plane, equal halves", {"convoy_share": 0.0}, {}),
+        ("plane, gamma 12", {"gamma_per_s": 12.0}, {}),
+        ("no plane: V a inflation", off, {}),
+        ("no plane, no age infl. (unsound)", free, {}),
+        ("no plane, no age infl., gamma 20", {**free, "gamma_per_s": 20.0}, {}),
+        ("no plane, no age infl., gamma 30", {**free, "gamma_per_s": 30.0}, {}),
         ("Robotarium body r_b 0.055 m", {}, {"body_radius_m": 0.055}),
     ]
     for label, flt, geom in cases:
@@ -208,7 +235,7 @@ def what_if(scn: scenario_mod.Scenario) -> int:
             )
             m = measure(v.with_overrides(agent=a))
             out.append(f"RMS {m['rms_mm']:6.3f} mm, min sep {m['min_sep_m']:.4f} m")
-        print(f"{label:<30} exact: {out[0]} | 60 ms + 3 mm + est: {out[1]}", flush=True)
+        print(f"{label:<34} exact: {out[0]} | 60 ms + 3 mm + est: {out[1]}", flush=True)
     return 0
 
 
