@@ -92,7 +92,7 @@ points of the two camera poses of the frame (the anchors: stale and noisy, it do
 ``s_i = 1/2 + x``, ``s_j = 1/2 - x`` in [0, 1], ``A = min(H, convoy_gap_m)``, and::
 
     G_i = n . (p_i - q_i) + s_i A + (H - A) / 2 - (rho_own - beta)+
-    constraint:  n . u_i >= -gamma G_i
+    constraint:  n . u_i >= -gamma_i G_i,   gamma_i = min(gamma max(1, 2 s_i), 1 / dt)
 
 (the plane ``n . p = n . q_i - s_i A - (H - A)/2`` split between the two anchors; ``p_i`` is
 this robot's reference point now, from its estimate). Proof of ``|c_i - c_j| >= Ds - 2 beta``:
@@ -103,9 +103,13 @@ this robot's reference point now, from its estimate). Proof of ``|c_i - c_j| >= 
    1e-16 of the gap). So ``G_i + G_j = n . (p_i - p_j) - D - excess_i - excess_j`` for any
    anchors: their noise and age cancel; each robot pays its own uncertainty beyond ``beta``.
 2. *Each side.* ``G_i`` is affine in ``p_i`` (the anchors are fixed during the frame), so
-   ``G_i(t + dt) = G_i + dt n . u_i >= (1 - gamma dt) G_i`` for either sign of ``G_i`` (when it
-   is negative the constraint asks ``n . u_i >= gamma |G_i|``: move away). A robot that stops
-   dead (e-stop, HOLD, power cut) keeps its ``G``, which is no less when ``G >= 0``: with
+   ``G_i(t + dt) = G_i + dt n . u_i >= (1 - gamma_i dt) G_i`` for either sign of ``G_i`` (when
+   it is negative the constraint asks ``n . u_i >= gamma_i |G_i|``: move away), and
+   ``gamma_i dt <= 1`` keeps ``G_i >= 0``. The gain is each side's own affair (the pair needs
+   only both sides non-negative): the side that holds more of the gap (``s_i > 1/2``, the one
+   behind in a convoy) closes on it at up to ``2 s_i gamma``, as a robot alone before a wall
+   could; with equal halves it is the reciprocal barrier's ``gamma H / 2`` each. A robot that
+   stops dead (e-stop, HOLD, power cut) keeps its ``G``, which is no less when ``G >= 0``: with
    ``s`` in [0, 1] no robot counts on the other moving away, so stopping stays safe.
 3. *The pair.* Hence ``S = G_i + G_j >= 0`` is invariant, and with the truth within
    ``max(beta, rho)`` of each estimate, ``|c_i - c_j| >= |p_i - p_j| - 2 l >= n . (p_i - p_j) -
@@ -170,11 +174,12 @@ latency alone (``V a`` = 0.2 m/s x 66 ms = 13 mm) puts the slots inside the barr
 followers approach the leader's measured point at 43-55 mm/s (``2 s / gamma`` = 9-11 mm).
 
 With the shared-frame plane (above) the same pair needs, for the robot with split ``s_i``,
-``s_i H >= s a + s / gamma + noise``: its own approach over the frame's age ``a`` instead of
-``V a``, and the whole gap when it is the one behind in a convoy. On the anchor task with 60 ms
-latency that leaves 10 - 2.8 - 4.3 = 2.9 mm for the neighbour's 3 mm camera noise (1.68 mm RMS
-instead of 12.6; ``bench/bench_estimator.py``): what a filter that is safe against a neighbour
-stopping dead, with no speed or acceleration bound, can do with 10 mm of slack.
+``s_i H >= s a + s / gamma_i + noise``: its own approach over the frame's age ``a`` instead of
+``V a``, and the whole gap at twice the gain when it is the one behind in a convoy. On the
+anchor task with 60 ms latency that leaves 10 - 2.8 - 2.2 = 5 mm for the neighbour's 3 mm camera
+noise (1.29 mm RMS instead of 12.6; 1.68 mm with the plain gain, 5.4 mm with equal halves;
+``bench/bench_estimator.py --what-if``), with a filter that is safe against a neighbour stopping
+dead and needs no bound on its speed or acceleration.
 
 Deadlock tie-break: ``robot_agent.deadlock`` (when the filter holds a robot with no progress, its
 nominal command turns right, then left, for a while; the one other place the command can be
@@ -229,6 +234,7 @@ class SafetyFilter:
         "_gamma",
         "_gamma_slow",
         "_gap",
+        "_gmax_slow",
         "_has_world",
         "_infeasible",
         "_l",
@@ -263,6 +269,7 @@ class SafetyFilter:
         self._obs_clear = clear
         self._gamma = p.gamma_per_s
         self._gamma_slow = min(p.gamma_per_s, 1.0 / config.safety.max_dt_s)
+        self._gmax_slow = 1.0 / config.safety.max_dt_s
         self._vnb = p.neighbour_speed_mps if p.neighbour_speed_mps > 0.0 else g.max_speed_mps
         self._vbad = 10.0 * self._vnb  # a neighbour velocity beyond this is absurd: rejected
         self._max_age = p.max_age_s
@@ -387,6 +394,8 @@ class SafetyFilter:
         two_over_g = 2.0 / gamma
         quick = self._d_coop + self._l + self._vnb * self._max_age + rho + 2.0 * reach + _TOL
         pl = None  # the own frame's anchor (reference point, heading, age): "Shared-frame plane"
+        # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
+        gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
         if frame is not None:
             fx, fy, fth, fage = frame
             if fage < 0.0:  # the rule of neighbours.neighbour: a capture in the future is age 0
@@ -435,7 +444,7 @@ class SafetyFilter:
                     continue
                 if pl is not None and coop and age == pl[4] and _isfinite(th):
                     # same frame as this robot's own pose, both cooperative: the plane
-                    g = self._plane(px, py, qx, qy, th, pl, rho, gamma, cap, cons)
+                    g = self._plane(px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons)
                     if g is not None:
                         if g < min_h:
                             min_h = g
@@ -650,6 +659,7 @@ class SafetyFilter:
         pl: tuple[float, float, float, float, float],
         rho: float,
         gamma: float,
+        gmax: float,
         cap: float,
         cons: list[tuple[float, float, float]],
     ) -> float | None:
@@ -681,6 +691,10 @@ class SafetyFilter:
             share = 0.0 if share < 0.0 else (1.0 if share > 1.0 else share)
         a = big_h if big_h < self._gap else self._gap
         g = nx * (px - qix) + ny * (py - qiy) + share * a + 0.5 * (big_h - a) - rho
+        if share > 0.5:  # more of the gap is this side's: it may close on it faster
+            gamma *= 2.0 * share
+            if gamma > gmax:
+                gamma = gmax
         b = -gamma * g
         if b > -cap - _TOL:
             cons.append((nx, ny, b))
