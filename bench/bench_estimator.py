@@ -172,8 +172,8 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
             excess = max(0.0, rho - p.noise_budget_m) + max(0.0, nb[7] - p.noise_budget_m)
             h = d - d_coop - vnb * age - excess
             approach = max(0.0, -((px - qx) * ux + (py - qy) * uy) / d) if d > 0 else 0.0
-            g = planes.get((id(self), nb[0], nb[1]), math.nan)  # the shared-frame plane's G
-            rows[me, k].append((d, vnb * age, rho, excess, h, approach, g))
+            gk = planes.get((id(self), nb[0], nb[1]), math.nan)  # the shared-frame plane's G
+            rows[me, k].append((d, vnb * age, rho, excess, h, approach, gk))
         return out
 
     sf.SafetyFilter.filter = spy  # type: ignore[method-assign,assignment]
@@ -199,13 +199,14 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
               f"mean {a[:, 5].mean() * 1e3:.0f} "
               f"mm/s needs h >= {need.mean() * 1e3:.1f} mm (max {a[:, 5].max() * 1e3:.0f} mm/s: "
               f"{need.max() * 1e3:.1f} mm)")  # fmt: skip
-        g = a[:, 6]
-        if np.isfinite(g).any():
-            gp = g[np.isfinite(g)]
-            print(f"      shared-frame plane on {gp.size / g.size:.0%} of the ticks: G mean "
+        gcol = a[:, 6]
+        if np.isfinite(gcol).any():
+            gp = gcol[np.isfinite(gcol)]
+            print(f"      shared-frame plane on {gp.size / gcol.size:.0%} of the ticks: G mean "
                   f"{gp.mean() * 1e3:+.1f} mm (min {gp.min() * 1e3:+.1f}, 5th percentile "
                   f"{np.percentile(gp, 5) * 1e3:+.1f}); the nominal approach needs G >= "
-                  f"{need.mean() / 2 * 1e3:.1f} mm (s / gamma)")  # fmt: skip
+                  f"{need.mean() / 2 * 1e3:.1f} mm (s / gamma; s / (2 gamma) for the robot "
+                  f"behind in a convoy)")  # fmt: skip
     return 0
 
 

@@ -330,15 +330,22 @@ class SafetyFilter:
     def neighbour_range_m(self) -> float:
         """The farthest centre-to-centre distance (m) at which a neighbour can constrain this
         robot (any age up to ``max_age_s``, a neighbour radius up to 0.1 m, any command up to
-        ``max_ref_speed_mps``): a shell that pre-selects neighbours by distance must pass at
-        least every neighbour within this range."""
-        return (
+        ``max_ref_speed_mps``; with ``shared_frame``, the plane's range too): a shell that
+        pre-selects neighbours by distance must pass at least every neighbour within this
+        range."""
+        far = (
             self._d_coop
             + self._l
             + self._vnb * self._max_age
             + 0.1
             + self._vcap / (0.5 * self._gamma_slow)
         )
+        if self._shared:  # a plane binds only within G < reach (constraints(): q2), with the
+            # own camera pose at most max_ref_speed x frame_max_age + 2 noise budgets away
+            off = self._vcap * self._frame_age + 2.0 * self._budget
+            plane = self._d_coop + self._l + self._gap + 2.0 * self._vcap / self._gamma_slow
+            far = max(far, plane + 3.0 * off)
+        return far
 
     @property
     def in_range(self) -> bool:
