@@ -294,6 +294,25 @@ def test_closed_loops_with_the_plane(sensing: dict[str, float]) -> None:
     assert min_sep >= TOUCH, min_sep
 
 
+@SENSING
+def test_a_robot_carried_while_tracking_breaks_its_side_and_the_others_make_way(
+    sensing: dict[str, float],
+) -> None:
+    """The assumption the plane shares with the reciprocal barrier, broken: a robot carried by
+    hand at 0.1 m/s straight through a line of robots while its firmware is TRACKING (so they
+    count it as cooperative, and it does not keep to its side). Each new frame re-anchors the
+    plane where the carried robot now is, so the others' sides shrink and they move away: no
+    contact, and they return to their slots (measured: closest centres 0.213 m, bodies touch
+    at 0.150 m)."""
+    goals = [(-0.6 + 0.4 * i + L, 0.0) for i in range(4)] + [(-0.4, -1.0 + L)]
+    initial = [(-0.6 + 0.4 * i, 0.0, 0.0) for i in range(4)] + [(-0.4, -1.0, math.pi / 2)]
+    out = closed_loop(
+        initial, _static(goals), 30.0, sensing, cfg=SHARED, drag=(4, 2.0, 0.0, 2.0, 20.0)
+    )
+    assert out.min_sep >= TOUCH + 0.03, out.min_sep
+    assert max(out.errs[:4]) < 0.05, out.errs
+
+
 def test_a_tight_convoy_closes_up_to_its_slots() -> None:
     """A line of robots 0.3 m apart (10 mm more than the filter's distance) driving forward at
     0.1 m/s with 60 ms camera latency: with the plane the robots behind are not held back by
@@ -363,3 +382,34 @@ def test_lockstep_with_the_plane_equals_the_simulator(monkeypatch: pytest.Monkey
     monkeypatch.setattr(SafetyFilter, "_plane", spy)
     _lockstep_equals_simulate(scenario, 1.5)
     assert sum(bound) > 10, sum(bound)
+
+
+def test_lockstep_with_the_plane_a_lost_camera_and_a_drag_equals_the_simulator(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """r2's camera lost for 0.4 s (its pairs are no longer in one frame: both robots of each pair
+    fall back to the inflated barrier together, and back to the plane together) and r1 carried
+    while TRACKING: still bit for bit, and both kinds of pair were used."""
+    from test_node_plant import _lockstep_equals_simulate
+
+    from scenario import Disturbance
+
+    base = _anchor_in_formation()
+    loss = Disturbance(t_s=0.3, robot="r2", kind="camera_loss", duration_s=0.4)
+    drag = Disturbance(t_s=0.9, robot="r1", kind="drag", dx=-0.05, duration_s=0.3)
+    scenario = base.with_overrides(disturbances=(loss, drag))  # type: ignore[attr-defined]
+    used = {"plane": 0, "inflated": 0}
+    orig = SafetyFilter.constraints
+
+    def spy(self: SafetyFilter, *args: object) -> list[tuple[float, float, float]]:
+        frame = args[-1]
+        out = orig(self, *args)  # type: ignore[arg-type]
+        if frame is not None:
+            for nb in args[3]:  # type: ignore[attr-defined]
+                key = "plane" if nb[3] == frame[3] else "inflated"  # type: ignore[index]
+                used[key] += 1
+        return out
+
+    monkeypatch.setattr(SafetyFilter, "constraints", spy)
+    _lockstep_equals_simulate(scenario, 1.5)
+    assert used["plane"] > 10 and used["inflated"] > 10, used
