@@ -340,7 +340,7 @@ def test_a_tight_convoy_closes_up_to_its_slots() -> None:
 # ----------------------------------------------------------------------------- lockstep
 
 
-def _anchor_in_formation() -> object:
+def _anchor_in_formation(shift: bool = True) -> object:
     """The anchor task (shared_frame on) started from where the robots are in formation at
     40 s, 60 ms camera latency and 3 mm noise: every pair is within the plane's range."""
     import numpy as np
@@ -354,8 +354,9 @@ def _anchor_in_formation() -> object:
     initial = tuple(tuple(float(v) for v in row) for row in np.asarray(warm.log.truth[-1]))
     # the virtual leader starts where it was at 40 s (0.05 m/s on the 0.6 m circle)
     traj = dict(scn.trajectory)
-    start = traj["start_angle_rad"] + 40.0 * traj["speed_mps"] / traj["radius_m"]
-    traj["start_angle_rad"] = math.remainder(start, 2 * math.pi)
+    if shift:
+        start = traj["start_angle_rad"] + 40.0 * traj["speed_mps"] / traj["radius_m"]
+        traj["start_angle_rad"] = math.remainder(start, 2 * math.pi)
     return scn.with_overrides(
         initial=initial,
         trajectory=traj,
@@ -413,3 +414,13 @@ def test_lockstep_with_the_plane_a_lost_camera_and_a_drag_equals_the_simulator(
     monkeypatch.setattr(SafetyFilter, "constraints", spy)
     _lockstep_equals_simulate(scenario, 1.5)
     assert used["plane"] > 10 and used["inflated"] > 10, used
+
+
+def test_lockstep_through_a_reassignment_with_the_plane_equals_the_simulator() -> None:
+    """The same robots with the virtual leader where it starts (not where it was at 40 s): the
+    coordinator reassigns the slots and the robots cross the formation at full wheel speed, with
+    saturated wheels rescaled to stay admissible (a rescale used to round a wheel power to
+    1 + 2e-16, an invalid wheels message that stopped the agent: firmware.py now clamps it)."""
+    from test_node_plant import _lockstep_equals_simulate
+
+    _lockstep_equals_simulate(_anchor_in_formation(shift=False), 1.5)
