@@ -286,6 +286,9 @@ class SafetyFilterParams:
             compute it from the same frame); this one lets a follower close on a leader that
             drives away.
         convoy_angle_rad: headings further apart than this get equal halves (rad, in (0, pi/2]).
+        convoy_gain: the side of a shared-frame pair holding all of the split gap closes on it
+            at this many times ``gamma_per_s`` (linearly from 1 at an even split; always capped
+            at ``1 / dt``, the discrete-time bound): >= 1.
         convoy_gap_m: only this much of a pair's gap is split unevenly; the rest is halved, so
             a far neighbour stays out of range (m).
         frame_max_age_s: the shared-frame plane is used for frames at most this old (s); an
@@ -308,6 +311,7 @@ class SafetyFilterParams:
     shared_frame: bool = False
     convoy_share: float = 0.5
     convoy_angle_rad: float = 0.7854
+    convoy_gain: float = 2.5
     convoy_gap_m: float = 0.05
     frame_max_age_s: float = 0.1
 
@@ -322,6 +326,8 @@ class SafetyFilterParams:
         _positive("convoy_angle_rad", self.convoy_angle_rad)
         _require(self.convoy_angle_rad <= math.pi / 2, "convoy_angle_rad must be <= pi/2")
         _non_negative("convoy_gap_m", self.convoy_gap_m)
+        _positive("convoy_gain", self.convoy_gain)
+        _require(self.convoy_gain >= 1.0, "convoy_gain must be >= 1")
         _non_negative("frame_max_age_s", self.frame_max_age_s)
         _non_negative("margin_m", self.margin_m)
         _non_negative("noise_budget_m", self.noise_budget_m)

@@ -92,7 +92,7 @@ points of the two camera poses of the frame (the anchors: stale and noisy, it do
 ``s_i = 1/2 + x``, ``s_j = 1/2 - x`` in [0, 1], ``A = min(H, convoy_gap_m)``, and::
 
     G_i = n . (p_i - q_i) + s_i A + (H - A) / 2 - (rho_own - beta)+
-    constraint:  n . u_i >= -gamma_i G_i,   gamma_i = min(gamma max(1, 2 s_i), 1 / dt)
+    constraint:  n . u_i >= -gamma_i G_i,   gamma_i = min(gamma (1 + (k - 1) (2 s_i - 1)+), 1 / dt)
 
 (the plane ``n . p = n . q_i - s_i A - (H - A)/2`` split between the two anchors; ``p_i`` is
 this robot's reference point now, from its estimate). Proof of ``|c_i - c_j| >= Ds - 2 beta``:
@@ -107,8 +107,9 @@ this robot's reference point now, from its estimate). Proof of ``|c_i - c_j| >= 
    it is negative the constraint asks ``n . u_i >= gamma_i |G_i|``: move away), and
    ``gamma_i dt <= 1`` keeps ``G_i >= 0``. The gain is each side's own affair (the pair needs
    only both sides non-negative): the side that holds more of the gap (``s_i > 1/2``, the one
-   behind in a convoy) closes on it at up to ``2 s_i gamma``, as a robot alone before a wall
-   could; with equal halves it is the reciprocal barrier's ``gamma H / 2`` each. A robot that
+   behind in a convoy) closes on it at up to ``k = convoy_gain`` times gamma (2.5: 25 /s, still
+   ``gamma dt <= 1`` at 30 Hz), as a robot alone before a wall could; with equal halves it is
+   the reciprocal barrier's ``gamma H / 2`` each. A robot that
    stops dead (e-stop, HOLD, power cut) keeps its ``G``, which is no less when ``G >= 0``: with
    ``s`` in [0, 1] no robot counts on the other moving away, so stopping stays safe.
 3. *The pair.* Hence ``S = G_i + G_j >= 0`` is invariant, and with the truth within
@@ -175,11 +176,11 @@ followers approach the leader's measured point at 43-55 mm/s (``2 s / gamma`` = 
 
 With the shared-frame plane (above) the same pair needs, for the robot with split ``s_i``,
 ``s_i H >= s a + s / gamma_i + noise``: its own approach over the frame's age ``a`` instead of
-``V a``, and the whole gap at twice the gain when it is the one behind in a convoy. On the
-anchor task with 60 ms latency that leaves 10 - 2.8 - 2.2 = 5 mm for the neighbour's 3 mm camera
-noise (1.29 mm RMS instead of 12.6; 1.68 mm with the plain gain, 5.4 mm with equal halves;
-``bench/bench_estimator.py --what-if``), with a filter that is safe against a neighbour stopping
-dead and needs no bound on its speed or acceleration.
+``V a``, and the whole gap at ``convoy_gain`` times the gain when it is the one behind in a
+convoy. On the anchor task with 60 ms latency that leaves 10 - 2.8 - 1.8 = 5.4 mm for the
+neighbour's 3 mm camera noise (1.25 mm RMS instead of 12.6; 1.68 mm with the plain gain, 5.4 mm
+with equal halves; ``bench/bench_estimator.py --what-if``), with a filter that is safe against
+a neighbour stopping dead and needs no bound on its speed or acceleration.
 
 Deadlock tie-break: ``robot_agent.deadlock`` (when the filter holds a robot with no progress, its
 nominal command turns right, then left, for a while; the one other place the command can be
@@ -223,6 +224,7 @@ class SafetyFilter:
         "_active",
         "_arena",
         "_budget",
+        "_cgain",
         "_circles",
         "_cons",
         "_convoy",
@@ -296,6 +298,7 @@ class SafetyFilter:
         self._deadlock = Deadlock(p, self._vcap)
         self._shared = p.shared_frame
         self._convoy = p.convoy_share
+        self._cgain = p.convoy_gain - 1.0
         self._cos0 = math.cos(p.convoy_angle_rad)
         self._gap = p.convoy_gap_m
         self._frame_age = p.frame_max_age_s
@@ -699,7 +702,7 @@ class SafetyFilter:
         a = big_h if big_h < self._gap else self._gap
         g = nx * (px - qix) + ny * (py - qiy) + share * a + 0.5 * (big_h - a) - rho
         if share > 0.5:  # more of the gap is this side's: it may close on it faster
-            gamma *= 2.0 * share
+            gamma *= 1.0 + self._cgain * (2.0 * share - 1.0)
             if gamma > gmax:
                 gamma = gmax
         b = -gamma * g

@@ -36,6 +36,7 @@ SHARED = replace(CFG, safety_filter=replace(CFG.safety_filter, shared_frame=True
 D_COOP = SHARED.safety_distance_m + 2 * L
 BETA = SHARED.safety_filter.noise_budget_m
 GAMMA = SHARED.safety_filter.gamma_per_s
+KGAIN = SHARED.safety_filter.convoy_gain  # the gain factor of the side holding the whole gap
 DT = 0.033
 VCAP = SHARED.gains.max_ref_speed_mps
 
@@ -59,14 +60,14 @@ def _plane_g(
 ) -> tuple[float, float, float]:
     """``(nx, ny, G)`` of the plane ``flt`` (a fresh one) sees against ``other`` (x, y, theta,
     age); ``G`` is the filter's reported clearance, and the constraint's bound is ``-gamma_i G``
-    with ``gamma <= gamma_i <= min(2 gamma, 1 / dt)``."""
+    with ``gamma <= gamma_i <= min(convoy_gain gamma, 1 / dt)``."""
     nb = Neighbour(other[0], other[1], other[2], other[3], cooperative=True)
     cons = flt.constraints(p[0], p[1], 1e9, [nb], (), rho, DT, frame)
     assert len(cons) == 1
     nx, ny, b = cons[0]
     g = flt.status().min_clearance_m
     assert -b == pytest.approx(GAMMA * g, rel=1e-9) or (
-        GAMMA * abs(g) <= abs(b) <= min(2 * GAMMA, 1 / DT) * abs(g) * (1 + 1e-12)
+        GAMMA * abs(g) <= abs(b) <= min(KGAIN * GAMMA, 1 / DT) * abs(g) * (1 + 1e-12)
     )
     return nx, ny, g
 
@@ -115,8 +116,9 @@ def test_a_pair_never_closes_below_the_distance(
     """Two robots at least ``D`` apart, a frame whose poses are off by up to 5 cm and 0.1 rad
     (noise, or the robots moved since), any nominal commands: after one tick of both filtered
     commands (or of robot i's alone, robot j stopping dead: e-stop, power cut) the pair's
-    ``G_i + G_j`` has not fallen below ``(1 - 2 gamma dt)`` of itself (the side with more of the
-    gap may use up to twice the gain) and the reference points are still at least ``D`` apart
+    ``G_i + G_j`` has not fallen below ``(1 - k gamma dt)`` of itself (the side with more of the
+    gap may use up to ``k = convoy_gain`` times the gain) and the reference points are still at
+    least ``D`` apart
     whenever the frame's split left both sides non-negative."""
     pi = _ref(xi, yi, ti)
     dist = D_COOP + gap
@@ -145,7 +147,7 @@ def test_a_pair_never_closes_below_the_distance(
     pj2 = (pj[0] + ujx * DT, pj[1] + ujy * DT)
     s0 = gi + gj
     s1 = nx * (pi2[0] - pj2[0]) + ny * (pi2[1] - pj2[1]) - D_COOP
-    assert s1 >= (1.0 - 2 * GAMMA * DT) * s0 - 1e-12
+    assert s1 >= (1.0 - KGAIN * GAMMA * DT) * s0 - 1e-12
     assert math.hypot(pi2[0] - pj2[0], pi2[1] - pj2[1]) >= D_COOP - 1e-12
 
 
@@ -229,7 +231,7 @@ def test_the_convoy_split_favours_the_robot_behind() -> None:
 
 @pytest.mark.parametrize("dt", [0.0, 0.01, DT, 0.08, 0.2])
 def test_the_gain_of_the_side_with_more_gap_keeps_gamma_dt_at_most_one(dt: float) -> None:
-    """The robot behind in a convoy (share 1) closes on its side at ``2 gamma`` but never
+    """The robot behind in a convoy (share 1) closes on its side at ``convoy_gain gamma`` but never
     beyond ``1 / dt`` (``1 / max_dt_s`` when the tick is unknown): ``G(t + dt) >= 0``."""
     a = 0.066
     behind = (-L, 0.0, 0.0, a)
@@ -244,14 +246,14 @@ def test_the_gain_of_the_side_with_more_gap_keeps_gamma_dt_at_most_one(dt: float
         slow = min(GAMMA, 1.0 / SHARED.safety.max_dt_s)
         base = slow if dt == 0.0 else min(GAMMA, 1.0 / dt)
         share = 1.0 if frame is behind else 0.0
-        want = min(base * 2.0 * share, 1.0 / hold) if share > 0.5 else base
+        want = min(base * KGAIN, 1.0 / hold) if share > 0.5 else base
         assert -b == pytest.approx(want * g), (dt, share)
         assert g - hold * (-b) >= -1e-15  # approaching at the allowed rate keeps G >= 0
 
 
 def test_params_are_validated_and_realtime_turns_the_plane_off() -> None:
     for bad in ({"convoy_share": 0.6}, {"convoy_share": -0.1}, {"convoy_angle_rad": 2.0},
-                {"frame_max_age_s": -1.0}, {"shared_frame": 1}):  # fmt: skip
+                {"frame_max_age_s": -1.0}, {"shared_frame": 1}, {"convoy_gain": 0.5}):  # fmt: skip
         with pytest.raises(ValueError):
             SafetyFilterParams(**bad)  # type: ignore[arg-type]
     cfg = AgentConfig(safety_filter=SafetyFilterParams(shared_frame=True))
