@@ -206,8 +206,8 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
             print(f"      shared-frame plane on {gp.size / gcol.size:.0%} of the ticks: G mean "
                   f"{gp.mean() * 1e3:+.1f} mm (min {gp.min() * 1e3:+.1f}, 5th percentile "
                   f"{np.percentile(gp, 5) * 1e3:+.1f}); the nominal approach needs G >= "
-                  f"{need.mean() / 2 * 1e3:.1f} mm (s / gamma; s / (2 gamma) for the robot "
-                  f"behind in a convoy)")  # fmt: skip
+                  f"{need.mean() / 2 * 1e3:.1f} mm (s / gamma; s / (convoy_gain gamma) for "
+                  f"the robot behind in a convoy)")  # fmt: skip
     return 0
 
 
