@@ -178,7 +178,7 @@ With the shared-frame plane (above) the same pair needs, for the robot with spli
 ``s_i H >= s a + s / gamma_i + noise``: its own approach over the frame's age ``a`` instead of
 ``V a``, and the whole gap at ``convoy_gain`` times the gain when it is the one behind in a
 convoy. On the anchor task with 60 ms latency that leaves 10 - 2.8 - 1.8 = 5.4 mm for the
-neighbour's 3 mm camera noise (1.25 mm RMS instead of 12.6; 1.68 mm with the plain gain, 5.4 mm
+neighbour's 3 mm camera noise (1.28 mm RMS instead of 12.6; 1.68 mm with the plain gain, 5.4 mm
 with equal halves; ``bench/bench_estimator.py --what-if``), with a filter that is safe against
 a neighbour stopping dead and needs no bound on its speed or acceleration.
 
