@@ -87,7 +87,8 @@ The inflation ``V a_j`` pays for where a neighbour may have gone since its pose 
 beyond ``Ds + 2 l``. For a cooperative pair measured in the SAME camera frame both robots can
 instead answer for their own motion since that frame, which each knows, and nobody needs a
 bound on the other's speed. Notation for robot i and neighbour j: ``q_i``, ``q_j`` the reference
-points of the two camera poses of the frame (the anchors: stale and noisy, it does not matter),
+points (eqs 10-11) of the two camera poses of the frame (the anchors: stale and noisy, it does
+not matter),
 ``d = |q_i - q_j|``, ``n = (q_i - q_j) / d``, ``H = d - D`` with ``D = Ds + 2 l``, the split
 ``s_i = 1/2 + x``, ``s_j = 1/2 - x`` in [0, 1], ``A = min(H, convoy_gap_m)``, and::
 
@@ -109,9 +110,9 @@ this robot's reference point now, from its estimate). Proof of ``|c_i - c_j| >= 
    only both sides non-negative): the side that holds more of the gap (``s_i > 1/2``, the one
    behind in a convoy) closes on it at up to ``k = convoy_gain`` times gamma (2.5: 25 /s, still
    ``gamma dt <= 1`` at 30 Hz), as a robot alone before a wall could; with equal halves it is
-   the reciprocal barrier's ``gamma H / 2`` each. A robot that
-   stops dead (e-stop, HOLD, power cut) keeps its ``G``, which is no less when ``G >= 0``: with
-   ``s`` in [0, 1] no robot counts on the other moving away, so stopping stays safe.
+   the reciprocal barrier's ``gamma H / 2`` each. A robot that stops dead (e-stop, HOLD, power
+   cut) keeps its ``G``, which is no less when ``G >= 0``: with ``s`` in [0, 1] no robot counts
+   on the other moving away, so stopping stays safe.
 3. *The pair.* Hence ``S = G_i + G_j >= 0`` is invariant, and with the truth within
    ``max(beta, rho)`` of each estimate, ``|c_i - c_j| >= |p_i - p_j| - 2 l >= n . (p_i - p_j) -
    2 l >= Ds - 2 beta`` as in "Noise model".
