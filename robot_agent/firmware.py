@@ -141,6 +141,7 @@ class Firmware(_FirmwareModes):
         "_role_changes",
         "_saturated",
         "_setpoint_age",
+        "_shared_frame",
         "_slot",
         "_stale_pose",
         "_stale_sp",
@@ -170,6 +171,7 @@ class Firmware(_FirmwareModes):
         self._filter = SafetyFilter(cfg)
         self._filter_on = self._filter.enabled
         self._filter_fn = self._filter.filter
+        self._shared_frame = self._filter.enabled and cfg.safety_filter.shared_frame
         self._mode = Mode.IDLE
         self._reason = "no setpoint yet"
         self._have_setpoint = False
@@ -418,6 +420,11 @@ class Firmware(_FirmwareModes):
                 unc = self._unc
                 if unc > extra_radius_m:
                     extra_radius_m = unc
+                # shared_frame: the own latest camera pose and its age, for the frame's plane
+                frame = None
+                if self._shared_frame and pose is not None:
+                    cap_t = pose[3] if pose_capture_s is None else pose_capture_s
+                    frame = (pose[0], pose[1], pose[2], now_s - cap_t)
                 vx, vy = self._filter_fn(
                     now_s,
                     rx,
@@ -430,6 +437,7 @@ class Firmware(_FirmwareModes):
                     obstacles,
                     extra_radius_m,
                     dt,
+                    frame,
                 )
 
             # --- eq 16, then eq 8: inlined copies of twist_from_ref_velocity and
@@ -459,8 +467,10 @@ class Firmware(_FirmwareModes):
                         sw = 0.5 * r * (wr - wl) / self._half_track
                         if not flt.admissible(c * sv - l_m * sw * s, s * sv + l_m * sw * c):
                             k = wmax / max(abs(wr0), abs(wl0))
-                            wr = wr0 * k
-                            wl = wl0 * k
+                            # (wr0 * k can round one ulp beyond wmax: power 1 + 2e-16 is an
+                            # invalid wheels message; clamp, a change of one ulp)
+                            wr = min(wmax, max(-wmax, wr0 * k))
+                            wl = min(wmax, max(-wmax, wl0 * k))
                             flt.count_rescaled()
             self._last_saturated = sat
             if est is not None:  # for the prediction (see _pending_cmd)

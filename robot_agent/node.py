@@ -127,7 +127,8 @@ class AgentNode:
     ) -> None:
         self.robot_id = keys.check_robot_id(robot_id)
         self.fleet = keys.check_fleet(fleet)
-        self.firmware = Firmware(config)
+        # realtime: no shared-frame plane (frames reach robots at different ticks; params.py)
+        self.firmware = Firmware(config if lockstep else config.realtime())
         self.lockstep = lockstep
         self.loop_mode: LoopMode = loop_mode
         self.period_s = 1.0 / rate_hz

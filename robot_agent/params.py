@@ -271,6 +271,29 @@ class SafetyFilterParams:
             setpoint (rad, in (0, pi/2]); deterministic "pass on the right".
         tiebreak_speed_mps: the speed of the tie-break command when the nominal one is slower
             (m/s).
+        shared_frame: every robot gets each camera frame at the same control tick (the
+            in-process simulator and lockstep; NOT realtime, where two robots can be on
+            different frames: the realtime shells force it off). Then a cooperative neighbour
+            measured in the same frame as this robot's own latest camera pose is kept apart by
+            the frame's separating plane (``safety_filter.py``, "Shared-frame plane") instead of
+            the reciprocal barrier inflated by ``neighbour_speed_mps * age``: each robot answers
+            for its own motion since the frame, so the neighbour's speed and the frame's age
+            cost nothing.
+        convoy_share: how much of a shared-frame pair's gap goes to the robot behind in a convoy
+            (in [0, 0.5]; 0 = half each): the split is ``1/2 +- convoy_share * (c_i - c_j) *
+            g``, ``c`` how much each robot heads toward the other, ``g`` in [0, 1] how parallel
+            their headings are (0 beyond ``convoy_angle_rad``). Any split is safe (both robots
+            compute it from the same frame); this one lets a follower close on a leader that
+            drives away.
+        convoy_angle_rad: headings further apart than this get equal halves (rad, in (0, pi/2]).
+        convoy_gain: the side of a shared-frame pair holding all of the split gap closes on it
+            at this many times ``gamma_per_s`` (linearly from 1 at an even split; always capped
+            at ``1 / dt``, the discrete-time bound): >= 1.
+        convoy_gap_m: only this much of a pair's gap is split unevenly; the rest is halved, so
+            a far neighbour stays out of range (m).
+        frame_max_age_s: the shared-frame plane is used for frames at most this old (s); an
+            older frame falls back to the inflated reciprocal barrier (both robots of a pair
+            see the same age, so both fall back together).
     """
 
     enabled: bool = True
@@ -285,9 +308,27 @@ class SafetyFilterParams:
     tiebreak_time_s: float = 3.0
     tiebreak_angle_rad: float = 1.0
     tiebreak_speed_mps: float = 0.1
+    shared_frame: bool = False
+    convoy_share: float = 0.5
+    convoy_angle_rad: float = 0.7854
+    convoy_gain: float = 2.5
+    convoy_gap_m: float = 0.05
+    frame_max_age_s: float = 0.1
 
     def __post_init__(self) -> None:
         _require(isinstance(self.enabled, bool), f"enabled must be a bool, got {self.enabled!r}")
+        _require(
+            isinstance(self.shared_frame, bool),
+            f"shared_frame must be a bool, got {self.shared_frame!r}",
+        )
+        _non_negative("convoy_share", self.convoy_share)
+        _require(self.convoy_share <= 0.5, "convoy_share must be <= 0.5")
+        _positive("convoy_angle_rad", self.convoy_angle_rad)
+        _require(self.convoy_angle_rad <= math.pi / 2, "convoy_angle_rad must be <= pi/2")
+        _non_negative("convoy_gap_m", self.convoy_gap_m)
+        _positive("convoy_gain", self.convoy_gain)
+        _require(self.convoy_gain >= 1.0, "convoy_gain must be >= 1")
+        _non_negative("frame_max_age_s", self.frame_max_age_s)
         _non_negative("margin_m", self.margin_m)
         _non_negative("noise_budget_m", self.noise_budget_m)
         _require(
@@ -507,3 +548,11 @@ class AgentConfig:
     def safety_distance_m(self) -> float:
         """Ds: the least centre distance the filter keeps between two robots (m)."""
         return 2.0 * self.geometry.body_radius_m + self.safety_filter.margin_m
+
+    def realtime(self) -> AgentConfig:
+        """This config as a realtime shell runs it: ``safety_filter.shared_frame`` off (in
+        realtime two robots can be on different camera frames at the same moment, and the
+        shared-frame plane needs them on the same one; ``safety_filter.py``)."""
+        if not self.safety_filter.shared_frame:
+            return self
+        return replace(self, safety_filter=replace(self.safety_filter, shared_frame=False))

@@ -80,6 +80,75 @@ the reference point moves at ``u`` during the tick (exact for eq 16 up to the he
 within a tick, second order in dt, covered by ``margin_m``), a non-cooperative neighbour moves
 at its given velocity (0 if none given) and a cooperative one runs this filter.
 
+Shared-frame plane (``shared_frame``, issue 16)
+===============================================
+The inflation ``V a_j`` pays for where a neighbour may have gone since its pose was captured:
+13 mm for a 66 ms old pose at 0.2 m/s, more than the whole slack of a formation spaced 10 mm
+beyond ``Ds + 2 l``. For a cooperative pair measured in the SAME camera frame both robots can
+instead answer for their own motion since that frame, which each knows, and nobody needs a
+bound on the other's speed. Notation for robot i and neighbour j: ``q_i``, ``q_j`` the reference
+points (eqs 10-11) of the two camera poses of the frame (the anchors: stale and noisy, it does
+not matter),
+``d = |q_i - q_j|``, ``n = (q_i - q_j) / d``, ``H = d - D`` with ``D = Ds + 2 l``, the split
+``s_i = 1/2 + x``, ``s_j = 1/2 - x`` in [0, 1], ``A = min(H, convoy_gap_m)``, and::
+
+    G_i = n . (p_i - q_i) + s_i A + (H - A) / 2 - (rho_own - beta)+
+    constraint:  n . u_i >= -gamma_i G_i,   gamma_i = min(gamma (1 + (k - 1) (2 s_i - 1)+), 1 / dt)
+
+(the plane ``n . p = n . q_i - s_i A - (H - A)/2`` split between the two anchors; ``p_i`` is
+this robot's reference point now, from its estimate). Proof of ``|c_i - c_j| >= Ds - 2 beta``:
+
+1. *Complementary.* Robot j computes from the same frame ``n_j = -n``, the same ``d`` and
+   ``H``, and ``s_j = 1 - s_i``: every operation on the pair's data is antisymmetric (negations
+   and differences are exact in floating point; the split's two sums differ by rounding only,
+   1e-16 of the gap). So ``G_i + G_j = n . (p_i - p_j) - D - excess_i - excess_j`` for any
+   anchors: their noise and age cancel; each robot pays its own uncertainty beyond ``beta``.
+2. *Each side.* ``G_i`` is affine in ``p_i`` (the anchors are fixed during the frame), so
+   ``G_i(t + dt) = G_i + dt n . u_i >= (1 - gamma_i dt) G_i`` for either sign of ``G_i`` (when
+   it is negative the constraint asks ``n . u_i >= gamma_i |G_i|``: move away), and
+   ``gamma_i dt <= 1`` keeps ``G_i >= 0``. The gain is each side's own affair (the pair needs
+   only both sides non-negative): the side that holds more of the gap (``s_i > 1/2``, the one
+   behind in a convoy) closes on it at up to ``k = convoy_gain`` times gamma (2.5: 25 /s, still
+   ``gamma dt <= 1`` at 30 Hz), as a robot alone before a wall could; with equal halves it is
+   the reciprocal barrier's ``gamma H / 2`` each. A robot that stops dead (e-stop, HOLD, power
+   cut) keeps its ``G``, which is no less when ``G >= 0``: with ``s`` in [0, 1] no robot counts
+   on the other moving away, so stopping stays safe.
+3. *The pair.* Hence ``S = G_i + G_j >= 0`` is invariant, and with the truth within
+   ``max(beta, rho)`` of each estimate, ``|c_i - c_j| >= |p_i - p_j| - 2 l >= n . (p_i - p_j) -
+   2 l >= Ds - 2 beta`` as in "Noise model".
+4. *A new frame* replaces ``n`` by ``n'``; at the same positions both ``n . r - D`` and
+   ``n' . r - D`` (``r = p_i - p_j``) are lower bounds of ``|r| - D``, the new one short by
+   ``|r| (1 - cos angle(n', r)) <= delta^2 / (2 |r|)``, ``delta = |(q_i - q_j) - r|``: the
+   anchors' noise, the estimates' error and the motion since the frame, at most ``4 beta + 2 V
+   frame_max_age_s`` (76 mm with the defaults at 0.2 m/s: <= 10 mm at ``|r| = D``; with
+   1-sigma noise and the anchor task's motion < 0.1 mm). A negative ``S`` recovers at rate
+   gamma (step 2), so with a new frame every ``T_c`` the loss cannot pile up beyond
+   ``e^(-gamma T_c) / (1 - e^(-gamma T_c))`` (2.5 at 30 Hz) times one: a second-order term
+   like the heading change within a tick, paid by the part of ``margin_m`` beyond the two noise
+   budgets (22 mm, sized for the latency and the tick of motion that the plane does not pay),
+   except for 3-sigma noise aligned against the pair on every frame in a row.
+
+It costs a robot its own approach toward the neighbour during the frame's age (a follower
+chasing its leader at 43 mm/s: 2.8 mm in 66 ms) instead of ``V a``. The split: ``x =
+convoy_share (c_i - c_j) g`` with ``c_i = -h_i . n`` (how much i heads toward j, ``h`` the unit
+heading of the camera pose), ``c_j = h_j . n`` and ``g = (h_i . h_j - cos a0) / (1 - cos a0)``
+clamped to [0, 1] (``a0 = convoy_angle_rad``): in a convoy (parallel headings, one behind the
+other) the robot behind gets the gap, as the one ahead drives away from it; side by side or
+crossing, half each. Only ``A`` (the first ``convoy_gap_m`` of the gap) is split unevenly, so a
+far neighbour stays out of range for both. Any split is safe (step 1); this one decides only who
+may use the gap.
+
+Both robots must use the plane or neither (they are then in the reciprocal barrier above):
+the plane is used only if ``shared_frame`` is on, the neighbour is cooperative with a heading,
+this robot was TRACKING on the previous tick too (the neighbour's view of it: ``filter`` checks
+that it was called then), the neighbour's age equals this robot's own camera pose's age (the
+same capture: in-process and in lockstep a frame reaches every robot at the same tick, so both
+robots see the match, or both a mismatch, e.g. one camera lost), that age is at most
+``frame_max_age_s`` and the anchors differ. In realtime two robots can be on different frames
+at the same moment: the realtime shells turn ``shared_frame`` off (``AgentConfig.realtime``).
+What breaks it, as it breaks the reciprocal barrier: a robot flagged cooperative that moves
+without its filter (carried by hand, coasting toward the other after a power cut).
+
 Solving: the QP is two-dimensional, so its optimum has at most two active constraints; the
 filter enumerates the candidates exactly (``u_nom`` itself; the projection on each constraint
 line; each pair of lines' intersection; each line's intersections with the speed circle) and
@@ -105,6 +174,14 @@ Below that the filter holds the robot back until ``h`` is that large. On the Rob
 (triangle b = 0.3 m, this project's 0.075 m bodies: ``Ds + 2 l`` = 0.29 m) 60 ms of camera
 latency alone (``V a`` = 0.2 m/s x 66 ms = 13 mm) puts the slots inside the barrier, and the
 followers approach the leader's measured point at 43-55 mm/s (``2 s / gamma`` = 9-11 mm).
+
+With the shared-frame plane (above) the same pair needs, for the robot with split ``s_i``,
+``s_i H >= s a + s / gamma_i + noise``: its own approach over the frame's age ``a`` instead of
+``V a``, and the whole gap at ``convoy_gain`` times the gain when it is the one behind in a
+convoy. On the anchor task with 60 ms latency that leaves 10 - 2.8 - 1.8 = 5.4 mm for the
+neighbour's 3 mm camera noise (1.28 mm RMS instead of 12.6; 1.68 mm with the plain gain, 5.4 mm
+with equal halves; ``bench/bench_estimator.py --what-if``), with a filter that is safe against
+a neighbour stopping dead and needs no bound on its speed or acceleration.
 
 Deadlock tie-break: ``robot_agent.deadlock`` (when the filter holds a robot with no progress, its
 nominal command turns right, then left, for a while; the one other place the command can be
@@ -148,22 +225,30 @@ class SafetyFilter:
         "_active",
         "_arena",
         "_budget",
+        "_cgain",
         "_circles",
         "_cons",
+        "_convoy",
+        "_cos0",
         "_d_coop",
         "_d_plain",
         "_deadlock",
+        "_frame_age",
         "_gamma",
         "_gamma_slow",
+        "_gap",
+        "_gmax_slow",
         "_has_world",
         "_infeasible",
         "_l",
+        "_last_t",
         "_max_age",
         "_min_h",
         "_obs_clear",
         "_rejected",
         "_rescaled",
         "_segments",
+        "_shared",
         "_ticks",
         "_vbad",
         "_vcap",
@@ -187,6 +272,7 @@ class SafetyFilter:
         self._obs_clear = clear
         self._gamma = p.gamma_per_s
         self._gamma_slow = min(p.gamma_per_s, 1.0 / config.safety.max_dt_s)
+        self._gmax_slow = 1.0 / config.safety.max_dt_s
         self._vnb = p.neighbour_speed_mps if p.neighbour_speed_mps > 0.0 else g.max_speed_mps
         self._vbad = 10.0 * self._vnb  # a neighbour velocity beyond this is absurd: rejected
         self._max_age = p.max_age_s
@@ -211,6 +297,13 @@ class SafetyFilter:
         )
         self._has_world = bool(circles or segments or a is not None)
         self._deadlock = Deadlock(p, self._vcap)
+        self._shared = p.shared_frame
+        self._convoy = p.convoy_share
+        self._cgain = p.convoy_gain - 1.0
+        self._cos0 = math.cos(p.convoy_angle_rad)
+        self._gap = p.convoy_gap_m
+        self._frame_age = p.frame_max_age_s
+        self._last_t = -math.inf  # now_s of the last filter() call (was TRACKING then)
         self._cons: list[tuple[float, float, float]] = []
         self._ticks = 0
         self._active = 0
@@ -241,15 +334,22 @@ class SafetyFilter:
     def neighbour_range_m(self) -> float:
         """The farthest centre-to-centre distance (m) at which a neighbour can constrain this
         robot (any age up to ``max_age_s``, a neighbour radius up to 0.1 m, any command up to
-        ``max_ref_speed_mps``): a shell that pre-selects neighbours by distance must pass at
-        least every neighbour within this range."""
-        return (
+        ``max_ref_speed_mps``; with ``shared_frame``, the plane's range too): a shell that
+        pre-selects neighbours by distance must pass at least every neighbour within this
+        range."""
+        far = (
             self._d_coop
             + self._l
             + self._vnb * self._max_age
             + 0.1
             + self._vcap / (0.5 * self._gamma_slow)
         )
+        if self._shared:  # a plane binds only within G < reach (constraints(): q2), with the
+            # own camera pose at most max_ref_speed x frame_max_age + 2 noise budgets away
+            off = self._vcap * self._frame_age + 2.0 * self._budget
+            plane = self._d_coop + self._l + self._gap + 2.0 * self._vcap / self._gamma_slow
+            far = max(far, plane + 3.0 * off)
+        return far
 
     @property
     def in_range(self) -> bool:
@@ -280,10 +380,14 @@ class SafetyFilter:
         obstacles: Sequence[tuple[float, float, float]] = (),
         extra_radius_m: float = 0.0,
         dt_s: float = 0.0,
+        frame: tuple[float, float, float, float] | None = None,
     ) -> list[tuple[float, float, float]]:
         """The constraints ``(ax, ay, b)`` (``a . u >= b``) in range of a command of speed
         ``cap`` at reference point ``(px, py)``; updates the violation / clearance counters.
-        ``dt_s`` is the tick (0 = unknown): gamma is lowered to ``1 / dt_s`` if larger."""
+        ``dt_s`` is the tick (0 = unknown): gamma is lowered to ``1 / dt_s`` if larger.
+        ``frame``: this robot's own latest camera pose ``(x, y, theta, age_s)`` when the
+        shared-frame plane may be used (``filter`` passes it only with ``shared_frame`` on and
+        when this robot was TRACKING on the previous tick); None: never."""
         # only the uncertainty beyond the margin's noise budget inflates (module docstring)
         rho = extra_radius_m - self._budget
         if not rho > 0.0:  # also NaN
@@ -300,6 +404,25 @@ class SafetyFilter:
         lim_plain = d_plain + reach + _TOL
         two_over_g = 2.0 / gamma
         quick = self._d_coop + self._l + self._vnb * self._max_age + rho + 2.0 * reach + _TOL
+        pl = None  # the own frame's anchor (reference point, heading, age): "Shared-frame plane"
+        # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
+        gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
+        if frame is not None:
+            fx, fy, fth, fage = frame
+            if fage < 0.0:  # the rule of neighbours.neighbour: a capture in the future is age 0
+                fage = 0.0
+            if _isfinite(fx + fy + fth) and fage <= self._frame_age:
+                hix = math.cos(fth)
+                hiy = math.sin(fth)
+                qix = fx + self._l * hix
+                qiy = fy + self._l * hiy
+                off = _hypot(px - qix, py - qiy)
+                if _isfinite(off):
+                    pl = (qix, qiy, hix, hiy, fage)
+                    # a plane constraint binds only if G < reach (see _plane)
+                    q2 = self._d_coop + self._l + self._gap + 2.0 * (rho + reach) + 3.0 * off
+                    if q2 + _TOL > quick:
+                        quick = q2 + _TOL
         for nb in neighbours:
             if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
                 qx, qy = nb
@@ -330,6 +453,13 @@ class SafetyFilter:
                     if not _isfinite(dx + dy):
                         self._rejected += 1
                     continue
+                if pl is not None and coop and age == pl[4] and _isfinite(th):
+                    # same frame as this robot's own pose, both cooperative: the plane
+                    g = self._plane(px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons)
+                    if g is not None:
+                        if g < min_h:
+                            min_h = g
+                        continue
                 if not (
                     _isfinite(age)
                     and _isfinite(rad)
@@ -450,6 +580,7 @@ class SafetyFilter:
         obstacles: Sequence[tuple[float, float, float]] = (),
         extra_radius_m: float = 0.0,
         dt_s: float = 0.0,
+        frame: tuple[float, float, float, float] | None = None,
     ) -> tuple[float, float]:
         """The safe reference-point velocity nearest to ``(ux, uy)`` (m/s).
 
@@ -464,6 +595,10 @@ class SafetyFilter:
                 configured ``world``).
             extra_radius_m: this robot's own position uncertainty (m), added to every barrier.
             dt_s: this tick's length (s), 0 if unknown; see ``constraints``.
+            frame: this robot's own latest camera pose ``(x, y, theta, age_s)`` (axle centre,
+                heading, age on the same clock as the neighbours' ages), for the shared-frame
+                plane; ignored unless ``shared_frame`` is on and this robot was TRACKING (this
+                method was called) on the previous tick.
 
         Returns:
             ``(ux, uy)``: ``|u| <= |u_nom|`` except during a tie-break or to leave a boundary
@@ -475,7 +610,16 @@ class SafetyFilter:
             return ux, uy
         deadlock = self._deadlock
         ux, uy, tiebreak = deadlock.steer(now_s, ux, uy, ex, ey)
-        cons = self.constraints(px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s)
+        if frame is not None:
+            # the neighbours see this robot as cooperative iff it was TRACKING on the previous
+            # tick, that is iff this method was called then: only then may it use the plane
+            last = self._last_t
+            if not (dt_s > 0.0 and now_s - last <= 1.5 * dt_s and self._shared):
+                frame = None
+        self._last_t = now_s
+        cons = self.constraints(
+            px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s, frame
+        )
         self._cons = cons
         if not cons:
             fx, fy = ux, uy
@@ -515,6 +659,57 @@ class SafetyFilter:
         return fx, fy
 
     # ------------------------------------------------------------------ internals
+
+    def _plane(
+        self,
+        px: float,
+        py: float,
+        qx: float,
+        qy: float,
+        th: float,
+        pl: tuple[float, float, float, float, float],
+        rho: float,
+        gamma: float,
+        gmax: float,
+        cap: float,
+        cons: list[tuple[float, float, float]],
+    ) -> float | None:
+        """The shared-frame plane against a cooperative neighbour measured at ``(qx, qy, th)``
+        in this robot's own frame ``pl`` (module docstring); appends its constraint when in
+        range and returns ``G``. Every operation on the pair's data is antisymmetric in
+        (this robot, the neighbour), so the neighbour, computing the same from the same frame,
+        gets the opposite normal, the same ``H`` and the complementary share."""
+        qix, qiy, hix, hiy, _ = pl
+        hjx = math.cos(th)
+        hjy = math.sin(th)
+        l_m = self._l
+        dx = qix - (qx + l_m * hjx)
+        dy = qiy - (qy + l_m * hjy)
+        d = _hypot(dx, dy)
+        if not 0.0 < d < math.inf:  # coincident (or absurd) anchors, both see it: no plane
+            return None
+        nx = dx / d
+        ny = dy / d
+        big_h = d - self._d_coop
+        # the convoy split: 1/2 + x for this robot, 1/2 - x for the neighbour (x antisymmetric)
+        share = 0.5
+        al = hix * hjx + hiy * hjy  # how parallel the headings are (symmetric)
+        cos0 = self._cos0
+        if al > cos0 and self._convoy > 0.0:
+            ci = -(hix * nx + hiy * ny)  # this robot heads toward the neighbour
+            cj = hjx * nx + hjy * ny  # the neighbour heads toward this robot
+            share += self._convoy * (ci - cj) * ((al - cos0) / (1.0 - cos0))
+            share = 0.0 if share < 0.0 else (1.0 if share > 1.0 else share)
+        a = big_h if big_h < self._gap else self._gap
+        g = nx * (px - qix) + ny * (py - qiy) + share * a + 0.5 * (big_h - a) - rho
+        if share > 0.5:  # more of the gap is this side's: it may close on it faster
+            gamma *= 1.0 + self._cgain * (2.0 * share - 1.0)
+            if gamma > gmax:
+                gamma = gmax
+        b = -gamma * g
+        if b > -cap - _TOL:
+            cons.append((nx, ny, b))
+        return g
 
     def _circle(
         self,
