@@ -134,6 +134,7 @@ def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[s
 def diagnose(scn: scenario_mod.Scenario) -> int:
     """The safety filter's barrier budget on the ``noisy 60ms+est`` variant (module doc)."""
     from robot_agent import safety_filter as sf
+    from robot_agent import safety_plane as sp
 
     v = variant(scn, est=True, extrap=True, noisy=True)
     cfg = v.agent
@@ -145,7 +146,7 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
     active: dict[int, list[bool]] = defaultdict(list)
     order: dict[int, int] = {}
     orig = sf.SafetyFilter.filter
-    orig_plane = sf.SafetyFilter._plane
+    orig_plane = sp.SharedFramePlane.constraint
     planes: dict[tuple[int, float, float], float] = {}  # this tick's plane G by neighbour
 
     def plane_spy(self: Any, px: float, py: float, qx: float, qy: float, *args: Any) -> Any:
@@ -173,17 +174,17 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
             excess = max(0.0, rho - p.noise_budget_m) + max(0.0, nb[7] - p.noise_budget_m)
             h = d - d_coop - vnb * age - excess
             approach = max(0.0, -((px - qx) * ux + (py - qy) * uy) / d) if d > 0 else 0.0
-            gk = planes.get((id(self), nb[0], nb[1]), math.nan)  # the shared-frame plane's G
+            gk = planes.get((id(self._plane), nb[0], nb[1]), math.nan)  # the shared-frame plane's G
             rows[me, k].append((d, vnb * age, rho, excess, h, approach, gk))
         return out
 
     sf.SafetyFilter.filter = spy  # type: ignore[method-assign,assignment]
-    sf.SafetyFilter._plane = plane_spy  # type: ignore[method-assign,assignment]
+    sp.SharedFramePlane.constraint = plane_spy  # type: ignore[method-assign,assignment]
     try:
         simulate.run(v)
     finally:
         sf.SafetyFilter.filter = orig  # type: ignore[method-assign]
-        sf.SafetyFilter._plane = orig_plane  # type: ignore[method-assign]
+        sp.SharedFramePlane.constraint = orig_plane  # type: ignore[method-assign]
     ids = list(v.robot_ids)
     print(f"diagnose: {v.name} with 60 ms latency + 3 mm noise + estimator, t >= {v.settle_s} s; "
           f"Ds + 2 l = {d_coop:.3f} m, V = {vnb:.2f} m/s, gamma = {p.gamma_per_s:g} /s, "

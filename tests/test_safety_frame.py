@@ -31,6 +31,7 @@ from test_safety_filter import CFG, TOUCH, L
 from robot_agent.node import AgentNode
 from robot_agent.params import AgentConfig, SafetyFilterParams
 from robot_agent.safety_filter import Neighbour, SafetyFilter
+from robot_agent.safety_plane import SharedFramePlane
 
 SHARED = replace(CFG, safety_filter=replace(CFG.safety_filter, shared_frame=True))
 D_COOP = SHARED.safety_distance_m + 2 * L
@@ -374,15 +375,15 @@ def test_lockstep_with_the_plane_equals_the_simulator(monkeypatch: pytest.Monkey
 
     scenario = _anchor_in_formation()
     bound = []
-    orig = SafetyFilter._plane
+    orig = SharedFramePlane.constraint
 
-    def spy(self: SafetyFilter, *args: object) -> float | None:
+    def spy(self: SharedFramePlane, *args: object) -> float | None:
         n = len(args[-1])  # type: ignore[arg-type]
         g = orig(self, *args)  # type: ignore[arg-type]
         bound.append(g is not None and len(args[-1]) > n)  # type: ignore[arg-type]
         return g
 
-    monkeypatch.setattr(SafetyFilter, "_plane", spy)
+    monkeypatch.setattr(SharedFramePlane, "constraint", spy)
     _lockstep_equals_simulate(scenario, 1.5)
     assert sum(bound) > 10, sum(bound)
 
