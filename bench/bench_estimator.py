@@ -32,7 +32,7 @@ reciprocal barrier inflated by ``V a``, as before issue 16's plane), no age infl
 (``neighbour_speed_mps`` ~ 0: unsound, a neighbour could have moved), that with a higher
 barrier gain, and the Robotarium robot's body (radius 0.055 m, 0.11 m wide, instead of this
 project's 0.075 m). ``--diagnose`` also prints, where the plane is used, its ``G`` against the
-``s / gamma`` the nominal approach needs (``safety_filter.py``, "Shared-frame plane").
+``s / gamma`` the nominal approach needs (``safety_plane.py``).
 With ``--seeds N`` it runs the ``noisy 60ms+est`` variant for seeds 1..N (other noise draws).
 Run: ``.venv/bin/python bench/bench_estimator.py [--scenario NAME|FILE] [--paper] [--diagnose]
 [--what-if] [--seeds N] [--ticks N]``. A measurement, not a test.

@@ -275,7 +275,7 @@ class SafetyFilterParams:
             in-process simulator and lockstep; NOT realtime, where two robots can be on
             different frames: the realtime shells force it off). Then a cooperative neighbour
             measured in the same frame as this robot's own latest camera pose is kept apart by
-            the frame's separating plane (``safety_filter.py``, "Shared-frame plane") instead of
+            the frame's separating plane (``safety_plane.py``) instead of
             the reciprocal barrier inflated by ``neighbour_speed_mps * age``: each robot answers
             for its own motion since the frame, so the neighbour's speed and the frame's age
             cost nothing.

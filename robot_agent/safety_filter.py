@@ -317,7 +317,7 @@ class SafetyFilter:
         lim_plain = d_plain + reach + _TOL
         two_over_g = 2.0 / gamma
         quick = self._d_coop + self._l + self._vnb * self._max_age + rho + 2.0 * reach + _TOL
-        pl = None  # the own frame's anchor (reference point, heading, age): "Shared-frame plane"
+        pl = None  # own frame anchor (ref. point, heading, age): robot_agent.safety_plane
         # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
         gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
         if frame is not None:

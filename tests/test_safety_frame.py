@@ -2,7 +2,7 @@
 
 Two cooperative robots measured in the same camera frame keep to the two sides of that frame's
 separating plane, each answering for its own motion since the frame. The proof
-(robot_agent/safety_filter.py, "Shared-frame plane") rests on: the two robots compute exactly
+(robot_agent/safety_plane.py) rests on: the two robots compute exactly
 complementary constraints from the same frame (any anchors, any noise, any split); each robot's
 ``G`` obeys ``G(t + dt) >= (1 - gamma dt) G(t)``; a robot that stops keeps its ``G``. These tests
 try to break each of those, and the fallbacks (a different frame, an old frame, a robot that was
