@@ -220,8 +220,8 @@ class TrackingController:
     integrator can only know about saturation it has already seen).
     """
 
-    __slots__ = ("_ilim", "_kp", "_kp_inv_ti", "_kp_td", "_limited", "_tau", "_vmax", "_x",
-                 "_y", "last_valid")  # fmt: skip
+    __slots__ = ("_ilim", "_kp", "_kp_inv_ti", "_kp_td", "_last", "_limited", "_tau", "_vmax",
+                 "_x", "_y", "last_valid")  # fmt: skip
 
     def __init__(self, gains: TrackingGains) -> None:
         self._x = AxisPID(gains)
@@ -235,17 +235,35 @@ class TrackingController:
         self._ilim = ax._ilim
         self._vmax = float(gains.max_ref_speed_mps)
         self._limited = False
+        # (ex, ey, d_x, d_y, dt, frozen, limited_x, limited_y) of the last inlined update, not
+        # yet written into the axes' snapshot fields (None: nothing pending)
+        self._last: tuple[float, float, float, float, float, bool, bool, bool] | None = None
         #: False if the last update had non-finite input or output and returned (0, 0).
         self.last_valid = True
+
+    def _sync(self) -> None:
+        """Write the last inlined update's snapshot fields into the axes."""
+        last = self._last
+        if last is not None:
+            self._last = None
+            ex, ey, dx, dy, dt_s, freeze, limx, limy = last
+            for pid, e, d, lim in ((self._x, ex, dx, limx), (self._y, ey, dy, limy)):
+                pid._last_error = e
+                pid._last_d = d
+                pid._last_dt = dt_s
+                pid._last_frozen = freeze
+                pid._last_limited = lim
 
     @property
     def x(self) -> AxisPID:
         """The x-axis PID."""
+        self._sync()
         return self._x
 
     @property
     def y(self) -> AxisPID:
         """The y-axis PID."""
+        self._sync()
         return self._y
 
     @property
@@ -255,12 +273,14 @@ class TrackingController:
 
     def reset(self) -> None:
         """Reset both axes (integral and derivative) and the speed-cap flag."""
+        self._last = None
         self._x.reset()
         self._y.reset()
         self._limited = False
 
     def reset_derivative(self) -> None:
         """Reset the derivative state of both axes only (keeps the integrals)."""
+        self._sync()
         self._x.reset_derivative()
         self._y.reset_derivative()
 
@@ -320,11 +340,8 @@ class TrackingController:
             else:  # overflow somewhere: keep the old state, fall back to P + stored I
                 d = 0.0
                 out = kp * ex + kp_inv_ti * integ
-            pidx._last_error = ex
-            pidx._last_d = d
-            pidx._last_dt = dt_s
-            pidx._last_frozen = freeze
-            pidx._last_limited = limited
+            dx = d
+            limx = limited
             ux = ff_vx + out
             # --- y axis
             pidy = self._y
@@ -354,13 +371,13 @@ class TrackingController:
             else:  # overflow somewhere: keep the old state, fall back to P + stored I
                 d = 0.0
                 out = kp * ey + kp_inv_ti * integ
-            pidy._last_error = ey
-            pidy._last_d = d
-            pidy._last_dt = dt_s
-            pidy._last_frozen = freeze
-            pidy._last_limited = limited
+            dy = d
+            limy = limited
             uy = ff_vy + out
+            # the axes' snapshot fields, written into them only when read (``_sync``)
+            self._last = (ex, ey, dx, dy, dt_s, freeze, limx, limy)
         else:
+            self._last = None
             ux = ff_vx + self._x.update(ex, dt_s, freeze)
             uy = ff_vy + self._y.update(ey, dt_s, freeze)
         speed = _hypot(ux, uy)
@@ -378,4 +395,5 @@ class TrackingController:
 
     def snapshot(self) -> tuple[PIDInfo, PIDInfo]:
         """``(PIDInfo x, PIDInfo y)`` of the last update."""
+        self._sync()
         return self._x.snapshot(), self._y.snapshot()
