@@ -93,7 +93,7 @@ from .firmware_types import (  # noqa: F401  (moved to firmware_types.py; re-exp
 )
 from .kinematics import saturate_wheels
 from .params import AgentConfig
-from .repulsion import repulsion_velocity_counted
+from .repulsion import repulsion_raw
 from .safety_filter import Neighbour, SafetyFilter
 from .tracking import TrackingController
 
@@ -137,6 +137,10 @@ class Firmware(_FirmwareModes):
         "_max_dt",
         "_pose_age",
         "_rep",
+        "_rep_cap",
+        "_rep_d0",
+        "_rep_inv_d0",
+        "_rep_k",
         "_rep_on",
         "_role_changes",
         "_saturated",
@@ -163,6 +167,11 @@ class Firmware(_FirmwareModes):
         self._wmax = cfg.geometry.max_wheel_radps
         self._rep = cfg.repulsion
         self._rep_on = cfg.repulsion.enabled
+        # the repulsion parameters read once (repulsion_raw, the per-tick call)
+        self._rep_k = cfg.repulsion.k_rep
+        self._rep_d0 = cfg.repulsion.influence_m
+        self._rep_inv_d0 = 1.0 / self._rep_d0
+        self._rep_cap = cfg.repulsion.max_speed_mps
         self._stale_pose = cfg.safety.stale_pose_s
         self._stale_sp = cfg.safety.stale_setpoint_s
         self._max_dt = cfg.safety.max_dt_s
@@ -268,8 +277,6 @@ class Firmware(_FirmwareModes):
             est = self._est
             got: tuple[float, float, float, float] | None = None
             if est is not None:
-                seg_t = _NAN  # no twist this tick
-                v = w = 0.0
                 odo = False
                 if wheel_speeds is not None and last is not None:
                     # measured wheel speeds over [last, now_s) (eq 7)
@@ -284,9 +291,11 @@ class Firmware(_FirmwareModes):
                     if ok:
                         seg_t = last
                         odo = True
-                    elif now_s > last:
+                    else:
+                        seg_t = _NAN  # no twist this tick
                         v = w = 0.0
-                        self.reject("bad wheel speeds")
+                        if now_s > last:
+                            self.reject("bad wheel speeds")
                 else:
                     pending = self._pending_cmd
                     if pending is not None:
@@ -294,6 +303,9 @@ class Firmware(_FirmwareModes):
                         r = self._wheel_r
                         v = 0.5 * r * (pwr + pwl)
                         w = 0.5 * r * (pwr - pwl) / self._half_track
+                    else:
+                        seg_t = _NAN  # no twist this tick
+                        v = w = 0.0
                 self._pending_cmd = None
                 cap: float | None = None
                 if pose is not None and pose is not self._fused_pose:
@@ -402,9 +414,9 @@ class Firmware(_FirmwareModes):
 
             # --- safety: repulsion at the axle centre, added to the ref-point velocity ------
             if self._rep_on and (neighbours or obstacles):
-                rvx, rvy, skipped = repulsion_velocity_counted(
-                    x, y, neighbours, obstacles, self._rep
-                )
+                rvx, rvy, skipped = repulsion_raw(x, y, neighbours, obstacles, self._rep_k,
+                                                  self._rep_d0, self._rep_inv_d0,
+                                                  self._rep_cap)  # fmt: skip
                 if skipped:
                     self._rejected += skipped
                     self._rej_reason = "non-finite neighbour or obstacle"
