@@ -24,6 +24,7 @@ import platform
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +49,8 @@ GOAL_US = 10.0
 # --estimator: the firmware with its pose estimator, fed a camera pose captured --latency-ms ago
 # (default 40) and encoder speeds every tick (a fused camera pose, odometry and the latency
 # compensation on every tick: the costly case).
-_CFG = AgentConfig()
+_CFG_OFF = AgentConfig(estimator=EstimatorParams(enabled=False))  # the firmware of before
+_CFG = _CFG_OFF
 _EST_KW: dict[str, Any] = {}
 LATENCY_S = [0.04]
 DT_S = 0.02
@@ -164,8 +166,9 @@ def _loop_us(fn: Callable[[], object], n: int) -> float:
 
 
 def breakdown(n: int) -> dict[str, float]:
-    """Per-stage mean cost (us) of one call, each in its own tight loop."""
-    cfg = AgentConfig()
+    """Per-stage mean cost (us) of one call, each in its own tight loop (the stages and the
+    whole-tick lines without the estimator; with ``--estimator`` also the lines with it)."""
+    cfg = _CFG_OFF
     g = cfg.geometry
     poses, sps, nbrs = _inputs(4)
     pose, sp, nb = poses[1], sps[1], nbrs[1]
@@ -205,6 +208,33 @@ def breakdown(n: int) -> dict[str, float]:
 
         lat = LATENCY_S[0]
         parts[f"Estimator.tick (odometry, {lat * 1e3:g} ms old pose)"] = _loop_us(est_tick, n)
+        # whole ticks of the --estimator run (its inputs: a new camera pose every tick, encoder
+        # speeds) next to the same ticks with the safety filter off and with no new camera pose
+        # (the pose object of the tick before presented again: odometry only): the difference
+        # is what the filter / the fusion costs inside the step
+        ring_sp, ring_nb = _inputs(RING)[1:]
+
+        def whole(cfg_w: AgentConfig, new_pose: bool) -> Callable[[], object]:
+            fw_w = Firmware(cfg_w)
+            st = [0, 0]  # tick, tick of the pose presented
+
+            def tick() -> object:
+                k = st[0] = st[0] + 1
+                if new_pose or k % 50 == 0:  # else a new pose every 50th tick (inside the bound)
+                    st[1] = k
+                kp = st[1]
+                now = k * DT_S
+                j = k % RING
+                return fw_w.step(now, pose=ring[kp % RING], pose_rx_s=now, setpoint=ring_sp[j],
+                                 setpoint_rx_s=now, neighbours=ring_nb[j],
+                                 pose_capture_s=kp * DT_S - lat, wheel_speeds=_WHEELS)  # fmt: skip
+
+            return tick
+
+        off = replace(_CFG, safety_filter=replace(_CFG.safety_filter, enabled=False))
+        parts["Firmware.step --estimator (whole tick)"] = _loop_us(whole(_CFG, True), n)
+        parts["  the same, safety filter off"] = _loop_us(whole(off, True), n)
+        parts["  the same, no new camera pose"] = _loop_us(whole(_CFG, False), n)
     return parts | {
         "reference_point (eqs 10-11)": _loop_us(
             lambda: reference_point(pose.x, pose.y, pose.theta, g.ref_offset_m), n
@@ -266,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
     parts = breakdown(max(10_000, ticks // 4))
     print("breakdown (mean per call, tight loop):")
     for name, us in parts.items():
-        print(f"  {name:<42s} {us:6.2f} us")
+        print(f"  {name:<44s} {us:6.2f} us")
     verdict = "PASS" if stats["p50_us"] < GOAL_US else "OVER"
     print(
         f"bench_firmware: step mean={stats['mean_us']:.2f} us p50={stats['p50_us']:.2f} us "

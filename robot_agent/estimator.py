@@ -154,6 +154,7 @@ class Estimator(_EstimatorMath):
         "_b_odom",
         "_fut_tol",
         "_gate",
+        "_gate2",
         "_hist",
         "_last_odom_t",
         "_max_lat",
@@ -186,6 +187,7 @@ class Estimator(_EstimatorMath):
         self._b_odom = p.max_dropout_odom_s
         self._fut_tol = p.future_tolerance_s
         self._gate = p.gate_m
+        self._gate2 = p.gate_m * p.gate_m
         self._hist = p.history_s
         self._max_lat = p.max_latency_s
         self._max_unc = p.max_uncertainty_m
@@ -435,8 +437,13 @@ class Estimator(_EstimatorMath):
                 dx = x - px
                 dy = y - py
                 rp = self._r_pos
-                g = self._gate + self._nsig * _sqrt(pp + rp)
-                if dx * dx + dy * dy > g * g:
+                d2 = dx * dx + dy * dy
+                if d2 > self._gate2:  # else inside the gate without its sqrt (g >= gate_m)
+                    g = self._gate + self._nsig * _sqrt(pp + rp)
+                    jump = d2 > g * g
+                else:
+                    jump = False
+                if jump:
                     self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
                 else:
                     # _fuse and _anchor inlined
