@@ -18,7 +18,7 @@ In TRACKING the controller can still fail (overflow from absurd but finite input
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
 
-Estimator (``config.estimator.enabled``, off by default; ``robot_agent/estimator.py``): every
+Estimator (``config.estimator.enabled``, on by default; ``robot_agent/estimator.py``): every
 tick, in any mode, a new ``Pose`` object (each object once) is fused at its capture time
 ``pose_capture_s`` (the shell's clock; ``pose_rx_s`` when not given) and the encoder speeds
 ``wheel_speeds`` (mean over the interval since the previous tick) extend the odometry; the
