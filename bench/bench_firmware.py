@@ -11,8 +11,14 @@ loops; and one result line::
 The verdict compares the wall-clock p50 with the 10 us goal (the mean is inflated by any
 preemption on a busy machine; both are printed).
 
-Run: ``.venv/bin/python bench/bench_firmware.py [--ticks N] [--json]``. This is a measurement,
-not a test: it never fails on speed (the exit code is 0 unless it crashes).
+Without ``--estimator`` the firmware runs with ``EstimatorParams(enabled=False)`` (the firmware
+of before, the anchor of the issue 2 / 14 rows; the estimator is on by default since session 4).
+``--estimator`` adds whole-tick medians of the same inputs with the safety filter off and with no
+new camera pose (odometry only): their differences from the whole tick are what the filter and
+the fusion of a camera pose cost inside the step.
+
+Run: ``.venv/bin/python bench/bench_firmware.py [--ticks N] [--json] [--estimator]``. This is a
+measurement, not a test: it never fails on speed (the exit code is 0 unless it crashes).
 """
 
 from __future__ import annotations
