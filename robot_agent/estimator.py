@@ -408,12 +408,7 @@ class Estimator(_EstimatorMath):
                 if not -_PI < theta <= _PI:
                     theta = _wrap(theta)
                 # the chain at t_s (_chain_at inlined: usually a node, no arc)
-                j = len(nt) - 1
-                lim = t_s + _TINY_S
-                if j >= 0 and nt[j] > lim:
-                    j -= 1
-                    if j >= 0 and nt[j] > lim:
-                        j = bisect_right(nt, lim) - 1
+                j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
                 if j < 0:
                     st = self._chain_at(t_s)
                 else:

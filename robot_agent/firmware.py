@@ -128,6 +128,7 @@ class Firmware(_FirmwareModes):
         "_filter_on",
         "_fused_pose",
         "_geom",
+        "_half_r",
         "_half_track",
         "_have_setpoint",
         "_l",
@@ -163,6 +164,7 @@ class Firmware(_FirmwareModes):
         self._geom = cfg.geometry
         self._half_track = cfg.geometry.half_track_m
         self._wheel_r = cfg.geometry.wheel_radius_m
+        self._half_r = 0.5 * self._wheel_r  # eq 7's 0.5 * r (the same bits as inline)
         self._l = cfg.geometry.ref_offset_m
         self._wmax = cfg.geometry.max_wheel_radps
         self._rep = cfg.repulsion
@@ -275,16 +277,16 @@ class Firmware(_FirmwareModes):
             # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current): one
             # Estimator.tick per step (twist, camera pose, estimate at now_s) -----------------
             est = self._est
-            got: tuple[float, float, float, float] | None = None
+            got: tuple[float, float, float, float] | None  # set where est is not None
             if est is not None:
                 odo = False
                 if wheel_speeds is not None and last is not None:
                     # measured wheel speeds over [last, now_s) (eq 7)
                     try:
                         wr, wl = wheel_speeds
-                        r = self._wheel_r
-                        v = 0.5 * r * (wr + wl)
-                        w = 0.5 * r * (wr - wl) / self._half_track
+                        hr = self._half_r
+                        v = hr * (wr + wl)
+                        w = hr * (wr - wl) / self._half_track
                         ok = now_s > last and _isfinite(v + w)  # (also catches overflow)
                     except (TypeError, ValueError):
                         ok = False
@@ -300,28 +302,27 @@ class Firmware(_FirmwareModes):
                     pending = self._pending_cmd
                     if pending is not None:
                         seg_t, pwr, pwl = pending
-                        r = self._wheel_r
-                        v = 0.5 * r * (pwr + pwl)
-                        w = 0.5 * r * (pwr - pwl) / self._half_track
+                        hr = self._half_r
+                        v = hr * (pwr + pwl)
+                        w = hr * (pwr - pwl) / self._half_track
                     else:
                         seg_t = _NAN  # no twist this tick
                         v = w = 0.0
                 self._pending_cmd = None
-                cap: float | None = None
                 if pose is not None and pose is not self._fused_pose:
                     self._fused_pose = pose
                     mx, my, mth, mt = pose
                     if _isfinite(mt):
                         cap = pose_rx_s if pose_capture_s is None else pose_capture_s
-                    else:
-                        self.reject("non-finite pose")
-                    got = est.tick(now_s, seg_t, v, w, odo, cap, mx, my, mth)
-                    if cap is not None:
+                        got = est.tick(now_s, seg_t, v, w, odo, cap, mx, my, mth)
                         reason = est.last_reason
                         if reason is None:
                             self._last_pose_t = mt
                         else:
                             self.reject(reason)
+                    else:
+                        self.reject("non-finite pose")
+                        got = est.tick(now_s, seg_t, v, w, odo, None, mx, my, mth)
                 else:
                     got = est.tick(now_s, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
 
