@@ -11,8 +11,14 @@ loops; and one result line::
 The verdict compares the wall-clock p50 with the 10 us goal (the mean is inflated by any
 preemption on a busy machine; both are printed).
 
-Run: ``.venv/bin/python bench/bench_firmware.py [--ticks N] [--json]``. This is a measurement,
-not a test: it never fails on speed (the exit code is 0 unless it crashes).
+Without ``--estimator`` the firmware runs with ``EstimatorParams(enabled=False)`` (the firmware
+of before, the anchor of the issue 2 / 14 rows; the estimator is on by default since session 4).
+``--estimator`` adds whole-tick medians of the same inputs with the safety filter off and with no
+new camera pose (odometry only): their differences from the whole tick are what the filter and
+the fusion of a camera pose cost inside the step.
+
+Run: ``.venv/bin/python bench/bench_firmware.py [--ticks N] [--json] [--estimator]``. This is a
+measurement, not a test: it never fails on speed (the exit code is 0 unless it crashes).
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import platform
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +55,8 @@ GOAL_US = 10.0
 # --estimator: the firmware with its pose estimator, fed a camera pose captured --latency-ms ago
 # (default 40) and encoder speeds every tick (a fused camera pose, odometry and the latency
 # compensation on every tick: the costly case).
-_CFG = AgentConfig()
+_CFG_OFF = AgentConfig(estimator=EstimatorParams(enabled=False))  # the firmware of before
+_CFG = _CFG_OFF
 _EST_KW: dict[str, Any] = {}
 LATENCY_S = [0.04]
 DT_S = 0.02
@@ -163,9 +171,23 @@ def _loop_us(fn: Callable[[], object], n: int) -> float:
     return max(0.0, (best - base) / n / 1000.0)
 
 
+def _p50_us(fn: Callable[[], object], n: int) -> float:
+    """Median wall time (us) of one ``fn()`` call over ``n`` calls, each timed (robust to the
+    preemption a tight loop's mean takes in on a busy machine; the timer pair included)."""
+    clock = time.perf_counter_ns
+    samples = [0] * n
+    for k in range(n):
+        t0 = clock()
+        fn()
+        samples[k] = clock() - t0
+    samples.sort()
+    return _percentile(samples, 0.5)
+
+
 def breakdown(n: int) -> dict[str, float]:
-    """Per-stage mean cost (us) of one call, each in its own tight loop."""
-    cfg = AgentConfig()
+    """Per-stage mean cost (us) of one call, each in its own tight loop (the stages and the
+    whole-tick lines without the estimator; with ``--estimator`` also the lines with it)."""
+    cfg = _CFG_OFF
     g = cfg.geometry
     poses, sps, nbrs = _inputs(4)
     pose, sp, nb = poses[1], sps[1], nbrs[1]
@@ -205,6 +227,33 @@ def breakdown(n: int) -> dict[str, float]:
 
         lat = LATENCY_S[0]
         parts[f"Estimator.tick (odometry, {lat * 1e3:g} ms old pose)"] = _loop_us(est_tick, n)
+        # whole ticks of the --estimator run (its inputs: a new camera pose every tick, encoder
+        # speeds) next to the same ticks with the safety filter off and with no new camera pose
+        # (the pose object of the tick before presented again: odometry only): the difference
+        # is what the filter / the fusion costs inside the step
+        ring_sp, ring_nb = _inputs(RING)[1:]
+
+        def whole(cfg_w: AgentConfig, new_pose: bool) -> Callable[[], object]:
+            fw_w = Firmware(cfg_w)
+            st = [0, 0]  # tick, tick of the pose presented
+
+            def tick() -> object:
+                k = st[0] = st[0] + 1
+                if new_pose or k % 50 == 0:  # else a new pose every 50th tick (inside the bound)
+                    st[1] = k
+                kp = st[1]
+                now = k * DT_S
+                j = k % RING
+                return fw_w.step(now, pose=ring[kp % RING], pose_rx_s=now, setpoint=ring_sp[j],
+                                 setpoint_rx_s=now, neighbours=ring_nb[j],
+                                 pose_capture_s=kp * DT_S - lat, wheel_speeds=_WHEELS)  # fmt: skip
+
+            return tick
+
+        off = replace(_CFG, safety_filter=replace(_CFG.safety_filter, enabled=False))
+        parts["Firmware.step --estimator (whole tick, p50)"] = _p50_us(whole(_CFG, True), n)
+        parts["  the same, safety filter off (p50)"] = _p50_us(whole(off, True), n)
+        parts["  the same, no new camera pose (p50)"] = _p50_us(whole(_CFG, False), n)
     return parts | {
         "reference_point (eqs 10-11)": _loop_us(
             lambda: reference_point(pose.x, pose.y, pose.theta, g.ref_offset_m), n
@@ -266,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     parts = breakdown(max(10_000, ticks // 4))
     print("breakdown (mean per call, tight loop):")
     for name, us in parts.items():
-        print(f"  {name:<42s} {us:6.2f} us")
+        print(f"  {name:<44s} {us:6.2f} us")
     verdict = "PASS" if stats["p50_us"] < GOAL_US else "OVER"
     print(
         f"bench_firmware: step mean={stats['mean_us']:.2f} us p50={stats['p50_us']:.2f} us "

@@ -154,6 +154,7 @@ class Estimator(_EstimatorMath):
         "_b_odom",
         "_fut_tol",
         "_gate",
+        "_gate2",
         "_hist",
         "_last_odom_t",
         "_max_lat",
@@ -186,6 +187,7 @@ class Estimator(_EstimatorMath):
         self._b_odom = p.max_dropout_odom_s
         self._fut_tol = p.future_tolerance_s
         self._gate = p.gate_m
+        self._gate2 = p.gate_m * p.gate_m
         self._hist = p.history_s
         self._max_lat = p.max_latency_s
         self._max_unc = p.max_uncertainty_m
@@ -406,12 +408,7 @@ class Estimator(_EstimatorMath):
                 if not -_PI < theta <= _PI:
                     theta = _wrap(theta)
                 # the chain at t_s (_chain_at inlined: usually a node, no arc)
-                j = len(nt) - 1
-                lim = t_s + _TINY_S
-                if j >= 0 and nt[j] > lim:
-                    j -= 1
-                    if j >= 0 and nt[j] > lim:
-                        j = bisect_right(nt, lim) - 1
+                j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
                 if j < 0:
                     st = self._chain_at(t_s)
                 else:
@@ -424,22 +421,24 @@ class Estimator(_EstimatorMath):
                             self._head = (t_s, n, st)
                 # the prior through the newest anchor's frame (_prior inlined)
                 ox, oy, oth, d_, tu, q = st
-                a = anch[-1]
-                c, s, tx, ty, fa = a[9]
-                _, _, _, ad, atu, aq = a[10]
-                ppth = a[5]
+                at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
                 dist = d_ - ad
                 px = c * ox - s * oy + tx
                 py = s * ox + c * oy + ty
                 pth = oth + fa
-                pp = a[4] + (q - aq) + ppth * dist * dist
+                pp = app + (q - aq) + ppth * dist * dist
                 ppth = (ppth + self._q_rad * 2.0 * (tu - atu) + self._q_thm * dist
-                        + self._q_ths * (t_s - a[0]))  # fmt: skip
+                        + self._q_ths * (t_s - at))  # fmt: skip
                 dx = x - px
                 dy = y - py
                 rp = self._r_pos
-                g = self._gate + self._nsig * _sqrt(pp + rp)
-                if dx * dx + dy * dy > g * g:
+                d2 = dx * dx + dy * dy
+                if d2 > self._gate2:  # else inside the gate without its sqrt (g >= gate_m)
+                    g = self._gate + self._nsig * _sqrt(pp + rp)
+                    jump = d2 > g * g
+                else:
+                    jump = False
+                if jump:
                     self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
                 else:
                     # _fuse and _anchor inlined
@@ -461,8 +460,8 @@ class Estimator(_EstimatorMath):
                     c = _cos(fa)
                     s = _sin(fa)
                     anch.append((t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
-                                 (c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa),
-                                 st))  # fmt: skip
+                                 c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa, d_, tu,
+                                 q))  # fmt: skip
                     anch_t.append(t_s)
                     if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
                         self._trim(now_s)
@@ -473,7 +472,8 @@ class Estimator(_EstimatorMath):
         if not anch:
             return None
         a = anch[-1]
-        age = now_s - a[0]
+        at = a[0]
+        age = now_s - at
         bound = self._b_odom if now_s - self._last_odom_t <= self._odom_to else self._b_cmd
         if not age <= bound:  # also False for NaN
             return None
@@ -482,18 +482,36 @@ class Estimator(_EstimatorMath):
         else:
             if nt and nt[-1] <= now_s + _TINY_S:
                 n = nodes[-1]
-                dt = now_s - n[0]
-                st = n[1] if dt < _TINY_S else _arc(n, dt)
+                nt0, st, v, w, _, qm, qs = n
+                dt = now_s - nt0
+                if dt < _TINY_S:
+                    ox, oy, oth, d_, tu, q = st
+                else:  # _arc(n, dt) inlined
+                    ox, oy, oth, d_, tu, q = st
+                    h = w * dt * 0.5
+                    if -0.1 < h < 0.1:  # _sinc inlined
+                        h2 = h * h
+                        chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
+                    else:
+                        chord = v * dt * (_sin(h) / h)
+                    mid = oth + h
+                    d = v * dt if v >= 0.0 else -v * dt
+                    ox = ox + chord * _cos(mid)
+                    oy = oy + chord * _sin(mid)
+                    oth = mid + h
+                    d_ = d_ + d
+                    tu = tu + (h if h >= 0.0 else -h)
+                    q = q + (qm * d + qs * dt)
+                    st = (ox, oy, oth, d_, tu, q)
                 self._head = (now_s, n, st)
             else:
-                st = self._chain_at(now_s)
-            ox, oy, oth, d_, tu, q = st
-            c, s, tx, ty, fa = a[9]
-            dist = d_ - a[10][3]
+                ox, oy, oth, d_, tu, q = self._chain_at(now_s)
+            _, _, _, _, app, appth, _, _, _, c, s, tx, ty, fa, ad, _, aq = a
+            dist = d_ - ad
             ex = c * ox - s * oy + tx
             ey = s * ox + c * oy + ty
             eth = oth + fa
-            pp = a[4] + (q - a[10][5]) + a[5] * dist * dist
+            pp = app + (q - aq) + appth * dist * dist
             if not -_PI < eth <= _PI:
                 eth = _wrap(eth)
         u = self._nsig * _sqrt(pp)

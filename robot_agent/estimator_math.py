@@ -21,16 +21,18 @@ Each fused camera pose is an **anchor**: the posterior (x, y, theta, P, Pth) at 
 in the world, the measurement, and the *correction frame* that maps the chain onto the world
 from that capture on (a rotation by ``A`` and a translation)::
 
-    anchor   = (t, x, y, th, P, Pth, zx, zy, zth, frame, state),  frame = (cos A, sin A, tx, ty, A)
+    anchor   = (t, x, y, th, P, Pth, zx, zy, zth, cos A, sin A, tx, ty, A, D, TU, Q)
     world(t) = R(A) chain(t) + (tx, ty),  theta = chain_theta(t) + A     (t >= anchor.t)
 
-The unicycle's motion over a twist is the same in any rigid frame, so this is the pose a
-propagation from the anchor gives (equal to rounding). The estimate at ``now`` is then one arc
-(from the newest node) and a rigid transform, whatever the camera latency; a camera pose's prior
-is the chain at its capture time (usually a node: no arc) through the frame before it. A change
-of the twists from ``t`` on rebuilds the nodes from ``t`` and re-fuses the anchors after it (the
-oldest kept anchor is re-based: same posterior, frame recomputed on the new chain); a late camera
-pose re-fuses the anchors after it. Live and batch runs do the same operations in the same order.
+(one flat tuple: the correction frame ``(cos A, sin A, tx, ty, A)`` and the chain's running sums
+``D, TU, Q`` at the capture inline). The unicycle's motion over a twist is the same in any rigid
+frame, so this is the pose a propagation from the anchor gives (equal to rounding). The estimate
+at ``now`` is then one arc (from the newest node) and a rigid transform, whatever the camera
+latency; a camera pose's prior is the chain at its capture time (usually a node: no arc) through
+the frame before it. A change of the twists from ``t`` on rebuilds the nodes from ``t`` and
+re-fuses the anchors after it (the oldest kept anchor is re-based: same posterior, frame
+recomputed on the new chain); a late camera pose re-fuses the anchors after it. Live and batch
+runs do the same operations in the same order.
 """
 
 from __future__ import annotations
@@ -55,10 +57,12 @@ _TINY_S = 1e-9
 _State = tuple[float, float, float, float, float, float]
 # node tuple fields: (t, state, v, omega, measured, q_m, q_s)
 _Node = tuple[float, _State, float, float, bool, float, float]
-# correction frame: (cos A, sin A, tx, ty, A)
-_Frame = tuple[float, float, float, float, float]
-# anchor tuple fields: (t, x, y, th, P, Pth, zx, zy, zth, frame, state)
-_Anchor = tuple[float, float, float, float, float, float, float, float, float, _Frame, _State]
+# anchor tuple fields (flat): (t, x, y, th, P, Pth, zx, zy, zth, cos A, sin A, tx, ty, A, D, TU,
+# Q): the posterior, the measurement, the correction frame and the chain's sums at t
+_Anchor = tuple[
+    float, float, float, float, float, float, float, float, float,
+    float, float, float, float, float, float, float, float,
+]  # fmt: skip
 
 
 def _wrap(a: float) -> float:
@@ -208,24 +212,22 @@ class _EstimatorMath:
     ) -> _Anchor:
         """The anchor of the posterior ``(x, y, th, pp, ppth)`` at ``t`` on chain state ``st``:
         its correction frame maps ``st`` onto the posterior."""
-        ox, oy, oth, _, _, _ = st
+        ox, oy, oth, d_, tu, q = st
         a = th - oth
         c = _cos(a)
         s = _sin(a)
         return (t, x, y, th, pp, ppth, zx, zy, zth,
-                (c, s, x - (c * ox - s * oy), y - (s * ox + c * oy), a), st)  # fmt: skip
+                c, s, x - (c * ox - s * oy), y - (s * ox + c * oy), a, d_, tu, q)  # fmt: skip
 
     def _prior(self, a: _Anchor, t: float, st: _State) -> tuple[float, float, float, float, float]:
         """Anchor ``a`` propagated to ``t`` (chain state ``st``): (x, y, theta, P, Pth)."""
         ox, oy, oth, d_, tu, q = st
-        c, s, tx, ty, fa = a[9]
-        _, _, _, ad, atu, aq = a[10]
-        ppth = a[5]
+        at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = a
         dist = d_ - ad
         return (c * ox - s * oy + tx, s * ox + c * oy + ty, oth + fa,
-                a[4] + (q - aq) + ppth * dist * dist,
+                app + (q - aq) + ppth * dist * dist,
                 ppth + self._q_rad * 2.0 * (tu - atu) + self._q_thm * dist
-                + self._q_ths * (t - a[0]))  # fmt: skip
+                + self._q_ths * (t - at))  # fmt: skip
 
     def _init(self, t_s: float, x: float, y: float, theta: float) -> None:
         st = self._chain_at(t_s)

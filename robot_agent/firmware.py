@@ -18,7 +18,7 @@ In TRACKING the controller can still fail (overflow from absurd but finite input
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
 
-Estimator (``config.estimator.enabled``, off by default; ``robot_agent/estimator.py``): every
+Estimator (``config.estimator.enabled``, on by default; ``robot_agent/estimator.py``): every
 tick, in any mode, a new ``Pose`` object (each object once) is fused at its capture time
 ``pose_capture_s`` (the shell's clock; ``pose_rx_s`` when not given) and the encoder speeds
 ``wheel_speeds`` (mean over the interval since the previous tick) extend the odometry; the
@@ -93,7 +93,7 @@ from .firmware_types import (  # noqa: F401  (moved to firmware_types.py; re-exp
 )
 from .kinematics import saturate_wheels
 from .params import AgentConfig
-from .repulsion import repulsion_velocity_counted
+from .repulsion import repulsion_raw
 from .safety_filter import Neighbour, SafetyFilter
 from .tracking import TrackingController
 
@@ -128,6 +128,7 @@ class Firmware(_FirmwareModes):
         "_filter_on",
         "_fused_pose",
         "_geom",
+        "_half_r",
         "_half_track",
         "_have_setpoint",
         "_l",
@@ -137,6 +138,10 @@ class Firmware(_FirmwareModes):
         "_max_dt",
         "_pose_age",
         "_rep",
+        "_rep_cap",
+        "_rep_d0",
+        "_rep_inv_d0",
+        "_rep_k",
         "_rep_on",
         "_role_changes",
         "_saturated",
@@ -160,10 +165,16 @@ class Firmware(_FirmwareModes):
         self._geom = cfg.geometry
         self._half_track = cfg.geometry.half_track_m
         self._wheel_r = cfg.geometry.wheel_radius_m
+        self._half_r = 0.5 * self._wheel_r  # eq 7's 0.5 * r (the same bits as inline)
         self._l = cfg.geometry.ref_offset_m
         self._wmax = cfg.geometry.max_wheel_radps
         self._rep = cfg.repulsion
         self._rep_on = cfg.repulsion.enabled
+        # the repulsion parameters read once (repulsion_raw, the per-tick call)
+        self._rep_k = cfg.repulsion.k_rep
+        self._rep_d0 = cfg.repulsion.influence_m
+        self._rep_inv_d0 = 1.0 / self._rep_d0
+        self._rep_cap = cfg.repulsion.max_speed_mps
         self._stale_pose = cfg.safety.stale_pose_s
         self._stale_sp = cfg.safety.stale_setpoint_s
         self._max_dt = cfg.safety.max_dt_s
@@ -268,50 +279,52 @@ class Firmware(_FirmwareModes):
             # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current): one
             # Estimator.tick per step (twist, camera pose, estimate at now_s) -----------------
             est = self._est
-            got: tuple[float, float, float, float] | None = None
+            got: tuple[float, float, float, float] | None  # set where est is not None
             if est is not None:
-                seg_t = _NAN  # no twist this tick
-                v = w = 0.0
                 odo = False
                 if wheel_speeds is not None and last is not None:
                     # measured wheel speeds over [last, now_s) (eq 7)
                     try:
                         wr, wl = wheel_speeds
-                        r = self._wheel_r
-                        v = 0.5 * r * (wr + wl)
-                        w = 0.5 * r * (wr - wl) / self._half_track
+                        hr = self._half_r
+                        v = hr * (wr + wl)
+                        w = hr * (wr - wl) / self._half_track
                         ok = now_s > last and _isfinite(v + w)  # (also catches overflow)
                     except (TypeError, ValueError):
                         ok = False
                     if ok:
                         seg_t = last
                         odo = True
-                    elif now_s > last:
+                    else:
+                        seg_t = _NAN  # no twist this tick
                         v = w = 0.0
-                        self.reject("bad wheel speeds")
+                        if now_s > last:
+                            self.reject("bad wheel speeds")
                 else:
                     pending = self._pending_cmd
                     if pending is not None:
                         seg_t, pwr, pwl = pending
-                        r = self._wheel_r
-                        v = 0.5 * r * (pwr + pwl)
-                        w = 0.5 * r * (pwr - pwl) / self._half_track
+                        hr = self._half_r
+                        v = hr * (pwr + pwl)
+                        w = hr * (pwr - pwl) / self._half_track
+                    else:
+                        seg_t = _NAN  # no twist this tick
+                        v = w = 0.0
                 self._pending_cmd = None
-                cap: float | None = None
                 if pose is not None and pose is not self._fused_pose:
                     self._fused_pose = pose
                     mx, my, mth, mt = pose
                     if _isfinite(mt):
                         cap = pose_rx_s if pose_capture_s is None else pose_capture_s
-                    else:
-                        self.reject("non-finite pose")
-                    got = est.tick(now_s, seg_t, v, w, odo, cap, mx, my, mth)
-                    if cap is not None:
+                        got = est.tick(now_s, seg_t, v, w, odo, cap, mx, my, mth)
                         reason = est.last_reason
                         if reason is None:
                             self._last_pose_t = mt
                         else:
                             self.reject(reason)
+                    else:
+                        self.reject("non-finite pose")
+                        got = est.tick(now_s, seg_t, v, w, odo, None, mx, my, mth)
                 else:
                     got = est.tick(now_s, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
 
@@ -404,9 +417,9 @@ class Firmware(_FirmwareModes):
 
             # --- safety: repulsion at the axle centre, added to the ref-point velocity ------
             if self._rep_on and (neighbours or obstacles):
-                rvx, rvy, skipped = repulsion_velocity_counted(
-                    x, y, neighbours, obstacles, self._rep
-                )
+                rvx, rvy, skipped = repulsion_raw(x, y, neighbours, obstacles, self._rep_k,
+                                                  self._rep_d0, self._rep_inv_d0,
+                                                  self._rep_cap)  # fmt: skip
                 if skipped:
                     self._rejected += skipped
                     self._rej_reason = "non-finite neighbour or obstacle"

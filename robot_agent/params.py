@@ -419,12 +419,10 @@ class EstimatorParams:
         enabled: False gives the firmware of before the estimator: the last measured pose is
             used as if current and a pose older than ``SafetyParams.stale_pose_s`` (receive age)
             holds the robot. True: the estimate at ``now`` is used and the robot rides through
-            camera dropouts up to the bounds below. Off by default for now (docs/benchmarks.md,
-            "Issue 16"): the firmware step costs ~2.2x with it (~18 us against ~8 us on the
-            shared bench machine; the < 10 us goal is not met), and with the safety filter the
-            anchor task under latency is not better with it until the filter's neighbour
-            inputs and margin are settled. The firmware tests cover both rules
-            (tests/test_agent_firmware.py), so turning it on is this default alone.
+            camera dropouts up to the bounds below. On by default (docs/benchmarks.md,
+            "Issue 16": the firmware step costs ~2x with it, ~17 us against ~8 us on the shared
+            bench machine, the < 10 us goal is not met). The firmware tests cover both rules
+            (tests/test_agent_firmware.py, tests/test_agent_firmware_inputs.py).
         extrapolate_setpoint: advance a setpoint by its feed-forward velocity over its receive
             age (one tick in lockstep), so a one-tick-old setpoint leaves no steady lag.
         setpoint_lead_s: with ``extrapolate_setpoint``, advance it by this much more (s): the
@@ -460,7 +458,7 @@ class EstimatorParams:
         max_uncertainty_m: an uncertainty above this makes the estimate invalid (m).
     """
 
-    enabled: bool = False
+    enabled: bool = True
     extrapolate_setpoint: bool = True
     setpoint_lead_s: float = 0.0
     history_s: float = 1.5

@@ -73,12 +73,29 @@ def repulsion_velocity_counted(
         of neighbours / obstacles ignored because a coordinate or radius was not finite (or the
         radius negative). ``(0.0, 0.0, 0)`` when disabled or ``px, py`` are not finite.
     """
-    if not params.enabled or not _isfinite(px + py):
+    if not params.enabled:
+        return 0.0, 0.0, 0
+    d0 = params.influence_m
+    return repulsion_raw(px, py, neighbours, obstacles, params.k_rep, d0, 1.0 / d0,
+                         params.max_speed_mps)  # fmt: skip
+
+
+def repulsion_raw(
+    px: float,
+    py: float,
+    neighbours: Iterable[Sequence[float]],
+    obstacles: Iterable[tuple[float, float, float]],
+    k: float,
+    d0: float,
+    inv_d0: float,
+    cap: float,
+) -> tuple[float, float, int]:
+    """``repulsion_velocity_counted`` with the parameters read once (the firmware's per-tick
+    call): gain ``k``, influence ``d0`` (> 0), ``inv_d0 = 1.0 / d0``, cap ``cap``; repulsion
+    enabled."""
+    if not _isfinite(px + py):
         return 0.0, 0.0, 0
     skipped = 0
-    k = params.k_rep
-    d0 = params.influence_m
-    inv_d0 = 1.0 / d0
     sx = 0.0
     sy = 0.0
     for nb in neighbours:  # (x, y) or a longer tuple starting with x, y (safety_filter)
@@ -133,7 +150,6 @@ def repulsion_velocity_counted(
         sy += m * uy
     if sx == 0.0 and sy == 0.0:
         return 0.0, 0.0, skipped
-    cap = params.max_speed_mps
     s = _hypot(sx, sy)  # finite: each term is at most _M_MAX
     if s <= cap:
         return sx, sy, skipped

@@ -220,24 +220,50 @@ class TrackingController:
     integrator can only know about saturation it has already seen).
     """
 
-    __slots__ = ("_limited", "_vmax", "_x", "_y", "last_valid")
+    __slots__ = ("_ilim", "_kp", "_kp_inv_ti", "_kp_td", "_last", "_limited", "_tau", "_vmax",
+                 "_x", "_y", "last_valid")  # fmt: skip
 
     def __init__(self, gains: TrackingGains) -> None:
         self._x = AxisPID(gains)
         self._y = AxisPID(gains)
+        # the gains both axes share, for the inlined per-tick path of ``update``
+        ax = self._x
+        self._kp = ax._kp
+        self._kp_inv_ti = ax._kp_inv_ti
+        self._kp_td = ax._kp_td
+        self._tau = ax._tau
+        self._ilim = ax._ilim
         self._vmax = float(gains.max_ref_speed_mps)
         self._limited = False
+        # (ex, ey, d_x, d_y, dt, frozen, limited_x, limited_y) of the last inlined update, not
+        # yet written into the axes' snapshot fields (None: nothing pending)
+        self._last: tuple[float, float, float, float, float, bool, bool, bool] | None = None
         #: False if the last update had non-finite input or output and returned (0, 0).
         self.last_valid = True
+
+    def _sync(self) -> None:
+        """Write the last inlined update's snapshot fields into the axes."""
+        last = self._last
+        if last is not None:
+            self._last = None
+            ex, ey, dx, dy, dt_s, freeze, limx, limy = last
+            for pid, e, d, lim in ((self._x, ex, dx, limx), (self._y, ey, dy, limy)):
+                pid._last_error = e
+                pid._last_d = d
+                pid._last_dt = dt_s
+                pid._last_frozen = freeze
+                pid._last_limited = lim
 
     @property
     def x(self) -> AxisPID:
         """The x-axis PID."""
+        self._sync()
         return self._x
 
     @property
     def y(self) -> AxisPID:
         """The y-axis PID."""
+        self._sync()
         return self._y
 
     @property
@@ -247,12 +273,14 @@ class TrackingController:
 
     def reset(self) -> None:
         """Reset both axes (integral and derivative) and the speed-cap flag."""
+        self._last = None
         self._x.reset()
         self._y.reset()
         self._limited = False
 
     def reset_derivative(self) -> None:
         """Reset the derivative state of both axes only (keeps the integrals)."""
+        self._sync()
         self._x.reset_derivative()
         self._y.reset_derivative()
 
@@ -275,8 +303,83 @@ class TrackingController:
             self.last_valid = False
             return 0.0, 0.0
         freeze = freeze_integrator or self._limited
-        ux = ff_vx + self._x.update(ex, dt_s, freeze)
-        uy = ff_vy + self._y.update(ey, dt_s, freeze)
+        if 0.0 < dt_s < _INF:
+            # ``AxisPID.update`` of both axes inlined (the per-tick path: the same operations in
+            # the same order, so the same bits; tests/test_agent_tracking.py checks it); the
+            # errors are finite (their sum is)
+            kp = self._kp
+            kp_inv_ti = self._kp_inv_ti
+            kp_td = self._kp_td
+            ilim = self._ilim
+            alpha = dt_s / (self._tau + dt_s)
+            # --- x axis
+            pidx = self._x
+            integ = pidx._integral
+            if pidx._has_prev:
+                edot0 = pidx._edot
+                edot = edot0 + alpha * ((ex - pidx._prev_error) / dt_s - edot0)
+            else:
+                edot = 0.0
+            cand = integ + ex * dt_s
+            limited = False
+            if cand > ilim:
+                cand = ilim
+                limited = True
+            elif cand < -ilim:
+                cand = -ilim
+                limited = True
+            if freeze and abs(cand) > abs(integ):
+                cand = integ
+            d = kp_td * edot
+            out = kp * ex + kp_inv_ti * cand + d
+            if _isfinite(out + edot):  # commit only finite state (PX4 PID.cpp)
+                pidx._integral = cand
+                pidx._edot = edot
+                pidx._prev_error = ex
+                pidx._has_prev = True
+            else:  # overflow somewhere: keep the old state, fall back to P + stored I
+                d = 0.0
+                out = kp * ex + kp_inv_ti * integ
+            dx = d
+            limx = limited
+            ux = ff_vx + out
+            # --- y axis
+            pidy = self._y
+            integ = pidy._integral
+            if pidy._has_prev:
+                edot0 = pidy._edot
+                edot = edot0 + alpha * ((ey - pidy._prev_error) / dt_s - edot0)
+            else:
+                edot = 0.0
+            cand = integ + ey * dt_s
+            limited = False
+            if cand > ilim:
+                cand = ilim
+                limited = True
+            elif cand < -ilim:
+                cand = -ilim
+                limited = True
+            if freeze and abs(cand) > abs(integ):
+                cand = integ
+            d = kp_td * edot
+            out = kp * ey + kp_inv_ti * cand + d
+            if _isfinite(out + edot):  # commit only finite state (PX4 PID.cpp)
+                pidy._integral = cand
+                pidy._edot = edot
+                pidy._prev_error = ey
+                pidy._has_prev = True
+            else:  # overflow somewhere: keep the old state, fall back to P + stored I
+                d = 0.0
+                out = kp * ey + kp_inv_ti * integ
+            dy = d
+            limy = limited
+            uy = ff_vy + out
+            # the axes' snapshot fields, written into them only when read (``_sync``)
+            self._last = (ex, ey, dx, dy, dt_s, freeze, limx, limy)
+        else:
+            self._last = None
+            ux = ff_vx + self._x.update(ex, dt_s, freeze)
+            uy = ff_vy + self._y.update(ey, dt_s, freeze)
         speed = _hypot(ux, uy)
         if not _isfinite(speed):
             self.last_valid = False
@@ -292,4 +395,5 @@ class TrackingController:
 
     def snapshot(self) -> tuple[PIDInfo, PIDInfo]:
         """``(PIDInfo x, PIDInfo y)`` of the last update."""
+        self._sync()
         return self._x.snapshot(), self._y.snapshot()

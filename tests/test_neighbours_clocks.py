@@ -239,7 +239,8 @@ def test_coordinator_keeps_robots_for_the_estimators_dropout_bound_like_the_simu
     sc = load("paper-exp1")
     est = replace(sc.agent.estimator, enabled=True, max_dropout_cmd_s=0.35)
     on = sc.with_overrides(agent=replace(sc.agent, estimator=est))
-    assert pose_stale_s(sc.agent, odometry=False) == sc.agent.safety.stale_pose_s
+    off = replace(sc.agent, estimator=replace(est, enabled=False))
+    assert pose_stale_s(off, odometry=False) == sc.agent.safety.stale_pose_s
     assert pose_stale_s(on.agent, odometry=False) == 0.35
     assert pose_stale_s(on.agent, odometry=True) == max(
         est.max_dropout_odom_s, sc.agent.safety.stale_pose_s
