@@ -440,6 +440,13 @@ class RunCollector:
         return int(min(self._truth))
 
     @property
+    def last_truth_tick(self) -> int | None:
+        """Lockstep: the latest tick whose truth arrived (None in realtime or before any)."""
+        if self._last_truth_key is None or self.dt_s is None:
+            return None
+        return round(self._last_truth_key)
+
+    @property
     def last_clock_tick(self) -> int | None:
         return None if self._last_clock is None else self._last_clock.tick
 

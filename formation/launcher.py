@@ -28,6 +28,9 @@ from formation.up_results import write_results
 from formation.up_view import RunDisplay
 
 DRAIN_S: Final = 0.25
+LOCKSTEP_DRAIN_MAX_S: Final = 30.0
+"""Lockstep: how long (wall s) the launcher waits, after the plant ran its duration, for the
+plant's last tick to reach the collector (an overloaded machine can hold samples for seconds)."""
 """Lockstep: time given to the last messages in flight after the plant ended, seconds."""
 REALTIME_END_GRACE_S: Final = 1.5
 """Realtime: how long after --duration the launcher stops a plant that did not end the run."""
@@ -290,6 +293,28 @@ class _Launcher:
                         self.first_truth_rx = now
                     self.last_truth_rx = now
 
+    async def _drain_lockstep(self) -> None:
+        """Lockstep, after the plant ran its duration: wait until the collector holds the
+        plant's last tick (a condition, not a time: the result of a lockstep run must not depend
+        on how loaded the machine is), then :data:`DRAIN_S` for the other nodes' last samples.
+        Bounded by :data:`LOCKSTEP_DRAIN_MAX_S`; a run cut short says how many ticks it lacks."""
+        dt = self.collector.dt_s
+        final = None if dt is None else round(self.plan.duration_s / dt)
+        deadline = time.monotonic() + LOCKSTEP_DRAIN_MAX_S
+        while final is not None:
+            self._drain_subscribers()
+            last = self.collector.last_truth_tick
+            if last is not None and last >= final:
+                break
+            if time.monotonic() > deadline:
+                self.warn(
+                    f"the plant's last tick {final} did not reach the collector within "
+                    f"{LOCKSTEP_DRAIN_MAX_S:g} s (last: {last}): the metrics end early"
+                )
+                break
+            await asyncio.sleep(CONSUME_PERIOD_S)
+        await asyncio.sleep(DRAIN_S)  # the other nodes' last messages may be in flight
+
     async def _consume(self) -> None:
         while True:
             self._drain_subscribers()
@@ -497,7 +522,7 @@ class _Launcher:
                 display = asyncio.ensure_future(self.view.loop(self._header()))
                 await self._run()
                 if self.cfg.lockstep:
-                    await asyncio.sleep(DRAIN_S)  # the plant's last messages may be in flight
+                    await self._drain_lockstep()
             except _Interrupted:
                 interrupted = True
                 name = signal.Signals(self.signals[0]).name if self.signals else "signal"
