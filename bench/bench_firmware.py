@@ -12,7 +12,7 @@ The verdict compares the wall-clock p50 with the 10 us goal (the mean is inflate
 preemption on a busy machine; both are printed).
 
 Without ``--estimator`` the firmware runs with ``EstimatorParams(enabled=False)`` (the firmware
-of before, the anchor of the issue 2 / 14 rows; the estimator is on by default since session 4).
+of before, the anchor of the issue 2 / 14 rows; the estimator is on by default).
 ``--estimator`` adds whole-tick medians of the same inputs with the safety filter off and with no
 new camera pose (odometry only): their differences from the whole tick are what the filter and
 the fusion of a camera pose cost inside the step.
