@@ -29,8 +29,11 @@ ordinary robots. What is shared is the I/O, batched (bus_schemas, docs/scale.md)
   sums the same terms in the same order.
 
 Realtime: the robots whose poses are in a frame chunk are stepped when it arrives (the
-on-pose loop of ``formation agent``) and their commands go out as one batch; a ``--rate-hz``
-timer steps every robot that was not stepped for a period, so stale data still drives HOLD.
+on-pose loop of ``formation agent``) and their commands go out in batches; a ``--rate-hz``
+watchdog steps every robot that was not stepped for a period, so stale data still drives HOLD.
+The watchdog runs when the oldest step falls due (not on a fixed grid) and steps
+:data:`WATCHDOG_CHUNK` robots per turn of the event loop, so a frame that arrives meanwhile is
+served first (its robots are then no longer due).
 Lockstep: on ``clock`` k every robot steps at ``t_k`` (``AgentNode.clock_step``) and one batch
 (``tick: k``) answers; a repeated clock gets the same batch again.
 
@@ -98,10 +101,17 @@ MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
 REALTIME_CHUNK: Final = 32
 """Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
+WATCHDOG_CHUNK: Final = 32
+"""Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
+so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""
 
-_Entry = tuple[int, str, float, float, float, float]
+_Entry = tuple[int, str, Neighbour]
 _Grid = dict[tuple[int, int], list[_Entry]]
-"""Spatial hash: cell -> (frame order, robot id, x, y, theta, capture_s) of the robots in it."""
+"""Spatial hash: cell -> (frame order, robot id, what the safety filter sees) of its robots."""
+
+
+def _by_order(e: _Entry) -> int:
+    return e[0]
 
 
 @dataclass(slots=True)
@@ -188,6 +198,7 @@ class HostNode:
         self._pending: Arrivals[_Seen] = Arrivals()  # lockstep: received since the last clock
         self._grid: _Grid | None = None
         self._grid_now = -math.inf
+        self._near_cache: dict[tuple[int, int], list[_Entry]] = {}
         self.rx: dict[str, int] = {
             "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0,
         }  # fmt: skip
@@ -267,14 +278,25 @@ class HostNode:
     # -- neighbours ----------------------------------------------------------------------------
 
     def _build_grid(self, now_s: float) -> _Grid:
+        """The spatial hash of the robots current at ``now_s``: cell -> (frame order, robot id,
+        the safety filter's view of it at ``now_s``). Every neighbour is built once here, so a
+        step of N robots costs N :func:`neighbour` calls, not N x neighbours; its cooperative
+        flag is taken now, before any robot of this step changed its mode (rule 3 of
+        ``robot_agent.neighbours``: the mode of the previous control tick)."""
         grid: _Grid = {}
         c = self.cell_m
+        coop = self.cooperative
+        floor = math.floor
         for rid, e in self._seen.items():
             rx_s = e.rx_s
             if rx_s is None or not is_current(now_s, rx_s):
                 continue
-            cell = (math.floor(e.x / c), math.floor(e.y / c))
-            entry = (e.order, rid, e.x, e.y, e.theta, e.capture_s)
+            cell = (floor(e.x / c), floor(e.y / c))
+            entry = (
+                e.order,
+                rid,
+                neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s)),
+            )
             bucket = grid.get(cell)
             if bucket is None:
                 grid[cell] = [entry]
@@ -293,29 +315,39 @@ class HostNode:
         entry = self._status_modes.get(rid)
         return entry is not None and is_cooperative(now_s, bool(entry[0]), float(entry[1]))
 
+    def _near(self, cell: tuple[int, int]) -> list[_Entry]:
+        """The entries of the 3 x 3 cells around ``cell``, in frame order (cached per grid: the
+        robots of one cell share them)."""
+        near = self._near_cache.get(cell)
+        if near is None:
+            grid = self._grid
+            assert grid is not None
+            cx, cy = cell
+            near = []
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    bucket = grid.get((cx + dx, cy + dy))
+                    if bucket:
+                        near.extend(bucket)
+            if len(near) > 1:
+                near.sort(key=_by_order)
+            self._near_cache[cell] = near
+        return near
+
     def _neighbours_of(self, node: AgentNode, now_s: float) -> list[Neighbour]:
         """The other robots within the 3 x 3 cells around ``node``'s pose, in frame order, as
         the safety filter sees them (``robot_agent.neighbours``)."""
         pose = node.pose
         if pose is None:
             return []
-        grid = self._grid
-        if grid is None or now_s != self._grid_now:
-            grid = self._grid = self._build_grid(now_s)
+        if self._grid is None or now_s != self._grid_now:
+            self._grid = self._build_grid(now_s)
             self._grid_now = now_s
+            self._near_cache = {}
         c = self.cell_m
-        cx, cy = math.floor(pose.x / c), math.floor(pose.y / c)
-        found: list[_Entry] = []
         me = node.robot_id
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                bucket = grid.get((cx + dx, cy + dy))
-                if bucket:
-                    found.extend(e for e in bucket if e[1] != me)
-        if len(found) > 1:
-            found.sort()
-        coop = self.cooperative
-        return [neighbour(e[2], e[3], e[4], e[5], now_s, coop(e[1], now_s)) for e in found]
+        near = self._near((math.floor(pose.x / c), math.floor(pose.y / c)))
+        return [e[2] for e in near if e[1] != me]
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -535,12 +567,17 @@ class HostNode:
         self._publish(self.wheels_key, payload, self.wheels_qos)
         return payload
 
-    def step_due(self, now_s: float) -> int:
-        """Realtime watchdog: step (and publish) every robot not stepped for a period."""
+    def step_due(self, now_s: float, limit: int | None = None) -> int:
+        """Realtime watchdog: step (and publish) the robots not stepped for a period, at most
+        ``limit`` of them (frame order); returns how many were due."""
         lim = self.period_s * 0.999
         due = [n for n in self.nodes.values() if now_s - n.last_step_s >= lim]
-        if due:
-            self._publish_steps((n, n.step(now_s)) for n in due)
+        chunk = due if limit is None else due[:limit]
+        if chunk:
+            self._publish_steps((n, n.step(now_s)) for n in chunk)
+            for n in chunk:  # a step that failed is not retried before a period
+                if n.last_step_s < now_s:
+                    n.last_step_s = now_s
         return len(due)
 
     def status_batches(self, now_s: float) -> list[StatusBatch]:
@@ -582,12 +619,22 @@ class HostNode:
         except Exception as exc:
             self._internal("status", exc)
 
-    def control_timer(self, now: float) -> None:
-        """Realtime timer tick: the watchdog step of every robot not stepped for a period."""
+    def control_timer(self, now: float) -> float:
+        """Realtime timer: the watchdog step of at most :data:`WATCHDOG_CHUNK` robots not
+        stepped for a period. Returns when it wants to run again (``runtime.timers``): at once
+        while more robots are due, after the event loop has served what arrived meanwhile (a
+        pose frame steps its robots first: it never waits for the whole fleet's watchdog
+        step), else when the next robot falls due (at most a period from now)."""
+        lim = self.period_s * 0.999
         try:
-            self.step_due(now)
+            if self.step_due(now, WATCHDOG_CHUNK) > WATCHDOG_CHUNK:
+                return time.monotonic()
+            oldest = min(n.last_step_s for n in self.nodes.values())
         except Exception as exc:
             self._internal("step_due", exc)
+            return now + self.period_s
+        after = time.monotonic()
+        return min(max(oldest + lim, after), after + self.period_s)
 
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime watchdog step and the 5 Hz status."""

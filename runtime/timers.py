@@ -2,7 +2,10 @@
 
 One loop, shared by ``formation agent`` and ``formation agent-host``: the realtime control tick
 (``node.control_timer``, also where systemd's WATCHDOG is sent, since the control loop is what
-must be alive), the status publication, and the stall detector's turn marks.
+must be alive), the status publication, and the stall detector's turn marks. The control tick
+is a fixed grid of ``period_s`` unless ``control_timer`` returns the time it wants to run next
+(an agent host: when its oldest robot falls due, or at once to go on after the loop served
+what arrived); a time in the past means "after one turn of the event loop".
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ class TimedNode(Protocol):
     stall: StallDetector
 
     def check_resume(self, now_s: float) -> bool: ...
-    def control_timer(self, now: float) -> None: ...
+    def control_timer(self, now: float) -> float | None: ...
     def publish_status(self) -> None: ...
 
 
@@ -45,11 +48,12 @@ async def run_timers(node: TimedNode, stop: asyncio.Event, notifier: Notifier | 
         now = time.monotonic()
         node.check_resume(now)
         if now >= next_ctrl:
-            if not node.lockstep:
-                node.control_timer(now)
+            want = None if node.lockstep else node.control_timer(now)
             next_ctrl += period
             if next_ctrl <= now:  # fell behind (loop stalled): resynchronise
                 next_ctrl = now + period
+            if want is not None:  # the node's own schedule (an agent host's watchdog)
+                next_ctrl = want
             if notifier is not None and wd_period is not None and now >= next_wd:
                 notifier.watchdog()  # the control loop is alive
                 next_wd = now + wd_period
