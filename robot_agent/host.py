@@ -104,6 +104,11 @@ REALTIME_CHUNK: Final = 32
 WATCHDOG_CHUNK: Final = 32
 """Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
 so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""
+WATCHDOG_YIELD_S: Final = 0.0002
+"""Realtime: the watchdog's pause between two chunks (s). A real wait, not ``sleep(0)``: the loop
+blocks in its selector, so Zenoh's thread gets the GIL and hands over a frame that arrived
+during the chunk, and the frame's handler runs before the next chunk (after ``sleep(0)`` the
+next chunk would be queued first)."""
 
 _Entry = tuple[int, str, Neighbour]
 _Grid = dict[tuple[int, int], list[_Entry]]
@@ -628,7 +633,7 @@ class HostNode:
         lim = self.period_s * 0.999
         try:
             if self.step_due(now, WATCHDOG_CHUNK) > WATCHDOG_CHUNK:
-                return time.monotonic()
+                return time.monotonic() + WATCHDOG_YIELD_S
             oldest = min(n.last_step_s for n in self.nodes.values())
         except Exception as exc:
             self._internal("step_due", exc)
