@@ -101,6 +101,10 @@ MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
 REALTIME_CHUNK: Final = 32
 """Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
+REACH_MARGIN: Final = 1.1
+"""A robot's neighbours are the robots within this factor of the larger of the repulsion's
+``d0`` and the safety filter's ``neighbour_range_m`` (a worst-case bound already) of its
+measured pose; the 10 % cover the estimator's drift from that pose."""
 WATCHDOG_CHUNK: Final = 32
 """Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
 so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""
@@ -110,13 +114,10 @@ blocks in its selector, so Zenoh's thread gets the GIL and hands over a frame th
 during the chunk, and the frame's handler runs before the next chunk (after ``sleep(0)`` the
 next chunk would be queued first)."""
 
-_Entry = tuple[int, str, Neighbour]
+_Entry = tuple[int, str, Neighbour, float, float]
 _Grid = dict[tuple[int, int], list[_Entry]]
-"""Spatial hash: cell -> (frame order, robot id, what the safety filter sees) of its robots."""
-
-
-def _by_order(e: _Entry) -> int:
-    return e[0]
+"""Spatial hash: cell -> (frame order, robot id, what the safety filter sees, x, y) of its
+robots."""
 
 
 @dataclass(slots=True)
@@ -185,6 +186,9 @@ class HostNode:
         self.cell_m = max(
             config.repulsion.influence_m, SafetyFilter(config).neighbour_range_m, 1e-3
         )
+        # ... and a robot gets only those within REACH_MARGIN x that reach of its pose (about a
+        # quarter of the 3 x 3 cells' robots: the firmware's loops over them cost per neighbour)
+        self._reach2 = (REACH_MARGIN * self.cell_m) ** 2
 
         self.poses_key = keys.poses_key(fleet)
         self.setpoints_key = keys.setpoints_key(fleet)
@@ -297,11 +301,8 @@ class HostNode:
             if rx_s is None or not is_current(now_s, rx_s):
                 continue
             cell = (floor(e.x / c), floor(e.y / c))
-            entry = (
-                e.order,
-                rid,
-                neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s)),
-            )
+            nb = neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
+            entry = (e.order, rid, nb, e.x, e.y)
             bucket = grid.get(cell)
             if bucket is None:
                 grid[cell] = [entry]
@@ -334,14 +335,14 @@ class HostNode:
                     bucket = grid.get((cx + dx, cy + dy))
                     if bucket:
                         near.extend(bucket)
-            if len(near) > 1:
-                near.sort(key=_by_order)
+            near.sort()  # by frame order (unique: the ids are never compared)
             self._near_cache[cell] = near
         return near
 
     def _neighbours_of(self, node: AgentNode, now_s: float) -> list[Neighbour]:
-        """The other robots within the 3 x 3 cells around ``node``'s pose, in frame order, as
-        the safety filter sees them (``robot_agent.neighbours``)."""
+        """The other robots within :data:`REACH_MARGIN` x :attr:`cell_m` of ``node``'s pose
+        (found in the 3 x 3 cells around it), in frame order, as the safety filter sees them
+        (``robot_agent.neighbours``); the robots beyond contribute exactly zero."""
         pose = node.pose
         if pose is None:
             return []
@@ -351,8 +352,12 @@ class HostNode:
             self._near_cache = {}
         c = self.cell_m
         me = node.robot_id
-        near = self._near((math.floor(pose.x / c), math.floor(pose.y / c)))
-        return [e[2] for e in near if e[1] != me]
+        x, y = pose.x, pose.y
+        r2 = self._reach2
+        near = self._near((math.floor(x / c), math.floor(y / c)))
+        return [
+            e[2] for e in near if (dx := e[3] - x) * dx + (dy := e[4] - y) * dy <= r2 and e[1] != me
+        ]
 
     # -- inputs --------------------------------------------------------------------------------
 
