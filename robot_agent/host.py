@@ -80,6 +80,7 @@ from robot_agent.estop import ESTOP_REFRESH_S
 from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
+from robot_agent.firmware_types import FirmwareStatus
 from robot_agent.lockstep import Arrivals, Replay
 from robot_agent.neighbours import (
     NEIGHBOUR_STALE_S,
@@ -89,7 +90,7 @@ from robot_agent.neighbours import (
 )
 from robot_agent.node import AgentNode, Publish, clock_wheels, status_tracking
 from robot_agent.params import AgentConfig
-from robot_agent.safety_filter import Neighbour, SafetyFilter
+from robot_agent.safety_filter import Neighbour, SafetyFilter, SafetyFilterStatus
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
@@ -108,6 +109,8 @@ measured pose; the 10 % cover the estimator's drift from that pose."""
 WATCHDOG_CHUNK: Final = 32
 """Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
 so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""
+STATUS_STEP: Final = 25
+"""Realtime: robots whose status one turn of the event loop takes (``HostNode.publish_status``)."""
 WATCHDOG_YIELD_S: Final = 0.0002
 """Realtime: the watchdog's pause between two chunks (s). A real wait, not ``sleep(0)``: the loop
 blocks in its selector, so Zenoh's thread gets the GIL and hands over a frame that arrived
@@ -116,6 +119,7 @@ next chunk would be queued first)."""
 
 _Entry = tuple[int, str, Neighbour, float, float]
 _Grid = dict[tuple[int, int], list[_Entry]]
+_StatusRow = tuple[str, FirmwareStatus, SafetyFilterStatus]
 """Spatial hash: cell -> (frame order, robot id, what the safety filter sees, x, y) of its
 robots."""
 
@@ -218,6 +222,8 @@ class HostNode:
         self._replay: Replay[list[bytes]] = Replay()  # lockstep: the last clock's batches
         self._seq_wheels = 0
         self._seq_status = 0
+        self._status_rows: list[_StatusRow] = []  # the status round under way (publish_status)
+        self._status_t = 0.0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
         # the latched e-stop (robot_agent.estop): estop messages seen (a query's answer older
         # than one must not undo it) and the hook that asks the coordinators (host_main)
@@ -592,11 +598,18 @@ class HostNode:
 
     def status_batches(self, now_s: float) -> list[StatusBatch]:
         """The status of every hosted robot, in chunks."""
+        return self._status_messages(now_s, [self._status_row(r) for r in self.order])
+
+    def _status_row(self, rid: str) -> _StatusRow:
+        fw = self.nodes[rid].firmware
+        return rid, fw.status(), fw.safety_filter.status()
+
+    def _status_messages(self, now_s: float, rows: list[_StatusRow]) -> list[StatusBatch]:
         out: list[StatusBatch] = []
-        for i in range(0, len(self.order), BATCH_CHUNK):
-            ids = self.order[i : i + BATCH_CHUNK]
-            sts = [self.nodes[r].firmware.status() for r in ids]
-            flts = [self.nodes[r].firmware.safety_filter.status() for r in ids]
+        for i in range(0, len(rows), BATCH_CHUNK):
+            chunk = rows[i : i + BATCH_CHUNK]
+            sts = [r[1] for r in chunk]
+            flts = [r[2] for r in chunk]
             self._seq_status += 1
             out.append(
                 StatusBatch(
@@ -604,7 +617,7 @@ class HostNode:
                     seq=self._seq_status,
                     pid=self.pid,
                     host=self.hostname,
-                    robots=tuple(ids),
+                    robots=tuple(r[0] for r in chunk),
                     mode=tuple(str(s.mode) for s in sts),
                     slot=tuple(-1 if s.slot is None else s.slot for s in sts),
                     rejected=tuple(s.rejected_count for s in sts),
@@ -618,16 +631,30 @@ class HostNode:
             )
         return out
 
-    def publish_status(self) -> None:
-        """Publish the status batches (never raises)."""
+    def publish_status(self) -> float | None:
+        """One piece of a status round (never raises). Realtime: the status of
+        :data:`STATUS_STEP` robots per call (~20 us per robot), the batches published once every
+        robot's is taken, so a frame never waits for a whole fleet's status; returns when to go
+        on (``runtime.timers``) while the round is not complete. Lockstep: all at once."""
         try:
-            now = self.sim_t if self.lockstep else time.monotonic()
-            if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
-                self.request_estop_state(now)
-            for msg in self.status_batches(now):
+            rows = self._status_rows
+            if not rows:  # a new round
+                now = self.sim_t if self.lockstep else time.monotonic()
+                self._status_t = now
+                if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
+                    self.request_estop_state(now)
+            start = len(rows)
+            end = len(self.order) if self.lockstep else start + STATUS_STEP
+            rows.extend(self._status_row(r) for r in self.order[start:end])
+            if len(rows) < len(self.order):
+                return time.monotonic() + WATCHDOG_YIELD_S
+            self._status_rows = []
+            for msg in self._status_messages(self._status_t, rows):
                 self._publish(self.status_key, encode(msg), rt.QOS_TELEMETRY)
         except Exception as exc:
+            self._status_rows = []
             self._internal("status", exc)
+        return None
 
     def control_timer(self, now: float) -> float:
         """Realtime timer: the watchdog step of at most :data:`WATCHDOG_CHUNK` robots not

@@ -16,6 +16,7 @@ import asyncio
 import atexit
 import contextlib
 import faulthandler
+import gc
 import os
 import signal
 import sys
@@ -297,6 +298,11 @@ def serve(
     """
 
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    # Everything imported so far lives as long as the process: out of the collector's sight, a
+    # full collection walks only what the node creates (measured in an agent host: 15 ms with
+    # the imports' ~60k objects, which held the loop and Zenoh's thread that long).
+    gc.collect()
+    gc.freeze()
 
     async def main(stop: asyncio.Event) -> int:
         log = NodeLog(name)
