@@ -119,9 +119,9 @@ next chunk would be queued first)."""
 
 _Entry = tuple[int, str, Neighbour, float, float]
 _Grid = dict[tuple[int, int], list[_Entry]]
-_StatusRow = tuple[str, FirmwareStatus, SafetyFilterStatus]
 """Spatial hash: cell -> (frame order, robot id, what the safety filter sees, x, y) of its
 robots."""
+_StatusRow = tuple[str, FirmwareStatus, SafetyFilterStatus]
 
 
 @dataclass(slots=True)
@@ -190,8 +190,8 @@ class HostNode:
         self.cell_m = max(
             config.repulsion.influence_m, SafetyFilter(config).neighbour_range_m, 1e-3
         )
-        # ... and a robot gets only those within REACH_MARGIN x that reach of its pose (about a
-        # quarter of the 3 x 3 cells' robots: the firmware's loops over them cost per neighbour)
+        # ... and a robot gets only those within REACH_MARGIN x that reach of its pose (about half
+        # of the 3 x 3 cells' robots: the firmware's loops over them cost per neighbour)
         self._reach2 = (REACH_MARGIN * self.cell_m) ** 2
 
         self.poses_key = keys.poses_key(fleet)
