@@ -21,8 +21,9 @@ rule, its 50 Hz control and 30 Hz camera). Per run it prints:
 * CPU seconds of every process of the run (``/proc``), and the machine's load average before
   and after (the machine is shared: a load well above 2 inflates the tail).
 
-Usage: ``python bench/bench_up.py [--robots 100] [--duration 20] [--repeat 3]``. Prints; asserts
-nothing. Results and the command: docs/benchmarks.md, docs/scale.md.
+Usage: ``python bench/bench_up.py [--robots 100] [--duration 20] [--repeat 3] [--keep DIR]``
+(``--keep``: leave each run's directory, logs included, under DIR). Prints; asserts nothing.
+Results and the command: docs/benchmarks.md, docs/scale.md.
 """
 
 from __future__ import annotations
@@ -101,15 +102,22 @@ def main() -> int:
     p.add_argument("--robots", type=int, default=100, help="robots (default 100)")
     p.add_argument("--duration", type=float, default=20.0, help="wall seconds per run (20)")
     p.add_argument("--repeat", type=int, default=3, help="runs (3)")
+    p.add_argument(
+        "--keep",
+        metavar="DIR",
+        help="write the runs' directories (logs, stats) under DIR and keep them",
+    )
     args = p.parse_args()
     print(
         f"formation up --robots {args.robots}, realtime, {args.duration:g} s per run, "
         f"{os.cpu_count()} CPUs"
     )
     with tempfile.TemporaryDirectory(prefix="bench-up-") as tmp:
+        base = Path(args.keep or tmp)
+        base.mkdir(parents=True, exist_ok=True)
         for k in range(args.repeat):
             print(f"run {k + 1}:")
-            run_up(args.robots, args.duration, Path(tmp) / f"run{k}")
+            run_up(args.robots, args.duration, Path(tempfile.mkdtemp(prefix=f"run{k}-", dir=base)))
     return 0
 
 

@@ -29,8 +29,11 @@ ordinary robots. What is shared is the I/O, batched (bus_schemas, docs/scale.md)
   sums the same terms in the same order.
 
 Realtime: the robots whose poses are in a frame chunk are stepped when it arrives (the
-on-pose loop of ``formation agent``) and their commands go out as one batch; a ``--rate-hz``
-timer steps every robot that was not stepped for a period, so stale data still drives HOLD.
+on-pose loop of ``formation agent``) and their commands go out in batches; a ``--rate-hz``
+watchdog steps every robot that was not stepped for a period, so stale data still drives HOLD.
+The watchdog runs when the oldest step falls due (not on a fixed grid) and steps
+:data:`WATCHDOG_CHUNK` robots per turn of the event loop, so a frame that arrives meanwhile is
+served first (its robots are then no longer due).
 Lockstep: on ``clock`` k every robot steps at ``t_k`` (``AgentNode.clock_step``) and one batch
 (``tick: k``) answers; a repeated clock gets the same batch again.
 
@@ -77,6 +80,7 @@ from robot_agent.estop import ESTOP_REFRESH_S
 from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
+from robot_agent.firmware_types import FirmwareStatus
 from robot_agent.lockstep import Arrivals, Replay
 from robot_agent.neighbours import (
     NEIGHBOUR_STALE_S,
@@ -86,7 +90,7 @@ from robot_agent.neighbours import (
 )
 from robot_agent.node import AgentNode, Publish, clock_wheels, status_tracking
 from robot_agent.params import AgentConfig
-from robot_agent.safety_filter import Neighbour, SafetyFilter
+from robot_agent.safety_filter import Neighbour, SafetyFilter, SafetyFilterStatus
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
@@ -98,10 +102,26 @@ MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
 REALTIME_CHUNK: Final = 32
 """Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
+REACH_MARGIN: Final = 1.1
+"""A robot's neighbours are the robots within this factor of the larger of the repulsion's
+``d0`` and the safety filter's ``neighbour_range_m`` (a worst-case bound already) of its
+measured pose; the 10 % cover the estimator's drift from that pose."""
+WATCHDOG_CHUNK: Final = 32
+"""Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
+so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""
+STATUS_STEP: Final = 25
+"""Realtime: robots whose status one turn of the event loop takes (``HostNode.publish_status``)."""
+WATCHDOG_YIELD_S: Final = 0.0002
+"""Realtime: the watchdog's pause between two chunks (s). A real wait, not ``sleep(0)``: the loop
+blocks in its selector, so Zenoh's thread gets the GIL and hands over a frame that arrived
+during the chunk, and the frame's handler runs before the next chunk (after ``sleep(0)`` the
+next chunk would be queued first)."""
 
-_Entry = tuple[int, str, float, float, float, float]
+_Entry = tuple[int, str, Neighbour, float, float]
 _Grid = dict[tuple[int, int], list[_Entry]]
-"""Spatial hash: cell -> (frame order, robot id, x, y, theta, capture_s) of the robots in it."""
+"""Spatial hash: cell -> (frame order, robot id, what the safety filter sees, x, y) of its
+robots."""
+_StatusRow = tuple[str, FirmwareStatus, SafetyFilterStatus]
 
 
 @dataclass(slots=True)
@@ -170,6 +190,9 @@ class HostNode:
         self.cell_m = max(
             config.repulsion.influence_m, SafetyFilter(config).neighbour_range_m, 1e-3
         )
+        # ... and a robot gets only those within REACH_MARGIN x that reach of its pose (about half
+        # of the 3 x 3 cells' robots: the firmware's loops over them cost per neighbour)
+        self._reach2 = (REACH_MARGIN * self.cell_m) ** 2
 
         self.poses_key = keys.poses_key(fleet)
         self.setpoints_key = keys.setpoints_key(fleet)
@@ -188,6 +211,7 @@ class HostNode:
         self._pending: Arrivals[_Seen] = Arrivals()  # lockstep: received since the last clock
         self._grid: _Grid | None = None
         self._grid_now = -math.inf
+        self._near_cache: dict[tuple[int, int], list[_Entry]] = {}
         self.rx: dict[str, int] = {
             "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0,
         }  # fmt: skip
@@ -198,6 +222,8 @@ class HostNode:
         self._replay: Replay[list[bytes]] = Replay()  # lockstep: the last clock's batches
         self._seq_wheels = 0
         self._seq_status = 0
+        self._status_rows: list[_StatusRow] = []  # the status round under way (publish_status)
+        self._status_t = 0.0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
         # the latched e-stop (robot_agent.estop): estop messages seen (a query's answer older
         # than one must not undo it) and the hook that asks the coordinators (host_main)
@@ -267,14 +293,22 @@ class HostNode:
     # -- neighbours ----------------------------------------------------------------------------
 
     def _build_grid(self, now_s: float) -> _Grid:
+        """The spatial hash of the robots current at ``now_s``: cell -> (frame order, robot id,
+        the safety filter's view of it at ``now_s``). Every neighbour is built once here, so a
+        step of N robots costs N :func:`neighbour` calls, not N x neighbours; its cooperative
+        flag is taken now, before any robot of this step changed its mode (rule 3 of
+        ``robot_agent.neighbours``: the mode of the previous control tick)."""
         grid: _Grid = {}
         c = self.cell_m
+        coop = self.cooperative
+        floor = math.floor
         for rid, e in self._seen.items():
             rx_s = e.rx_s
             if rx_s is None or not is_current(now_s, rx_s):
                 continue
-            cell = (math.floor(e.x / c), math.floor(e.y / c))
-            entry = (e.order, rid, e.x, e.y, e.theta, e.capture_s)
+            cell = (floor(e.x / c), floor(e.y / c))
+            nb = neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
+            entry = (e.order, rid, nb, e.x, e.y)
             bucket = grid.get(cell)
             if bucket is None:
                 grid[cell] = [entry]
@@ -293,29 +327,43 @@ class HostNode:
         entry = self._status_modes.get(rid)
         return entry is not None and is_cooperative(now_s, bool(entry[0]), float(entry[1]))
 
+    def _near(self, cell: tuple[int, int]) -> list[_Entry]:
+        """The entries of the 3 x 3 cells around ``cell``, in frame order (cached per grid: the
+        robots of one cell share them)."""
+        near = self._near_cache.get(cell)
+        if near is None:
+            grid = self._grid
+            assert grid is not None
+            cx, cy = cell
+            near = []
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    bucket = grid.get((cx + dx, cy + dy))
+                    if bucket:
+                        near.extend(bucket)
+            near.sort()  # by frame order (unique: the ids are never compared)
+            self._near_cache[cell] = near
+        return near
+
     def _neighbours_of(self, node: AgentNode, now_s: float) -> list[Neighbour]:
-        """The other robots within the 3 x 3 cells around ``node``'s pose, in frame order, as
-        the safety filter sees them (``robot_agent.neighbours``)."""
+        """The other robots within :data:`REACH_MARGIN` x :attr:`cell_m` of ``node``'s pose
+        (found in the 3 x 3 cells around it), in frame order, as the safety filter sees them
+        (``robot_agent.neighbours``); the robots beyond contribute exactly zero."""
         pose = node.pose
         if pose is None:
             return []
-        grid = self._grid
-        if grid is None or now_s != self._grid_now:
-            grid = self._grid = self._build_grid(now_s)
+        if self._grid is None or now_s != self._grid_now:
+            self._grid = self._build_grid(now_s)
             self._grid_now = now_s
+            self._near_cache = {}
         c = self.cell_m
-        cx, cy = math.floor(pose.x / c), math.floor(pose.y / c)
-        found: list[_Entry] = []
         me = node.robot_id
-        for dx in (-1, 0, 1):
-            for dy in (-1, 0, 1):
-                bucket = grid.get((cx + dx, cy + dy))
-                if bucket:
-                    found.extend(e for e in bucket if e[1] != me)
-        if len(found) > 1:
-            found.sort()
-        coop = self.cooperative
-        return [neighbour(e[2], e[3], e[4], e[5], now_s, coop(e[1], now_s)) for e in found]
+        x, y = pose.x, pose.y
+        r2 = self._reach2
+        near = self._near((math.floor(x / c), math.floor(y / c)))
+        return [
+            e[2] for e in near if (dx := e[3] - x) * dx + (dy := e[4] - y) * dy <= r2 and e[1] != me
+        ]
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -535,21 +583,33 @@ class HostNode:
         self._publish(self.wheels_key, payload, self.wheels_qos)
         return payload
 
-    def step_due(self, now_s: float) -> int:
-        """Realtime watchdog: step (and publish) every robot not stepped for a period."""
+    def step_due(self, now_s: float, limit: int | None = None) -> int:
+        """Realtime watchdog: step (and publish) the robots not stepped for a period, at most
+        ``limit`` of them (frame order); returns how many were due."""
         lim = self.period_s * 0.999
         due = [n for n in self.nodes.values() if now_s - n.last_step_s >= lim]
-        if due:
-            self._publish_steps((n, n.step(now_s)) for n in due)
+        chunk = due if limit is None else due[:limit]
+        if chunk:
+            self._publish_steps((n, n.step(now_s)) for n in chunk)
+            for n in chunk:  # a step that failed is not retried before a period
+                if n.last_step_s < now_s:
+                    n.last_step_s = now_s
         return len(due)
 
     def status_batches(self, now_s: float) -> list[StatusBatch]:
         """The status of every hosted robot, in chunks."""
+        return self._status_messages(now_s, [self._status_row(r) for r in self.order])
+
+    def _status_row(self, rid: str) -> _StatusRow:
+        fw = self.nodes[rid].firmware
+        return rid, fw.status(), fw.safety_filter.status()
+
+    def _status_messages(self, now_s: float, rows: list[_StatusRow]) -> list[StatusBatch]:
         out: list[StatusBatch] = []
-        for i in range(0, len(self.order), BATCH_CHUNK):
-            ids = self.order[i : i + BATCH_CHUNK]
-            sts = [self.nodes[r].firmware.status() for r in ids]
-            flts = [self.nodes[r].firmware.safety_filter.status() for r in ids]
+        for i in range(0, len(rows), BATCH_CHUNK):
+            chunk = rows[i : i + BATCH_CHUNK]
+            sts = [r[1] for r in chunk]
+            flts = [r[2] for r in chunk]
             self._seq_status += 1
             out.append(
                 StatusBatch(
@@ -557,7 +617,7 @@ class HostNode:
                     seq=self._seq_status,
                     pid=self.pid,
                     host=self.hostname,
-                    robots=tuple(ids),
+                    robots=tuple(r[0] for r in chunk),
                     mode=tuple(str(s.mode) for s in sts),
                     slot=tuple(-1 if s.slot is None else s.slot for s in sts),
                     rejected=tuple(s.rejected_count for s in sts),
@@ -571,23 +631,47 @@ class HostNode:
             )
         return out
 
-    def publish_status(self) -> None:
-        """Publish the status batches (never raises)."""
+    def publish_status(self) -> float | None:
+        """One piece of a status round (never raises). Realtime: the status of
+        :data:`STATUS_STEP` robots per call (~20 us per robot), the batches published once every
+        robot's is taken, so a frame never waits for a whole fleet's status; returns when to go
+        on (``runtime.timers``) while the round is not complete. Lockstep: all at once."""
         try:
-            now = self.sim_t if self.lockstep else time.monotonic()
-            if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
-                self.request_estop_state(now)
-            for msg in self.status_batches(now):
+            rows = self._status_rows
+            if not rows:  # a new round
+                now = self.sim_t if self.lockstep else time.monotonic()
+                self._status_t = now
+                if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
+                    self.request_estop_state(now)
+            start = len(rows)
+            end = len(self.order) if self.lockstep else start + STATUS_STEP
+            rows.extend(self._status_row(r) for r in self.order[start:end])
+            if len(rows) < len(self.order):
+                return time.monotonic() + WATCHDOG_YIELD_S
+            self._status_rows = []
+            for msg in self._status_messages(self._status_t, rows):
                 self._publish(self.status_key, encode(msg), rt.QOS_TELEMETRY)
         except Exception as exc:
+            self._status_rows = []
             self._internal("status", exc)
+        return None
 
-    def control_timer(self, now: float) -> None:
-        """Realtime timer tick: the watchdog step of every robot not stepped for a period."""
+    def control_timer(self, now: float) -> float:
+        """Realtime timer: the watchdog step of at most :data:`WATCHDOG_CHUNK` robots not
+        stepped for a period. Returns when it wants to run again (``runtime.timers``): at once
+        while more robots are due, after the event loop has served what arrived meanwhile (a
+        pose frame steps its robots first: it never waits for the whole fleet's watchdog
+        step), else when the next robot falls due (at most a period from now)."""
+        lim = self.period_s * 0.999
         try:
-            self.step_due(now)
+            if self.step_due(now, WATCHDOG_CHUNK) > WATCHDOG_CHUNK:
+                return time.monotonic() + WATCHDOG_YIELD_S
+            oldest = min(n.last_step_s for n in self.nodes.values())
         except Exception as exc:
             self._internal("step_due", exc)
+            return now + self.period_s
+        after = time.monotonic()
+        return min(max(oldest + lim, after), after + self.period_s)
 
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime watchdog step and the 5 Hz status."""

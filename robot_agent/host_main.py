@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import gc
 import os
 import re
 import sys
@@ -152,6 +153,10 @@ async def _node(
             io.subscribe(keys.all_host_status_pattern(fleet), host.on_host_status)
         for r in ids:
             io.declare_token(keys.alive_robot_key(fleet, r))
+        # the robots' firmware lives as long as the process: out of the collector's sight too
+        # (runtime.serve froze the imports; a full collection then walks only new objects)
+        gc.collect()
+        gc.freeze()
         print(f"agent-host {name} ready", flush=True)
         notifier.ready(f"agent-host {name} connected ({len(ids)} robots)")
         mode = "lockstep" if lockstep else f"realtime, watchdog {rate_hz:g} Hz"

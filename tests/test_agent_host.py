@@ -37,7 +37,7 @@ from bus_schemas import (
     encode,
     keys,
 )
-from robot_agent.host import HostNode
+from robot_agent.host import STATUS_STEP, WATCHDOG_CHUNK, WATCHDOG_YIELD_S, HostNode
 from robot_agent.host_main import expand_ids
 from robot_agent.params import AgentConfig
 from robot_agent.safety_filter import SafetyFilter
@@ -130,6 +130,50 @@ def test_host_steps_on_a_frame_and_answers_in_one_batch() -> None:
     assert all(abs(w) > 0.0 for w in wb.omega_r)  # tracking: the wheels move
     status = [decode(p, StatusBatch) for p in _status_payloads(host)]
     assert status[0].mode == ("tracking",) * 3 and status[0].slot == (0, 1, 2)
+
+
+def test_watchdog_steps_a_chunk_per_turn_and_skips_robots_a_frame_stepped() -> None:
+    # the realtime watchdog steps at most WATCHDOG_CHUNK robots per call and asks to be called
+    # again at once; a frame arriving between two calls steps its robots, which are then no
+    # longer due (explicit times: nothing here depends on the wall clock)
+    bus = _Bus()
+    ids = [f"r{i + 1}" for i in range(2 * WATCHDOG_CHUNK + 5)]
+    host = HostNode("h1", ids, FLEET, AgentConfig(), bus, lockstep=False)
+
+    def sent() -> list[str]:
+        got = [decode(p, WheelsBatch) for k, p in bus.out if k == host.wheels_key]
+        bus.out.clear()
+        return [r for b in got if isinstance(b, WheelsBatch) for r in b.robots]
+
+    t0 = time.monotonic()
+    before = time.monotonic()
+    again = host.control_timer(t0)
+    assert sent() == ids[:WATCHDOG_CHUNK]  # never stepped: due, the first chunk only
+    assert again <= time.monotonic() + WATCHDOG_YIELD_S and again >= before
+    xy = np.array([[0.5 * i, 0.0] for i in range(len(ids))])
+    host.on_poses(_rx(keys.poses_key(FLEET), _frame(ids, xy)))  # the frame steps everyone
+    assert sent() == ids
+    t1 = min(n.last_step_s for n in host.nodes.values()) + 0.5 * host.period_s
+    host.control_timer(t1)
+    assert sent() == []  # stepped by the frame: nobody is due
+    t2 = max(n.last_step_s for n in host.nodes.values()) + host.period_s
+    host.control_timer(t2)
+    assert sent() == ids[:WATCHDOG_CHUNK]  # a period later: the watchdog again, in chunks
+
+
+def test_status_round_in_pieces_publishes_one_batch_of_every_robot() -> None:
+    bus = _Bus()
+    ids = [f"r{i + 1}" for i in range(2 * STATUS_STEP + 3)]
+    host = HostNode("h1", ids, FLEET, AgentConfig(), bus, lockstep=False)
+    calls = 1
+    while host.publish_status() is not None:  # realtime: STATUS_STEP robots per call
+        assert not [k for k, _ in bus.out if k == host.status_key]  # nothing before the end
+        calls += 1
+    assert calls == 3
+    (batch,) = [decode(p, StatusBatch) for k, p in bus.out if k == host.status_key]
+    assert isinstance(batch, StatusBatch) and batch.robots == tuple(ids)
+    lock = HostNode("h2", ids, FLEET, AgentConfig(), _Bus(), lockstep=True)
+    assert lock.publish_status() is None  # lockstep: all at once
 
 
 def _status_payloads(host: HostNode) -> list[bytes]:
