@@ -44,6 +44,12 @@ PLAUSIBLE: dict[str, tuple[float, float]] = {
     "safety_filter.tiebreak_time_s": (0.0, 60.0),
     "safety_filter.tiebreak_angle_rad": (0.0, math.pi),
     "safety_filter.tiebreak_speed_mps": (0.0, 5.0),
+    "safety_filter.convoy_share": (0.0, 0.5),
+    "safety_filter.convoy_angle_rad": (0.01, math.pi / 2),
+    "safety_filter.convoy_gain": (1.0, 10.0),
+    "safety_filter.convoy_gap_m": (0.0, 0.5),
+    # the shared-frame plane's proof pays the motion since the frame from the margin
+    "safety_filter.frame_max_age_s": (0.0, 0.5),
     # estimator
     "estimator.history_s": (0.01, 60.0),
     "estimator.max_dropout_odom_s": (0.0, 60.0),
