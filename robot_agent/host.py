@@ -23,10 +23,10 @@ ordinary robots. What is shared is the I/O, batched (bus_schemas, docs/scale.md)
   one control step, chunks of :data:`~bus_schemas.BATCH_CHUNK`) and ``host/<name>/status``
   (:class:`~bus_schemas.StatusBatch`, 5 Hz).
 * repulsion and safety filter: each robot's neighbours come from one spatial hash of the latest
-  frame (cells of the larger of the repulsion influence distance ``d0`` and the safety filter's
-  ``neighbour_range_m``), so a query costs the robots in 3 x 3 cells, not N; the
-  neighbours are passed in frame order, the order ``formation agent`` sees them, so the firmware
-  sums the same terms in the same order.
+  frame (``robot_agent.host_grid``: cells of the larger of the repulsion influence distance
+  ``d0`` and the safety filter's ``neighbour_range_m``), so a query costs the robots in 3 x 3
+  cells, not N; the neighbours are passed in frame order, the order ``formation agent`` sees
+  them, so the firmware sums the same terms in the same order.
 
 Realtime: the robots whose poses are in a frame chunk are stepped when it arrives (the
 on-pose loop of ``formation agent``) and their commands go out in batches; a ``--rate-hz``
@@ -57,7 +57,6 @@ import os
 import socket
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
 from typing import Final
 
 import runtime as rt
@@ -81,12 +80,11 @@ from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
 from robot_agent.firmware_types import FirmwareStatus
+from robot_agent.host_grid import NeighbourGrid, Seen
 from robot_agent.lockstep import Arrivals, Replay
 from robot_agent.neighbours import (
     NEIGHBOUR_STALE_S,
     is_cooperative,
-    is_current,
-    neighbour,
 )
 from robot_agent.node import AgentNode, Publish, clock_wheels, status_tracking
 from robot_agent.params import AgentConfig
@@ -102,10 +100,6 @@ MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
 REALTIME_CHUNK: Final = 32
 """Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
-REACH_MARGIN: Final = 1.1
-"""A robot's neighbours are the robots within this factor of the larger of the repulsion's
-``d0`` and the safety filter's ``neighbour_range_m`` (a worst-case bound already) of its
-measured pose; the 10 % cover the estimator's drift from that pose."""
 WATCHDOG_CHUNK: Final = 32
 """Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
 so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""
@@ -117,23 +111,7 @@ blocks in its selector, so Zenoh's thread gets the GIL and hands over a frame th
 during the chunk, and the frame's handler runs before the next chunk (after ``sleep(0)`` the
 next chunk would be queued first)."""
 
-_Entry = tuple[int, str, Neighbour, float, float]
-_Grid = dict[tuple[int, int], list[_Entry]]
-"""Spatial hash: cell -> (frame order, robot id, what the safety filter sees, x, y) of its
-robots."""
 _StatusRow = tuple[str, FirmwareStatus, SafetyFilterStatus]
-
-
-@dataclass(slots=True)
-class _Seen:
-    """Latest pose of a robot from the pose frames (for repulsion and the safety filter)."""
-
-    x: float
-    y: float
-    theta: float
-    capture_s: float  # capture time on this host's clock (robot_agent.clocksync)
-    rx_s: float | None  # receive time; None while pending (lockstep, until the next clock)
-    order: int  # first-seen order (= frame order): neighbours are passed in this order
 
 
 class HostNode:
@@ -190,9 +168,7 @@ class HostNode:
         self.cell_m = max(
             config.repulsion.influence_m, SafetyFilter(config).neighbour_range_m, 1e-3
         )
-        # ... and a robot gets only those within REACH_MARGIN x that reach of its pose (about half
-        # of the 3 x 3 cells' robots: the firmware's loops over them cost per neighbour)
-        self._reach2 = (REACH_MARGIN * self.cell_m) ** 2
+        self.grid = NeighbourGrid(self.cell_m, self.cooperative)
 
         self.poses_key = keys.poses_key(fleet)
         self.setpoints_key = keys.setpoints_key(fleet)
@@ -202,16 +178,13 @@ class HostNode:
         self.status_key = keys.host_status_key(fleet, name)
         self.wheels_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
 
-        self._seen: dict[str, _Seen] = {}
+        self._seen = self.grid.seen  # the latest pose of every robot in the frames
         self.clocks = ClockOffsets()  # realtime: the pose frames' clock on this host's
         # cooperative neighbours (robot_agent.neighbours rule 3): lockstep, what the clock
         # relays; realtime, the hosted robots' own modes and the others' status messages
         self.tracking_ids: frozenset[str] = frozenset()
         self._status_modes: dict[str, list[float | bool]] = {}
-        self._pending: Arrivals[_Seen] = Arrivals()  # lockstep: received since the last clock
-        self._grid: _Grid | None = None
-        self._grid_now = -math.inf
-        self._near_cache: dict[tuple[int, int], list[_Entry]] = {}
+        self._pending: Arrivals[Seen] = Arrivals()  # lockstep: received since the last clock
         self.rx: dict[str, int] = {
             "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0,
         }  # fmt: skip
@@ -254,8 +227,7 @@ class HostNode:
             for node in self.nodes.values():
                 node.setpoint = None
                 node.pose = None
-            self._seen.clear()
-            self._grid = None
+            self.grid.clear()
             self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
             self.request_estop_state(now_s)  # an e-stop engaged or released meanwhile
         return self.stall.quarantined(now_s)
@@ -292,30 +264,6 @@ class HostNode:
 
     # -- neighbours ----------------------------------------------------------------------------
 
-    def _build_grid(self, now_s: float) -> _Grid:
-        """The spatial hash of the robots current at ``now_s``: cell -> (frame order, robot id,
-        the safety filter's view of it at ``now_s``). Every neighbour is built once here, so a
-        step of N robots costs N :func:`neighbour` calls, not N x neighbours; its cooperative
-        flag is taken now, before any robot of this step changed its mode (rule 3 of
-        ``robot_agent.neighbours``: the mode of the previous control tick)."""
-        grid: _Grid = {}
-        c = self.cell_m
-        coop = self.cooperative
-        floor = math.floor
-        for rid, e in self._seen.items():
-            rx_s = e.rx_s
-            if rx_s is None or not is_current(now_s, rx_s):
-                continue
-            cell = (floor(e.x / c), floor(e.y / c))
-            nb = neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
-            entry = (e.order, rid, nb, e.x, e.y)
-            bucket = grid.get(cell)
-            if bucket is None:
-                grid[cell] = [entry]
-            else:
-                bucket.append(entry)
-        return grid
-
     def cooperative(self, rid: str, now_s: float) -> bool:
         """Rule 3 of ``robot_agent.neighbours``: relayed by the clock (lockstep); realtime, a
         hosted robot's own mode, another robot's fresh status."""
@@ -327,43 +275,13 @@ class HostNode:
         entry = self._status_modes.get(rid)
         return entry is not None and is_cooperative(now_s, bool(entry[0]), float(entry[1]))
 
-    def _near(self, cell: tuple[int, int]) -> list[_Entry]:
-        """The entries of the 3 x 3 cells around ``cell``, in frame order (cached per grid: the
-        robots of one cell share them)."""
-        near = self._near_cache.get(cell)
-        if near is None:
-            grid = self._grid
-            assert grid is not None
-            cx, cy = cell
-            near = []
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    bucket = grid.get((cx + dx, cy + dy))
-                    if bucket:
-                        near.extend(bucket)
-            near.sort()  # by frame order (unique: the ids are never compared)
-            self._near_cache[cell] = near
-        return near
-
     def _neighbours_of(self, node: AgentNode, now_s: float) -> list[Neighbour]:
-        """The other robots within :data:`REACH_MARGIN` x :attr:`cell_m` of ``node``'s pose
-        (found in the 3 x 3 cells around it), in frame order, as the safety filter sees them
-        (``robot_agent.neighbours``); the robots beyond contribute exactly zero."""
+        """``node``'s neighbours at ``now_s`` as its safety filter and repulsion see them
+        (:meth:`robot_agent.host_grid.NeighbourGrid.neighbours_of`)."""
         pose = node.pose
         if pose is None:
             return []
-        if self._grid is None or now_s != self._grid_now:
-            self._grid = self._build_grid(now_s)
-            self._grid_now = now_s
-            self._near_cache = {}
-        c = self.cell_m
-        me = node.robot_id
-        x, y = pose.x, pose.y
-        r2 = self._reach2
-        near = self._near((math.floor(x / c), math.floor(y / c)))
-        return [
-            e[2] for e in near if (dx := e[3] - x) * dx + (dy := e[4] - y) * dy <= r2 and e[1] != me
-        ]
+        return self.grid.neighbours_of(node.robot_id, pose.x, pose.y, now_s)
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -392,7 +310,7 @@ class HostNode:
                 if e is None:
                     if len(seen) >= MAX_TRACKED:
                         continue
-                    e = seen[rid] = _Seen(x, y, th, cap, rx_s, len(seen))
+                    e = seen[rid] = Seen(x, y, th, cap, rx_s, len(seen))
                 else:
                     e.x, e.y, e.theta, e.capture_s, e.rx_s = x, y, th, cap, rx_s
                 if rx_s is None:
@@ -407,7 +325,7 @@ class HostNode:
                     else:
                         node.pose_rx_s = rx_s
                         mine.append(node)
-            self._grid = None
+            self.grid.invalidate()
             if len(self._pending) > 4 * MAX_TRACKED:  # no clock for ages
                 self._pending.compact(key=id)
             if mine:
@@ -526,7 +444,7 @@ class HostNode:
             for e in self._pending.take():
                 if e.rx_s is None:
                     e.rx_s = t_k
-            self._grid = None
+            self.grid.invalidate()
             self._replay.record(k, [])
             nodes = self.nodes.values()
             self._replay.answer = self._publish_steps(
