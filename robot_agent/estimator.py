@@ -80,6 +80,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .estimator_math import (
+    _NEG_PI,
     _PI,
     _TINY_S,
     _Anchor,
@@ -405,7 +406,9 @@ class Estimator(_EstimatorMath):
                 and now_s - t_s <= self._max_lat
                 and _isfinite(now_s + t_s + x + y + theta)
             ):
-                if not -_PI < theta <= _PI:
+                # (-pi < a <= pi as two plain comparisons with a constant -pi: fewer bytecodes
+                # than the chained form, and False for NaN alike)
+                if not (theta > _NEG_PI and theta <= _PI):
                     theta = _wrap(theta)
                 # the chain at t_s (_chain_at inlined: usually a node, no arc)
                 j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
@@ -449,10 +452,10 @@ class Estimator(_EstimatorMath):
                     sv = ppth + self._r_th
                     kt = ppth / sv if sv > 0.0 else 1.0
                     d = theta - pth
-                    if not -_PI < d <= _PI:
+                    if not (d > _NEG_PI and d <= _PI):
                         d = _wrap(d)
                     th = pth + kt * d
-                    if not -_PI < th <= _PI:
+                    if not (th > _NEG_PI and th <= _PI):
                         th = _wrap(th)
                     wx = px + k * (x - px)
                     wy = py + k * (y - py)
@@ -512,7 +515,7 @@ class Estimator(_EstimatorMath):
             ey = s * ox + c * oy + ty
             eth = oth + fa
             pp = app + (q - aq) + appth * dist * dist
-            if not -_PI < eth <= _PI:
+            if not (eth > _NEG_PI and eth <= _PI):
                 eth = _wrap(eth)
         u = self._nsig * _sqrt(pp)
         if not u <= self._max_unc:

@@ -47,6 +47,7 @@ _sin = math.sin
 _cos = math.cos
 _sqrt = math.sqrt
 _PI = math.pi
+_NEG_PI = -math.pi
 _TWO_PI = 2.0 * math.pi
 
 # A capture time within this of a node (both float sums of ticks) is taken at the node: at most

@@ -316,6 +316,7 @@ class SafetyFilter:
         reach = (cap + _TOL) / gamma
         d_plain = self._d_plain + rho
         lim_plain = d_plain + reach + _TOL
+        nlim_plain = -lim_plain
         # the quick-reject bound of full Neighbour entries, computed at the first one (lazily:
         # (x, y) entries do not use it); q2_tol is the plane's bound when it is larger
         quick = -1.0
@@ -343,7 +344,8 @@ class SafetyFilter:
                 qx, qy = nb
                 dx = px - qx
                 dy = py - qy
-                if not (-lim_plain < dx < lim_plain and -lim_plain < dy < lim_plain):
+                # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
+                if not (dx < lim_plain and dx > nlim_plain and dy < lim_plain and dy > nlim_plain):
                     if not _isfinite(dx + dy):
                         self._rejected += 1
                     continue
@@ -538,5 +540,6 @@ class SafetyFilter:
                 self._infeasible += 1
             if fx != ux or fy != uy:
                 self._active += 1
-        deadlock.observe(now_s, ex, ey, True, tiebreak)
+        if not tiebreak:  # (observe does nothing during a tie-break with something in range)
+            deadlock.observe(now_s, ex, ey, True, False)
         return fx, fy
