@@ -488,7 +488,8 @@ class Firmware(_FirmwareModes):
             self._last_saturated = sat
             if est is not None:  # for the prediction (see _pending_cmd)
                 self._pending_cmd = (now_s + self._act_delay, wr, wl)
-            return _new_command(wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat)
+            # (_new_command inlined: one Python call less per tick)
+            return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat))
         except Exception as exc:
             self.reject(f"internal error: {type(exc).__name__}")
             self._last_saturated = False

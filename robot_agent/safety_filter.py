@@ -153,6 +153,7 @@ __all__ = [
 
 _hypot = math.hypot
 _NAN = math.nan
+_INF = math.inf
 _VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
 
 
@@ -310,7 +311,7 @@ class SafetyFilter:
         if not 0.0 < dt_s * gamma <= 1.0:
             gamma = 1.0 / dt_s if dt_s * self._gamma_slow > 1.0 else self._gamma_slow
         cons: list[tuple[float, float, float]] = []
-        min_h = math.inf
+        min_h = _INF
         # A constraint n.u >= b can bind a command of speed <= cap only if b > -cap, that is
         # h < (cap + n.v) / (share * gamma): the reach beyond the boundary.
         reach = (cap + _TOL) / gamma
@@ -322,9 +323,10 @@ class SafetyFilter:
         quick = -1.0
         q2_tol = -math.inf
         pl = None  # own frame anchor (ref. point, heading, age): robot_agent.safety_plane
-        # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
-        gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
+        gmax = 0.0  # (set with pl, which it goes with)
         if frame is not None:
+            # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
+            gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
             fx, fy, fth, fage = frame
             if fage < 0.0:  # the rule of neighbours.neighbour: a capture in the future is age 0
                 fage = 0.0
