@@ -152,6 +152,8 @@ __all__ = [
 ]
 
 _hypot = math.hypot
+_cos = math.cos
+_sin = math.sin
 _NAN = math.nan
 _INF = math.inf
 _VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
@@ -321,7 +323,7 @@ class SafetyFilter:
         # the quick-reject bound of full Neighbour entries, computed at the first one (lazily:
         # (x, y) entries do not use it); q2_tol is the plane's bound when it is larger
         quick = -1.0
-        q2_tol = -math.inf
+        q2_tol = 0.0  # (below any quick bound)
         pl = None  # own frame anchor (ref. point, heading, age): robot_agent.safety_plane
         gmax = 0.0  # (set with pl, which it goes with)
         if frame is not None:
@@ -368,13 +370,20 @@ class SafetyFilter:
                     quick = quick + rho + 2.0 * reach + _TOL
                     if q2_tol > quick:
                         quick = q2_tol
+                    nquick = -quick
                     two_over_g = 2.0 / gamma
                 # quick reject of a far neighbour (any share, age, shift by l); a non-finite
                 # field makes the bound NaN and takes the full path below
-                lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
+                if rad > 0.0 or vx != 0.0 or vy != 0.0:
+                    lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
+                    nlim = -lim
+                else:  # no radius, no velocity (neighbours.neighbour's entries): the same bits
+                    lim = quick
+                    nlim = nquick
                 dx = px - qx
                 dy = py - qy
-                if not (-lim < dx < lim and -lim < dy < lim) and lim < math.inf:
+                # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
+                if not (dx < lim and dx > nlim and dy < lim and dy > nlim) and lim < _INF:
                     if not _isfinite(dx + dy):
                         self._rejected += 1
                     continue
@@ -402,8 +411,8 @@ class SafetyFilter:
                 rad -= self._budget
                 infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
                 if coop and _isfinite(th):
-                    qx += self._l * math.cos(th)
-                    qy += self._l * math.sin(th)
+                    qx += self._l * _cos(th)
+                    qy += self._l * _sin(th)
                     share = 0.5
                     dd = self._d_coop + infl
                     vx = vy = 0.0
