@@ -155,6 +155,7 @@ class Firmware(_FirmwareModes):
         "_unc",
         "_wheel_r",
         "_wmax",
+        "_wmax_neg",
     )
 
     def __init__(self, config: AgentConfig | None = None) -> None:
@@ -168,6 +169,7 @@ class Firmware(_FirmwareModes):
         self._half_r = 0.5 * self._wheel_r  # eq 7's 0.5 * r (the same bits as inline)
         self._l = cfg.geometry.ref_offset_m
         self._wmax = cfg.geometry.max_wheel_radps
+        self._wmax_neg = -self._wmax  # (the tick's range test without a negation)
         self._rep = cfg.repulsion
         self._rep_on = cfg.repulsion.enabled
         # the repulsion parameters read once (repulsion_raw, the per-tick call)
@@ -464,7 +466,8 @@ class Firmware(_FirmwareModes):
 
             # --- saturation keeping the turn (fast path: inside limits, also False for NaN) -
             wmax = self._wmax
-            if -wmax <= wr <= wmax and -wmax <= wl <= wmax:
+            nwmax = self._wmax_neg
+            if wr <= wmax and wr >= nwmax and wl <= wmax and wl >= nwmax:
                 sat = False
             else:
                 wr0, wl0 = wr, wl
