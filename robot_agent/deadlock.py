@@ -42,6 +42,7 @@ class Deadlock:
         "_stuck_since",
         "_tb_cos",
         "_tb_sin",
+        "_tb_speed",
         "_tb_streak",
         "_tb_until",
         "_vcap",
@@ -54,6 +55,7 @@ class Deadlock:
         self._stuck_error = params.stuck_error_m
         self._tb_cos = math.cos(params.tiebreak_angle_rad)
         self._tb_sin = math.sin(params.tiebreak_angle_rad)
+        self._tb_speed = params.tiebreak_speed_mps
         self._last_now = _NAN
         self._stuck_since = _NAN
         self._stuck_e = math.inf
@@ -92,8 +94,8 @@ class Deadlock:
             c = self._tb_cos
             s = self._tb_sin
             speed = _hypot(ux, uy)
-            if speed < self._params.tiebreak_speed_mps:
-                speed = self._params.tiebreak_speed_mps
+            if speed < self._tb_speed:
+                speed = self._tb_speed
             if speed > self._vcap:
                 speed = self._vcap
             # the goal direction rotated clockwise (to the right) by the tie-break angle; after

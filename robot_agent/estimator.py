@@ -80,6 +80,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .estimator_math import (
+    _NEG_PI,
     _PI,
     _TINY_S,
     _Anchor,
@@ -182,7 +183,7 @@ class Estimator(_EstimatorMath):
         self._r_th = p.meas_theta_std_rad * p.meas_theta_std_rad
         self._odom_q = (p.odom_pos_var_per_m, p.odom_pos_var_per_s)
         self._cmd_q = (p.cmd_pos_var_per_m, p.cmd_pos_var_per_s)
-        self._q_rad = p.theta_var_per_rad
+        self._q_rad2 = p.theta_var_per_rad * 2.0  # (the same bits as q * 2.0 inline)
         self._b_cmd = p.max_dropout_cmd_s
         self._b_odom = p.max_dropout_odom_s
         self._fut_tol = p.future_tolerance_s
@@ -405,7 +406,9 @@ class Estimator(_EstimatorMath):
                 and now_s - t_s <= self._max_lat
                 and _isfinite(now_s + t_s + x + y + theta)
             ):
-                if not -_PI < theta <= _PI:
+                # (-pi < a <= pi as two plain comparisons with a constant -pi: fewer bytecodes
+                # than the chained form, and False for NaN alike)
+                if not (theta > _NEG_PI and theta <= _PI):
                     theta = _wrap(theta)
                 # the chain at t_s (_chain_at inlined: usually a node, no arc)
                 j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
@@ -427,7 +430,7 @@ class Estimator(_EstimatorMath):
                 py = s * ox + c * oy + ty
                 pth = oth + fa
                 pp = app + (q - aq) + ppth * dist * dist
-                ppth = (ppth + self._q_rad * 2.0 * (tu - atu) + self._q_thm * dist
+                ppth = (ppth + self._q_rad2 * (tu - atu) + self._q_thm * dist
                         + self._q_ths * (t_s - at))  # fmt: skip
                 dx = x - px
                 dy = y - py
@@ -449,10 +452,10 @@ class Estimator(_EstimatorMath):
                     sv = ppth + self._r_th
                     kt = ppth / sv if sv > 0.0 else 1.0
                     d = theta - pth
-                    if not -_PI < d <= _PI:
+                    if not (d > _NEG_PI and d <= _PI):
                         d = _wrap(d)
                     th = pth + kt * d
-                    if not -_PI < th <= _PI:
+                    if not (th > _NEG_PI and th <= _PI):
                         th = _wrap(th)
                     wx = px + k * (x - px)
                     wy = py + k * (y - py)
@@ -489,13 +492,14 @@ class Estimator(_EstimatorMath):
                 else:  # _arc(n, dt) inlined
                     ox, oy, oth, d_, tu, q = st
                     h = w * dt * 0.5
+                    vdt = v * dt
                     if -0.1 < h < 0.1:  # _sinc inlined
                         h2 = h * h
-                        chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
+                        chord = vdt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
                     else:
-                        chord = v * dt * (_sin(h) / h)
+                        chord = vdt * (_sin(h) / h)
                     mid = oth + h
-                    d = v * dt if v >= 0.0 else -v * dt
+                    d = vdt if v >= 0.0 else -vdt  # (-v * dt: the same bits)
                     ox = ox + chord * _cos(mid)
                     oy = oy + chord * _sin(mid)
                     oth = mid + h
@@ -512,7 +516,7 @@ class Estimator(_EstimatorMath):
             ey = s * ox + c * oy + ty
             eth = oth + fa
             pp = app + (q - aq) + appth * dist * dist
-            if not -_PI < eth <= _PI:
+            if not (eth > _NEG_PI and eth <= _PI):
                 eth = _wrap(eth)
         u = self._nsig * _sqrt(pp)
         if not u <= self._max_unc:

@@ -47,6 +47,7 @@ _sin = math.sin
 _cos = math.cos
 _sqrt = math.sqrt
 _PI = math.pi
+_NEG_PI = -math.pi
 _TWO_PI = 2.0 * math.pi
 
 # A capture time within this of a node (both float sums of ticks) is taken at the node: at most
@@ -96,13 +97,14 @@ def _arc(n: _Node, dt: float) -> _State:
     _, st, v, w, _, qm, qs = n
     ox, oy, oth, d_, tu, q = st
     h = w * dt * 0.5
+    vdt = v * dt
     if -0.1 < h < 0.1:  # _sinc inlined
         h2 = h * h
-        chord = v * dt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
+        chord = vdt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
     else:
-        chord = v * dt * (_sin(h) / h)
+        chord = vdt * (_sin(h) / h)
     mid = oth + h
-    d = v * dt if v >= 0.0 else -v * dt
+    d = vdt if v >= 0.0 else -vdt  # (-v * dt: the same bits)
     return (ox + chord * _cos(mid), oy + chord * _sin(mid), mid + h, d_ + d,
             tu + (h if h >= 0.0 else -h), q + (qm * d + qs * dt))  # fmt: skip
 
@@ -121,7 +123,7 @@ class _EstimatorMath:
         "_node_t",
         "_nodes",
         "_p",
-        "_q_rad",
+        "_q_rad2",
         "_q_thm",
         "_q_ths",
         "_r_pos",
@@ -132,7 +134,7 @@ class _EstimatorMath:
     _r_pos: float
     _r_th: float
     _cmd_q: tuple[float, float]
-    _q_rad: float
+    _q_rad2: float  # 2 x theta_var_per_rad (TU sums |omega dt| / 2)
     _q_thm: float
     _q_ths: float
     _nodes: list[_Node]
@@ -226,7 +228,7 @@ class _EstimatorMath:
         dist = d_ - ad
         return (c * ox - s * oy + tx, s * ox + c * oy + ty, oth + fa,
                 app + (q - aq) + ppth * dist * dist,
-                ppth + self._q_rad * 2.0 * (tu - atu) + self._q_thm * dist
+                ppth + self._q_rad2 * (tu - atu) + self._q_thm * dist
                 + self._q_ths * (t - at))  # fmt: skip
 
     def _init(self, t_s: float, x: float, y: float, theta: float) -> None:

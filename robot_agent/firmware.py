@@ -155,6 +155,7 @@ class Firmware(_FirmwareModes):
         "_unc",
         "_wheel_r",
         "_wmax",
+        "_wmax_neg",
     )
 
     def __init__(self, config: AgentConfig | None = None) -> None:
@@ -168,6 +169,7 @@ class Firmware(_FirmwareModes):
         self._half_r = 0.5 * self._wheel_r  # eq 7's 0.5 * r (the same bits as inline)
         self._l = cfg.geometry.ref_offset_m
         self._wmax = cfg.geometry.max_wheel_radps
+        self._wmax_neg = -self._wmax  # (the tick's range test without a negation)
         self._rep = cfg.repulsion
         self._rep_on = cfg.repulsion.enabled
         # the repulsion parameters read once (repulsion_raw, the per-tick call)
@@ -464,7 +466,8 @@ class Firmware(_FirmwareModes):
 
             # --- saturation keeping the turn (fast path: inside limits, also False for NaN) -
             wmax = self._wmax
-            if -wmax <= wr <= wmax and -wmax <= wl <= wmax:
+            nwmax = self._wmax_neg
+            if wr <= wmax and wr >= nwmax and wl <= wmax and wl >= nwmax:
                 sat = False
             else:
                 wr0, wl0 = wr, wl
@@ -488,7 +491,8 @@ class Firmware(_FirmwareModes):
             self._last_saturated = sat
             if est is not None:  # for the prediction (see _pending_cmd)
                 self._pending_cmd = (now_s + self._act_delay, wr, wl)
-            return _new_command(wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat)
+            # (_new_command inlined: one Python call less per tick)
+            return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat))
         except Exception as exc:
             self.reject(f"internal error: {type(exc).__name__}")
             self._last_saturated = False

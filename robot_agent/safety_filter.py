@@ -152,6 +152,10 @@ __all__ = [
 ]
 
 _hypot = math.hypot
+_cos = math.cos
+_sin = math.sin
+_NAN = math.nan
+_INF = math.inf
 _VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
 
 
@@ -309,18 +313,22 @@ class SafetyFilter:
         if not 0.0 < dt_s * gamma <= 1.0:
             gamma = 1.0 / dt_s if dt_s * self._gamma_slow > 1.0 else self._gamma_slow
         cons: list[tuple[float, float, float]] = []
-        min_h = math.inf
+        min_h = _INF
         # A constraint n.u >= b can bind a command of speed <= cap only if b > -cap, that is
         # h < (cap + n.v) / (share * gamma): the reach beyond the boundary.
         reach = (cap + _TOL) / gamma
         d_plain = self._d_plain + rho
         lim_plain = d_plain + reach + _TOL
-        two_over_g = 2.0 / gamma
-        quick = self._d_coop + self._l + self._vnb * self._max_age + rho + 2.0 * reach + _TOL
+        nlim_plain = -lim_plain
+        # the quick-reject bound of full Neighbour entries, computed at the first one (lazily:
+        # (x, y) entries do not use it); q2_tol is the plane's bound when it is larger
+        quick = -1.0
+        q2_tol = 0.0  # (below any quick bound)
         pl = None  # own frame anchor (ref. point, heading, age): robot_agent.safety_plane
-        # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
-        gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
+        gmax = 0.0  # (set with pl, which it goes with)
         if frame is not None:
+            # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
+            gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
             fx, fy, fth, fage = frame
             if fage < 0.0:  # the rule of neighbours.neighbour: a capture in the future is age 0
                 fage = 0.0
@@ -334,14 +342,14 @@ class SafetyFilter:
                     pl = (qix, qiy, hix, hiy, fage)
                     # a plane constraint binds only if G < reach (see safety_plane)
                     q2 = self._d_coop + self._l + self._gap + 2.0 * (rho + reach) + 3.0 * off
-                    if q2 + _TOL > quick:
-                        quick = q2 + _TOL
+                    q2_tol = q2 + _TOL
         for nb in neighbours:
             if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
                 qx, qy = nb
                 dx = px - qx
                 dy = py - qy
-                if not (-lim_plain < dx < lim_plain and -lim_plain < dy < lim_plain):
+                # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
+                if not (dx < lim_plain and dx > nlim_plain and dy < lim_plain and dy > nlim_plain):
                     if not _isfinite(dx + dy):
                         self._rejected += 1
                     continue
@@ -357,12 +365,25 @@ class SafetyFilter:
                 continue
             else:
                 qx, qy, th, age, vx, vy, coop, rad = nb
+                if quick < 0.0:  # the first full entry of this call
+                    quick = self._d_coop + self._l + self._vnb * self._max_age
+                    quick = quick + rho + 2.0 * reach + _TOL
+                    if q2_tol > quick:
+                        quick = q2_tol
+                    nquick = -quick
+                    two_over_g = 2.0 / gamma
                 # quick reject of a far neighbour (any share, age, shift by l); a non-finite
                 # field makes the bound NaN and takes the full path below
-                lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
+                if rad > 0.0 or vx != 0.0 or vy != 0.0:
+                    lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
+                    nlim = -lim
+                else:  # no radius, no velocity (neighbours.neighbour's entries): the same bits
+                    lim = quick
+                    nlim = nquick
                 dx = px - qx
                 dy = py - qy
-                if not (-lim < dx < lim and -lim < dy < lim) and lim < math.inf:
+                # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
+                if not (dx < lim and dx > nlim and dy < lim and dy > nlim) and lim < _INF:
                     if not _isfinite(dx + dy):
                         self._rejected += 1
                     continue
@@ -390,8 +411,8 @@ class SafetyFilter:
                 rad -= self._budget
                 infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
                 if coop and _isfinite(th):
-                    qx += self._l * math.cos(th)
-                    qy += self._l * math.sin(th)
+                    qx += self._l * _cos(th)
+                    qy += self._l * _sin(th)
                     share = 0.5
                     dd = self._d_coop + infl
                     vx = vy = 0.0
@@ -468,7 +489,14 @@ class SafetyFilter:
             self._cons = []
             return ux, uy
         deadlock = self._deadlock
-        ux, uy, tiebreak = deadlock.steer(now_s, ux, uy, ex, ey)
+        # Deadlock.steer's common case inlined for speed (a call costs more than its body):
+        # steer was called on the previous tick (within 0.5 s) and no tie-break is under way, so
+        # it would only record now_s and return (ux, uy) unchanged. Else the full method.
+        if 0.0 < now_s - deadlock._last_now <= 0.5 and not now_s < deadlock._tb_until:
+            deadlock._last_now = now_s
+            tiebreak = False
+        else:
+            ux, uy, tiebreak = deadlock.steer(now_s, ux, uy, ex, ey)
         if frame is not None:
             # the neighbours see this robot as cooperative iff it was TRACKING on the previous
             # tick, that is iff this method was called then: only then may it use the plane
@@ -482,37 +510,47 @@ class SafetyFilter:
         self._cons = cons
         if not cons:
             fx, fy = ux, uy
+            # Deadlock.observe's case with nothing in range and no tie-break streak, inlined
+            # for speed: it would only forget the stuck window
+            if tiebreak or deadlock._tb_streak:
+                deadlock.observe(now_s, ex, ey, False, tiebreak)
+            else:
+                deadlock._stuck_since = _NAN
+            return fx, fy
+        if len(cons) == 1:  # the common case, in closed form (same result as solve_qp)
+            ax, ay, b = cons[0]
+            dot = ax * ux + ay * uy
+            if dot >= b - _TOL:
+                fx, fy = ux, uy
+            else:
+                t = b - dot
+                fx = ux + t * ax
+                fy = uy + t * ay
+                # the speed cap: |u_nom|, or max_ref_speed when it must move away (inside a
+                # boundary / approached: b > 0), computed only here where it is used
+                cap = self._vcap if b > 0.0 else _hypot(ux, uy)
+                cap2 = cap * cap
+                if fx * fx + fy * fy > cap2 * (1.0 + 1e-12) + 1e-18:
+                    r2 = cap2 - b * b
+                    if r2 < 0.0:  # asks for more than cap away: stop
+                        fx = fy = 0.0
+                        self._infeasible += 1
+                    else:  # the end of the chord nearest the projection
+                        r = _sqrt(r2) if ax * uy - ay * ux >= 0.0 else -_sqrt(r2)
+                        fx = b * ax - r * ay
+                        fy = b * ay + r * ax
+                self._active += 1
         else:
             cap = _hypot(ux, uy)
             for con in cons:
                 if con[2] > 0.0:  # must move away (inside a boundary / approached): may speed up
                     cap = self._vcap
                     break
-            if len(cons) == 1:  # the common case, in closed form (same result as solve_qp)
-                ax, ay, b = cons[0]
-                dot = ax * ux + ay * uy
-                if dot >= b - _TOL:
-                    fx, fy = ux, uy
-                else:
-                    t = b - dot
-                    fx = ux + t * ax
-                    fy = uy + t * ay
-                    cap2 = cap * cap
-                    if fx * fx + fy * fy > cap2 * (1.0 + 1e-12) + 1e-18:
-                        r2 = cap2 - b * b
-                        if r2 < 0.0:  # asks for more than cap away: stop
-                            fx = fy = 0.0
-                            self._infeasible += 1
-                        else:  # the end of the chord nearest the projection
-                            r = _sqrt(r2) if ax * uy - ay * ux >= 0.0 else -_sqrt(r2)
-                            fx = b * ax - r * ay
-                            fy = b * ay + r * ax
-                    self._active += 1
-            else:
-                fx, fy, feasible = solve_qp(ux, uy, cons, cap)
-                if not feasible:
-                    self._infeasible += 1
-                if fx != ux or fy != uy:
-                    self._active += 1
-        deadlock.observe(now_s, ex, ey, bool(cons), tiebreak)
+            fx, fy, feasible = solve_qp(ux, uy, cons, cap)
+            if not feasible:
+                self._infeasible += 1
+            if fx != ux or fy != uy:
+                self._active += 1
+        if not tiebreak:  # (observe does nothing during a tie-break with something in range)
+            deadlock.observe(now_s, ex, ey, True, False)
         return fx, fy

@@ -321,27 +321,25 @@ class TrackingController:
             else:
                 edot = 0.0
             cand = integ + ex * dt_s
-            limited = False
+            limx = False
             if cand > ilim:
                 cand = ilim
-                limited = True
+                limx = True
             elif cand < -ilim:
                 cand = -ilim
-                limited = True
+                limx = True
             if freeze and abs(cand) > abs(integ):
                 cand = integ
-            d = kp_td * edot
-            out = kp * ex + kp_inv_ti * cand + d
+            dx = kp_td * edot
+            out = kp * ex + kp_inv_ti * cand + dx
             if _isfinite(out + edot):  # commit only finite state (PX4 PID.cpp)
                 pidx._integral = cand
                 pidx._edot = edot
                 pidx._prev_error = ex
                 pidx._has_prev = True
             else:  # overflow somewhere: keep the old state, fall back to P + stored I
-                d = 0.0
+                dx = 0.0
                 out = kp * ex + kp_inv_ti * integ
-            dx = d
-            limx = limited
             ux = ff_vx + out
             # --- y axis
             pidy = self._y
@@ -352,27 +350,25 @@ class TrackingController:
             else:
                 edot = 0.0
             cand = integ + ey * dt_s
-            limited = False
+            limy = False
             if cand > ilim:
                 cand = ilim
-                limited = True
+                limy = True
             elif cand < -ilim:
                 cand = -ilim
-                limited = True
+                limy = True
             if freeze and abs(cand) > abs(integ):
                 cand = integ
-            d = kp_td * edot
-            out = kp * ey + kp_inv_ti * cand + d
+            dy = kp_td * edot
+            out = kp * ey + kp_inv_ti * cand + dy
             if _isfinite(out + edot):  # commit only finite state (PX4 PID.cpp)
                 pidy._integral = cand
                 pidy._edot = edot
                 pidy._prev_error = ey
                 pidy._has_prev = True
             else:  # overflow somewhere: keep the old state, fall back to P + stored I
-                d = 0.0
+                dy = 0.0
                 out = kp * ey + kp_inv_ti * integ
-            dy = d
-            limy = limited
             uy = ff_vy + out
             # the axes' snapshot fields, written into them only when read (``_sync``)
             self._last = (ex, ey, dx, dy, dt_s, freeze, limx, limy)
