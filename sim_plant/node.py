@@ -21,7 +21,6 @@ Theory of operation: docs/process-shells.md (inputs, outputs, realtime and locks
 from __future__ import annotations
 
 import asyncio
-import gc
 import math
 import time
 from collections import deque
@@ -57,14 +56,6 @@ WAIT_ROBOTS_S: Final = 30.0
 """--wait-robots gives up after this long (s)."""
 LATENCY_SAMPLES: Final = 500_000
 """Realtime latency / lateness samples kept (the newest)."""
-GC_AFTER_FRAME_S: Final = 0.015
-"""Realtime: the plant collects garbage itself (automatic collection off) once per frame, this
-long after publishing it, when the frame's commands are back and the next frame is still far
-(30 Hz frames: ~15-25 ms after one, ~10 ms before the next); the middle generation every 16th
-time, all every 512th, and at least every GC_MAX_GAP_S. An automatic collection holds the
-interpreter lock wherever an allocation triggers it, so Zenoh's thread could not stamp and hand
-over the commands arriving meanwhile."""
-GC_MAX_GAP_S: Final = 0.5
 
 
 class PlantNode(PlantInputs, PlantOutputs):
@@ -331,37 +322,10 @@ class PlantNode(PlantInputs, PlantOutputs):
         t0 = time.monotonic()
         sim = self.build(t0)
         end = math.inf if self.duration_s is None else t0 + self.duration_s
+        period = self.physics_period_s
+        next_phys = t0
         latency = sim.camera.latency_s
         deliveries: deque[float] = deque()
-        manual_gc = gc.isenabled()
-        if manual_gc:
-            gc.disable()
-        try:
-            return await self._realtime_loop(stop, sim, end, latency, deliveries, manual_gc)
-        finally:
-            if manual_gc:
-                gc.enable()
-
-    @staticmethod
-    def collect_now(now: float, frame_s: float, gc_s: float) -> bool:
-        """Realtime, automatic collection off: collect now (see GC_AFTER_FRAME_S), the last
-        frame published at ``frame_s`` and the last collection at ``gc_s``?"""
-        return (frame_s > gc_s and now - frame_s >= GC_AFTER_FRAME_S) or now - gc_s >= GC_MAX_GAP_S
-
-    async def _realtime_loop(
-        self,
-        stop: asyncio.Event,
-        sim: _Sim,
-        end: float,
-        latency: float,
-        deliveries: deque[float],
-        manual_gc: bool,
-    ) -> bool:
-        period = self.physics_period_s
-        next_phys = sim.t0_s
-        frames = self.frames_published
-        frame_s = gc_s = sim.t0_s
-        collections = 0
         while not stop.is_set():
             now = time.monotonic()
             if now >= end:
@@ -379,14 +343,6 @@ class PlantNode(PlantInputs, PlantOutputs):
                 self.publish_due_frames(sim, now)
                 while deliveries and deliveries[0] <= now + 1e-9:
                     deliveries.popleft()
-                if self.frames_published != frames:
-                    frames = self.frames_published
-                    frame_s = now
-                elif manual_gc and self.collect_now(now, frame_s, gc_s):
-                    collections += 1
-                    gen = 2 if collections % 512 == 0 else 1 if collections % 16 == 0 else 0
-                    gc.collect(gen)
-                    gc_s = time.monotonic()
                 if now >= next_phys:
                     sim.monitor.update(now, truth)
                     self.tick += 1

@@ -357,16 +357,3 @@ def test_lockstep_agent_host_equals_the_simulator_bit_for_bit() -> None:
     """The same with one agent host running every robot (batched poses, setpoints, wheels)."""
     drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
     _lockstep_equals_simulate(SCENARIO.with_overrides(disturbances=(drag,)), 1.0, hosts=True)
-
-
-def test_realtime_plant_collects_garbage_between_frames_only() -> None:
-    # automatic collection off in realtime: once per frame, GC_AFTER_FRAME_S after it (its
-    # commands are back), and at least every GC_MAX_GAP_S
-    from sim_plant.node import GC_AFTER_FRAME_S, GC_MAX_GAP_S, PlantNode
-
-    frame = 10.0
-    assert not PlantNode.collect_now(frame + 0.5 * GC_AFTER_FRAME_S, frame, frame - 0.01)
-    assert PlantNode.collect_now(frame + GC_AFTER_FRAME_S, frame, frame - 0.01)
-    after = frame + GC_AFTER_FRAME_S
-    assert not PlantNode.collect_now(after + 0.01, frame, after)  # once per frame
-    assert PlantNode.collect_now(after + GC_MAX_GAP_S, frame, after)  # no frames: still collect
