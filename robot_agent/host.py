@@ -33,7 +33,9 @@ on-pose loop of ``formation agent``) and their commands go out in batches; a ``-
 watchdog steps every robot that was not stepped for a period, so stale data still drives HOLD.
 The watchdog runs when the oldest step falls due (not on a fixed grid) and steps
 :data:`WATCHDOG_CHUNK` robots per turn of the event loop, so a frame that arrives meanwhile is
-served first (its robots are then no longer due).
+served first (its robots are then no longer due). ``host_main`` turns the automatic garbage
+collection off in realtime: the host collects when a watchdog round ends, between two frames
+(:meth:`HostNode.collect_garbage`), never inside a frame's steps.
 Lockstep: on ``clock`` k every robot steps at ``t_k`` (``AgentNode.clock_step``) and one batch
 (``tick: k``) answers; a repeated clock gets the same batch again.
 
