@@ -21,8 +21,10 @@ rule, its 50 Hz control and 30 Hz camera). Per run it prints:
 * CPU seconds of every process of the run (``/proc``), and the machine's load average before
   and after (the machine is shared: a load well above 2 inflates the tail).
 
-Usage: ``python bench/bench_up.py [--robots 100] [--duration 20] [--repeat 3] [--keep DIR]``
-(``--keep``: leave each run's directory, logs included, under DIR). Prints; asserts nothing.
+Usage: ``python bench/bench_up.py [--robots 100] [--duration 20] [--repeat 3] [--keep DIR]
+[--hosts N]`` (``--keep``: leave each run's directory, logs included, under DIR; ``--hosts``:
+pass ``--hosts N`` to ``formation up``, for a comparison with the automatic choice). Prints;
+asserts nothing.
 Results and the command: docs/benchmarks.md, docs/scale.md.
 """
 
@@ -40,11 +42,13 @@ from bench_lockstep import watch_tree_cpu
 from common import REPO_ROOT, free_port
 
 
-def run_up(robots: int, duration_s: float, out: Path) -> dict[str, object] | None:
+def run_up(
+    robots: int, duration_s: float, out: Path, extra: list[str] | None = None
+) -> dict[str, object] | None:
     argv = [
         sys.executable, "-m", "formation", "up", "--robots", str(robots),
         "--duration", str(duration_s), "--endpoint", f"tcp/127.0.0.1:{free_port()}",
-        "--out", str(out), "--no-figures",
+        "--out", str(out), "--no-figures", *(extra or []),
     ]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     load0 = os.getloadavg()[0]
@@ -107,17 +111,25 @@ def main() -> int:
         metavar="DIR",
         help="write the runs' directories (logs, stats) under DIR and keep them",
     )
+    p.add_argument(
+        "--hosts",
+        type=int,
+        metavar="N",
+        help="pass --hosts N to formation up (a comparison; the issue's figure is without it)",
+    )
     args = p.parse_args()
+    extra = [] if args.hosts is None else ["--hosts", str(args.hosts)]
     print(
         f"formation up --robots {args.robots}, realtime, {args.duration:g} s per run, "
-        f"{os.cpu_count()} CPUs"
+        f"{os.cpu_count()} CPUs{'' if not extra else ', ' + ' '.join(extra)}"
     )
     with tempfile.TemporaryDirectory(prefix="bench-up-") as tmp:
         base = Path(args.keep or tmp)
         base.mkdir(parents=True, exist_ok=True)
         for k in range(args.repeat):
             print(f"run {k + 1}:")
-            run_up(args.robots, args.duration, Path(tempfile.mkdtemp(prefix=f"run{k}-", dir=base)))
+            run_dir = Path(tempfile.mkdtemp(prefix=f"run{k}-", dir=base))
+            run_up(args.robots, args.duration, run_dir, extra)
     return 0
 
 

@@ -212,10 +212,12 @@ class _Launcher:
             )
         self.session = await rt.open_session_async(settings)
         # The one bridge (runtime.bridge) into a queue inbox that the loop drains every
-        # CONSUME_PERIOD_S: one loop wake-up per burst, not per sample, so on two cores the
-        # launcher does not slow down the lockstep it is watching.
+        # CONSUME_PERIOD_S, and only then (wake=False): a sample does not wake the launcher's
+        # loop, so on two cores the launcher takes less from the lockstep it is watching and
+        # from the control loop of a realtime fleet (each agent host's batch of wheels used to
+        # wake it once, in the middle of the host's next batch).
         patterns = key_patterns(self.cfg.fleet)
-        self._inbox = rt.Inbox("queue", maxlen=FIFO_CAPACITY * len(patterns))
+        self._inbox = rt.Inbox("queue", maxlen=FIFO_CAPACITY * len(patterns), wake=False)
         self._subscribers = [rt.subscribe(self.session, p, loop, self._inbox) for p in patterns]
         rt.watch_liveliness(
             self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive

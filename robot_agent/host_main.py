@@ -157,6 +157,9 @@ async def _node(
         # (runtime.serve froze the imports; a full collection then walks only new objects)
         gc.collect()
         gc.freeze()
+        if not lockstep:  # collections between frames only (HostNode.collect_garbage)
+            gc.disable()
+            host.manual_gc = True
         print(f"agent-host {name} ready", flush=True)
         notifier.ready(f"agent-host {name} connected ({len(ids)} robots)")
         mode = "lockstep" if lockstep else f"realtime, watchdog {rate_hz:g} Hz"

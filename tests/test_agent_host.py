@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -37,7 +38,15 @@ from bus_schemas import (
     encode,
     keys,
 )
-from robot_agent.host import STATUS_STEP, WATCHDOG_CHUNK, WATCHDOG_YIELD_S, HostNode
+from robot_agent.host import (
+    GC_FULL_EVERY,
+    GC_MAX_GAP_S,
+    GC_MIDDLE_EVERY,
+    STATUS_STEP,
+    WATCHDOG_CHUNK,
+    WATCHDOG_YIELD_S,
+    HostNode,
+)
 from robot_agent.host_main import expand_ids
 from robot_agent.params import AgentConfig
 from robot_agent.safety_filter import SafetyFilter
@@ -159,6 +168,50 @@ def test_watchdog_steps_a_chunk_per_turn_and_skips_robots_a_frame_stepped() -> N
     t2 = max(n.last_step_s for n in host.nodes.values()) + host.period_s
     host.control_timer(t2)
     assert sent() == ids[:WATCHDOG_CHUNK]  # a period later: the watchdog again, in chunks
+
+
+def test_manual_gc_collects_at_the_end_of_a_watchdog_round_never_inside_a_frame() -> None:
+    # realtime host_main turns the automatic collection off; the host collects once a watchdog
+    # round is complete (between frames) and, with no round, at least every GC_MAX_GAP_S
+    ids = [f"r{i + 1}" for i in range(WATCHDOG_CHUNK + 5)]
+    host = HostNode("h1", ids, FLEET, AgentConfig(), _Bus(), lockstep=False)
+    host.manual_gc = True
+    gens: list[int] = []
+
+    def seen(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            gens.append(info["generation"])
+
+    gc.callbacks.append(seen)
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        t0 = time.monotonic()
+        host.control_timer(t0)  # the first chunk: the round goes on, no collection
+        assert gens == [] and host.gc_rounds == 0
+        host.control_timer(t0)  # the last chunk: the round is complete
+        assert gens == [0] and host.gc_rounds == 1
+        xy = np.array([[0.5 * i, 0.0] for i in range(len(ids))])
+        host.on_poses(_rx(keys.poses_key(FLEET), _frame(ids, xy)))
+        assert gens == [0]  # a frame's steps never collect
+        t1 = min(n.last_step_s for n in host.nodes.values()) + 0.5 * host.period_s
+        host.gc_s = t1
+        host.control_timer(t1)  # nobody due, the last collection recent: nothing
+        assert gens == [0]
+        t2 = t1 + GC_MAX_GAP_S
+        for n in host.nodes.values():
+            n.last_step_s = t2
+        host.control_timer(t2)  # nobody due, no collection for GC_MAX_GAP_S: collect anyway
+        assert gens == [0, 0]
+        host.gc_rounds = GC_MIDDLE_EVERY - 1
+        host.collect_garbage(t0)
+        host.gc_rounds = GC_FULL_EVERY - 1
+        host.collect_garbage(t0)
+        assert gens == [0, 0, 1, 2]
+    finally:
+        gc.callbacks.remove(seen)
+        if enabled:
+            gc.enable()
 
 
 def test_status_round_in_pieces_publishes_one_batch_of_every_robot() -> None:

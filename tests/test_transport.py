@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -174,6 +175,37 @@ async def test_queue_inbox_keeps_order_and_drops_oldest_beyond_maxlen() -> None:
     rest = inbox.drain()
     assert [int(r.payload) for r in [first, *rest]] == list(range(150, 250))
     assert inbox.dropped == 150 and inbox.get_nowait() is None
+
+
+async def test_inbox_without_wake_is_polled_and_never_wakes_the_loop() -> None:
+    loop = asyncio.get_running_loop()
+    inbox = rt.Inbox("queue", maxlen=100, wake=False)
+    inbox.bind(loop)
+    scheduled: list[object] = []
+    real = loop.call_soon_threadsafe
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        scheduled.append(args[0])
+        return real(*args, **kwargs)
+
+    loop.call_soon_threadsafe = spy  # type: ignore[method-assign, assignment]
+    try:
+        push_from_thread(inbox, [item("e", n) for n in range(250)])
+        await asyncio.sleep(0.01)
+    finally:
+        del loop.call_soon_threadsafe
+    assert scheduled == []  # no push scheduled anything on the loop
+    assert inbox.get_nowait() is not None  # the reader takes what accumulated, in order
+    assert [int(r.payload) for r in inbox.drain()] == list(range(151, 250))
+    assert inbox.dropped == 150 and inbox.drain() == []
+    latest = rt.Inbox("latest", wake=False)
+    latest.bind(loop)
+    push_from_thread(latest, [item(k, n) for n in range(5) for k in ("a", "b")])
+    assert {k: r.payload for k, r in latest.snapshot().items()} == {"a": b"4", "b": b"4"}
+    with pytest.raises(RuntimeError, match="polled"):
+        await inbox.get()
+    with pytest.raises(RuntimeError, match="polled"):
+        await latest.wait(timeout_s=0.01)
 
 
 def test_inbox_latest_mode_bounds_distinct_keys() -> None:
