@@ -82,8 +82,8 @@ from robot_agent.estop import ESTOP_REFRESH_S
 from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
-from robot_agent.firmware_types import FirmwareStatus
 from robot_agent.host_grid import NeighbourGrid, Seen
+from robot_agent.host_status import StatusRow, status_batches, status_row
 from robot_agent.lockstep import Arrivals, Replay
 from robot_agent.neighbours import (
     NEIGHBOUR_STALE_S,
@@ -91,11 +91,12 @@ from robot_agent.neighbours import (
 )
 from robot_agent.node import AgentNode, Publish, clock_wheels, status_tracking
 from robot_agent.params import AgentConfig
-from robot_agent.safety_filter import Neighbour, SafetyFilter, SafetyFilterStatus
+from robot_agent.safety_filter import Neighbour, SafetyFilter
+from runtime.lifecycle import GC_FULL_EVERY, GC_MIDDLE_EVERY, gc_generation
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
-__all__ = ["MAX_HOSTED", "HostNode"]
+__all__ = ["GC_FULL_EVERY", "GC_MIDDLE_EVERY", "MAX_HOSTED", "HostNode"]
 
 MAX_HOSTED: Final = 4096
 """Robots one host runs at most."""
@@ -114,14 +115,8 @@ blocks in its selector, so Zenoh's thread gets the GIL and hands over a frame th
 during the chunk, and the frame's handler runs before the next chunk (after ``sleep(0)`` the
 next chunk would be queued first)."""
 
-GC_MIDDLE_EVERY: Final = 16
-"""Realtime with the automatic garbage collection off (:attr:`HostNode.manual_gc`): every
-completed watchdog round collects the youngest generation, every 16th round the middle one
-too, and every :data:`GC_FULL_EVERY` th round all of them (:meth:`HostNode.collect_garbage`)."""
-GC_FULL_EVERY: Final = 512
 GC_MAX_GAP_S: Final = 0.5
-
-_StatusRow = tuple[str, FirmwareStatus, SafetyFilterStatus]
+"""Realtime with manual collections (:attr:`HostNode.manual_gc`): the longest time without one."""
 
 
 class HostNode:
@@ -205,7 +200,7 @@ class HostNode:
         self._replay: Replay[list[bytes]] = Replay()  # lockstep: the last clock's batches
         self._seq_wheels = 0
         self._seq_status = 0
-        self._status_rows: list[_StatusRow] = []  # the status round under way (publish_status)
+        self._status_rows: list[StatusRow] = []  # the status round under way (publish_status)
         self._status_t = 0.0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
         # the latched e-stop (robot_agent.estop): estop messages seen (a query's answer older
@@ -533,35 +528,12 @@ class HostNode:
         """The status of every hosted robot, in chunks."""
         return self._status_messages(now_s, [self._status_row(r) for r in self.order])
 
-    def _status_row(self, rid: str) -> _StatusRow:
-        fw = self.nodes[rid].firmware
-        return rid, fw.status(), fw.safety_filter.status()
+    def _status_row(self, rid: str) -> StatusRow:
+        return status_row(rid, self.nodes[rid].firmware)
 
-    def _status_messages(self, now_s: float, rows: list[_StatusRow]) -> list[StatusBatch]:
-        out: list[StatusBatch] = []
-        for i in range(0, len(rows), BATCH_CHUNK):
-            chunk = rows[i : i + BATCH_CHUNK]
-            sts = [r[1] for r in chunk]
-            flts = [r[2] for r in chunk]
-            self._seq_status += 1
-            out.append(
-                StatusBatch(
-                    t=max(now_s, 0.0),
-                    seq=self._seq_status,
-                    pid=self.pid,
-                    host=self.hostname,
-                    robots=tuple(r[0] for r in chunk),
-                    mode=tuple(str(s.mode) for s in sts),
-                    slot=tuple(-1 if s.slot is None else s.slot for s in sts),
-                    rejected=tuple(s.rejected_count for s in sts),
-                    ex=tuple(rt.finite_or_none(s.ex) or 0.0 for s in sts),
-                    ey=tuple(rt.finite_or_none(s.ey) or 0.0 for s in sts),
-                    filter_active=tuple(f.active_ticks for f in flts),
-                    filter_violations=tuple(f.violations for f in flts),
-                    filter_infeasible=tuple(f.infeasible for f in flts),
-                    filter_tiebreaks=tuple(f.tiebreaks for f in flts),
-                )
-            )
+    def _status_messages(self, now_s: float, rows: list[StatusRow]) -> list[StatusBatch]:
+        out = status_batches(rows, max(now_s, 0.0), self._seq_status, self.pid, self.hostname)
+        self._seq_status += len(out)
         return out
 
     def publish_status(self) -> float | None:
@@ -611,17 +583,15 @@ class HostNode:
 
     def collect_garbage(self, now_s: float) -> None:
         """One collection at the end of a watchdog round (:attr:`manual_gc`): the youngest
-        generation, every :data:`GC_MIDDLE_EVERY` th round the middle one, every
-        :data:`GC_FULL_EVERY` th all. With 30 Hz frames and a 50 Hz watchdog a round ends
-        ~25 ms after a frame and ~8 ms before the next, so a collection no longer lands inside
-        a frame's steps (automatic collections did, at any allocation: ~0.25 ms for the
-        youngest, ~2 ms for the middle generation on this machine). Also when no round ended
-        for :data:`GC_MAX_GAP_S` (frames as fast as the watchdog leave no robot due)."""
+        generation, now and then the older ones (:func:`runtime.lifecycle.gc_generation`).
+        With 30 Hz frames and a 50 Hz watchdog a round ends ~25 ms after a frame and ~8 ms
+        before the next, so a collection no longer lands inside a frame's steps (automatic
+        collections did, at any allocation: ~0.25 ms for the youngest, ~2 ms for the middle
+        generation on this machine). Also when no round ended for :data:`GC_MAX_GAP_S`
+        (frames as fast as the watchdog leave no robot due)."""
         self.gc_s = now_s
         self.gc_rounds += 1
-        k = self.gc_rounds
-        gen = 2 if k % GC_FULL_EVERY == 0 else 1 if k % GC_MIDDLE_EVERY == 0 else 0
-        gc.collect(gen)
+        gc.collect(gc_generation(self.gc_rounds))
 
     async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
         """Timers until ``stop``: the realtime watchdog step and the 5 Hz status."""

@@ -34,6 +34,8 @@ from runtime.log import NodeLog
 
 __all__ = [
     "FORCED_EXIT_CODE",
+    "GC_FULL_EVERY",
+    "GC_MIDDLE_EVERY",
     "GIL_SWITCH_INTERVAL_S",
     "PARENT_ENV",
     "NodeIO",
@@ -41,6 +43,7 @@ __all__ = [
     "bind_to_parent",
     "exit_fast",
     "fast_exit_requested",
+    "gc_generation",
     "request_fast_exit",
     "run_node",
     "serve",
@@ -61,6 +64,16 @@ GIL_SWITCH_INTERVAL_S: Final = 0.0005
 (receive time, hand-over to the loop): while the loop computes (an agent host stepping a
 hundred robots), that thread waited up to 5 ms before it could even stamp the sample. 0.5 ms
 bounds that wait; it costs nothing while no other thread wants the GIL (docs/scale.md)."""
+GC_MIDDLE_EVERY: Final = 16
+"""A process that collects its garbage by hand between rounds of work (the agent host in
+realtime, ``HostNode.collect_garbage``): every round the youngest generation, every 16th the
+middle one too, every :data:`GC_FULL_EVERY` th all of them (:func:`gc_generation`)."""
+GC_FULL_EVERY: Final = 512
+
+
+def gc_generation(round_k: int) -> int:
+    """The oldest generation to collect after round ``round_k`` (1, 2, ...) of manual GC."""
+    return 2 if round_k % GC_FULL_EVERY == 0 else 1 if round_k % GC_MIDDLE_EVERY == 0 else 0
 
 
 class _ShutdownWatchdog:

@@ -55,6 +55,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "robot_agent.node_estop",
             "robot_agent.host",
             "robot_agent.host_main",
+            "robot_agent.host_status",
             "robot_agent.main",
             "coordinator.node",
             "coordinator.outputs",
