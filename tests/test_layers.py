@@ -308,7 +308,7 @@ def test_one_subscription_bridge_has_teeth(tmp_path: Path) -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 16  # localization.main, sim_plant.outputs: split off node.py
+    assert len(shells) == 17  # localization.main, sim_plant.outputs, robot_agent.host_status
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 
