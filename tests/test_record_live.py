@@ -121,6 +121,52 @@ def test_record_command_rejects_bad_arguments(tmp_path: Path) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+def test_lockstep_end_of_run_waits_for_the_final_ticks_answers_not_a_time() -> None:
+    """What `formation up --lockstep` waits for after the plant ran its duration
+    (``RunCollector.tick_complete``): the last tick's truth of every robot, the coordinator's
+    leader of that tick and every live robot's wheels answering it, however late they come (on
+    a starved machine the answers trail the truth); a robot whose token is gone is not waited
+    for (the plant went on without it)."""
+    from test_up import FLEET as UP_FLEET
+    from test_up import bus_messages
+
+    import scenario
+    from formation import simulate
+    from formation.collector import RunCollector
+
+    scn = scenario.load("paper-exp1")
+    log = simulate.run(scn, duration_s=0.1).log
+    final = log.t_s.size - 1
+    msgs = bus_messages(log, scn.dt_s)
+    col = RunCollector.for_scenario(scn, fleet=UP_FLEET, lockstep=True)
+    # the last tick's answers (leader, wheels) held back: the truth alone is not the end
+    last_t = float(log.t_s[-1])
+    answers = [m for m in msgs if m[0].endswith(("/leader", "/wheels"))]
+    tail = [m for m in answers if _msg_t(m[1]) == last_t]
+    col.feed_all([m for m in msgs if m not in tail])
+    assert col.last_truth_tick == final and not col.tick_complete(final)
+    leader = [m for m in tail if m[0].endswith("/leader")]
+    wheels = [m for m in tail if m[0].endswith("/wheels")]
+    assert len(leader) == 1 and len(wheels) == len(scn.robot_ids)
+    col.feed_all(leader + wheels[:-1])
+    assert not col.tick_complete(final)  # one robot's answer still missing
+    gone = keys.parse_robot_key(wheels[-1][0])
+    assert gone is not None
+    col.feed_alive(keys.alive_robot_key(UP_FLEET, gone[1]), False)
+    assert col.tick_complete(final)  # its agent is gone: the plant did not wait for it either
+    col.feed_alive(keys.alive_robot_key(UP_FLEET, gone[1]), True)
+    assert not col.tick_complete(final)
+    col.feed_all(wheels[-1:])
+    assert col.tick_complete(final) and not col.tick_complete(final + 1)
+    assert col.build().t_s.size == final + 1
+
+
+def _msg_t(payload: bytes) -> float:
+    import msgpack
+
+    return float(msgpack.unpackb(payload)["t"])
+
+
 @pytest.mark.slow
 def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
     spawn: Spawner, tmp_path: Path
