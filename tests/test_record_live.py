@@ -196,16 +196,19 @@ def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
     try:
         assert up.proc.wait(timeout=120) == 0, up.describe()
         live = json.loads((up_out / "metrics.json").read_text())
-        # Samples still in flight to the recorder's session when `up` exits (a starved machine):
-        # wait until it has every clock tick the live collector saw before closing it.
+        # Samples still queued in the recorder's process when `up` exits (a starved machine):
+        # wait until it has written every clock tick the live collector saw before closing it.
+        # (They must be in this process by then: up's router exits with up, and what it still
+        # held for a slow subscriber was lost with it; runtime.bridge.subscribe_buffered.)
         clocks = live["meta"]["collector"]["received"]["clock"]
         deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline:
-            if handle.recorder.stats.per_key.get(keys.clock_key(FLEET), 0) >= clocks:
-                break
+        while (
+            recorded := handle.recorder.stats.per_key.get(keys.clock_key(FLEET), 0)
+        ) < clocks and time.monotonic() < deadline:
             time.sleep(0.05)
     finally:
         stats = handle.close()
+    assert recorded >= clocks, f"the recording has {recorded} of the run's {clocks} clock ticks"
     assert stats.dropped == 0 and stats.handler_errors == 0 and stats.rejected == 0
 
     rep_out = tmp_path / "report"
