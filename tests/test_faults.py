@@ -26,11 +26,13 @@ import signal
 import sys
 import threading
 import time
+import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import msgpack
+import numpy as np
 import pytest
 from conftest import Spawner, free_port
 
@@ -546,3 +548,35 @@ async def test_plant_and_router_restart_agents_survive_and_loop_resumes(
     finally:
         with contextlib.suppress(Exception):
             obs.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# Known defect: two robots whose slots cross stand still (found by this module next to CPU hogs)
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known deadlock (session 6): two followers whose assigned slots cross stand still "
+    "0.257 m apart in TRACKING; neither the safety filter's tie-break nor the assignment's "
+    "hysteresis frees them. Seen in this module's fleet after a stretched hang or kill.",
+)
+def test_two_followers_whose_slots_cross_reform_from_the_jammed_poses() -> None:
+    """The poses of the shared fleet above when a formation wait failed next to CPU hogs: r2
+    hung (SIGSTOP, 4 s: the fault CLI's start on a starved machine) and r3, given r2's slot,
+    drove up next to it; on the resume the greedy assignment gives r2 slot 2 and r3 slot 1, on
+    the far side of each other, and both stay put while the errors grow with the trajectory
+    (3 cm/s). The in-process simulator (lockstep, no Zenoh, no load) does the same from those
+    poses, so the defect is the fleet's, not the machine's or the test's."""
+    import scenario
+    from formation import simulate
+
+    text = SCENARIO.replace(
+        "initial = [[0.35, 0.0, 0.0], [0.15, 0.35, 0.0], [0.15, -0.35, 0.0]]",
+        "initial = [[1.552, 0.0, 0.0], [0.948, 0.201, -0.014], [1.139, 0.029, 0.868]]",
+    ).replace("x0 = 0.4", "x0 = 1.552")
+    scn = scenario.parse(tomllib.loads(text), "jammed poses")
+    log = simulate.run(scn, duration_s=30.0).log
+    err = np.hypot(*(log.target - log.ref).transpose(2, 0, 1))
+    assert log.min_separation_m > COLLISION_M  # safe: it never collides
+    assert np.nanmax(err[-1]) < 0.06, f"errors at {log.t_s[-1]:.0f} s: {err[-1].round(3)}"
