@@ -568,7 +568,11 @@ def test_two_followers_whose_slots_cross_reform_from_the_jammed_poses() -> None:
     drove up next to it; on the resume the greedy assignment gives r2 slot 2 and r3 slot 1, on
     the far side of each other, and both stay put while the errors grow with the trajectory
     (3 cm/s). The in-process simulator (lockstep, no Zenoh, no load) does the same from those
-    poses, so the defect is the fleet's, not the machine's or the test's."""
+    poses, so the defect is the fleet's, not the machine's or the test's. Why (the filter's
+    own counters: infeasible at every tick, clearance -0.099 m): while r2 hung it was not
+    cooperative, and r3 came up to the non-cooperative barrier (centre to r2's centre); once r2
+    tracks again the pair's barrier is the cooperative one (reference point to reference point,
+    ``Ds + 2 l``: robot_agent/safety_filter.py), which they are already inside."""
     import scenario
     from formation import simulate
 
