@@ -28,6 +28,8 @@ from formation import report as report_mod
 from formation.record import READY_PREFIX, start_recorder
 from runtime.tap import BusItem, BusTap
 
+BLOCK = zenoh.CongestionControl.BLOCK
+
 EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of SIGINT; 0.5 s margin for a loaded CI box
 
 
@@ -60,6 +62,46 @@ def test_bus_tap_survives_handler_errors_and_bounds_its_close(
     n = len(handled)
     time.sleep(0.05)
     assert len(handled) == n  # the worker has stopped
+
+
+def test_bus_tap_keeps_a_backlog_its_router_had_when_the_router_exits(spawn: Spawner) -> None:
+    """A tap whose worker is slower than the bus (1 ms of Python per sample: a recorder on a
+    starved machine) and whose router exits right after the last put: every sample published
+    before is handled, and the router exits at once with status 0. With the samples taken on
+    Zenoh's network thread (a callback that needs the GIL the worker holds), the session read
+    its link slowly, the router held the backlog and, trying to flush it at its exit, overran
+    its exit bound and was forced out (status 70) with it: 2816 and 3115 of 4000 handled next to
+    CPU hogs; a recording of a finished `formation up --lockstep` run missed its last ticks
+    (runtime.bridge.subscribe_buffered). On an idle machine the old way may pass too."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = spawn("router", "--listen", endpoint, ready="router listening on ")
+    settings = rt.ZenohSettings(connect=(endpoint,), open_timeout_s=10.0)
+    handled: list[int] = []
+
+    def slow(item: BusItem) -> None:
+        start = time.perf_counter()
+        while time.perf_counter() - start < 0.001:
+            pass
+        handled.append(int(item.payload))
+
+    sub, pub = rt.open_session(settings), rt.open_session(settings)
+    try:
+        tap = BusTap(sub, FLEET, slow, name="slow-tap")
+        time.sleep(0.5)  # the subscription reaches the router
+        n = 4000
+        for k in range(n):  # 8 MB: more than the socket buffers hold
+            pub.put(f"formation/{FLEET}/k", str(k).encode().ljust(2000), congestion_control=BLOCK)
+        pub.close()
+        exit_s = router.stop(signal.SIGINT, timeout_s=10.0)
+        assert router.proc.returncode == 0, router.describe()
+        assert exit_s < EXIT_BOUND_S, f"the router took {exit_s:.2f} s to exit"
+        deadline = time.monotonic() + 60.0
+        while len(handled) < n and time.monotonic() < deadline:
+            time.sleep(0.05)
+        tap.close()
+    finally:
+        sub.close()
+    assert handled == list(range(n)) and tap.dropped == 0
 
 
 # ---------------------------------------------------------------------------------------------
