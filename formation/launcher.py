@@ -297,20 +297,22 @@ class _Launcher:
 
     async def _drain_lockstep(self) -> None:
         """Lockstep, after the plant ran its duration: wait until the collector holds the
-        plant's last tick (a condition, not a time: the result of a lockstep run must not depend
-        on how loaded the machine is), then :data:`DRAIN_S` for the other nodes' last samples.
+        plant's last tick, its truth and the answers to it (``RunCollector.tick_complete``: a
+        condition, not a time: the result of a lockstep run must not depend on how loaded the
+        machine is), then :data:`DRAIN_S` for the other nodes' last samples (status).
         Bounded by :data:`LOCKSTEP_DRAIN_MAX_S`; a run cut short says how many ticks it lacks."""
         dt = self.collector.dt_s
         final = None if dt is None else round(self.plan.duration_s / dt)
         deadline = time.monotonic() + LOCKSTEP_DRAIN_MAX_S
         while final is not None:
             self._drain_subscribers()
-            last = self.collector.last_truth_tick
-            if last is not None and last >= final:
+            if self.collector.tick_complete(final):
                 break
             if time.monotonic() > deadline:
+                last = self.collector.last_truth_tick
                 self.warn(
-                    f"the plant's last tick {final} did not reach the collector within "
+                    f"the plant's last tick {final} (its truth and answers) did not reach the "
+                    f"collector within "
                     f"{LOCKSTEP_DRAIN_MAX_S:g} s (last: {last}): the metrics end early"
                 )
                 break

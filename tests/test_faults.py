@@ -19,17 +19,20 @@ import asyncio
 import contextlib
 import itertools
 import math
+import os
 import random
 import re
 import signal
 import sys
 import threading
 import time
+import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import msgpack
+import numpy as np
 import pytest
 from conftest import Spawner, free_port
 
@@ -251,9 +254,86 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
     yield from fleet_fixture(tmp_path_factory, "faults", "--standby")
 
 
+def formation_history(obs: Observer, robots: set[str], since: float, step_s: float = 2.0) -> str:
+    """What the observer saw of ``robots`` since ``since``, every ``step_s``: each robot's newest
+    status then (age, mode, slot, tracking error) and the assignment (a failure says why)."""
+    lines = []
+    statuses = obs.get("status", since - 1.0)
+    assignments = obs.get("assignment")
+    t = since
+    now = time.monotonic()
+    while t <= now + 1e-9:
+        newest: dict[str, tuple[float, Status]] = {}
+        for rx, who, st in statuses:
+            if rx <= t and who in robots:
+                newest[who] = (rx, st)
+        a = [m for rx, _, m in assignments if rx <= t]
+        parts = [f"+{t - since:5.1f}s assignment {dict(a[-1].robots) if a else None}"]
+        for r in sorted(robots):
+            if r not in newest:
+                parts.append(f"{r}: no status")
+                continue
+            rx, st = newest[r]
+            parts.append(
+                f"{r}: {st.mode} slot {st.slot} err {tracking_err(st) * 100:.1f} cm "
+                f"({(t - rx) * 1000:.0f} ms old)"
+            )
+        lines.append("; ".join(parts))
+        t += step_s
+    return "\n".join(lines)
+
+
 async def wait_formed(fl: Fleet, robots: set[str] | None = None, timeout_s: float = 25.0) -> None:
     robots = robots or {"r1", "r2", "r3"}
-    await until(lambda: formed(fl.obs, robots), timeout_s, f"formation of {sorted(robots)}")
+    start = time.monotonic()
+    try:
+        await until(lambda: formed(fl.obs, robots), timeout_s, f"formation of {sorted(robots)}")
+    except AssertionError as exc:
+        load = os.getloadavg()
+        raise AssertionError(
+            f"{exc} (load {load[0]:.1f} {load[1]:.1f}); what the observer saw:\n"
+            + formation_history(fl.obs, robots, start)
+        ) from None
+
+
+# ---------------------------------------------------------------------------------------------
+# Known defect: two robots whose slots cross stand still (found by this module next to CPU hogs)
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known deadlock (session 6): two followers 0.257 m apart (clearance -0.099 m: inside "
+    "each other's barrier) whose assigned slots cross stand still in TRACKING; their safety "
+    "filter is infeasible at every tick and stops them, the tie-break does not free them. Seen "
+    "in this module's fleet after a stretched hang.",
+)
+def test_two_followers_whose_slots_cross_reform_from_the_jammed_poses() -> None:
+    """The poses of the shared fleet above when a formation wait failed next to CPU hogs: r2
+    hung (SIGSTOP, 4 s: the fault CLI's start on a starved machine) and r3, given r2's slot,
+    drove up next to it; on the resume the greedy assignment gives r2 slot 2 and r3 slot 1, on
+    the far side of each other, and both stay put while the errors grow with the trajectory
+    (3 cm/s). The in-process simulator (lockstep, no Zenoh, no load) does the same from those
+    poses, so the defect is the fleet's, not the machine's or the test's. (Placed before the
+    shared-fleet tests: the last test of the module gets the fleet's teardown, which an xfail
+    would swallow.) Why (the filter's
+    own counters: infeasible at every tick, clearance -0.099 m): while r2 hung it was not
+    cooperative, and r3 came up to the non-cooperative barrier (centre to r2's centre); once r2
+    tracks again the pair's barrier is the cooperative one (reference point to reference point,
+    ``Ds + 2 l``: robot_agent/safety_filter.py), which they are already inside."""
+    import scenario
+    from formation import simulate
+
+    text = SCENARIO.replace(
+        "initial = [[0.35, 0.0, 0.0], [0.15, 0.35, 0.0], [0.15, -0.35, 0.0]]",
+        "initial = [[1.552, 0.0, 0.0], [0.948, 0.201, -0.014], [1.139, 0.029, 0.868]]",
+    ).replace("x0 = 0.4", "x0 = 1.552")
+    scn = scenario.parse(tomllib.loads(text), "jammed poses")
+    log = simulate.run(scn, duration_s=30.0).log
+    err = np.hypot(*(log.target - log.ref).transpose(2, 0, 1))
+    assert log.min_separation_m > COLLISION_M  # safe: it never collides
+    # (r2 and r3: filter violations == infeasible == every tick, min_clearance_m -0.099 m)
+    assert np.nanmax(err[-1]) < 0.06, f"errors at {log.t_s[-1]:.0f} s: {err[-1].round(3)}"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -264,40 +344,55 @@ async def wait_formed(fl: Fleet, robots: set[str] | None = None, timeout_s: floa
 async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None:
     await wait_formed(fleet, timeout_s=40.0)
     obs = fleet.obs
-    _, t_stop = fleet.fault("estop")
+    try:
+        _, t_stop = fleet.fault("estop")
 
-    def all_zero_since(t: float) -> dict[str, float] | None:
-        first: dict[str, float] = {}
-        for rx, who, w in obs.get("wheels", t):
-            if w.omega_r == 0.0 and w.omega_l == 0.0:
-                first.setdefault(who, rx)
-        return first if len(first) == 3 else None
+        def all_zero_since(t: float) -> dict[str, float] | None:
+            first: dict[str, float] = {}
+            for rx, who, w in obs.get("wheels", t):
+                if w.omega_r == 0.0 and w.omega_l == 0.0:
+                    first.setdefault(who, rx)
+            return first if len(first) == 3 else None
 
-    first_zero = await until(lambda: all_zero_since(t_stop), 2.0, "every wheel at zero")
-    assert max(first_zero.values()) - t_stop < 0.100, first_zero
-    print(f"\nestop: every wheel at zero {(max(first_zero.values()) - t_stop) * 1000:.1f} ms")
-    await asyncio.sleep(0.6)  # latched: still stopped, in ESTOP
-    late = obs.get("wheels", t_stop + 0.15)
-    assert late and all(w.omega_r == 0.0 and w.omega_l == 0.0 for _, _, w in late)
-    assert {s.mode for s in obs.latest_status().values()} == {"estop"}
+        first_zero = await until(lambda: all_zero_since(t_stop), 2.0, "every wheel at zero")
+        assert max(first_zero.values()) - t_stop < 0.100, first_zero
+        print(f"\nestop: every wheel at zero {(max(first_zero.values()) - t_stop) * 1000:.1f} ms")
+        await asyncio.sleep(0.6)  # latched: still stopped, in ESTOP
+        late = obs.get("wheels", t_stop + 0.15)
+        assert late and all(w.omega_r == 0.0 and w.omega_l == 0.0 for _, _, w in late)
+        assert {s.mode for s in obs.latest_status().values()} == {"estop"}
 
-    fleet.fault("release")
-    await wait_formed(fleet, timeout_s=10.0)
+        fleet.fault("release")
+        await wait_formed(fleet, timeout_s=10.0)
 
-    # one robot: only r2 stops
-    _, t_stop = fleet.fault("estop", "r2")
-    await until(
-        lambda: obs.latest_status().get("r2", None) and obs.latest_status()["r2"].mode == "estop",
-        2.0,
-        "r2 in estop",
-    )
-    await asyncio.sleep(0.5)
-    r2 = [w for rx, who, w in obs.get("wheels", t_stop + 0.1) if who == "r2"]
-    assert r2 and all(w.omega_r == 0.0 and w.omega_l == 0.0 for w in r2)
-    st = obs.latest_status()
-    assert st["r1"].mode == "tracking" and st["r3"].mode == "tracking", st
-    fleet.fault("release", "r2")
-    await wait_formed(fleet, timeout_s=10.0)
+        # one robot: only r2 stops
+        _, t_stop = fleet.fault("estop", "r2")
+        await until(
+            lambda: (st := obs.latest_status().get("r2")) is not None and st.mode == "estop",
+            2.0,
+            "r2 in estop",
+        )
+        await asyncio.sleep(0.5)
+        r2 = [w for rx, who, w in obs.get("wheels", t_stop + 0.1) if who == "r2"]
+        assert r2 and all(w.omega_r == 0.0 and w.omega_l == 0.0 for w in r2)
+        # r1 and r3 go on tracking (their newest status: at 5 Hz, but it can be late next to hogs)
+        await until(
+            lambda: all(
+                (s := obs.latest_status().get(r)) is not None and s.mode == "tracking"
+                for r in ("r1", "r3")
+            ),
+            2.0,
+            f"r1 and r3 tracking while r2 is stopped: {obs.latest_status()}",
+        )
+        fleet.fault("release", "r2")
+        await wait_formed(fleet, timeout_s=10.0)
+    except BaseException:
+        # The fleet is shared: leave it released, so this failure does not fail the next tests
+        # too (they would wait for a formation with r2 still in ESTOP).
+        with contextlib.suppress(Exception):
+            fleet.fault("release")
+            fleet.fault("release", "r2")
+        raise
 
 
 async def test_kill_leader_reassigns_within_50ms_and_reforms(fleet: Fleet) -> None:
@@ -360,7 +455,9 @@ async def test_paused_agent_is_dropped_within_1s_and_does_not_fight_on_resume(
     before = obs.latest_assignment()
     assert before is not None
     victim = next(r for r, s in sorted(before.robots.items()) if s != 0)
-    _, t_pause = fleet.fault("pause", victim)
+    line, t_pause = fleet.fault("pause", victim)
+    pid = re.search(r"\(pid (\d+)\)", line)
+    assert pid is not None, line
     try:
 
         def dropped() -> tuple[float, Assignment] | None:
@@ -374,7 +471,12 @@ async def test_paused_agent_is_dropped_within_1s_and_does_not_fight_on_resume(
         print(f"\npause {victim}: dropped after {(rx - t_pause) * 1000:.0f} ms")
         await asyncio.sleep(1.0)
     finally:
-        _, t_resume = fleet.fault("resume", victim)
+        # SIGCONT at once, not through `formation fault resume` (a Python start, 2-3 s on a
+        # starved machine: the hang then lasted 4 s instead of detection + 1 s, long enough for
+        # the robot given the victim's slot to drive up to the stopped victim and jam with it
+        # after the resume; that CLI is tested in test_up_hardening and test_estop_latched).
+        os.kill(int(pid.group(1)), signal.SIGCONT)
+        t_resume = time.monotonic()
     await asyncio.sleep(1.5)
     # It tracks nothing until the coordinator assigns it again (its backlog of setpoints for the
     # slot another robot took is dropped), so it never drives to a slot held by another robot.
