@@ -310,7 +310,8 @@ class _Launcher:
             for rx in self._inbox.drain():
                 key = rx.key
                 if feed(key, rx.payload) and key.endswith(truth_leaves):
-                    now = time.monotonic()
+                    # when Zenoh's thread received it, not when this (niced) loop drained it
+                    now = rx.rx_s
                     if self.first_truth_rx is None:
                         self.first_truth_rx = now
                     self.last_truth_rx = now
