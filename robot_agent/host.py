@@ -102,12 +102,10 @@ MAX_HOSTED: Final = 4096
 """Robots one host runs at most."""
 MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
-REALTIME_CHUNK: Final = 50
-"""Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped). A
-frame's last robot waits for every ``put`` before its own (each wakes Zenoh's transmit thread:
-~35 us of CPU, ~0.5 ms of wall on a busy machine), its median robot for the chunk it ends:
-with 100 robots per host, 50 makes two puts a frame (32 made four) and ends a chunk at the
-median robot (docs/scale.md)."""
+REALTIME_CHUNK: Final = 32
+"""Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped).
+Tried in session 5: 50 (two puts a frame for 100 robots instead of four): p50 up (half the
+robots then wait for the whole frame), p99 no better on the shared machine (docs/scale.md)."""
 WATCHDOG_CHUNK: Final = 32
 """Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
 so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""
