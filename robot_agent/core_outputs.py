@@ -31,6 +31,8 @@ from pathlib import Path
 
 from . import _accel
 from .firmware import Firmware
+from .host_grid import NeighbourGrid, Seen
+from .neighbours import is_cooperative, is_current, neighbour
 from .firmware_types import Pose, Setpoint
 from .params import AgentConfig, Arena, CircleObstacle, EstimatorParams, WorldMap
 from .safety_filter import Neighbour, SafetyFilter
@@ -135,6 +137,41 @@ def firmware_lines(rng: random.Random, trials: int, ticks: int) -> list[str]:
     return out
 
 
+def neighbour_lines(rng: random.Random, trials: int, queries: int) -> list[str]:
+    """The agent host's neighbour lists (``NeighbourGrid.neighbours_of``) and the rules of
+    ``robot_agent.neighbours`` (``neighbour``, ``is_current``, ``is_cooperative``)."""
+    out: list[str] = []
+    for _ in range(trials):
+        coop_ids = {f"r{k}" for k in range(40) if rng.random() < 0.5}
+        grid = NeighbourGrid(rng.choice([0.3, 0.5, 1.1]), lambda rid, now: rid in coop_ids)
+        t = 0.0
+        for k in range(rng.randint(0, 40)):
+            rx = rng.choice([None, t, t - 0.1, t - 2.0, t + 0.05])
+            grid.seen[f"r{k}"] = Seen(
+                rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-3, 3), t - 0.04, rx, k
+            )
+        for q in range(queries):
+            now = t + rng.choice([0.0, 0.02, 0.02, 0.5, 1.5])
+            if q % 5 == 4:
+                grid.invalidate()
+            rid = f"r{rng.randint(0, 45)}"
+            x, y = rng.uniform(-2.5, 2.5), rng.uniform(-2.5, 2.5)
+            nbs = grid.neighbours_of(rid, x, y, now)
+            out.append(" ".join(" ".join(_fmt(v) for v in nb) for nb in nbs) or "-")
+            t = now
+        grid.clear()
+        out.append(repr(grid.neighbours_of("r0", 0.0, 0.0, t + 0.02)))
+    for _ in range(trials * queries):
+        now, rx = rng.uniform(0, 10), rng.uniform(0, 10)
+        odd = rng.choice([0.0, -0.0, math.nan, math.inf, -math.inf, rng.uniform(-1, 1)])
+        nb = neighbour(odd, 1.0, odd, now - rng.uniform(-0.1, 0.2), now, rng.random() < 0.5)
+        out.append(
+            f"{' '.join(_fmt(v) for v in nb)} {is_current(now, rx)} {is_current(now, now + odd)} "
+            f"{is_cooperative(now, rng.random() < 0.5, rx)}"
+        )
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=1234)
@@ -146,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         f"core_outputs: robot_agent from {Path(__file__).parent}, {_accel.STATUS}", file=sys.stderr
     )
     lines = filter_lines(rng, 60, 400 // div) + firmware_lines(rng, 6, 1500 // div)
+    lines += neighbour_lines(rng, 60 // div, 200)
     print("\n".join(lines))
     return 0
 
