@@ -135,6 +135,7 @@ from .qp import (
     _TOL,
     _sqrt,
     solve_qp,
+    solve_qp_relaxed,
 )
 from .safety_plane import SharedFramePlane
 from .safety_types import (
@@ -532,8 +533,11 @@ class SafetyFilter:
                 cap2 = cap * cap
                 if fx * fx + fy * fy > cap2 * (1.0 + 1e-12) + 1e-18:
                     r2 = cap2 - b * b
-                    if r2 < 0.0:  # asks for more than cap away: stop
-                        fx = fy = 0.0
+                    if r2 < 0.0:  # asks for more than cap away: out along n at the cap
+                        # (module docstring, "Leaving a barrier": h strictly increases)
+                        fx = cap * ax
+                        fy = cap * ay
+                        self._cons = [(ax, ay, cap)]
                         self._infeasible += 1
                     else:  # the end of the chord nearest the projection
                         r = _sqrt(r2) if ax * uy - ay * ux >= 0.0 else -_sqrt(r2)
@@ -547,7 +551,9 @@ class SafetyFilter:
                     cap = self._vcap
                     break
             fx, fy, feasible = solve_qp(ux, uy, cons, cap)
-            if not feasible:
+            if not feasible:  # the least-violation fallback (module docstring)
+                fx, fy, _, relaxed = solve_qp_relaxed(ux, uy, cons, cap)
+                self._cons = relaxed
                 self._infeasible += 1
             if fx != ux or fy != uy:
                 self._active += 1
