@@ -91,6 +91,10 @@ def solve_qp_relaxed(
 
     Returns ``(u_x, u_y, s, relaxed_cons)``.
     """
+    if len(cons) == 1:  # in closed form: b > cap (else feasible), s = cap / b, u = cap n
+        ax, ay, b = cons[0]
+        if b > cap > 0.0:
+            return cap * ax, cap * ay, cap / b, [(ax, ay, cap)]
     lo = 0.0
     hi = 1.0
     x, y, ok = solve_qp(ux, uy, _scaled(cons, hi), cap)
