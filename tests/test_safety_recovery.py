@@ -203,21 +203,18 @@ def _check(
     hs, ds, least = _simulate(poses, hung, unom, seconds)
     # no bodies touch (centres 2 r_b apart), and no pair comes closer than it started
     assert least > min(start, DS) - 1e-3 and least > 2.0 * RB
-    inside_any = False
     for (i, j), h in hs.items():
         d = ds[(i, j)]
         if h[0] >= 0.0:  # started outside: never enters
             assert min(h) >= -1e-9, f"pair {i}{j} entered its barrier: {min(h)}"
             continue
-        inside_any = True
         for k in range(len(h) - 1):  # inside: its distance never decreases
             if h[k] < 0.0:
                 assert d[k + 1] >= d[k] - 1e-12, f"pair {i}{j} closer at tick {k}"
         eps = 1e-3
-        if alone:  # the docstring's bound
-            t_out = _exit_time(h[0], not (hung[i] or hung[j]), eps)
-        else:  # a pinched robot (s = 0) slides, or waits for the tie-break: a generous bound
-            t_out = 6.0
+        # alone: the docstring's bound; else a pinched robot (s = 0) slides sideways or waits
+        # for the tie-break: a generous bound
+        t_out = _exit_time(h[0], not (hung[i] or hung[j]), eps) if alone else 6.0
         k_out = math.ceil(t_out / DT)
         assert k_out < len(h)
         assert min(h[k_out:]) >= -eps, f"pair {i}{j}: h {h[k_out]:.4f} after {t_out:.2f} s"
