@@ -97,23 +97,20 @@ def solve_qp_relaxed(
             return cap * ax, cap * ay, cap / b, [(ax, ay, cap)]
     lo = 0.0
     hi = 1.0
-    x, y, ok = solve_qp(ux, uy, _scaled(cons, hi), cap)
-    if ok:  # (not infeasible after all: the caller's test was within rounding)
-        return x, y, 1.0, list(cons)
-    for _ in range(40):
+    relaxed = _scaled(cons, lo)
+    bx, by, ok = solve_qp(ux, uy, relaxed, cap)
+    if not ok:  # (rounding: u = 0 meets every constraint at s = 0)
+        bx = by = 0.0
+    # s to 1e-6 (20 steps): the demands met to 1e-6 b, far below the filter's other errors
+    while hi - lo > 1e-6:
         mid = 0.5 * (lo + hi)
-        x, y, ok = solve_qp(ux, uy, _scaled(cons, mid), cap)
+        trial = _scaled(cons, mid)
+        x, y, ok = solve_qp(ux, uy, trial, cap)
         if ok:
-            lo = mid
+            lo, relaxed, bx, by = mid, trial, x, y
         else:
             hi = mid
-        if hi - lo < 1e-9:
-            break
-    relaxed = _scaled(cons, lo)
-    x, y, ok = solve_qp(ux, uy, relaxed, cap)
-    if not ok:  # (rounding: u = 0 meets every relaxed constraint)
-        x = y = 0.0
-    return x, y, lo, relaxed
+    return bx, by, lo, relaxed
 
 
 def _scaled(

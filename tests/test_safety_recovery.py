@@ -81,7 +81,7 @@ def test_relaxed_qp_keeps_safe_rows_exact_and_relaxes_the_demands_least(
         assert dot >= rb - _TOL  # meets the relaxed set
         assert dot >= min(b, 0.0) - _TOL  # never worse than the stop on any row
     # the factor is the largest: a little more is infeasible
-    more = [(ax, ay, b * (s + 1e-6) if b > 0.0 else b) for ax, ay, b in cons]
+    more = [(ax, ay, b * (s + 2e-6) if b > 0.0 else b) for ax, ay, b in cons]
     assert not solve_qp(ux, uy, more, cap)[2]
 
 
