@@ -118,13 +118,17 @@ barrier by more than ``2 cap / gamma`` = 5 cm stood still forever, infeasible at
   n_k . u >= b_k (b_k <= 0)}`` is not empty, and the QP is solved on ``F(s)``. ``F(0)`` holds
   ``u = 0`` (so this never fails), and ``F`` shrinks as ``s`` grows (``u`` in ``F(s1)`` gives
   ``(s / s1) u`` in ``F(s)`` for ``s <= s1``: the ``b <= 0`` rows hold for any ``t u``, ``t in
-  [0, 1]``), so bisection finds ``s``. Every violated barrier then gets ``n_k . u >= s b_k >=
-  0``: by the same convexity bound it never decreases through this robot's command, strictly
-  increases if ``s > 0`` (the largest common fraction of the demanded rates: least violation
-  in the max-min sense), and the robot stops only when ``F(s) = {0}``. On EVERY constraint this
-  is at least what the stop (``u = 0``) gave, so no barrier is worse off than before; the one
-  kind of ``b > 0`` row with ``h >= 0`` (a non-cooperative neighbour with a known velocity
-  coming at it) is relaxed too, as no command keeps it when the set is infeasible.
+  [0, 1]``), so bisection finds ``s`` (to 1e-6, from below: ``F(s)`` is never empty). Every
+  violated barrier then gets ``n_k . u >= s b_k >= 0``: by the same convexity bound it never
+  decreases through this robot's command, strictly increases if ``s > 0`` (the largest common
+  fraction of the demanded rates: least violation in the max-min sense), and the robot stops
+  only when ``F(s) = {0}``. On EVERY constraint this is at least what the stop (``u = 0``)
+  gave, so no barrier is worse off than before; the one kind of ``b > 0`` row with ``h >= 0``
+  (a non-cooperative neighbour with a known velocity coming at it) is relaxed too, as no
+  command keeps it when the set is infeasible. A robot pinched between opposite demands
+  (``s = 0``) keeps the sideways part of its command (``n_k . u >= 0``), so it slides out or
+  the deadlock tie-break moves it; until then its barriers wait on its neighbours (a
+  cooperative one answers only its half, ``|h|`` decaying geometrically toward 0).
 
 Why the non-cooperative distance stays below the cooperative one (a decision): a pair that
 kept the non-cooperative row (``|p_i - c_j| >= Ds + l``) while one robot hung can be inside
