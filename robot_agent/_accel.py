@@ -4,8 +4,8 @@ The per-tick code of the firmware (estimator, tracking, repulsion, safety filter
 and of the agent host's neighbour lists (:data:`COMPILED_MODULES`) is plain, fully annotated
 Python. ``python -m robot_agent.accel_build build`` compiles *the same files* with mypyc into
 ``robot_agent/_compiled/`` (about 2x faster, outputs equal bit for bit: the build checks it
-before installing, and tests/test_accel.py checks it again). Nothing else changes: there is one source of truth, and a robot without a C compiler
-runs the pure code.
+before installing, and tests/test_accel.py checks it again). Nothing else changes: there is one
+source of truth, and a robot without a C compiler runs the pure code.
 
 This module decides, once, when ``robot_agent`` is imported, which of the two is used:
 

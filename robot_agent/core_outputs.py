@@ -26,14 +26,15 @@ import argparse
 import math
 import random
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
 from . import _accel
 from .firmware import Firmware
+from .firmware_types import Pose, Setpoint
 from .host_grid import NeighbourGrid, Seen
 from .neighbours import is_cooperative, is_current, neighbour
-from .firmware_types import Pose, Setpoint
 from .params import AgentConfig, Arena, CircleObstacle, EstimatorParams, WorldMap
 from .safety_filter import Neighbour, SafetyFilter
 
@@ -137,13 +138,22 @@ def firmware_lines(rng: random.Random, trials: int, ticks: int) -> list[str]:
     return out
 
 
+def _coop_rule(ids: set[str]) -> Callable[[str, float], bool]:
+    """A cooperative rule for ``NeighbourGrid``: the robots of ``ids``, at any time."""
+
+    def rule(rid: str, now_s: float) -> bool:
+        return rid in ids
+
+    return rule
+
+
 def neighbour_lines(rng: random.Random, trials: int, queries: int) -> list[str]:
     """The agent host's neighbour lists (``NeighbourGrid.neighbours_of``) and the rules of
     ``robot_agent.neighbours`` (``neighbour``, ``is_current``, ``is_cooperative``)."""
     out: list[str] = []
     for _ in range(trials):
         coop_ids = {f"r{k}" for k in range(40) if rng.random() < 0.5}
-        grid = NeighbourGrid(rng.choice([0.3, 0.5, 1.1]), lambda rid, now: rid in coop_ids)
+        grid = NeighbourGrid(rng.choice([0.3, 0.5, 1.1]), _coop_rule(coop_ids))
         t = 0.0
         for k in range(rng.randint(0, 40)):
             rx = rng.choice([None, t, t - 0.1, t - 2.0, t + 0.05])

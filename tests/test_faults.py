@@ -26,13 +26,11 @@ import signal
 import sys
 import threading
 import time
-import tomllib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import msgpack
-import numpy as np
 import pytest
 from conftest import Spawner, free_port
 
@@ -294,46 +292,6 @@ async def wait_formed(fl: Fleet, robots: set[str] | None = None, timeout_s: floa
             f"{exc} (load {load[0]:.1f} {load[1]:.1f}); what the observer saw:\n"
             + formation_history(fl.obs, robots, start)
         ) from None
-
-
-# ---------------------------------------------------------------------------------------------
-# Known defect: two robots whose slots cross stand still (found by this module next to CPU hogs)
-# ---------------------------------------------------------------------------------------------
-
-
-@pytest.mark.xfail(
-    strict=True,
-    reason="known deadlock (session 6): two followers 0.257 m apart (clearance -0.099 m: inside "
-    "each other's barrier) whose assigned slots cross stand still in TRACKING; their safety "
-    "filter is infeasible at every tick and stops them, the tie-break does not free them. Seen "
-    "in this module's fleet after a stretched hang.",
-)
-def test_two_followers_whose_slots_cross_reform_from_the_jammed_poses() -> None:
-    """The poses of the shared fleet above when a formation wait failed next to CPU hogs: r2
-    hung (SIGSTOP, 4 s: the fault CLI's start on a starved machine) and r3, given r2's slot,
-    drove up next to it; on the resume the greedy assignment gives r2 slot 2 and r3 slot 1, on
-    the far side of each other, and both stay put while the errors grow with the trajectory
-    (3 cm/s). The in-process simulator (lockstep, no Zenoh, no load) does the same from those
-    poses, so the defect is the fleet's, not the machine's or the test's. (Placed before the
-    shared-fleet tests: the last test of the module gets the fleet's teardown, which an xfail
-    would swallow.) Why (the filter's
-    own counters: infeasible at every tick, clearance -0.099 m): while r2 hung it was not
-    cooperative, and r3 came up to the non-cooperative barrier (centre to r2's centre); once r2
-    tracks again the pair's barrier is the cooperative one (reference point to reference point,
-    ``Ds + 2 l``: robot_agent/safety_filter.py), which they are already inside."""
-    import scenario
-    from formation import simulate
-
-    text = SCENARIO.replace(
-        "initial = [[0.35, 0.0, 0.0], [0.15, 0.35, 0.0], [0.15, -0.35, 0.0]]",
-        "initial = [[1.552, 0.0, 0.0], [0.948, 0.201, -0.014], [1.139, 0.029, 0.868]]",
-    ).replace("x0 = 0.4", "x0 = 1.552")
-    scn = scenario.parse(tomllib.loads(text), "jammed poses")
-    log = simulate.run(scn, duration_s=30.0).log
-    err = np.hypot(*(log.target - log.ref).transpose(2, 0, 1))
-    assert log.min_separation_m > COLLISION_M  # safe: it never collides
-    # (r2 and r3: filter violations == infeasible == every tick, min_clearance_m -0.099 m)
-    assert np.nanmax(err[-1]) < 0.06, f"errors at {log.t_s[-1]:.0f} s: {err[-1].round(3)}"
 
 
 # ---------------------------------------------------------------------------------------------
