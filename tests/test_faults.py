@@ -380,16 +380,23 @@ async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None
     try:
         _, t_stop = fleet.fault("estop")
 
-        def all_zero_since(t: float) -> dict[str, float] | None:
-            first: dict[str, float] = {}
+        def all_zero_since(t: float) -> dict[str, tuple[float, float]] | None:
+            """Each robot's first zero wheels since ``t``: (the agent's stamp, our receipt)."""
+            first: dict[str, tuple[float, float]] = {}
             for rx, who, w in obs.get("wheels", t):
                 if w.omega_r == 0.0 and w.omega_l == 0.0:
-                    first.setdefault(who, rx)
+                    first.setdefault(who, (w.t, rx))
             return first if len(first) == 3 else None
 
         first_zero = await until(lambda: all_zero_since(t_stop), 2.0, "every wheel at zero")
-        assert max(first_zero.values()) - t_stop < 0.100, first_zero
-        print(f"\nestop: every wheel at zero {(max(first_zero.values()) - t_stop) * 1000:.1f} ms")
+        # The robot's reaction is the agent's step (its motors are commanded there, before the
+        # publish): judged by the wheels' own stamp (time.monotonic() of the agent, the same
+        # clock). Our receipt adds the router's and this process's delays: next to hogs 290 ms
+        # after agents that had all stepped to zero within 92 ms.
+        agent_ms = (max(a for a, _ in first_zero.values()) - t_stop) * 1000
+        seen_ms = (max(r for _, r in first_zero.values()) - t_stop) * 1000
+        print(f"\nestop: every wheel at zero {agent_ms:.1f} ms (observer saw it {seen_ms:.1f} ms)")
+        assert agent_ms < 100.0, first_zero
         acks = await until(lambda: estop_acks(obs, robots, t_stop), 2.0, "every robot in ESTOP")
         await asyncio.sleep(0.6)  # latched: still stopped, in ESTOP
         check_stopped_after_ack(obs, acks, t_stop)
