@@ -5,16 +5,27 @@ the latched scopes (:class:`robot_agent.estop.EstopLatch`) from the ``estop`` me
 other coordinators for theirs when it starts (a respawned instance must not forget an e-stop)
 and answers every query on the ``estop`` key with its state: one ``Estop`` of the fleet scope,
 engaged or not, then one engaged ``Estop`` per latched robot.
+
+The ``estop`` messages are applied on Zenoh's network thread, on receipt, not when the event
+loop gets to them: queries are answered on that thread too, from the snapshot, so a snapshot
+updated by the loop was stale for as long as the loop was late (a starved coordinator). An
+agent that had latched an e-stop and then asked (its 1 s refresh) got the old state, "nothing
+latched", as the whole truth, and released: seen next to CPU hogs as an e-stopped robot
+driving again. Applied on receipt, an answer reflects every ``estop`` message this session
+received before the query (through one router: every message the asker had received).
 """
 
 from __future__ import annotations
 
+import asyncio
+import threading
 from collections.abc import Callable, Iterable
 from typing import Any
 
 import runtime as rt
 from bus_schemas import DecodeError, Estop, decode, decode_estop_answer, encode
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
+from runtime.bridge import _post
 
 __all__ = ["EstopSource", "attach_estop_source"]
 
@@ -23,7 +34,9 @@ class EstopSource:
     """The latched state and its answer; handlers never raise.
 
     ``now``: the node's clock (sim time in lockstep); ``reject(what, why)`` and
-    ``internal(where, exc)``: the node's counters."""
+    ``internal(where, exc)``: the node's counters. :meth:`on_estop` may run on any thread (the
+    latch and the answer change under a lock); once :attr:`loop` is set, the counters and the
+    log are called on that loop."""
 
     def __init__(
         self,
@@ -42,7 +55,16 @@ class EstopSource:
         self.messages = 0
         self.answer: tuple[bytes, ...] = self._payloads()
         self.on_answer: Callable[[tuple[bytes, ...]], None] | None = None
-        """Called with the new answer (the shell's queryable)."""
+        """Called with the new answer (the shell's queryable), under the lock."""
+        self.loop: asyncio.AbstractEventLoop | None = None
+        """Where the counters and the log are called (None: on the calling thread)."""
+        self.lock = threading.Lock()
+
+    def _on_loop(self, fn: Callable[..., object], *args: Any) -> None:
+        if self.loop is None:
+            fn(*args)
+        else:
+            _post(self.loop, fn, *args)
 
     def _payloads(self) -> tuple[bytes, ...]:
         now = max(self._now(), 0.0)
@@ -54,27 +76,36 @@ class EstopSource:
             self.on_answer(self.answer)
 
     def on_estop(self, rx: rt.Received) -> None:
-        """An operator's ``estop``: latch or release its scope (the fleet's durable state)."""
+        """An operator's ``estop``: latch or release its scope (the fleet's durable state); any
+        thread (the shell calls it on Zenoh's network thread, on receipt)."""
         try:
-            self.messages += 1
             msg = decode(rx.payload, Estop)
+            with self.lock:
+                self.messages += 1
+                changed = not isinstance(msg, DecodeError) and self.latch.apply(
+                    msg.engage, msg.robot
+                )
+                if changed:
+                    self._changed()
             if isinstance(msg, DecodeError):
-                self._reject("estop", msg)
-                return
-            if self.latch.apply(msg.engage, msg.robot):
+                self._on_loop(self._reject, "estop", msg)
+            elif changed:
                 scope = "fleet" if msg.robot is None else msg.robot
-                self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({scope})")
-                self._changed()
+                what = "engaged" if msg.engage else "released"
+                self._on_loop(self.log.info, f"estop {what} ({scope})")
         except Exception as exc:
-            self._internal("on_estop", exc)
+            self._on_loop(self._internal, "on_estop", exc)
 
     def on_state(self, payloads: Iterable[Any]) -> None:
         """Another coordinator's latched state (queried at start): its engagements are added."""
         try:
             answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
-            if self.latch.merge_answer(answers, replace=False):
+            with self.lock:
+                changed = self.latch.merge_answer(answers, replace=False)
+                if changed:
+                    self._changed()
+            if changed:
                 self.log.info(f"estop state from the other coordinators: {self.text()}")
-                self._changed()
         except Exception as exc:
             self._internal("on_estop_state", exc)
 
@@ -89,11 +120,13 @@ class EstopSource:
 
 
 async def attach_estop_source(source: EstopSource, io: rt.NodeIO) -> None:
-    """Make ``source`` durable on ``io``: subscribe to ``estop``, learn what the other
-    coordinators hold, then answer every query on the ``estop`` key with the state."""
+    """Make ``source`` durable on ``io``: subscribe to ``estop`` (applied on Zenoh's network
+    thread, on receipt: the module docstring), learn what the other coordinators hold, then
+    answer every query on the ``estop`` key with the state."""
     from runtime.query import Answerer, Querier
 
-    io.subscribe(source.key, source.on_estop)
+    source.loop = io.loop
+    io._keep.append(rt.subscribe_on_thread(io.session, source.key, source.on_estop))
     querier = Querier(
         io.session, io.loop, source.key, lambda p, _t: None, timeout_s=ESTOP_QUERY_TIMEOUT_S
     )
@@ -104,10 +137,11 @@ async def attach_estop_source(source: EstopSource, io: rt.NodeIO) -> None:
         payloads = []
     source.on_state(payloads)
     answerer = Answerer(io.session, source.key)
-    answerer.snapshot = source.answer
 
     def update(answer: tuple[bytes, ...]) -> None:
         answerer.snapshot = answer
 
-    source.on_answer = update
+    with source.lock:
+        answerer.snapshot = source.answer
+        source.on_answer = update
     io._keep.append(answerer)

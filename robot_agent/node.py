@@ -395,7 +395,7 @@ class AgentNode:
                 return  # another robot's estop
             self.estop_messages += 1
             self.estop.apply(msg.engage, msg.robot)
-            self.sync_estop()
+            self.sync_estop("message")
         except Exception as exc:
             self._internal("on_estop", exc)
 
@@ -407,22 +407,25 @@ class AgentNode:
                 return
             mine = [(e, r) for e, r in answers if r is None or r == self.robot_id]
             self.estop.merge_answer(mine, replace=messages_before == self.estop_messages)
-            self.sync_estop()
+            self.sync_estop("query answer")
         except Exception as exc:
             self._internal("on_estop_state", exc)
 
-    def sync_estop(self) -> None:
-        """Engage or release the firmware's e-stop to match the latched scopes."""
+    def sync_estop(self, why: str = "") -> None:
+        """Engage or release the firmware's e-stop to match the latched scopes (``why``: what
+        changed them, for the log)."""
         stop = self.estop.stopped(self.robot_id)
         latched = self.firmware.status().estop_latched
+        src = f" by {why}" if why else ""
         if stop and not latched:
             self.firmware.engage_estop()
-            self.log.info("estop engaged" + (" (fleet)" if self.estop.fleet else ""))
+            scope = " (fleet)" if self.estop.fleet else ""
+            self.log.info(f"estop engaged{scope}{src} t={time.monotonic():.6f}")
             if not self.lockstep:
                 self.step(time.monotonic())  # zero wheels now, not at the next tick
         elif latched and not stop:
             self.firmware.release_estop()
-            self.log.info("estop released")
+            self.log.info(f"estop released{src} t={time.monotonic():.6f}")
 
     def request_estop_state(self, now_s: float) -> None:
         """Ask the coordinators for the latched e-stop state (through :attr:`estop_query`)."""

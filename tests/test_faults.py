@@ -299,25 +299,65 @@ async def wait_formed(fl: Fleet, robots: set[str] | None = None, timeout_s: floa
 # ---------------------------------------------------------------------------------------------
 
 
+def estop_acks(obs: Observer, robots: set[str], since: float) -> dict[str, int] | None:
+    """Each robot's first wheels message received since ``since`` in mode ``estop`` (its seq):
+    the agent's own acknowledgement; None until every robot of ``robots`` has one."""
+    acks: dict[str, int] = {}
+    for _rx, who, w in obs.get("wheels", since):
+        if who in robots and w.mode == "estop":
+            acks.setdefault(who, w.seq)
+    return acks if len(acks) == len(robots) else None
+
+
+def check_stopped_after_ack(obs: Observer, acks: dict[str, int], since: float) -> None:
+    """Every wheels message a robot published from its acknowledgement on (seq >= the ack's) is
+    zero and in ESTOP. Those it computed before its loop took the e-stop (still in flight, or
+    late when the agent was starved) are not judged: they say TRACKING, not ESTOP."""
+    for robot, ack in acks.items():
+        after = [w for _rx, who, w in obs.get("wheels", since) if who == robot and w.seq >= ack]
+        bad = [(w.seq, w.mode, w.omega_r, w.omega_l) for w in after if not zero_in_estop(w)]
+        assert after and not bad, (
+            f"{robot} commanded wheels after acknowledging its e-stop (seq >= {ack}): {bad}"
+        )
+
+
+def zero_in_estop(w: Wheels) -> bool:
+    return w.omega_r == 0.0 and w.omega_l == 0.0 and w.mode == "estop"
+
+
 async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None:
+    """Judged by the agents' own acknowledgement (their first wheels in mode ESTOP), not by the
+    observer's receive time: next to CPU hogs an agent can take the e-stop 100+ ms after the
+    fault CLI sent it, and the wheels it computed before that still arrive after. After the
+    acknowledgement, every wheels message must be zero and in ESTOP until the release: that
+    caught a real defect, r2 released by a starved coordinator's stale query answer
+    (tests/test_estop_starved.py)."""
+    robots = {"r1", "r2", "r3"}
     await wait_formed(fleet, timeout_s=40.0)
     obs = fleet.obs
     try:
         _, t_stop = fleet.fault("estop")
 
-        def all_zero_since(t: float) -> dict[str, float] | None:
-            first: dict[str, float] = {}
+        def all_zero_since(t: float) -> dict[str, tuple[float, float]] | None:
+            """Each robot's first zero wheels since ``t``: (the agent's stamp, our receipt)."""
+            first: dict[str, tuple[float, float]] = {}
             for rx, who, w in obs.get("wheels", t):
                 if w.omega_r == 0.0 and w.omega_l == 0.0:
-                    first.setdefault(who, rx)
+                    first.setdefault(who, (w.t, rx))
             return first if len(first) == 3 else None
 
         first_zero = await until(lambda: all_zero_since(t_stop), 2.0, "every wheel at zero")
-        assert max(first_zero.values()) - t_stop < 0.100, first_zero
-        print(f"\nestop: every wheel at zero {(max(first_zero.values()) - t_stop) * 1000:.1f} ms")
+        # The robot's reaction is the agent's step (its motors are commanded there, before the
+        # publish): judged by the wheels' own stamp (time.monotonic() of the agent, the same
+        # clock). Our receipt adds the router's and this process's delays: next to hogs 290 ms
+        # after agents that had all stepped to zero within 92 ms.
+        agent_ms = (max(a for a, _ in first_zero.values()) - t_stop) * 1000
+        seen_ms = (max(r for _, r in first_zero.values()) - t_stop) * 1000
+        print(f"\nestop: every wheel at zero {agent_ms:.1f} ms (observer saw it {seen_ms:.1f} ms)")
+        assert agent_ms < 100.0, first_zero
+        acks = await until(lambda: estop_acks(obs, robots, t_stop), 2.0, "every robot in ESTOP")
         await asyncio.sleep(0.6)  # latched: still stopped, in ESTOP
-        late = obs.get("wheels", t_stop + 0.15)
-        assert late and all(w.omega_r == 0.0 and w.omega_l == 0.0 for _, _, w in late)
+        check_stopped_after_ack(obs, acks, t_stop)
         assert {s.mode for s in obs.latest_status().values()} == {"estop"}
 
         fleet.fault("release")
@@ -330,9 +370,10 @@ async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None
             2.0,
             "r2 in estop",
         )
+        acks = await until(lambda: estop_acks(obs, {"r2"}, t_stop), 2.0, "r2's wheels in ESTOP")
         await asyncio.sleep(0.5)
-        r2 = [w for rx, who, w in obs.get("wheels", t_stop + 0.1) if who == "r2"]
-        assert r2 and all(w.omega_r == 0.0 and w.omega_l == 0.0 for w in r2)
+        check_stopped_after_ack(obs, acks, t_stop)
+        assert obs.latest_status()["r2"].mode == "estop"
         # r1 and r3 go on tracking (their newest status: at 5 Hz, but it can be late next to hogs)
         await until(
             lambda: all(
