@@ -61,6 +61,13 @@ Counting: ``rejected_count`` counts bad inputs. A rejected ``Pose`` / ``Setpoint
 counted once however many ticks the shell presents it again (identity); non-finite scalar
 arguments and neighbour entries are counted on every tick they appear; ``reject(reason)`` lets
 the shell add messages it dropped while decoding to the same counter.
+
+Types: ``step`` validates its arguments instead of trusting their annotations (``float |
+object``, ...: the firmware core is also compiled with mypyc, whose typed parameters would raise
+TypeError at the call, outside the tick's ``try``). A real number of another type than float
+(int, a numpy scalar, a Fraction) is used as its float value; a pose or setpoint may be any
+sequence of its fields; anything else (None, a string) raises inside the tick and is counted like
+any bad input (``internal error: TypeError``), in pure Python and compiled alike.
 """
 
 from __future__ import annotations
