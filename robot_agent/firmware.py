@@ -288,7 +288,15 @@ class Firmware(_FirmwareModes):
             # converted where the tick uses it, so an argument the tick ignores (pose_rx_s
             # without a pose) may be anything. Pose / setpoint fields: the same.
             now = now_s if type(now_s) is float else _real(now_s)
-            ps: Any = pose  # a Pose, or any sequence of four numbers (validated where read)
+            # the fields of the pose / setpoint, unpacked: objects until validated (a Pose /
+            # Setpoint, or any tuple, unpacks as a tuple; any other sequence as an iterable)
+            ox: object
+            oy: object
+            oth: object
+            ot: object
+            ovx: object
+            ovy: object
+            slot: object
             # --- time -----------------------------------------------------------------------
             if not _isfinite(now):
                 self.reject("non-finite now_s")
@@ -344,7 +352,11 @@ class Firmware(_FirmwareModes):
                 self._pending_cmd = None
                 if pose is not None and pose is not self._fused_pose:
                     self._fused_pose = pose
-                    ox, oy, oth, ot = ps
+                    if isinstance(pose, tuple):
+                        ox, oy, oth, ot = pose
+                    else:
+                        ps: Any = pose
+                        ox, oy, oth, ot = ps
                     mx = ox if type(ox) is float else _real(ox)
                     my = oy if type(oy) is float else _real(oy)
                     mth = oth if type(oth) is float else _real(oth)
@@ -371,15 +383,19 @@ class Firmware(_FirmwareModes):
             if setpoint is None:
                 self._setpoint_age = _NAN
                 return self._hold(_EV_NO_SETPOINT, "no setpoint")
-            ss: Any = setpoint  # a Setpoint, or any sequence of seven values
-            ox, oy, ovx, ovy, spth, slot, spt = ss
+            if isinstance(setpoint, tuple):
+                ox, oy, ovx, ovy, oth, slot, ot = setpoint
+            else:
+                ss: Any = setpoint
+                ox, oy, ovx, ovy, oth, slot, ot = ss
             spx = ox if type(ox) is float else _real(ox)
             spy = oy if type(oy) is float else _real(oy)
             spvx = ovx if type(ovx) is float else _real(ovx)
             spvy = ovy if type(ovy) is float else _real(ovy)
+            spth = oth if type(oth) is float else _real(oth)
+            spt = ot if type(ot) is float else _real(ot)
             srx = setpoint_rx_s if type(setpoint_rx_s) is float else _real(setpoint_rx_s)
-            # (theta and t only enter this sum, as they are: the same Python addition compiled
-            # or not; the slot is an int >= 0, not a bool)
+            # (the slot: an int >= 0, not a bool)
             if not _isfinite(spx + spy + spvx + spvy + spth + spt + srx) or not (
                 type(slot) is int and slot >= 0
             ):
@@ -402,7 +418,11 @@ class Firmware(_FirmwareModes):
                 if pose is None:
                     self._pose_age = _NAN
                     return self._hold(_EV_STALE, "no pose")
-                ox, oy, oth, ot = ps
+                if isinstance(pose, tuple):
+                    ox, oy, oth, ot = pose
+                else:
+                    ps = pose
+                    ox, oy, oth, ot = ps
                 x = ox if type(ox) is float else _real(ox)
                 y = oy if type(oy) is float else _real(oy)
                 th = oth if type(oth) is float else _real(oth)
@@ -418,7 +438,8 @@ class Firmware(_FirmwareModes):
                 lim = self._stale_pose
                 if not -lim <= pose_age <= lim:
                     return self._hold(_EV_STALE, "pose stale")
-                self._est_xyt = (x, y, th)
+                # (a tuple as it is: pose_estimate converts its fields on reading)
+                self._est_xyt = pose if isinstance(pose, tuple) else (x, y, th)
             else:
                 # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
                 # dropout bound, or too uncertain) holds the robot
@@ -490,9 +511,13 @@ class Firmware(_FirmwareModes):
                 # shared_frame: the own latest camera pose and its age, for the frame's plane
                 frame = None
                 if self._shared_frame and pose is not None:
-                    oc = ps[3] if pose_capture_s is None else pose_capture_s
+                    if isinstance(pose, tuple):
+                        ox, oy, oth, ot = pose
+                    else:
+                        ps = pose
+                        ox, oy, oth, ot = ps
+                    oc = ot if pose_capture_s is None else pose_capture_s
                     cap_t = oc if type(oc) is float else _real(oc)
-                    ox, oy, oth = ps[0], ps[1], ps[2]
                     frame = (
                         ox if type(ox) is float else _real(ox),
                         oy if type(oy) is float else _real(oy),

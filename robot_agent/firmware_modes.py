@@ -102,8 +102,8 @@ class _FirmwareModes:
     def pose_estimate(self) -> tuple[float, float, float] | None:
         """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
         the measured pose with the estimator disabled), or None."""
-        xyt = self._est_xyt
-        return None if xyt is None else (xyt[0], xyt[1], xyt[2])
+        xyt = self._est_xyt  # (a pose may hold ints or numpy scalars: floats out)
+        return None if xyt is None else (float(xyt[0]), float(xyt[1]), float(xyt[2]))
 
     def reject(self, reason: str) -> None:
         """Count one bad input (e.g. a message the shell could not decode) with its reason."""
