@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck bench clean venv
+.PHONY: demo test lint typecheck bench clean venv accel
 
 venv: $(STAMP)
 
@@ -12,7 +12,13 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[agent,sim,camera,dev]'
+	@# the compiled firmware core (mypyc); without a C compiler the pure-Python core runs
+	$(BIN)/python -m robot_agent.accel_build build --quiet || echo "(the pure-Python firmware core runs)"
 	touch $(STAMP)
+
+# rebuild the compiled firmware core after editing it (a stale build is never used)
+accel: $(STAMP)
+	$(BIN)/python -m robot_agent.accel_build build
 
 demo: $(STAMP)
 	$(BIN)/formation demo --out runs/demo
@@ -31,4 +37,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
 
 clean:
-	rm -rf $(VENV) runs build *.egg-info
+	rm -rf $(VENV) runs build *.egg-info robot_agent/_compiled

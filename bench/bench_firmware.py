@@ -26,7 +26,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -44,6 +46,7 @@ from robot_agent import (
     SafetyFilter,
     Setpoint,
     TrackingController,
+    _accel,
     reference_point,
     repulsion_velocity_counted,
     saturate_wheels,
@@ -291,6 +294,12 @@ def main(argv: list[str] | None = None) -> int:
         default=40.0,
         help="--estimator: age of the camera pose each tick (default 40 ms)",
     )
+    ap.add_argument(
+        "--both",
+        action="store_true",
+        help="also run the same benchmark on the pure-Python core (FORMATION_ACCEL=0) right "
+        "after, and print both verdict lines (an anchor measured in the same minutes)",
+    )
     args = ap.parse_args(argv)
     LATENCY_S[0] = args.latency_ms / 1000.0
     if args.estimator:
@@ -300,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
     ticks = max(1000, args.ticks)
 
     print(f"python {platform.python_version()} ({platform.python_implementation()}), {ticks} ticks")
+    print(f"firmware core: {_accel.STATUS}")
     stats = bench_step(ticks)
     print(
         f"Firmware.step per tick (wall): mean {stats['mean_us']:.2f} us, "
@@ -320,10 +330,20 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"bench_firmware: step mean={stats['mean_us']:.2f} us p50={stats['p50_us']:.2f} us "
         f"p99={stats['p99_us']:.2f} us cpu={stats['cpu_median_us']:.2f} us "
-        f"({ticks} ticks, 3 neighbours) goal<{GOAL_US:g}us {verdict}"
+        f"({ticks} ticks, 3 neighbours) goal<{GOAL_US:g}us {verdict} "
+        f"core={'compiled' if _accel.ACTIVE else 'pure'}"
     )
     if args.json:
         print(json.dumps({"step": stats, "breakdown_us": parts}, sort_keys=True))
+    if args.both:
+        argv_pure = [a for a in (sys.argv[1:] if argv is None else argv) if a != "--both"]
+        env = dict(os.environ, **{_accel.ENV: "0"})
+        pure = subprocess.run(
+            [sys.executable, __file__, *argv_pure], env=env, capture_output=True, text=True
+        )
+        last = [ln for ln in pure.stdout.splitlines() if ln.startswith("bench_firmware:")]
+        print("the same on the pure-Python core (FORMATION_ACCEL=0):")
+        print(last[-1] if last else f"  (pure run failed: {pure.stderr.strip()[-300:]})")
     return 0
 
 

@@ -19,7 +19,9 @@ rule, its 50 Hz control and 30 Hz camera). Per run it prints:
   computed from that frame received back; two Zenoh hops through the router plus the agent's
   decode, firmware step and encode), and the plant's frame lateness p99;
 * CPU seconds of every process of the run (``/proc``), and the machine's load average before
-  and after (the machine is shared: a load well above 2 inflates the tail).
+  and after (the machine is shared: a load well above 2 inflates the tail);
+* once, which modules of the frame path are compiled (mypyc) and which run as Python
+  (``bench_host.PATH_MODULES``; the nodes load the same tree with the same environment).
 
 Usage: ``python bench/bench_up.py [--robots 100] [--duration 20] [--repeat 3] [--keep DIR]
 [--hosts N]`` (``--keep``: leave each run's directory, logs included, under DIR; ``--hosts``:
@@ -38,6 +40,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from bench_host import PATH_MODULES, compiled
 from bench_lockstep import watch_tree_cpu
 from common import REPO_ROOT, free_port
 
@@ -123,6 +126,9 @@ def main() -> int:
         f"formation up --robots {args.robots}, realtime, {args.duration:g} s per run, "
         f"{os.cpu_count()} CPUs{'' if not extra else ', ' + ' '.join(extra)}"
     )
+    # what the nodes load (same tree, same environment): compiled (mypyc) or pure Python
+    done = [m for m in PATH_MODULES if compiled(m)]
+    print(f"compiled on the frame path: {', '.join(done) or 'nothing (pure Python)'}")
     with tempfile.TemporaryDirectory(prefix="bench-up-") as tmp:
         base = Path(args.keep or tmp)
         base.mkdir(parents=True, exist_ok=True)

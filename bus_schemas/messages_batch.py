@@ -221,7 +221,11 @@ class StatusBatch(_Periodic):
         metadata=f_int_list("safety filter: ticks a barrier was already below zero at the input"),
     )
     filter_infeasible: tuple[int, ...] | None = field(
-        default=None, metadata=f_int_list("safety filter: ticks with no feasible command (stop)")
+        default=None,
+        metadata=f_int_list(
+            "safety filter: ticks with no feasible command (the least-violation fallback: out "
+            "of the barriers it is inside, never toward one it is outside)"
+        ),
     )
     filter_tiebreaks: tuple[int, ...] | None = field(
         default=None, metadata=f_int_list("safety filter: deadlock tie-breaks triggered")

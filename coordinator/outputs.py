@@ -5,13 +5,16 @@ handlers; this module turns a :class:`~coordinator.core.CoordinatorOutput` into 
 Order: lockstep sends slots, setpoints, assignment and the leader LAST (the plant waits for the
 leader: everything of tick k is in before it); realtime sends the setpoints first (latency).
 ``--batch`` sends :class:`~bus_schemas.SetpointBatch` chunks instead of one key per robot and
-every ``slot/<k>`` only every :data:`BATCH_SLOT_PERIOD_S` (docs/scale.md).
+every ``slot/<k>`` only every :data:`BATCH_SLOT_PERIOD_S` (docs/scale.md): in lockstep all of
+them in one tick a period; in realtime spread over the ticks (a few slots per tick, each slot
+once a period) rather than a burst of a hundred messages once a second, which held the
+coordinator, the router and the launcher for milliseconds next to a pose frame.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
 from typing import Final
 
@@ -27,6 +30,7 @@ from bus_schemas import (
     keys,
 )
 from coordinator.core import CoordinatorOutput
+from coordinator.formation import SlotState
 
 __all__ = ["ASSIGNMENT_REPEAT_S", "BATCH_SLOT_PERIOD_S", "Outgoing", "TickOutputs", "describe"]
 
@@ -60,6 +64,9 @@ class TickOutputs:
         self._order = robot_order
         self._seq: dict[str, int] = {}
         self._last_slots_t = -math.inf
+        self._slot_tick_t = -math.inf  # realtime --batch: the previous tick (spread_slots)
+        self._slot_credit = 0.0
+        self._slot_next = 0
         self._last_assignment_t = -math.inf
         self.leader_key = keys.leader_key(fleet)
         self.assignment_key = keys.assignment_key(fleet)
@@ -108,10 +115,7 @@ class TickOutputs:
             )
             setpoints.append((key, encode(replace(sp, tick=tick)), self.sp_qos))
         slots: Outgoing = []
-        slots_due = not self.batch or now_s - self._last_slots_t >= BATCH_SLOT_PERIOD_S
-        if slots_due:
-            self._last_slots_t = now_s
-        for s in out.slots if slots_due else ():
+        for s in self._slots_due(out.slots, now_s):
             key = keys.slot_key(fleet, s.slot)
             msg = Slot(
                 t=t,
@@ -153,6 +157,30 @@ class TickOutputs:
         if self.lockstep:  # slots, setpoints, assignment, then the leader LAST
             return [*slots, *setpoints, *extra, leader_out]
         return [*setpoints, leader_out, *slots, *extra]  # realtime: setpoints first (latency)
+
+    def _slots_due(self, slots: Sequence[SlotState], now_s: float) -> Sequence[SlotState]:
+        """The slots this tick publishes on ``slot/<k>``: every slot every tick without
+        ``--batch``; with it, lockstep: all of them once every :data:`BATCH_SLOT_PERIOD_S`
+        (sim time: a lockstep run's messages do not change); realtime: all of them at the first
+        tick, then in turn, as many per tick as the time since the previous tick is a share of
+        the period (2 of 100 slots at 50 Hz), so each is published once a period and no tick
+        carries a burst."""
+        if not self.batch:
+            return slots
+        if self.lockstep or not math.isfinite(self._slot_tick_t) or not slots:
+            if now_s - self._last_slots_t < BATCH_SLOT_PERIOD_S:
+                return ()
+            self._last_slots_t = self._slot_tick_t = now_s
+            return slots
+        n = len(slots)
+        elapsed = min(max(now_s - self._slot_tick_t, 0.0), BATCH_SLOT_PERIOD_S)
+        self._slot_tick_t = now_s
+        self._slot_credit = min(self._slot_credit + n * elapsed / BATCH_SLOT_PERIOD_S, n)
+        count = int(self._slot_credit + 1e-9)  # 2.0 made of 0.02 s ticks is 1.9999...
+        self._slot_credit -= count
+        first = self._slot_next % n
+        self._slot_next = (first + count) % n
+        return [slots[(first + j) % n] for j in range(count)]
 
     def _setpoint_batches(self, out: CoordinatorOutput, t: float, tick: int | None) -> Outgoing:
         """``--batch``: every assigned robot's setpoint in SetpointBatch chunks (robot order)."""

@@ -32,6 +32,12 @@
 #   --files-only   skip the wheel, the virtualenv and pip (configuration files only).
 #   --wheel FILE   install this wheel instead of building one.
 #   --python PY    the interpreter for the virtualenv (default: python3; needs >= 3.11).
+#   --accel        also compile the firmware core on this board with mypyc (needs gcc and the
+#                  Python headers: apt install gcc python3-dev): about 2x faster ticks, the
+#                  same outputs bit for bit (checked before the build is installed). mypy is
+#                  installed for the build and removed after; if the build fails the
+#                  pure-Python core runs. Run it again after every upgrade (a build of older
+#                  sources is never used).
 set -euo pipefail
 
 script_dir="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
@@ -44,6 +50,7 @@ files_only=0
 coordinator_host=0
 wheel=""
 python="python3"
+accel=0
 
 usage() {
     sed -n '2,/^set -euo/p' "$0" | sed -e '$d' -e 's/^# \{0,1\}//'
@@ -58,6 +65,7 @@ while [[ $# -gt 0 ]]; do
         --coordinator-host) coordinator_host=1; shift ;;
         --wheel) wheel="${2:?--wheel needs a file}"; shift 2 ;;
         --python) python="${2:?--python needs an interpreter}"; shift 2 ;;
+        --accel) accel=1; shift ;;
         -h|--help) usage; exit 0 ;;
         *) echo "install.sh: unknown argument $1 (see --help)" >&2; exit 2 ;;
     esac
@@ -65,6 +73,10 @@ done
 
 if [[ $coordinator_host -eq 1 && -n "$robot_id" ]]; then
     echo "install.sh: --robot-id is for a robot, not with --coordinator-host" >&2
+    exit 2
+fi
+if [[ $accel -eq 1 && $files_only -eq 1 ]]; then
+    echo "install.sh: --accel compiles the installed code; not with --files-only" >&2
     exit 2
 fi
 extras="agent"
@@ -149,6 +161,14 @@ if [[ $files_only -eq 0 ]]; then
     # second call replaces this project's code even when the version number did not change
     run "$venv/bin/python" -m pip install --upgrade "$wheel[$extras]"
     run "$venv/bin/python" -m pip install --force-reinstall --no-deps "$wheel"
+    if [[ $accel -eq 1 ]]; then
+        say "compiling the firmware core (mypyc); the build tools are removed after"
+        run "$venv/bin/python" -m pip install 'mypy>=1.10' 'setuptools>=68'
+        run "$venv/bin/python" -P -m robot_agent.accel_build build \
+            || say "the compiled core was not built: the pure-Python core runs"
+        run "$venv/bin/python" -m pip uninstall -y mypy
+        run "$venv/bin/python" -P -m robot_agent.accel_build status || true
+    fi
 else
     say "--files-only: skipping the wheel and the virtualenv"
 fi

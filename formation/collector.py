@@ -446,6 +446,22 @@ class RunCollector:
             return None
         return round(self._last_truth_key)
 
+    def tick_complete(self, k: int) -> bool:
+        """Lockstep: whether the collector holds everything of tick ``k`` that a row needs: the
+        truth of every robot, the coordinator's leader of tick ``k`` and the wheel commands
+        answering it of every robot whose agent is not known to be gone (the answers the plant
+        waited for before it went on). What the launcher waits for at the end of a run, instead
+        of a time: on a starved machine the answers can arrive long after the truth."""
+        if self.dt_s is None:
+            return False
+        key = float(k)
+        if len(self._truth.get(key, ())) < len(self.robot_ids) or self._leader.max_key < key:
+            return False
+        return all(
+            series.max_key >= key or self._alive.get(f"robot/{rid}") is False
+            for rid, series in zip(self.robot_ids, self._wheels, strict=True)
+        )
+
     @property
     def last_clock_tick(self) -> int | None:
         return None if self._last_clock is None else self._last_clock.tick

@@ -4,6 +4,7 @@ back as "the latest value at or before each row"."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -25,11 +26,14 @@ class Series:
     keys: list[float] = field(default_factory=list)
     values: list[Any] = field(default_factory=list)
     stride: int = 1
+    max_key: float = -math.inf  # the largest key added (stored or not)
     _seen: int = 0
 
     def add(self, key: float, value: Any) -> int:
         """Store the value (or skip it, decimated); returns how many entries were stored."""
         self._seen += 1
+        if key > self.max_key:
+            self.max_key = key
         if self.stride > 1 and self._seen % self.stride:
             return 0
         self.keys.append(key)

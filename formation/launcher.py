@@ -43,6 +43,12 @@ COLLECTOR_MAX_ENTRIES: Final = 1_500_000
 """Realtime: values the collector keeps before it thins the run's history (formation.collector,
 ``max_entries``; ~200 MiB at most). 300 robots fill it in ~30 s, 10 robots in ~50 min."""
 CONSUME_PERIOD_S: Final = 0.02
+LAUNCHER_NICE: Final = 5
+"""Realtime: how much the launcher lowers its own scheduling priority (``nice``) once its
+children run (:meth:`_Launcher._lower_priority`): its collector, display, recorder and live
+view are off the control loop, so on a busy machine the plant, the agents, the router and the
+coordinator get the CPU first (weight 335 against their 1024 under Linux's fair scheduler;
+enough for the collector's ~15 % of a core next to other busy processes)."""
 EXIT_INTERRUPTED: Final = 130
 
 
@@ -184,6 +190,7 @@ class _Launcher:
             self.nodes.append(child)
             await child.spawn(env, process_group=group)
         self._register()
+        self._lower_priority()
         # Every child exists: only now may this process start Zenoh (no fork after Zenoh).
         await self._or_stop(self._open_session())
         await self._or_stop(
@@ -196,6 +203,19 @@ class _Launcher:
         slowest = max((c.ready_s or 0.0) for c in agents)
         what = "agent hosts" if self.plan.hosts > 0 else "agents"
         self.say(f"  {len(agents)} {what:<9} ready in {slowest:.2f} s (slowest)")
+
+    def _lower_priority(self) -> None:
+        """Realtime: nice this thread by :data:`LAUNCHER_NICE` (Linux: per thread; the threads
+        it starts later, Zenoh's and the recorder's among them, inherit it), after the children
+        were spawned (they start at the launcher's priority, since a child inherits it and
+        only a privileged process may raise it back). Not with ``--respawn``: a respawned node
+        must not start niced; not in lockstep (no real time to keep, and a starved collector
+        would only slow the run's end)."""
+        if self.cfg.lockstep or self.cfg.respawn_s is not None:
+            return
+        with contextlib.suppress(OSError, AttributeError):  # AttributeError: no os.setpriority
+            now = os.getpriority(os.PRIO_PROCESS, 0)
+            os.setpriority(os.PRIO_PROCESS, 0, min(19, now + LAUNCHER_NICE))
 
     async def _open_session(self) -> None:
         import runtime as rt
@@ -290,27 +310,30 @@ class _Launcher:
             for rx in self._inbox.drain():
                 key = rx.key
                 if feed(key, rx.payload) and key.endswith(truth_leaves):
-                    now = time.monotonic()
+                    # when Zenoh's thread received it, not when this (niced) loop drained it
+                    now = rx.rx_s
                     if self.first_truth_rx is None:
                         self.first_truth_rx = now
                     self.last_truth_rx = now
 
     async def _drain_lockstep(self) -> None:
         """Lockstep, after the plant ran its duration: wait until the collector holds the
-        plant's last tick (a condition, not a time: the result of a lockstep run must not depend
-        on how loaded the machine is), then :data:`DRAIN_S` for the other nodes' last samples.
+        plant's last tick, its truth and the answers to it (``RunCollector.tick_complete``: a
+        condition, not a time: the result of a lockstep run must not depend on how loaded the
+        machine is), then :data:`DRAIN_S` for the other nodes' last samples (status).
         Bounded by :data:`LOCKSTEP_DRAIN_MAX_S`; a run cut short says how many ticks it lacks."""
         dt = self.collector.dt_s
         final = None if dt is None else round(self.plan.duration_s / dt)
         deadline = time.monotonic() + LOCKSTEP_DRAIN_MAX_S
         while final is not None:
             self._drain_subscribers()
-            last = self.collector.last_truth_tick
-            if last is not None and last >= final:
+            if self.collector.tick_complete(final):
                 break
             if time.monotonic() > deadline:
+                last = self.collector.last_truth_tick
                 self.warn(
-                    f"the plant's last tick {final} did not reach the collector within "
+                    f"the plant's last tick {final} (its truth and answers) did not reach the "
+                    f"collector within "
                     f"{LOCKSTEP_DRAIN_MAX_S:g} s (last: {last}): the metrics end early"
                 )
                 break

@@ -3,7 +3,14 @@
 The pure core: parameters, kinematics (eqs 7-16), the reference-point tracking law (eqs 21-22),
 potential-field repulsion and the ``Firmware`` mode machine. No I/O, no clock reads, no numpy:
 it could be ported to a microcontroller loop. The I/O shell lives in separate modules.
+
+The same core may run compiled (mypyc) when a build of exactly these sources exists:
+``_accel.activate`` decides before anything of the core is imported (see ``_accel.py``).
 """
+
+from . import _accel
+
+_accel.activate(__path__)
 
 from .estimator import Estimator, EstimatorStatus
 from .firmware import Firmware, FirmwareStatus, Mode, Pose, Setpoint, WheelCommand

@@ -103,7 +103,9 @@ MAX_HOSTED: Final = 4096
 MAX_TRACKED: Final = 20000
 """Distinct robot positions kept for repulsion (a flood of made-up ids cannot grow memory)."""
 REALTIME_CHUNK: Final = 32
-"""Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped)."""
+"""Realtime: commands per published WheelsBatch (sent as soon as that many robots stepped).
+Tried in session 5: 50 (two puts a frame for 100 robots instead of four): p50 up (half the
+robots then wait for the whole frame), p99 no better on the shared machine (docs/scale.md)."""
 WATCHDOG_CHUNK: Final = 32
 """Realtime: robots one turn of the watchdog timer steps before it yields to the event loop,
 so a pose frame that arrives meanwhile waits for at most that many steps, not the fleet's."""

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 
 import runtime as rt
 from bus_schemas import keys
+from robot_agent import _accel
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S
 from robot_agent.host import MAX_HOSTED, HostNode
 from robot_agent.params import AgentConfig
@@ -163,7 +164,9 @@ async def _node(
         print(f"agent-host {name} ready", flush=True)
         notifier.ready(f"agent-host {name} connected ({len(ids)} robots)")
         mode = "lockstep" if lockstep else f"realtime, watchdog {rate_hz:g} Hz"
-        io.log.info(f"fleet {fleet}, {len(ids)} robots ({ids[0]}..{ids[-1]}), {mode}")
+        io.log.info(
+            f"fleet {fleet}, {len(ids)} robots ({ids[0]}..{ids[-1]}), {mode}; core {_accel.STATUS}"
+        )
         await host.run(stop, notifier)
         notifier.stopping()
         return 0

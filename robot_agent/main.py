@@ -23,6 +23,7 @@ from typing import Any, Final
 
 import runtime as rt
 from bus_schemas import keys
+from robot_agent import _accel
 from robot_agent.motors import MotorBackend, create_backend
 from robot_agent.node import AgentNode, LoopMode, MotorOutput
 from robot_agent.node_estop import attach_estop_state
@@ -396,7 +397,7 @@ async def _node(
     notifier.status(f"agent {setup.robot_id}: connected, control loop running")
     mode = "lockstep" if lockstep else f"realtime, loop {loop_mode} at {rate_hz:g} Hz"
     backend = setup.motor.name if setup.motor is not None else "bus"
-    io.log.info(f"fleet {setup.fleet}, {mode}, motor backend {backend}")
+    io.log.info(f"fleet {setup.fleet}, {mode}, motor backend {backend}; core {_accel.STATUS}")
     await node.run(stop, notifier)
     notifier.stopping()
     return 0

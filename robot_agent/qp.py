@@ -74,3 +74,50 @@ def solve_qp(
     if best == math.inf:
         return 0.0, 0.0, False
     return best_x, best_y, True
+
+
+def solve_qp_relaxed(
+    ux: float, uy: float, cons: Sequence[tuple[float, float, float]], cap: float
+) -> tuple[float, float, float, list[tuple[float, float, float]]]:
+    """The least-violation fallback of an infeasible ``solve_qp`` (``safety_filter.py``'s module
+    docstring, "Leaving a barrier"): every constraint with ``b <= 0`` is kept exactly, every
+    "get out" demand ``b > 0`` is scaled by ONE factor ``s in [0, 1]``, the largest for which
+    the set is feasible (found by bisection: feasibility is monotone in ``s``, as ``u`` feasible
+    at ``s1`` gives ``(s / s1) u`` feasible at ``s <= s1``), and the QP is solved on that set.
+
+    ``s = 0`` is always feasible (``u = 0``), so this never fails; the result satisfies
+    ``n . u >= s b > 0`` for every ``b > 0`` when ``s > 0`` and ``n . u >= 0`` when ``s = 0``:
+    at least what the old stop fallback (``u = 0``) gave on every constraint.
+
+    Returns ``(u_x, u_y, s, relaxed_cons)``.
+    """
+    if len(cons) == 1:  # in closed form: b > cap (else feasible), s = cap / b, u = cap n
+        ax, ay, b = cons[0]
+        if b > cap > 0.0:
+            return cap * ax, cap * ay, cap / b, [(ax, ay, cap)]
+    lo = 0.0
+    hi = 1.0
+    relaxed = _scaled(cons, lo)
+    bx, by, ok = solve_qp(ux, uy, relaxed, cap)
+    if not ok:  # (rounding: u = 0 meets every constraint at s = 0)
+        bx = by = 0.0
+    # s to 1e-6 (20 steps): the demands met to 1e-6 b, far below the filter's other errors
+    while hi - lo > 1e-6:
+        mid = 0.5 * (lo + hi)
+        trial = _scaled(cons, mid)
+        x, y, ok = solve_qp(ux, uy, trial, cap)
+        if ok:
+            lo, relaxed, bx, by = mid, trial, x, y
+        else:
+            hi = mid
+    return bx, by, lo, relaxed
+
+
+def _scaled(
+    cons: Sequence[tuple[float, float, float]], s: float
+) -> list[tuple[float, float, float]]:
+    """``cons`` with every ``b > 0`` multiplied by ``s`` (the ``b <= 0`` ones unchanged)."""
+    out: list[tuple[float, float, float]] = []
+    for ax, ay, b in cons:
+        out.append((ax, ay, b * s) if b > 0.0 else (ax, ay, b))
+    return out

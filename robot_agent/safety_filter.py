@@ -87,11 +87,58 @@ constraint, proof and conditions are in ``robot_agent.safety_plane``.
 Solving: the QP is two-dimensional, so its optimum has at most two active constraints; the
 filter enumerates the candidates exactly (``u_nom`` itself; the projection on each constraint
 line; each pair of lines' intersection; each line's intersections with the speed circle) and
-keeps the feasible one nearest to ``u_nom``. If none is feasible (e.g. already inside a
-boundary, or pinched between constraints that ask for more speed than ``|u_nom|``) the
-fallback is to stop (``u = 0``), which keeps every static barrier where it is. The work is
-``O(m^3)`` in the ``m`` constraints in range (typically 0-2; ``m = 0`` returns ``u_nom``
-untouched: the identity when nothing is near).
+keeps the feasible one nearest to ``u_nom``. If none is feasible (already deep inside a
+boundary, or pinched between constraints that ask for more than the cap) the robot LEAVES as
+well as it can instead of freezing: "Leaving a barrier" below. The work is ``O(m^3)`` in the
+``m`` constraints in range (typically 0-2; ``m = 0`` returns ``u_nom`` untouched: the identity
+when nothing is near).
+
+Leaving a barrier (the robot is inside, ``h < 0``: a start inside, noise, a neighbour's
+inflation grown with its age, a neighbour turning in place, a pair switching barriers)
+=====================================================================================
+Then ``b = -share gamma h > 0`` and the robot may use the cap ``max_ref_speed_mps``. While
+``b <= cap`` the constraint alone is feasible (``u = b n``) and the proof above gives
+``h(t + dt) >= (1 - gamma dt) h(t)``: ``|h|`` shrinks geometrically (a pair: both robots).
+When the demands cannot all be met (the old fallback stopped: two robots inside each other's
+barrier by more than ``2 cap / gamma`` = 5 cm stood still forever, infeasible at every tick):
+
+* one constraint, ``b > cap``: ``u = cap n``. By convexity ``h(p + u dt) >= h(p) + dt n . u =
+  h(p) + cap dt > h(p)``: ``h`` strictly increases, at the largest rate any command of speed
+  ``<= cap`` can give (``n . u <= |u| <= cap``), so this is the least-violation command; for a
+  cooperative pair each robot adds ``cap dt`` (the pair row is convex in ``(p_i, p_j)``), and
+  once ``b <= cap`` the geometric decay above takes over. From ``h_0 < 0`` a cooperative pair
+  alone is within ``eps`` of its boundary after at most ``(|h_0| - H)+ / (2 cap) + dt ln(min(
+  |h_0|, H) / eps) / (-ln(1 - gamma dt))`` seconds with ``H = 2 cap / gamma`` (a
+  non-cooperative barrier: ``H = cap / gamma`` and ``cap`` instead of ``2 cap``), whatever the
+  nominal command asks (tests/test_safety_recovery.py checks this bound).
+* several constraints, none feasible (``robot_agent.qp.solve_qp_relaxed``): every constraint
+  with ``b <= 0`` (a barrier that is safe and not approached: the ones the invariance proof
+  needs) is kept EXACTLY; every "get out" demand ``b_k > 0`` is scaled by one common factor
+  ``s``, the largest in ``[0, 1]`` for which ``F(s) = {|u| <= cap, n_k . u >= s b_k (b_k > 0),
+  n_k . u >= b_k (b_k <= 0)}`` is not empty, and the QP is solved on ``F(s)``. ``F(0)`` holds
+  ``u = 0`` (so this never fails), and ``F`` shrinks as ``s`` grows (``u`` in ``F(s1)`` gives
+  ``(s / s1) u`` in ``F(s)`` for ``s <= s1``: the ``b <= 0`` rows hold for any ``t u``, ``t in
+  [0, 1]``), so bisection finds ``s`` (to 1e-6, from below: ``F(s)`` is never empty). Every
+  violated barrier then gets ``n_k . u >= s b_k >= 0``: by the same convexity bound it never
+  decreases through this robot's command, strictly increases if ``s > 0`` (the largest common
+  fraction of the demanded rates: least violation in the max-min sense), and the robot stops
+  only when ``F(s) = {0}``. On EVERY constraint this is at least what the stop (``u = 0``)
+  gave, so no barrier is worse off than before; the one kind of ``b > 0`` row with ``h >= 0``
+  (a non-cooperative neighbour with a known velocity coming at it) is relaxed too, as no
+  command keeps it when the set is infeasible. A robot pinched between opposite demands
+  (``s = 0``) keeps the sideways part of its command (``n_k . u >= 0``), so it slides out or
+  the deadlock tie-break moves it; until then its barriers wait on its neighbours (a
+  cooperative one answers only its half, ``|h|`` decaying geometrically toward 0).
+
+Why the non-cooperative distance stays below the cooperative one (a decision): a pair that
+kept the non-cooperative row (``|p_i - c_j| >= Ds + l``) while one robot hung can be inside
+the cooperative row (``|p_i - p_j| >= Ds + 2 l``) when it resumes. Making the first imply the
+second needs ``Ds + 3 l`` (``|p_i - p_j| >= |p_i - c_j| - l``): 0.34 m instead of 0.24 m
+against every stopped, held, booting or silent robot, which the formations and narrow passages
+pay for, and it would still not keep robots out of barriers: a neighbour's inflation ``V a_j``
+grows with its age while nothing can move, its reference point moves by up to ``2 l`` when it
+turns in place, its ``radius_m`` grows when its camera is lost, scenarios start robots inside.
+Leaving a barrier has to work anyway (above); with it, the switch costs a short retreat.
 
 Wheel saturation after eq 16: ``admissible(ux, uy)`` tells the firmware whether the reference
 velocity of the saturated wheels still meets the constraints; when it does not, the firmware
@@ -135,6 +182,7 @@ from .qp import (
     _TOL,
     _sqrt,
     solve_qp,
+    solve_qp_relaxed,
 )
 from .safety_plane import SharedFramePlane
 from .safety_types import (
@@ -501,7 +549,10 @@ class SafetyFilter:
 
         Returns:
             ``(ux, uy)``: ``|u| <= |u_nom|`` except during a tie-break or to leave a boundary
-            (``b > 0``; module docstring).
+            (``b > 0``; module docstring). When the constraints are infeasible, the
+            least-violation command ("Leaving a barrier"; it does not meet the constraints, so
+            ``admissible`` refuses a saturated turn and the firmware scales the wheels
+            uniformly: ``n . (k u) >= 0`` still).
         """
         self._ticks += 1
         if not self.enabled:
@@ -551,8 +602,10 @@ class SafetyFilter:
                 cap2 = cap * cap
                 if fx * fx + fy * fy > cap2 * (1.0 + 1e-12) + 1e-18:
                     r2 = cap2 - b * b
-                    if r2 < 0.0:  # asks for more than cap away: stop
-                        fx = fy = 0.0
+                    if r2 < 0.0:  # asks for more than cap away: out along n at the cap
+                        # (module docstring, "Leaving a barrier": h strictly increases)
+                        fx = cap * ax
+                        fy = cap * ay
                         self._infeasible += 1
                     else:  # the end of the chord nearest the projection
                         r = _sqrt(r2) if ax * uy - ay * ux >= 0.0 else -_sqrt(r2)
@@ -566,7 +619,8 @@ class SafetyFilter:
                     cap = self._vcap
                     break
             fx, fy, feasible = solve_qp(ux, uy, cons, cap)
-            if not feasible:
+            if not feasible:  # the least-violation fallback (module docstring)
+                fx, fy, _, _ = solve_qp_relaxed(ux, uy, cons, cap)
                 self._infeasible += 1
             if fx != ux or fy != uy:
                 self._active += 1

@@ -50,7 +50,9 @@ class SafetyFilterStatus:
         violations: ticks on which some barrier was already below zero at the input (the
             robot was inside a boundary it should keep: noise, a neighbour that moved in, a
             start inside; Robotarium counts these as violations).
-        infeasible: ticks with no feasible command: the robot stopped (the fallback).
+        infeasible: ticks with no feasible command: the least-violation fallback ran (it
+            moves out of the violated barriers as fast as the cap allows, and stops only when
+            nothing can move out: safety_filter.py, "Leaving a barrier").
         tiebreaks: deadlock tie-breaks triggered.
         tiebreak_active: a tie-break is running now.
         rescaled: ticks on which the firmware rescaled saturated wheels uniformly to keep the

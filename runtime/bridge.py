@@ -17,7 +17,9 @@ Where the sample goes is the consumer's choice, one of three:
   batches, waking the loop once per burst (:func:`subscribe` with an Inbox: the launcher's
   collector, tools and benches that poll);
 * one worker thread fed through a bounded queue (:class:`runtime.tap.BusTap`: the recorder, the
-  live view and ``formation top``, whose handlers may be slow and must not hold up a loop).
+  live view and ``formation top``, whose handlers may be slow and must not hold up a loop); its
+  samples first wait in a Zenoh-side FIFO (:func:`subscribe_buffered`), so a busy worker never
+  stops the session from reading its link.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from typing import Any, Final, Literal
 import zenoh
 
 __all__ = [
+    "BufferedSubscription",
     "Inbox",
     "LivelinessHandler",
     "Push",
@@ -41,6 +44,7 @@ __all__ = [
     "SampleHandler",
     "declare_token",
     "subscribe",
+    "subscribe_buffered",
     "subscribe_on_thread",
     "watch_liveliness",
     "watch_liveliness_on_thread",
@@ -280,6 +284,57 @@ def subscribe_on_thread(
             push(_to_received(sample))
 
     return session.declare_subscriber(key_expr, zenoh.handlers.Callback(on_sample, indirect=False))
+
+
+class BufferedSubscription:
+    """A subscriber whose samples wait in a bounded Zenoh-side FIFO and are handed to ``push``
+    by one Python thread of its own, in the order the session received them (one subscriber:
+    across keys too). See :func:`subscribe_buffered`."""
+
+    def __init__(
+        self, session: zenoh.Session, key_expr: str, push: Push, *, capacity: int, name: str
+    ) -> None:
+        self._sub = session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(capacity))
+        self._rx = self._sub.handler  # still drains what it holds after undeclare()
+        self._push = push
+        self._thread = threading.Thread(target=self._pump, name=name, daemon=True)
+        self._thread.start()
+
+    def _pump(self) -> None:
+        rx, push = self._rx, self._push
+        while True:
+            try:
+                sample = rx.recv()  # blocks without the GIL
+            except zenoh.ZError:  # undeclared (or session closed) and drained
+                return
+            with contextlib.suppress(Exception):
+                push(_to_received(sample))
+
+    def undeclare(self) -> None:
+        """Stop receiving; what the FIFO holds is still handed over (see :meth:`join`)."""
+        with contextlib.suppress(zenoh.ZError):  # the session was closed first: gone already
+            self._sub.undeclare()
+
+    def join(self, timeout_s: float | None = None) -> bool:
+        """After :meth:`undeclare`: wait until the FIFO is drained; False on timeout."""
+        self._thread.join(timeout_s)
+        return not self._thread.is_alive()
+
+
+def subscribe_buffered(
+    session: zenoh.Session, key_expr: str, push: Push, *, capacity: int, name: str = "bus-rx"
+) -> BufferedSubscription:
+    """Like :func:`subscribe_on_thread`, but Zenoh's network thread never waits for Python: each
+    sample goes into a Zenoh FIFO of ``capacity`` samples (it holds Zenoh up only when full)
+    and one thread of its own calls ``push(Received)`` (``rx_s``: when that thread took it).
+
+    For a consumer whose Python work competes with its receive path, the recorder's tap: a
+    callback on the network thread must take the GIL for every sample, and while the tap's
+    worker holds it (writing MCAP on a starved machine) the session stopped reading its link,
+    the router queued the backlog and lost it when it exited (a recording of a finished
+    ``formation up`` run ended ticks early; its router was even forced to exit, trying to flush
+    it). Buffered here, a backlog is in this process when the router goes away."""
+    return BufferedSubscription(session, key_expr, push, capacity=capacity, name=name)
 
 
 def subscribe(

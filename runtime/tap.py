@@ -3,9 +3,11 @@ worker thread in arrival order.
 
 For consumers whose handler may be slow (the recorder writes MCAP, the live view encodes
 scenes) and must not hold up an event loop. The Zenoh side is the one bridge of
-:mod:`runtime.bridge` (:func:`~runtime.bridge.subscribe_on_thread`,
-:func:`~runtime.bridge.watch_liveliness_on_thread`): its callback only copies each sample and
-puts it into a bounded queue (a full queue drops and counts); one worker thread handles them.
+:mod:`runtime.bridge` (:func:`~runtime.bridge.subscribe_buffered`,
+:func:`~runtime.bridge.watch_liveliness_on_thread`): samples wait in a Zenoh-side FIFO, so the
+session keeps reading its link however busy the worker is (a backlog is in this process, not
+in the router's queue, when a run's router exits); a pump thread copies each into a bounded
+queue (a full queue drops and counts); one worker thread handles them.
 Used by ``formation record``, ``formation top`` and the Foxglove live view.
 """
 
@@ -22,7 +24,12 @@ from typing import Any, Final, Literal, NamedTuple
 import zenoh
 
 from bus_schemas import keys
-from runtime.bridge import Received, subscribe_on_thread, watch_liveliness_on_thread
+from runtime.bridge import (
+    BufferedSubscription,
+    Received,
+    subscribe_buffered,
+    watch_liveliness_on_thread,
+)
 
 __all__ = ["DEFAULT_QUEUE_LEN", "BusItem", "BusTap", "ItemKind"]
 
@@ -80,9 +87,14 @@ class BusTap:
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
         self._subs: list[Any] = []
+        self._samples: BufferedSubscription | None = None
         try:
-            self._subs.append(
-                subscribe_on_thread(session, keys.fleet_pattern(fleet), self._on_sample)
+            self._samples = subscribe_buffered(
+                session,
+                keys.fleet_pattern(fleet),
+                self._on_sample,
+                capacity=maxlen,
+                name=f"{name}-rx",
             )
             self._subs.append(
                 watch_liveliness_on_thread(
@@ -96,7 +108,9 @@ class BusTap:
     # Zenoh threads (through runtime.bridge) -------------------------------------------------
 
     def _push(self, item: BusItem) -> None:
-        if self._closed:
+        if self._closed:  # a sample the FIFO still held when close() ran out of time
+            with self._lock:
+                self.dropped += 1
             return
         try:
             self._queue.put_nowait(item)
@@ -158,16 +172,21 @@ class BusTap:
         If the backlog takes longer than ``timeout_s`` seconds, the rest is dropped (counted in
         ``dropped``); when this returns, the worker has stopped and the handler is not running.
         """
+        deadline = time.monotonic() + timeout_s
         for sub in self._subs:
             # ZError: the session was closed first, the subscriber is gone already.
             with contextlib.suppress(zenoh.ZError):
                 sub.undeclare()
         self._subs.clear()
+        samples, self._samples = self._samples, None
+        if samples is not None:  # what the Zenoh FIFO still holds goes into the queue first
+            samples.undeclare()
+            samples.join(max(0.0, deadline - time.monotonic()))
         if self._closed:
             return
         self._closed = True
         self._queue.put(_STOP)  # blocks only if full; the worker is draining it
-        self._thread.join(timeout=timeout_s)
+        self._thread.join(timeout=max(0.0, deadline - time.monotonic()))
         if self._thread.is_alive():  # a huge backlog: give up on it, keep what was handled
             self._abandon = True
             self._thread.join()

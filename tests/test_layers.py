@@ -57,6 +57,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "robot_agent.host_main",
             "robot_agent.host_status",
             "robot_agent.main",
+            "robot_agent.accel_build",
             "coordinator.node",
             "coordinator.outputs",
             "coordinator.estop_source",
@@ -308,7 +309,7 @@ def test_one_subscription_bridge_has_teeth(tmp_path: Path) -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 17  # localization.main, sim_plant.outputs, robot_agent.host_status
+    assert len(shells) == 18  # ..., robot_agent.host_status, robot_agent.accel_build
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 

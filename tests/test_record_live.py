@@ -28,6 +28,8 @@ from formation import report as report_mod
 from formation.record import READY_PREFIX, start_recorder
 from runtime.tap import BusItem, BusTap
 
+BLOCK = zenoh.CongestionControl.BLOCK
+
 EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of SIGINT; 0.5 s margin for a loaded CI box
 
 
@@ -60,6 +62,46 @@ def test_bus_tap_survives_handler_errors_and_bounds_its_close(
     n = len(handled)
     time.sleep(0.05)
     assert len(handled) == n  # the worker has stopped
+
+
+def test_bus_tap_keeps_a_backlog_its_router_had_when_the_router_exits(spawn: Spawner) -> None:
+    """A tap whose worker is slower than the bus (1 ms of Python per sample: a recorder on a
+    starved machine) and whose router exits right after the last put: every sample published
+    before is handled, and the router exits at once with status 0. With the samples taken on
+    Zenoh's network thread (a callback that needs the GIL the worker holds), the session read
+    its link slowly, the router held the backlog and, trying to flush it at its exit, overran
+    its exit bound and was forced out (status 70) with it: 2816 and 3115 of 4000 handled next to
+    CPU hogs; a recording of a finished `formation up --lockstep` run missed its last ticks
+    (runtime.bridge.subscribe_buffered). On an idle machine the old way may pass too."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = spawn("router", "--listen", endpoint, ready="router listening on ")
+    settings = rt.ZenohSettings(connect=(endpoint,), open_timeout_s=10.0)
+    handled: list[int] = []
+
+    def slow(item: BusItem) -> None:
+        start = time.perf_counter()
+        while time.perf_counter() - start < 0.001:
+            pass
+        handled.append(int(item.payload))
+
+    sub, pub = rt.open_session(settings), rt.open_session(settings)
+    try:
+        tap = BusTap(sub, FLEET, slow, name="slow-tap")
+        time.sleep(0.5)  # the subscription reaches the router
+        n = 4000
+        for k in range(n):  # 8 MB: more than the socket buffers hold
+            pub.put(f"formation/{FLEET}/k", str(k).encode().ljust(2000), congestion_control=BLOCK)
+        pub.close()
+        exit_s = router.stop(signal.SIGINT, timeout_s=10.0)
+        assert router.proc.returncode == 0, router.describe()
+        assert exit_s < EXIT_BOUND_S, f"the router took {exit_s:.2f} s to exit"
+        deadline = time.monotonic() + 60.0
+        while len(handled) < n and time.monotonic() < deadline:
+            time.sleep(0.05)
+        tap.close()
+    finally:
+        sub.close()
+    assert handled == list(range(n)) and tap.dropped == 0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -121,6 +163,52 @@ def test_record_command_rejects_bad_arguments(tmp_path: Path) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+def test_lockstep_end_of_run_waits_for_the_final_ticks_answers_not_a_time() -> None:
+    """What `formation up --lockstep` waits for after the plant ran its duration
+    (``RunCollector.tick_complete``): the last tick's truth of every robot, the coordinator's
+    leader of that tick and every live robot's wheels answering it, however late they come (on
+    a starved machine the answers trail the truth); a robot whose token is gone is not waited
+    for (the plant went on without it)."""
+    from test_up import FLEET as UP_FLEET
+    from test_up import bus_messages
+
+    import scenario
+    from formation import simulate
+    from formation.collector import RunCollector
+
+    scn = scenario.load("paper-exp1")
+    log = simulate.run(scn, duration_s=0.1).log
+    final = log.t_s.size - 1
+    msgs = bus_messages(log, scn.dt_s)
+    col = RunCollector.for_scenario(scn, fleet=UP_FLEET, lockstep=True)
+    # the last tick's answers (leader, wheels) held back: the truth alone is not the end
+    last_t = float(log.t_s[-1])
+    answers = [m for m in msgs if m[0].endswith(("/leader", "/wheels"))]
+    tail = [m for m in answers if _msg_t(m[1]) == last_t]
+    col.feed_all([m for m in msgs if m not in tail])
+    assert col.last_truth_tick == final and not col.tick_complete(final)
+    leader = [m for m in tail if m[0].endswith("/leader")]
+    wheels = [m for m in tail if m[0].endswith("/wheels")]
+    assert len(leader) == 1 and len(wheels) == len(scn.robot_ids)
+    col.feed_all(leader + wheels[:-1])
+    assert not col.tick_complete(final)  # one robot's answer still missing
+    gone = keys.parse_robot_key(wheels[-1][0])
+    assert gone is not None
+    col.feed_alive(keys.alive_robot_key(UP_FLEET, gone[1]), False)
+    assert col.tick_complete(final)  # its agent is gone: the plant did not wait for it either
+    col.feed_alive(keys.alive_robot_key(UP_FLEET, gone[1]), True)
+    assert not col.tick_complete(final)
+    col.feed_all(wheels[-1:])
+    assert col.tick_complete(final) and not col.tick_complete(final + 1)
+    assert col.build().t_s.size == final + 1
+
+
+def _msg_t(payload: bytes) -> float:
+    import msgpack
+
+    return float(msgpack.unpackb(payload)["t"])
+
+
 @pytest.mark.slow
 def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
     spawn: Spawner, tmp_path: Path
@@ -150,16 +238,19 @@ def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
     try:
         assert up.proc.wait(timeout=120) == 0, up.describe()
         live = json.loads((up_out / "metrics.json").read_text())
-        # Samples still in flight to the recorder's session when `up` exits (a starved machine):
-        # wait until it has every clock tick the live collector saw before closing it.
+        # Samples still queued in the recorder's process when `up` exits (a starved machine):
+        # wait until it has written every clock tick the live collector saw before closing it.
+        # (They must be in this process by then: up's router exits with up, and what it still
+        # held for a slow subscriber was lost with it; runtime.bridge.subscribe_buffered.)
         clocks = live["meta"]["collector"]["received"]["clock"]
         deadline = time.monotonic() + 60.0
-        while time.monotonic() < deadline:
-            if handle.recorder.stats.per_key.get(keys.clock_key(FLEET), 0) >= clocks:
-                break
+        while (
+            recorded := handle.recorder.stats.per_key.get(keys.clock_key(FLEET), 0)
+        ) < clocks and time.monotonic() < deadline:
             time.sleep(0.05)
     finally:
         stats = handle.close()
+    assert recorded >= clocks, f"the recording has {recorded} of the run's {clocks} clock ticks"
     assert stats.dropped == 0 and stats.handler_errors == 0 and stats.rejected == 0
 
     rep_out = tmp_path / "report"

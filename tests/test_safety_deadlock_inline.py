@@ -17,7 +17,7 @@ import pytest
 
 from robot_agent.deadlock import Deadlock
 from robot_agent.params import AgentConfig
-from robot_agent.qp import _TOL, solve_qp
+from robot_agent.qp import _TOL, solve_qp, solve_qp_relaxed
 from robot_agent.safety_filter import SafetyFilter
 
 CFG = AgentConfig()
@@ -37,7 +37,9 @@ def _reference(cons: list[tuple[float, float, float]], ux: float, uy: float) -> 
     cap = math.hypot(ux, uy)
     if any(b > 0.0 for _, _, b in cons):
         cap = CFG.gains.max_ref_speed_mps
-    fx, fy, _ = solve_qp(ux, uy, cons, cap)
+    fx, fy, ok = solve_qp(ux, uy, cons, cap)
+    if not ok:  # the least-violation fallback (robot_agent/qp.py)
+        fx, fy, _, _ = solve_qp_relaxed(ux, uy, cons, cap)
     return fx, fy
 
 

@@ -42,6 +42,7 @@ from bus_schemas import (
 )
 from formation import metrics, simulate
 from formation.collector import RunCollector, slot_ids_of
+from formation.launcher import LAUNCHER_NICE
 from formation.runlog import RunLog
 from formation.up import UpConfig, plan_run
 from scenario import scenario_with_robots, to_toml
@@ -452,6 +453,11 @@ def _descendants(root: int) -> dict[int, int]:
     return out
 
 
+def _nice(pid: int) -> int:
+    """The nice value of process ``pid``'s main thread (``/proc/<pid>/stat``, field 19)."""
+    return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[16])
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -470,6 +476,11 @@ def test_ctrl_c_stops_everything_quickly(spawn: Spawner, tmp_path: Path) -> None
     tree = _descendants(child.pid)
     assert len(tree) == 6, tree  # router, plant, coordinator, 3 agents
     groups = set(tree.values()) | {child.pid}
+    # realtime: the launcher (collector, display) runs niced, the children that close the
+    # control loop at the priority they were started with
+    base = os.getpriority(os.PRIO_PROCESS, 0)
+    assert _nice(child.pid) == min(19, base + LAUNCHER_NICE)
+    assert all(_nice(p) == base for p in tree), {p: _nice(p) for p in tree}
     start = time.monotonic()
     child.send_signal(signal.SIGINT)
     child.proc.wait(timeout=10.0)
