@@ -61,12 +61,21 @@ Counting: ``rejected_count`` counts bad inputs. A rejected ``Pose`` / ``Setpoint
 counted once however many ticks the shell presents it again (identity); non-finite scalar
 arguments and neighbour entries are counted on every tick they appear; ``reject(reason)`` lets
 the shell add messages it dropped while decoding to the same counter.
+
+Types: ``step`` validates its arguments instead of trusting their annotations (``float |
+object``, ...: the firmware core is also compiled with mypyc, whose typed parameters would raise
+TypeError at the call, outside the tick's ``try``). A real number of another type than float
+(int, a numpy scalar, a Fraction) is used as its float value; a pose or setpoint may be any
+sequence of its fields; anything else (None, a string) raises inside the tick and is counted like
+any bad input (``internal error: TypeError``), in pure Python and compiled alike.
 """
 
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
+from typing import Any
 
 from .estimator import Estimator
 from .firmware_modes import _FirmwareModes
@@ -109,6 +118,15 @@ __all__ = [
 _isfinite = math.isfinite
 _cos = math.cos
 _sin = math.sin
+
+
+def _real(value: object) -> float:
+    """``value`` as a float if it is a real number (``numbers.Real``: an int, a bool, a float
+    subclass such as numpy.float64, a numpy integer, a Fraction); else TypeError. The step's
+    fast path takes a float as it is; this is the rest (the same in pure Python and compiled)."""
+    if isinstance(value, (float, int, numbers.Real)):
+        return float(value)
+    raise TypeError(f"a real number expected, got {type(value).__name__}")
 
 
 class Firmware(_FirmwareModes):
@@ -192,8 +210,8 @@ class Firmware(_FirmwareModes):
         self._last_now: float | None = None
         self._last_pose_t: float | None = None
         self._last_saturated = False
-        self._last_rejected_pose: Pose | None = None
-        self._last_rejected_setpoint: Setpoint | None = None
+        self._last_rejected_pose: object = None  # (identity only: the shells' objects)
+        self._last_rejected_setpoint: object = None
         self._ex = _NAN
         self._ey = _NAN
         self._pose_age = _NAN
@@ -209,7 +227,7 @@ class Firmware(_FirmwareModes):
         self._extrap = ep.extrapolate_setpoint
         self._act_delay = ep.actuation_delay_s
         self._lead = ep.setpoint_lead_s
-        self._fused_pose: Pose | None = None
+        self._fused_pose: object = None  # the last pose object fused (identity only)
         # (t, omega_r, omega_l) of the last command, handed to the estimator on the next tick
         # unless encoder speeds replace it (it only matters for times after that tick)
         self._pending_cmd: tuple[float, float, float] | None = None
@@ -221,17 +239,17 @@ class Firmware(_FirmwareModes):
 
     def step(
         self,
-        now_s: float,
+        now_s: float | object,
         *,
-        pose: Pose | None,
-        pose_rx_s: float,
-        setpoint: Setpoint | None,
-        setpoint_rx_s: float,
+        pose: Pose | object | None,
+        pose_rx_s: float | object,
+        setpoint: Setpoint | object | None,
+        setpoint_rx_s: float | object,
         neighbours: Sequence[tuple[float, float] | Neighbour] = (),
         obstacles: Sequence[tuple[float, float, float]] = (),
-        extra_radius_m: float = 0.0,
-        pose_capture_s: float | None = None,
-        wheel_speeds: tuple[float, float] | None = None,
+        extra_radius_m: float | object = 0.0,
+        pose_capture_s: float | object | None = None,
+        wheel_speeds: tuple[float, float] | object | None = None,
     ) -> WheelCommand:
         """Run one control tick.
 
@@ -263,16 +281,32 @@ class Firmware(_FirmwareModes):
         # The whole tick runs inside one try (zero-cost in CPython 3.11 unless it raises): a
         # firmware loop must not die, it stops the wheels instead.
         try:
+            # The arguments are outside data, validated here, not trusted to their annotations
+            # (compiled with mypyc, a typed parameter would raise TypeError before this try): a
+            # number is a float, or converted by _real (int, numpy.float64, ...); anything else
+            # raises TypeError, which the except below counts as a rejection. Each value is
+            # converted where the tick uses it, so an argument the tick ignores (pose_rx_s
+            # without a pose) may be anything. Pose / setpoint fields: the same.
+            now = now_s if type(now_s) is float else _real(now_s)
+            # the fields of the pose / setpoint, unpacked: objects until validated (a Pose /
+            # Setpoint, or any tuple, unpacks as a tuple; any other sequence as an iterable)
+            ox: object
+            oy: object
+            oth: object
+            ot: object
+            ovx: object
+            ovy: object
+            slot: object
             # --- time -----------------------------------------------------------------------
-            if not _isfinite(now_s):
+            if not _isfinite(now):
                 self.reject("non-finite now_s")
                 return self._hold(_EV_INVALID, "non-finite clock")
             last = self._last_now
-            self._last_now = now_s
+            self._last_now = now
             if last is None:
                 dt = 0.0
             else:
-                dt = now_s - last
+                dt = now - last
                 if not 0.0 < dt <= self._max_dt:  # duplicate, backwards or stalled tick
                     self._dt_faults += 1
                     self._tracker.reset_derivative()
@@ -287,11 +321,14 @@ class Firmware(_FirmwareModes):
                 if wheel_speeds is not None and last is not None:
                     # measured wheel speeds over [last, now_s) (eq 7)
                     try:
-                        wr, wl = wheel_speeds
+                        ws: Any = wheel_speeds
+                        owr, owl = ws
+                        wr = owr if type(owr) is float else _real(owr)
+                        wl = owl if type(owl) is float else _real(owl)
                         hr = self._half_r
                         v = hr * (wr + wl)
                         w = hr * (wr - wl) / self._half_track
-                        ok = now_s > last and _isfinite(v + w)  # (also catches overflow)
+                        ok = now > last and _isfinite(v + w)  # (also catches overflow)
                     except (TypeError, ValueError):
                         ok = False
                     if ok:
@@ -300,7 +337,7 @@ class Firmware(_FirmwareModes):
                     else:
                         seg_t = _NAN  # no twist this tick
                         v = w = 0.0
-                        if now_s > last:
+                        if now > last:
                             self.reject("bad wheel speeds")
                 else:
                     pending = self._pending_cmd
@@ -315,10 +352,19 @@ class Firmware(_FirmwareModes):
                 self._pending_cmd = None
                 if pose is not None and pose is not self._fused_pose:
                     self._fused_pose = pose
-                    mx, my, mth, mt = pose
+                    if isinstance(pose, tuple):
+                        ox, oy, oth, ot = pose
+                    else:
+                        ps: Any = pose
+                        ox, oy, oth, ot = ps
+                    mx = ox if type(ox) is float else _real(ox)
+                    my = oy if type(oy) is float else _real(oy)
+                    mth = oth if type(oth) is float else _real(oth)
+                    mt = ot if type(ot) is float else _real(ot)
                     if _isfinite(mt):
-                        cap = pose_rx_s if pose_capture_s is None else pose_capture_s
-                        got = est.tick(now_s, seg_t, v, w, odo, cap, mx, my, mth)
+                        oc = pose_rx_s if pose_capture_s is None else pose_capture_s
+                        cap = oc if type(oc) is float else _real(oc)
+                        got = est.tick(now, seg_t, v, w, odo, cap, mx, my, mth)
                         reason = est.last_reason
                         if reason is None:
                             self._last_pose_t = mt
@@ -326,9 +372,9 @@ class Firmware(_FirmwareModes):
                             self.reject(reason)
                     else:
                         self.reject("non-finite pose")
-                        got = est.tick(now_s, seg_t, v, w, odo, None, mx, my, mth)
+                        got = est.tick(now, seg_t, v, w, odo, None, mx, my, mth)
                 else:
-                    got = est.tick(now_s, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
+                    got = est.tick(now, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
 
             if self._mode is _ESTOP:
                 return self._hold(_EV_ESTOP, "estop")
@@ -337,8 +383,20 @@ class Firmware(_FirmwareModes):
             if setpoint is None:
                 self._setpoint_age = _NAN
                 return self._hold(_EV_NO_SETPOINT, "no setpoint")
-            spx, spy, spvx, spvy, spth, slot, spt = setpoint
-            if not _isfinite(spx + spy + spvx + spvy + spth + spt + setpoint_rx_s) or not (
+            if isinstance(setpoint, tuple):
+                ox, oy, ovx, ovy, oth, slot, ot = setpoint
+            else:
+                ss: Any = setpoint
+                ox, oy, ovx, ovy, oth, slot, ot = ss
+            spx = ox if type(ox) is float else _real(ox)
+            spy = oy if type(oy) is float else _real(oy)
+            spvx = ovx if type(ovx) is float else _real(ovx)
+            spvy = ovy if type(ovy) is float else _real(ovy)
+            spth = oth if type(oth) is float else _real(oth)
+            spt = ot if type(ot) is float else _real(ot)
+            srx = setpoint_rx_s if type(setpoint_rx_s) is float else _real(setpoint_rx_s)
+            # (the slot: an int >= 0, not a bool)
+            if not _isfinite(spx + spy + spvx + spvy + spth + spt + srx) or not (
                 type(slot) is int and slot >= 0
             ):
                 self._reject_setpoint(setpoint, "non-finite setpoint or bad slot")
@@ -351,7 +409,7 @@ class Firmware(_FirmwareModes):
                     self._role_changes += 1
                 self._slot = slot
                 self._tracker.reset()
-            sp_age = now_s - setpoint_rx_s
+            sp_age = now - srx
             self._setpoint_age = sp_age
 
             # --- pose -----------------------------------------------------------------------
@@ -360,22 +418,36 @@ class Firmware(_FirmwareModes):
                 if pose is None:
                     self._pose_age = _NAN
                     return self._hold(_EV_STALE, "no pose")
-                x, y, th, pose_t = pose
-                if not _isfinite(x + y + th + pose_t + pose_rx_s):
+                if isinstance(pose, tuple):
+                    ox, oy, oth, ot = pose
+                else:
+                    ps = pose
+                    ox, oy, oth, ot = ps
+                x = ox if type(ox) is float else _real(ox)
+                y = oy if type(oy) is float else _real(oy)
+                th = oth if type(oth) is float else _real(oth)
+                pose_t = ot if type(ot) is float else _real(ot)
+                prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
+                if not _isfinite(x + y + th + pose_t + prx):
                     self._reject_pose(pose, "non-finite pose")
                     return self._hold(_EV_INVALID, "pose rejected")
                 self._last_pose_t = pose_t
-                pose_age = now_s - pose_rx_s
+                pose_age = now - prx
                 self._pose_age = pose_age
                 # staleness (|age|: a receive time in the future is as wrong as an old one)
                 lim = self._stale_pose
                 if not -lim <= pose_age <= lim:
                     return self._hold(_EV_STALE, "pose stale")
-                self._est_xyt = pose
+                # (a tuple as it is: pose_estimate converts its fields on reading)
+                self._est_xyt = pose if isinstance(pose, tuple) else (x, y, th)
             else:
                 # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
                 # dropout bound, or too uncertain) holds the robot
-                self._pose_age = now_s - pose_rx_s if pose is not None else _NAN
+                if pose is not None:
+                    prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
+                    self._pose_age = now - prx
+                else:
+                    self._pose_age = _NAN
                 if got is None:
                     self._unc = _NAN
                     self._est_xyt = None
@@ -432,16 +504,28 @@ class Firmware(_FirmwareModes):
             # before eq 16: keeps Ds to neighbours / obstacles / walls (safety_filter.py); the
             # own extra radius is at least this tick's estimate uncertainty ----------------
             if self._filter_on:
+                er = extra_radius_m if type(extra_radius_m) is float else _real(extra_radius_m)
                 unc = self._unc
-                if unc > extra_radius_m:
-                    extra_radius_m = unc
+                if unc > er:
+                    er = unc
                 # shared_frame: the own latest camera pose and its age, for the frame's plane
                 frame = None
                 if self._shared_frame and pose is not None:
-                    cap_t = pose[3] if pose_capture_s is None else pose_capture_s
-                    frame = (pose[0], pose[1], pose[2], now_s - cap_t)
+                    if isinstance(pose, tuple):
+                        ox, oy, oth, ot = pose
+                    else:
+                        ps = pose
+                        ox, oy, oth, ot = ps
+                    oc = ot if pose_capture_s is None else pose_capture_s
+                    cap_t = oc if type(oc) is float else _real(oc)
+                    frame = (
+                        ox if type(ox) is float else _real(ox),
+                        oy if type(oy) is float else _real(oy),
+                        oth if type(oth) is float else _real(oth),
+                        now - cap_t,
+                    )
                 vx, vy = self._filter_fn(
-                    now_s,
+                    now,
                     rx,
                     ry,
                     vx,
@@ -450,7 +534,7 @@ class Firmware(_FirmwareModes):
                     ey,
                     neighbours,
                     obstacles,
-                    extra_radius_m,
+                    er,
                     dt,
                     frame,
                 )
@@ -490,7 +574,7 @@ class Firmware(_FirmwareModes):
                             flt.count_rescaled()
             self._last_saturated = sat
             if est is not None:  # for the prediction (see _pending_cmd)
-                self._pending_cmd = (now_s + self._act_delay, wr, wl)
+                self._pending_cmd = (now + self._act_delay, wr, wl)
             # (_new_command inlined: one Python call less per tick)
             return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat))
         except Exception as exc:

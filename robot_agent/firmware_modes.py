@@ -13,8 +13,6 @@ from .firmware_types import (
     _TRANSITIONS,
     FirmwareStatus,
     Mode,
-    Pose,
-    Setpoint,
     WheelCommand,
     _Event,
     _new_command,
@@ -60,8 +58,8 @@ class _FirmwareModes:
     _pose_age: float
     _setpoint_age: float
     _last_saturated: bool
-    _last_rejected_pose: Pose | None
-    _last_rejected_setpoint: Setpoint | None
+    _last_rejected_pose: object
+    _last_rejected_setpoint: object
     _pending_cmd: tuple[float, float, float] | None
     _last_now: float | None
     _act_delay: float
@@ -104,8 +102,8 @@ class _FirmwareModes:
     def pose_estimate(self) -> tuple[float, float, float] | None:
         """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
         the measured pose with the estimator disabled), or None."""
-        xyt = self._est_xyt
-        return None if xyt is None else (xyt[0], xyt[1], xyt[2])
+        xyt = self._est_xyt  # (a pose may hold ints or numpy scalars: floats out)
+        return None if xyt is None else (float(xyt[0]), float(xyt[1]), float(xyt[2]))
 
     def reject(self, reason: str) -> None:
         """Count one bad input (e.g. a message the shell could not decode) with its reason."""
@@ -185,12 +183,12 @@ class _FirmwareModes:
         """Zero command in the current mode."""
         return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, pose_t, False)
 
-    def _reject_pose(self, pose: Pose, reason: str) -> None:
+    def _reject_pose(self, pose: object, reason: str) -> None:
         if pose is not self._last_rejected_pose:
             self._last_rejected_pose = pose
             self.reject(reason)
 
-    def _reject_setpoint(self, setpoint: Setpoint, reason: str) -> None:
+    def _reject_setpoint(self, setpoint: object, reason: str) -> None:
         if setpoint is not self._last_rejected_setpoint:
             self._last_rejected_setpoint = setpoint
             self.reject(reason)

@@ -228,7 +228,9 @@ class SafetyFilter:
         "_last_t",
         "_max_age",
         "_min_h",
+        "_other_frame",
         "_plane",
+        "_plane_pairs",
         "_rejected",
         "_rescaled",
         "_shared",
@@ -277,6 +279,8 @@ class SafetyFilter:
         self._rescaled = 0
         self._rejected = 0
         self._min_h = math.inf
+        self._plane_pairs = 0
+        self._other_frame = 0
 
     # ------------------------------------------------------------------ public API
 
@@ -315,6 +319,15 @@ class SafetyFilter:
             plane = self._d_coop + self._l + self._gap + 2.0 * self._vcap / self._gamma_slow
             far = max(far, plane + 3.0 * off)
         return far
+
+    @property
+    def plane_use(self) -> tuple[int, int, int]:
+        """How the shared-frame plane was used since construction (``shared_frame``; for
+        tests and diagnostics): ``(pairs, bound, other_frame)``, the cooperative neighbours in
+        range the plane handled, the plane constraints among them that could bind (in reach:
+        appended), and the cooperative neighbours in range, this robot having a frame, that
+        were measured in another frame (the inflated barrier instead)."""
+        return self._plane_pairs, self._plane.bound, self._other_frame
 
     @property
     def in_range(self) -> bool:
@@ -435,13 +448,19 @@ class SafetyFilter:
                     if not _isfinite(dx + dy):
                         self._rejected += 1
                     continue
-                if pl is not None and coop and age == pl[4] and _isfinite(th):
-                    # same frame as this robot's own pose, both cooperative: the plane
-                    g = self._plane.constraint(px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons)
-                    if g is not None:
-                        if g < min_h:
-                            min_h = g
-                        continue
+                if pl is not None and coop:
+                    if age == pl[4] and _isfinite(th):
+                        # same frame as this robot's own pose, both cooperative: the plane
+                        g = self._plane.constraint(
+                            px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons
+                        )
+                        if g is not None:
+                            self._plane_pairs += 1
+                            if g < min_h:
+                                min_h = g
+                            continue
+                    elif age != pl[4]:
+                        self._other_frame += 1
                 if not (
                     _isfinite(age)
                     and _isfinite(rad)

@@ -88,7 +88,7 @@ _hypot = math.hypot
 class SharedFramePlane:
     """The plane's constants for one robot (module docstring), from its configuration."""
 
-    __slots__ = ("_cgain", "_convoy", "_cos0", "_d_coop", "_gap", "_l")
+    __slots__ = ("_cgain", "_convoy", "_cos0", "_d_coop", "_gap", "_l", "bound")
 
     def __init__(self, config: AgentConfig) -> None:
         g = config.geometry
@@ -99,6 +99,8 @@ class SharedFramePlane:
         self._cgain = p.convoy_gain - 1.0
         self._cos0 = math.cos(p.convoy_angle_rad)
         self._gap = p.convoy_gap_m
+        #: constraints appended by ``constraint`` (in reach: they could bind), for diagnostics
+        self.bound = 0
 
     def constraint(
         self,
@@ -149,4 +151,5 @@ class SharedFramePlane:
         b = -gamma * g
         if b > -cap - _TOL:
             cons.append((nx, ny, b))
+            self.bound += 1
         return g

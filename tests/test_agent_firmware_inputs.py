@@ -5,8 +5,10 @@ bound, then HOLD). The helpers are tests/test_agent_firmware.py's."""
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 from typing import Any
 
+import numpy as np
 import pytest
 from test_agent_firmware import CFG, DT, EST, INF, NAN, WMAX, is_zero, make_sp, tick, tracking_fw
 
@@ -88,6 +90,66 @@ def test_wrong_types_never_raise() -> None:
     cmd = fw.step(None, pose=None, pose_rx_s=0.0, setpoint=None, setpoint_rx_s=0.0)  # type: ignore[arg-type]
     assert is_zero(cmd)
     assert fw.status().rejected_count == 2
+
+
+@pytest.mark.parametrize(
+    "arg, value",
+    [
+        ("now_s", "1.0"),
+        ("now_s", b"1"),
+        ("pose_rx_s", None),
+        ("setpoint_rx_s", "0"),
+        ("extra_radius_m", "x"),
+        ("extra_radius_m", None),
+        ("pose", 5),
+        ("pose", (0.0, 0.0, 0.0)),
+        ("pose", Pose(0.0, None, 0.0, 0.0)),  # type: ignore[arg-type]
+        ("setpoint", "setpoint"),
+        ("setpoint", make_sp()._replace(vx="0")),
+    ],
+)
+def test_arguments_of_a_wrong_type_hold_and_count(arg: str, value: Any) -> None:
+    """The firmware validates its arguments instead of trusting their annotations (compiled
+    with mypyc, a typed parameter would raise at the call): each of these is one rejection and
+    a zero command in HOLD, never an exception."""
+    fw, now = tracking_fw()
+    now += DT
+    kw: dict[str, Any] = {"now_s": now, "pose": Pose(0.0, 0.0, 0.0, now), "pose_rx_s": now,
+                          "setpoint": make_sp(), "setpoint_rx_s": now, arg: value}  # fmt: skip
+    cmd = fw.step(**kw)
+    assert cmd.mode is Mode.HOLD and is_zero(cmd)
+    assert fw.status().rejected_count == 1
+
+
+@pytest.mark.parametrize(
+    "arg, value",
+    [
+        ("now_s", Fraction(1, 10)),
+        ("now_s", np.float64(0.1)),
+        ("pose_rx_s", np.float64(0.1)),
+        ("setpoint_rx_s", Fraction(1, 10)),
+        ("extra_radius_m", np.int64(0)),
+        ("extra_radius_m", 0),
+        ("pose", [0.0, 0.0, 0.0, 0.1]),
+        ("pose", Pose(np.int64(0), 0, np.float32(0.0), 0.1)),  # type: ignore[arg-type]
+        ("setpoint", list(make_sp())),
+        ("setpoint", make_sp()._replace(x=Fraction(1, 2), vy=np.int64(0))),
+    ],
+)
+def test_arguments_that_are_numbers_of_another_type_are_used(arg: str, value: Any) -> None:
+    """A real number of another type than float (int, a numpy scalar, a Fraction) and a pose /
+    setpoint given as a plain sequence are used as their float values, compiled or not: the
+    same command as the float tick."""
+    fw, now = tracking_fw()
+    ref, _ = tracking_fw()
+    now = 0.1  # (5 ticks of 20 ms: the float value of every time above)
+    kw: dict[str, Any] = {"now_s": now, "pose": Pose(0.0, 0.0, 0.0, now), "pose_rx_s": now,
+                          "setpoint": make_sp(), "setpoint_rx_s": now}  # fmt: skip
+    want = ref.step(**kw)
+    kw[arg] = value
+    got = fw.step(**kw)
+    assert got == want and type(got.omega_r) is float
+    assert fw.status().rejected_count == 0
 
 
 def test_malformed_neighbours_hold_and_count() -> None:

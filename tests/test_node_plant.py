@@ -318,7 +318,8 @@ def _lockstep_equals_simulate(
     for (t, rid), pose in truth.items():
         k, j = round(t / scenario.dt_s), plant.ids.index(rid)
         assert pose == tuple(log.truth[k, j]), (t, rid)
-    return {"clocks": clocks, "result": res, "ids": plant.ids}
+    firmwares = [] if hosts else [a.firmware for a in agents]
+    return {"clocks": clocks, "result": res, "ids": plant.ids, "firmwares": firmwares}
 
 
 def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> None:

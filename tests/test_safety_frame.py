@@ -31,7 +31,6 @@ from test_safety_filter import CFG, TOUCH, L
 from robot_agent.node import AgentNode
 from robot_agent.params import AgentConfig, SafetyFilterParams
 from robot_agent.safety_filter import Neighbour, SafetyFilter
-from robot_agent.safety_plane import SharedFramePlane
 
 SHARED = replace(CFG, safety_filter=replace(CFG.safety_filter, shared_frame=True))
 D_COOP = SHARED.safety_distance_m + 2 * L
@@ -377,33 +376,25 @@ def _anchor_in_formation(shift: bool = True) -> object:
     )
 
 
-def test_lockstep_with_the_plane_equals_the_simulator(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_lockstep_with_the_plane_equals_the_simulator() -> None:
     """The plane depends only on what both runtimes hand the firmware identically (the own
     camera pose and its capture time, the neighbours' poses and ages, the cooperative flags):
-    the lockstep agents equal ``formation.simulate.run`` bit for bit with it binding."""
+    the lockstep agents equal ``formation.simulate.run`` bit for bit with it binding. (The
+    lockstep agents' filters count the plane constraints in reach, ``SafetyFilter.plane_use``:
+    a spy patched onto the class would not see the calls of the compiled core.)"""
     from test_node_plant import _lockstep_equals_simulate
 
     scenario = _anchor_in_formation()
-    bound = []
-    orig = SharedFramePlane.constraint
-
-    def spy(self: SharedFramePlane, *args: object) -> float | None:
-        n = len(args[-1])  # type: ignore[arg-type]
-        g = orig(self, *args)  # type: ignore[arg-type]
-        bound.append(g is not None and len(args[-1]) > n)  # type: ignore[arg-type]
-        return g
-
-    monkeypatch.setattr(SharedFramePlane, "constraint", spy)
-    _lockstep_equals_simulate(scenario, 1.5)
-    assert sum(bound) > 10, sum(bound)
+    got = _lockstep_equals_simulate(scenario, 1.5)
+    bound = sum(fw.safety_filter.plane_use[1] for fw in got["firmwares"])
+    assert bound > 10, bound
 
 
-def test_lockstep_with_the_plane_a_lost_camera_and_a_drag_equals_the_simulator(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_lockstep_with_the_plane_a_lost_camera_and_a_drag_equals_the_simulator() -> None:
     """r2's camera lost for 0.4 s (its pairs are no longer in one frame: both robots of each pair
     fall back to the inflated barrier together, and back to the plane together) and r1 carried
-    while TRACKING: still bit for bit, and both kinds of pair were used."""
+    while TRACKING: still bit for bit, and both kinds of pair were used (counted by the lockstep
+    agents' filters, ``SafetyFilter.plane_use``)."""
     from test_node_plant import _lockstep_equals_simulate
 
     from scenario import Disturbance
@@ -412,20 +403,9 @@ def test_lockstep_with_the_plane_a_lost_camera_and_a_drag_equals_the_simulator(
     loss = Disturbance(t_s=0.3, robot="r2", kind="camera_loss", duration_s=0.4)
     drag = Disturbance(t_s=0.9, robot="r1", kind="drag", dx=-0.05, duration_s=0.3)
     scenario = base.with_overrides(disturbances=(loss, drag))  # type: ignore[attr-defined]
-    used = {"plane": 0, "inflated": 0}
-    orig = SafetyFilter.constraints
-
-    def spy(self: SafetyFilter, *args: object) -> list[tuple[float, float, float]]:
-        frame = args[-1]
-        out = orig(self, *args)  # type: ignore[arg-type]
-        if frame is not None:
-            for nb in args[3]:  # type: ignore[attr-defined]
-                key = "plane" if nb[3] == frame[3] else "inflated"  # type: ignore[index]
-                used[key] += 1
-        return out
-
-    monkeypatch.setattr(SafetyFilter, "constraints", spy)
-    _lockstep_equals_simulate(scenario, 1.5)
+    got = _lockstep_equals_simulate(scenario, 1.5)
+    uses = [fw.safety_filter.plane_use for fw in got["firmwares"]]
+    used = {"plane": sum(u[0] for u in uses), "inflated": sum(u[2] for u in uses)}
     assert used["plane"] > 10 and used["inflated"] > 10, used
 
 
