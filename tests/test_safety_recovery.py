@@ -294,9 +294,10 @@ tie_tol_m = 0.01
 
 def test_two_followers_inside_their_cooperative_barrier_with_crossing_slots_reform() -> None:
     """The deadlock tests/test_faults.py's shared fleet hit next to CPU hogs (the poses it had
-    when r2 hung and r3 came up to its non-cooperative barrier): r2 and r3 start 0.257 m apart, inside their
-    cooperative barrier, with crossing slots. They used to stand still (infeasible, stopped at
-    every tick; errors 1.18 / 0.94 m at 30 s); now they leave the barrier and reform."""
+    when r2 hung and r3 came up to its non-cooperative barrier): r2 and r3 start 0.257 m apart,
+    inside their cooperative barrier, with crossing slots. They used to stand still
+    (infeasible, stopped at every tick; errors 1.18 / 0.94 m at 30 s); now they leave the
+    barrier and reform."""
     import scenario
     from formation import simulate
 
