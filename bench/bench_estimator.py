@@ -174,7 +174,7 @@ def diagnose(scn: scenario_mod.Scenario) -> int:
             excess = max(0.0, rho - p.noise_budget_m) + max(0.0, nb[7] - p.noise_budget_m)
             h = d - d_coop - vnb * age - excess
             approach = max(0.0, -((px - qx) * ux + (py - qy) * uy) / d) if d > 0 else 0.0
-            gk = planes.get((id(self._plane), nb[0], nb[1]), math.nan)  # the shared-frame plane's G
+            gk = planes.get((id(self._neighbours._plane), nb[0], nb[1]), math.nan)  # the plane's G
             rows[me, k].append((d, vnb * age, rho, excess, h, approach, gk))
         return out
 

@@ -42,6 +42,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "safety_types",
     "safety_plane",
     "safety_world",
+    "safety_neighbours",
     "deadlock",
     "safety_filter",
     "firmware_types",

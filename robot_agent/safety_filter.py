@@ -27,7 +27,9 @@ Barriers (all distances, ``h >= 0`` is safe)::
 
 where ``c_j`` is the neighbour's measured centre, ``p_j = c_j + l (cos theta_j, sin theta_j)``
 its reference point, ``a_j`` the age of that measurement (capped at ``max_age_s``), ``V`` the
-neighbour top speed and ``rho_j`` its own extra radius.
+neighbour top speed and ``rho_j`` its own extra radius. The obstacle and wall rows are built by
+``robot_agent.safety_world``, the neighbour rows by ``robot_agent.safety_neighbours``; this
+module gathers them and solves.
 
 Noise model (what ``margin`` pays for, so nothing is paid twice). A measured or estimated
 position is within its uncertainty radius of the truth: ``r = 3 sigma`` of the camera noise for
@@ -184,12 +186,8 @@ from .qp import (
     solve_qp,
     solve_qp_relaxed,
 )
-from .safety_plane import SharedFramePlane
-from .safety_types import (
-    Neighbour,
-    SafetyFilterStatus,
-    _isfinite,
-)
+from .safety_neighbours import NeighbourBarriers
+from .safety_types import Neighbour, SafetyFilterStatus
 from .safety_world import WorldBarriers
 
 __all__ = [
@@ -200,8 +198,6 @@ __all__ = [
 ]
 
 _hypot = math.hypot
-_cos = math.cos
-_sin = math.sin
 _NAN = math.nan
 _INF = math.inf
 _VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
@@ -214,31 +210,20 @@ class SafetyFilter:
         "_active",
         "_budget",
         "_cons",
-        "_d_coop",
-        "_d_plain",
         "_deadlock",
-        "_frame_age",
         "_gamma",
         "_gamma_slow",
-        "_gap",
-        "_gmax_slow",
         "_has_world",
         "_infeasible",
-        "_l",
         "_last_t",
-        "_max_age",
         "_min_h",
-        "_other_frame",
-        "_plane",
-        "_plane_pairs",
+        "_neighbours",
         "_rejected",
         "_rescaled",
         "_shared",
         "_ticks",
-        "_vbad",
         "_vcap",
         "_violations",
-        "_vnb",
         "_world",
         "enabled",
         "safety_distance_m",
@@ -248,28 +233,17 @@ class SafetyFilter:
         g = config.geometry
         p = config.safety_filter
         self.enabled = p.enabled
-        l_m = g.ref_offset_m
-        self._l = l_m
-        ds = 2.0 * g.body_radius_m + p.margin_m
-        self.safety_distance_m = ds
-        self._d_plain = ds + l_m  # p_i to c_j
-        self._d_coop = ds + 2.0 * l_m  # p_i to p_j
-        clear = g.body_radius_m + p.margin_m + l_m  # p to an obstacle's surface / a wall
+        self.safety_distance_m = 2.0 * g.body_radius_m + p.margin_m
+        clear = g.body_radius_m + p.margin_m + g.ref_offset_m  # p to an obstacle / a wall
         self._gamma = p.gamma_per_s
         self._gamma_slow = min(p.gamma_per_s, 1.0 / config.safety.max_dt_s)
-        self._gmax_slow = 1.0 / config.safety.max_dt_s
-        self._vnb = p.neighbour_speed_mps if p.neighbour_speed_mps > 0.0 else g.max_speed_mps
-        self._vbad = 10.0 * self._vnb  # a neighbour velocity beyond this is absurd: rejected
-        self._max_age = p.max_age_s
         self._budget = p.noise_budget_m
         self._vcap = config.gains.max_ref_speed_mps
+        self._neighbours = NeighbourBarriers(config)
         self._world = WorldBarriers(config, clear)
         self._has_world = self._world.present
         self._deadlock = Deadlock(p, self._vcap)
         self._shared = p.shared_frame
-        self._plane = SharedFramePlane(config)
-        self._gap = p.convoy_gap_m
-        self._frame_age = p.frame_max_age_s
         self._last_t = -math.inf  # now_s of the last filter() call (was TRACKING then)
         self._cons: list[tuple[float, float, float]] = []
         self._ticks = 0
@@ -279,8 +253,6 @@ class SafetyFilter:
         self._rescaled = 0
         self._rejected = 0
         self._min_h = math.inf
-        self._plane_pairs = 0
-        self._other_frame = 0
 
     # ------------------------------------------------------------------ public API
 
@@ -294,7 +266,7 @@ class SafetyFilter:
             tiebreaks=self._deadlock.tiebreaks,
             tiebreak_active=self._deadlock.active,
             rescaled=self._rescaled,
-            rejected=self._rejected,
+            rejected=self._rejected + self._neighbours.rejected,
             min_clearance_m=self._min_h,
             constraints=len(self._cons),
         )
@@ -306,19 +278,7 @@ class SafetyFilter:
         ``max_ref_speed_mps``; with ``shared_frame``, the plane's range too): a shell that
         pre-selects neighbours by distance must pass at least every neighbour within this
         range."""
-        far = (
-            self._d_coop
-            + self._l
-            + self._vnb * self._max_age
-            + 0.1
-            + self._vcap / (0.5 * self._gamma_slow)
-        )
-        if self._shared:  # a plane binds only within G < reach (constraints(): q2), with the
-            # own camera pose at most max_ref_speed x frame_max_age + 2 noise budgets away
-            off = self._vcap * self._frame_age + 2.0 * self._budget
-            plane = self._d_coop + self._l + self._gap + 2.0 * self._vcap / self._gamma_slow
-            far = max(far, plane + 3.0 * off)
-        return far
+        return self._neighbours.range_m(self._vcap, self._gamma_slow, self._shared)
 
     @property
     def plane_use(self) -> tuple[int, int, int]:
@@ -327,7 +287,8 @@ class SafetyFilter:
         range the plane handled, the plane constraints among them that could bind (in reach:
         appended), and the cooperative neighbours in range, this robot having a frame, that
         were measured in another frame (the inflated barrier instead)."""
-        return self._plane_pairs, self._plane.bound, self._other_frame
+        nb = self._neighbours
+        return nb.plane_pairs, nb.plane_bound, nb.other_frame
 
     @property
     def in_range(self) -> bool:
@@ -374,137 +335,12 @@ class SafetyFilter:
         if not 0.0 < dt_s * gamma <= 1.0:
             gamma = 1.0 / dt_s if dt_s * self._gamma_slow > 1.0 else self._gamma_slow
         cons: list[tuple[float, float, float]] = []
-        min_h = _INF
         # A constraint n.u >= b can bind a command of speed <= cap only if b > -cap, that is
         # h < (cap + n.v) / (share * gamma): the reach beyond the boundary.
         reach = (cap + _TOL) / gamma
-        d_plain = self._d_plain + rho
-        lim_plain = d_plain + reach + _TOL
-        nlim_plain = -lim_plain
-        # the quick-reject bound of full Neighbour entries, computed at the first one (lazily:
-        # (x, y) entries do not use it); q2_tol is the plane's bound when it is larger
-        quick = -1.0
-        q2_tol = 0.0  # (below any quick bound)
-        pl = None  # own frame anchor (ref. point, heading, age): robot_agent.safety_plane
-        gmax = 0.0  # (set with pl, which it goes with)
-        if frame is not None:
-            # the plane's largest gain: gamma dt <= 1 with this tick's dt (unknown: the longest)
-            gmax = 1.0 / dt_s if dt_s > 0.0 else self._gmax_slow
-            fx, fy, fth, fage = frame
-            if fage < 0.0:  # the rule of neighbours.neighbour: a capture in the future is age 0
-                fage = 0.0
-            if _isfinite(fx + fy + fth) and fage <= self._frame_age:
-                hix = math.cos(fth)
-                hiy = math.sin(fth)
-                qix = fx + self._l * hix
-                qiy = fy + self._l * hiy
-                off = _hypot(px - qix, py - qiy)
-                if _isfinite(off):
-                    pl = (qix, qiy, hix, hiy, fage)
-                    # a plane constraint binds only if G < reach (see safety_plane)
-                    q2 = self._d_coop + self._l + self._gap + 2.0 * (rho + reach) + 3.0 * off
-                    q2_tol = q2 + _TOL
-        for nb in neighbours:
-            if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
-                qx, qy = nb
-                dx = px - qx
-                dy = py - qy
-                # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
-                if not (dx < lim_plain and dx > nlim_plain and dy < lim_plain and dy > nlim_plain):
-                    if not _isfinite(dx + dy):
-                        self._rejected += 1
-                    continue
-                d = _hypot(dx, dy)
-                h = d - d_plain
-                if h < min_h:
-                    min_h = h
-                if h < reach:
-                    if d > 0.0:
-                        cons.append((dx / d, dy / d, -gamma * h))
-                    else:
-                        cons.append((1.0, 0.0, -gamma * h))
-                continue
-            else:
-                qx, qy, th, age, vx, vy, coop, rad = nb
-                if quick < 0.0:  # the first full entry of this call
-                    quick = self._d_coop + self._l + self._vnb * self._max_age
-                    quick = quick + rho + 2.0 * reach + _TOL
-                    if q2_tol > quick:
-                        quick = q2_tol
-                    nquick = -quick
-                    two_over_g = 2.0 / gamma
-                # quick reject of a far neighbour (any share, age, shift by l); a non-finite
-                # field makes the bound NaN and takes the full path below
-                if rad > 0.0 or vx != 0.0 or vy != 0.0:
-                    lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
-                    nlim = -lim
-                else:  # no radius, no velocity (neighbours.neighbour's entries): the same bits
-                    lim = quick
-                    nlim = nquick
-                dx = px - qx
-                dy = py - qy
-                # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
-                if not (dx < lim and dx > nlim and dy < lim and dy > nlim) and lim < _INF:
-                    if not _isfinite(dx + dy):
-                        self._rejected += 1
-                    continue
-                if pl is not None and coop:
-                    if age == pl[4] and _isfinite(th):
-                        # same frame as this robot's own pose, both cooperative: the plane
-                        g = self._plane.constraint(
-                            px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons
-                        )
-                        if g is not None:
-                            self._plane_pairs += 1
-                            if g < min_h:
-                                min_h = g
-                            continue
-                    elif age != pl[4]:
-                        self._other_frame += 1
-                if not (
-                    _isfinite(age)
-                    and _isfinite(rad)
-                    and -self._vbad < vx < self._vbad
-                    and -self._vbad < vy < self._vbad
-                ):  # non-finite or absurd: keep the position, as old as allowed, not moving
-                    self._rejected += 1
-                    vx = vy = 0.0
-                    age = self._max_age
-                    rad = 0.0
-                if age < 0.0:
-                    age = 0.0
-                elif age > self._max_age:
-                    age = self._max_age
-                rad -= self._budget
-                infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
-                if coop and _isfinite(th):
-                    qx += self._l * _cos(th)
-                    qy += self._l * _sin(th)
-                    share = 0.5
-                    dd = self._d_coop + infl
-                    vx = vy = 0.0
-                else:
-                    share = 1.0
-                    dd = self._d_plain + infl
-            dx = px - qx
-            dy = py - qy
-            lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
-            if not (-lim < dx < lim and -lim < dy < lim):
-                if not _isfinite(dx + dy):
-                    self._rejected += 1
-                continue
-            d = _hypot(dx, dy)
-            if d > 0.0:
-                nx = dx / d
-                ny = dy / d
-            else:
-                nx, ny = 1.0, 0.0
-            h = d - dd
-            if h < min_h:
-                min_h = h
-            b = -share * gamma * h + nx * vx + ny * vy
-            if b > -cap - _TOL:
-                cons.append((nx, ny, b))
+        min_h = self._neighbours.append(
+            px, py, cap, reach, gamma, rho, dt_s, frame, neighbours, cons, _INF
+        )
         if obstacles or self._has_world:
             min_h, bad = self._world.append(px, py, reach, gamma, rho, obstacles, cons, min_h)
             self._rejected += bad
