@@ -40,9 +40,6 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Final
 
-import numpy as np
-import numpy.typing as npt
-
 from bus_schemas import (
     Assignment,
     Clock,
@@ -59,16 +56,14 @@ from bus_schemas import (
     decode,
     keys,
 )
-from formation.collector_build import RowSources, fill_rows
+from formation.collector_build import RowSources, fill_rows, row_keys
+from formation.collector_live import live_view
 from formation.collector_series import Series
 from formation.runlog import MODE_CODES, RunLog
 from formation.up_view import LiveRobot, LiveView
-from robot_agent.kinematics import reference_point
 from scenario import Scenario
 
 __all__ = ["LiveRobot", "LiveView", "RunCollector", "key_patterns", "slot_ids_of"]
-
-F64 = npt.NDArray[np.float64]
 
 _LEAVES: Final = frozenset(
     {
@@ -476,87 +471,33 @@ class RunCollector:
         t0 = self.t0_s if self.t0_s is not None else min(self._truth, default=key)
         return key - t0
 
-    def live(self) -> LiveView:
-        """What the run looks like now, from the latest samples (cheap; call it at a few Hz)."""
-        latest = self._latest_truth
-        assignment: dict[str, int] = self._assignment.latest() or {}
-        slot_xy = {s: series.latest() for s, series in self._slots.items()}
-        l_m = self.ref_offset_m
-        robots: list[LiveRobot] = []
-        for i, rid in enumerate(self.robot_ids):
-            st = self._status[i]
-            slot = assignment.get(rid)
-            err: float | None = None
-            pose = latest[i]
-            target = slot_xy.get(slot) if slot is not None else None
-            if pose is not None and target is not None:
-                xr, yr = reference_point(pose[0], pose[1], pose[2], l_m)
-                err = math.hypot(target[0] - xr, target[1] - yr)
-            robots.append(
-                LiveRobot(
-                    robot=rid,
-                    alive=self._alive.get(f"robot/{rid}"),
-                    slot=slot,
-                    role=st.role if st is not None else None,
-                    mode=st.mode if st is not None else None,
-                    error_m=err,
-                    rejected=st.rejected if st is not None else None,
-                    power=self._wheels[i].latest(),
-                )
-            )
-        min_d: float | None = None
-        known = [p for p in latest if p is not None]
-        if len(known) >= 2:
-            xy = np.array([p[:2] for p in known])
-            diff = xy[:, None, :] - xy[None, :, :]
-            d = np.hypot(diff[..., 0], diff[..., 1])
-            d[np.diag_indices_from(d)] = np.inf
-            min_d = float(d.min())
-        leader = next((rid for rid, s in assignment.items() if s == 0), None)
-        return LiveView(
-            t_s=None if self._last_truth_key is None else self._key_time(self._last_truth_key),
-            tick=self.last_clock_tick,
-            leader=leader,
-            min_distance_m=min_d,
-            robots=robots,
-            rejected=self.rejected,
-        )
-
     # ------------------------------------------------------------------------------------------
     # Output
     # ------------------------------------------------------------------------------------------
 
-    def _row_keys(self) -> tuple[F64, dict[str, Any]]:
-        """Sorted row keys and what was dropped: leading rows before every robot appeared,
-        trailing lockstep ticks the coordinator did not answer."""
-        info: dict[str, Any] = {
-            "leading_incomplete": 0,
-            "trailing_unanswered": 0,
-            "missing_ticks": 0,
-        }
-        all_keys = sorted(self._truth)
-        n = len(self.robot_ids)
-        seen: set[int] = set()
-        start = len(all_keys)
-        for j, k in enumerate(all_keys):
-            seen.update(self._truth[k])
-            if len(seen) == n:
-                start = j
-                break
-        info["leading_incomplete"] = start
-        kept = all_keys[start:]
-        if self.dt_s is not None and kept:
-            answered = max(self._leader.keys, default=-math.inf)
-            while kept and kept[-1] > answered:
-                kept.pop()
-                info["trailing_unanswered"] += 1
-            if kept:
-                info["missing_ticks"] = int(kept[-1] - kept[0] + 1) - len(kept)
-        return np.array(kept, dtype=float), info
+    def live(self) -> LiveView:
+        """What the run looks like now, from the latest samples (cheap; call it at a few Hz;
+        :func:`formation.collector_live.live_view`)."""
+        last = self._last_truth_key
+        return live_view(
+            self.robot_ids,
+            self._latest_truth,
+            self._status,
+            self._alive,
+            self._assignment,
+            self._slots,
+            self._wheels,
+            ref_offset_m=self.ref_offset_m,
+            t_s=None if last is None else self._key_time(last),
+            tick=self.last_clock_tick,
+            rejected=self.rejected,
+        )
 
     def build(self, meta: Mapping[str, Any] | None = None) -> RunLog:
         """The run so far as a :class:`RunLog` (can be called again later; it is rebuilt)."""
-        rows, info = self._row_keys()
+        rows, info = row_keys(
+            self._truth, len(self.robot_ids), self._leader if self.lockstep else None
+        )
         slot_ids = (
             self.slot_ids if self.slot_ids is not None else sorted(self._slots)  # seen on the bus
         )

@@ -1,5 +1,6 @@
-"""The rows of a collected run: what :meth:`formation.collector.RunCollector.build` writes into a
-:class:`~formation.runlog.RunLog` from the series it stored.
+"""The rows of a collected run: which rows :meth:`formation.collector.RunCollector.build` keeps
+(:func:`row_keys`) and what it writes into them (:func:`fill_rows`), into a
+:class:`~formation.runlog.RunLog`, from the series it stored.
 
 Row ``r`` holds the truth of every robot at the row's key (a robot's previous pose stands in for
 a dropped sample), the reference points computed from it (eqs 10-11), and, sampled as "the
@@ -10,8 +11,10 @@ and the firmware modes. Separation and collisions come from
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -20,7 +23,7 @@ from formation.collector_series import Series, sample_at
 from formation.runlog import RunLog
 from sim_plant.accounting import SeparationMonitor
 
-__all__ = ["RowSources", "fill_rows"]
+__all__ = ["RowSources", "fill_rows", "row_keys"]
 
 F64 = npt.NDArray[np.float64]
 
@@ -35,6 +38,39 @@ class RowSources:
     assignment: Series  # {robot id: slot}
     wheels: Sequence[Series]  # per robot index: (power_r, power_l)
     modes: Sequence[Series]  # per robot index: formation.runlog.MODE_CODES value
+
+
+def row_keys(
+    truth: Mapping[float, Mapping[int, object]], n_robots: int, leader: Series | None
+) -> tuple[F64, dict[str, Any]]:
+    """The sorted keys of the rows a log gets from ``truth`` (row key -> robot index -> pose),
+    and what was dropped: leading rows before all ``n_robots`` robots appeared and, in lockstep
+    (``leader``: the coordinator's leader series; None in realtime), trailing ticks the
+    coordinator did not answer."""
+    info: dict[str, Any] = {
+        "leading_incomplete": 0,
+        "trailing_unanswered": 0,
+        "missing_ticks": 0,
+    }
+    all_keys = sorted(truth)
+    n = n_robots
+    seen: set[int] = set()
+    start = len(all_keys)
+    for j, k in enumerate(all_keys):
+        seen.update(truth[k])
+        if len(seen) == n:
+            start = j
+            break
+    info["leading_incomplete"] = start
+    kept = all_keys[start:]
+    if leader is not None and kept:
+        answered = max(leader.keys, default=-math.inf)
+        while kept and kept[-1] > answered:
+            kept.pop()
+            info["trailing_unanswered"] += 1
+        if kept:
+            info["missing_ticks"] = int(kept[-1] - kept[0] + 1) - len(kept)
+    return np.array(kept, dtype=float), info
 
 
 def fill_rows(

@@ -23,8 +23,9 @@ from formation.children import (
 )
 from formation.collector import RunCollector, key_patterns
 from formation.up_nodes import make_secure, node_commands, router_args
+from formation.up_observers import RunObservers
 from formation.up_plan import LaunchError, Plan, UpConfig, UpResult, plan_run
-from formation.up_results import write_results
+from formation.up_results import run_meta, write_results
 from formation.up_view import RunDisplay
 
 DRAIN_S: Final = 0.25
@@ -94,9 +95,7 @@ class _Launcher:
         )
         self.say, self.warn = self.view.say, self.view.warn
         self.stop_s: float | None = None
-        self.recorder: Any = None  # formation.record.RecorderHandle with --record
-        self.live: Any = None  # formation.live.LiveHandle with --foxglove
-        self.record_stats: Any = None
+        self.observers = RunObservers(cfg, plan, self.say, self.warn)  # --record, --foxglove
 
     def _header(self) -> str:
         mode = "lockstep" if self.cfg.lockstep else "realtime"
@@ -242,65 +241,7 @@ class _Launcher:
         rt.watch_liveliness(
             self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive
         )
-        self._start_observers()
-
-    def _start_observers(self) -> None:
-        """``--record`` and ``--foxglove``: recorder and live server on the launcher's session."""
-        if self.cfg.record is not None:
-            from formation.record import run_info, start_recorder
-
-            run = run_info(
-                self.plan.scenario_arg,
-                lockstep=self.cfg.lockstep,
-                settle_s=self.plan.settle_s,
-                seed=self.plan.seed,
-                duration_s=self.plan.duration_s,
-                endpoint=self.cfg.endpoint,
-            )
-            try:
-                self.recorder = start_recorder(
-                    self.session, self.cfg.fleet, self.cfg.record, run=run
-                )
-            except OSError as exc:
-                raise LaunchError(f"--record {self.cfg.record}: {exc}") from exc
-            self.say(f"  recording    {keys.fleet_pattern(self.cfg.fleet)} to {self.cfg.record}")
-        if self.cfg.foxglove_port is not None:
-            from formation.live import start_live
-
-            geom = self.scn.agent.geometry
-            try:
-                self.live = start_live(
-                    self.session,
-                    self.cfg.fleet,
-                    host=self.cfg.foxglove_host,
-                    port=self.cfg.foxglove_port,
-                    ref_offset_m=geom.ref_offset_m,
-                    body_radius_m=geom.body_radius_m,
-                    world=self.scn.agent.world,
-                )
-            except RuntimeError as exc:
-                raise LaunchError(f"--foxglove {self.cfg.foxglove_port}: {exc}") from exc
-            # printed even with --quiet: a client needs the address
-            print(f"foxglove live view on {self.live.url}", flush=True)
-
-    async def _stop_observers(self) -> None:
-        """Close the live server and finalize the recording (before the session closes)."""
-        live, self.live = self.live, None
-        if live is not None:
-            await asyncio.to_thread(live.close)
-        recorder, self.recorder = self.recorder, None
-        if recorder is not None:
-            stats = await asyncio.to_thread(recorder.close)
-            self.record_stats = stats
-            if stats.dropped or stats.handler_errors:
-                self.warn(
-                    f"recording {recorder.path}: {stats.dropped} samples dropped, "
-                    f"{stats.handler_errors} write errors"
-                )
-            self.say(
-                f"recorded {stats.samples} samples ({stats.rejected} rejected, "
-                f"{stats.liveliness} liveliness changes) to {recorder.path}"
-            )
+        self.observers.start(self.session)
 
     def _drain_subscribers(self) -> None:
         """Feed every sample the inbox holds to the collector."""
@@ -491,7 +432,7 @@ class _Launcher:
             self._subscribers = []
             if self._inbox is not None and self._inbox.dropped:
                 self.warn(f"the collector's inbox overflowed: {self._inbox.dropped} samples lost")
-            await self._stop_observers()
+            await self.observers.stop()
             with contextlib.suppress(Exception):
                 self.session.close()
         if self.router is not None:
@@ -585,32 +526,17 @@ class _Launcher:
         first = self.collector.first_tick
         if self.cfg.lockstep and first not in (None, 0):
             self.warn(f"the collector joined late: ticks 0..{first - 1} are missing from the log")
-        meta = {
-            "scenario": self.scn.name,
-            "seed": self.plan.seed,
-            "dt_s": self.scn.dt_s,
-            "mode": "lockstep" if self.cfg.lockstep else "realtime",
-            "wall_s": wall_s,
-            "run_wall_s": run_wall,
-            "stop_s": self.stop_s,
-            "endpoint": self.cfg.endpoint,
-            "secure": self.cfg.secure,
-            "fleet": self.cfg.fleet,
-            "record": None if self.cfg.record is None else str(self.cfg.record),
-            "interrupted": interrupted,
-            "failures": list(self.failures),
-            "events": list(self.events),
-            "children": {
-                f"{c.name}.{c.generation}" if c.generation else c.name: {
-                    "pid": c.pid,
-                    "returncode": c.returncode,
-                    "ready_s": c.ready_s,
-                    "killed": c.killed,
-                    "stop_s": c.stop_s,
-                }
-                for c in self._all_children()
-            },
-        }
+        meta = run_meta(
+            self.cfg,
+            self.plan,
+            wall_s=wall_s,
+            run_wall_s=run_wall,
+            stop_s=self.stop_s,
+            interrupted=interrupted,
+            failures=self.failures,
+            events=self.events,
+            children=self._all_children(),
+        )
         return write_results(
             self.collector.build(meta), self.cfg, self.plan, result, run_wall, self.warn
         )

@@ -1,15 +1,62 @@
 """What a ``formation up`` run leaves behind: ``metrics.json``, ``run.npz``, the figures, and the
 summary it prints (:func:`write_results`, called by :mod:`formation.launcher` once every child
-has stopped)."""
+has stopped), with the run's metadata (:func:`run_meta`)."""
 
 from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
 
+from formation.children import Child
 from formation.runlog import RunLog
 from formation.up_plan import Plan, UpConfig, UpResult
+
+
+def run_meta(
+    cfg: UpConfig,
+    plan: Plan,
+    *,
+    wall_s: float,
+    run_wall_s: float | None,
+    stop_s: float | None,
+    interrupted: bool,
+    failures: Sequence[str],
+    events: Sequence[Mapping[str, Any]],
+    children: Iterable[Child],
+) -> dict[str, Any]:
+    """The run's metadata (``RunLog.meta``, ``metrics.json``'s ``meta``): scenario, seed, mode,
+    wall times (``wall_s``: the whole command; ``run_wall_s``: first to last truth frame;
+    ``stop_s``: the shutdown), bus, outcome (``failures``, ``events``: deaths and respawns)
+    and every child process (a respawned one as ``name.generation``)."""
+    scn = plan.scenario
+    return {
+        "scenario": scn.name,
+        "seed": plan.seed,
+        "dt_s": scn.dt_s,
+        "mode": "lockstep" if cfg.lockstep else "realtime",
+        "wall_s": wall_s,
+        "run_wall_s": run_wall_s,
+        "stop_s": stop_s,
+        "endpoint": cfg.endpoint,
+        "secure": cfg.secure,
+        "fleet": cfg.fleet,
+        "record": None if cfg.record is None else str(cfg.record),
+        "interrupted": interrupted,
+        "failures": list(failures),
+        "events": list(events),
+        "children": {
+            f"{c.name}.{c.generation}" if c.generation else c.name: {
+                "pid": c.pid,
+                "returncode": c.returncode,
+                "ready_s": c.ready_s,
+                "killed": c.killed,
+                "stop_s": c.stop_s,
+            }
+            for c in children
+        },
+    }
 
 
 def write_results(
