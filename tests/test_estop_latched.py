@@ -17,7 +17,7 @@ from collections.abc import Iterator
 
 import pytest
 from conftest import child_env
-from test_faults import Fleet, fleet_fixture, formed, until
+from fault_fleet import Fleet, fleet_fixture, formed, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 

@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 import pytest
 import zenoh
 from conftest import Child, Spawner
+from fault_fleet import Observer, until
 from netns import add_namespace_or_skip, delete_namespaces, ip, skip_unless_root_with_ip
-from test_faults import Observer, until
 
 from bus_schemas import Assignment, Status, keys
 

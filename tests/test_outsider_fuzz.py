@@ -19,8 +19,8 @@ from typing import Any
 import msgpack
 import pytest
 from conftest import Spawner
+from fault_fleet import formed, until
 from test_estop_latched import Fleet as _BaseFleet
-from test_faults import formed, until
 
 import runtime as rt
 from formation.fuzz import fuzz_plan, payloads_for

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 from conftest import Spawner, free_port
-from test_faults import Observer, fault, until
+from fault_fleet import Observer, fault, until
 
 from coordinator.formation import FormationSpec, slot_states
 from coordinator.trajectory import make_trajectory
