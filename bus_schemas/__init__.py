@@ -29,6 +29,7 @@ from bus_schemas.codec import (
 from bus_schemas.errors import DecodeError, Reason, RejectCounts, SchemaError
 from bus_schemas.messages import (
     BATCH_CHUNK,
+    ESTOP_ID_MAX,
     MESSAGE_TYPES,
     Assignment,
     CameraStatus,
@@ -36,7 +37,6 @@ from bus_schemas.messages import (
     CoordinatorStatus,
     Disturbance,
     DisturbanceKind,
-    ESTOP_ID_MAX,
     Estop,
     Heartbeat,
     Leader,

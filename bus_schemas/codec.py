@@ -117,9 +117,7 @@ def decode_estop_answer(
         if isinstance(msg, DecodeError):
             reject(msg)
         elif not msg.engage and msg.robot is not None and msg.id is None:
-            reject(
-                DecodeError(Reason.INCONSISTENT, "a robot's release record without an id", "id")
-            )
+            reject(DecodeError(Reason.INCONSISTENT, "a robot's release record without an id", "id"))
         else:
             out.append((msg.engage, msg.robot, msg.id))
     return out
