@@ -27,6 +27,7 @@ import runtime as rt
 from bus_schemas import Estop, decode_estop_answer, encode, keys, new_estop_id
 from coordinator.estop_source import EstopSource, attach_estop_source
 from robot_agent.estop import EstopLatch
+from runtime.query import get_all
 
 pytestmark = [pytest.mark.zenoh]
 
@@ -34,7 +35,7 @@ FLEET = "starved"
 
 
 def _answer(session: Any, key: str) -> list[tuple[bool, str | None, int | None]]:
-    payloads = [r.ok.payload.to_bytes() for r in session.get(key, timeout=2.0) if r.ok is not None]
+    payloads = get_all(session, key, 2.0)  # as runtime.query.Querier asks
     return decode_estop_answer(payloads, lambda err: pytest.fail(f"bad answer: {err}"))
 
 
