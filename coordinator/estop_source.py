@@ -98,7 +98,8 @@ class EstopSource:
             elif changed:
                 scope = "fleet" if msg.robot is None else msg.robot
                 what = "engaged" if msg.engage else "released"
-                self._on_loop(self.log.info, f"estop {what} ({scope})")
+                eid = f", id {msg.id}" if msg.engage and msg.id is not None else ""
+                self._on_loop(self.log.info, f"estop {what} ({scope}{eid})")
         except Exception as exc:
             self._on_loop(self._internal, "on_estop", exc)
 
