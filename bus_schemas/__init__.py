@@ -29,6 +29,7 @@ from bus_schemas.codec import (
 from bus_schemas.errors import DecodeError, Reason, RejectCounts, SchemaError
 from bus_schemas.messages import (
     BATCH_CHUNK,
+    ESTOP_ID_MAX,
     MESSAGE_TYPES,
     Assignment,
     CameraStatus,
@@ -56,6 +57,7 @@ from bus_schemas.messages import (
     WheelsBatch,
     message_type,
     message_type_for_key,
+    new_estop_id,
 )
 from bus_schemas.messages_status import (
     CAMERA_MS_MAX,
@@ -77,6 +79,7 @@ from bus_schemas.spec import (
 __all__ = [
     "BATCH_CHUNK",
     "CAMERA_MS_MAX",
+    "ESTOP_ID_MAX",
     "MAX_LIST_LEN",
     "MAX_MAP_LEN",
     "MAX_PAYLOAD_BYTES",
@@ -124,6 +127,7 @@ __all__ = [
     "keys",
     "message_type",
     "message_type_for_key",
+    "new_estop_id",
     "spec_of",
     "to_map",
     "validate",

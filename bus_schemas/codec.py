@@ -102,19 +102,24 @@ def decode_or_raise(data: bytes | bytearray | memoryview, expected: type[M]) -> 
 
 def decode_estop_answer(
     payloads: Iterable[bytes], reject: Callable[[DecodeError], None]
-) -> list[tuple[bool, str | None]]:
+) -> list[tuple[bool, str | None, int | None]]:
     """A query's answer on the ``estop`` key (the coordinators' latched e-stop state, one
-    ``Estop`` per scope: ``robot_agent.estop.EstopLatch.answer``) as the ``(engage, robot)``
-    pairs ``EstopLatch.merge_answer`` takes, in order; each invalid payload is handed to
-    ``reject`` and skipped. The one decoder of that answer (agents, agent hosts, coordinators).
-    """
-    out: list[tuple[bool, str | None]] = []
+    ``Estop`` per engagement and per released engagement: ``robot_agent.estop.EstopLatch.answer``)
+    as the ``(engage, robot, id)`` entries ``EstopLatch.merge_answer`` takes, in order; each
+    invalid payload is handed to ``reject`` and skipped, and so is a robot's release entry
+    without an ``id`` (a release record must name the engagement it released; only the fleet's
+    "not latched" entry has none). The one decoder of that answer (agents, agent hosts,
+    coordinators). Entries repeated across responders are legitimate (the union of every
+    coordinator's answer)."""
+    out: list[tuple[bool, str | None, int | None]] = []
     for payload in payloads:
         msg = decode(payload, Estop)
         if isinstance(msg, DecodeError):
             reject(msg)
+        elif not msg.engage and msg.robot is not None and msg.id is None:
+            reject(DecodeError(Reason.INCONSISTENT, "a robot's release record without an id", "id"))
         else:
-            out.append((msg.engage, msg.robot))
+            out.append((msg.engage, msg.robot, msg.id))
     return out
 
 

@@ -152,7 +152,8 @@ def _fmt_bound(b: int | float | None, kind: Kind) -> str:
     if b is None:
         return ""
     if kind is Kind.INT:
-        return {UINT64_MAX: "2^64-1", INT64_MIN: "-2^63", 2**31 - 1: "2^31-1"}.get(int(b), str(b))
+        named = {UINT64_MAX: "2^64-1", INT64_MIN: "-2^63", 2**31 - 1: "2^31-1", 2**63 - 1: "2^63-1"}
+        return named.get(int(b), str(b))
     if abs(b) == FLOAT64_MAX:
         return ""
     return f"{b:g}"

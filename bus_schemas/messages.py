@@ -12,6 +12,7 @@ Units: m, s, rad, rad/s; angles wrapped to (-pi, pi]. Construct with keywords:
 
 from __future__ import annotations
 
+import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -303,6 +304,10 @@ class Status:
     )
 
 
+ESTOP_ID_MAX = 2**63 - 1
+"""The largest e-stop engagement id (``Estop.id`` is in [1, 2^63-1])."""
+
+
 @message(name=keys.ESTOP, publisher="operator / tools", periodic=False)
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Estop:
@@ -314,6 +319,27 @@ class Estop:
     robot: str | None = field(
         metadata=f_robot_id("robot to stop; nil = every robot of the fleet", nullable=True)
     )
+    id: int | None = field(
+        default=None,
+        metadata=f_int(
+            "engagement id: on an engage, a fresh random id (`new_estop_id`), the same in every "
+            "copy of that engage; absent on a release (or from an older sender). In a query "
+            "answer on this key (the coordinators' latched state): with `engage` true, an "
+            "engagement holding the scope (absent: one without an id); with `engage` false, "
+            "an engagement the coordinator saw released (its release record; only such a "
+            "record releases an agent, docs/faults.md)",
+            lo=1,
+            hi=ESTOP_ID_MAX,
+        ),
+    )
+
+
+def new_estop_id() -> int:
+    """A fresh random engagement id for an ``Estop`` that engages, in [1, 2^63-1]."""
+    while True:
+        eid = secrets.randbits(63)
+        if eid:
+            return eid
 
 
 _ENC = ("enc_robots", "enc_wr", "enc_wl")

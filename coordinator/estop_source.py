@@ -3,8 +3,12 @@
 Part of the coordinator's process shell. Every coordinator instance, active or standby, keeps
 the latched scopes (:class:`robot_agent.estop.EstopLatch`) from the ``estop`` messages, asks the
 other coordinators for theirs when it starts (a respawned instance must not forget an e-stop)
-and answers every query on the ``estop`` key with its state: one ``Estop`` of the fleet scope,
-engaged or not, then one engaged ``Estop`` per latched robot.
+and answers every query on the ``estop`` key with its state (``EstopLatch.answer``): the fleet
+scope first, engaged or not, then one engaged ``Estop`` per engagement of each latched robot
+(with its engagement ``id``), then its record of released engagements (``engage`` false, with
+the ``id`` released): only such a record releases an agent that holds that engagement; an
+answer that merely lacks an engagement (this coordinator never received it: partitioned, or
+respawned alone after the e-stop) releases nothing (docs/faults.md).
 
 The ``estop`` messages are applied on Zenoh's network thread, on receipt, not when the event
 loop gets to them: queries are answered on that thread too, from the snapshot, so a snapshot
@@ -68,7 +72,9 @@ class EstopSource:
 
     def _payloads(self) -> tuple[bytes, ...]:
         now = max(self._now(), 0.0)
-        return tuple(encode(Estop(t=now, engage=e, robot=r)) for e, r in self.latch.answer())
+        return tuple(
+            encode(Estop(t=now, engage=e, robot=r, id=i)) for e, r, i in self.latch.answer()
+        )
 
     def _changed(self) -> None:
         self.answer = self._payloads()
@@ -83,7 +89,7 @@ class EstopSource:
             with self.lock:
                 self.messages += 1
                 changed = not isinstance(msg, DecodeError) and self.latch.apply(
-                    msg.engage, msg.robot
+                    msg.engage, msg.robot, msg.id
                 )
                 if changed:
                     self._changed()
@@ -92,16 +98,20 @@ class EstopSource:
             elif changed:
                 scope = "fleet" if msg.robot is None else msg.robot
                 what = "engaged" if msg.engage else "released"
-                self._on_loop(self.log.info, f"estop {what} ({scope})")
+                eid = f", id {msg.id}" if msg.engage and msg.id is not None else ""
+                self._on_loop(self.log.info, f"estop {what} ({scope}{eid})")
         except Exception as exc:
             self._on_loop(self._internal, "on_estop", exc)
 
     def on_state(self, payloads: Iterable[Any]) -> None:
-        """Another coordinator's latched state (queried at start): its engagements are added."""
+        """Another coordinator's latched state (queried at start): its engagements and its
+        release record are added; nothing held here is released (a coordinator only adds)."""
         try:
             answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
             with self.lock:
-                changed = self.latch.merge_answer(answers, replace=False)
+                before = dict(self.latch.released)
+                changed = self.latch.merge_answer(answers, release=False)
+                changed = changed or before != self.latch.released
                 if changed:
                     self._changed()
             if changed:

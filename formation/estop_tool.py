@@ -2,7 +2,9 @@
 
 The e-stop is latched fleet state (robot_agent.estop, docs/faults.md): the coordinators keep it
 and answer agents that start or resume. This tool publishes the operator's ``estop`` message
-(twice, 20 ms apart, against a lost sample), then watches the robots' ``status`` for
+(twice, 20 ms apart, against a lost sample; an engage carries a fresh engagement id, the same
+in both copies, so that only a coordinator that saw it released can release it at an agent
+that missed the release: ``Estop.id``), then watches the robots' ``status`` for
 ``ack_s`` seconds: a robot *acknowledged* an e-stop when a status received after the publish
 says mode ``estop``, a release when it says another mode. It also reads the coordinators'
 latched state from their status (``CoordinatorStatus.estop_fleet``, ``estop_robots``), so the
@@ -19,7 +21,16 @@ from dataclasses import dataclass, field
 from typing import Any, Final
 
 import runtime as rt
-from bus_schemas import CoordinatorStatus, DecodeError, Estop, Status, decode, encode, keys
+from bus_schemas import (
+    CoordinatorStatus,
+    DecodeError,
+    Estop,
+    Status,
+    decode,
+    encode,
+    keys,
+    new_estop_id,
+)
 
 __all__ = ["ACK_WAIT_S", "EstopReport", "send_estop"]
 
@@ -35,6 +46,8 @@ class EstopReport:
     robot: str | None
     t: float
     """``time.monotonic()`` of the first publish."""
+    id: int | None = None
+    """The engagement id sent (an engage), None on a release."""
     acked: set[str] = field(default_factory=set)
     """Robots whose status after the publish agreed (mode estop, or not estop on a release)."""
     other: set[str] = field(default_factory=set)
@@ -52,7 +65,8 @@ class EstopReport:
         what = "engaged" if self.engage else "released"
         scope = self.robot or "the fleet"
         acked = ", ".join(sorted(self.acked)) or "none"
-        parts = [f"estop {what} for {scope} at t={self.t:.6f}; acknowledged by {acked}"]
+        eid = f" (id {self.id})" if self.id is not None else ""
+        parts = [f"estop {what} for {scope}{eid} at t={self.t:.6f}; acknowledged by {acked}"]
         if self.other:
             verb = "not stopped" if self.engage else "still stopped"
             parts.append(f"{verb}: {', '.join(sorted(self.other))}")
@@ -81,7 +95,8 @@ async def send_estop(
     """Publish the e-stop (or release) of ``robot`` (None: the fleet) and collect the
     acknowledgements for up to ``ack_s`` seconds (module docstring)."""
     loop = asyncio.get_running_loop()
-    report = EstopReport(engage=engage, robot=robot, t=time.monotonic())
+    eid = new_estop_id() if engage else None
+    report = EstopReport(engage=engage, robot=robot, t=time.monotonic(), id=eid)
     t_pub = report.t
 
     def on_status(rx: rt.Received) -> None:
@@ -112,7 +127,7 @@ async def send_estop(
     ]
     try:
         for _ in range(2):
-            msg = Estop(t=time.monotonic(), engage=engage, robot=robot)
+            msg = Estop(t=time.monotonic(), engage=engage, robot=robot, id=eid)
             session.put(keys.estop_key(fleet), encode(msg))
             await asyncio.sleep(0.02)
         deadline = t_pub + ack_s

@@ -205,9 +205,7 @@ class HostNode:
         self._status_rows: list[StatusRow] = []  # the status round under way (publish_status)
         self._status_t = 0.0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
-        # the latched e-stop (robot_agent.estop): estop messages seen (a query's answer older
-        # than one must not undo it) and the hook that asks the coordinators (host_main)
-        self.estop_messages = 0
+        # the latched e-stop (robot_agent.estop): the hook that asks the coordinators (host_main)
         self.estop_query: Callable[[], None] | None = None
         self.estop_queried_s = -math.inf
         # realtime: the process turned the automatic garbage collection off (host_main) and the
@@ -246,19 +244,16 @@ class HostNode:
 
     # -- the latched e-stop --------------------------------------------------------------------
 
-    def on_estop_state(self, payloads: Sequence[bytes], messages_before: int) -> None:
-        """The coordinators' latched e-stop state (a query's answer), asked when
-        :attr:`estop_messages` was ``messages_before``: each hosted robot merges its scopes
-        (``AgentNode.on_estop_state``). No answer: nothing changes."""
+    def on_estop_state(self, payloads: Sequence[bytes], _token: int = 0) -> None:
+        """The coordinators' latched e-stop state (a query's answer; ``_token``: the querier's,
+        unused): each hosted robot merges its scopes (``AgentNode.on_estop_state``: adds
+        engagements, releases only those the answer saw released). No answer: no change."""
         try:
             if not payloads:
                 return
             answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
-            replace = messages_before == self.estop_messages
             for node in self.nodes.values():
-                # the robot's own count stands for the host's: replace only if no estop
-                # message reached the host since the query was sent
-                node.on_estop_state(answers, node.estop_messages if replace else -1)
+                node.on_estop_state(answers)
             stopped = sum(n.estop.stopped(n.robot_id) for n in self.nodes.values())
             if stopped:
                 self.log.limited("estop-state", f"latched e-stop: {stopped} robot(s) stopped")
@@ -371,7 +366,6 @@ class HostNode:
         """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
         try:
             self.rx["estop"] += 1
-            self.estop_messages += 1
             msg = decode(rx.payload, Estop)
             if isinstance(msg, DecodeError):
                 self._reject("estop", msg)
@@ -384,8 +378,7 @@ class HostNode:
                 return
             for node in targets:  # each robot's latched scopes (robot_agent.estop)
                 node.rx["estop"] += 1
-                node.estop_messages += 1
-                node.estop.apply(msg.engage, msg.robot)
+                node.estop.apply(msg.engage, msg.robot, msg.id)
                 node.sync_estop()
             what = "all robots" if msg.robot is None else msg.robot
             self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")

@@ -184,19 +184,18 @@ async def attach_host_estop_state(host: HostNode, io: rt.NodeIO) -> None:
     querier = Querier(
         io.session, io.loop, host.estop_key, host.on_estop_state, timeout_s=ESTOP_QUERY_TIMEOUT_S
     )
-    before = host.estop_messages
     payloads: Sequence[bytes]
     try:
         payloads = await io.loop.run_in_executor(None, querier.run_now)
     except Exception as exc:  # no answer: start from the messages alone
         host._internal("estop_query", exc)
         payloads = []
-    host.on_estop_state(payloads, before)
+    host.on_estop_state(payloads)
     host.estop_queried_s = time.monotonic()
     io._keep.append(querier)
 
     def ask() -> None:
-        querier.request(host.estop_messages)
+        querier.request()
 
     host.estop_query = ask
 

@@ -176,11 +176,10 @@ class AgentNode:
         }  # fmt: skip
         self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
-        # E-stop as latched fleet state (robot_agent.estop): the scopes this robot obeys, the
-        # count of estop messages seen (a query answer older than one must not undo it), and
-        # the hook that queries the coordinators' latched state (set by the shell).
+        # E-stop as latched fleet state (robot_agent.estop): the scopes this robot obeys (with
+        # their engagement ids) and the hook that queries the coordinators' latched state (set
+        # by the shell).
         self.estop = EstopLatch()
-        self.estop_messages = 0
         self.estop_query: Callable[[], None] | None = None
         self.estop_queried_s = -math.inf
         self.steps = 0
@@ -393,20 +392,20 @@ class AgentNode:
                 return
             if msg.robot is not None and msg.robot != self.robot_id:
                 return  # another robot's estop
-            self.estop_messages += 1
-            self.estop.apply(msg.engage, msg.robot)
+            self.estop.apply(msg.engage, msg.robot, msg.id)
             self.sync_estop("message")
         except Exception as exc:
             self._internal("on_estop", exc)
 
-    def on_estop_state(self, answers: list[tuple[bool, str | None]], messages_before: int) -> None:
-        """The coordinators' latched e-stop state (a query's answers, any robots'), queried when
-        :attr:`estop_messages` was ``messages_before``. No answer: nothing changes."""
+    def on_estop_state(self, answers: list[tuple[bool, str | None, int | None]]) -> None:
+        """The coordinators' latched e-stop state (a query's ``(engage, robot, id)`` entries,
+        any robots'): adds engagements, releases one held here only if the answer saw that
+        engagement released (``EstopLatch.merge_answer``). No answer: nothing changes."""
         try:
             if not answers:
                 return
-            mine = [(e, r) for e, r in answers if r is None or r == self.robot_id]
-            self.estop.merge_answer(mine, replace=messages_before == self.estop_messages)
+            mine = [a for a in answers if a[1] is None or a[1] == self.robot_id]
+            self.estop.merge_answer(mine)
             self.sync_estop("query answer")
         except Exception as exc:
             self._internal("on_estop_state", exc)

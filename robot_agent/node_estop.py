@@ -17,7 +17,9 @@ from robot_agent.node import AgentNode
 __all__ = ["attach_estop_state", "estop_answers"]
 
 
-def estop_answers(node: AgentNode, payloads: Sequence[bytes]) -> list[tuple[bool, str | None]]:
+def estop_answers(
+    node: AgentNode, payloads: Sequence[bytes]
+) -> list[tuple[bool, str | None, int | None]]:
     """Decode a query's answer (``bus_schemas.decode_estop_answer``); invalid ones are counted
     as the node's rejects."""
     return decode_estop_answer(payloads, lambda err: node._reject("estop_state", err))
@@ -32,23 +34,22 @@ async def attach_estop_state(node: AgentNode, io: rt.NodeIO) -> None:
 
     io.subscribe(node.estop_key, node.on_estop)
 
-    def on_replies(payloads: Sequence[bytes], before: int) -> None:
-        node.on_estop_state(estop_answers(node, payloads), before)
+    def on_replies(payloads: Sequence[bytes], _token: int) -> None:
+        node.on_estop_state(estop_answers(node, payloads))
 
     querier = Querier(
         io.session, io.loop, node.estop_key, on_replies, timeout_s=ESTOP_QUERY_TIMEOUT_S
     )
-    before = node.estop_messages
     try:
         payloads = await io.loop.run_in_executor(None, querier.run_now)
     except Exception as exc:  # no answer: start from the messages alone
         node._internal("estop_query", exc)
         payloads = []
-    node.on_estop_state(estop_answers(node, payloads), before)
+    node.on_estop_state(estop_answers(node, payloads))
     node.estop_queried_s = time.monotonic()
     io._keep.append(querier)
 
     def ask() -> None:
-        querier.request(node.estop_messages)
+        querier.request()
 
     node.estop_query = ask

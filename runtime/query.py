@@ -7,9 +7,11 @@ when it resumes from a stop and periodically (docs/faults.md).
 * :class:`Answerer`: a queryable whose callback (a Zenoh thread) replies with the payloads of
   the current snapshot; the loop replaces the snapshot (one reference assignment, so the Zenoh
   thread never sees a half-built answer) and never blocks on Zenoh.
-* :func:`query`: one ``get`` run on a worker thread (it blocks until every reply came or the
-  timeout), the payloads handed to a callback on the loop. At most one query is in flight per
-  :class:`Querier`; a request while one runs is merged into it.
+* :class:`Querier`: one ``get`` (:func:`get_all`) run on a worker thread (it blocks until every
+  reply came or the timeout), the payloads handed to a callback on the loop: every reply of
+  every queryable (no consolidation, target all), an answer being many replies on one key per
+  responder. At most one query is in flight per :class:`Querier`; a request while one runs is
+  merged into it.
 """
 
 from __future__ import annotations
@@ -23,7 +25,29 @@ import zenoh
 
 from runtime.bridge import _post
 
-__all__ = ["Answerer", "Querier"]
+__all__ = ["Answerer", "Querier", "get_all"]
+
+
+def get_all(
+    session: zenoh.Session, key: str, timeout_s: float, max_replies: int = 4096
+) -> list[bytes]:
+    """The payloads of every reply of every queryable on ``key`` (blocks until all replied or
+    the timeout; at most ``max_replies``). Zenoh's default query (target BEST_MATCHING,
+    consolidation AUTO = the latest reply per key) kept one reply of one responder, while an
+    answer is many replies on the same key from each coordinator: an agent saw only the last
+    entry of one coordinator's e-stop state (tests/test_estop_identity.py)."""
+    out: list[bytes] = []
+    replies = session.get(
+        key,
+        target=zenoh.QueryTarget.ALL,
+        consolidation=zenoh.ConsolidationMode.NONE,
+        timeout=timeout_s,
+    )
+    for reply in replies:
+        ok = reply.ok
+        if ok is not None and len(out) < max_replies:
+            out.append(ok.payload.to_bytes())
+    return out
 
 
 class Answerer:
@@ -87,13 +111,7 @@ class Querier:
         return self._get()
 
     def _get(self) -> list[bytes]:
-        out: list[bytes] = []
-        replies = self.session.get(self.key, timeout=self.timeout_s)
-        for reply in replies:
-            ok = reply.ok
-            if ok is not None and len(out) < self.max_replies:
-                out.append(ok.payload.to_bytes())
-        return out
+        return get_all(self.session, self.key, self.timeout_s, self.max_replies)
 
     def _run(self, token: int) -> None:  # worker thread
         try:

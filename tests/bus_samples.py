@@ -97,7 +97,7 @@ SAMPLES: dict[type, Any] = {
         filter={"ticks": 10, "active": 2},
         min_clearance_m=0.05,
     ),
-    Estop: Estop(t=1.0, engage=True, robot="r3"),
+    Estop: Estop(t=1.0, engage=True, robot="r3", id=2**62 + 12345),
     Clock: Clock(
         t=1.0,
         seq=9,

@@ -12,19 +12,22 @@ from runtime import NodeLog
 
 
 def _answer(latch: EstopLatch, t: float = 3.0) -> list[bytes]:
-    return [encode(Estop(t=t, engage=e, robot=r)) for e, r in latch.answer()]
+    return [encode(Estop(t=t, engage=e, robot=r, id=i)) for e, r, i in latch.answer()]
 
 
 def test_a_latch_answer_round_trips_in_order() -> None:
     src = EstopLatch()
-    src.apply(True, "r2")
-    src.apply(True, "r1")
+    src.apply(True, "r2", 22)
+    src.apply(True, "r1")  # an older sender: no id
+    src.apply(True, "r4", 44)
+    src.apply(False, "r4")
     errors: list[DecodeError] = []
-    pairs = decode_estop_answer(_answer(src), errors.append)
-    assert pairs == src.answer() == [(False, None), (True, "r1"), (True, "r2")] and not errors
+    entries = decode_estop_answer(_answer(src), errors.append)
+    want = [(False, None, None), (True, "r1", None), (True, "r2", 22), (False, "r4", 44)]
+    assert entries == src.answer() == want and not errors
     dst = EstopLatch()
-    assert dst.merge_answer(pairs, replace=True)
-    assert (dst.fleet, dst.robots) == (src.fleet, src.robots)
+    assert dst.merge_answer(entries)
+    assert (dst.held, dst.released) == (src.held, src.released)
 
 
 def test_invalid_payloads_are_rejected_one_by_one() -> None:
@@ -32,7 +35,7 @@ def test_invalid_payloads_are_rejected_one_by_one() -> None:
     bad_id = encode(Estop(t=1.0, engage=True, robot="r1")).replace(b"\xa2r1", b"\xa2R1")
     errors: list[DecodeError] = []
     pairs = decode_estop_answer([b"\xc1", bad_id, good, b"\x93\x01\x02\x03"], errors.append)
-    assert pairs == [(True, None)]
+    assert pairs == [(True, None, None)]
     assert [e.reason for e in errors] == [Reason.MALFORMED, Reason.OUT_OF_RANGE, Reason.NOT_A_MAP]
     assert decode_estop_answer([], errors.append) == []
 

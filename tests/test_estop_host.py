@@ -21,7 +21,7 @@ from conftest import RouterHandle, Spawner
 from test_node_agent import Recorder, decoder_of
 
 import runtime as rt
-from bus_schemas import Estop, StatusBatch, encode, keys
+from bus_schemas import Estop, StatusBatch, encode, keys, new_estop_id
 
 pytestmark = [pytest.mark.zenoh]
 
@@ -48,8 +48,9 @@ def test_agent_hosts_come_up_in_the_latched_estop(
     def estop(engage: bool, robot: str | None, want: Callable[[dict[str, object]], bool]) -> None:
         """Publish until the coordinator's status shows the latched state ``want``."""
         deadline = time.monotonic() + 10.0
+        eid = new_estop_id() if engage else None  # one engagement, however many copies
         while True:
-            msg = Estop(t=time.monotonic(), engage=engage, robot=robot)
+            msg = Estop(t=time.monotonic(), engage=engage, robot=robot, id=eid)
             pubs.put(keys.estop_key(FLEET), encode(msg), rt.QOS_CONTROL)
             t_sent = time.monotonic()
 

@@ -6,8 +6,10 @@ for a while. Its agent had latched the e-stop, then asked the coordinators for t
 state (the 1 s refresh, robot_agent/node_estop.py); they answer on Zenoh's thread from a
 snapshot that their (starved) loops had not updated yet, so the answer said "nothing latched";
 no ``estop`` message had arrived since the query was sent, so the agent took it as the whole
-truth (``EstopLatch.merge_answer(replace=True)``) and released until the next refresh.
+truth (then ``EstopLatch.merge_answer(replace=True)``) and released until the next refresh.
 coordinator/estop_source.py now applies ``estop`` messages on the network thread, on receipt.
+(Since engagement ids, tests/test_estop_identity.py, such an answer no longer releases an agent
+at all; the coordinator's answer must still hold the e-stop, for the agents that missed it.)
 
 Real Zenoh through a router; the starved loop is this test's own loop, blocked on purpose.
 """
@@ -22,17 +24,18 @@ from typing import Any, cast
 import pytest
 
 import runtime as rt
-from bus_schemas import Estop, decode_estop_answer, encode, keys
+from bus_schemas import Estop, decode_estop_answer, encode, keys, new_estop_id
 from coordinator.estop_source import EstopSource, attach_estop_source
 from robot_agent.estop import EstopLatch
+from runtime.query import get_all
 
 pytestmark = [pytest.mark.zenoh]
 
 FLEET = "starved"
 
 
-def _answer(session: Any, key: str) -> list[tuple[bool, str | None]]:
-    payloads = [r.ok.payload.to_bytes() for r in session.get(key, timeout=2.0) if r.ok is not None]
+def _answer(session: Any, key: str) -> list[tuple[bool, str | None, int | None]]:
+    payloads = get_all(session, key, 2.0)  # as runtime.query.Querier asks
     return decode_estop_answer(payloads, lambda err: pytest.fail(f"bad answer: {err}"))
 
 
@@ -62,15 +65,17 @@ async def test_a_starved_coordinator_answers_with_every_estop_its_session_receiv
         got = threading.Event()
         sub = agent.declare_subscriber(key, lambda _sample: got.set())
         await asyncio.sleep(0.3)  # subscriptions propagated through the router
-        assert _answer(agent, key) == [(False, None)]  # nothing latched yet
+        assert _answer(agent, key) == [(False, None, None)]  # nothing latched yet
 
         # From here on the coordinator's loop (this one) does not run: starved.
-        operator.put(key, encode(Estop(t=time.monotonic(), engage=True, robot=robot)))
+        eid = new_estop_id()
+        operator.put(key, encode(Estop(t=time.monotonic(), engage=True, robot=robot, id=eid)))
         assert got.wait(5.0), "the agent's session never received the estop"
         # The agent has the e-stop and asks (its refresh): the answer must hold it.
         answer = _answer(agent, key)
+        assert (True, robot, eid) in answer, f"a starved coordinator answered {answer}"
         mine = EstopLatch()
-        mine.merge_answer(answer, replace=True)
+        mine.merge_answer(answer)
         assert mine.stopped("r2"), f"a starved coordinator answered {answer}: r2 would release"
 
         # The release is seen the same way (no lag that would re-engage a released robot).
@@ -78,8 +83,10 @@ async def test_a_starved_coordinator_answers_with_every_estop_its_session_receiv
         operator.put(key, encode(Estop(t=time.monotonic(), engage=False, robot=robot)))
         assert got.wait(5.0)
         released = EstopLatch()
-        released.apply(True, None)
-        released.merge_answer(_answer(agent, key), replace=True)
+        released.apply(True, robot, eid)  # an agent that missed the release
+        answer = _answer(agent, key)
+        assert (False, robot, eid) in answer, answer  # the release record proves it
+        released.merge_answer(answer)
         assert not released.stopped("r2")
         sub.undeclare()
         await asyncio.sleep(0.05)  # the loop runs again: the log lines and counters

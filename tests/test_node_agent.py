@@ -23,7 +23,7 @@ import zenoh
 from conftest import REPO_ROOT, RouterHandle, Spawner, child_env
 
 import runtime as rt
-from bus_schemas import Estop, Pose, Setpoint, Status, Wheels, decode, encode, keys
+from bus_schemas import Estop, Pose, Setpoint, Status, Wheels, decode, encode, keys, new_estop_id
 from robot_agent.main import main as agent_main
 from robot_agent.params import AgentConfig
 
@@ -272,7 +272,9 @@ def test_estop_zeroes_the_wheels_within_100_ms_and_latches_until_release(
 
     def estop(engage: bool, robot: str | None) -> float:
         t = time.monotonic()
-        pubs.put(estop_key, encode(Estop(t=t, engage=engage, robot=robot)), rt.QOS_CRITICAL)
+        eid = new_estop_id() if engage else None
+        msg = Estop(t=t, engage=engage, robot=robot, id=eid)
+        pubs.put(estop_key, encode(msg), rt.QOS_CRITICAL)
         return t
 
     with Feeder(pubs, "r1", pose=lambda: (0.0, 0.0, 0.0), setpoint=lambda: (0.45, 0.0)):

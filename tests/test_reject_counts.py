@@ -42,8 +42,9 @@ def test_agent_estop_scopes_and_query_answers() -> None:
     node = AgentNode("r1", "demo", SCN.agent, publish, lockstep=True)
     key = keys.estop_key("demo")
 
-    def estop(engage: bool, robot: str | None) -> None:
-        node.on_estop(rt.Received(key, encode(Estop(t=1.0, engage=engage, robot=robot)), 0.0))
+    def estop(engage: bool, robot: str | None, eid: int | None = None) -> None:
+        msg = Estop(t=1.0, engage=engage, robot=robot, id=eid)
+        node.on_estop(rt.Received(key, encode(msg), 0.0))
 
     def latched() -> bool:
         return node.firmware.status().estop_latched
@@ -59,16 +60,26 @@ def test_agent_estop_scopes_and_query_answers() -> None:
     estop(False, "r1")
     assert not latched()
     # a query answer (a coordinator's latched state) stops a robot that missed the message
-    node.on_estop_state([(True, None)], node.estop_messages)
+    node.on_estop_state([(True, None, 7)])
     assert latched()
-    # an answer older than a message received since does not undo that message
-    before = node.estop_messages
-    estop(False, None)
-    node.on_estop_state([(True, None)], before)
-    assert latched()  # engagements of an older answer are still added (the safe side)
-    node.on_estop_state([(False, None)], node.estop_messages)
+    # an answer that does not mention the engagement releases nothing (robot_agent.estop) ...
+    node.on_estop_state([(False, None, None)])
+    assert latched()
+    # ... one that saw that engagement released does
+    node.on_estop_state([(False, None, None), (False, None, 7)])
     assert not latched()
-    node.on_estop_state([], node.estop_messages)  # no answer: nothing changes
+    # an engagement released here is not added back by an older answer
+    estop(True, None, 8)
+    estop(False, None)
+    node.on_estop_state([(True, None, 8)])
+    assert not latched()
+    # one without an id (an older coordinator) is held until a release message
+    node.on_estop_state([(True, None, None)])
+    node.on_estop_state([(False, None, None)])
+    assert latched()
+    estop(False, None)
+    assert not latched()
+    node.on_estop_state([])  # no answer: nothing changes
     assert not latched()
 
 
