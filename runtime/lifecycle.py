@@ -21,6 +21,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from types import FrameType
@@ -76,6 +77,61 @@ def gc_generation(round_k: int) -> int:
     return 2 if round_k % GC_FULL_EVERY == 0 else 1 if round_k % GC_MIDDLE_EVERY == 0 else 0
 
 
+STOP_TRACE_ENV: Final = "FORMATION_STOP_TRACE"
+"""Set (to anything but empty or ``0``) in a node's environment: it writes one ``stop trace``
+line to stderr when it leaves (:class:`StopTrace`); bench/bench_exit.py sets it."""
+STOP_TRACE_SLOW_S: Final = 0.5
+"""A stop slower than this (first signal to leaving) writes its trace line even without
+:data:`STOP_TRACE_ENV`, so a slow stop in a real run says where its time went."""
+
+
+class StopTrace:
+    """When each phase of a stop ended, from the first stop signal (``time.monotonic``).
+
+    :func:`run_node`, :func:`serve` and :func:`exit_fast` mark their phases (:meth:`mark`); the
+    process writes one line to stderr as it leaves (:meth:`report`), e.g. ``stop trace: signal
+    at 1234.567890 s, loop 1 ms, main 15 ms, ... exit 40 ms`` (when the handler ran, on the
+    system-wide ``time.monotonic`` clock, then each phase's end after it), when
+    :data:`STOP_TRACE_ENV` is set or the stop took more than :data:`STOP_TRACE_SLOW_S`. Marking
+    costs a clock read and a list append; nothing is recorded before the first signal.
+    """
+
+    def __init__(self) -> None:
+        self.t0: float | None = None
+        self.marks: list[tuple[str, float]] = []
+        self.reported = False
+
+    def signalled(self) -> None:
+        """The first stop signal (called from the Python signal handler)."""
+        if self.t0 is None:
+            self.t0 = time.monotonic()
+
+    def mark(self, phase: str) -> None:
+        if self.t0 is not None:
+            self.marks.append((phase, time.monotonic()))
+
+    def line(self) -> str:
+        if self.t0 is None:
+            return "stop trace: no stop signal"
+        t0 = self.t0
+        parts = [f"{phase} {(t - t0) * 1e3:.0f} ms" for phase, t in self.marks]
+        return f"stop trace: signal at {t0:.6f} s, " + ", ".join(parts)
+
+    def report(self) -> None:
+        """Write :meth:`line` once, if asked for or slow (never raises)."""
+        if self.t0 is None or self.reported:
+            return
+        self.reported = True
+        slow = time.monotonic() - self.t0 > STOP_TRACE_SLOW_S
+        if slow or os.environ.get(STOP_TRACE_ENV, "") not in ("", "0"):
+            with contextlib.suppress(OSError):
+                os.write(2, (self.line() + "\n").encode())
+
+
+stop_trace = StopTrace()
+"""This process's :class:`StopTrace`."""
+
+
 class _ShutdownWatchdog:
     """Forces ``os._exit`` if the process has not finished shutting down in time.
 
@@ -113,6 +169,8 @@ class _ShutdownWatchdog:
 def _forced_exit(message: str) -> None:
     """Leave the process now: no cleanup can run (the kernel closes the sockets, so peers see the
     links drop and the tokens vanish within milliseconds)."""
+    stop_trace.mark("forced")
+    stop_trace.report()
     with contextlib.suppress(OSError):
         os.write(2, message.encode() + b"\n")
     os._exit(FORCED_EXIT_CODE)
@@ -127,6 +185,7 @@ def _install_stop_signals(
     def on_signal_in_loop(signum: int) -> None:
         if stop.is_set():  # second signal: the operator insists
             watchdog.fire_now()
+        stop_trace.mark("loop")
         stop.set()
 
     for sig in _STOP_SIGNALS:
@@ -137,6 +196,7 @@ def _install_stop_signals(
         inner = signal.getsignal(sig)
 
         def on_signal_now(signum: int, frame: FrameType | None, _inner: Any = inner) -> None:
+            stop_trace.signalled()
             watchdog.arm()
             if callable(_inner):
                 _inner(signum, frame)
@@ -162,6 +222,7 @@ async def _supervise(main: NodeMain, grace_s: float, watchdog: _ShutdownWatchdog
             )
             task.cancel()
             await asyncio.wait({task})
+        stop_trace.mark("main")
     finally:
         stopping.cancel()
         watchdog.arm()  # from here on, shutdown is on the clock
@@ -170,6 +231,7 @@ async def _supervise(main: NodeMain, grace_s: float, watchdog: _ShutdownWatchdog
             signal.signal(sig, previous[sig])
         # Close sessions while the loop is still open, so no callback posts to a closed loop.
         forgotten = _tp._close_node_sessions()
+        stop_trace.mark("sessions")
         if forgotten:
             print(f"run_node: closed {forgotten} session(s) main left open", file=sys.stderr)
     if task.cancelled():
@@ -200,9 +262,11 @@ def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) 
     try:
         return asyncio.run(_supervise(main, grace_s, watchdog))
     finally:
+        stop_trace.mark("loop closed")
         _tp._close_node_sessions()  # again: a session opened during asyncio.run's own teardown
         _tp._track_node_sessions(False)
         watchdog.disarm()
+        stop_trace.mark("run_node")
         request_fast_exit()
 
 
@@ -244,6 +308,8 @@ def exit_fast(code: int) -> None:
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
+        stop_trace.mark("exit")
+        stop_trace.report()
         os._exit(code)
 
 
@@ -328,8 +394,11 @@ def serve(
         try:
             return await body(io, stop)
         finally:
+            stop_trace.mark("body")
             io.close()
+            stop_trace.mark("io")
             session.close()
+            stop_trace.mark("session")
 
     return run_node(main, grace_s=grace_s, hard_exit_s=hard_exit_s)
 
