@@ -20,9 +20,11 @@ and its ``stop trace`` line (``runtime.lifecycle.StopTrace``, asked for with
 ``--hogs K`` starts K processes ``python3 -c 'while True: pass'`` (children of this bench, killed
 at the end) before the first fleet and keeps them for the whole run.
 
-Prints, per process kind: n, p50 / p90 / max seconds to exit, how many took over 1 s, exit
-statuses seen, CPU seconds of the stop (p50), and the p50 of each traced phase; then the load
-average. Asserts nothing.
+Prints, per process kind: n, p50 / p90 / max seconds to exit, how many took over 1 s, the CPU
+milliseconds of the stop (p50 / max), the resident memory before the signal (p50), the time from
+the node's ``os._exit`` to the exit this bench saw (p50 / max: the kernel tearing the process
+down, its threads and memory, plus this bench's own wake-up), the exit statuses seen; then p50 /
+max of each traced phase's end, and the load average. Asserts nothing.
 
 Usage: ``python bench/bench_exit.py [--repeat 10] [--hogs 4] [--robots 3] [--settle 2]
 [--layouts agents,host] [--keep DIR]``. Results and the command: docs/benchmarks.md.
@@ -75,6 +77,7 @@ class Proc:
     exited_s: float | None = None
     status: int | None = None
     cpu_before_s: float = 0.0
+    rss_mib: float | None = None
     cpu_stop_s: float | None = None
     trace: dict[str, float] = field(default_factory=dict)
     waiter: threading.Thread | None = None
@@ -95,6 +98,7 @@ class Proc:
         pid = self.popen.pid
         with contextlib.suppress(OSError, ValueError, IndexError):
             self.cpu_before_s = cpu_s(pid)
+            self.rss_mib = rss_kib(pid) / 1024
         self.waiter = threading.Thread(target=self._wait, daemon=True)
         self.sent_s = time.monotonic()
         os.kill(pid, signal.SIGTERM)
@@ -125,6 +129,14 @@ class Proc:
                 os.kill(self.popen.pid, signal.SIGKILL)
             with contextlib.suppress(ChildProcessError, subprocess.TimeoutExpired):
                 self.popen.wait(5)
+
+
+def rss_kib(pid: int) -> int:
+    """Resident set size (VmRSS, KiB) of process ``pid``."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
 
 
 def parse_trace(text: str, sent_s: float) -> dict[str, float]:
@@ -238,21 +250,27 @@ def report(procs: list[Proc]) -> None:
             if ph not in phases:
                 phases.append(ph)
     print(
-        f"{'process':<12} {'n':>4} {'p50 s':>7} {'p90 s':>7} {'max s':>7} {'>1 s':>5} "
-        f"{'cpu p50':>8}  exit statuses"
+        f"{'process':<12} {'n':>4} {'p50 s':>6} {'p90 s':>6} {'max s':>6} {'>1 s':>4} "
+        f"{'cpu ms p50/max':>14} {'rss MiB':>7} {'after exit ms':>13}  exit statuses"
     )
     for kind, ps in kinds.items():
         times = sorted(p.exit_s for p in ps if p.exit_s is not None)
-        cpus = sorted(p.cpu_stop_s for p in ps if p.cpu_stop_s is not None)
+        cpus = sorted(p.cpu_stop_s * 1e3 for p in ps if p.cpu_stop_s is not None)
+        rss = sorted(p.rss_mib for p in ps if p.rss_mib is not None)
+        after = sorted(
+            (p.trace["reaped"] - p.trace["exit"]) * 1e3
+            for p in ps
+            if "reaped" in p.trace and "exit" in p.trace
+        )
         statuses: dict[int | None, int] = {}
         for p in ps:
             statuses[p.status] = statuses.get(p.status, 0) + 1
         over = sum(t > 1.0 for t in times)
         st = ", ".join(f"{s}: {n}" for s, n in sorted(statuses.items(), key=str))
         print(
-            f"{kind:<12} {len(times):>4} {percentile(times, 50):>7.3f} {percentile(times, 90):>7.3f}"
-            f" {times[-1] if times else float('nan'):>7.3f} {over:>5} "
-            f"{percentile(cpus, 50):>8.3f}  {st}"
+            f"{kind:<12} {len(times):>4} {percentile(times, 50):>6.3f} "
+            f"{percentile(times, 90):>6.3f} {times[-1] if times else float('nan'):>6.3f} {over:>4} "
+            f"{_pair(cpus):>14} {percentile(rss, 50):>7.0f} {_pair(after):>13}  {st}"
         )
     print(
         "\nstop trace, p50 / max ms of each phase's end after SIGTERM was sent (handler: the "
@@ -265,6 +283,13 @@ def report(procs: list[Proc]) -> None:
             if vals:
                 cells.append(f"{ph} {percentile(vals, 50) * 1e3:.0f}/{vals[-1] * 1e3:.0f}")
         print(f"  {kind:<12} " + ", ".join(cells))
+
+
+def _pair(sorted_values: list[float]) -> str:
+    """``p50/max`` of ascending values, whole numbers (``-`` if none)."""
+    if not sorted_values:
+        return "-"
+    return f"{percentile(sorted_values, 50):.0f}/{sorted_values[-1]:.0f}"
 
 
 def start_hogs(k: int) -> list[subprocess.Popen[bytes]]:

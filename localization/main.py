@@ -352,9 +352,13 @@ async def _node(
             grabber.thread.join(JOIN_S)
         notifier.stopping()
         notifier.close()
-        if truth_session is not None:
-            truth_session.close()
-        session.close()
+        for s in (truth_session, session):  # each waited for at most rt.SESSION_CLOSE_S
+            if s is not None and not rt.close_session(s):
+                print(
+                    f"camera: Zenoh session close still blocked after {rt.SESSION_CLOSE_S:g} s "
+                    "(router not reading?): exiting without it",
+                    file=sys.stderr,
+                )
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -22,7 +22,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any, Final
@@ -230,13 +230,54 @@ async def _supervise(main: NodeMain, grace_s: float, watchdog: _ShutdownWatchdog
             loop.remove_signal_handler(sig)  # also detaches the loop's wake-up fd
             signal.signal(sig, previous[sig])
         # Close sessions while the loop is still open, so no callback posts to a closed loop.
-        forgotten = _tp._close_node_sessions()
+        forgotten, blocked = _tp._close_node_sessions(_tp.SESSION_CLOSE_S)
         stop_trace.mark("sessions")
         if forgotten:
             print(f"run_node: closed {forgotten} session(s) main left open", file=sys.stderr)
+        if blocked:
+            print(
+                f"run_node: {blocked} Zenoh session close(s) still blocked after "
+                f"{_tp.SESSION_CLOSE_S:g} s (router not reading?): exiting without them",
+                file=sys.stderr,
+            )
     if task.cancelled():
         return 1
     return task.result()  # re-raises main's exception
+
+
+LEFTOVER_TASKS_S: Final = 0.1
+""":func:`_run_loop`: how long tasks still pending when the node's main ended get to finish
+after their cancellation."""
+
+
+def _run_loop(coro: Coroutine[Any, Any, int]) -> int:
+    """``asyncio.run(coro)`` without its unbounded waits at the end: the tasks left pending get
+    :data:`LEFTOVER_TASKS_S` after their cancellation, and the loop's default executor is shut
+    down without waiting for its threads (``loop.close()``; ``asyncio.run`` joins them, so a
+    ``run_in_executor`` call blocked in Zenoh, e.g. a query waiting for its timeout, held the
+    process until it returned). A thread left behind is a daemon-like worker the process does
+    not wait for: the entry point leaves with :func:`exit_fast`."""
+    loop = asyncio.new_event_loop()
+    asyncio.set_event_loop(loop)
+    try:
+        return loop.run_until_complete(coro)
+    finally:
+        try:
+            pending = [t for t in asyncio.all_tasks(loop) if not t.done()]
+            for t in pending:
+                t.cancel()
+            if pending:
+                loop.run_until_complete(asyncio.wait(pending, timeout=LEFTOVER_TASKS_S))
+            for t in pending:
+                if t.done() and not t.cancelled() and t.exception() is not None:
+                    loop.call_exception_handler(
+                        {"message": "unhandled exception in a task left at shutdown",
+                         "exception": t.exception(), "task": t}
+                    )  # fmt: skip
+            loop.run_until_complete(loop.shutdown_asyncgens())
+        finally:
+            asyncio.set_event_loop(None)
+            loop.close()  # its default executor: shutdown(wait=False)
 
 
 def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) -> int:
@@ -260,10 +301,10 @@ def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) 
     watchdog = _ShutdownWatchdog(hard_exit_s)
     _tp._track_node_sessions(True)
     try:
-        return asyncio.run(_supervise(main, grace_s, watchdog))
+        return _run_loop(_supervise(main, grace_s, watchdog))
     finally:
         stop_trace.mark("loop closed")
-        _tp._close_node_sessions()  # again: a session opened during asyncio.run's own teardown
+        _tp._close_node_sessions()  # again (no wait): one opened during the loop's teardown
         _tp._track_node_sessions(False)
         watchdog.disarm()
         stop_trace.mark("run_node")
@@ -395,9 +436,11 @@ def serve(
             return await body(io, stop)
         finally:
             stop_trace.mark("body")
-            io.close()
-            stop_trace.mark("io")
-            session.close()
+            if not _tp.close_session(session, first=io.close):
+                log.info(
+                    f"Zenoh session close still blocked after {_tp.SESSION_CLOSE_S:g} s (router "
+                    "not reading?): exiting without it"
+                )
             stop_trace.mark("session")
 
     return run_node(main, grace_s=grace_s, hard_exit_s=hard_exit_s)
