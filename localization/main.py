@@ -29,8 +29,12 @@ __all__ = ["build_parser", "main", "with_tags"]
 
 LIVE_QUEUE: Final = 4
 RENDERED: Final = "rendered"
-JOIN_S: Final = 0.3
-"""At stop, how long the grabber gets to finish its frame and release the source (s)."""
+JOIN_S: Final = 0.15
+"""At stop, how long the grabber gets to finish its frame and release the source (s). Not
+longer: a rendered frame costs ~50 ms of CPU, several times that next to CPU hogs, and the stop
+has a second in all (bench/bench_exit.py: the camera was the slowest process to exit, its wait
+here the largest part). A grabber still in ``read()`` when the process leaves is no harm: the
+process ends with ``os._exit`` (no destructor runs, the kernel closes the device)."""
 FAST_QUEUE: Final = 256
 
 
