@@ -2,8 +2,12 @@
 
 :func:`run_node` owns the event loop: SIGINT/SIGTERM set a stop ``asyncio.Event``, ``main`` gets
 ``grace_s`` to return, is then cancelled, every session opened through :mod:`runtime.transport`
-and still open is closed, and a watchdog thread forces the process out ``hard_exit_s`` after the
-first signal if anything still hangs (every process exits within a second of a stop signal).
+and still open is closed (each waited for at most ``SESSION_CLOSE_S``:
+:func:`runtime.transport.close_session`), and a watchdog thread forces the process out
+``hard_exit_s`` after the first signal if anything still hangs (every process exits within a
+second of a stop signal). Nothing in between waits without a bound: the loop's default executor
+is not joined (:func:`_run_loop`), a blocked session close is given up and logged, and
+:class:`StopTrace` says where a slow stop spent its time.
 
 :func:`serve` is the bootstrap every process shell uses on top of it: open the session (retrying
 while the router starts), hand the shell a :class:`NodeIO` (publishers, the subscription bridge,
@@ -287,7 +291,10 @@ def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) 
       stop). A second signal forces the exit.
     * ``main`` gets ``grace_s`` seconds after ``stop`` to return, then it is cancelled (status 1).
     * Every session opened with :func:`open_session`/:func:`open_session_async` and still open
-      is closed before the loop is, whatever happened (return, exception, cancellation).
+      is closed before the loop is, whatever happened (return, exception, cancellation); each
+      close is waited for at most ``SESSION_CLOSE_S`` (a close still blocked is left to its
+      thread and said on stderr). Tasks still pending then get ``LEFTOVER_TASKS_S`` after their
+      cancellation; the loop's executor threads are not waited for.
     * If the process is still shutting down ``hard_exit_s`` seconds after the first signal (or
       after ``main`` ended), a watchdog writes to stderr and calls ``os._exit(70)``.
 
@@ -412,9 +419,11 @@ def serve(
 
     Opens the session (retrying while the router starts; on failure logs one line and returns
     1), then awaits ``body(io, stop)`` under :func:`run_node` (signals, bounded shutdown), and
-    closes the tokens, subscriptions and session whatever happens. ``name`` prefixes the log
-    lines (``io.log``). ``body`` declares its publishers and subscriptions on ``io``, prints its
-    ready line, runs until ``stop`` is set and returns the exit status (0 on a clean stop).
+    closes the tokens, subscriptions and session whatever happens, waiting for that at most
+    ``SESSION_CLOSE_S`` (then ``io.log`` says the close is still blocked and the node leaves).
+    ``name`` prefixes the log lines (``io.log``). ``body`` declares its publishers and
+    subscriptions on ``io``, prints its ready line, runs until ``stop`` is set and returns the
+    exit status (0 on a clean stop).
     """
 
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
