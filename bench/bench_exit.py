@@ -18,7 +18,9 @@ and its ``stop trace`` line (``runtime.lifecycle.StopTrace``, asked for with
 ``FORMATION_STOP_TRACE=1``: when each phase of its stop ended, from its own signal handler).
 
 ``--hogs K`` starts K processes ``python3 -c 'while True: pass'`` (children of this bench, killed
-at the end) before the first fleet and keeps them for the whole run.
+at the end) before the first fleet and keeps them for the whole run; ``--hog-kind mem`` makes
+them map, zero and free 64 MiB in a loop instead (the kernel's work), ``bursty`` busy for 4 ms
+then asleep for 1 ms (keeping the scheduler's wake-up credit, like other fleets' processes).
 
 Prints, per process kind: n, p50 / p90 / max seconds to exit, how many took over 1 s, the CPU
 milliseconds of the stop (p50 / max), the resident memory before the signal (p50), the time from
@@ -292,10 +294,22 @@ def _pair(sorted_values: list[float]) -> str:
     return f"{percentile(sorted_values, 50):.0f}/{sorted_values[-1]:.0f}"
 
 
-def start_hogs(k: int) -> list[subprocess.Popen[bytes]]:
+HOGS = {
+    "cpu": "while True: pass",
+    # the kernel's work instead: map, zero and free 64 MiB at a time (page faults, page freeing)
+    "mem": "while True: bytearray(64 << 20)",
+    # a busy loop that sleeps 1 ms every 4 ms: it keeps the scheduler's wake-up credit, as the
+    # Python processes of other fleets and test runs do (a pure busy loop loses it)
+    "bursty": (
+        "import time\nwhile True:\n    t = time.monotonic()\n"
+        "    while time.monotonic() - t < 0.004: pass\n    time.sleep(0.001)"
+    ),
+}
+
+
+def start_hogs(k: int, kind: str = "cpu") -> list[subprocess.Popen[bytes]]:
     return [
-        subprocess.Popen(["python3", "-c", "while True: pass"], stdin=subprocess.DEVNULL)
-        for _ in range(k)
+        subprocess.Popen(["python3", "-c", HOGS[kind]], stdin=subprocess.DEVNULL) for _ in range(k)
     ]
 
 
@@ -303,6 +317,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--hogs", type=int, default=0, help="CPU busy loops for the whole run")
+    ap.add_argument("--hog-kind", choices=sorted(HOGS), default="cpu", help="what a hog does")
     ap.add_argument("--robots", type=int, default=3)
     ap.add_argument("--settle", type=float, default=2.0, help="seconds a ready fleet runs")
     ap.add_argument("--layouts", default="agents,host", help=f"of {','.join(LAYOUTS)}")
@@ -316,11 +331,12 @@ def main() -> int:
     root = ns.keep or Path(tempfile.mkdtemp(prefix="bench-exit-"))
     load0 = os.getloadavg()
     print(
-        f"bench_exit: {ns.repeat} repeats of {layouts}, {ns.robots} robots, {ns.hogs} hogs, "
+        f"bench_exit: {ns.repeat} repeats of {layouts}, {ns.robots} robots, "
+        f"{ns.hogs} {ns.hog_kind} hogs, "
         f"settle {ns.settle:g} s; load average {load0[0]:.1f} {load0[1]:.1f} {load0[2]:.1f}",
         flush=True,
     )
-    hogs = start_hogs(ns.hogs)
+    hogs = start_hogs(ns.hogs, ns.hog_kind)
     procs: list[Proc] = []
     try:
         for r in range(ns.repeat):
