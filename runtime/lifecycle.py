@@ -133,7 +133,9 @@ class StopTrace:
 
 
 stop_trace = StopTrace()
-"""This process's :class:`StopTrace`."""
+"""This process's :class:`StopTrace` (reported at exit: :func:`exit_fast`, the watchdog, or the
+interpreter's own exit handlers for a process that leaves the usual way)."""
+atexit.register(stop_trace.report)
 
 
 class _ShutdownWatchdog:
@@ -350,14 +352,14 @@ def exit_fast(code: int) -> None:
     handlers get :data:`EXIT_HANDLERS_DEADLINE_S`; past that, faulthandler (a C thread, no GIL
     needed) writes every thread's stack to stderr and exits with status 1."""
     faulthandler.dump_traceback_later(EXIT_HANDLERS_DEADLINE_S, exit=True)
+    stop_trace.mark("exit")
     try:
-        atexit._run_exitfuncs()
+        atexit._run_exitfuncs()  # the stop trace's report among them
     finally:
+        stop_trace.report()  # if the handlers failed before it (a no-op otherwise)
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
-        stop_trace.mark("exit")
-        stop_trace.report()
         os._exit(code)
 
 

@@ -111,7 +111,24 @@ async def test_node_exits_within_a_second_of_sigterm_with_its_session_closed(
     assert node.proc.returncode == 0, node.describe()
     assert elapsed < EXIT_BOUND_S
     assert "run_node returned 0; session closed: True" in node.stdout()
-    assert node.stderr() == ""
+    # nothing but, on a stop slower than 0.5 s (a loaded machine), its stop trace
+    assert [ln for ln in node.stderr().splitlines() if not ln.startswith("stop trace:")] == []
+
+
+@pytest.mark.zenoh
+def test_a_node_asked_for_its_stop_trace_writes_the_phases_in_order(
+    spawn: Spawner, router: RouterHandle
+) -> None:
+    node = spawn.python(
+        NODE, router.endpoint, "well-behaved", ready="ready", env={"FORMATION_STOP_TRACE": "1"}
+    )
+    node.stop(signal.SIGTERM, timeout_s=5.0)
+    assert node.proc.returncode == 0, node.describe()
+    lines = [ln for ln in node.stderr().splitlines() if ln.startswith("stop trace: signal at ")]
+    assert len(lines) == 1, node.describe()
+    phases = [part.rsplit(" ", 2)[0] for part in lines[0].split(", ")[1:]]
+    assert phases == ["loop", "main", "sessions", "loop closed", "run_node"], lines[0]
+    assert all(part.endswith(" ms") for part in lines[0].split(", ")[1:]), lines[0]
 
 
 @pytest.mark.zenoh
