@@ -125,10 +125,12 @@ async def _node(
 
     def on_alive(key: str, alive: bool) -> None:
         # Stopping: the fleet's tokens vanish together (`formation up` stops every node at once)
-        # and each vanished robot re-assigned at once (a tick over the whole fleet): with 100
-        # robots that held the stop ~0.2 s of CPU (bench/bench_exit.py), with 300 next to load
-        # the coordinator overran its second. A stopping coordinator assigns nothing more.
-        if alive or not stop.is_set():
+        # and each vanished robot was re-assigned at once (a tick over the whole fleet, ~2.5 ms
+        # with 300 robots): the 300 tokens of an agent host, queued on the loop ahead of the stop
+        # callback, held the coordinator ~0.9 s and its watchdog forced it out (status 70;
+        # bench/bench_exit.py --robots 300). A stopping coordinator assigns nothing more; the
+        # signal handler's flag is seen before the loop gets to set the stop Event.
+        if alive or not (stop.is_set() or rt.stop_signalled()):
             node.on_alive(key, alive)
 
     io.watch_liveliness(node.alive_pattern, on_alive)

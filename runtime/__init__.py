@@ -39,7 +39,7 @@ from runtime.bridge import (
     watch_liveliness,
     watch_liveliness_on_thread,
 )
-from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve
+from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve, stop_signalled
 from runtime.log import NodeLog
 from runtime.stall import (
     HANG_GAP_NO_LEASE_S,
@@ -109,6 +109,7 @@ __all__ = [
     "run_node",
     "serve",
     "settings_from_args",
+    "stop_signalled",
     "subscribe",
     "subscribe_on_thread",
     "watch_liveliness",

@@ -52,6 +52,7 @@ __all__ = [
     "request_fast_exit",
     "run_node",
     "serve",
+    "stop_signalled",
 ]
 
 # --------------------------------------------------------------------------------------------
@@ -170,6 +171,15 @@ class _ShutdownWatchdog:
         if self._done.wait(self._deadline_s):
             return
         _forced_exit("run_node: shutdown did not finish in time, forcing exit")
+
+
+def stop_signalled() -> bool:
+    """True once a stop signal (SIGINT/SIGTERM) reached this process under :func:`run_node`:
+    set by the Python signal handler itself, at once, while the stop ``Event`` is set by a loop
+    callback that runs only after every callback already queued (a burst of samples, e.g. the
+    tokens of a whole agent host vanishing). A handler that would do costly work for an event
+    that is moot when the node stops checks this as well as the ``Event``."""
+    return stop_trace.t0 is not None
 
 
 def _forced_exit(message: str) -> None:
