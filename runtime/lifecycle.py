@@ -102,6 +102,10 @@ class StopTrace:
     """
 
     def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget any earlier stop (:func:`run_node` starts with a fresh trace)."""
         self.t0: float | None = None
         self.marks: list[tuple[str, float]] = []
         self.reported = False
@@ -127,7 +131,8 @@ class StopTrace:
         if self.t0 is None or self.reported:
             return
         self.reported = True
-        slow = time.monotonic() - self.t0 > STOP_TRACE_SLOW_S
+        end = self.marks[-1][1] if self.marks else time.monotonic()
+        slow = end - self.t0 > STOP_TRACE_SLOW_S
         if slow or os.environ.get(STOP_TRACE_ENV, "") not in ("", "0"):
             with contextlib.suppress(OSError):
                 os.write(2, (self.line() + "\n").encode())
@@ -318,6 +323,7 @@ def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) 
     if _tp._node_sessions is not None:
         raise RuntimeError("run_node is already running")
     watchdog = _ShutdownWatchdog(hard_exit_s)
+    stop_trace.reset()
     _tp._track_node_sessions(True)
     try:
         return _run_loop(_supervise(main, grace_s, watchdog))

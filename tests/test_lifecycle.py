@@ -9,6 +9,7 @@ one blocked in sync code, a second signal), each watched through its liveliness 
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
 import threading
 from collections.abc import Callable
@@ -19,6 +20,7 @@ from async_wait import wait_until
 from conftest import Child, RouterHandle, Spawner
 
 import runtime as rt
+from runtime.lifecycle import stop_trace
 
 EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of the signal; 0.5 s margin for CI noise
 
@@ -205,6 +207,23 @@ def test_run_node_in_process_returns_main_status_and_restores_signals() -> None:
 
     assert rt.run_node(main) == 3
     assert {sig: signal.getsignal(sig) for sig in before} == before
+
+
+def test_stop_signalled_is_true_at_once_before_the_loop_sets_the_stop_event() -> None:
+    seen: list[tuple[bool, bool]] = []
+
+    async def main(stop: asyncio.Event) -> int:
+        assert not rt.stop_signalled()
+        os.kill(os.getpid(), signal.SIGTERM)  # its Python handler runs before os.kill returns
+        seen.append((rt.stop_signalled(), stop.is_set()))  # no await yet: the loop has not run
+        await stop.wait()
+        return 0
+
+    try:
+        assert rt.run_node(main) == 0
+    finally:
+        stop_trace.reset()  # this pytest process is not stopping
+    assert seen == [(True, False)]
 
 
 @pytest.mark.zenoh
