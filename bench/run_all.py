@@ -37,6 +37,7 @@ BENCHES: dict[str, tuple[list[str], list[str]]] = {
     "bench_camera": ([], ["--frames", "10", "--seconds", "4"]),
     "bench_soak": ([], ["--kills", "5"]),
     "bench_decode": ([], ["--fuzz", "20000"]),
+    "bench_exit": (["--repeat", "5", "--hogs", "4"], ["--repeat", "1"]),
 }
 
 

@@ -101,7 +101,12 @@ async def _serve(stop: asyncio.Event, settings: rt.ZenohSettings) -> int:
         notifier.stopping()
         return 0
     finally:
-        session.close()
+        if not rt.close_session(session):
+            print(
+                f"formation router: session close still blocked after {rt.SESSION_CLOSE_S:g} s: "
+                "exiting without it",
+                file=sys.stderr,
+            )
         notifier.close()
 
 

@@ -29,8 +29,12 @@ __all__ = ["build_parser", "main", "with_tags"]
 
 LIVE_QUEUE: Final = 4
 RENDERED: Final = "rendered"
-JOIN_S: Final = 0.3
-"""At stop, how long the grabber gets to finish its frame and release the source (s)."""
+JOIN_S: Final = 0.15
+"""At stop, how long the grabber gets to finish its frame and release the source (s). Not
+longer: a rendered frame costs ~50 ms of CPU, several times that next to CPU hogs, and the stop
+has a second in all (bench/bench_exit.py: the camera was the slowest process to exit, its wait
+here the largest part). A grabber still in ``read()`` when the process leaves is no harm: the
+process ends with ``os._exit`` (no destructor runs, the kernel closes the device)."""
 FAST_QUEUE: Final = 256
 
 
@@ -352,9 +356,13 @@ async def _node(
             grabber.thread.join(JOIN_S)
         notifier.stopping()
         notifier.close()
-        if truth_session is not None:
-            truth_session.close()
-        session.close()
+        for s in (truth_session, session):  # each waited for at most rt.SESSION_CLOSE_S
+            if s is not None and not rt.close_session(s):
+                print(
+                    f"camera: Zenoh session close still blocked after {rt.SESSION_CLOSE_S:g} s "
+                    "(router not reading?): exiting without it",
+                    file=sys.stderr,
+                )
 
 
 if __name__ == "__main__":  # pragma: no cover

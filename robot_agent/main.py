@@ -163,8 +163,9 @@ restart it (RestartPreventExitStatus=78)."""
 EX_NO_MOTOR: Final = 69
 """Exit status when the motor backend cannot be opened (EX_UNAVAILABLE): systemd restarts the
 unit after RestartSec (a USB controller may be powered after the board)."""
-SESSION_CLOSE_S: Final = 0.3
-"""How long the agent waits for its Zenoh session to close at exit before leaving without it."""
+SESSION_CLOSE_S: Final = rt.SESSION_CLOSE_S
+"""How long the agent waits for its Zenoh session to close at exit before leaving without it
+(``runtime.close_session``)."""
 MOTOR_OPEN_ATTEMPTS: Final = 5
 MOTOR_OPEN_RETRY_S: Final = 0.2
 """The motor backend is opened up to this many times, this far apart, before the agent gives up
@@ -267,7 +268,7 @@ async def _boot(
             if motor is not None:
                 motor.close()
                 motor = None
-            if not _close_within(io, session, SESSION_CLOSE_S):
+            if not rt.close_session(session, SESSION_CLOSE_S, first=io.close):
                 log.info(
                     f"Zenoh session close still blocked after {SESSION_CLOSE_S:g} s (router "
                     "unreachable?); wheels are at zero, exiting without it"
@@ -330,20 +331,6 @@ async def _connect(
         return None
     log.info(f"connected to Zenoh at {where} after {time.monotonic() - started:.1f} s")
     return session
-
-
-def _close_within(io: rt.NodeIO, session: Any, timeout_s: float) -> bool:
-    """Drop ``io``'s declarations and close ``session`` in a daemon thread; True if that
-    finished within ``timeout_s``."""
-
-    def close() -> None:
-        io.close()
-        session.close()
-
-    thread = threading.Thread(target=close, name="zenoh-close", daemon=True)
-    thread.start()
-    thread.join(timeout_s)
-    return not thread.is_alive()
 
 
 def _settle(fut: asyncio.Future[Any], result: object) -> None:

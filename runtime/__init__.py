@@ -39,7 +39,7 @@ from runtime.bridge import (
     watch_liveliness,
     watch_liveliness_on_thread,
 )
-from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve
+from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve, stop_signalled
 from runtime.log import NodeLog
 from runtime.stall import (
     HANG_GAP_NO_LEASE_S,
@@ -54,11 +54,13 @@ from runtime.transport import (
     QOS_CONTROL,
     QOS_CRITICAL,
     QOS_TELEMETRY,
+    SESSION_CLOSE_S,
     Publishers,
     QoS,
     TransportError,
     ZenohSettings,
     add_zenoh_arguments,
+    close_session,
     make_config,
     open_session,
     open_session_async,
@@ -75,6 +77,7 @@ __all__ = [
     "QOS_CRITICAL",
     "QOS_TELEMETRY",
     "RESUME_QUARANTINE_S",
+    "SESSION_CLOSE_S",
     "USAGE_EXIT",
     "Inbox",
     "LivelinessHandler",
@@ -91,6 +94,7 @@ __all__ = [
     "ZenohSettings",
     "add_zenoh_arguments",
     "check_names",
+    "close_session",
     "declare_token",
     "finite_or_none",
     "hang_gap_for",
@@ -105,6 +109,7 @@ __all__ = [
     "run_node",
     "serve",
     "settings_from_args",
+    "stop_signalled",
     "subscribe",
     "subscribe_on_thread",
     "watch_liveliness",

@@ -2,8 +2,12 @@
 
 :func:`run_node` owns the event loop: SIGINT/SIGTERM set a stop ``asyncio.Event``, ``main`` gets
 ``grace_s`` to return, is then cancelled, every session opened through :mod:`runtime.transport`
-and still open is closed, and a watchdog thread forces the process out ``hard_exit_s`` after the
-first signal if anything still hangs (every process exits within a second of a stop signal).
+and still open is closed (each waited for at most ``SESSION_CLOSE_S``:
+:func:`runtime.transport.close_session`), and a watchdog thread forces the process out
+``hard_exit_s`` after the first signal if anything still hangs (every process exits within a
+second of a stop signal). Nothing in between waits without a bound: the loop's default executor
+is not joined (:func:`_run_loop`), a blocked session close is given up and logged, and
+:class:`StopTrace` says where a slow stop spent its time.
 
 :func:`serve` is the bootstrap every process shell uses on top of it: open the session (retrying
 while the router starts), hand the shell a :class:`NodeIO` (publishers, the subscription bridge,
@@ -21,7 +25,8 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Awaitable, Callable
+import time
+from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any, Final
@@ -47,6 +52,7 @@ __all__ = [
     "request_fast_exit",
     "run_node",
     "serve",
+    "stop_signalled",
 ]
 
 # --------------------------------------------------------------------------------------------
@@ -74,6 +80,68 @@ GC_FULL_EVERY: Final = 512
 def gc_generation(round_k: int) -> int:
     """The oldest generation to collect after round ``round_k`` (1, 2, ...) of manual GC."""
     return 2 if round_k % GC_FULL_EVERY == 0 else 1 if round_k % GC_MIDDLE_EVERY == 0 else 0
+
+
+STOP_TRACE_ENV: Final = "FORMATION_STOP_TRACE"
+"""Set (to anything but empty or ``0``) in a node's environment: it writes one ``stop trace``
+line to stderr when it leaves (:class:`StopTrace`); bench/bench_exit.py sets it."""
+STOP_TRACE_SLOW_S: Final = 0.5
+"""A stop slower than this (first signal to leaving) writes its trace line even without
+:data:`STOP_TRACE_ENV`, so a slow stop in a real run says where its time went."""
+
+
+class StopTrace:
+    """When each phase of a stop ended, from the first stop signal (``time.monotonic``).
+
+    :func:`run_node`, :func:`serve` and :func:`exit_fast` mark their phases (:meth:`mark`); the
+    process writes one line to stderr as it leaves (:meth:`report`), e.g. ``stop trace: signal
+    at 1234.567890 s, loop 1 ms, main 15 ms, ... exit 40 ms`` (when the handler ran, on the
+    system-wide ``time.monotonic`` clock, then each phase's end after it), when
+    :data:`STOP_TRACE_ENV` is set or the stop took more than :data:`STOP_TRACE_SLOW_S`. Marking
+    costs a clock read and a list append; nothing is recorded before the first signal.
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget any earlier stop (:func:`run_node` starts with a fresh trace)."""
+        self.t0: float | None = None
+        self.marks: list[tuple[str, float]] = []
+        self.reported = False
+
+    def signalled(self) -> None:
+        """The first stop signal (called from the Python signal handler)."""
+        if self.t0 is None:
+            self.t0 = time.monotonic()
+
+    def mark(self, phase: str) -> None:
+        if self.t0 is not None:
+            self.marks.append((phase, time.monotonic()))
+
+    def line(self) -> str:
+        if self.t0 is None:
+            return "stop trace: no stop signal"
+        t0 = self.t0
+        parts = [f"{phase} {(t - t0) * 1e3:.0f} ms" for phase, t in self.marks]
+        return f"stop trace: signal at {t0:.6f} s, " + ", ".join(parts)
+
+    def report(self) -> None:
+        """Write :meth:`line` once, if asked for or slow (never raises)."""
+        if self.t0 is None or self.reported:
+            return
+        self.reported = True
+        end = self.marks[-1][1] if self.marks else time.monotonic()
+        slow = end - self.t0 > STOP_TRACE_SLOW_S
+        if slow or os.environ.get(STOP_TRACE_ENV, "") not in ("", "0"):
+            with contextlib.suppress(OSError):
+                os.write(2, (self.line() + "\n").encode())
+
+
+stop_trace = StopTrace()
+"""This process's :class:`StopTrace` (reported at exit: :func:`exit_fast`, the watchdog, or the
+interpreter's own exit handlers for a process that leaves the usual way)."""
+atexit.register(stop_trace.report)
 
 
 class _ShutdownWatchdog:
@@ -110,9 +178,20 @@ class _ShutdownWatchdog:
         _forced_exit("run_node: shutdown did not finish in time, forcing exit")
 
 
+def stop_signalled() -> bool:
+    """True once a stop signal (SIGINT/SIGTERM) reached this process under :func:`run_node`:
+    set by the Python signal handler itself, at once, while the stop ``Event`` is set by a loop
+    callback that runs only after every callback already queued (a burst of samples, e.g. the
+    tokens of a whole agent host vanishing). A handler that would do costly work for an event
+    that is moot when the node stops checks this as well as the ``Event``."""
+    return stop_trace.t0 is not None
+
+
 def _forced_exit(message: str) -> None:
     """Leave the process now: no cleanup can run (the kernel closes the sockets, so peers see the
     links drop and the tokens vanish within milliseconds)."""
+    stop_trace.mark("forced")
+    stop_trace.report()
     with contextlib.suppress(OSError):
         os.write(2, message.encode() + b"\n")
     os._exit(FORCED_EXIT_CODE)
@@ -127,6 +206,7 @@ def _install_stop_signals(
     def on_signal_in_loop(signum: int) -> None:
         if stop.is_set():  # second signal: the operator insists
             watchdog.fire_now()
+        stop_trace.mark("loop")
         stop.set()
 
     for sig in _STOP_SIGNALS:
@@ -137,6 +217,7 @@ def _install_stop_signals(
         inner = signal.getsignal(sig)
 
         def on_signal_now(signum: int, frame: FrameType | None, _inner: Any = inner) -> None:
+            stop_trace.signalled()
             watchdog.arm()
             if callable(_inner):
                 _inner(signum, frame)
@@ -162,6 +243,7 @@ async def _supervise(main: NodeMain, grace_s: float, watchdog: _ShutdownWatchdog
             )
             task.cancel()
             await asyncio.wait({task})
+        stop_trace.mark("main")
     finally:
         stopping.cancel()
         watchdog.arm()  # from here on, shutdown is on the clock
@@ -169,12 +251,54 @@ async def _supervise(main: NodeMain, grace_s: float, watchdog: _ShutdownWatchdog
             loop.remove_signal_handler(sig)  # also detaches the loop's wake-up fd
             signal.signal(sig, previous[sig])
         # Close sessions while the loop is still open, so no callback posts to a closed loop.
-        forgotten = _tp._close_node_sessions()
+        forgotten, blocked = _tp._close_node_sessions(_tp.SESSION_CLOSE_S)
+        stop_trace.mark("sessions")
         if forgotten:
             print(f"run_node: closed {forgotten} session(s) main left open", file=sys.stderr)
+        if blocked:
+            print(
+                f"run_node: {blocked} Zenoh session close(s) still blocked after "
+                f"{_tp.SESSION_CLOSE_S:g} s (router not reading?): exiting without them",
+                file=sys.stderr,
+            )
     if task.cancelled():
         return 1
     return task.result()  # re-raises main's exception
+
+
+LEFTOVER_TASKS_S: Final = 0.1
+""":func:`_run_loop`: how long tasks still pending when the node's main ended get to finish
+after their cancellation."""
+
+
+def _run_loop(coro: Coroutine[Any, Any, int]) -> int:
+    """``asyncio.run(coro)`` without its unbounded waits at the end: the tasks left pending get
+    :data:`LEFTOVER_TASKS_S` after their cancellation, and the loop's default executor is shut
+    down without waiting for its threads (``loop.close()``; ``asyncio.run`` joins them, so a
+    ``run_in_executor`` call blocked in Zenoh, e.g. a query waiting for its timeout, held the
+    process until it returned). A thread left behind is a daemon-like worker the process does
+    not wait for: the entry point leaves with :func:`exit_fast`."""
+    loop = asyncio.new_event_loop()
+    asyncio.set_event_loop(loop)
+    try:
+        return loop.run_until_complete(coro)
+    finally:
+        try:
+            pending = [t for t in asyncio.all_tasks(loop) if not t.done()]
+            for t in pending:
+                t.cancel()
+            if pending:
+                loop.run_until_complete(asyncio.wait(pending, timeout=LEFTOVER_TASKS_S))
+            for t in pending:
+                if t.done() and not t.cancelled() and t.exception() is not None:
+                    loop.call_exception_handler(
+                        {"message": "unhandled exception in a task left at shutdown",
+                         "exception": t.exception(), "task": t}
+                    )  # fmt: skip
+            loop.run_until_complete(loop.shutdown_asyncgens())
+        finally:
+            asyncio.set_event_loop(None)
+            loop.close()  # its default executor: shutdown(wait=False)
 
 
 def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) -> int:
@@ -184,7 +308,10 @@ def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) 
       stop). A second signal forces the exit.
     * ``main`` gets ``grace_s`` seconds after ``stop`` to return, then it is cancelled (status 1).
     * Every session opened with :func:`open_session`/:func:`open_session_async` and still open
-      is closed before the loop is, whatever happened (return, exception, cancellation).
+      is closed before the loop is, whatever happened (return, exception, cancellation); each
+      close is waited for at most ``SESSION_CLOSE_S`` (a close still blocked is left to its
+      thread and said on stderr). Tasks still pending then get ``LEFTOVER_TASKS_S`` after their
+      cancellation; the loop's executor threads are not waited for.
     * If the process is still shutting down ``hard_exit_s`` seconds after the first signal (or
       after ``main`` ended), a watchdog writes to stderr and calls ``os._exit(70)``.
 
@@ -196,13 +323,16 @@ def run_node(main: NodeMain, *, grace_s: float = 0.4, hard_exit_s: float = 0.9) 
     if _tp._node_sessions is not None:
         raise RuntimeError("run_node is already running")
     watchdog = _ShutdownWatchdog(hard_exit_s)
+    stop_trace.reset()
     _tp._track_node_sessions(True)
     try:
-        return asyncio.run(_supervise(main, grace_s, watchdog))
+        return _run_loop(_supervise(main, grace_s, watchdog))
     finally:
-        _tp._close_node_sessions()  # again: a session opened during asyncio.run's own teardown
+        stop_trace.mark("loop closed")
+        _tp._close_node_sessions()  # again (no wait): one opened during the loop's teardown
         _tp._track_node_sessions(False)
         watchdog.disarm()
+        stop_trace.mark("run_node")
         request_fast_exit()
 
 
@@ -238,9 +368,11 @@ def exit_fast(code: int) -> None:
     handlers get :data:`EXIT_HANDLERS_DEADLINE_S`; past that, faulthandler (a C thread, no GIL
     needed) writes every thread's stack to stderr and exits with status 1."""
     faulthandler.dump_traceback_later(EXIT_HANDLERS_DEADLINE_S, exit=True)
+    stop_trace.mark("exit")
     try:
-        atexit._run_exitfuncs()
+        atexit._run_exitfuncs()  # the stop trace's report among them
     finally:
+        stop_trace.report()  # if the handlers failed before it (a no-op otherwise)
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
@@ -305,9 +437,11 @@ def serve(
 
     Opens the session (retrying while the router starts; on failure logs one line and returns
     1), then awaits ``body(io, stop)`` under :func:`run_node` (signals, bounded shutdown), and
-    closes the tokens, subscriptions and session whatever happens. ``name`` prefixes the log
-    lines (``io.log``). ``body`` declares its publishers and subscriptions on ``io``, prints its
-    ready line, runs until ``stop`` is set and returns the exit status (0 on a clean stop).
+    closes the tokens, subscriptions and session whatever happens, waiting for that at most
+    ``SESSION_CLOSE_S`` (then ``io.log`` says the close is still blocked and the node leaves).
+    ``name`` prefixes the log lines (``io.log``). ``body`` declares its publishers and
+    subscriptions on ``io``, prints its ready line, runs until ``stop`` is set and returns the
+    exit status (0 on a clean stop).
     """
 
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
@@ -328,8 +462,13 @@ def serve(
         try:
             return await body(io, stop)
         finally:
-            io.close()
-            session.close()
+            stop_trace.mark("body")
+            if not _tp.close_session(session, first=io.close):
+                log.info(
+                    f"Zenoh session close still blocked after {_tp.SESSION_CLOSE_S:g} s (router "
+                    "not reading?): exiting without it"
+                )
+            stop_trace.mark("session")
 
     return run_node(main, grace_s=grace_s, hard_exit_s=hard_exit_s)
 
