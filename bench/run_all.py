@@ -38,6 +38,7 @@ BENCHES: dict[str, tuple[list[str], list[str]]] = {
     "bench_soak": ([], ["--kills", "5"]),
     "bench_decode": ([], ["--fuzz", "20000"]),
     "bench_exit": (["--repeat", "5", "--hogs", "4"], ["--repeat", "1"]),
+    "bench_token_burst": ([], ["--repeat", "1", "--robots", "100", "--lost", "50"]),
 }
 
 
