@@ -221,14 +221,18 @@ class Fleet:
 
 
 def fleet_fixture(
-    tmp_path_factory: pytest.TempPathFactory, name: str, *extra: str
+    tmp_path_factory: pytest.TempPathFactory,
+    name: str,
+    *extra: str,
+    make: Callable[[Spawner, Path], Fleet] | None = None,
 ) -> Iterator[Fleet]:
-    """Body of a module-scoped fleet fixture: start, yield, stop and check nothing is left."""
+    """Body of a module-scoped fleet fixture: start, yield, stop and check nothing is left
+    (``make``: a subclass's constructor instead of ``Fleet(spawner, tmp, name, *extra)``)."""
     tmp = tmp_path_factory.mktemp(name)
     spawner = Spawner(tmp / "procs")
     fl: Fleet | None = None
     try:
-        fl = Fleet(spawner, tmp, name, *extra)
+        fl = Fleet(spawner, tmp, name, *extra) if make is None else make(spawner, tmp)
         yield fl
     finally:
         if fl is not None:

@@ -19,7 +19,7 @@ from typing import Any
 import msgpack
 import pytest
 from conftest import Spawner
-from fault_fleet import formed, until
+from fault_fleet import fleet_fixture, formed, until
 from test_estop_latched import Fleet as _BaseFleet
 
 import runtime as rt
@@ -47,17 +47,7 @@ class Fleet(_BaseFleet):
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
-    tmp = tmp_path_factory.mktemp("fuzz")
-    spawner = Spawner(tmp / "procs")
-    fl: Fleet | None = None
-    try:
-        fl = Fleet(spawner, tmp)
-        yield fl
-    finally:
-        if fl is not None:
-            fl.obs.close()
-        problems = spawner.cleanup()
-        assert not problems, problems
+    yield from fleet_fixture(tmp_path_factory, "fuzz", make=Fleet)
 
 
 def rejected_counts(fl: Fleet, since: float) -> dict[str, int]:
