@@ -61,6 +61,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "coordinator.node",
             "coordinator.outputs",
             "coordinator.estop_source",
+            "coordinator.node_election",
             "coordinator.main",
             "sim_plant.node",
             "sim_plant.inputs",
@@ -309,7 +310,7 @@ def test_one_subscription_bridge_has_teeth(tmp_path: Path) -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 18  # ..., robot_agent.host_status, robot_agent.accel_build
+    assert len(shells) == 19  # ..., robot_agent.accel_build, coordinator.node_election
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 
