@@ -56,6 +56,7 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
             "robot_agent.host",
             "robot_agent.host_main",
             "robot_agent.host_status",
+            "robot_agent.host_estop",
             "robot_agent.main",
             "robot_agent.accel_build",
             "coordinator.node",
@@ -310,7 +311,7 @@ def test_one_subscription_bridge_has_teeth(tmp_path: Path) -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 19  # ..., robot_agent.accel_build, coordinator.node_election
+    assert len(shells) == 20  # ..., coordinator.node_election, robot_agent.host_estop
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 
