@@ -7,10 +7,10 @@ Usage::
 
 A thin asyncio shell over :class:`coordinator.core.CoordinatorCore`, built from the scenario by
 ``scenario.assemble`` (the assembly ``formation/simulate.py`` uses too); the standby election
-is :mod:`coordinator.election`, the lockstep rules :mod:`robot_agent.lockstep`; what a tick
-publishes is encoded by :mod:`coordinator.outputs`, the latched e-stop is held by
-:mod:`coordinator.estop_source`. It prints
-exactly one line ``coordinator ready`` on stdout once its session is open, its subscriptions
+is :mod:`coordinator.election` (its handlers :mod:`coordinator.node_election`), the lockstep
+rules :mod:`robot_agent.lockstep`; what a tick publishes is encoded by
+:mod:`coordinator.outputs`, the latched e-stop is held by :mod:`coordinator.estop_source`. It
+prints exactly one line ``coordinator ready`` on stdout once its session is open, its subscriptions
 and its liveliness token ``formation/<fleet>/alive/coordinator/<name>`` are declared, and exits
 0 within a second of SIGINT/SIGTERM.
 
@@ -20,7 +20,6 @@ Theory of operation: docs/process-shells.md (inputs, outputs, realtime and locks
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import os
 import socket
 import time
@@ -29,12 +28,10 @@ from typing import Any, Final
 
 import runtime as rt
 from bus_schemas import (
-    Assignment,
     Clock,
     CoordinatorStatus,
     DecodeError,
     Heartbeat,
-    Leader,
     Pose,
     PoseBatch,
     RejectCounts,
@@ -44,28 +41,27 @@ from bus_schemas import (
     to_map,
 )
 from coordinator.core import CoordinatorOutput, pose_stale_s
-from coordinator.election import Election, Takeover
+from coordinator.election import Election
 from coordinator.estop_source import EstopSource, attach_estop_source
+from coordinator.node_election import MAX_ROBOTS, ElectionHandlers
 from coordinator.outputs import TickOutputs
 from robot_agent.estop import EstopLatch
 from robot_agent.lockstep import Arrivals, Replay
 from scenario import Scenario
 from scenario.assemble import coordinator_core, path_conflicts
 
-__all__ = ["CoordinatorNode", "attach_estop_source"]
+__all__ = ["MAX_ROBOTS", "CoordinatorNode", "attach_estop_source"]
 
 STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
 """Heartbeat period (s): a standby learns the active's state (``leader_t0``, epoch) from it, and
 an instance resuming from a hang learns from it that it was replaced."""
-MAX_ROBOTS: Final = 4096
-"""Distinct robot ids tracked (made-up ids cannot grow memory without bound)."""
 POSITION_LIMIT_M: Final = 1.0e4
 """A pose farther than this from the origin (m, per axis) is rejected: it can only be garbage,
 and squared distances of absurd positions overflow the assignment's costs."""
 
 
-class CoordinatorNode:
+class CoordinatorNode(ElectionHandlers):
     """State and handlers of the coordinator; Zenoh-free apart from the ``publish`` callable.
 
     Handlers run on the event loop and never raise.
@@ -251,62 +247,6 @@ class CoordinatorNode:
         if self.active and not self.lockstep and self.t0_s is not None:
             self.tick(time.monotonic())  # (tick counts its own errors)
 
-    @property
-    def active(self) -> bool:
-        """This instance ticks and publishes (the election's decision)."""
-        return self.election.active
-
-    @property
-    def epoch(self) -> int:
-        return self.election.epoch
-
-    def on_peer_alive(self, name: str, alive: bool) -> None:
-        """The liveliness token of coordinator instance ``name`` appeared or vanished."""
-        if not self.election.peer_alive(name, alive):
-            return
-        if alive:
-            self.log.info(f"coordinator {name} alive")
-        else:
-            self.log.info(f"coordinator {name} gone")
-            if not self.lockstep:
-                self.elect(time.monotonic())
-
-    def on_heartbeat(self, rx: rt.Received) -> None:
-        """Another instance's heartbeat: its role, epoch and trajectory origin."""
-        try:
-            msg = decode(rx.payload, Heartbeat)
-            if isinstance(msg, DecodeError):
-                self._reject("heartbeat", msg)
-                return
-            # Two actives (a split brain, or two instances started without --standby): the
-            # loser stops at once, so the robots get one coordinator's setpoints again within
-            # one heartbeat period.
-            why = self.election.heartbeat(
-                msg.name, msg.active, msg.epoch, msg.leader_t0, now_s=self._now()
-            )
-            refusal = self.election.last_refusal
-            if refusal is not None:
-                self._reject("heartbeat", f"from {msg.name}: {refusal}", refusal)
-            if why is not None:
-                self.step_down(why)
-        except Exception as exc:
-            self._internal("on_heartbeat", exc)
-
-    def on_leader(self, rx: rt.Received) -> None:
-        """The active instance's ``leader``: a standby checks trajectory origins against it
-        (coordinator.election, spoofed heartbeats)."""
-        try:
-            if self.active:
-                return
-            self.rx["leader"] += 1
-            msg = decode(rx.payload, Leader)
-            if isinstance(msg, DecodeError):
-                self._reject("leader", msg)
-                return
-            self.election.observe_leader(msg.t, msg.x, msg.y, self._now())
-        except Exception as exc:
-            self._internal("on_leader", exc)
-
     def on_estop(self, rx: rt.Received) -> None:
         """An operator's ``estop``: latch or release its scope (coordinator.estop_source)."""
         self.rx["estop"] += 1
@@ -315,60 +255,6 @@ class CoordinatorNode:
     def on_estop_state(self, payloads: Any) -> None:
         """Another coordinator's latched state (queried at start): its engagements are added."""
         self.estop_source.on_state(payloads)
-
-    def on_assignment(self, rx: rt.Received) -> None:
-        """The active instance's assignment: a standby keeps it to seed its hysteresis."""
-        try:
-            if self.active:
-                return
-            msg = decode(rx.payload, Assignment)
-            if isinstance(msg, DecodeError):
-                self._reject("assignment", msg)
-                return
-            if len(msg.robots) <= MAX_ROBOTS:
-                self.peer_assignment = dict(msg.robots)
-        except Exception as exc:
-            self._internal("on_assignment", exc)
-
-    def elect(self, now_s: float) -> bool:
-        """Take over if the election says so at ``now_s``; returns True if it did. Never
-        raises."""
-        try:
-            if not self.election.should_take_over(now_s):
-                return False
-            self._take_over(now_s, self.election.take_over())
-            return True
-        except Exception as exc:
-            self._internal("elect", exc)
-            return False
-
-    def _take_over(self, now_s: float, takeover: Takeover) -> None:
-        if takeover.leader_t0 is not None and not self.lockstep:
-            # Continue the same trajectory: the virtual leader is a pure function of time and
-            # t0 is on the same clock (time.monotonic() of this host, see docs/faults.md).
-            self.t0_s = takeover.leader_t0
-            self.core.t0_s = takeover.leader_t0
-        seed = {rid: slot for rid, slot in self.peer_assignment.items() if rid in self.alive}
-        self.core.assigner.seed_incumbent(seed)
-        self.core.assignment = dict(seed)
-        continued = takeover.leader_t0 is not None
-        self.log.info(
-            f"active (epoch {takeover.epoch}): took over with the trajectory origin "
-            f"{'of the previous instance' if continued else 'at this tick'} and "
-            f"{len(seed)} incumbents"
-        )
-        self.publish_heartbeat()
-        if not self.lockstep:
-            self.tick(now_s)
-
-    def step_down(self, why: str) -> None:
-        """Stop publishing (become a standby); never raises."""
-        now = time.monotonic() if not self.lockstep else self.sim_t
-        if not self.election.step_down(now):
-            return
-        self.log.info(f"standby: {why}")
-        with contextlib.suppress(Exception):
-            self.publish_heartbeat()
 
     def on_pose(self, rx: rt.Received) -> None:
         """A measured pose ``robot/<id>/pose``."""

@@ -20,14 +20,14 @@ Figures (``write_all``):
   figure) with a caption, and a short summary from ``metrics.json`` when it is there.
 
 Every image has a fixed size in inches and dots per inch, at most :data:`MAX_PX` pixels on each
-side whatever the number of robots or ticks; long series are decimated for drawing only.
+side whatever the number of robots or ticks; long series are decimated for drawing only (the
+shared look, sizes and decimation: :mod:`formation.figures_style`).
 """
 
 from __future__ import annotations
 
 import json
 import math
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Final
@@ -42,6 +42,22 @@ from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from formation.figures_style import (
+    COLORS,
+    DETAIL_MAX,
+    DPI,
+    LEGEND_MAX,
+    MAX_PX,
+    draw_stride,
+    draw_world,
+    envelope,
+    nan_percentiles,
+    nanmax,
+    new_figure,
+    no_data_figure,
+    robot_style,
+    save_figure,
+)
 from formation.metrics import formation_error, role_changes
 from formation.runlog import RunLog
 
@@ -53,6 +69,7 @@ __all__ = [
     "LEGEND_MAX",
     "MAX_PX",
     "caption",
+    "draw_world",
     "error_figure",
     "plot_error",
     "plot_motor_power",
@@ -63,23 +80,6 @@ __all__ = [
     "write_all",
     "write_index",
 ]
-
-MAX_PX: Final = 2000
-"""No figure is wider or taller than this many pixels."""
-DPI: Final = 110
-DETAIL_MAX: Final = 10
-"""Per-robot panels/lines up to this many robots; aggregate views beyond."""
-LEGEND_MAX: Final = 20
-"""Per-robot colours and a legend in the trajectory plot up to this many robots."""
-_MAX_POINTS: Final = 1500  # points drawn per time series (decimation for drawing only)
-
-# 20 qualitative colours, the paper's red, green, blue first (its robots wore those colours).
-COLORS: Final = (
-    "#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf",
-    "#bcbd22", "#7f7f7f", "#000075", "#800000", "#469990", "#f032e6", "#b8860b", "#6a3d9a",
-    "#4b0082", "#00a86b", "#ff1493", "#2f4f4f",
-)  # fmt: skip
-_STYLES: Final = ("-", "--", ":", "-.")
 
 FIGURES: Final = {
     "trajectories.png": "robots' reference points (solid) and the virtual trajectories (dashed)",
@@ -118,117 +118,18 @@ def caption(name: str, n_robots: int) -> str:
     return FIGURES.get(name, "")
 
 
-def robot_style(i: int) -> tuple[str, str]:
-    """``(colour, line style)`` of robot ``i``: 20 distinct colours drawn solid for robots
-    0-19, the same colours dashed for 20-39, dotted for 40-59, dash-dot for 60-79, so no two of
-    the first 80 robots look the same (per-robot views stop at :data:`LEGEND_MAX` anyway)."""
-    return COLORS[i % len(COLORS)], _STYLES[(i // len(COLORS)) % len(_STYLES)]
-
-
-def _color(i: int) -> str:
-    return robot_style(i)[0]
-
-
-def _figure(w_in: float, h_in: float) -> Figure:
-    w = min(w_in, MAX_PX / DPI)
-    h = min(h_in, MAX_PX / DPI)
-    return plt.figure(figsize=(w, h), dpi=DPI, layout="constrained")
-
-
-def _save(fig: Figure, path: Path) -> None:
-    fig.savefig(path, dpi=DPI)  # no bbox_inches="tight": the size stays the figure's
-    plt.close(fig)
-
-
-def _no_data(title: str) -> Figure:
-    """A small figure saying the run recorded no tick (an empty or at once interrupted run)."""
-    fig = _figure(6.0, 2.0)
-    fig.text(0.5, 0.6, title, ha="center", va="center", fontsize=11)
-    fig.text(0.5, 0.3, "no tick recorded: nothing to plot", ha="center", color="0.4")
-    return fig
-
-
-def _stride(ticks: int) -> int:
-    return max(1, math.ceil(ticks / _MAX_POINTS))
-
-
-def _envelope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Decimate a series for drawing without losing its extremes: per bucket of ticks, the
-    minimum and the maximum (NaN ignored), so no peak disappears from a line plot."""
-    k = _stride(t.size)
-    if k == 1:
-        return t, y
-    nb = math.ceil(t.size / k)
-    pad = nb * k - t.size
-    if pad:
-        y = np.concatenate([y, np.repeat(y[-1:], pad, axis=0)])
-    yb = y.reshape(nb, k, *y.shape[1:])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        lo, hi = np.nanmin(yb, axis=1), np.nanmax(yb, axis=1)
-    tb = t[::k]
-    return np.repeat(tb, 2), np.stack([lo, hi], axis=1).reshape(2 * nb, *y.shape[1:])
-
-
-def _nan_percentiles(a: np.ndarray, qs: Sequence[float]) -> np.ndarray:
-    """Percentiles over axis 1, NaN ignored; NaN for rows with no finite value."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.asarray(np.nanpercentile(a, qs, axis=1))
-
-
-def _nanmax(a: np.ndarray, axis: int | None = None) -> Any:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmax(a, axis=axis)
-
-
 # -- trajectories ----------------------------------------------------------------------------
-
-
-def draw_world(ax: Any, world: Any, scale: float = 100.0) -> int:
-    """Draw a ``WorldMap``'s obstacles (grey: discs, thick lines for segments) and its arena
-    (a dotted rectangle) on ``ax`` in units of ``1 / scale`` m; returns how many were drawn."""
-    if world is None:
-        return 0
-    from matplotlib.patches import Circle, Rectangle
-
-    from robot_agent.params import CircleObstacle
-
-    drawn = 0
-    label: str | None = "obstacles"
-    for o in world.obstacles:
-        if isinstance(o, CircleObstacle):
-            ax.add_patch(
-                Circle((o.x * scale, o.y * scale), o.radius_m * scale, fc="0.6", ec="0.2",
-                       lw=0.8, zorder=2, label=label)
-            )  # fmt: skip
-        else:
-            lw = max(2.0, 2.0 * o.radius_m * scale * 0.5)
-            ax.plot([o.x1 * scale, o.x2 * scale], [o.y1 * scale, o.y2 * scale], "-",
-                    color="0.35", lw=lw, solid_capstyle="round", zorder=2, label=label)  # fmt: skip
-        label = None
-        drawn += 1
-    a = world.arena
-    if a is not None:
-        ax.add_patch(
-            Rectangle((a.x_min * scale, a.y_min * scale), (a.x_max - a.x_min) * scale,
-                      (a.y_max - a.y_min) * scale, fill=False, ec="0.3", ls=":", lw=1.0,
-                      zorder=1, label="arena")
-        )  # fmt: skip
-        drawn += 1
-    return drawn
 
 
 def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
     if not log.t_s.size:
-        _save(_no_data(title or "Trajectories"), path)
+        save_figure(no_data_figure(title or "Trajectories"), path)
         return
     n = len(log.robot_ids)
     m = log.slot_xy.shape[1]
     ticks = log.t_s.size
-    k = np.unique(np.r_[np.arange(0, ticks, _stride(ticks)), max(ticks - 1, 0)])[: ticks or 0]
-    fig = _figure(11.0 if n <= LEGEND_MAX else 10.0, 7.5)
+    k = np.unique(np.r_[np.arange(0, ticks, draw_stride(ticks)), max(ticks - 1, 0)])[: ticks or 0]
+    fig = new_figure(11.0 if n <= LEGEND_MAX else 10.0, 7.5)
     ax = fig.add_subplot()
     few_slots = m <= LEGEND_MAX
     slot_lw = 1.0 if few_slots else 0.5
@@ -292,7 +193,7 @@ def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, alpha=0.3)
     ax.set_title(title or "Robots' reference points (solid) and virtual trajectories (dashed)")
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 # -- motor power -----------------------------------------------------------------------------
@@ -300,12 +201,12 @@ def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
 
 def plot_motor_power(log: RunLog, path: Path) -> None:
     if not log.t_s.size:
-        _save(_no_data("Motor power"), path)
+        save_figure(no_data_figure("Motor power"), path)
         return
     n = len(log.robot_ids)
     if n <= DETAIL_MAX:
-        t, pw = _envelope(log.t_s, log.power * 100)
-        fig = _figure(9.0, 1.5 * max(n, 1) + 1.0)
+        t, pw = envelope(log.t_s, log.power * 100)
+        fig = new_figure(9.0, 1.5 * max(n, 1) + 1.0)
         axes = fig.subplots(max(n, 1), 1, sharex=True, squeeze=False)
         for j, rid in enumerate(log.robot_ids):
             ax = axes[j, 0]
@@ -318,22 +219,22 @@ def plot_motor_power(log: RunLog, path: Path) -> None:
             h, lab = axes[0, 0].get_legend_handles_labels()
             fig.legend(h, lab, loc="outside upper right", ncols=2, fontsize=8)
         fig.suptitle("Motor power per wheel (% of maximum)")
-        _save(fig, path)
+        save_figure(fig, path)
         return
-    fig = _figure(11.0, 9.0)
+    fig = new_figure(11.0, 9.0)
     axes = fig.subplots(3, 1, sharex=True, height_ratios=[1, 1, 1.4])
     t_full, pw_full = log.t_s, log.power * 100
     for w, (name, c) in enumerate((("right wheel", "tab:red"), ("left wheel", "tab:blue"))):
         ax = axes[w]
         stats = np.stack(
             [
-                *_nan_percentiles(pw_full[:, :, w], (5, 50, 95)),
+                *nan_percentiles(pw_full[:, :, w], (5, 50, 95)),
                 np.nanmin(pw_full[:, :, w], axis=1),
-                _nanmax(pw_full[:, :, w], axis=1),
+                nanmax(pw_full[:, :, w], axis=1),
             ],
             axis=1,
         )
-        t, env = _envelope(t_full, stats)
+        t, env = envelope(t_full, stats)
         p5, p50, p95, lo, hi = env.T
         ax.fill_between(t, lo, hi, color=c, alpha=0.12, lw=0, label="min-max")
         ax.fill_between(t, p5, p95, color=c, alpha=0.35, lw=0, label="5-95 %")
@@ -341,7 +242,7 @@ def plot_motor_power(log: RunLog, path: Path) -> None:
         ax.set_ylabel(f"{name} (%)")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize=7, ncols=3)
-    k = _stride(t_full.size)
+    k = draw_stride(t_full.size)
     nb = math.ceil(t_full.size / k)
     mag_full = np.max(np.abs(pw_full), axis=2)  # (T, n)
     if nb * k > t_full.size:
@@ -363,7 +264,7 @@ def plot_motor_power(log: RunLog, path: Path) -> None:
     axes[2].set_xlabel("time (s)")
     fig.colorbar(im, ax=axes[2], label="max |power| of the two wheels (%)")
     fig.suptitle(f"Motor power over {n} robots (% of maximum)")
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 # -- formation error -------------------------------------------------------------------------
@@ -373,11 +274,11 @@ def _error_series(log: RunLog) -> tuple[np.ndarray, list[tuple[str, np.ndarray, 
     err = formation_error(log) * 100  # cm
     n = err.shape[1]
     if n <= DETAIL_MAX:
-        t, env = _envelope(log.t_s, err)
+        t, env = envelope(log.t_s, err)
         series = [(rid, env[:, j], *robot_style(j)) for j, rid in enumerate(log.robot_ids)]
         return t, series
-    stats = np.stack([*_nan_percentiles(err, (50, 90)), _nanmax(err, axis=1)], axis=1)
-    t, env = _envelope(log.t_s, stats)
+    stats = np.stack([*nan_percentiles(err, (50, 90)), nanmax(err, axis=1)], axis=1)
+    t, env = envelope(log.t_s, stats)
     p50, p90, mx = env.T
     return t, [
         ("max over robots", mx, "tab:red", "-"),
@@ -387,16 +288,16 @@ def _error_series(log: RunLog) -> tuple[np.ndarray, list[tuple[str, np.ndarray, 
 
 
 def plot_error(log: RunLog, path: Path, settle_s: float | None = None) -> None:
-    _save(error_figure(log, settle_s), path)
+    save_figure(error_figure(log, settle_s), path)
 
 
 def error_figure(log: RunLog, settle_s: float | None = None) -> Figure:
     """The formation error figure (axes: linear from 0 above the peak, then log); unsaved."""
     if not log.t_s.size:
-        return _no_data("Formation error")
+        return no_data_figure("Formation error")
     t, series = _error_series(log)
     n = len(log.robot_ids)
-    fig = _figure(10.0, 6.5)
+    fig = new_figure(10.0, 6.5)
     ax_lin, ax_log = fig.subplots(2, 1, sharex=True)
     finite = np.concatenate([np.zeros(0)] + [v[np.isfinite(v)] for _, v, _, _ in series])
     top = float(np.max(finite)) if finite.size else 1.0
@@ -434,18 +335,18 @@ def error_figure(log: RunLog, settle_s: float | None = None) -> Figure:
 
 
 def plot_roles(log: RunLog, path: Path) -> None:
-    _save(roles_figure(log), path)
+    save_figure(roles_figure(log), path)
 
 
 def roles_figure(log: RunLog) -> Figure:
     """The role figure (slot steps up to DETAIL_MAX robots, else role-change events); unsaved."""
     if not log.t_s.size:
-        return _no_data("Roles")
+        return no_data_figure("Roles")
     n = len(log.robot_ids)
     m = log.slot_xy.shape[1]
     changes = role_changes(log)
     if n <= DETAIL_MAX:
-        fig = _figure(10.0, min(0.45 * max(m, n) + 2.0, 8.0))
+        fig = new_figure(10.0, min(0.45 * max(m, n) + 2.0, 8.0))
         ax = fig.add_subplot()
         for j, rid in enumerate(log.robot_ids):
             s = log.slot_of[:, j].astype(float)
@@ -471,7 +372,7 @@ def roles_figure(log: RunLog) -> Figure:
             f"Slot of each robot; {len(changes)} role change(s) after the initial assignment (|)"
         )
         return fig
-    fig = _figure(11.0, 8.0)
+    fig = new_figure(11.0, 8.0)
     ax_n, ax_ev = fig.subplots(2, 1, sharex=True, height_ratios=[1, 3])
     held = (log.slot_of >= 0).sum(axis=1)
     leader = (log.slot_of == 0).any(axis=1)

@@ -43,7 +43,8 @@ E-stop as latched fleet state (``robot_agent.estop``, docs/faults.md): every hos
 its own latch. Like ``formation agent``, the host asks the coordinators for the latched state
 before it subscribes to anything that moves its robots (so robots of a host that starts or is
 respawned under an e-stop come up in ESTOP), again when it resumes from a stop, and every
-``ESTOP_REFRESH_S`` in realtime (:meth:`HostNode.on_estop_state`).
+``ESTOP_REFRESH_S`` in realtime (:meth:`HostNode.on_estop_state`; the handlers are
+:mod:`robot_agent.host_estop`).
 
 Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
 logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
@@ -67,13 +68,11 @@ from bus_schemas import (
     BATCH_CHUNK,
     Clock,
     DecodeError,
-    Estop,
     PoseBatch,
     SetpointBatch,
     StatusBatch,
     WheelsBatch,
     decode,
-    decode_estop_answer,
     encode,
     keys,
 )
@@ -82,6 +81,7 @@ from robot_agent.estop import ESTOP_REFRESH_S
 from robot_agent.firmware import Mode, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
+from robot_agent.host_estop import HostEstop
 from robot_agent.host_grid import NeighbourGrid, Seen
 from robot_agent.host_status import StatusRow, status_batches, status_row
 from robot_agent.lockstep import Arrivals, Replay
@@ -121,7 +121,7 @@ GC_MAX_GAP_S: Final = 0.5
 """Realtime with manual collections (:attr:`HostNode.manual_gc`): the longest time without one."""
 
 
-class HostNode:
+class HostNode(HostEstop):
     """Many :class:`AgentNode` sharing one session's batched I/O; Zenoh-free apart from
     ``publish``. Handlers take one :class:`runtime.transport.Received`, run on the event
     loop and never raise.
@@ -242,33 +242,6 @@ class HostNode:
             self.request_estop_state(now_s)  # an e-stop engaged or released meanwhile
         return self.stall.quarantined(now_s)
 
-    # -- the latched e-stop --------------------------------------------------------------------
-
-    def on_estop_state(self, payloads: Sequence[bytes], _token: int = 0) -> None:
-        """The coordinators' latched e-stop state (a query's answer; ``_token``: the querier's,
-        unused): each hosted robot merges its scopes (``AgentNode.on_estop_state``: adds
-        engagements, releases only those the answer saw released). No answer: no change."""
-        try:
-            if not payloads:
-                return
-            answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
-            for node in self.nodes.values():
-                node.on_estop_state(answers)
-            stopped = sum(n.estop.stopped(n.robot_id) for n in self.nodes.values())
-            if stopped:
-                self.log.limited("estop-state", f"latched e-stop: {stopped} robot(s) stopped")
-        except Exception as exc:
-            self._internal("on_estop_state", exc)
-
-    def request_estop_state(self, now_s: float) -> None:
-        """Ask the coordinators for the latched e-stop state (through :attr:`estop_query`)."""
-        self.estop_queried_s = now_s
-        if self.estop_query is not None:
-            try:
-                self.estop_query()
-            except Exception as exc:
-                self._internal("estop_query", exc)
-
     # -- neighbours ----------------------------------------------------------------------------
 
     def cooperative(self, rid: str, now_s: float) -> bool:
@@ -361,32 +334,6 @@ class HostNode:
                     node.accept_setpoint(FwSetpoint(x, y, vx, vy, th, slot, t), role, rx.rx_s, tick)
         except Exception as exc:
             self._internal("on_setpoints", exc)
-
-    def on_estop(self, rx: rt.Received) -> None:
-        """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
-        try:
-            self.rx["estop"] += 1
-            msg = decode(rx.payload, Estop)
-            if isinstance(msg, DecodeError):
-                self._reject("estop", msg)
-                return
-            if msg.robot is None:
-                targets = list(self.nodes.values())
-            elif msg.robot in self.nodes:
-                targets = [self.nodes[msg.robot]]
-            else:
-                return
-            for node in targets:  # each robot's latched scopes (robot_agent.estop)
-                node.rx["estop"] += 1
-                node.estop.apply(msg.engage, msg.robot, msg.id)
-                node.sync_estop()
-            what = "all robots" if msg.robot is None else msg.robot
-            self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")
-            if msg.engage and not self.lockstep:
-                now = time.monotonic()
-                self._publish_steps((n, n.step(now)) for n in targets)
-        except Exception as exc:
-            self._internal("on_estop", exc)
 
     def on_status(self, rx: rt.Received) -> None:
         """Realtime: a robot's status (``formation agent``); its mode, while fresh, makes it a

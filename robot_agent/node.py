@@ -10,6 +10,9 @@ It prints exactly one line ``agent <id> ready`` on stdout once its Zenoh session
 subscriptions are declared and its liveliness token ``formation/<fleet>/alive/robot/<id>`` is
 declared; it exits 0 within a second of SIGINT/SIGTERM (``runtime.transport.run_node``).
 
+The neighbours (other robots' poses, who is cooperative) are handled by
+:mod:`robot_agent.node_neighbours`, the e-stop query by :mod:`robot_agent.node_estop`.
+
 Theory of operation: docs/process-shells.md (inputs, outputs, realtime and lockstep).
 """
 
@@ -22,7 +25,7 @@ import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Final, Literal
+from typing import Any, Literal
 
 import runtime as rt
 from bus_schemas import (
@@ -30,11 +33,9 @@ from bus_schemas import (
     DecodeError,
     Estop,
     Pose,
-    PoseBatch,
     RejectCounts,
     Setpoint,
     Status,
-    StatusBatch,
     Wheels,
     decode,
     encode,
@@ -48,9 +49,6 @@ from robot_agent.firmware import Setpoint as FwSetpoint
 from robot_agent.lockstep import Arrivals, Replay, SetpointWindow
 from robot_agent.neighbours import (
     NEIGHBOUR_STALE_S,
-    is_cooperative,
-    is_current,
-    neighbour,
 )
 from robot_agent.params import AgentConfig
 from robot_agent.safety_filter import Neighbour
@@ -60,12 +58,18 @@ from runtime.timers import run_timers
 from .node_motor import (
     MotorOutput,
 )
+from .node_neighbours import MAX_NEIGHBOURS, NodeNeighbours
 from .node_status import clearance_or_none, filter_counters, status_tracking
 
-__all__ = ["NEIGHBOUR_STALE_S", "AgentNode", "MotorOutput", "Publish", "status_tracking"]
+__all__ = [
+    "MAX_NEIGHBOURS",
+    "NEIGHBOUR_STALE_S",
+    "AgentNode",
+    "MotorOutput",
+    "Publish",
+    "status_tracking",
+]
 
-MAX_NEIGHBOURS: Final = 1024
-"""Distinct neighbour ids kept (a flood of made-up ids cannot grow memory without bound)."""
 LoopMode = Literal["on-pose", "fixed"]
 
 
@@ -94,7 +98,7 @@ def clock_wheels(msg: Clock) -> dict[str, tuple[float, float]]:
     return {r: (a, b) for r, a, b in zip(msg.enc_robots, msg.enc_wr, msg.enc_wl, strict=True)}
 
 
-class AgentNode:
+class AgentNode(NodeNeighbours):
     """State and handlers of one agent; Zenoh-free apart from the ``publish`` callable.
 
     Every handler takes one :class:`runtime.transport.Received` and runs on the event loop;
@@ -292,95 +296,6 @@ class AgentNode:
         else:
             self.setpoint = _SetpointIn(sp, role, rx_s, None)
 
-    def on_poses(self, rx: rt.Received) -> None:
-        """Batched poses: the other robots' poses and capture times, for repulsion and the
-        safety filter (``robot_agent.neighbours``)."""
-        try:
-            self.rx["poses"] += 1
-            msg = decode(rx.payload, PoseBatch)
-            if isinstance(msg, DecodeError):
-                self._reject("poses", msg)
-                return
-            me = self.robot_id
-            nb = self._neighbours
-            rx_s: float | None = None if self.lockstep else rx.rx_s
-            if self.lockstep:
-                cap = msg.stamp
-            else:
-                cap = self.clocks.capture_to_local(rx.key, msg.t, msg.stamp, rx.rx_s)
-            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
-                if rid == me:
-                    continue
-                entry = nb.get(rid)
-                if entry is None:
-                    if len(nb) >= MAX_NEIGHBOURS:
-                        self._prune_neighbours()
-                        if len(nb) >= MAX_NEIGHBOURS:
-                            continue
-                    nb[rid] = [x, y, th, cap, rx_s]
-                else:
-                    entry[0] = x
-                    entry[1] = y
-                    entry[2] = th
-                    entry[3] = cap
-                    entry[4] = rx_s
-                if rx_s is None:
-                    self._pending_neighbours.add(rid)
-            if len(self._pending_neighbours) > 4 * MAX_NEIGHBOURS:  # no clock for ages
-                self._pending_neighbours.compact()
-        except Exception as exc:
-            self._internal("on_poses", exc)
-
-    def on_status(self, rx: rt.Received) -> None:
-        """Realtime: another robot's status; its mode makes it cooperative while fresh."""
-        try:
-            self.rx["status"] += 1
-            got = status_tracking(rx.key, rx.payload)
-            if not isinstance(got, tuple):
-                self._reject("status", got)
-                return
-            self.note_mode(got[0], got[1], rx.rx_s)
-        except Exception as exc:
-            self._internal("on_status", exc)
-
-    def on_host_status(self, rx: rt.Received) -> None:
-        """Realtime: an agent host's status batch (each robot as its own status)."""
-        try:
-            self.rx["status"] += 1
-            msg = decode(rx.payload, StatusBatch)
-            if isinstance(msg, DecodeError):
-                self._reject("status", msg)
-                return
-            for rid, mode in zip(msg.robots, msg.mode, strict=True):
-                self.note_mode(rid, mode == "tracking", rx.rx_s)
-        except Exception as exc:
-            self._internal("on_host_status", exc)
-
-    def note_mode(self, rid: str, tracking: bool, rx_s: float) -> None:
-        """Realtime: robot ``rid`` said (``tracking``) at local time ``rx_s``."""
-        if rid == self.robot_id:
-            return
-        modes = self._status_modes
-        entry = modes.get(rid)
-        if entry is None:
-            if len(modes) >= MAX_NEIGHBOURS:
-                for old in [r for r, (_, t) in modes.items() if rx_s - t > NEIGHBOUR_STALE_S]:
-                    del modes[old]
-                if len(modes) >= MAX_NEIGHBOURS:
-                    return
-            modes[rid] = [tracking, rx_s]
-        else:
-            entry[0] = tracking
-            entry[1] = rx_s
-
-    def cooperative(self, rid: str, now_s: float) -> bool:
-        """Whether neighbour ``rid`` counts as cooperative at ``now_s`` (rule 3 of
-        ``robot_agent.neighbours``): relayed by the clock (lockstep) or a fresh status."""
-        if self.lockstep:
-            return rid in self.tracking_ids
-        entry = self._status_modes.get(rid)
-        return entry is not None and is_cooperative(now_s, entry[0], entry[1])
-
     def on_estop(self, rx: rt.Received) -> None:
         """Fleet or own estop: latch or release that scope (robot_agent.estop); the firmware is
         in ESTOP (zero wheels at once in realtime) while the fleet's or this robot's is latched."""
@@ -476,26 +391,6 @@ class AgentNode:
             return None
 
     # -- control -------------------------------------------------------------------------------
-
-    def _prune_neighbours(self) -> None:
-        now = self.sim_t if self.lockstep else time.monotonic()
-        stale = [
-            rid
-            for rid, e in self._neighbours.items()
-            if e[4] is not None and now - e[4] > NEIGHBOUR_STALE_S
-        ]
-        for rid in stale:
-            del self._neighbours[rid]
-
-    def neighbours(self, now_s: float) -> list[Neighbour]:
-        """The other robots whose poses were received within :data:`NEIGHBOUR_STALE_S` of
-        ``now_s``, as the safety filter sees them (``robot_agent.neighbours``)."""
-        coop = self.cooperative
-        return [
-            neighbour(x, y, th, cap, now_s, coop(rid, now_s))
-            for rid, (x, y, th, cap, rx_s) in self._neighbours.items()
-            if rx_s is not None and is_current(now_s, rx_s)
-        ]
 
     def step(self, now_s: float, tick: int | None = None) -> WheelCommand | None:
         """One firmware tick at ``now_s`` (s); publishes wheels and drives the motor seam."""

@@ -1,7 +1,7 @@
 """The robot's pure cores import only the standard library (they could run on a bare robot).
 
 robot_agent/*.py (not subpackages, not the I/O shells: node.py, host.py (+ host_main,
-host_status), main.py, motors*) may import the standard library and robot_agent itself.
+host_status, host_estop), main.py, motors*) may import the standard library and robot_agent itself.
 bus_schemas/*.py may also import msgpack, and nothing else (Zenoh lives in the runtime
 package). The whole floor plan is tests/test_layers.py.
 """
@@ -24,7 +24,7 @@ def _is_shell(path: Path) -> bool:
     name = path.name
     return (
         "node" in name
-        or name in ("host.py", "host_main.py", "host_status.py")  # the agent-host shell, CLI
+        or name in ("host.py", "host_estop.py", "host_main.py", "host_status.py")  # agent host, CLI
         or name == "main.py"  # the agent process's command line and bootstrap
         or "shell" in name
         or name.startswith("motors")

@@ -53,14 +53,17 @@ FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
         (
             "robot_agent.node",
             "robot_agent.node_estop",
+            "robot_agent.node_neighbours",
             "robot_agent.host",
             "robot_agent.host_main",
             "robot_agent.host_status",
+            "robot_agent.host_estop",
             "robot_agent.main",
             "robot_agent.accel_build",
             "coordinator.node",
             "coordinator.outputs",
             "coordinator.estop_source",
+            "coordinator.node_election",
             "coordinator.main",
             "sim_plant.node",
             "sim_plant.inputs",
@@ -309,7 +312,7 @@ def test_one_subscription_bridge_has_teeth(tmp_path: Path) -> None:
 def test_no_process_shell_imports_the_cli() -> None:
     graph = import_graph(ROOT)
     shells = [m for m in graph if floor_of(m) == [n for n, _ in FLOORS].index("shells")]
-    assert len(shells) == 18  # ..., robot_agent.host_status, robot_agent.accel_build
+    assert len(shells) == 21  # ..., robot_agent.host_estop, robot_agent.node_neighbours
     for shell in shells:
         assert not [t for t in graph[shell] if t.startswith("formation")], shell
 
