@@ -28,6 +28,7 @@ from typing import Any
 
 import runtime as rt
 from bus_schemas import DecodeError, Estop, decode, decode_estop_answer, encode
+from coordinator.estop_store import EstopStore, Loaded, held_fleet_error, read_state
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
 from runtime.bridge import _post
 
@@ -63,6 +64,8 @@ class EstopSource:
         self.loop: asyncio.AbstractEventLoop | None = None
         """Where the counters and the log are called (None: on the calling thread)."""
         self.lock = threading.Lock()
+        self.store: EstopStore | None = None
+        """Where every change is saved (``--estop-state``; coordinator.estop_store)."""
 
     def _on_loop(self, fn: Callable[..., object], *args: Any) -> None:
         if self.loop is None:
@@ -80,6 +83,8 @@ class EstopSource:
         self.answer = self._payloads()
         if self.on_answer is not None:
             self.on_answer(self.answer)
+        if self.store is not None:
+            self.store.offer(self.answer)
 
     def on_estop(self, rx: rt.Received) -> None:
         """An operator's ``estop``: latch or release its scope (the fleet's durable state); any
@@ -119,6 +124,35 @@ class EstopSource:
         except Exception as exc:
             self._internal("on_estop_state", exc)
 
+    def restore(self, loaded: Loaded, path: object) -> None:
+        """The state file read at start (after the other coordinators' answers): its
+        engagements and release record are added like another coordinator's answer; a file
+        that cannot be trusted latches the fleet scope without an id (only a release message
+        clears it) and is counted as a rejection."""
+        try:
+            if loaded.missing:
+                self.log.info(f"estop state file {path}: none yet (first start), nothing held")
+                return
+            with self.lock:
+                if loaded.error is not None:
+                    changed = self.latch.apply(True, None, None)
+                else:
+                    before = dict(self.latch.released)
+                    changed = self.latch.merge_answer(loaded.entries, release=False)
+                    changed = changed or before != self.latch.released
+                if changed:
+                    self._changed()
+            if loaded.error is not None:
+                self._reject("estop_state_file", held_fleet_error(loaded.error))
+                self.log.info(
+                    f"estop state file {path} cannot be trusted ({loaded.error}): the fleet is "
+                    "e-stopped until an operator releases it (formation fault release)"
+                )
+            else:
+                self.log.info(f"estop state restored from {path}: {self.text()}")
+        except Exception as exc:
+            self._internal("estop_restore", exc)
+
     def text(self) -> str:
         """The latched scopes, for logs."""
         parts = ["fleet"] if self.latch.fleet else []
@@ -129,10 +163,13 @@ class EstopSource:
         return {"fleet": self.latch.fleet, "robots": sorted(self.latch.robots)[:64]}
 
 
-async def attach_estop_source(source: EstopSource, io: rt.NodeIO) -> None:
+async def attach_estop_source(
+    source: EstopSource, io: rt.NodeIO, store: EstopStore | None = None
+) -> None:
     """Make ``source`` durable on ``io``: subscribe to ``estop`` (applied on Zenoh's network
     thread, on receipt: the module docstring), learn what the other coordinators hold, then
-    answer every query on the ``estop`` key with the state."""
+    what ``store``'s file held (coordinator.estop_store; saved on every change from then on),
+    then answer every query on the ``estop`` key with the state."""
     from runtime.query import Answerer, Querier
 
     source.loop = io.loop
@@ -146,6 +183,14 @@ async def attach_estop_source(source: EstopSource, io: rt.NodeIO) -> None:
         source._internal("estop_query", exc)
         payloads = []
     source.on_state(payloads)
+    if store is not None:
+        loaded = await io.loop.run_in_executor(
+            None, read_state, store.path, store.fleet, lambda e: None
+        )
+        source.restore(loaded, store.path)
+        with source.lock:
+            source.store = store
+            store.offer(source.answer)  # the file says what this instance holds from now on
     answerer = Answerer(io.session, source.key)
 
     def update(answer: tuple[bytes, ...]) -> None:

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import sys
+from pathlib import Path
 
 import runtime as rt
 from bus_schemas import keys
+from coordinator.estop_store import EstopStore
 from coordinator.node import CoordinatorNode, attach_estop_source
 from runtime.sdnotify import Notifier, pet_watchdog
 from scenario import Scenario
@@ -59,6 +62,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="large fleets: read the batched pose frames and publish batched setpoints "
         "(agent hosts read them; slot keys at 1 Hz); docs/scale.md",
     )
+    parser.add_argument(
+        "--estop-state",
+        metavar="FILE",
+        type=Path,
+        default=None,
+        help="keep the latched e-stop state in FILE (written on every change, read at start): "
+        "an instance restarted alone still holds it (docs/faults.md); default: memory only",
+    )
     rt.add_zenoh_arguments(parser)
     return parser
 
@@ -70,6 +81,7 @@ def main(argv: list[str]) -> int:
     try:
         scenario = _scenario(ns)
         rt.check_names(("--name", ns.name), ("--fleet", ns.fleet))
+        _check_state_path(ns.estop_state)
         if ns.check:
             robots = ", ".join(scenario.robot_ids)
             task = f"trajectory {scenario.trajectory.get('kind')}, "
@@ -84,9 +96,24 @@ def main(argv: list[str]) -> int:
         f"coordinator {ns.name}",
         settings,
         lambda io, stop: _node(
-            io, stop, scenario, ns.name, ns.fleet, ns.lockstep, ns.rate_hz, ns.standby, ns.batch
+            io, stop, scenario, ns.name, ns.fleet, ns.lockstep, ns.rate_hz, ns.standby, ns.batch,
+            ns.estop_state,
         ),
-    )
+    )  # fmt: skip
+
+
+def _check_state_path(path: Path | None) -> None:
+    """``--estop-state``: its directory must exist and be writable, the file (if there is
+    one) a regular file; otherwise :class:`runtime.UsageError`."""
+    if path is None:
+        return
+    folder = path.parent
+    if not folder.is_dir():
+        raise rt.UsageError(f"--estop-state: directory {folder} does not exist")
+    if path.exists() and not path.is_file():
+        raise rt.UsageError(f"--estop-state: {path} is not a regular file")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise rt.UsageError(f"--estop-state: directory {folder} is not writable")
 
 
 def _scenario(ns: argparse.Namespace) -> Scenario:
@@ -111,6 +138,7 @@ async def _node(
     rate_hz: float,
     standby: bool = False,
     batch: bool = False,
+    estop_state: Path | None = None,
 ) -> int:
     node = CoordinatorNode(
         scenario, name, fleet, io.pubs.put, lockstep=lockstep, standby=standby, batch=batch,
@@ -139,7 +167,28 @@ async def _node(
     io.subscribe(node.assignment_key, node.on_assignment)
     if not lockstep:  # a standby checks trajectory origins against the leader (election)
         io.subscribe(node.leader_key, node.on_leader)
-    await attach_estop_source(node.estop_source, io)  # durable e-stop state (docs/faults.md)
+    # durable e-stop state (docs/faults.md): the other coordinators', then the state file's
+    store = None if estop_state is None else EstopStore(estop_state, fleet, io.log.info)
+    try:
+        await attach_estop_source(node.estop_source, io, store)
+        return await _run(io, stop, node, scenario, name, fleet, lockstep, rate_hz, standby)
+    finally:
+        if store is not None:
+            store.close()
+
+
+async def _run(
+    io: rt.NodeIO,
+    stop: asyncio.Event,
+    node: CoordinatorNode,
+    scenario: Scenario,
+    name: str,
+    fleet: str,
+    lockstep: bool,
+    rate_hz: float,
+    standby: bool,
+) -> int:
+    batch = node.batch
     if batch:
         io.pubs.get(node.setpoints_key, node.sp_qos)
         io.subscribe(node.poses_key, node.on_poses)

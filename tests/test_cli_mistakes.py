@@ -122,6 +122,10 @@ MISTAKES: list[tuple[tuple[str, ...], tuple[str, ...]]] = [
     (("coordinator",), ("--scenario", "required")),
     (("coordinator", "--scenario", "nosuch"), ("nosuch",)),
     (("coordinator", "--scenario", "paper-exp2", "--rate-hz", "0"), ("--rate-hz",)),
+    (
+        ("coordinator", "--scenario", "paper-exp2", "--estop-state", "/nonexistent/x.msgpack"),
+        ("--estop-state", "does not exist"),
+    ),
     (("agent",), ("--id",)),
     (("agent", "--id", "bad id"), ("robot id", "bad id")),
     (("agent", "--id", "r1", "--rate-hz", "0"), ("--rate-hz",)),

@@ -336,6 +336,11 @@ def test_coordinator_host_units_are_notify_with_a_watchdog(name: str) -> None:
 def test_coordinator_unit_files_name_shipped_configs() -> None:
     text = (DEPLOY / "systemd" / "formation-coordinator@.service").read_text()
     assert "/etc/formation/zenoh/coordinator-%i-mtls.json5" in text
+    # the latched e-stop survives a restart or a reboot (coordinator/estop_store.py), in the
+    # one directory ProtectSystem=strict leaves writable
+    unit = parse_unit(text)
+    assert unit["Service"]["StateDirectory"] == ["formation"]
+    assert "--estop-state /var/lib/formation/estop-%i.msgpack" in unit["Service"]["ExecStart"][-1]
     for instance in ("main", "standby"):
         assert (DEPLOY / "zenoh" / f"coordinator-{instance}-mtls.json5").is_file()
     env = (DEPLOY / "config" / "coordinator-standby.env").read_text()
