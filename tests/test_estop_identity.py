@@ -430,6 +430,25 @@ def test_a_coordinator_that_saw_everything_brings_the_agent_to_the_truth(
 # --- end to end: a real agent, a real coordinator started after the e-stop --------------------
 
 
+def assert_stopped(
+    wheels: Recorder,
+    status: Recorder,
+    t0: float,
+    t1: float,
+    *,
+    min_wheels: int,
+    min_status: int,
+) -> None:
+    """Between receive times ``t0`` and ``t1`` the agent published wheels and status (at least
+    that many), every wheel command zero and every status in mode ESTOP."""
+    held_wheels = [w for r, _k, w in wheels.snapshot() if t0 < r < t1]
+    held_status = [s for r, _k, s in status.snapshot() if t0 < r < t1]
+    assert len(held_wheels) > min_wheels and len(held_status) >= min_status
+    moving = [w for w in held_wheels if nonzero(w)]
+    assert not moving, f"{len(moving)} non-zero wheels without a release: {moving[:3]}"
+    assert {s.mode for s in held_status} == {"estop"}
+
+
 @pytest.mark.zenoh
 def test_an_estop_the_coordinator_never_received_holds_until_released(
     spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
@@ -460,12 +479,7 @@ def test_an_estop_the_coordinator_never_received_holds_until_released(
         ), f"the coordinator must hold nothing: {answer}"
         time.sleep(3.2)  # three refresh periods (ESTOP_REFRESH_S) of "nothing latched"
         t_end = time.monotonic()
-        held_wheels = [w for r, _k, w in wheels.snapshot() if t_coord < r < t_end]
-        held_status = [s for r, _k, s in status.snapshot() if t_coord < r < t_end]
-        assert len(held_wheels) > 30 and len(held_status) >= 10
-        moving = [w for w in held_wheels if nonzero(w)]
-        assert not moving, f"{len(moving)} non-zero wheels without a release: {moving[:3]}"
-        assert {s.mode for s in held_status} == {"estop"}
+        assert_stopped(wheels, status, t_coord, t_end, min_wheels=30, min_status=10)
 
         # the operator's release (no id: scope only) lets it drive again
         t_release = time.monotonic()

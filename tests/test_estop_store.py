@@ -26,6 +26,7 @@ import zenoh
 from conftest import REPO_ROOT, RouterHandle, Spawner
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_estop_identity import assert_stopped
 from test_node_agent import FLEET, Feeder, Recorder, decoder_of, nonzero, start_agent
 
 import runtime as rt
@@ -76,6 +77,13 @@ def _restored(path: Path, fleet: str = "demo") -> tuple[EstopSource, list[str]]:
     return source, rejects
 
 
+def _stored(source: EstopSource, folder: Path, log: list[str]) -> tuple[EstopStore, Path]:
+    """``source`` saving every change to ``folder/estop.msgpack``."""
+    path = folder / "estop.msgpack"
+    source.store = EstopStore(path, "demo", log.append)
+    return source.store, path
+
+
 def _fleet_pinned(source: EstopSource) -> bool:
     return source.latch.held.get(None) == {NO_ID}
 
@@ -86,9 +94,7 @@ def _fleet_pinned(source: EstopSource) -> bool:
 def test_a_saved_state_is_restored_whole(tmp_path: Path) -> None:
     rejects: list[str] = []
     source = _busy_source(rejects)
-    path = tmp_path / "estop.msgpack"
-    store = EstopStore(path, "demo", rejects.append)
-    source.store = store
+    store, path = _stored(source, tmp_path, rejects)
     store.offer(source.answer)
     assert store.flush(2.0) and store.writes >= 1
     store.close()
@@ -103,9 +109,7 @@ def test_a_saved_state_is_restored_whole(tmp_path: Path) -> None:
 def test_every_change_is_saved_and_nothing_half_written_is_left(tmp_path: Path) -> None:
     rejects: list[str] = []
     source = _source(rejects)
-    path = tmp_path / "estop.msgpack"
-    store = EstopStore(path, "demo", rejects.append)
-    source.store = store
+    store, path = _stored(source, tmp_path, rejects)
     for i in range(1, 300):  # a burst of changes: coalesced, the last one on disk
         _put(source, i % 2 == 1, f"r{i % 7}", i)
     assert store.flush(5.0)
@@ -285,13 +289,7 @@ def test_a_coordinator_restarted_alone_keeps_the_fleet_stopped(
     with Feeder(pubs, "r1", pose=lambda: (0.0, 0.0, 0.0), setpoint=lambda: (0.45, 0.0)):
         t0 = time.monotonic()
         time.sleep(2.2)  # two refresh periods (ESTOP_REFRESH_S)
-        t1 = time.monotonic()
-        held_wheels = [w for r, _k, w in wheels.snapshot() if t0 < r < t1]
-        held_status = [s for r, _k, s in status.snapshot() if t0 < r < t1]
-        assert len(held_wheels) > 20 and len(held_status) >= 5
-        moving = [w for w in held_wheels if nonzero(w)]
-        assert not moving, f"{len(moving)} non-zero wheels without a release: {moving[:3]}"
-        assert {s.mode for s in held_status} == {"estop"}
+        assert_stopped(wheels, status, t0, time.monotonic(), min_wheels=20, min_status=5)
 
         t_release = time.monotonic()
         pubs.put(key, encode(Estop(t=t_release, engage=False, robot=None)), rt.QOS_CRITICAL)
