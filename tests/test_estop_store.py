@@ -6,7 +6,9 @@ agents that held the e-stop stayed stopped (an answer never releases an engageme
 see released), but an agent started or restarted then came up driving. Here: the file round
 trip, hostile files (truncated at every byte, random bytes, another fleet, duplicate keys, a
 forged entry: each latches the fleet, the safe side, until a release message), writes that
-coalesce and never leave a half-written file, and end to end with real processes: a coordinator
+coalesce and never leave a half-written file, a hypothesis search over message losses and
+restarts (a restarted coordinator holds exactly what it held; an agent is never released without
+a release the coordinator saw), and end to end with real processes: a coordinator
 stopped while the fleet is e-stopped, a new one started alone on the same file, an agent started
 then stays stopped until the operator's release.
 """
@@ -30,7 +32,16 @@ from test_estop_identity import assert_stopped
 from test_node_agent import FLEET, Feeder, Recorder, decoder_of, nonzero, start_agent
 
 import runtime as rt
-from bus_schemas import Estop, Status, Wheels, decode, encode, keys, new_estop_id
+from bus_schemas import (
+    Estop,
+    Status,
+    Wheels,
+    decode,
+    decode_estop_answer,
+    encode,
+    keys,
+    new_estop_id,
+)
 from coordinator.estop_source import EstopSource
 from coordinator.estop_store import (
     MAX_FILE_BYTES,
@@ -38,7 +49,7 @@ from coordinator.estop_store import (
     read_state,
     state_bytes,
 )
-from robot_agent.estop import NO_ID
+from robot_agent.estop import NO_ID, EstopLatch
 from runtime.query import get_all
 
 KEY = "formation/demo/estop"
@@ -225,6 +236,84 @@ def test_random_and_bit_flipped_files_never_raise_and_never_release(
         # either the file was read whole (an intact or harmlessly flipped file) or the fleet is
         # held; a file never releases anything (nothing was held before it)
         assert _fleet_pinned(source) or not rejects
+
+
+SCOPES: tuple[str | None, ...] = (None, "r1", "r2")
+
+
+@st.composite
+def lives(draw: st.DrawFn) -> list[tuple[object, ...]]:
+    """``("msg", engage, scope, id, to_agent, to_coord)``: an ``estop`` message the agent and
+    the coordinator each receive or miss; ``("restart",)``: the coordinator stops and a new
+    one starts alone on the same file; ``("ask",)``: the agent merges the coordinator's
+    answer."""
+    ops: list[tuple[object, ...]] = []
+    next_id = 1
+    for _ in range(draw(st.integers(0, 24))):
+        kind = draw(st.sampled_from(["engage", "engage", "release", "legacy", "restart", "ask"]))
+        if kind in ("restart", "ask"):
+            ops.append((kind,))
+            continue
+        eid: int | None = None
+        if kind == "engage":
+            eid, next_id = next_id, next_id + 1
+        scope = draw(st.sampled_from(SCOPES))
+        ops.append(("msg", kind != "release", scope, eid, draw(st.booleans()), draw(st.booleans())))
+    return ops
+
+
+@settings(max_examples=150, deadline=None)
+@given(ops=lives())
+def test_a_restarted_coordinator_holds_exactly_what_it_held_and_never_releases(
+    tmp_path_factory: pytest.TempPathFactory, ops: list[tuple[object, ...]]
+) -> None:
+    """Across any number of restarts (each alone, on the file): the new coordinator's latch
+    (held engagements and release record, in order) equals the old one's; an agent merging its
+    answers is released from an engagement only if the coordinator saw that very engagement
+    released (before or across a restart); a robot started after the last restart is stopped
+    exactly where the coordinator holds an e-stop."""
+    folder = tmp_path_factory.mktemp("lives")
+    rejects: list[str] = []
+    coord = _source(rejects)
+    store, path = _stored(coord, folder, rejects)
+    agent = EstopLatch()
+    saw_released: set[tuple[str | None, int]] = set()
+    try:
+        for op in ops:
+            if op[0] == "msg":
+                _, engage, scope, eid, to_agent, to_coord = op
+                assert isinstance(engage, bool) and (scope is None or isinstance(scope, str))
+                assert eid is None or isinstance(eid, int)
+                if to_agent:
+                    agent.apply(engage, scope, eid)
+                if to_coord:
+                    if not engage:
+                        held = coord.latch.held.get(scope, set())
+                        saw_released |= {(scope, i) for i in held if i != NO_ID}
+                    elif eid is not None:
+                        saw_released.discard((scope, eid))
+                    _put(coord, engage, scope, eid)
+            elif op[0] == "restart":
+                assert store.flush(5.0)
+                store.close()
+                before = (dict(coord.latch.held), list(coord.latch.released))
+                coord = _source(rejects)
+                coord.restore(read_state(path, "demo", lambda e: None), path)
+                store, path = _stored(coord, folder, rejects)
+                assert (dict(coord.latch.held), list(coord.latch.released)) == before
+            else:
+                held_before = {(s, i) for s, ids in agent.held.items() for i in ids}
+                agent.merge_answer(decode_estop_answer(coord.answer, lambda e: None))
+                held_after = {(s, i) for s, ids in agent.held.items() for i in ids}
+                gone = held_before - held_after
+                assert gone <= saw_released, (gone, saw_released)
+        fresh = EstopLatch()  # a robot started now
+        fresh.merge_answer(decode_estop_answer(coord.answer, lambda e: None))
+        for robot in ("r1", "r2"):
+            assert fresh.stopped(robot) == coord.latch.stopped(robot)
+        assert not rejects, rejects
+    finally:
+        store.close()
 
 
 def test_the_coordinator_refuses_an_unusable_state_path(tmp_path: Path) -> None:
