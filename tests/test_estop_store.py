@@ -28,6 +28,7 @@ import zenoh
 from conftest import REPO_ROOT, RouterHandle, Spawner
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from test_estop_identity import _rejecting_source as _source
 from test_estop_identity import assert_stopped
 from test_node_agent import FLEET, Feeder, Recorder, decoder_of, nonzero, start_agent
 
@@ -53,16 +54,6 @@ from robot_agent.estop import NO_ID, EstopLatch
 from runtime.query import get_all
 
 KEY = "formation/demo/estop"
-
-
-def _source(rejects: list[str]) -> EstopSource:
-    return EstopSource(
-        KEY,
-        lambda: 1.0,
-        lambda what, why: rejects.append(f"{what}: {why}"),
-        lambda where, exc: rejects.append(f"internal {where}: {exc!r}"),
-        rt.NodeLog("test"),
-    )
 
 
 def _put(source: EstopSource, engage: bool, robot: str | None, eid: int | None) -> None:
