@@ -184,9 +184,7 @@ async def attach_estop_source(
         payloads = []
     source.on_state(payloads)
     if store is not None:
-        loaded = await io.loop.run_in_executor(
-            None, read_state, store.path, store.fleet, lambda e: None
-        )
+        loaded = await io.loop.run_in_executor(None, read_state, store.path, store.fleet)
         source.restore(loaded, store.path)
         with source.lock:
             source.store = store

@@ -3,7 +3,7 @@
 Part of the coordinator's process shell (``formation coordinator --estop-state FILE``;
 docs/faults.md "A coordinator restarted alone"). A coordinator learns the latched state at start
 from the other coordinators (coordinator.estop_source); one restarted with no other instance
-running (systemd's ``Restart=``, ``formation up --respawn``, a reboot of the coordinator host)
+running (systemd's ``Restart=``, a reboot of the coordinator host)
 learned nothing and answered "nothing latched": the agents that hold the e-stop stayed stopped
 (an answer never releases an engagement it did not see released), but an agent started or
 restarted then came up driving. With a state file, every change of the latch is written to disk
@@ -100,7 +100,7 @@ def _pairs(pairs: list[tuple[Any, Any]]) -> dict[Any, Any]:
     return obj
 
 
-def _parse(raw: bytes, fleet: str, reject: Callable[[DecodeError], None]) -> list[Entry]:
+def _parse(raw: bytes, fleet: str) -> list[Entry]:
     try:
         obj = msgpack.unpackb(
             raw, raw=False, strict_map_key=True, object_pairs_hook=_pairs,
@@ -124,12 +124,7 @@ def _parse(raw: bytes, fleet: str, reject: Callable[[DecodeError], None]) -> lis
     if not isinstance(answer, list) or not all(type(p) is bytes for p in answer):
         raise StoreError("its answer is not a list of payloads")
     bad: list[DecodeError] = []
-
-    def refuse(err: DecodeError) -> None:
-        bad.append(err)
-        reject(err)
-
-    entries = decode_estop_answer(answer, refuse)
+    entries = decode_estop_answer(answer, bad.append)
     if bad:
         raise StoreError(f"{len(bad)} invalid entries (first: {bad[0]})")
     if not entries or entries[0][1] is not None:
@@ -137,9 +132,9 @@ def _parse(raw: bytes, fleet: str, reject: Callable[[DecodeError], None]) -> lis
     return entries
 
 
-def read_state(path: Path, fleet: str, reject: Callable[[DecodeError], None]) -> Loaded:
-    """Read the state file ``path`` of ``fleet``; never raises. Invalid entries are handed to
-    ``reject`` (the node's counters) too."""
+def read_state(path: Path, fleet: str) -> Loaded:
+    """Read the state file ``path`` of ``fleet``; never raises (a file that cannot be trusted
+    is counted once, by the caller, as :func:`held_fleet_error`)."""
     try:
         with path.open("rb") as f:
             raw = f.read(MAX_FILE_BYTES + 1)
@@ -150,7 +145,7 @@ def read_state(path: Path, fleet: str, reject: Callable[[DecodeError], None]) ->
     if len(raw) > MAX_FILE_BYTES:
         return Loaded([], f"larger than {MAX_FILE_BYTES} bytes")
     try:
-        return Loaded(_parse(raw, fleet, reject))
+        return Loaded(_parse(raw, fleet))
     except StoreError as exc:
         return Loaded([], str(exc))
 

@@ -75,7 +75,7 @@ def _busy_source(rejects: list[str]) -> EstopSource:
 def _restored(path: Path, fleet: str = "demo") -> tuple[EstopSource, list[str]]:
     rejects: list[str] = []
     source = _source(rejects)
-    source.restore(read_state(path, fleet, lambda e: None), path)
+    source.restore(read_state(path, fleet), path)
     return source, rejects
 
 
@@ -232,6 +232,10 @@ def test_random_and_bit_flipped_files_never_raise_and_never_release(
 SCOPES: tuple[str | None, ...] = (None, "r1", "r2")
 
 
+def _answer_of(coord: EstopSource, rejects: list[str]) -> list[tuple[bool, str | None, int | None]]:
+    return decode_estop_answer(coord.answer, lambda e: rejects.append(str(e)))
+
+
 @st.composite
 def lives(draw: st.DrawFn) -> list[tuple[object, ...]]:
     """``("msg", engage, scope, id, to_agent, to_coord)``: an ``estop`` message the agent and
@@ -289,17 +293,17 @@ def test_a_restarted_coordinator_holds_exactly_what_it_held_and_never_releases(
                 store.close()
                 before = (dict(coord.latch.held), list(coord.latch.released))
                 coord = _source(rejects)
-                coord.restore(read_state(path, "demo", lambda e: None), path)
+                coord.restore(read_state(path, "demo"), path)
                 store, path = _stored(coord, folder, rejects)
                 assert (dict(coord.latch.held), list(coord.latch.released)) == before
             else:
                 held_before = {(s, i) for s, ids in agent.held.items() for i in ids}
-                agent.merge_answer(decode_estop_answer(coord.answer, lambda e: None))
+                agent.merge_answer(_answer_of(coord, rejects))
                 held_after = {(s, i) for s, ids in agent.held.items() for i in ids}
                 gone = held_before - held_after
                 assert gone <= saw_released, (gone, saw_released)
         fresh = EstopLatch()  # a robot started now
-        fresh.merge_answer(decode_estop_answer(coord.answer, lambda e: None))
+        fresh.merge_answer(_answer_of(coord, rejects))
         for robot in ("r1", "r2"):
             assert fresh.stopped(robot) == coord.latch.stopped(robot)
         assert not rejects, rejects
@@ -347,7 +351,7 @@ def test_a_coordinator_restarted_alone_keeps_the_fleet_stopped(
     )
     deadline = time.monotonic() + 5.0
     while time.monotonic() < deadline:
-        loaded = read_state(state, FLEET, lambda e: None)
+        loaded = read_state(state, FLEET)
         if (True, None, eid) in loaded.entries:
             break
         time.sleep(0.05)
@@ -376,7 +380,7 @@ def test_a_coordinator_restarted_alone_keeps_the_fleet_stopped(
         wheels.wait_for(lambda r, _k, w: r > t_release and nonzero(w), timeout_s=3.0)
     # the release is on disk too: a third start holds nothing
     deadline = time.monotonic() + 5.0
-    while (True, None, eid) in read_state(state, FLEET, lambda e: None).entries:
+    while (True, None, eid) in read_state(state, FLEET).entries:
         assert time.monotonic() < deadline, "the release never reached the file"
         time.sleep(0.05)
-    assert (False, None, eid) in read_state(state, FLEET, lambda e: None).entries
+    assert (False, None, eid) in read_state(state, FLEET).entries
