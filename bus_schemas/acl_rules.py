@@ -125,6 +125,7 @@ class Access(StrEnum):
     WATCH = "watch"  # subscribe to / query liveliness tokens
     ANSWER = "answer"  # declare a queryable and reply to the queries it is sent
     ASK = "ask"  # query a key and be delivered the replies
+    ASKED = "asked"  # be sent the queries on a key (one answering its own key under a wildcard)
 
 
 # (flow, messages) pairs that each access needs at the router.
@@ -138,6 +139,7 @@ ZENOH_MESSAGES: Final[dict[Access, tuple[tuple[str, tuple[str, ...]], ...]]] = {
     ),
     Access.ANSWER: (("ingress", ("declare_queryable", "reply")), ("egress", ("query",))),
     Access.ASK: (("ingress", ("query",)), ("egress", ("reply",))),
+    Access.ASKED: (("egress", ("query",)),),
 }
 
 
@@ -160,7 +162,7 @@ class KeyRoles:
     writers: tuple[Who, ...]
     readers: tuple[Who, ...] = ()
     token: bool = False  # a liveliness token key (TOKEN/WATCH instead of PUBLISH/READ)
-    answerers: tuple[Kind, ...] = ()  # hold a queryable on the key (durable state)
+    answerers: tuple[Who, ...] = ()  # hold a queryable on the key (durable state)
     askers: tuple[Kind, ...] = ()  # query it (a process that starts or resumes)
 
 
@@ -191,6 +193,9 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     # agents and hosts ask when they start or resume, coordinators when they start, the
     # operator's tool to report who holds it
     keys.ESTOP: KeyRoles((_O,), (_R, _H, _C), answerers=(_C,), askers=(_R, _H, _C, _O)),
+    # the engagements an agent or agent host holds, each on its own key (only a coordinator's
+    # answer on `estop` may carry a release record); asked by the same
+    keys.ESTOP_HELD: KeyRoles((), answerers=((_R, OWN), (_H, OWN)), askers=(_R, _H, _C, _O)),
     keys.CLOCK: KeyRoles((_P,), (_R, _H, _C)),
     keys.DISTURBANCE: KeyRoles((_O,), (_P,)),
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),
@@ -245,8 +250,14 @@ def grants(ident: Identity, fleet: str = keys.DEFAULT_FLEET) -> tuple[tuple[Acce
             else:
                 add(read, _fill(template, fleet, robot=ident.name, name=ident.name))
         template_all = _fill(template, fleet)
-        if ident.kind in roles.answerers:
-            add(Access.ANSWER, template_all)
+        for who in roles.answerers:
+            if not _matches(who, ident):
+                continue
+            if isinstance(who, Kind):
+                add(Access.ANSWER, template_all)
+            else:  # its own key only; the router hands it the queries of the wildcard key
+                add(Access.ANSWER, _fill(template, fleet, name=ident.name))
+                add(Access.ASKED, template_all)
         if ident.kind in roles.askers:
             add(Access.ASK, template_all)
     if ident.kind in _READ_ALL:

@@ -100,8 +100,17 @@ def decode_or_raise(data: bytes | bytearray | memoryview, expected: type[M]) -> 
     return result
 
 
+def encode_estop_entries(
+    entries: Iterable[tuple[bool, str | None, int | None]], t: float
+) -> tuple[bytes, ...]:
+    """``(engage, robot, id)`` entries (``EstopLatch.answer`` or ``EstopLatch.engagements``) as
+    the payloads of a query's answer, one ``Estop`` each, stamped ``t`` (clamped to >= 0)."""
+    t = max(t, 0.0)
+    return tuple(encode(Estop(t=t, engage=e, robot=r, id=i)) for e, r, i in entries)
+
+
 def decode_estop_answer(
-    payloads: Iterable[bytes], reject: Callable[[DecodeError], None]
+    payloads: Iterable[bytes], reject: Callable[[DecodeError], None], *, held: bool = False
 ) -> list[tuple[bool, str | None, int | None]]:
     """A query's answer on the ``estop`` key (the coordinators' latched e-stop state, one
     ``Estop`` per engagement and per released engagement: ``robot_agent.estop.EstopLatch.answer``)
@@ -110,12 +119,16 @@ def decode_estop_answer(
     without an ``id`` (a release record must name the engagement it released; only the fleet's
     "not latched" entry has none). The one decoder of that answer (agents, agent hosts,
     coordinators). Entries repeated across responders are legitimate (the union of every
-    coordinator's answer)."""
+    coordinator's answer). ``held``: the answer of agents on ``estop/held/*`` (the engagements
+    each holds), where every release entry is rejected: only a coordinator's answer may carry a
+    release record."""
     out: list[tuple[bool, str | None, int | None]] = []
     for payload in payloads:
         msg = decode(payload, Estop)
         if isinstance(msg, DecodeError):
             reject(msg)
+        elif held and not msg.engage:
+            reject(DecodeError(Reason.INCONSISTENT, "a release from an agent", "engage"))
         elif not msg.engage and msg.robot is not None and msg.id is None:
             reject(DecodeError(Reason.INCONSISTENT, "a robot's release record without an id", "id"))
         else:

@@ -148,6 +148,16 @@ def render_markdown() -> str:
         f"| `{_key(keys.KEY_TEMPLATES[keys.ALIVE_COORDINATOR])}` | each coordinator instance |",
         f"| `{_key(keys.KEY_TEMPLATES[keys.ALIVE_PLANT])}` | the plant simulator |",
         "",
+        "### Queried keys (latched state, docs/faults.md)",
+        "",
+        "| key | answered by | answer |",
+        "|---|---|---|",
+        f"| `{_key(keys.KEY_TEMPLATES[keys.ESTOP])}` | every coordinator instance | its latched"
+        " e-stop state: one `estop` per engagement and per released engagement |",
+        f"| `{_key(keys.KEY_TEMPLATES[keys.ESTOP_HELD])}` | an agent (robot id) or agent host"
+        " (name), only while it holds an e-stop | one `estop` (`engage` true) per engagement it"
+        " holds |",
+        "",
         "### Wildcard patterns (`bus_schemas.keys`)",
         "",
         "| function | pattern |",
@@ -155,6 +165,7 @@ def render_markdown() -> str:
     ]
     patterns = [
         ("fleet_pattern", keys.fleet_pattern("F")),
+        ("estop_held_pattern", keys.estop_held_pattern("F")),
         ("robot_pattern(fleet, robot)", keys.robot_pattern("F", "robot-id")),
         ("all_slots_pattern", keys.all_slots_pattern("F")),
         ("all_setpoints_pattern", keys.all_setpoints_pattern("F")),

@@ -47,6 +47,7 @@ ALIVE_PLANT = "alive_plant"
 COORDINATOR_STATUS = "coordinator_status"
 PLANT_STATUS = "plant_status"
 CAMERA_STATUS = "camera_status"
+ESTOP_HELD = "estop_held"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -74,6 +75,9 @@ KEY_TEMPLATES: dict[str, str] = {
     COORDINATOR_STATUS: "formation/{fleet}/coordinator/{name}/status",
     PLANT_STATUS: "formation/{fleet}/plant/status",
     CAMERA_STATUS: "formation/{fleet}/camera/{name}/status",
+    # queried, never published: the e-stop engagements an agent (robot id) or agent host (name)
+    # holds, answered only while it holds one (robot_agent.estop, docs/faults.md)
+    ESTOP_HELD: "formation/{fleet}/estop/held/{name}",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
@@ -191,6 +195,12 @@ def estop_key(fleet: str) -> str:
     return f"{_fleet_prefix(fleet)}/{ESTOP}"
 
 
+def estop_held_key(fleet: str, name: str) -> str:
+    """``formation/<fleet>/estop/held/<name>``: the e-stop engagements agent ``name`` (a robot id
+    or an agent host's name) holds; a queryable, answered only while it holds one."""
+    return f"{_fleet_prefix(fleet)}/{ESTOP}/held/{check_name(name)}"
+
+
 def clock_key(fleet: str) -> str:
     """``formation/<fleet>/clock``: lockstep tick (plant, lockstep only)."""
     return f"{_fleet_prefix(fleet)}/{CLOCK}"
@@ -265,6 +275,11 @@ def alive_plant_key(fleet: str) -> str:
 
 
 # --- wildcard patterns (for subscribers) ----------------------------------------------------
+
+
+def estop_held_pattern(fleet: str) -> str:
+    """``formation/<fleet>/estop/held/*``: the e-stop engagements every agent holds (a query)."""
+    return f"{_fleet_prefix(fleet)}/{ESTOP}/held/*"
 
 
 def fleet_pattern(fleet: str) -> str:
@@ -387,6 +402,8 @@ def parse_key(key: str) -> KeyInfo | None:
     if kind == "coordinator" and n == 5 and parts[4] in _COORDINATOR_LEAVES:
         leaf = _COORDINATOR_LEAVES[parts[4]]
         return KeyInfo(fleet, leaf, name=parts[3]) if _NAME_MATCH(parts[3]) else None
+    if kind == ESTOP and n == 5 and parts[3] == "held":
+        return KeyInfo(fleet, ESTOP_HELD, name=parts[4]) if _NAME_MATCH(parts[4]) else None
     if kind == "plant" and n == 4 and parts[3] == STATUS:
         return KeyInfo(fleet, PLANT_STATUS)
     if kind == "camera" and n == 5 and parts[4] == STATUS:

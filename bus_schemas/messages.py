@@ -327,7 +327,8 @@ class Estop:
             "answer on this key (the coordinators' latched state): with `engage` true, an "
             "engagement holding the scope (absent: one without an id); with `engage` false, "
             "an engagement the coordinator saw released (its release record; only such a "
-            "record releases an agent, docs/faults.md)",
+            "record releases an agent, docs/faults.md); in an agent's answer on "
+            "`estop/held/<name>`: an engagement it holds (never a release)",
             lo=1,
             hi=ESTOP_ID_MAX,
         ),

@@ -27,7 +27,14 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 import runtime as rt
-from bus_schemas import DecodeError, Estop, decode, decode_estop_answer, encode
+from bus_schemas import (
+    DecodeError,
+    Estop,
+    decode,
+    decode_estop_answer,
+    encode_estop_entries,
+    keys,
+)
 from coordinator.estop_store import EstopStore, Loaded, held_fleet_error, read_state
 from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
 from runtime.bridge import _post
@@ -74,10 +81,7 @@ class EstopSource:
             _post(self.loop, fn, *args)
 
     def _payloads(self) -> tuple[bytes, ...]:
-        now = max(self._now(), 0.0)
-        return tuple(
-            encode(Estop(t=now, engage=e, robot=r, id=i)) for e, r, i in self.latch.answer()
-        )
+        return encode_estop_entries(self.latch.answer(), self._now())
 
     def _changed(self) -> None:
         self.answer = self._payloads()
@@ -108,11 +112,16 @@ class EstopSource:
         except Exception as exc:
             self._on_loop(self._internal, "on_estop", exc)
 
-    def on_state(self, payloads: Iterable[Any]) -> None:
-        """Another coordinator's latched state (queried at start): its engagements and its
-        release record are added; nothing held here is released (a coordinator only adds)."""
+    def on_state(self, payloads: Iterable[Any], *, held: bool = False) -> None:
+        """The other coordinators' latched state (queried at start on ``estop``), or with
+        ``held`` the engagements the agents hold (``estop/held/*``, merged last: an engagement
+        that a coordinator's or the file's release record names is not taken back): engagements
+        and release records are added; nothing held here is released (a coordinator only
+        adds)."""
         try:
-            answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
+            answers = decode_estop_answer(
+                payloads, lambda err: self._reject("estop_state", err), held=held
+            )
             with self.lock:
                 before = dict(self.latch.released)
                 changed = self.latch.merge_answer(answers, release=False)
@@ -120,7 +129,8 @@ class EstopSource:
                 if changed:
                     self._changed()
             if changed:
-                self.log.info(f"estop state from the other coordinators: {self.text()}")
+                who = "the agents" if held else "the other coordinators"
+                self.log.info(f"estop state from {who}: {self.text()}")
         except Exception as exc:
             self._internal("on_estop_state", exc)
 
@@ -169,26 +179,39 @@ async def attach_estop_source(
     """Make ``source`` durable on ``io``: subscribe to ``estop`` (applied on Zenoh's network
     thread, on receipt: the module docstring), learn what the other coordinators hold, then
     what ``store``'s file held (coordinator.estop_store; saved on every change from then on),
-    then answer every query on the ``estop`` key with the state."""
-    from runtime.query import Answerer, Querier
+    then the engagements the agents hold (``estop/held/*``: a coordinator restarted alone
+    without its file learns an e-stop the robots still obey), then answer every query on the
+    ``estop`` key with the state."""
+    from runtime.query import Answerer, get_all
 
     source.loop = io.loop
     io._keep.append(rt.subscribe_on_thread(io.session, source.key, source.on_estop))
-    querier = Querier(
-        io.session, io.loop, source.key, lambda p, _t: None, timeout_s=ESTOP_QUERY_TIMEOUT_S
+    info = keys.parse_key(source.key)
+    if info is None or info.leaf != keys.ESTOP:
+        raise ValueError(f"not an estop key: {source.key!r}")
+    asked = (source.key, keys.estop_held_pattern(info.fleet))
+    got = await asyncio.gather(
+        *(
+            io.loop.run_in_executor(None, get_all, io.session, key, ESTOP_QUERY_TIMEOUT_S)
+            for key in asked
+        ),
+        return_exceptions=True,
     )
-    try:
-        payloads = await io.loop.run_in_executor(None, querier.run_now)
-    except Exception as exc:
-        source._internal("estop_query", exc)
-        payloads = []
-    source.on_state(payloads)
+    answers: list[list[bytes]] = []
+    for result in got:
+        if isinstance(result, BaseException):
+            source._internal("estop_query", result)
+            answers.append([])
+        else:
+            answers.append(result)
+    source.on_state(answers[0])
     if store is not None:
         loaded = await io.loop.run_in_executor(None, read_state, store.path, store.fleet)
         source.restore(loaded, store.path)
         with source.lock:
             source.store = store
             store.offer(source.answer)  # the file says what this instance holds from now on
+    source.on_state(answers[1], held=True)
     answerer = Answerer(io.session, source.key)
 
     def update(answer: tuple[bytes, ...]) -> None:

@@ -252,10 +252,6 @@ class CoordinatorNode(ElectionHandlers):
         self.rx["estop"] += 1
         self.estop_source.on_estop(rx)
 
-    def on_estop_state(self, payloads: Any) -> None:
-        """Another coordinator's latched state (queried at start): its engagements are added."""
-        self.estop_source.on_state(payloads)
-
     def on_pose(self, rx: rt.Received) -> None:
         """A measured pose ``robot/<id>/pose``."""
         try:

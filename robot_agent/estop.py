@@ -9,7 +9,10 @@ Who holds it: every coordinator instance (active and standby) keeps an :class:`E
 the ``estop`` messages it receives and answers queries on the ``estop`` key with
 :meth:`EstopLatch.answer` (the durable source); an agent keeps its own latch, queries it when it
 starts, when it resumes from a stop and every :data:`ESTOP_REFRESH_S` (realtime), and merges the
-answers with :meth:`EstopLatch.merge_answer`.
+answers with :meth:`EstopLatch.merge_answer`. An agent holding an engagement answers too, on its
+own key ``estop/held/<name>``, with :meth:`EstopLatch.engagements` only (never a release): an
+agent or coordinator that starts with nothing learns there what the robots still obey
+(robot_agent.estop_hooks).
 
 Engagement identity (docs/faults.md): every engage carries a fresh random ``id``
 (``bus_schemas.new_estop_id``); a latched scope remembers the ids of the engagements holding it,
@@ -33,6 +36,7 @@ __all__ = [
     "MAX_LATCHED",
     "MAX_RELEASED",
     "NO_ID",
+    "Entry",
     "EstopLatch",
 ]
 
@@ -125,16 +129,22 @@ class EstopLatch:
         """Robot ``robot`` must stand still (its scope or the fleet's is latched)."""
         return None in self.held or robot in self.held
 
+    def engagements(self) -> list[Entry]:
+        """Every engagement held, as ``(True, robot, id)``: the fleet scope's first, then each
+        latched robot's (an agent's answer on ``estop/held/<name>``: engagements only)."""
+        out: list[Entry] = [(True, None, i or None) for i in sorted(self.held.get(None, ()))]
+        for robot in sorted(r for r in self.held if r is not None):
+            out.extend((True, robot, i or None) for i in sorted(self.held[robot]))
+        return out
+
     def answer(self) -> list[Entry]:
         """The full state as ``(engage, robot, id)`` messages: the fleet scope first (always,
         engaged or not, so an empty answer is told apart from no answer: one entry per
         engagement, or ``(False, None, None)``), then every engagement of every latched robot,
         then the release record as ``(False, scope, id)``, oldest first."""
-        out: list[Entry] = [(True, None, i or None) for i in sorted(self.held.get(None, ()))]
-        if not out:
-            out.append((False, None, None))
-        for robot in sorted(r for r in self.held if r is not None):
-            out.extend((True, robot, i or None) for i in sorted(self.held[robot]))
+        out = self.engagements()
+        if not self.fleet:
+            out.insert(0, (False, None, None))
         out.extend((False, scope, eid) for scope, eid in self.released)
         return out
 

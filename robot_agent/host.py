@@ -43,8 +43,10 @@ E-stop as latched fleet state (``robot_agent.estop``, docs/faults.md): every hos
 its own latch. Like ``formation agent``, the host asks the coordinators for the latched state
 before it subscribes to anything that moves its robots (so robots of a host that starts or is
 respawned under an e-stop come up in ESTOP), again when it resumes from a stop, and every
-``ESTOP_REFRESH_S`` in realtime (:meth:`HostNode.on_estop_state`; the handlers are
-:mod:`robot_agent.host_estop`).
+``ESTOP_REFRESH_S`` in realtime, together with the engagements the other agents hold
+(:meth:`HostNode.on_estop_state`, ``on_estop_held``; the handlers are
+:mod:`robot_agent.host_estop`); while a hosted robot holds an engagement, the host answers
+``estop/held/<host>`` with every hosted robot's (:mod:`robot_agent.estop_hooks`).
 
 Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
 logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
@@ -60,7 +62,7 @@ import math
 import os
 import socket
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from typing import Final
 
 import runtime as rt
@@ -205,9 +207,9 @@ class HostNode(HostEstop):
         self._status_rows: list[StatusRow] = []  # the status round under way (publish_status)
         self._status_t = 0.0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
-        # the latched e-stop (robot_agent.estop): the hook that asks the coordinators (host_main)
-        self.estop_query: Callable[[], None] | None = None
-        self.estop_queried_s = -math.inf
+        # the latched e-stop (robot_agent.estop): the hooks that ask the latched state and answer
+        # with the engagements held (robot_agent.estop_hooks, set by host_main)
+        self._init_estop_hooks()
         # realtime: the process turned the automatic garbage collection off (host_main) and the
         # host collects after each watchdog round, between two frames (collect_garbage)
         self.manual_gc = False

@@ -10,18 +10,19 @@ Handlers never raise.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING
 
 import runtime as rt
 from bus_schemas import DecodeError, Estop, decode, decode_estop_answer
+from robot_agent.estop_hooks import EstopHooks
 from robot_agent.firmware import WheelCommand
 from robot_agent.node import AgentNode
 
 __all__ = ["HostEstop"]
 
 
-class HostEstop:
+class HostEstop(EstopHooks):
     """The e-stop handlers of :class:`~robot_agent.host.HostNode` (its state is the host's,
     declared here for the type checker)."""
 
@@ -29,14 +30,10 @@ class HostEstop:
     lockstep: bool
     log: rt.NodeLog
     rx: dict[str, int]
-    estop_query: Callable[[], None] | None
-    estop_queried_s: float
 
     if TYPE_CHECKING:
 
         def _reject(self, what: str, why: DecodeError | str) -> None: ...
-
-        def _internal(self, where: str, exc: BaseException) -> None: ...
 
         def _publish_steps(
             self,
@@ -45,29 +42,35 @@ class HostEstop:
         ) -> list[bytes]: ...
 
     def on_estop_state(self, payloads: Sequence[bytes], _token: int = 0) -> None:
-        """The coordinators' latched e-stop state (a query's answer; ``_token``: the querier's,
-        unused): each hosted robot merges its scopes (``AgentNode.on_estop_state``: adds
-        engagements, releases only those the answer saw released). No answer: no change."""
+        """The coordinators' latched e-stop state (a query's answer on ``estop``; ``_token``: the
+        querier's, unused): each hosted robot merges its scopes (``AgentNode.on_estop_state``:
+        adds engagements, releases only those the answer saw released). No answer: no change."""
+        self._merge_answer(payloads, held=False)
+
+    def on_estop_held(self, payloads: Sequence[bytes], _token: int = 0) -> None:
+        """The engagements other agents hold (a query's answer on ``estop/held/*``): added to
+        each hosted robot's scopes; a release in it is rejected (releases nothing)."""
+        self._merge_answer(payloads, held=True)
+
+    def _merge_answer(self, payloads: Sequence[bytes], *, held: bool) -> None:
         try:
             if not payloads:
                 return
-            answers = decode_estop_answer(payloads, lambda err: self._reject("estop_state", err))
+            answers = decode_estop_answer(
+                payloads, lambda err: self._reject("estop_state", err), held=held
+            )
             for node in self.nodes.values():
                 node.on_estop_state(answers)
+            self._offer_held()
             stopped = sum(n.estop.stopped(n.robot_id) for n in self.nodes.values())
             if stopped:
                 self.log.limited("estop-state", f"latched e-stop: {stopped} robot(s) stopped")
         except Exception as exc:
             self._internal("on_estop_state", exc)
 
-    def request_estop_state(self, now_s: float) -> None:
-        """Ask the coordinators for the latched e-stop state (through :attr:`estop_query`)."""
-        self.estop_queried_s = now_s
-        if self.estop_query is not None:
-            try:
-                self.estop_query()
-            except Exception as exc:
-                self._internal("estop_query", exc)
+    def _offer_held(self) -> None:
+        """Answer ``estop/held/<host>`` with every hosted robot's engagements (estop_hooks)."""
+        self.offer_held(e for node in self.nodes.values() for e in node.estop.engagements())
 
     def on_estop(self, rx: rt.Received) -> None:
         """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
@@ -87,6 +90,7 @@ class HostEstop:
                 node.rx["estop"] += 1
                 node.estop.apply(msg.engage, msg.robot, msg.id)
                 node.sync_estop()
+            self._offer_held()
             what = "all robots" if msg.robot is None else msg.robot
             self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")
             if msg.engage and not self.lockstep:

@@ -21,13 +21,12 @@ import os
 import re
 import sys
 import time
-from collections.abc import Sequence
 
 import runtime as rt
 from bus_schemas import keys
 from robot_agent import _accel
-from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S
 from robot_agent.host import MAX_HOSTED, HostNode
+from robot_agent.node_estop import query_estop
 from robot_agent.params import AgentConfig
 from runtime.sdnotify import Notifier
 
@@ -175,27 +174,25 @@ async def _node(
 
 
 async def attach_host_estop_state(host: HostNode, io: rt.NodeIO) -> None:
-    """Subscribe to ``estop``, ask the coordinators for the latched state *now* (every hosted
-    robot merges it) and install the hook that asks again on resume and every
-    ``ESTOP_REFRESH_S`` (realtime). Call it before the subscriptions that move the robots."""
-    from runtime.query import Querier
+    """Subscribe to ``estop``, answer ``estop/held/<host>`` while a hosted robot holds an
+    engagement, ask the coordinators' latched state and the agents' held engagements *now*
+    (every hosted robot merges them; robot_agent.node_estop.query_estop) and install the hook
+    that asks again on resume and every ``ESTOP_REFRESH_S`` (realtime). Call it before the
+    subscriptions that move the robots."""
+    from runtime.query import LazyAnswerer
 
     io.subscribe(host.estop_key, host.on_estop)
-    querier = Querier(
-        io.session, io.loop, host.estop_key, host.on_estop_state, timeout_s=ESTOP_QUERY_TIMEOUT_S
+    held = LazyAnswerer(io.session, keys.estop_held_key(host.fleet, host.name))
+    io._keep.append(held)
+    host.estop_held = held.offer
+    queriers = await query_estop(
+        io, host.estop_key, host.fleet, host.on_estop_state, host.on_estop_held, host._internal
     )
-    payloads: Sequence[bytes]
-    try:
-        payloads = await io.loop.run_in_executor(None, querier.run_now)
-    except Exception as exc:  # no answer: start from the messages alone
-        host._internal("estop_query", exc)
-        payloads = []
-    host.on_estop_state(payloads)
     host.estop_queried_s = time.monotonic()
-    io._keep.append(querier)
 
     def ask() -> None:
-        querier.request()
+        for querier in queriers:
+            querier.request()
 
     host.estop_query = ask
 

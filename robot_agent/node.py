@@ -43,6 +43,7 @@ from bus_schemas import (
 )
 from robot_agent.clocksync import ClockOffsets
 from robot_agent.estop import ESTOP_REFRESH_S, EstopLatch
+from robot_agent.estop_hooks import EstopHooks
 from robot_agent.firmware import Firmware, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
@@ -98,7 +99,7 @@ def clock_wheels(msg: Clock) -> dict[str, tuple[float, float]]:
     return {r: (a, b) for r, a, b in zip(msg.enc_robots, msg.enc_wr, msg.enc_wl, strict=True)}
 
 
-class AgentNode(NodeNeighbours):
+class AgentNode(NodeNeighbours, EstopHooks):
     """State and handlers of one agent; Zenoh-free apart from the ``publish`` callable.
 
     Every handler takes one :class:`runtime.transport.Received` and runs on the event loop;
@@ -181,11 +182,10 @@ class AgentNode(NodeNeighbours):
         self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
         self.internal_errors = 0
         # E-stop as latched fleet state (robot_agent.estop): the scopes this robot obeys (with
-        # their engagement ids) and the hook that queries the coordinators' latched state (set
-        # by the shell).
+        # their engagement ids) and the shell's hooks that query the latched state and answer
+        # with the engagements held (robot_agent.estop_hooks).
         self.estop = EstopLatch()
-        self.estop_query: Callable[[], None] | None = None
-        self.estop_queried_s = -math.inf
+        self._init_estop_hooks()
         self.steps = 0
         self.last_step_s = -math.inf
         self.sim_t = 0.0  # lockstep: t of the last clock
@@ -340,15 +340,7 @@ class AgentNode(NodeNeighbours):
         elif latched and not stop:
             self.firmware.release_estop()
             self.log.info(f"estop released{src} t={time.monotonic():.6f}")
-
-    def request_estop_state(self, now_s: float) -> None:
-        """Ask the coordinators for the latched e-stop state (through :attr:`estop_query`)."""
-        self.estop_queried_s = now_s
-        if self.estop_query is not None:
-            try:
-                self.estop_query()
-            except Exception as exc:
-                self._internal("estop_query", exc)
+        self.offer_held(self.estop.engagements())
 
     def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: step at t_k and answer with wheels(tick=k)."""

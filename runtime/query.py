@@ -1,8 +1,9 @@
 """Queries of latched state: a queryable that answers from a snapshot, and a query off the loop.
 
 Used for the e-stop as latched fleet state (``robot_agent.estop``): every coordinator answers
-queries on ``formation/<fleet>/estop`` with its latched state, and an agent asks when it starts,
-when it resumes from a stop and periodically (docs/faults.md).
+queries on ``formation/<fleet>/estop`` with its latched state, every agent holding an engagement
+answers on ``formation/<fleet>/estop/held/<name>`` with its engagements, and an agent asks both
+when it starts, when it resumes from a stop and periodically (docs/faults.md).
 
 * :class:`Answerer`: a queryable whose callback (a Zenoh thread) replies with the payloads of
   the current snapshot; the loop replaces the snapshot (one reference assignment, so the Zenoh
@@ -12,6 +13,7 @@ when it resumes from a stop and periodically (docs/faults.md).
   every queryable (no consolidation, target all), an answer being many replies on one key per
   responder. At most one query is in flight per :class:`Querier`; a request while one runs is
   merged into it.
+* :class:`LazyAnswerer`: an :class:`Answerer` declared only while it has something to answer.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import zenoh
 
 from runtime.bridge import _post
 
-__all__ = ["Answerer", "Querier", "get_all"]
+__all__ = ["Answerer", "LazyAnswerer", "Querier", "get_all"]
 
 
 def get_all(
@@ -69,6 +71,30 @@ class Answerer:
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self._queryable.undeclare()
+
+
+class LazyAnswerer:
+    """An :class:`Answerer` on ``key`` declared only while there is something to answer (an
+    agent's held e-stop engagements, ``estop/held/<name>``): while it has nothing, no queryable
+    exists and queries on the key cost the fleet nothing. :meth:`offer` runs on the loop."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.session = session
+        self.key = key
+        self.answerer: Answerer | None = None
+
+    def offer(self, payloads: tuple[bytes, ...]) -> None:
+        """Answer with ``payloads`` from now on (none: undeclare the queryable)."""
+        if payloads:
+            if self.answerer is None:
+                self.answerer = Answerer(self.session, self.key)
+            self.answerer.snapshot = payloads
+        elif self.answerer is not None:
+            self.answerer.close()
+            self.answerer = None
+
+    def close(self) -> None:
+        self.offer(())
 
 
 class Querier:

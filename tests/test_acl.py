@@ -50,7 +50,8 @@ def contract_keys() -> dict[str, str]:
     """Every concrete key of the contract for ROBOTS, coordinators main/standby, host h1."""
     out: dict[str, str] = {}
     for leaf, template in keys.KEY_TEMPLATES.items():
-        ids = {"robot": ROBOTS, "name": ("main", "standby", "h1"), "slot": ("0", "3")}
+        names = (*ROBOTS, "h1") if leaf == keys.ESTOP_HELD else ("main", "standby", "h1")
+        ids = {"robot": ROBOTS, "name": names, "slot": ("0", "3")}
         variants = [template]
         for field, values in ids.items():
             if "{" + field + "}" in template:
@@ -166,14 +167,24 @@ EXPECT_WATCH: dict[str, set[str]] = {
 }
 
 
-# The latched e-stop state (robot_agent.estop): coordinators answer queries on `estop`; agents,
-# hosts, coordinators and the operator's tool ask.
+# The latched e-stop state (robot_agent.estop): coordinators answer queries on `estop`; an agent
+# or agent host answers on its own `estop/held/<name>` only (the engagements it holds); agents,
+# hosts, coordinators and the operator's tool ask both.
+_HELD = {_f(f"estop/held/{n}") for n in (*ROBOTS, "h1")}
 EXPECT_ANSWER: dict[str, set[str]] = {
     "coordinator.main": {_f("estop")},
     "coordinator.standby": {_f("estop")},
+    "robot.r1": {_f("estop/held/r1")},
+    "robot.r2": {_f("estop/held/r2")},
+    "host.h1": {_f("estop/held/h1")},
 }
+# an agent is sent the queries of `estop/held/*` (it answers its own key among them)
+EXPECT_ASKED: dict[str, set[str]] = {
+    cn: {*EXPECT_ANSWER[cn], *_HELD} for cn in ("robot.r1", "robot.r2", "host.h1")
+}
+EXPECT_ASKED |= {cn: EXPECT_ANSWER[cn] for cn in ("coordinator.main", "coordinator.standby")}
 EXPECT_ASK: dict[str, set[str]] = {
-    cn: {_f("estop")}
+    cn: {_f("estop"), *_HELD}
     for cn in ("robot.r1", "robot.r2", "host.h1", "coordinator.main", "coordinator.standby",
                "operator")
 }  # fmt: skip
@@ -196,6 +207,7 @@ def test_static_permissions_match_the_contract(
         (Access.WATCH, TOKENS, EXPECT_WATCH.get(cn, set())),
         (Access.ANSWER, DATA, EXPECT_ANSWER.get(cn, set())),
         (Access.ASK, DATA, EXPECT_ASK.get(cn, set())),
+        (Access.ASKED, DATA, EXPECT_ASKED.get(cn, set())),
     ):
         allowed = {k for k in universe if acl.may(acl_section, cn, access, k)}
         assert allowed == expect, (cn, access, sorted(allowed ^ expect))
@@ -492,6 +504,36 @@ def test_live_estop_state_query(router: int, pki) -> None:  # type: ignore[no-un
         forged_q.undeclare()
     finally:
         for session in (coord, r1, r2, op, obs):
+            session.close()
+
+
+@pytest.mark.zenoh
+def test_live_estop_held_query(router: int, pki) -> None:  # type: ignore[no-untyped-def]
+    """An agent answers the engagements it holds on its own ``estop/held/<robot>`` only: a
+    coordinator's and a robot's query of ``estop/held/*`` get r1's answer; r2's queryable on
+    r1's key, r1's on ``estop`` (where releases are) and an observer's query are refused."""
+    fleet, _ = pki
+    coord = _client(router, fleet.identities["coordinator.main"].tls())
+    r1 = _client(router, fleet.identities["robot.r1"].tls())
+    r2 = _client(router, fleet.identities["robot.r2"].tls())
+    obs = _client(router, fleet.identities["observer.rec"].tls())
+    held_r1, held_all = _f("estop/held/r1"), _f("estop/held/*")
+    try:
+        own_q = r1.declare_queryable(held_r1, lambda q: q.reply(held_r1, b"held"))
+        forged_q = r2.declare_queryable(held_r1, lambda q: q.reply(held_r1, b"forged"))
+        forged_estop = r1.declare_queryable(_f("estop"), lambda q: q.reply(_f("estop"), b"rel"))
+        deadline = time.monotonic() + 5.0
+        answers: list[bytes] = []
+        while time.monotonic() < deadline and not answers:
+            answers = _ask(coord, held_all)
+        assert answers == [b"held"]  # r2's forged answer for r1 never arrives
+        assert _ask(r2, held_all) == [b"held"]
+        assert _ask(coord, _f("estop")) == []  # r1 may not answer where releases are
+        assert _ask(obs, held_all) == []
+        for q in (own_q, forged_q, forged_estop):
+            q.undeclare()
+    finally:
+        for session in (coord, r1, r2, obs):
             session.close()
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import msgpack
 import pytest
@@ -40,6 +41,7 @@ from bus_schemas import (
     Wheels,
     decode,
     decode_estop_answer,
+    decode_or_raise,
     encode,
     keys,
     new_estop_id,
@@ -449,43 +451,74 @@ def assert_stopped(
     assert {s.mode for s in held_status} == {"estop"}
 
 
+def _held(client: zenoh.Session, name: str, want: list[Estop], timeout_s: float = 3.0) -> None:
+    """Agent ``name``'s answer on ``estop/held/<name>`` becomes ``want`` (t aside)."""
+    key = keys.estop_held_key(FLEET, name)
+    deadline = time.monotonic() + timeout_s
+    got: list[Estop] = []
+    while time.monotonic() < deadline:
+        got = [replace(decode_or_raise(p, Estop), t=0.0) for p in get_all(client, key, 0.5)]
+        if got == want:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"estop/held/{name}: {got}, expected {want}")
+
+
 @pytest.mark.zenoh
-def test_an_estop_the_coordinator_never_received_holds_until_released(
+def test_an_estop_no_coordinator_received_holds_agents_started_later_until_released(
     spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
 ) -> None:
+    """No coordinator runs when the fleet is e-stopped. The agent that got it answers
+    ``estop/held/r1`` with the engagement; an agent started afterwards learns it there and comes
+    up stopped, and so does a coordinator started alone (it then answers with it); the operator's
+    release lets both drive and empties the held answer. (Before agents answered: the coordinator
+    said "nothing latched" and a robot started then drove at once.)"""
     client = session()
     pubs = rt.Publishers(client)
     start_agent(spawn, router)
     wheels = Recorder(client, keys.wheels_key(FLEET, "r1"), decoder_of(Wheels))
     status = Recorder(client, keys.status_key(FLEET, "r1"), decoder_of(Status))
+    wheels2 = Recorder(client, keys.wheels_key(FLEET, "r2"), decoder_of(Wheels))
+    status2 = Recorder(client, keys.status_key(FLEET, "r2"), decoder_of(Status))
     key = keys.estop_key(FLEET)
-    with Feeder(pubs, "r1", pose=lambda: (0.0, 0.0, 0.0), setpoint=lambda: (0.45, 0.0)):
+    with (
+        Feeder(pubs, "r1", pose=lambda: (0.0, 0.0, 0.0), setpoint=lambda: (0.45, 0.0)),
+        Feeder(pubs, "r2", pose=lambda: (0.0, 1.5, 0.0), setpoint=lambda: (0.45, 1.5)),
+    ):
         wheels.wait_for(lambda _r, _k, w: nonzero(w), timeout_s=10.0)
+        _held(client, "r1", [])  # nothing held: no queryable, no answer
         t_engage = time.monotonic()
         engage = Estop(t=t_engage, engage=True, robot=None, id=new_estop_id())
         pubs.put(key, encode(engage), rt.QOS_CRITICAL)
         wheels.wait_for(lambda r, _k, w: r > t_engage and not nonzero(w), timeout_s=1.0)
+        _held(client, "r1", [replace(engage, t=0.0)])
 
-        # Only now a coordinator starts: it never received the e-stop, asks the other
-        # coordinators (none) and answers every query with "nothing latched".
+        # An agent started now: no coordinator anywhere, r1 tells it.
+        t_r2 = time.monotonic()
+        start_agent(spawn, router, robot="r2")
+        # Only now a coordinator starts: it never received the e-stop and finds no other
+        # coordinator; it learns the engagement from the agents and answers with it.
         spawn(
             "coordinator", "--scenario", "paper-exp1", "--fleet", FLEET,
             "--endpoint", router.endpoint, ready="coord",
         )  # fmt: skip
         t_coord = time.monotonic()
-        answer = [decode(p, Estop) for p in get_all(client, key, 2.0)]
-        assert len(answer) == 1 and answer[0] == Estop(
-            t=getattr(answer[0], "t", 0.0), engage=False, robot=None
-        ), f"the coordinator must hold nothing: {answer}"
-        time.sleep(3.2)  # three refresh periods (ESTOP_REFRESH_S) of "nothing latched"
+        answer = [replace(decode_or_raise(p, Estop), t=0.0) for p in get_all(client, key, 2.0)]
+        assert answer == [replace(engage, t=0.0)], f"the coordinator must hold it: {answer}"
+        time.sleep(3.2)  # three refresh periods (ESTOP_REFRESH_S)
         t_end = time.monotonic()
         assert_stopped(wheels, status, t_coord, t_end, min_wheels=30, min_status=10)
+        assert_stopped(wheels2, status2, t_r2, t_end, min_wheels=30, min_status=10)
+        _held(client, "r2", [replace(engage, t=0.0)])
 
-        # the operator's release (no id: scope only) lets it drive again
+        # the operator's release (no id: scope only) lets both drive again
         t_release = time.monotonic()
         pubs.put(key, encode(Estop(t=t_release, engage=False, robot=None)), rt.QOS_CRITICAL)
-        wheels.wait_for(lambda r, _k, w: r > t_release and nonzero(w), timeout_s=2.0)
-        status.wait_for(lambda r, _k, s: r > t_release and s.mode != "estop", timeout_s=2.0)
+        for w, st in ((wheels, status), (wheels2, status2)):
+            w.wait_for(lambda r, _k, w: r > t_release and nonzero(w), timeout_s=2.0)
+            st.wait_for(lambda r, _k, s: r > t_release and s.mode != "estop", timeout_s=2.0)
+        _held(client, "r1", [])
+        _held(client, "r2", [])
 
 
 @pytest.mark.zenoh

@@ -1,0 +1,64 @@
+"""The e-stop hooks an agent and an agent host share with their process shell
+(``robot_agent.node_estop``, ``robot_agent.host_main``): asking the latched state and offering
+the engagements held (docs/faults.md).
+
+An agent or agent host that holds an e-stop engagement answers queries on
+``formation/<fleet>/estop/held/<name>`` with its engagements (never a release): a coordinator
+that starts with nothing (restarted alone, without its ``--estop-state`` file) learns them at
+start, and an agent that starts then learns them with its first query, so a robot started while
+the fleet is e-stopped comes up stopped even when no coordinator remembers the e-stop.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
+
+from bus_schemas import encode_estop_entries
+from robot_agent.estop import Entry
+
+__all__ = ["EstopHooks"]
+
+
+class EstopHooks:
+    """:attr:`estop_query` asks the latched state (set by the shell; :meth:`request_estop_state`
+    calls it); :attr:`estop_held` answers ``estop/held/<name>`` from now on with the payloads it
+    is given (none: nothing held, no queryable; :meth:`offer_held` calls it on a change)."""
+
+    def _init_estop_hooks(self) -> None:
+        self.estop_query: Callable[[], None] | None = None
+        self.estop_queried_s = -math.inf
+        self.estop_held: Callable[[tuple[bytes, ...]], None] | None = None
+        self._held_offered: list[Entry] = []
+
+    if TYPE_CHECKING:
+
+        def _internal(self, where: str, exc: BaseException) -> None: ...
+
+    def request_estop_state(self, now_s: float) -> None:
+        """Ask for the latched e-stop state (through :attr:`estop_query`)."""
+        self.estop_queried_s = now_s
+        if self.estop_query is not None:
+            try:
+                self.estop_query()
+            except Exception as exc:
+                self._internal("estop_query", exc)
+
+    def offer_held(self, engagements: Iterable[Entry]) -> None:
+        """The engagements held now (``EstopLatch.engagements``, several latches' in a host:
+        repeats are merged): handed to :attr:`estop_held` if they changed."""
+        held = sorted(set(engagements), key=_order)
+        if self.estop_held is None or held == self._held_offered:
+            return
+        self._held_offered = held
+        try:
+            self.estop_held(encode_estop_entries(held, time.monotonic()))
+        except Exception as exc:
+            self._internal("estop_held", exc)
+
+
+def _order(entry: Entry) -> tuple[bool, str, int]:
+    _, robot, eid = entry
+    return (robot is not None, robot or "", eid or 0)
