@@ -182,7 +182,7 @@ async def attach_estop_source(
     then the engagements the agents hold (``estop/held/*``: a coordinator restarted alone
     without its file learns an e-stop the robots still obey), then answer every query on the
     ``estop`` key with the state."""
-    from runtime.query import Answerer, get_all
+    from runtime.query import Answerer, get_all_now
 
     source.loop = io.loop
     io._keep.append(rt.subscribe_on_thread(io.session, source.key, source.on_estop))
@@ -190,20 +190,13 @@ async def attach_estop_source(
     if info is None or info.leaf != keys.ESTOP:
         raise ValueError(f"not an estop key: {source.key!r}")
     asked = (source.key, keys.estop_held_pattern(info.fleet))
-    got = await asyncio.gather(
-        *(
-            io.loop.run_in_executor(None, get_all, io.session, key, ESTOP_QUERY_TIMEOUT_S)
-            for key in asked
-        ),
-        return_exceptions=True,
+    answers = await get_all_now(
+        io.loop,
+        io.session,
+        asked,
+        ESTOP_QUERY_TIMEOUT_S,
+        lambda exc: source._internal("estop_query", exc),
     )
-    answers: list[list[bytes]] = []
-    for result in got:
-        if isinstance(result, BaseException):
-            source._internal("estop_query", result)
-            answers.append([])
-        else:
-            answers.append(result)
     source.on_state(answers[0])
     if store is not None:
         loaded = await io.loop.run_in_executor(None, read_state, store.path, store.fleet)

@@ -12,7 +12,7 @@ starts, when it resumes from a stop and every :data:`ESTOP_REFRESH_S` (realtime)
 answers with :meth:`EstopLatch.merge_answer`. An agent holding an engagement answers too, on its
 own key ``estop/held/<name>``, with :meth:`EstopLatch.engagements` only (never a release): an
 agent or coordinator that starts with nothing learns there what the robots still obey
-(robot_agent.estop_hooks).
+(robot_agent.estop_shell).
 
 Engagement identity (docs/faults.md): every engage carries a fresh random ``id``
 (``bus_schemas.new_estop_id``); a latched scope remembers the ids of the engagements holding it,

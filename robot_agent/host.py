@@ -46,7 +46,7 @@ respawned under an e-stop come up in ESTOP), again when it resumes from a stop, 
 ``ESTOP_REFRESH_S`` in realtime, together with the engagements the other agents hold
 (:meth:`HostNode.on_estop_state`, ``on_estop_held``; the handlers are
 :mod:`robot_agent.host_estop`); while a hosted robot holds an engagement, the host answers
-``estop/held/<host>`` with every hosted robot's (:mod:`robot_agent.estop_hooks`).
+``estop/held/<host>`` with every hosted robot's (:mod:`robot_agent.estop_shell`).
 
 Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
 logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
@@ -208,7 +208,7 @@ class HostNode(HostEstop):
         self._status_t = 0.0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
         # the latched e-stop (robot_agent.estop): the hooks that ask the latched state and answer
-        # with the engagements held (robot_agent.estop_hooks, set by host_main)
+        # with the engagements held (robot_agent.estop_shell, set by host_main)
         self._init_estop_hooks()
         # realtime: the process turned the automatic garbage collection off (host_main) and the
         # host collects after each watchdog round, between two frames (collect_garbage)

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import runtime as rt
 from bus_schemas import DecodeError, Estop, decode, decode_estop_answer
-from robot_agent.estop_hooks import EstopHooks
+from robot_agent.estop_shell import EstopHooks
 from robot_agent.firmware import WheelCommand
 from robot_agent.node import AgentNode
 
@@ -69,7 +69,7 @@ class HostEstop(EstopHooks):
             self._internal("on_estop_state", exc)
 
     def _offer_held(self) -> None:
-        """Answer ``estop/held/<host>`` with every hosted robot's engagements (estop_hooks)."""
+        """Answer ``estop/held/<host>`` with every hosted robot's engagements (estop_shell)."""
         self.offer_held(e for node in self.nodes.values() for e in node.estop.engagements())
 
     def on_estop(self, rx: rt.Received) -> None:

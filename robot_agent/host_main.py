@@ -20,13 +20,12 @@ import gc
 import os
 import re
 import sys
-import time
 
 import runtime as rt
 from bus_schemas import keys
 from robot_agent import _accel
 from robot_agent.host import MAX_HOSTED, HostNode
-from robot_agent.node_estop import query_estop
+from robot_agent.node_estop import attach_estop
 from robot_agent.params import AgentConfig
 from runtime.sdnotify import Notifier
 
@@ -174,27 +173,9 @@ async def _node(
 
 
 async def attach_host_estop_state(host: HostNode, io: rt.NodeIO) -> None:
-    """Subscribe to ``estop``, answer ``estop/held/<host>`` while a hosted robot holds an
-    engagement, ask the coordinators' latched state and the agents' held engagements *now*
-    (every hosted robot merges them; robot_agent.node_estop.query_estop) and install the hook
-    that asks again on resume and every ``ESTOP_REFRESH_S`` (realtime). Call it before the
-    subscriptions that move the robots."""
-    from runtime.query import LazyAnswerer
-
-    io.subscribe(host.estop_key, host.on_estop)
-    held = LazyAnswerer(io.session, keys.estop_held_key(host.fleet, host.name))
-    io._keep.append(held)
-    host.estop_held = held.offer
-    queriers = await query_estop(
-        io, host.estop_key, host.fleet, host.on_estop_state, host.on_estop_held, host._internal
-    )
-    host.estop_queried_s = time.monotonic()
-
-    def ask() -> None:
-        for querier in queriers:
-            querier.request()
-
-    host.estop_query = ask
+    """``robot_agent.node_estop.attach_estop`` for an agent host: every hosted robot merges the
+    answers, and the host answers ``estop/held/<host>`` with every hosted robot's engagements."""
+    await attach_estop(io, host, host.name, host.on_estop_state, host.on_estop_held)
 
 
 if __name__ == "__main__":  # pragma: no cover

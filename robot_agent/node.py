@@ -43,7 +43,7 @@ from bus_schemas import (
 )
 from robot_agent.clocksync import ClockOffsets
 from robot_agent.estop import ESTOP_REFRESH_S, EstopLatch
-from robot_agent.estop_hooks import EstopHooks
+from robot_agent.estop_shell import EstopHooks
 from robot_agent.firmware import Firmware, WheelCommand
 from robot_agent.firmware import Pose as FwPose
 from robot_agent.firmware import Setpoint as FwSetpoint
@@ -183,7 +183,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
         self.internal_errors = 0
         # E-stop as latched fleet state (robot_agent.estop): the scopes this robot obeys (with
         # their engagement ids) and the shell's hooks that query the latched state and answer
-        # with the engagements held (robot_agent.estop_hooks).
+        # with the engagements held (robot_agent.estop_shell).
         self.estop = EstopLatch()
         self._init_estop_hooks()
         self.steps = 0

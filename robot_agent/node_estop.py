@@ -3,12 +3,11 @@ the coordinators for it (``estop``) and the other agents for the engagements the
 (``estop/held/*``) before it subscribes to anything that moves it (so an agent that starts or
 restarts under an e-stop comes up stopped), and again on resume and every ``ESTOP_REFRESH_S`` in
 realtime; while it holds an engagement it answers ``estop/held/<robot>`` itself
-(robot_agent.estop_hooks). Split out of robot_agent/node.py.
+(robot_agent.estop_shell). Split out of robot_agent/node.py.
 """
 
 from __future__ import annotations
 
-import asyncio
 import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
@@ -19,9 +18,9 @@ from robot_agent.estop import ESTOP_QUERY_TIMEOUT_S
 from robot_agent.node import AgentNode
 
 if TYPE_CHECKING:
-    from runtime.query import Querier
+    from robot_agent.host import HostNode
 
-__all__ = ["attach_estop_state", "estop_answers", "query_estop"]
+__all__ = ["attach_estop", "attach_estop_state", "estop_answers"]
 
 
 def estop_answers(
@@ -33,18 +32,7 @@ def estop_answers(
 
 
 async def attach_estop_state(node: AgentNode, io: rt.NodeIO) -> None:
-    """Subscribe to ``estop``, answer ``estop/held/<robot>`` while this robot holds an
-    engagement (robot_agent.estop_hooks), ask the coordinators' latched state and the other
-    agents' held engagements *now* (so an agent that starts or restarts under an e-stop comes up
-    stopped, even when no coordinator remembers it) and install the hook that asks again on
-    resume and every ``ESTOP_REFRESH_S`` (realtime). Call it before the subscriptions that make
-    the robot move."""
-    from runtime.query import LazyAnswerer
-
-    io.subscribe(node.estop_key, node.on_estop)
-    held = LazyAnswerer(io.session, keys.estop_held_key(node.fleet, node.robot_id))
-    io._keep.append(held)
-    node.estop_held = held.offer
+    """:func:`attach_estop` for an agent: it answers ``estop/held/<robot>``."""
 
     def on_state(payloads: Sequence[bytes], _token: int) -> None:
         node.on_estop_state(estop_answers(node, payloads))
@@ -52,50 +40,51 @@ async def attach_estop_state(node: AgentNode, io: rt.NodeIO) -> None:
     def on_held(payloads: Sequence[bytes], _token: int) -> None:
         node.on_estop_state(estop_answers(node, payloads, held=True))
 
-    queriers = await query_estop(io, node.estop_key, node.fleet, on_state, on_held, node._internal)
-    node.estop_queried_s = time.monotonic()
+    await attach_estop(io, node, node.robot_id, on_state, on_held)
+
+
+async def attach_estop(
+    io: rt.NodeIO,
+    agent: AgentNode | HostNode,
+    name: str,
+    on_state: Callable[[Sequence[bytes], int], None],
+    on_held: Callable[[Sequence[bytes], int], None],
+) -> None:
+    """Subscribe ``agent`` (an agent or an agent host) to ``estop``, answer
+    ``estop/held/<name>`` while it holds an engagement (robot_agent.estop_shell), ask the
+    coordinators' latched state (``estop``, to ``on_state``) and the other agents' held
+    engagements (``estop/held/*``, to ``on_held``) *now*, both at once, the coordinators' answer
+    handled first (so an agent that starts or restarts under an e-stop comes up stopped, even
+    when no coordinator remembers it), and install the hook that asks both again on resume and
+    every ``ESTOP_REFRESH_S`` (realtime). Call it before the subscriptions that make a robot
+    move."""
+    from runtime.query import LazyAnswerer, Querier, get_all_now
+
+    io.subscribe(agent.estop_key, agent.on_estop)
+    held = LazyAnswerer(io.session, keys.estop_held_key(agent.fleet, name))
+    io._keep.append(held)
+    agent.estop_held = held.offer
+    timeout = ESTOP_QUERY_TIMEOUT_S
+    queriers = (
+        Querier(io.session, io.loop, agent.estop_key, on_state, timeout_s=timeout),
+        Querier(
+            io.session, io.loop, keys.estop_held_pattern(agent.fleet), on_held, timeout_s=timeout
+        ),
+    )
+    io._keep.extend(queriers)
+    answers = await get_all_now(
+        io.loop,
+        io.session,
+        [q.key for q in queriers],
+        timeout,
+        lambda exc: agent._internal("estop_query", exc),
+    )
+    on_state(answers[0], 0)
+    on_held(answers[1], 0)
+    agent.estop_queried_s = time.monotonic()
 
     def ask() -> None:
         for querier in queriers:
             querier.request()
 
-    node.estop_query = ask
-
-
-async def query_estop(
-    io: rt.NodeIO,
-    estop_key: str,
-    fleet: str,
-    on_state: Callable[[Sequence[bytes], int], None],
-    on_held: Callable[[Sequence[bytes], int], None],
-    internal: Callable[[str, BaseException], None],
-) -> tuple[Querier, Querier]:
-    """Ask the coordinators' latched state (``estop``) and the agents' held engagements
-    (``estop/held/*``) now, in parallel, and hand each answer to its handler, the coordinators'
-    first; the two queriers (kept by ``io``) ask again on :meth:`Querier.request`."""
-    from runtime.query import Querier
-
-    queriers = (
-        Querier(io.session, io.loop, estop_key, on_state, timeout_s=ESTOP_QUERY_TIMEOUT_S),
-        Querier(
-            io.session,
-            io.loop,
-            keys.estop_held_pattern(fleet),
-            on_held,
-            timeout_s=ESTOP_QUERY_TIMEOUT_S,
-        ),
-    )
-    io._keep.extend(queriers)
-    got = await asyncio.gather(
-        *(io.loop.run_in_executor(None, q.run_now) for q in queriers), return_exceptions=True
-    )
-    answers: list[list[bytes]] = []
-    for result in got:
-        if isinstance(result, BaseException):  # no answer: start from the messages alone
-            internal("estop_query", result)
-            answers.append([])
-        else:
-            answers.append(result)
-    on_state(answers[0], 0)
-    on_held(answers[1], 0)
-    return queriers
+    agent.estop_query = ask

@@ -27,7 +27,7 @@ import zenoh
 
 from runtime.bridge import _post
 
-__all__ = ["Answerer", "LazyAnswerer", "Querier", "get_all"]
+__all__ = ["Answerer", "LazyAnswerer", "Querier", "get_all", "get_all_now"]
 
 
 def get_all(
@@ -49,6 +49,29 @@ def get_all(
         ok = reply.ok
         if ok is not None and len(out) < max_replies:
             out.append(ok.payload.to_bytes())
+    return out
+
+
+async def get_all_now(
+    loop: asyncio.AbstractEventLoop,
+    session: zenoh.Session,
+    keys: Sequence[str],
+    timeout_s: float,
+    on_error: Callable[[BaseException], object],
+) -> list[list[bytes]]:
+    """:func:`get_all` of every key at once, off the loop; the payloads per key, in order (a
+    query that raised is handed to ``on_error`` and answers nothing)."""
+    got = await asyncio.gather(
+        *(loop.run_in_executor(None, get_all, session, key, timeout_s) for key in keys),
+        return_exceptions=True,
+    )
+    out: list[list[bytes]] = []
+    for result in got:
+        if isinstance(result, BaseException):
+            on_error(result)
+            out.append([])
+        else:
+            out.append(result)
     return out
 
 

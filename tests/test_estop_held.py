@@ -1,4 +1,4 @@
-"""The agents hold the e-stop too (robot_agent.estop_hooks, docs/faults.md "The agents hold it
+"""The agents hold the e-stop too (robot_agent.estop_shell, docs/faults.md "The agents hold it
 too"): an agent or agent host that holds an engagement answers ``estop/held/<name>`` with it
 (never a release); agents add what the others hold; a starting coordinator adds it last, after
 the other coordinators' and its file's release records. End to end with real processes:
