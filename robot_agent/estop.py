@@ -10,7 +10,8 @@ the ``estop`` messages it receives and answers queries on the ``estop`` key with
 :meth:`EstopLatch.answer` (the durable source); an agent keeps its own latch, queries it when it
 starts, when it resumes from a stop and every :data:`ESTOP_REFRESH_S` (realtime), and merges the
 answers with :meth:`EstopLatch.merge_answer`. An agent holding an engagement answers too, on its
-own key ``estop/held/<name>``, with :meth:`EstopLatch.engagements` only (never a release): an
+own key ``estop/held/<name>``, with the :meth:`EstopLatch.engagements` of a witness latch (every
+engagement it saw, another robot's too; never a release): an
 agent or coordinator that starts with nothing learns there what the robots still obey
 (robot_agent.estop_shell).
 

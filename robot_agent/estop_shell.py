@@ -2,8 +2,9 @@
 (``robot_agent.node_estop``, ``robot_agent.host_main``): asking the latched state and offering
 the engagements held (docs/faults.md).
 
-An agent or agent host that holds an e-stop engagement answers queries on
-``formation/<fleet>/estop/held/<name>`` with its engagements (never a release): a coordinator
+An agent or agent host that holds an e-stop engagement (of any scope: the fleet's, its robots',
+another robot's it received) answers queries on ``formation/<fleet>/estop/held/<name>`` with its
+engagements (never a release): a coordinator
 that starts with nothing (restarted alone, without its ``--estop-state`` file) learns them at
 start, and an agent that starts then learns them with its first query, so a robot started while
 the fleet is e-stopped comes up stopped even when no coordinator remembers the e-stop.
@@ -17,7 +18,7 @@ from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING
 
 from bus_schemas import encode_estop_entries
-from robot_agent.estop import Entry
+from robot_agent.estop import Entry, EstopLatch
 
 __all__ = ["EstopHooks"]
 
@@ -25,12 +26,18 @@ __all__ = ["EstopHooks"]
 class EstopHooks:
     """:attr:`estop_query` asks the latched state (set by the shell; :meth:`request_estop_state`
     calls it); :attr:`estop_held` answers ``estop/held/<name>`` from now on with the payloads it
-    is given (none: nothing held, no queryable; :meth:`offer_held` calls it on a change)."""
+    is given (none: nothing held, no queryable); :attr:`witness` is every engagement this
+    process saw, any robot's, and what it answers (:meth:`witness_message`,
+    :meth:`witness_answer` keep it and offer it on a change)."""
 
     def _init_estop_hooks(self) -> None:
         self.estop_query: Callable[[], None] | None = None
         self.estop_queried_s = -math.inf
         self.estop_held: Callable[[tuple[bytes, ...]], None] | None = None
+        self.witness = EstopLatch()
+        """Every scope's engagements seen here (messages and answers, another robot's too, by
+        the same rules as a robot's own latch): a robot restarted under its own e-stop learns
+        it from the others even when no coordinator remembers it."""
         self._held_offered: list[Entry] = []
 
     if TYPE_CHECKING:
@@ -46,10 +53,21 @@ class EstopHooks:
             except Exception as exc:
                 self._internal("estop_query", exc)
 
-    def offer_held(self, engagements: Iterable[Entry]) -> None:
-        """The engagements held now (``EstopLatch.engagements``, several latches' in a host:
-        repeats are merged): handed to :attr:`estop_held` if they changed."""
-        held = sorted(set(engagements), key=_order)
+    def witness_message(self, engage: bool, robot: str | None, eid: int | None) -> None:
+        """An ``estop`` message of any scope (``EstopLatch.apply``); kept only where something
+        answers (:attr:`estop_held` set: not for the robots inside an agent host)."""
+        if self.estop_held is not None:
+            self.witness.apply(engage, robot, eid)
+            self._offer_held()
+
+    def witness_answer(self, answers: Iterable[Entry]) -> None:
+        """A query's decoded answer, every robot's entries (``EstopLatch.merge_answer``)."""
+        if self.estop_held is not None:
+            self.witness.merge_answer(answers)
+            self._offer_held()
+
+    def _offer_held(self) -> None:
+        held = self.witness.engagements()
         if self.estop_held is None or held == self._held_offered:
             return
         self._held_offered = held
@@ -57,8 +75,3 @@ class EstopHooks:
             self.estop_held(encode_estop_entries(held, time.monotonic()))
         except Exception as exc:
             self._internal("estop_held", exc)
-
-
-def _order(entry: Entry) -> tuple[bool, str, int]:
-    _, robot, eid = entry
-    return (robot is not None, robot or "", eid or 0)

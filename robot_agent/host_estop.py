@@ -59,18 +59,14 @@ class HostEstop(EstopHooks):
             answers = decode_estop_answer(
                 payloads, lambda err: self._reject("estop_state", err), held=held
             )
+            self.witness_answer(answers)
             for node in self.nodes.values():
                 node.on_estop_state(answers)
-            self._offer_held()
             stopped = sum(n.estop.stopped(n.robot_id) for n in self.nodes.values())
             if stopped:
                 self.log.limited("estop-state", f"latched e-stop: {stopped} robot(s) stopped")
         except Exception as exc:
             self._internal("on_estop_state", exc)
-
-    def _offer_held(self) -> None:
-        """Answer ``estop/held/<host>`` with every hosted robot's engagements (estop_shell)."""
-        self.offer_held(e for node in self.nodes.values() for e in node.estop.engagements())
 
     def on_estop(self, rx: rt.Received) -> None:
         """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
@@ -80,6 +76,7 @@ class HostEstop(EstopHooks):
             if isinstance(msg, DecodeError):
                 self._reject("estop", msg)
                 return
+            self.witness_message(msg.engage, msg.robot, msg.id)  # answered on estop/held
             if msg.robot is None:
                 targets = list(self.nodes.values())
             elif msg.robot in self.nodes:
@@ -90,7 +87,6 @@ class HostEstop(EstopHooks):
                 node.rx["estop"] += 1
                 node.estop.apply(msg.engage, msg.robot, msg.id)
                 node.sync_estop()
-            self._offer_held()
             what = "all robots" if msg.robot is None else msg.robot
             self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")
             if msg.engage and not self.lockstep:

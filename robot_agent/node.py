@@ -305,6 +305,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
             if isinstance(msg, DecodeError):
                 self._reject("estop", msg)
                 return
+            self.witness_message(msg.engage, msg.robot, msg.id)  # answered on estop/held
             if msg.robot is not None and msg.robot != self.robot_id:
                 return  # another robot's estop
             self.estop.apply(msg.engage, msg.robot, msg.id)
@@ -319,6 +320,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
         try:
             if not answers:
                 return
+            self.witness_answer(answers)
             mine = [a for a in answers if a[1] is None or a[1] == self.robot_id]
             self.estop.merge_answer(mine)
             self.sync_estop("query answer")
@@ -340,7 +342,6 @@ class AgentNode(NodeNeighbours, EstopHooks):
         elif latched and not stop:
             self.firmware.release_estop()
             self.log.info(f"estop released{src} t={time.monotonic():.6f}")
-        self.offer_held(self.estop.engagements())
 
     def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: step at t_k and answer with wheels(tick=k)."""
