@@ -4,10 +4,10 @@ the engagements held (docs/faults.md).
 
 An agent or agent host that holds an e-stop engagement (of any scope: the fleet's, its robots',
 another robot's it received) answers queries on ``formation/<fleet>/estop/held/<name>`` with its
-engagements (never a release): a coordinator
-that starts with nothing (restarted alone, without its ``--estop-state`` file) learns them at
-start, and an agent that starts then learns them with its first query, so a robot started while
-the fleet is e-stopped comes up stopped even when no coordinator remembers the e-stop.
+engagements (never a release): a coordinator that starts with nothing (restarted alone, without
+its ``--estop-state`` file) learns them at start, and an agent that starts then learns them with
+its first query, so a robot started while it is e-stopped comes up stopped even when no
+coordinator remembers the e-stop.
 """
 
 from __future__ import annotations
