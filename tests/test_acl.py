@@ -510,12 +510,16 @@ def test_live_estop_state_query(router: int, pki) -> None:  # type: ignore[no-un
 @pytest.mark.zenoh
 def test_live_estop_held_query(router: int, pki) -> None:  # type: ignore[no-untyped-def]
     """An agent answers the engagements it holds on its own ``estop/held/<robot>`` only: a
-    coordinator's and a robot's query of ``estop/held/*`` get r1's answer; r2's queryable on
-    r1's key, r1's on ``estop`` (where releases are) and an observer's query are refused."""
+    coordinator's, a robot's and the operator's query of ``estop/held/*`` get r1's answer; r2's
+    queryable on r1's key, r1's on ``estop`` (where releases are) and an observer's query are
+    refused. (The askers hold no queryable of their own: a session answers its own queries
+    locally, without the router.)"""
     fleet, _ = pki
     coord = _client(router, fleet.identities["coordinator.main"].tls())
     r1 = _client(router, fleet.identities["robot.r1"].tls())
     r2 = _client(router, fleet.identities["robot.r2"].tls())
+    r3 = _client(router, fleet.identities["host.h1"].tls())
+    op = _client(router, fleet.identities["operator"].tls())
     obs = _client(router, fleet.identities["observer.rec"].tls())
     held_r1, held_all = _f("estop/held/r1"), _f("estop/held/*")
     try:
@@ -527,13 +531,14 @@ def test_live_estop_held_query(router: int, pki) -> None:  # type: ignore[no-unt
         while time.monotonic() < deadline and not answers:
             answers = _ask(coord, held_all)
         assert answers == [b"held"]  # r2's forged answer for r1 never arrives
-        assert _ask(r2, held_all) == [b"held"]
+        assert _ask(r3, held_all) == [b"held"]
+        assert _ask(op, held_all) == [b"held"]
         assert _ask(coord, _f("estop")) == []  # r1 may not answer where releases are
         assert _ask(obs, held_all) == []
         for q in (own_q, forged_q, forged_estop):
             q.undeclare()
     finally:
-        for session in (coord, r1, r2, obs):
+        for session in (coord, r1, r2, r3, op, obs):
             session.close()
 
 
