@@ -451,17 +451,29 @@ def assert_stopped(
     assert {s.mode for s in held_status} == {"estop"}
 
 
-def _held(client: zenoh.Session, name: str, want: list[Estop], timeout_s: float = 3.0) -> None:
+def answer_of(
+    client: zenoh.Session,
+    key: str,
+    ok: Callable[[list[Estop]], bool],
+    timeout_s: float = 5.0,
+) -> list[Estop]:
+    """The answer on ``key`` once ``ok`` says it is the expected one (a queryable declared just
+    before a process said "ready" may reach the router after the test's first query: a
+    starved process sends its declarations late)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        answer = [decode_or_raise(p, Estop) for p in get_all(client, key, 1.0)]
+        if ok(answer):
+            return answer
+        if time.monotonic() > deadline:
+            pytest.fail(f"{key}: {answer}")
+        time.sleep(0.05)
+
+
+def _held(client: zenoh.Session, name: str, want: list[Estop]) -> None:
     """Agent ``name``'s answer on ``estop/held/<name>`` becomes ``want`` (t aside)."""
     key = keys.estop_held_key(FLEET, name)
-    deadline = time.monotonic() + timeout_s
-    got: list[Estop] = []
-    while time.monotonic() < deadline:
-        got = [replace(decode_or_raise(p, Estop), t=0.0) for p in get_all(client, key, 0.5)]
-        if got == want:
-            return
-        time.sleep(0.05)
-    pytest.fail(f"estop/held/{name}: {got}, expected {want}")
+    answer_of(client, key, lambda a: [replace(e, t=0.0) for e in a] == want)
 
 
 @pytest.mark.zenoh
@@ -503,8 +515,7 @@ def test_an_estop_no_coordinator_received_holds_agents_started_later_until_relea
             "--endpoint", router.endpoint, ready="coord",
         )  # fmt: skip
         t_coord = time.monotonic()
-        answer = [replace(decode_or_raise(p, Estop), t=0.0) for p in get_all(client, key, 2.0)]
-        assert answer == [replace(engage, t=0.0)], f"the coordinator must hold it: {answer}"
+        answer_of(client, key, lambda a: [replace(e, t=0.0) for e in a] == [replace(engage, t=0.0)])
         time.sleep(3.2)  # three refresh periods (ESTOP_REFRESH_S)
         t_end = time.monotonic()
         assert_stopped(wheels, status, t_coord, t_end, min_wheels=30, min_status=10)

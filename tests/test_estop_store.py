@@ -29,7 +29,7 @@ from conftest import REPO_ROOT, RouterHandle, Spawner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_estop_identity import _rejecting_source as _source
-from test_estop_identity import assert_stopped
+from test_estop_identity import answer_of, assert_stopped
 from test_node_agent import FLEET, Feeder, Recorder, decoder_of, nonzero, start_agent
 
 import runtime as rt
@@ -37,7 +37,6 @@ from bus_schemas import (
     Estop,
     Status,
     Wheels,
-    decode,
     decode_estop_answer,
     encode,
     keys,
@@ -51,7 +50,6 @@ from coordinator.estop_store import (
     state_bytes,
 )
 from robot_agent.estop import NO_ID, EstopLatch
-from runtime.query import get_all
 
 KEY = "formation/demo/estop"
 
@@ -362,8 +360,7 @@ def test_a_coordinator_restarted_alone_keeps_the_fleet_stopped(
 
     # A new instance, alone on the bus, on the same file: it answers with the engagement.
     second = spawn(*coord_args, ready="coord")
-    answer = [decode(p, Estop) for p in get_all(client, key, 2.0)]
-    assert any(isinstance(a, Estop) and a.engage and a.id == eid for a in answer), answer
+    answer_of(client, key, lambda a: any(e.engage and e.id == eid for e in a))
     assert "estop state restored" in second.stderr()
 
     # An agent started now comes up stopped and stays stopped until the operator's release.
