@@ -155,16 +155,9 @@ class Querier:
             raise
         return True
 
-    def run_now(self) -> list[bytes]:
-        """Query synchronously (blocks up to the timeout); the payloads (no callback)."""
-        return self._get()
-
-    def _get(self) -> list[bytes]:
-        return get_all(self.session, self.key, self.timeout_s, self.max_replies)
-
     def _run(self, token: int) -> None:  # worker thread
         try:
-            payloads = self._get()
+            payloads = get_all(self.session, self.key, self.timeout_s, self.max_replies)
         except Exception:
             self.errors += 1
             payloads = []

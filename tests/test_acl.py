@@ -307,6 +307,11 @@ def _client(port: int, files: acl.TlsFiles):  # type: ignore[no-untyped-def]
     return zenoh.open(zenoh.Config.from_json5(acl.to_json5(conf)))
 
 
+def _clients(port: int, fleet, *cns: str) -> list:  # type: ignore[no-untyped-def]
+    """A session per certificate name ``cns`` of the run PKI ``fleet``, in order."""
+    return [_client(port, fleet.identities[cn].tls()) for cn in cns]
+
+
 class Inbox:
     """(key, payload) of received samples, thread-safe, with waits."""
 
@@ -484,11 +489,9 @@ def test_live_estop_state_query(router: int, pki) -> None:  # type: ignore[no-un
     """A coordinator answers the latched e-stop query; a robot and the operator get the answer;
     an observer's query and a robot's queryable are refused (robot_agent.estop)."""
     fleet, _ = pki
-    coord = _client(router, fleet.identities["coordinator.main"].tls())
-    r1 = _client(router, fleet.identities["robot.r1"].tls())
-    r2 = _client(router, fleet.identities["robot.r2"].tls())
-    op = _client(router, fleet.identities["operator"].tls())
-    obs = _client(router, fleet.identities["observer.rec"].tls())
+    coord, r1, r2, op, obs = _clients(
+        router, fleet, "coordinator.main", "robot.r1", "robot.r2", "operator", "observer.rec"
+    )
     key = _f("estop")
     try:
         coord_q = coord.declare_queryable(key, lambda q: q.reply(key, b"latched"))
@@ -515,12 +518,10 @@ def test_live_estop_held_query(router: int, pki) -> None:  # type: ignore[no-unt
     refused. (The askers hold no queryable of their own: a session answers its own queries
     locally, without the router.)"""
     fleet, _ = pki
-    coord = _client(router, fleet.identities["coordinator.main"].tls())
-    r1 = _client(router, fleet.identities["robot.r1"].tls())
-    r2 = _client(router, fleet.identities["robot.r2"].tls())
-    r3 = _client(router, fleet.identities["host.h1"].tls())
-    op = _client(router, fleet.identities["operator"].tls())
-    obs = _client(router, fleet.identities["observer.rec"].tls())
+    coord, r1, r2, r3, op, obs = _clients(
+        router, fleet, "coordinator.main", "robot.r1", "robot.r2", "host.h1", "operator",
+        "observer.rec",
+    )  # fmt: skip
     held_r1, held_all = _f("estop/held/r1"), _f("estop/held/*")
     try:
         own_q = r1.declare_queryable(held_r1, lambda q: q.reply(held_r1, b"held"))

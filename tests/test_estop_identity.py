@@ -542,7 +542,7 @@ async def test_a_query_gets_every_entry_of_every_coordinator(
     release record last in the answer hid the engagements before it)."""
     import asyncio
 
-    from runtime.query import Answerer, Querier
+    from runtime.query import Answerer
 
     key = keys.estop_key("consolidation")
     one, two = EstopLatch(), EstopLatch()
@@ -554,10 +554,10 @@ async def test_a_query_gets_every_entry_of_every_coordinator(
     answerers = [Answerer(session(), key), Answerer(session(), key)]
     for answerer, latch in zip(answerers, (one, two), strict=True):
         answerer.snapshot = tuple(_payloads(latch))
-    querier = Querier(session(), asyncio.get_running_loop(), key, lambda _p, _t: None)
+    asker = session()
     await asyncio.sleep(0.3)  # the queryables declared through the router
     try:
-        got = decode_estop_answer(querier.run_now(), lambda e: pytest.fail(str(e)))
+        got = decode_estop_answer(get_all(asker, key, 0.5), lambda e: pytest.fail(str(e)))
         assert sorted(got, key=repr) == sorted(one.answer() + two.answer(), key=repr)
     finally:
         for answerer in answerers:
