@@ -13,12 +13,12 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[agent,sim,camera,dev]'
 	@# the compiled firmware core (mypyc); without a C compiler the pure-Python core runs
-	$(BIN)/python -m robot_agent.accel_build build --quiet || echo "(the pure-Python firmware core runs)"
+	$(BIN)/python -m robot_agent.buildtools.accel build --quiet || echo "(the pure-Python firmware core runs)"
 	touch $(STAMP)
 
 # rebuild the compiled firmware core after editing it (a stale build is never used)
 accel: $(STAMP)
-	$(BIN)/python -m robot_agent.accel_build build
+	$(BIN)/python -m robot_agent.buildtools.accel build
 
 demo: $(STAMP)
 	$(BIN)/formation demo --out runs/demo

@@ -21,9 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from coordinator.assignment import assign_greedy, assign_optimal, assignment_cost
-from coordinator.formation import FormationSpec, slot_arrays, slot_states
-from coordinator.trajectory import LeaderState
+from coordinator.core.assignment import assign_greedy, assign_optimal, assignment_cost
+from coordinator.core.formation import FormationSpec, slot_arrays, slot_states
+from coordinator.core.trajectory import LeaderState
 
 SIZES = (10, 100, 300, 1000)
 

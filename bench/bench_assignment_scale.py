@@ -1,4 +1,4 @@
-"""Benchmark: role assignment at scale, sparse (coordinator.scale_assign) vs dense optimal.
+"""Benchmark: role assignment at scale, sparse (coordinator.core.scale_assign) vs dense optimal.
 
 For N = 10, 100, 300, 1000 robots and slots in a chevron and a lattice formation (b = 0.4 m),
 robots scattered around the slots (each robot's reference point = a random slot + Gaussian noise
@@ -29,15 +29,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from coordinator.assignment import SlotLike, assign_greedy, assign_optimal, assignment_cost
-from coordinator.formation import FormationSpec, slot_arrays, slot_states
-from coordinator.scale_assign import (
+from coordinator.core.assignment import SlotLike, assign_greedy, assign_optimal, assignment_cost
+from coordinator.core.formation import FormationSpec, slot_arrays, slot_states
+from coordinator.core.scale_assign import (
     DEFAULT_DENSE_MAX_PAIRS,
     DEFAULT_K,
     SparseAssignment,
     solve_sparse,
 )
-from coordinator.trajectory import LeaderState
+from coordinator.core.trajectory import LeaderState
 
 SIZES = (10, 100, 300, 1000)
 NOISES_M = (0.05, 0.3, 1.0)

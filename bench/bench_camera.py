@@ -1,13 +1,14 @@
 """Benchmark: the overhead-camera tracker on rendered 1280x720 frames.
 
 Part 1 (in-process, one core: the process is pinned to one CPU, OpenCV and pupil-apriltags
-single-threaded): for 3, 10 and 30 robots (sim_plant.render.moving_scene, camera 1.14 m above the
+single-threaded): for 3, 10 and 30 robots (sim_plant.core.render.moving_scene, camera 1.14 m above
+the
 floor tilted 8 deg, 6 cm tags ~47 px) and two image conditions (``mild``: blur 0.8 px + noise 3;
 ``heavy``: blur 1.5 px + noise 8 + a 0.6 lighting gain with a 30 % gradient), each detector's
 detection rate, position / heading error against truth with the true homography (median, p95,
 max) and detection + floor-mapping time per frame (median, mean, p95; frames per second =
 1 / mean). ``+ windows``: pupil-apriltags run only in windows around the previous frame's tags,
-the whole frame every 15th frame or when a robot was not found again (localization.detectors).
+the whole frame every 15th frame or when a robot was not found again (localization.core.detectors).
 
 Part 2 (processes): ``formation camera`` on a rendered 10-robot 720p MJPG video played at its own
 30 fps against a ``formation router``; its status key gives the achieved frame rate and the
@@ -37,10 +38,10 @@ import cv2
 import numpy as np
 
 from bus_schemas import CameraStatus, DecodeError, decode, keys
-from localization.calibration import Calibration, write
-from localization.detectors import pupil_available
-from localization.pipeline import CameraPipeline
-from sim_plant.render import CameraPose, Renderer, moving_scene, write_video
+from localization.core.calibration import Calibration, write
+from localization.core.detectors import pupil_available
+from localization.core.pipeline import CameraPipeline
+from sim_plant.core.render import CameraPose, Renderer, moving_scene, write_video
 
 CONDITIONS = {
     "mild": {"blur_sigma_px": 0.8, "noise_std": 3.0},

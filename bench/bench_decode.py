@@ -1,7 +1,8 @@
 """Strict decode: its cost, and a long seeded fuzz of the decoder over every message type.
 
     python bench/bench_decode.py                 # cost table + 200,000 fuzz payloads
-    python bench/bench_decode.py --fuzz 2000000  # the long fuzz (tests/test_decode_fuzz.py is
+    python bench/bench_decode.py --fuzz 2000000  # the long fuzz
+    (tests/unit/bus_schemas/test_decode_fuzz.py is
                                                  # the short one that runs in `make test`)
 
 Cost: per message type, the best of 40 interleaved rounds (process CPU time) of msgpack's
@@ -33,7 +34,7 @@ from bus_schemas.codec import _strict_map
 
 
 def samples() -> dict[type, Any]:
-    from bus_samples import SAMPLES  # one valid message per type (tests/bus_samples.py)
+    from bus_samples import SAMPLES  # one valid message per type (tests/support/bus_samples.py)
 
     return dict(SAMPLES)
 

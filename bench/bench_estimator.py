@@ -54,9 +54,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import scenario as scenario_mod
-from formation import simulate
-from formation.metrics import formation_error
-from formation.runlog import MODE_CODES
+from formation.outputs.metrics import formation_error
+from formation.outputs.runlog import MODE_CODES
+from formation.sim import simulate
 
 DEFAULT = Path(__file__).resolve().parent.parent / "formation" / "scenarios"
 
@@ -133,8 +133,8 @@ def measure(scn: scenario_mod.Scenario, loss_robot: str | None = None) -> dict[s
 
 def diagnose(scn: scenario_mod.Scenario) -> int:
     """The safety filter's barrier budget on the ``noisy 60ms+est`` variant (module doc)."""
-    from robot_agent import safety_filter as sf
-    from robot_agent import safety_plane as sp
+    from robot_agent.core import safety_filter as sf
+    from robot_agent.core import safety_plane as sp
 
     v = variant(scn, est=True, extrap=True, noisy=True)
     cfg = v.agent
@@ -293,7 +293,7 @@ def firmware_step_p50_us(ticks: int = 50_000) -> float:
     3 neighbours: ``bench/bench_firmware.py --estimator``'s measurement."""
     import bench_firmware as bf
 
-    from robot_agent import AgentConfig, EstimatorParams
+    from robot_agent.core import AgentConfig, EstimatorParams
 
     bf._CFG = AgentConfig(estimator=EstimatorParams(enabled=True))
     bf._EST_KW["on"] = True

@@ -2,8 +2,8 @@
 (the standard: every process exits within a second of SIGINT/SIGTERM and closes its session).
 
 Each repeat starts two small fleets exactly as ``formation up`` does (the command lines come from
-``formation.up_nodes``: ``router_args`` and ``node_commands`` of a planned run, the environment
-from ``formation.children.child_env``, a free loopback port, multicast off):
+``formation.launch.nodes``: ``router_args`` and ``node_commands`` of a planned run, the environment
+from ``formation.launch.children.child_env``, a free loopback port, multicast off):
 
 * ``agents``: ``--camera rendered --hosts 0``: router, plant (``--no-poses``), camera (the real
   tracker on rendered frames), coordinator, one agent per robot;
@@ -52,9 +52,9 @@ from pathlib import Path
 
 from common import REPO_ROOT, cpu_s, free_port, percentile
 
-from formation.children import child_env
-from formation.up_nodes import node_commands, router_args
-from formation.up_plan import UpConfig, plan_run
+from formation.launch.children import child_env
+from formation.launch.nodes import node_commands, router_args
+from formation.launch.plan import UpConfig, plan_run
 
 ROUTER_READY = "router listening on "
 TRACE_RE = re.compile(r"^stop trace: (.*)$", re.M)

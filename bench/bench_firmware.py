@@ -38,7 +38,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from robot_agent import (
+from robot_agent.core import (
     AgentConfig,
     EstimatorParams,
     Firmware,
@@ -214,7 +214,7 @@ def breakdown(n: int) -> dict[str, float]:
     parts: dict[str, float] = {}
     if _EST_KW:  # the estimator alone: what one Firmware.step asks of it (odometry, a 40 ms
         # old camera pose, the estimate at now), on the bench's poses
-        from robot_agent import Estimator
+        from robot_agent.core import Estimator
 
         est = Estimator(EstimatorParams(enabled=True))
         ring, _, _ = _inputs(RING)

@@ -1,7 +1,8 @@
-"""Long outsider fuzz of a running fleet (the short one is tests/test_outsider_fuzz.py).
+"""Long outsider fuzz of a running fleet (the short one is tests/fleet/test_outsider_fuzz.py).
 
 Starts a realtime ``formation up`` fleet (3 robots, a slow line), waits until every robot
-tracks, then publishes ``--per-key`` seeded hostile payloads (formation/fuzz.py, each refused by
+tracks, then publishes ``--per-key`` seeded hostile payloads (formation/operate/fuzz.py, each
+refused by
 the strict decoder) on every key the agents, the coordinator and the plant subscribe to, in
 rounds, and reports: payloads sent, each node's rejected count against the exact expectation,
 crashes (a node's status stopping), robots leaving TRACKING, and the minimum tracking error
@@ -31,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 import runtime as rt  # noqa: E402
 from bus_schemas import Status, decode  # noqa: E402
-from formation.fuzz import fuzz_plan, payloads_for  # noqa: E402
+from formation.operate.fuzz import fuzz_plan, payloads_for  # noqa: E402
 
 SCENARIO = """\
 name = "fuzz"

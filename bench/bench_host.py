@@ -1,7 +1,7 @@
 """Benchmark: the CPU an agent host spends per pose frame, in process (no Zenoh, no other process).
 
 What ``formation up --robots N`` runs on the pose->wheels path of an agent host, fed from a
-script instead of the bus: a :class:`robot_agent.host.HostNode` of the N robots of the default
+script instead of the bus: a :class:`robot_agent.node.host.HostNode` of the N robots of the default
 scenario (paper-exp2 grown to N slots by the staged rule), every robot near its slot, the
 formation moving along the scenario's line; per frame it gets a ``SetpointBatch`` (the
 coordinator's) and a ``PoseBatch`` (the plant's) stamped now, steps its robots and encodes their
@@ -11,7 +11,7 @@ due, ``HostNode.step_due``), as the realtime host runs between two frames.
 It prints, per handler, the **CPU time of this thread** (``time.thread_time``: what the host
 costs, unlike wall time, hardly changed by other processes on a shared machine) p50 / mean /
 min over the frames, per frame and per robot, and which modules of the path are compiled
-(mypyc ``.so``, ``robot_agent._accel``) or pure Python, so the gain of compiling a module is
+(mypyc ``.so``, ``robot_agent.core._accel``) or pure Python, so the gain of compiling a module is
 this bench run with and without it. Asserts that every robot tracks (a frame of robots in
 HOLD would measure another path).
 
@@ -33,18 +33,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import runtime as rt
 from bus_schemas import PoseBatch, SetpointBatch, encode, keys
-from robot_agent.firmware import Mode
-from robot_agent.host import HostNode
+from robot_agent.core.firmware import Mode
+from robot_agent.node.host import HostNode
 from scenario.resize import load_with_robots
 
 FLEET = "bench"
 PATH_MODULES = (
-    "robot_agent.firmware",
-    "robot_agent.safety_filter",
-    "robot_agent.node",
-    "robot_agent.host",
-    "robot_agent.host_grid",
-    "robot_agent.neighbours",
+    "robot_agent.core.firmware",
+    "robot_agent.core.safety_filter",
+    "robot_agent.node.agent",
+    "robot_agent.node.host",
+    "robot_agent.core.host_grid",
+    "robot_agent.core.neighbours",
     "bus_schemas.codec",
     "bus_schemas.spec",
     "bus_schemas.checks",

@@ -123,7 +123,7 @@ def main() -> int:
     p.add_argument("--robots", type=int, nargs="+", default=[3], help="robot counts")
     args = p.parse_args()
     import scenario
-    from formation import simulate
+    from formation.sim import simulate
 
     print(f"lockstep speed, paper-exp2, {args.duration:g} sim s per run, {os.cpu_count()} CPUs")
     scn = scenario.load("paper-exp2")

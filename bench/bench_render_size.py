@@ -2,7 +2,8 @@
 
 For each size (1280x720, 960x540, 800x450, 640x360: the default lens scaled, so the same floor
 in fewer pixels) and tag edge (6 and 10 cm), a straight-down camera covering a 2.1 m x 0.6 m
-strip (x -1.1..1.0, the robots' path in tests/test_deploy_netns.py), three robots moving across
+strip (x -1.1..1.0, the robots' path in tests/fleet/test_deploy_netns.py), three robots moving
+across
 it: render time of a gray frame (blur 0.8 px, noise 2: the rendered source's defaults), the
 tracker's time (pupil-apriltags with windows when installed, else OpenCV, + floor mapping +
 tracker), the fraction of robot-frames detected and the median position error against truth.
@@ -24,9 +25,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
-from localization.pipeline import CameraPipeline
-from localization.rendered import RenderSettings, camera_covering, rendered_calibration
-from sim_plant.render import CameraPose, Renderer
+from localization.core.pipeline import CameraPipeline
+from localization.core.rendered import RenderSettings, camera_covering, rendered_calibration
+from sim_plant.core.render import CameraPose, Renderer
 
 SIZES = ((1280, 720), (960, 540), (800, 450), (640, 360))
 TAGS_M = (0.06, 0.10)

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(
     0, str(ROOT / "tests")
-)  # the closed-loop harness of tests/test_safety_closed_loop.py
+)  # the closed-loop harness of tests/unit/formation/test_safety_closed_loop.py
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -38,8 +38,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    from formation import metrics, simulate
-    from robot_agent import AgentConfig, EstimatorParams
+    from formation.outputs import metrics
+    from formation.sim import simulate
+    from robot_agent.core import AgentConfig, EstimatorParams
     from scenario import load
 
     def est_on(agent: AgentConfig) -> AgentConfig:

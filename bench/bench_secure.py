@@ -13,7 +13,8 @@ and prints per run and as medians:
 * **pose->wheels latency** p50 / p99 / max, measured inside the plant (``plant_stats.json``: a
   frame's poses published -> the wheel command computed from that frame received back; two
   hops through the router, TLS-encrypted with ``--secure``), as in bench_up.py;
-* **PKI**: the launcher's share of the startup measured alone, ``formation.pki.write_run_configs``
+* **PKI**: the launcher's share of the startup measured alone,
+``formation.launch.pki.write_run_configs``
   for the run's identities (CA, keys, certificates, router and client configs), wall and CPU
   time, a few repetitions (the startup figures above are dominated by the machine's load);
 * **CPU**: CPU seconds of every process of the run (``/proc``, router, plant, coordinator,
@@ -89,7 +90,7 @@ def run_up(robots: int, duration_s: float, out: Path, secure: bool) -> dict[str,
 def time_pki(robots: int, repeat: int = 5) -> None:
     """``write_run_configs`` for a ``--secure`` fleet of ``robots`` agents, timed alone."""
     from bus_schemas import acl
-    from formation import pki
+    from formation.launch import pki
 
     idents = acl.fleet_identities(
         [f"r{k}" for k in range(1, robots + 1)], ("main",), plant=True, observers=("",)

@@ -1,4 +1,4 @@
-"""Benchmark: real-time factor of the in-process closed loop (``formation.simulate.run``).
+"""Benchmark: real-time factor of the in-process closed loop (``formation.sim.simulate.run``).
 
 Three fleets: paper-exp2 (3 robots, greedy, a drag mid-run), chevron7 (7 robots, optimal) and a
 30-robot chevron built here with ``scenario.parse`` (robots start near their slots,
@@ -30,17 +30,17 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import scenario as scenario_mod
-from coordinator import core as coord_core
-from coordinator import trajectory as traj_mod
-from coordinator.assignment import RoleAssigner
-from coordinator.formation import FormationSpec, slot_states
-from coordinator.trajectory import make_trajectory
-from formation import simulate
-from formation.runlog import RunLog
-from robot_agent.firmware import Firmware
-from sim_plant.accounting import SeparationMonitor
-from sim_plant.plant import Plant
-from sim_plant.sensors import Camera, CommandLink
+from coordinator.core import coordinator as coord_core
+from coordinator.core import trajectory as traj_mod
+from coordinator.core.assignment import RoleAssigner
+from coordinator.core.formation import FormationSpec, slot_states
+from coordinator.core.trajectory import make_trajectory
+from formation.outputs.runlog import RunLog
+from formation.sim import simulate
+from robot_agent.core.firmware import Firmware
+from sim_plant.core.accounting import SeparationMonitor
+from sim_plant.core.plant import Plant
+from sim_plant.core.sensors import Camera, CommandLink
 
 
 def chevron_scenario(n: int, duration_s: float = 60.0, seed: int = 5) -> scenario_mod.Scenario:

@@ -1,7 +1,7 @@
 """Soak: kill the leader's agent again and again; how often and how fast the fleet recovers.
 
 ``formation up --standby --respawn 0.5`` runs 3 robots (realtime) on a slow line (the scenario of
-``tests/test_faults.py``). This process is a Zenoh client of the run's router and stamps every
+``tests/fleet/test_faults.py``). This process is a Zenoh client of the run's router and stamps every
 message with ``time.monotonic()`` on receipt (every process is on this host: one clock). Each
 round:
 

@@ -3,8 +3,9 @@
 An agent host that dies (or is stopped) takes the liveliness tokens of all its robots with it:
 the coordinator gets one callback per robot, back to back on its loop. It used to re-assign
 (a tick over the whole fleet) for each; it now queues one re-assignment behind the burst
-(``CoordinatorNode._reassign_soon``, tests/test_coord_reassign.py). In process, no Zenoh: a
-realtime :class:`coordinator.node.CoordinatorNode` of ``--robots`` robots of paper-sim grown by
+(``CoordinatorNode._reassign_soon``, tests/bus/test_coord_reassign.py). In process, no Zenoh: a
+realtime :class:`coordinator.node.coordinator.CoordinatorNode` of ``--robots`` robots of paper-sim
+grown by
 the staged rule, every robot alive with a fresh pose, one tick, then ``--lost`` tokens vanish in
 one burst; prints the wall time until the loop has run the burst and what it queued, and the
 ticks it took (the re-assignments). The node's log lines (one per robot gone, one per
@@ -29,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import runtime as rt
 from bus_schemas import Pose, encode, keys
-from coordinator.node import CoordinatorNode
+from coordinator.node.coordinator import CoordinatorNode
 from scenario.resize import load_with_robots
 
 FLEET = "bench"

@@ -7,7 +7,7 @@ Runs, as a subprocess tree, exactly::
 
 (the endpoint only to stay off other runs' default port; ``--out``/``--duration``/
 ``--no-figures`` do not change the fleet). So the launcher decides the processes itself (the
-automatic agent-host rule of ``formation.up_plan.auto_hosts``; its ``fleet:`` banner line is
+automatic agent-host rule of ``formation.launch.plan.auto_hosts``; its ``fleet:`` banner line is
 printed here) on the default scenario (paper-exp2's triangle grown to N slots by the staged
 rule, its 50 Hz control and 30 Hz camera). Per run it prints:
 

@@ -1,6 +1,6 @@
 """Dump the firmware core's outputs over seeded random inputs, to compare two trees bit for bit.
 
-The dump itself is ``robot_agent/core_outputs.py`` (its docstring says what it covers)::
+The dump itself is ``robot_agent/buildtools/core_outputs.py`` (its docstring says what it covers)::
 
     PYTHONPATH=/path/to/before .venv/bin/python bench/firmware_outputs.py > before.txt
     .venv/bin/python bench/firmware_outputs.py > after.txt
@@ -16,7 +16,7 @@ from pathlib import Path
 
 sys.path.append(str(Path(__file__).resolve().parent.parent))
 
-from robot_agent.core_outputs import main
+from robot_agent.buildtools.core_outputs import main
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -34,7 +34,8 @@ and ``put``/``delete`` egress on K; a liveliness token is ``liveliness_token`` i
 tokens is ``declare_liveliness_subscriber``/``liveliness_query`` ingress and ``liveliness_token``
 egress; an identity that publishes is also told of every subscriber of the fleet
 (``declare_subscriber`` egress on ``formation/<fleet>/**``), without which its declared publishers
-do not send to wide subscribers such as a recorder's (tests/test_acl.py checks each against a real
+do not send to wide subscribers such as a recorder's (tests/bus/test_acl.py checks each against a
+real
 router).
 """
 
@@ -50,8 +51,7 @@ from pathlib import Path
 from typing import Any, Final
 
 from bus_schemas import keys
-
-from .acl_rules import (  # noqa: F401  (moved to acl_rules.py; re-exported)
+from bus_schemas.acl_rules import (  # noqa: F401  (moved to acl_rules.py; re-exported)
     _C,
     _H,
     _L,
@@ -237,7 +237,7 @@ GENERATED: Final = (
 
 
 def tls_files(cert_root: str | Path, cn: str) -> TlsFiles:
-    """The PEM paths of identity ``cn`` under ``cert_root`` (the layout formation.pki writes)."""
+    """The PEM paths of identity ``cn`` under ``cert_root`` (the layout of formation.launch.pki)."""
     d = Path(cert_root) / cn
     return TlsFiles(ca=str(d / "ca.pem"), cert=str(d / "cert.pem"), key=str(d / "key.pem"))
 

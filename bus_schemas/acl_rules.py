@@ -185,11 +185,12 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.TRUTH: KeyRoles((_P,), (_L,)),
     keys.TRUTHS: KeyRoles((_P,), (_L,)),
     keys.WHEELS: KeyRoles(((_R, OWN),), (_P,)),
-    # robots and hosts: the others' modes (cooperative neighbours, robot_agent.neighbours)
+    # robots and hosts: the others' modes (cooperative neighbours, robot_agent.core.neighbours)
     keys.STATUS: KeyRoles(((_R, OWN),), (_C, _R, _H)),
     keys.HOST_WHEELS: KeyRoles(((_H, OWN),), (_P,)),
     keys.HOST_STATUS: KeyRoles(((_H, OWN),), (_C, _R, _H)),
-    # the latched e-stop state: coordinators answer queries (robot_agent.estop, docs/faults.md);
+    # the latched e-stop state: coordinators answer queries (robot_agent.core.estop,
+    # docs/faults.md);
     # agents and hosts ask when they start or resume, coordinators when they start, the
     # operator's tool to report who holds it
     keys.ESTOP: KeyRoles((_O,), (_R, _H, _C), answerers=(_C,), askers=(_R, _H, _C, _O)),
@@ -201,7 +202,7 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),
     keys.COORDINATOR_STATUS: KeyRoles(((_C, OWN),), (_C,)),
     keys.PLANT_STATUS: KeyRoles((_P,)),
-    # the camera tracker's health (`formation camera`, localization/node.py): tools read it
+    # the camera tracker's health (`formation camera`, localization/node/camera.py): tools read it
     keys.CAMERA_STATUS: KeyRoles((_L,)),
     keys.ALIVE_ROBOT: KeyRoles(((_R, OWN), (_H, OWN_ROBOTS)), (_C, _P), token=True),
     keys.ALIVE_COORDINATOR: KeyRoles(((_C, OWN),), (_C, _P), token=True),

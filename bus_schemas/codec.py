@@ -3,7 +3,8 @@
 Wire format (version 1): one MessagePack map with str keys, written in the field order of the
 message's table (v, t, seq, then the fields), optional fields left out when None, nested maps
 sorted by key, floats always float64, str as UTF-8 str, bin type for bytes (unused). The same
-message therefore always encodes to the same bytes (tests/test_schemas_golden.py pins them).
+message therefore always encodes to the same bytes (tests/unit/bus_schemas/test_schemas_golden.py
+pins them).
 
 Decoding is strict about types (bool is not int, int is not bool, only float fields accept ints),
 rejects NaN/inf everywhere, checks ranges (including the plausibility bounds of positions,
@@ -113,7 +114,8 @@ def decode_estop_answer(
     payloads: Iterable[bytes], reject: Callable[[DecodeError], None], *, held: bool = False
 ) -> list[tuple[bool, str | None, int | None]]:
     """A query's answer on the ``estop`` key (the coordinators' latched e-stop state, one
-    ``Estop`` per engagement and per released engagement: ``robot_agent.estop.EstopLatch.answer``)
+    ``Estop`` per engagement and per released engagement:
+    ``robot_agent.core.estop.EstopLatch.answer``)
     as the ``(engage, robot, id)`` entries ``EstopLatch.merge_answer`` takes, in order; each
     invalid payload is handed to ``reject`` and skipped, and so is a robot's release entry
     without an ``id`` (a release record must name the engagement it released; only the fleet's

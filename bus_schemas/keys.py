@@ -76,7 +76,7 @@ KEY_TEMPLATES: dict[str, str] = {
     PLANT_STATUS: "formation/{fleet}/plant/status",
     CAMERA_STATUS: "formation/{fleet}/camera/{name}/status",
     # queried, never published: the e-stop engagements an agent (robot id) or agent host (name)
-    # holds, answered only while it holds one (robot_agent.estop, docs/faults.md)
+    # holds, answered only while it holds one (robot_agent.core.estop, docs/faults.md)
     ESTOP_HELD: "formation/{fleet}/estop/held/{name}",
 }
 

@@ -17,6 +17,36 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from bus_schemas import keys
+from bus_schemas.messages_batch import (
+    PoseBatch,
+    SetpointBatch,
+    StatusBatch,
+    TruthBatch,
+    WheelsBatch,
+)
+from bus_schemas.messages_fields import (
+    _PARENT,
+    _POSE_THETA,
+    _POSE_X,
+    _POSE_Y,
+    _ROLE,
+    _SEQ,
+    _SLOT,
+    _SLOT_THETA,
+    _SLOT_VX,
+    _SLOT_VY,
+    _SLOT_X,
+    _SLOT_Y,
+    _STAGE,
+    _T,
+    _V,
+    _X,
+    _Y,
+    DisturbanceKind,
+    Mode,
+    Role,
+)
+from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
 from bus_schemas.spec import POSITION_MAX_M as _POS
@@ -43,37 +73,6 @@ from bus_schemas.spec import (
     message,
     spec_of,
 )
-
-from .messages_batch import (
-    PoseBatch,
-    SetpointBatch,
-    StatusBatch,
-    TruthBatch,
-    WheelsBatch,
-)
-from .messages_fields import (
-    _PARENT,
-    _POSE_THETA,
-    _POSE_X,
-    _POSE_Y,
-    _ROLE,
-    _SEQ,
-    _SLOT,
-    _SLOT_THETA,
-    _SLOT_VX,
-    _SLOT_VY,
-    _SLOT_X,
-    _SLOT_Y,
-    _STAGE,
-    _T,
-    _V,
-    _X,
-    _Y,
-    DisturbanceKind,
-    Mode,
-    Role,
-)
-from .messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 
 
 @message(name=keys.LEADER, publisher="coordinator", periodic=True)

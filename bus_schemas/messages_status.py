@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from bus_schemas import keys
+from bus_schemas.messages_fields import _Periodic
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
 from bus_schemas.spec import POSITION_MAX_M as _POS
 from bus_schemas.spec import TIME_MAX_S as _TMAX
@@ -32,8 +33,6 @@ from bus_schemas.spec import (
     f_str,
     message,
 )
-
-from .messages_fields import _Periodic
 
 
 class RunMode(StrEnum):
@@ -177,7 +176,7 @@ def _f_ms(what: str, *, lo: float = 0.0) -> dict[str, FieldSpec]:
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CameraStatus(_Periodic):
-    """Health and counters of one overhead-camera tracker (localization/node.py)."""
+    """Health and counters of one overhead-camera tracker (localization/node/camera.py)."""
 
     state: str = field(metadata=f_enum("running, or done (a recording's end)", CameraState))
     detector: str = field(metadata=f_str("marker detector in use"))

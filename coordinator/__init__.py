@@ -1,60 +1,6 @@
-"""Coordinator core: virtual-leader trajectories, formation geometry and role assignment.
+"""The coordinator: the virtual leader, the formation's slots and the role assignment.
 
-Pure (numpy/scipy, no I/O, no clock): time is always passed in. See docs/architecture.md.
+- ``core/``: pure (numpy/scipy, no I/O, no clock: time is passed in): trajectories, formation
+  geometry, matching and assignment, the standby election, the path check.
+- ``node/``: the process shell (``formation coordinator``): Zenoh, asyncio, the e-stop state file.
 """
-
-from coordinator.assignment import (
-    RoleAssigner,
-    SlotLike,
-    assign_greedy,
-    assign_optimal,
-    assignment_cost,
-    natural_key,
-)
-from coordinator.formation import (
-    FORMATION_KINDS,
-    LEADER_SLOT,
-    ROLES,
-    FormationSpec,
-    SlotSpec,
-    SlotState,
-    slot_arrays,
-    slot_states,
-)
-from coordinator.trajectory import (
-    TRAJECTORY_KINDS,
-    Circle,
-    FigureEight,
-    LeaderState,
-    StraightLine,
-    Trajectory,
-    Waypoints,
-    make_trajectory,
-    wrap_angle,
-)
-
-__all__ = [
-    "FORMATION_KINDS",
-    "LEADER_SLOT",
-    "ROLES",
-    "TRAJECTORY_KINDS",
-    "Circle",
-    "FigureEight",
-    "FormationSpec",
-    "LeaderState",
-    "RoleAssigner",
-    "SlotLike",
-    "SlotSpec",
-    "SlotState",
-    "StraightLine",
-    "Trajectory",
-    "Waypoints",
-    "assign_greedy",
-    "assign_optimal",
-    "assignment_cost",
-    "make_trajectory",
-    "natural_key",
-    "slot_arrays",
-    "slot_states",
-    "wrap_angle",
-]

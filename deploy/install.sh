@@ -164,10 +164,10 @@ if [[ $files_only -eq 0 ]]; then
     if [[ $accel -eq 1 ]]; then
         say "compiling the firmware core (mypyc); the build tools are removed after"
         run "$venv/bin/python" -m pip install 'mypy>=1.10' 'setuptools>=68'
-        run "$venv/bin/python" -P -m robot_agent.accel_build build \
+        run "$venv/bin/python" -P -m robot_agent.buildtools.accel build \
             || say "the compiled core was not built: the pure-Python core runs"
         run "$venv/bin/python" -m pip uninstall -y mypy
-        run "$venv/bin/python" -P -m robot_agent.accel_build status || true
+        run "$venv/bin/python" -P -m robot_agent.buildtools.accel status || true
     fi
 else
     say "--files-only: skipping the wheel and the virtualenv"
@@ -266,7 +266,7 @@ fi
 
 if [[ $coordinator_host -eq 1 ]]; then
     say "done. Next steps (docs/deploy.md):"
-    echo "  1. certificates: copy router/, coordinator.main/, coordinator.standby/, localization/, operator/, observer/ from formation certs into $etc_dir/certs/"
+    echo "  1. certificates: copy router/, coordinator.node.main/, coordinator.standby/, localization/, operator/, observer/ from formation certs into $etc_dir/certs/"
     echo "  2. fleet:        edit $etc_dir/fleet.toml, then: $venv_dir/bin/formation coordinator --check --fleet-file $etc_dir/fleet.toml"
     echo "  3. camera:       $etc_dir/camera.toml (formation camera calibrate) and $etc_dir/camera.env"
     echo "  4. start:        systemctl enable --now formation-router formation-coordinator@main formation-coordinator@standby formation-camera"

@@ -25,29 +25,35 @@ from typing import NoReturn
 
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "sim": ("formation.sim_cli", "run a scenario in-process (no Zenoh), deterministic, fast"),
-    "demo": ("formation.demo", "run the paper's experiment 2 and write metrics and figures"),
-    "up": ("formation.up", "start router, plant, coordinator and one agent per robot"),
-    "router": ("formation.router", "run an embedded Zenoh router"),
-    "coordinator": ("coordinator.main", "run the coordinator process"),
-    "agent": ("robot_agent.main", "run one robot agent process"),
-    "agent-host": ("robot_agent.host_main", "run the agents of many robots in one process (scale)"),
-    "plant": ("sim_plant.main", "run the plant simulator process"),
-    "fault": ("formation.fault", "inject a fault into a running fleet"),
-    "record": ("formation.record", "record the fleet's keys to MCAP"),
-    "report": ("formation.report", "metrics and figures from an MCAP recording"),
-    "top": ("formation.top", "live fleet status table"),
+    "sim": ("formation.sim.command", "run a scenario in-process (no Zenoh), deterministic, fast"),
+    "demo": ("formation.sim.demo", "run the paper's experiment 2 and write metrics and figures"),
+    "up": ("formation.launch.up", "start router, plant, coordinator and one agent per robot"),
+    "router": ("formation.launch.router", "run an embedded Zenoh router"),
+    "coordinator": ("coordinator.node.main", "run the coordinator process"),
+    "agent": ("robot_agent.node.main", "run one robot agent process"),
+    "agent-host": (
+        "robot_agent.node.host_main",
+        "run the agents of many robots in one process (scale)",
+    ),
+    "plant": ("sim_plant.node.main", "run the plant simulator process"),
+    "fault": ("formation.operate.fault", "inject a fault into a running fleet"),
+    "record": ("formation.record.command", "record the fleet's keys to MCAP"),
+    "report": ("formation.record.report", "metrics and figures from an MCAP recording"),
+    "top": ("formation.live.top", "live fleet status table"),
     "acl": ("bus_schemas.acl", "write the Zenoh router ACL and client configs of a fleet"),
-    "certs": ("formation.pki", "make the fleet CA and a certificate per identity"),
+    "certs": ("formation.launch.pki", "make the fleet CA and a certificate per identity"),
     "motor-emulator": (
         "robot_agent.motors.emulator",
         "an emulated RoboClaw on a pty: try the motor backend without hardware",
     ),
-    "camera": ("localization.main", "overhead-camera tracker; `camera calibrate` writes its file"),
+    "camera": (
+        "localization.node.main",
+        "overhead-camera tracker; `camera calibrate` writes its file",
+    ),
 }
 
 # prog -> examples shown at the end of its --help (the epilog), one command per line.
-# tests/test_cli_mistakes.py checks every subcommand has one; docs/runtime.md explains them.
+# tests/fleet/test_cli_mistakes.py checks every subcommand has one; docs/runtime.md explains them.
 EXAMPLES: dict[str, tuple[str, ...]] = {
     "formation sim": ("formation sim --scenario chevron7 --duration 30 --seed 4",),
     "formation demo": ("formation demo --duration 20 --no-figures",),

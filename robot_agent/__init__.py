@@ -1,74 +1,10 @@
-"""Firmware of one differential-drive robot (standard library only).
+"""The robot agent: the firmware of one differential-drive robot and its process shell.
 
-The pure core: parameters, kinematics (eqs 7-16), the reference-point tracking law (eqs 21-22),
-potential-field repulsion and the ``Firmware`` mode machine. No I/O, no clock reads, no numpy:
-it could be ported to a microcontroller loop. The I/O shell lives in separate modules.
-
-The same core may run compiled (mypyc) when a build of exactly these sources exists:
-``_accel.activate`` decides before anything of the core is imported (see ``_accel.py``).
+- ``core/``: the firmware (standard library only, no I/O, no clock reads): kinematics, the
+  reference-point tracking law, repulsion, the safety filter, the estimator, the mode machine.
+  It may run compiled (mypyc): ``core/_accel.py`` decides when ``robot_agent.core`` is imported.
+- ``motors/``: the motor backends (device I/O: a serial RoboClaw, the bus in simulation).
+- ``node/``: the process shell (Zenoh, asyncio, clocks): ``formation agent`` and
+  ``formation agent-host``.
+- ``buildtools/``: the compiled core's builder and its output check (never imported at run time).
 """
-
-from . import _accel
-
-_accel.activate(__path__)
-
-from .estimator import Estimator, EstimatorStatus
-from .firmware import Firmware, FirmwareStatus, Mode, Pose, Setpoint, WheelCommand
-from .kinematics import (
-    ref_point_velocity,
-    reference_point,
-    saturate_wheels,
-    twist_from_ref_velocity,
-    twist_from_wheels,
-    wheels_from_twist,
-    wrap_angle,
-)
-from .params import (
-    DEFAULT_K_REP,
-    AgentConfig,
-    EstimatorParams,
-    RepulsionParams,
-    RobotGeometry,
-    SafetyFilterParams,
-    SafetyParams,
-    TrackingGains,
-    WorldMap,
-)
-from .repulsion import repulsion_velocity, repulsion_velocity_counted
-from .safety_filter import Neighbour, SafetyFilter, SafetyFilterStatus
-from .tracking import AxisPID, PIDInfo, TrackingController
-
-__all__ = [
-    "DEFAULT_K_REP",
-    "AgentConfig",
-    "AxisPID",
-    "Estimator",
-    "EstimatorParams",
-    "EstimatorStatus",
-    "Firmware",
-    "FirmwareStatus",
-    "Mode",
-    "Neighbour",
-    "PIDInfo",
-    "Pose",
-    "RepulsionParams",
-    "RobotGeometry",
-    "SafetyFilter",
-    "SafetyFilterParams",
-    "SafetyFilterStatus",
-    "SafetyParams",
-    "Setpoint",
-    "TrackingController",
-    "TrackingGains",
-    "WheelCommand",
-    "WorldMap",
-    "ref_point_velocity",
-    "reference_point",
-    "repulsion_velocity",
-    "repulsion_velocity_counted",
-    "saturate_wheels",
-    "twist_from_ref_velocity",
-    "twist_from_wheels",
-    "wheels_from_twist",
-    "wrap_angle",
-]

@@ -1,6 +1,6 @@
 """Queries of latched state: a queryable that answers from a snapshot, and a query off the loop.
 
-Used for the e-stop as latched fleet state (``robot_agent.estop``): every coordinator answers
+Used for the e-stop as latched fleet state (``robot_agent.core.estop``): every coordinator answers
 queries on ``formation/<fleet>/estop`` with its latched state, every agent holding an engagement
 answers on ``formation/<fleet>/estop/held/<name>`` with its engagements, and an agent asks both
 when it starts, when it resumes from a stop and periodically (docs/faults.md).
@@ -37,7 +37,7 @@ def get_all(
     the timeout; at most ``max_replies``). Zenoh's default query (target BEST_MATCHING,
     consolidation AUTO = the latest reply per key) kept one reply of one responder, while an
     answer is many replies on the same key from each coordinator: an agent saw only the last
-    entry of one coordinator's e-stop state (tests/test_estop_identity.py)."""
+    entry of one coordinator's e-stop state (tests/fleet/test_estop_identity.py)."""
     out: list[bytes] = []
     replies = session.get(
         key,

@@ -1,7 +1,8 @@
 """A scenario turned into the cores of one run: the one assembly both runtimes use.
 
-``formation/simulate.py`` (in-process) and the process shells (``coordinator/node.py``,
-``sim_plant/node.py``) build their cores here, so the two runtimes run the same experiment by
+``formation/sim/simulate.py`` (in-process) and the process shells
+(``coordinator/node/coordinator.py``,
+``sim_plant/node/plant.py``) build their cores here, so the two runtimes run the same experiment by
 construction: the same trajectory, formation and assigner, the same plant, camera and command
 link drawing from one seeded generator in the same order, and the same rule for a scheduled
 disturbance. Imports the numeric cores, so it is not re-exported by ``scenario/__init__`` (an
@@ -14,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.core import CoordinatorCore
-from coordinator.path_check import PathConflict, slot_path_conflicts
+from coordinator.core.coordinator import CoordinatorCore
+from coordinator.core.path_check import PathConflict, slot_path_conflicts
 from scenario.load import Disturbance, Scenario
-from sim_plant.accounting import SeparationMonitor
-from sim_plant.plant import Plant
-from sim_plant.sensors import Camera, CommandLink
+from sim_plant.core.accounting import SeparationMonitor
+from sim_plant.core.plant import Plant
+from sim_plant.core.sensors import Camera, CommandLink
 
 __all__ = ["apply_scheduled", "coordinator_core", "path_conflicts", "plant_models"]
 

@@ -2,7 +2,7 @@
 
 ``scenario.load`` checks every key it owns without numpy (an agent loads scenarios); the
 trajectory and formation tables are validated by the cores that read them
-(``coordinator.trajectory.make_trajectory``, ``coordinator.formation``). The tools call
+(``coordinator.core.trajectory.make_trajectory``, ``coordinator.core.formation``). The tools call
 :func:`check_cores` right after loading, so a misspelt trajectory key or a bad formation angle is
 one ``ScenarioError`` naming the field before anything starts, not a traceback mid-run.
 """

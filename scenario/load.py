@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from bus_schemas import keys
-from robot_agent.params import (
+from robot_agent.core.params import (
     AgentConfig,
     EstimatorParams,
     RepulsionParams,
@@ -28,7 +28,7 @@ from robot_agent.params import (
     TrackingGains,
     WorldMap,
 )
-from robot_agent.robot_config import _world as _robot_config_world
+from robot_agent.core.robot_config import _world as _robot_config_world
 
 SCENARIO_DIR = Path(__file__).parent / "builtin"
 
@@ -209,7 +209,7 @@ TOP_KEYS = {
 def parse_world(data: dict[str, Any]) -> WorldMap:
     """``[arena]`` and ``[[obstacle]]`` of a scenario as the firmware's ``WorldMap``.
 
-    The same tables and rules as a robot's configuration file (``robot_agent.robot_config``):
+    The same tables and rules as a robot's configuration file (``robot_agent.core.robot_config``):
     ``kind = "circle"`` (``x``, ``y``, ``radius_m``), ``"segment"`` (``x1``, ``y1``, ``x2``,
     ``y2``, ``radius_m`` default 0) or ``"polygon"`` (``points`` >= 3 ``[x, y]``, its closed
     outline, as segments), and an ``[arena]`` rectangle (``x_min``, ``y_min``, ``x_max``,

@@ -2,7 +2,7 @@
 ``r1..r(N+K)``.
 
 The formation is grown (or cut) to exactly N slots by the paper's staged rule (Fig 2b,
-:func:`coordinator.formation.resized_formation_table`: a triangle grows into the triangular
+:func:`coordinator.core.formation.resized_formation_table`: a triangle grows into the triangular
 lattice, chevron and lattice keep their kind with N slots, an explicit formation grows by its
 first stage's pattern). New robots start with their reference point on their slot (eqs 10-11),
 so a resized fleet starts in formation; the K spares start idle in rows behind it. The
@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from robot_agent.kinematics import axle_from_reference_point
+from robot_agent.core.kinematics import axle_from_reference_point
 from scenario.load import Scenario, ScenarioError, parse, resolve
 
 __all__ = ["FleetShape", "fleet_shape", "load_with_robots", "scenario_with_robots"]
@@ -33,8 +33,8 @@ def _robot_ids(robots: Mapping[str, Any]) -> list[str]:
 def _slot_poses(data: Mapping[str, Any]) -> list[tuple[float, float, float]]:
     """Axle-centre poses that put each robot's reference point on a slot at t = 0, in slot
     definition order (the reference point is ``ref_offset_m`` ahead of the axle, eqs 10-11)."""
-    from coordinator.formation import FormationSpec, slot_states
-    from coordinator.trajectory import make_trajectory
+    from coordinator.core.formation import FormationSpec, slot_states
+    from coordinator.core.trajectory import make_trajectory
 
     traj = dict(data["trajectory"])
     kind = str(traj.pop("kind"))
@@ -65,7 +65,7 @@ def scenario_with_robots(data: Mapping[str, Any], n: int | None, spares: int = 0
         raise ScenarioError(f"--robots: need at least 1 robot, got {n}")
     if isinstance(spares, bool) or not isinstance(spares, int) or spares < 0:
         raise ScenarioError(f"--spares: expected an integer >= 0, got {spares}")
-    from coordinator.formation import resized_formation_table
+    from coordinator.core.formation import resized_formation_table
 
     out = copy.deepcopy(dict(data))
     robots = dict(out.get("robots", {}))
@@ -136,7 +136,7 @@ class FleetShape:
 
 def fleet_shape(formation: Mapping[str, Any], n_robots: int) -> FleetShape:
     """The :class:`FleetShape` of a scenario's ``[formation]`` table and robot count."""
-    from coordinator.formation import FormationSpec
+    from coordinator.core.formation import FormationSpec
 
     spec = FormationSpec.from_dict(dict(formation))
     return FleetShape(slots=len(spec), robots=n_robots, stages=spec.n_stages)

@@ -1,29 +1,6 @@
-"""Simulated plant (numpy, vectorised over robots): ground truth, sensors, safety accounting.
+"""The plant simulator: ground truth, sensors, the lossy link and safety accounting.
 
-Pure cores only: time is passed in, randomness comes from a ``numpy.random.Generator`` passed in.
+- ``core/``: pure numpy (time and randomness passed in): kinematics, encoders, sensors,
+  accounting, the overhead camera's rendering.
+- ``node/``: the process shell (``formation plant``).
 """
-
-from sim_plant.accounting import (
-    BoundsMonitor,
-    CollisionEvent,
-    ExitEvent,
-    SeparationMonitor,
-    contacts_and_min_distance,
-)
-from sim_plant.plant import GeometryLike, Plant, unicycle_integrate, wrap_angles
-from sim_plant.sensors import Camera, CameraFrame, CommandLink
-
-__all__ = [
-    "BoundsMonitor",
-    "Camera",
-    "CameraFrame",
-    "CollisionEvent",
-    "CommandLink",
-    "ExitEvent",
-    "GeometryLike",
-    "Plant",
-    "SeparationMonitor",
-    "contacts_and_min_distance",
-    "unicycle_integrate",
-    "wrap_angles",
-]

@@ -19,7 +19,7 @@ Fixtures (function scope unless noted):
 * Hypothesis profile ``formation``: no deadline, no ``too_slow`` health check (wall-clock limits
   fail on a loaded machine; a property is not a speed test).
 * Nothing a test starts may outlive it (autouse, every test; the /proc bookkeeping is in
-  ``tests/procguard.py``): every process this pytest run
+  ``tests/support/procguard.py``): every process this pytest run
   starts, at any depth, carries ``FORMATION_TEST_RUN=<pytest pid>.<nonce>`` in its environment
   (set once in ``os.environ``, inherited by every ``Popen``). After each test's teardown, one
   still running that was not running before the test is killed and fails that test; at the end
@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 from hypothesis import HealthCheck, settings
-from procguard import (
+from support.procguard import (
     SIGTERM_PATIENCE_S,
     _cmdline,
     _describe,
@@ -65,6 +65,13 @@ from procguard import (
     _terminate,
     _wait_until_gone,
 )
+
+# The test folders mirror the code (unit/<package>, bus, fleet, repo); a test may reuse another
+# test module's helpers by its plain name, whichever folder it is in, so every folder is on the
+# path before any test module is imported (pytest's default import mode adds only a module's own).
+for _folder in sorted(Path(__file__).resolve().parent.glob("**/")):
+    if _folder.name not in {"__pycache__", "support"} and str(_folder) not in sys.path:
+        sys.path.append(str(_folder))
 
 if TYPE_CHECKING:
     import zenoh

@@ -1,8 +1,9 @@
 """Motor backends: how a robot agent's wheel command reaches the wheels.
 
-- ``bus``: simulation; the wheel command published on the bus is all there is
-  (:class:`BusMotorBackend`).
-- ``roboclaw``: a Basicmicro RoboClaw over packet serial (:class:`RoboClawBackend`).
+Every backend is one row of :data:`BACKENDS` (like the trajectory kinds of
+``coordinator.core.trajectory``): its name in a robot config's ``[motor] backend = ...``, the
+dataclass of its other ``[motor]`` keys (checked by ``robot_agent.core.robot_config``, one
+validator), and how to make it. Adding a backend is one module here and one row below.
 
 Every backend follows the :class:`MotorBackend` contract (base.py): nothing raises into the
 control loop, faults are counted and reported by ``status()``. Importing this package needs
@@ -11,35 +12,60 @@ only the standard library; pyserial is loaded when a RoboClaw port is opened.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
-from .base import BusMotorBackend, MotorBackend, MotorStatus
-from .roboclaw import RoboClawBackend, RoboClawConfig
-
-if TYPE_CHECKING:
-    from robot_agent.robot_config import MotorConfig
+from robot_agent.motors.base import BusMotorBackend, MotorBackend, MotorStatus
+from robot_agent.motors.roboclaw import RoboClawBackend
+from robot_agent.motors.roboclaw_config import RoboClawConfig
 
 __all__ = [
+    "BACKENDS",
+    "BackendKind",
     "BusMotorBackend",
     "MotorBackend",
     "MotorStatus",
-    "RoboClawBackend",
-    "RoboClawConfig",
     "create_backend",
 ]
 
 
-def create_backend(config: MotorConfig, max_wheel_radps: float) -> MotorBackend:
+@dataclass(frozen=True, slots=True)
+class BackendKind:
+    """One motor backend: ``settings`` is the dataclass of its ``[motor]`` keys (None: it takes
+    none); ``make(settings, max_wheel_radps)`` builds it, not yet opened."""
+
+    summary: str
+    settings: type[Any] | None
+    make: Callable[[Any, float], MotorBackend]
+
+
+BACKENDS: dict[str, BackendKind] = {
+    "bus": BackendKind(
+        "simulation: the wheel command published on the bus is all there is",
+        None,
+        lambda _settings, _max_wheel_radps: BusMotorBackend(),
+    ),
+    "roboclaw": BackendKind(
+        "a Basicmicro RoboClaw over packet serial",
+        RoboClawConfig,
+        RoboClawBackend,
+    ),
+}
+
+
+def create_backend(backend: str, settings: Any, max_wheel_radps: float) -> MotorBackend:
     """The backend a robot's ``[motor]`` config section asks for (not yet opened).
 
     ``max_wheel_radps`` is the robot's wheel speed limit (``RobotGeometry.max_wheel_radps``).
-    Raises ``ValueError`` for an unknown backend or a roboclaw backend without its settings
+    Raises ``ValueError`` for an unknown backend or settings of the wrong kind
     (``load_robot_config`` has already rejected both).
     """
-    if config.backend == "bus":
-        return BusMotorBackend()
-    if config.backend == "roboclaw":
-        if config.roboclaw is None:
-            raise ValueError("motor backend 'roboclaw' needs its port settings")
-        return RoboClawBackend(config.roboclaw, max_wheel_radps)
-    raise ValueError(f"unknown motor backend {config.backend!r} (expected 'bus' or 'roboclaw')")
+    kind = BACKENDS.get(backend)
+    if kind is None:
+        raise ValueError(f"unknown motor backend {backend!r} (one of {', '.join(BACKENDS)})")
+    if (kind.settings is None) != (settings is None) or (
+        kind.settings is not None and not isinstance(settings, kind.settings)
+    ):
+        raise ValueError(f"motor backend {backend!r} needs settings of type {kind.settings}")
+    return kind.make(settings, max_wheel_radps)

@@ -54,14 +54,14 @@ import termios
 import time
 from typing import Any
 
-from .base import MotorStatus
-from .roboclaw_config import (  # noqa: F401  (moved to roboclaw_config.py; re-exported)
+from robot_agent.motors.base import MotorStatus
+from robot_agent.motors.roboclaw_config import (  # noqa: F401  (moved to roboclaw_config.py; re-exported)
     BAUD_RATES,
     RoboClawConfig,
     _is_number,
     _require,
 )
-from .roboclaw_protocol import (
+from robot_agent.motors.roboclaw_protocol import (
     CMD_DRIVE_DUTY_M1M2,
     CMD_DRIVE_SPEED_M1M2,
     CMD_SET_SERIAL_TIMEOUT,

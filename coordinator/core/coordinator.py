@@ -1,0 +1,386 @@
+"""The coordinator's pure tick: virtual leader -> slots -> role assignment -> setpoints.
+
+One call per control tick, time passed in. The in-process simulator and the Zenoh coordinator
+process both run exactly this, so they make the same decisions from the same poses.
+
+**Approach of a newly assigned robot** (issue 13: spares never sprint). A robot that gets a slot
+while the formation is already running (a spare replacing a dead robot, a robot back after its
+pose was stale) and whose reference point is farther than :data:`APPROACH_JOIN_M` from that slot
+is not given the slot itself, which would make its controller saturate toward a far target.
+Its setpoint is an *approach point* that starts at its reference point and moves with the slot's
+velocity plus at most :data:`APPROACH_SPEED_MPS` toward the slot, with that velocity as the
+feed-forward, until it reaches the slot; from then on the robot tracks the slot as every other
+one. Robots assigned at the start (the paper's convergence from the start poses) and robots
+that move from one slot to another (the refill after a death) go straight to their slot. The
+rule is here, in the core, so the in-process simulator and the Zenoh coordinator share it:
+:attr:`CoordinatorOutput.approach` holds the approach setpoints and
+:meth:`CoordinatorOutput.setpoint_for` applies them.
+
+The tick is on the simulator's hot path (one call per 20 ms tick of sim time, and the sim runs
+some thousand times faster than real time), so it works on plain floats and tuples: the slots are
+computed by :func:`~coordinator.core.formation.slot_rows`, the assignment by
+:meth:`RoleAssigner.update_ordered`, and the :class:`SlotState` objects of
+:attr:`CoordinatorOutput.slots` are only built if someone asks for them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from types import MappingProxyType
+from typing import Any, Final
+
+from coordinator.core.assignment import RoleAssigner
+from coordinator.core.formation import (
+    FormationSpec,
+    SlotRow,
+    SlotState,
+    slot_rows,
+    states_from_rows,
+)
+from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
+from robot_agent.core.kinematics import reference_point
+from robot_agent.core.params import AgentConfig
+
+__all__ = [
+    "APPROACH_JOIN_M",
+    "APPROACH_SPEED_MPS",
+    "CoordinatorCore",
+    "CoordinatorOutput",
+    "pose_stale_s",
+]
+
+_new = object.__new__
+
+APPROACH_SPEED_MPS: Final = 0.1
+"""Closing speed (m/s, relative to its slot) of a newly assigned robot's approach point: 40 % of
+the firmware's reference-speed clamp (``TrackingGains.max_ref_speed_mps``, 0.25 m/s), so the
+slot's own speed (the paper's leaders: 0.02-0.1 m/s), the PID's correction and the turn toward
+the slot fit under the wheel limit instead of saturating it."""
+APPROACH_JOIN_M: Final = 0.05
+"""A newly assigned robot whose reference point is this close to its slot goes straight to it."""
+
+
+def pose_stale_s(agent: AgentConfig, *, odometry: bool) -> float:
+    """How long (s, receive time) the coordinator keeps a robot whose pose stopped coming: the
+    one rule of the in-process simulator and the Zenoh coordinator.
+
+    ``safety.stale_pose_s``, or, with the estimator enabled, at least the estimator's dropout
+    bound (``max_dropout_odom_s`` when the robots have wheel encoders, ``odometry``, else
+    ``max_dropout_cmd_s``): the robots ride through camera dropouts on their estimators, so the
+    coordinator keeps a robot (and its slot) as long as its firmware may still be tracking.
+    """
+    stale = agent.safety.stale_pose_s
+    est = agent.estimator
+    if est.enabled:
+        stale = max(stale, est.max_dropout_odom_s if odometry else est.max_dropout_cmd_s)
+    return stale
+
+
+class CoordinatorOutput:
+    """One tick's decisions (read-only).
+
+    ``leader``: the virtual leader's state; ``slots``: every slot's :class:`SlotState` in the
+    formation's definition order; ``assignment``: robot id -> slot; ``changed``: the assignment
+    differs from the previous tick's. The same numbers without objects: ``theta`` (rad, the
+    formation heading shared by every slot) and ``rows``, ``(x, y, vx, vy)`` (m, m/s) per slot in
+    definition order; ``slot_ids`` gives the slot of each row.
+    """
+
+    __slots__ = (
+        "_approach",
+        "_assignment",
+        "_by_id",
+        "_changed",
+        "_leader",
+        "_rows",
+        "_slot_ids",
+        "_slots",
+        "_spec",
+        "_theta",
+    )
+
+    _approach: Mapping[str, SlotRow]
+    _assignment: dict[str, int]
+    _by_id: Mapping[int, SlotState] | None
+    _changed: bool
+    _leader: LeaderState
+    _rows: list[SlotRow]
+    _slot_ids: tuple[int, ...]
+    _slots: list[SlotState] | None
+    _spec: FormationSpec | None
+    _theta: float
+
+    def __init__(
+        self,
+        leader: LeaderState,
+        slots: Sequence[SlotState],
+        assignment: dict[str, int],
+        changed: bool,
+    ) -> None:
+        slot_list = list(slots)
+        self._leader = leader
+        self._slots = slot_list
+        self._spec = None
+        self._theta = slot_list[0].theta if slot_list else wrap_angle(leader.theta)
+        self._rows = [(s.x, s.y, s.vx, s.vy) for s in slot_list]
+        self._slot_ids = tuple(s.slot for s in slot_list)
+        self._assignment = assignment
+        self._changed = changed
+        self._by_id = None
+        self._approach = _NO_APPROACH
+
+    @classmethod
+    def from_rows(
+        cls,
+        leader: LeaderState,
+        spec: FormationSpec,
+        theta: float,
+        rows: list[SlotRow],
+        assignment: dict[str, int],
+        changed: bool,
+        approach: Mapping[str, SlotRow] | None = None,
+    ) -> CoordinatorOutput:
+        """Build from :func:`~coordinator.core.formation.slot_rows` output without making the
+        :class:`SlotState` objects (they are made on first access to :attr:`slots`)."""
+        out: CoordinatorOutput = _new(cls)
+        out._leader = leader
+        out._slots = None
+        out._spec = spec
+        out._theta = theta
+        out._rows = rows
+        out._slot_ids = spec.slot_ids
+        out._assignment = assignment
+        out._changed = changed
+        out._by_id = None
+        out._approach = _NO_APPROACH if approach is None else approach
+        return out
+
+    @property
+    def leader(self) -> LeaderState:
+        return self._leader
+
+    @property
+    def slots(self) -> list[SlotState]:
+        """Every slot's state, definition order (built once, on first access)."""
+        slots = self._slots
+        if slots is None:
+            assert self._spec is not None
+            slots = self._slots = states_from_rows(self._spec, self._theta, self._rows)
+        return slots
+
+    @property
+    def assignment(self) -> dict[str, int]:
+        """Robot id -> slot id."""
+        return self._assignment
+
+    @property
+    def changed(self) -> bool:
+        """The assignment differs from the previous tick's."""
+        return self._changed
+
+    @property
+    def theta(self) -> float:
+        """Formation heading (rad, wrapped), the ``theta`` of every slot."""
+        return self._theta
+
+    @property
+    def rows(self) -> list[SlotRow]:
+        """``(x, y, vx, vy)`` (m, m/s) of every slot, definition order (do not modify)."""
+        return self._rows
+
+    @property
+    def slot_ids(self) -> tuple[int, ...]:
+        """Slot id of each entry of :attr:`rows` / :attr:`slots`."""
+        return self._slot_ids
+
+    @property
+    def approach(self) -> Mapping[str, SlotRow]:
+        """Robot id -> ``(x, y, vx, vy)`` of its approach setpoint, for the newly assigned
+        robots still on their way to their slot (module docstring); the others track their
+        slot's row."""
+        return self._approach
+
+    def setpoint_for(self, robot: str) -> SlotState | None:
+        """Robot ``robot``'s setpoint: its slot's state, or its approach point on the way."""
+        slot = self._assignment.get(robot)
+        if slot is None:
+            return None
+        state = self.slots_by_id[slot]
+        row = self._approach.get(robot)
+        if row is not None:
+            state = replace(state, x=row[0], y=row[1], vx=row[2], vy=row[3])
+        return state
+
+    @property
+    def slots_by_id(self) -> Mapping[int, SlotState]:
+        """Slot id -> state (a read-only view, built once)."""
+        by_id = self._by_id
+        if by_id is None:
+            by_id = self._by_id = MappingProxyType({s.slot: s for s in self.slots})
+        return by_id
+
+    @property
+    def leader_robot(self) -> str | None:
+        for rid, slot in self._assignment.items():
+            if slot == 0:
+                return rid
+        return None
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CoordinatorOutput):
+            return NotImplemented
+        return (
+            self._leader == other._leader
+            and self.slots == other.slots
+            and self._assignment == other._assignment
+            and self._changed == other._changed
+            and dict(self._approach) == dict(other._approach)
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable assignment dict inside
+
+    def __repr__(self) -> str:
+        return (
+            f"CoordinatorOutput(leader={self._leader!r}, slots={self.slots!r}, "
+            f"assignment={self._assignment!r}, changed={self._changed!r})"
+        )
+
+
+_NO_APPROACH: Mapping[str, SlotRow] = MappingProxyType({})
+
+
+class CoordinatorCore:
+    """Virtual leader (eqs 1-2), slots (eqs 3-5), greedy/optimal role assignment (eq 6)."""
+
+    def __init__(
+        self,
+        trajectory: Trajectory,
+        formation: FormationSpec,
+        assigner: RoleAssigner,
+        ref_offset_m: float,
+        t0_s: float = 0.0,
+    ) -> None:
+        if not (ref_offset_m > 0 and math.isfinite(ref_offset_m)):
+            raise ValueError(f"ref_offset_m must be positive and finite, got {ref_offset_m!r}")
+        self.trajectory = trajectory
+        self.formation = formation
+        self.assigner = assigner
+        self.ref_offset_m = ref_offset_m
+        self.t0_s = t0_s
+        self.assignment: dict[str, int] = {}
+        self.approach_speed_mps = APPROACH_SPEED_MPS
+        self._approach: dict[str, list[float]] = {}  # robot -> approach point [x, y]
+        self._running = False  # a tick has assigned robots (later assignments approach)
+        self._last_now: float | None = None
+        self._row_of: dict[int, int] | None = None
+
+    @classmethod
+    def from_config(
+        cls,
+        trajectory: Mapping[str, Any],
+        formation: Mapping[str, Any],
+        method: str,
+        hysteresis_m: float,
+        tie_tol_m: float,
+        ref_offset_m: float,
+        t0_s: float = 0.0,
+    ) -> CoordinatorCore:
+        traj_params = {k: v for k, v in trajectory.items() if k != "kind"}
+        return cls(
+            make_trajectory(str(trajectory["kind"]), traj_params),
+            FormationSpec.from_dict(dict(formation)),
+            RoleAssigner(method=method, hysteresis_m=hysteresis_m, tie_tol_m=tie_tol_m),
+            ref_offset_m=ref_offset_m,
+            t0_s=t0_s,
+        )
+
+    def _ref_points(
+        self, poses: Mapping[str, tuple[float, float, float]]
+    ) -> tuple[list[str], list[tuple[float, float]]]:
+        """Reference points (eqs 10-11) of the finite poses: (ids, (x, y) in m), input order."""
+        l_m = self.ref_offset_m
+        isfinite = math.isfinite
+        ids: list[str] = []
+        xy: list[tuple[float, float]] = []
+        for rid, (x, y, th) in poses.items():
+            xr, yr = reference_point(x, y, th, l_m)
+            if isfinite(xr) and isfinite(yr):
+                ids.append(rid)
+                xy.append((xr, yr))
+        return ids, xy
+
+    def reference_points(
+        self, poses: Mapping[str, tuple[float, float, float]]
+    ) -> dict[str, tuple[float, float]]:
+        """Robot axle-centre poses -> reference points (eqs 10-11), skipping non-finite ones."""
+        ids, xy = self._ref_points(poses)
+        return dict(zip(ids, xy, strict=True))
+
+    def leader_xy(self, t_s: float) -> tuple[float, float]:
+        """The virtual leader's position (m) at trajectory time ``t_s`` (now - t0)."""
+        state = self.trajectory.sample(t_s)
+        return state.x, state.y
+
+    def tick(
+        self, now_s: float, poses: Mapping[str, tuple[float, float, float]]
+    ) -> CoordinatorOutput:
+        """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta)."""
+        leader = self.trajectory.sample(now_s - self.t0_s)
+        spec = self.formation
+        theta, rows = slot_rows(spec, leader)
+        ids, xy = self._ref_points(poses)
+        assignment, changed = self.assigner.update_ordered(
+            ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))
+        )
+        previous, self.assignment = self.assignment, assignment
+        dt = 0.0 if self._last_now is None else max(0.0, now_s - self._last_now)
+        self._last_now = now_s
+        approach = None
+        if self._approach or (changed and self._running):
+            approach = self._approaches(previous, assignment, ids, xy, rows, dt)
+        self._running = self._running or bool(assignment)
+        return CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
+
+    def _approaches(
+        self,
+        previous: Mapping[str, int],
+        assignment: Mapping[str, int],
+        ids: list[str],
+        xy: list[tuple[float, float]],
+        rows: list[SlotRow],
+        dt: float,
+    ) -> dict[str, SlotRow] | None:
+        """Advance the approach points by ``dt`` and start those of the robots newly assigned
+        far from their slot (module docstring); the approach setpoints, or None."""
+        row_of = self._row_of
+        if row_of is None:
+            row_of = self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+        points = self._approach
+        for rid in [r for r in points if r not in assignment]:
+            del points[rid]
+        if self._running:
+            where = dict(zip(ids, xy, strict=True))
+            for rid, slot in assignment.items():
+                if rid in points or rid in previous or rid not in where:
+                    continue
+                px, py = where[rid]
+                sx, sy, _, _ = rows[row_of[slot]]
+                if math.hypot(sx - px, sy - py) > APPROACH_JOIN_M:
+                    points[rid] = [px, py]
+        out: dict[str, SlotRow] = {}
+        closing = self.approach_speed_mps
+        for rid, p in list(points.items()):
+            sx, sy, vx, vy = rows[row_of[assignment[rid]]]
+            # the point moves with the slot, and closes in on it at most `closing`
+            qx, qy = p[0] + vx * dt, p[1] + vy * dt
+            dx, dy = sx - qx, sy - qy
+            d = math.hypot(dx, dy)
+            if not math.isfinite(d) or d <= closing * dt:
+                del points[rid]  # reached: the slot itself from now on
+                continue
+            ux, uy = dx / d, dy / d
+            p[0], p[1] = qx + ux * closing * dt, qy + uy * closing * dt
+            out[rid] = (p[0], p[1], vx + ux * closing, vy + uy * closing)
+        return out or None

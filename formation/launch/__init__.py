@@ -1,0 +1,1 @@
+"""Launching a fleet of processes: `formation up`, `formation router`, certificates."""

@@ -1,0 +1,120 @@
+"""What a ``formation up`` run leaves behind: ``metrics.json``, ``run.npz``, the figures, and the
+summary it prints (:func:`write_results`, called by :mod:`formation.launch.launcher` once every
+child
+has stopped), with the run's metadata (:func:`run_meta`)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
+
+from formation.launch.children import Child
+from formation.launch.plan import Plan, UpConfig, UpResult
+from formation.outputs.runlog import RunLog
+
+
+def run_meta(
+    cfg: UpConfig,
+    plan: Plan,
+    *,
+    wall_s: float,
+    run_wall_s: float | None,
+    stop_s: float | None,
+    interrupted: bool,
+    failures: Sequence[str],
+    events: Sequence[Mapping[str, Any]],
+    children: Iterable[Child],
+) -> dict[str, Any]:
+    """The run's metadata (``RunLog.meta``, ``metrics.json``'s ``meta``): scenario, seed, mode,
+    wall times (``wall_s``: the whole command; ``run_wall_s``: first to last truth frame;
+    ``stop_s``: the shutdown), bus, outcome (``failures``, ``events``: deaths and respawns)
+    and every child process (a respawned one as ``name.generation``)."""
+    scn = plan.scenario
+    return {
+        "scenario": scn.name,
+        "seed": plan.seed,
+        "dt_s": scn.dt_s,
+        "mode": "lockstep" if cfg.lockstep else "realtime",
+        "wall_s": wall_s,
+        "run_wall_s": run_wall_s,
+        "stop_s": stop_s,
+        "endpoint": cfg.endpoint,
+        "secure": cfg.secure,
+        "fleet": cfg.fleet,
+        "record": None if cfg.record is None else str(cfg.record),
+        "interrupted": interrupted,
+        "failures": list(failures),
+        "events": list(events),
+        "children": {
+            f"{c.name}.{c.generation}" if c.generation else c.name: {
+                "pid": c.pid,
+                "returncode": c.returncode,
+                "ready_s": c.ready_s,
+                "killed": c.killed,
+                "stop_s": c.stop_s,
+            }
+            for c in children
+        },
+    }
+
+
+def write_results(
+    log: RunLog,
+    cfg: UpConfig,
+    plan: Plan,
+    result: UpResult,
+    run_wall_s: float | None,
+    warn: Callable[[str], None],
+) -> UpResult:
+    """Compute the run's metrics from ``log`` (the collector's view of the bus), write them,
+    the log and (``cfg.figures``) the figures to ``plan.out_dir``, print the summary (unless
+    ``cfg.quiet``) and return ``result`` with its metrics set."""
+    out_dir, scn, interrupted = plan.out_dir, plan.scenario, result.interrupted
+    if log.t_s.size == 0:
+        warn("no truth was received: no metrics written")
+        return result
+    from formation.outputs import metrics as metrics_mod
+
+    metrics_mod.attach_agent(log, scn.agent)  # safety metrics (issue 14): truth only
+    m = metrics_mod.compute(log, plan.settle_s, scn.settle_tol_m)
+    sim_s = float(log.t_s[-1] - log.t_s[0])
+    m["meta"]["realtime_factor"] = sim_s / run_wall_s if run_wall_s else None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
+    log.save_npz(str(out_dir / "run.npz"))
+    result.metrics = m
+    wrote = "metrics"
+    if cfg.figures:
+        from formation.outputs import figures as fig_mod
+
+        cut = f", interrupted after {sim_s:.1f} s" if interrupted else ""
+        try:
+            fig_mod.write_all(
+                log,
+                out_dir,
+                title=f"{scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
+                "points (solid), virtual trajectories (dashed)",
+                settle_s=plan.settle_s,
+            )
+            wrote = "metrics and figures"
+        except Exception as exc:  # a run cut after a few ticks may not make every figure
+            if not interrupted:
+                raise
+            warn(f"figures of the interrupted run failed: {exc!r}")
+    if interrupted:  # one line, even with --quiet: what was written is of a partial run
+        print(
+            f"formation up: interrupted: {wrote} of the {sim_s:.1f} s recorded so far "
+            f"in {out_dir}/",
+            file=sys.stderr,
+            flush=True,
+        )
+    if not cfg.quiet:
+        from formation.sim.command import summary
+
+        print(summary(m))
+        rf = m["meta"]["realtime_factor"]
+        speed = f", {rf:.1f}x real time" if rf else ""
+        print(f"{sim_s:.2f} s of {m['meta']['mode']} run{speed}; {wrote} in {out_dir}/")
+    return result

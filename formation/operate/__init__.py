@@ -1,0 +1,1 @@
+"""Operator tools on a running fleet: `formation fault`, the e-stop tool, fuzzing."""

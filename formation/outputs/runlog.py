@@ -1,0 +1,175 @@
+"""A run's record as arrays: what metrics and figures are computed from.
+
+The in-process simulator fills it tick by tick; a recording of a distributed run is turned into
+the same structure, so both are measured by one piece of code (``formation.outputs.metrics``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from itertools import chain
+from operator import itemgetter
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+MODE_CODES = {"idle": 0, "tracking": 1, "hold": 2, "estop": 3}
+
+
+@dataclass
+class RunLog:
+    """Time series of one run. Shapes: T ticks, n robots, m slots.
+
+    t_s (T,), truth (T, n, 3) axle centre x, y, theta, ref (T, n, 2) reference point from truth,
+    target (T, n, 2) the assigned slot's position (NaN when unassigned), slot_of (T, n) slot
+    number (-1 when unassigned), slot_xy (T, m, 2) every slot, leader (T, 3) virtual leader
+    x, y, theta, power (T, n, 2) commanded motor power right/left (fraction of max), mode (T, n).
+    """
+
+    robot_ids: list[str]
+    slot_ids: list[int]
+    t_s: F64
+    truth: F64
+    ref: F64
+    target: F64
+    slot_of: I64
+    slot_xy: F64
+    leader: F64
+    power: F64
+    mode: I64
+    min_separation_m: float = float("inf")
+    collisions: list[dict[str, Any]] = field(default_factory=list)
+    meta: dict[str, Any] = field(default_factory=dict)
+    # Safety accounting (issue 14; formation.outputs.metrics.safety_metrics). body_radius_m and
+    # safety_distance_m (Ds) NaN when unknown; world the scenario's WorldMap (obstacles, arena)
+    # or None; filter_counts robot id -> the firmware's safety filter counters
+    # (SafetyFilterStatus.as_dict()), empty when unknown (a recording without them);
+    # filter_source where they come from: "firmware" (the in-process simulator's objects),
+    # "status" (the agents' last Status on the bus: formation.record.collector), None (unknown).
+    body_radius_m: float = float("nan")
+    safety_distance_m: float = float("nan")
+    world: Any = None
+    filter_counts: dict[str, dict[str, Any]] = field(default_factory=dict)
+    filter_source: str | None = "firmware"
+
+    @classmethod
+    def allocate(cls, robot_ids: list[str], slot_ids: list[int], ticks: int) -> RunLog:
+        n, m = len(robot_ids), len(slot_ids)
+        nan = np.nan
+        return cls(
+            robot_ids=list(robot_ids),
+            slot_ids=list(slot_ids),
+            t_s=np.full(ticks, nan),
+            truth=np.full((ticks, n, 3), nan),
+            ref=np.full((ticks, n, 2), nan),
+            target=np.full((ticks, n, 2), nan),
+            slot_of=np.full((ticks, n), -1, dtype=np.int64),
+            slot_xy=np.full((ticks, m, 2), nan),
+            leader=np.full((ticks, 3), nan),
+            power=np.zeros((ticks, n, 2)),
+            mode=np.zeros((ticks, n), dtype=np.int64),
+        )
+
+    @classmethod
+    def from_ticks(
+        cls,
+        robot_ids: list[str],
+        slot_ids: list[int],
+        dt_s: float,
+        truth: Sequence[Sequence[Sequence[float]]],
+        leader: Sequence[tuple[float, float, float]],
+        slot_rows: Sequence[Sequence[Sequence[float]]],
+        slot_of_changes: Sequence[tuple[int, Sequence[int]]],
+        power_mode: Sequence[Sequence[Sequence[Any]]],
+        ref_offset_m: float,
+    ) -> RunLog:
+        """Build the arrays at the end of a run from what a loop kept per tick (plain lists are
+        much cheaper to append to than numpy element writes are to make, tick by tick).
+
+        Tick ``k`` is at ``t = k * dt_s``. Per tick: ``truth[k]`` the ``n`` rows ``(x, y,
+        theta)``; ``leader[k]`` ``(x, y, theta)``; ``slot_rows[k]`` the ``m`` slots' rows whose
+        first two entries are ``(x, y)``, in ``slot_ids`` order; ``power_mode[k]`` per robot a
+        sequence whose entries 2, 3 and 4 are power right, power left and the mode (a
+        ``WheelCommand``). ``slot_of_changes``: ``(k, row)`` whenever the robots' slots (``-1``
+        unassigned, robots in ``robot_ids`` order) changed, from ``k`` on, in tick order; before
+        the first entry no robot has a slot. The reference point (eqs 10-11, ``ref_offset_m``)
+        and the assigned slot's position (``target``) are derived here in one vectorised pass.
+        """
+        n, m, ticks = len(robot_ids), len(slot_ids), len(truth)
+        flat = chain.from_iterable
+        f64 = np.float64
+        t_s = np.arange(ticks, dtype=f64) * dt_s  # == k * dt_s, tick by tick
+        # np.fromiter over flattened tuples: C-level iteration, several times faster than
+        # np.array's nested-sequence discovery.
+        tr = np.fromiter(flat(flat(truth)), f64, ticks * n * 3).reshape(ticks, n, 3)
+        ref = np.empty((ticks, n, 2))
+        # eqs 10-11 over the whole log at once: robot_agent.core.kinematics.reference_point,
+        # vectorised
+        ref[:, :, 0] = tr[:, :, 0] + ref_offset_m * np.cos(tr[:, :, 2])  # eq 10
+        ref[:, :, 1] = tr[:, :, 1] + ref_offset_m * np.sin(tr[:, :, 2])  # eq 11
+        width = len(slot_rows[0][0]) if ticks and m else 2
+        slot_xy = np.ascontiguousarray(
+            np.fromiter(flat(flat(slot_rows)), f64, ticks * m * width).reshape(ticks, m, width)[
+                :, :, :2
+            ]
+        )
+        slot_of = np.full((ticks, n), -1, dtype=np.int64)
+        for j, (k, row) in enumerate(slot_of_changes):
+            end = slot_of_changes[j + 1][0] if j + 1 < len(slot_of_changes) else ticks
+            slot_of[k:end] = row
+        target = np.full((ticks, n, 2), np.nan)
+        if m:
+            row_of = np.full(max(slot_ids) + 2, -1, dtype=np.int64)  # slot id -> row; -1 -> -1
+            row_of[np.asarray(slot_ids, dtype=np.int64)] = np.arange(m)
+            rows_idx = row_of[slot_of]  # slot_of == -1 reads the last entry, which is -1
+            kk, ii = np.nonzero(rows_idx >= 0)
+            target[kk, ii] = slot_xy[kk, rows_idx[kk, ii]]
+        cmds = list(flat(power_mode))
+        power = np.fromiter(flat(map(itemgetter(2, 3), cmds)), f64, 2 * len(cmds))
+        power = power.reshape(ticks, n, 2)
+        # Mode objects -> codes keyed by identity (C-level hashing of ints; few distinct modes).
+        mode_ids = list(map(id, map(itemgetter(4), cmds)))
+        distinct = dict(zip(mode_ids, map(itemgetter(4), cmds), strict=True))
+        code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
+        mode = np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(cmds))
+        mode = mode.reshape(ticks, n)
+        leader_arr = np.fromiter(flat(leader), f64, ticks * 3).reshape(ticks, 3)
+        return cls(
+            robot_ids=list(robot_ids),
+            slot_ids=list(slot_ids),
+            t_s=t_s,
+            truth=tr,
+            ref=ref,
+            target=target,
+            slot_of=slot_of,
+            slot_xy=slot_xy,
+            leader=leader_arr,
+            power=power,
+            mode=mode,
+        )
+
+    def truncate(self, ticks: int) -> None:
+        for name in ("t_s", "truth", "ref", "target", "slot_of", "slot_xy", "leader", "power",
+                     "mode"):  # fmt: skip
+            setattr(self, name, getattr(self, name)[:ticks])
+
+    def save_npz(self, path: str) -> None:
+        np.savez_compressed(
+            path,
+            robot_ids=np.array(self.robot_ids),
+            slot_ids=np.array(self.slot_ids),
+            t_s=self.t_s,
+            truth=self.truth,
+            ref=self.ref,
+            target=self.target,
+            slot_of=self.slot_of,
+            slot_xy=self.slot_xy,
+            leader=self.leader,
+            power=self.power,
+            mode=self.mode,
+        )

@@ -1,0 +1,1 @@
+"""Recording and reports: `formation record` (MCAP), replay, `formation report`, run collector."""

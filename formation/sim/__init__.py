@@ -1,0 +1,1 @@
+"""The in-process simulator: `formation sim` and `formation demo` (no Zenoh, deterministic)."""

@@ -1,0 +1,292 @@
+"""The closed loop in one process, over the same cores as the distributed runtime (no Zenoh).
+
+Per control tick (``dt_s``), in this order:
+1. scheduled disturbances start (drag / teleport the truth);
+2. the camera captures truth at its own rate and delivers noisy poses after its latency;
+3. the coordinator core runs on the latest measured poses (virtual leader, slots, assignment);
+4. each robot's firmware steps on its latest pose, its neighbours' poses and the setpoint the
+   coordinator computed on the PREVIOUS tick: the lockstep rules of ``robot_agent.core.lockstep``
+   (tick time, setpoint delay), the same code the distributed nodes run, so a run over Zenoh in
+   lockstep equals this one bit for bit (docs/runtime.md);
+5. wheel commands go through the lossy, delayed command link;
+6. the plant integrates the wheel speeds that arrived (truth).
+
+The separation monitor (collisions, minimum separation) only reads the truth, so it runs over the
+whole logged truth at the end (``SeparationMonitor.update_many``, the same result as one update
+per tick).
+
+Speed: the loop runs each component's small-fleet path (plain Python on tuples where numpy's
+per-call overhead would dominate; bit-identical to the vectorised paths, which large fleets use),
+keeps per-tick records in lists and builds the log arrays once at the end
+(``RunLog.from_ticks``). ``bench/bench_sim.py`` measures it.
+
+Everything random comes from one seeded generator, so a seed gives the same run.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from operator import itemgetter
+from typing import Any
+
+import numpy as np
+
+from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
+from formation.outputs.runlog import RunLog
+from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
+from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
+from robot_agent.core.neighbours import is_current, neighbour
+from scenario import Scenario
+from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
+from sim_plant.core.plant import WheelEncoders
+
+# Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
+# firmware builds its WheelCommand the same way).
+_tuple_new = tuple.__new__
+_xy_of = itemgetter(0, 1)  # the first two fields of a tuple, as a tuple (C-level)
+
+
+@dataclass
+class SimResult:
+    log: RunLog
+    wall_s: float
+    firmware_status: dict[str, Any]
+    interrupted: bool = False  # ``stop`` was set: the log holds the ticks run before it
+
+    @property
+    def realtime_factor(self) -> float:
+        sim_s = float(self.log.t_s[-1] - self.log.t_s[0]) if self.log.t_s.size > 1 else 0.0
+        return sim_s / self.wall_s if self.wall_s > 0 else math.inf
+
+
+PROGRESS_EVERY_TICKS = 500  # how often run() calls its progress callback
+
+
+def run(
+    scenario: Scenario,
+    seed: int | None = None,
+    duration_s: float | None = None,
+    stop: threading.Event | None = None,
+    progress: Callable[[float, float], None] | None = None,
+) -> SimResult:
+    """Run ``scenario`` in-process for ``duration_s`` (default: the scenario's) of sim time.
+
+    ``seed`` overrides the scenario's seed. The returned ``wall_s`` is the wall-clock time of the
+    loop and of building the log arrays at the end. ``stop`` (e.g. set by a SIGINT handler) ends
+    the run early, between two ticks: the result holds the ticks run so far (at least one) and
+    ``interrupted`` is True. ``progress(t_s, duration_s)``, if given, is
+    called every :data:`PROGRESS_EVERY_TICKS` ticks (it must not touch the run's state).
+    """
+    seed = scenario.seed if seed is None else seed
+    duration = scenario.duration_s if duration_s is None else duration_s
+    rng = np.random.default_rng(seed)
+    ids = list(scenario.robot_ids)
+    n = len(ids)
+    index = {rid: i for i, rid in enumerate(ids)}
+    geom = scenario.agent.geometry
+    l_m = geom.ref_offset_m
+
+    coord = coordinator_core(scenario)
+    plant, camera, link, monitor = plant_models(scenario, rng)
+    encoders = (
+        WheelEncoders(
+            n, scenario.plant.encoder_counts_per_rev, scenario.plant.encoder_slip_std, rng
+        )
+        if scenario.plant.encoder_counts_per_rev > 0.0
+        else None
+    )
+    wheel_meas: list[tuple[float, float]] | None = None
+    firmwares = [Firmware(scenario.agent) for _ in ids]
+
+    dt = scenario.dt_s
+    ticks = round(duration / dt) + 1
+    slot_ids = list(coord.formation.slot_ids)
+    slot_row = {s: k for k, s in enumerate(slot_ids)}
+    # how long the coordinator keeps a robot whose pose stopped coming (with the estimator:
+    # its dropout bound), the Zenoh coordinator's rule too
+    stale = pose_stale_s(scenario.agent, odometry=encoders is not None)
+
+    # Per-robot state of the loop. poses[i] is robot i's latest measured pose, as its firmware
+    # sees it; xyt[i] the same (x, y, theta) as the coordinator sees it.
+    poses: list[Pose | None] = [None] * n
+    xyt: list[tuple[float, float, float] | None] = [None] * n
+    pose_rx = [-math.inf] * n
+    pose_cap: list[float | None] = [None] * n
+    applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
+    neighbours: list[list[Any]] = [[] for _ in ids]
+    tracking = [False] * n  # robot j's firmware was TRACKING on the previous tick
+    pending = list(scenario.disturbances)
+    fresh: dict[str, tuple[float, float, float]] = {}
+    oldest_rx = math.inf  # earliest receive time among the poses in `fresh`
+    outputs: SetpointWindow[CoordinatorOutput] = SetpointWindow()  # the coordinator's outputs
+
+    # What the log keeps per tick (converted to arrays once, at the end).
+    log_truth: list[tuple[tuple[float, float, float], ...]] = []
+    log_leader: list[tuple[float, float, float]] = []
+    log_slots: list[list[tuple[float, float, float, float]]] = []
+    log_cmds: list[list[WheelCommand]] = []
+    slot_of_changes: list[tuple[int, list[int]]] = []
+
+    steps = [fw.step for fw in firmwares]
+    robots = list(zip(range(n), ids, steps, strict=True))
+    wall0 = time.perf_counter()
+    interrupted = False
+    for k in range(ticks):
+        if k and stop is not None and stop.is_set():
+            interrupted = True
+            break
+        t = tick_time(k, dt)
+        if progress is not None and k % PROGRESS_EVERY_TICKS == 0:
+            progress(t, duration)
+        # 1. disturbances
+        while pending and pending[0].t_s <= t + 1e-9:
+            d = pending.pop(0)
+            apply_scheduled(plant, index[d.robot], d, camera)
+        truth = plant.truth_rows()
+        if encoders is not None:  # mean wheel speeds over the last tick, as measured
+            wheel_meas = encoders.read(t, plant.wheel_angles())
+        # 2. camera
+        camera.capture(t, truth)
+        delivered = camera.poll(t)
+        if delivered:
+            for i, stamp, x, y, th in delivered:
+                poses[i] = _tuple_new(Pose, (x, y, th, stamp))
+                pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
+                xyt[i] = (x, y, th)
+                pose_rx[i] = t
+        # every other robot's latest measured pose received within NEIGHBOUR_STALE_S, for
+        # repulsion and the safety filter, with its age now (capture to this tick) and whether
+        # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
+        # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
+        pts = [
+            None
+            if p is None or not is_current(t, pose_rx[j])
+            else neighbour(p[0], p[1], p[2], p[3], t, tracking[j])
+            for j, p in enumerate(poses)
+        ]
+        if None in pts:
+            for i in range(n):
+                neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
+        else:
+            for i in range(n):
+                neighbours[i] = pts[:i] + pts[i + 1 :]
+        # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
+        # arrives or one goes stale)
+        if delivered or t - oldest_rx > stale:
+            fresh = {}
+            oldest_rx = math.inf
+            for i, q in enumerate(xyt):
+                if q is not None and t - pose_rx[i] <= stale:
+                    fresh[ids[i]] = q
+                    if pose_rx[i] < oldest_rx:
+                        oldest_rx = pose_rx[i]
+        out = coord.tick(t, fresh)
+        # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
+        prev_out = outputs.for_clock(k)
+        t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
+        cmds: list[WheelCommand] = []
+        if prev_out is not None:
+            prev_asg = prev_out.assignment
+            prev_rows = prev_out.rows
+            prev_theta = prev_out.theta
+            prev_approach = prev_out.approach  # newly assigned robots on their way (core)
+        else:
+            prev_asg = {}
+            prev_approach = {}
+        for i, rid, step in robots:
+            sp = None
+            slot = prev_asg.get(rid)
+            if slot is not None:
+                x, y, vx, vy = prev_approach.get(rid) or prev_rows[slot_row[slot]]
+                sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
+            cmds.append(
+                step(
+                    t,
+                    pose=poses[i],
+                    pose_rx_s=pose_rx[i],
+                    setpoint=sp,
+                    setpoint_rx_s=t_prev,
+                    neighbours=neighbours[i],
+                    pose_capture_s=pose_cap[i],
+                    wheel_speeds=None if wheel_meas is None else wheel_meas[i],
+                )
+            )
+        tracking = [c[4] is Mode.TRACKING for c in cmds]
+        # 5. command link
+        link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
+        for i, wheels in link.poll(t):
+            applied[i] = wheels
+        # record the tick (truth at t, before integrating to t + dt)
+        log_truth.append(truth)
+        leader = out.leader
+        log_leader.append((leader.x, leader.y, leader.theta))
+        log_slots.append(out.rows)
+        log_cmds.append(cmds)
+        if out.changed or k == 0:
+            asg = out.assignment
+            slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
+        outputs.add(k, out)
+        # 6. plant
+        plant.step(dt, applied)
+    log = RunLog.from_ticks(
+        ids, slot_ids, dt, log_truth, log_leader, log_slots, slot_of_changes, log_cmds, l_m
+    )
+    # The separation accounting reads only the truth and feeds nothing back into the loop, so it
+    # runs once over the logged truth, vectorised over ticks (the same events and minimum as
+    # one update per tick).
+    monitor.update_many(log.t_s, log.truth)
+    wall = time.perf_counter() - wall0
+
+    log.min_separation_m = float(monitor.min_separation_m)
+    log.collisions = [_event_dict(e, ids) for e in monitor.collisions]
+    log.body_radius_m = geom.body_radius_m  # safety accounting (formation.outputs.metrics)
+    log.safety_distance_m = scenario.agent.safety_distance_m
+    log.world = scenario.agent.world
+    log.filter_counts = {
+        rid: fw.safety_filter.status().as_dict() for rid, fw in zip(ids, firmwares, strict=True)
+    }
+    log.meta = {
+        "scenario": scenario.name,
+        "seed": seed,
+        "dt_s": dt,
+        "mode": "in-process",
+        "wall_s": wall,
+        "link": {"sent": link.sent, "dropped": link.dropped},
+        "path_warnings": [c.message() for c in path_conflicts(scenario, duration)],
+    }
+    if interrupted:
+        log.meta["interrupted"] = True
+    status = {rid: _status_dict(fw) for rid, fw in zip(ids, firmwares, strict=True)}
+    return SimResult(log=log, wall_s=wall, firmware_status=status, interrupted=interrupted)
+
+
+def _event_dict(e: Any, ids: list[str]) -> dict[str, Any]:
+    if isinstance(e, dict):
+        d = dict(e)
+    elif hasattr(e, "_asdict"):
+        d = dict(e._asdict())
+    elif hasattr(e, "__dataclass_fields__"):
+        d = {f: getattr(e, f) for f in e.__dataclass_fields__}
+    else:
+        d = {"event": repr(e)}
+    for key in ("i", "j"):
+        if key in d and isinstance(d[key], int | np.integer):
+            d[key] = ids[int(d[key])]
+    return {k: (float(v) if isinstance(v, np.floating) else v) for k, v in d.items()}
+
+
+def _status_dict(fw: Firmware) -> dict[str, Any]:
+    st = fw.status()
+    if hasattr(st, "__dataclass_fields__"):
+        return {f: _jsonable(getattr(st, f)) for f in st.__dataclass_fields__}
+    return {"status": repr(st)}
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, float | int | str | bool) or v is None:
+        return v if not (isinstance(v, float) and not math.isfinite(v)) else None
+    return str(v)

@@ -1,0 +1,1 @@
+"""The camera tracker's cores (numpy + OpenCV, no Zenoh, no clock reads)."""

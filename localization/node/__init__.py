@@ -1,0 +1,1 @@
+"""The camera tracker's process shells (`formation camera`, `formation camera calibrate`)."""

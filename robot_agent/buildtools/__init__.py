@@ -1,0 +1,1 @@
+"""Build-time tools of the compiled firmware core (mypyc): never imported at run time."""

@@ -1,0 +1,585 @@
+"""Firmware of one robot: a table-driven mode machine around the reference-point controller.
+
+Theory of operation
+===================
+
+The shell (I/O) calls ``Firmware.step(now_s, pose=..., setpoint=..., ...)`` once per control
+tick with the latest pose (axle centre, from localization), the latest setpoint (where the
+robot's *reference point* should be, with its velocity as feed-forward), the local receive time
+of each, and the other robots' axle-centre positions. ``step`` returns one ``WheelCommand``. The
+core reads no clock: ``now_s`` and the ``*_rx_s`` stamps come from the shell's one local clock,
+so staleness never compares two hosts' clocks, and ``dt_s`` is the difference of successive
+``now_s``.
+
+Modes, events and the transition table: ``firmware_types.py`` (its docstring); entering a
+mode, HOLD ticks, the e-stop latch, rejection counting and the status snapshot:
+``firmware_modes.py`` (the base class); this module holds ``__init__`` and the tick.
+In TRACKING the controller can still fail (overflow from absurd but finite input): that tick
+outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
+counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
+
+Estimator (``config.estimator.enabled``, on by default; ``robot_agent/core/estimator.py``): every
+tick, in any mode, a new ``Pose`` object (each object once) is fused at its capture time
+``pose_capture_s`` (the shell's clock; ``pose_rx_s`` when not given) and the encoder speeds
+``wheel_speeds`` (mean over the interval since the previous tick) extend the odometry; the
+wheels commanded on a tick are the prediction's input from that tick on when no encoder speeds
+replace them. The pose the controller uses is the estimate at ``now_s``; an invalid estimate
+(no pose yet, the camera lost beyond the dropout bound, too uncertain) is a STALE event (HOLD)
+and replaces the ``stale_pose_s`` rule. A rejected pose is counted and the estimate rides on.
+``pose_uncertainty_m`` is the estimate's uncertainty (m); the safety filter adds it (or the
+shell's ``extra_radius_m`` if larger) to the robot's radius on the same tick.
+
+Setpoint extrapolation (``config.estimator.extrapolate_setpoint``, on by default): the setpoint
+is advanced by its feed-forward velocity over its receive age ``now_s - setpoint_rx_s`` (one
+tick in lockstep, where the setpoint of tick k-1 is used at tick k), so a one-tick-old setpoint
+leaves no steady lag; and by ``setpoint_lead_s`` more (default 0), the actuation lag (command
+link + motor time constant + one tick): the command computed now moves the robot that much
+later, so it aims where the slot will be then.
+
+Pipeline in TRACKING (one tick)::
+
+    [estimator: pose at now_s] -> [setpoint + ff * age]
+    -> reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
+    -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
+    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (the paper's
+       potential field) -> safety filter (barrier certificate on the reference-point velocity,
+       ``safety_filter.py``: keeps Ds to neighbours, clear of obstacles, inside the arena; the
+       last Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
+    -> saturation keeping the turn (or one factor on both wheels if keeping the turn would
+       leave the filter's constraints) -> power = omega / max_wheel_radps in [-1, 1]
+
+The integrators are frozen (may only shrink) on a tick after one whose wheels saturated: the
+PID cannot see this tick's saturation before it has computed this tick's command (the usual
+one-tick-lag anti-windup of a cascaded loop). A change of the setpoint's slot (a role
+change) resets the PID: the old integral and derivative belong to another target.
+
+Time: the first tick has no dt; ``dt_s <= 0`` (duplicate or backwards ``now_s``) or
+``dt_s > safety.max_dt_s`` (a stalled loop) integrates nothing and restarts the derivative; the
+command is then P + stored I + FF.
+
+Counting: ``rejected_count`` counts bad inputs. A rejected ``Pose`` / ``Setpoint`` object is
+counted once however many ticks the shell presents it again (identity); non-finite scalar
+arguments and neighbour entries are counted on every tick they appear; ``reject(reason)`` lets
+the shell add messages it dropped while decoding to the same counter.
+
+Types: ``step`` validates its arguments instead of trusting their annotations (``float |
+object``, ...: the firmware core is also compiled with mypyc, whose typed parameters would raise
+TypeError at the call, outside the tick's ``try``). A real number of another type than float
+(int, a numpy scalar, a Fraction) is used as its float value; a pose or setpoint may be any
+sequence of its fields; anything else (None, a string) raises inside the tick and is counted like
+any bad input (``internal error: TypeError``), in pure Python and compiled alike.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Sequence
+from typing import Any
+
+from robot_agent.core.estimator import Estimator
+from robot_agent.core.firmware_modes import _FirmwareModes
+from robot_agent.core.firmware_types import (  # noqa: F401  (moved to firmware_types.py; re-exported)
+    _E,
+    _ESTOP,
+    _EV_ESTOP,
+    _EV_FRESH,
+    _EV_INVALID,
+    _EV_NO_SETPOINT,
+    _EV_STALE,
+    _M,
+    _NAN,
+    _TRACKING,
+    _TRANSITIONS,
+    FirmwareStatus,
+    Mode,
+    Pose,
+    Setpoint,
+    WheelCommand,
+    _Event,
+    _new_command,
+    _tuple_new,
+)
+from robot_agent.core.kinematics import saturate_wheels
+from robot_agent.core.params import AgentConfig
+from robot_agent.core.repulsion import repulsion_raw
+from robot_agent.core.safety_filter import Neighbour, SafetyFilter
+from robot_agent.core.tracking import TrackingController
+
+__all__ = [
+    "Firmware",
+    "FirmwareStatus",
+    "Mode",
+    "Pose",
+    "Setpoint",
+    "WheelCommand",
+]
+
+_isfinite = math.isfinite
+_cos = math.cos
+_sin = math.sin
+
+
+def _real(value: object) -> float:
+    """``value`` as a float if it is a real number (``numbers.Real``: an int, a bool, a float
+    subclass such as numpy.float64, a numpy integer, a Fraction); else TypeError. The step's
+    fast path takes a float as it is; this is the rest (the same in pure Python and compiled)."""
+    if isinstance(value, (float, int, numbers.Real)):
+        return float(value)
+    raise TypeError(f"a real number expected, got {type(value).__name__}")
+
+
+class Firmware(_FirmwareModes):
+    """One robot's controller: call ``step`` once per tick (see the module docstring)."""
+
+    __slots__ = (
+        "_act_delay",
+        "_cfg",
+        "_dt_faults",
+        "_est",
+        "_est_xyt",
+        "_ex",
+        "_extrap",
+        "_ey",
+        "_filter",
+        "_filter_fn",
+        "_filter_on",
+        "_fused_pose",
+        "_geom",
+        "_half_r",
+        "_half_track",
+        "_have_setpoint",
+        "_l",
+        "_last_now",
+        "_last_pose_t",
+        "_lead",
+        "_max_dt",
+        "_pose_age",
+        "_rep",
+        "_rep_cap",
+        "_rep_d0",
+        "_rep_inv_d0",
+        "_rep_k",
+        "_rep_on",
+        "_role_changes",
+        "_saturated",
+        "_setpoint_age",
+        "_shared_frame",
+        "_slot",
+        "_stale_pose",
+        "_stale_sp",
+        "_steps",
+        "_tracker",
+        "_unc",
+        "_wheel_r",
+        "_wmax",
+        "_wmax_neg",
+    )
+
+    def __init__(self, config: AgentConfig | None = None) -> None:
+        cfg = config if config is not None else AgentConfig()
+        if not isinstance(cfg, AgentConfig):
+            raise TypeError(f"config must be an AgentConfig, got {type(cfg).__name__}")
+        self._cfg = cfg
+        self._geom = cfg.geometry
+        self._half_track = cfg.geometry.half_track_m
+        self._wheel_r = cfg.geometry.wheel_radius_m
+        self._half_r = 0.5 * self._wheel_r  # eq 7's 0.5 * r (the same bits as inline)
+        self._l = cfg.geometry.ref_offset_m
+        self._wmax = cfg.geometry.max_wheel_radps
+        self._wmax_neg = -self._wmax  # (the tick's range test without a negation)
+        self._rep = cfg.repulsion
+        self._rep_on = cfg.repulsion.enabled
+        # the repulsion parameters read once (repulsion_raw, the per-tick call)
+        self._rep_k = cfg.repulsion.k_rep
+        self._rep_d0 = cfg.repulsion.influence_m
+        self._rep_inv_d0 = 1.0 / self._rep_d0
+        self._rep_cap = cfg.repulsion.max_speed_mps
+        self._stale_pose = cfg.safety.stale_pose_s
+        self._stale_sp = cfg.safety.stale_setpoint_s
+        self._max_dt = cfg.safety.max_dt_s
+        self._tracker = TrackingController(cfg.gains)
+        self._filter = SafetyFilter(cfg)
+        self._filter_on = self._filter.enabled
+        self._filter_fn = self._filter.filter
+        self._shared_frame = self._filter.enabled and cfg.safety_filter.shared_frame
+        self._mode = Mode.IDLE
+        self._reason = "no setpoint yet"
+        self._have_setpoint = False
+        self._slot: int | None = None
+        self._last_now: float | None = None
+        self._last_pose_t: float | None = None
+        self._last_saturated = False
+        self._last_rejected_pose: object = None  # (identity only: the shells' objects)
+        self._last_rejected_setpoint: object = None
+        self._ex = _NAN
+        self._ey = _NAN
+        self._pose_age = _NAN
+        self._setpoint_age = _NAN
+        self._steps = 0
+        self._saturated = 0
+        self._rejected = 0
+        self._rej_reason = ""
+        self._role_changes = 0
+        self._dt_faults = 0
+        ep = cfg.estimator
+        self._est: Estimator | None = Estimator(ep) if ep.enabled else None
+        self._extrap = ep.extrapolate_setpoint
+        self._act_delay = ep.actuation_delay_s
+        self._lead = ep.setpoint_lead_s
+        self._fused_pose: object = None  # the last pose object fused (identity only)
+        # (t, omega_r, omega_l) of the last command, handed to the estimator on the next tick
+        # unless encoder speeds replace it (it only matters for times after that tick)
+        self._pending_cmd: tuple[float, float, float] | None = None
+        self._unc = _NAN
+        # the pose (first three fields: x, y, theta) the last tick used: a Pose or an estimate
+        self._est_xyt: tuple[float, ...] | None = None
+        if self._est is None:
+            self._unc = 0.0
+
+    def step(
+        self,
+        now_s: float | object,
+        *,
+        pose: Pose | object | None,
+        pose_rx_s: float | object,
+        setpoint: Setpoint | object | None,
+        setpoint_rx_s: float | object,
+        neighbours: Sequence[tuple[float, float] | Neighbour] = (),
+        obstacles: Sequence[tuple[float, float, float]] = (),
+        extra_radius_m: float | object = 0.0,
+        pose_capture_s: float | object | None = None,
+        wheel_speeds: tuple[float, float] | object | None = None,
+    ) -> WheelCommand:
+        """Run one control tick.
+
+        Args:
+            now_s: the shell's clock now (s), same clock as the ``*_rx_s``.
+            pose: latest pose of this robot's axle centre, or None if none yet.
+            pose_rx_s: local time the pose was received (s); ignored when ``pose`` is None.
+            setpoint: latest setpoint for this robot, or None (none yet / unassigned).
+            setpoint_rx_s: local time the setpoint was received (s).
+            neighbours: other robots' axle-centre positions (m), for repulsion and the safety
+                filter: ``(x, y)`` tuples (a fresh position of a robot treated as an obstacle)
+                or ``safety_filter.Neighbour``s (with heading, age, velocity, cooperative).
+            obstacles: circles ``(x, y, radius_m)`` (m), for repulsion and the safety filter
+                (on top of the configured ``AgentConfig.world``).
+            extra_radius_m: extra position uncertainty (m) of this robot, which the safety
+                filter adds to every clearance; with the estimator the firmware uses at least
+                this tick's ``pose_uncertainty_m`` on its own, so shells pass nothing.
+            pose_capture_s: capture time of ``pose`` on the shell's clock (s), for latency
+                compensation; None takes ``pose_rx_s`` (no latency known). Used only with the
+                estimator. In lockstep and in-process ``pose.t`` is on that clock.
+            wheel_speeds: ``(omega_r, omega_l)`` (rad/s) the encoders measured, mean over the
+                interval since the previous ``step``; None when the motor backend has no
+                encoders (the estimator then predicts from the commanded speeds).
+
+        Returns:
+            The wheel command; exactly zero wheels in every mode but TRACKING. Never raises.
+        """
+        self._steps += 1
+        # The whole tick runs inside one try (zero-cost in CPython 3.11 unless it raises): a
+        # firmware loop must not die, it stops the wheels instead.
+        try:
+            # The arguments are outside data, validated here, not trusted to their annotations
+            # (compiled with mypyc, a typed parameter would raise TypeError before this try): a
+            # number is a float, or converted by _real (int, numpy.float64, ...); anything else
+            # raises TypeError, which the except below counts as a rejection. Each value is
+            # converted where the tick uses it, so an argument the tick ignores (pose_rx_s
+            # without a pose) may be anything. Pose / setpoint fields: the same.
+            now = now_s if type(now_s) is float else _real(now_s)
+            # the fields of the pose / setpoint, unpacked: objects until validated (a Pose /
+            # Setpoint, or any tuple, unpacks as a tuple; any other sequence as an iterable)
+            ox: object
+            oy: object
+            oth: object
+            ot: object
+            ovx: object
+            ovy: object
+            slot: object
+            # --- time -----------------------------------------------------------------------
+            if not _isfinite(now):
+                self.reject("non-finite now_s")
+                return self._hold(_EV_INVALID, "non-finite clock")
+            last = self._last_now
+            self._last_now = now
+            if last is None:
+                dt = 0.0
+            else:
+                dt = now - last
+                if not 0.0 < dt <= self._max_dt:  # duplicate, backwards or stalled tick
+                    self._dt_faults += 1
+                    self._tracker.reset_derivative()
+                    dt = 0.0
+
+            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current): one
+            # Estimator.tick per step (twist, camera pose, estimate at now_s) -----------------
+            est = self._est
+            got: tuple[float, float, float, float] | None  # set where est is not None
+            if est is not None:
+                odo = False
+                if wheel_speeds is not None and last is not None:
+                    # measured wheel speeds over [last, now_s) (eq 7)
+                    try:
+                        ws: Any = wheel_speeds
+                        owr, owl = ws
+                        wr = owr if type(owr) is float else _real(owr)
+                        wl = owl if type(owl) is float else _real(owl)
+                        hr = self._half_r
+                        v = hr * (wr + wl)
+                        w = hr * (wr - wl) / self._half_track
+                        ok = now > last and _isfinite(v + w)  # (also catches overflow)
+                    except (TypeError, ValueError):
+                        ok = False
+                    if ok:
+                        seg_t = last
+                        odo = True
+                    else:
+                        seg_t = _NAN  # no twist this tick
+                        v = w = 0.0
+                        if now > last:
+                            self.reject("bad wheel speeds")
+                else:
+                    pending = self._pending_cmd
+                    if pending is not None:
+                        seg_t, pwr, pwl = pending
+                        hr = self._half_r
+                        v = hr * (pwr + pwl)
+                        w = hr * (pwr - pwl) / self._half_track
+                    else:
+                        seg_t = _NAN  # no twist this tick
+                        v = w = 0.0
+                self._pending_cmd = None
+                if pose is not None and pose is not self._fused_pose:
+                    self._fused_pose = pose
+                    if isinstance(pose, tuple):
+                        ox, oy, oth, ot = pose
+                    else:
+                        ps: Any = pose
+                        ox, oy, oth, ot = ps
+                    mx = ox if type(ox) is float else _real(ox)
+                    my = oy if type(oy) is float else _real(oy)
+                    mth = oth if type(oth) is float else _real(oth)
+                    mt = ot if type(ot) is float else _real(ot)
+                    if _isfinite(mt):
+                        oc = pose_rx_s if pose_capture_s is None else pose_capture_s
+                        cap = oc if type(oc) is float else _real(oc)
+                        got = est.tick(now, seg_t, v, w, odo, cap, mx, my, mth)
+                        reason = est.last_reason
+                        if reason is None:
+                            self._last_pose_t = mt
+                        else:
+                            self.reject(reason)
+                    else:
+                        self.reject("non-finite pose")
+                        got = est.tick(now, seg_t, v, w, odo, None, mx, my, mth)
+                else:
+                    got = est.tick(now, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
+
+            if self._mode is _ESTOP:
+                return self._hold(_EV_ESTOP, "estop")
+
+            # --- setpoint -------------------------------------------------------------------
+            if setpoint is None:
+                self._setpoint_age = _NAN
+                return self._hold(_EV_NO_SETPOINT, "no setpoint")
+            if isinstance(setpoint, tuple):
+                ox, oy, ovx, ovy, oth, slot, ot = setpoint
+            else:
+                ss: Any = setpoint
+                ox, oy, ovx, ovy, oth, slot, ot = ss
+            spx = ox if type(ox) is float else _real(ox)
+            spy = oy if type(oy) is float else _real(oy)
+            spvx = ovx if type(ovx) is float else _real(ovx)
+            spvy = ovy if type(ovy) is float else _real(ovy)
+            spth = oth if type(oth) is float else _real(oth)
+            spt = ot if type(ot) is float else _real(ot)
+            srx = setpoint_rx_s if type(setpoint_rx_s) is float else _real(setpoint_rx_s)
+            # (the slot: an int >= 0, not a bool)
+            if not _isfinite(spx + spy + spvx + spvy + spth + spt + srx) or not (
+                type(slot) is int and slot >= 0
+            ):
+                self._reject_setpoint(setpoint, "non-finite setpoint or bad slot")
+                if self._have_setpoint:
+                    return self._hold(_EV_INVALID, "setpoint rejected")
+                return self._hold(_EV_NO_SETPOINT, "setpoint rejected, none valid yet")
+            self._have_setpoint = True
+            if slot != self._slot:  # role change: the old PID state belongs to another target
+                if self._slot is not None:
+                    self._role_changes += 1
+                self._slot = slot
+                self._tracker.reset()
+            sp_age = now - srx
+            self._setpoint_age = sp_age
+
+            # --- pose -----------------------------------------------------------------------
+            pose_t: float | None
+            if est is None:
+                if pose is None:
+                    self._pose_age = _NAN
+                    return self._hold(_EV_STALE, "no pose")
+                if isinstance(pose, tuple):
+                    ox, oy, oth, ot = pose
+                else:
+                    ps = pose
+                    ox, oy, oth, ot = ps
+                x = ox if type(ox) is float else _real(ox)
+                y = oy if type(oy) is float else _real(oy)
+                th = oth if type(oth) is float else _real(oth)
+                pose_t = ot if type(ot) is float else _real(ot)
+                prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
+                if not _isfinite(x + y + th + pose_t + prx):
+                    self._reject_pose(pose, "non-finite pose")
+                    return self._hold(_EV_INVALID, "pose rejected")
+                self._last_pose_t = pose_t
+                pose_age = now - prx
+                self._pose_age = pose_age
+                # staleness (|age|: a receive time in the future is as wrong as an old one)
+                lim = self._stale_pose
+                if not -lim <= pose_age <= lim:
+                    return self._hold(_EV_STALE, "pose stale")
+                # (a tuple as it is: pose_estimate converts its fields on reading)
+                self._est_xyt = pose if isinstance(pose, tuple) else (x, y, th)
+            else:
+                # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
+                # dropout bound, or too uncertain) holds the robot
+                if pose is not None:
+                    prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
+                    self._pose_age = now - prx
+                else:
+                    self._pose_age = _NAN
+                if got is None:
+                    self._unc = _NAN
+                    self._est_xyt = None
+                    if est.last_capture_s is None:
+                        return self._hold(_EV_STALE, "no pose")
+                    return self._hold(_EV_STALE, "pose estimate invalid")
+                x, y, th, self._unc = got
+                pose_t = self._last_pose_t
+                self._est_xyt = got
+
+            # --- setpoint staleness -----------------------------------------------------------
+            lim = self._stale_sp
+            if not -lim <= sp_age <= lim:
+                return self._hold(_EV_STALE, "setpoint stale")
+
+            if self._mode is not _TRACKING:
+                self._transition(_EV_FRESH, "tracking")
+
+            # --- setpoint extrapolation: where the setpoint is now, advanced by its
+            # feed-forward velocity over its receive age (exactly one tick in lockstep) ------
+            if self._extrap and sp_age > 0.0:
+                lead = sp_age + self._lead
+                spx += spvx * lead
+                spy += spvy * lead
+
+            # --- eqs 10-11 (reference point), 17-18 (error), 21-22 (PID + FF, speed cap) ----
+            l_m = self._l
+            c = _cos(th)
+            s = _sin(th)
+            rx = x + l_m * c
+            ry = y + l_m * s
+            ex = spx - rx
+            ey = spy - ry
+            self._ex = ex
+            self._ey = ey
+            tracker = self._tracker
+            vx, vy = tracker.update(ex, ey, spvx, spvy, dt, self._last_saturated)
+            if not tracker.last_valid:
+                self.reject("controller overflow")
+                return self._hold(_EV_INVALID, "controller overflow")
+
+            # --- safety: repulsion at the axle centre, added to the ref-point velocity ------
+            if self._rep_on and (neighbours or obstacles):
+                rvx, rvy, skipped = repulsion_raw(x, y, neighbours, obstacles, self._rep_k,
+                                                  self._rep_d0, self._rep_inv_d0,
+                                                  self._rep_cap)  # fmt: skip
+                if skipped:
+                    self._rejected += skipped
+                    self._rej_reason = "non-finite neighbour or obstacle"
+                vx += rvx
+                vy += rvy
+
+            # --- safety filter (barrier certificate on the reference-point velocity), last
+            # before eq 16: keeps Ds to neighbours / obstacles / walls (safety_filter.py); the
+            # own extra radius is at least this tick's estimate uncertainty ----------------
+            if self._filter_on:
+                er = extra_radius_m if type(extra_radius_m) is float else _real(extra_radius_m)
+                unc = self._unc
+                if unc > er:
+                    er = unc
+                # shared_frame: the own latest camera pose and its age, for the frame's plane
+                frame = None
+                if self._shared_frame and pose is not None:
+                    if isinstance(pose, tuple):
+                        ox, oy, oth, ot = pose
+                    else:
+                        ps = pose
+                        ox, oy, oth, ot = ps
+                    oc = ot if pose_capture_s is None else pose_capture_s
+                    cap_t = oc if type(oc) is float else _real(oc)
+                    frame = (
+                        ox if type(ox) is float else _real(ox),
+                        oy if type(oy) is float else _real(oy),
+                        oth if type(oth) is float else _real(oth),
+                        now - cap_t,
+                    )
+                vx, vy = self._filter_fn(
+                    now,
+                    rx,
+                    ry,
+                    vx,
+                    vy,
+                    ex,
+                    ey,
+                    neighbours,
+                    obstacles,
+                    er,
+                    dt,
+                    frame,
+                )
+
+            # --- eq 16, then eq 8: inlined copies of twist_from_ref_velocity and
+            # wheels_from_twist (same operations, bit-identical; tested), saving two calls ---
+            v = c * vx + s * vy
+            w = (c * vy - s * vx) / l_m
+            turn = self._half_track * w
+            r = self._wheel_r
+            wr = (v + turn) / r
+            wl = (v - turn) / r
+
+            # --- saturation keeping the turn (fast path: inside limits, also False for NaN) -
+            wmax = self._wmax
+            nwmax = self._wmax_neg
+            if wr <= wmax and wr >= nwmax and wl <= wmax and wl >= nwmax:
+                sat = False
+            else:
+                wr0, wl0 = wr, wl
+                wr, wl, sat = saturate_wheels(wr, wl, wmax)
+                if sat:
+                    self._saturated += 1
+                    flt = self._filter
+                    if self._filter_on and flt.in_range and _isfinite(wr0 + wl0):
+                        # keeping the turn changes the reference velocity's direction: if that
+                        # leaves the filter's constraints, scale both wheels by one factor
+                        # instead (u scales by s in (0, 1]: safe, see safety_filter.py)
+                        sv = 0.5 * r * (wr + wl)
+                        sw = 0.5 * r * (wr - wl) / self._half_track
+                        if not flt.admissible(c * sv - l_m * sw * s, s * sv + l_m * sw * c):
+                            k = wmax / max(abs(wr0), abs(wl0))
+                            # (wr0 * k can round one ulp beyond wmax: power 1 + 2e-16 is an
+                            # invalid wheels message; clamp, a change of one ulp)
+                            wr = min(wmax, max(-wmax, wr0 * k))
+                            wl = min(wmax, max(-wmax, wl0 * k))
+                            flt.count_rescaled()
+            self._last_saturated = sat
+            if est is not None:  # for the prediction (see _pending_cmd)
+                self._pending_cmd = (now + self._act_delay, wr, wl)
+            # (_new_command inlined: one Python call less per tick)
+            return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat))
+        except Exception as exc:
+            self.reject(f"internal error: {type(exc).__name__}")
+            self._last_saturated = False
+            if self._mode is not _ESTOP:
+                self._set_mode(Mode.HOLD, "internal error")
+            return self._zero(self._last_pose_t)

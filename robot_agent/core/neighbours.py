@@ -1,0 +1,66 @@
+"""What a robot knows of the other robots, as the safety filter wants it: the one rule.
+
+Pure and stdlib only, time passed in. Both runtimes build the firmware's
+:class:`~robot_agent.core.safety_filter.Neighbour` list with these functions, so a lockstep run over
+Zenoh equals the in-process simulator bit for bit (``formation/sim/simulate.py``,
+``robot_agent/node/agent.py``, ``robot_agent/node/host.py``; docs/runtime.md):
+
+1. **Which robots.** Every other robot whose latest pose was *received* within
+   :data:`NEIGHBOUR_STALE_S` of now (:func:`is_current`; receive times are local). Older entries
+   are dropped (a robot that left the arena, or a made-up id, does not stay an obstacle forever).
+2. **Position and age.** The latest measured axle centre and heading, with
+   ``age_s = now - capture`` (:func:`neighbour`), the capture time on the *local* clock: the
+   pose's stamp in lockstep (sim time, shared by every node), in realtime the stamp converted by
+   :class:`robot_agent.core.clocksync.ClockOffset` (never a remote clock compared with the local one
+   blindly). A capture in the future (clock noise) counts as age 0.
+3. **Cooperative.** The neighbour's firmware was TRACKING on the previous control tick (then it
+   runs the same filter and takes half the responsibility). In-process: the mode of its previous
+   tick's command. Over Zenoh in lockstep: the plant relays, in clock ``k``, the robots whose
+   wheels answering tick ``k - 1`` said ``mode: tracking`` (``Clock.tracking``), so every agent
+   learns exactly what the simulator knows. In realtime: its latest status says ``tracking`` and
+   was received within :data:`COOPERATIVE_STATUS_S` (:func:`is_cooperative`). A wrong
+   "cooperative" is still safe (the filter's reciprocal barrier keeps ``h >= 0`` against a robot
+   that stands still, see ``safety_filter.py``); it only matters for how fast robots pass.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+from robot_agent.core.safety_filter import Neighbour
+
+__all__ = [
+    "COOPERATIVE_STATUS_S",
+    "NEIGHBOUR_STALE_S",
+    "is_cooperative",
+    "is_current",
+    "neighbour",
+]
+
+NEIGHBOUR_STALE_S: Final = 1.0
+"""A neighbour whose latest pose was received longer ago than this (s) is dropped."""
+COOPERATIVE_STATUS_S: Final = 0.5
+"""Realtime: a status older than this (s, receive time; 2.5 periods of the 5 Hz status) no
+longer makes its robot cooperative."""
+
+_tuple_new = tuple.__new__
+
+
+def is_current(now_s: float, rx_s: float) -> bool:
+    """A neighbour pose received at ``rx_s`` still counts at ``now_s`` (both local clock)."""
+    return -NEIGHBOUR_STALE_S <= now_s - rx_s <= NEIGHBOUR_STALE_S
+
+
+def is_cooperative(now_s: float, tracking: bool, status_rx_s: float) -> bool:
+    """Realtime rule: the latest status, received at ``status_rx_s``, said TRACKING and is fresh."""
+    return tracking and -COOPERATIVE_STATUS_S <= now_s - status_rx_s <= COOPERATIVE_STATUS_S
+
+
+def neighbour(
+    x: float, y: float, theta: float, capture_s: float, now_s: float, cooperative: bool
+) -> Neighbour:
+    """The safety filter's view of one neighbour measured at ``capture_s`` (local clock)."""
+    age = now_s - capture_s
+    if age < 0.0:
+        age = 0.0
+    return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))

@@ -1,0 +1,480 @@
+"""``formation agent``: the firmware of one robot as a process (a thin asyncio shell over Firmware).
+
+Usage::
+
+    formation agent --id r1 [--scenario NAME|FILE | --config ROBOT.toml] [--fleet demo]
+                    [--lockstep] [--loop on-pose|fixed] [--rate-hz 50] [zenoh options]
+    formation agent --check-config ROBOT.toml      # prints OK or the problems; exit 0 / 1
+
+It prints exactly one line ``agent <id> ready`` on stdout once its Zenoh session is open, its
+subscriptions are declared and its liveliness token ``formation/<fleet>/alive/robot/<id>`` is
+declared; it exits 0 within a second of SIGINT/SIGTERM (``runtime.transport.run_node``).
+
+The neighbours (other robots' poses, who is cooperative) are handled by
+:mod:`robot_agent.node.agent_neighbours`, the e-stop query by :mod:`robot_agent.node.agent_estop`.
+
+Theory of operation: docs/process-shells.md (inputs, outputs, realtime and lockstep).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import runtime as rt
+from bus_schemas import (
+    Clock,
+    DecodeError,
+    Estop,
+    Pose,
+    RejectCounts,
+    Setpoint,
+    Status,
+    Wheels,
+    decode,
+    encode,
+    keys,
+)
+from robot_agent.core.clocksync import ClockOffsets
+from robot_agent.core.estop import ESTOP_REFRESH_S, EstopLatch
+from robot_agent.core.firmware import Firmware, WheelCommand
+from robot_agent.core.firmware import Pose as FwPose
+from robot_agent.core.firmware import Setpoint as FwSetpoint
+from robot_agent.core.lockstep import Arrivals, Replay, SetpointWindow
+from robot_agent.core.neighbours import (
+    NEIGHBOUR_STALE_S,
+)
+from robot_agent.core.params import AgentConfig
+from robot_agent.core.safety_filter import Neighbour
+from robot_agent.node.agent_neighbours import MAX_NEIGHBOURS, NodeNeighbours
+from robot_agent.node.estop_shell import EstopHooks
+from robot_agent.node.motor_output import (
+    MotorOutput,
+)
+from robot_agent.node.peer_status import clearance_or_none, filter_counters, status_tracking
+from runtime.sdnotify import Notifier
+from runtime.timers import run_timers
+
+__all__ = [
+    "MAX_NEIGHBOURS",
+    "NEIGHBOUR_STALE_S",
+    "AgentNode",
+    "MotorOutput",
+    "Publish",
+    "status_tracking",
+]
+
+LoopMode = Literal["on-pose", "fixed"]
+
+
+# ---------------------------------------------------------------------------------------------
+# The agent
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _SetpointIn:
+    """A received, valid setpoint: firmware form, role, receive time and lockstep tick."""
+
+    sp: FwSetpoint
+    role: str
+    rx_s: float
+    tick: int | None
+
+
+Publish = Callable[[str, bytes, rt.QoS], None]
+
+
+def clock_wheels(msg: Clock) -> dict[str, tuple[float, float]]:
+    """The emulated encoder speeds a lockstep clock carries, by robot (empty without)."""
+    if msg.enc_robots is None or msg.enc_wr is None or msg.enc_wl is None:
+        return {}
+    return {r: (a, b) for r, a, b in zip(msg.enc_robots, msg.enc_wr, msg.enc_wl, strict=True)}
+
+
+class AgentNode(NodeNeighbours, EstopHooks):
+    """State and handlers of one agent; Zenoh-free apart from the ``publish`` callable.
+
+    Every handler takes one :class:`runtime.transport.Received` and runs on the event loop;
+    none raises (bad input is counted, internal faults are counted and logged).
+
+    Args:
+        robot_id: this robot's id.
+        fleet: the fleet name.
+        config: firmware parameters.
+        publish: ``publish(key, payload, qos)``.
+        lockstep: step on ``clock`` only (see the module docstring).
+        loop_mode: ``"on-pose"`` or ``"fixed"`` (realtime only).
+        rate_hz: timer rate (Hz) of the realtime loop.
+        motor: the motor seam; None: bus only.
+        log: where to log.
+    """
+
+    def __init__(
+        self,
+        robot_id: str,
+        fleet: str,
+        config: AgentConfig,
+        publish: Publish,
+        *,
+        lockstep: bool = False,
+        loop_mode: LoopMode = "on-pose",
+        rate_hz: float = 50.0,
+        motor: MotorOutput | None = None,
+        log: rt.NodeLog | None = None,
+    ) -> None:
+        self.robot_id = keys.check_robot_id(robot_id)
+        self.fleet = keys.check_fleet(fleet)
+        # realtime: no shared-frame plane (frames reach robots at different ticks; params.py)
+        self.firmware = Firmware(config if lockstep else config.realtime())
+        self.lockstep = lockstep
+        self.loop_mode: LoopMode = loop_mode
+        self.period_s = 1.0 / rate_hz
+        self.motor = motor
+        self.log = log if log is not None else rt.NodeLog(f"agent {robot_id}")
+        self._publish = publish
+        self.host = socket.gethostname()[:255] or "unknown"
+        self.pid = os.getpid()
+
+        self.pose_key = keys.pose_key(fleet, robot_id)
+        self.setpoint_key = keys.setpoint_key(fleet, robot_id)
+        self.poses_key = keys.poses_key(fleet)
+        self.estop_key = keys.estop_key(fleet)
+        self.clock_key = keys.clock_key(fleet)
+        self.wheels_key = keys.wheels_key(fleet, robot_id)
+        self.status_key = keys.status_key(fleet, robot_id)
+        self.alive_key = keys.alive_robot_key(fleet, robot_id)
+        # Lockstep: the plant waits for these wheels, so they must arrive (BLOCK) and keep their
+        # order relative to the clock (same priority).
+        self.wheels_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
+
+        self.pose: FwPose | None = None
+        self.pose_rx_s = -math.inf
+        # capture time of self.pose on this node's clock (robot_agent.core.clocksync), for the
+        # estimator: the pose's t in lockstep (sim time), converted in realtime
+        self.pose_capture_s: float | None = None
+        self.clocks = ClockOffsets()  # realtime: one offset estimate per source key
+        self._pose_pending = False  # lockstep: received since the last clock
+        self.setpoint: _SetpointIn | None = None  # realtime: the newest
+        self._setpoints: SetpointWindow[_SetpointIn] = SetpointWindow()  # lockstep
+        self.role: str | None = None
+        # neighbour id -> [x_m, y_m, theta_rad, capture_s, rx_s] (capture on this node's
+        # clock); rx_s is None while pending (lockstep)
+        self._neighbours: dict[str, list[Any]] = {}
+        self._pending_neighbours: Arrivals[str] = Arrivals()  # lockstep
+        # cooperative neighbours (robot_agent.core.neighbours rule 3): lockstep, the ids the clock
+        # relays; realtime, id -> [status said tracking, rx_s] from the status messages
+        self.tracking_ids: frozenset[str] = frozenset()
+        # lockstep: this robot's emulated encoder speeds of the current clock (Clock.enc_*)
+        self.clock_wheels: tuple[float, float] | None = None
+        self._status_modes: dict[str, list[Any]] = {}
+
+        self.rx: dict[str, int] = {
+            "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
+        }  # fmt: skip
+        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
+        self.internal_errors = 0
+        # E-stop as latched fleet state (robot_agent.core.estop): the scopes this robot obeys (with
+        # their engagement ids) and the shell's hooks that query the latched state and answer
+        # with the engagements held (robot_agent.node.estop_shell).
+        self.estop = EstopLatch()
+        self._init_estop_hooks()
+        self.steps = 0
+        self.last_step_s = -math.inf
+        self.sim_t = 0.0  # lockstep: t of the last clock
+        self._replay: Replay[bytes] = Replay()  # lockstep: the last clock's wheels
+        self._seq_wheels = 0
+        self._seq_status = 0
+        self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
+        # Agent host (robot_agent.node.host): the host publishes the wheels of all its robots in one
+        # batch and answers neighbour queries from its shared spatial index.
+        self.publish_wheels = True
+        self.neighbour_fn: Callable[[AgentNode, float], list[Neighbour]] | None = None
+
+    # -- bookkeeping ---------------------------------------------------------------------------
+
+    def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
+        """Count a dropped ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
+        else ``reason``, else ``invalid``) and log it (rate limited)."""
+        if reason is None:
+            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
+        self.rejects.add(f"{what}-{reason}")
+        self.firmware.reject(f"{what}: {why}")
+        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+
+    def _internal(self, where: str, exc: BaseException) -> None:
+        self.internal_errors += 1
+        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+
+    @property
+    def rejected(self) -> int:
+        """Messages rejected so far (decode errors and misaddressed messages)."""
+        return self.firmware.status().rejected_count
+
+    def check_resume(self, now_s: float) -> bool:
+        """Realtime: detect a resume after a stop of this process (:mod:`runtime.stall`): drop
+        the setpoint and pose and return True while the quarantine lasts (inputs are backlog)."""
+        if self.lockstep:
+            return False
+        stopped = self.stall.resume(now_s)
+        if stopped is not None:
+            self.setpoint = None
+            self.pose = None
+            self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
+            self.request_estop_state(now_s)  # an e-stop engaged or released meanwhile
+        return self.stall.quarantined(now_s)
+
+    # -- input handlers (event loop) -----------------------------------------------------------
+
+    def on_pose(self, rx: rt.Received) -> None:
+        """Own pose: keep it; realtime on-pose: step now."""
+        try:
+            self.rx["pose"] += 1
+            if self.check_resume(rx.rx_s):
+                self._reject("pose", "received during the resume quarantine", "quarantine")
+                return
+            msg = decode(rx.payload, Pose)
+            if isinstance(msg, DecodeError):
+                self._reject("pose", msg)
+                return
+            if msg.robot is not None and msg.robot != self.robot_id:
+                self._reject(
+                    "pose", f"robot {msg.robot!r} on {self.robot_id}'s key", "misaddressed"
+                )
+                return
+            self.pose = FwPose(msg.x, msg.y, msg.theta, msg.t)
+            if self.lockstep:
+                self.pose_capture_s = msg.t  # sim time: one clock for every node
+                self._pose_pending = True
+                return
+            self.pose_rx_s = rx.rx_s
+            pub_t = msg.t if msg.pub_t is None else msg.pub_t
+            self.pose_capture_s = self.clocks.capture_to_local(rx.key, pub_t, msg.t, rx.rx_s)
+            if self.loop_mode == "on-pose":
+                self.step(time.monotonic())
+        except Exception as exc:
+            self._internal("on_pose", exc)
+
+    def on_setpoint(self, rx: rt.Received) -> None:
+        """Own setpoint: keep the newest (realtime) or the last two with their ticks (lockstep)."""
+        try:
+            self.rx["setpoint"] += 1
+            if self.check_resume(rx.rx_s):
+                self._reject("setpoint", "received during the resume quarantine", "quarantine")
+                return
+            msg = decode(rx.payload, Setpoint)
+            if isinstance(msg, DecodeError):
+                self._reject("setpoint", msg)
+                return
+            if msg.robot != self.robot_id:
+                self._reject(
+                    "setpoint", f"robot {msg.robot!r} on {self.robot_id}'s key", "misaddressed"
+                )
+                return
+            sp = FwSetpoint(msg.x, msg.y, msg.vx, msg.vy, msg.theta, msg.slot, msg.t)
+            tick = msg.tick if self.lockstep else None
+            self.accept_setpoint(sp, msg.role, rx.rx_s, tick)
+        except Exception as exc:
+            self._internal("on_setpoint", exc)
+
+    def accept_setpoint(self, sp: FwSetpoint, role: str, rx_s: float, tick: int | None) -> None:
+        """Keep a valid setpoint: the newest (realtime) or the last two with ticks (lockstep)."""
+        if self.lockstep:
+            if tick is None:
+                self._reject("setpoint", "lockstep setpoint without a valid tick", "no_tick")
+                return
+            # In lockstep the setpoint's t is the sim time of its tick, which is when
+            # simulate.py considers it received.
+            self._setpoints.add(tick, _SetpointIn(sp, role, sp.t, tick))
+        else:
+            self.setpoint = _SetpointIn(sp, role, rx_s, None)
+
+    def on_estop(self, rx: rt.Received) -> None:
+        """Fleet or own estop: latch or release that scope (robot_agent.core.estop); the firmware is
+        in ESTOP (zero wheels at once in realtime) while the fleet's or this robot's is latched."""
+        try:
+            self.rx["estop"] += 1
+            msg = decode(rx.payload, Estop)
+            if isinstance(msg, DecodeError):
+                self._reject("estop", msg)
+                return
+            self.witness_message(msg.engage, msg.robot, msg.id)  # answered on estop/held
+            if msg.robot is not None and msg.robot != self.robot_id:
+                return  # another robot's estop
+            self.estop.apply(msg.engage, msg.robot, msg.id)
+            self.sync_estop("message")
+        except Exception as exc:
+            self._internal("on_estop", exc)
+
+    def on_estop_state(self, answers: list[tuple[bool, str | None, int | None]]) -> None:
+        """The coordinators' latched e-stop state (a query's ``(engage, robot, id)`` entries,
+        any robots'): adds engagements, releases one held here only if the answer saw that
+        engagement released (``EstopLatch.merge_answer``). No answer: nothing changes."""
+        try:
+            if not answers:
+                return
+            self.witness_answer(answers)
+            mine = [a for a in answers if a[1] is None or a[1] == self.robot_id]
+            self.estop.merge_answer(mine)
+            self.sync_estop("query answer")
+        except Exception as exc:
+            self._internal("on_estop_state", exc)
+
+    def sync_estop(self, why: str = "") -> None:
+        """Engage or release the firmware's e-stop to match the latched scopes (``why``: what
+        changed them, for the log)."""
+        stop = self.estop.stopped(self.robot_id)
+        latched = self.firmware.status().estop_latched
+        src = f" by {why}" if why else ""
+        if stop and not latched:
+            self.firmware.engage_estop()
+            scope = " (fleet)" if self.estop.fleet else ""
+            self.log.info(f"estop engaged{scope}{src} t={time.monotonic():.6f}")
+            if not self.lockstep:
+                self.step(time.monotonic())  # zero wheels now, not at the next tick
+        elif latched and not stop:
+            self.firmware.release_estop()
+            self.log.info(f"estop released{src} t={time.monotonic():.6f}")
+
+    def on_clock(self, rx: rt.Received) -> None:
+        """Lockstep clock k: step at t_k and answer with wheels(tick=k)."""
+        try:
+            self.rx["clock"] += 1
+            msg = decode(rx.payload, Clock)
+            if isinstance(msg, DecodeError):
+                self._reject("clock", msg)
+                return
+            k = msg.tick
+            again = self._replay.repeat(k)
+            if again is not None:
+                self._publish(self.wheels_key, again, self.wheels_qos)  # re-announced clock
+                return
+            self.tracking_ids = frozenset(msg.tracking or ())
+            self.clock_wheels = clock_wheels(msg).get(self.robot_id)
+            self.clock_step(k, msg.t)
+        except Exception as exc:
+            self._internal("on_clock", exc)
+
+    def clock_step(self, k: int, t_k: float) -> WheelCommand | None:
+        """Lockstep tick k at sim time ``t_k``: poses and neighbours received since the last
+        clock count as received at ``t_k``, the setpoint of tick k-1 is chosen, one step."""
+        try:
+            self.sim_t = t_k
+            if self._pose_pending:
+                self.pose_rx_s = t_k
+                self._pose_pending = False
+            if self._pending_neighbours:
+                nb = self._neighbours
+                for rid in self._pending_neighbours.take():
+                    entry = nb.get(rid)
+                    if entry is not None and entry[4] is None:
+                        entry[4] = t_k
+            self.setpoint = self._setpoints.for_clock(k)
+            self._replay.last_tick = k
+            return self.step(t_k, tick=k)
+        except Exception as exc:
+            self._internal("clock_step", exc)
+            return None
+
+    # -- control -------------------------------------------------------------------------------
+
+    def step(self, now_s: float, tick: int | None = None) -> WheelCommand | None:
+        """One firmware tick at ``now_s`` (s); publishes wheels and drives the motor seam."""
+        try:
+            sp = self.setpoint
+            cmd = self.firmware.step(
+                now_s,
+                pose=self.pose,
+                pose_rx_s=self.pose_rx_s,
+                setpoint=sp.sp if sp is not None else None,
+                setpoint_rx_s=sp.rx_s if sp is not None else -math.inf,
+                neighbours=(
+                    self.neighbours(now_s)
+                    if self.neighbour_fn is None
+                    else self.neighbour_fn(self, now_s)
+                ),
+                pose_capture_s=self.pose_capture_s,
+                wheel_speeds=(
+                    self.clock_wheels if self.motor is None else self.motor.take_wheel_speeds()
+                ),
+            )
+            if sp is not None:
+                self.role = sp.role
+            self.steps += 1
+            self.last_step_s = now_s
+            if self.motor is not None:
+                zero = cmd.omega_r == 0.0 and cmd.omega_l == 0.0
+                self.motor.command(cmd.omega_r, cmd.omega_l, now_s, zero)
+            if not self.publish_wheels:
+                return cmd
+            self._seq_wheels += 1
+            payload = encode(
+                Wheels(
+                    t=max(now_s, 0.0),
+                    seq=self._seq_wheels,
+                    omega_r=cmd.omega_r,
+                    omega_l=cmd.omega_l,
+                    power_r=cmd.power_r,
+                    power_l=cmd.power_l,
+                    pose_t=cmd.pose_t,
+                    tick=tick,
+                    saturated=cmd.saturated,
+                    mode=str(cmd.mode),
+                )
+            )
+            self._replay.answer = payload
+            self._publish(self.wheels_key, payload, self.wheels_qos)
+            return cmd
+        except Exception as exc:  # SchemaError (a bug) or a closed session at shutdown
+            self._internal("step", exc)
+            return None
+
+    def status_message(self, now_s: float) -> Status:
+        """The status message for ``now_s`` (s, this node's bus clock)."""
+        st = self.firmware.status()
+        self._seq_status += 1
+        flt = st.safety_filter
+        return Status(
+            t=max(now_s, 0.0),
+            seq=self._seq_status,
+            mode=str(st.mode),
+            slot=st.slot,
+            pid=self.pid,
+            host=self.host,
+            rejected=st.rejected_count,
+            ex=rt.finite_or_none(st.ex),
+            ey=rt.finite_or_none(st.ey),
+            role=self.role,
+            rx=dict(self.rx),
+            robot=self.robot_id,
+            rejects=self.rejects.as_dict(),
+            filter=None if flt is None else filter_counters(flt),
+            min_clearance_m=None if flt is None else clearance_or_none(flt.min_clearance_m),
+        )
+
+    def publish_status(self) -> None:
+        """Publish one status message (never raises)."""
+        try:
+            now = self.sim_t if self.lockstep else time.monotonic()
+            if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
+                self.request_estop_state(now)
+            self._publish(self.status_key, encode(self.status_message(now)), rt.QOS_TELEMETRY)
+        except Exception as exc:
+            self._internal("status", exc)
+
+    def control_timer(self, now: float) -> None:
+        """Realtime timer tick: step unless an own pose stepped within the period (on-pose)."""
+        if self.loop_mode == "fixed" or now - self.last_step_s >= self.period_s * 0.999:
+            self.step(now)
+
+    async def run(self, stop: asyncio.Event, notifier: Notifier | None = None) -> None:
+        """Timers until ``stop``: the realtime control/watchdog timer and the 5 Hz status."""
+        if not self.lockstep:
+            self.stall.watch_sigcont()  # a late loop is no stop (runtime.stall)
+        await run_timers(self, stop, notifier)

@@ -1,0 +1,29 @@
+"""Simulated plant (numpy, vectorised over robots): ground truth, sensors, safety accounting.
+
+Pure cores only: time is passed in, randomness comes from a ``numpy.random.Generator`` passed in.
+"""
+
+from sim_plant.core.accounting import (
+    BoundsMonitor,
+    CollisionEvent,
+    ExitEvent,
+    SeparationMonitor,
+    contacts_and_min_distance,
+)
+from sim_plant.core.plant import GeometryLike, Plant, unicycle_integrate, wrap_angles
+from sim_plant.core.sensors import Camera, CameraFrame, CommandLink
+
+__all__ = [
+    "BoundsMonitor",
+    "Camera",
+    "CameraFrame",
+    "CollisionEvent",
+    "CommandLink",
+    "ExitEvent",
+    "GeometryLike",
+    "Plant",
+    "SeparationMonitor",
+    "contacts_and_min_distance",
+    "unicycle_integrate",
+    "wrap_angles",
+]

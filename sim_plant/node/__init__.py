@@ -1,0 +1,1 @@
+"""The plant simulator's process shell (`formation plant`)."""

@@ -1,0 +1,148 @@
+"""``formation plant``: the command line and bootstrap of the plant simulator process.
+
+Checks the options and the scenario, then runs :class:`sim_plant.node.plant.PlantNode` under
+``runtime.serve``; ``--stats-out`` writes the status and latency statistics at the end. The node
+is described in :mod:`sim_plant.node.plant`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from typing import Final
+
+import runtime as rt
+from bus_schemas import keys
+from scenario import Scenario
+from sim_plant.node.plant import WAIT_ROBOTS_S, PlantNode
+
+__all__ = ["MAX_PHYSICS_HZ", "build_parser", "main"]
+
+MAX_PHYSICS_HZ: Final = 10000.0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``formation plant`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog="formation plant",
+        description="Run the plant simulator (robots, camera, command link) as a Zenoh node.",
+    )
+    parser.add_argument("--scenario", required=True, metavar="NAME|FILE", help="scenario")
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (demo)")
+    parser.add_argument(
+        "--seed", type=rt.non_negative_int, help="random seed (default: the scenario's)"
+    )
+    parser.add_argument("--lockstep", action="store_true", help="lockstep (docs/runtime.md)")
+    parser.add_argument(
+        "--lockstep-timeout",
+        type=rt.positive_float,
+        default=2.0,
+        metavar="S",
+        help="lockstep: go on after this long without every answer (2.0 s, counted)",
+    )
+    parser.add_argument(
+        "--physics-hz",
+        type=rt.positive_float,
+        default=100.0,
+        metavar="HZ",
+        help="realtime physics rate (100 Hz); lockstep uses the scenario's dt_s",
+    )
+    parser.add_argument(
+        "--duration",
+        type=rt.positive_float,
+        metavar="S",
+        help="stop after this much sim time (lockstep) or wall time (realtime) and exit 0",
+    )
+    parser.add_argument(
+        "--wait-robots",
+        action="store_true",
+        help=f"start only once every robot's and a coordinator's token are present "
+        f"(gives up after {WAIT_ROBOTS_S:g} s)",
+    )
+    parser.add_argument(
+        "--batch",
+        action="store_true",
+        help="large fleets: poses only as batched frames, truth as batches (no per-robot "
+        "pose/truth keys); docs/scale.md",
+    )
+    parser.add_argument(
+        "--no-poses",
+        action="store_true",
+        help="publish no emulated camera poses (a `formation camera --source rendered` does)",
+    )
+    parser.add_argument(
+        "--stats-out",
+        metavar="FILE.json",
+        help="at exit, write the run's statistics (latency, frames, lateness, rx) as JSON",
+    )
+    rt.add_zenoh_arguments(parser)
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation plant``; returns the exit status."""
+    ns = build_parser().parse_args(argv)
+    log = rt.NodeLog("plant")
+    try:
+        rt.check_names(("--fleet", ns.fleet))
+        if ns.physics_hz > MAX_PHYSICS_HZ:
+            raise rt.UsageError(f"--physics-hz {ns.physics_hz:g} is above {MAX_PHYSICS_HZ:g}")
+        scenario = rt.load_scenario(ns.scenario)
+        settings = rt.zenoh_settings(ns)
+    except rt.UsageError as exc:
+        log.info(str(exc))
+        return rt.USAGE_EXIT
+    return rt.serve("plant", settings, lambda io, stop: _node(io, stop, scenario, ns))
+
+
+def write_stats(node: PlantNode, path: str, log: rt.NodeLog) -> None:
+    """``--stats-out``: the status map plus the latency statistics, as JSON (never raises)."""
+    import json
+
+    try:
+        stats = {**node.status_map(), **node.latency_stats(), "n_robots": node.n}
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(stats, fh, indent=1)
+    except Exception as exc:
+        log.info(f"--stats-out {path}: {exc!r}")
+
+
+async def _node(
+    io: rt.NodeIO, stop: asyncio.Event, scenario: Scenario, ns: argparse.Namespace
+) -> int:
+    node = PlantNode(
+        scenario,
+        ns.fleet,
+        io.pubs.put,
+        seed=ns.seed,
+        lockstep=ns.lockstep,
+        lockstep_timeout_s=ns.lockstep_timeout,
+        physics_hz=ns.physics_hz,
+        duration_s=ns.duration,
+        batch=ns.batch,
+        poses=not ns.no_poses,
+        log=io.log,
+    )
+    io.pubs.get(node.poses_key, node.data_qos)
+    for key in () if ns.batch else node.pose_keys:
+        io.pubs.get(key, node.data_qos)
+    if ns.lockstep:
+        io.pubs.get(node.clock_key, rt.QOS_CRITICAL)
+    io.watch_liveliness(node.alive_robots_pattern, node.on_alive_robot)
+    io.watch_liveliness(node.alive_coordinators_pattern, node.on_alive_coordinator)
+    io.subscribe(node.wheels_pattern, node.on_wheels)
+    io.subscribe(node.host_wheels_pattern, node.on_host_wheels)
+    io.subscribe(node.disturbance_key, node.on_disturbance)
+    if ns.lockstep:
+        io.subscribe(node.leader_key, node.on_leader)
+    io.declare_token(node.alive_key)
+    print("plant ready", flush=True)
+    code = await node.run(stop, ns.wait_robots)
+    if ns.stats_out:
+        write_stats(node, ns.stats_out, io.log)
+    return code
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,185 @@
+"""The plant process's outputs: truth, the emulated camera's frames (``poses`` batches, then
+each robot's ``pose``) and, in realtime, the bookkeeping of each published frame that gives the
+control-loop latency (frame published -> command received) and the frames' lateness.
+
+:class:`PlantOutputs` holds these methods of :class:`sim_plant.node.plant.PlantNode` (which sets
+every
+attribute declared here), as :class:`sim_plant.node.inputs.PlantInputs` holds its input handlers.
+The
+publication order is the in-process simulator's (docs/process-shells.md): lockstep runs over the
+bus reproduce it bit for bit (tests/bus/test_node_plant.py).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+import runtime as rt
+from bus_schemas import BATCH_CHUNK, Pose, PoseBatch, Truth, TruthBatch, encode
+from sim_plant.node.inputs import _Sim
+
+__all__ = ["FRAMES_REMEMBERED", "STEADY_TAIL_S", "STEADY_WARMUP_S", "PlantOutputs"]
+
+FRAMES_REMEMBERED: Final = 64
+"""Published frames whose stamps a returning command may still name (2 s at 30 Hz)."""
+STEADY_WARMUP_S: Final = 2.0
+"""Steady-state latency excludes frames published in the first 2 s after the first answer (the
+agents' start: imports, first assignment, first-call costs) ..."""
+STEADY_TAIL_S: Final = 0.5
+"""... and in the last 0.5 s of frames (the run's shutdown: agents stop before the plant)."""
+
+
+def _percentiles_ms(samples_s: Any) -> dict[str, float] | None:
+    """p50 / p99 / max of a numpy array of seconds, in ms (None when empty)."""
+    if not samples_s.size:
+        return None
+    arr = samples_s * 1e3
+    p50, p99 = np.percentile(arr, [50.0, 99.0])
+    return {"p50": float(p50), "p99": float(p99), "max": float(arr.max())}
+
+
+class PlantOutputs:
+    """Truth and camera-frame publication of the plant node (state lives in
+    :class:`sim_plant.node.plant.PlantNode`)."""
+
+    batch: bool
+    poses: bool
+    lockstep: bool
+    sim: _Sim | None
+    ids: list[str]
+    poses_key: str
+    truths_key: str
+    pose_keys: list[str]
+    truth_keys: list[str]
+    data_qos: rt.QoS
+    truth_qos: rt.QoS
+    _publish: Any
+    _seq: dict[str, int]
+    frames_published: int
+    frame_lateness_s: deque[float]
+    _frame_pub: dict[float, float]
+    _frame_order: deque[float]
+    latencies_s: deque[float]
+    latency_pub_s: deque[float]
+
+    def _next_seq(self, key: str) -> int:
+        n = self._seq.get(key, 0) + 1
+        self._seq[key] = n
+        return n
+
+    def _publish_truth(self, t_s: float, truth: npt.NDArray[np.float64]) -> None:
+        t = max(t_s, 0.0)
+        if self.batch:
+            self._publish_truth_batch(t, truth)
+            return
+        for i, row in enumerate(truth.tolist()):
+            key = self.truth_keys[i]
+            msg = Truth(
+                t=t, seq=self._next_seq(key), x=row[0], y=row[1], theta=row[2], robot=self.ids[i]
+            )
+            self._publish(key, encode(msg), self.truth_qos)
+
+    def _publish_truth_batch(self, t: float, truth: npt.NDArray[np.float64]) -> None:
+        """``--batch``: truth as TruthBatch chunks on ``truths`` instead of one key per robot."""
+        rows = truth.tolist()
+        for start in range(0, len(rows), BATCH_CHUNK):
+            chunk = rows[start : start + BATCH_CHUNK]
+            msg = TruthBatch(
+                t=t,
+                seq=self._next_seq(self.truths_key),
+                robots=tuple(self.ids[start : start + len(chunk)]),
+                x=tuple(r[0] for r in chunk),
+                y=tuple(r[1] for r in chunk),
+                theta=tuple(r[2] for r in chunk),
+                stamp=t,
+            )
+            self._publish(self.truths_key, encode(msg), self.truth_qos)
+
+    def _publish_frame(
+        self, t_s: float, stamp_t: float, rows: list[tuple[int, float, float, float, float]]
+    ) -> None:
+        """One camera frame: the batch first, then each robot's pose (``t`` = capture time)."""
+        if not self.poses:
+            return  # --no-poses: the camera emulation is off (localization/core/rendered.py)
+        stamp = max(stamp_t, 0.0)
+        for start in range(0, len(rows), BATCH_CHUNK):
+            chunk = rows[start : start + BATCH_CHUNK]
+            batch = PoseBatch(
+                t=max(t_s, 0.0),
+                seq=self._next_seq(self.poses_key),
+                robots=tuple(self.ids[r[0]] for r in chunk),
+                x=tuple(r[2] for r in chunk),
+                y=tuple(r[3] for r in chunk),
+                theta=tuple(r[4] for r in chunk),
+                stamp=stamp,
+            )
+            self._publish(self.poses_key, encode(batch), self.data_qos)
+        if not self.lockstep:
+            # due: when the camera model delivers it (exposure + latency, sensors.Camera)
+            latency = self.sim.camera.latency_s if self.sim is not None else 0.0
+            self._frame_published(stamp, stamp + latency)
+        if self.batch:
+            return  # agent hosts and a --batch coordinator read the batches only
+        for i, _, x, y, theta in rows:
+            key = self.pose_keys[i]
+            msg = Pose(
+                t=stamp,
+                seq=self._next_seq(key),
+                x=x,
+                y=y,
+                theta=theta,
+                robot=self.ids[i],
+                pub_t=max(t_s, 0.0),
+            )
+            self._publish(key, encode(msg), self.data_qos)
+
+    def _frame_published(self, stamp: float, due_s: float) -> None:
+        """Realtime bookkeeping of a published frame (latency and lateness, see status)."""
+        now = time.monotonic()
+        self.frames_published += 1
+        self.frame_lateness_s.append(max(0.0, now - due_s))
+        self._frame_pub[stamp] = now
+        self._frame_order.append(stamp)
+        while len(self._frame_order) > FRAMES_REMEMBERED:
+            self._frame_pub.pop(self._frame_order.popleft(), None)
+
+    def latency_stats(self) -> dict[str, Any]:
+        """Control-loop latency (frame published -> command received, ms) and frame lateness
+        (frame published after its due time, ms), p50/p99/max over the run (realtime).
+
+        ``latency_steady_ms`` is the same over the steady state: frames published from
+        STEADY_WARMUP_S after the first answered frame to STEADY_TAIL_S before the last one.
+        """
+        out: dict[str, Any] = {"frames": self.frames_published, "commands": len(self.latencies_s)}
+        for name, samples in (
+            ("latency_ms", self.latencies_s),
+            ("lateness_ms", self.frame_lateness_s),
+        ):
+            out[name] = _percentiles_ms(np.fromiter(samples, dtype=float))
+        lat = np.fromiter(self.latencies_s, dtype=float)
+        pub = np.fromiter(self.latency_pub_s, dtype=float)
+        if lat.size and pub.size == lat.size:
+            lo, hi = pub.min() + STEADY_WARMUP_S, pub.max() - STEADY_TAIL_S
+            steady = lat[(pub >= lo) & (pub <= hi)]
+            out["latency_steady_ms"] = _percentiles_ms(steady)
+            out["steady_window_s"] = [STEADY_WARMUP_S, STEADY_TAIL_S]
+        else:
+            out["latency_steady_ms"] = None
+        return out
+
+    def publish_due_frames(self, sim: _Sim, t_s: float) -> None:
+        """Publish every camera frame delivered by ``t_s`` (``Camera.poll``, as the simulator)."""
+        due = sim.camera.poll(t_s)
+        start = 0
+        while start < len(due):  # oldest frame first; the entries of one frame share a stamp
+            stamp = due[start][1]
+            end = start + 1
+            while end < len(due) and due[end][1] == stamp:
+                end += 1
+            self._publish_frame(t_s, stamp, due[start:end])
+            start = end

@@ -1,0 +1,468 @@
+"""``formation plant``: the simulated robots, camera and radio link as a process.
+
+Usage::
+
+    formation plant --scenario NAME|FILE [--fleet demo] [--seed N] [--lockstep]
+                    [--lockstep-timeout 2.0] [--physics-hz 100] [--duration S] [--wait-robots]
+                    [zenoh options]
+
+A thin asyncio shell over :class:`sim_plant.core.plant.Plant`,
+:class:`sim_plant.core.sensors.Camera`,
+:class:`sim_plant.core.sensors.CommandLink` and
+:class:`sim_plant.core.accounting.SeparationMonitor`, built
+from the scenario by ``scenario.assemble`` (the assembly ``formation/sim/simulate.py`` uses: one
+``numpy.random.default_rng(seed)`` shared by camera and link, the same order of random draws), so
+a lockstep run over the bus reproduces the in-process run. It prints exactly one line
+``plant ready`` once its session is open, its subscriptions and its liveliness token
+``formation/<fleet>/alive/plant`` are declared, and exits 0 within a second of SIGINT/SIGTERM,
+or after ``--duration`` (sim time in lockstep, wall time in realtime).
+
+Theory of operation: docs/process-shells.md (inputs, outputs, realtime and lockstep).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections import deque
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+
+import runtime as rt
+from bus_schemas import (
+    MAX_LIST_LEN,
+    Clock,
+    Disturbance,
+    PlantStatus,
+    RejectCounts,
+    encode,
+    keys,
+    to_map,
+)
+from robot_agent.core.lockstep import tick_time
+from scenario import Scenario
+from scenario.assemble import apply_scheduled, plant_models
+from sim_plant.core.plant import WheelEncoders
+from sim_plant.node.inputs import _DRAG, ARENA_LIMIT_M, PlantInputs, _Sim
+from sim_plant.node.outputs import PlantOutputs
+
+__all__ = ["ARENA_LIMIT_M", "PlantNode"]
+
+STATUS_PERIOD_S: Final = 0.2
+REANNOUNCE_S: Final = 0.25
+"""Lockstep: while waiting for answers the clock is published again this often (s)."""
+WAIT_ROBOTS_S: Final = 30.0
+"""--wait-robots gives up after this long (s)."""
+LATENCY_SAMPLES: Final = 500_000
+"""Realtime latency / lateness samples kept (the newest)."""
+
+
+class PlantNode(PlantInputs, PlantOutputs):
+    """State and handlers of the plant; Zenoh-free apart from the ``publish`` callable. Its
+    input handlers are in :class:`PlantInputs`, its truth and camera-frame publication and the
+    realtime latency bookkeeping in :class:`PlantOutputs`.
+
+    Handlers run on the event loop and never raise.
+    """
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        fleet: str,
+        publish: Any,
+        *,
+        seed: int | None = None,
+        lockstep: bool = False,
+        lockstep_timeout_s: float = 2.0,
+        physics_hz: float = 100.0,
+        duration_s: float | None = None,
+        batch: bool = False,
+        log: rt.NodeLog | None = None,
+        poses: bool = True,
+    ) -> None:
+        self.scenario = scenario
+        self.batch = batch
+        self.poses = poses  # False: a real tracker (formation camera) publishes the poses
+        self.fleet = keys.check_fleet(fleet)
+        self.seed = scenario.seed if seed is None else seed
+        self.lockstep = lockstep
+        self.lockstep_timeout_s = lockstep_timeout_s
+        self.physics_period_s = 1.0 / physics_hz
+        self.duration_s = duration_s
+        self.log = log if log is not None else rt.NodeLog("plant")
+        self._publish = publish
+
+        self.ids: list[str] = list(scenario.robot_ids)
+        self.n = len(self.ids)
+        self.index = {rid: i for i, rid in enumerate(self.ids)}
+        self.rng = np.random.default_rng(self.seed)
+        self.sim: _Sim | None = None
+        # lockstep with encoder emulation: the readings of the current tick, relayed in its clock
+        self.encoders: WheelEncoders | None = None
+        self.clock_enc: list[tuple[float, float]] | None = None
+
+        self.clock_key = keys.clock_key(fleet)
+        self.leader_key = keys.leader_key(fleet)
+        self.poses_key = keys.poses_key(fleet)
+        self.disturbance_key = keys.disturbance_key(fleet)
+        self.wheels_pattern = keys.all_wheels_pattern(fleet)
+        self.host_wheels_pattern = keys.all_host_wheels_pattern(fleet)
+        self.truths_key = keys.truths_key(fleet)
+        self.alive_robots_pattern = keys.alive_robots_pattern(fleet)
+        self.alive_coordinators_pattern = keys.alive_coordinators_pattern(fleet)
+        self.status_key = keys.plant_status_key(fleet)
+        self.alive_key = keys.alive_plant_key(fleet)
+        self.pose_keys = [keys.pose_key(fleet, r) for r in self.ids]
+        self.truth_keys = [keys.truth_key(fleet, r) for r in self.ids]
+        # Lockstep: poses must precede the clock (same session, same priority) and arrive.
+        self.data_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
+        self.truth_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
+
+        self.alive: set[str] = set()
+        self.lost: set[str] = set()  # lockstep: token gone, still waited for (inputs.py)
+        self.coordinators: set[str] = set()
+        self.last_cmd: npt.NDArray[np.float64] = np.zeros((self.n, 2))
+        self.applied: npt.NDArray[np.float64] = np.zeros((self.n, 2))
+        self.generation = [0] * self.n
+        self.answer_tick: list[int | None] = [None] * self.n
+        # lockstep: the answer's mode was TRACKING (Wheels.mode); relayed in the next clock
+        self.answer_tracking: list[bool] = [False] * self.n
+        self.clock_tracking: tuple[str, ...] = ()  # what the current clock carries
+        self.leader_tick: int | None = None
+        self.scheduled = deque(scenario.disturbances)
+        self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
+        self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
+
+        self.rejected = 0
+        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
+        self.internal_errors = 0
+        self.ignored = 0  # valid messages for robots this plant does not simulate
+        self.rx: dict[str, int] = {
+            "wheels": 0, "host_wheels": 0, "disturbance": 0, "leader": 0, "alive": 0,
+        }  # fmt: skip
+        # Realtime control-loop latency (docs/scale.md): frame stamp -> when its poses were
+        # published; a command whose pose_t is such a stamp came back after rx - published.
+        self._frame_pub: dict[float, float] = {}
+        self._frame_order: deque[float] = deque()
+        self.latencies_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.latency_pub_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)  # when each frame left
+        self.frames_published = 0
+        self._answered: list[float | None] = [None] * self.n  # last frame stamp answered
+        self.frame_lateness_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.timeouts = 0
+        self.state = "waiting"
+        self.tick = -1
+        self.sim_t = 0.0
+        self._seq: dict[str, int] = {}
+
+    # -- bookkeeping ---------------------------------------------------------------------------
+
+    def _now(self) -> float:
+        return self.sim_t if self.lockstep else time.monotonic()
+
+    def build(self, t0_s: float) -> _Sim:
+        """Build plant, camera, link and monitor as formation/sim/simulate.py does, at ``t0_s``."""
+        plant, camera, link, monitor = plant_models(self.scenario, self.rng, t0_s)
+        self.sim = _Sim(plant, camera, link, monitor, t0_s)
+        cfg = self.scenario.plant
+        if self.lockstep and cfg.encoder_counts_per_rev > 0.0:  # after the models: same draws
+            self.encoders = WheelEncoders(
+                self.n, cfg.encoder_counts_per_rev, cfg.encoder_slip_std, self.rng
+            )
+        return self.sim
+
+    def _apply_disturbances(self, sim: _Sim, t_s: float) -> None:
+        """Scheduled disturbances due at ``t_s`` (simulator's rule), then those from the bus."""
+        plant = sim.plant
+        elapsed = t_s - sim.t0_s
+        while self.scheduled and self.scheduled[0].t_s <= elapsed + 1e-9:
+            d = self.scheduled.popleft()
+            i = self.index[d.robot]
+            try:
+                apply_scheduled(plant, i, d, sim.camera, sim.t0_s)
+                self.log.info(f"t={t_s:.3f} s: scheduled {d.kind} of {d.robot}")
+            except (ValueError, IndexError) as exc:
+                self._internal("scheduled disturbance", exc)
+        while self.bus_disturbances:
+            m = self.bus_disturbances.popleft()
+            i = self.index[m.robot]
+            try:
+                if m.kind == _DRAG:
+                    plant.drag(i, m.dx, m.dy, m.duration_s)
+                else:
+                    assert m.x is not None and m.y is not None  # the schema's RequiredWhen rule
+                    plant.teleport(i, m.x, m.y, m.theta)
+                self.log.info(f"t={t_s:.3f} s: {m.kind} of {m.robot} from the bus")
+            except (ValueError, IndexError) as exc:
+                self._reject("disturbance", str(exc))
+
+    def sense(self, sim: _Sim, t_s: float) -> npt.NDArray[np.float64]:
+        """Lockstep tick: publish truth (every tick, so a collector's rows are the simulator's
+        ticks), capture a frame if due, publish the frames due; returns truth."""
+        truth = sim.plant.truth
+        self._publish_truth(t_s, truth)
+        if self.encoders is not None:  # mean wheel speeds over the last tick, as measured
+            self.clock_enc = self.encoders.read(t_s, sim.plant.wheel_angles())
+        sim.camera.capture(t_s, truth)
+        self.publish_due_frames(sim, t_s)
+        return truth
+
+    def _deliver(self, sim: _Sim, t_s: float) -> None:
+        gen = self.generation
+        for i, (g, wr, wl) in sim.link.poll(t_s):
+            if g == gen[i]:
+                self.applied[i, 0] = wr
+                self.applied[i, 1] = wl
+
+    # -- lockstep ------------------------------------------------------------------------------
+
+    def answered(self, k: int) -> bool:
+        """Every live agent answered tick ``k`` and, if a coordinator is alive, its leader."""
+        for rid in self.alive:
+            if self.answer_tick[self.index[rid]] != k:
+                return False
+        return not self.coordinators or self.leader_tick == k
+
+    def tracking_answers(self, k: int) -> tuple[str, ...]:
+        """The robots whose answer to tick ``k`` said TRACKING (in robot order), what clock
+        ``k + 1`` relays so every agent knows which neighbours were cooperative
+        (``robot_agent.core.neighbours``, rule 3); at most a list's bound."""
+        tick = self.answer_tick
+        tr = self.answer_tracking
+        out = tuple(rid for i, rid in enumerate(self.ids) if tr[i] and tick[i] == k)
+        return out[:MAX_LIST_LEN]
+
+    def _publish_clock(self, k: int, t_s: float) -> None:
+        enc = self.clock_enc
+        if enc is None:
+            robots = wr = wl = None
+        else:  # the encoder readings of this tick (within a list's bound)
+            m = min(self.n, MAX_LIST_LEN)
+            robots = tuple(self.ids[:m])
+            wr = tuple(float(e[0]) for e in enc[:m])
+            wl = tuple(float(e[1]) for e in enc[:m])
+        msg = Clock(
+            t=t_s,
+            seq=self._next_seq(self.clock_key),
+            tick=k,
+            tracking=self.clock_tracking,
+            enc_robots=robots,
+            enc_wr=wr,
+            enc_wl=wl,
+        )
+        self._publish(self.clock_key, encode(msg), rt.QOS_CRITICAL)
+
+    async def _wait_answers(self, stop: asyncio.Event, k: int, t_s: float) -> None:
+        start = time.monotonic()
+        deadline = start + self.lockstep_timeout_s
+        next_announce = start + REANNOUNCE_S
+        while not self.answered(k):
+            if stop.is_set():
+                return
+            now = time.monotonic()
+            if now >= deadline:
+                self.timeouts += 1
+                missing = [r for r in sorted(self.alive) if self.answer_tick[self.index[r]] != k]
+                if self.coordinators and self.leader_tick != k:
+                    missing.append("coordinator")
+                self.log.limited(
+                    "timeout",
+                    f"tick {k}: no answer from {', '.join(missing)} within "
+                    f"{self.lockstep_timeout_s:g} s; going on ({self.timeouts} timeouts)",
+                )
+                self.drop_lost(missing)
+                return
+            if now >= next_announce:
+                self._publish_clock(k, t_s)
+                next_announce = now + REANNOUNCE_S
+            self.changed.clear()
+            try:
+                async with asyncio.timeout(min(deadline, next_announce) - now):
+                    await self.changed.wait()
+            except TimeoutError:
+                pass
+
+    async def run_lockstep(self, stop: asyncio.Event) -> bool:
+        """The lockstep loop; True when ``--duration`` ended it."""
+        sim = self.build(0.0)
+        dt = self.scenario.dt_s
+        ticks = None if self.duration_s is None else round(self.duration_s / dt) + 1
+        k = 0
+        while not stop.is_set() and (ticks is None or k < ticks):
+            try:
+                t = tick_time(k, dt)
+                self.tick = k
+                self.sim_t = t
+                self._apply_disturbances(sim, t)
+                truth = self.sense(sim, t)
+                self.clock_tracking = self.tracking_answers(k - 1)
+                self._publish_clock(k, t)
+                await self._wait_answers(stop, k, t)
+                if stop.is_set():
+                    break
+                gen = self.generation
+                for i in range(self.n):
+                    sim.link.send(
+                        t, i, (gen[i], float(self.last_cmd[i, 0]), float(self.last_cmd[i, 1]))
+                    )
+                self._deliver(sim, t)
+                sim.monitor.update(t, truth)
+                sim.plant.step(dt, self.applied)
+            except Exception as exc:  # a bug: log it, keep the clock going
+                self._internal("lockstep tick", exc)
+                await asyncio.sleep(0)
+            k += 1
+        return ticks is not None and k >= ticks
+
+    # -- realtime ------------------------------------------------------------------------------
+
+    async def run_realtime(self, stop: asyncio.Event) -> bool:
+        """The realtime loop; True when ``--duration`` ended it."""
+        t0 = time.monotonic()
+        sim = self.build(t0)
+        end = math.inf if self.duration_s is None else t0 + self.duration_s
+        period = self.physics_period_s
+        next_phys = t0
+        latency = sim.camera.latency_s
+        deliveries: deque[float] = deque()
+        while not stop.is_set():
+            now = time.monotonic()
+            if now >= end:
+                return True
+            try:
+                self.sim_t = now
+                if now > sim.plant.t_s:
+                    sim.plant.step(now - sim.plant.t_s, self.applied)
+                self._apply_disturbances(sim, now)
+                self._deliver(sim, now)
+                truth = sim.plant.truth
+                if sim.camera.capture(now, truth):
+                    self._publish_truth(now, truth)
+                    deliveries.append(now + latency)
+                self.publish_due_frames(sim, now)
+                while deliveries and deliveries[0] <= now + 1e-9:
+                    deliveries.popleft()
+                if now >= next_phys:
+                    sim.monitor.update(now, truth)
+                    self.tick += 1
+                    next_phys += period
+                    if next_phys <= now:
+                        next_phys = now + period
+            except Exception as exc:
+                self._internal("realtime step", exc)
+                next_phys = time.monotonic() + period
+            wake = min(next_phys, sim.camera.next_frame_t, end)
+            if deliveries:
+                wake = min(wake, deliveries[0])
+            await asyncio.sleep(max(0.0, wake - time.monotonic()))
+        return False
+
+    # -- start, status -------------------------------------------------------------------------
+
+    async def wait_for_fleet(self, stop: asyncio.Event, timeout_s: float = WAIT_ROBOTS_S) -> bool:
+        """Until every scenario robot's token and a coordinator's are present; False on timeout."""
+        start = time.monotonic()
+        said = ""
+        while not stop.is_set():
+            missing = [r for r in self.ids if r not in self.alive]
+            if not self.coordinators:
+                missing.append("a coordinator")
+            if not missing:
+                self.log.info("every robot and a coordinator are alive: starting")
+                return True
+            text = ", ".join(missing)
+            if text != said:
+                self.log.info(f"waiting for {text} (up to {timeout_s:g} s)")
+                said = text
+            remaining = start + timeout_s - time.monotonic()
+            if remaining <= 0:
+                self.log.info(f"gave up after {timeout_s:g} s: still no {text}")
+                return False
+            self.changed.clear()
+            try:
+                async with asyncio.timeout(min(remaining, 0.5)):
+                    await self.changed.wait()
+            except TimeoutError:
+                pass
+        return False
+
+    def status(self) -> PlantStatus:
+        """The status message (bus_schemas.PlantStatus)."""
+        sim = self.sim
+        min_sep = sim.monitor.min_separation_m if sim is not None else math.inf
+        return PlantStatus(
+            t=max(self._now(), 0.0),
+            seq=self._next_seq(self.status_key),
+            mode="lockstep" if self.lockstep else "realtime",
+            state=self.state,
+            tick=max(self.tick, 0),
+            sim_t=self.sim_t - (sim.t0_s if sim is not None else 0.0),
+            timeouts=self.timeouts,
+            alive=tuple(sorted(self.alive)),
+            coordinators=tuple(sorted(self.coordinators)),
+            link_sent=sim.link.sent if sim is not None else 0,
+            link_dropped=sim.link.dropped if sim is not None else 0,
+            min_separation_m=min_sep if math.isfinite(min_sep) else None,
+            collisions=sim.monitor.collision_count if sim is not None else 0,
+            frames=self.frames_published,
+            batch=self.batch,
+            ignored=self.ignored,
+            rejected=self.rejected,
+            rejects=self.rejects.as_dict(),
+            internal_errors=self.internal_errors,
+            rx=dict(self.rx),
+        )
+
+    def status_map(self) -> dict[str, Any]:
+        """The status as its wire map (what :meth:`publish_status` encodes)."""
+        return to_map(self.status())
+
+    def publish_status(self) -> None:
+        """Publish the status; never raises."""
+        try:
+            self._publish(self.status_key, encode(self.status()), rt.QOS_TELEMETRY)
+        except Exception as exc:
+            self._internal("status", exc)
+
+    async def status_loop(self, stop: asyncio.Event) -> None:
+        """Publish the status at 5 Hz until ``stop``."""
+        while not stop.is_set():
+            self.publish_status()
+            await asyncio.sleep(STATUS_PERIOD_S)
+
+    async def run(self, stop: asyncio.Event, wait_robots: bool) -> int:
+        """Wait for the fleet (optionally), run until stop or the duration; exit status."""
+        status = asyncio.ensure_future(self.status_loop(stop))
+        relay = asyncio.ensure_future(self._wake_on_stop(stop))
+        try:
+            if wait_robots and not await self.wait_for_fleet(stop):
+                return 0 if stop.is_set() else 1
+            if stop.is_set():
+                return 0
+            self.state = "running"
+            self.log.info(
+                f"running {'lockstep' if self.lockstep else 'realtime'}, "
+                f"{self.n} robots, seed {self.seed}"
+            )
+            finished = (
+                await self.run_lockstep(stop) if self.lockstep else await self.run_realtime(stop)
+            )
+            if finished:
+                self.state = "done"
+                self.publish_status()
+                self.log.info(
+                    f"done: {self.tick + 1} ticks, {self.timeouts} lockstep timeouts, "
+                    f"{self.rejected} rejected"
+                )
+            return 0
+        finally:
+            status.cancel()
+            relay.cancel()
+
+    async def _wake_on_stop(self, stop: asyncio.Event) -> None:
+        """Wake the waits (answers, fleet) at once on SIGINT/SIGTERM."""
+        await stop.wait()
+        self.changed.set()

@@ -1,0 +1,360 @@
+"""``formation plant`` as a real process on a real router: camera-rate poses, wheel commands,
+dead robots, drag, and the lockstep handshake (clock k advances only on every answer).
+
+The test session plays the agents and the coordinator: liveliness tokens, ``wheels`` and (in
+lockstep) ``leader`` messages published from the test (bus inputs, not fake processes).
+"""
+
+from __future__ import annotations
+
+import statistics
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import msgpack
+import pytest
+import zenoh
+from conftest import RouterHandle, Spawner
+from test_node_agent import Recorder, decoder_of
+
+import runtime as rt
+from bus_schemas import (
+    Clock,
+    Disturbance,
+    Leader,
+    Pose,
+    PoseBatch,
+    Truth,
+    Wheels,
+    encode,
+    keys,
+)
+from scenario import Disturbance as ScheduledDisturbance
+from scenario import load
+
+
+def _ticked(msg, tick):  # type: ignore[no-untyped-def]
+    """``msg`` encoded with its lockstep ``tick`` (a declared field of setpoint/slot/leader)."""
+    return encode(replace(msg, tick=tick))
+
+
+FLEET = "demo"
+SCENARIO = load("paper-exp2")
+STATUS_KEY = f"formation/{FLEET}/plant/status"
+
+
+@pytest.fixture
+def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
+    return session()
+
+
+def wheels_msg(omega: float, *, t: float, seq: int, tick: int | None = None) -> bytes:
+    return encode(
+        Wheels(
+            t=t,
+            seq=seq,
+            omega_r=omega,
+            omega_l=omega,
+            power_r=omega / 10.0,
+            power_l=omega / 10.0,
+            pose_t=None,
+            tick=tick,
+        )
+    )
+
+
+def latest_truth(rec: Recorder, robot: str) -> Truth:
+    items = [m for _, k, m in rec.snapshot() if k.endswith(f"/{robot}/truth")]
+    assert items, f"no truth of {robot}"
+    last: Truth = items[-1]
+    return last
+
+
+class WheelsFeeder:
+    """Publishes ``wheels`` (both wheels at ``omega`` rad/s) for ``robot`` at 50 Hz."""
+
+    def __init__(self, pubs: rt.Publishers, robot: str, omega: float) -> None:
+        self.pubs, self.robot, self.omega = pubs, robot, omega
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        seq = 0
+        while not self._stop.is_set():
+            seq += 1
+            payload = wheels_msg(self.omega, t=time.monotonic(), seq=seq)
+            self.pubs.put(keys.wheels_key(FLEET, self.robot), payload, rt.QOS_CRITICAL)
+            self._stop.wait(0.02)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+
+
+def test_realtime_poses_wheels_dead_robot_and_drag(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    pubs = rt.Publishers(client)
+    poses = Recorder(client, keys.all_poses_pattern(FLEET), decoder_of(Pose))
+    batches = Recorder(client, keys.poses_key(FLEET), decoder_of(PoseBatch))
+    truth = Recorder(client, keys.all_truth_pattern(FLEET), decoder_of(Truth))
+    status = Recorder(client, STATUS_KEY, msgpack.unpackb)
+    child = spawn("plant", "--scenario", "paper-exp2", "--endpoint", router.endpoint, ready="plant")
+    assert child.stdout().splitlines()[0] == "plant ready"
+
+    # Camera: ~30 frames/s per robot, delivered ~30 ms (the scenario's latency) after capture.
+    first, _, _ = poses.wait_for(lambda *_: True)
+    time.sleep(0.6)
+    window = [(r, k, m) for r, k, m in poses.snapshot() if first + 0.05 <= r < first + 0.55]
+    for rid in SCENARIO.robot_ids:
+        n = sum(1 for _, k, m in window if k.endswith(f"/{rid}/pose") and m.robot == rid)
+        assert 12 <= n <= 18, f"{n} poses of {rid} in 0.5 s"
+    delays = [r - m.t for r, _, m in window]
+    assert 0.025 <= statistics.median(delays) <= 0.06
+    _, _, batch = batches.wait_for(lambda *_: True)
+    assert batch.robots == SCENARIO.robot_ids and len(batch.x) == 3
+
+    # Wheels (no agent token needed) go through the link and move r1 forward (+x, theta ~ 0.05).
+    x0_r1, x0_r2 = latest_truth(truth, "r1").x, latest_truth(truth, "r2").x
+    feeder = WheelsFeeder(pubs, "r1", 5.0)  # v = R omega = 0.15 m/s
+    time.sleep(0.5)
+    x1 = latest_truth(truth, "r1").x
+    assert 0.03 < x1 - x0_r1 < 0.1
+    assert latest_truth(truth, "r2").x == x0_r2  # zero command: exactly still
+
+    # With a token, r1's agent is alive; the last command keeps acting when wheels stop ...
+    token = rt.declare_token(client, keys.alive_robot_key(FLEET, "r1"))
+    status.wait_for(lambda _r, _k, s: s["alive"] == ["r1"])
+    feeder.stop()
+    x2 = latest_truth(truth, "r1").x
+    time.sleep(0.2)
+    x3 = latest_truth(truth, "r1").x
+    assert x3 - x2 > 0.015
+    # ... and its motors stop when the token disappears.
+    token.undeclare()
+    status.wait_for(lambda _r, _k, s: s["alive"] == [])
+    time.sleep(0.3)  # the wheels spin down with the motor lag (tau = 0.05 s)
+    x4 = latest_truth(truth, "r1").x
+    time.sleep(0.2)
+    assert abs(latest_truth(truth, "r1").x - x4) < 5e-4  # was 0.015 per 0.2 s when alive
+
+    # Drag r2 back 0.3 m over 0.2 s.
+    drag = Disturbance(t=time.monotonic(), robot="r2", kind="drag", dx=-0.3, dy=0.0, duration_s=0.2)
+    pubs.put(keys.disturbance_key(FLEET), encode(drag), rt.QOS_CRITICAL)
+    time.sleep(0.4)
+    assert latest_truth(truth, "r2").x == pytest.approx(x0_r2 - 0.3, abs=1e-9)
+    t_check = time.monotonic()
+    _, _, st = status.wait_for(lambda r, _k, _s: r > t_check)
+    assert st["rejected"] == 0 and st["state"] == "running" and st["mode"] == "realtime"
+    assert st["rx"]["disturbance"] == 1 and st["link_sent"] > 0
+
+
+def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    pubs = rt.Publishers(client)
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, "r2"))]
+    clocks = Recorder(client, keys.clock_key(FLEET), decoder_of(Clock))
+    truth = Recorder(client, keys.all_truth_pattern(FLEET), decoder_of(Truth))
+    status = Recorder(client, STATUS_KEY, msgpack.unpackb)
+    dt = SCENARIO.dt_s
+    child = spawn(
+        "plant",
+        "--scenario",
+        "paper-exp2",
+        "--lockstep",
+        "--wait-robots",
+        "--lockstep-timeout",
+        "0.5",
+        "--duration",
+        "0.3",  # ticks 0..15
+        "--endpoint",
+        router.endpoint,
+        ready="plant ready",
+    )
+
+    def answer(k: int, robots: tuple[str, ...], leader: bool = True) -> float:
+        for rid in robots:
+            omega = 5.0 if rid == "r1" else 0.0
+            payload = wheels_msg(omega, t=k * dt, seq=k + 1, tick=k)
+            pubs.put(keys.wheels_key(FLEET, rid), payload, rt.QOS_CRITICAL)
+        if leader:
+            msg = Leader(t=k * dt, seq=k + 1, x=0.0, y=0.0, theta=0.0, v_mps=0.0, omega_radps=0.0)
+            pubs.put(keys.leader_key(FLEET), _ticked(msg, k), rt.QOS_CRITICAL)
+        return time.monotonic()
+
+    def clock(k: int, timeout_s: float = 2.0) -> float:
+        r, _, c = clocks.wait_for(lambda _r, _k, c: c.tick == k, timeout_s)
+        assert c.t == k * dt
+        return r
+
+    # --wait-robots: no clock until every robot's and a coordinator's token are there.
+    deadline = time.monotonic() + 5.0
+    while "waiting for r1, r3, a coordinator" not in child.stderr():
+        assert time.monotonic() < deadline, child.describe()
+        time.sleep(0.02)
+    time.sleep(0.2)
+    assert clocks.snapshot() == []
+    tokens += [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in ("r1", "r3")]
+    tokens.append(rt.declare_token(client, keys.alive_coordinator_key(FLEET, "test")))
+
+    clock(0)
+    answer(0, ("r1", "r2"))  # r3 missing
+    time.sleep(0.3)
+    assert max(c.tick for _, _, c in clocks.snapshot()) == 0
+    sent = answer(0, ("r3",), leader=False)
+    assert clock(1) - sent < 0.2
+    t_wait = time.monotonic()  # nobody answers tick 1: the plant goes on after 0.5 s
+    elapsed = clock(2, timeout_s=3.0) - t_wait
+    assert 0.45 <= elapsed <= 1.3
+    for k in range(2, 16):
+        answer(k, ("r1", "r2", "r3"))
+        if k < 15:
+            clock(k + 1)
+    child.proc.wait(timeout=5.0)
+    assert child.proc.returncode == 0, child.describe()
+    _, _, done = status.wait_for(lambda _r, _k, s: s["state"] == "done")
+    assert done["timeouts"] == 1 and done["tick"] == 15 and done["rejected"] == 0
+    x0 = SCENARIO.initial
+    assert latest_truth(truth, "r1").x > x0[0][0] + 0.01  # r1 drove
+    r2 = latest_truth(truth, "r2")
+    assert (r2.x, r2.y) == (x0[1][0], x0[1][1])  # r2's wheels stayed at zero
+    del tokens
+
+
+def _lockstep_equals_simulate(
+    scenario: Any, duration: float, *, hosts: bool = False
+) -> dict[str, Any]:
+    """Plant, coordinator and agents (or one agent host) wired through an in-memory bus (every
+    message encoded and decoded, delivered in publication order, as Zenoh does within one
+    priority) run the lockstep protocol; asserts the wheel commands and the truth equal
+    ``formation.sim.simulate.run``'s exactly. Returns what the test may look at further."""
+    import asyncio
+
+    from bus_schemas import TruthBatch, WheelsBatch, decode
+    from coordinator.node.coordinator import CoordinatorNode
+    from formation.sim.simulate import run
+    from robot_agent.node.agent import AgentNode
+    from robot_agent.node.host import HostNode
+    from sim_plant.node.plant import PlantNode
+
+    routes: list[tuple[Callable[[str], bool], Callable[[rt.Received], None]]] = []
+    wheels: dict[tuple[int, str], tuple[float, float]] = {}
+    truth: dict[tuple[float, str], tuple[float, float, float]] = {}
+    clocks: list[Clock] = []
+
+    def publish(key: str, payload: bytes, qos: rt.QoS) -> None:
+        if key.endswith("/wheels") and "/host/" in key:
+            b = decode(payload, WheelsBatch)
+            assert isinstance(b, WheelsBatch) and b.tick is not None
+            for rid, pr, pl in zip(b.robots, b.power_r, b.power_l, strict=True):
+                wheels[(b.tick, rid)] = (pr, pl)
+        elif key.endswith("/wheels"):
+            w = decode(payload, Wheels)
+            assert isinstance(w, Wheels) and w.tick is not None
+            wheels[(w.tick, key.split("/")[3])] = (w.power_r, w.power_l)
+        elif key.endswith("/truth"):
+            tr = decode(payload, Truth)
+            assert isinstance(tr, Truth) and tr.robot is not None
+            truth[(tr.t, tr.robot)] = (tr.x, tr.y, tr.theta)
+        elif key == keys.truths_key(FLEET):
+            tb = decode(payload, TruthBatch)
+            assert isinstance(tb, TruthBatch)
+            for rid, x, y, th in zip(tb.robots, tb.x, tb.y, tb.theta, strict=True):
+                truth[(tb.stamp, rid)] = (x, y, th)
+        elif key.endswith("/clock"):
+            c = decode(payload, Clock)
+            assert isinstance(c, Clock)
+            clocks.append(c)
+        for match, handler in routes:
+            if match(key):
+                handler(rt.Received(key, payload, time.monotonic()))
+
+    plant = PlantNode(scenario, FLEET, publish, lockstep=True, duration_s=duration, batch=hosts)
+    coord = CoordinatorNode(scenario, "main", FLEET, publish, lockstep=True, batch=hosts)
+    if hosts:
+        host = HostNode("h1", plant.ids, FLEET, scenario.agent, publish, lockstep=True)
+        routes.append((lambda k: k.endswith("/wheels") and "/host/" in k, plant.on_host_wheels))
+        routes.append((host.setpoints_key.__eq__, host.on_setpoints))
+        routes.append((host.poses_key.__eq__, host.on_poses))
+        routes.append((host.clock_key.__eq__, host.on_clock))
+    else:
+        agents = [AgentNode(r, FLEET, scenario.agent, publish, lockstep=True) for r in plant.ids]
+        routes.append((lambda k: k.endswith("/wheels"), plant.on_wheels))
+        for a in agents:
+            for key, handler in (
+                (a.setpoint_key, a.on_setpoint),
+                (a.poses_key, a.on_poses),
+                (a.pose_key, a.on_pose),
+                (a.clock_key, a.on_clock),
+            ):
+                routes.append((key.__eq__, handler))
+    routes.append((lambda k: k == plant.leader_key, plant.on_leader))
+    if hosts:
+        routes.append((lambda k: k == plant.poses_key, coord.on_poses))
+    else:
+        routes.append((lambda k: k.endswith("/pose"), coord.on_pose))
+    routes.append((lambda k: k == coord.clock_key, coord.on_clock))
+    for rid in plant.ids:
+        plant.on_alive_robot(keys.alive_robot_key(FLEET, rid), True)
+        coord.on_alive(keys.alive_robot_key(FLEET, rid), True)
+    plant.on_alive_coordinator(keys.alive_coordinator_key(FLEET, "main"), True)
+
+    assert asyncio.run(plant.run_lockstep(asyncio.Event())) is True
+    assert plant.timeouts == 0 and plant.rejected == coord.rejected == 0
+
+    res = run(scenario, duration_s=duration)
+    log = res.log
+    ticks = round(duration / scenario.dt_s) + 1
+    assert len(wheels) == ticks * len(plant.ids)
+    for (k, rid), power in wheels.items():
+        j = plant.ids.index(rid)
+        assert power == (log.power[k, j, 0], log.power[k, j, 1]), (k, rid)
+    assert len(truth) == ticks * len(plant.ids)  # lockstep: truth at every tick
+    for (t, rid), pose in truth.items():
+        k, j = round(t / scenario.dt_s), plant.ids.index(rid)
+        assert pose == tuple(log.truth[k, j]), (t, rid)
+    firmwares = [] if hosts else [a.firmware for a in agents]
+    return {"clocks": clocks, "result": res, "ids": plant.ids, "firmwares": firmwares}
+
+
+def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> None:
+    """The lockstep protocol over the shells equals ``formation.sim.simulate.run`` exactly. (The
+    same holds over a real router: ``formation up --lockstep``.) The clocks relay which robots
+    were TRACKING on the previous tick (the safety filter's cooperative neighbours)."""
+    # The scenario's drag comes at 30 s; one at 0.3 s exercises the scheduled disturbances.
+    drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
+    scenario = SCENARIO.with_overrides(disturbances=(drag,))
+    got = _lockstep_equals_simulate(scenario, 1.0)
+    relayed = [c.tracking for c in got["clocks"]]
+    assert relayed[0] == ()  # nobody answered a tick before clock 0
+    assert any(set(r or ()) == set(got["ids"]) for r in relayed)  # everyone tracking later
+
+
+def test_lockstep_equals_the_simulator_with_the_estimator_and_camera_latency() -> None:
+    """With the estimator on, 60 ms of camera latency and a camera loss, the shells still equal
+    the in-process simulator bit for bit: pose capture times (the estimator's input) and the
+    pose uncertainty handed to the safety filter follow one rule in both runtimes."""
+    from robot_agent.core.params import EstimatorParams
+
+    agent = replace(SCENARIO.agent, estimator=replace(EstimatorParams(), enabled=True))
+    loss = ScheduledDisturbance(t_s=0.4, robot="r2", kind="camera_loss", duration_s=0.3)
+    drag = ScheduledDisturbance(t_s=0.2, robot="r1", kind="drag", dx=-0.15, duration_s=0.4)
+    scenario = SCENARIO.with_overrides(
+        agent=agent,
+        camera=replace(SCENARIO.camera, latency_s=0.06),
+        disturbances=(drag, loss),
+    )
+    got = _lockstep_equals_simulate(scenario, 1.2)
+    status = got["result"].firmware_status
+    assert all(s["mode"] == "tracking" for s in status.values()), status  # rode through
+
+
+def test_lockstep_agent_host_equals_the_simulator_bit_for_bit() -> None:
+    """The same with one agent host running every robot (batched poses, setpoints, wheels)."""
+    drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
+    _lockstep_equals_simulate(SCENARIO.with_overrides(disturbances=(drag,)), 1.0, hosts=True)

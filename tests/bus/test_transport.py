@@ -1,0 +1,439 @@
+"""runtime.transport, runtime.bridge and formation.launch.router: real Zenoh sessions and real
+processes
+on loopback (settings, the thread -> loop handoff, pub/sub, session open/retry, liveliness).
+
+No mocks: every session goes through a `formation router` subprocess on a free port (conftest
+fixtures), multicast scouting off. Timings are asserted with a margin for a loaded 2-core CI box;
+the bench (bench/bench_zenoh_rtt.py) measures, these tests only bound. How processes end
+(signals, run_node) is in tests/bus/test_lifecycle.py.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from conftest import Child, RouterHandle, Spawner, free_port
+from support.async_wait import wait_until
+
+import runtime as rt
+
+# A client holding one liveliness token; prints "ready" then idles (killed by the test).
+HOLDER = """
+import sys, time
+import runtime as rt
+endpoint, key = sys.argv[1], sys.argv[2]
+lease = int(sys.argv[3]) if len(sys.argv) > 3 else None
+session = rt.open_session(rt.ZenohSettings(connect=(endpoint,), lease_ms=lease))
+token = rt.declare_token(session, key)
+print("ready", flush=True)
+while True:
+    time.sleep(1)
+"""
+
+
+def ready_holder(spawn: Spawner, router: RouterHandle, key: str, *extra: str) -> Child:
+    return spawn.python(HOLDER, router.endpoint, key, *extra, ready="ready")
+
+
+# ---------------------------------------------------------------------------------------------
+# Settings and config (no network)
+# ---------------------------------------------------------------------------------------------
+
+
+def cfg(config: zenoh.Config, key: str) -> object:
+    return json.loads(config.get_json(key))
+
+
+def test_default_config_is_a_loopback_client_without_multicast() -> None:
+    config = rt.make_config(rt.ZenohSettings())
+    assert cfg(config, "mode") == "client"
+    assert cfg(config, "connect/endpoints") == [rt.DEFAULT_ENDPOINT]
+    assert cfg(config, "listen/endpoints") == []
+    assert cfg(config, "scouting/multicast/enabled") is False
+    assert cfg(config, "transport/link/tx/lease") == 10000  # Zenoh's default left alone
+    assert cfg(config, "scouting/delay") is None  # a client waits for its router as usual
+    router = rt.make_config(rt.ZenohSettings(mode="router", connect=(), listen=("tcp/[::1]:1",)))
+    assert cfg(router, "scouting/delay") == 0  # nothing to scout: open() at once
+
+
+def test_lease_sets_lease_and_keep_alive() -> None:
+    config = rt.make_config(rt.ZenohSettings(lease_ms=1000))
+    assert cfg(config, "transport/link/tx/lease") == 1000
+    assert cfg(config, "transport/link/tx/keep_alive") == 4
+
+
+def test_config_file_is_loaded_first_and_cannot_enable_multicast(tmp_path: Path) -> None:
+    path = tmp_path / "zenoh.json5"
+    path.write_text(
+        """{
+          mode: "peer",
+          connect: { endpoints: ["tcp/10.0.0.1:7447"] },
+          listen: { endpoints: ["tcp/127.0.0.1:0"] },
+          scouting: { multicast: { enabled: true } },
+          namespace: "fromfile",
+        }"""
+    )
+    ns = rt.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(["--zenoh-config", str(path)])
+    settings = rt.settings_from_args(ns)
+    assert settings.mode is None and settings.connect == () and settings.listen == ()
+    config = rt.make_config(settings)
+    assert cfg(config, "mode") == "peer"
+    assert cfg(config, "connect/endpoints") == ["tcp/10.0.0.1:7447"]
+    assert cfg(config, "listen/endpoints") == ["tcp/127.0.0.1:0"]
+    assert cfg(config, "namespace") == "fromfile"
+    assert cfg(config, "scouting/multicast/enabled") is False  # only an explicit flag enables it
+
+    ns = rt.add_zenoh_arguments(argparse.ArgumentParser()).parse_args(
+        ["--zenoh-config", str(path), "--endpoint", "tcp/127.0.0.1:1", "--multicast-scouting"]
+    )
+    config = rt.make_config(rt.settings_from_args(ns))
+    assert cfg(config, "connect/endpoints") == ["tcp/127.0.0.1:1"]
+    assert cfg(config, "scouting/multicast/enabled") is True
+
+
+def test_settings_from_args() -> None:
+    parser = rt.add_zenoh_arguments(argparse.ArgumentParser())
+    s = rt.settings_from_args(parser.parse_args([]))
+    assert s == rt.ZenohSettings()
+    s = rt.settings_from_args(
+        parser.parse_args(
+            [
+                *("--endpoint", "tcp/a:1", "--endpoint", "tcp/b:2", "--mode", "peer"),
+                *("--listen", "tcp/127.0.0.1:9", "--lease-ms", "1000", "--zenoh-namespace", "run7"),
+            ]
+        )
+    )
+    assert s.connect == ("tcp/a:1", "tcp/b:2") and s.listen == ("tcp/127.0.0.1:9",)
+    assert (s.mode, s.lease_ms, s.namespace, s.multicast_scouting) == ("peer", 1000, "run7", False)
+    assert rt.settings_from_args(parser.parse_args(["--mode", "router"])).connect == ()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error"),
+    [
+        ({"connect": "tcp/127.0.0.1:7447"}, TypeError),
+        ({"connect": ("127.0.0.1:7447",)}, ValueError),
+        ({"mode": "server"}, ValueError),
+        ({"lease_ms": 10}, ValueError),
+        ({"namespace": "a/*"}, ValueError),
+        ({"open_timeout_s": -1.0}, ValueError),
+    ],
+)
+def test_settings_reject_bad_values(kwargs: dict[str, object], error: type[Exception]) -> None:
+    with pytest.raises(error):
+        rt.ZenohSettings(**kwargs)  # type: ignore[arg-type]
+
+
+# ---------------------------------------------------------------------------------------------
+# Inbox: the thread -> loop handoff itself (no network, deterministic)
+# ---------------------------------------------------------------------------------------------
+
+
+def push_from_thread(inbox: rt.Inbox, items: list[rt.Received]) -> None:
+    def run() -> None:
+        for i in items:
+            inbox.push(i)
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+
+
+def item(key: str, n: int) -> rt.Received:
+    return rt.Received(key=key, payload=str(n).encode(), rx_s=time.monotonic())
+
+
+async def test_latest_inbox_coalesces_a_burst_into_one_wake_with_newest_values() -> None:
+    inbox = rt.Inbox("latest")
+    inbox.bind(asyncio.get_running_loop())
+    # The loop is not running callbacks while this thread pushes: everything lands in one drain.
+    push_from_thread(inbox, [item(k, n) for n in range(500) for k in ("a", "b")])
+    assert await inbox.wait(timeout_s=1.0)
+    assert not await inbox.wait(timeout_s=0.01)  # one wake for the whole burst
+    assert {k: r.payload for k, r in inbox.snapshot().items()} == {"a": b"499", "b": b"499"}
+    assert set(inbox.take_updates()) == {"a", "b"} and inbox.take_updates() == {}
+    assert inbox.received == 1000 and inbox.dropped == 0
+    push_from_thread(inbox, [rt.Received("a", b"", time.monotonic(), deleted=True)])
+    assert await inbox.wait(timeout_s=1.0)
+    assert inbox.latest("a") is None and inbox.latest("b") is not None
+
+
+async def test_queue_inbox_keeps_order_and_drops_oldest_beyond_maxlen() -> None:
+    inbox = rt.Inbox("queue", maxlen=100)
+    inbox.bind(asyncio.get_running_loop())
+    push_from_thread(inbox, [item("e", n) for n in range(250)])
+    first = await asyncio.wait_for(inbox.get(), timeout=1.0)
+    rest = inbox.drain()
+    assert [int(r.payload) for r in [first, *rest]] == list(range(150, 250))
+    assert inbox.dropped == 150 and inbox.get_nowait() is None
+
+
+async def test_inbox_without_wake_is_polled_and_never_wakes_the_loop() -> None:
+    loop = asyncio.get_running_loop()
+    inbox = rt.Inbox("queue", maxlen=100, wake=False)
+    inbox.bind(loop)
+    scheduled: list[object] = []
+    real = loop.call_soon_threadsafe
+
+    def spy(*args: Any, **kwargs: Any) -> Any:
+        scheduled.append(args[0])
+        return real(*args, **kwargs)
+
+    loop.call_soon_threadsafe = spy  # type: ignore[method-assign, assignment]
+    try:
+        push_from_thread(inbox, [item("e", n) for n in range(250)])
+        await asyncio.sleep(0.01)
+    finally:
+        del loop.call_soon_threadsafe
+    assert scheduled == []  # no push scheduled anything on the loop
+    assert inbox.get_nowait() is not None  # the reader takes what accumulated, in order
+    assert [int(r.payload) for r in inbox.drain()] == list(range(151, 250))
+    assert inbox.dropped == 150 and inbox.drain() == []
+    latest = rt.Inbox("latest", wake=False)
+    latest.bind(loop)
+    push_from_thread(latest, [item(k, n) for n in range(5) for k in ("a", "b")])
+    assert {k: r.payload for k, r in latest.snapshot().items()} == {"a": b"4", "b": b"4"}
+    with pytest.raises(RuntimeError, match="polled"):
+        await inbox.get()
+    with pytest.raises(RuntimeError, match="polled"):
+        await latest.wait(timeout_s=0.01)
+
+
+def test_inbox_latest_mode_bounds_distinct_keys() -> None:
+    async def run() -> rt.Inbox:
+        inbox = rt.Inbox("latest", maxlen=3)
+        inbox.bind(asyncio.get_running_loop())
+        push_from_thread(inbox, [item(f"k{n}", n) for n in range(10)])
+        await inbox.wait(timeout_s=1.0)
+        return inbox
+
+    inbox = asyncio.run(run())
+    assert len(inbox.snapshot()) == 3 and inbox.dropped == 7
+
+
+# ---------------------------------------------------------------------------------------------
+# Pub/sub through a router subprocess
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.zenoh
+async def test_pub_sub_round_trip_through_the_asyncio_bridge(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    loop = asyncio.get_running_loop()
+    sub_session, pub_session = session(), session()
+    got: list[tuple[rt.Received, bool]] = []
+    queue = rt.Inbox("queue")
+    rt.subscribe(
+        sub_session,
+        "test/rt/**",
+        loop,
+        lambda r: got.append((r, threading.current_thread() is threading.main_thread())),
+    )
+    rt.subscribe(sub_session, "test/rt/**", loop, queue)
+    await asyncio.sleep(0.05)  # let the subscriptions reach the router
+    pubs = rt.Publishers(pub_session)
+    payloads = [bytes([n]) * 100 for n in range(50)]
+    before = time.monotonic()
+    for p in payloads:
+        pubs.put("test/rt/x", p, rt.QOS_CONTROL)
+    await wait_until(lambda: len(got) == 50)
+    assert [r.payload for r, _ in got] == payloads  # every sample, in order, intact
+    assert all(on_loop_thread for _, on_loop_thread in got)  # delivered on the loop thread
+    assert all(r.key == "test/rt/x" and not r.deleted and r.rx_s >= before for r, _ in got)
+    await wait_until(lambda: queue.received == 50)
+    assert [r.payload for r in queue.drain()] == payloads
+    assert len(pubs) == 1  # one publisher declared, reused
+
+
+@pytest.mark.zenoh
+async def test_latest_inbox_over_zenoh_keeps_only_the_newest(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    sub_session, pub_session = session(), session()
+    inbox = rt.Inbox("latest")
+    rt.subscribe(sub_session, "test/pose/*", asyncio.get_running_loop(), inbox)
+    await asyncio.sleep(0.05)
+    # BLOCK, so that this burst of 400 puts is delivered whole (DROP may shed some of it).
+    pubs = rt.Publishers(pub_session, default_qos=rt.QOS_CRITICAL)
+    for n in range(200):  # published without yielding: the loop sees one backlog
+        for robot in ("r1", "r2"):
+            pubs.put(f"test/pose/{robot}", str(n).encode())
+    await wait_until(lambda: inbox.received == 400)
+    await inbox.wait(timeout_s=1.0)
+    snap = inbox.snapshot()
+    assert {k: r.payload for k, r in snap.items()} == {
+        "test/pose/r1": b"199",
+        "test/pose/r2": b"199",
+    }
+
+
+@pytest.mark.zenoh
+async def test_publisher_qos_reaches_the_wire(session: Callable[..., zenoh.Session]) -> None:
+    sub_session, pub_session = session(), session()
+    samples: list[zenoh.Sample] = []
+    sub_session.declare_subscriber("test/qos/**", samples.append)
+    await asyncio.sleep(0.05)
+    pubs = rt.Publishers(pub_session)
+    pubs.put("test/qos/wheels", b"w", rt.QOS_CONTROL)
+    pubs.put("test/qos/status", b"s")  # default: telemetry
+    await wait_until(lambda: len(samples) == 2)
+    by_key = {str(s.key_expr): s for s in samples}
+    wheels, status = by_key["test/qos/wheels"], by_key["test/qos/status"]
+    assert wheels.priority == zenoh.Priority.REAL_TIME and not wheels.express
+    assert status.priority == zenoh.Priority.DATA and not status.express
+    with pytest.raises(ValueError, match="already declared"):
+        pubs.put("test/qos/wheels", b"w", rt.QOS_TELEMETRY)
+
+
+@pytest.mark.zenoh
+async def test_namespace_isolates_sessions_on_one_router(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    loop = asyncio.get_running_loop()
+    same, other = rt.Inbox("queue"), rt.Inbox("queue")
+    rt.subscribe(session(namespace="runA"), "test/ns", loop, same)
+    rt.subscribe(session(namespace="runB"), "test/ns", loop, other)
+    await asyncio.sleep(0.05)
+    session(namespace="runA").put("test/ns", b"hello")
+    await wait_until(lambda: same.received == 1)
+    await asyncio.sleep(0.1)
+    received = same.drain()
+    assert [(r.key, r.payload) for r in received] == [("test/ns", b"hello")]  # prefix stripped
+    assert other.received == 0
+
+
+@pytest.mark.zenoh
+async def test_two_isolated_routers_do_not_see_each_other(
+    start_router: Callable[..., RouterHandle],
+) -> None:
+    loop = asyncio.get_running_loop()
+    a, b = start_router(), start_router()
+    settings_a = rt.ZenohSettings(connect=(a.endpoint,))
+    settings_b = rt.ZenohSettings(connect=(b.endpoint,))
+    with (
+        rt.open_session(settings_a) as on_a,
+        rt.open_session(settings_b) as on_b,
+        rt.open_session(settings_b) as pub_b,
+    ):
+        seen_a, seen_b = rt.Inbox("queue"), rt.Inbox("queue")
+        rt.subscribe(on_a, "test/iso/**", loop, seen_a)
+        rt.subscribe(on_b, "test/iso/**", loop, seen_b)
+        await asyncio.sleep(0.1)
+        for n in range(10):
+            pub_b.put("test/iso/x", str(n).encode())
+            await asyncio.sleep(0.02)
+        await wait_until(lambda: seen_b.received == 10)  # positive control on router B
+        await asyncio.sleep(0.1)
+        assert seen_a.received == 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Sessions: open/retry
+# ---------------------------------------------------------------------------------------------
+
+
+def test_client_open_without_router_fails_clearly_after_timeout() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    start = time.monotonic()
+    with pytest.raises(rt.TransportError, match=endpoint.replace(".", r"\.")):
+        rt.open_session(rt.ZenohSettings(connect=(endpoint,)), timeout_s=0.3)
+    assert 0.3 <= time.monotonic() - start < 1.5
+
+
+@pytest.mark.zenoh
+def test_client_open_retries_until_the_router_is_up(spawn: Spawner) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    result: list[zenoh.Session | BaseException] = []
+
+    def opener() -> None:
+        try:
+            result.append(rt.open_session(rt.ZenohSettings(connect=(endpoint,)), timeout_s=15))
+        except BaseException as exc:
+            result.append(exc)
+
+    thread = threading.Thread(target=opener)
+    thread.start()
+    time.sleep(0.3)  # the client is retrying now
+    assert not result
+    spawn("router", "--listen", endpoint, ready="router listening on")
+    thread.join(timeout=15)
+    assert len(result) == 1 and isinstance(result[0], zenoh.Session), result
+    result[0].close()
+
+
+@pytest.mark.zenoh
+async def test_open_session_async_is_cancellable() -> None:
+    settings = rt.ZenohSettings(connect=(f"tcp/127.0.0.1:{free_port()}",))
+    task = asyncio.ensure_future(rt.open_session_async(settings, timeout_s=30))
+    await asyncio.sleep(0.25)
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await asyncio.wait_for(task, timeout=1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Liveliness
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.zenoh
+async def test_liveliness_token_disappears_when_its_process_is_sigkilled(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    holder = ready_holder(spawn, router, "test/alive/holder")
+    events: list[tuple[str, bool, float]] = []
+    # Declared after the token exists: history=True must report it.
+    rt.watch_liveliness(
+        session(),
+        "test/alive/**",
+        asyncio.get_running_loop(),
+        lambda key, alive: events.append((key, alive, time.monotonic())),
+    )
+    await wait_until(lambda: len(events) == 1)
+    assert events[0][:2] == ("test/alive/holder", True)
+    killed = time.monotonic()
+    holder.send_signal(signal.SIGKILL)
+    await wait_until(lambda: len(events) == 2, timeout_s=2.0)
+    assert events[1][:2] == ("test/alive/holder", False)
+    gone_s = events[1][2] - killed
+    print(f"token gone {gone_s * 1e3:.1f} ms after SIGKILL")
+    assert gone_s < 0.5  # field notes: ~3 ms
+    holder.proc.wait(timeout=2)
+
+
+@pytest.mark.zenoh
+async def test_short_lease_detects_a_hung_process_in_about_a_second(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    holder = ready_holder(spawn, router, "test/alive/hung", "1000")
+    events: list[tuple[bool, float]] = []
+    rt.watch_liveliness(
+        session(),
+        "test/alive/hung",
+        asyncio.get_running_loop(),
+        lambda key, alive: events.append((alive, time.monotonic())),
+    )
+    await wait_until(lambda: len(events) == 1)
+    stopped = time.monotonic()
+    holder.send_signal(signal.SIGSTOP)
+    try:
+        await wait_until(lambda: len(events) == 2, timeout_s=4.0)
+    finally:
+        holder.send_signal(signal.SIGKILL)  # a stopped process would not act on SIGTERM
+        holder.proc.wait(timeout=2)
+    gone_s = events[1][1] - stopped
+    print(f"hung token gone {gone_s:.3f} s after SIGSTOP (lease 1000 ms)")
+    assert events[1][0] is False
+    assert 0.5 < gone_s < 2.5  # Zenoh's default lease would take ~10 s

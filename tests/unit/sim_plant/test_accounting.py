@@ -1,0 +1,138 @@
+"""Tests of sim_plant.core.accounting: minimum separation, single-count collisions, bounds."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sim_plant.core.accounting import BoundsMonitor, SeparationMonitor, contacts_and_min_distance
+
+
+def brute(xy: np.ndarray, contact_m: float) -> tuple[set[tuple[int, int]], float]:
+    """Reference: every pair by a double loop."""
+    n = xy.shape[0]
+    pairs = set()
+    best = math.inf
+    for i in range(n):
+        for j in range(i + 1, n):
+            d = math.dist(xy[i], xy[j])
+            best = min(best, d)
+            if d < contact_m:
+                pairs.add((i, j))
+    return pairs, best
+
+
+def test_min_separation_three_robots() -> None:
+    mon = SeparationMonitor(radius_m=0.075)
+    mon.update(0.0, [[0.0, 0.0, 0.0], [0.4, 0.0, 1.0], [0.0, 0.3, 2.0]])
+    assert mon.min_separation_m == pytest.approx(0.3)
+    assert mon.min_clearance_m == pytest.approx(0.15)
+    mon.update(1.0, [[0.0, 0.0, 0.0], [0.4, 0.0, 1.0], [0.0, 1.0, 2.0]])
+    assert mon.last_min_separation_m == pytest.approx(0.4)
+    assert mon.min_separation_m == pytest.approx(0.3)  # running minimum
+    assert mon.min_separation_t_s == 0.0
+    assert mon.collision_count == 0
+
+
+def test_collision_counted_once_per_contact() -> None:
+    mon = SeparationMonitor(radius_m=0.05)  # contact below 0.10 m
+    events_at = []
+    # Robot 1 approaches robot 0, overlaps for a while, leaves, comes back once more.
+    path = [0.3, 0.2, 0.12, 0.09, 0.05, 0.02, 0.05, 0.09, 0.15, 0.3, 0.08, 0.3]
+    for k, gap in enumerate(path):
+        new = mon.update(k * 0.1, [[0.0, 0.0, 0.0], [gap, 0.0, 0.0], [5.0, 5.0, 0.0]])
+        events_at.extend(new)
+    assert mon.collision_count == 2
+    ev = mon.collisions
+    assert [(e.i, e.j) for e in ev] == [(0, 1), (0, 1)]
+    assert ev[0].t_s == pytest.approx(0.3) and ev[0].distance_m == pytest.approx(0.09)
+    assert ev[1].t_s == pytest.approx(1.0) and ev[1].distance_m == pytest.approx(0.08)
+    assert events_at == ev
+    assert mon.min_separation_m == pytest.approx(0.02)
+    assert mon.in_contact == frozenset()
+
+
+def test_exactly_touching_is_not_a_collision() -> None:
+    for max_n in (64, 0):  # brute force and k-d tree paths
+        mon = SeparationMonitor(radius_m=0.25, brute_force_max_n=max_n)
+        mon.update(0.0, [[0.0, 0.0], [0.5, 0.0], [3.0, 0.0]])
+        assert mon.collision_count == 0
+        assert mon.min_separation_m == 0.5
+
+
+def test_fewer_than_two_robots() -> None:
+    mon = SeparationMonitor(radius_m=0.1)
+    assert mon.update(0.0, np.zeros((1, 3))) == []
+    assert mon.update(0.0, np.zeros((0, 3))) == []
+    assert mon.min_separation_m == math.inf
+    with pytest.raises(ValueError):
+        mon.update(0.0, [[0.0, math.nan, 0.0], [1.0, 1.0, 0.0]])
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(2, 150),
+    radius=st.floats(0.0, 0.3),
+    snap=st.booleans(),
+)
+def test_kdtree_path_agrees_with_brute_force(seed: int, n: int, radius: float, snap: bool) -> None:
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0.0, 3.0, (n, 2))
+    if snap:  # lattice points: duplicates and pairs at exactly the contact distance
+        xy = np.round(xy * 4.0) / 4.0
+    contact = 2.0 * radius
+    ref_pairs, ref_min = brute(xy, contact)
+    for max_n in (0, 10_000):
+        pairs, dists, min_d = contacts_and_min_distance(xy, contact, brute_force_max_n=max_n)
+        assert {tuple(p) for p in pairs.tolist()} == ref_pairs
+        assert pairs.shape[0] == len(ref_pairs)
+        assert min_d == pytest.approx(ref_min, abs=1e-12)
+        np.testing.assert_allclose(dists, np.hypot(*(xy[pairs[:, 0]] - xy[pairs[:, 1]]).T))
+        assert np.all(pairs[:, 0] < pairs[:, 1])
+
+
+def test_thousand_robots_match_brute_force() -> None:
+    rng = np.random.default_rng(42)
+    n = 1000
+    mon = SeparationMonitor(radius_m=0.075)
+    xy = rng.uniform(0.0, 20.0, (n, 2))
+    truth = np.column_stack([xy, np.zeros(n)])
+    mon.update(0.0, truth)
+    diff = xy[:, None, :] - xy[None, :, :]
+    dist = np.hypot(diff[..., 0], diff[..., 1])
+    iu, ju = np.triu_indices(n, 1)
+    d = dist[iu, ju]
+    assert mon.min_separation_m == pytest.approx(float(d.min()), abs=1e-12)
+    expected = {(int(a), int(b)) for a, b, dd in zip(iu, ju, d, strict=True) if dd < 0.15}
+    assert {(e.i, e.j) for e in mon.collisions} == expected
+    assert len(expected) > 0  # the layout is dense enough to test contacts
+    # Same layout again: contacts persist, no new events.
+    assert mon.update(0.1, truth) == []
+
+
+def test_separation_monitor_robot_count_change() -> None:
+    mon = SeparationMonitor(radius_m=0.1)
+    mon.update(0.0, [[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]])
+    assert mon.collision_count == 3
+    mon.update(0.1, [[0.0, 0.0], [0.1, 0.0]])
+    assert mon.in_contact == frozenset({(0, 1)})
+    assert mon.collision_count == 3
+
+
+def test_bounds_monitor_counts_exits_once() -> None:
+    mon = BoundsMonitor(0.0, 2.0, 0.0, 1.0, radius_m=0.1)
+    xs = [0.5, 1.85, 1.95, 2.5, 1.5, 1.95]
+    for k, x in enumerate(xs):
+        mon.update(k * 1.0, [[x, 0.5, 0.0], [1.0, 0.5, 0.0]])
+    assert mon.exit_count == 2
+    assert [(e.t_s, e.i) for e in mon.exits] == [(2.0, 0), (5.0, 0)]
+    np.testing.assert_array_equal(mon.outside, [True, False])
+    mon.update(6.0, [[1.0, 0.5], [1.0, -0.5], [1.0, 2.0]])  # a third robot appears outside
+    assert mon.exit_count == 4
+    with pytest.raises(ValueError):
+        BoundsMonitor(0.0, 0.1, 0.0, 1.0, radius_m=0.1)
