@@ -266,7 +266,7 @@ fi
 
 if [[ $coordinator_host -eq 1 ]]; then
     say "done. Next steps (docs/deploy.md):"
-    echo "  1. certificates: copy router/, coordinator.node.main/, coordinator.standby/, localization/, operator/, observer/ from formation certs into $etc_dir/certs/"
+    echo "  1. certificates: copy router/, coordinator.main/, coordinator.standby/, localization/, operator/, observer/ from formation certs into $etc_dir/certs/"
     echo "  2. fleet:        edit $etc_dir/fleet.toml, then: $venv_dir/bin/formation coordinator --check --fleet-file $etc_dir/fleet.toml"
     echo "  3. camera:       $etc_dir/camera.toml (formation camera calibrate) and $etc_dir/camera.env"
     echo "  4. start:        systemctl enable --now formation-router formation-coordinator@main formation-coordinator@standby formation-camera"

@@ -74,7 +74,7 @@ def node_commands(
     plant += batch
     coord = [
         "coordinator", "--scenario", scn_arg, "--name", "main", *batch, *lock,
-        *common_of("coordinator.node.main"),
+        *common_of("coordinator.main"),
     ]  # fmt: skip
     out = [("plant", plant, "plant ready"), ("coordinator", coord, "coordinator ready")]
     if cfg.camera == "rendered":  # docs/localization.md: the real tracker in the loop

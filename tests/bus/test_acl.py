@@ -87,7 +87,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
     "robot.r1": _robot_keys("r1", "wheels", "status"),
     "robot.r2": _robot_keys("r2", "wheels", "status"),
     "host.h1": {_f("host/h1/wheels"), _f("host/h1/status")},
-    "coordinator.node.main": {
+    "coordinator.main": {
         _f("leader"),
         _f("slot/0"),
         _f("slot/3"),
@@ -110,13 +110,13 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
     "observer.rec": set(),
 }
 EXPECT_PUBLISH["coordinator.standby"] = {
-    k.replace("/main/", "/standby/") for k in EXPECT_PUBLISH["coordinator.node.main"]
+    k.replace("/main/", "/standby/") for k in EXPECT_PUBLISH["coordinator.main"]
 }
 EXPECT_TOKEN: dict[str, set[str]] = {
     "robot.r1": {_f("alive/robot/r1")},
     "robot.r2": {_f("alive/robot/r2")},
     "host.h1": {_f("alive/robot/r3")},
-    "coordinator.node.main": {_f("alive/coordinator/main")},
+    "coordinator.main": {_f("alive/coordinator/main")},
     "coordinator.standby": {_f("alive/coordinator/standby")},
     "plant": {_f("alive/plant")},
 }
@@ -134,7 +134,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("clock"),
     },
     "host.h1": {_f("setpoints"), _f("poses"), *_ALL_STATUS, _f("estop"), _f("clock")},
-    "coordinator.node.main": {
+    "coordinator.main": {
         *_ALL_POSES,
         *(_f(f"robot/{r}/status") for r in ROBOTS),
         _f("host/h1/status"),
@@ -157,9 +157,9 @@ EXPECT_READ: dict[str, set[str]] = {
 EXPECT_READ["robot.r2"] = {
     k.replace("robot/r1/setpoint", "robot/r2/setpoint") for k in EXPECT_READ["robot.r1"]
 }
-EXPECT_READ["coordinator.standby"] = EXPECT_READ["coordinator.node.main"]
+EXPECT_READ["coordinator.standby"] = EXPECT_READ["coordinator.main"]
 EXPECT_WATCH: dict[str, set[str]] = {
-    "coordinator.node.main": set(TOKENS),
+    "coordinator.main": set(TOKENS),
     "coordinator.standby": set(TOKENS),
     "plant": {k for k in TOKENS if "/alive/plant" not in k},
     "operator": set(TOKENS),
@@ -173,7 +173,7 @@ EXPECT_WATCH: dict[str, set[str]] = {
 # hosts, coordinators and the operator's tool ask both.
 _HELD = {_f(f"estop/held/{n}") for n in (*ROBOTS, "h1")}
 EXPECT_ANSWER: dict[str, set[str]] = {
-    "coordinator.node.main": {_f("estop")},
+    "coordinator.main": {_f("estop")},
     "coordinator.standby": {_f("estop")},
     "robot.r1": {_f("estop/held/r1")},
     "robot.r2": {_f("estop/held/r2")},
@@ -183,10 +183,10 @@ EXPECT_ANSWER: dict[str, set[str]] = {
 EXPECT_ASKED: dict[str, set[str]] = {
     cn: {*EXPECT_ANSWER[cn], *_HELD} for cn in ("robot.r1", "robot.r2", "host.h1")
 }
-EXPECT_ASKED |= {cn: EXPECT_ANSWER[cn] for cn in ("coordinator.node.main", "coordinator.standby")}
+EXPECT_ASKED |= {cn: EXPECT_ANSWER[cn] for cn in ("coordinator.main", "coordinator.standby")}
 EXPECT_ASK: dict[str, set[str]] = {
     cn: {_f("estop"), *_HELD}
-    for cn in ("robot.r1", "robot.r2", "host.h1", "coordinator.node.main", "coordinator.standby",
+    for cn in ("robot.r1", "robot.r2", "host.h1", "coordinator.main", "coordinator.standby",
                "operator")
 }  # fmt: skip
 
@@ -384,7 +384,7 @@ LIVE_PUBLISH: dict[str, tuple[list[str], list[str]]] = {
         [_f("host/h1/wheels"), _f("host/h1/status")],
         [_f("robot/r3/wheels"), _f("setpoints"), _f("estop"), _f("poses")],
     ),
-    "coordinator.node.main": (
+    "coordinator.main": (
         [
             _f("leader"),
             _f("slot/3"),
@@ -455,7 +455,7 @@ def test_live_publish_per_identity(router: int, pki) -> None:  # type: ignore[no
 def test_live_reads_are_limited(router: int, pki) -> None:  # type: ignore[no-untyped-def]
     """r1 reads its own setpoint, never r2's, even subscribed to everything."""
     fleet, _ = pki
-    coord = _client(router, fleet.identities["coordinator.node.main"].tls())
+    coord = _client(router, fleet.identities["coordinator.main"].tls())
     r1 = _client(router, fleet.identities["robot.r1"].tls())
     try:
         own, everything = Inbox(), Inbox()
@@ -491,7 +491,7 @@ def test_live_estop_state_query(router: int, pki) -> None:  # type: ignore[no-un
     an observer's query and a robot's queryable are refused (robot_agent.core.estop)."""
     fleet, _ = pki
     coord, r1, r2, op, obs = _clients(
-        router, fleet, "coordinator.node.main", "robot.r1", "robot.r2", "operator", "observer.rec"
+        router, fleet, "coordinator.main", "robot.r1", "robot.r2", "operator", "observer.rec"
     )
     key = _f("estop")
     try:
@@ -520,7 +520,7 @@ def test_live_estop_held_query(router: int, pki) -> None:  # type: ignore[no-unt
     locally, without the router.)"""
     fleet, _ = pki
     coord, r1, r2, r3, op, obs = _clients(
-        router, fleet, "coordinator.node.main", "robot.r1", "robot.r2", "host.h1", "operator",
+        router, fleet, "coordinator.main", "robot.r1", "robot.r2", "host.h1", "operator",
         "observer.rec",
     )  # fmt: skip
     held_r1, held_all = _f("estop/held/r1"), _f("estop/held/*")
@@ -549,7 +549,7 @@ def test_live_liveliness_tokens(router: int, pki) -> None:  # type: ignore[no-un
     """A robot declares only its own token; the coordinator sees it (also with history), and a
     robot cannot watch tokens at all."""
     fleet, _ = pki
-    coord = _client(router, fleet.identities["coordinator.node.main"].tls())
+    coord = _client(router, fleet.identities["coordinator.main"].tls())
     r1 = _client(router, fleet.identities["robot.r1"].tls())
     host = _client(router, fleet.identities["host.h1"].tls())
     standby = _client(router, fleet.identities["coordinator.standby"].tls())
@@ -622,7 +622,7 @@ def test_certificate_from_another_ca_is_refused(router: int, pki) -> None:  # ty
     import zenoh
 
     fleet, rogue = pki
-    files = rogue.identities["coordinator.node.main"].tls()
+    files = rogue.identities["coordinator.main"].tls()
     # it trusts the router, but the router does not trust its certificate
     files = acl.TlsFiles(ca=str(fleet.ca), cert=files.cert, key=files.key)
     with pytest.raises(zenoh.ZError):

@@ -49,7 +49,7 @@ def test_authenticated_local_run_processes(tmp_path: Path, spawn) -> None:  # ty
         return zenoh.open(zenoh.Config.from_file(str(rc.clients[cn])))
 
     sessions = [
-        open_as(cn) for cn in ("observer", "coordinator.node.main", "localization", "robot.r2")
+        open_as(cn) for cn in ("observer", "coordinator.main", "localization", "robot.r2")
     ]
     observer, coord, loc, r2 = sessions
     try:
@@ -136,7 +136,7 @@ def test_formation_certs_cli(tmp_path: Path) -> None:
     ca_before = (out / "ca" / "ca.pem").read_bytes()
     assert certs_main(["-o", str(out), "--robots", "r2"]) == 0
     assert (out / "ca" / "ca.pem").read_bytes() == ca_before
-    expected = {"robot.r1", "robot.r2", "coordinator.node.main", "coordinator.standby"}
+    expected = {"robot.r1", "robot.r2", "coordinator.main", "coordinator.standby"}
     expected |= {"localization", "operator", "observer"}
     for cn in expected:
         cert = x509.load_pem_x509_certificate((out / cn / "cert.pem").read_bytes())
@@ -191,7 +191,7 @@ def test_secure_lockstep_fleet_runs_to_the_end(tmp_path: Path, spawn) -> None:  
         for r in robots:
             spawn("agent", "--id", r, *scn, *conf(f"robot.{r}"), ready=f"agent {r} ready")
         coordinators = [
-            spawn("coordinator", "--name", "main", *scn, *conf("coordinator.node.main")),
+            spawn("coordinator", "--name", "main", *scn, *conf("coordinator.main")),
             spawn(
                 "coordinator", "--name", "standby", "--standby", *scn,
                 *conf("coordinator.standby"),

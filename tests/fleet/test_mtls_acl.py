@@ -58,7 +58,7 @@ def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
         check=True,
         capture_output=True,
     )
-    # an impostor: a certificate with CN "coordinator.node.main" from a CA the fleet does not trust
+    # an impostor: a certificate with CN "coordinator.main" from a CA the fleet does not trust
     subprocess.run(
         ["bash", str(GEN_CERTS), "-o", str(out / "rogue")], check=True, capture_output=True
     )
@@ -113,7 +113,7 @@ def _client_conf(
 
 
 def _open(port: int, certs: Path, cn: str) -> zenoh.Session:
-    """A client session with the fleet certificate of ``cn`` ("coordinator.node.main", "robot.r1")
+    """A client session with the fleet certificate of ``cn`` ("coordinator.main", "robot.r1")
     and the shipped config file of its kind."""
     fleet = certs / "fleet"
     template = cn.partition(".")[0] + "-mtls.json5"
@@ -178,7 +178,7 @@ def test_certificate_from_another_ca_is_refused(router_port: int, certs: Path) -
         router_port,
         "coordinator-mtls.json5",
         ca=certs / "fleet" / "ca" / "ca.pem",  # it trusts the router...
-        cert_dir=certs / "rogue" / "coordinator.node.main",  # ...but the router does not trust it
+        cert_dir=certs / "rogue" / "coordinator.main",  # ...but the router does not trust it
     )
     with pytest.raises(zenoh.ZError):
         zenoh.open(conf)
@@ -205,7 +205,7 @@ COORDINATOR_KEYS = [
 
 def test_access_control(router_port: int, certs: Path) -> None:
     observer = _open(router_port, certs, "observer")
-    coordinator = _open(router_port, certs, "coordinator.node.main")
+    coordinator = _open(router_port, certs, "coordinator.main")
     operator = _open(router_port, certs, "operator")
     r1 = _open(router_port, certs, "robot.r1")
     r2 = _open(router_port, certs, "robot.r2")
