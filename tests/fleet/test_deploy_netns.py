@@ -228,7 +228,7 @@ def test_shipped_deployment_across_hosts(net: Net, spawn: Spawner, tmp_path: Pat
                    str(router_conf), ready="router listening on ")  # fmt: skip
 
     world = in_ns(
-        spawn, net.hub, str(REPO_ROOT / "tests" / "deploy_world.py"),
+        spawn, net.hub, str(REPO_ROOT / "tests" / "support" / "deploy_world.py"),
         TRUTH_ENDPOINT, str(DEPLOY / "config" / "r1.example.toml"),
         *[f"{r}:{','.join(str(v) for v in INITIAL[r])}" for r in ROBOTS],
         "--observer", str(hub_conf("observer-mtls.json5")),
