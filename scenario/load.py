@@ -20,15 +20,10 @@ from typing import Any
 from bus_schemas import keys
 from robot_agent.core.params import (
     AgentConfig,
-    EstimatorParams,
-    RepulsionParams,
-    RobotGeometry,
-    SafetyFilterParams,
-    SafetyParams,
-    TrackingGains,
     WorldMap,
 )
 from robot_agent.core.robot_config import _world as _robot_config_world
+from robot_agent.core.robot_config import agent_sections, build_section
 
 SCENARIO_DIR = Path(__file__).parent / "builtin"
 
@@ -176,27 +171,15 @@ def _only(d: dict[str, Any], allowed: set[str], where: str) -> None:
         )
 
 
-def _dataclass_from(cls: Any, d: dict[str, Any], where: str) -> Any:
-    """Build a frozen params dataclass from a TOML table, checking names and types."""
-    names = {f.name: f for f in dataclasses.fields(cls)}
-    _only(d, set(names), where)
-    kwargs: dict[str, Any] = {}
-    for k, v in d.items():
-        default = getattr(cls(), k)
-        if isinstance(default, bool):
-            if not isinstance(v, bool):
-                raise ScenarioError(f"{where}.{k}: expected true/false, got {v!r}")
-            kwargs[k] = v
-        elif isinstance(default, int) and isinstance(v, int) and not isinstance(v, bool):
-            kwargs[k] = v
-        elif isinstance(default, int | float):
-            kwargs[k] = _num(d, k, where, lo=0.0)
-        else:
-            kwargs[k] = v
-    try:
-        return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
-        raise ScenarioError(f"{where}: {exc}") from exc
+def _robot_section(cls: Any, table: dict[str, Any], where: str) -> Any:
+    """A robot parameter table (``[geometry]``, ``[safety_filter]``, ...) by the robot config's
+    one validator (``robot_agent.core.robot_config.build_section``): the same keys, types and
+    declared ranges as a robot's own file."""
+    problems: list[str] = []
+    built = build_section(cls, table, where, problems)
+    if built is None or problems:
+        raise ScenarioError("; ".join(problems) or f"{where}: invalid")
+    return built
 
 
 TOP_KEYS = {
@@ -275,15 +258,12 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
             rows.append((float(row[0]), float(row[1]), float(row[2])))
         initial = tuple(rows)
 
+    sections = {
+        name: _robot_section(cls, _table(data, name, ""), name)
+        for name, cls in agent_sections().items()
+    }
     agent = AgentConfig(
-        geometry=_dataclass_from(RobotGeometry, _table(data, "geometry", ""), "geometry"),
-        gains=_dataclass_from(TrackingGains, _table(data, "gains", ""), "gains"),
-        repulsion=_dataclass_from(RepulsionParams, _table(data, "repulsion", ""), "repulsion"),
-        safety=_dataclass_from(SafetyParams, _table(data, "safety", ""), "safety"),
-        estimator=_dataclass_from(EstimatorParams, _table(data, "estimator", ""), "estimator"),
-        safety_filter=_dataclass_from(
-            SafetyFilterParams, _table(data, "safety_filter", ""), "safety_filter"
-        ),
+        **sections,
         world=parse_world(data),
     )
 

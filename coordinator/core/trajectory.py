@@ -370,7 +370,7 @@ class Waypoints:
                 f"{' with loop=true' if self.loop else ''}, got {len(pts)}"
             )
         _set(self, "points", pts)
-        pieces = self._build(name, pts)
+        pieces = self.build_section(name, pts)
         _set(self, "_pieces", pieces)
         _set(self, "_starts", tuple(p.s0_m for p in pieces))
         _set(self, "length_m", pieces[-1].s0_m + pieces[-1].length_m)
@@ -402,7 +402,7 @@ class Waypoints:
         ``omega`` is discontinuous there."""
         return tuple(self.t_start_s + s / self.speed_mps for s in self._starts)
 
-    def _build(self, name: str, pts: tuple[tuple[float, float], ...]) -> tuple[_Piece, ...]:
+    def build_section(self, name: str, pts: tuple[tuple[float, float], ...]) -> tuple[_Piece, ...]:
         n = len(pts)
         n_seg = n if self.loop else n - 1
         seg_len: list[float] = []

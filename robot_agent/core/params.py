@@ -1,8 +1,11 @@
 """Parameters of one robot's firmware: geometry, tracking gains, repulsion and safety limits.
 
 Every parameter set is a frozen dataclass with documented, validated defaults (units in the
-names). Validation happens once, at construction, so the control loop never has to re-check a
-gain: a bad value raises ``ValueError`` when the configuration is built, not in flight.
+names). Each parameter is declared once, here: its type and unit (the name), its default and
+plausible range (:func:`ranged`) and its meaning (the class docstring's ``Attributes``). The
+robot-config loader, the scenario loader and docs/parameters.md all read that declaration.
+Validation happens once, at construction, so the control loop never has to re-check a gain: a bad
+value raises ``ValueError`` when the configuration is built, not in flight.
 
 Defaults describe a small differential robot (the paper gives no dimensions): 3 cm wheels on a
 10 cm track, 0.3 m/s top speed, 7.5 cm body radius, and the paper's tracking gains
@@ -11,8 +14,12 @@ Defaults describe a small differential robot (the paper gives no dimensions): 3 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any, TypeVar, cast
+
+_T = TypeVar("_T")
 
 __all__ = [
     "D0_CLEARANCE_M",
@@ -28,8 +35,27 @@ __all__ = [
     "SegmentObstacle",
     "TrackingGains",
     "WorldMap",
+    "declared_range",
     "derived_d0_m",
+    "ranged",
 ]
+
+
+def ranged(default: _T, low: float, high: float) -> _T:
+    """Declare a parameter: its default and the plausible range ``[low, high]`` that a robot
+    config or a scenario file may set (``robot_agent.core.robot_config`` refuses a value outside
+    it, so a typo such as ``stale_pose_s = 1e6`` never reaches the wheels). Its meaning is the
+    line of its class's docstring; ``python -m scenario.docs`` renders all of them."""
+    return cast(_T, field(default=default, metadata={"range": (low, high)}))
+
+
+def declared_range(cls: type[Any], name: str) -> tuple[float, float] | None:
+    """The plausible range a field of parameter dataclass ``cls`` was declared with, or None."""
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            rng = f.metadata.get("range")
+            return None if rng is None else (float(rng[0]), float(rng[1]))
+    return None
 
 
 def _require(cond: bool, message: str) -> None:
@@ -92,11 +118,11 @@ class RobotGeometry:
             eqs 10-11. The paper found 2-8 cm good; 5 cm is the default.
     """
 
-    wheel_radius_m: float = 0.03
-    half_track_m: float = 0.05
-    max_wheel_radps: float = 10.0
-    body_radius_m: float = 0.075
-    ref_offset_m: float = 0.05
+    wheel_radius_m: float = ranged(0.03, 0.005, 0.5)
+    half_track_m: float = ranged(0.05, 0.01, 1.0)
+    max_wheel_radps: float = ranged(10.0, 0.1, 200.0)
+    body_radius_m: float = ranged(0.075, 0.01, 1.5)
+    ref_offset_m: float = ranged(0.05, 0.001, 1.0)
 
     def __post_init__(self) -> None:
         _check_fields(
@@ -131,12 +157,12 @@ class TrackingGains:
             feed-forward included.
     """
 
-    kp: float = 0.21
-    ti_s: float = 105.0
-    td_s: float = 0.01
-    d_filter_tau_s: float = 0.1
-    integral_limit_ms: float = 0.5
-    max_ref_speed_mps: float = 0.25
+    kp: float = ranged(0.21, 0.0, 50.0)
+    ti_s: float = ranged(105.0, 0.001, 10000.0)
+    td_s: float = ranged(0.01, 0.0, 10.0)
+    d_filter_tau_s: float = ranged(0.1, 0.0, 10.0)
+    integral_limit_ms: float = ranged(0.5, 0.0, 10.0)
+    max_ref_speed_mps: float = ranged(0.25, 0.001, 5.0)
 
     def __post_init__(self) -> None:
         _check_fields(
@@ -185,9 +211,9 @@ class RepulsionParams:
         enabled: False turns repulsion off (the paper's controller without collision avoidance).
     """
 
-    k_rep: float = DEFAULT_K_REP
-    d0_m: float | None = None
-    max_speed_mps: float = 0.20
+    k_rep: float = ranged(DEFAULT_K_REP, 0.0, 1.0)
+    d0_m: float | None = ranged(None, 0.01, 5.0)
+    max_speed_mps: float = ranged(0.20, 0.0, 5.0)
     enabled: bool = True
 
     def __post_init__(self) -> None:
@@ -221,9 +247,9 @@ class SafetyParams:
             controller skips integration on that tick and restarts its derivative (s).
     """
 
-    stale_pose_s: float = 0.2
-    stale_setpoint_s: float = 0.2
-    max_dt_s: float = 0.2
+    stale_pose_s: float = ranged(0.2, 0.01, 5.0)
+    stale_setpoint_s: float = ranged(0.2, 0.01, 5.0)
+    max_dt_s: float = ranged(0.2, 0.001, 5.0)
 
     def __post_init__(self) -> None:
         _check_fields(self, positive=("stale_pose_s", "stale_setpoint_s", "max_dt_s"))
@@ -298,23 +324,23 @@ class SafetyFilterParams:
     """
 
     enabled: bool = True
-    margin_m: float = 0.04
-    noise_budget_m: float = 0.009
-    gamma_per_s: float = 10.0
-    neighbour_speed_mps: float = 0.0
-    max_age_s: float = 0.5
-    stuck_time_s: float = 1.0
-    stuck_speed_mps: float = 0.02
-    stuck_error_m: float = 0.05
-    tiebreak_time_s: float = 3.0
-    tiebreak_angle_rad: float = 1.0
-    tiebreak_speed_mps: float = 0.1
+    margin_m: float = ranged(0.04, 0.0, 1.0)
+    noise_budget_m: float = ranged(0.009, 0.0, 0.5)
+    gamma_per_s: float = ranged(10.0, 0.01, 1000.0)
+    neighbour_speed_mps: float = ranged(0.0, 0.0, 5.0)
+    max_age_s: float = ranged(0.5, 0.01, 10.0)
+    stuck_time_s: float = ranged(1.0, 0.01, 60.0)
+    stuck_speed_mps: float = ranged(0.02, 0.0, 5.0)
+    stuck_error_m: float = ranged(0.05, 0.0, 5.0)
+    tiebreak_time_s: float = ranged(3.0, 0.0, 60.0)
+    tiebreak_angle_rad: float = ranged(1.0, 0.0, math.pi)
+    tiebreak_speed_mps: float = ranged(0.1, 0.0, 5.0)
     shared_frame: bool = False
-    convoy_share: float = 0.5
-    convoy_angle_rad: float = 0.7854
-    convoy_gain: float = 2.5
-    convoy_gap_m: float = 0.05
-    frame_max_age_s: float = 0.1
+    convoy_share: float = ranged(0.5, 0.0, 0.5)
+    convoy_angle_rad: float = ranged(0.7854, 0.01, math.pi / 2)
+    convoy_gain: float = ranged(2.5, 1.0, 10.0)
+    convoy_gap_m: float = ranged(0.05, 0.0, 0.5)
+    frame_max_age_s: float = ranged(0.1, 0.0, 0.5)
 
     def __post_init__(self) -> None:
         _require(isinstance(self.enabled, bool), f"enabled must be a bool, got {self.enabled!r}")
@@ -462,27 +488,27 @@ class EstimatorParams:
 
     enabled: bool = True
     extrapolate_setpoint: bool = True
-    setpoint_lead_s: float = 0.0
-    history_s: float = 1.5
-    max_dropout_odom_s: float = 1.5
-    max_dropout_cmd_s: float = 0.3
-    odom_timeout_s: float = 0.1
-    max_latency_s: float = 0.5
-    future_tolerance_s: float = 0.005
-    actuation_delay_s: float = 0.0
-    meas_pos_std_m: float = 0.003
-    meas_theta_std_rad: float = 0.01
-    odom_pos_var_per_m: float = 1.0e-4
-    cmd_pos_var_per_m: float = 4.0e-4
-    odom_pos_var_per_s: float = 1.0e-6
-    cmd_pos_var_per_s: float = 1.0e-5
-    theta_var_per_rad: float = 4.0e-4
-    theta_var_per_m: float = 1.0e-3
-    theta_var_per_s: float = 1.0e-6
-    gate_m: float = 0.2
-    reset_after: int = 3
-    n_sigma: float = 3.0
-    max_uncertainty_m: float = 0.1
+    setpoint_lead_s: float = ranged(0.0, 0.0, 1.0)
+    history_s: float = ranged(1.5, 0.01, 60.0)
+    max_dropout_odom_s: float = ranged(1.5, 0.0, 60.0)
+    max_dropout_cmd_s: float = ranged(0.3, 0.0, 60.0)
+    odom_timeout_s: float = ranged(0.1, 0.001, 10.0)
+    max_latency_s: float = ranged(0.5, 0.0, 10.0)
+    future_tolerance_s: float = ranged(0.005, 0.0, 1.0)
+    actuation_delay_s: float = ranged(0.0, 0.0, 1.0)
+    meas_pos_std_m: float = ranged(0.003, 0.0, 1.0)
+    meas_theta_std_rad: float = ranged(0.01, 0.0, math.pi)
+    odom_pos_var_per_m: float = ranged(1.0e-4, 0.0, 1.0)
+    cmd_pos_var_per_m: float = ranged(4.0e-4, 0.0, 1.0)
+    odom_pos_var_per_s: float = ranged(1.0e-6, 0.0, 1.0)
+    cmd_pos_var_per_s: float = ranged(1.0e-5, 0.0, 1.0)
+    theta_var_per_rad: float = ranged(4.0e-4, 0.0, 1.0)
+    theta_var_per_m: float = ranged(1.0e-3, 0.0, 1.0)
+    theta_var_per_s: float = ranged(1.0e-6, 0.0, 1.0)
+    gate_m: float = ranged(0.2, 0.0, 10.0)
+    reset_after: int = ranged(3, 1, 1000)
+    n_sigma: float = ranged(3.0, 0.1, 100.0)
+    max_uncertainty_m: float = ranged(0.1, 0.0, 10.0)
 
     def __post_init__(self) -> None:
         for name in ("enabled", "extrapolate_setpoint"):

@@ -69,9 +69,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from robot_agent.core.params import AgentConfig, Arena, CircleObstacle, SegmentObstacle, WorldMap
-from robot_agent.core.plausible import (
-    PLAUSIBLE,
+from robot_agent.core.params import (
+    AgentConfig,
+    Arena,
+    CircleObstacle,
+    SegmentObstacle,
+    WorldMap,
+    declared_range,
 )
 from robot_agent.motors import BACKENDS
 
@@ -81,6 +85,8 @@ __all__ = [
     "MotorConfig",
     "RobotConfig",
     "ZenohConfig",
+    "agent_sections",
+    "build_section",
     "check_config",
     "load_robot_config",
     "robot_config_from_dict",
@@ -219,8 +225,8 @@ def robot_config_from_dict(
 ) -> RobotConfig:
     """Validate already-parsed TOML data (the same rules as :func:`load_robot_config`)."""
     problems: list[str] = []
-    agent_sections = _agent_sections()
-    allowed = ["robot_id", "fleet", *agent_sections, "arena", "obstacle", "zenoh", "motor"]
+    sections = agent_sections()
+    allowed = ["robot_id", "fleet", *sections, "arena", "obstacle", "zenoh", "motor"]
     for key in data:
         if key not in allowed:
             problems.append(f"{key}: unknown key (allowed: {', '.join(allowed)})")
@@ -229,10 +235,10 @@ def robot_config_from_dict(
     fleet = _identifier(data, "fleet", "demo", problems)
 
     parts: dict[str, Any] = {}
-    for section, cls in agent_sections.items():
+    for section, cls in sections.items():
         table = _table(data, section, problems)
         if table is not None:
-            parts[section] = _build(cls, table, section, problems)
+            parts[section] = build_section(cls, table, section, problems)
     world = _world(data, problems)
     if world is None:
         parts["world"] = None
@@ -259,7 +265,7 @@ def robot_config_from_dict(
 # ---------------------------------------------------------------------- sections
 
 
-def _agent_sections() -> dict[str, type]:
+def agent_sections() -> dict[str, type]:
     """AgentConfig's parameter fields: section name -> dataclass (e.g. geometry); the world map
     is read from ``[arena]`` and ``[[obstacle]]`` instead (``_world``)."""
     hints = typing.get_type_hints(AgentConfig)
@@ -396,12 +402,6 @@ def _table(data: Mapping[str, Any], key: str, problems: list[str]) -> Mapping[st
 
 _BAD = object()
 
-"""Plausible range (inclusive) of every numeric parameter, by dotted field name: a value
-outside is refused by ``--check-config`` and the agent (a typo such as ``stale_pose_s = 1e6``
-or ``kp = 1e9`` must never reach the wheels). tests/unit/robot_agent/test_robot_config.py checks
-that every
-numeric field of every section has an entry here."""
-
 
 def _coerce(value: Any, annotation: Any) -> Any:
     """``value`` converted to the field's type, or ``_BAD``. bool is never a number."""
@@ -425,7 +425,7 @@ def _type_name(annotation: Any) -> str:
     )
 
 
-def _build(
+def build_section(
     cls: type,
     table: Mapping[str, Any],
     section: str,
@@ -451,7 +451,7 @@ def _build(
                 f"got {value!r} ({type(value).__name__})"
             )
             continue
-        rng = PLAUSIBLE.get(f"{section}.{key}")
+        rng = declared_range(cls, key)  # robot_agent.core.params.ranged
         if rng is not None and isinstance(coerced, (int, float)) and not isinstance(coerced, bool):
             lo, hi = rng
             if not lo <= coerced <= hi:
@@ -547,7 +547,7 @@ def _motor(data: Mapping[str, Any], problems: list[str]) -> MotorConfig | None:
         # The other keys are another backend's: checked only when it is selected, so a robot
         # config can be switched to the simulated backend by changing one line.
         return MotorConfig(backend=backend)
-    settings = _build(kind.settings, table, "motor", problems, skip=("backend",))
+    settings = build_section(kind.settings, table, "motor", problems, skip=("backend",))
     if settings is None:
         return None
     return MotorConfig(backend=backend, settings=settings)

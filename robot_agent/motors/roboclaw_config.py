@@ -8,7 +8,7 @@ driver; still importable from ``robot_agent.motors.roboclaw``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 BAUD_RATES = (2400, 9600, 19200, 38400, 57600, 115200, 230400, 460800)
 
@@ -53,20 +53,20 @@ class RoboClawConfig:
     """
 
     port: str
-    baud: int = 38400
-    address: int = 0x80
+    baud: int = field(default=38400, metadata={"range": (2400, 460800)})
+    address: int = field(default=0x80, metadata={"range": (0x80, 0x87)})
     mode: str = "speed"
-    encoder_counts_per_rev: float = 0.0
-    gear_ratio: float = 1.0
+    encoder_counts_per_rev: float = field(default=0.0, metadata={"range": (0.0, 1.0e6)})
+    gear_ratio: float = field(default=1.0, metadata={"range": (0.01, 10000.0)})
     invert_right: bool = False
     invert_left: bool = False
     right_channel: str = "m1"
-    serial_timeout_s: float = 0.5
-    ack_timeout_s: float = 0.02
-    write_timeout_s: float = 0.1
-    reopen_backoff_s: float = 0.5
-    reopen_backoff_max_s: float = 5.0
-    max_consecutive_failures: int = 5
+    serial_timeout_s: float = field(default=0.5, metadata={"range": (0.1, 5.0)})
+    ack_timeout_s: float = field(default=0.02, metadata={"range": (0.001, 1.0)})
+    write_timeout_s: float = field(default=0.1, metadata={"range": (0.001, 5.0)})
+    reopen_backoff_s: float = field(default=0.5, metadata={"range": (0.01, 60.0)})
+    reopen_backoff_max_s: float = field(default=5.0, metadata={"range": (0.01, 600.0)})
+    max_consecutive_failures: int = field(default=5, metadata={"range": (1, 1000)})
 
     def __post_init__(self) -> None:
         _require(

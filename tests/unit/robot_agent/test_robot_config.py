@@ -239,30 +239,31 @@ def test_absurd_values_are_refused_with_their_dotted_names(tmp_path: Path) -> No
     assert len(problems) == 2, problems
 
 
-def test_every_numeric_parameter_has_a_plausible_range() -> None:
+def test_every_numeric_parameter_declares_a_plausible_range() -> None:
+    """Every numeric field of every section (and of every motor backend's settings) is declared
+    with ``ranged`` (or its ``range`` metadata), and its default lies inside."""
     import dataclasses
     import typing
 
-    from robot_agent.core.robot_config import PLAUSIBLE, _agent_sections
-    from robot_agent.motors.roboclaw import RoboClawConfig
+    from robot_agent.core.params import declared_range
+    from robot_agent.core.robot_config import agent_sections
+    from robot_agent.motors import BACKENDS
 
-    sections: dict[str, type] = dict(_agent_sections())
-    sections["motor"] = RoboClawConfig
+    sections: dict[str, type] = dict(agent_sections())
+    for name, kind in BACKENDS.items():
+        if kind.settings is not None:
+            sections[f"motor ({name})"] = kind.settings
     missing = []
     for section, cls in sections.items():
         hints = typing.get_type_hints(cls)
         for f in dataclasses.fields(cls):
             numeric = hints[f.name] in (int, float) or hints[f.name] == (float | None)
-            if numeric and f"{section}.{f.name}" not in PLAUSIBLE:
+            rng = declared_range(cls, f.name)
+            if numeric and rng is None:
                 missing.append(f"{section}.{f.name}")
-            if f"{section}.{f.name}" in PLAUSIBLE and f.default is not dataclasses.MISSING:
-                lo, hi = PLAUSIBLE[f"{section}.{f.name}"]
-                if f.default is not None:
-                    assert lo <= f.default <= hi, (section, f.name, f.default)
-    assert not missing, f"add a plausible range for: {missing}"
-    assert set(PLAUSIBLE) <= {
-        f"{s}.{f.name}" for s, c in sections.items() for f in dataclasses.fields(c)
-    }
+            if rng is not None and f.default not in (None, dataclasses.MISSING):
+                assert rng[0] <= f.default <= rng[1], (section, f.name, f.default)
+    assert not missing, f"declare a plausible range (params.ranged) for: {missing}"
 
 
 def test_every_motor_problem_is_listed_not_only_the_first(tmp_path: Path) -> None:
