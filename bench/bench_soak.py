@@ -48,7 +48,11 @@ from common import free_port, percentile  # noqa: E402
 import runtime as rt  # noqa: E402
 from bus_schemas import Assignment, Status, Truth, decode, keys  # noqa: E402
 
-SCENARIO = (HERE.parent / "tests" / "support" / "fault_fleet.py").read_text().split('SCENARIO = """\\\n')[1]
+SCENARIO = (
+    (HERE.parent / "tests" / "support" / "fault_fleet.py")
+    .read_text()
+    .split('SCENARIO = """\\\n')[1]
+)
 SCENARIO = SCENARIO.split('"""')[0]
 ROBOTS = ("r1", "r2", "r3")
 TOL_M = 0.06

@@ -117,7 +117,7 @@ def load_fleet(path: str | Path) -> Fleet:
     return fleet_from_dict(data, source=str(p))
 
 
-def fleet_from_dict(data: Mapping[str, Any], *, source: str = "<dict>") -> Fleet:
+def fleet_from_dict(data: Mapping[str, Any], *, source: str = "<dict>") -> Fleet:  # noqa: PLR0915 (a validator: one check per key)
     """Validate already-parsed fleet data (the rules of :func:`load_fleet`)."""
     problems: list[str] = []
     for key in data:

@@ -205,7 +205,7 @@ def parse_world(data: dict[str, Any]) -> WorldMap:
     return world
 
 
-def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
+def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PLR0915 (a validator: one check per key)
     """Validate a scenario dictionary (as read from TOML)."""
     _only(data, TOP_KEYS, "scenario")
     name = data.get("name", Path(source).stem)

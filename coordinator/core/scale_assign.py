@@ -285,7 +285,7 @@ class _Solver:
         self.col_m[robots[robots >= 0]] = -1
         self.row_m[lowered] = -1
 
-    def run(self) -> None:
+    def run(self) -> None:  # noqa: PLR0915 (the solver's Dijkstra phases, one hot loop)
         """Match every free slot (Dijkstra phases). Raises ``ValueError`` if the graph has no
         matching that covers every slot."""
         n_s, n_r, groups = self.n_s, self.n_r, self.groups

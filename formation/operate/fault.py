@@ -379,7 +379,7 @@ _SIG = {"kill": signal.SIGKILL, "pause": signal.SIGSTOP, "resume": signal.SIGCON
 _DONE = {"kill": "killed", "pause": "paused", "resume": "resumed"}
 
 
-async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:
+async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # noqa: PLR0915 (one branch per fault verb)
     fleet = keys.check_fleet(ns.fleet)
     where = Where.of(fleet, settings)
     session = await rt.open_session_async(settings)

@@ -96,7 +96,7 @@ class Recording:
         return (log_ns - wall0 + mono0) / 1e9
 
 
-def read_recording(path: str | Path) -> Recording:
+def read_recording(path: str | Path) -> Recording:  # noqa: PLR0915 (one pass over the MCAP, one branch per channel)
     """Read an MCAP recording sequentially (works on a file without footer).
 
     Samples come from the ``/raw/`` msgpack channels when the file has them, else from the JSON
@@ -275,7 +275,7 @@ def make_collector(
     )
 
 
-def replay(rec: Recording, collector: RunCollector, lockstep: bool) -> Replay:
+def replay(rec: Recording, collector: RunCollector, lockstep: bool) -> Replay:  # noqa: PLR0915 (one branch per event kind, in arrival order)
     """Feed every event to ``collector`` in arrival order; track liveliness, leader, latency."""
     out = Replay(lockstep=lockstep)
     fleet = collector.fleet

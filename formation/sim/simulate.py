@@ -66,7 +66,7 @@ class SimResult:
 PROGRESS_EVERY_TICKS = 500  # how often run() calls its progress callback
 
 
-def run(
+def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order)
     scenario: Scenario,
     seed: int | None = None,
     duration_s: float | None = None,

@@ -244,7 +244,7 @@ def _feed_truth(
     rt.subscribe(session, keys.truths_key(fleet), loop, on_truths)
 
 
-async def _node(
+async def _node(  # noqa: PLR0915 (the camera node: setup, then its frame loop)
     stop: asyncio.Event,
     ns: argparse.Namespace,
     pipeline: CameraPipeline,

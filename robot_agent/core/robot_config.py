@@ -286,7 +286,7 @@ def _finite_number(value: Any) -> float | None:
     return f if math.isfinite(f) else None
 
 
-def _world(data: Mapping[str, Any], problems: list[str]) -> WorldMap | None:
+def _world(data: Mapping[str, Any], problems: list[str]) -> WorldMap | None:  # noqa: PLR0915 (a validator: one check per obstacle kind and key)
     """``[arena]`` and ``[[obstacle]]`` as a WorldMap, or None with problems appended."""
     start = len(problems)
     arena: Arena | None = None

@@ -96,7 +96,7 @@ class NeighbourBarriers:
             far = max(far, plane + 3.0 * off)
         return far
 
-    def append(
+    def append(  # noqa: PLR0915 (per-neighbour constraints, inlined on the compiled hot path)
         self,
         px: float,
         py: float,

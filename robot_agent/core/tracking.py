@@ -284,7 +284,7 @@ class TrackingController:
         self._x.reset_derivative()
         self._y.reset_derivative()
 
-    def update(
+    def update(  # noqa: PLR0915 (both PID axes inline, on the compiled hot path)
         self,
         ex: float,
         ey: float,

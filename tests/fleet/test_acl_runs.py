@@ -48,9 +48,7 @@ def test_authenticated_local_run_processes(tmp_path: Path, spawn) -> None:  # ty
     def open_as(cn: str) -> zenoh.Session:
         return zenoh.open(zenoh.Config.from_file(str(rc.clients[cn])))
 
-    sessions = [
-        open_as(cn) for cn in ("observer", "coordinator.main", "localization", "robot.r2")
-    ]
+    sessions = [open_as(cn) for cn in ("observer", "coordinator.main", "localization", "robot.r2")]
     observer, coord, loc, r2 = sessions
     try:
         statuses: list[Status] = []
