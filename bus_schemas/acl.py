@@ -84,6 +84,7 @@ from bus_schemas.acl_rules import (  # noqa: F401  (moved to acl_rules.py; re-ex
     may,
     robot,
 )
+from bus_schemas.session import DEFAULT_PORT, KEEP_ALIVES_PER_LEASE, LEASE_MS, MAX_MESSAGE_BYTES
 
 # --- identities ------------------------------------------------------------------------------
 
@@ -101,16 +102,6 @@ if _missing:  # a key added to the contract must say who may use it
 
 
 # --- whole configs ----------------------------------------------------------------------------
-
-DEFAULT_PORT: Final = 7447
-LEASE_MS: Final = 700
-"""Transport lease of every deployed session: a hung or unplugged process is declared gone (its
-liveliness token vanishes) within ~0.7 s; keep-alives every lease/4 (docs/deploy.md)."""
-KEEP_ALIVES_PER_LEASE: Final = 4
-MAX_MESSAGE_BYTES: Final = 128 * 1024
-"""Largest Zenoh message a session reassembles (transport/link/rx/max_message_size): twice the
-contract's largest payload (bus_schemas.MAX_PAYLOAD_BYTES), so a flood of huge messages cannot
-grow a receiver (Zenoh's default is 1 GiB)."""
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,8 @@ from typing import Final, Literal
 
 import zenoh
 
+from bus_schemas.session import DEFAULT_ENDPOINT, KEEP_ALIVES_PER_LEASE, MAX_MESSAGE_BYTES
+
 __all__ = [
     "DEFAULT_ENDPOINT",
     "MAX_MESSAGE_BYTES",
@@ -52,22 +54,12 @@ __all__ = [
     "settings_from_args",
 ]
 
-DEFAULT_ENDPOINT: Final = "tcp/127.0.0.1:7447"
-"""Where ``formation up`` / ``formation router`` listen by default (bus contract, Connection)."""
 
 Mode = Literal["client", "peer", "router"]
 _MODES: Final = ("client", "peer", "router")
 
-# Transport keep-alive messages per lease period (Zenoh's own default ratio, written explicitly
-# so a short lease always comes with a proportionally short keep-alive interval).
-_KEEP_ALIVES_PER_LEASE: Final = 4
 _MIN_LEASE_MS: Final = 100
 _RETRY_PERIOD_S: Final = 0.1
-MAX_MESSAGE_BYTES: Final = 128 * 1024
-"""Largest Zenoh message any session reassembles (``transport/link/rx/max_message_size``): twice
-the contract's largest payload (``bus_schemas.MAX_PAYLOAD_BYTES``, 64 KiB; bigger ones are
-rejected by decode anyway). Zenoh's default is 1 GiB: a flood of large messages grew every
-receiver by ~20 MiB per burst (issue 13). The same cap as the deploy configs (bus_schemas.acl)."""
 _CONNECT_RETRY: Final = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
 """Client reconnection to its router after the link was lost (see :func:`make_config`)."""
 
@@ -283,7 +275,7 @@ def make_config(settings: ZenohSettings) -> zenoh.Config:
     put("transport/shared_memory/enabled", False)
     if settings.lease_ms is not None:
         put("transport/link/tx/lease", int(settings.lease_ms))
-        put("transport/link/tx/keep_alive", _KEEP_ALIVES_PER_LEASE)
+        put("transport/link/tx/keep_alive", KEEP_ALIVES_PER_LEASE)
     if settings.namespace is not None:
         put("namespace", settings.namespace)
     return config

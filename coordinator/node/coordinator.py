@@ -49,12 +49,12 @@ from coordinator.node.estop_source import EstopSource, attach_estop_source
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
+from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
 from scenario import Scenario
 from scenario.assemble import coordinator_core, path_conflicts
 
 __all__ = ["MAX_ROBOTS", "CoordinatorNode", "attach_estop_source"]
 
-STATUS_PERIOD_S: Final = 0.2
 HEARTBEAT_PERIOD_S: Final = 0.1
 """Heartbeat period (s): a standby learns the active's state (``leader_t0``, epoch) from it, and
 an instance resuming from a hang learns from it that it was replaced."""

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bus_schemas.session import LEASE_MS
 from formation.launch.plan import LaunchError, Plan, UpConfig
 
 NodeCommand = tuple[str, list[str], str]
@@ -131,7 +132,7 @@ def make_secure(cfg: UpConfig, plan: Plan) -> tuple[Any, Path]:
             identities(cfg, plan),
             port=port,
             fleet=cfg.fleet,
-            lease_ms=cfg.lease_ms or pki_mod.acl.LEASE_MS,
+            lease_ms=cfg.lease_ms or LEASE_MS,
         )
         (secure.pki.root / "ca" / "ca.key").unlink()
     except OSError as exc:

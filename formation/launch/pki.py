@@ -31,6 +31,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from bus_schemas import acl
+from bus_schemas.session import LEASE_MS
 
 ROUTER_CN = "router"
 DEFAULT_ROUTER_HOSTS = ("localhost", "127.0.0.1")
@@ -270,7 +271,7 @@ def write_run_configs(
     *,
     port: int,
     fleet: str = "demo",
-    lease_ms: int = acl.LEASE_MS,
+    lease_ms: int = LEASE_MS,
 ) -> RunConfigs:
     """Everything an authenticated local run needs, under ``root``: an ephemeral PKI
     (:func:`make_run_pki`) for ``identities``, the router config (``tls/127.0.0.1:<port>``,

@@ -14,14 +14,8 @@ from typing import Any, Final
 
 import scenario as scenario_mod
 from bus_schemas import keys
+from bus_schemas.session import DEFAULT_ENDPOINT, LEASE_MS
 from scenario import FleetShape, fleet_shape, scenario_with_robots, to_toml
-
-DEFAULT_ENDPOINT: Final = "tcp/127.0.0.1:7447"
-DEFAULT_LEASE_MS: Final = 700
-"""Zenoh lease every node announces: a hung (SIGSTOPped) node's tokens vanish ~0.7 s after it
-stopped, inside issue 4's 1 s (keep-alives every lease/4 = 175 ms, sent by Zenoh's own threads,
-so a busy Python loop does not expire it)."""
-
 
 PER_ROBOT_PROCESSES_PER_CORE: Final = 4
 """Automatic agent hosts: one ``formation agent`` process per robot while the fleet has at most
@@ -87,7 +81,7 @@ class UpConfig:
     record: Path | None = None  # MCAP file to record the run's bus traffic to
     foxglove_port: int | None = None  # serve a live Foxglove WebSocket on this port (0: any)
     foxglove_host: str = "127.0.0.1"
-    lease_ms: int | None = DEFAULT_LEASE_MS  # Zenoh lease of every node (hang detection)
+    lease_ms: int | None = LEASE_MS  # Zenoh lease of every node (hang detection)
     standby: bool = False  # run a second, hot-standby coordinator
     respawn_s: float | None = None  # restart a dead agent after this delay (None: never)
     hosts: int | None = None  # agent hosts (batched bus); 0: one process per robot; None: auto

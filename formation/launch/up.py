@@ -88,10 +88,9 @@ from pathlib import Path
 
 import scenario as scenario_mod
 from bus_schemas import keys
+from bus_schemas.session import DEFAULT_ENDPOINT, LEASE_MS
 from formation.launch.launcher import run_up
 from formation.launch.plan import (
-    DEFAULT_ENDPOINT,
-    DEFAULT_LEASE_MS,
     LaunchError,
     Plan,
     UpConfig,
@@ -190,10 +189,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--lease-ms",
         type=int,
-        default=DEFAULT_LEASE_MS,
+        default=LEASE_MS,
         metavar="MS",
         help=f"Zenoh lease of every node: a hung node is dead after this (default "
-        f"{DEFAULT_LEASE_MS}; 0: Zenoh's own, 10 s)",
+        f"{LEASE_MS}; 0: Zenoh's own, 10 s)",
     )
     p.add_argument(
         "--record",

@@ -43,6 +43,7 @@ from bus_schemas import (
     to_map,
 )
 from robot_agent.core.lockstep import tick_time
+from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, plant_models
 from sim_plant.core.plant import WheelEncoders
@@ -51,7 +52,6 @@ from sim_plant.node.outputs import PlantOutputs
 
 __all__ = ["ARENA_LIMIT_M", "PlantNode"]
 
-STATUS_PERIOD_S: Final = 0.2
 REANNOUNCE_S: Final = 0.25
 """Lockstep: while waiting for answers the clock is published again this often (s)."""
 WAIT_ROBOTS_S: Final = 30.0
