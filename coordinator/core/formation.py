@@ -19,7 +19,7 @@ Roles: slot 0 is ``"leader"``; a slot with children is a ``"subleader"`` (the pa
 followers that lead the second stage); a leaf is a ``"follower"``.
 
 A formation from a scenario table (``FormationSpec.from_dict``) is read by
-:mod:`coordinator.core.formation_table`.
+:func:`coordinator.core.formation_table.read_table` and built here.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from coordinator.core.formation_table import FormationTable
+from coordinator.core.formation_table import BuilderForm, read_table
 from coordinator.core.shapes import chevron_rows, grow_rows, lattice_rows
 from coordinator.core.slots import (
     FORMATION_KINDS,
@@ -71,7 +71,7 @@ SlotRow = tuple[float, float, float, float]
 """One slot's ``(x, y, vx, vy)``: position (m) and feed-forward velocity (m/s)."""
 
 
-class FormationSpec(FormationTable):
+class FormationSpec:
     """A validated staged tree of slots, immutable.
 
     ``slots`` must start with slot 0 (parent None, stage 0, ``b_m = phi_rad = 0``, role
@@ -92,6 +92,20 @@ class FormationSpec(FormationTable):
         "_slots",
         "_tree",
     )
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> FormationSpec:
+        """Build from a scenario's ``[formation]`` table (ValueError naming the key if wrong);
+        the table's forms are documented in :func:`coordinator.core.formation_table.read_table`."""
+        form = read_table(d)
+        if isinstance(form, BuilderForm):
+            params = dict(form.params)
+            if form.kind == "triangle":
+                return cls.triangle(**params)
+            return (cls.chevron if form.kind == "chevron" else cls.lattice)(**params)
+        spec = cls.from_tree(form.rows)
+        form.check(spec.slots)
+        return spec
 
     def __init__(self, slots: Sequence[SlotSpec]) -> None:
         owner = "FormationSpec"
