@@ -148,7 +148,7 @@ class TrackingGains:
 
     Attributes:
         kp: proportional gain Kp (1/s: m/s of command per m of error).
-        ti_s: integral time Ti (s).
+        ti_s: integral time Ti (s); a huge Ti (1e9) switches the integral off.
         td_s: derivative time Td (s).
         d_filter_tau_s: time constant of the first-order low-pass on the error derivative (s);
             0 disables the filter.
@@ -158,7 +158,7 @@ class TrackingGains:
     """
 
     kp: float = ranged(0.21, 0.0, 50.0)
-    ti_s: float = ranged(105.0, 0.001, 10000.0)
+    ti_s: float = ranged(105.0, 0.001, 1.0e12)  # 1e9: no integral (anchor-triangle)
     td_s: float = ranged(0.01, 0.0, 10.0)
     d_filter_tau_s: float = ranged(0.1, 0.0, 10.0)
     integral_limit_ms: float = ranged(0.5, 0.0, 10.0)

@@ -61,6 +61,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from sim_plant.core.carry import Carries
+from sim_plant.core.commands import CommandGuard
 from sim_plant.core.encoders import (
     _TWO_PI,
     WheelEncoders,
@@ -99,8 +101,6 @@ WheelRow = tuple[float, float]
 SMALL_N = 64
 
 _MAX_FLOAT = sys.float_info.max
-# Sim time is a float sum of steps; events this close to a step boundary happen at it.
-_TIME_EPS_S = 1e-9
 
 
 class Plant:
@@ -115,6 +115,9 @@ class Plant:
         t0_s: sim time of ``x0`` in seconds.
 
     Robots are addressed by row index ``i``; :meth:`remove_robot` shifts the rows after ``i``.
+    The plant owns the poses and the wheel speeds; it composes the command guard (sanitising
+    and its counters, :mod:`sim_plant.core.commands`) and the drag schedule
+    (:mod:`sim_plant.core.carry`).
     """
 
     def __init__(
@@ -144,9 +147,7 @@ class Plant:
         self._geometry = geometry
         self._radius_m = radius
         self._half_track_m = half_track
-        self._max_wheel_radps = max_w
         self._motor_tau_s = tau
-        self._wheel_limit = bool(wheel_limit)
         self._t_s = _check_finite_scalar("t0_s", t0_s)
 
         n = pose.shape[0]
@@ -155,18 +156,8 @@ class Plant:
         self._wheels: FloatArray = np.zeros((n, 2))
         # Cumulative wheel angles (rad): what ideal encoders count (also while carried).
         self._angles: list[list[float]] = [[0.0, 0.0] for _ in range(n)]
-        # Drag schedule per robot; t0 = +inf means "no drag".
-        self._drag_t0: FloatArray = np.full(n, np.inf)
-        self._drag_dur: FloatArray = np.zeros(n)
-        self._drag_d: FloatArray = np.zeros((n, 2))
-        self._drag_origin: FloatArray = np.zeros((n, 2))
-        self._drag_started: BoolArray = np.zeros(n, dtype=np.bool_)
-        self._carried: BoolArray = np.zeros(n, dtype=np.bool_)
-        self._any_drag = False  # cache of np.isfinite(self._drag_t0).any()
-        self._saturated: BoolArray = np.zeros(n, dtype=np.bool_)
-        self._sat_any = False  # cache of self._saturated.any()
-        self._clamp_counts: npt.NDArray[np.int64] = np.zeros(n, dtype=np.int64)
-        self._nonfinite_counts: npt.NDArray[np.int64] = np.zeros(n, dtype=np.int64)
+        self._carries = Carries(n)
+        self._guard = CommandGuard(n, max_w, bool(wheel_limit))
         # Small-fleet state as tuples (see the module docstring). Invariant: when _np_stale the
         # tuples are the state and _pose/_wheels are outdated; otherwise the arrays are the
         # state and the tuples, if not None, a copy of them.
@@ -234,32 +225,32 @@ class Plant:
     @property
     def carried(self) -> BoolArray:
         """Copy of the mask of robots being carried by a drag right now, ``(n,)`` bool."""
-        return self._carried.copy()
+        return self._carries.carried
 
     @property
     def saturated(self) -> BoolArray:
         """Copy of the mask of robots whose last command had a clamped wheel, ``(n,)`` bool."""
-        return self._saturated.copy()
+        return self._guard.saturated
 
     @property
     def clamp_count(self) -> int:
         """Robot-steps in which at least one wheel command was clamped to the limit."""
-        return int(self._clamp_counts.sum())
+        return int(self._guard.clamp_counts.sum())
 
     @property
     def clamp_counts(self) -> npt.NDArray[np.int64]:
         """Per-robot clamp counts, ``(n,)``."""
-        return self._clamp_counts.copy()
+        return self._guard.clamp_counts
 
     @property
     def nonfinite_count(self) -> int:
         """Robot-steps whose command held NaN or inf (treated as zero)."""
-        return int(self._nonfinite_counts.sum())
+        return int(self._guard.nonfinite_counts.sum())
 
     @property
     def nonfinite_counts(self) -> npt.NDArray[np.int64]:
         """Per-robot non-finite command counts, ``(n,)``."""
-        return self._nonfinite_counts.copy()
+        return self._guard.nonfinite_counts
 
     # ------------------------------------------------------------------ state representation
 
@@ -286,29 +277,6 @@ class Plant:
         v = 0.5 * self._radius_m * (wr + wl)
         omega = self._radius_m * (wr - wl) / (2.0 * self._half_track_m)
         return v, omega
-
-    def _sanitise(self, wheel_cmd: npt.ArrayLike) -> FloatArray:
-        cmd = np.array(wheel_cmd, dtype=np.float64, copy=True)
-        if cmd.shape != (self.n, 2):
-            raise ValueError(f"wheel_cmd must have shape ({self.n}, 2), got {cmd.shape}")
-        finite = np.isfinite(cmd)
-        if not finite.all():
-            bad = ~finite.all(axis=1)
-            cmd[bad] = 0.0
-            self._nonfinite_counts += bad
-        if self._wheel_limit:
-            lim = self._max_wheel_radps
-            over = np.abs(cmd) > lim
-            if over.any():
-                sat: BoolArray = np.asarray(over.any(axis=1), dtype=np.bool_)
-                np.clip(cmd, -lim, lim, out=cmd)
-                self._clamp_counts += sat
-                self._saturated = sat
-                self._sat_any = True
-            elif self._sat_any:
-                self._saturated = np.zeros(self.n, dtype=np.bool_)
-                self._sat_any = False
-        return cmd
 
     def _mean_wheels(self, cmd: FloatArray, a_s: FloatArray | float, b_s: FloatArray) -> FloatArray:
         """Exact mean wheel speed over ``[a, b]`` seconds into the step (first-order lag)."""
@@ -337,16 +305,16 @@ class Plant:
             raise ValueError(f"dt_s must be finite and >= 0, got {dt_s!r}")
         if dt == 0.0:
             return
-        small = not self._any_drag and self._pose.shape[0] <= SMALL_N
+        small = not self._carries.any and self._pose.shape[0] <= SMALL_N
         if small and self._step_small(dt, wheel_cmd):
             return
         self._sync_arrays()
-        cmd = self._sanitise(wheel_cmd)
+        cmd = self._guard.sanitise(wheel_cmd, self.n)
         ta = self._t_s
         tb = ta + dt
 
         tau = self._motor_tau_s
-        if not self._any_drag:
+        if not self._carries.any:
             # Fast path, no drag anywhere: one segment over the whole step, so the mean-speed
             # factor of the lag, tau (1 - exp(-dt / tau)) / dt, is one scalar for every robot.
             if tau > 0.0:
@@ -357,8 +325,14 @@ class Plant:
             self._pose = unicycle_integrate(self._pose, v, w, dt)
         else:
             mean = self._mean_wheels(cmd, 0.0, np.full(self.n, dt))
-            self._step_with_drags(cmd, ta, tb, dt)
-            self._any_drag = bool(np.isfinite(self._drag_t0).any())
+
+            def move(
+                pose: FloatArray, a_s: FloatArray | float, b_s: FloatArray, span_s: FloatArray
+            ) -> FloatArray:
+                v, w = self._twist(self._mean_wheels(cmd, a_s, b_s))
+                return unicycle_integrate(pose, v, w, span_s)
+
+            self._pose = self._carries.advance(self._pose, ta, tb, dt, move)
         for a, (mr, ml) in zip(self._angles, mean.tolist(), strict=True):
             a[0] += mr * dt
             a[1] += ml * dt
@@ -393,7 +367,7 @@ class Plant:
             return False
         # Without a wheel limit the largest finite float: the test below then still sends
         # NaN and +-inf the general way.
-        lim = self._max_wheel_radps if self._wheel_limit else _MAX_FLOAT
+        lim = self._guard.max_wheel_radps if self._guard.wheel_limit else _MAX_FLOAT
         tau = self._motor_tau_s
         lag = tau > 0.0
         if dt != self._lag_dt:  # the loop's dt is constant: compute the lag factors once
@@ -437,9 +411,7 @@ class Plant:
                 )
         except (TypeError, ValueError):  # not pairs of real numbers
             return False
-        if self._sat_any:
-            self._saturated = np.zeros(len(rows), dtype=np.bool_)
-            self._sat_any = False
+        self._guard.none_saturated(len(rows))
         for a, (dr, dl) in zip(self._angles, angles, strict=True):
             a[0] += dr
             a[1] += dl
@@ -448,48 +420,6 @@ class Plant:
         self._np_stale = True
         self._t_s += dt
         return True
-
-    def _step_with_drags(self, cmd: FloatArray, ta: float, tb: float, dt: float) -> None:
-        has = np.isfinite(self._drag_t0)
-        t0 = self._drag_t0
-        t1 = t0 + self._drag_dur
-        # 1) wheels act from ta until the drag starts (whole step for robots without a drag).
-        pre = np.clip(np.minimum(tb, t0) - ta, 0.0, dt)
-        v, w = self._twist(self._mean_wheels(cmd, 0.0, pre))
-        pose = unicycle_integrate(self._pose, v, w, pre)
-        # 2) drags that begin inside this step pick up the robot where the wheels left it.
-        starting = has & ~self._drag_started & (t0 < tb)
-        self._drag_origin[starting] = pose[starting, :2]
-        self._drag_started |= starting
-        active = has & self._drag_started
-        post = np.zeros(self.n)
-        # A drag ending within _TIME_EPS_S after tb counts as ended (float sums of dt).
-        finished = active & (t1 <= tb + _TIME_EPS_S)
-        if active.any():
-            dur = self._drag_dur[active]
-            t_end = np.minimum(tb, t1[active])
-            frac = np.where(
-                (dur > 0.0) & ~finished[active],
-                np.clip((t_end - t0[active]) / np.where(dur > 0.0, dur, 1.0), 0.0, 1.0),
-                1.0,
-            )
-            pose[active, :2] = self._drag_origin[active] + frac[:, None] * self._drag_d[active]
-            # 3) wheels act again after the drag ends inside this step.
-            post[active] = np.clip(tb - np.maximum(ta, t1[active]), 0.0, dt)
-        if finished.any():
-            v, w = self._twist(self._mean_wheels(cmd, dt - post, np.full(self.n, dt)))
-            moved = unicycle_integrate(pose, v, w, post)
-            pose[finished] = moved[finished]
-            self._clear_drag(finished)
-        self._carried = active & ~finished
-        self._pose = pose
-
-    def _clear_drag(self, mask: BoolArray | int) -> None:
-        self._drag_t0[mask] = np.inf
-        self._drag_dur[mask] = 0.0
-        self._drag_d[mask] = 0.0
-        self._drag_started[mask] = False
-        self._carried[mask] = False
 
     # ------------------------------------------------------------------ disturbances
 
@@ -514,7 +444,7 @@ class Plant:
         if fth is not None:
             self._pose[idx, 2] = fth
         self._arrays_changed()
-        self._clear_drag(idx)
+        self._carries.clear(idx)
 
     def drag(
         self,
@@ -542,11 +472,7 @@ class Plant:
         if start < self._t_s - 1e-9:
             raise ValueError(f"t_start_s={start} lies before the plant time {self._t_s}")
         start = max(start, self._t_s)
-        self._clear_drag(idx)
-        self._drag_t0[idx] = start
-        self._any_drag = True
-        self._drag_dur[idx] = dur
-        self._drag_d[idx] = (ddx, ddy)
+        self._carries.schedule(idx, start, dur, ddx, ddy)
 
     # ------------------------------------------------------------------ fleet changes
 
@@ -560,15 +486,8 @@ class Plant:
         self._arrays_changed()
         self._pose = np.vstack([self._pose, row[None, :]])
         self._wheels = np.vstack([self._wheels, np.zeros((1, 2))])
-        self._drag_t0 = np.append(self._drag_t0, np.inf)
-        self._drag_dur = np.append(self._drag_dur, 0.0)
-        self._drag_d = np.vstack([self._drag_d, np.zeros((1, 2))])
-        self._drag_origin = np.vstack([self._drag_origin, np.zeros((1, 2))])
-        self._drag_started = np.append(self._drag_started, False)
-        self._carried = np.append(self._carried, False)
-        self._saturated = np.append(self._saturated, False)
-        self._clamp_counts = np.append(self._clamp_counts, np.int64(0))
-        self._nonfinite_counts = np.append(self._nonfinite_counts, np.int64(0))
+        self._carries.append()
+        self._guard.append()
         self._angles.append([0.0, 0.0])
         return self.n - 1
 
@@ -579,15 +498,6 @@ class Plant:
         self._arrays_changed()
         self._pose = np.delete(self._pose, idx, axis=0)
         self._wheels = np.delete(self._wheels, idx, axis=0)
-        self._drag_t0 = np.delete(self._drag_t0, idx)
-        self._drag_dur = np.delete(self._drag_dur, idx)
-        self._drag_d = np.delete(self._drag_d, idx, axis=0)
-        self._drag_origin = np.delete(self._drag_origin, idx, axis=0)
-        self._drag_started = np.delete(self._drag_started, idx)
-        self._carried = np.delete(self._carried, idx)
-        self._saturated = np.delete(self._saturated, idx)
-        self._clamp_counts = np.delete(self._clamp_counts, idx)
-        self._nonfinite_counts = np.delete(self._nonfinite_counts, idx)
+        self._carries.delete(idx)
+        self._guard.delete(idx)
         del self._angles[idx]
-        self._any_drag = bool(np.isfinite(self._drag_t0).any())
-        self._sat_any = bool(self._saturated.any())
