@@ -7,11 +7,13 @@ from __future__ import annotations
 import json
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from formation.children import Child
 from formation.runlog import RunLog
 from formation.up_plan import Plan, UpConfig, UpResult
+from runtime.files import os_error_text, write_atomic
 
 
 def run_meta(
@@ -59,6 +61,24 @@ def run_meta(
     }
 
 
+def write_metrics(out_dir: Path, m: Mapping[str, Any]) -> None:
+    """``metrics.json``, whole or not at all (runtime.files.write_atomic); raises OSError."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    data = (json.dumps(m, indent=2, sort_keys=True) + "\n").encode()
+    write_atomic(out_dir / "metrics.json", data)
+
+
+def _save_npz(log: RunLog, path: Path) -> None:
+    """``run.npz`` through a temporary file: a full disk leaves no cut archive."""
+    tmp = path.with_name(f".{path.name}.tmp.npz")  # numpy adds .npz to other names
+    try:
+        log.save_npz(str(tmp))
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
 def write_results(
     log: RunLog,
     cfg: UpConfig,
@@ -80,28 +100,47 @@ def write_results(
     m = metrics_mod.compute(log, plan.settle_s, scn.settle_tol_m)
     sim_s = float(log.t_s[-1] - log.t_s[0])
     m["meta"]["realtime_factor"] = sim_s / run_wall_s if run_wall_s else None
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
-    log.save_npz(str(out_dir / "run.npz"))
     result.metrics = m
-    wrote = "metrics"
+    written: list[str] = []
+
+    def output(name: str, write: Callable[[], object]) -> None:
+        # a full or read-only disk: each output is tried, the ones not written are named
+        try:
+            write()
+            written.append(name)
+        except OSError as exc:
+            text = f"{out_dir / name} not written: {os_error_text(exc)}"
+            result.failures.append(text)
+            result.exit_code = 1
+            warn(text)
+
+    output("metrics.json", lambda: write_metrics(out_dir, m))
+    output("run.npz", lambda: _save_npz(log, out_dir / "run.npz"))
+    wrote = "metrics" if "metrics.json" in written else "nothing"
     if cfg.figures:
         from formation import figures as fig_mod
 
         cut = f", interrupted after {sim_s:.1f} s" if interrupted else ""
-        try:
-            fig_mod.write_all(
-                log,
-                out_dir,
-                title=f"{scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
-                "points (solid), virtual trajectories (dashed)",
-                settle_s=plan.settle_s,
-            )
-            wrote = "metrics and figures"
-        except Exception as exc:  # a run cut after a few ticks may not make every figure
-            if not interrupted:
+
+        def figures() -> None:
+            try:
+                fig_mod.write_all(
+                    log,
+                    out_dir,
+                    title=f"{scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
+                    "points (solid), virtual trajectories (dashed)",
+                    settle_s=plan.settle_s,
+                )
+            except OSError:
                 raise
-            warn(f"figures of the interrupted run failed: {exc!r}")
+            except Exception as exc:  # a run cut after a few ticks may not make every figure
+                if not interrupted:
+                    raise
+                warn(f"figures of the interrupted run failed: {exc!r}")
+
+        output("figures", figures)
+        if "figures" in written and wrote == "metrics":
+            wrote = "metrics and figures"
     if interrupted:  # one line, even with --quiet: what was written is of a partial run
         print(
             f"formation up: interrupted: {wrote} of the {sim_s:.1f} s recorded so far "
