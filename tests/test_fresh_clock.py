@@ -28,8 +28,20 @@ FAR_ZONE = {"TZ": "Pacific/Kiritimati", "LC_ALL": "C"}
 """UTC+14 and the locale with nothing set."""
 
 
-def _offset(clock: int) -> int:
-    return FRESH_CLOCK_S - int(time.clock_gettime(clock))
+def _offset(clock: int, name: str) -> int:
+    """The namespace offset of ``clock`` (``name`` in /proc/self/timens_offsets) that brings it
+    to :data:`FRESH_CLOCK_S`. Offsets are relative to the machine's clock, not to this
+    process's (which may itself run in a time namespace: ``.ci/run``), so this one's is added
+    back."""
+    own = 0
+    try:
+        for line in Path("/proc/self/timens_offsets").read_text().splitlines():
+            parts = line.split()
+            if len(parts) == 3 and parts[0] == name:
+                own = int(parts[1])
+    except OSError:  # a kernel without time namespaces: then unshare is refused below
+        pass
+    return FRESH_CLOCK_S - (int(time.clock_gettime(clock)) - own)
 
 
 def fresh_clock_prefix() -> list[str]:
@@ -41,8 +53,8 @@ def fresh_clock_prefix() -> list[str]:
         pytest.skip("no unshare(1) on this machine: cannot start a process on a fresh clock")
     clocks = [
         "--time", "--kill-child",
-        "--monotonic", str(_offset(time.CLOCK_MONOTONIC)),
-        "--boottime", str(_offset(time.CLOCK_BOOTTIME)),
+        "--monotonic", str(_offset(time.CLOCK_MONOTONIC, "monotonic")),
+        "--boottime", str(_offset(time.CLOCK_BOOTTIME, "boottime")),
     ]  # fmt: skip
     why = ""
     for user in ([], ["--user", "--map-root-user"]):
