@@ -129,7 +129,7 @@ def run_info(
 
         path = scenario_mod.resolve(scenario)
         out["scenario"] = scenario
-        out["scenario_toml"] = path.read_text()
+        out["scenario_toml"] = path.read_text(encoding="utf-8")
     if lockstep is not None:
         out["lockstep"] = "true" if lockstep else "false"
     if settle_s is not None:

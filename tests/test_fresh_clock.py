@@ -133,3 +133,22 @@ def test_a_realtime_fleet_on_a_fresh_clock(spawn: Spawner, tmp_path: Path) -> No
     for rid, r in m["robots"].items():  # every robot held a slot and tracked it
         assert r["final_slot"] is not None, (rid, r)
         assert r["formation_error_rms_m"] is not None and r["formation_error_rms_m"] < 0.1, (rid, r)
+
+
+def test_a_scenario_with_non_ascii_text_loads_in_a_plain_c_locale(tmp_path: Path) -> None:
+    """TOML is UTF-8 whatever the locale: a scenario file with a non-ASCII comment loads where
+    Python's locale encoding is ASCII (LC_ALL=C without Python's UTF-8 coercion). Before, its
+    ``read_text()`` decoded with the locale's encoding and the run died with a traceback."""
+    import scenario
+
+    path = tmp_path / "exp1.toml"
+    text = scenario.resolve("paper-exp1").read_text(encoding="utf-8")
+    path.write_text("# spacing ±5 mm, heading 30° — a comment\n" + text, encoding="utf-8")
+    env = child_env({"LC_ALL": "C", "PYTHONCOERCECLOCALE": "0", "PYTHONUTF8": "0"})
+    argv = [sys.executable, "-m", "formation", "sim", "--scenario", str(path), "--duration", "1"]
+    proc = subprocess.run(
+        [*argv, "--no-figures", "--quiet", "--out", str(tmp_path / "out")],
+        cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((tmp_path / "out" / "metrics.json").read_text())["run"]["ticks"] > 0
