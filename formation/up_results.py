@@ -68,7 +68,7 @@ def write_metrics(out_dir: Path, m: Mapping[str, Any]) -> None:
     write_atomic(out_dir / "metrics.json", data)
 
 
-def _save_npz(log: RunLog, path: Path) -> None:
+def save_npz_atomic(log: RunLog, path: Path) -> None:
     """``run.npz`` through a temporary file: a full disk leaves no cut archive."""
     tmp = path.with_name(f".{path.name}.tmp.npz")  # numpy adds .npz to other names
     try:
@@ -115,7 +115,7 @@ def write_results(
             warn(text)
 
     output("metrics.json", lambda: write_metrics(out_dir, m))
-    output("run.npz", lambda: _save_npz(log, out_dir / "run.npz"))
+    output("run.npz", lambda: save_npz_atomic(log, out_dir / "run.npz"))
     wrote = "metrics" if "metrics.json" in written else "nothing"
     if cfg.figures:
         from formation import figures as fig_mod

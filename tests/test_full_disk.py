@@ -152,3 +152,19 @@ def test_up_on_a_read_only_out_exits_1_at_once(tmp_path: Path) -> None:
         assert proc.returncode == 1, proc.stderr
         assert f"cannot write to {disk / 'out'}" in proc.stderr, proc.stderr
         assert "Read-only file system" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_sim_on_a_full_disk_exits_1_naming_the_file(tmp_path: Path) -> None:
+    with small_fs(tmp_path / "disk", size="64k") as disk:
+        out = disk / "out"
+        out.mkdir()
+        fill(disk)
+        proc = subprocess.run(
+            [sys.executable, "-m", "formation", "sim", "--scenario", "paper-exp1",
+             "--duration", "2", "--no-figures", "--quiet", "--out", str(out)],
+            cwd=REPO_ROOT, env=child_env(), capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert proc.returncode == 1, proc.stderr
+        assert "not written: OSError: No space left on device" in proc.stderr, proc.stderr
+        assert "Traceback" not in proc.stderr
+        assert list(out.iterdir()) == []  # nothing empty or cut left behind
