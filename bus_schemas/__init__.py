@@ -64,6 +64,7 @@ from bus_schemas.messages_status import (
     CAMERA_MS_MAX,
     CameraState,
     CoordinatorRole,
+    EstopStoreState,
     PlantState,
     RunMode,
 )
@@ -97,6 +98,7 @@ __all__ = [
     "Disturbance",
     "DisturbanceKind",
     "Estop",
+    "EstopStoreState",
     "Heartbeat",
     "Leader",
     "Message",

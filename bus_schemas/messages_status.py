@@ -49,6 +49,16 @@ class CoordinatorRole(StrEnum):
     STANDBY = "standby"
 
 
+class EstopStoreState(StrEnum):
+    """Whether a coordinator's ``--estop-state`` file holds its latched e-stop state (issue 30):
+    ``saved`` (written and fsynced), ``pending`` (being written), ``failed`` (it cannot be
+    written: the coordinator's fault; it refuses releases until it can record them)."""
+
+    SAVED = "saved"
+    PENDING = "pending"
+    FAILED = "failed"
+
+
 class PlantState(StrEnum):
     """Phase of the plant simulator's run."""
 
@@ -116,6 +126,18 @@ class CoordinatorStatus(_NodeStatus):
         metadata=f_float(
             "largest compute-and-publish time of the recent ticks", "ms", lo=0.0, hi=_TMAX
         ),
+    )
+    estop_store: str | None = field(
+        default=None,
+        metadata=f_enum(
+            "its --estop-state file holds estop_fleet/estop_robots (saved), is being written "
+            "(pending) or cannot be written (failed); nil without a state file",
+            EstopStoreState,
+        ),
+    )
+    estop_store_error: str | None = field(
+        default=None,
+        metadata=f_str("why the state file cannot be written (with estop_store failed)"),
     )
 
 

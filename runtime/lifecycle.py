@@ -64,6 +64,9 @@ NodeMain = Callable[[asyncio.Event], Awaitable[int]]
 _STOP_SIGNALS: Final = (signal.SIGINT, signal.SIGTERM)
 FORCED_EXIT_CODE: Final = 70
 """Exit status when the shutdown watchdog had to force the process out (EX_SOFTWARE)."""
+OUTPUT_ERROR_EXIT: Final = 74
+"""Exit status of a node that ran to its end but could not write an output file it was asked
+for (EX_IOERR; a full or read-only disk: ``formation plant --stats-out``)."""
 GIL_SWITCH_INTERVAL_S: Final = 0.0005
 """The interpreter's switch interval in every process shell (:func:`serve`; Python's default is
 5 ms). Zenoh delivers a sample on its own thread, which needs the GIL for the bridge's callback

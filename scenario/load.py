@@ -119,7 +119,7 @@ def resolve(name_or_path: str) -> Path:
 def load(name_or_path: str) -> Scenario:
     path = resolve(name_or_path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))  # TOML is UTF-8, whatever the locale
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
     return parse(data, source=str(path))

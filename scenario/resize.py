@@ -149,7 +149,7 @@ def load_with_robots(name_or_path: str, n: int | None, spares: int = 0) -> Scena
 
     path = resolve(name_or_path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))  # TOML is UTF-8, whatever the locale
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from exc
     return parse(scenario_with_robots(data, n, spares), source=str(path))

@@ -407,8 +407,6 @@ class CoordinatorNode(ElectionHandlers):
             alive=tuple(sorted(self.alive)),
             assignment=dict(last.assignment) if last is not None else {},
             leader=last.leader_robot if last is not None else None,
-            estop_fleet=self.estop_source.latch.fleet,
-            estop_robots=tuple(sorted(self.estop_source.latch.robots)[:64]),
             rejected=self.rejected,
             rejects=self.rejects.as_dict(),
             internal_errors=self.internal_errors,
@@ -417,6 +415,7 @@ class CoordinatorNode(ElectionHandlers):
             host=_HOST,
             tick_p50_ms=1e3 * tick_ms[len(tick_ms) // 2] if tick_ms else None,
             tick_max_ms=1e3 * tick_ms[-1] if tick_ms else None,
+            **self.estop_source.status(),
         )
 
     def status_map(self, now_s: float) -> dict[str, Any]:

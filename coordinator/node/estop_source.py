@@ -25,7 +25,7 @@ from __future__ import annotations
 import asyncio
 import threading
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, Protocol
 
 import runtime as rt
 from bus_schemas import (
@@ -40,7 +40,14 @@ from coordinator.node.estop_store import EstopStore, Loaded, held_fleet_error, r
 from robot_agent.core.estop import ESTOP_QUERY_TIMEOUT_S, EstopLatch
 from runtime.bridge import _post
 
-__all__ = ["EstopSource", "attach_estop_source"]
+__all__ = ["EstopSource", "Reject", "attach_estop_source"]
+
+
+class Reject(Protocol):
+    """The node's rejection counter: ``<what>-<reason>`` (a DecodeError's reason, else
+    ``reason``, else ``invalid``)."""
+
+    def __call__(self, what: str, why: DecodeError | str, reason: str | None = None) -> None: ...
 
 
 class EstopSource:
@@ -55,7 +62,7 @@ class EstopSource:
         self,
         key: str,
         now: Callable[[], float],
-        reject: Callable[[str, DecodeError | str], None],
+        reject: Reject,
         internal: Callable[[str, BaseException], None],
         log: rt.NodeLog,
     ) -> None:
@@ -96,15 +103,21 @@ class EstopSource:
         thread (the shell calls it on Zenoh's network thread, on receipt)."""
         try:
             msg = decode(rx.payload, Estop)
+            refused: str | None = None
             with self.lock:
                 self.messages += 1
-                changed = not isinstance(msg, DecodeError) and self.latch.apply(
-                    msg.engage, msg.robot, msg.id
-                )
+                changed = False
+                if not isinstance(msg, DecodeError):
+                    refused = self._unrecordable(msg)
+                    if refused is None:
+                        changed = self.latch.apply(msg.engage, msg.robot, msg.id)
                 if changed:
                     self._changed()
             if isinstance(msg, DecodeError):
                 self._on_loop(self._reject, "estop", msg)
+            elif refused is not None:
+                self._on_loop(self._reject, "estop", refused, "unrecorded")
+                self._on_loop(self.log.info, refused)
             elif changed:
                 scope = "fleet" if msg.robot is None else msg.robot
                 what = "engaged" if msg.engage else "released"
@@ -112,6 +125,20 @@ class EstopSource:
                 self._on_loop(self.log.info, f"estop {what} ({scope}{eid})")
         except Exception as exc:
             self._on_loop(self._internal, "on_estop", exc)
+
+    def _unrecordable(self, msg: Estop) -> str | None:
+        """Why the release ``msg`` is refused (the state file cannot record it), or None; under
+        :attr:`lock`."""
+        store = self.store
+        if msg.engage or store is None or not store.failing:
+            return None
+        if msg.robot not in self.latch.held:
+            return None  # nothing to release here: nothing to record
+        scope = "fleet" if msg.robot is None else msg.robot
+        return (
+            f"estop release ({scope}) refused: the e-stop state file {store.path} cannot be "
+            f"written ({store.error}); the e-stop stays latched here until it can record it"
+        )
 
     def on_state(self, payloads: Iterable[Any], *, held: bool = False) -> None:
         """The other coordinators' latched state (queried at start on ``estop``), or with
@@ -170,8 +197,19 @@ class EstopSource:
         return ", ".join([*parts, *sorted(self.latch.robots)]) or "none"
 
     def status(self) -> dict[str, Any]:
-        """The ``estop`` entry of the coordinator status."""
-        return {"fleet": self.latch.fleet, "robots": sorted(self.latch.robots)[:64]}
+        """The coordinator status's e-stop fields (``estop_fleet``, ``estop_robots``,
+        ``estop_store``, ``estop_store_error``), read together under :attr:`lock`: a status
+        saying ``saved`` with an engagement means the file holds that engagement (the store
+        was offered every change before the lock was released)."""
+        with self.lock:
+            store = self.store
+            state = None if store is None else store.state()
+            return {
+                "estop_fleet": self.latch.fleet,
+                "estop_robots": tuple(sorted(self.latch.robots)[:64]),
+                "estop_store": state,
+                "estop_store_error": None if store is None else store.error,
+            }
 
 
 async def attach_estop_source(

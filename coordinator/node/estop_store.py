@@ -21,6 +21,14 @@ Writes never block the thread that changes the latch (Zenoh's network thread): t
 is handed to a writer thread, which writes it when it can (a burst of changes is one write).
 A coordinator killed between a change and its write (a few milliseconds) restarts from the
 state before that change.
+
+A file that cannot be written (a full or read-only disk, the folder gone) is a fault, not a log
+line (issue 30: an e-stop reported latched was lost at the next power cut): :meth:`EstopStore.state`
+says whether the newest state is on disk (``saved``), on its way (``pending``) or not
+(``failed``, with :attr:`EstopStore.error`); the coordinator publishes it in its status, refuses
+releases it cannot record (coordinator.node.estop_source) and ``formation fault estop`` reports an
+e-stop latched only where it is saved. A failed write is logged once, retried every
+:data:`RETRY_S` with the newest state, and its recovery is logged too.
 """
 
 from __future__ import annotations
@@ -39,8 +47,12 @@ from bus_schemas import DecodeError, Reason, decode_estop_answer
 from robot_agent.core.estop import MAX_IDS, MAX_LATCHED, MAX_RELEASED
 
 __all__ = [
+    "FAILED",
     "FORMAT",
     "MAX_FILE_BYTES",
+    "PENDING",
+    "RETRY_S",
+    "SAVED",
     "VERSION",
     "EstopStore",
     "Loaded",
@@ -58,6 +70,13 @@ MAX_FILE_BYTES: Final = 8 * 1024 * 1024
 """Larger files are refused unread (MAX_ENTRIES payloads of ~60 bytes fit ~4 times over)."""
 CLOSE_WAIT_S: Final = 0.2
 """How long closing waits for the last write (s)."""
+RETRY_S: Final = 1.0
+"""A state that could not be written is written again this often (s), until it is (or a newer
+one replaces it)."""
+SAVED: Final = "saved"
+PENDING: Final = "pending"
+FAILED: Final = "failed"
+"""The values of :meth:`EstopStore.state` (bus_schemas.EstopStoreState)."""
 
 Entry = tuple[bool, str | None, int | None]
 
@@ -157,7 +176,8 @@ def held_fleet_error(why: str) -> DecodeError:
 
 class EstopStore:
     """Writes the newest state to ``path`` on a writer thread (:meth:`offer` never blocks on
-    the disk); ``log(text)`` reports a failed write (called on the writer thread)."""
+    the disk); ``log(text)`` reports a failed write and its recovery (called on the writer
+    thread). A failed state is written again every :data:`RETRY_S` until it is on disk."""
 
     def __init__(self, path: Path, fleet: str, log: Callable[[str], None]) -> None:
         self.path = path
@@ -167,6 +187,10 @@ class EstopStore:
         self._pending: tuple[bytes, ...] | None = None
         self._busy = False
         self._closed = False
+        self._offered = 0  # generation of the newest offered state
+        self._saved = 0  # generation of the newest state on disk
+        self.error: str | None = None
+        """Why the last write failed (None once a write succeeds): the store's fault."""
         self.writes = 0
         self.failures = 0
         self._thread = threading.Thread(target=self._run, name="estop-store", daemon=True)
@@ -177,30 +201,71 @@ class EstopStore:
         with self._cond:
             if self._closed:
                 return
+            self._offered += 1
             self._pending = answer
             self._cond.notify()
 
+    @property
+    def failing(self) -> bool:
+        """The newest state is not on disk and the last attempt to write it failed."""
+        with self._cond:
+            return self.error is not None and self._saved < self._offered
+
+    def state(self) -> str:
+        """:data:`SAVED` (every offered state is on disk, fsynced), :data:`PENDING` (the newest
+        is being written) or :data:`FAILED` (it could not be: :attr:`error` says why)."""
+        with self._cond:
+            if self._saved >= self._offered:
+                return SAVED
+            return FAILED if self.error is not None else PENDING
+
     def _run(self) -> None:
+        unsaved: tuple[tuple[bytes, ...], int] | None = None  # a failed state, to retry
         while True:
             with self._cond:
-                while self._pending is None and not self._closed:
-                    self._cond.wait()
-                answer, self._pending = self._pending, None
-                if answer is None:
-                    return
+                if self._pending is None and not self._closed:
+                    self._cond.wait(RETRY_S if unsaved is not None else None)
+                if self._pending is not None:
+                    job = (self._pending, self._offered)
+                    self._pending = None
+                elif self._closed or unsaved is None:
+                    if self._closed:
+                        return
+                    continue
+                else:
+                    job = unsaved
                 self._busy = True
+            answer, generation = job
             try:
                 self._write(answer)
-                self.writes += 1
             except OSError as exc:
-                self.failures += 1
-                self._log(f"estop state not saved to {self.path}: {exc}")
+                unsaved = job
+                with self._cond:
+                    self.failures += 1
+                    first = self.error is None
+                    self.error = f"{type(exc).__name__}: {exc.strerror or exc}"[:200]
+                if first:
+                    self._log(
+                        f"FAULT: estop state not saved to {self.path} ({self.error}): an e-stop "
+                        f"engaged now is not durable, releases are refused; retrying every "
+                        f"{RETRY_S:g} s"
+                    )
+            else:
+                unsaved = None
+                with self._cond:
+                    self.writes += 1
+                    self._saved = max(self._saved, generation)
+                    recovered = self.error is not None
+                    self.error = None
+                if recovered:
+                    self._log(f"estop state saved to {self.path} again: fault cleared")
             finally:
                 with self._cond:
                     self._busy = False
                     self._cond.notify_all()
 
     def _write(self, answer: tuple[bytes, ...]) -> None:
+        # saved_t is informational only (never read back): wall clock, whatever its zone
         data = state_bytes(self.fleet, answer, time.time())
         folder = self.path.parent
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", dir=folder)
@@ -225,7 +290,8 @@ class EstopStore:
             os.close(dfd)
 
     def flush(self, timeout_s: float = CLOSE_WAIT_S) -> bool:
-        """Wait until every offered state is written (at most ``timeout_s``); True if it is."""
+        """Wait until every offered state was tried (at most ``timeout_s``); True if it was
+        (then :meth:`state` says whether it is on disk)."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while self._pending is not None or self._busy:

@@ -70,6 +70,10 @@ class Child:
         self.killed = False
         self.stop_s: float | None = None  # from this launcher's SIGTERM to the exit it saw
         self._out: TextIO | None = None
+        self.out_error: str | None = None
+        """Why ``<name>.out`` stopped being written (a full or read-only disk), or None."""
+        self.resumed_to_stop = False
+        """It was stopped (SIGSTOP, ``formation fault pause``) when the run ended: resumed."""
         self._drain: asyncio.Task[None] | None = None
         self.stdout_tail: deque[str] = deque(maxlen=20)
 
@@ -98,8 +102,14 @@ class Child:
     def _record(self, line: str) -> None:
         self.stdout_tail.append(line)
         if self._out is not None:
-            self._out.write(line + "\n")
-            self._out.flush()
+            try:
+                self._out.write(line + "\n")
+                self._out.flush()
+            except OSError as exc:  # a full disk: the tail stays in memory, the run goes on
+                self.out_error = f"{type(exc).__name__}: {exc.strerror or exc}"
+                with contextlib.suppress(OSError):
+                    self._out.close()
+                self._out = None
 
     def _failure(self, what: str) -> LaunchError:
         return LaunchError(
@@ -148,6 +158,11 @@ class Child:
             self.stop_sent = True
             sent = time.monotonic()
             self.signal(signal.SIGTERM)
+            if process_state(self.proc.pid).startswith(("state T", "state t")):
+                # paused (`formation fault pause`, a job-control stop): not hung; the SIGTERM
+                # waits for it to run again (docs/runtime.md, "A paused node at the end")
+                self.resumed_to_stop = True
+                self.signal(signal.SIGCONT)
             try:
                 await asyncio.wait_for(self.proc.wait(), timeout=patience_s)
             except TimeoutError:
@@ -184,7 +199,10 @@ class Child:
             with contextlib.suppress(asyncio.TimeoutError, asyncio.CancelledError):
                 await asyncio.wait_for(self._drain, timeout=0.5)
         if self._out is not None:
-            self._out.close()
+            try:
+                self._out.close()
+            except OSError as exc:
+                self.out_error = self.out_error or f"{type(exc).__name__}: {exc.strerror or exc}"
             self._out = None
 
 

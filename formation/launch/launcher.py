@@ -27,6 +27,8 @@ from formation.launch.plan import LaunchError, Plan, UpConfig, UpResult, plan_ru
 from formation.launch.results import run_meta, write_results
 from formation.outputs.live_table import RunDisplay
 from formation.record.collector import RunCollector, key_patterns
+from runtime.files import os_error_text, write_atomic
+from runtime.lifecycle import OUTPUT_ERROR_EXIT
 
 DRAIN_S: Final = 0.25
 LOCKSTEP_DRAIN_MAX_S: Final = 30.0
@@ -393,7 +395,12 @@ class _Launcher:
                     if child is None:
                         continue
                     rc = child.returncode
-                    if child.name == "plant" and rc == 0:
+                    if child.name == "plant" and rc in (0, OUTPUT_ERROR_EXIT):
+                        if rc == OUTPUT_ERROR_EXIT:  # it ran its duration; its file is lost
+                            self._fail(
+                                f"{self.out_dir / 'plant_stats.json'} not written: the plant "
+                                f"could not write it (status {rc}; {child.log_path})"
+                            )
                         return  # the plant ran its duration
                     if self._survivable(child):
                         what = "killed by SIGKILL" if rc == -signal.SIGKILL else f"status {rc}"
@@ -419,25 +426,45 @@ class _Launcher:
             for c in children:
                 c.signal(signal.SIGKILL)
         problems = await asyncio.gather(*(c.stop() for c in children))
+        for c in children:
+            if c.resumed_to_stop:  # an injected pause still on: an event, not a failure
+                self._event(f"{c.name} (pid {c.pid}) was paused at the end: resumed to stop it")
         for p in problems:
             if p is not None:
                 self.failures.append(p)
                 self.warn(p)
 
+    def _fail(self, text: str) -> None:
+        self.failures.append(text)
+        self.warn(text)
+
+    async def _step(self, what: str, aw: Awaitable[Any]) -> None:
+        """One step of the shutdown: whatever it raises is a failure of the run, and the
+        shutdown goes on (the router must stop, the session close: a step that raised used to
+        leave both and the launcher hung at exit with its router holding the port)."""
+        try:
+            await aw
+        except Exception as exc:
+            self._fail(f"shutdown: {what} failed: {exc!r}")
+
     async def _shutdown(self) -> None:
         t0 = time.monotonic()
-        await self._stop_children(self.nodes)
+        await self._step("stopping the nodes", self._stop_children(self.nodes))
         if self.session is not None:
             await asyncio.sleep(0)  # the inbox takes what the bridge handed over
-            self._drain_subscribers()  # what arrived before the nodes stopped
+            try:
+                self._drain_subscribers()  # what arrived before the nodes stopped
+            except Exception as exc:
+                self._fail(f"shutdown: the collector failed: {exc!r}")
             self._subscribers = []
             if self._inbox is not None and self._inbox.dropped:
                 self.warn(f"the collector's inbox overflowed: {self._inbox.dropped} samples lost")
-            await self.observers.stop()
+            await self._step("closing the recorder and the live view", self.observers.stop())
+            self.failures.extend(self.observers.failures)  # warned already
             with contextlib.suppress(Exception):
                 self.session.close()
         if self.router is not None:
-            await self._stop_children([self.router])
+            await self._step("stopping the router", self._stop_children([self.router]))
         if self.group is not None:
             group = self.group
             leftovers = group_members(group)
@@ -448,7 +475,9 @@ class _Launcher:
                 self.failures.append(msg)
                 self.warn(msg)
         for c in self._all_children():
-            await c.close()
+            await self._step(f"closing {c.name}'s output", c.close())
+            if c.out_error is not None:
+                self._fail(f"{c.out_path} incomplete: {c.out_error}")
         if self.registered_port is not None:
             from formation.outputs import runfile
 
@@ -467,9 +496,13 @@ class _Launcher:
     async def run(self) -> UpResult:
         loop = asyncio.get_running_loop()
         wall0 = time.monotonic()
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        if self.plan.scenario_toml is not None:
-            (self.out_dir / "scenario.toml").write_text(self.plan.scenario_toml)
+        try:  # a read-only or full --out: one line, status 1, nothing started
+            self.log_dir.mkdir(parents=True, exist_ok=True)
+            if self.plan.scenario_toml is not None:
+                write_atomic(self.out_dir / "scenario.toml", self.plan.scenario_toml.encode())
+        except OSError as exc:
+            self._fail(f"cannot write to {self.out_dir}: {os_error_text(exc)}")
+            return UpResult(exit_code=1, out_dir=self.out_dir, failures=list(self.failures))
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(sig, self._on_signal, sig)
         mode = "lockstep" if self.cfg.lockstep else "realtime"
@@ -495,8 +528,9 @@ class _Launcher:
                 name = signal.Signals(self.signals[0]).name if self.signals else "signal"
                 self.warn(f"{name}: stopping the run")
             except LaunchError as exc:
-                self.failures.append(str(exc))
-                self.warn(str(exc))
+                self._fail(str(exc))
+            except OSError as exc:  # an output of the launcher's own (a full or read-only disk)
+                self._fail(f"the run stopped: {os_error_text(exc)}")
             finally:
                 if display is not None:
                     display.cancel()

@@ -34,6 +34,8 @@ class RunObservers:
         self.recorder: Any = None  # formation.record.command.RecorderHandle with --record
         self.live: Any = None  # formation.live.foxglove.LiveHandle with --foxglove
         self.record_stats: Any = None  # the recorder's stats once it is closed
+        self.failures: list[str] = []
+        """What could not be done cleanly (an incomplete recording): failures of the run."""
 
     def start(self, session: Any) -> None:
         """Start what the run asks for on ``session`` (the launcher's, open): raises
@@ -75,20 +77,37 @@ class RunObservers:
             print(f"foxglove live view on {self.live.url}", flush=True)
 
     async def stop(self) -> None:
-        """Close the live server and finalize the recording (before the session closes)."""
+        """Close the live server and finalize the recording (before the session closes); never
+        raises: what went wrong is in :attr:`failures` (the run exits 1) and warned."""
         live, self.live = self.live, None
         if live is not None:
-            await asyncio.to_thread(live.close)
+            try:
+                await asyncio.to_thread(live.close)
+            except Exception as exc:
+                self._failed(f"--foxglove: the live server did not close cleanly: {exc!r}")
         recorder, self.recorder = self.recorder, None
-        if recorder is not None:
+        if recorder is None:
+            return
+        try:
             stats = await asyncio.to_thread(recorder.close)
-            self.record_stats = stats
-            if stats.dropped or stats.handler_errors:
-                self.warn(
-                    f"recording {recorder.path}: {stats.dropped} samples dropped, "
-                    f"{stats.handler_errors} write errors"
-                )
-            self.say(
-                f"recorded {stats.samples} samples ({stats.rejected} rejected, "
-                f"{stats.liveliness} liveliness changes) to {recorder.path}"
+        except Exception as exc:  # never seen; a recorder that cannot close must not hang us
+            self._failed(f"recording {recorder.path}: closing failed: {exc!r}")
+            return
+        self.record_stats = stats
+        if stats.dropped or stats.handler_errors:
+            self.warn(
+                f"recording {recorder.path}: {stats.dropped} samples dropped, "
+                f"{stats.handler_errors} write errors"
             )
+        if stats.error is not None:  # a full or read-only disk: named, and the run fails
+            from formation.record.command import incomplete
+
+            self._failed(incomplete(recorder.path, stats))
+        self.say(
+            f"recorded {stats.samples} samples ({stats.rejected} rejected, "
+            f"{stats.liveliness} liveliness changes) to {recorder.path}"
+        )
+
+    def _failed(self, text: str) -> None:
+        self.failures.append(text)
+        self.warn(text)

@@ -173,7 +173,7 @@ def plan_run(cfg: UpConfig) -> Plan:
         raise ValueError(f"--seed must be >= 0, got {cfg.seed}")
     path = scenario_mod.resolve(cfg.scenario)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))  # TOML is UTF-8, whatever the locale
     except tomllib.TOMLDecodeError as exc:
         raise scenario_mod.ScenarioError(f"{path}: not valid TOML: {exc}") from exc
     scenario_arg = cfg.scenario if path.parent == scenario_mod.SCENARIO_DIR else str(path.resolve())

@@ -5,14 +5,15 @@ has stopped), with the run's metadata (:func:`run_meta`)."""
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from formation.launch.children import Child
 from formation.launch.plan import Plan, UpConfig, UpResult
+from formation.outputs.files import save_npz_atomic, write_metrics
 from formation.outputs.runlog import RunLog
+from runtime.files import os_error_text
 
 
 def run_meta(
@@ -81,28 +82,47 @@ def write_results(
     m = metrics_mod.compute(log, plan.settle_s, scn.settle_tol_m)
     sim_s = float(log.t_s[-1] - log.t_s[0])
     m["meta"]["realtime_factor"] = sim_s / run_wall_s if run_wall_s else None
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
-    log.save_npz(str(out_dir / "run.npz"))
     result.metrics = m
-    wrote = "metrics"
+    written: list[str] = []
+
+    def output(name: str, write: Callable[[], object]) -> None:
+        # a full or read-only disk: each output is tried, the ones not written are named
+        try:
+            write()
+            written.append(name)
+        except OSError as exc:
+            text = f"{out_dir / name} not written: {os_error_text(exc)}"
+            result.failures.append(text)
+            result.exit_code = 1
+            warn(text)
+
+    output("metrics.json", lambda: write_metrics(out_dir, m))
+    output("run.npz", lambda: save_npz_atomic(log, out_dir / "run.npz"))
+    wrote = "metrics" if "metrics.json" in written else "nothing"
     if cfg.figures:
         from formation.outputs import figures as fig_mod
 
         cut = f", interrupted after {sim_s:.1f} s" if interrupted else ""
-        try:
-            fig_mod.write_all(
-                log,
-                out_dir,
-                title=f"{scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
-                "points (solid), virtual trajectories (dashed)",
-                settle_s=plan.settle_s,
-            )
-            wrote = "metrics and figures"
-        except Exception as exc:  # a run cut after a few ticks may not make every figure
-            if not interrupted:
+
+        def figures() -> None:
+            try:
+                fig_mod.write_all(
+                    log,
+                    out_dir,
+                    title=f"{scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
+                    "points (solid), virtual trajectories (dashed)",
+                    settle_s=plan.settle_s,
+                )
+            except OSError:
                 raise
-            warn(f"figures of the interrupted run failed: {exc!r}")
+            except Exception as exc:  # a run cut after a few ticks may not make every figure
+                if not interrupted:
+                    raise
+                warn(f"figures of the interrupted run failed: {exc!r}")
+
+        output("figures", figures)
+        if "figures" in written and wrote == "metrics":
+            wrote = "metrics and figures"
     if interrupted:  # one line, even with --quiet: what was written is of a partial run
         print(
             f"formation up: interrupted: {wrote} of the {sim_s:.1f} s recorded so far "

@@ -69,14 +69,16 @@ Theory of operation
    is fed
    from the same session (line ``foxglove live view on ws://HOST:PORT``). Both are closed before
    the launcher's session (the recording is finalized even after an interrupt).
-6. **Results.** ``metrics.json`` (``formation.outputs.metrics.compute`` on the RunLog built from
-truth),
-   ``run.npz`` and the figures (``formation.outputs.figures.write_all``) in ``--out``. Exit status:
-   0,
-   1 if a child failed (did not start, died, exited non-zero, had to be killed), 130 after an
+6. **Results.** ``metrics.json`` (``formation.outputs.metrics.compute`` on the RunLog built
+   from truth), ``run.npz`` and the figures (``formation.outputs.figures.write_all``) in
+   ``--out``. Exit status: 0,
+   1 if a child failed (did not start, died, exited non-zero, had to be killed) or an output
+   could not be written (a full or read-only disk: each output is tried, written whole or not
+   at all, and the ones not written are named; docs/runtime.md), 130 after an
    interrupt (metrics and figures of what was recorded so far are still written, and one line on
    stderr says so), 2 for bad arguments. The plant writes its control-loop latency statistics
-   to ``plant_stats.json`` (docs/scale.md; bench/bench_up.py reads them).
+   to ``plant_stats.json`` (docs/scale.md; bench/bench_up.py reads them). A child still paused
+   (SIGSTOP) at the end is resumed after its SIGTERM: an event, not a failure.
 """
 
 from __future__ import annotations

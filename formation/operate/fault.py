@@ -39,7 +39,11 @@ one-line message naming the host (``kill-host NAME`` does that deliberately). A 
 not in the fleet (no status, per robot or in a host's batch, within ``--timeout``) is a one-line
 error, status 1; so is ``drag`` of a robot the plant does not simulate (no truth of it).
 
-``estop``/``release`` publish ``estop`` (twice, 20 ms apart: it is idempotent and latched).
+``estop``/``release`` publish ``estop`` (twice, 20 ms apart: it is idempotent and latched)
+and exit 1 unless it is durable where the fleet relies on it (formation.operate.estop_tool: a robot
+acknowledged it, every coordinator with a state file saved it, a coordinator or an agent
+answering ``estop/held`` holds it; a release: no coordinator still holds it), the line saying
+what is not.
 Against an authenticated run (``formation up --secure``) the tool uses the run's ``operator``
 credentials by itself (formation.outputs.runfile).
 
@@ -461,8 +465,8 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
 
             target = keys.check_robot_id(ns.robot) if ns.robot is not None else None
             report = await send_estop(session, fleet, cmd == "estop", target)
-            if not report.ok:
-                raise FaultError(report.line() + " (no robot acknowledged)")
+            if not report.ok:  # the line says what is not acknowledged or not durable
+                raise FaultError(report.line())
             return report.line()
         raise FaultError(f"unknown command {cmd!r}")
     finally:

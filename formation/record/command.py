@@ -7,7 +7,10 @@ Usage::
 
 Prints one line ``recording formation/<fleet>/** to <file>`` once subscribed, runs until
 SIGINT/SIGTERM or ``--duration`` seconds, finalizes the file (summary, statistics, index) and
-exits 0. ``formation up --record FILE`` calls :func:`start_recorder` for the same result.
+exits 0. A file that cannot be written or finalized (a full or read-only disk) stops the
+writing, not the recording's end: it is closed as far as it got, one line says why and how
+many observations were not written, and the exit status is 1. ``formation up --record FILE``
+calls :func:`start_recorder` for the same result.
 
 What the file holds (docs/observability.md has the full channel list)
 ---------------------------------------------------------------------
@@ -84,6 +87,7 @@ __all__ = [
     "RecorderHandle",
     "RecorderStats",
     "build_parser",
+    "incomplete",
     "json_schema",
     "main",
     "run_info",
@@ -96,6 +100,14 @@ READY_PREFIX: Final = "recording "
 # --------------------------------------------------------------------------------------------
 # The recorder
 # --------------------------------------------------------------------------------------------
+
+
+def incomplete(path: str | Path, stats: RecorderStats) -> str:
+    """The line naming a recording that could not be written whole (``stats.error``)."""
+    return (
+        f"recording {path} is incomplete: {stats.error}; {stats.unwritten} observations not "
+        "written, the file is not finalized (no summary or footer)"
+    )
 
 
 def run_info(
@@ -118,7 +130,7 @@ def run_info(
 
         path = scenario_mod.resolve(scenario)
         out["scenario"] = scenario
-        out["scenario_toml"] = path.read_text()
+        out["scenario_toml"] = path.read_text(encoding="utf-8")
     if lockstep is not None:
         out["lockstep"] = "true" if lockstep else "false"
     if settle_s is not None:
@@ -245,6 +257,7 @@ def main(argv: list[str]) -> int:
             print(f"formation record: {exc}", file=sys.stderr)
             return 1
         recorder: Recorder | None = None
+        code = 0
         try:
             recorder = Recorder(
                 args.out, args.fleet, raw=args.raw, derived=not args.no_derived, run=run
@@ -262,7 +275,10 @@ def main(argv: list[str]) -> int:
                     f"{stats.liveliness} liveliness changes) to {args.out}",
                     flush=True,
                 )
+                if stats.error is not None:  # a full or read-only disk: say so, exit 1
+                    print(f"formation record: {incomplete(args.out, stats)}", file=sys.stderr)
+                    code = 1
             session.close()
-        return 0
+        return code
 
     return rt.run_node(node, grace_s=0.8, hard_exit_s=3.0)

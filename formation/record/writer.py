@@ -48,6 +48,7 @@ from formation.outputs.bus_json import (
     unpack_map,
 )
 from formation.record.latency import LatencyTracker
+from runtime.files import os_error_text
 from runtime.tap import DEFAULT_QUEUE_LEN, BusItem, BusTap
 
 RAW_PREFIX: Final = "/raw/"
@@ -89,6 +90,10 @@ class RecorderStats:
     liveliness: int = 0  # liveliness changes written
     dropped: int = 0  # samples lost because the tap's queue was full
     handler_errors: int = 0  # exceptions while writing (should stay 0)
+    unwritten: int = 0  # observations not written because the file could not be (error)
+    error: str | None = None
+    """Why the file could not be written or finalized (a full or read-only disk), or None: the
+    file then ends at its last complete write (no summary, no footer)."""
     per_key: dict[str, int] = field(default_factory=dict)
 
 
@@ -205,16 +210,25 @@ class Recorder:
     # Items --------------------------------------------------------------------------------
 
     def write(self, item: BusItem) -> None:
-        """Write one bus observation (a sample or a liveliness change)."""
+        """Write one bus observation (a sample or a liveliness change). Once the file cannot
+        be written (``OSError``: a full or read-only disk) nothing more is written: the
+        observations are counted in ``stats.unwritten`` and ``stats.error`` says why."""
         if self._closed:
             return
+        if self.stats.error is not None:
+            self.stats.unwritten += 1
+            return
         log_ns = self.log_time_ns(item.rx_ns)
-        if item.kind in ("alive", "dead"):
-            self._write_liveliness(item, log_ns)
-        elif item.kind == "delete":
-            self.stats.deletes += 1
-        else:
-            self._write_sample(item, log_ns)
+        try:
+            if item.kind in ("alive", "dead"):
+                self._write_liveliness(item, log_ns)
+            elif item.kind == "delete":
+                self.stats.deletes += 1
+            else:
+                self._write_sample(item, log_ns)
+        except OSError as exc:
+            self.stats.error = os_error_text(exc)
+            self.stats.unwritten += 1
 
     def _write_liveliness(self, item: BusItem, log_ns: int) -> None:
         kind, ident = alive_kind(item.key)
@@ -362,20 +376,33 @@ class Recorder:
                 self.stats.handler_errors += tap.errors
             if self._closed:
                 return self.stats
-            self._writer.add_metadata(
-                STATS_METADATA_NAME,
-                {
-                    "messages": str(self.stats.messages),
-                    "samples": str(self.stats.samples),
-                    "rejected": str(self.stats.rejected),
-                    "unknown": str(self.stats.unknown),
-                    "liveliness": str(self.stats.liveliness),
-                    "dropped": str(self.stats.dropped),
-                    "handler_errors": str(self.stats.handler_errors),
-                    "stopped_wall_ns": str(time.time_ns()),
-                },
-            )
             self._closed = True
-            self._writer.finish()
-            self._file.close()
+            try:
+                if self.stats.error is None:  # a writer that failed once cannot finish
+                    self._finish()
+            except OSError as exc:
+                self.stats.error = os_error_text(exc)
+            finally:
+                try:
+                    self._file.close()
+                except OSError as exc:  # the last buffered bytes did not fit
+                    self.stats.error = self.stats.error or os_error_text(exc)
             return self.stats
+
+    def _finish(self) -> None:
+        self._writer.add_metadata(
+            STATS_METADATA_NAME,
+            {
+                "messages": str(self.stats.messages),
+                "samples": str(self.stats.samples),
+                "rejected": str(self.stats.rejected),
+                "unknown": str(self.stats.unknown),
+                "liveliness": str(self.stats.liveliness),
+                "dropped": str(self.stats.dropped),
+                "handler_errors": str(self.stats.handler_errors),
+                "stopped_wall_ns": str(time.time_ns()),
+            },
+        )
+        self._writer.finish()
+        self._file.flush()
+        os.fsync(self._file.fileno())  # a full disk shows here, not after the report

@@ -5,7 +5,6 @@ was simulated so far are still written (one line says so) and the exit status is
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
@@ -14,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import scenario as scenario_mod
+from runtime.files import os_error_text
 
 CONFIRM_DURATION_S = 3600.0
 """Sim durations above this (1 h of sim time) need ``--yes``: the run log grows with it."""
@@ -112,9 +112,10 @@ def run_and_write(
     m["meta"]["realtime_factor"] = result.realtime_factor
     m["firmware"] = result.firmware_status
     m["meta"]["interrupted"] = result.interrupted
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").write_text(json.dumps(m, indent=2, sort_keys=True) + "\n")
-    result.log.save_npz(str(out / "run.npz"))
+    from formation.outputs.files import save_npz_atomic, write_metrics
+
+    write_metrics(out, m)  # whole or not at all (a full disk leaves no cut file)
+    save_npz_atomic(result.log, out / "run.npz")
     if figures:
         from formation.outputs import figures as fig_mod
 
@@ -207,6 +208,10 @@ def main(argv: list[str]) -> int:
             stop=stop,
             progress=bar.update,
         )
+    except OSError as exc:  # a full or read-only disk: one line, status 1 (issue 30)
+        where = exc.filename or out
+        print(f"formation sim: {where} not written: {os_error_text(exc)}", file=sys.stderr)
+        return 1
     finally:
         signal.signal(signal.SIGINT, previous)
         bar.close()

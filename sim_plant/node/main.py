@@ -14,6 +14,7 @@ from typing import Final
 
 import runtime as rt
 from bus_schemas import keys
+from runtime.lifecycle import OUTPUT_ERROR_EXIT
 from scenario import Scenario
 from sim_plant.node.plant import WAIT_ROBOTS_S, PlantNode
 
@@ -96,16 +97,21 @@ def main(argv: list[str]) -> int:
     return rt.serve("plant", settings, lambda io, stop: _node(io, stop, scenario, ns))
 
 
-def write_stats(node: PlantNode, path: str, log: rt.NodeLog) -> None:
-    """``--stats-out``: the status map plus the latency statistics, as JSON (never raises)."""
+def write_stats(node: PlantNode, path: str, log: rt.NodeLog) -> bool:
+    """``--stats-out``: the status map plus the latency statistics, as JSON (never raises).
+    Written whole or not at all (a temporary file renamed into place: a full disk leaves no
+    empty or cut file); False, logged, if it could not be."""
     import json
+
+    from runtime.files import write_atomic
 
     try:
         stats = {**node.status_map(), **node.latency_stats(), "n_robots": node.n}
-        with open(path, "w", encoding="utf-8") as fh:
-            json.dump(stats, fh, indent=1)
+        write_atomic(path, json.dumps(stats, indent=1).encode())
     except Exception as exc:
-        log.info(f"--stats-out {path}: {exc!r}")
+        log.info(f"--stats-out {path}: not written: {exc!r}")
+        return False
+    return True
 
 
 async def _node(
@@ -139,8 +145,8 @@ async def _node(
     io.declare_token(node.alive_key)
     print("plant ready", flush=True)
     code = await node.run(stop, ns.wait_robots)
-    if ns.stats_out:
-        write_stats(node, ns.stats_out, io.log)
+    if ns.stats_out and not write_stats(node, ns.stats_out, io.log) and code == 0:
+        code = OUTPUT_ERROR_EXIT  # the run ended; its statistics are lost (formation up says)
     return code
 
 

@@ -39,11 +39,15 @@ def _frame_and_pipeline() -> tuple[np.ndarray, CameraPipeline]:
 
 
 def _published(
-    remote_offset_s: float,
+    camera_clock_s: float | None,
 ) -> tuple[list[tuple[str, bytes]], float, float, float]:
-    """One frame processed and published. The capture ``stamp`` is on a clock ``remote_offset_s``
-    ahead of this host's (a rendered frame carries the plant's stamp); 0 = a camera on this
-    host. Returns (messages, stamp, read_s, the host's clock just before publishing)."""
+    """One frame processed and published. The capture ``stamp`` is read on the camera's clock:
+    ``camera_clock_s`` is what that clock says at the read (a rendered frame carries the plant's
+    stamp, a camera host has its own uptime), None = a camera on this host (its stamp is this
+    host's ``time.monotonic()``). A fixed reading, never this host's clock minus an offset: the
+    test must not depend on how long this machine has been up (a clock minus 3600 s was
+    negative on a machine booted less than an hour ago). Returns (messages, stamp, read_s, the
+    host's clock just before publishing)."""
     frame, pipe = _frame_and_pipeline()
     out: list[tuple[str, bytes]] = []
 
@@ -52,7 +56,7 @@ def _published(
 
     node = CameraNode(FLEET, "cam", pipe, "rendered", publish)
     read_s = time.monotonic()
-    stamp = read_s + remote_offset_s
+    stamp = read_s if camera_clock_s is None else camera_clock_s
     res = pipe.process(frame, stamp, time.perf_counter)
     assert {m.robot for m in res.measurements} == {"r1", "r2"}
     before = time.monotonic()
@@ -60,9 +64,16 @@ def _published(
     return out, stamp, read_s, before
 
 
-@pytest.mark.parametrize("remote_offset_s", [0.0, -3600.0, 2.5])
-def test_pose_carries_its_publication_time_on_the_capture_clock(remote_offset_s: float) -> None:
-    out, stamp, read_s, before = _published(remote_offset_s)
+CAMERA_CLOCKS_S = [None, 0.5, 2.5e6]
+"""This host's clock; a camera host booted half a second ago (far behind this host's clock,
+whatever this host's uptime); one up for a month (far ahead)."""
+
+
+@pytest.mark.parametrize("camera_clock_s", CAMERA_CLOCKS_S)
+def test_pose_carries_its_publication_time_on_the_capture_clock(
+    camera_clock_s: float | None,
+) -> None:
+    out, stamp, read_s, before = _published(camera_clock_s)
     poses = [decode(p, Pose) for k, p in out if k != keys.poses_key(FLEET)]
     (batch,) = [decode(p, PoseBatch) for k, p in out if k == keys.poses_key(FLEET)]
     assert not isinstance(batch, DecodeError)
@@ -82,8 +93,8 @@ def test_agent_sees_the_pipeline_latency_as_age_whatever_the_clock_offset() -> N
     """The agent's conversion of the capture time (robot_agent.core.clocksync): with ``pub_t`` the
     age it computes is the pipeline's latency (publication - capture) plus the link, for a
     camera on another clock too; with ``pub_t`` dropped it would be 0 (the old behaviour)."""
-    for offset in (0.0, -3600.0, 2.5):
-        out, _, _, _ = _published(offset)
+    for camera_clock_s in CAMERA_CLOCKS_S:
+        out, _, _, _ = _published(camera_clock_s)
         key = keys.pose_key(FLEET, "r1")
         (payload,) = [p for k, p in out if k == key]
         msg = decode(payload, Pose)
@@ -93,7 +104,8 @@ def test_agent_sees_the_pipeline_latency_as_age_whatever_the_clock_offset() -> N
         rx = time.monotonic()  # the agent's clock (this host)
         clocks = ClockOffsets()
         capture_local = clocks.capture_to_local(key, msg.pub_t, msg.t, rx)
-        assert rx - capture_local == pytest.approx(latency, abs=1e-9)
+        assert rx - capture_local == pytest.approx(latency, abs=1e-6)
         # without pub_t the shell passes t for both: the capture is taken as received now
         old = ClockOffsets().capture_to_local(key, msg.t, msg.t, rx)
-        assert rx - old == 0.0
+        # (to float precision: a camera clock 2.5e6 s away leaves ~1e-10 s of rounding)
+        assert rx - old == pytest.approx(0.0, abs=1e-6)

@@ -51,7 +51,7 @@ async def test_a_starved_coordinator_answers_with_every_estop_its_session_receiv
     source = EstopSource(
         key,
         time.monotonic,
-        lambda what, why: problems.append(f"reject {what}: {why}"),
+        lambda what, why, reason=None: problems.append(f"reject {what}: {why}"),
         lambda where, exc: problems.append(f"internal {where}: {exc!r}"),
         rt.NodeLog("coordinator test"),
     )

@@ -217,7 +217,7 @@ def _rejecting_source(rejects: list[str]) -> EstopSource:
     return EstopSource(
         "formation/demo/estop",
         lambda: 1.0,
-        lambda what, why: rejects.append(f"{what}: {why}"),
+        lambda what, why, reason=None: rejects.append(f"{what}: {why}"),
         lambda where, exc: rejects.append(f"internal {where}: {exc!r}"),
         rt.NodeLog("test"),
     )

@@ -196,6 +196,8 @@ SAMPLES: dict[type, Any] = {
         host="ws-1",
         tick_p50_ms=0.25,
         tick_max_ms=1.5,
+        estop_store="failed",
+        estop_store_error="OSError: No space left on device",
     ),
     PlantStatus: PlantStatus(
         t=12.5,

@@ -45,7 +45,7 @@ def test_the_coordinator_counts_rejected_answers() -> None:
     source = EstopSource(
         "formation/demo/estop",
         lambda: 1.0,
-        lambda what, why: rejects.append(what),
+        lambda what, why, reason=None: rejects.append(what),
         lambda where, exc: None,
         NodeLog("test"),
     )
