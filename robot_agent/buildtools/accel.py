@@ -3,8 +3,7 @@
 Usage::
 
     python -m robot_agent.buildtools.accel build     # compile, check against pure Python, install
-    python -m robot_agent.buildtools.accel status    # which core runs and why (exit 0 compiled, 1
-    pure)
+    python -m robot_agent.buildtools.accel status   # which core runs and why (0 compiled, 1 pure)
     python -m robot_agent.buildtools.accel clean     # remove the build: pure Python from now on
 
 ``build`` needs mypy (which ships mypyc), setuptools and a C compiler with the Python headers;
