@@ -244,7 +244,7 @@ def test_every_numeric_parameter_has_a_plausible_range() -> None:
     import typing
 
     from robot_agent.core.robot_config import PLAUSIBLE, _agent_sections
-    from robot_agent.motors.roboclaw import RoboClawConfig
+    from robot_agent.motors.roboclaw_config import RoboClawConfig
 
     sections: dict[str, type] = dict(_agent_sections())
     sections["motor"] = RoboClawConfig
