@@ -8,7 +8,8 @@ One floor above the contract (``bus_schemas``) and below the process shells (doc
   tokens and watches;
 * :mod:`runtime.lifecycle`: ``run_node`` (signals, bounded shutdown) and ``serve``, the one node
   bootstrap;
-* :mod:`runtime.log` (``NodeLog``), :mod:`runtime.timers` (the agent timer loop),
+* :mod:`runtime.log` (``NodeLog``), :mod:`runtime.faults` (``Faults``: rejects and internal
+  errors), :mod:`runtime.timers` (the agent timer loop),
   :mod:`runtime.args` (command-line value parsers and the checks after parsing: ``UsageError``),
   :mod:`runtime.stall` (stall/resume detection, a pure core), :mod:`runtime.sdnotify` (systemd
   notifications).
@@ -39,6 +40,7 @@ from runtime.bridge import (
     watch_liveliness,
     watch_liveliness_on_thread,
 )
+from runtime.faults import Faults
 from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve, stop_signalled
 from runtime.log import NodeLog
 from runtime.stall import (
@@ -79,6 +81,7 @@ __all__ = [
     "RESUME_QUARANTINE_S",
     "SESSION_CLOSE_S",
     "USAGE_EXIT",
+    "Faults",
     "Inbox",
     "LivelinessHandler",
     "NodeIO",

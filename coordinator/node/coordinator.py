@@ -8,7 +8,8 @@ Usage::
 A thin asyncio shell over :class:`coordinator.core.coordinator.CoordinatorCore`, built from the
 scenario by
 ``scenario.assemble`` (the assembly ``formation/sim/simulate.py`` uses too); the standby election
-is :mod:`coordinator.core.election` (its handlers :mod:`coordinator.node.election_io`), the lockstep
+is :mod:`coordinator.core.election` (on the bus: the node's :class:`~coordinator.node.election_io.
+ElectionIO` part), the lockstep
 rules :mod:`robot_agent.core.lockstep`; what a tick publishes is encoded by
 :mod:`coordinator.node.outputs`, the latched e-stop is held by
 :mod:`coordinator.node.estop_source`. It
@@ -43,9 +44,9 @@ from bus_schemas import (
     to_map,
 )
 from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
-from coordinator.core.election import Election
-from coordinator.node.election_io import MAX_ROBOTS, ElectionHandlers
-from coordinator.node.estop_source import EstopSource, attach_estop_source
+from coordinator.core.election import Election, Takeover
+from coordinator.node.election_io import MAX_ROBOTS, ElectionIO
+from coordinator.node.estop_source import EstopSource
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
@@ -53,7 +54,7 @@ from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
 from scenario import Scenario
 from scenario.assemble import coordinator_core, path_conflicts
 
-__all__ = ["MAX_ROBOTS", "CoordinatorNode", "attach_estop_source"]
+__all__ = ["CoordinatorNode"]
 
 HEARTBEAT_PERIOD_S: Final = 0.1
 """Heartbeat period (s): a standby learns the active's state (``leader_t0``, epoch) from it, and
@@ -63,7 +64,7 @@ POSITION_LIMIT_M: Final = 1.0e4
 and squared distances of absurd positions overflow the assignment's costs."""
 
 
-class CoordinatorNode(ElectionHandlers):
+class CoordinatorNode:
     """State and handlers of the coordinator; Zenoh-free apart from the ``publish`` callable.
 
     Handlers run on the event loop and never raise.
@@ -131,8 +132,7 @@ class CoordinatorNode(ElectionHandlers):
         # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
         self.poses: dict[str, list[Any]] = {}
         self._pending: Arrivals[str] = Arrivals()  # lockstep: poses since the last clock
-        self.rejects = RejectCounts()  # by "<message>-<reason>" (status "rejects")
-        self.internal_errors = 0
+        self.faults = rt.Faults(self.log)  # rejects by "<message>-<reason>" (status "rejects")
         self.rx: dict[str, int] = {
             "pose": 0, "poses": 0, "clock": 0, "alive": 0, "estop": 0, "leader": 0,
         }  # fmt: skip
@@ -153,7 +153,15 @@ class CoordinatorNode(ElectionHandlers):
         # -- election (module docstring, *Standby*; the decisions are coordinator.core.election's):
         # a standby checks every origin against the leader messages it observes
         self.election = Election(self.name, active=not standby, position_at=self.core.leader_xy)
-        self.peer_assignment: dict[str, int] = {}  # the last assignment seen on the bus
+        self.election_io = ElectionIO(
+            self.election,
+            lockstep=lockstep,
+            faults=self.faults,
+            rx=self.rx,
+            now=self._now,
+            publish_heartbeat=self.publish_heartbeat,
+            take_over=self._take_over,
+        )
         self.heartbeats_pattern = keys.all_heartbeats_pattern(fleet)
         self.coordinators_pattern = keys.alive_coordinators_pattern(fleet)
 
@@ -161,7 +169,7 @@ class CoordinatorNode(ElectionHandlers):
         # keeps it from the estop messages and answers queries on the estop key with it
         self.estop_key = keys.estop_key(fleet)
         self.estop_source = EstopSource(
-            self.estop_key, self._now, self._reject, self._internal, self.log
+            self.estop_key, self._now, self.faults.reject, self.faults.internal, self.log
         )
 
     # -- bookkeeping ---------------------------------------------------------------------------
@@ -184,21 +192,28 @@ class CoordinatorNode(ElectionHandlers):
         return self.estop_source.answer
 
     @property
+    def active(self) -> bool:
+        """This instance ticks and publishes (the election's decision)."""
+        return self.election.active
+
+    @property
+    def epoch(self) -> int:
+        return self.election.epoch
+
+    @property
+    def rejects(self) -> RejectCounts:
+        """Inputs rejected so far, by ``<message>-<reason>`` (status ``rejects``)."""
+        return self.faults.rejects
+
+    @property
     def rejected(self) -> int:
         """Inputs rejected so far (every drop counted, by reason in :attr:`rejects`)."""
-        return self.rejects.total
+        return self.faults.rejected
 
-    def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
-        """Count a rejected ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
-        else ``reason``, else ``invalid``) and log it (rate limited)."""
-        if reason is None:
-            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
-        self.rejects.add(f"{what}-{reason}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
-
-    def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+    @property
+    def internal_errors(self) -> int:
+        """Internal errors caught by the handlers."""
+        return self.faults.internal_errors
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -208,7 +223,7 @@ class CoordinatorNode(ElectionHandlers):
             self.rx["alive"] += 1
             parsed = keys.parse_alive_key(key)
             if parsed is not None and parsed[1] == "coordinator" and parsed[2] is not None:
-                self.on_peer_alive(parsed[2], alive)
+                self.election_io.on_peer_alive(parsed[2], alive)
                 return
             if parsed is None or parsed[1] != "robot" or parsed[2] is None:
                 return
@@ -230,7 +245,7 @@ class CoordinatorNode(ElectionHandlers):
                 if self.active and not self.lockstep and self.t0_s is not None:
                     self._reassign_soon()
         except Exception as exc:
-            self._internal("on_alive", exc)
+            self.faults.internal("on_alive", exc)
 
     def _reassign_soon(self) -> None:
         """Re-assign now, not at the next tick (issue 4: the robots left learn their slots
@@ -261,22 +276,22 @@ class CoordinatorNode(ElectionHandlers):
             self.rx["pose"] += 1
             parsed = keys.parse_robot_key(rx.key)
             if parsed is None or parsed[2] != keys.POSE:
-                self._reject("pose", f"not a pose key: {rx.key[:100]!r}", "bad_key")
+                self.faults.reject("pose", f"not a pose key: {rx.key[:100]!r}", "bad_key")
                 return
             rid = parsed[1]
             msg = decode(rx.payload, Pose)
             if isinstance(msg, DecodeError):
-                self._reject("pose", msg)
+                self.faults.reject("pose", msg)
                 return
             if msg.robot is not None and msg.robot != rid:
-                self._reject("pose", f"robot {msg.robot!r} on {rid}'s key", "misaddressed")
+                self.faults.reject("pose", f"robot {msg.robot!r} on {rid}'s key", "misaddressed")
                 return
             rx_s: float | None = None if self.lockstep else rx.rx_s
             why = self._store_pose(rid, msg.x, msg.y, msg.theta, msg.t, rx_s)
             if why is not None:
-                self._reject("pose", why, "implausible")
+                self.faults.reject("pose", why, "implausible")
         except Exception as exc:
-            self._internal("on_pose", exc)
+            self.faults.internal("on_pose", exc)
 
     def _store_pose(
         self, rid: str, x: float, y: float, theta: float, t: float, rx_s: float | None
@@ -299,7 +314,7 @@ class CoordinatorNode(ElectionHandlers):
             self.rx["poses"] += 1
             msg = decode(rx.payload, PoseBatch)
             if isinstance(msg, DecodeError):
-                self._reject("poses", msg)
+                self.faults.reject("poses", msg)
                 return
             rx_s: float | None = None if self.lockstep else rx.rx_s
             store, stamp = self._store_pose, msg.stamp
@@ -309,11 +324,11 @@ class CoordinatorNode(ElectionHandlers):
                 if (why := store(rid, x, y, th, stamp, rx_s)) is not None
             ]
             if refused:
-                self._reject(
+                self.faults.reject(
                     "poses", f"{len(refused)} entries refused, e.g. {refused[0]}", "implausible"
                 )
         except Exception as exc:
-            self._internal("on_poses", exc)
+            self.faults.internal("on_poses", exc)
 
     def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: tick at clock.t and publish, leader last."""
@@ -321,7 +336,7 @@ class CoordinatorNode(ElectionHandlers):
             self.rx["clock"] += 1
             msg = decode(rx.payload, Clock)
             if isinstance(msg, DecodeError):
-                self._reject("clock", msg)
+                self.faults.reject("clock", msg)
                 return
             if not self.active:
                 self.sim_t = msg.t
@@ -340,7 +355,7 @@ class CoordinatorNode(ElectionHandlers):
             self._replay.last_tick = msg.tick
             self.tick(t_k, tick=msg.tick)
         except Exception as exc:
-            self._internal("on_clock", exc)
+            self.faults.internal("on_clock", exc)
 
     # -- the tick ------------------------------------------------------------------------------
 
@@ -367,7 +382,7 @@ class CoordinatorNode(ElectionHandlers):
             if not self.lockstep:
                 stalled = self.stall.stalled_for(time.monotonic())
                 if stalled is not None:
-                    self.step_down(f"this process was stopped for {stalled:.2f} s")
+                    self.election_io.step_down(f"this process was stopped for {stalled:.2f} s")
                     return None
             if self.t0_s is None:
                 self.t0_s = now_s
@@ -385,8 +400,30 @@ class CoordinatorNode(ElectionHandlers):
             self.tick_s.append(time.perf_counter() - started)
             return out
         except Exception as exc:
-            self._internal("tick", exc)
+            self.faults.internal("tick", exc)
             return None
+
+    def _take_over(self, now_s: float, takeover: Takeover) -> None:
+        """The election made this instance active at ``now_s`` (``ElectionIO.elect``): continue
+        the previous instance's trajectory (realtime) with the incumbents it assigned."""
+        if takeover.leader_t0 is not None and not self.lockstep:
+            # Continue the same trajectory: the virtual leader is a pure function of time and
+            # t0 is on the same clock (time.monotonic() of this host, see docs/faults.md).
+            self.t0_s = takeover.leader_t0
+            self.core.t0_s = takeover.leader_t0
+        peer = self.election_io.peer_assignment
+        seed = {rid: slot for rid, slot in peer.items() if rid in self.alive}
+        self.core.assigner.seed_incumbent(seed)
+        self.core.assignment = dict(seed)
+        continued = takeover.leader_t0 is not None
+        self.log.info(
+            f"active (epoch {takeover.epoch}): took over with the trajectory origin "
+            f"{'of the previous instance' if continued else 'at this tick'} and "
+            f"{len(seed)} incumbents"
+        )
+        self.publish_heartbeat()
+        if not self.lockstep:
+            self.tick(now_s)
 
     # -- periodic ------------------------------------------------------------------------------
 
@@ -428,7 +465,7 @@ class CoordinatorNode(ElectionHandlers):
             now = self.sim_t if self.lockstep else time.monotonic()
             self._publish(self.status_key, encode(self.status(now)), rt.QOS_TELEMETRY)
         except Exception as exc:
-            self._internal("status", exc)
+            self.faults.internal("status", exc)
 
     def publish_heartbeat(self) -> None:
         """Publish the heartbeat (``leader_t0`` = the trajectory's time origin); never raises."""
@@ -444,7 +481,7 @@ class CoordinatorNode(ElectionHandlers):
             )
             self._publish(self.heartbeat_key, encode(hb), rt.QOS_TELEMETRY)
         except Exception as exc:
-            self._internal("heartbeat", exc)
+            self.faults.internal("heartbeat", exc)
 
     async def run(self, stop: asyncio.Event, rate_hz: float) -> None:
         """Until ``stop``: the realtime tick loop (not in lockstep), status and heartbeat."""
@@ -460,7 +497,7 @@ class CoordinatorNode(ElectionHandlers):
         while not stop.is_set():
             now = time.monotonic()
             if not self.active:
-                self.elect(self.sim_t if self.lockstep else now)
+                self.election_io.elect(self.sim_t if self.lockstep else now)
             if not self.lockstep and now >= next_tick:
                 self.tick(now)
                 next_tick += period

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import runtime as rt
 from bus_schemas import keys
-from coordinator.node.coordinator import CoordinatorNode, attach_estop_source
+from coordinator.node.coordinator import CoordinatorNode
+from coordinator.node.estop_source import attach_estop_source
 from coordinator.node.estop_store import EstopStore
 from runtime.sdnotify import Notifier, pet_watchdog
 from scenario import Scenario
@@ -164,10 +165,10 @@ async def _node(
 
     io.watch_liveliness(node.alive_pattern, on_alive)
     io.watch_liveliness(node.coordinators_pattern, on_alive)
-    io.subscribe(node.heartbeats_pattern, node.on_heartbeat)
-    io.subscribe(node.assignment_key, node.on_assignment)
+    io.subscribe(node.heartbeats_pattern, node.election_io.on_heartbeat)
+    io.subscribe(node.assignment_key, node.election_io.on_assignment)
     if not lockstep:  # a standby checks trajectory origins against the leader (election)
-        io.subscribe(node.leader_key, node.on_leader)
+        io.subscribe(node.leader_key, node.election_io.on_leader)
     # durable e-stop state (docs/faults.md): the other coordinators', then the state file's
     store = None if estop_state is None else EstopStore(estop_state, fleet, io.log.info)
     try:

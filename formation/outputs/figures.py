@@ -43,11 +43,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from formation.outputs.figures_style import (
-    COLORS,
     DETAIL_MAX,
-    DPI,
     LEGEND_MAX,
-    MAX_PX,
     draw_stride,
     draw_world,
     envelope,
@@ -62,20 +59,13 @@ from formation.outputs.metrics import formation_error, role_changes
 from formation.outputs.runlog import RunLog
 
 __all__ = [
-    "COLORS",
-    "DETAIL_MAX",
-    "DPI",
     "FIGURES",
-    "LEGEND_MAX",
-    "MAX_PX",
     "caption",
-    "draw_world",
     "error_figure",
     "plot_error",
     "plot_motor_power",
     "plot_roles",
     "plot_trajectories",
-    "robot_style",
     "roles_figure",
     "write_all",
     "write_index",

@@ -42,7 +42,7 @@ from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick
 from robot_agent.core.neighbours import is_current, neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
-from sim_plant.core.plant import WheelEncoders
+from sim_plant.core.encoders import WheelEncoders
 
 # Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
 # firmware builds its WheelCommand the same way).

@@ -25,7 +25,7 @@ from localization.core.calibration import Calibration, TagOffset
 from localization.core.detectors import PatchDetections, TagDetection
 from robot_agent.core.kinematics import wrap_angle
 
-__all__ = ["Measurement", "PoseEstimator", "wrap_angle"]
+__all__ = ["Measurement", "PoseEstimator"]
 
 FloatArray = npt.NDArray[np.float64]
 

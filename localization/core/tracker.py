@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from localization.core.calibration import TrackerParams
-from localization.core.pose import Measurement, wrap_angle
+from localization.core.pose import Measurement
+from robot_agent.core.kinematics import wrap_angle
 
 __all__ = ["Track", "Tracker"]
 

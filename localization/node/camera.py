@@ -71,7 +71,7 @@ from bus_schemas import (
 from localization.core.pipeline import CameraPipeline, FrameResult
 from localization.core.sources import FrameSource
 
-__all__ = ["CameraNode", "CameraPipeline", "FrameResult", "Grabber"]
+__all__ = ["CameraNode", "Grabber"]
 
 STATUS_PERIOD_S: Final = 0.5
 LATENCY_SAMPLES: Final = 1000

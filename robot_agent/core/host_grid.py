@@ -1,13 +1,12 @@
 """The agent host's neighbour queries: a spatial hash of the latest pose frame.
 
-Stdlib only. :class:`robot_agent.node.host.HostNode` keeps every robot's latest pose here
-(:attr:`NeighbourGrid.seen`) and asks, per hosted robot and step, for the robots near it, as the
-safety filter and the repulsion see them (``robot_agent.core.neighbours``). Cells are as large as
-the
-larger of the repulsion's influence distance ``d0`` and the safety filter's
-``neighbour_range_m``, so a query costs the robots in the 3 x 3 cells around a robot, not N;
-neighbours are passed in frame order (the order ``formation agent`` sees them), so the firmware
-sums the same terms in the same order (docs/scale.md).
+Stdlib only. :class:`robot_agent.node.host.HostNode` keeps every robot's latest pose in its
+neighbour table (:attr:`NeighbourGrid.seen` reads it) and asks, per hosted robot and step, for the
+robots near it, as the safety filter and the repulsion see them (``robot_agent.core.neighbours``).
+Cells are as large as the larger of the repulsion's influence distance ``d0`` and the safety
+filter's ``neighbour_range_m``, so a query costs the robots in the 3 x 3 cells around a robot,
+not N; neighbours are passed in frame order (the order ``formation agent`` sees them), so the
+firmware sums the same terms in the same order (docs/scale.md).
 """
 
 from __future__ import annotations
@@ -51,15 +50,21 @@ class NeighbourGrid:
 
     __slots__ = ("_cooperative", "_grid", "_grid_now", "_near_cache", "_reach2", "cell_m", "seen")
 
-    def __init__(self, cell_m: float, cooperative: Callable[[str, float], bool]) -> None:
+    def __init__(
+        self,
+        cell_m: float,
+        cooperative: Callable[[str, float], bool],
+        seen: dict[str, Seen] | None = None,
+    ) -> None:
         """``cell_m``: the reach (see the module docstring); ``cooperative(rid, now_s)``: rule 3
-        of ``robot_agent.core.neighbours`` for robot ``rid``."""
+        of ``robot_agent.core.neighbours`` for robot ``rid``; ``seen``: the latest poses to
+        read (``robot_agent.core.neighbour_table.NeighbourTable.seen``; default: a new dict)."""
         self.cell_m = cell_m
         # a robot gets only those within REACH_MARGIN x the reach of its pose (about half of the
         # 3 x 3 cells' robots: the firmware's loops over them cost per neighbour)
         self._reach2 = (REACH_MARGIN * cell_m) ** 2
         self._cooperative = cooperative
-        self.seen: dict[str, Seen] = {}
+        self.seen: dict[str, Seen] = {} if seen is None else seen
         self._grid: _Grid | None = None
         self._grid_now = -math.inf
         self._near_cache: dict[tuple[int, int], list[_Entry]] = {}

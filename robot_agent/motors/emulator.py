@@ -41,7 +41,7 @@ import tty
 from dataclasses import dataclass
 from pathlib import Path
 
-from robot_agent.motors.roboclaw import crc16
+from robot_agent.motors.roboclaw_protocol import crc16
 
 INTER_BYTE_TIMEOUT_S = 0.05
 

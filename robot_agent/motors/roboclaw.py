@@ -55,39 +55,19 @@ import time
 from typing import Any
 
 from robot_agent.motors.base import MotorStatus
-from robot_agent.motors.roboclaw_config import (  # noqa: F401  (moved to roboclaw_config.py; re-exported)
-    BAUD_RATES,
+from robot_agent.motors.roboclaw_config import (
     RoboClawConfig,
     _is_number,
     _require,
 )
 from robot_agent.motors.roboclaw_protocol import (
-    CMD_DRIVE_DUTY_M1M2,
-    CMD_DRIVE_SPEED_M1M2,
-    CMD_SET_SERIAL_TIMEOUT,
     crc16,
     duty_packet,
     serial_timeout_packet,
     speed_packet,
-    write_packet,
 )
 
-__all__ = [
-    "ACK",
-    "CMD_DRIVE_DUTY_M1M2",
-    "CMD_DRIVE_SPEED_M1M2",
-    "CMD_READ_FIRMWARE",
-    "CMD_READ_SPEED_M1",
-    "CMD_READ_SPEED_M2",
-    "CMD_SET_SERIAL_TIMEOUT",
-    "RoboClawBackend",
-    "RoboClawConfig",
-    "crc16",
-    "duty_packet",
-    "serial_timeout_packet",
-    "speed_packet",
-    "write_packet",
-]
+__all__ = ["ACK", "CMD_READ_FIRMWARE", "CMD_READ_SPEED_M1", "CMD_READ_SPEED_M2", "RoboClawBackend"]
 
 CMD_READ_SPEED_M1 = 18
 CMD_READ_SPEED_M2 = 19

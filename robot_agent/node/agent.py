@@ -10,8 +10,10 @@ It prints exactly one line ``agent <id> ready`` on stdout once its Zenoh session
 subscriptions are declared and its liveliness token ``formation/<fleet>/alive/robot/<id>`` is
 declared; it exits 0 within a second of SIGINT/SIGTERM (``runtime.transport.run_node``).
 
-The neighbours (other robots' poses, who is cooperative) are handled by
-:mod:`robot_agent.node.agent_neighbours`, the e-stop query by :mod:`robot_agent.node.agent_estop`.
+The node owns its parts: the neighbour table (:mod:`robot_agent.core.neighbour_table`: the other
+robots' poses from the pose frames, their modes from :class:`~robot_agent.node.peer_status.
+PeerStatusInputs`), the e-stop query and witness (:mod:`robot_agent.node.estop_shell`, put on the
+bus by :mod:`robot_agent.node.agent_estop`) and its fault counters (:class:`runtime.Faults`).
 
 Theory of operation: docs/process-shells.md (inputs, outputs, realtime and lockstep).
 """
@@ -25,7 +27,7 @@ import socket
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Final, Literal
 
 import runtime as rt
 from bus_schemas import (
@@ -33,6 +35,7 @@ from bus_schemas import (
     DecodeError,
     Estop,
     Pose,
+    PoseBatch,
     RejectCounts,
     Setpoint,
     Status,
@@ -42,35 +45,25 @@ from bus_schemas import (
     keys,
 )
 from robot_agent.core.clocksync import ClockOffsets
-from robot_agent.core.estop import ESTOP_REFRESH_S, EstopLatch
-from robot_agent.core.firmware import Firmware, WheelCommand
+from robot_agent.core.estop import EstopLatch
+from robot_agent.core.firmware import Firmware, Mode, WheelCommand
 from robot_agent.core.firmware import Pose as FwPose
 from robot_agent.core.firmware import Setpoint as FwSetpoint
-from robot_agent.core.lockstep import Arrivals, Replay, SetpointWindow
-from robot_agent.core.neighbours import (
-    NEIGHBOUR_STALE_S,
-)
+from robot_agent.core.lockstep import Replay, SetpointWindow
+from robot_agent.core.neighbour_table import NeighbourTable
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.safety_filter import Neighbour
-from robot_agent.node.agent_neighbours import MAX_NEIGHBOURS, NodeNeighbours
-from robot_agent.node.estop_shell import EstopHooks
-from robot_agent.node.motor_output import (
-    MotorOutput,
-)
-from robot_agent.node.peer_status import clearance_or_none, filter_counters, status_tracking
+from robot_agent.node.estop_shell import EstopQuery, EstopWitness
+from robot_agent.node.motor_output import MotorOutput
+from robot_agent.node.peer_status import PeerStatusInputs, clearance_or_none, filter_counters
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
-__all__ = [
-    "MAX_NEIGHBOURS",
-    "NEIGHBOUR_STALE_S",
-    "AgentNode",
-    "MotorOutput",
-    "Publish",
-    "status_tracking",
-]
+__all__ = ["MAX_NEIGHBOURS", "AgentNode", "LoopMode", "NeighbourFn", "Publish", "clock_wheels"]
 
 LoopMode = Literal["on-pose", "fixed"]
+MAX_NEIGHBOURS: Final = 1024
+"""Distinct neighbour ids kept (a flood of made-up ids cannot grow memory without bound)."""
 
 
 # ---------------------------------------------------------------------------------------------
@@ -89,6 +82,8 @@ class _SetpointIn:
 
 
 Publish = Callable[[str, bytes, rt.QoS], None]
+NeighbourFn = Callable[["AgentNode", float], list[Neighbour]]
+"""``neighbours(node, now_s)``: an agent host's neighbour lookup for one of its robots."""
 
 
 def clock_wheels(msg: Clock) -> dict[str, tuple[float, float]]:
@@ -98,7 +93,7 @@ def clock_wheels(msg: Clock) -> dict[str, tuple[float, float]]:
     return {r: (a, b) for r, a, b in zip(msg.enc_robots, msg.enc_wr, msg.enc_wl, strict=True)}
 
 
-class AgentNode(NodeNeighbours, EstopHooks):
+class AgentNode:
     """State and handlers of one agent; Zenoh-free apart from the ``publish`` callable.
 
     Every handler takes one :class:`runtime.transport.Received` and runs on the event loop;
@@ -114,6 +109,8 @@ class AgentNode(NodeNeighbours, EstopHooks):
         rate_hz: timer rate (Hz) of the realtime loop.
         motor: the motor seam; None: bus only.
         log: where to log.
+        neighbour_fn: an agent host's neighbour lookup (None: this node's own neighbour table).
+        publish_wheels: publish each step's wheels (False: an agent host batches them).
     """
 
     def __init__(
@@ -128,6 +125,8 @@ class AgentNode(NodeNeighbours, EstopHooks):
         rate_hz: float = 50.0,
         motor: MotorOutput | None = None,
         log: rt.NodeLog | None = None,
+        neighbour_fn: NeighbourFn | None = None,
+        publish_wheels: bool = True,
     ) -> None:
         self.robot_id = keys.check_robot_id(robot_id)
         self.fleet = keys.check_fleet(fleet)
@@ -164,27 +163,28 @@ class AgentNode(NodeNeighbours, EstopHooks):
         self.setpoint: _SetpointIn | None = None  # realtime: the newest
         self._setpoints: SetpointWindow[_SetpointIn] = SetpointWindow()  # lockstep
         self.role: str | None = None
-        # neighbour id -> [x_m, y_m, theta_rad, capture_s, rx_s] (capture on this node's
-        # clock); rx_s is None while pending (lockstep)
-        self._neighbours: dict[str, list[Any]] = {}
-        self._pending_neighbours: Arrivals[str] = Arrivals()  # lockstep
-        # cooperative neighbours (robot_agent.core.neighbours rule 3): lockstep, the ids the clock
-        # relays; realtime, id -> [status said tracking, rx_s] from the status messages
-        self.tracking_ids: frozenset[str] = frozenset()
         # lockstep: this robot's emulated encoder speeds of the current clock (Clock.enc_*)
         self.clock_wheels: tuple[float, float] | None = None
-        self._status_modes: dict[str, list[Any]] = {}
 
         self.rx: dict[str, int] = {
             "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
         }  # fmt: skip
-        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
-        self.internal_errors = 0
+        # every drop by "<message>-<reason>" (status "rejects"), also counted by the firmware
+        self.faults = rt.Faults(self.log, on_reject=self.firmware.reject)
+        # the other robots (robot_agent.core.neighbours): poses from the frames (on_poses),
+        # modes from their status messages (realtime) or the clock (lockstep)
+        self.neighbour_table = NeighbourTable(
+            lockstep=lockstep, max_robots=MAX_NEIGHBOURS, local_tracking=self._own_tracking
+        )
+        self.peer_status = PeerStatusInputs(
+            self.neighbour_table, self.rx, self.faults.reject, self.faults.internal
+        )
         # E-stop as latched fleet state (robot_agent.core.estop): the scopes this robot obeys (with
-        # their engagement ids) and the shell's hooks that query the latched state and answer
-        # with the engagements held (robot_agent.node.estop_shell).
+        # their engagement ids), the query of the latched state and the witness of every
+        # engagement seen, answered on estop/held (robot_agent.node.estop_shell).
         self.estop = EstopLatch()
-        self._init_estop_hooks()
+        self.estop_query = EstopQuery(self.faults.internal)
+        self.witness = EstopWitness(self.faults.internal)
         self.steps = 0
         self.last_step_s = -math.inf
         self.sim_t = 0.0  # lockstep: t of the last clock
@@ -194,23 +194,24 @@ class AgentNode(NodeNeighbours, EstopHooks):
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
         # Agent host (robot_agent.node.host): the host publishes the wheels of all its robots in one
         # batch and answers neighbour queries from its shared spatial index.
-        self.publish_wheels = True
-        self.neighbour_fn: Callable[[AgentNode, float], list[Neighbour]] | None = None
+        self.publish_wheels = publish_wheels
+        self.neighbour_fn = neighbour_fn
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
-    def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
-        """Count a dropped ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
-        else ``reason``, else ``invalid``) and log it (rate limited)."""
-        if reason is None:
-            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
-        self.rejects.add(f"{what}-{reason}")
-        self.firmware.reject(f"{what}: {why}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+    def _own_tracking(self, rid: str) -> bool | None:
+        """This robot's own mode (its status messages are not a neighbour's)."""
+        return self.firmware.mode is Mode.TRACKING if rid == self.robot_id else None
 
-    def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+    @property
+    def rejects(self) -> RejectCounts:
+        """Messages dropped by this node, by ``<message>-<reason>`` (status ``rejects``)."""
+        return self.faults.rejects
+
+    @property
+    def internal_errors(self) -> int:
+        """Internal errors caught by the handlers."""
+        return self.faults.internal_errors
 
     @property
     def rejected(self) -> int:
@@ -227,7 +228,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
             self.setpoint = None
             self.pose = None
             self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
-            self.request_estop_state(now_s)  # an e-stop engaged or released meanwhile
+            self.estop_query.request(now_s)  # an e-stop engaged or released meanwhile
         return self.stall.quarantined(now_s)
 
     # -- input handlers (event loop) -----------------------------------------------------------
@@ -237,14 +238,14 @@ class AgentNode(NodeNeighbours, EstopHooks):
         try:
             self.rx["pose"] += 1
             if self.check_resume(rx.rx_s):
-                self._reject("pose", "received during the resume quarantine", "quarantine")
+                self.faults.reject("pose", "received during the resume quarantine", "quarantine")
                 return
             msg = decode(rx.payload, Pose)
             if isinstance(msg, DecodeError):
-                self._reject("pose", msg)
+                self.faults.reject("pose", msg)
                 return
             if msg.robot is not None and msg.robot != self.robot_id:
-                self._reject(
+                self.faults.reject(
                     "pose", f"robot {msg.robot!r} on {self.robot_id}'s key", "misaddressed"
                 )
                 return
@@ -259,21 +260,46 @@ class AgentNode(NodeNeighbours, EstopHooks):
             if self.loop_mode == "on-pose":
                 self.step(time.monotonic())
         except Exception as exc:
-            self._internal("on_pose", exc)
+            self.faults.internal("on_pose", exc)
+
+    def on_poses(self, rx: rt.Received) -> None:
+        """Batched poses: the other robots' poses and capture times, for repulsion and the
+        safety filter (``robot_agent.core.neighbours``)."""
+        try:
+            self.rx["poses"] += 1
+            msg = decode(rx.payload, PoseBatch)
+            if isinstance(msg, DecodeError):
+                self.faults.reject("poses", msg)
+                return
+            me = self.robot_id
+            store = self.neighbour_table.store
+            if self.lockstep:  # sim time: one clock for every node; received at the next clock
+                cap, rx_s, now = msg.stamp, None, self.sim_t
+            else:
+                cap = self.clocks.capture_to_local(rx.key, msg.t, msg.stamp, rx.rx_s)
+                rx_s = now = rx.rx_s
+            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
+                if rid != me:
+                    store(rid, x, y, th, cap, rx_s, now)
+            self.neighbour_table.end_frame()
+        except Exception as exc:
+            self.faults.internal("on_poses", exc)
 
     def on_setpoint(self, rx: rt.Received) -> None:
         """Own setpoint: keep the newest (realtime) or the last two with their ticks (lockstep)."""
         try:
             self.rx["setpoint"] += 1
             if self.check_resume(rx.rx_s):
-                self._reject("setpoint", "received during the resume quarantine", "quarantine")
+                self.faults.reject(
+                    "setpoint", "received during the resume quarantine", "quarantine"
+                )
                 return
             msg = decode(rx.payload, Setpoint)
             if isinstance(msg, DecodeError):
-                self._reject("setpoint", msg)
+                self.faults.reject("setpoint", msg)
                 return
             if msg.robot != self.robot_id:
-                self._reject(
+                self.faults.reject(
                     "setpoint", f"robot {msg.robot!r} on {self.robot_id}'s key", "misaddressed"
                 )
                 return
@@ -281,13 +307,13 @@ class AgentNode(NodeNeighbours, EstopHooks):
             tick = msg.tick if self.lockstep else None
             self.accept_setpoint(sp, msg.role, rx.rx_s, tick)
         except Exception as exc:
-            self._internal("on_setpoint", exc)
+            self.faults.internal("on_setpoint", exc)
 
     def accept_setpoint(self, sp: FwSetpoint, role: str, rx_s: float, tick: int | None) -> None:
         """Keep a valid setpoint: the newest (realtime) or the last two with ticks (lockstep)."""
         if self.lockstep:
             if tick is None:
-                self._reject("setpoint", "lockstep setpoint without a valid tick", "no_tick")
+                self.faults.reject("setpoint", "lockstep setpoint without a valid tick", "no_tick")
                 return
             # In lockstep the setpoint's t is the sim time of its tick, which is when
             # simulate.py considers it received.
@@ -302,15 +328,15 @@ class AgentNode(NodeNeighbours, EstopHooks):
             self.rx["estop"] += 1
             msg = decode(rx.payload, Estop)
             if isinstance(msg, DecodeError):
-                self._reject("estop", msg)
+                self.faults.reject("estop", msg)
                 return
-            self.witness_message(msg.engage, msg.robot, msg.id)  # answered on estop/held
+            self.witness.message(msg.engage, msg.robot, msg.id)  # answered on estop/held
             if msg.robot is not None and msg.robot != self.robot_id:
                 return  # another robot's estop
             self.estop.apply(msg.engage, msg.robot, msg.id)
             self.sync_estop("message")
         except Exception as exc:
-            self._internal("on_estop", exc)
+            self.faults.internal("on_estop", exc)
 
     def on_estop_state(self, answers: list[tuple[bool, str | None, int | None]]) -> None:
         """The coordinators' latched e-stop state (a query's ``(engage, robot, id)`` entries,
@@ -319,12 +345,12 @@ class AgentNode(NodeNeighbours, EstopHooks):
         try:
             if not answers:
                 return
-            self.witness_answer(answers)
+            self.witness.answer(answers)
             mine = [a for a in answers if a[1] is None or a[1] == self.robot_id]
             self.estop.merge_answer(mine)
             self.sync_estop("query answer")
         except Exception as exc:
-            self._internal("on_estop_state", exc)
+            self.faults.internal("on_estop_state", exc)
 
     def sync_estop(self, why: str = "") -> None:
         """Engage or release the firmware's e-stop to match the latched scopes (``why``: what
@@ -348,18 +374,18 @@ class AgentNode(NodeNeighbours, EstopHooks):
             self.rx["clock"] += 1
             msg = decode(rx.payload, Clock)
             if isinstance(msg, DecodeError):
-                self._reject("clock", msg)
+                self.faults.reject("clock", msg)
                 return
             k = msg.tick
             again = self._replay.repeat(k)
             if again is not None:
                 self._publish(self.wheels_key, again, self.wheels_qos)  # re-announced clock
                 return
-            self.tracking_ids = frozenset(msg.tracking or ())
+            self.neighbour_table.relay(msg.tracking or ())
             self.clock_wheels = clock_wheels(msg).get(self.robot_id)
             self.clock_step(k, msg.t)
         except Exception as exc:
-            self._internal("on_clock", exc)
+            self.faults.internal("on_clock", exc)
 
     def clock_step(self, k: int, t_k: float) -> WheelCommand | None:
         """Lockstep tick k at sim time ``t_k``: poses and neighbours received since the last
@@ -369,17 +395,12 @@ class AgentNode(NodeNeighbours, EstopHooks):
             if self._pose_pending:
                 self.pose_rx_s = t_k
                 self._pose_pending = False
-            if self._pending_neighbours:
-                nb = self._neighbours
-                for rid in self._pending_neighbours.take():
-                    entry = nb.get(rid)
-                    if entry is not None and entry[4] is None:
-                        entry[4] = t_k
+            self.neighbour_table.settle(t_k)
             self.setpoint = self._setpoints.for_clock(k)
             self._replay.last_tick = k
             return self.step(t_k, tick=k)
         except Exception as exc:
-            self._internal("clock_step", exc)
+            self.faults.internal("clock_step", exc)
             return None
 
     # -- control -------------------------------------------------------------------------------
@@ -395,7 +416,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
                 setpoint=sp.sp if sp is not None else None,
                 setpoint_rx_s=sp.rx_s if sp is not None else -math.inf,
                 neighbours=(
-                    self.neighbours(now_s)
+                    self.neighbour_table.neighbours(now_s)
                     if self.neighbour_fn is None
                     else self.neighbour_fn(self, now_s)
                 ),
@@ -432,7 +453,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
             self._publish(self.wheels_key, payload, self.wheels_qos)
             return cmd
         except Exception as exc:  # SchemaError (a bug) or a closed session at shutdown
-            self._internal("step", exc)
+            self.faults.internal("step", exc)
             return None
 
     def status_message(self, now_s: float) -> Status:
@@ -462,11 +483,11 @@ class AgentNode(NodeNeighbours, EstopHooks):
         """Publish one status message (never raises)."""
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
-            if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
-                self.request_estop_state(now)
+            if not self.lockstep and self.estop_query.due(now):
+                self.estop_query.request(now)
             self._publish(self.status_key, encode(self.status_message(now)), rt.QOS_TELEMETRY)
         except Exception as exc:
-            self._internal("status", exc)
+            self.faults.internal("status", exc)
 
     def control_timer(self, now: float) -> None:
         """Realtime timer tick: step unless an own pose stepped within the period (on-pose)."""

@@ -44,9 +44,15 @@ its own latch. Like ``formation agent``, the host asks the coordinators for the 
 before it subscribes to anything that moves its robots (so robots of a host that starts or is
 respawned under an e-stop come up in ESTOP), again when it resumes from a stop, and every
 ``ESTOP_REFRESH_S`` in realtime, together with the engagements the other agents hold
-(:meth:`HostNode.on_estop_state`, ``on_estop_held``; the handlers are
-:mod:`robot_agent.node.host_estop`); while a hosted robot holds an engagement, the host answers
-``estop/held/<host>`` with every hosted robot's (:mod:`robot_agent.node.estop_shell`).
+(the handlers are the host's :class:`~robot_agent.node.host_estop.HostEstop` part); while a
+hosted robot holds an engagement, the host answers ``estop/held/<host>`` with every hosted
+robot's (its :class:`~robot_agent.node.estop_shell.EstopWitness`).
+
+The host owns its parts as the agent does: one
+:class:`~robot_agent.core.neighbour_table.NeighbourTable` for all its robots (the frames' poses,
+the other robots' modes from :class:`~robot_agent.node.peer_status.PeerStatusInputs`), read
+through the spatial hash; the e-stop query, witness and handlers; its fault counters
+(:class:`runtime.Faults`: a bad message is counted against every hosted robot's firmware).
 
 Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
 logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
@@ -71,6 +77,7 @@ from bus_schemas import (
     Clock,
     DecodeError,
     PoseBatch,
+    RejectCounts,
     SetpointBatch,
     StatusBatch,
     WheelsBatch,
@@ -79,26 +86,24 @@ from bus_schemas import (
     keys,
 )
 from robot_agent.core.clocksync import ClockOffsets
-from robot_agent.core.estop import ESTOP_REFRESH_S
 from robot_agent.core.firmware import Mode, WheelCommand
 from robot_agent.core.firmware import Pose as FwPose
 from robot_agent.core.firmware import Setpoint as FwSetpoint
-from robot_agent.core.host_grid import NeighbourGrid, Seen
-from robot_agent.core.lockstep import Arrivals, Replay
-from robot_agent.core.neighbours import (
-    NEIGHBOUR_STALE_S,
-    is_cooperative,
-)
+from robot_agent.core.host_grid import NeighbourGrid
+from robot_agent.core.lockstep import Replay
+from robot_agent.core.neighbour_table import NeighbourTable
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.safety_filter import Neighbour, SafetyFilter
-from robot_agent.node.agent import AgentNode, Publish, clock_wheels, status_tracking
+from robot_agent.node.agent import AgentNode, Publish, clock_wheels
+from robot_agent.node.estop_shell import EstopQuery, EstopWitness
 from robot_agent.node.host_estop import HostEstop
 from robot_agent.node.host_status import StatusRow, status_batches, status_row
-from runtime.lifecycle import GC_FULL_EVERY, GC_MIDDLE_EVERY, gc_generation
+from robot_agent.node.peer_status import PeerStatusInputs
+from runtime.lifecycle import gc_generation
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
-__all__ = ["GC_FULL_EVERY", "GC_MIDDLE_EVERY", "MAX_HOSTED", "HostNode"]
+__all__ = ["MAX_HOSTED", "HostNode"]
 
 MAX_HOSTED: Final = 4096
 """Robots one host runs at most."""
@@ -123,7 +128,7 @@ GC_MAX_GAP_S: Final = 0.5
 """Realtime with manual collections (:attr:`HostNode.manual_gc`): the longest time without one."""
 
 
-class HostNode(HostEstop):
+class HostNode:
     """Many :class:`AgentNode` sharing one session's batched I/O; Zenoh-free apart from
     ``publish``. Handlers take one :class:`runtime.transport.Received`, run on the event
     loop and never raise.
@@ -164,20 +169,28 @@ class HostNode(HostEstop):
         self.nodes: dict[str, AgentNode] = {}
         quiet = rt.NodeLog(f"agent-host {name}", min_interval_s=5.0)
         for rid in robot_ids:
-            node = AgentNode(
+            self.nodes[rid] = AgentNode(
                 rid, fleet, config, publish, lockstep=lockstep, loop_mode="fixed",
-                rate_hz=rate_hz, log=quiet,
+                rate_hz=rate_hz, log=quiet, neighbour_fn=self._neighbours_of,
+                publish_wheels=False,
             )  # fmt: skip
-            node.publish_wheels = False
-            node.neighbour_fn = self._neighbours_of
-            self.nodes[rid] = node
         self.order = list(self.nodes)
+        # a bad message reached every hosted robot: each firmware counts it
+        self.faults = rt.Faults(self.log, on_reject=self._firmware_reject)
+        # every robot's latest pose (robot_agent.core.neighbour_table) and the cooperative rule:
+        # lockstep, what the clock relays; realtime, the hosted robots' own modes and the others'
+        # status messages (peer_status)
+        self.neighbour_table = NeighbourTable(
+            lockstep=lockstep, max_robots=MAX_TRACKED, local_tracking=self._hosted_tracking
+        )
         # neighbours are looked up in 3 x 3 cells: a cell must cover the repulsion's d0 and the
         # safety filter's range
         self.cell_m = max(
             config.repulsion.influence_m, SafetyFilter(config).neighbour_range_m, 1e-3
         )
-        self.grid = NeighbourGrid(self.cell_m, self.cooperative)
+        self.grid = NeighbourGrid(
+            self.cell_m, self.neighbour_table.cooperative, self.neighbour_table.seen
+        )
 
         self.poses_key = keys.poses_key(fleet)
         self.setpoints_key = keys.setpoints_key(fleet)
@@ -187,18 +200,17 @@ class HostNode(HostEstop):
         self.status_key = keys.host_status_key(fleet, name)
         self.wheels_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
 
-        self._seen = self.grid.seen  # the latest pose of every robot in the frames
         self.clocks = ClockOffsets()  # realtime: the pose frames' clock on this host's
-        # cooperative neighbours (robot_agent.core.neighbours rule 3): lockstep, what the clock
-        # relays; realtime, the hosted robots' own modes and the others' status messages
-        self.tracking_ids: frozenset[str] = frozenset()
-        self._status_modes: dict[str, list[float | bool]] = {}
-        self._pending: Arrivals[Seen] = Arrivals()  # lockstep: received since the last clock
         self.rx: dict[str, int] = {
             "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0,
         }  # fmt: skip
-        self.rejected = 0
-        self.internal_errors = 0
+        self.peer_status = PeerStatusInputs(
+            self.neighbour_table,
+            self.rx,
+            self.faults.reject,
+            self.faults.internal,
+            own_key=self.status_key,
+        )
         self.batches = 0
         self.sim_t = 0.0
         self._replay: Replay[list[bytes]] = Replay()  # lockstep: the last clock's batches
@@ -207,10 +219,18 @@ class HostNode(HostEstop):
         self._status_rows: list[StatusRow] = []  # the status round under way (publish_status)
         self._status_t = 0.0
         self.stall = rt.StallDetector()  # realtime: stops of this process (runtime.stall)
-        # the latched e-stop (robot_agent.core.estop): the hooks that ask the latched state and
-        # answer
-        # with the engagements held (robot_agent.node.estop_shell, set by host_main)
-        self._init_estop_hooks()
+        # the latched e-stop (robot_agent.core.estop): the query of the latched state, the
+        # witness answering with the engagements held (robot_agent.node.estop_shell, put on the
+        # bus by host_main) and the handlers applying both to every hosted robot
+        self.estop_query = EstopQuery(self.faults.internal)
+        self.witness = EstopWitness(self.faults.internal)
+        self.estop = HostEstop(
+            self.nodes,
+            self.witness,
+            self.rx,
+            self.faults,
+            step_now=None if lockstep else self._step_now,
+        )
         # realtime: the process turned the automatic garbage collection off (host_main) and the
         # host collects after each watchdog round, between two frames (collect_garbage)
         self.manual_gc = False
@@ -219,16 +239,24 @@ class HostNode(HostEstop):
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
-    def _reject(self, what: str, why: DecodeError | str) -> None:
-        """A bad message reached every hosted robot: each firmware counts it."""
-        self.rejected += 1
+    def _firmware_reject(self, text: str) -> None:
         for node in self.nodes.values():
-            node.firmware.reject(f"{what}: {why}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+            node.firmware.reject(text)
 
-    def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+    @property
+    def rejects(self) -> RejectCounts:
+        """Messages dropped by this host, by ``<message>-<reason>``."""
+        return self.faults.rejects
+
+    @property
+    def rejected(self) -> int:
+        """Messages dropped by this host (each counted by every hosted robot's firmware too)."""
+        return self.faults.rejected
+
+    @property
+    def internal_errors(self) -> int:
+        """Internal errors caught by the handlers."""
+        return self.faults.internal_errors
 
     def check_resume(self, now_s: float) -> bool:
         """Realtime: a stop of the whole process (:mod:`runtime.stall`) -> every robot drops its
@@ -240,23 +268,18 @@ class HostNode(HostEstop):
             for node in self.nodes.values():
                 node.setpoint = None
                 node.pose = None
-            self.grid.clear()
+            self.neighbour_table.clear()
+            self.grid.invalidate()
             self.log.info(f"resumed after {stopped:.2f} s stopped: holding until fresh data")
-            self.request_estop_state(now_s)  # an e-stop engaged or released meanwhile
+            self.estop_query.request(now_s)  # an e-stop engaged or released meanwhile
         return self.stall.quarantined(now_s)
 
     # -- neighbours ----------------------------------------------------------------------------
 
-    def cooperative(self, rid: str, now_s: float) -> bool:
-        """Rule 3 of ``robot_agent.core.neighbours``: relayed by the clock (lockstep); realtime, a
-        hosted robot's own mode, another robot's fresh status."""
-        if self.lockstep:
-            return rid in self.tracking_ids
+    def _hosted_tracking(self, rid: str) -> bool | None:
+        """A hosted robot's own mode (rule 3 in realtime); None for a robot not hosted here."""
         node = self.nodes.get(rid)
-        if node is not None:
-            return node.firmware.mode is Mode.TRACKING
-        entry = self._status_modes.get(rid)
-        return entry is not None and is_cooperative(now_s, bool(entry[0]), float(entry[1]))
+        return None if node is None else node.firmware.mode is Mode.TRACKING
 
     def _neighbours_of(self, node: AgentNode, now_s: float) -> list[Neighbour]:
         """``node``'s neighbours at ``now_s`` as its safety filter and repulsion see them
@@ -277,27 +300,21 @@ class HostNode(HostEstop):
                 return
             msg = decode(rx.payload, PoseBatch)
             if isinstance(msg, DecodeError):
-                self._reject("poses", msg)
+                self.faults.reject("poses", msg)
                 return
-            rx_s: float | None = None if self.lockstep else rx.rx_s
-            seen = self._seen
+            rx_s: float | None
+            store = self.neighbour_table.store
             nodes = self.nodes
             stamp = msg.stamp
-            if self.lockstep:
-                cap = stamp  # sim time: one clock for every node
+            if self.lockstep:  # sim time: one clock for every node; received at the next clock
+                cap, rx_s, now = stamp, None, self.sim_t
             else:
                 cap = self.clocks.capture_to_local(rx.key, msg.t, stamp, rx.rx_s)
+                rx_s = now = rx.rx_s
             mine: list[AgentNode] = []
             for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
-                e = seen.get(rid)
-                if e is None:
-                    if len(seen) >= MAX_TRACKED:
-                        continue
-                    e = seen[rid] = Seen(x, y, th, cap, rx_s, len(seen))
-                else:
-                    e.x, e.y, e.theta, e.capture_s, e.rx_s = x, y, th, cap, rx_s
-                if rx_s is None:
-                    self._pending.add(e)
+                if store(rid, x, y, th, cap, rx_s, now) is None:
+                    continue  # the table is full of current robots
                 node = nodes.get(rid)
                 if node is not None:
                     node.rx["pose"] += 1
@@ -309,13 +326,12 @@ class HostNode(HostEstop):
                         node.pose_rx_s = rx_s
                         mine.append(node)
             self.grid.invalidate()
-            if len(self._pending) > 4 * MAX_TRACKED:  # no clock for ages
-                self._pending.compact(key=id)
+            self.neighbour_table.end_frame()
             if mine:
                 now = time.monotonic()
                 self._publish_steps((n, n.step(now)) for n in mine)
         except Exception as exc:
-            self._internal("on_poses", exc)
+            self.faults.internal("on_poses", exc)
 
     def on_setpoints(self, rx: rt.Received) -> None:
         """A setpoint batch: each hosted robot's entry as if it came on its own key."""
@@ -325,7 +341,7 @@ class HostNode(HostEstop):
                 return
             msg = decode(rx.payload, SetpointBatch)
             if isinstance(msg, DecodeError):
-                self._reject("setpoints", msg)
+                self.faults.reject("setpoints", msg)
                 return
             nodes = self.nodes
             th, t, tick = msg.theta, msg.t, msg.tick
@@ -336,46 +352,7 @@ class HostNode(HostEstop):
                     node.rx["setpoint"] += 1
                     node.accept_setpoint(FwSetpoint(x, y, vx, vy, th, slot, t), role, rx.rx_s, tick)
         except Exception as exc:
-            self._internal("on_setpoints", exc)
-
-    def on_status(self, rx: rt.Received) -> None:
-        """Realtime: a robot's status (``formation agent``); its mode, while fresh, makes it a
-        cooperative neighbour."""
-        try:
-            self.rx["status"] += 1
-            got = status_tracking(rx.key, rx.payload)
-            if not isinstance(got, tuple):
-                self._reject("status", got)
-                return
-            self._note_mode(got[0], got[1], rx.rx_s)
-        except Exception as exc:
-            self._internal("on_status", exc)
-
-    def on_host_status(self, rx: rt.Received) -> None:
-        """Realtime: another agent host's status batch (its own is ignored)."""
-        try:
-            self.rx["status"] += 1
-            if rx.key == self.status_key:
-                return
-            msg = decode(rx.payload, StatusBatch)
-            if isinstance(msg, DecodeError):
-                self._reject("status", msg)
-                return
-            for rid, mode in zip(msg.robots, msg.mode, strict=True):
-                self._note_mode(rid, mode == "tracking", rx.rx_s)
-        except Exception as exc:
-            self._internal("on_host_status", exc)
-
-    def _note_mode(self, rid: str, tracking: bool, rx_s: float) -> None:
-        if rid in self.nodes:
-            return
-        modes = self._status_modes
-        if rid not in modes and len(modes) >= MAX_TRACKED:
-            for old in [r for r, e in modes.items() if rx_s - float(e[1]) > NEIGHBOUR_STALE_S]:
-                del modes[old]
-            if len(modes) >= MAX_TRACKED:
-                return
-        modes[rid] = [tracking, rx_s]
+            self.faults.internal("on_setpoints", exc)
 
     def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: every robot steps at t_k; one batch with ``tick: k`` answers."""
@@ -383,7 +360,7 @@ class HostNode(HostEstop):
             self.rx["clock"] += 1
             msg = decode(rx.payload, Clock)
             if isinstance(msg, DecodeError):
-                self._reject("clock", msg)
+                self.faults.reject("clock", msg)
                 return
             k, t_k = msg.tick, msg.t
             again = self._replay.repeat(k)
@@ -392,13 +369,11 @@ class HostNode(HostEstop):
                     self._publish(self.wheels_key, payload, self.wheels_qos)
                 return
             self.sim_t = t_k
-            self.tracking_ids = frozenset(msg.tracking or ())
+            self.neighbour_table.relay(msg.tracking or ())
             enc = clock_wheels(msg)
             for n in self.nodes.values():
                 n.clock_wheels = enc.get(n.robot_id)
-            for e in self._pending.take():
-                if e.rx_s is None:
-                    e.rx_s = t_k
+            self.neighbour_table.settle(t_k)
             self.grid.invalidate()
             self._replay.record(k, [])
             nodes = self.nodes.values()
@@ -406,9 +381,14 @@ class HostNode(HostEstop):
                 ((n, n.clock_step(k, t_k)) for n in nodes), tick=k
             )
         except Exception as exc:
-            self._internal("on_clock", exc)
+            self.faults.internal("on_clock", exc)
 
     # -- outputs -------------------------------------------------------------------------------
+
+    def _step_now(self, robots: Iterable[AgentNode]) -> None:
+        """Realtime: step ``robots`` now and publish their commands (an engaged e-stop)."""
+        now = time.monotonic()
+        self._publish_steps((n, n.step(now)) for n in robots)
 
     def _publish_steps(
         self,
@@ -491,8 +471,8 @@ class HostNode(HostEstop):
             if not rows:  # a new round
                 now = self.sim_t if self.lockstep else time.monotonic()
                 self._status_t = now
-                if not self.lockstep and now - self.estop_queried_s >= ESTOP_REFRESH_S:
-                    self.request_estop_state(now)
+                if not self.lockstep and self.estop_query.due(now):
+                    self.estop_query.request(now)
             start = len(rows)
             end = len(self.order) if self.lockstep else start + STATUS_STEP
             rows.extend(self._status_row(r) for r in self.order[start:end])
@@ -503,7 +483,7 @@ class HostNode(HostEstop):
                 self._publish(self.status_key, encode(msg), rt.QOS_TELEMETRY)
         except Exception as exc:
             self._status_rows = []
-            self._internal("status", exc)
+            self.faults.internal("status", exc)
         return None
 
     def control_timer(self, now: float) -> float:
@@ -521,7 +501,7 @@ class HostNode(HostEstop):
                 self.collect_garbage(now)
             oldest = min(n.last_step_s for n in self.nodes.values())
         except Exception as exc:
-            self._internal("step_due", exc)
+            self.faults.internal("step_due", exc)
             return now + self.period_s
         after = time.monotonic()
         return min(max(oldest + lim, after), after + self.period_s)

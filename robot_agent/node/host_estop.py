@@ -2,45 +2,50 @@
 ``estop`` applied to every hosted robot or one, and the coordinators' latched state merged into
 each hosted robot's latch (queried at start, on resume and every ``ESTOP_REFRESH_S``).
 
-Part of the agent host's process shell: :class:`HostEstop` is a base of
-:class:`robot_agent.node.host.HostNode` (which owns the state; split out of
-``robot_agent/node/host.py``).
-Handlers never raise.
+:class:`HostEstop` is a part the agent host (:class:`robot_agent.node.host.HostNode`) builds and
+owns; it is given the hosted robots, the host's e-stop witness and counters, and how to step
+robots at once. Handlers never raise.
 """
 
 from __future__ import annotations
 
-import time
-from collections.abc import Iterable, Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Mapping, Sequence
 
 import runtime as rt
 from bus_schemas import DecodeError, Estop, decode, decode_estop_answer
-from robot_agent.core.firmware import WheelCommand
 from robot_agent.node.agent import AgentNode
-from robot_agent.node.estop_shell import EstopHooks
+from robot_agent.node.estop_shell import EstopWitness
 
 __all__ = ["HostEstop"]
 
 
-class HostEstop(EstopHooks):
-    """The e-stop handlers of :class:`~robot_agent.node.host.HostNode` (its state is the host's,
-    declared here for the type checker)."""
+class HostEstop:
+    """The e-stop handlers of an agent host.
 
-    nodes: dict[str, AgentNode]
-    lockstep: bool
-    log: rt.NodeLog
-    rx: dict[str, int]
+    Args:
+        nodes: the hosted robots, by id.
+        witness: the host's witness of every engagement seen (answered on ``estop/held``).
+        rx: the host's receive counters (``"estop"`` is counted here).
+        faults: the host's counters (a bad answer counts against every hosted robot).
+        step_now: realtime, steps the given robots now and publishes their commands (an
+            engaged e-stop zeroes the wheels at once); None in lockstep.
+    """
 
-    if TYPE_CHECKING:
-
-        def _reject(self, what: str, why: DecodeError | str) -> None: ...
-
-        def _publish_steps(
-            self,
-            steps: Iterable[tuple[AgentNode, WheelCommand | None]],
-            tick: int | None = None,
-        ) -> list[bytes]: ...
+    def __init__(
+        self,
+        nodes: Mapping[str, AgentNode],
+        witness: EstopWitness,
+        rx: dict[str, int],
+        faults: rt.Faults,
+        *,
+        step_now: Callable[[list[AgentNode]], None] | None,
+    ) -> None:
+        self._nodes = nodes
+        self._witness = witness
+        self._rx = rx
+        self._faults = faults
+        self._log = faults.log
+        self._step_now = step_now
 
     def on_estop_state(self, payloads: Sequence[bytes], _token: int = 0) -> None:
         """The coordinators' latched e-stop state (a query's answer on ``estop``; ``_token``: the
@@ -58,30 +63,30 @@ class HostEstop(EstopHooks):
             if not payloads:
                 return
             answers = decode_estop_answer(
-                payloads, lambda err: self._reject("estop_state", err), held=held
+                payloads, lambda err: self._faults.reject("estop_state", err), held=held
             )
-            self.witness_answer(answers)
-            for node in self.nodes.values():
+            self._witness.answer(answers)
+            for node in self._nodes.values():
                 node.on_estop_state(answers)
-            stopped = sum(n.estop.stopped(n.robot_id) for n in self.nodes.values())
+            stopped = sum(n.estop.stopped(n.robot_id) for n in self._nodes.values())
             if stopped:
-                self.log.limited("estop-state", f"latched e-stop: {stopped} robot(s) stopped")
+                self._log.limited("estop-state", f"latched e-stop: {stopped} robot(s) stopped")
         except Exception as exc:
-            self._internal("on_estop_state", exc)
+            self._faults.internal("on_estop_state", exc)
 
     def on_estop(self, rx: rt.Received) -> None:
         """Fleet or one robot's estop: engage (zero wheels at once in realtime) or release."""
         try:
-            self.rx["estop"] += 1
+            self._rx["estop"] += 1
             msg = decode(rx.payload, Estop)
             if isinstance(msg, DecodeError):
-                self._reject("estop", msg)
+                self._faults.reject("estop", msg)
                 return
-            self.witness_message(msg.engage, msg.robot, msg.id)  # answered on estop/held
+            self._witness.message(msg.engage, msg.robot, msg.id)  # answered on estop/held
             if msg.robot is None:
-                targets = list(self.nodes.values())
-            elif msg.robot in self.nodes:
-                targets = [self.nodes[msg.robot]]
+                targets = list(self._nodes.values())
+            elif msg.robot in self._nodes:
+                targets = [self._nodes[msg.robot]]
             else:
                 return
             for node in targets:  # each robot's latched scopes (robot_agent.core.estop)
@@ -89,9 +94,8 @@ class HostEstop(EstopHooks):
                 node.estop.apply(msg.engage, msg.robot, msg.id)
                 node.sync_estop()
             what = "all robots" if msg.robot is None else msg.robot
-            self.log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")
-            if msg.engage and not self.lockstep:
-                now = time.monotonic()
-                self._publish_steps((n, n.step(now)) for n in targets)
+            self._log.info(f"estop {'engaged' if msg.engage else 'released'} ({what})")
+            if msg.engage and self._step_now is not None:
+                self._step_now(targets)
         except Exception as exc:
-            self._internal("on_estop", exc)
+            self._faults.internal("on_estop", exc)

@@ -148,8 +148,8 @@ async def _node(
             io.subscribe(host.clock_key, host.on_clock)
         io.subscribe(host.poses_key, host.on_poses)
         if not lockstep:  # the other robots' modes: cooperative neighbours
-            io.subscribe(keys.all_status_pattern(fleet), host.on_status)
-            io.subscribe(keys.all_host_status_pattern(fleet), host.on_host_status)
+            io.subscribe(keys.all_status_pattern(fleet), host.peer_status.on_status)
+            io.subscribe(keys.all_host_status_pattern(fleet), host.peer_status.on_host_status)
         for r in ids:
             io.declare_token(keys.alive_robot_key(fleet, r))
         # the robots' firmware lives as long as the process: out of the collector's sight too
@@ -174,9 +174,19 @@ async def _node(
 
 async def attach_host_estop_state(host: HostNode, io: rt.NodeIO) -> None:
     """``robot_agent.node.agent_estop.attach_estop`` for an agent host: every hosted robot merges
-    the
-    answers, and the host answers ``estop/held/<host>`` with every hosted robot's engagements."""
-    await attach_estop(io, host, host.name, host.on_estop_state, host.on_estop_held)
+    the answers, and the host answers ``estop/held/<host>`` with every hosted robot's
+    engagements."""
+    await attach_estop(
+        io,
+        fleet=host.fleet,
+        name=host.name,
+        on_estop=host.estop.on_estop,
+        query=host.estop_query,
+        witness=host.witness,
+        internal=host.faults.internal,
+        on_state=host.estop.on_estop_state,
+        on_held=host.estop.on_estop_held,
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

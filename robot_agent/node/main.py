@@ -27,8 +27,9 @@ from bus_schemas import keys
 from robot_agent.core import _accel
 from robot_agent.core.params import AgentConfig
 from robot_agent.motors import MotorBackend, create_backend
-from robot_agent.node.agent import AgentNode, LoopMode, MotorOutput
+from robot_agent.node.agent import AgentNode, LoopMode
 from robot_agent.node.agent_estop import attach_estop_state
+from robot_agent.node.motor_output import MotorOutput
 from runtime.sdnotify import Notifier
 
 __all__ = ["build_parser", "main"]
@@ -379,8 +380,8 @@ async def _node(
     if lockstep:
         io.subscribe(node.clock_key, node.on_clock)
     else:  # the other robots' modes: cooperative neighbours (robot_agent.core.neighbours)
-        io.subscribe(keys.all_status_pattern(setup.fleet), node.on_status)
-        io.subscribe(keys.all_host_status_pattern(setup.fleet), node.on_host_status)
+        io.subscribe(keys.all_status_pattern(setup.fleet), node.peer_status.on_status)
+        io.subscribe(keys.all_host_status_pattern(setup.fleet), node.peer_status.on_host_status)
     io.subscribe(node.pose_key, node.on_pose)
     io.declare_token(node.alive_key)
     print(f"agent {setup.robot_id} ready", flush=True)

@@ -10,7 +10,8 @@ from sim_plant.core.accounting import (
     SeparationMonitor,
     contacts_and_min_distance,
 )
-from sim_plant.core.plant import GeometryLike, Plant, unicycle_integrate, wrap_angles
+from sim_plant.core.kinematics import GeometryLike, unicycle_integrate, wrap_angles
+from sim_plant.core.plant import Plant
 from sim_plant.core.sensors import Camera, CameraFrame, CommandLink
 
 __all__ = [

@@ -65,7 +65,6 @@ from sim_plant.core.carry import Carries
 from sim_plant.core.commands import CommandGuard
 from sim_plant.core.encoders import (
     _TWO_PI,
-    WheelEncoders,
     _check_finite_scalar,
 )
 from sim_plant.core.kinematics import (
@@ -75,20 +74,10 @@ from sim_plant.core.kinematics import (
     PoseRow,
     PoseRows,
     unicycle_integrate,
-    wrap_angle,
     wrap_angles,
 )
 
-__all__ = [
-    "SMALL_N",
-    "GeometryLike",
-    "Plant",
-    "PoseRows",
-    "WheelEncoders",
-    "unicycle_integrate",
-    "wrap_angle",
-    "wrap_angles",
-]
+__all__ = ["SMALL_N", "Plant"]
 
 BoolArray = npt.NDArray[np.bool_]
 WheelRow = tuple[float, float]

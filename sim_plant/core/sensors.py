@@ -46,7 +46,8 @@ from typing import Any, Generic, NamedTuple, TypeVar
 import numpy as np
 import numpy.typing as npt
 
-from sim_plant.core.plant import SMALL_N, PoseRows, wrap_angles
+from sim_plant.core.kinematics import PoseRows, wrap_angles
+from sim_plant.core.plant import SMALL_N
 
 __all__ = ["Camera", "CameraFrame", "CommandLink"]
 

@@ -1,16 +1,18 @@
 """The plant process's inputs: wheel commands, disturbances, liveliness, the lockstep leader.
 
-:class:`PlantInputs` holds the input handlers of :class:`sim_plant.node.plant.PlantNode` (which sets
-every attribute declared here): each decodes on the event loop, counts a bad message in
-``rejected`` and ignores it, and never raises. A robot whose agent token disappears has its
-wheels set to zero at once and the commands still in flight for it are discarded.
+:class:`PlantInputs` is a part the plant (:class:`sim_plant.node.plant.PlantNode`) builds and owns:
+it keeps what arrived (the latest command of each robot, the lockstep answers, who is alive, the
+disturbances from the bus) and tells the node through the callables it is given. Each handler
+decodes on the event loop, counts a bad message and ignores it, and never raises. A robot whose
+agent token disappears has its wheels set to zero at once and the commands still in flight for it
+are discarded.
 """
 
 from __future__ import annotations
 
 import asyncio
 from collections import deque
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from typing import Final
 
 import numpy as np
@@ -18,18 +20,15 @@ import numpy.typing as npt
 
 import runtime as rt
 from bus_schemas import (
+    MAX_LIST_LEN,
     DecodeError,
     Disturbance,
     Leader,
-    RejectCounts,
     Wheels,
     WheelsBatch,
     decode,
     keys,
 )
-from sim_plant.core.accounting import SeparationMonitor
-from sim_plant.core.plant import Plant
-from sim_plant.core.sensors import Camera, CommandLink
 
 __all__ = ["ARENA_LIMIT_M", "MAX_DRAG_S", "LinkCmd", "PlantInputs"]
 
@@ -43,57 +42,78 @@ _DRAG: Final = "drag"
 LinkCmd = tuple[int, float, float]
 
 
-@dataclass
-class _Sim:
-    """The numpy cores of one run (built when the run starts: realtime needs its t0)."""
-
-    plant: Plant
-    camera: Camera
-    link: CommandLink[LinkCmd]
-    monitor: SeparationMonitor
-    t0_s: float
-
-
 class PlantInputs:
-    """Input handlers of the plant node (state lives in :class:`sim_plant.node.plant.PlantNode`)."""
+    """What the plant received, and its input handlers.
 
-    lockstep: bool
-    log: rt.NodeLog
-    index: dict[str, int]
-    sim: _Sim | None
-    alive: set[str]
-    lost: set[str]
-    coordinators: set[str]
-    last_cmd: npt.NDArray[np.float64]
-    applied: npt.NDArray[np.float64]
-    generation: list[int]
-    answer_tick: list[int | None]
-    answer_tracking: list[bool]
-    leader_tick: int | None
-    bus_disturbances: deque[Disturbance]
-    changed: asyncio.Event
-    rejected: int
-    rejects: RejectCounts
-    internal_errors: int
-    ignored: int
-    rx: dict[str, int]
-    tick: int
-    latencies_s: deque[float]
-    latency_pub_s: deque[float]
-    _frame_pub: dict[float, float]
-    _answered: list[float | None]
+    Args:
+        ids: the simulated robots, in robot order (index ``i`` is ``ids[i]``).
+        lockstep: a command is kept for the end of the tick it answers (else: sent now).
+        faults: the node's counters (``runtime.faults.Faults``).
+        current_tick: the tick the plant waits answers for (lockstep).
+        send: realtime, a valid command of robot ``i``: ``send(i, command, pose_t, rx_s)``
+            (the frame stamp it was computed from, if any, and its receive time).
+        stop_wheels: robot ``i``'s agent is gone: its applied wheel speeds go to zero.
+    """
 
-    def _reject(self, what: str, why: DecodeError | str) -> None:
-        """Count a dropped ``what`` message (``rejected``, and by ``<what>-<reason>`` in
-        ``rejects``: a DecodeError's reason, else ``invalid``) and log it (rate limited)."""
-        self.rejected += 1
-        reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
-        self.rejects.add(f"{what.replace(' ', '_')}-{reason}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+    def __init__(
+        self,
+        ids: Sequence[str],
+        *,
+        lockstep: bool,
+        faults: rt.Faults,
+        current_tick: Callable[[], int],
+        send: Callable[[int, LinkCmd, float | None, float], None],
+        stop_wheels: Callable[[int], None],
+    ) -> None:
+        self.ids = list(ids)
+        self.index = {rid: i for i, rid in enumerate(self.ids)}
+        n = len(self.ids)
+        self.lockstep = lockstep
+        self._faults = faults
+        self._log = faults.log
+        self._current_tick = current_tick
+        self._send = send
+        self._stop_wheels = stop_wheels
+        self.alive: set[str] = set()
+        self.lost: set[str] = set()  # lockstep: token gone, still waited for
+        self.coordinators: set[str] = set()
+        self.last_cmd: npt.NDArray[np.float64] = np.zeros((n, 2))
+        self.generation = [0] * n
+        self.answer_tick: list[int | None] = [None] * n
+        # lockstep: the answer's mode was TRACKING (Wheels.mode); relayed in the next clock
+        self.answer_tracking: list[bool] = [False] * n
+        self.leader_tick: int | None = None
+        self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
+        self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
+        self.ignored = 0  # valid messages for robots this plant does not simulate
+        self.rx: dict[str, int] = {
+            "wheels": 0, "host_wheels": 0, "disturbance": 0, "leader": 0, "alive": 0,
+        }  # fmt: skip
 
-    def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+    # -- lockstep answers ----------------------------------------------------------------------
+
+    def answered(self, k: int) -> bool:
+        """Every live agent answered tick ``k`` and, if a coordinator is alive, its leader."""
+        for rid in self.alive:
+            if self.answer_tick[self.index[rid]] != k:
+                return False
+        return not self.coordinators or self.leader_tick == k
+
+    def missing(self, k: int) -> list[str]:
+        """Who has not answered tick ``k``: live robots in id order, then ``"coordinator"``."""
+        out = [r for r in sorted(self.alive) if self.answer_tick[self.index[r]] != k]
+        if self.coordinators and self.leader_tick != k:
+            out.append("coordinator")
+        return out
+
+    def tracking_answers(self, k: int) -> tuple[str, ...]:
+        """The robots whose answer to tick ``k`` said TRACKING (in robot order), what clock
+        ``k + 1`` relays so every agent knows which neighbours were cooperative
+        (``robot_agent.core.neighbours``, rule 3); at most a list's bound."""
+        tick = self.answer_tick
+        tr = self.answer_tracking
+        out = tuple(rid for i, rid in enumerate(self.ids) if tr[i] and tick[i] == k)
+        return out[:MAX_LIST_LEN]
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -115,12 +135,12 @@ class PlantInputs:
                 # is dropped (drop_lost), so the result is that of the unpaused run.
                 if rid not in self.lost:
                     self.lost.add(rid)
-                    self.log.info(f"robot {rid}'s token is gone (lockstep: still waited for)")
+                    self._log.info(f"robot {rid}'s token is gone (lockstep: still waited for)")
             elif rid in self.alive:
                 self.drop_agent(rid)
             self.changed.set()
         except Exception as exc:
-            self._internal("on_alive_robot", exc)
+            self._faults.internal("on_alive_robot", exc)
 
     def drop_agent(self, rid: str) -> None:
         """Robot ``rid``'s agent is gone: its wheels stop and nobody waits for it."""
@@ -129,9 +149,9 @@ class PlantInputs:
         self.lost.discard(rid)
         self.generation[i] += 1  # commands in flight for it are discarded
         self.last_cmd[i] = 0.0
-        self.applied[i] = 0.0
+        self._stop_wheels(i)
         self.answer_tick[i] = None
-        self.log.info(f"robot {rid}'s agent is gone: its wheels stop")
+        self._log.info(f"robot {rid}'s agent is gone: its wheels stop")
 
     def drop_lost(self, missing: list[str]) -> None:
         """Lockstep timeout: the robots of ``missing`` whose token is gone are dropped."""
@@ -152,7 +172,7 @@ class PlantInputs:
                 self.coordinators.discard(parsed[2])
             self.changed.set()
         except Exception as exc:
-            self._internal("on_alive_coordinator", exc)
+            self._faults.internal("on_alive_coordinator", exc)
 
     def on_wheels(self, rx: rt.Received) -> None:
         """A wheel command: into the link now (realtime) or at the tick's end (lockstep)."""
@@ -160,11 +180,11 @@ class PlantInputs:
             self.rx["wheels"] += 1
             parsed = keys.parse_robot_key(rx.key)
             if parsed is None or parsed[2] != keys.WHEELS:
-                self._reject("wheels", f"not a wheels key: {rx.key[:100]!r}")
+                self._faults.reject("wheels", f"not a wheels key: {rx.key[:100]!r}")
                 return
             msg = decode(rx.payload, Wheels)
             if isinstance(msg, DecodeError):
-                self._reject("wheels", msg)
+                self._faults.reject("wheels", msg)
                 return
             i = self.index.get(parsed[1])
             if i is None:
@@ -173,7 +193,7 @@ class PlantInputs:
             tracking = msg.mode == "tracking"
             self._command(i, msg.omega_r, msg.omega_l, msg.tick, msg.pose_t, rx.rx_s, tracking)
         except Exception as exc:
-            self._internal("on_wheels", exc)
+            self._faults.internal("on_wheels", exc)
 
     def on_host_wheels(self, rx: rt.Received) -> None:
         """An agent host's batch of wheel commands: each entry as a ``robot/<id>/wheels``."""
@@ -181,7 +201,7 @@ class PlantInputs:
             self.rx["host_wheels"] += 1
             msg = decode(rx.payload, WheelsBatch)
             if isinstance(msg, DecodeError):
-                self._reject("host wheels", msg)
+                self._faults.reject("host wheels", msg)
                 return
             index = self.index
             rows = zip(msg.robots, msg.omega_r, msg.omega_l, msg.pose_t, strict=True)
@@ -195,7 +215,7 @@ class PlantInputs:
                 p_t = pose_t if pose_t >= 0.0 else None
                 self._command(i, wr, wl, msg.tick, p_t, rx.rx_s, tracking)
         except Exception as exc:
-            self._internal("on_host_wheels", exc)
+            self._faults.internal("on_host_wheels", exc)
 
     def _command(
         self,
@@ -214,16 +234,10 @@ class PlantInputs:
             if tick is not None:
                 self.answer_tick[i] = tick
                 self.answer_tracking[i] = tracking
-                if tick == self.tick:
+                if tick == self._current_tick():
                     self.changed.set()
-        elif self.sim is not None:
-            self.sim.link.send(rx_s, i, (self.generation[i], wr, wl))
-            if pose_t is not None and pose_t != self._answered[i]:
-                published = self._frame_pub.get(pose_t)
-                if published is not None:  # the first command computed from this frame
-                    self._answered[i] = pose_t
-                    self.latencies_s.append(rx_s - published)
-                    self.latency_pub_s.append(published)
+        else:
+            self._send(i, (self.generation[i], wr, wl), pose_t, rx_s)
 
     def on_leader(self, rx: rt.Received) -> None:
         """Lockstep: the coordinator's leader message closes its answer to a tick."""
@@ -231,17 +245,17 @@ class PlantInputs:
             self.rx["leader"] += 1
             msg = decode(rx.payload, Leader)
             if isinstance(msg, DecodeError):
-                self._reject("leader", msg)
+                self._faults.reject("leader", msg)
                 return
             tick = msg.tick
             if tick is None:
-                self._reject("leader", "lockstep leader without a valid tick")
+                self._faults.reject("leader", "lockstep leader without a valid tick")
                 return
             self.leader_tick = tick
-            if tick == self.tick:
+            if tick == self._current_tick():
                 self.changed.set()
         except Exception as exc:
-            self._internal("on_leader", exc)
+            self._faults.internal("on_leader", exc)
 
     def on_disturbance(self, rx: rt.Received) -> None:
         """Drag or teleport a robot at the next physics step."""
@@ -249,7 +263,7 @@ class PlantInputs:
             self.rx["disturbance"] += 1
             msg = decode(rx.payload, Disturbance)
             if isinstance(msg, DecodeError):
-                self._reject("disturbance", msg)
+                self._faults.reject("disturbance", msg)
                 return
             if msg.robot not in self.index:
                 self.ignored += 1
@@ -257,10 +271,8 @@ class PlantInputs:
             lim = ARENA_LIMIT_M
             values = (msg.dx, msg.dy, msg.x or 0.0, msg.y or 0.0)
             if any(abs(v) > lim for v in values) or msg.duration_s > MAX_DRAG_S:
-                self._reject("disturbance", f"beyond {lim} m or {MAX_DRAG_S} s")
+                self._faults.reject("disturbance", f"beyond {lim} m or {MAX_DRAG_S} s")
                 return
             self.bus_disturbances.append(msg)
         except Exception as exc:
-            self._internal("on_disturbance", exc)
-
-    # -- the simulation ------------------------------------------------------------------------
+            self._faults.internal("on_disturbance", exc)

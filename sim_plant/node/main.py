@@ -106,7 +106,7 @@ def write_stats(node: PlantNode, path: str, log: rt.NodeLog) -> bool:
     from runtime.files import write_atomic
 
     try:
-        stats = {**node.status_map(), **node.latency_stats(), "n_robots": node.n}
+        stats = {**node.status_map(), **node.outputs.latency_stats(), "n_robots": node.n}
         write_atomic(path, json.dumps(stats, indent=1).encode())
     except Exception as exc:
         log.info(f"--stats-out {path}: not written: {exc!r}")
@@ -130,18 +130,19 @@ async def _node(
         poses=not ns.no_poses,
         log=io.log,
     )
-    io.pubs.get(node.poses_key, node.data_qos)
-    for key in () if ns.batch else node.pose_keys:
-        io.pubs.get(key, node.data_qos)
+    outputs, inputs = node.outputs, node.inputs
+    io.pubs.get(outputs.poses_key, outputs.data_qos)
+    for key in () if ns.batch else outputs.pose_keys:
+        io.pubs.get(key, outputs.data_qos)
     if ns.lockstep:
         io.pubs.get(node.clock_key, rt.QOS_CRITICAL)
-    io.watch_liveliness(node.alive_robots_pattern, node.on_alive_robot)
-    io.watch_liveliness(node.alive_coordinators_pattern, node.on_alive_coordinator)
-    io.subscribe(node.wheels_pattern, node.on_wheels)
-    io.subscribe(node.host_wheels_pattern, node.on_host_wheels)
-    io.subscribe(node.disturbance_key, node.on_disturbance)
+    io.watch_liveliness(node.alive_robots_pattern, inputs.on_alive_robot)
+    io.watch_liveliness(node.alive_coordinators_pattern, inputs.on_alive_coordinator)
+    io.subscribe(node.wheels_pattern, inputs.on_wheels)
+    io.subscribe(node.host_wheels_pattern, inputs.on_host_wheels)
+    io.subscribe(node.disturbance_key, inputs.on_disturbance)
     if ns.lockstep:
-        io.subscribe(node.leader_key, node.on_leader)
+        io.subscribe(node.leader_key, inputs.on_leader)
     io.declare_token(node.alive_key)
     print("plant ready", flush=True)
     code = await node.run(stop, ns.wait_robots)

@@ -2,11 +2,10 @@
 each robot's ``pose``) and, in realtime, the bookkeeping of each published frame that gives the
 control-loop latency (frame published -> command received) and the frames' lateness.
 
-:class:`PlantOutputs` holds these methods of :class:`sim_plant.node.plant.PlantNode` (which sets
-every
-attribute declared here), as :class:`sim_plant.node.inputs.PlantInputs` holds its input handlers.
-The
-publication order is the in-process simulator's (docs/process-shells.md): lockstep runs over the
+:class:`PlantOutputs` is a part the plant (:class:`sim_plant.node.plant.PlantNode`) builds and
+owns, as it owns its :class:`~sim_plant.node.inputs.PlantInputs`: it is given the keys' fleet, the
+robots and the ``publish`` callable, and keeps the sequence numbers and the latency bookkeeping.
+The publication order is the in-process simulator's (docs/process-shells.md): lockstep runs over the
 bus reproduce it bit for bit (tests/bus/test_node_plant.py).
 """
 
@@ -14,22 +13,31 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Sequence
 from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
 import runtime as rt
-from bus_schemas import BATCH_CHUNK, Pose, PoseBatch, Truth, TruthBatch, encode
-from sim_plant.node.inputs import _Sim
+from bus_schemas import BATCH_CHUNK, Pose, PoseBatch, Truth, TruthBatch, encode, keys
+from sim_plant.core.sensors import Camera
 
-__all__ = ["FRAMES_REMEMBERED", "STEADY_TAIL_S", "STEADY_WARMUP_S", "PlantOutputs"]
+__all__ = [
+    "FRAMES_REMEMBERED",
+    "LATENCY_SAMPLES",
+    "STEADY_TAIL_S",
+    "STEADY_WARMUP_S",
+    "PlantOutputs",
+]
 
 FRAMES_REMEMBERED: Final = 64
 """Published frames whose stamps a returning command may still name (2 s at 30 Hz)."""
 STEADY_WARMUP_S: Final = 2.0
 """Steady-state latency excludes frames published in the first 2 s after the first answer (the
 agents' start: imports, first assignment, first-call costs) ..."""
+LATENCY_SAMPLES: Final = 500_000
+"""Realtime latency / lateness samples kept (the newest)."""
 STEADY_TAIL_S: Final = 0.5
 """... and in the last 0.5 s of frames (the run's shutdown: agents stop before the plant)."""
 
@@ -44,35 +52,67 @@ def _percentiles_ms(samples_s: Any) -> dict[str, float] | None:
 
 
 class PlantOutputs:
-    """Truth and camera-frame publication of the plant node (state lives in
-    :class:`sim_plant.node.plant.PlantNode`)."""
+    """Truth and camera-frame publication of the plant, and the realtime latency bookkeeping.
 
-    batch: bool
-    poses: bool
-    lockstep: bool
-    sim: _Sim | None
-    ids: list[str]
-    poses_key: str
-    truths_key: str
-    pose_keys: list[str]
-    truth_keys: list[str]
-    data_qos: rt.QoS
-    truth_qos: rt.QoS
-    _publish: Any
-    _seq: dict[str, int]
-    frames_published: int
-    frame_lateness_s: deque[float]
-    _frame_pub: dict[float, float]
-    _frame_order: deque[float]
-    latencies_s: deque[float]
-    latency_pub_s: deque[float]
+    Args:
+        ids: the simulated robots, in robot order.
+        fleet: the fleet name (the keys).
+        publish: ``publish(key, payload, qos)``.
+        batch: truth as TruthBatch and frames as PoseBatch only (agent hosts, ``--batch``).
+        poses: publish camera frames (False: a real tracker publishes the poses).
+        lockstep: every output must arrive and keep its order (QoS); no latency bookkeeping.
+    """
 
-    def _next_seq(self, key: str) -> int:
+    def __init__(
+        self,
+        ids: Sequence[str],
+        fleet: str,
+        publish: Any,
+        *,
+        batch: bool,
+        poses: bool,
+        lockstep: bool,
+    ) -> None:
+        self.ids = list(ids)
+        self._publish = publish
+        self.batch = batch
+        self.poses = poses
+        self.lockstep = lockstep
+        self.poses_key = keys.poses_key(fleet)
+        self.truths_key = keys.truths_key(fleet)
+        self.pose_keys = [keys.pose_key(fleet, r) for r in self.ids]
+        self.truth_keys = [keys.truth_key(fleet, r) for r in self.ids]
+        # Lockstep: poses must precede the clock (same session, same priority) and arrive.
+        self.data_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
+        self.truth_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
+        self._seq: dict[str, int] = {}
+        # Realtime control-loop latency (docs/scale.md): frame stamp -> when its poses were
+        # published; a command whose pose_t is such a stamp came back after rx - published.
+        self._frame_pub: dict[float, float] = {}
+        self._frame_order: deque[float] = deque()
+        self.latencies_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+        self.latency_pub_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)  # when each frame left
+        self.frames_published = 0
+        self._answered: list[float | None] = [None] * len(self.ids)  # last frame stamp answered
+        self.frame_lateness_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
+
+    def next_seq(self, key: str) -> int:
+        """The next sequence number on ``key`` (every key the plant publishes on)."""
         n = self._seq.get(key, 0) + 1
         self._seq[key] = n
         return n
 
-    def _publish_truth(self, t_s: float, truth: npt.NDArray[np.float64]) -> None:
+    def command_answered(self, i: int, pose_t: float | None, rx_s: float) -> None:
+        """Realtime: robot ``i``'s command computed from the frame stamped ``pose_t`` arrived at
+        ``rx_s``: the first one for that frame is a latency sample."""
+        if pose_t is not None and pose_t != self._answered[i]:
+            published = self._frame_pub.get(pose_t)
+            if published is not None:  # the first command computed from this frame
+                self._answered[i] = pose_t
+                self.latencies_s.append(rx_s - published)
+                self.latency_pub_s.append(published)
+
+    def publish_truth(self, t_s: float, truth: npt.NDArray[np.float64]) -> None:
         t = max(t_s, 0.0)
         if self.batch:
             self._publish_truth_batch(t, truth)
@@ -80,7 +120,7 @@ class PlantOutputs:
         for i, row in enumerate(truth.tolist()):
             key = self.truth_keys[i]
             msg = Truth(
-                t=t, seq=self._next_seq(key), x=row[0], y=row[1], theta=row[2], robot=self.ids[i]
+                t=t, seq=self.next_seq(key), x=row[0], y=row[1], theta=row[2], robot=self.ids[i]
             )
             self._publish(key, encode(msg), self.truth_qos)
 
@@ -91,7 +131,7 @@ class PlantOutputs:
             chunk = rows[start : start + BATCH_CHUNK]
             msg = TruthBatch(
                 t=t,
-                seq=self._next_seq(self.truths_key),
+                seq=self.next_seq(self.truths_key),
                 robots=tuple(self.ids[start : start + len(chunk)]),
                 x=tuple(r[0] for r in chunk),
                 y=tuple(r[1] for r in chunk),
@@ -101,7 +141,11 @@ class PlantOutputs:
             self._publish(self.truths_key, encode(msg), self.truth_qos)
 
     def _publish_frame(
-        self, t_s: float, stamp_t: float, rows: list[tuple[int, float, float, float, float]]
+        self,
+        t_s: float,
+        stamp_t: float,
+        rows: list[tuple[int, float, float, float, float]],
+        latency_s: float,
     ) -> None:
         """One camera frame: the batch first, then each robot's pose (``t`` = capture time)."""
         if not self.poses:
@@ -111,7 +155,7 @@ class PlantOutputs:
             chunk = rows[start : start + BATCH_CHUNK]
             batch = PoseBatch(
                 t=max(t_s, 0.0),
-                seq=self._next_seq(self.poses_key),
+                seq=self.next_seq(self.poses_key),
                 robots=tuple(self.ids[r[0]] for r in chunk),
                 x=tuple(r[2] for r in chunk),
                 y=tuple(r[3] for r in chunk),
@@ -121,15 +165,14 @@ class PlantOutputs:
             self._publish(self.poses_key, encode(batch), self.data_qos)
         if not self.lockstep:
             # due: when the camera model delivers it (exposure + latency, sensors.Camera)
-            latency = self.sim.camera.latency_s if self.sim is not None else 0.0
-            self._frame_published(stamp, stamp + latency)
+            self._frame_published(stamp, stamp + latency_s)
         if self.batch:
             return  # agent hosts and a --batch coordinator read the batches only
         for i, _, x, y, theta in rows:
             key = self.pose_keys[i]
             msg = Pose(
                 t=stamp,
-                seq=self._next_seq(key),
+                seq=self.next_seq(key),
                 x=x,
                 y=y,
                 theta=theta,
@@ -172,14 +215,14 @@ class PlantOutputs:
             out["latency_steady_ms"] = None
         return out
 
-    def publish_due_frames(self, sim: _Sim, t_s: float) -> None:
+    def publish_due_frames(self, camera: Camera, t_s: float) -> None:
         """Publish every camera frame delivered by ``t_s`` (``Camera.poll``, as the simulator)."""
-        due = sim.camera.poll(t_s)
+        due = camera.poll(t_s)
         start = 0
         while start < len(due):  # oldest frame first; the entries of one frame share a stamp
             stamp = due[start][1]
             end = start + 1
             while end < len(due) and due[end][1] == stamp:
                 end += 1
-            self._publish_frame(t_s, stamp, due[start:end])
+            self._publish_frame(t_s, stamp, due[start:end], camera.latency_s)
             start = end

@@ -26,6 +26,7 @@ import asyncio
 import math
 import time
 from collections import deque
+from dataclasses import dataclass
 from typing import Any, Final
 
 import numpy as np
@@ -35,7 +36,6 @@ import runtime as rt
 from bus_schemas import (
     MAX_LIST_LEN,
     Clock,
-    Disturbance,
     PlantStatus,
     RejectCounts,
     encode,
@@ -46,24 +46,37 @@ from robot_agent.core.lockstep import tick_time
 from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, plant_models
-from sim_plant.core.plant import WheelEncoders
-from sim_plant.node.inputs import _DRAG, ARENA_LIMIT_M, PlantInputs, _Sim
+from sim_plant.core.accounting import SeparationMonitor
+from sim_plant.core.encoders import WheelEncoders
+from sim_plant.core.plant import Plant
+from sim_plant.core.sensors import Camera, CommandLink
+from sim_plant.node.inputs import _DRAG, LinkCmd, PlantInputs
 from sim_plant.node.outputs import PlantOutputs
 
-__all__ = ["ARENA_LIMIT_M", "PlantNode"]
+__all__ = ["PlantNode"]
 
 REANNOUNCE_S: Final = 0.25
 """Lockstep: while waiting for answers the clock is published again this often (s)."""
 WAIT_ROBOTS_S: Final = 30.0
 """--wait-robots gives up after this long (s)."""
-LATENCY_SAMPLES: Final = 500_000
-"""Realtime latency / lateness samples kept (the newest)."""
 
 
-class PlantNode(PlantInputs, PlantOutputs):
-    """State and handlers of the plant; Zenoh-free apart from the ``publish`` callable. Its
-    input handlers are in :class:`PlantInputs`, its truth and camera-frame publication and the
-    realtime latency bookkeeping in :class:`PlantOutputs`.
+@dataclass
+class _Sim:
+    """The numpy cores of one run (built when the run starts: realtime needs its t0)."""
+
+    plant: Plant
+    camera: Camera
+    link: CommandLink[LinkCmd]
+    monitor: SeparationMonitor
+    t0_s: float
+
+
+class PlantNode:
+    """State of the plant; Zenoh-free apart from the ``publish`` callable. It owns its parts:
+    :attr:`inputs` (:class:`PlantInputs`: the input handlers and what arrived), :attr:`outputs`
+    (:class:`PlantOutputs`: truth and camera-frame publication, the realtime latency
+    bookkeeping) and :attr:`faults` (rejected inputs, internal errors).
 
     Handlers run on the event loop and never raise.
     """
@@ -94,6 +107,7 @@ class PlantNode(PlantInputs, PlantOutputs):
         self.duration_s = duration_s
         self.log = log if log is not None else rt.NodeLog("plant")
         self._publish = publish
+        self.faults = rt.Faults(self.log)  # every drop by "<message>-<reason>" (status "rejects")
 
         self.ids: list[str] = list(scenario.robot_ids)
         self.n = len(self.ids)
@@ -106,62 +120,63 @@ class PlantNode(PlantInputs, PlantOutputs):
 
         self.clock_key = keys.clock_key(fleet)
         self.leader_key = keys.leader_key(fleet)
-        self.poses_key = keys.poses_key(fleet)
         self.disturbance_key = keys.disturbance_key(fleet)
         self.wheels_pattern = keys.all_wheels_pattern(fleet)
         self.host_wheels_pattern = keys.all_host_wheels_pattern(fleet)
-        self.truths_key = keys.truths_key(fleet)
         self.alive_robots_pattern = keys.alive_robots_pattern(fleet)
         self.alive_coordinators_pattern = keys.alive_coordinators_pattern(fleet)
         self.status_key = keys.plant_status_key(fleet)
         self.alive_key = keys.alive_plant_key(fleet)
-        self.pose_keys = [keys.pose_key(fleet, r) for r in self.ids]
-        self.truth_keys = [keys.truth_key(fleet, r) for r in self.ids]
-        # Lockstep: poses must precede the clock (same session, same priority) and arrive.
-        self.data_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
-        self.truth_qos = rt.QOS_CRITICAL if lockstep else rt.QOS_TELEMETRY
 
-        self.alive: set[str] = set()
-        self.lost: set[str] = set()  # lockstep: token gone, still waited for (inputs.py)
-        self.coordinators: set[str] = set()
-        self.last_cmd: npt.NDArray[np.float64] = np.zeros((self.n, 2))
+        # the wheel speeds the physics applies (what the link delivered)
         self.applied: npt.NDArray[np.float64] = np.zeros((self.n, 2))
-        self.generation = [0] * self.n
-        self.answer_tick: list[int | None] = [None] * self.n
-        # lockstep: the answer's mode was TRACKING (Wheels.mode); relayed in the next clock
-        self.answer_tracking: list[bool] = [False] * self.n
         self.clock_tracking: tuple[str, ...] = ()  # what the current clock carries
-        self.leader_tick: int | None = None
         self.scheduled = deque(scenario.disturbances)
-        self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
-        self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
-
-        self.rejected = 0
-        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
-        self.internal_errors = 0
-        self.ignored = 0  # valid messages for robots this plant does not simulate
-        self.rx: dict[str, int] = {
-            "wheels": 0, "host_wheels": 0, "disturbance": 0, "leader": 0, "alive": 0,
-        }  # fmt: skip
-        # Realtime control-loop latency (docs/scale.md): frame stamp -> when its poses were
-        # published; a command whose pose_t is such a stamp came back after rx - published.
-        self._frame_pub: dict[float, float] = {}
-        self._frame_order: deque[float] = deque()
-        self.latencies_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
-        self.latency_pub_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)  # when each frame left
-        self.frames_published = 0
-        self._answered: list[float | None] = [None] * self.n  # last frame stamp answered
-        self.frame_lateness_s: deque[float] = deque(maxlen=LATENCY_SAMPLES)
         self.timeouts = 0
         self.state = "waiting"
         self.tick = -1
         self.sim_t = 0.0
-        self._seq: dict[str, int] = {}
+        self.inputs = PlantInputs(
+            self.ids,
+            lockstep=lockstep,
+            faults=self.faults,
+            current_tick=lambda: self.tick,
+            send=self._send,
+            stop_wheels=self._stop_wheels,
+        )
+        self.outputs = PlantOutputs(
+            self.ids, self.fleet, publish, batch=batch, poses=poses, lockstep=lockstep
+        )
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
     def _now(self) -> float:
         return self.sim_t if self.lockstep else time.monotonic()
+
+    @property
+    def rejects(self) -> RejectCounts:
+        """Inputs rejected so far, by ``<message>-<reason>`` (status ``rejects``)."""
+        return self.faults.rejects
+
+    @property
+    def rejected(self) -> int:
+        """Inputs rejected so far."""
+        return self.faults.rejected
+
+    @property
+    def internal_errors(self) -> int:
+        """Internal errors caught by the handlers and loops."""
+        return self.faults.internal_errors
+
+    def _send(self, i: int, cmd: LinkCmd, pose_t: float | None, rx_s: float) -> None:
+        """Realtime: robot ``i``'s command into the link now (PlantInputs)."""
+        if self.sim is not None:
+            self.sim.link.send(rx_s, i, cmd)
+            self.outputs.command_answered(i, pose_t, rx_s)
+
+    def _stop_wheels(self, i: int) -> None:
+        """Robot ``i``'s agent is gone (PlantInputs.drop_agent): its wheels stop at once."""
+        self.applied[i] = 0.0
 
     def build(self, t0_s: float) -> _Sim:
         """Build plant, camera, link and monitor as formation/sim/simulate.py does, at ``t0_s``."""
@@ -185,9 +200,10 @@ class PlantNode(PlantInputs, PlantOutputs):
                 apply_scheduled(plant, i, d, sim.camera, sim.t0_s)
                 self.log.info(f"t={t_s:.3f} s: scheduled {d.kind} of {d.robot}")
             except (ValueError, IndexError) as exc:
-                self._internal("scheduled disturbance", exc)
-        while self.bus_disturbances:
-            m = self.bus_disturbances.popleft()
+                self.faults.internal("scheduled disturbance", exc)
+        bus = self.inputs.bus_disturbances
+        while bus:
+            m = bus.popleft()
             i = self.index[m.robot]
             try:
                 if m.kind == _DRAG:
@@ -197,43 +213,27 @@ class PlantNode(PlantInputs, PlantOutputs):
                     plant.teleport(i, m.x, m.y, m.theta)
                 self.log.info(f"t={t_s:.3f} s: {m.kind} of {m.robot} from the bus")
             except (ValueError, IndexError) as exc:
-                self._reject("disturbance", str(exc))
+                self.faults.reject("disturbance", str(exc))
 
     def sense(self, sim: _Sim, t_s: float) -> npt.NDArray[np.float64]:
         """Lockstep tick: publish truth (every tick, so a collector's rows are the simulator's
         ticks), capture a frame if due, publish the frames due; returns truth."""
         truth = sim.plant.truth
-        self._publish_truth(t_s, truth)
+        self.outputs.publish_truth(t_s, truth)
         if self.encoders is not None:  # mean wheel speeds over the last tick, as measured
             self.clock_enc = self.encoders.read(t_s, sim.plant.wheel_angles())
         sim.camera.capture(t_s, truth)
-        self.publish_due_frames(sim, t_s)
+        self.outputs.publish_due_frames(sim.camera, t_s)
         return truth
 
     def _deliver(self, sim: _Sim, t_s: float) -> None:
-        gen = self.generation
+        gen = self.inputs.generation
         for i, (g, wr, wl) in sim.link.poll(t_s):
             if g == gen[i]:
                 self.applied[i, 0] = wr
                 self.applied[i, 1] = wl
 
     # -- lockstep ------------------------------------------------------------------------------
-
-    def answered(self, k: int) -> bool:
-        """Every live agent answered tick ``k`` and, if a coordinator is alive, its leader."""
-        for rid in self.alive:
-            if self.answer_tick[self.index[rid]] != k:
-                return False
-        return not self.coordinators or self.leader_tick == k
-
-    def tracking_answers(self, k: int) -> tuple[str, ...]:
-        """The robots whose answer to tick ``k`` said TRACKING (in robot order), what clock
-        ``k + 1`` relays so every agent knows which neighbours were cooperative
-        (``robot_agent.core.neighbours``, rule 3); at most a list's bound."""
-        tick = self.answer_tick
-        tr = self.answer_tracking
-        out = tuple(rid for i, rid in enumerate(self.ids) if tr[i] and tick[i] == k)
-        return out[:MAX_LIST_LEN]
 
     def _publish_clock(self, k: int, t_s: float) -> None:
         enc = self.clock_enc
@@ -246,7 +246,7 @@ class PlantNode(PlantInputs, PlantOutputs):
             wl = tuple(float(e[1]) for e in enc[:m])
         msg = Clock(
             t=t_s,
-            seq=self._next_seq(self.clock_key),
+            seq=self.outputs.next_seq(self.clock_key),
             tick=k,
             tracking=self.clock_tracking,
             enc_robots=robots,
@@ -256,32 +256,31 @@ class PlantNode(PlantInputs, PlantOutputs):
         self._publish(self.clock_key, encode(msg), rt.QOS_CRITICAL)
 
     async def _wait_answers(self, stop: asyncio.Event, k: int, t_s: float) -> None:
+        inputs = self.inputs
         start = time.monotonic()
         deadline = start + self.lockstep_timeout_s
         next_announce = start + REANNOUNCE_S
-        while not self.answered(k):
+        while not inputs.answered(k):
             if stop.is_set():
                 return
             now = time.monotonic()
             if now >= deadline:
                 self.timeouts += 1
-                missing = [r for r in sorted(self.alive) if self.answer_tick[self.index[r]] != k]
-                if self.coordinators and self.leader_tick != k:
-                    missing.append("coordinator")
+                missing = inputs.missing(k)
                 self.log.limited(
                     "timeout",
                     f"tick {k}: no answer from {', '.join(missing)} within "
                     f"{self.lockstep_timeout_s:g} s; going on ({self.timeouts} timeouts)",
                 )
-                self.drop_lost(missing)
+                inputs.drop_lost(missing)
                 return
             if now >= next_announce:
                 self._publish_clock(k, t_s)
                 next_announce = now + REANNOUNCE_S
-            self.changed.clear()
+            inputs.changed.clear()
             try:
                 async with asyncio.timeout(min(deadline, next_announce) - now):
-                    await self.changed.wait()
+                    await inputs.changed.wait()
             except TimeoutError:
                 pass
 
@@ -298,21 +297,19 @@ class PlantNode(PlantInputs, PlantOutputs):
                 self.sim_t = t
                 self._apply_disturbances(sim, t)
                 truth = self.sense(sim, t)
-                self.clock_tracking = self.tracking_answers(k - 1)
+                self.clock_tracking = self.inputs.tracking_answers(k - 1)
                 self._publish_clock(k, t)
                 await self._wait_answers(stop, k, t)
                 if stop.is_set():
                     break
-                gen = self.generation
+                gen, cmd = self.inputs.generation, self.inputs.last_cmd
                 for i in range(self.n):
-                    sim.link.send(
-                        t, i, (gen[i], float(self.last_cmd[i, 0]), float(self.last_cmd[i, 1]))
-                    )
+                    sim.link.send(t, i, (gen[i], float(cmd[i, 0]), float(cmd[i, 1])))
                 self._deliver(sim, t)
                 sim.monitor.update(t, truth)
                 sim.plant.step(dt, self.applied)
             except Exception as exc:  # a bug: log it, keep the clock going
-                self._internal("lockstep tick", exc)
+                self.faults.internal("lockstep tick", exc)
                 await asyncio.sleep(0)
             k += 1
         return ticks is not None and k >= ticks
@@ -340,9 +337,9 @@ class PlantNode(PlantInputs, PlantOutputs):
                 self._deliver(sim, now)
                 truth = sim.plant.truth
                 if sim.camera.capture(now, truth):
-                    self._publish_truth(now, truth)
+                    self.outputs.publish_truth(now, truth)
                     deliveries.append(now + latency)
-                self.publish_due_frames(sim, now)
+                self.outputs.publish_due_frames(sim.camera, now)
                 while deliveries and deliveries[0] <= now + 1e-9:
                     deliveries.popleft()
                 if now >= next_phys:
@@ -352,7 +349,7 @@ class PlantNode(PlantInputs, PlantOutputs):
                     if next_phys <= now:
                         next_phys = now + period
             except Exception as exc:
-                self._internal("realtime step", exc)
+                self.faults.internal("realtime step", exc)
                 next_phys = time.monotonic() + period
             wake = min(next_phys, sim.camera.next_frame_t, end)
             if deliveries:
@@ -364,11 +361,12 @@ class PlantNode(PlantInputs, PlantOutputs):
 
     async def wait_for_fleet(self, stop: asyncio.Event, timeout_s: float = WAIT_ROBOTS_S) -> bool:
         """Until every scenario robot's token and a coordinator's are present; False on timeout."""
+        inputs = self.inputs
         start = time.monotonic()
         said = ""
         while not stop.is_set():
-            missing = [r for r in self.ids if r not in self.alive]
-            if not self.coordinators:
+            missing = [r for r in self.ids if r not in inputs.alive]
+            if not inputs.coordinators:
                 missing.append("a coordinator")
             if not missing:
                 self.log.info("every robot and a coordinator are alive: starting")
@@ -381,10 +379,10 @@ class PlantNode(PlantInputs, PlantOutputs):
             if remaining <= 0:
                 self.log.info(f"gave up after {timeout_s:g} s: still no {text}")
                 return False
-            self.changed.clear()
+            inputs.changed.clear()
             try:
                 async with asyncio.timeout(min(remaining, 0.5)):
-                    await self.changed.wait()
+                    await inputs.changed.wait()
             except TimeoutError:
                 pass
         return False
@@ -395,25 +393,25 @@ class PlantNode(PlantInputs, PlantOutputs):
         min_sep = sim.monitor.min_separation_m if sim is not None else math.inf
         return PlantStatus(
             t=max(self._now(), 0.0),
-            seq=self._next_seq(self.status_key),
+            seq=self.outputs.next_seq(self.status_key),
             mode="lockstep" if self.lockstep else "realtime",
             state=self.state,
             tick=max(self.tick, 0),
             sim_t=self.sim_t - (sim.t0_s if sim is not None else 0.0),
             timeouts=self.timeouts,
-            alive=tuple(sorted(self.alive)),
-            coordinators=tuple(sorted(self.coordinators)),
+            alive=tuple(sorted(self.inputs.alive)),
+            coordinators=tuple(sorted(self.inputs.coordinators)),
             link_sent=sim.link.sent if sim is not None else 0,
             link_dropped=sim.link.dropped if sim is not None else 0,
             min_separation_m=min_sep if math.isfinite(min_sep) else None,
             collisions=sim.monitor.collision_count if sim is not None else 0,
-            frames=self.frames_published,
+            frames=self.outputs.frames_published,
             batch=self.batch,
-            ignored=self.ignored,
+            ignored=self.inputs.ignored,
             rejected=self.rejected,
             rejects=self.rejects.as_dict(),
             internal_errors=self.internal_errors,
-            rx=dict(self.rx),
+            rx=dict(self.inputs.rx),
         )
 
     def status_map(self) -> dict[str, Any]:
@@ -425,7 +423,7 @@ class PlantNode(PlantInputs, PlantOutputs):
         try:
             self._publish(self.status_key, encode(self.status()), rt.QOS_TELEMETRY)
         except Exception as exc:
-            self._internal("status", exc)
+            self.faults.internal("status", exc)
 
     async def status_loop(self, stop: asyncio.Event) -> None:
         """Publish the status at 5 Hz until ``stop``."""
@@ -465,4 +463,4 @@ class PlantNode(PlantInputs, PlantOutputs):
     async def _wake_on_stop(self, stop: asyncio.Event) -> None:
         """Wake the waits (answers, fleet) at once on SIGINT/SIGTERM."""
         await stop.wait()
-        self.changed.set()
+        self.inputs.changed.set()

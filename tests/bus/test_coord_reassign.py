@@ -77,7 +77,7 @@ def test_a_stepped_down_coordinator_does_not_reassign_from_a_queued_burst() -> N
         node, _ = _node()
         ticks = node.ticks
         node.on_alive(keys.alive_robot_key(FLEET, "r1"), False)
-        node.step_down("a test")  # between the burst and the queued re-assignment
+        node.election_io.step_down("a test")  # between the burst and the queued re-assignment
         await asyncio.sleep(0)
         assert node.ticks == ticks and not node.active
 

@@ -71,17 +71,17 @@ def test_lockstep_agent_ages_neighbours_on_sim_time_and_takes_cooperative_from_t
     node = AgentNode("r1", FLEET, AgentConfig(), _sink, lockstep=True)
     poses = _batch(0.06, 0.02, {"r1": (0, 0, 0), "r2": (0.5, 0, 0.1), "r3": (0, 0.5, -0.2)})
     node.on_poses(rt.Received(keys.poses_key(FLEET), poses, 123.0))
-    assert node.neighbours(0.06) == []  # pending until the clock
+    assert node.neighbour_table.neighbours(0.06) == []  # pending until the clock
     clock = Clock(t=0.06, seq=1, tick=3, tracking=("r1", "r3"))
     node.on_clock(rt.Received(keys.clock_key(FLEET), encode(clock), 124.0))
-    got = {(n.x, n.y): n for n in node.neighbours(0.06)}
+    got = {(n.x, n.y): n for n in node.neighbour_table.neighbours(0.06)}
     assert set(got) == {(0.5, 0.0), (0.0, 0.5)}
     r2, r3 = got[(0.5, 0.0)], got[(0.0, 0.5)]
     assert r2.theta == 0.1 and r3.theta == -0.2
     assert r2.age_s == 0.06 - 0.02 and r3.age_s == 0.06 - 0.02  # capture to now, sim time
     assert (r2.cooperative, r3.cooperative) == (False, True)
     # received more than NEIGHBOUR_STALE_S ago: dropped (the simulator's rule too)
-    assert node.neighbours(0.06 + NEIGHBOUR_STALE_S + 0.02) == []
+    assert node.neighbour_table.neighbours(0.06 + NEIGHBOUR_STALE_S + 0.02) == []
 
 
 def test_realtime_cooperative_comes_from_fresh_status_of_agents_and_hosts() -> None:
@@ -90,20 +90,22 @@ def test_realtime_cooperative_comes_from_fresh_status_of_agents_and_hosts() -> N
     poses = _batch(50.0, 49.99, {"r2": (0.5, 0, 0.0), "r3": (0, 0.5, 0.0), "r4": (1, 1, 0.0)})
     node.on_poses(rt.Received(keys.poses_key(FLEET), poses, t0))
     st = Status(t=7.0, seq=1, mode="tracking", slot=1, pid=1, host="h", rejected=0, robot="r2")
-    node.on_status(rt.Received(keys.status_key(FLEET, "r2"), encode(st), t0))
+    node.peer_status.on_status(rt.Received(keys.status_key(FLEET, "r2"), encode(st), t0))
     batch = StatusBatch(
         t=3.0, seq=1, pid=2, host="h", robots=("r3", "r4"), mode=("tracking", "hold"),
         slot=(2, -1), rejected=(0, 0), ex=(0.0, 0.0), ey=(0.0, 0.0),
     )  # fmt: skip
-    node.on_host_status(rt.Received(keys.host_status_key(FLEET, "h"), encode(batch), t0))
-    coop = {(n.x, n.y): n.cooperative for n in node.neighbours(t0 + 0.1)}
+    node.peer_status.on_host_status(
+        rt.Received(keys.host_status_key(FLEET, "h"), encode(batch), t0)
+    )
+    coop = {(n.x, n.y): n.cooperative for n in node.neighbour_table.neighbours(t0 + 0.1)}
     assert coop == {(0.5, 0.0): True, (0.0, 0.5): True, (1.0, 1.0): False}
     later = t0 + COOPERATIVE_STATUS_S + 0.01  # the statuses went stale: obstacles again
-    assert not any(n.cooperative for n in node.neighbours(later))
+    assert not any(n.cooperative for n in node.neighbour_table.neighbours(later))
     # a status whose robot field disagrees with its key is rejected and counted
     bad = replace(st, robot="r9")
     before = node.rejected
-    node.on_status(rt.Received(keys.status_key(FLEET, "r2"), encode(bad), t0))
+    node.peer_status.on_status(rt.Received(keys.status_key(FLEET, "r2"), encode(bad), t0))
     assert node.rejected == before + 1
 
 
@@ -225,7 +227,7 @@ def test_realtime_neighbour_ages_from_a_skewed_frame_clock_are_right_within_the_
         frame = _batch(pub + skew, capture + skew, {"r2": (0.5, 0.0, 0.0)})
         node.on_poses(rt.Received(keys.poses_key(FLEET), frame, rx))
         now = rx + 0.005
-        (nb,) = node.neighbours(now)
+        (nb,) = node.neighbour_table.neighbours(now)
         if k >= 10:
             worst = max(worst, abs(nb.age_s - (now - capture)))
     assert worst <= d_min + jitter

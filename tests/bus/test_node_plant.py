@@ -278,13 +278,15 @@ def _lockstep_equals_simulate(
     coord = CoordinatorNode(scenario, "main", FLEET, publish, lockstep=True, batch=hosts)
     if hosts:
         host = HostNode("h1", plant.ids, FLEET, scenario.agent, publish, lockstep=True)
-        routes.append((lambda k: k.endswith("/wheels") and "/host/" in k, plant.on_host_wheels))
+        routes.append(
+            (lambda k: k.endswith("/wheels") and "/host/" in k, plant.inputs.on_host_wheels)
+        )
         routes.append((host.setpoints_key.__eq__, host.on_setpoints))
         routes.append((host.poses_key.__eq__, host.on_poses))
         routes.append((host.clock_key.__eq__, host.on_clock))
     else:
         agents = [AgentNode(r, FLEET, scenario.agent, publish, lockstep=True) for r in plant.ids]
-        routes.append((lambda k: k.endswith("/wheels"), plant.on_wheels))
+        routes.append((lambda k: k.endswith("/wheels"), plant.inputs.on_wheels))
         for a in agents:
             for key, handler in (
                 (a.setpoint_key, a.on_setpoint),
@@ -293,16 +295,16 @@ def _lockstep_equals_simulate(
                 (a.clock_key, a.on_clock),
             ):
                 routes.append((key.__eq__, handler))
-    routes.append((lambda k: k == plant.leader_key, plant.on_leader))
+    routes.append((lambda k: k == plant.leader_key, plant.inputs.on_leader))
     if hosts:
-        routes.append((lambda k: k == plant.poses_key, coord.on_poses))
+        routes.append((lambda k: k == plant.outputs.poses_key, coord.on_poses))
     else:
         routes.append((lambda k: k.endswith("/pose"), coord.on_pose))
     routes.append((lambda k: k == coord.clock_key, coord.on_clock))
     for rid in plant.ids:
-        plant.on_alive_robot(keys.alive_robot_key(FLEET, rid), True)
+        plant.inputs.on_alive_robot(keys.alive_robot_key(FLEET, rid), True)
         coord.on_alive(keys.alive_robot_key(FLEET, rid), True)
-    plant.on_alive_coordinator(keys.alive_coordinator_key(FLEET, "main"), True)
+    plant.inputs.on_alive_coordinator(keys.alive_coordinator_key(FLEET, "main"), True)
 
     assert asyncio.run(plant.run_lockstep(asyncio.Event())) is True
     assert plant.timeouts == 0 and plant.rejected == coord.rejected == 0

@@ -41,15 +41,14 @@ from bus_schemas import (
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.safety_filter import SafetyFilter
 from robot_agent.node.host import (
-    GC_FULL_EVERY,
     GC_MAX_GAP_S,
-    GC_MIDDLE_EVERY,
     STATUS_STEP,
     WATCHDOG_CHUNK,
     WATCHDOG_YIELD_S,
     HostNode,
 )
 from robot_agent.node.host_main import expand_ids
+from runtime.lifecycle import GC_FULL_EVERY, GC_MIDDLE_EVERY
 from scenario import load
 
 FLEET = "demo"
@@ -253,7 +252,7 @@ def test_garbage_on_every_host_input_is_counted_and_never_raised() -> None:
     bus = _Bus()
     host = HostNode("h1", ["r1", "r2"], FLEET, AgentConfig(), bus, lockstep=True)
     rng = random.Random(3)
-    handlers = [host.on_poses, host.on_setpoints, host.on_estop, host.on_clock]
+    handlers = [host.on_poses, host.on_setpoints, host.estop.on_estop, host.on_clock]
     sent = 0
     for handler in handlers:
         for payload in _garbage(rng):
@@ -276,11 +275,14 @@ def test_plant_and_coordinator_take_the_batched_forms() -> None:
         omega_l=(1.5, 2.5, 3.5), power_r=(0.1, 0.2, 0.3), power_l=(0.1, 0.2, 0.3),
         pose_t=(0.0, -1.0, 0.0), tick=0,
     )  # fmt: skip
-    plant.on_host_wheels(_rx(keys.host_wheels_key(FLEET, "h1"), encode(wb)))
-    assert plant.last_cmd[0].tolist() == [1.0, 1.5] and plant.last_cmd[1].tolist() == [2.0, 2.5]
-    assert plant.answer_tick[:2] == [0, 0] and plant.ignored == 1  # zz is not simulated
+    plant.inputs.on_host_wheels(_rx(keys.host_wheels_key(FLEET, "h1"), encode(wb)))
+    cmd = plant.inputs.last_cmd
+    assert cmd[0].tolist() == [1.0, 1.5] and cmd[1].tolist() == [2.0, 2.5]
+    assert (
+        plant.inputs.answer_tick[:2] == [0, 0] and plant.inputs.ignored == 1
+    )  # zz is not simulated
     for payload in _garbage(random.Random(1)):
-        plant.on_host_wheels(_rx(keys.host_wheels_key(FLEET, "h1"), payload))
+        plant.inputs.on_host_wheels(_rx(keys.host_wheels_key(FLEET, "h1"), payload))
     assert plant.internal_errors == 0 and plant.rejected == len(_garbage(random.Random(1)))
 
     coord = CoordinatorNode(scn, "main", FLEET, _Bus(), lockstep=False, batch=True)

@@ -246,7 +246,7 @@ def test_absurd_release_records_are_rejected_and_counted_everywhere() -> None:
     )
     from robot_agent.node.agent_estop import estop_answers
 
-    node.on_estop_state(estop_answers(node, [*bad, good]))
+    node.on_estop_state(estop_answers(node.faults.reject, [*bad, good]))
     assert node.rejects.by_reason == {
         "estop_state-out_of_range": 1,
         "estop_state-wrong_type": 1,
@@ -255,7 +255,7 @@ def test_absurd_release_records_are_rejected_and_counted_everywhere() -> None:
     assert node.firmware.status().estop_latched
     # an agent host (each hosted robot's firmware counts it)
     host = HostNode("h1", ["r1", "r2"], "demo", AgentConfig(), lambda *_: None, lockstep=True)
-    host.on_estop_state([*bad, good])
+    host.estop.on_estop_state([*bad, good])
     assert host.rejected == 3
     # a coordinator learning from the others
     rejects: list[str] = []
@@ -285,20 +285,22 @@ def test_the_coordinator_answers_with_ids_and_its_release_record() -> None:
 def test_an_agent_host_releases_a_robot_only_on_proof() -> None:
     host = HostNode("h1", ["r1", "r2"], "demo", AgentConfig(), lambda *_: None, lockstep=True)
     key = keys.estop_key("demo")
-    host.on_estop(rt.Received(key, encode(Estop(t=1.0, engage=True, robot="r1", id=4)), 0.0))
-    host.on_estop(rt.Received(key, encode(Estop(t=1.0, engage=True, robot=None, id=5)), 0.0))
+    host.estop.on_estop(rt.Received(key, encode(Estop(t=1.0, engage=True, robot="r1", id=4)), 0.0))
+    host.estop.on_estop(rt.Received(key, encode(Estop(t=1.0, engage=True, robot=None, id=5)), 0.0))
 
     def stopped() -> dict[str, bool]:
         return {r: n.firmware.status().estop_latched for r, n in host.nodes.items()}
 
     assert stopped() == {"r1": True, "r2": True}
     nothing = [encode(Estop(t=1.0, engage=False, robot=None))]
-    host.on_estop_state(nothing)
+    host.estop.on_estop_state(nothing)
     assert stopped() == {"r1": True, "r2": True}
     fleet_released = [*nothing, encode(Estop(t=1.0, engage=False, robot=None, id=5))]
-    host.on_estop_state(fleet_released)
+    host.estop.on_estop_state(fleet_released)
     assert stopped() == {"r1": True, "r2": False}  # r1's own engagement still holds it
-    host.on_estop_state([*fleet_released, encode(Estop(t=1.0, engage=False, robot="r1", id=4))])
+    host.estop.on_estop_state(
+        [*fleet_released, encode(Estop(t=1.0, engage=False, robot="r1", id=4))]
+    )
     assert stopped() == {"r1": False, "r2": False}
 
 

@@ -14,7 +14,8 @@ from formation.outputs.metrics import formation_error
 from formation.outputs.runlog import MODE_CODES
 from formation.sim import simulate
 from robot_agent.core.params import RobotGeometry
-from sim_plant.core.plant import Plant, WheelEncoders
+from sim_plant.core.encoders import WheelEncoders
+from sim_plant.core.plant import Plant
 from sim_plant.core.sensors import Camera
 
 

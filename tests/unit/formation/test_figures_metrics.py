@@ -15,7 +15,7 @@ import pytest
 
 import scenario
 from coordinator.core.formation import FormationSpec
-from formation.outputs import figures, metrics
+from formation.outputs import figures, figures_style, metrics
 from formation.outputs.runlog import RunLog
 from formation.sim import simulate
 
@@ -68,7 +68,7 @@ def test_figures_have_bounded_size_and_an_index(n: int, tmp_path: Path) -> None:
     assert [p.name for p in paths] == [*figures.FIGURES, "index.md"]
     for p in paths[:4]:
         h, w = mpimg.imread(p).shape[:2]
-        assert 300 <= w <= figures.MAX_PX and 200 <= h <= figures.MAX_PX, (p.name, w, h)
+        assert 300 <= w <= figures_style.MAX_PX and 200 <= h <= figures_style.MAX_PX, (p.name, w, h)
     index = (tmp_path / "index.md").read_text()
     links = re.findall(r"\]\(([^)]+)\)", index)
     assert "metrics.json" in links
@@ -120,10 +120,10 @@ def test_roles_ticks_are_integers(n: int) -> None:
 
 
 def test_robot_styles_are_distinct_up_to_forty() -> None:
-    styles = [figures.robot_style(i) for i in range(40)]
+    styles = [figures_style.robot_style(i) for i in range(40)]
     assert len(set(styles)) == 40
     assert len({c for c, _ in styles[:20]}) == 20  # 20 distinct colours, all solid
-    assert figures.robot_style(0)[0] == "#d62728"  # the paper's r1 was red
+    assert figures_style.robot_style(0)[0] == "#d62728"  # the paper's r1 was red
 
 
 def test_role_changes_leave_out_the_initial_assignment() -> None:
@@ -162,4 +162,4 @@ def test_figures_of_empty_and_tiny_runs(n: int, ticks: int, tmp_path: Path) -> N
         paths = figures.write_all(log, tmp_path)
     for p in paths[:4]:
         h, w = mpimg.imread(p).shape[:2]
-        assert w <= figures.MAX_PX and h <= figures.MAX_PX
+        assert w <= figures_style.MAX_PX and h <= figures_style.MAX_PX

@@ -263,15 +263,15 @@ def test_trajectories_figure_draws_the_world(tmp_path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from formation.outputs import figures
+    from formation.outputs import figures, figures_style
 
     world = scenario_mod.load("corridor").agent.world
     fig, ax = plt.subplots()
-    assert figures.draw_world(ax, world) == len(world.obstacles) + 1
+    assert figures_style.draw_world(ax, world) == len(world.obstacles) + 1
     assert len(ax.patches) == 2  # the pillar and the arena
     assert len(ax.lines) == len(world.obstacles) - 1  # walls and the box's edges
     plt.close(fig)
-    assert figures.draw_world(ax, None) == 0
+    assert figures_style.draw_world(ax, None) == 0
     scn = scenario_mod.load("corridor")
     res = simulate.run(scn, duration_s=2.0)
     out = tmp_path / "t.png"

@@ -33,7 +33,8 @@ from formation.outputs.runlog import RunLog
 from formation.sim import simulate
 from robot_agent.core.params import RobotGeometry
 from sim_plant.core.accounting import SeparationMonitor
-from sim_plant.core.plant import Plant, wrap_angle, wrap_angles
+from sim_plant.core.kinematics import PoseRows, wrap_angle, wrap_angles
+from sim_plant.core.plant import Plant
 from sim_plant.core.sensors import Camera, CommandLink
 
 GEOM = RobotGeometry()
@@ -291,10 +292,10 @@ def test_camera_small_path_is_bit_identical(miss: float, monkeypatch: pytest.Mon
     arrays = [rng.uniform(-3.0, 3.0, (3, 3)) for _ in range(300)]
     plant = Plant(arrays[0], GEOM)
     as_rows = [tuple(map(tuple, a.tolist())) for a in arrays]
-    assert type(plant.truth_rows()) is plant_mod.PoseRows
+    assert type(plant.truth_rows()) is PoseRows
     fast_arrays = _camera_run(arrays, miss)
     fast_rows = _camera_run(as_rows, miss)
-    fast_plant_rows = _camera_run([plant_mod.PoseRows(r) for r in as_rows], miss)
+    fast_plant_rows = _camera_run([PoseRows(r) for r in as_rows], miss)
     monkeypatch.setattr(sensors_mod, "SMALL_N", -1)
     slow = _camera_run(arrays, miss)
     assert fast_arrays == slow

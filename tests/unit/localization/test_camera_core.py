@@ -15,9 +15,10 @@ from localization.core import calibration as calmod
 from localization.core.calibration import Calibration, CalibrationError, TagOffset, TrackerParams
 from localization.core.detectors import ArucoTagDetector, make_detector, pupil_available
 from localization.core.pipeline import CameraPipeline
-from localization.core.pose import Measurement, PoseEstimator, true_corner_pixels, wrap_angle
+from localization.core.pose import Measurement, PoseEstimator, true_corner_pixels
 from localization.core.tracker import Tracker
 from localization.node.calibrate import FloorMarker, fit_homography, marker_points
+from robot_agent.core.kinematics import wrap_angle
 from sim_plant.core.render import CameraPose, Occluder, Renderer, moving_scene
 
 CAM = CameraPose(tilt_deg=8.0)

@@ -15,7 +15,8 @@ from hypothesis import strategies as st
 from robot_agent.core.estimator import Estimator, propagate_pose
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint
 from robot_agent.core.params import AgentConfig, EstimatorParams
-from sim_plant.core.plant import Plant, WheelEncoders
+from sim_plant.core.encoders import WheelEncoders
+from sim_plant.core.plant import Plant
 
 DT = 0.02
 P = EstimatorParams(enabled=True)

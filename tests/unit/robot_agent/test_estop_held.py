@@ -49,7 +49,7 @@ def test_a_release_in_an_agents_answer_is_rejected_and_counted() -> None:
     node.on_estop(_msg(True, None, 3))
     from robot_agent.node.agent_estop import estop_answers
 
-    node.on_estop_state(estop_answers(node, payloads, held=True))
+    node.on_estop_state(estop_answers(node.faults.reject, payloads, held=True))
     assert node.firmware.status().estop_latched
     assert node.rejects.by_reason == {"estop_state-inconsistent": 2}
 
@@ -57,7 +57,7 @@ def test_a_release_in_an_agents_answer_is_rejected_and_counted() -> None:
 def test_an_agent_offers_what_it_holds_and_only_on_a_change() -> None:
     node = AgentNode("r1", "demo", AgentConfig(), lambda *_: None, lockstep=True)
     offered: list[tuple[bytes, ...]] = []
-    node.estop_held = offered.append
+    node.witness.offer = offered.append
     node.on_estop(_msg(True, None, 5))
     node.on_estop(_msg(True, None, 5))  # the tool's second copy: no change, no new offer
     node.on_estop(_msg(True, "r2", 7))  # another robot's: held as a witness, not obeyed
@@ -70,34 +70,34 @@ def test_an_agent_offers_what_it_holds_and_only_on_a_change() -> None:
     # a robot inside an agent host (no answer of its own) keeps no witness
     hosted = AgentNode("r3", "demo", AgentConfig(), lambda *_: None, lockstep=True)
     hosted.on_estop(_msg(True, "r2", 8))
-    assert hosted.witness.held == {} and hosted.estop.held == {}
+    assert hosted.witness.latch.held == {} and hosted.estop.held == {}
 
 
 def test_an_agent_host_offers_every_engagement_it_saw() -> None:
     host = HostNode("h1", ["r1", "r2"], "demo", AgentConfig(), lambda *_: None, lockstep=True)
     offered: list[tuple[bytes, ...]] = []
-    host.estop_held = offered.append
-    host.on_estop(_msg(True, None, 5))
-    host.on_estop(_msg(True, "r2", 6))
-    host.on_estop(_msg(True, "r9", 8))  # not hosted here: witnessed
+    host.witness.offer = offered.append
+    host.estop.on_estop(_msg(True, None, 5))
+    host.estop.on_estop(_msg(True, "r2", 6))
+    host.estop.on_estop(_msg(True, "r9", 8))  # not hosted here: witnessed
     assert [_held(p) for p in offered] == [
         [(True, None, 5)],
         [(True, None, 5), (True, "r2", 6)],
         [(True, None, 5), (True, "r2", 6), (True, "r9", 8)],
     ]
     # another agent's held answer adds to every hosted robot; a release in it does nothing
-    host.on_estop_held([encode(Estop(t=1.0, engage=True, robot="r1", id=9))])
+    host.estop.on_estop_held([encode(Estop(t=1.0, engage=True, robot="r1", id=9))])
     assert _held(offered[-1]) == [
         (True, None, 5),
         (True, "r1", 9),
         (True, "r2", 6),
         (True, "r9", 8),
     ]
-    host.on_estop_held([encode(Estop(t=1.0, engage=False, robot=None, id=5))])
+    host.estop.on_estop_held([encode(Estop(t=1.0, engage=False, robot=None, id=5))])
     assert all(n.firmware.status().estop_latched for n in host.nodes.values())
     assert host.rejected == 1
     for scope in (None, "r1", "r2", "r9"):
-        host.on_estop(_msg(False, scope))
+        host.estop.on_estop(_msg(False, scope))
     assert _held(offered[-1]) == []
     assert not any(n.firmware.status().estop_latched for n in host.nodes.values())
 
@@ -176,17 +176,18 @@ class _Agent:
         def keep(payloads: tuple[bytes, ...]) -> None:
             self.answer = payloads
 
-        self.node.estop_held = keep
+        self.node.witness.offer = keep
 
     def ask(self, coord: EstopLatch, others: list[_Agent]) -> None:
         """Both queries, as ``node_estop.attach_estop`` hands them over."""
         from robot_agent.node.agent_estop import estop_answers
 
         node = self.node
-        node.on_estop_state(estop_answers(node, [encode(Estop(t=1.0, engage=e, robot=r, id=i))
-                                                 for e, r, i in coord.answer()]))  # fmt: skip
+        reject = node.faults.reject
+        node.on_estop_state(estop_answers(reject, [encode(Estop(t=1.0, engage=e, robot=r, id=i))
+                                                   for e, r, i in coord.answer()]))  # fmt: skip
         before = {(s, i) for s, ids in node.estop.held.items() for i in ids}
-        node.on_estop_state(estop_answers(node, [p for a in others for p in a.answer], held=True))
+        node.on_estop_state(estop_answers(reject, [p for a in others for p in a.answer], held=True))
         after = {(s, i) for s, ids in node.estop.held.items() for i in ids}
         assert before <= after, "a held answer released something"
         assert not node.rejects.by_reason

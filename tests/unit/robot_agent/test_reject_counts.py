@@ -88,8 +88,8 @@ def test_coordinator_counts_heartbeat_refusals_by_reason() -> None:
     node = CoordinatorNode(SCN, "main", "demo", publish)
     key = keys.heartbeat_key("demo", "zz")
     hb = Heartbeat(t=1.0, seq=1, name="zz", active=True, epoch=5, leader_t0=0.0)
-    node.on_heartbeat(rt.Received(key, encode(hb), 1.0))  # no token
-    node.on_heartbeat(rt.Received(key, b"\xc1", 1.0))  # not msgpack
+    node.election_io.on_heartbeat(rt.Received(key, encode(hb), 1.0))  # no token
+    node.election_io.on_heartbeat(rt.Received(key, b"\xc1", 1.0))  # not msgpack
     st = node.status_map(1.0)
     assert st["rejected"] == 2 and sum(st["rejects"].values()) == 2
     assert st["rejects"]["heartbeat-no_token"] == 1 and node.active

@@ -21,7 +21,7 @@ from robot_agent.motors import (
     RoboClawConfig,
     create_backend,
 )
-from robot_agent.motors.roboclaw import (
+from robot_agent.motors.roboclaw_protocol import (
     crc16,
     duty_packet,
     serial_timeout_packet,

@@ -8,7 +8,8 @@ from collections.abc import Iterator
 import pytest
 from support.roboclaw_emulator import RoboClawEmulator
 
-from robot_agent.motors.roboclaw import RoboClawBackend, RoboClawConfig
+from robot_agent.motors.roboclaw import RoboClawBackend
+from robot_agent.motors.roboclaw_config import RoboClawConfig
 
 COUNTS = 1200.0
 GEAR = 1.0

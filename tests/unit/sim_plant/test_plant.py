@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robot_agent.core.params import RobotGeometry
-from sim_plant.core.plant import Plant, unicycle_integrate, wrap_angles
+from sim_plant.core.kinematics import unicycle_integrate, wrap_angles
+from sim_plant.core.plant import Plant
 
 GEOM = RobotGeometry()  # R = 0.03 m, L = 0.05 m, max 10 rad/s
 R = GEOM.wheel_radius_m

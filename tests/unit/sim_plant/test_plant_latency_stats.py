@@ -16,7 +16,7 @@ def _plant() -> PlantNode:
 
 
 def test_no_commands_no_percentiles() -> None:
-    stats = _plant().latency_stats()
+    stats = _plant().outputs.latency_stats()
     assert stats["commands"] == 0
     assert stats["latency_ms"] is None and stats["latency_steady_ms"] is None
 
@@ -29,9 +29,9 @@ def test_steady_state_leaves_out_the_start_and_the_shutdown() -> None:
         published = t0 + k * period
         age = published - t0
         slow = age < STEADY_WARMUP_S - 0.1 or age > (n - 1) * period - STEADY_TAIL_S + 0.1
-        plant.latencies_s.append(0.2 if slow else 0.004 + 0.001 * (k % 3))
-        plant.latency_pub_s.append(published)
-    stats = plant.latency_stats()
+        plant.outputs.latencies_s.append(0.2 if slow else 0.004 + 0.001 * (k % 3))
+        plant.outputs.latency_pub_s.append(published)
+    stats = plant.outputs.latency_stats()
     whole, steady = stats["latency_ms"], stats["latency_steady_ms"]
     assert whole["max"] == pytest.approx(200.0) and whole["p99"] == pytest.approx(200.0)
     assert steady["max"] == pytest.approx(6.0) and steady["p50"] == pytest.approx(5.0)
