@@ -106,7 +106,9 @@ def main(argv: list[str]) -> int:  # noqa: PLR0915 (the command's steps in order
     failed = [r for r in rows if r[status] == "failed"]
     missing = [r for r in rows if r[status] == "missing"]
     for r in failed:
-        params = ", ".join(f"{c} = {v}" for c, v in zip(columns[1:status], r[1:status], strict=True))
+        params = ", ".join(
+            f"{c} = {v}" for c, v in zip(columns[1:status], r[1:status], strict=True)
+        )
         print(f"formation sweep: case {r[0]} ({params}) failed: {r[status + 1]}", file=sys.stderr)
     if result.interrupted:
         print(

@@ -95,10 +95,7 @@ def _text_panel(ax: Axes, table: Table, metric: str, axis: str) -> None:
     bottom = np.zeros(len(xs))
     for g, lab in enumerate(labels):
         share = np.array(
-            [
-                np.mean([str(r[jm]) == lab for r in ok if _as_float(r[jx]) == x] or [0.0])
-                for x in xs
-            ]
+            [np.mean([str(r[jm]) == lab for r in ok if _as_float(r[jx]) == x] or [0.0]) for x in xs]
         )
         ax.bar(xs, share, width, bottom=bottom, color=COLORS[g % len(COLORS)], label=lab or "none")
         bottom += share

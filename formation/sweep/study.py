@@ -360,9 +360,7 @@ def parse_study(data: Mapping[str, Any], path: Path | None = None) -> Study:  # 
         raise StudyError("study.metrics: expected a non-empty list of metric names")
     for m in metrics_raw:
         if m not in METRICS:
-            raise StudyError(
-                f"study.metrics: unknown metric {m!r}; known: {', '.join(METRICS)}"
-            )
+            raise StudyError(f"study.metrics: unknown metric {m!r}; known: {', '.join(METRICS)}")
     reduced = _table(s, "reduced", "study.reduced")
     _only(reduced, _REDUCED_KEYS, "study.reduced")
     for k in ("seeds", "values"):
