@@ -66,7 +66,7 @@ def _jobs(n: int) -> int:
     return len(affinity(0)) if affinity is not None else (os.cpu_count() or 1)
 
 
-def main(argv: list[str]) -> int:  # noqa: PLR0915 (the command's steps in order, each a few lines)
+def main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     from formation.sweep.study import StudyError, expand, load_study
 

@@ -51,7 +51,8 @@ def _line(ax: Axes, xs: list[float], ys: list[float], color: str, label: str | N
         stats.append(
             (float(np.median(ok)), min(ok), max(ok)) if ok else (math.nan, math.nan, math.nan)
         )
-    med, lo, hi = (np.array(s) for s in zip(*stats, strict=True)) if stats else ([], [], [])
+    arr = np.array(stats, dtype=float).reshape(len(stats), 3)
+    med, lo, hi = arr[:, 0], arr[:, 1], arr[:, 2]
     ax.fill_between(gx, lo, hi, color=color, alpha=0.18, lw=0)
     ax.plot(gx, med, "-", color=color, lw=1.5, label=label)
     ax.plot(xs, ys, "o", color=color, ms=3, alpha=0.6)
@@ -91,11 +92,14 @@ def _text_panel(ax: Axes, table: Table, metric: str, axis: str) -> None:
     ok = [r for r in rows if r[columns.index("status")] == "ok"]
     xs = sorted({_as_float(r[jx]) for r in ok})
     labels = sorted({str(r[jm]) for r in ok})
-    width = (min(np.diff(xs)) if len(xs) > 1 else 1.0) * 0.8
+    width = (float(np.min(np.diff(xs))) if len(xs) > 1 else 1.0) * 0.8
     bottom = np.zeros(len(xs))
     for g, lab in enumerate(labels):
         share = np.array(
-            [np.mean([str(r[jm]) == lab for r in ok if _as_float(r[jx]) == x] or [0.0]) for x in xs]
+            [
+                np.mean([1.0 if str(r[jm]) == lab else 0.0 for r in ok if _as_float(r[jx]) == x])
+                for x in xs
+            ]
         )
         ax.bar(xs, share, width, bottom=bottom, color=COLORS[g % len(COLORS)], label=lab or "none")
         bottom += share
@@ -125,7 +129,7 @@ def plot_study(study: Study, table: Table, out_dir: Path) -> list[Path]:
                 _text_panel(ax, table, metric, axis)
             else:
                 _panel(ax, study, table, metric, axis)
-        panels[0].set_ylabel(metric if metric in TEXT_METRICS else metric)
+        panels[0].set_ylabel(metric)
         n_seeds = len(study.seeds)
         fig.suptitle(
             f"{study.name}: {METRICS[metric]}\n"

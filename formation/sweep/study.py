@@ -333,7 +333,7 @@ def _base(name: str, path: Path | None) -> tuple[dict[str, Any], str]:
     )
 
 
-def parse_study(data: Mapping[str, Any], path: Path | None = None) -> Study:  # noqa: PLR0915 (a validator: one check per key)
+def parse_study(data: Mapping[str, Any], path: Path | None = None) -> Study:
     """Validate a study table, expand it and validate every case; raises :class:`StudyError`."""
     from formation.sweep.case_metrics import METRICS
 
