@@ -117,6 +117,7 @@ def run_and_write(
     result.log.save_npz(str(out / "run.npz"))
     if figures:
         from formation.outputs import figures as fig_mod
+        from formation.outputs.snapshots import events_of
 
         cut = ""
         if result.interrupted:
@@ -126,6 +127,7 @@ def run_and_write(
             out,
             title=f"{scn.name}{cut}: reference points (solid), virtual trajectories (dashed)",
             settle_s=settle_s,
+            events=events_of(scn.disturbances),
         )
     return m
 

@@ -2,7 +2,7 @@
 
 Each case is one in-process run (:func:`formation.sim.simulate.run`, what ``formation sim``
 runs) measured by :mod:`formation.sweep.case_metrics`. Cases run in worker processes
-(``multiprocessing``, spawned, one case at a time each); the parent appends every finished case
+(``multiprocessing``, forked, one case at a time each); the parent appends every finished case
 to ``cases.jsonl`` at once (one JSON object a line, flushed), so:
 
 * Ctrl-C (SIGINT; the workers ignore it, the parent stops them) loses only the cases running at
@@ -156,13 +156,14 @@ class SweepRun:
 
 
 def _worker_init() -> None:
-    """A spawned worker: SIGINT ignored (the parent decides and stops the workers), and the
-    parent's ``sys.path`` without the compiled core's build root, which
-    ``robot_agent.core._accel.activate`` appends after ``robot_agent`` is imported: on a fresh
-    interpreter's path it would shadow the package (its ``robot_agent/`` holds only the
+    """A worker: SIGINT ignored (the parent decides and stops the workers). Where workers are
+    spawned (no fork), also the parent's ``sys.path`` without the compiled core's build root,
+    which ``robot_agent.core._accel.activate`` appends after ``robot_agent`` is imported: on a
+    fresh interpreter's path it would shadow the package (its ``robot_agent/`` holds only the
     compiled modules); the child's own ``activate`` adds it back."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    sys.path[:] = [p for p in sys.path if Path(p).name != "_compiled"]
+    if "robot_agent" not in sys.modules:
+        sys.path[:] = [p for p in sys.path if Path(p).name != "_compiled"]
 
 
 def _results_in_order(
@@ -172,7 +173,11 @@ def _results_in_order(
         for s in specs:
             yield runner(s)
         return
-    ctx = multiprocessing.get_context("spawn")  # no fork of the parent's state or threads
+    # fork where there is one: the workers start at once with the modules already imported, and
+    # no resource-tracker process outlives the pool (spawn starts one for the pool's locks);
+    # the parent has no threads here (the progress line and the plots are drawn in this thread)
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
     pool = ctx.Pool(min(jobs, len(specs)), initializer=_worker_init)
     try:
         yield from pool.imap_unordered(runner, specs, chunksize=1)

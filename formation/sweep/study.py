@@ -485,6 +485,13 @@ def expand(study: Study) -> list[Case]:
             data = _apply(study.base, changes)
             if study.duration_s is not None:
                 data["duration_s"] = study.duration_s
+                # disturbances after the end do not happen in the shortened run
+                if isinstance(data.get("disturbance"), list):
+                    data["disturbance"] = [
+                        d
+                        for d in data["disturbance"]
+                        if not (isinstance(d, dict) and _after(d.get("t_s"), study.duration_s))
+                    ]
                 settle = data.get("settle_s")
                 if isinstance(settle, int | float) and settle > study.duration_s:
                     data["settle_s"] = study.duration_s / 2.0
@@ -511,6 +518,10 @@ def expand(study: Study) -> list[Case]:
             )
             index += 1
     return cases
+
+
+def _after(t_s: Any, duration_s: float) -> bool:
+    return isinstance(t_s, int | float) and not isinstance(t_s, bool) and t_s > duration_s
 
 
 def _short(v: Any) -> str:
