@@ -27,6 +27,7 @@ from typing import NoReturn
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("formation.sim.command", "run a scenario in-process (no Zenoh), deterministic, fast"),
     "demo": ("formation.sim.demo", "run the paper's experiment 2 and write metrics and figures"),
+    "sweep": ("formation.sweep.command", "run a parameter study: many sims, one table, plots"),
     "up": ("formation.launch.up", "start router, plant, coordinator and one agent per robot"),
     "router": ("formation.launch.router", "run an embedded Zenoh router"),
     "coordinator": ("coordinator.node.main", "run the coordinator process"),
@@ -57,6 +58,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 EXAMPLES: dict[str, tuple[str, ...]] = {
     "formation sim": ("formation sim --scenario chevron7 --duration 30 --seed 4",),
     "formation demo": ("formation demo --duration 20 --no-figures",),
+    "formation sweep": ("formation sweep studies/ref-offset.toml --reduced --no-plots",),
     "formation up": (
         "formation up --scenario paper-exp1 --duration 20",
         "formation up --lockstep --robots 7 --scenario chevron7 --duration 10 --no-figures",
@@ -108,6 +110,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "mcap": "sim",
     "foxglove": "sim",
     "cryptography": "sim",
+    "pyarrow": "sim",
     "cv2": "camera",
     "pupil_apriltags": "camera",
     "serial": "agent",

@@ -16,6 +16,10 @@ Figures (``write_all``):
 * ``roles.png``: up to :data:`DETAIL_MAX` robots the slot of each robot over time (integer
   ticks); beyond, the role changes as events (robot x time) and the number of robots holding a
   slot.
+* ``formation.png``: the figure a paper prints (Figs 9, 11): paths with the formation drawn at a
+  few instants and their times, tight axes, disturbances and role changes labelled; one panel
+  per instant beyond 10 robots, the robots whose role changed highlighted
+  (:mod:`formation.outputs.snapshots`).
 * ``index.md``: one line per file of the run directory (``metrics.json``, ``run.npz``, every
   figure) with a caption, and a short summary from ``metrics.json`` when it is there.
 
@@ -57,6 +61,7 @@ from formation.outputs.figures_style import (
 )
 from formation.outputs.metrics import formation_error, role_changes
 from formation.outputs.runlog import RunLog
+from formation.outputs.snapshots import Event, plot_snapshots
 
 __all__ = [
     "FIGURES",
@@ -77,6 +82,8 @@ FIGURES: Final = {
     "formation_error.png": "distance from each robot's reference point to its slot (eqs 17-18), "
     "linear and log scale",
     "roles.png": "slots held over time and role changes (the initial assignment is not a change)",
+    "formation.png": "the formation at a few instants with their times, disturbances and role "
+    "changes labelled (paper Figs 9, 11)",
 }
 """The figures of :func:`write_all` with a generic one-line caption (:func:`caption` is exact)."""
 
@@ -473,10 +480,12 @@ def write_all(
     settle_s: float | None = None,
     *,
     index: bool = True,
+    events: Sequence[Event] = (),
 ) -> list[Path]:
-    """Write the four figures (and ``index.md`` unless ``index=False``) to ``out_dir``; return
+    """Write the five figures (and ``index.md`` unless ``index=False``) to ``out_dir``; return
     the paths written, the figures first. Call it after ``metrics.json`` is written so the index
-    links and summarises it."""
+    links and summarises it. ``events``: labelled disturbances for ``formation.png``
+    (:func:`formation.outputs.snapshots.events_of` a scenario's)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / name for name in FIGURES]
@@ -484,6 +493,7 @@ def write_all(
     plot_motor_power(log, paths[1])
     plot_error(log, paths[2], settle_s)
     plot_roles(log, paths[3])
+    plot_snapshots(log, paths[4], events=events)
     if index:
-        paths.append(write_index(out_dir, paths[:4], title, len(log.robot_ids)))
+        paths.append(write_index(out_dir, paths[:5], title, len(log.robot_ids)))
     return paths

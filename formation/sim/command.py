@@ -118,6 +118,7 @@ def run_and_write(
     save_npz_atomic(result.log, out / "run.npz")
     if figures:
         from formation.outputs import figures as fig_mod
+        from formation.outputs.snapshots import events_of
 
         cut = ""
         if result.interrupted:
@@ -127,6 +128,7 @@ def run_and_write(
             out,
             title=f"{scn.name}{cut}: reference points (solid), virtual trajectories (dashed)",
             settle_s=settle_s,
+            events=events_of(scn.disturbances),
         )
     return m
 

@@ -115,6 +115,8 @@ MISTAKES: list[tuple[tuple[str, ...], tuple[str, ...]]] = [
     (("up", "--bogus"), ("--bogus",)),
     # the other subcommands
     (("demo", "--bogus"), ("--bogus",)),
+    (("sweep", "s.toml", "--bogus"), ("--bogus",)),
+    (("sweep", "no-such-study.toml"), ("no-such-study.toml", "cannot read")),
     (("demo", "--duration", "-1"), ("--duration",)),
     (("router", "--listen", "nonsense"), ("nonsense", "endpoint")),
     (("router", "--lease-ms", "-5"), ("lease",)),
