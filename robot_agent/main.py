@@ -111,7 +111,12 @@ def _setup(ns: argparse.Namespace) -> _Setup:
         ns.zenoh_config = ns.zenoh_config or rc.zenoh.config_file
         if rc.motor.backend != "bus":
             try:
-                motor = create_backend(rc.motor, config.geometry.max_wheel_radps)
+                motor = create_backend(
+                    rc.motor,
+                    config.geometry.max_wheel_radps,
+                    geometry=config.geometry,
+                    subscribe=rt.subscribe_on_thread,
+                )
             except ValueError as exc:
                 raise rt.UsageError(f"motor backend: {exc}") from None
     elif ns.scenario is not None:

@@ -40,7 +40,7 @@ is the annotated template). Layout::
     config_file = "/etc/formation/zenoh/robot-mtls.json5"   # optional zenoh json5 file
 
     [motor]
-    backend = "roboclaw"                  # "bus" (simulation) or "roboclaw"
+    backend = "roboclaw"                  # "bus" (simulation), "roboclaw" or "ros2"
     port = "/dev/roboclaw"                # roboclaw only: RoboClawConfig fields
     ...
 
@@ -69,6 +69,7 @@ from pathlib import Path
 from typing import Any
 
 from robot_agent.motors.roboclaw import RoboClawConfig
+from robot_agent.motors.ros2 import Ros2MotorConfig
 from robot_agent.params import AgentConfig, Arena, CircleObstacle, SegmentObstacle, WorldMap
 
 from .plausible import (
@@ -90,7 +91,7 @@ ID_PATTERN = re.compile(r"[a-z0-9_-]+")
 """Robot ids and fleet names (bus contract): lower-case letters, digits, '_' and '-'."""
 
 ZENOH_MODES = ("client", "peer")
-MOTOR_BACKENDS = ("bus", "roboclaw")
+MOTOR_BACKENDS = ("bus", "roboclaw", "ros2")
 _ENDPOINT = re.compile(r"[a-z][a-z0-9-]*/\S+")
 
 
@@ -137,12 +138,16 @@ class MotorConfig:
     """Which motor backend drives the wheels, and its settings.
 
     Attributes:
-        backend: "bus" (simulation: the wheel message is the output) or "roboclaw".
+        backend: "bus" (simulation: the wheel message is the output), "roboclaw" or "ros2"
+            (a ROS 2 base driven over rmw_zenoh: robot_agent.motors.ros2).
         roboclaw: the RoboClaw settings; required with backend "roboclaw", else None.
+        ros2: the ROS 2 base's settings with backend "ros2" (defaults when the section has
+            none), else None.
     """
 
     backend: str = "bus"
     roboclaw: RoboClawConfig | None = None
+    ros2: Ros2MotorConfig | None = None
 
     def __post_init__(self) -> None:
         if self.backend not in MOTOR_BACKENDS:
@@ -151,6 +156,10 @@ class MotorConfig:
             raise ValueError("backend 'roboclaw' needs its settings (port, ...)")
         if self.backend != "roboclaw" and self.roboclaw is not None:
             raise ValueError(f"backend {self.backend!r} takes no roboclaw settings")
+        if self.backend == "ros2" and self.ros2 is None:
+            object.__setattr__(self, "ros2", Ros2MotorConfig())
+        if self.backend != "ros2" and self.ros2 is not None:
+            raise ValueError(f"backend {self.backend!r} takes no ros2 settings")
 
 
 @dataclass(frozen=True, slots=True)
@@ -543,6 +552,9 @@ def _motor(data: Mapping[str, Any], problems: list[str]) -> MotorConfig | None:
         # The other keys are the roboclaw backend's: checked only when it is selected, so a
         # robot config can be switched to the simulated backend by changing one line.
         return MotorConfig(backend="bus")
+    if backend == "ros2":
+        ros2 = _build(Ros2MotorConfig, table, "motor", problems, skip=("backend",))
+        return None if ros2 is None else MotorConfig(backend="ros2", ros2=ros2)
     roboclaw = _build(RoboClawConfig, table, "motor", problems, skip=("backend",))
     if roboclaw is None:
         return None
