@@ -1,10 +1,11 @@
 """Test support: an independent rmw_zenoh client (zenoh-ros2-sdk from PyPI) as a subprocess.
 
-``python -m tests.ros2_sdk_client ROUTER_PORT DOMAIN_ID`` does what a ROS 2 user would with
-``ros2 topic list -t``, ``ros2 topic echo /r1/odom``, ``ros2 topic pub /formation/cmd_vel`` and
-``ros2 service call /formation/estop std_srvs/srv/Trigger``, and prints one JSON line per
-result. Offline: every definition and hash comes from rosbags (tests/ros2_reference.py), so the
-SDK fetches nothing. A subprocess because the SDK keeps a process-wide session.
+``python -m tests.ros2_sdk_client ROUTER_PORT DOMAIN_ID [full|watch]`` does what a ROS 2 user
+would with ``ros2 topic list -t``, ``ros2 topic echo /r1/odom``, ``ros2 topic pub
+/formation/cmd_vel`` and ``ros2 service call /formation/estop std_srvs/srv/Trigger``, and prints
+one JSON line per result (``watch``: the first two only). Offline: every definition and hash
+comes from rosbags (tests/ros2_reference.py), so the SDK fetches nothing. A subprocess because
+the SDK keeps a process-wide session.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ def say(**fields: Any) -> None:
     print(json.dumps(fields), flush=True)
 
 
-def main(port: int, domain_id: int) -> None:
+def main(port: int, domain_id: int, mode: str) -> None:
     from zenoh_ros2_sdk import (
         ROS2Publisher,
         ROS2ServiceClient,
@@ -32,7 +33,8 @@ def main(port: int, domain_id: int) -> None:
     from tests import ros2_reference as ref
 
     router = {"router_ip": "127.0.0.1", "router_port": port}
-    deadline = time.monotonic() + 20.0
+    start = time.monotonic()
+    deadline = start + 30.0
     wanted = {"/r1/odom", "/tf", "/formation/slots", "/formation/cmd_vel"}
     topics: dict[str, list[str]] = {}
     while time.monotonic() < deadline:
@@ -40,7 +42,7 @@ def main(port: int, domain_id: int) -> None:
         if wanted <= set(topics):
             break
         time.sleep(0.2)
-    say(what="topics", topics=topics)
+    say(what="topics", topics=topics, after_s=round(time.monotonic() - start, 2))
 
     got = threading.Event()
     odoms: list[dict[str, float | str]] = []
@@ -64,6 +66,8 @@ def main(port: int, domain_id: int) -> None:
     got.wait(10.0)
     say(what="odom", samples=odoms[:1])
     sub.close()
+    if mode == "watch":
+        return
 
     twist_def, twist_hash = ref.msgdef("geometry_msgs/msg/Twist")
     pub = ROS2Publisher(
@@ -95,7 +99,7 @@ def main(port: int, domain_id: int) -> None:
 
 if __name__ == "__main__":
     try:
-        main(int(sys.argv[1]), int(sys.argv[2]))
+        main(int(sys.argv[1]), int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "full")
     except Exception as exc:
         say(what="error", error=f"{type(exc).__name__}: {exc}")
     finally:

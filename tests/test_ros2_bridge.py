@@ -11,10 +11,12 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
 import zenoh
+from conftest import free_port
 
 from bus_schemas import Estop, Leader, Pose, Slot, Teleop, decode, encode, keys
 from bus_schemas.errors import DecodeError
@@ -199,3 +201,31 @@ def test_independent_ros2_client_sees_and_drives_the_bridge(
         assert any(e.engage and e.robot is None for e in bus.estops)
     finally:
         bus.close()
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_formation_up_ros2_shows_the_fleet_to_a_ros2_client(spawn: Any, tmp_path: Path) -> None:
+    port = free_port()
+    run = spawn(
+        "up", "--endpoint", f"tcp/127.0.0.1:{port}", "--fleet", "demo", "--out",
+        str(tmp_path / "run"), "--no-figures", "--scenario", "paper-exp1", "--duration", "25",
+        "--ros2", "--quiet",
+    )  # fmt: skip
+    client = spawn.command([sys.executable, "-m", "tests.ros2_sdk_client", str(port), "0", "watch"])
+    assert client.proc.wait(90.0) == 0, client.describe()
+    results = {
+        line["what"]: line
+        for line in (json.loads(x) for x in client.stdout().splitlines() if x.startswith("{"))
+    }
+    assert "error" not in results, results.get("error")
+    topics = results["topics"]["topics"]
+    robots = {t.split("/")[1] for t in topics if t.endswith("/odom")}
+    assert {"r1", "r2", "r3"} <= robots, topics
+    assert topics["/tf"] == ["tf2_msgs/msg/TFMessage"]
+    assert topics["/formation/slots"] == ["geometry_msgs/msg/PoseArray"]
+    (odom,) = results["odom"]["samples"]
+    assert odom["child_frame_id"] == "r1/base_link"
+    # how long after `formation up` started the client saw every topic (the report quotes it)
+    print(f"topics seen {results['topics']['after_s']} s after the client started")
+    run.stop()
