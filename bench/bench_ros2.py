@@ -1,0 +1,158 @@
+"""The stdlib ROS 2 codec (bus_schemas.ros2) next to rosbags' compiled CDR codec, same run.
+
+    python bench/bench_ros2.py               # codec table
+    python bench/bench_ros2.py --bridge 400  # also: bus pose -> /r1/odom through `formation ros2`
+
+Codec: per message, the best of 15 rounds of 2,000 encodes / decodes (process CPU time per
+message, microseconds) of ours and of rosbags' ``serialize_cdr`` / ``deserialize_cdr`` (the
+baseline: pure Python code generated per type, plus numpy arrays). A robot runs ours: no numpy.
+
+Bridge: a router and a ``formation ros2`` process; this process publishes ``Pose`` messages on
+the bus and listens to ``/r1/odom`` on the ROS side; the latency is from the bus put to the
+odometry's arrival (both on this host's monotonic clock). The baseline is the same round trip
+without the bridge: a plain Zenoh put to a subscriber of this process through the same router.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bus_schemas.ros2 import msgs
+
+
+def _samples() -> dict[str, Any]:
+    header = msgs.Header(msgs.Time(12, 345), "odom")
+    pose = msgs.Pose(msgs.Point(1.0, 2.0), msgs.quaternion_from_yaw(0.3))
+    return {
+        "geometry_msgs/msg/Twist": msgs.Twist(msgs.Vector3(0.2), msgs.Vector3(z=0.5)),
+        "nav_msgs/msg/Odometry": msgs.Odometry(
+            header, "base_link", msgs.PoseWithCovariance(pose, tuple(float(i) for i in range(36)))
+        ),
+        "tf2_msgs/msg/TFMessage": msgs.TFMessage(
+            tuple(
+                msgs.TransformStamped(
+                    header, f"r{k}/base_link", msgs.Transform(msgs.Vector3(1.0), pose.orientation)
+                )
+                for k in range(10)
+            )
+        ),
+        "geometry_msgs/msg/PoseArray": msgs.PoseArray(header, (pose,) * 10),
+    }
+
+
+def _best_us(fn: Any, n: int = 2000, rounds: int = 15) -> float:
+    best = float("inf")
+    for _ in range(rounds):
+        t0 = time.process_time()
+        for _ in range(n):
+            fn()
+        best = min(best, (time.process_time() - t0) / n)
+    return best * 1e6
+
+
+def codec_table() -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    import ros2_reference as ref
+
+    ts = ref.typestore()
+    print(f"{'type':32} {'enc ours':>9} {'enc rosbags':>11} {'dec ours':>9} {'dec rosbags':>11}")
+    for name, msg in _samples().items():
+        ours = msgs.encode(msg)
+        theirs_obj = ref.to_rosbags(msg, name)
+        assert bytes(ts.serialize_cdr(theirs_obj, name)) == ours
+        cls = type(msg)
+        enc_ours = _best_us(lambda msg=msg: msgs.encode(msg))
+        enc_ref = _best_us(lambda o=theirs_obj, name=name: ts.serialize_cdr(o, name))
+        dec_ours = _best_us(lambda b=ours, cls=cls: msgs.decode(b, cls))
+        dec_ref = _best_us(lambda b=ours, name=name: ts.deserialize_cdr(b, name))
+        print(
+            f"{name:32} {enc_ours:8.1f}u {enc_ref:10.1f}u {dec_ours:8.1f}u {dec_ref:10.1f}u"
+            f"   ({len(ours)} B)"
+        )
+
+
+def bridge_latency(count: int) -> None:
+    import zenoh
+    from common import LatencyStats, print_latency, print_latency_header, router, running
+
+    from bus_schemas import Pose, encode, keys
+    from bus_schemas.ros2 import rmw
+
+    with router() as endpoint:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"client"')
+        conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        with zenoh.open(conf) as s:
+            # baseline: the same put -> callback through the router, no bridge
+            sent: dict[int, float] = {}
+            lat: list[float] = []
+            done = threading.Event()
+
+            def on_plain(sample: zenoh.Sample) -> None:
+                k = int.from_bytes(sample.payload.to_bytes()[:4], "little")
+                lat.append(time.monotonic() - sent[k])
+                if len(lat) >= count:
+                    done.set()
+
+            sub = s.declare_subscriber("bench/plain", on_plain)
+            time.sleep(0.3)
+            for k in range(count):
+                sent[k] = time.monotonic()
+                s.put("bench/plain", k.to_bytes(4, "little") + bytes(96))
+                time.sleep(0.01)
+            done.wait(10.0)
+            sub.undeclare()
+            base = LatencyStats.from_samples(lat, count - len(lat))
+
+            argv = [sys.executable, "-m", "formation", "ros2", "--endpoint", endpoint]
+            with running([*argv, "--fleet", "bench"], ready="ros2 bridge ready"):
+                odom_key = rmw.topic_key(0, "/r1/odom", msgs.ros_type(msgs.Odometry))
+                sent2: dict[int, float] = {}
+                lat2: list[float] = []
+                done2 = threading.Event()
+
+                def on_odom(sample: zenoh.Sample) -> None:
+                    odom = msgs.decode(sample.payload.to_bytes(), msgs.Odometry)
+                    if isinstance(odom, msgs.Odometry):
+                        k = round(odom.pose.pose.position.x * 1000)
+                        if k in sent2:
+                            lat2.append(time.monotonic() - sent2.pop(k))
+                    if len(lat2) >= count:
+                        done2.set()
+
+                sub2 = s.declare_subscriber(odom_key, on_odom)
+                time.sleep(0.5)
+                for k in range(1, count + 1):
+                    pose = Pose(t=0.01 * k, seq=k, x=k / 1000, y=0.0, theta=0.0)
+                    sent2[k] = time.monotonic()
+                    s.put(keys.pose_key("bench", "r1"), encode(pose))
+                    time.sleep(0.01)
+                done2.wait(10.0)
+                sub2.undeclare()
+                bridged = LatencyStats.from_samples(lat2, count - len(lat2))
+    print_latency_header()
+    print_latency("put -> subscriber (no bridge)", base)
+    print_latency("bus pose -> /r1/odom (bridge)", bridged, base)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--bridge", type=int, default=0, metavar="N", help="bridge latency samples")
+    ns = p.parse_args()
+    codec_table()
+    if ns.bridge:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        bridge_latency(ns.bridge)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
