@@ -167,8 +167,9 @@ def until(pred: Callable[[], Any], timeout_s: float, what: str) -> Any:
 def test_independent_ros2_client_sees_and_drives_the_bridge(
     router: Any, spawn: Any, session: Callable[..., zenoh.Session]
 ) -> None:
-    spawn("ros2", "--endpoint", router.endpoint, "--domain-id", "3", ready=READY)
-    bus = BusSide(session())
+    bridge = spawn("ros2", "--endpoint", router.endpoint, "--domain-id", "3", ready=READY)
+    raw = session()
+    bus = BusSide(raw)
     try:
         client = spawn.command(
             [sys.executable, "-m", "tests.ros2_sdk_client", str(router.port), "3"]
@@ -199,6 +200,30 @@ def test_independent_ros2_client_sees_and_drives_the_bridge(
         assert response is not None and "estop engaged for the fleet" in response["message"]
         assert response["success"] is False
         assert any(e.engage and e.robot is None for e in bus.estops)
+
+        # hostile ROS input: malformed, NaN, no attachment, a wrong type hash, then a flood of
+        # 300 valid commands at once; dropped and counted, at most --max-cmd-hz pass
+        cmd_key = rmw.topic_key(3, "/formation/cmd_vel", msgs.ros_type(msgs.Twist))
+        nan = msgs.encode(msgs.Twist())[:4] + bytes(40) + bytes.fromhex("000000000000f87f")
+        raw.put(cmd_key, b"\x00\x01\x00\x00garbage", attachment=ATT)
+        raw.put(cmd_key, nan, attachment=ATT)
+        raw.put(cmd_key, twist(0.1, 0.0))
+        wrong = cmd_key.rsplit("/", 1)[0] + "/RIHS01_" + "0" * 64
+        raw.put(wrong, twist(0.3, 0.0), attachment=ATT)  # another type: never matched
+        before = len(bus.teleops)
+        t0 = time.monotonic()
+        for _ in range(300):
+            raw.put(cmd_key, twist(0.05, 0.0), attachment=ATT)
+        flood_s = time.monotonic() - t0
+        time.sleep(0.5)
+        passed = len(bus.teleops) - before
+        assert 1 <= passed <= 50 * (flood_s + 0.5) + 2, (passed, flood_s)
+        assert all(t.v_mps == 0.05 for t in bus.teleops[before:])
+        bridge.stop()
+        counts = bridge.stderr()
+        for reason in ("cmd_vel_malformed", "cmd_vel_non_finite", "cmd_vel_missing_field",
+                       "cmd_vel_flood"):  # fmt: skip
+            assert f"'{reason}'" in counts, counts
     finally:
         bus.close()
 
