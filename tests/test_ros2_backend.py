@@ -7,10 +7,12 @@ import math
 import struct
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 import zenoh
+from conftest import free_port
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -261,3 +263,47 @@ def test_backend_drives_a_simulated_ros2_base(
         ]
 
     until(lambda: not agent_tokens(), what="tokens gone")
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_agent_process_holds_a_ros2_base_at_zero(
+    router: Any, spawn: Any, session: Callable[..., zenoh.Session], tmp_path: Path
+) -> None:
+    """`formation agent --config` with backend "ros2": the shell wires the backend (its odom
+    subscription through runtime.bridge); with the fleet's router unreachable the agent holds
+    the base at zero (a stream of zero twists), shows up in the base's ROS graph, and leaves
+    it on SIGTERM."""
+    base = SimRos2Base(session(), namespace="/tb3_1").start()
+    try:
+        config = tmp_path / "r1.toml"
+        config.write_text(
+            'robot_id = "r1"\n'
+            f'[zenoh]\nendpoints = ["tcp/127.0.0.1:{free_port()}"]\n'  # the fleet: unreachable
+            f'[motor]\nbackend = "ros2"\nendpoint = "{router.endpoint}"\nmode = "client"\n'
+            'namespace = "/tb3_1"\n'
+        )
+        agent = spawn("agent", "--config", str(config))
+        until(lambda: len(base.commands) >= 5, 15.0, "a stream of commands")
+        assert set(base.commands) == {(0.0, 0.0)}
+        assert base.rejected.total == 0
+        observer = session()
+
+        def agent_tokens() -> list[rmw.LivelinessToken]:
+            out = []
+            for r in observer.liveliness().get(rmw.graph_pattern(0), timeout=1.0):
+                if r.ok is not None:
+                    tok = rmw.parse_token(str(r.ok.key_expr))
+                    if isinstance(tok, rmw.LivelinessToken) and tok.node_name == "formation_agent":
+                        out.append(tok)
+            return out
+
+        kinds = {t.kind for t in until(agent_tokens, 10.0, "the agent in the ROS graph")}
+        assert kinds == {
+            rmw.EntityKind.NODE, rmw.EntityKind.PUBLISHER, rmw.EntityKind.SUBSCRIPTION,
+        }  # fmt: skip
+        agent.stop()
+        assert agent.proc.returncode == 0, agent.describe()
+        until(lambda: not agent_tokens(), 10.0, "the agent gone from the ROS graph")
+    finally:
+        base.close()
