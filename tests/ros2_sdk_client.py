@@ -27,6 +27,7 @@ def main(port: int, domain_id: int, mode: str) -> None:
         ROS2Publisher,
         ROS2ServiceClient,
         ROS2Subscriber,
+        get_service_names_and_types,
         get_topic_names_and_types,
     )
 
@@ -43,6 +44,8 @@ def main(port: int, domain_id: int, mode: str) -> None:
             break
         time.sleep(0.2)
     say(what="topics", topics=topics, after_s=round(time.monotonic() - start, 2))
+    services = dict(get_service_names_and_types(domain_id=domain_id, timeout=1.0, **router))
+    say(what="services", services=services)
 
     got = threading.Event()
     odoms: list[dict[str, float | str]] = []

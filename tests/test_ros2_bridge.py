@@ -187,6 +187,10 @@ def test_independent_ros2_client_sees_and_drives_the_bridge(
         assert topics["/formation/markers"] == ["visualization_msgs/msg/MarkerArray"]
         assert "geometry_msgs/msg/Twist" in topics["/formation/cmd_vel"]
 
+        services = results["services"]["services"]
+        assert services["/formation/estop"] == ["std_srvs/srv/Trigger"]
+        assert services["/formation/release"] == ["std_srvs/srv/Trigger"]
+
         (odom,) = results["odom"]["samples"]
         assert (odom["frame_id"], odom["child_frame_id"]) == ("map", "r1/base_link")
         assert odom["y"] == pytest.approx(0.5)
