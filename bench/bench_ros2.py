@@ -2,6 +2,7 @@
 
     python bench/bench_ros2.py               # codec table
     python bench/bench_ros2.py --bridge 400  # also: bus pose -> /r1/odom through `formation ros2`
+    python bench/bench_ros2.py --cpu 3,100   # also: the bridge's CPU with N robots' poses at 30 Hz
 
 Codec: per message, the best of 15 rounds of 2,000 encodes / decodes (process CPU time per
 message, microseconds) of ours and of rosbags' ``serialize_cdr`` / ``deserialize_cdr`` (the
@@ -11,6 +12,10 @@ Bridge: a router and a ``formation ros2`` process; this process publishes ``Pose
 the bus and listens to ``/r1/odom`` on the ROS side; the latency is from the bus put to the
 odometry's arrival (both on this host's monotonic clock). The baseline is the same round trip
 without the bridge: a plain Zenoh put to a subscriber of this process through the same router.
+
+CPU: the ``formation ros2`` process's CPU (user + system, % of one core) over 5 s while this
+process publishes N robots' poses as the plant does (one ``poses`` batch at 30 Hz), next to the
+router's CPU in the same window (the fleet's traffic without the bridge's work).
 """
 
 from __future__ import annotations
@@ -143,14 +148,84 @@ def bridge_latency(count: int) -> None:
     print_latency("bus pose -> /r1/odom (bridge)", bridged, base)
 
 
+def bridge_cpu(counts: list[int], window_s: float = 5.0) -> None:
+    import zenoh
+    from common import cpu_s, router, running
+
+    from bus_schemas import keys
+
+    print(f"{'robots':>6} {'bridge CPU %':>12} {'router CPU %':>12} {'poses/s':>8}")
+    for n in counts:
+        with router() as endpoint:
+            conf = zenoh.Config()
+            conf.insert_json5("mode", '"client"')
+            conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
+            conf.insert_json5("scouting/multicast/enabled", "false")
+            router_pid = _pid_listening(endpoint)
+            argv = [sys.executable, "-m", "formation", "ros2", "--endpoint", endpoint]
+            with (
+                zenoh.open(conf) as s,
+                running([*argv, "--fleet", "bench"], ready="ros2 bridge ready") as bridge,
+            ):
+                ids = tuple(f"r{k + 1}" for k in range(n))
+                key = keys.poses_key("bench")
+
+                for k in range(15):  # warm up: publishers declared, tokens out
+                    s.put(key, _frame(k, ids))
+                    time.sleep(1 / 30)
+                c0, r0, t0 = cpu_s(bridge.pid), cpu_s(router_pid), time.monotonic()
+                k = 15
+                while time.monotonic() - t0 < window_s:
+                    s.put(key, _frame(k, ids))
+                    k += 1
+                    time.sleep(max(0.0, t0 + (k - 15) / 30 - time.monotonic()))
+                dt = time.monotonic() - t0
+                c1, r1 = cpu_s(bridge.pid), cpu_s(router_pid)
+        print(
+            f"{n:6d} {100 * (c1 - c0) / dt:11.1f}% {100 * (r1 - r0) / dt:11.1f}% "
+            f"{n * (k - 15) / dt:8.0f}"
+        )
+
+
+def _frame(k: int, ids: tuple[str, ...]) -> bytes:
+    """Frame ``k`` of a ``poses`` batch of robots ``ids`` (30 Hz, all moving along x)."""
+    from bus_schemas import PoseBatch, encode
+
+    n = len(ids)
+    xs = tuple(0.01 * k + 0.1 * i for i in range(n))
+    zeros = (0.0,) * n
+    batch = PoseBatch(t=k / 30, seq=k, robots=ids, x=xs, y=zeros, theta=zeros, stamp=k / 30)
+    return encode(batch)
+
+
+def _pid_listening(endpoint: str) -> int:
+    """The pid of the `formation router` serving ``endpoint`` (this process's child)."""
+    import os
+
+    port = endpoint.rsplit(":", 1)[1]
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            cmd = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"router" in cmd and any(port.encode() in c for c in cmd):
+            return int(entry.name)
+    raise RuntimeError(f"no router process for {endpoint}")
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--bridge", type=int, default=0, metavar="N", help="bridge latency samples")
+    p.add_argument("--cpu", default="", metavar="N,M", help="bridge CPU at these fleet sizes")
     ns = p.parse_args()
     codec_table()
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
     if ns.bridge:
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
         bridge_latency(ns.bridge)
+    if ns.cpu:
+        bridge_cpu([int(x) for x in ns.cpu.split(",")])
     return 0
 
 
