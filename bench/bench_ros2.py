@@ -3,6 +3,7 @@
     python bench/bench_ros2.py               # codec table
     python bench/bench_ros2.py --bridge 400  # also: bus pose -> /r1/odom through `formation ros2`
     python bench/bench_ros2.py --cpu 3,100   # also: the bridge's CPU with N robots' poses at 30 Hz
+    python bench/bench_ros2.py --backend 400 # also: the ros2 motor backend's cmd_vel latency
 
 Codec: per message, the best of 15 rounds of 2,000 encodes / decodes (process CPU time per
 message, microseconds) of ours and of rosbags' ``serialize_cdr`` / ``deserialize_cdr`` (the
@@ -16,6 +17,10 @@ without the bridge: a plain Zenoh put to a subscriber of this process through th
 CPU: the ``formation ros2`` process's CPU (user + system, % of one core) over 5 s while this
 process publishes N robots' poses as the plant does (one ``poses`` batch at 30 Hz), next to the
 router's CPU in the same window (the fleet's traffic without the bridge's work).
+
+Backend: ``Ros2Backend.apply`` (what the agent's motor worker calls right after a firmware tick)
+to the twist's arrival at a ROS 2 base's ``cmd_vel`` subscriber in another session through a
+router (the simulated base of the tests), next to a plain put of 52 bytes on the same path.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bus_schemas.ros2 import msgs
+from bus_schemas.ros2 import msgs, rmw
 
 
 def _samples() -> dict[str, Any]:
@@ -88,7 +93,6 @@ def bridge_latency(count: int) -> None:
     from common import LatencyStats, print_latency, print_latency_header, router, running
 
     from bus_schemas import Pose, encode, keys
-    from bus_schemas.ros2 import rmw
 
     with router() as endpoint:
         conf = zenoh.Config()
@@ -187,6 +191,64 @@ def bridge_cpu(counts: list[int], window_s: float = 5.0) -> None:
         )
 
 
+def backend_latency(count: int) -> None:
+    import zenoh
+    from common import LatencyStats, print_latency, print_latency_header, router
+
+    import runtime as rt
+    from robot_agent.kinematics import twist_from_wheels
+    from robot_agent.motors import Ros2Backend, Ros2MotorConfig
+    from robot_agent.params import RobotGeometry
+
+    geom = RobotGeometry(wheel_radius_m=0.033, half_track_m=0.08)
+    with router() as endpoint:
+        settings = rt.ZenohSettings(connect=(endpoint,))
+        base = rt.open_session(settings)
+        sent: dict[float, float] = {}
+        lat: list[float] = []
+        cmd_key = rmw.topic_key(0, "/cmd_vel", msgs.ros_type(msgs.Twist))
+
+        def on_cmd(sample: zenoh.Sample) -> None:
+            tw = msgs.decode(sample.payload.to_bytes(), msgs.Twist)
+            if isinstance(tw, msgs.Twist) and tw.linear.x in sent:
+                lat.append(time.monotonic() - sent.pop(tw.linear.x))
+
+        sub = base.declare_subscriber(cmd_key, on_cmd)
+        plain = rt.open_session(settings)
+        time.sleep(0.3)
+        for k in range(1, count + 1):  # the floor: a plain 52-byte put on the same key
+            payload = msgs.encode(msgs.Twist(msgs.Vector3(x=k * 1e-4)))
+            sent[k * 1e-4] = time.monotonic()
+            plain.put(cmd_key, payload)
+            time.sleep(0.01)
+        time.sleep(0.3)
+        floor = LatencyStats.from_samples(lat, count - len(lat))
+        lat.clear()
+        sent.clear()
+        backend = Ros2Backend(
+            Ros2MotorConfig(endpoint=endpoint, mode="client"),
+            geom,
+            subscribe=rt.subscribe_on_thread,
+        )
+        backend.open()
+        time.sleep(0.3)
+        for k in range(1, count + 1):
+            w = k * 1e-4 / geom.wheel_radius_m  # both wheels: v = k * 1e-4 m/s exactly
+            v, _ = twist_from_wheels(w, w, geom)
+            sent[v] = time.monotonic()
+            backend.apply(w, w, float(k))
+            time.sleep(0.01)
+        time.sleep(0.3)
+        backend.close()
+        via = LatencyStats.from_samples(lat, count - len(lat))
+        sub.undeclare()
+        for s in (base, plain):
+            rt.close_session(s)
+    print_latency_header()
+    print_latency("plain put -> cmd_vel subscriber", floor)
+    print_latency("Ros2Backend.apply -> base cmd_vel", via, floor)
+
+
 def _frame(k: int, ids: tuple[str, ...]) -> bytes:
     """Frame ``k`` of a ``poses`` batch of robots ``ids`` (30 Hz, all moving along x)."""
     from bus_schemas import PoseBatch, encode
@@ -219,6 +281,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--bridge", type=int, default=0, metavar="N", help="bridge latency samples")
     p.add_argument("--cpu", default="", metavar="N,M", help="bridge CPU at these fleet sizes")
+    p.add_argument("--backend", type=int, default=0, metavar="N", help="backend latency samples")
     ns = p.parse_args()
     codec_table()
     sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -226,6 +289,8 @@ def main() -> int:
         bridge_latency(ns.bridge)
     if ns.cpu:
         bridge_cpu([int(x) for x in ns.cpu.split(",")])
+    if ns.backend:
+        backend_latency(ns.backend)
     return 0
 
 
