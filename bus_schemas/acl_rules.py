@@ -197,6 +197,9 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     # the engagements an agent or agent host holds, each on its own key (only a coordinator's
     # answer on `estop` may carry a release record); asked by the same
     keys.ESTOP_HELD: KeyRoles((), answerers=((_R, OWN), (_H, OWN)), askers=(_R, _H, _C, _O)),
+    # the virtual leader's teleop command (formation ros2 forwards /formation/cmd_vel); the
+    # coordinator will read it (the operator issue wires the consumer and its ACL grant)
+    keys.TELEOP: KeyRoles((_O,)),
     keys.CLOCK: KeyRoles((_P,), (_R, _H, _C)),
     keys.DISTURBANCE: KeyRoles((_O,), (_P,)),
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),

@@ -48,6 +48,7 @@ COORDINATOR_STATUS = "coordinator_status"
 PLANT_STATUS = "plant_status"
 CAMERA_STATUS = "camera_status"
 ESTOP_HELD = "estop_held"
+TELEOP = "teleop"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -60,6 +61,7 @@ KEY_TEMPLATES: dict[str, str] = {
     WHEELS: "formation/{fleet}/robot/{robot}/wheels",
     STATUS: "formation/{fleet}/robot/{robot}/status",
     ESTOP: "formation/{fleet}/estop",
+    TELEOP: "formation/{fleet}/teleop",
     CLOCK: "formation/{fleet}/clock",
     DISTURBANCE: "formation/{fleet}/disturbance",
     HEARTBEAT: "formation/{fleet}/coordinator/{name}/heartbeat",
@@ -81,7 +83,9 @@ KEY_TEMPLATES: dict[str, str] = {
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
-_FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS})
+_FLEET_LEAVES = frozenset(
+    {LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS, TELEOP}
+)
 # formation/<fleet>/host/<name>/<leaf> -> message name
 _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 # formation/<fleet>/coordinator/<name>/<leaf> -> message name
@@ -188,6 +192,12 @@ def wheels_key(fleet: str, robot: str) -> str:
 def status_key(fleet: str, robot: str) -> str:
     """``formation/<fleet>/robot/<id>/status``: agent status (agent, >= 5 Hz)."""
     return _robot_key(fleet, robot, STATUS)
+
+
+def teleop_key(fleet: str) -> str:
+    """``formation/<fleet>/teleop``: an operator's velocity command for the virtual
+    leader (the ROS 2 bridge forwards ``/formation/cmd_vel`` here)."""
+    return f"{_fleet_prefix(fleet)}/{TELEOP}"
 
 
 def estop_key(fleet: str) -> str:

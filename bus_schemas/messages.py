@@ -334,6 +334,29 @@ class Estop:
     )
 
 
+@message(name=keys.TELEOP, publisher="operator / tools (formation ros2)", periodic=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Teleop:
+    """An operator's velocity command for the virtual leader (a unicycle, eqs 1-3), e.g. from
+    a ROS 2 ``teleop_twist_keyboard`` through ``formation ros2``. A consumer holds it for a
+    deadman time after `t` and then falls back to zero (the operator issue)."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    seq: int = field(metadata=_SEQ)
+    v_mps: float = field(
+        metadata=f_float("commanded forward speed of the virtual leader", "m/s", lo=-_SPEED,
+                         hi=_SPEED)
+    )  # fmt: skip
+    omega_radps: float = field(
+        metadata=f_float("commanded turn rate of the virtual leader", "rad/s", lo=-_TURN,
+                         hi=_TURN)
+    )  # fmt: skip
+    source: str | None = field(
+        default=None, metadata=f_str("where the command came from (e.g. `ros2:/formation/cmd_vel`)")
+    )
+
+
 def new_estop_id() -> int:
     """A fresh random engagement id for an ``Estop`` that engages, in [1, 2^63-1]."""
     while True:
@@ -469,6 +492,7 @@ Message = (
     | Clock
     | Disturbance
     | Heartbeat
+    | Teleop
     | PoseBatch
     | TruthBatch
     | SetpointBatch
@@ -493,6 +517,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     Clock,
     Disturbance,
     Heartbeat,
+    Teleop,
     PoseBatch,
     TruthBatch,
     SetpointBatch,

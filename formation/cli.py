@@ -51,6 +51,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "localization.node.main",
         "overhead-camera tracker; `camera calibrate` writes its file",
     ),
+    "ros2": (
+        "formation.live.ros2_bridge",
+        "show the fleet to ROS 2 over rmw_zenoh (no ROS install)",
+    ),
 }
 
 # prog -> examples shown at the end of its --help (the epilog), one command per line.
@@ -85,6 +89,7 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
         "formation camera calibrate --help",
     ),
     "formation camera calibrate": ("formation camera calibrate --image floor.png --out cam.toml",),
+    "formation ros2": ("formation ros2 --endpoint tcp/127.0.0.1:7447 --domain-id 0",),
 }
 
 EXIT_USAGE = 2  # a mistake on the command line or in a scenario file

@@ -73,16 +73,20 @@ class Received:
     deleted: bool = False
     rx_ns: int = 0
     """``rx_s`` in integer nanoseconds (``time.monotonic_ns()``; 0 where a test built it)."""
+    attachment: bytes | None = None
+    """The sample's attachment bytes, None without one (ROS 2 samples carry rmw_zenoh's)."""
 
 
 def _to_received(sample: zenoh.Sample) -> Received:
     ns = time.monotonic_ns()
+    att = sample.attachment
     return Received(
         str(sample.key_expr),
         sample.payload.to_bytes(),
         ns / 1e9,  # == time.monotonic() at that instant
         sample.kind == zenoh.SampleKind.DELETE,
         ns,
+        None if att is None else att.to_bytes(),
     )
 
 

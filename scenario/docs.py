@@ -4,8 +4,9 @@ Every robot parameter is declared once, in its dataclass (``robot_agent.core.par
 backend's settings in its own module under ``robot_agent/motors/``): the name carries the unit,
 the field holds the default and the plausible range (``params.ranged``), the class docstring's
 ``Attributes`` give the meaning. The robot-config loader and the scenario loader validate with
-that declaration (``robot_config.build_section``), and this module renders it, so the reference
-cannot drift: tests/unit/scenario/test_parameters_doc.py fails if docs/parameters.md differs.
+that declaration (``robot_agent.core.config_tables.build_section``), and this module renders
+it, so the reference cannot drift: tests/unit/scenario/test_parameters_doc.py fails if
+docs/parameters.md differs.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ import re
 import sys
 from typing import Any
 
+from robot_agent.core.config_tables import agent_sections
 from robot_agent.core.params import declared_range
-from robot_agent.core.robot_config import agent_sections
 from robot_agent.motors import BACKENDS
 
 _ATTR = re.compile(r"^(\s+)([a-z_][a-z0-9_]*): (.*)$")

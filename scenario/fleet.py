@@ -43,8 +43,8 @@ from pathlib import Path
 from typing import Any, Final
 
 from bus_schemas import keys
+from robot_agent.core.config_tables import world_map as _world
 from robot_agent.core.params import WorldMap
-from robot_agent.core.robot_config import _world
 from scenario.load import Scenario, ScenarioError, parse
 
 __all__ = ["Fleet", "FleetError", "FleetRobot", "fleet_from_dict", "load_fleet"]

@@ -18,12 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from bus_schemas import keys
+from robot_agent.core.config_tables import agent_sections, build_section, world_map
 from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
 )
-from robot_agent.core.robot_config import _world as _robot_config_world
-from robot_agent.core.robot_config import agent_sections, build_section
 
 SCENARIO_DIR = Path(__file__).parent / "builtin"
 
@@ -173,7 +172,7 @@ def _only(d: dict[str, Any], allowed: set[str], where: str) -> None:
 
 def _robot_section(cls: Any, table: dict[str, Any], where: str) -> Any:
     """A robot parameter table (``[geometry]``, ``[safety_filter]``, ...) by the robot config's
-    one validator (``robot_agent.core.robot_config.build_section``): the same keys, types and
+    one validator (``robot_agent.core.config_tables.build_section``): the same keys, types and
     declared ranges as a robot's own file."""
     problems: list[str] = []
     built = build_section(cls, table, where, problems)
@@ -192,14 +191,14 @@ TOP_KEYS = {
 def parse_world(data: dict[str, Any]) -> WorldMap:
     """``[arena]`` and ``[[obstacle]]`` of a scenario as the firmware's ``WorldMap``.
 
-    The same tables and rules as a robot's configuration file (``robot_agent.core.robot_config``):
+    The same tables and rules as a robot's configuration file (``scenario.robot_config``):
     ``kind = "circle"`` (``x``, ``y``, ``radius_m``), ``"segment"`` (``x1``, ``y1``, ``x2``,
     ``y2``, ``radius_m`` default 0) or ``"polygon"`` (``points`` >= 3 ``[x, y]``, its closed
     outline, as segments), and an ``[arena]`` rectangle (``x_min``, ``y_min``, ``x_max``,
     ``y_max``). Raises ScenarioError naming every problem.
     """
     problems: list[str] = []
-    world = _robot_config_world(data, problems)
+    world = world_map(data, problems)
     if world is None or problems:
         raise ScenarioError("; ".join(problems) or "obstacle/arena: invalid")
     return world

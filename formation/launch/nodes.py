@@ -88,6 +88,8 @@ def node_commands(
             str(plan.out_dir / "camera.toml"),
         )  # fmt: skip
         out.insert(1, ("camera", ["camera", *cam, *common_of("localization")], "camera ready"))
+    if cfg.ros2:  # docs/ros2.md: the fleet as a ROS 2 node graph (not under --secure yet)
+        out.append(("ros2", ["ros2", *common_of("operator")], "ros2 bridge ready"))
     if cfg.standby:
         standby = [
             "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",

@@ -87,6 +87,7 @@ class UpConfig:
     hosts: int | None = None  # agent hosts (batched bus); 0: one process per robot; None: auto
     camera: str = "emulated"  # "rendered": formation camera tracks rendered frames (realtime)
     secure: bool = False  # mTLS + access control, per-process identities (docs/security.md)
+    ros2: bool = False  # also run `formation ros2`: the fleet on ROS 2 (docs/ros2.md)
 
 
 @dataclass(frozen=True)

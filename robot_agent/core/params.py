@@ -43,7 +43,7 @@ __all__ = [
 
 def ranged(default: _T, low: float, high: float) -> _T:
     """Declare a parameter: its default and the plausible range ``[low, high]`` that a robot
-    config or a scenario file may set (``robot_agent.core.robot_config`` refuses a value outside
+    config or a scenario file may set (``robot_agent.core.config_tables`` refuses a value outside
     it, so a typo such as ``stale_pose_s = 1e6`` never reaches the wheels). Its meaning is the
     line of its class's docstring; ``python -m scenario.docs`` renders all of them."""
     return cast(_T, field(default=default, metadata={"range": (low, high)}))

@@ -2,7 +2,7 @@
 
 Every backend is one row of :data:`BACKENDS` (like the trajectory kinds of
 ``coordinator.core.trajectory``): its name in a robot config's ``[motor] backend = ...``, the
-dataclass of its other ``[motor]`` keys (checked by ``robot_agent.core.robot_config``, one
+dataclass of its other ``[motor]`` keys (checked by ``robot_agent.core.config_tables``, one
 validator), and how to make it. Adding a backend is one module here and one row below.
 
 Every backend follows the :class:`MotorBackend` contract (base.py): nothing raises into the
@@ -19,9 +19,11 @@ from typing import Any
 from robot_agent.motors.base import BusMotorBackend, MotorBackend, MotorStatus
 from robot_agent.motors.roboclaw import RoboClawBackend
 from robot_agent.motors.roboclaw_config import RoboClawConfig
+from robot_agent.motors.ros2 import Ros2Backend, Ros2MotorConfig
 
 __all__ = [
     "BACKENDS",
+    "BackendContext",
     "BackendKind",
     "BusMotorBackend",
     "MotorBackend",
@@ -31,33 +33,53 @@ __all__ = [
 
 
 @dataclass(frozen=True, slots=True)
+class BackendContext:
+    """What the agent's shell hands every backend it makes.
+
+    Attributes:
+        geometry: the robot's ``RobotGeometry`` (wheel radius, half track, wheel speed limit).
+        subscribe: the shell's ``runtime.bridge.subscribe_on_thread`` (a backend that reads a
+            bus, such as ``ros2``'s odometry; a driver may not import the runtime itself).
+    """
+
+    geometry: Any
+    subscribe: Callable[..., Any] | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class BackendKind:
     """One motor backend: ``settings`` is the dataclass of its ``[motor]`` keys (None: it takes
-    none); ``make(settings, max_wheel_radps)`` builds it, not yet opened."""
+    none); ``make(settings, context)`` builds it, not yet opened."""
 
     summary: str
     settings: type[Any] | None
-    make: Callable[[Any, float], MotorBackend]
+    make: Callable[[Any, BackendContext], MotorBackend]
 
 
 BACKENDS: dict[str, BackendKind] = {
     "bus": BackendKind(
         "simulation: the wheel command published on the bus is all there is",
         None,
-        lambda _settings, _max_wheel_radps: BusMotorBackend(),
+        lambda _settings, _context: BusMotorBackend(),
     ),
     "roboclaw": BackendKind(
         "a Basicmicro RoboClaw over packet serial",
         RoboClawConfig,
-        RoboClawBackend,
+        lambda settings, context: RoboClawBackend(settings, context.geometry.max_wheel_radps),
+    ),
+    "ros2": BackendKind(
+        "a ROS 2 base (TurtleBot3, Create 3, ...) over rmw_zenoh: cmd_vel out, odom in",
+        Ros2MotorConfig,
+        lambda settings, context: Ros2Backend(
+            settings, context.geometry, subscribe=context.subscribe
+        ),
     ),
 }
 
 
-def create_backend(backend: str, settings: Any, max_wheel_radps: float) -> MotorBackend:
+def create_backend(backend: str, settings: Any, context: BackendContext) -> MotorBackend:
     """The backend a robot's ``[motor]`` config section asks for (not yet opened).
 
-    ``max_wheel_radps`` is the robot's wheel speed limit (``RobotGeometry.max_wheel_radps``).
     Raises ``ValueError`` for an unknown backend or settings of the wrong kind
     (``load_robot_config`` has already rejected both).
     """
@@ -68,4 +90,4 @@ def create_backend(backend: str, settings: Any, max_wheel_radps: float) -> Motor
         kind.settings is not None and not isinstance(settings, kind.settings)
     ):
         raise ValueError(f"motor backend {backend!r} needs settings of type {kind.settings}")
-    return kind.make(settings, max_wheel_radps)
+    return kind.make(settings, context)

@@ -26,7 +26,7 @@ import runtime as rt
 from bus_schemas import keys
 from robot_agent.core import _accel
 from robot_agent.core.params import AgentConfig
-from robot_agent.motors import MotorBackend, create_backend
+from robot_agent.motors import BackendContext, MotorBackend, create_backend
 from robot_agent.node.agent import AgentNode, LoopMode
 from robot_agent.node.agent_estop import attach_estop_state
 from robot_agent.node.motor_output import MotorOutput
@@ -89,7 +89,7 @@ class _Setup:
 def _setup(ns: argparse.Namespace) -> _Setup:
     """Resolve id, fleet, parameters, Zenoh settings and motor backend; a mistake as
     :class:`runtime.UsageError`."""
-    from robot_agent.core.robot_config import ConfigError, load_robot_config
+    from scenario.robot_config import ConfigError, load_robot_config
 
     robot_id: str | None = ns.robot_id
     fleet: str | None = ns.fleet
@@ -113,9 +113,8 @@ def _setup(ns: argparse.Namespace) -> _Setup:
         ns.zenoh_config = ns.zenoh_config or rc.zenoh.config_file
         if rc.motor.backend != "bus":
             try:
-                motor = create_backend(
-                    rc.motor.backend, rc.motor.settings, config.geometry.max_wheel_radps
-                )
+                context = BackendContext(config.geometry, subscribe=rt.subscribe_on_thread)
+                motor = create_backend(rc.motor.backend, rc.motor.settings, context)
             except ValueError as exc:
                 raise rt.UsageError(f"motor backend: {exc}") from None
     elif ns.scenario is not None:
@@ -137,7 +136,7 @@ def _setup(ns: argparse.Namespace) -> _Setup:
 
 def check_config_command(path: str) -> int:
     """``--check-config``: print OK or every problem (one per line); 0 if valid, else 1."""
-    from robot_agent.core.robot_config import check_config
+    from scenario.robot_config import check_config
 
     problems = check_config(Path(path))
     print("\n".join(problems) or "OK", flush=True)

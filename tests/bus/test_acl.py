@@ -106,7 +106,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("clock"),
         _f("plant/status"),
     },
-    "operator": {_f("estop"), _f("disturbance")},
+    "operator": {_f("estop"), _f("disturbance"), _f("teleop")},
     "observer.rec": set(),
 }
 EXPECT_PUBLISH["coordinator.standby"] = {

@@ -197,7 +197,8 @@ def test_missing_serial_port_is_an_error_naming_it(
 
 def test_motor_emulator_command(spawn: Spawner, tmp_path: Path) -> None:
     """``formation motor-emulator --link PATH``: a RoboClaw the backend opens by that path."""
-    from robot_agent.motors import RoboClawBackend, RoboClawConfig
+    from robot_agent.motors.roboclaw import RoboClawBackend
+    from robot_agent.motors.roboclaw_config import RoboClawConfig
 
     link = tmp_path / "roboclaw"
     emu = spawn("motor-emulator", "--link", str(link), ready="roboclaw emulator at address 0x80")

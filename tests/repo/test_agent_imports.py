@@ -1,8 +1,8 @@
 """The robot's pure cores import only the standard library (they could run on a bare robot).
 
-Everything under robot_agent/core/ (the firmware) and robot_agent/motors/ (the motor backends)
-may import the standard library and robot_agent itself; the process shell (robot_agent/node/)
-is tested below by importing it without numpy. bus_schemas/ may also import msgpack, and
+Everything under robot_agent/core/ (the firmware) may import the standard library and
+robot_agent itself; robot_agent/motors/ (the backends) also the contract and Zenoh; the process
+shell (robot_agent/node/) is tested below by importing it without numpy. bus_schemas/ may also import msgpack, and
 nothing else (Zenoh lives in the runtime package). The whole floor plan is
 tests/repo/test_layers.py.
 """
@@ -44,12 +44,19 @@ def test_scanner_sees_the_agent_core() -> None:
     assert _top_level_imports(ROOT / "robot_agent" / "core" / "firmware.py") >= {"math"}
 
 
-@pytest.mark.parametrize(
-    "path", _core_files("robot_agent/core", "robot_agent/motors"), ids=lambda p: p.name
-)
+@pytest.mark.parametrize("path", _core_files("robot_agent/core"), ids=lambda p: p.name)
 def test_robot_agent_core_imports_only_stdlib(path: Path) -> None:
     foreign = _top_level_imports(path) - STDLIB - {"robot_agent"}
     assert not foreign, f"{path.name} imports non-stdlib modules: {sorted(foreign)}"
+
+
+@pytest.mark.parametrize("path", _core_files("robot_agent/motors"), ids=lambda p: p.name)
+def test_motor_backends_import_only_what_a_robot_has(path: Path) -> None:
+    """A driver may also use the contract (``bus_schemas``, e.g. the ROS 2 wire format) and
+    open its own Zenoh session to a ROS 2 base (zenoh is in the base install); pyserial is
+    loaded by name when a port opens."""
+    foreign = _top_level_imports(path) - STDLIB - {"robot_agent", "bus_schemas", "zenoh"}
+    assert not foreign, f"{path.name} imports {sorted(foreign)}"
 
 
 @pytest.mark.parametrize("path", _core_files("bus_schemas"), ids=lambda p: p.name)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from robot_agent.core.robot_config import check_config, load_robot_config
+from scenario.robot_config import check_config, load_robot_config
 
 REPO = Path(__file__).resolve().parents[2]
 DEPLOY = REPO / "deploy"

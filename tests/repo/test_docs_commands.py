@@ -46,7 +46,7 @@ SKIP_RULES: list[tuple[str, str]] = [
     (r"^formation report\b", "needs a recording (tests/unit/formation/test_record_report.py)"),
     (r"^formation camera calibrate\b", "needs a photo of the floor markers "
      "(tests/unit/localization/test_camera_core.py calibrates on rendered frames)"),
-    (r"^formation (router|plant|coordinator|agent|agent-host|camera)\b",
+    (r"^formation (router|plant|coordinator|agent|agent-host|camera|ros2)\b",
      "a long-running process: docs/runtime.md's by-hand blocks run them together "
      "(test_the_by_hand_runbook_runs)"),
     (r"--robots (\d{3,}|[2-9]\d)\b", "a large fleet: minutes on 2 cores (bench/, docs/scale.md)"),

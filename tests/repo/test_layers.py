@@ -35,8 +35,8 @@ PACKAGES = (
 # on the ground floor (test_package_roots_import_nothing).
 FLOORS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("contract", ("bus_schemas",)),
-    ("drivers", ("robot_agent.motors",)),
     ("cores", ("*.core",)),
+    ("drivers", ("robot_agent.motors",)),
     ("scenario", ("scenario",)),
     ("runtime", ("runtime",)),
     ("shells", ("*.node", "robot_agent.buildtools")),

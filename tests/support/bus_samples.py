@@ -27,6 +27,7 @@ from bus_schemas import (
     Slot,
     Status,
     StatusBatch,
+    Teleop,
     Truth,
     TruthBatch,
     Wheels,
@@ -119,6 +120,7 @@ SAMPLES: dict[type, Any] = {
         theta=0.5,
     ),
     Heartbeat: Heartbeat(t=1.0, seq=10, name="primary", active=True, epoch=3, leader_t0=0.5),
+    Teleop: Teleop(t=1.0, seq=12, v_mps=0.2, omega_radps=-0.3, source="ros2:/formation/cmd_vel"),
     PoseBatch: PoseBatch(
         t=1.0,
         seq=11,

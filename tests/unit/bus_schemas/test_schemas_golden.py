@@ -32,6 +32,7 @@ from bus_schemas import (
     Slot,
     Status,
     StatusBatch,
+    Teleop,
     Truth,
     TruthBatch,
     Wheels,
@@ -136,6 +137,9 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         theta=-math.pi,
     ),
     "heartbeat": Heartbeat(t=100.25, seq=401, name="primary", active=True, epoch=2, leader_t0=3.5),
+    "teleop": Teleop(
+        t=100.25, seq=402, v_mps=0.25, omega_radps=-0.5, source="ros2:/formation/cmd_vel"
+    ),
     "poses": PoseBatch(
         t=12.49,
         seq=624,
@@ -320,6 +324,10 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "heartbeat": (
         "87a17601a174cb4059100000000000a3736571cd0191a46e616d65a77072696d617279a6616374697665c3a565706f636802a96c65616465725f7430cb400c000000000000"
+    ),
+    # msgpack.packb of the plain map (an independent encoder), checked when it was added
+    "teleop": (
+        "86a17601a174cb4059100000000000a3736571cd0192a5765f6d7073cb3fd0000000000000ab6f6d6567615f7261647073cbbfe0000000000000a6736f75726365b7726f73323a2f666f726d6174696f6e2f636d645f76656c"
     ),
     "poses": (
         "88a17601a174cb4028fae147ae147ba3736571cd0270a6726f626f747392a27231a27232a17892cb3fbf7ced916872b0cb3feccccccccccccda17992cbbfdd2f1a9fbe76c9cbbfd0000000000000a5746865746192cb3ff3333333333333cbbff8000000000000a57374616d70cb4028f5c28f5c28f6"

@@ -14,13 +14,10 @@ import pytest
 import serial
 from support.roboclaw_emulator import RoboClawEmulator
 
-from robot_agent.motors import (
-    BusMotorBackend,
-    MotorBackend,
-    RoboClawBackend,
-    RoboClawConfig,
-    create_backend,
-)
+from robot_agent.core.params import RobotGeometry
+from robot_agent.motors import BackendContext, BusMotorBackend, MotorBackend, create_backend
+from robot_agent.motors.roboclaw import RoboClawBackend
+from robot_agent.motors.roboclaw_config import RoboClawConfig
 from robot_agent.motors.roboclaw_protocol import (
     crc16,
     duty_packet,
@@ -372,10 +369,11 @@ def test_bus_backend_and_factory() -> None:
     assert (st.omega_r_radps, st.omega_l_radps) == (0.0, 0.0)
     bus.close()
 
-    assert isinstance(create_backend("bus", None, 10.0), BusMotorBackend)
-    rc = create_backend("roboclaw", RoboClawConfig(port="/dev/x", mode="duty"), 10.0)
+    context = BackendContext(RobotGeometry(max_wheel_radps=10.0))
+    assert isinstance(create_backend("bus", None, context), BusMotorBackend)
+    rc = create_backend("roboclaw", RoboClawConfig(port="/dev/x", mode="duty"), context)
     assert isinstance(rc, RoboClawBackend)
     with pytest.raises(ValueError, match="unknown motor backend"):
-        create_backend("can", None, 10.0)
+        create_backend("can", None, context)
     with pytest.raises(ValueError, match="needs settings"):
-        create_backend("roboclaw", None, 10.0)
+        create_backend("roboclaw", None, context)

@@ -31,8 +31,8 @@ from robot_agent.core.params import (
     SegmentObstacle,
     WorldMap,
 )
-from robot_agent.core.robot_config import ConfigError, robot_config_from_dict
 from robot_agent.core.safety_filter import Neighbour, SafetyFilter, solve_qp
+from scenario.robot_config import ConfigError, robot_config_from_dict
 
 CFG = AgentConfig()
 GEOM = CFG.geometry

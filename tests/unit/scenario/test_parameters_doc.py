@@ -10,9 +10,10 @@ from pathlib import Path
 import pytest
 
 import scenario
+from robot_agent.core.config_tables import agent_sections
 from robot_agent.core.params import SafetyFilterParams, declared_range
-from robot_agent.core.robot_config import ConfigError, agent_sections, robot_config_from_dict
 from scenario.docs import attribute_docs, render_markdown
+from scenario.robot_config import ConfigError, robot_config_from_dict
 
 REPO = Path(__file__).resolve().parents[3]
 

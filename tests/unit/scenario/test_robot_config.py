@@ -1,4 +1,4 @@
-"""robot_agent.core.robot_config: loading and validating a robot's TOML file."""
+"""scenario.robot_config: loading and validating a robot's TOML file."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from robot_agent.core.params import AgentConfig, RobotGeometry, SafetyParams, TrackingGains
-from robot_agent.core.robot_config import (
+from scenario.robot_config import (
     ConfigError,
     MotorConfig,
     RobotConfig,
@@ -245,8 +245,8 @@ def test_every_numeric_parameter_declares_a_plausible_range() -> None:
     import dataclasses
     import typing
 
+    from robot_agent.core.config_tables import agent_sections
     from robot_agent.core.params import declared_range
-    from robot_agent.core.robot_config import agent_sections
     from robot_agent.motors import BACKENDS
 
     sections: dict[str, type] = dict(agent_sections())

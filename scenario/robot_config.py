@@ -59,24 +59,22 @@ problem is reported (not only the first), each naming the offending field, e.g.
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import re
 import tomllib
-import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from robot_agent.core.params import (
-    AgentConfig,
-    Arena,
-    CircleObstacle,
-    SegmentObstacle,
-    WorldMap,
-    declared_range,
+from robot_agent.core.config_tables import (
+    ID_PATTERN,
+    agent_sections,
+    build_section,
+    identifier,
+    read_table,
+    world_map,
 )
+from robot_agent.core.params import AgentConfig
 from robot_agent.motors import BACKENDS
 
 __all__ = [
@@ -85,15 +83,11 @@ __all__ = [
     "MotorConfig",
     "RobotConfig",
     "ZenohConfig",
-    "agent_sections",
-    "build_section",
     "check_config",
     "load_robot_config",
     "robot_config_from_dict",
 ]
 
-ID_PATTERN = re.compile(r"[a-z0-9_-]+")
-"""Robot ids and fleet names (bus contract): lower-case letters, digits, '_' and '-'."""
 
 ZENOH_MODES = ("client", "peer")
 _ENDPOINT = re.compile(r"[a-z][a-z0-9-]*/\S+")
@@ -231,15 +225,15 @@ def robot_config_from_dict(
         if key not in allowed:
             problems.append(f"{key}: unknown key (allowed: {', '.join(allowed)})")
 
-    robot_id = _identifier(data, "robot_id", None, problems)
-    fleet = _identifier(data, "fleet", "demo", problems)
+    robot_id = identifier(data, "robot_id", None, problems)
+    fleet = identifier(data, "fleet", "demo", problems)
 
     parts: dict[str, Any] = {}
     for section, cls in sections.items():
-        table = _table(data, section, problems)
+        table = read_table(data, section, problems)
         if table is not None:
             parts[section] = build_section(cls, table, section, problems)
-    world = _world(data, problems)
+    world = world_map(data, problems)
     if world is None:
         parts["world"] = None
     elif world.obstacles or world.arena is not None:
@@ -265,227 +259,10 @@ def robot_config_from_dict(
 # ---------------------------------------------------------------------- sections
 
 
-def agent_sections() -> dict[str, type]:
-    """AgentConfig's parameter fields: section name -> dataclass (e.g. geometry); the world map
-    is read from ``[arena]`` and ``[[obstacle]]`` instead (``_world``)."""
-    hints = typing.get_type_hints(AgentConfig)
-    return {f.name: hints[f.name] for f in dataclasses.fields(AgentConfig) if f.name != "world"}
-
-
-_OBSTACLE_KEYS = {
-    "circle": ("x", "y", "radius_m"),
-    "segment": ("x1", "y1", "x2", "y2", "radius_m"),
-    "polygon": ("points", "radius_m"),
-}
-
-
-def _finite_number(value: Any) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    f = float(value)
-    return f if math.isfinite(f) else None
-
-
-def _world(data: Mapping[str, Any], problems: list[str]) -> WorldMap | None:  # noqa: PLR0915 (a validator: one check per obstacle kind and key)
-    """``[arena]`` and ``[[obstacle]]`` as a WorldMap, or None with problems appended."""
-    start = len(problems)
-    arena: Arena | None = None
-    if "arena" in data:
-        table = _table(data, "arena", problems)
-        if table is not None:
-            keys = ("x_min", "y_min", "x_max", "y_max")
-            vals: dict[str, float] = {}
-            for key in table:
-                if key not in keys:
-                    problems.append(f"arena.{key}: unknown key (allowed: {', '.join(keys)})")
-            for key in keys:
-                if key not in table:
-                    problems.append(f"arena.{key}: required")
-                    continue
-                f = _finite_number(table[key])
-                if f is None:
-                    problems.append(f"arena.{key}: expected a finite number, got {table[key]!r}")
-                else:
-                    vals[key] = f
-            if len(vals) == 4 and len(problems) == start:
-                try:
-                    arena = Arena(**vals)
-                except ValueError as exc:
-                    problems.append(f"arena: {exc}")
-    obstacles: list[CircleObstacle | SegmentObstacle] = []
-    raw = data.get("obstacle", [])
-    if not isinstance(raw, list):
-        problems.append("obstacle: expected an array of tables [[obstacle]]")
-        raw = []
-    for j, item in enumerate(raw):
-        where = f"obstacle[{j}]"
-        if not isinstance(item, Mapping):
-            problems.append(f"{where}: expected a table")
-            continue
-        kind = item.get("kind")
-        if kind not in _OBSTACLE_KEYS:
-            problems.append(
-                f"{where}.kind: must be one of {', '.join(_OBSTACLE_KEYS)}, got {kind!r}"
-            )
-            continue
-        allowed = ("kind", *_OBSTACLE_KEYS[kind])
-        bad = False
-        for key in item:
-            if key not in allowed:
-                problems.append(f"{where}.{key}: unknown key (allowed: {', '.join(allowed)})")
-                bad = True
-        nums: dict[str, float] = {}
-        for key in _OBSTACLE_KEYS[kind]:
-            if key == "points" or (key == "radius_m" and kind != "circle" and key not in item):
-                continue
-            if key not in item:
-                problems.append(f"{where}.{key}: required")
-                bad = True
-                continue
-            f = _finite_number(item[key])
-            if f is None or (key == "radius_m" and f < 0.0):
-                problems.append(f"{where}.{key}: expected a finite number (>= 0 for a radius), "
-                                f"got {item[key]!r}")  # fmt: skip
-                bad = True
-            else:
-                nums[key] = f
-        if bad:
-            continue
-        if kind == "circle":
-            obstacles.append(CircleObstacle(nums["x"], nums["y"], nums["radius_m"]))
-        elif kind == "segment":
-            obstacles.append(SegmentObstacle(**nums))
-        else:
-            pts = item.get("points")
-            coords: list[tuple[float, float]] = []
-            if isinstance(pts, list) and len(pts) >= 3:
-                for p in pts:
-                    if isinstance(p, list) and len(p) == 2:
-                        x, y = _finite_number(p[0]), _finite_number(p[1])
-                        if x is not None and y is not None:
-                            coords.append((x, y))
-            if len(coords) < 3 or len(coords) != len(pts):  # type: ignore[arg-type]
-                problems.append(f"{where}.points: expected >= 3 points [x, y] of finite numbers")
-                continue
-            r = nums.get("radius_m", 0.0)
-            for (x1, y1), (x2, y2) in zip(coords, coords[1:] + coords[:1], strict=True):
-                obstacles.append(SegmentObstacle(x1, y1, x2, y2, r))
-    if len(problems) > start:
-        return None
-    return WorldMap(obstacles=tuple(obstacles), arena=arena)
-
-
-def _identifier(
-    data: Mapping[str, Any], key: str, default: str | None, problems: list[str]
-) -> str | None:
-    if key not in data:
-        if default is None:
-            problems.append(f'{key}: required (e.g. {key} = "r1")')
-        return default
-    value = data[key]
-    if not isinstance(value, str):
-        problems.append(f"{key}: expected a string, got {value!r} ({type(value).__name__})")
-        return None
-    if not ID_PATTERN.fullmatch(value):
-        problems.append(f"{key}: {value!r} must match [a-z0-9_-]+ (lower case, no spaces)")
-        return None
-    return value
-
-
-def _table(data: Mapping[str, Any], key: str, problems: list[str]) -> Mapping[str, Any] | None:
-    value = data.get(key, {})
-    if not isinstance(value, Mapping):
-        problems.append(f"{key}: expected a table [{key}], got {type(value).__name__}")
-        return None
-    return value
-
-
-_BAD = object()
-
-
-def _coerce(value: Any, annotation: Any) -> Any:
-    """``value`` converted to the field's type, or ``_BAD``. bool is never a number."""
-    if annotation is float:
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            f = float(value)
-            return f if math.isfinite(f) else _BAD
-        return _BAD
-    if annotation is int:
-        return value if isinstance(value, int) and not isinstance(value, bool) else _BAD
-    if annotation is bool:
-        return value if isinstance(value, bool) else _BAD
-    if annotation is str:
-        return value if isinstance(value, str) else _BAD
-    return value  # a type this loader does not know: the dataclass validates it
-
-
-def _type_name(annotation: Any) -> str:
-    return {float: "a number", int: "an integer", bool: "true or false", str: "a string"}.get(
-        annotation, getattr(annotation, "__name__", str(annotation))
-    )
-
-
-def build_section(
-    cls: type,
-    table: Mapping[str, Any],
-    section: str,
-    problems: list[str],
-    skip: tuple[str, ...] = (),
-) -> Any:
-    """An instance of dataclass ``cls`` from ``table``, or None with problems appended."""
-    hints = typing.get_type_hints(cls)
-    fields = [f for f in dataclasses.fields(cls) if f.name not in skip]
-    names = [f.name for f in fields]
-    start = len(problems)
-    kwargs: dict[str, Any] = {}
-    for key, value in table.items():
-        if key in skip:
-            continue
-        if key not in names:
-            problems.append(f"{section}.{key}: unknown key (allowed: {', '.join([*skip, *names])})")
-            continue
-        coerced = _coerce(value, hints[key])
-        if coerced is _BAD:
-            problems.append(
-                f"{section}.{key}: expected {_type_name(hints[key])}, "
-                f"got {value!r} ({type(value).__name__})"
-            )
-            continue
-        rng = declared_range(cls, key)  # robot_agent.core.params.ranged
-        if rng is not None and isinstance(coerced, (int, float)) and not isinstance(coerced, bool):
-            lo, hi = rng
-            if not lo <= coerced <= hi:
-                problems.append(
-                    f"{section}.{key}: {value!r} is outside the plausible range [{lo:g}, {hi:g}]"
-                )
-                continue
-        kwargs[key] = coerced
-    for f in fields:
-        no_default = f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-        if no_default and f.name not in kwargs and f.name not in table:
-            problems.append(f"{section}.{f.name}: required")
-    if len(problems) > start:
-        return None
-    try:
-        return cls(**kwargs)
-    except (ValueError, TypeError) as exc:
-        problems.append(_dotted(section, str(exc), names))
-        return None
-
-
-def _dotted(section: str, message: str, names: list[str]) -> str:
-    """``section.field: message`` when the dataclass's message starts with one of its field
-    names (they do: ``kp must be > 0``), else ``section: message``."""
-    first = re.split(r"[\s:=,(]", message.strip(), maxsplit=1)[0]
-    if first in names:
-        return f"{section}.{first}: {message}"
-    return f"{section}: {message}"
-
-
 def _zenoh(
     data: Mapping[str, Any], base_dir: str | Path | None, check_files: bool, problems: list[str]
 ) -> ZenohConfig | None:
-    table = _table(data, "zenoh", problems)
+    table = read_table(data, "zenoh", problems)
     if table is None:
         return None
     if "zenoh" not in data:
@@ -535,7 +312,7 @@ def _zenoh(
 
 
 def _motor(data: Mapping[str, Any], problems: list[str]) -> MotorConfig | None:
-    table = _table(data, "motor", problems)
+    table = read_table(data, "motor", problems)
     if table is None:
         return None
     backend = table.get("backend", "bus")

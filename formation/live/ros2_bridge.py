@@ -1,0 +1,471 @@
+"""``formation ros2``: the fleet as a ROS 2 node graph over rmw_zenoh's wire format, no ROS install.
+
+Any ROS 2 Jazzy (or later) machine whose rmw_zenoh nodes reach the fleet's Zenoh router sees
+(docs/ros2.md), with ``<ns>`` the ``--namespace`` (empty by default) and frames after REP 105:
+
+- ``<ns>/<id>/odom`` (nav_msgs/msg/Odometry): each robot's measured pose (``pose`` or the
+  ``poses`` batch) in ``map``, child frame ``<id>/base_link``, and its twist in the body frame
+  from consecutive poses (finite difference over the poses' own ``t``);
+- ``/tf`` (tf2_msgs/msg/TFMessage): ``map`` -> ``<id>/base_link`` per pose, and at
+  ``--rate`` Hz ``map`` -> ``formation/leader`` and ``map`` -> ``formation/slot_<k>``;
+- ``<ns>/formation/leader`` (geometry_msgs/msg/PoseStamped), ``<ns>/formation/slots``
+  (geometry_msgs/msg/PoseArray, slot order) and ``<ns>/formation/markers``
+  (visualization_msgs/msg/MarkerArray: a coloured arrow per slot by role, for RViz2);
+- ``<ns>/formation/cmd_vel`` (geometry_msgs/msg/Twist) in: validated (CDR, attachment, finite,
+  within the contract's speed and turn bounds, at most ``--max-cmd-hz``) and forwarded as the
+  bus's ``Teleop`` message; every rejection is counted by reason;
+- ``<ns>/formation/estop`` and ``<ns>/formation/release`` (std_srvs/srv/Trigger services): the
+  fleet's existing e-stop path (``formation.operate.estop_tool.send_estop``: latched by the
+  coordinators, acknowledged by the robots); the reply says who acknowledged.
+
+Every entity has its rmw_zenoh liveliness token, so ``ros2 topic list -t`` and
+``ros2 service list -t`` show them with their types. The pure translation is
+:class:`BridgeCore` (bus messages in, ROS payloads out, no Zenoh, no clock); the shell below
+subscribes only through ``runtime.bridge`` (``io.subscribe``) and stamps ROS headers with the
+wall clock (ROS time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Final
+
+import runtime as rt
+from bus_schemas import (
+    DecodeError,
+    Leader,
+    Pose,
+    PoseBatch,
+    RejectCounts,
+    Slot,
+    Teleop,
+    decode,
+    encode,
+    keys,
+)
+from bus_schemas.fields import SPEED_MAX_MPS, TURN_RATE_MAX_RADPS
+from bus_schemas.ros2 import msgs, rmw
+
+__all__ = ["BridgeCore", "Outgoing", "main"]
+
+NODE_NAME: Final = "formation_bridge"
+READY: Final = "ros2 bridge ready"
+ROLE_COLOURS: Final[dict[str, msgs.ColorRGBA]] = {
+    "leader": msgs.ColorRGBA(0.9, 0.2, 0.2, 1.0),
+    "subleader": msgs.ColorRGBA(0.95, 0.6, 0.1, 1.0),
+    "follower": msgs.ColorRGBA(0.2, 0.5, 0.9, 1.0),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Outgoing:
+    """One ROS message to publish: topic (fully qualified), its type, the CDR payload."""
+
+    topic: str
+    rtype: msgs.RosType
+    payload: bytes
+
+
+@dataclass
+class _Track:
+    """The last pose of one robot (for the finite-difference twist)."""
+
+    t_s: float
+    x_m: float
+    y_m: float
+    theta_rad: float
+    v_mps: float = 0.0
+    omega_radps: float = 0.0
+
+
+@dataclass
+class BridgeCore:
+    """Bus messages in, ROS 2 payloads out. Pure: stamps and times are arguments.
+
+    Attributes:
+        namespace: ROS namespace of every topic but ``/tf`` ("" or ``/fleet_a``).
+        max_cmd_hz: the most ``cmd_vel`` messages accepted per second (a flood is dropped).
+        rejected: every refused input by reason (bus payloads and ROS commands alike).
+    """
+
+    namespace: str = ""
+    max_cmd_hz: float = 50.0
+    rejected: RejectCounts = field(default_factory=RejectCounts)
+    forwarded: int = 0
+    _tracks: dict[str, _Track] = field(default_factory=dict)
+    _slots: dict[int, Slot] = field(default_factory=dict)
+    _leader: Leader | None = None
+    _last_cmd_s: float = -math.inf
+    _teleop_seq: int = 0
+
+    def topic(self, relative: str) -> str:
+        """``relative`` (``r1/odom``) in the namespace: ``/ns/r1/odom``."""
+        return f"{self.namespace.rstrip('/')}/{relative}"
+
+    # --- fleet -> ROS -------------------------------------------------------------------------
+
+    def on_pose(self, robot: str, t_s: float, x_m: float, y_m: float, theta_rad: float,
+                stamp_s: float) -> list[Outgoing]:  # fmt: skip
+        """A robot's measured pose (bus ``t`` = ``t_s``) -> its odometry and its tf."""
+        prev = self._tracks.get(robot)
+        track = _Track(t_s, x_m, y_m, theta_rad)
+        if prev is not None:
+            dt_s = t_s - prev.t_s
+            if dt_s <= 0.0:
+                self.rejected.add("pose_out_of_order")
+                return []
+            # body-frame twist of a unicycle between two poses: forward displacement along the
+            # mean heading, heading change wrapped (eqs 1-3 discretised)
+            mean = prev.theta_rad + 0.5 * math.remainder(theta_rad - prev.theta_rad, math.tau)
+            dx, dy = x_m - prev.x_m, y_m - prev.y_m
+            track.v_mps = (dx * math.cos(mean) + dy * math.sin(mean)) / dt_s
+            track.omega_radps = math.remainder(theta_rad - prev.theta_rad, math.tau) / dt_s
+        self._tracks[robot] = track
+        header = msgs.Header(msgs.time_from_s(stamp_s), "map")
+        pose = msgs.Pose(msgs.Point(x_m, y_m), msgs.quaternion_from_yaw(theta_rad))
+        twist = msgs.Twist(msgs.Vector3(x=track.v_mps), msgs.Vector3(z=track.omega_radps))
+        odom = msgs.Odometry(
+            header,
+            f"{robot}/base_link",
+            msgs.PoseWithCovariance(pose),
+            msgs.TwistWithCovariance(twist),
+        )
+        tf = msgs.TFMessage((self._transform(header, f"{robot}/base_link", pose),))
+        return [
+            Outgoing(self.topic(f"{robot}/odom"), msgs.ros_type(msgs.Odometry), msgs.encode(odom)),
+            Outgoing("/tf", msgs.ros_type(msgs.TFMessage), msgs.encode(tf)),
+        ]
+
+    def on_leader(self, leader: Leader) -> None:
+        self._leader = leader
+
+    def on_slot(self, slot: Slot) -> None:
+        self._slots[slot.slot] = slot
+
+    def formation(self, stamp_s: float) -> list[Outgoing]:
+        """The leader, the slots (PoseArray, markers) and their tf, as of now."""
+        header = msgs.Header(msgs.time_from_s(stamp_s), "map")
+        out: list[Outgoing] = []
+        transforms: list[msgs.TransformStamped] = []
+        if self._leader is not None:
+            lp = _pose(self._leader.x, self._leader.y, self._leader.theta)
+            out.append(
+                Outgoing(
+                    self.topic("formation/leader"),
+                    msgs.ros_type(msgs.PoseStamped),
+                    msgs.encode(msgs.PoseStamped(header, lp)),
+                )
+            )
+            transforms.append(self._transform(header, "formation/leader", lp))
+        slots = [self._slots[k] for k in sorted(self._slots)]
+        poses = tuple(_pose(s.x, s.y, s.theta) for s in slots)
+        if slots:
+            out.append(
+                Outgoing(
+                    self.topic("formation/slots"),
+                    msgs.ros_type(msgs.PoseArray),
+                    msgs.encode(msgs.PoseArray(header, poses)),
+                )
+            )
+            markers = tuple(
+                msgs.Marker(
+                    header=header,
+                    ns="formation/slots",
+                    id=s.slot,
+                    type=0,
+                    action=0,
+                    pose=p,
+                    scale=msgs.Vector3(0.12, 0.03, 0.03),
+                    color=ROLE_COLOURS.get(s.role, msgs.ColorRGBA(0.6, 0.6, 0.6, 1.0)),
+                    lifetime=msgs.Duration(1, 0),
+                )
+                for s, p in zip(slots, poses, strict=True)
+            )
+            out.append(
+                Outgoing(
+                    self.topic("formation/markers"),
+                    msgs.ros_type(msgs.MarkerArray),
+                    msgs.encode(msgs.MarkerArray(markers)),
+                )
+            )
+            transforms += [
+                self._transform(header, f"formation/slot_{s.slot}", p)
+                for s, p in zip(slots, poses, strict=True)
+            ]
+        if transforms:
+            tf = msgs.TFMessage(tuple(transforms))
+            out.append(Outgoing("/tf", msgs.ros_type(msgs.TFMessage), msgs.encode(tf)))
+        return out
+
+    @staticmethod
+    def _transform(header: msgs.Header, child: str, pose: msgs.Pose) -> msgs.TransformStamped:
+        p = pose.position
+        return msgs.TransformStamped(
+            header, child, msgs.Transform(msgs.Vector3(p.x, p.y, p.z), pose.orientation)
+        )
+
+    # --- ROS -> fleet -------------------------------------------------------------------------
+
+    def on_cmd_vel(self, payload: bytes, attachment: bytes | None, now_s: float) -> Teleop | None:
+        """A ``cmd_vel`` sample -> the bus Teleop to publish, or None (refused and counted)."""
+        att = rmw.decode_attachment(attachment)
+        if isinstance(att, DecodeError):
+            self.rejected.add(f"cmd_vel_{att.reason}")
+            return None
+        twist = msgs.decode(payload, msgs.Twist)
+        if isinstance(twist, DecodeError):
+            self.rejected.add(f"cmd_vel_{twist.reason}")
+            return None
+        v_mps, omega_radps = twist.linear.x, twist.angular.z
+        if abs(v_mps) > SPEED_MAX_MPS or abs(omega_radps) > TURN_RATE_MAX_RADPS:
+            self.rejected.add("cmd_vel_out_of_range")
+            return None
+        if now_s - self._last_cmd_s < 1.0 / self.max_cmd_hz:
+            self.rejected.add("cmd_vel_flood")
+            return None
+        self._last_cmd_s = now_s
+        self._teleop_seq += 1
+        self.forwarded += 1
+        return Teleop(
+            t=now_s,
+            seq=self._teleop_seq,
+            v_mps=v_mps,
+            omega_radps=omega_radps,
+            source=f"ros2:{self.topic('formation/cmd_vel')}",
+        )
+
+
+def _pose(x_m: float, y_m: float, theta_rad: float) -> msgs.Pose:
+    return msgs.Pose(msgs.Point(x_m, y_m), msgs.quaternion_from_yaw(theta_rad))
+
+
+# --- the shell ---------------------------------------------------------------------------------
+
+
+@dataclass
+class _Graph:
+    """The bridge's ROS graph on one session: publishers, tokens, entity ids."""
+
+    session: Any
+    domain_id: int
+    namespace: str
+    zid: str
+    tokens: dict[str, Any] = field(default_factory=dict)
+    publishers: dict[str, tuple[Any, bytes]] = field(default_factory=dict)
+    seq: dict[str, int] = field(default_factory=dict)
+    next_id: int = 1
+
+    def _token(self, kind: rmw.EntityKind, topic: str, rtype: msgs.RosType) -> str:
+        key = rmw.endpoint_token(
+            self.domain_id, self.zid, 0, self.next_id, kind, self.namespace, NODE_NAME, topic,
+            rtype, rmw.Qos(depth=10),
+        )  # fmt: skip
+        self.next_id += 1
+        self.tokens[key] = self.session.liveliness().declare_token(key)
+        return key
+
+    def announce(self) -> None:
+        node = rmw.node_token(self.domain_id, self.zid, 0, self.namespace, NODE_NAME)
+        self.tokens[node] = self.session.liveliness().declare_token(node)
+
+    def endpoint(self, kind: rmw.EntityKind, topic: str, rtype: msgs.RosType) -> str:
+        """Announce a subscription or service (its key is the return value)."""
+        self._token(kind, topic, rtype)
+        return rmw.topic_key(self.domain_id, topic, rtype)
+
+    def publish(self, out: Outgoing, wall_ns: int) -> None:
+        entry = self.publishers.get(out.topic)
+        if entry is None:
+            token = self._token(rmw.EntityKind.PUBLISHER, out.topic, out.rtype)
+            pub = self.session.declare_publisher(
+                rmw.topic_key(self.domain_id, out.topic, out.rtype)
+            )
+            entry = self.publishers[out.topic] = (pub, rmw.entity_gid(token))
+        seq = self.seq[out.topic] = self.seq.get(out.topic, 0) + 1
+        att = rmw.encode_attachment(rmw.Attachment(seq, wall_ns, entry[1]))
+        entry[0].put(out.payload, attachment=att)
+
+    def close(self) -> None:
+        for pub, _ in self.publishers.values():
+            pub.undeclare()
+        for token in self.tokens.values():
+            token.undeclare()
+        self.publishers.clear()
+        self.tokens.clear()
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(
+        prog="formation ros2",
+        description="Show the fleet to ROS 2 (rmw_zenoh) and take /formation/cmd_vel, e-stop "
+        "and release from it (docs/ros2.md).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--fleet", default=keys.DEFAULT_FLEET)
+    parser.add_argument("--domain-id", type=int, default=0, help="ROS_DOMAIN_ID (0..232)")
+    parser.add_argument("--namespace", default="", help="ROS namespace of the topics, e.g. /lab")
+    parser.add_argument("--rate", type=float, default=10.0, help="leader/slots publish rate (Hz)")
+    parser.add_argument("--max-cmd-hz", type=float, default=50.0, help="cmd_vel flood limit")
+    rt.add_zenoh_arguments(parser)
+    ns = parser.parse_args(argv)
+    try:
+        rt.check_names(("--fleet", ns.fleet))
+        if not (0 <= ns.domain_id <= 232):
+            raise rt.UsageError(f"--domain-id {ns.domain_id} outside 0..232")
+        if ns.namespace:
+            rmw.node_token(ns.domain_id, "0", 0, ns.namespace, NODE_NAME)
+        for name in ("rate", "max_cmd_hz"):
+            if not (math.isfinite(getattr(ns, name)) and 0.0 < getattr(ns, name) <= 1000.0):
+                raise rt.UsageError(f"--{name.replace('_', '-')} must be in (0, 1000]")
+        settings = rt.zenoh_settings(ns)
+    except (rt.UsageError, ValueError) as exc:
+        rt.NodeLog("ros2").info(str(exc))
+        return rt.USAGE_EXIT
+
+    async def body(io: rt.NodeIO, stop: asyncio.Event) -> int:
+        return await run_bridge(io, stop, ns.fleet, ns.domain_id, ns.namespace, ns.rate,
+                                ns.max_cmd_hz)  # fmt: skip
+
+    return rt.serve("ros2", settings, body)
+
+
+async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS name)
+    io: rt.NodeIO,
+    stop: asyncio.Event,
+    fleet: str,
+    domain_id: int,
+    namespace: str,
+    rate_hz: float,
+    max_cmd_hz: float,
+    *,
+    wall_s: Callable[[], float] = time.time,
+) -> int:
+    """The bridge on an open session until ``stop``; returns the exit status."""
+    from formation.operate.estop_tool import send_estop
+
+    core = BridgeCore(namespace=namespace, max_cmd_hz=max_cmd_hz)
+    graph = _Graph(io.session, domain_id, namespace, str(io.session.info.zid()))
+    graph.announce()
+
+    def publish_all(outs: list[Outgoing]) -> None:
+        now_ns = time.time_ns()
+        for out in outs:
+            graph.publish(out, now_ns)
+
+    def on_pose(rx: rt.Received) -> None:
+        parsed = keys.parse_robot_key(rx.key)
+        msg = decode(rx.payload, Pose)
+        if parsed is None or isinstance(msg, DecodeError):
+            core.rejected.add(msg if isinstance(msg, DecodeError) else "pose_key")
+            return
+        publish_all(core.on_pose(parsed[1], msg.t, msg.x, msg.y, msg.theta, wall_s()))
+
+    def on_poses(rx: rt.Received) -> None:
+        batch = decode(rx.payload, PoseBatch)
+        if isinstance(batch, DecodeError):
+            core.rejected.add(batch)
+            return
+        stamp = wall_s()
+        for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
+            publish_all(core.on_pose(rid, batch.stamp, x, y, th, stamp))
+
+    def on_leader(rx: rt.Received) -> None:
+        msg = decode(rx.payload, Leader)
+        if isinstance(msg, DecodeError):
+            core.rejected.add(msg)
+        else:
+            core.on_leader(msg)
+
+    def on_slot(rx: rt.Received) -> None:
+        msg = decode(rx.payload, Slot)
+        if isinstance(msg, DecodeError):
+            core.rejected.add(msg)
+        else:
+            core.on_slot(msg)
+
+    def on_cmd_vel(rx: rt.Received) -> None:
+        teleop = core.on_cmd_vel(rx.payload, rx.attachment, time.monotonic())
+        if teleop is not None:
+            io.pubs.put(keys.teleop_key(fleet), encode(teleop))
+
+    io.subscribe(keys.all_poses_pattern(fleet), on_pose)
+    io.subscribe(keys.poses_key(fleet), on_poses)
+    io.subscribe(keys.leader_key(fleet), on_leader)
+    io.subscribe(keys.all_slots_pattern(fleet), on_slot)
+    twist_t = msgs.ros_type(msgs.Twist)
+    cmd_key = graph.endpoint(rmw.EntityKind.SUBSCRIPTION, core.topic("formation/cmd_vel"), twist_t)
+    io.subscribe(cmd_key, on_cmd_vel)
+
+    # e-stop and release: std_srvs/srv/Trigger services on the fleet's existing e-stop path
+    loop = asyncio.get_running_loop()
+    busy: set[str] = set()
+    trigger_t = msgs.ros_type(msgs.TriggerRequest)
+
+    async def serve_trigger(query: Any, engage: bool) -> None:
+        att = rmw.decode_attachment(_attachment_bytes(query))
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        req = msgs.decode(payload, msgs.TriggerRequest)
+        try:
+            if isinstance(att, DecodeError) or isinstance(req, DecodeError):
+                core.rejected.add("trigger_malformed")
+                return  # no reply: a malformed request has no client to answer
+            name = "estop" if engage else "release"
+            if name in busy:
+                core.rejected.add("trigger_busy")
+                response = msgs.TriggerResponse(False, f"an {name} is already in progress")
+            else:
+                busy.add(name)
+                try:
+                    report = await send_estop(io.session, fleet, engage, None)
+                finally:
+                    busy.discard(name)
+                response = msgs.TriggerResponse(report.ok, report.line())
+            reply_att = rmw.encode_attachment(rmw.Attachment(att.seq, time.time_ns(), att.gid))
+            query.reply(query.key_expr, msgs.encode(response), attachment=reply_att)
+        finally:
+            query.drop()
+
+    queryables = []
+    pending: set[asyncio.Task[None]] = set()
+    for name, engage in (("estop", True), ("release", False)):
+        key = graph.endpoint(rmw.EntityKind.SERVICE, core.topic(f"formation/{name}"), trigger_t)
+
+        def on_query(query: Any, engage: bool = engage) -> None:  # Zenoh's thread
+            def start() -> None:
+                task = loop.create_task(serve_trigger(query, engage))
+                pending.add(task)
+                task.add_done_callback(pending.discard)
+
+            loop.call_soon_threadsafe(start)
+
+        queryables.append(io.session.declare_queryable(key, on_query, complete=True))
+
+    print(f"{READY}: domain {domain_id}, fleet {fleet}", flush=True)
+    period_s = 1.0 / rate_hz
+    try:
+        while not stop.is_set():
+            publish_all(core.formation(wall_s()))
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), period_s)
+    finally:
+        for task in pending:
+            task.cancel()
+        for q in queryables:
+            q.undeclare()
+        graph.close()
+        io.log.info(
+            f"forwarded {core.forwarded} cmd_vel, rejected {core.rejected.total} "
+            f"{core.rejected.as_dict()}"
+        )
+    return 0
+
+
+def _attachment_bytes(query: Any) -> bytes | None:
+    att = query.attachment
+    return None if att is None else bytes(att.to_bytes())
