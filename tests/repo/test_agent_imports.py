@@ -2,8 +2,8 @@
 
 Everything under robot_agent/core/ (the firmware) may import the standard library and
 robot_agent itself; robot_agent/motors/ (the backends) also the contract and Zenoh; the process
-shell (robot_agent/node/) is tested below by importing it without numpy. bus_schemas/ may also import msgpack, and
-nothing else (Zenoh lives in the runtime package). The whole floor plan is
+shell (robot_agent/node/) is tested below by importing it without numpy. bus_schemas/ may also
+import msgpack, and nothing else (Zenoh lives in the runtime package). The whole floor plan is
 tests/repo/test_layers.py.
 """
 
