@@ -13,7 +13,8 @@ so staleness never compares two hosts' clocks, and ``dt_s`` is the difference of
 
 Modes, events and the transition table: ``firmware_types.py`` (its docstring); entering a
 mode, HOLD ticks, the e-stop latch, rejection counting and the status snapshot:
-``firmware_modes.py`` (the base class); this module holds ``__init__`` and the tick.
+``firmware_modes.py`` (the base class); this module holds ``__init__``, the tick and its
+stages.
 In TRACKING the controller can still fail (overflow from absurd but finite input): that tick
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
@@ -36,17 +37,29 @@ leaves no steady lag; and by ``setpoint_lead_s`` more (default 0), the actuation
 link + motor time constant + one tick): the command computed now moves the robot that much
 later, so it aims where the slot will be then.
 
-Pipeline in TRACKING (one tick)::
+Pipeline in TRACKING (one tick); ``step`` calls these stages in this order::
 
-    [estimator: pose at now_s] -> [setpoint + ff * age]
-    -> reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
-    -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
-    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (the paper's
-       potential field) -> safety filter (barrier certificate on the reference-point velocity,
-       ``safety_filter.py``: keeps Ds to neighbours, clear of obstacles, inside the arena; the
-       last Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
-    -> saturation keeping the turn (or one factor on both wheels if keeping the turn would
-       leave the filter's constraints) -> power = omega / max_wheel_radps in [-1, 1]
+    1. estimate           _estimate: Estimator.tick (odometry, camera pose, pose at now_s)
+    2. inputs             _setpoint_now: setpoint + ff * age; _pose_estimated /
+                          _pose_measured: the pose at now_s (or HOLD / IDLE)
+    3. reference point    kinematics.reference_point (eqs 10-11); the error
+                          e = p_setpoint - p_r (eqs 17-18)
+    4. tracking           TrackingController.update: PID + feed-forward per axis (eqs 21-22),
+                          cap on |commanded speed|
+    5. repulsion          repulsion_raw: from neighbours / obstacles, evaluated at the axle
+                          centre (the paper's potential field), added
+    6. safety filter      SafetyFilter.filter: barrier certificate on the reference-point
+                          velocity (keeps Ds to neighbours, clear of obstacles, inside the
+                          arena; the last Cartesian stage)
+    7. eq 16              kinematics.twist_from_ref_velocity: to (v, omega)
+    8. wheel map (eq 8)   kinematics.wheels_from_twist_raw
+    9. saturation         _saturate: keeping the turn (or one factor on both wheels if keeping
+                          the turn would leave the filter's constraints); then
+                          power = omega / max_wheel_radps in [-1, 1]
+
+Each stage is the one implementation of its math (the kinematics, the tracker, the filter are
+called, not copied), so the composition test of tests/test_agent_firmware.py holds by
+construction.
 
 The integrators are frozen (may only shrink) on a tick after one whose wheels saturated: the
 PID cannot see this tick's saturation before it has computed this tick's command (the usual
@@ -291,15 +304,25 @@ class Firmware(_FirmwareModes):
         # with mypyc, a typed parameter would raise TypeError before this try): a number is a
         # float, or converted by _real (int, numpy.float64, ...); anything else raises
         # TypeError, which the except below counts as a rejection. An argument the tick ignores
-        # (pose_rx_s without a pose) may be anything. A stage that returns None has put the
-        # firmware in HOLD / IDLE (``_stop``): the tick's wheels are zero.
+        # (pose_rx_s without a pose) may be anything. An input stage that answers "hold" (None,
+        # or the setpoint's NaN age) has put the firmware in HOLD / IDLE (``_stop``): the
+        # tick's wheels are zero.
         try:
             now = now_s if type(now_s) is float else _real(now_s)
             if not _isfinite(now):
                 self.reject("non-finite now_s")
                 return self._hold(_EV_INVALID, "non-finite clock")
+            # time: dt_s is 0.0 on the first tick and on a duplicate, backwards or stalled one
+            # (counted in dt_faults; the derivative restarts, nothing integrates)
             last = self._last_now
-            dt = self._advance_clock(now, last)
+            self._last_now = now
+            dt = 0.0
+            if last is not None:
+                dt = now - last
+                if not 0.0 < dt <= self._max_dt:
+                    self._dt_faults += 1
+                    self._tracker.reset_derivative()
+                    dt = 0.0
             # 1. estimate: the pose at now_s (in every mode, so the estimate stays current)
             est = self._est
             got: tuple[float, float, float, float] | None = None
@@ -338,15 +361,25 @@ class Firmware(_FirmwareModes):
                 return self._hold(_EV_INVALID, "controller overflow")
             # 5. repulsion from neighbours / obstacles, at the axle centre
             if self._rep_on and (neighbours or obstacles):
-                vx, vy = self._repulsion(x, y, vx, vy, neighbours, obstacles)
+                rvx, rvy, skipped = repulsion_raw(x, y, neighbours, obstacles, self._rep_k,
+                                                  self._rep_d0, self._rep_inv_d0,
+                                                  self._rep_cap)  # fmt: skip
+                if skipped:  # (non-finite entries are skipped and counted)
+                    self._rejected += skipped
+                    self._rej_reason = "non-finite neighbour or obstacle"
+                vx += rvx
+                vy += rvy
             # 6. safety filter: the last Cartesian stage
             if self._filter_on:
                 # (the own extra radius: at least this tick's estimate uncertainty)
                 er = extra_radius_m if type(extra_radius_m) is float else _real(extra_radius_m)
                 if unc > er:
                     er = unc
-                vx, vy = self._safety_filter(now, rx, ry, vx, vy, ex, ey, neighbours, obstacles,
-                                             er, dt, pose, pose_capture_s)  # fmt: skip
+                frame = None  # (shared_frame: the own latest camera pose and its age)
+                if self._shared_frame and pose is not None:
+                    frame = self._own_frame(now, pose, pose_capture_s)
+                vx, vy = self._filter_fn(now, rx, ry, vx, vy, ex, ey, neighbours, obstacles, er, dt,
+                                         frame)  # fmt: skip
             # 7. eq 16: reference-point velocity -> (v, omega)
             v, w = twist_from_ref_velocity(vx, vy, th, l_m)
             # 8. eq 8: (v, omega) -> wheel speeds
@@ -367,20 +400,6 @@ class Firmware(_FirmwareModes):
             return self._zero(self._last_pose_t)
 
     # ------------------------------------------------------------------ the stages of step
-
-    def _advance_clock(self, now: float, last: float | None) -> float:
-        """This tick's ``dt_s``: 0.0 on the first tick and on a duplicate, backwards or stalled
-        one (``dt_s <= 0`` or ``> safety.max_dt_s``: counted in ``dt_faults``, the derivative
-        restarts, nothing integrates)."""
-        self._last_now = now
-        if last is None:
-            return 0.0
-        dt = now - last
-        if not 0.0 < dt <= self._max_dt:
-            self._dt_faults += 1
-            self._tracker.reset_derivative()
-            return 0.0
-        return dt
 
     def _estimate(
         self,
@@ -582,65 +601,28 @@ class Firmware(_FirmwareModes):
         self._unc = got[3]
         return got
 
-    def _repulsion(
-        self,
-        x: float,
-        y: float,
-        vx: float,
-        vy: float,
-        neighbours: Sequence[tuple[float, float] | Neighbour],
-        obstacles: Sequence[tuple[float, float, float]],
-    ) -> tuple[float, float]:
-        """Stage 5: the potential field's repulsion (evaluated at the axle centre ``(x, y)``)
-        added to the reference-point velocity; non-finite entries are skipped and counted."""
-        rvx, rvy, skipped = repulsion_raw(x, y, neighbours, obstacles, self._rep_k, self._rep_d0,
-                                          self._rep_inv_d0, self._rep_cap)  # fmt: skip
-        if skipped:
-            self._rejected += skipped
-            self._rej_reason = "non-finite neighbour or obstacle"
-        return vx + rvx, vy + rvy
-
-    def _safety_filter(
-        self,
-        now: float,
-        rx: float,
-        ry: float,
-        vx: float,
-        vy: float,
-        ex: float,
-        ey: float,
-        neighbours: Sequence[tuple[float, float] | Neighbour],
-        obstacles: Sequence[tuple[float, float, float]],
-        extra_radius_m: float,
-        dt: float,
-        pose: object,
-        pose_capture_s: object,
-    ) -> tuple[float, float]:
-        """Stage 6: the barrier certificate on the reference-point velocity (safety_filter.py:
-        Ds to neighbours, clear of obstacles, inside the arena), ``extra_radius_m`` added to
-        every clearance. With ``shared_frame`` it gets the own latest camera pose and its age,
-        for the frame's plane."""
-        frame = None
-        if self._shared_frame and pose is not None:
-            ox: object
-            oy: object
-            oth: object
-            ot: object
-            if isinstance(pose, tuple):
-                ox, oy, oth, ot = pose
-            else:
-                ps: Any = pose
-                ox, oy, oth, ot = ps
-            oc = ot if pose_capture_s is None else pose_capture_s
-            cap_t = oc if type(oc) is float else _real(oc)
-            frame = (
-                ox if type(ox) is float else _real(ox),
-                oy if type(oy) is float else _real(oy),
-                oth if type(oth) is float else _real(oth),
-                now - cap_t,
-            )
-        return self._filter_fn(now, rx, ry, vx, vy, ex, ey, neighbours, obstacles,
-                               extra_radius_m, dt, frame)  # fmt: skip
+    def _own_frame(
+        self, now: float, pose: object, pose_capture_s: object
+    ) -> tuple[float, float, float, float]:
+        """Stage 6's input with ``shared_frame``: this robot's latest camera pose (axle centre,
+        heading) and its age at ``now``, for the safety filter's shared-frame plane."""
+        ox: object
+        oy: object
+        oth: object
+        ot: object
+        if isinstance(pose, tuple):
+            ox, oy, oth, ot = pose
+        else:
+            ps: Any = pose
+            ox, oy, oth, ot = ps
+        oc = ot if pose_capture_s is None else pose_capture_s
+        cap_t = oc if type(oc) is float else _real(oc)
+        return (
+            ox if type(ox) is float else _real(ox),
+            oy if type(oy) is float else _real(oy),
+            oth if type(oth) is float else _real(oth),
+            now - cap_t,
+        )
 
     def _saturate(self, wr: float, wl: float, th: float) -> tuple[float, float, bool]:
         """Stage 9: ``|omega| <= max_wheel_radps`` keeping the turn (``saturate_wheels``,
