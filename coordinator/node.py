@@ -34,7 +34,6 @@ from bus_schemas import (
     Heartbeat,
     Pose,
     PoseBatch,
-    RejectCounts,
     decode,
     encode,
     keys,
@@ -128,8 +127,7 @@ class CoordinatorNode(ElectionHandlers):
         # robot id -> [x_m, y_m, theta_rad, pose_t, rx_s]; rx_s None while pending (lockstep)
         self.poses: dict[str, list[Any]] = {}
         self._pending: Arrivals[str] = Arrivals()  # lockstep: poses since the last clock
-        self.rejects = RejectCounts()  # by "<message>-<reason>" (status "rejects")
-        self.internal_errors = 0
+        self.faults = rt.Faults(self.log)  # rejected inputs and internal errors (status)
         self.rx: dict[str, int] = {
             "pose": 0, "poses": 0, "clock": 0, "alive": 0, "estop": 0, "leader": 0,
         }  # fmt: skip
@@ -182,20 +180,16 @@ class CoordinatorNode(ElectionHandlers):
 
     @property
     def rejected(self) -> int:
-        """Inputs rejected so far (every drop counted, by reason in :attr:`rejects`)."""
-        return self.rejects.total
+        """Inputs rejected so far (every drop counted, by reason in ``faults.rejects``)."""
+        return self.faults.rejected
 
     def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
         """Count a rejected ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
         else ``reason``, else ``invalid``) and log it (rate limited)."""
-        if reason is None:
-            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
-        self.rejects.add(f"{what}-{reason}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+        self.faults.reject(what, why, reason)
 
     def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+        self.faults.internal(where, exc)
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -407,8 +401,8 @@ class CoordinatorNode(ElectionHandlers):
             estop_fleet=self.estop_source.latch.fleet,
             estop_robots=tuple(sorted(self.estop_source.latch.robots)[:64]),
             rejected=self.rejected,
-            rejects=self.rejects.as_dict(),
-            internal_errors=self.internal_errors,
+            rejects=self.faults.rejects.as_dict(),
+            internal_errors=self.faults.internal_errors,
             rx=dict(self.rx),
             pid=os.getpid(),
             host=_HOST,

@@ -197,8 +197,7 @@ class HostNode(HostEstop):
         self.rx: dict[str, int] = {
             "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0,
         }  # fmt: skip
-        self.rejected = 0
-        self.internal_errors = 0
+        self.faults = rt.Faults(self.log)  # rejected inputs and internal errors
         self.batches = 0
         self.sim_t = 0.0
         self._replay: Replay[list[bytes]] = Replay()  # lockstep: the last clock's batches
@@ -220,14 +219,12 @@ class HostNode(HostEstop):
 
     def _reject(self, what: str, why: DecodeError | str) -> None:
         """A bad message reached every hosted robot: each firmware counts it."""
-        self.rejected += 1
+        self.faults.reject(what, why)
         for node in self.nodes.values():
             node.firmware.reject(f"{what}: {why}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
 
     def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+        self.faults.internal(where, exc)
 
     def check_resume(self, now_s: float) -> bool:
         """Realtime: a stop of the whole process (:mod:`runtime.stall`) -> every robot drops its

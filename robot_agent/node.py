@@ -33,7 +33,6 @@ from bus_schemas import (
     DecodeError,
     Estop,
     Pose,
-    RejectCounts,
     Setpoint,
     Status,
     Wheels,
@@ -179,8 +178,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
         self.rx: dict[str, int] = {
             "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
         }  # fmt: skip
-        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
-        self.internal_errors = 0
+        self.faults = rt.Faults(self.log)  # every drop by "<message>-<reason>", internal errors
         # E-stop as latched fleet state (robot_agent.estop): the scopes this robot obeys (with
         # their engagement ids) and the shell's hooks that query the latched state and answer
         # with the engagements held (robot_agent.estop_shell).
@@ -203,15 +201,11 @@ class AgentNode(NodeNeighbours, EstopHooks):
     def _reject(self, what: str, why: DecodeError | str, reason: str | None = None) -> None:
         """Count a dropped ``what`` message under ``<what>-<reason>`` (a DecodeError's reason,
         else ``reason``, else ``invalid``) and log it (rate limited)."""
-        if reason is None:
-            reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
-        self.rejects.add(f"{what}-{reason}")
+        self.faults.reject(what, why, reason)
         self.firmware.reject(f"{what}: {why}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
 
     def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+        self.faults.internal(where, exc)
 
     @property
     def rejected(self) -> int:
@@ -454,7 +448,7 @@ class AgentNode(NodeNeighbours, EstopHooks):
             role=self.role,
             rx=dict(self.rx),
             robot=self.robot_id,
-            rejects=self.rejects.as_dict(),
+            rejects=self.faults.rejects.as_dict(),
             filter=None if flt is None else filter_counters(flt),
             min_clearance_m=None if flt is None else clearance_or_none(flt.min_clearance_m),
         )

@@ -39,6 +39,7 @@ from runtime.bridge import (
     watch_liveliness,
     watch_liveliness_on_thread,
 )
+from runtime.faults import Faults
 from runtime.lifecycle import FORCED_EXIT_CODE, NodeIO, NodeMain, run_node, serve, stop_signalled
 from runtime.log import NodeLog
 from runtime.stall import (
@@ -79,6 +80,7 @@ __all__ = [
     "RESUME_QUARANTINE_S",
     "SESSION_CLOSE_S",
     "USAGE_EXIT",
+    "Faults",
     "Inbox",
     "LivelinessHandler",
     "NodeIO",

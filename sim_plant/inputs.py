@@ -21,7 +21,6 @@ from bus_schemas import (
     DecodeError,
     Disturbance,
     Leader,
-    RejectCounts,
     Wheels,
     WheelsBatch,
     decode,
@@ -72,9 +71,7 @@ class PlantInputs:
     leader_tick: int | None
     bus_disturbances: deque[Disturbance]
     changed: asyncio.Event
-    rejected: int
-    rejects: RejectCounts
-    internal_errors: int
+    faults: rt.Faults
     ignored: int
     rx: dict[str, int]
     tick: int
@@ -86,14 +83,10 @@ class PlantInputs:
     def _reject(self, what: str, why: DecodeError | str) -> None:
         """Count a dropped ``what`` message (``rejected``, and by ``<what>-<reason>`` in
         ``rejects``: a DecodeError's reason, else ``invalid``) and log it (rate limited)."""
-        self.rejected += 1
-        reason = str(why.reason) if isinstance(why, DecodeError) else "invalid"
-        self.rejects.add(f"{what.replace(' ', '_')}-{reason}")
-        self.log.limited(f"reject-{what}", f"rejected a {what} message: {why}")
+        self.faults.reject(what, why)
 
     def _internal(self, where: str, exc: BaseException) -> None:
-        self.internal_errors += 1
-        self.log.limited(f"internal-{where}", f"internal error in {where}: {exc!r}")
+        self.faults.internal(where, exc)
 
     # -- inputs --------------------------------------------------------------------------------
 

@@ -35,7 +35,6 @@ from bus_schemas import (
     Clock,
     Disturbance,
     PlantStatus,
-    RejectCounts,
     encode,
     keys,
     to_map,
@@ -134,9 +133,7 @@ class PlantNode(PlantInputs, PlantOutputs):
         self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
         self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
 
-        self.rejected = 0
-        self.rejects = RejectCounts()  # every drop by "<message>-<reason>" (status "rejects")
-        self.internal_errors = 0
+        self.faults = rt.Faults(self.log)  # every drop by "<message>-<reason>", internal errors
         self.ignored = 0  # valid messages for robots this plant does not simulate
         self.rx: dict[str, int] = {
             "wheels": 0, "host_wheels": 0, "disturbance": 0, "leader": 0, "alive": 0,
@@ -408,9 +405,9 @@ class PlantNode(PlantInputs, PlantOutputs):
             frames=self.frames_published,
             batch=self.batch,
             ignored=self.ignored,
-            rejected=self.rejected,
-            rejects=self.rejects.as_dict(),
-            internal_errors=self.internal_errors,
+            rejected=self.faults.rejected,
+            rejects=self.faults.rejects.as_dict(),
+            internal_errors=self.faults.internal_errors,
             rx=dict(self.rx),
         )
 
@@ -453,7 +450,7 @@ class PlantNode(PlantInputs, PlantOutputs):
                 self.publish_status()
                 self.log.info(
                     f"done: {self.tick + 1} ticks, {self.timeouts} lockstep timeouts, "
-                    f"{self.rejected} rejected"
+                    f"{self.faults.rejected} rejected"
                 )
             return 0
         finally:

@@ -247,7 +247,7 @@ def test_absurd_release_records_are_rejected_and_counted_everywhere() -> None:
     from robot_agent.node_estop import estop_answers
 
     node.on_estop_state(estop_answers(node, [*bad, good]))
-    assert node.rejects.by_reason == {
+    assert node.faults.rejects.by_reason == {
         "estop_state-out_of_range": 1,
         "estop_state-wrong_type": 1,
         "estop_state-inconsistent": 1,
@@ -256,7 +256,7 @@ def test_absurd_release_records_are_rejected_and_counted_everywhere() -> None:
     # an agent host (each hosted robot's firmware counts it)
     host = HostNode("h1", ["r1", "r2"], "demo", AgentConfig(), lambda *_: None, lockstep=True)
     host.on_estop_state([*bad, good])
-    assert host.rejected == 3
+    assert host.faults.rejected == 3
     # a coordinator learning from the others
     rejects: list[str] = []
     source = _rejecting_source(rejects)
