@@ -57,9 +57,10 @@ Pipeline in TRACKING (one tick); ``step`` calls these stages in this order::
                           the turn would leave the filter's constraints); then
                           power = omega / max_wheel_radps in [-1, 1]
 
-Each stage is the one implementation of its math (the kinematics, the tracker, the filter are
-called, not copied), so the composition test of tests/test_agent_firmware.py holds by
-construction.
+Each stage calls the one implementation of its math (kinematics, tracker, repulsion, filter),
+so the composition test of tests/test_agent_firmware.py holds by construction; the one copy is
+eq 7 in ``_estimate`` (the encoder speeds' twist, the same operations as
+``kinematics.twist_from_wheels_raw``: a Python call less per tick for the pure-Python core).
 
 The integrators are frozen (may only shrink) on a tick after one whose wheels saturated: the
 PID cannot see this tick's saturation before it has computed this tick's command (the usual
