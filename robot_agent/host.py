@@ -48,8 +48,9 @@ respawned under an e-stop come up in ESTOP), again when it resumes from a stop, 
 :mod:`robot_agent.host_estop`); while a hosted robot holds an engagement, the host answers
 ``estop/held/<host>`` with every hosted robot's (:mod:`robot_agent.estop_shell`).
 
-Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
-logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
+Bad input is counted in the host's ``faults`` (:class:`runtime.Faults`) and against every hosted
+robot's firmware (``rejected`` in the status batch) and logged at most once a second; it never
+stops the loop. SIGINT/SIGTERM: exits within a second,
 session closed (``runtime.transport.run_node``). Prints ``agent-host <name> ready`` once its
 subscriptions and every robot's token are declared.
 """

@@ -2,8 +2,9 @@
 
 :class:`PlantInputs` holds the input handlers of :class:`sim_plant.node.PlantNode` (which sets
 every attribute declared here): each decodes on the event loop, counts a bad message in
-``rejected`` and ignores it, and never raises. A robot whose agent token disappears has its
-wheels set to zero at once and the commands still in flight for it are discarded.
+``faults`` (:class:`runtime.Faults`) and ignores it, and never raises. A robot whose agent
+token disappears has its wheels set to zero at once and the commands still in flight for it are
+discarded.
 """
 
 from __future__ import annotations
