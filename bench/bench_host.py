@@ -119,7 +119,7 @@ def main() -> int:
             host.collect_garbage(time.monotonic())
     tracking = sum(node.firmware.mode is Mode.TRACKING for node in host.nodes.values())
     assert tracking == n, f"{n - tracking} robots not tracking: this would measure HOLD"
-    assert host.internal_errors == 0 and host.rejected == 0
+    assert host.faults.internal_errors == 0 and host.faults.rejected == 0
     warm = max(1, args.frames // 20)
     print(
         f"agent host of {n} robots ({scn.name} grown to {n} slots), {args.frames} frames, "

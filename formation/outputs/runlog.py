@@ -21,6 +21,23 @@ I64 = npt.NDArray[np.int64]
 MODE_CODES = {"idle": 0, "tracking": 1, "hold": 2, "estop": 3}
 
 
+def reference_points(truth: F64, ref_offset_m: float) -> F64:
+    """Reference points ``(x_r, y_r)`` (m) of axle-centre poses ``truth[..., (x, y, theta)]``
+    (eqs 10-11): shape ``truth.shape[:-1] + (2,)``, NaN where the pose is.
+
+    The one vectorised form of :func:`robot_agent.core.kinematics.reference_point` (the same
+    operations), kept apart because a log holds T x n poses: one numpy pass over the whole
+    array instead of a Python call per pose, and robot_agent stays stdlib-only (no numpy on a
+    robot). It calls nothing else. numpy's cos / sin may round an ulp apart from libm's, so it
+    equals the scalar form to rounding (tests/unit/robot_agent/test_agent_kinematics.py).
+    """
+    th = truth[..., 2]
+    out = np.empty((*truth.shape[:-1], 2))
+    out[..., 0] = truth[..., 0] + ref_offset_m * np.cos(th)  # eq 10
+    out[..., 1] = truth[..., 1] + ref_offset_m * np.sin(th)  # eq 11
+    return out
+
+
 @dataclass
 class RunLog:
     """Time series of one run. Shapes: T ticks, n robots, m slots.
@@ -107,11 +124,7 @@ class RunLog:
         # np.fromiter over flattened tuples: C-level iteration, several times faster than
         # np.array's nested-sequence discovery.
         tr = np.fromiter(flat(flat(truth)), f64, ticks * n * 3).reshape(ticks, n, 3)
-        ref = np.empty((ticks, n, 2))
-        # eqs 10-11 over the whole log at once: robot_agent.core.kinematics.reference_point,
-        # vectorised
-        ref[:, :, 0] = tr[:, :, 0] + ref_offset_m * np.cos(tr[:, :, 2])  # eq 10
-        ref[:, :, 1] = tr[:, :, 1] + ref_offset_m * np.sin(tr[:, :, 2])  # eq 11
+        ref = reference_points(tr, ref_offset_m)  # eqs 10-11 over the whole log at once
         width = len(slot_rows[0][0]) if ticks and m else 2
         slot_xy = np.ascontiguousarray(
             np.fromiter(flat(flat(slot_rows)), f64, ticks * m * width).reshape(ticks, m, width)[

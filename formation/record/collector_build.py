@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from formation.outputs.runlog import RunLog
+from formation.outputs.runlog import RunLog, reference_points
 from formation.record.collector_series import Series, sample_at
 from sim_plant.core.accounting import SeparationMonitor
 
@@ -101,8 +101,7 @@ def fill_rows(
                 log.truth[r, i] = pose
                 last[i] = pose
     log.t_s[:] = t_s
-    log.ref[:, :, 0] = log.truth[:, :, 0] + ref_offset_m * np.cos(log.truth[:, :, 2])
-    log.ref[:, :, 1] = log.truth[:, :, 1] + ref_offset_m * np.sin(log.truth[:, :, 2])
+    log.ref[:] = reference_points(log.truth, ref_offset_m)  # eqs 10-11
 
     for r, v in enumerate(sample_at(src.leader, rows)):
         if v is not None:

@@ -77,6 +77,9 @@ from __future__ import annotations
 import math
 from bisect import bisect_right
 from dataclasses import dataclass
+from math import cos as _cos  # (imported, not assigned: mypyc compiles these to C calls)
+from math import sin as _sin
+from math import sqrt as _sqrt
 from typing import Any
 
 from robot_agent.core.estimator_math import (
@@ -85,12 +88,9 @@ from robot_agent.core.estimator_math import (
     _TINY_S,
     _Anchor,
     _arc,
-    _cos,
     _EstimatorMath,
     _isfinite,
     _Node,
-    _sin,
-    _sqrt,
     _wrap,
     propagate_pose,
 )
@@ -365,113 +365,139 @@ class Estimator(_EstimatorMath):
         checked the values are finite and ``seg_t_s < now_s``) or ``add_command(seg_t_s, v,
         omega)`` (no twist when ``seg_t_s`` is NaN), then ``add_measurement(now_s, capture_s,
         x, y, theta)`` (none when ``capture_s`` is None; its result in ``last_reason``), then
-        ``estimate(now_s)``, returned. The common case (inputs in time order) is inlined: the
-        arithmetic is the same operations in the same order as the three calls, so the same
-        bits (tests/unit/robot_agent/test_estimator.py checks it).
+        ``estimate(now_s)``, returned. The stages inline the common case (inputs in time
+        order): the same operations in the same order as the general methods, so the same bits
+        (tests/unit/robot_agent/test_estimator.py checks it).
         """
+        if seg_t_s == seg_t_s:  # not NaN
+            self._twist_in(now_s, seg_t_s, v_mps, omega_radps, odometry)
+        if capture_s is not None:
+            self.last_reason = self._pose_in(now_s, capture_s, x, y, theta)
+        return self.estimate(now_s)
+
+    def _twist_in(
+        self, now_s: float, seg_t_s: float, v_mps: float, omega_radps: float, odometry: bool
+    ) -> None:
+        """Stage 1 of ``tick``, the motion input (eq 9's twist): ``add_odometry(seg_t_s, now_s,
+        v, omega)`` (``odometry``) or ``add_command(seg_t_s, v, omega)``; the common case, a
+        new segment after the newest node, inlined (``_start_segment``)."""
         nt = self._node_t
         nodes = self._nodes
-        # --- twist: a new segment after every node (_start_segment inlined) -----------------
-        if seg_t_s == seg_t_s:  # not NaN
-            if nt and seg_t_s <= nt[-1]:
-                if odometry:
-                    self.add_odometry(seg_t_s, now_s, v_mps, omega_radps)
-                else:
-                    self.add_command(seg_t_s, v_mps, omega_radps)
-            elif odometry or not (nodes and nodes[-1][2] == v_mps and nodes[-1][3] == omega_radps):
-                head = self._head
-                if head is not None and head[0] == seg_t_s and nodes and head[1] is nodes[-1]:
-                    st = head[2]
-                else:
-                    st = self._chain_at(seg_t_s)
-                if odometry:
-                    qm, qs = self._odom_q
-                    if now_s > self._last_odom_t:
-                        self._last_odom_t = now_s
-                else:
-                    qm, qs = self._cmd_q
-                nodes.append((seg_t_s, st, v_mps, omega_radps, odometry, qm, qs))
-                nt.append(seg_t_s)
-                anch_t = self._anch_t
-                if anch_t and anch_t[-1] > seg_t_s:
-                    self._replay_after(seg_t_s)
-        # --- camera pose in capture order: add_measurement's hot path ----------------------------
-        anch = self._anch
-        if capture_s is not None:
-            anch_t = self._anch_t
-            t_s = capture_s
-            if (
-                anch
-                and anch_t[-1] < t_s <= now_s
-                and now_s - t_s <= self._max_lat
-                and _isfinite(now_s + t_s + x + y + theta)
-            ):
-                # (-pi < a <= pi as two plain comparisons with a constant -pi: fewer bytecodes
-                # than the chained form, and False for NaN alike)
-                if not (theta > _NEG_PI and theta <= _PI):
-                    theta = _wrap(theta)
-                # the chain at t_s (_chain_at inlined: usually a node, no arc)
-                j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
-                if j < 0:
-                    st = self._chain_at(t_s)
-                else:
-                    n = nodes[j]
-                    if t_s - n[0] < _TINY_S:
-                        st = n[1]
-                    else:
-                        st = _arc(n, t_s - n[0])
-                        if j == len(nt) - 1:  # after the newest node: the next segment's start
-                            self._head = (t_s, n, st)
-                # the prior through the newest anchor's frame (_prior inlined)
-                ox, oy, oth, d_, tu, q = st
-                at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
-                dist = d_ - ad
-                px = c * ox - s * oy + tx
-                py = s * ox + c * oy + ty
-                pth = oth + fa
-                pp = app + (q - aq) + ppth * dist * dist
-                ppth = (ppth + self._q_rad2 * (tu - atu) + self._q_thm * dist
-                        + self._q_ths * (t_s - at))  # fmt: skip
-                dx = x - px
-                dy = y - py
-                rp = self._r_pos
-                d2 = dx * dx + dy * dy
-                if d2 > self._gate2:  # else inside the gate without its sqrt (g >= gate_m)
-                    g = self._gate + self._nsig * _sqrt(pp + rp)
-                    jump = d2 > g * g
-                else:
-                    jump = False
-                if jump:
-                    self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
-                else:
-                    # _fuse and _anchor inlined
-                    self._gated_run = 0
-                    self.accepted += 1
-                    sv = pp + rp
-                    k = pp / sv if sv > 0.0 else 1.0
-                    sv = ppth + self._r_th
-                    kt = ppth / sv if sv > 0.0 else 1.0
-                    d = theta - pth
-                    if not (d > _NEG_PI and d <= _PI):
-                        d = _wrap(d)
-                    th = pth + kt * d
-                    if not (th > _NEG_PI and th <= _PI):
-                        th = _wrap(th)
-                    wx = px + k * (x - px)
-                    wy = py + k * (y - py)
-                    fa = th - oth
-                    c = _cos(fa)
-                    s = _sin(fa)
-                    anch.append((t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
-                                 c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa, d_, tu,
-                                 q))  # fmt: skip
-                    anch_t.append(t_s)
-                    if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
-                        self._trim(now_s)
-                    self.last_reason = None
+        if nt and seg_t_s <= nt[-1]:
+            if odometry:
+                self.add_odometry(seg_t_s, now_s, v_mps, omega_radps)
             else:
-                self.last_reason = self.add_measurement(now_s, t_s, x, y, theta)
-        # --- estimate at now_s (estimate() inlined) ---------------------------------------------
+                self.add_command(seg_t_s, v_mps, omega_radps)
+        elif odometry or not (nodes and nodes[-1][2] == v_mps and nodes[-1][3] == omega_radps):
+            head = self._head
+            if head is not None and head[0] == seg_t_s and nodes and head[1] is nodes[-1]:
+                st = head[2]
+            else:
+                st = self._chain_at(seg_t_s)
+            if odometry:
+                qm, qs = self._odom_q
+                if now_s > self._last_odom_t:
+                    self._last_odom_t = now_s
+            else:
+                qm, qs = self._cmd_q
+            nodes.append((seg_t_s, st, v_mps, omega_radps, odometry, qm, qs))
+            nt.append(seg_t_s)
+            anch_t = self._anch_t
+            if anch_t and anch_t[-1] > seg_t_s:
+                self._replay_after(seg_t_s)
+
+    def _pose_in(self, now_s: float, t_s: float, x: float, y: float, theta: float) -> str | None:
+        """Stage 2 of ``tick``, the camera pose captured at ``t_s``: ``add_measurement`` (its
+        result returned), with the common case inlined: a pose younger than the newest anchor,
+        inside the gate (the chain at ``t_s``, the prior through the newest anchor's frame,
+        the Kalman update: ``_chain_at``, ``_prior``, ``_fuse`` and ``_anchor``)."""
+        nt = self._node_t
+        nodes = self._nodes
+        anch = self._anch
+        anch_t = self._anch_t
+        if not (
+            anch
+            and anch_t[-1] < t_s <= now_s
+            and now_s - t_s <= self._max_lat
+            and _isfinite(now_s + t_s + x + y + theta)
+        ):
+            return self.add_measurement(now_s, t_s, x, y, theta)
+        # (-pi < a <= pi as two plain comparisons with a constant -pi: fewer bytecodes
+        # than the chained form, and False for NaN alike)
+        if not (theta > _NEG_PI and theta <= _PI):
+            theta = _wrap(theta)
+        # the chain at t_s (_chain_at inlined: usually a node, no arc)
+        j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
+        if j < 0:
+            st = self._chain_at(t_s)
+        else:
+            n = nodes[j]
+            if t_s - n[0] < _TINY_S:
+                st = n[1]
+            else:
+                st = _arc(n, t_s - n[0])
+                if j == len(nt) - 1:  # after the newest node: the next segment's start
+                    self._head = (t_s, n, st)
+        # the prior through the newest anchor's frame (_prior inlined)
+        ox, oy, oth, d_, tu, q = st
+        at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
+        dist = d_ - ad
+        px = c * ox - s * oy + tx
+        py = s * ox + c * oy + ty
+        pth = oth + fa
+        pp = app + (q - aq) + ppth * dist * dist
+        ppth = (ppth + self._q_rad2 * (tu - atu) + self._q_thm * dist
+                + self._q_ths * (t_s - at))  # fmt: skip
+        dx = x - px
+        dy = y - py
+        rp = self._r_pos
+        d2 = dx * dx + dy * dy
+        if d2 > self._gate2:  # else inside the gate without its sqrt (g >= gate_m)
+            g = self._gate + self._nsig * _sqrt(pp + rp)
+            jump = d2 > g * g
+        else:
+            jump = False
+        if jump:
+            return self.add_measurement(now_s, t_s, x, y, theta)
+        # _fuse and _anchor inlined
+        self._gated_run = 0
+        self.accepted += 1
+        sv = pp + rp
+        k = pp / sv if sv > 0.0 else 1.0
+        sv = ppth + self._r_th
+        kt = ppth / sv if sv > 0.0 else 1.0
+        d = theta - pth
+        if not (d > _NEG_PI and d <= _PI):
+            d = _wrap(d)
+        th = pth + kt * d
+        if not (th > _NEG_PI and th <= _PI):
+            th = _wrap(th)
+        wx = px + k * (x - px)
+        wy = py + k * (y - py)
+        fa = th - oth
+        c = _cos(fa)
+        s = _sin(fa)
+        anch.append((t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
+                     c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa, d_, tu,
+                     q))  # fmt: skip
+        anch_t.append(t_s)
+        if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
+            self._trim(now_s)
+        return None
+
+    # ------------------------------------------------------------------ outputs
+
+    def estimate(self, now_s: float) -> tuple[float, float, float, float] | None:
+        """``(x, y, theta, uncertainty_m)`` at ``now_s``, or None when invalid (see module doc);
+        stage 3 of ``tick``.
+
+        ``uncertainty_m`` = ``n_sigma * sqrt(P)`` (m), for the safety filter's extra radius.
+        The chain at ``now_s`` (usually the newest segment's arc: ``_arc`` inlined) through
+        the newest anchor's frame (``_prior`` inlined).
+        """
+        anch = self._anch
+        nt = self._node_t
+        nodes = self._nodes
         if not anch:
             return None
         a = anch[-1]
@@ -522,40 +548,6 @@ class Estimator(_EstimatorMath):
         if not u <= self._max_unc:
             return None
         return ex, ey, eth, u
-
-    # ------------------------------------------------------------------ outputs
-
-    def estimate(self, now_s: float) -> tuple[float, float, float, float] | None:
-        """``(x, y, theta, uncertainty_m)`` at ``now_s``, or None when invalid (see module doc).
-
-        ``uncertainty_m`` = ``n_sigma * sqrt(P)`` (m), for the safety filter's extra radius.
-        """
-        anch = self._anch
-        if not anch:
-            return None
-        a = anch[-1]
-        age = now_s - a[0]
-        bound = self._b_odom if now_s - self._last_odom_t <= self._odom_to else self._b_cmd
-        if not age <= bound:  # also False for NaN
-            return None
-        if age > 0.0:
-            nt = self._node_t
-            if nt and nt[-1] <= now_s + _TINY_S:
-                n = self._nodes[-1]
-                dt = now_s - n[0]
-                st = n[1] if dt < _TINY_S else _arc(n, dt)
-                self._head = (now_s, n, st)
-            else:
-                st = self._chain_at(now_s)
-            x, y, th, pp, _ = self._prior(a, now_s, st)
-            if not -_PI < th <= _PI:
-                th = _wrap(th)
-        else:
-            x, y, th, pp = a[1], a[2], a[3], a[4]
-        u = self._nsig * _sqrt(pp)
-        if not u <= self._max_unc:
-            return None
-        return x, y, th, u
 
     def status(self) -> EstimatorStatus:
         """Counters and state."""

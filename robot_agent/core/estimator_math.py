@@ -39,13 +39,12 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
+from math import cos as _cos  # (imported, not assigned: mypyc compiles these to C calls)
+from math import sin as _sin
 
 from robot_agent.core.params import EstimatorParams
 
 _isfinite = math.isfinite
-_sin = math.sin
-_cos = math.cos
-_sqrt = math.sqrt
 _PI = math.pi
 _NEG_PI = -math.pi
 _TWO_PI = 2.0 * math.pi

@@ -13,7 +13,8 @@ so staleness never compares two hosts' clocks, and ``dt_s`` is the difference of
 
 Modes, events and the transition table: ``firmware_types.py`` (its docstring); entering a
 mode, HOLD ticks, the e-stop latch, rejection counting and the status snapshot:
-``firmware_modes.py`` (the base class); this module holds ``__init__`` and the tick.
+``firmware_modes.py`` (the base class); this module holds ``__init__``, the tick and its
+stages.
 In TRACKING the controller can still fail (overflow from absurd but finite input): that tick
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
@@ -36,17 +37,30 @@ leaves no steady lag; and by ``setpoint_lead_s`` more (default 0), the actuation
 link + motor time constant + one tick): the command computed now moves the robot that much
 later, so it aims where the slot will be then.
 
-Pipeline in TRACKING (one tick)::
+Pipeline in TRACKING (one tick); ``step`` calls these stages in this order::
 
-    [estimator: pose at now_s] -> [setpoint + ff * age]
-    -> reference point (eqs 10-11) -> error e = p_setpoint - p_r (eqs 17-18)
-    -> PID + feed-forward per axis (eqs 21-22) -> cap on |commanded speed|
-    -> + repulsion from neighbours / obstacles, evaluated at the axle centre (the paper's
-       potential field) -> safety filter (barrier certificate on the reference-point velocity,
-       ``safety_filter.py``: keeps Ds to neighbours, clear of obstacles, inside the arena; the
-       last Cartesian stage) -> eq 16 (reference-point velocity to v, omega) -> eq 8 (wheels)
-    -> saturation keeping the turn (or one factor on both wheels if keeping the turn would
-       leave the filter's constraints) -> power = omega / max_wheel_radps in [-1, 1]
+    1. estimate           _estimate: Estimator.tick (odometry, camera pose, pose at now_s)
+    2. inputs             _setpoint_now: setpoint + ff * age; _pose_estimated /
+                          _pose_measured: the pose at now_s (or HOLD / IDLE)
+    3. reference point    kinematics.reference_point (eqs 10-11); the error
+                          e = p_setpoint - p_r (eqs 17-18)
+    4. tracking           TrackingController.update: PID + feed-forward per axis (eqs 21-22),
+                          cap on |commanded speed|
+    5. repulsion          repulsion_raw: from neighbours / obstacles, evaluated at the axle
+                          centre (the paper's potential field), added
+    6. safety filter      SafetyFilter.filter: barrier certificate on the reference-point
+                          velocity (keeps Ds to neighbours, clear of obstacles, inside the
+                          arena; the last Cartesian stage)
+    7. eq 16              kinematics.twist_from_ref_velocity: to (v, omega)
+    8. wheel map (eq 8)   kinematics.wheels_from_twist_raw
+    9. saturation         _saturate: keeping the turn (or one factor on both wheels if keeping
+                          the turn would leave the filter's constraints); then
+                          power = omega / max_wheel_radps in [-1, 1]
+
+Each stage calls the one implementation of its math (kinematics, tracker, repulsion, filter),
+so the composition test of tests/unit/robot_agent/test_agent_firmware.py holds by construction;
+the one copy is eq 7 in ``_estimate`` (the encoder speeds' twist, the same operations as
+``kinematics.twist_from_wheels_raw``: a Python call less per tick for the pure-Python core).
 
 The integrators are frozen (may only shrink) on a tick after one whose wheels saturated: the
 PID cannot see this tick's saturation before it has computed this tick's command (the usual
@@ -100,11 +114,19 @@ from robot_agent.core.firmware_types import (  # noqa: F401  (moved to firmware_
     _new_command,
     _tuple_new,
 )
-from robot_agent.core.kinematics import saturate_wheels
-from robot_agent.core.params import AgentConfig
-from robot_agent.core.repulsion import repulsion_raw
-from robot_agent.core.safety_filter import Neighbour, SafetyFilter
-from robot_agent.core.tracking import TrackingController
+
+from .kinematics import (
+    ref_point_velocity,
+    reference_point,
+    saturate_wheels,
+    twist_from_ref_velocity,
+    twist_from_wheels_raw,
+    wheels_from_twist_raw,
+)
+from .params import AgentConfig
+from .repulsion import repulsion_raw
+from .safety_filter import Neighbour, SafetyFilter
+from .tracking import TrackingController
 
 __all__ = [
     "Firmware",
@@ -116,8 +138,8 @@ __all__ = [
 ]
 
 _isfinite = math.isfinite
-_cos = math.cos
-_sin = math.sin
+#: ``Firmware._setpoint_now``'s answer when the tick holds (no valid setpoint): age NaN
+_NO_SETPOINT = (_NAN, _NAN, _NAN, _NAN, _NAN)
 
 
 def _real(value: object) -> float:
@@ -237,7 +259,7 @@ class Firmware(_FirmwareModes):
         if self._est is None:
             self._unc = 0.0
 
-    def step(
+    def step(  # noqa: PLR0915 (the paper's pipeline, stage by stage, in one place)
         self,
         now_s: float | object,
         *,
@@ -279,307 +301,354 @@ class Firmware(_FirmwareModes):
         """
         self._steps += 1
         # The whole tick runs inside one try (zero-cost in CPython 3.11 unless it raises): a
-        # firmware loop must not die, it stops the wheels instead.
+        # firmware loop must not die, it stops the wheels instead. The arguments are outside
+        # data, validated where a stage uses them, not trusted to their annotations (compiled
+        # with mypyc, a typed parameter would raise TypeError before this try): a number is a
+        # float, or converted by _real (int, numpy.float64, ...); anything else raises
+        # TypeError, which the except below counts as a rejection. An argument the tick ignores
+        # (pose_rx_s without a pose) may be anything. An input stage that answers "hold" (None,
+        # or the setpoint's NaN age) has put the firmware in HOLD / IDLE (``_stop``): the
+        # tick's wheels are zero.
         try:
-            # The arguments are outside data, validated here, not trusted to their annotations
-            # (compiled with mypyc, a typed parameter would raise TypeError before this try): a
-            # number is a float, or converted by _real (int, numpy.float64, ...); anything else
-            # raises TypeError, which the except below counts as a rejection. Each value is
-            # converted where the tick uses it, so an argument the tick ignores (pose_rx_s
-            # without a pose) may be anything. Pose / setpoint fields: the same.
             now = now_s if type(now_s) is float else _real(now_s)
-            # the fields of the pose / setpoint, unpacked: objects until validated (a Pose /
-            # Setpoint, or any tuple, unpacks as a tuple; any other sequence as an iterable)
-            ox: object
-            oy: object
-            oth: object
-            ot: object
-            ovx: object
-            ovy: object
-            slot: object
-            # --- time -----------------------------------------------------------------------
             if not _isfinite(now):
                 self.reject("non-finite now_s")
                 return self._hold(_EV_INVALID, "non-finite clock")
+            # time: dt_s is 0.0 on the first tick and on a duplicate, backwards or stalled one
+            # (counted in dt_faults; the derivative restarts, nothing integrates)
             last = self._last_now
             self._last_now = now
-            if last is None:
-                dt = 0.0
-            else:
+            dt = 0.0
+            if last is not None:
                 dt = now - last
-                if not 0.0 < dt <= self._max_dt:  # duplicate, backwards or stalled tick
+                if not 0.0 < dt <= self._max_dt:
                     self._dt_faults += 1
                     self._tracker.reset_derivative()
                     dt = 0.0
-
-            # --- estimator inputs (also in HOLD / ESTOP, so the estimate stays current): one
-            # Estimator.tick per step (twist, camera pose, estimate at now_s) -----------------
+            # 1. estimate: the pose at now_s (in every mode, so the estimate stays current)
             est = self._est
-            got: tuple[float, float, float, float] | None  # set where est is not None
+            got: tuple[float, float, float, float] | None = None
             if est is not None:
-                odo = False
-                if wheel_speeds is not None and last is not None:
-                    # measured wheel speeds over [last, now_s) (eq 7)
-                    try:
-                        ws: Any = wheel_speeds
-                        owr, owl = ws
-                        wr = owr if type(owr) is float else _real(owr)
-                        wl = owl if type(owl) is float else _real(owl)
-                        hr = self._half_r
-                        v = hr * (wr + wl)
-                        w = hr * (wr - wl) / self._half_track
-                        ok = now > last and _isfinite(v + w)  # (also catches overflow)
-                    except (TypeError, ValueError):
-                        ok = False
-                    if ok:
-                        seg_t = last
-                        odo = True
-                    else:
-                        seg_t = _NAN  # no twist this tick
-                        v = w = 0.0
-                        if now > last:
-                            self.reject("bad wheel speeds")
-                else:
-                    pending = self._pending_cmd
-                    if pending is not None:
-                        seg_t, pwr, pwl = pending
-                        hr = self._half_r
-                        v = hr * (pwr + pwl)
-                        w = hr * (pwr - pwl) / self._half_track
-                    else:
-                        seg_t = _NAN  # no twist this tick
-                        v = w = 0.0
-                self._pending_cmd = None
-                if pose is not None and pose is not self._fused_pose:
-                    self._fused_pose = pose
-                    if isinstance(pose, tuple):
-                        ox, oy, oth, ot = pose
-                    else:
-                        ps: Any = pose
-                        ox, oy, oth, ot = ps
-                    mx = ox if type(ox) is float else _real(ox)
-                    my = oy if type(oy) is float else _real(oy)
-                    mth = oth if type(oth) is float else _real(oth)
-                    mt = ot if type(ot) is float else _real(ot)
-                    if _isfinite(mt):
-                        oc = pose_rx_s if pose_capture_s is None else pose_capture_s
-                        cap = oc if type(oc) is float else _real(oc)
-                        got = est.tick(now, seg_t, v, w, odo, cap, mx, my, mth)
-                        reason = est.last_reason
-                        if reason is None:
-                            self._last_pose_t = mt
-                        else:
-                            self.reject(reason)
-                    else:
-                        self.reject("non-finite pose")
-                        got = est.tick(now, seg_t, v, w, odo, None, mx, my, mth)
-                else:
-                    got = est.tick(now, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
-
+                got = self._estimate(est, now, last, pose, pose_rx_s, pose_capture_s, wheel_speeds)
             if self._mode is _ESTOP:
                 return self._hold(_EV_ESTOP, "estop")
-
-            # --- setpoint -------------------------------------------------------------------
-            if setpoint is None:
-                self._setpoint_age = _NAN
-                return self._hold(_EV_NO_SETPOINT, "no setpoint")
-            if isinstance(setpoint, tuple):
-                ox, oy, ovx, ovy, oth, slot, ot = setpoint
-            else:
-                ss: Any = setpoint
-                ox, oy, ovx, ovy, oth, slot, ot = ss
-            spx = ox if type(ox) is float else _real(ox)
-            spy = oy if type(oy) is float else _real(oy)
-            spvx = ovx if type(ovx) is float else _real(ovx)
-            spvy = ovy if type(ovy) is float else _real(ovy)
-            spth = oth if type(oth) is float else _real(oth)
-            spt = ot if type(ot) is float else _real(ot)
-            srx = setpoint_rx_s if type(setpoint_rx_s) is float else _real(setpoint_rx_s)
-            # (the slot: an int >= 0, not a bool)
-            if not _isfinite(spx + spy + spvx + spvy + spth + spt + srx) or not (
-                type(slot) is int and slot >= 0
-            ):
-                self._reject_setpoint(setpoint, "non-finite setpoint or bad slot")
-                if self._have_setpoint:
-                    return self._hold(_EV_INVALID, "setpoint rejected")
-                return self._hold(_EV_NO_SETPOINT, "setpoint rejected, none valid yet")
-            self._have_setpoint = True
-            if slot != self._slot:  # role change: the old PID state belongs to another target
-                if self._slot is not None:
-                    self._role_changes += 1
-                self._slot = slot
-                self._tracker.reset()
-            sp_age = now - srx
-            self._setpoint_age = sp_age
-
-            # --- pose -----------------------------------------------------------------------
-            pose_t: float | None
+            # 2. inputs: the setpoint advanced to now_s, the pose at now_s, both fresh
+            spx, spy, spvx, spvy, sp_age = self._setpoint_now(now, setpoint, setpoint_rx_s)
+            if sp_age != sp_age:  # NaN: no valid setpoint
+                return self._zero(self._last_pose_t)
             if est is None:
-                if pose is None:
-                    self._pose_age = _NAN
-                    return self._hold(_EV_STALE, "no pose")
-                if isinstance(pose, tuple):
-                    ox, oy, oth, ot = pose
-                else:
-                    ps = pose
-                    ox, oy, oth, ot = ps
-                x = ox if type(ox) is float else _real(ox)
-                y = oy if type(oy) is float else _real(oy)
-                th = oth if type(oth) is float else _real(oth)
-                pose_t = ot if type(ot) is float else _real(ot)
-                prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
-                if not _isfinite(x + y + th + pose_t + prx):
-                    self._reject_pose(pose, "non-finite pose")
-                    return self._hold(_EV_INVALID, "pose rejected")
-                self._last_pose_t = pose_t
-                pose_age = now - prx
-                self._pose_age = pose_age
-                # staleness (|age|: a receive time in the future is as wrong as an old one)
-                lim = self._stale_pose
-                if not -lim <= pose_age <= lim:
-                    return self._hold(_EV_STALE, "pose stale")
-                # (a tuple as it is: pose_estimate converts its fields on reading)
-                self._est_xyt = pose if isinstance(pose, tuple) else (x, y, th)
+                xytu = self._pose_measured(now, pose, pose_rx_s)
             else:
-                # the estimator's pose at now_s; invalid (no pose yet, camera lost beyond the
-                # dropout bound, or too uncertain) holds the robot
-                if pose is not None:
-                    prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
-                    self._pose_age = now - prx
-                else:
-                    self._pose_age = _NAN
-                if got is None:
-                    self._unc = _NAN
-                    self._est_xyt = None
-                    if est.last_capture_s is None:
-                        return self._hold(_EV_STALE, "no pose")
-                    return self._hold(_EV_STALE, "pose estimate invalid")
-                x, y, th, self._unc = got
-                pose_t = self._last_pose_t
-                self._est_xyt = got
-
-            # --- setpoint staleness -----------------------------------------------------------
+                xytu = self._pose_estimated(est, now, pose, pose_rx_s, got)
+            if xytu is None:
+                return self._zero(self._last_pose_t)
             lim = self._stale_sp
             if not -lim <= sp_age <= lim:
                 return self._hold(_EV_STALE, "setpoint stale")
-
             if self._mode is not _TRACKING:
                 self._transition(_EV_FRESH, "tracking")
-
-            # --- setpoint extrapolation: where the setpoint is now, advanced by its
-            # feed-forward velocity over its receive age (exactly one tick in lockstep) ------
-            if self._extrap and sp_age > 0.0:
-                lead = sp_age + self._lead
-                spx += spvx * lead
-                spy += spvy * lead
-
-            # --- eqs 10-11 (reference point), 17-18 (error), 21-22 (PID + FF, speed cap) ----
+            x, y, th, unc = xytu
+            # 3. reference point (eqs 10-11) and the error e = p_setpoint - p_r (eqs 17-18)
             l_m = self._l
-            c = _cos(th)
-            s = _sin(th)
-            rx = x + l_m * c
-            ry = y + l_m * s
+            rx, ry = reference_point(x, y, th, l_m)
             ex = spx - rx
             ey = spy - ry
             self._ex = ex
             self._ey = ey
+            # 4. tracking: PID + feed-forward per axis, then the speed cap (eqs 21-22)
             tracker = self._tracker
             vx, vy = tracker.update(ex, ey, spvx, spvy, dt, self._last_saturated)
             if not tracker.last_valid:
                 self.reject("controller overflow")
                 return self._hold(_EV_INVALID, "controller overflow")
-
-            # --- safety: repulsion at the axle centre, added to the ref-point velocity ------
+            # 5. repulsion from neighbours / obstacles, at the axle centre
             if self._rep_on and (neighbours or obstacles):
                 rvx, rvy, skipped = repulsion_raw(x, y, neighbours, obstacles, self._rep_k,
                                                   self._rep_d0, self._rep_inv_d0,
                                                   self._rep_cap)  # fmt: skip
-                if skipped:
+                if skipped:  # (non-finite entries are skipped and counted)
                     self._rejected += skipped
                     self._rej_reason = "non-finite neighbour or obstacle"
                 vx += rvx
                 vy += rvy
-
-            # --- safety filter (barrier certificate on the reference-point velocity), last
-            # before eq 16: keeps Ds to neighbours / obstacles / walls (safety_filter.py); the
-            # own extra radius is at least this tick's estimate uncertainty ----------------
+            # 6. safety filter: the last Cartesian stage
             if self._filter_on:
+                # (the own extra radius: at least this tick's estimate uncertainty)
                 er = extra_radius_m if type(extra_radius_m) is float else _real(extra_radius_m)
-                unc = self._unc
                 if unc > er:
                     er = unc
-                # shared_frame: the own latest camera pose and its age, for the frame's plane
-                frame = None
+                frame = None  # (shared_frame: the own latest camera pose and its age)
                 if self._shared_frame and pose is not None:
-                    if isinstance(pose, tuple):
-                        ox, oy, oth, ot = pose
-                    else:
-                        ps = pose
-                        ox, oy, oth, ot = ps
-                    oc = ot if pose_capture_s is None else pose_capture_s
-                    cap_t = oc if type(oc) is float else _real(oc)
-                    frame = (
-                        ox if type(ox) is float else _real(ox),
-                        oy if type(oy) is float else _real(oy),
-                        oth if type(oth) is float else _real(oth),
-                        now - cap_t,
-                    )
-                vx, vy = self._filter_fn(
-                    now,
-                    rx,
-                    ry,
-                    vx,
-                    vy,
-                    ex,
-                    ey,
-                    neighbours,
-                    obstacles,
-                    er,
-                    dt,
-                    frame,
-                )
-
-            # --- eq 16, then eq 8: inlined copies of twist_from_ref_velocity and
-            # wheels_from_twist (same operations, bit-identical; tested), saving two calls ---
-            v = c * vx + s * vy
-            w = (c * vy - s * vx) / l_m
-            turn = self._half_track * w
-            r = self._wheel_r
-            wr = (v + turn) / r
-            wl = (v - turn) / r
-
-            # --- saturation keeping the turn (fast path: inside limits, also False for NaN) -
-            wmax = self._wmax
-            nwmax = self._wmax_neg
-            if wr <= wmax and wr >= nwmax and wl <= wmax and wl >= nwmax:
-                sat = False
-            else:
-                wr0, wl0 = wr, wl
-                wr, wl, sat = saturate_wheels(wr, wl, wmax)
-                if sat:
-                    self._saturated += 1
-                    flt = self._filter
-                    if self._filter_on and flt.in_range and _isfinite(wr0 + wl0):
-                        # keeping the turn changes the reference velocity's direction: if that
-                        # leaves the filter's constraints, scale both wheels by one factor
-                        # instead (u scales by s in (0, 1]: safe, see safety_filter.py)
-                        sv = 0.5 * r * (wr + wl)
-                        sw = 0.5 * r * (wr - wl) / self._half_track
-                        if not flt.admissible(c * sv - l_m * sw * s, s * sv + l_m * sw * c):
-                            k = wmax / max(abs(wr0), abs(wl0))
-                            # (wr0 * k can round one ulp beyond wmax: power 1 + 2e-16 is an
-                            # invalid wheels message; clamp, a change of one ulp)
-                            wr = min(wmax, max(-wmax, wr0 * k))
-                            wl = min(wmax, max(-wmax, wl0 * k))
-                            flt.count_rescaled()
+                    frame = self._own_frame(now, pose, pose_capture_s)
+                vx, vy = self._filter_fn(now, rx, ry, vx, vy, ex, ey, neighbours, obstacles, er, dt,
+                                         frame)  # fmt: skip
+            # 7. eq 16: reference-point velocity -> (v, omega)
+            v, w = twist_from_ref_velocity(vx, vy, th, l_m)
+            # 8. eq 8: (v, omega) -> wheel speeds
+            wr, wl = wheels_from_twist_raw(v, w, self._half_track, self._wheel_r)
+            # 9. saturation
+            wr, wl, sat = self._saturate(wr, wl, th)
             self._last_saturated = sat
             if est is not None:  # for the prediction (see _pending_cmd)
                 self._pending_cmd = (now + self._act_delay, wr, wl)
-            # (_new_command inlined: one Python call less per tick)
-            return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING, pose_t, sat))
+            wmax = self._wmax  # (_new_command inlined: one Python call less per tick)
+            return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING,
+                                             self._last_pose_t, sat))  # fmt: skip
         except Exception as exc:
             self.reject(f"internal error: {type(exc).__name__}")
             self._last_saturated = False
             if self._mode is not _ESTOP:
                 self._set_mode(Mode.HOLD, "internal error")
             return self._zero(self._last_pose_t)
+
+    # ------------------------------------------------------------------ the stages of step
+
+    def _estimate(
+        self,
+        est: Estimator,
+        now: float,
+        last: float | None,
+        pose: object,
+        pose_rx_s: object,
+        pose_capture_s: object,
+        wheel_speeds: object,
+    ) -> tuple[float, float, float, float] | None:
+        """Stage 1, estimate: one ``Estimator.tick`` (the twist since the last tick, the camera
+        pose if this object is new, fused at its capture time, the estimate at ``now``):
+        ``(x, y, theta, uncertainty_m)`` or None (invalid). The twist: the encoder speeds
+        over ``[last, now)`` (eq 7; bad ones are counted), else the last command from its
+        actuation time, else none (``seg_t`` NaN). A rejected pose is counted."""
+        # (eq 7 inline, twice: kinematics.twist_from_wheels_raw, the same operations)
+        odo = False
+        if wheel_speeds is not None and last is not None:
+            try:
+                ws: Any = wheel_speeds
+                owr, owl = ws
+                wr = owr if type(owr) is float else _real(owr)
+                wl = owl if type(owl) is float else _real(owl)
+                hr = self._half_r
+                v = hr * (wr + wl)
+                w = hr * (wr - wl) / self._half_track
+                ok = now > last and _isfinite(v + w)  # (also catches overflow)
+            except (TypeError, ValueError):
+                ok = False
+            if ok:
+                seg_t = last
+                odo = True
+            else:
+                seg_t = _NAN  # no twist this tick
+                v = w = 0.0
+                if now > last:
+                    self.reject("bad wheel speeds")
+        else:
+            pending = self._pending_cmd
+            if pending is not None:
+                seg_t, pwr, pwl = pending
+                hr = self._half_r
+                v = hr * (pwr + pwl)
+                w = hr * (pwr - pwl) / self._half_track
+            else:
+                seg_t = _NAN  # no twist this tick
+                v = w = 0.0
+        self._pending_cmd = None
+        if pose is None or pose is self._fused_pose:
+            return est.tick(now, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
+        self._fused_pose = pose
+        ox: object
+        oy: object
+        oth: object
+        ot: object
+        if isinstance(pose, tuple):
+            ox, oy, oth, ot = pose
+        else:
+            ps: Any = pose
+            ox, oy, oth, ot = ps
+        mx = ox if type(ox) is float else _real(ox)
+        my = oy if type(oy) is float else _real(oy)
+        mth = oth if type(oth) is float else _real(oth)
+        mt = ot if type(ot) is float else _real(ot)
+        if not _isfinite(mt):
+            self.reject("non-finite pose")
+            return est.tick(now, seg_t, v, w, odo, None, mx, my, mth)
+        oc = pose_rx_s if pose_capture_s is None else pose_capture_s
+        cap = oc if type(oc) is float else _real(oc)
+        got = est.tick(now, seg_t, v, w, odo, cap, mx, my, mth)
+        reason = est.last_reason
+        if reason is None:
+            self._last_pose_t = mt
+        else:
+            self.reject(reason)
+        return got
+
+    def _setpoint_now(
+        self, now: float, setpoint: object, setpoint_rx_s: object
+    ) -> tuple[float, float, float, float, float]:
+        """Stage 2a, the setpoint: validated (a bad one counted once), a slot change resets
+        the PID, and advanced by its feed-forward velocity over its receive age plus
+        ``setpoint_lead_s`` (``extrapolate_setpoint``): ``(x, y, vx, vy, age_s)``. No setpoint
+        or a rejected one: the firmware holds and ``age_s`` is NaN (a plain tuple, not an
+        Optional: unboxed in the compiled core)."""
+        if setpoint is None:
+            self._setpoint_age = _NAN
+            self._stop(_EV_NO_SETPOINT, "no setpoint")
+            return _NO_SETPOINT
+        ox: object
+        oy: object
+        ovx: object
+        ovy: object
+        oth: object
+        slot: object
+        ot: object
+        if isinstance(setpoint, tuple):
+            ox, oy, ovx, ovy, oth, slot, ot = setpoint
+        else:
+            ss: Any = setpoint
+            ox, oy, ovx, ovy, oth, slot, ot = ss
+        spx = ox if type(ox) is float else _real(ox)
+        spy = oy if type(oy) is float else _real(oy)
+        spvx = ovx if type(ovx) is float else _real(ovx)
+        spvy = ovy if type(ovy) is float else _real(ovy)
+        spth = oth if type(oth) is float else _real(oth)
+        spt = ot if type(ot) is float else _real(ot)
+        srx = setpoint_rx_s if type(setpoint_rx_s) is float else _real(setpoint_rx_s)
+        # (the slot: an int >= 0, not a bool)
+        if not _isfinite(spx + spy + spvx + spvy + spth + spt + srx) or not (
+            type(slot) is int and slot >= 0
+        ):
+            self._reject_setpoint(setpoint, "non-finite setpoint or bad slot")
+            if self._have_setpoint:
+                self._stop(_EV_INVALID, "setpoint rejected")
+            else:
+                self._stop(_EV_NO_SETPOINT, "setpoint rejected, none valid yet")
+            return _NO_SETPOINT
+        self._have_setpoint = True
+        if slot != self._slot:  # role change: the old PID state belongs to another target
+            if self._slot is not None:
+                self._role_changes += 1
+            self._slot = slot
+            self._tracker.reset()
+        sp_age = now - srx
+        self._setpoint_age = sp_age
+        # where the setpoint is now (exactly one tick old in lockstep), and setpoint_lead_s on
+        if self._extrap and sp_age > 0.0:
+            lead = sp_age + self._lead
+            spx += spvx * lead
+            spy += spvy * lead
+        return spx, spy, spvx, spvy, sp_age
+
+    def _pose_measured(
+        self, now: float, pose: object, pose_rx_s: object
+    ) -> tuple[float, float, float, float] | None:
+        """Stage 2b without the estimator: the latest pose as measured, validated (a bad one
+        counted once) and fresh (``|now - pose_rx_s| <= stale_pose_s``): ``(x, y, theta,
+        0.0)``, or None (the firmware holds)."""
+        if pose is None:
+            self._pose_age = _NAN
+            self._stop(_EV_STALE, "no pose")
+            return None
+        ox: object
+        oy: object
+        oth: object
+        ot: object
+        if isinstance(pose, tuple):
+            ox, oy, oth, ot = pose
+        else:
+            ps: Any = pose
+            ox, oy, oth, ot = ps
+        x = ox if type(ox) is float else _real(ox)
+        y = oy if type(oy) is float else _real(oy)
+        th = oth if type(oth) is float else _real(oth)
+        pose_t = ot if type(ot) is float else _real(ot)
+        prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
+        if not _isfinite(x + y + th + pose_t + prx):
+            self._reject_pose(pose, "non-finite pose")
+            self._stop(_EV_INVALID, "pose rejected")
+            return None
+        self._last_pose_t = pose_t
+        pose_age = now - prx
+        self._pose_age = pose_age
+        # staleness (|age|: a receive time in the future is as wrong as an old one)
+        lim = self._stale_pose
+        if not -lim <= pose_age <= lim:
+            self._stop(_EV_STALE, "pose stale")
+            return None
+        # (a tuple as it is: pose_estimate converts its fields on reading)
+        self._est_xyt = pose if isinstance(pose, tuple) else (x, y, th)
+        return x, y, th, 0.0
+
+    def _pose_estimated(
+        self,
+        est: Estimator,
+        now: float,
+        pose: object,
+        pose_rx_s: object,
+        got: tuple[float, float, float, float] | None,
+    ) -> tuple[float, float, float, float] | None:
+        """Stage 2b with the estimator: its pose at ``now`` (``got``), ``(x, y, theta,
+        uncertainty_m)``; None when invalid (no pose yet, the camera lost beyond the dropout
+        bound, or too uncertain: the firmware holds)."""
+        if pose is not None:
+            prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
+            self._pose_age = now - prx
+        else:
+            self._pose_age = _NAN
+        self._est_xyt = got
+        if got is None:
+            self._unc = _NAN
+            if est.last_capture_s is None:
+                self._stop(_EV_STALE, "no pose")
+            else:
+                self._stop(_EV_STALE, "pose estimate invalid")
+            return None
+        self._unc = got[3]
+        return got
+
+    def _own_frame(
+        self, now: float, pose: object, pose_capture_s: object
+    ) -> tuple[float, float, float, float]:
+        """Stage 6's input with ``shared_frame``: this robot's latest camera pose (axle centre,
+        heading) and its age at ``now``, for the safety filter's shared-frame plane."""
+        ox: object
+        oy: object
+        oth: object
+        ot: object
+        if isinstance(pose, tuple):
+            ox, oy, oth, ot = pose
+        else:
+            ps: Any = pose
+            ox, oy, oth, ot = ps
+        oc = ot if pose_capture_s is None else pose_capture_s
+        cap_t = oc if type(oc) is float else _real(oc)
+        return (
+            ox if type(ox) is float else _real(ox),
+            oy if type(oy) is float else _real(oy),
+            oth if type(oth) is float else _real(oth),
+            now - cap_t,
+        )
+
+    def _saturate(self, wr: float, wl: float, th: float) -> tuple[float, float, bool]:
+        """Stage 9: ``|omega| <= max_wheel_radps`` keeping the turn (``saturate_wheels``,
+        counted); if the reference velocity that leaves (eqs 7, 14-15) is outside the safety
+        filter's constraints, one factor on both wheels instead (``u`` scales by a factor in
+        (0, 1]: safe, see safety_filter.py). ``(omega_r, omega_l, saturated)``."""
+        wmax = self._wmax
+        nwmax = self._wmax_neg
+        # (fast path: inside the limits; also False for NaN)
+        if wr <= wmax and wr >= nwmax and wl <= wmax and wl >= nwmax:
+            return wr, wl, False
+        swr, swl, sat = saturate_wheels(wr, wl, wmax)
+        if not sat:
+            return swr, swl, False
+        self._saturated += 1
+        flt = self._filter
+        if self._filter_on and flt.in_range and _isfinite(wr + wl):
+            sv, sw = twist_from_wheels_raw(swr, swl, self._half_track, self._wheel_r)
+            ux, uy = ref_point_velocity(sv, sw, th, self._l)
+            if not flt.admissible(ux, uy):
+                k = wmax / max(abs(wr), abs(wl))
+                # (wr * k can round one ulp beyond wmax: power 1 + 2e-16 is an invalid wheels
+                # message; clamp, a change of one ulp)
+                swr = min(wmax, max(-wmax, wr * k))
+                swl = min(wmax, max(-wmax, wl * k))
+                flt.count_rescaled()
+        return swr, swl, True

@@ -193,10 +193,14 @@ class _FirmwareModes:
             self._last_rejected_setpoint = setpoint
             self.reject(reason)
 
-    def _hold(self, event: _Event, reason: str) -> WheelCommand:
-        """Non-tracking tick: apply the event, zero wheels."""
+    def _stop(self, event: _Event, reason: str) -> None:
+        """Non-tracking tick: apply the event; the tick's wheels are zero (``_zero``)."""
         self._transition(event, reason)
         self._last_saturated = False
         if self._est is not None and self._last_now is not None:
             self._pending_cmd = (self._last_now + self._act_delay, 0.0, 0.0)
+
+    def _hold(self, event: _Event, reason: str) -> WheelCommand:
+        """Non-tracking tick: apply the event, zero wheels."""
+        self._stop(event, reason)
         return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, self._last_pose_t, False)

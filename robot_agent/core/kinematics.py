@@ -12,24 +12,27 @@ any arithmetic; ``saturate_wheels`` is the safety stage and never returns a non-
 from __future__ import annotations
 
 import math
+from math import cos as _cos  # (imported, not assigned: mypyc compiles these to C calls)
+from math import sin as _sin
 
 from robot_agent.core.params import RobotGeometry
 
 __all__ = [
+    "axle_from_reference_point",
     "ref_point_velocity",
     "reference_point",
     "saturate_wheels",
     "twist_from_ref_velocity",
     "twist_from_wheels",
+    "twist_from_wheels_raw",
     "wheels_from_twist",
+    "wheels_from_twist_raw",
     "wrap_angle",
 ]
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
 _isfinite = math.isfinite
-_cos = math.cos
-_sin = math.sin
 
 
 def wrap_angle(a: float) -> float:
@@ -47,9 +50,16 @@ def wheels_from_twist(v_mps: float, omega_radps: float, geom: RobotGeometry) -> 
 
     ``omega_r = (v + L omega) / R``, ``omega_l = (v - L omega) / R``.
     """
-    turn = geom.half_track_m * omega_radps
-    r = geom.wheel_radius_m
-    return (v_mps + turn) / r, (v_mps - turn) / r
+    return wheels_from_twist_raw(v_mps, omega_radps, geom.half_track_m, geom.wheel_radius_m)
+
+
+def wheels_from_twist_raw(
+    v_mps: float, omega_radps: float, half_track_m: float, wheel_radius_m: float
+) -> tuple[float, float]:
+    """:func:`wheels_from_twist` with the geometry read once (the firmware's per-tick call):
+    eq 8 corrected, ``L = half_track_m``, ``R = wheel_radius_m``."""
+    turn = half_track_m * omega_radps
+    return (v_mps + turn) / wheel_radius_m, (v_mps - turn) / wheel_radius_m
 
 
 def twist_from_wheels(omega_r: float, omega_l: float, geom: RobotGeometry) -> tuple[float, float]:
@@ -57,8 +67,16 @@ def twist_from_wheels(omega_r: float, omega_l: float, geom: RobotGeometry) -> tu
 
     ``v = R (omega_r + omega_l) / 2``, ``omega = R (omega_r - omega_l) / (2 L)``.
     """
-    r = geom.wheel_radius_m
-    return 0.5 * r * (omega_r + omega_l), 0.5 * r * (omega_r - omega_l) / geom.half_track_m
+    return twist_from_wheels_raw(omega_r, omega_l, geom.half_track_m, geom.wheel_radius_m)
+
+
+def twist_from_wheels_raw(
+    omega_r: float, omega_l: float, half_track_m: float, wheel_radius_m: float
+) -> tuple[float, float]:
+    """:func:`twist_from_wheels` with the geometry read once (the firmware's per-tick call):
+    eq 7 corrected, ``L = half_track_m``, ``R = wheel_radius_m``."""
+    half_r = 0.5 * wheel_radius_m
+    return half_r * (omega_r + omega_l), half_r * (omega_r - omega_l) / half_track_m
 
 
 def saturate_wheels(omega_r: float, omega_l: float, max_radps: float) -> tuple[float, float, bool]:

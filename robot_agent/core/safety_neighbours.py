@@ -23,16 +23,15 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from robot_agent.core.params import AgentConfig
-from robot_agent.core.qp import _TOL
-from robot_agent.core.safety_plane import SharedFramePlane
-from robot_agent.core.safety_types import _isfinite
+from .kinematics import reference_point
+from .params import AgentConfig
+from .qp import _TOL
+from .safety_plane import SharedFramePlane
+from .safety_types import _isfinite
 
 __all__ = ["NeighbourBarriers"]
 
 _hypot = math.hypot
-_cos = math.cos
-_sin = math.sin
 _INF = math.inf
 
 
@@ -133,8 +132,7 @@ class NeighbourBarriers:
             if _isfinite(fx + fy + fth) and fage <= self._frame_age:
                 hix = math.cos(fth)
                 hiy = math.sin(fth)
-                qix = fx + self._l * hix
-                qiy = fy + self._l * hiy
+                qix, qiy = reference_point(fx, fy, fth, self._l)  # eqs 10-11
                 off = _hypot(px - qix, py - qiy)
                 if _isfinite(off):
                     pl = (qix, qiy, hix, hiy, fage)
@@ -215,8 +213,7 @@ class NeighbourBarriers:
                 rad -= self._budget
                 infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
                 if coop and _isfinite(th):
-                    qx += self._l * _cos(th)
-                    qy += self._l * _sin(th)
+                    qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
                     share = 0.5
                     dd = self._d_coop + infl
                     vx = vy = 0.0

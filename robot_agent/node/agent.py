@@ -474,7 +474,7 @@ class AgentNode:
             role=self.role,
             rx=dict(self.rx),
             robot=self.robot_id,
-            rejects=self.rejects.as_dict(),
+            rejects=self.faults.rejects.as_dict(),
             filter=None if flt is None else filter_counters(flt),
             min_clearance_m=None if flt is None else clearance_or_none(flt.min_clearance_m),
         )

@@ -54,8 +54,9 @@ the other robots' modes from :class:`~robot_agent.node.peer_status.PeerStatusInp
 through the spatial hash; the e-stop query, witness and handlers; its fault counters
 (:class:`runtime.Faults`: a bad message is counted against every hosted robot's firmware).
 
-Bad input is counted against every hosted robot's firmware (``rejected`` in the status batch) and
-logged at most once a second; it never stops the loop. SIGINT/SIGTERM: exits within a second,
+Bad input is counted in the host's ``faults`` (:class:`runtime.Faults`) and against every hosted
+robot's firmware (``rejected`` in the status batch) and logged at most once a second; it never
+stops the loop. SIGINT/SIGTERM: exits within a second,
 session closed (``runtime.transport.run_node``). Prints ``agent-host <name> ready`` once its
 subscriptions and every robot's token are declared.
 """

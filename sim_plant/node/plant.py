@@ -453,7 +453,7 @@ class PlantNode:
                 self.publish_status()
                 self.log.info(
                     f"done: {self.tick + 1} ticks, {self.timeouts} lockstep timeouts, "
-                    f"{self.rejected} rejected"
+                    f"{self.faults.rejected} rejected"
                 )
             return 0
         finally:

@@ -307,7 +307,7 @@ def _lockstep_equals_simulate(
     plant.inputs.on_alive_coordinator(keys.alive_coordinator_key(FLEET, "main"), True)
 
     assert asyncio.run(plant.run_lockstep(asyncio.Event())) is True
-    assert plant.timeouts == 0 and plant.rejected == coord.rejected == 0
+    assert plant.timeouts == 0 and plant.faults.rejected == coord.rejected == 0
 
     res = run(scenario, duration_s=duration)
     log = res.log

@@ -258,8 +258,8 @@ def test_garbage_on_every_host_input_is_counted_and_never_raised() -> None:
         for payload in _garbage(rng):
             handler(_rx("formation/demo/x", payload))
             sent += 1
-    assert host.internal_errors == 0
-    assert host.rejected == sent
+    assert host.faults.internal_errors == 0
+    assert host.faults.rejected == sent
     assert all(n.rejected == sent for n in host.nodes.values())
     assert not [k for k, _ in bus.out if k == host.wheels_key]  # nothing stepped on garbage
 
@@ -293,7 +293,7 @@ def test_plant_and_coordinator_take_the_batched_forms() -> None:
     good = msgpack.unpackb(_frame(["r1", "r2"], np.zeros((2, 2))))
     bad = msgpack.packb({**good, "x": [2e4, 0.0]})
     coord.on_poses(_rx(keys.poses_key(FLEET), bad))
-    assert coord.rejected == 1 and coord.internal_errors == 0
+    assert coord.rejected == 1 and coord.faults.internal_errors == 0
 
 
 # ---------------------------------------------------------------------------------------------

@@ -9,13 +9,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from formation.outputs.runlog import reference_points
 from robot_agent.core.kinematics import (
+    axle_from_reference_point,
     ref_point_velocity,
     reference_point,
     saturate_wheels,
     twist_from_ref_velocity,
     twist_from_wheels,
+    twist_from_wheels_raw,
     wheels_from_twist,
+    wheels_from_twist_raw,
     wrap_angle,
 )
 from robot_agent.core.params import RobotGeometry
@@ -160,6 +164,51 @@ def test_saturation_keeps_turn_direction(wr: float, wl: float) -> None:
 def test_reference_point_eq10_11() -> None:
     assert reference_point(1.0, 2.0, 0.0, 0.05) == pytest.approx((1.05, 2.0))
     assert reference_point(1.0, 2.0, math.pi / 2, 0.05) == pytest.approx((1.0, 2.05))
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(x=finite, y=finite, th=angles, l_m=offsets)
+def test_axle_from_reference_point_inverts_eq10_11(
+    x: float, y: float, th: float, l_m: float
+) -> None:
+    xr, yr = reference_point(x, y, th, l_m)
+    ax, ay = axle_from_reference_point(xr, yr, th, l_m)
+    assert ax == pytest.approx(x, abs=1e-9) and ay == pytest.approx(y, abs=1e-9)
+
+
+@settings(max_examples=100, deadline=None, derandomize=True)
+@given(
+    poses=st.lists(st.tuples(finite, finite, angles), min_size=1, max_size=12),
+    l_m=offsets,
+)
+def test_vectorised_reference_points_equal_the_scalar_form(
+    poses: list[tuple[float, float, float]], l_m: float
+) -> None:
+    """formation.outputs.runlog.reference_points (a whole log at once, numpy) is eqs 10-11 as
+    kinematics.reference_point computes them, to an ulp of numpy's cos / sin; a NaN pose gives
+    a NaN point."""
+    truth = np.array([*poses, (math.nan, math.nan, math.nan)], dtype=np.float64)
+    got = reference_points(truth.reshape(1, -1, 3), l_m)[0]
+    assert got.shape == (len(poses) + 1, 2)
+    for (x, y, th), (gx, gy) in zip(poses, got[:-1], strict=True):
+        xr, yr = reference_point(x, y, th, l_m)
+        assert gx == pytest.approx(xr, rel=1e-15, abs=1e-15)
+        assert gy == pytest.approx(yr, rel=1e-15, abs=1e-15)
+    assert np.isnan(got[-1]).all()
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(v=any_float, w=any_float)
+def test_raw_forms_are_the_geometry_forms_bit_for_bit(v: float, w: float) -> None:
+    """The firmware's per-tick forms (the geometry as two numbers) give the same bits as the
+    RobotGeometry forms, NaN, infinities and signed zeros included."""
+    half_track, radius = GEOM.half_track_m, GEOM.wheel_radius_m
+    pairs = (
+        (wheels_from_twist_raw(v, w, half_track, radius), wheels_from_twist(v, w, GEOM)),
+        (twist_from_wheels_raw(v, w, half_track, radius), twist_from_wheels(v, w, GEOM)),
+    )
+    for got, want in pairs:
+        assert [repr(a) for a in got] == [repr(b) for b in want]
 
 
 @settings(max_examples=200, deadline=None, derandomize=True)

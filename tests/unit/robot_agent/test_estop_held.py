@@ -51,7 +51,7 @@ def test_a_release_in_an_agents_answer_is_rejected_and_counted() -> None:
 
     node.on_estop_state(estop_answers(node.faults.reject, payloads, held=True))
     assert node.firmware.status().estop_latched
-    assert node.rejects.by_reason == {"estop_state-inconsistent": 2}
+    assert node.faults.rejects.by_reason == {"estop_state-inconsistent": 2}
 
 
 def test_an_agent_offers_what_it_holds_and_only_on_a_change() -> None:
@@ -95,7 +95,7 @@ def test_an_agent_host_offers_every_engagement_it_saw() -> None:
     ]
     host.estop.on_estop_held([encode(Estop(t=1.0, engage=False, robot=None, id=5))])
     assert all(n.firmware.status().estop_latched for n in host.nodes.values())
-    assert host.rejected == 1
+    assert host.faults.rejected == 1
     for scope in (None, "r1", "r2", "r9"):
         host.estop.on_estop(_msg(False, scope))
     assert _held(offered[-1]) == []
@@ -190,7 +190,7 @@ class _Agent:
         node.on_estop_state(estop_answers(reject, [p for a in others for p in a.answer], held=True))
         after = {(s, i) for s, ids in node.estop.held.items() for i in ids}
         assert before <= after, "a held answer released something"
-        assert not node.rejects.by_reason
+        assert not node.faults.rejects.by_reason
 
 
 @settings(max_examples=300, deadline=None)

@@ -30,9 +30,9 @@ def test_agent_counts_quarantine_drops_and_bad_input_by_reason() -> None:
     node.on_pose(rt.Received(keys.pose_key("demo", "r1"), b"\x01garbage", 102.0))
     other = encode(Pose(t=1.0, seq=1, x=0.0, y=0.0, theta=0.0, robot="r2"))
     node.on_pose(rt.Received(keys.pose_key("demo", "r1"), other, 102.1))
-    counts = node.rejects.as_dict()
+    counts = node.faults.rejects.as_dict()
     assert counts["pose-quarantine"] == 2 and counts["pose-misaddressed"] == 1, counts
-    assert node.rejects.total == 4, counts
+    assert node.faults.rejects.total == 4, counts
     st = node.status_message(102.2)
     assert st.rejected == 4 and st.rejects is not None and sum(st.rejects.values()) == 4
 
@@ -98,3 +98,28 @@ def test_coordinator_counts_heartbeat_refusals_by_reason() -> None:
         rt.Received(keys.estop_key("demo"), encode(Estop(t=1.0, engage=True, robot="r2")), 1.0)
     )
     assert len(node.estop_answer) == 2 and node.status(1.0).estop_robots == ("r2",)
+
+
+def test_faults_count_by_message_and_reason_and_log_rate_limited(capsys: Any) -> None:
+    """runtime.Faults, the one counter every shell owns: ``<message>-<reason>`` keys (a
+    DecodeError's reason, else the given one, else ``invalid``; spaces become ``_``), internal
+    errors apart, one log line per topic however many drops (NodeLog.limited)."""
+    from bus_schemas import DecodeError, Reason, decode
+
+    faults = rt.Faults(rt.NodeLog("test", min_interval_s=3600.0))
+    err = decode(b"\x01garbage", Pose)
+    assert isinstance(err, DecodeError)
+    for _ in range(3):
+        faults.reject("pose", err)
+    faults.reject("host wheels", "no robot")
+    faults.reject("pose", "stale", reason="stale")
+    faults.internal("on_pose", ValueError("boom"))
+    assert faults.rejects.as_dict() == {
+        f"pose-{Reason(err.reason)}": 3,
+        "host_wheels-invalid": 1,
+        "pose-stale": 1,
+    }
+    assert faults.rejected == 5 and faults.internal_errors == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 3, lines  # reject-pose once, reject-host wheels, internal-on_pose
+    assert lines[-1] == "test: internal error in on_pose: ValueError('boom')"
