@@ -20,7 +20,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from coordinator.formation import FormationSpec, slot_states
+from coordinator.formation import (
+    FormationSpec,
+    morphed_slot_rows,
+    slot_states,
+    states_from_rows,
+)
 from coordinator.trajectory import make_trajectory
 from robot_agent.params import CircleObstacle, SegmentObstacle, WorldMap
 
@@ -89,9 +94,17 @@ def slot_path_conflicts(
     worst: dict[tuple[int, str], tuple[float, float]] = {}
     n = math.floor(duration_s / step_s + 1e-9) + 1
     a = world.arena
+    offsets_at = getattr(traj, "slot_offsets", None)  # a planned squeeze (coordinator.planning)
     for k in range(n):
         t = t0_s + k * step_s
-        for s in slot_states(spec, traj.sample(t)):
+        leader = traj.sample(t)
+        offsets = None if offsets_at is None else offsets_at(t)
+        states = (
+            slot_states(spec, leader)
+            if offsets is None
+            else states_from_rows(spec, *morphed_slot_rows(leader, offsets))
+        )
+        for s in states:
             checks: list[tuple[str, float]] = [
                 (f"obstacle[{j}]", _clearance(s.x, s.y, o, radius))
                 for j, o in enumerate(world.obstacles)

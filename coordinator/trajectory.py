@@ -496,11 +496,13 @@ class Waypoints:
 # --------------------------------------------------------------------------------------------
 # Factory for scenario files
 
-_KINDS: dict[str, type[Any]] = {
+_KINDS: dict[str, type[Any] | str] = {
     "line": StraightLine,
     "circle": Circle,
     "figure8": FigureEight,
     "waypoints": Waypoints,
+    # a planned path to a goal (issue 27): imported when used (numpy, scipy, shapely)
+    "plan": "coordinator.planning.trajectory:PlannedTrajectory",
 }
 _ALIASES = {"straight": "line", "figure_eight": "figure8", "lemniscate": "figure8"}
 
@@ -511,7 +513,9 @@ TRAJECTORY_KINDS: tuple[str, ...] = tuple(_KINDS)
 def make_trajectory(kind: str, params: Mapping[str, Any]) -> Trajectory:
     """Build a trajectory from a scenario table.
 
-    ``kind`` is one of ``"line"``, ``"circle"``, ``"figure8"``, ``"waypoints"``; ``params`` holds
+    ``kind`` is one of ``"line"``, ``"circle"``, ``"figure8"``, ``"waypoints"``, ``"plan"``
+    (``coordinator.planning.trajectory``: its table needs the ``context`` that
+    ``scenario.load`` adds); ``params`` holds
     the constructor's keyword arguments (e.g. ``{"x0": 0, "y0": 0, "heading": 0,
     "speed_mps": 0.05}`` for a line). Unknown kinds, unknown or missing parameters and invalid
     values raise ``ValueError``.
@@ -520,6 +524,11 @@ def make_trajectory(kind: str, params: Mapping[str, Any]) -> Trajectory:
         raise ValueError(f"trajectory kind must be a string, got {kind!r}")
     key = _ALIASES.get(kind.strip().lower(), kind.strip().lower())
     cls = _KINDS.get(key)
+    if isinstance(cls, str):
+        import importlib
+
+        module, _, name = cls.partition(":")
+        cls = getattr(importlib.import_module(module), name)
     if cls is None:
         raise ValueError(
             f"unknown trajectory kind {kind!r}; expected one of {', '.join(TRAJECTORY_KINDS)}"

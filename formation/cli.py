@@ -102,6 +102,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "mcap": "sim",
     "foxglove": "sim",
     "cryptography": "sim",
+    "shapely": "sim",
     "cv2": "camera",
     "pupil_apriltags": "camera",
     "serial": "agent",
