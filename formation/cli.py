@@ -26,6 +26,10 @@ from typing import NoReturn
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("formation.sim_cli", "run a scenario in-process (no Zenoh), deterministic, fast"),
+    "check": (
+        "formation.check",
+        "check a scenario before a run: schema, path conflicts, slot feasibility",
+    ),
     "demo": ("formation.demo", "run the paper's experiment 2 and write metrics and figures"),
     "up": ("formation.up", "start router, plant, coordinator and one agent per robot"),
     "router": ("formation.router", "run an embedded Zenoh router"),
@@ -50,6 +54,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 # tests/test_cli_mistakes.py checks every subcommand has one; docs/runtime.md explains them.
 EXAMPLES: dict[str, tuple[str, ...]] = {
     "formation sim": ("formation sim --scenario chevron7 --duration 30 --seed 4",),
+    "formation check": ("formation check corridor", "formation check my-mission.toml --strict"),
     "formation demo": ("formation demo --duration 20 --no-figures",),
     "formation up": (
         "formation up --scenario paper-exp1 --duration 20",
