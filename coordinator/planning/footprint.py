@@ -56,7 +56,7 @@ class Footprint:
         allow_shrink, allow_column: offer the shrink (q <= 1) and the column (q <= 2).
     """
 
-    __slots__ = ("column_m", "n", "nominal_m", "q_max", "s_min", "slot_radius_m", "spacing_m")
+    __slots__ = ("column_gaps_m", "column_m", "n", "nominal_m", "q_max", "s_min", "slot_radius_m", "spacing_m")
 
     def __init__(
         self,
@@ -87,9 +87,12 @@ class Footprint:
         sep = max(min_separation_m, 0.0)
         if math.isfinite(spacing):
             sep = max(sep, min(spacing * self.s_min, spacing))
+        gaps = np.zeros(self.n)
         for rank, i in enumerate(order, start=1):
             col[i, 0] = -rank * sep
+            gaps[i] = rank * sep
         self.column_m = col
+        self.column_gaps_m = gaps
         q_max = 1.0 if self.s_min < 1.0 else 0.0
         self.q_max = 2.0  # provisional, for the check below
         if allow_column and self.n > 2:
@@ -103,12 +106,21 @@ class Footprint:
         self.q_max = q_max
 
     def offsets(self, q: float) -> tuple[FloatArray, FloatArray]:
-        """(offsets (n, 2) in m, their derivative d/dq (n, 2) in m) at morph ``q``."""
-        o, do = self.offsets_many(np.array([q], dtype=np.float64))
+        """(offsets (n, 2) in m, their derivative d/dq (n, 2) in m) at morph ``q``, with the
+        rigid column."""
+        o, do, _ = self.offsets_many(np.array([q], dtype=np.float64))
         return o[0], do[0]
 
-    def offsets_many(self, q: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Vectorised :meth:`offsets`: ``q`` shape (m,) -> two arrays (m, n, 2)."""
+    def offsets_many(
+        self, q: FloatArray, column: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Offsets at each morph value of ``q`` (m,): ``(o, do/dq, w)``, each (m, n, 2).
+
+        ``column`` (m, n, 2): the column's offsets at each sample (the path-following column
+        of a planned path: each slot where the leader was ``column_gaps_m`` earlier, in the
+        leader's frame); None: the rigid column ``column_m``. ``w`` is ``do/dcolumn`` (the
+        column's weight in each component), for the rate of a moving column.
+        """
         qa = np.clip(np.asarray(q, dtype=np.float64), 0.0, self.q_max)
         ss, dss = _smooth(qa)
         s = 1.0 - (1.0 - self.s_min) * ss
@@ -117,22 +129,28 @@ class Footprint:
         lx, dlx = _smooth(2.0 * (qa - 1.0))
         ly, dly = _smooth(2.0 * (qa - 1.5))
         dlx, dly = 2.0 * dlx, 2.0 * dly
-        d, c = self.nominal_m[None, :, :], self.column_m[None, :, :]
+        d = self.nominal_m[None, :, :]
+        c = self.column_m[None, :, :] if column is None else np.asarray(column)
         s3, ds3 = s[:, None], ds[:, None]
         lx3, dlx3, ly3, dly3 = lx[:, None], dlx[:, None], ly[:, None], dly[:, None]
         o = np.empty((len(qa), self.n, 2))
         do = np.empty_like(o)
+        w = np.empty_like(o)
         o[..., 0] = (1.0 - lx3) * s3 * d[..., 0] + lx3 * c[..., 0]
         do[..., 0] = -dlx3 * s3 * d[..., 0] + (1.0 - lx3) * ds3 * d[..., 0] + dlx3 * c[..., 0]
-        o[..., 1] = (1.0 - ly3) * s3 * d[..., 1]
-        do[..., 1] = -dly3 * s3 * d[..., 1] + (1.0 - ly3) * ds3 * d[..., 1]
-        return o, do
+        o[..., 1] = (1.0 - ly3) * s3 * d[..., 1] + ly3 * c[..., 1]
+        do[..., 1] = -dly3 * s3 * d[..., 1] + (1.0 - ly3) * ds3 * d[..., 1] + dly3 * c[..., 1]
+        w[..., 0] = lx3
+        w[..., 1] = ly3
+        return o, do, w
 
-    def slot_points(self, poses: FloatArray, q: FloatArray) -> FloatArray:
+    def slot_points(
+        self, poses: FloatArray, q: FloatArray, column: FloatArray | None = None
+    ) -> FloatArray:
         """World positions (m, n, 2) of every slot for leader poses (m, 3) ``(x, y, theta)`` and
         morph values ``q`` (m,): ``p_i = p_L + R(theta) o_i(q)`` (eqs 3-5)."""
         p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-        o, _ = self.offsets_many(q)
+        o, _, _ = self.offsets_many(q, column)
         c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
         out = np.empty_like(o)
         out[..., 0] = p[:, 0:1] + c * o[..., 0] - s * o[..., 1]
@@ -142,7 +160,7 @@ class Footprint:
     def extent_m(self) -> float:
         """The farthest any slot's disc reaches from the leader in any squeeze (m)."""
         qs = np.linspace(0.0, self.q_max, 21) if self.q_max > 0 else np.zeros(1)
-        o, _ = self.offsets_many(qs)
+        o, _, _ = self.offsets_many(qs)
         return float(np.hypot(o[..., 0], o[..., 1]).max()) + self.slot_radius_m
 
 

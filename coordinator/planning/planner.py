@@ -100,6 +100,28 @@ class PlanResult:
         """Exact ``(x, y, theta, kappa)`` at arc length ``s_m`` (clipped to the path)."""
         return _pose_at(self.pieces, s_m)
 
+    def column_at(self, s_m: float) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+        """The path-following column at arc length ``s_m``: per slot its offset in the
+        leader's frame and the offset's derivative along the path (see :func:`_columns`)."""
+        x, y, th, ka = _pose_at(self.pieces, s_m)
+        c, s = math.cos(th), math.sin(th)
+        total = self.pieces[-1].s0 + self.pieces[-1].length
+        col: list[tuple[float, float]] = []
+        dcol: list[tuple[float, float]] = []
+        for gap in self.footprint.column_gaps_m:
+            sb = s_m - float(gap)
+            xb, yb, thb, _ = _pose_at(self.pieces, sb)
+            if sb < 0.0:
+                xb, yb = xb + sb * math.cos(thb), yb + sb * math.sin(thb)
+            elif sb > total:
+                xb, yb = xb + (sb - total) * math.cos(thb), yb + (sb - total) * math.sin(thb)
+            wx, wy = xb - x, yb - y
+            cx, cy = c * wx + s * wy, -s * wx + c * wy
+            tx, ty = math.cos(thb) - c, math.sin(thb) - s
+            col.append((cx, cy))
+            dcol.append((ka * cy + c * tx + s * ty, -ka * cx - s * tx + c * ty))
+        return col, dcol
+
 
 # -- path geometry: lines joined by arcs -------------------------------------------------------
 
@@ -210,11 +232,49 @@ def _eval(pieces: list[_Piece], s: FloatArray) -> tuple[FloatArray, ...]:
     return x, y, th, ka
 
 
+def _eval_ext(pieces: list[_Piece], s: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(x, y, theta) at arc lengths ``s``, extended by straight lines before the start and after
+    the end (where a column's tail is before the leader has moved)."""
+    total = pieces[-1].s0 + pieces[-1].length
+    x, y, th, _ = _eval(pieces, s)
+    before = s < 0.0
+    after = s > total
+    x = np.where(before, x + s * np.cos(th), x)
+    y = np.where(before, y + s * np.sin(th), y)
+    x = np.where(after, x + (s - total) * np.cos(th), x)
+    y = np.where(after, y + (s - total) * np.sin(th), y)
+    return x, y, th
+
+
+def _columns(
+    pieces: list[_Piece], s: FloatArray, fp: Footprint
+) -> tuple[FloatArray, FloatArray]:
+    """The path-following column at arc lengths ``s`` (m,): each slot where the leader was
+    ``column_gaps_m`` earlier on the path, in the leader's frame, ``(c, dc/ds)`` each (m, n, 2).
+
+    ``c_i = R(theta)^T (p(s - g_i) - p(s))``, so ``dc_i/ds = kappa J^T c_i + R(theta)^T
+    (t(s - g_i) - t(s))`` (``t`` the unit tangent, ``J`` the rotation by +pi/2)."""
+    x, y, th, ka = _eval(pieces, s)
+    cth, sth = np.cos(th), np.sin(th)
+    m, n = len(s), fp.n
+    col = np.zeros((m, n, 2))
+    dcol = np.zeros((m, n, 2))
+    for i in range(1, n):
+        xb, yb, thb = _eval_ext(pieces, s - fp.column_gaps_m[i])
+        wx, wy = xb - x, yb - y
+        cx, cy = cth * wx + sth * wy, -sth * wx + cth * wy
+        tx, ty = np.cos(thb) - cth, np.sin(thb) - sth
+        col[:, i, 0], col[:, i, 1] = cx, cy
+        dcol[:, i, 0] = ka * cy + cth * tx + sth * ty
+        dcol[:, i, 1] = -ka * cx - sth * tx + cth * ty
+    return col, dcol
+
+
 # -- squeeze -----------------------------------------------------------------------------------
 
 
 def _needed_q(
-    world: PlanWorld, fp: Footprint, poses: FloatArray, need_m: float
+    world: PlanWorld, fp: Footprint, poses: FloatArray, col: FloatArray, need_m: float
 ) -> tuple[FloatArray, FloatArray]:
     """Least squeeze (multiple of 0.1, or inf) at which each pose fits; its least clearance."""
     m = len(poses)
@@ -225,7 +285,7 @@ def _needed_q(
     for q in levels:
         if len(todo) == 0:
             break
-        pts = fp.slot_points(poses[todo], np.full(len(todo), q))
+        pts = fp.slot_points(poses[todo], np.full(len(todo), q), col[todo])
         c = world.clearance(pts.reshape(-1, 2), need_m + 1.0).reshape(len(todo), -1).min(axis=1)
         ok = c >= need_m
         q_req[todo[ok]] = q
@@ -235,7 +295,7 @@ def _needed_q(
 
 
 def _feasible(
-    world: PlanWorld, fp: Footprint, poses: FloatArray, q_req: FloatArray
+    world: PlanWorld, fp: Footprint, poses: FloatArray, col: FloatArray, q_req: FloatArray
 ) -> npt.NDArray[np.bool_]:
     """(m, levels) whether the footprint fits at each pose at each squeeze level (exact test;
     only computed near where the formation must squeeze: elsewhere the nominal one fits and
@@ -254,7 +314,7 @@ def _feasible(
         mark[max(0, k - reach) : k + reach + ds] = True
     idx = np.flatnonzero(mark)
     for li, q in enumerate(levels):
-        pts = fp.slot_points(poses[idx], np.full(len(idx), q))
+        pts = fp.slot_points(poses[idx], np.full(len(idx), q), col[idx])
         c = world.clearance(pts.reshape(-1, 2), fp.slot_radius_m + 1.0)
         feas[idx, li] = c.reshape(len(idx), -1).min(axis=1) >= fp.slot_radius_m
     return feas
@@ -304,7 +364,13 @@ def _squeeze_dp(feas: npt.NDArray[np.bool_], stride: int) -> FloatArray | None:
 
 
 def _fit_squeeze(
-    world: PlanWorld, fp: Footprint, poses: FloatArray, q_req: FloatArray, ds: float
+    world: PlanWorld,
+    fp: Footprint,
+    poses: FloatArray,
+    col: FloatArray,
+    q_req: FloatArray,
+    ds: float,
+    min_pair_m: float,
 ) -> tuple[FloatArray, FloatArray]:
     """The squeeze profile (at each pose) and each pose's least clearance: the least squeeze
     through the feasible levels (dynamic programming, at most one level of 0.1 per
@@ -313,10 +379,10 @@ def _fit_squeeze(
     need = fp.slot_radius_m
     if not np.any(q_req > 0.0):
         q0 = np.zeros(len(poses))
-        pts = fp.slot_points(poses, q0)
+        pts = fp.slot_points(poses, q0, col)
         c = world.clearance(pts.reshape(-1, 2), need + 1.0).reshape(len(q0), -1).min(axis=1)
         return q0, c
-    feas = _feasible(world, fp, poses, q_req)
+    feas = _feasible(world, fp, poses, col, q_req)
     stride = max(1, round(_Q_STEP * SQUEEZE_RAMP_M / ds))
     q_lin = _squeeze_dp(feas, stride)
     if q_lin is None:
@@ -324,11 +390,22 @@ def _fit_squeeze(
     w = max(1, round(SQUEEZE_SMOOTH_M / ds))
     q_smooth = uniform_filter1d(uniform_filter1d(q_lin, size=w, mode="nearest"), w, mode="nearest")
     for q in (np.clip(q_smooth, 0.0, fp.q_max), q_lin):
-        pts = fp.slot_points(poses, q)
+        pts = fp.slot_points(poses, q, col)
         c = world.clearance(pts.reshape(-1, 2), need + 1.0).reshape(len(q), -1).min(axis=1)
-        if np.all(c >= need):
+        if np.all(c >= need) and _min_pair(pts) >= min_pair_m:
             return q, c
     raise NoPlan("the formation cannot squeeze in time for a passage on the route")
+
+
+def _min_pair(pts: FloatArray) -> float:
+    """Least distance (m) between two slots at any sample of ``pts`` (m, n, 2)."""
+    n = pts.shape[1]
+    if n < 2:
+        return math.inf
+    diff = pts[:, :, None, :] - pts[:, None, :, :]
+    dist = np.hypot(diff[..., 0], diff[..., 1])
+    iu = np.triu_indices(n, 1)
+    return float(dist[:, iu[0], iu[1]].min())
 
 
 # -- timing ------------------------------------------------------------------------------------
@@ -339,16 +416,19 @@ def _speed_profile(
     theta: FloatArray,
     kappa: FloatArray,
     q: FloatArray,
+    col: FloatArray,
+    dcol: FloatArray,
     ds: float,
     cruise_mps: float,
     lim: SlotLimits,
 ) -> FloatArray:
     """Leader speed at each sample, every slot within ``lim`` (module docstring, step 4)."""
     dq = np.gradient(q, ds) if len(q) > 1 else np.zeros_like(q)
-    o, do = fp.offsets_many(q)  # (m, n, 2) body frame
-    # g_i in the body frame: (1, 0) + kappa J o_i + o_i' q'  (rotation does not change norms)
-    gx = 1.0 - kappa[:, None] * o[..., 1] + do[..., 0] * dq[:, None]
-    gy = kappa[:, None] * o[..., 0] + do[..., 1] * dq[:, None]
+    o, do, w = fp.offsets_many(q, col)  # (m, n, 2) body frame
+    rate = do * dq[:, None, None] + w * dcol  # do/ds: the squeeze and the moving column
+    # g_i in the body frame: (1, 0) + kappa J o_i + do_i/ds  (rotation does not change norms)
+    gx = 1.0 - kappa[:, None] * o[..., 1] + rate[..., 0]
+    gy = kappa[:, None] * o[..., 0] + rate[..., 1]
     # world frame, for the derivative along s
     c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
     wx, wy = c * gx - s * gy, s * gx + c * gy
@@ -395,7 +475,8 @@ def _verify(
     s = np.linspace(0.0, total, n)
     x, y, th, _ = _eval(pieces, s)
     poses = np.stack([x, y, th], axis=1)
-    q_req, clear = _needed_q(world, fp, poses, fp.slot_radius_m)
+    col, _ = _columns(pieces, s, fp)
+    q_req, clear = _needed_q(world, fp, poses, col, fp.slot_radius_m)
     bad = ~np.isfinite(q_req)
     if bad.any():
         # the corner nearest the first failing sample
@@ -404,7 +485,7 @@ def _verify(
             return -1
         k = min(range(1, len(pts) - 1), key=lambda c: math.hypot(pts[c][0] - xb, pts[c][1] - yb))
         return k - 1
-    return pieces, s, poses, q_req, clear, np.array([total])
+    return pieces, s, poses, col, q_req, np.array([total])
 
 
 def plan(
@@ -417,6 +498,7 @@ def plan(
     goal_heading: float | None = None,
     cruise_mps: float,
     limits: SlotLimits,
+    min_pair_m: float = 0.0,
 ) -> PlanResult:
     """Plan the virtual leader from ``start`` ``(x, y, theta)`` through ``via`` to ``goal``
     (module docstring). Raises :class:`NoPlan` (clean, with the reason) when there is none."""
@@ -471,12 +553,14 @@ def plan(
             break
     if result is None:
         raise NoPlan("no smooth path was found along the route (the passages are too tight)")
-    pts, (pieces, s_v, _poses_v, q_req, clear_v, total_a) = result
+    pts, (pieces, s_v, _poses_v, col_v, q_req, total_a) = result
     total = float(total_a[0])
     # squeeze profile on the verify grid, then re-verify at the final q: where the smoothed q
     # passes through a squeeze that does not fit (the column's tail is longer than the
     # triangle), ask for the next squeeze up that does fit there and widen again
-    q_v, c_f = _fit_squeeze(world, fp, _poses_v, q_req, float(s_v[1] - s_v[0]))
+    q_v, c_f = _fit_squeeze(
+        world, fp, _poses_v, col_v, q_req, float(s_v[1] - s_v[0]), min_pair_m
+    )
     # timing on a finer grid
     n_t = max(2, math.ceil(total / TIME_DS_M) + 1)
     s_t = np.linspace(0.0, total, n_t)
@@ -484,7 +568,8 @@ def plan(
     x, y, th, ka = _eval(pieces, s_t)
     th = np.unwrap(th)
     q_t = np.interp(s_t, s_v, q_v)
-    v = _speed_profile(fp, th, ka, q_t, ds, cruise_mps, limits)
+    col_t, dcol_t = _columns(pieces, s_t, fp)
+    v = _speed_profile(fp, th, ka, q_t, col_t, dcol_t, ds, cruise_mps, limits)
     t = _times(v, ds)
     straight = sum(
         math.hypot(b[0] - a[0], b[1] - a[1])

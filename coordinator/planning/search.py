@@ -220,6 +220,12 @@ def _graph(grid: Grid, fp: Footprint) -> tuple[sp.csr_matrix, BoolArray]:
     return g, free
 
 
+def _heading_index(theta: float) -> int:
+    """The lattice heading nearest ``theta`` (rad)."""
+    d = np.abs(np.remainder(_HEADINGS - theta + math.pi, 2.0 * math.pi) - math.pi)
+    return int(np.argmin(d))
+
+
 def route(
     grid: Grid,
     fp: Footprint,

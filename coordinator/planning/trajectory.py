@@ -120,6 +120,7 @@ def plan_from_context(p: Mapping[str, Any]) -> PlanResult:
             goal_heading=p["goal_heading"],
             cruise_mps=float(p["speed_mps"]),
             limits=limits,
+            min_pair_m=float(ctx["safety_distance_m"]),
         )
     except NoPlan as exc:
         raise NoPlan(f"trajectory.goal: no plan: {exc}") from None
@@ -143,6 +144,11 @@ class PlannedTrajectory:
     result: PlanResult = field(init=False, repr=False, compare=False)
     _t: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _morph: bool = field(init=False, repr=False, compare=False)
+    _q: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _v: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _s: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _nominal: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
+    _zeros: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         goal = _pair("goal", self.goal)
@@ -181,6 +187,12 @@ class PlannedTrajectory:
         object.__setattr__(self, "result", result)
         object.__setattr__(self, "_t", tuple(float(v) for v in result.t_s))
         object.__setattr__(self, "_morph", bool(np.any(result.q > 0.0)))
+        object.__setattr__(self, "_q", tuple(float(v) for v in result.q))
+        object.__setattr__(self, "_v", tuple(float(v) for v in result.v_mps))
+        object.__setattr__(self, "_s", tuple(float(v) for v in result.s_m))
+        fp = result.footprint
+        object.__setattr__(self, "_nominal", tuple((float(a), float(b)) for a, b in fp.nominal_m))
+        object.__setattr__(self, "_zeros", tuple((0.0, 0.0) for _ in range(fp.n)))
         object.__setattr__(self, "t_start_s", t0)
 
     @property
@@ -190,20 +202,19 @@ class PlannedTrajectory:
 
     def _where(self, t_s: float) -> tuple[float, float, int, float]:
         """(arc length s_m, speed v_mps, sample index k, position u in [k, k+1]) at ``t_s``."""
-        r = self.result
         tau = t_s - self.t_start_s
         if tau <= 0.0:
             return 0.0, 0.0, 0, 0.0
         if tau >= self._t[-1]:
-            return float(r.s_m[-1]), 0.0, len(self._t) - 2, 1.0
+            return self._s[-1], 0.0, len(self._t) - 2, 1.0
         k = bisect.bisect_right(self._t, tau) - 1
         dt = self._t[k + 1] - self._t[k]
-        v0, v1 = float(r.v_mps[k]), float(r.v_mps[k + 1])
+        v0, v1 = self._v[k], self._v[k + 1]
         a = (v1 - v0) / dt
         u = tau - self._t[k]
-        ds = float(r.s_m[k + 1] - r.s_m[k])
+        ds = self._s[k + 1] - self._s[k]
         s_in = min(v0 * u + 0.5 * a * u * u, ds)
-        return float(r.s_m[k]) + s_in, v0 + a * u, k, s_in / ds if ds > 0 else 0.0
+        return self._s[k] + s_in, v0 + a * u, k, s_in / ds if ds > 0 else 0.0
 
     def sample(self, t_s: float) -> LeaderState:
         """Leader state at ``t_s`` (s): eqs 1-2 along the planned path."""
@@ -222,13 +233,32 @@ class PlannedTrajectory:
             return None
         r = self.result
         s, v, k, u = self._where(float(t_s))
-        q0, q1 = float(r.q[k]), float(r.q[k + 1])
+        q0, q1 = self._q[k], self._q[k + 1]
+        if q0 == 0.0 and q1 == 0.0:
+            return None  # not squeezed here: the rigid formation (its exact arithmetic)
         q = q0 + (q1 - q0) * u
-        ds = float(r.s_m[k + 1] - r.s_m[k])
+        ds = self._s[k + 1] - self._s[k]
         dq_ds = (q1 - q0) / ds if ds > 0 else 0.0
-        o, do = r.footprint.offsets(q)
-        rate = dq_ds * v
-        return tuple(
-            (float(o[i, 0]), float(o[i, 1]), float(do[i, 0]) * rate, float(do[i, 1]) * rate)
-            for i in range(len(o))
-        )
+        fp = r.footprint
+        # the squeeze of Footprint.offsets_many in plain floats (the per-tick path)
+        qa = min(max(q, 0.0), fp.q_max)
+        u1 = min(max(qa, 0.0), 1.0)
+        sc = 1.0 - (1.0 - fp.s_min) * u1 * u1 * (3.0 - 2.0 * u1)
+        dsc = -(1.0 - fp.s_min) * 6.0 * u1 * (1.0 - u1)
+        ux = min(max(2.0 * (qa - 1.0), 0.0), 1.0)
+        uy = min(max(2.0 * (qa - 1.5), 0.0), 1.0)
+        lx, dlx = ux * ux * (3.0 - 2.0 * ux), 12.0 * ux * (1.0 - ux)
+        ly, dly = uy * uy * (3.0 - 2.0 * uy), 12.0 * uy * (1.0 - uy)
+        if lx > 0.0 or ly > 0.0 or dlx > 0.0 or dly > 0.0:
+            col, dcol = r.column_at(s)
+        else:
+            col = dcol = self._zeros
+        out = []
+        for (dx, dy), (cx, cy), (gx, gy) in zip(self._nominal, col, dcol, strict=True):
+            ox = (1.0 - lx) * sc * dx + lx * cx
+            oy = (1.0 - ly) * sc * dy + ly * cy
+            dox = -dlx * sc * dx + (1.0 - lx) * dsc * dx + dlx * cx
+            doy = -dly * sc * dy + (1.0 - ly) * dsc * dy + dly * cy
+            # d/dt: the squeeze's rate and the column moving along the path
+            out.append((ox, oy, (dox * dq_ds + lx * gx) * v, (doy * dq_ds + ly * gy) * v))
+        return tuple(out)
