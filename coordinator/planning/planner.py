@@ -421,8 +421,12 @@ def _speed_profile(
     ds: float,
     cruise_mps: float,
     lim: SlotLimits,
-) -> FloatArray:
-    """Leader speed at each sample, every slot within ``lim`` (module docstring, step 4)."""
+    accel_share: float = 0.4,
+) -> tuple[FloatArray, FloatArray]:
+    """Leader speed at each sample, every slot within ``lim`` (module docstring, step 4), and
+    every slot's velocity per unit leader speed in the world frame (m, n, 2).
+    ``accel_share``: the share of the acceleration limit given to each of the leader's own
+    acceleration and the slots' turning."""
     dq = np.gradient(q, ds) if len(q) > 1 else np.zeros_like(q)
     o, do, w = fp.offsets_many(q, col)  # (m, n, 2) body frame
     rate = do * dq[:, None, None] + w * dcol  # do/ds: the squeeze and the moving column
@@ -443,15 +447,40 @@ def _speed_profile(
     v = np.minimum(v, lim.speed_mps / np.maximum(gmax, 1e-9))
     v = np.minimum(v, lim.turn_radps / np.maximum(np.abs(kappa), 1e-9))
     v = np.minimum(v, lim.turn_radps / np.maximum(dpsi.max(axis=1), 1e-9))
-    v = np.minimum(v, np.sqrt(0.5 * lim.accel_mps2 / np.maximum(dg.max(axis=1), 1e-9)))
-    a_lead = 0.5 * lim.accel_mps2 / np.maximum(gmax, 1.0)
+    v = np.minimum(v, np.sqrt(accel_share * lim.accel_mps2 / np.maximum(dg.max(axis=1), 1e-9)))
+    a_lead = accel_share * lim.accel_mps2 / np.maximum(gmax, 1.0)
     v[0] = 0.0
     v[-1] = 0.0
     for k in range(1, len(v)):
         v[k] = min(v[k], math.sqrt(v[k - 1] ** 2 + 2.0 * a_lead[k - 1] * ds))
     for k in range(len(v) - 2, -1, -1):
         v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + 2.0 * a_lead[k] * ds))
-    return v
+    return v, np.stack([wx, wy], axis=-1)
+
+
+def _within_limits(
+    s: FloatArray, v: FloatArray, t: FloatArray, g: FloatArray, lim: SlotLimits
+) -> bool:
+    """Every slot's speed and acceleration (over ``feasibility.ACCEL_WINDOW_S``, as the
+    feasibility check measures it) within ``lim`` on a 0.05 s grid, with 5 % to spare."""
+    from .feasibility import ACCEL_WINDOW_S
+
+    step = 0.05
+    tu = np.arange(0.0, float(t[-1]) + step, step)
+    su = np.interp(tu, t, s)
+    vu = np.interp(tu, t, v)
+    n = g.shape[1]
+    vel = np.empty((len(tu), n, 2))
+    for i in range(n):
+        vel[:, i, 0] = vu * np.interp(su, s, g[:, i, 0])
+        vel[:, i, 1] = vu * np.interp(su, s, g[:, i, 1])
+    if np.hypot(vel[..., 0], vel[..., 1]).max() > 0.95 * lim.speed_mps:
+        return False
+    w = max(1, round(ACCEL_WINDOW_S / step))
+    if len(tu) <= w:
+        return True
+    dv = vel[w:] - vel[:-w]
+    return bool(np.hypot(dv[..., 0], dv[..., 1]).max() / (w * step) <= 0.95 * lim.accel_mps2)
 
 
 def _times(v: FloatArray, ds: float) -> FloatArray:
@@ -515,6 +544,17 @@ def plan(
                 "inside an obstacle"
             )
             raise NoPlan(f"{name} {pts_in[names.index(name)]} is {where}")
+    # leave along the start heading (the robots start in formation at that heading): a first
+    # straight departure, when there is room for it
+    for ahead in (0.4, 0.2):
+        p = (sx + ahead * math.cos(sth), sy + ahead * math.sin(sth))
+        if (
+            math.hypot(pts_in[1][0] - sx, pts_in[1][1] - sy) > 2.0 * ahead
+            and world.clearance(np.array([p]), need + 1.0)[0] >= need
+        ):
+            pts_in.insert(1, p)
+            names.insert(1, "start departure")
+            break
     if goal_heading is not None:
         # arrive along goal_heading: a last straight approach to the goal
         gx, gy = pts_in[-1]
@@ -537,7 +577,8 @@ def plan(
     for leg in legs:
         raw.extend(_collinear_free(leg)[1:])
     result = None
-    for pts in (short, raw):
+    keep = set(pts_in)
+    for pts in (_drop_short(short, keep, 2.5 * grid.res_m), raw):
         pts = _drop_close(pts)
         radii = [CORNER_RADIUS_M] * max(0, len(pts) - 2)
         for _ in range(12):
@@ -569,8 +610,15 @@ def plan(
     th = np.unwrap(th)
     q_t = np.interp(s_t, s_v, q_v)
     col_t, dcol_t = _columns(pieces, s_t, fp)
-    v = _speed_profile(fp, th, ka, q_t, col_t, dcol_t, ds, cruise_mps, limits)
-    t = _times(v, ds)
+    share = 0.4
+    for _ in range(8):  # tighten the acceleration budget until the slots' check passes
+        v, g = _speed_profile(fp, th, ka, q_t, col_t, dcol_t, ds, cruise_mps, limits, share)
+        t = _times(v, ds)
+        if _within_limits(s_t, v, t, g, limits):
+            break
+        share *= 0.7
+    else:
+        raise NoPlan("no speed profile keeps every slot within the robots' limits")
     straight = sum(
         math.hypot(b[0] - a[0], b[1] - a[1])
         for a, b in zip(pts_in[:-1], pts_in[1:], strict=True)
@@ -599,6 +647,26 @@ def _drop_close(pts: list[tuple[float, float]]) -> list[tuple[float, float]]:
             out.append(p)
     if len(out) == 1:
         raise NoPlan("the path has zero length (the goal is the start)")
+    return out
+
+
+def _drop_short(
+    pts: list[tuple[float, float]], keep: set[tuple[float, float]], min_m: float
+) -> list[tuple[float, float]]:
+    """``pts`` without the interior points (not in ``keep``) closer than ``min_m`` to the
+    previous point or to a kept one after them: grid-sized jogs that would make tight corners
+    (the result is verified like any path)."""
+    out = [pts[0]]
+    for k in range(1, len(pts) - 1):
+        p = pts[k]
+        nxt = pts[k + 1]
+        if p not in keep and (
+            math.hypot(p[0] - out[-1][0], p[1] - out[-1][1]) < min_m
+            or (nxt in keep and math.hypot(nxt[0] - p[0], nxt[1] - p[1]) < min_m)
+        ):
+            continue
+        out.append(p)
+    out.append(pts[-1])
     return out
 
 

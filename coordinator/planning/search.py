@@ -271,7 +271,7 @@ def route(
             s = int(pred[s])
         chain.reverse()
         poly = [a]
-        for st in chain[1:]:
+        for st in chain[1:-1]:  # the last cell's centre is b's cell: b itself ends the leg
             rem = st % (nx * ny)
             i, j = divmod(rem, ny)
             poly.append(grid.centre(i, j))
