@@ -510,6 +510,17 @@ TRAJECTORY_KINDS: tuple[str, ...] = tuple(_KINDS)
 """Kinds accepted by :func:`make_trajectory`."""
 
 
+def trajectory_class(kind: str) -> type[Any]:
+    """The class of trajectory ``kind`` (a key of the kinds table; a lazy entry is imported)."""
+    cls = _KINDS[kind]
+    if isinstance(cls, str):
+        import importlib
+
+        module, _, name = cls.partition(":")
+        cls = _KINDS[kind] = getattr(importlib.import_module(module), name)
+    return cls
+
+
 def make_trajectory(kind: str, params: Mapping[str, Any]) -> Trajectory:
     """Build a trajectory from a scenario table.
 
@@ -523,12 +534,7 @@ def make_trajectory(kind: str, params: Mapping[str, Any]) -> Trajectory:
     if not isinstance(kind, str):
         raise ValueError(f"trajectory kind must be a string, got {kind!r}")
     key = _ALIASES.get(kind.strip().lower(), kind.strip().lower())
-    cls = _KINDS.get(key)
-    if isinstance(cls, str):
-        import importlib
-
-        module, _, name = cls.partition(":")
-        cls = getattr(importlib.import_module(module), name)
+    cls = trajectory_class(key) if key in _KINDS else None
     if cls is None:
         raise ValueError(
             f"unknown trajectory kind {kind!r}; expected one of {', '.join(TRAJECTORY_KINDS)}"

@@ -251,7 +251,11 @@ def test_every_subcommand_is_in_the_readme_table() -> None:
 def test_every_scenario_key_is_in_docs_scenarios() -> None:
     """The keys scenario/load.py and the cores accept are all named in docs/scenarios.md."""
     from coordinator.formation import FORMATION_KINDS
-    from coordinator.trajectory import _KINDS, TRAJECTORY_KINDS
+    from coordinator.trajectory import (
+        _KINDS,
+        TRAJECTORY_KINDS,
+        trajectory_class as make_trajectory_class,
+    )
     from robot_agent.params import (
         Arena,
         CircleObstacle,
@@ -269,7 +273,8 @@ def test_every_scenario_key_is_in_docs_scenarios() -> None:
     names: set[str] = set(TOP_KEYS) | set(FORMATION_KINDS) | set(TRAJECTORY_KINDS)
     for cls in (RobotGeometry, TrackingGains, RepulsionParams, SafetyParams, EstimatorParams,
                 SafetyFilterParams, CircleObstacle, SegmentObstacle, Arena,
-                PlantModel, CameraModel, LinkModel, Disturbance, *_KINDS.values()):  # fmt: skip
+                PlantModel, CameraModel, LinkModel, Disturbance,
+                *(make_trajectory_class(k) for k in _KINDS)):  # fmt: skip
         names |= {f.name for f in dataclasses.fields(cls) if f.init}
     names |= {"ids", "count", "initial", "method", "greedy", "optimal", "sparse", "n", "slots"}
     names |= {"drag", "teleport", "camera_loss", "phi", "b_m", "parent", "phi_rad"}

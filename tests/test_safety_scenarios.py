@@ -103,8 +103,18 @@ def test_corridor_scenario_survives_the_toml_round_trip(tmp_path: Path) -> None:
 # ------------------------------------------------------------------------- path check
 
 
+SCRIPTED_LINE = {"kind": "line", "x0": 0.05, "y0": 0.0, "heading": 0.0, "speed_mps": 0.05}
+
+
+def scripted_corridor() -> scenario_mod.Scenario:
+    """The corridor with a scripted leader (the straight line it had before it planned, issue
+    27): the pillar stands in slot 1's path, so the second layer (the robots' safety filter)
+    alone keeps the robot clear; what these tests are about."""
+    return dataclasses.replace(scenario_mod.load("corridor"), trajectory=dict(SCRIPTED_LINE))
+
+
 def test_path_check_finds_the_pillar_in_slot_1s_path_and_nothing_else() -> None:
-    scn = scenario_mod.load("corridor")
+    scn = scripted_corridor()
     conflicts = path_conflicts(scn)
     assert [(c.slot, c.what) for c in conflicts] == [(1, "obstacle[2]")]
     c = conflicts[0]
@@ -137,7 +147,7 @@ def test_path_check_sees_the_arena_edge_and_segments() -> None:
 def test_coordinator_node_warns_once_about_the_pillar(capsys: pytest.CaptureFixture[str]) -> None:
     from coordinator.node import CoordinatorNode
 
-    node = CoordinatorNode(scenario_mod.load("corridor"), "c1", "demo", lambda *a, **k: None)
+    node = CoordinatorNode(scripted_corridor(), "c1", "demo", lambda *a, **k: None)
     assert len(node.path_warnings) == 1
     err = capsys.readouterr().err
     assert err.count("warning: slot 1's path crosses obstacle[2]") == 1
@@ -198,7 +208,7 @@ EXACT = {"camera": {"pos_std_m": 0.0, "theta_std_rad": 0.0, "latency_s": 0.0},
 
 
 def _corridor(exact: bool) -> scenario_mod.Scenario:
-    scn = scenario_mod.load("corridor")
+    scn = dataclasses.replace(scripted_corridor(), duration_s=70.0)
     if exact:
         scn = dataclasses.replace(
             scn,
