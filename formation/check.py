@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from runtime.args import non_negative_int, positive_float
+
 __all__ = ["main"]
 
 
@@ -23,9 +25,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("scenario", help="built-in scenario name or path to a .toml file")
     p.add_argument(
-        "--duration", type=float, default=None, help="seconds to check (default: the scenario's)"
+        "--duration",
+        type=positive_float,
+        default=None,
+        help="seconds to check (default: the scenario's)",
     )
-    p.add_argument("--robots", type=int, default=None, help="resize the fleet to N slots")
+    p.add_argument(
+        "--robots", type=non_negative_int, default=None, help="resize the fleet to N slots"
+    )
     p.add_argument("--strict", action="store_true", help="exit 1 when there is a warning")
     return p
 
@@ -44,9 +51,6 @@ def main(argv: list[str]) -> int:
         check_cores(scn)
     except scenario_mod.ScenarioError as exc:
         print(f"formation check: {exc}", file=sys.stderr)
-        return 2
-    if args.duration is not None and not args.duration > 0.0:
-        print("formation check: error: --duration must be > 0", file=sys.stderr)
         return 2
     warnings = preflight_warnings(scn, args.duration)
     for w in warnings:

@@ -110,7 +110,8 @@ def scripted_corridor() -> scenario_mod.Scenario:
     """The corridor with a scripted leader (the straight line it had before it planned, issue
     27): the pillar stands in slot 1's path, so the second layer (the robots' safety filter)
     alone keeps the robot clear; what these tests are about."""
-    return dataclasses.replace(scenario_mod.load("corridor"), trajectory=dict(SCRIPTED_LINE))
+    scn = scenario_mod.load("corridor")
+    return dataclasses.replace(scn, trajectory=dict(SCRIPTED_LINE), duration_s=70.0)
 
 
 def test_path_check_finds_the_pillar_in_slot_1s_path_and_nothing_else() -> None:
@@ -208,7 +209,7 @@ EXACT = {"camera": {"pos_std_m": 0.0, "theta_std_rad": 0.0, "latency_s": 0.0},
 
 
 def _corridor(exact: bool) -> scenario_mod.Scenario:
-    scn = dataclasses.replace(scripted_corridor(), duration_s=70.0)
+    scn = scripted_corridor()
     if exact:
         scn = dataclasses.replace(
             scn,

@@ -49,7 +49,7 @@ FloatArray = npt.NDArray[np.float64]
 CORNER_RADIUS_M: Final = 0.3
 """Largest corner arc radius (m)."""
 MIN_CORNER_RADIUS_M: Final = 0.01
-VERIFY_DS_M: Final = 0.02
+VERIFY_DS_M: Final = 0.03
 """Arc-length step (m) of the exact footprint test."""
 TIME_DS_M: Final = 0.005
 """Arc-length step (m) of the speed profile."""
@@ -276,7 +276,8 @@ def _columns(
 def _needed_q(
     world: PlanWorld, fp: Footprint, poses: FloatArray, col: FloatArray, need_m: float
 ) -> tuple[FloatArray, FloatArray]:
-    """Least squeeze (multiple of 0.1, or inf) at which each pose fits; its least clearance."""
+    """Least squeeze (a multiple of ``_Q_STEP``, or inf) at which each pose fits; its least
+    clearance."""
     m = len(poses)
     q_req = np.full(m, np.inf)
     clear = np.full(m, -np.inf)
@@ -307,11 +308,11 @@ def _feasible(
     near = np.flatnonzero(q_req > 0.0)
     if len(near) == 0:
         return feas
-    ds = 1  # samples: every pose within the reach of a squeeze ramp of a squeezed one
-    reach = math.ceil(2.5 * SQUEEZE_RAMP_M * fp.q_max / VERIFY_DS_M) + 2
+    # every pose within one full ramp (0 to q_max) of a squeezed one: q > 0 nowhere else
+    reach = math.ceil(1.1 * SQUEEZE_RAMP_M * fp.q_max / VERIFY_DS_M) + 2
     mark = np.zeros(m, dtype=bool)
     for k in near:
-        mark[max(0, k - reach) : k + reach + ds] = True
+        mark[max(0, k - reach) : k + reach + 1] = True
     idx = np.flatnonzero(mark)
     for li, q in enumerate(levels):
         pts = fp.slot_points(poses[idx], np.full(len(idx), q), col[idx])
@@ -373,8 +374,8 @@ def _fit_squeeze(
     min_pair_m: float,
 ) -> tuple[FloatArray, FloatArray]:
     """The squeeze profile (at each pose) and each pose's least clearance: the least squeeze
-    through the feasible levels (dynamic programming, at most one level of 0.1 per
-    ``SQUEEZE_RAMP_M / 10`` of travel), smoothed by two moving averages of
+    through the feasible levels (dynamic programming, at most one level of ``_Q_STEP`` per
+    ``SQUEEZE_RAMP_M * _Q_STEP`` of travel), smoothed by two moving averages of
     ``SQUEEZE_SMOOTH_M`` when that still fits, then tested exactly."""
     need = fp.slot_radius_m
     if not np.any(q_req > 0.0):
@@ -565,7 +566,7 @@ def plan(
                 names.insert(len(names) - 1, "goal approach")
                 break
     grid = make_grid(world, fp, need, pts_in)
-    legs = route(grid, fp, pts_in, goal_heading)
+    legs = route(grid, fp, pts_in, goal_heading, names)
     # shortcut each leg (the via points stay); fall back to the raw grid path
     h_prev: float | None = None  # the trajectory starts on its first segment's heading
     short: list[tuple[float, float]] = [pts_in[0]]

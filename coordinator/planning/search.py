@@ -27,6 +27,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
+from scipy.ndimage import distance_transform_edt
 from scipy.sparse.csgraph import dijkstra
 
 from .footprint import Footprint
@@ -37,7 +38,7 @@ __all__ = ["MAX_CELLS", "Grid", "NoPlan", "route"]
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-MAX_CELLS: Final = 40_000
+MAX_CELLS: Final = 25_000
 """Most grid cells of one search; a larger area gets coarser cells (never more work)."""
 MIN_CELL_M: Final = 0.03
 """Finest grid cell (m)."""
@@ -188,12 +189,11 @@ def _shift_bool(a: BoolArray, di: int, dj: int) -> BoolArray:
     return out
 
 
-def _graph(grid: Grid, fp: Footprint) -> tuple[sp.csr_matrix, BoolArray]:
-    lvl = _level_masks(grid, fp)
-    n_levels = len(_levels(fp))
-    free = lvl < n_levels
+def _graph(lvl: npt.NDArray[np.int8], n_levels: int, res_m: float, band: BoolArray) -> sp.csr_matrix:
+    """The heading lattice (module docstring) on the cells of ``band``."""
+    free = (lvl < n_levels) & band[None, :, :]
     lvl_f = lvl.astype(np.float64)
-    nx, ny = grid.nx, grid.ny
+    _, nx, ny = lvl.shape
     n_states = N_HEAD * nx * ny
     idx = np.arange(n_states, dtype=np.int64).reshape(N_HEAD, nx, ny)
     rows: list[npt.NDArray[np.int64]] = []
@@ -203,7 +203,7 @@ def _graph(grid: Grid, fp: Footprint) -> tuple[sp.csr_matrix, BoolArray]:
         for turn in (-1, 0, 1):
             k2 = (k + turn) % N_HEAD
             di, dj = (int(v) for v in _DIRS[k2])
-            step = grid.res_m * math.hypot(di, dj)
+            step = res_m * math.hypot(di, dj)
             ok = free[k] & free[k2] & _move_ok(free[k2], di, dj)
             src = idx[k][ok]
             ii, jj = np.nonzero(ok)
@@ -216,8 +216,45 @@ def _graph(grid: Grid, fp: Footprint) -> tuple[sp.csr_matrix, BoolArray]:
     r = np.concatenate(rows)
     c = np.concatenate(cols)
     w = np.concatenate(costs)
-    g = sp.csr_matrix((w, (r, c)), shape=(n_states, n_states))
-    return g, free
+    return sp.csr_matrix((w, (r, c)), shape=(n_states, n_states))
+
+
+def _cell_route(
+    free_any: BoolArray, res_m: float, ca: tuple[int, int], cb: tuple[int, int]
+) -> list[tuple[int, int]] | None:
+    """The shortest 8-connected route of cells from ``ca`` to ``cb`` through cells where the
+    footprint fits in some heading (a cheap first pass that bounds the lattice search)."""
+    nx, ny = free_any.shape
+    idx = np.arange(nx * ny, dtype=np.int64).reshape(nx, ny)
+    rows, cols, costs = [], [], []
+    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        ok = free_any & _shift_bool(free_any, di, dj)
+        ii, jj = np.nonzero(ok)
+        a_, b_ = idx[ii, jj], idx[ii + di, jj + dj]
+        w = np.full(len(a_), res_m * math.hypot(di, dj))
+        rows += [a_, b_]
+        cols += [b_, a_]
+        costs += [w, w]
+    g = sp.csr_matrix(
+        (np.concatenate(costs), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(nx * ny, nx * ny),
+    )
+    src, dst = int(idx[ca]), int(idx[cb])
+    dist, pred = dijkstra(g, directed=True, indices=src, return_predecessors=True)
+    if not math.isfinite(dist[dst]):
+        return None
+    out: list[tuple[int, int]] = []
+    s = dst
+    while s >= 0:
+        i, j = divmod(int(s), ny)
+        out.append((i, j))
+        s = int(pred[s])
+    return out[::-1]
+
+
+BANDS_M: Final = (0.8, 2.0, math.inf)
+"""Widths (m, each side) of the band round the cell route in which the lattice is searched,
+tried in turn: the narrow band almost always holds the answer; inf is the whole map."""
 
 
 def _heading_index(theta: float) -> int:
@@ -231,12 +268,21 @@ def route(
     fp: Footprint,
     points: list[tuple[float, float]],
     goal_heading: float | None,
+    names: list[str],
 ) -> list[list[tuple[float, float]]]:
     """Polylines of leader positions, one per leg between consecutive ``points`` (start,
-    via..., goal), along which the footprint fits (grid test); raises :class:`NoPlan`."""
-    graph, free8 = _graph(grid, fp)
+    via..., goal; ``names`` name them in messages), along which the footprint fits (grid
+    test); raises :class:`NoPlan`.
+
+    Each leg first finds a route of cells (8-connected, footprint fits in some heading), then
+    searches the heading lattice in a band of :data:`BANDS_M` round it, widening the band when
+    the lattice finds no way in it (same answer as the whole map when the band is wide enough,
+    a fraction of the work)."""
+    lvl = _level_masks(grid, fp)
+    n_levels = len(_levels(fp))
+    free8 = lvl < n_levels
+    free_any = free8.any(axis=0)
     nx, ny = grid.nx, grid.ny
-    names = ["start"] + [f"via[{i}]" for i in range(len(points) - 2)] + ["goal"]
     legs: list[list[tuple[float, float]]] = []
     for leg in range(len(points) - 1):
         a, b = points[leg], points[leg + 1]
@@ -254,16 +300,31 @@ def route(
             ends = [kg] if kg in ends else []
         if not ends:
             raise NoPlan(f"the formation does not fit at {names[leg + 1]} {b}")
-        dist, pred, _ = dijkstra(
-            graph, directed=True, indices=starts, return_predecessors=True, min_only=True
+        no_way = NoPlan(
+            f"no collision-free way for the formation from {names[leg]} {a} to "
+            f"{names[leg + 1]} {b}"
         )
+        cells = _cell_route(free_any, grid.res_m, ca, cb)
+        if cells is None:
+            raise no_way
         goals = [k * nx * ny + cb[0] * ny + cb[1] for k in ends]
-        best = min(goals, key=lambda s: (dist[s], s))
-        if not math.isfinite(dist[best]):
-            raise NoPlan(
-                f"no collision-free way for the formation from {names[leg]} {a} to "
-                f"{names[leg + 1]} {b}"
+        along = np.ones((nx, ny), dtype=bool)
+        ci, cj = zip(*cells, strict=True)
+        along[list(ci), list(cj)] = False
+        gap_m = distance_transform_edt(along) * grid.res_m
+        found = None
+        for band_m in BANDS_M:
+            graph = _graph(lvl, n_levels, grid.res_m, gap_m <= band_m)
+            dist, pred, _ = dijkstra(
+                graph, directed=True, indices=starts, return_predecessors=True, min_only=True
             )
+            best = min(goals, key=lambda s: (dist[s], s))
+            if math.isfinite(dist[best]):
+                found = (best, pred)
+                break
+        if found is None:
+            raise no_way
+        best, pred = found
         chain: list[int] = []
         s = best
         while s >= 0:

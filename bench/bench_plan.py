@@ -1,0 +1,113 @@
+"""Benchmark: planning the virtual leader of 7 robots across a 10 m x 10 m map of 50 obstacles.
+
+The issue-27 goal: a plan for a 10 m x 10 m map with 50 obstacles and 7 robots (a two-stage
+chevron, b = 0.4 m) in < 200 ms on one core, printed beside the straight-line case (the same
+arena, no obstacle) measured in the same run. Each map is seeded: 50 obstacles, 60 % discs of
+radius 0.1-0.35 m and 40 % walls 0.3-1.2 m long, none within 1.5 m of the start (1.5, 1.5) or
+the goal (8.5, 8.5). Times the whole planner (``coordinator.planning.plan``: the world's STRtree,
+the clearance grid, the heading-lattice search, shortcuts, squeeze and timing) and its phases;
+prints the median over ``--runs`` for each map, and the plan's length against the straight
+line. A map with no way for the formation prints "no plan" (a clean answer, timed too).
+Measures only; asserts nothing. One process, one thread (``OMP_NUM_THREADS=1``-like: the
+planner's numpy/scipy calls are single-threaded).
+
+Run: .venv/bin/python bench/bench_plan.py [--runs 5] [--maps 5] [--seed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from coordinator.formation import FormationSpec
+from coordinator.planning import Footprint, NoPlan, PlanWorld, SlotLimits, plan
+from coordinator.planning.search import make_grid
+from coordinator.planning.trajectory import min_separation_m
+
+START = (1.5, 1.5, math.pi / 4.0)
+GOAL = (8.5, 8.5)
+ARENA = {"x_min": 0.0, "y_min": 0.0, "x_max": 10.0, "y_max": 10.0}
+
+
+def random_map(rng: np.random.Generator, n: int) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    while len(out) < n:
+        x, y = rng.uniform(0.3, 9.7, size=2)
+        if min(math.hypot(x - START[0], y - START[1]), math.hypot(x - GOAL[0], y - GOAL[1])) < 1.5:
+            continue
+        if rng.random() < 0.6:
+            out.append({"kind": "circle", "x": x, "y": y, "radius_m": rng.uniform(0.1, 0.35)})
+        else:
+            a = rng.uniform(0.0, math.pi)
+            half = rng.uniform(0.15, 0.6)
+            out.append({"kind": "segment", "x1": x - half * math.cos(a), "y1": y - half * math.sin(a),
+                        "x2": x + half * math.cos(a), "y2": y + half * math.sin(a),
+                        "radius_m": 0.02})  # fmt: skip
+    return out
+
+
+def time_plan(obstacles: list[dict[str, Any]], runs: int) -> tuple[float, dict[str, float], str]:
+    spec = FormationSpec.chevron(7, 0.4)
+    fp = Footprint(spec.body_offsets_m, 0.075 + 0.05 + 0.04 + 0.02, min_separation_m(0.19, 0.05))
+    limits = SlotLimits.from_robot(
+        wheel_radius_m=0.03, half_track_m=0.05, max_wheel_radps=10.0, max_ref_speed_mps=0.25
+    )
+    totals: list[float] = []
+    phases: dict[str, list[float]] = {"world": [], "grid": []}
+    what = ""
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        world = PlanWorld(obstacles, ARENA)
+        t1 = time.perf_counter()
+        try:
+            r = plan(world, fp, START, GOAL, cruise_mps=0.05, limits=limits, min_pair_m=0.19)
+            what = (
+                f"length {r.stats.length_m:.2f} m (straight {r.stats.straight_m:.2f} m), "
+                f"cell {r.stats.cell_m * 100:.1f} cm, {r.stats.corners} corners, "
+                f"clearance {r.stats.min_clearance_m:.3f} m, to goal {r.stats.duration_s:.0f} s"
+            )
+        except NoPlan as exc:
+            what = f"no plan: {exc}"
+        t2 = time.perf_counter()
+        make_grid(world, fp, fp.slot_radius_m, [START[:2], GOAL])
+        t3 = time.perf_counter()
+        totals.append(t2 - t0)
+        phases["world"].append(t1 - t0)
+        phases["grid"].append(t3 - t2)
+    return statistics.median(totals), {k: statistics.median(v) for k, v in phases.items()}, what
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=int, default=5, help="timed runs per map (median)")
+    p.add_argument("--maps", type=int, default=5, help="random maps of 50 obstacles")
+    p.add_argument("--seed", type=int, default=1)
+    ns = p.parse_args()
+    rng = np.random.default_rng(ns.seed)
+    print("planning 7 robots (chevron, b = 0.4 m) across a 10 m x 10 m arena, median of "
+          f"{ns.runs} runs; start {START[:2]}, goal {GOAL}")  # fmt: skip
+    print(f"{'case':<24}{'plan (ms)':>11}{'world (ms)':>12}{'grid (ms)':>11}  result")
+    base, ph, what = time_plan([], ns.runs)
+    print(f"{'straight line (0 obst.)':<24}{base * 1e3:>11.1f}{ph['world'] * 1e3:>12.2f}"
+          f"{ph['grid'] * 1e3:>11.1f}  {what}")  # fmt: skip
+    worst = 0.0
+    for m in range(ns.maps):
+        obstacles = random_map(rng, 50)
+        t, ph, what = time_plan(obstacles, ns.runs)
+        worst = max(worst, t)
+        print(f"{f'map {m} (50 obstacles)':<24}{t * 1e3:>11.1f}{ph['world'] * 1e3:>12.2f}"
+              f"{ph['grid'] * 1e3:>11.1f}  {what}")  # fmt: skip
+    print(f"worst map: {worst * 1e3:.1f} ms (goal < 200 ms); straight line {base * 1e3:.1f} ms")
+
+
+if __name__ == "__main__":
+    main()
