@@ -35,6 +35,7 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
+from scipy.interpolate import PchipInterpolator
 from scipy.ndimage import uniform_filter1d
 
 from .footprint import Footprint
@@ -89,6 +90,7 @@ class PlanResult:
     theta_rad: FloatArray
     kappa_per_m: FloatArray
     q: FloatArray
+    dq_per_m: FloatArray
     v_mps: FloatArray
     t_s: FloatArray
     footprint: Footprint
@@ -417,18 +419,19 @@ def _speed_profile(
     theta: FloatArray,
     kappa: FloatArray,
     q: FloatArray,
+    dq: FloatArray,
     col: FloatArray,
     dcol: FloatArray,
     ds: float,
     cruise_mps: float,
     lim: SlotLimits,
     accel_share: float = 0.4,
+    turn_share: float = 0.95,
 ) -> tuple[FloatArray, FloatArray]:
     """Leader speed at each sample, every slot within ``lim`` (module docstring, step 4), and
     every slot's velocity per unit leader speed in the world frame (m, n, 2).
     ``accel_share``: the share of the acceleration limit given to each of the leader's own
     acceleration and the slots' turning."""
-    dq = np.gradient(q, ds) if len(q) > 1 else np.zeros_like(q)
     o, do, w = fp.offsets_many(q, col)  # (m, n, 2) body frame
     rate = do * dq[:, None, None] + w * dcol  # do/ds: the squeeze and the moving column
     # g_i in the body frame: (1, 0) + kappa J o_i + do_i/ds  (rotation does not change norms)
@@ -446,8 +449,8 @@ def _speed_profile(
     gmax = gnorm.max(axis=1)
     v = np.full(len(q), cruise_mps)
     v = np.minimum(v, lim.speed_mps / np.maximum(gmax, 1e-9))
-    v = np.minimum(v, lim.turn_radps / np.maximum(np.abs(kappa), 1e-9))
-    v = np.minimum(v, lim.turn_radps / np.maximum(dpsi.max(axis=1), 1e-9))
+    v = np.minimum(v, turn_share * lim.turn_radps / np.maximum(np.abs(kappa), 1e-9))
+    v = np.minimum(v, turn_share * lim.turn_radps / np.maximum(dpsi.max(axis=1), 1e-9))
     v = np.minimum(v, np.sqrt(accel_share * lim.accel_mps2 / np.maximum(dg.max(axis=1), 1e-9)))
     a_lead = accel_share * lim.accel_mps2 / np.maximum(gmax, 1.0)
     v[0] = 0.0
@@ -462,11 +465,12 @@ def _speed_profile(
 def _within_limits(
     s: FloatArray, v: FloatArray, t: FloatArray, g: FloatArray, lim: SlotLimits
 ) -> bool:
-    """Every slot's speed and acceleration (over ``feasibility.ACCEL_WINDOW_S``, as the
-    feasibility check measures it) within ``lim`` on a 0.05 s grid, with 5 % to spare."""
+    """Every slot's speed, turn rate and acceleration (over ``feasibility.ACCEL_WINDOW_S``), as
+    the feasibility check measures them, within ``lim`` on a 0.02 s grid, with 5 % to
+    spare."""
     from .feasibility import ACCEL_WINDOW_S
 
-    step = 0.05
+    step = 0.02
     tu = np.arange(0.0, float(t[-1]) + step, step)
     su = np.interp(tu, t, s)
     vu = np.interp(tu, t, v)
@@ -475,7 +479,13 @@ def _within_limits(
     for i in range(n):
         vel[:, i, 0] = vu * np.interp(su, s, g[:, i, 0])
         vel[:, i, 1] = vu * np.interp(su, s, g[:, i, 1])
-    if np.hypot(vel[..., 0], vel[..., 1]).max() > 0.95 * lim.speed_mps:
+    speed = np.hypot(vel[..., 0], vel[..., 1])
+    if speed.max() > 0.95 * lim.speed_mps:
+        return False
+    moving = speed > 0.5 * lim.speed_mps
+    heading = np.unwrap(np.arctan2(vel[..., 1], vel[..., 0]), axis=0)
+    rate = np.abs(np.diff(heading, axis=0)) / step
+    if np.any(np.where(moving[1:] & moving[:-1], rate, 0.0) > 0.95 * lim.turn_radps):
         return False
     w = max(1, round(ACCEL_WINDOW_S / step))
     if len(tu) <= w:
@@ -609,15 +619,26 @@ def plan(
     ds = float(s_t[1] - s_t[0])
     x, y, th, ka = _eval(pieces, s_t)
     th = np.unwrap(th)
-    q_t = np.interp(s_t, s_v, q_v)
+    # the squeeze on the timing grid: a monotone C1 interpolation (PCHIP, within [0, q_max]),
+    # and its derivative along the path, so no slot's velocity steps where the grid does
+    if np.any(q_v > 0.0):
+        spline = PchipInterpolator(s_v, q_v)
+        q_t = np.clip(spline(s_t), 0.0, fp.q_max)
+        dq_t = spline.derivative()(s_t)
+        dq_t[q_t == 0.0] = 0.0
+    else:
+        q_t, dq_t = np.zeros_like(s_t), np.zeros_like(s_t)
     col_t, dcol_t = _columns(pieces, s_t, fp)
-    share = 0.4
-    for _ in range(8):  # tighten the acceleration budget until the slots' check passes
-        v, g = _speed_profile(fp, th, ka, q_t, col_t, dcol_t, ds, cruise_mps, limits, share)
+    share, turn_share = 0.4, 0.95
+    for _ in range(10):  # tighten the budgets until the slots' check passes
+        v, g = _speed_profile(
+            fp, th, ka, q_t, dq_t, col_t, dcol_t, ds, cruise_mps, limits, share, turn_share
+        )
         t = _times(v, ds)
         if _within_limits(s_t, v, t, g, limits):
             break
-        share *= 0.7
+        share *= 0.75
+        turn_share *= 0.8
     else:
         raise NoPlan("no speed profile keeps every slot within the robots' limits")
     straight = sum(
@@ -633,7 +654,7 @@ def plan(
         squeezes=bool(np.any(q_v > 0.0)),
         duration_s=float(t[-1]),
     )
-    return PlanResult(s_t, x, y, th, ka, q_t, v, t, fp, stats, tuple(pts), tuple(pieces))
+    return PlanResult(s_t, x, y, th, ka, q_t, dq_t, v, t, fp, stats, tuple(pts), tuple(pieces))
 
 
 def _outside(world: PlanWorld, p: tuple[float, float]) -> bool:

@@ -146,6 +146,7 @@ class PlannedTrajectory:
     _morph: bool = field(init=False, repr=False, compare=False)
     _q: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _v: tuple[float, ...] = field(init=False, repr=False, compare=False)
+    _dq: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _s: tuple[float, ...] = field(init=False, repr=False, compare=False)
     _nominal: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
     _zeros: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
@@ -189,6 +190,7 @@ class PlannedTrajectory:
         object.__setattr__(self, "_morph", bool(np.any(result.q > 0.0)))
         object.__setattr__(self, "_q", tuple(float(v) for v in result.q))
         object.__setattr__(self, "_v", tuple(float(v) for v in result.v_mps))
+        object.__setattr__(self, "_dq", tuple(float(v) for v in result.dq_per_m))
         object.__setattr__(self, "_s", tuple(float(v) for v in result.s_m))
         fp = result.footprint
         object.__setattr__(self, "_nominal", tuple((float(a), float(b)) for a, b in fp.nominal_m))
@@ -237,8 +239,7 @@ class PlannedTrajectory:
         if q0 == 0.0 and q1 == 0.0:
             return None  # not squeezed here: the rigid formation (its exact arithmetic)
         q = q0 + (q1 - q0) * u
-        ds = self._s[k + 1] - self._s[k]
-        dq_ds = (q1 - q0) / ds if ds > 0 else 0.0
+        dq_ds = self._dq[k] + (self._dq[k + 1] - self._dq[k]) * u
         fp = r.footprint
         # the squeeze of Footprint.offsets_many in plain floats (the per-tick path)
         qa = min(max(q, 0.0), fp.q_max)
