@@ -298,18 +298,26 @@ def _needed_q(
 
 
 def _feasible(
-    world: PlanWorld, fp: Footprint, poses: FloatArray, col: FloatArray, q_req: FloatArray
-) -> npt.NDArray[np.bool_]:
-    """(m, levels) whether the footprint fits at each pose at each squeeze level (exact test;
-    only computed near where the formation must squeeze: elsewhere the nominal one fits and
-    the search stays nominal)."""
+    world: PlanWorld,
+    fp: Footprint,
+    poses: FloatArray,
+    col: FloatArray,
+    q_req: FloatArray,
+    min_pair_m: float,
+    soft_pair_m: float,
+) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
+    """(m, levels) whether the footprint fits at each pose at each squeeze level (exact test,
+    slots at least ``min_pair_m`` apart; only computed near where the formation must squeeze:
+    elsewhere the nominal one fits and the search stays nominal), and whether its slots are
+    also ``soft_pair_m`` apart (preferred)."""
     levels = _q_levels(fp)
     m = len(poses)
     feas = np.zeros((m, len(levels)), dtype=bool)
     feas[:, 0] = q_req == 0.0
+    soft = np.ones((m, len(levels)), dtype=bool)
     near = np.flatnonzero(q_req > 0.0)
     if len(near) == 0:
-        return feas
+        return feas, soft
     # every pose within one full ramp (0 to q_max) of a squeezed one: q > 0 nowhere else
     reach = math.ceil(1.1 * SQUEEZE_RAMP_M * fp.q_max / VERIFY_DS_M) + 2
     mark = np.zeros(m, dtype=bool)
@@ -319,8 +327,12 @@ def _feasible(
     for li, q in enumerate(levels):
         pts = fp.slot_points(poses[idx], np.full(len(idx), q), col[idx])
         c = world.clearance(pts.reshape(-1, 2), fp.slot_radius_m + 1.0)
-        feas[idx, li] = c.reshape(len(idx), -1).min(axis=1) >= fp.slot_radius_m
-    return feas
+        pair = _pair_min(pts)
+        feas[idx, li] = (c.reshape(len(idx), -1).min(axis=1) >= fp.slot_radius_m) & (
+            pair >= min_pair_m
+        )
+        soft[idx, li] = pair >= soft_pair_m
+    return feas, soft
 
 
 def _q_levels(fp: Footprint) -> FloatArray:
@@ -330,9 +342,12 @@ def _q_levels(fp: Footprint) -> FloatArray:
     return out
 
 
-def _squeeze_dp(feas: npt.NDArray[np.bool_], stride: int) -> FloatArray | None:
+def _squeeze_dp(
+    feas: npt.NDArray[np.bool_], soft: npt.NDArray[np.bool_], stride: int
+) -> FloatArray | None:
     """The least squeeze path through ``feas`` (m, L): one level step at most per ``stride``
-    samples, every sample of a stage feasible at the levels on both its ends; the level at each
+    samples, every sample of a stage feasible at the levels on both its ends, levels outside
+    ``soft`` only where there is no other way (a cost of 1000 per sample); the level at each
     sample (linear inside a stage), or None if there is none."""
     m, n_lv = feas.shape
     stages = list(range(0, m - 1, stride)) + [m - 1]
@@ -344,6 +359,7 @@ def _squeeze_dp(feas: npt.NDArray[np.bool_], stride: int) -> FloatArray | None:
     for j in range(1, n_st):
         a, b = stages[j - 1], stages[j]
         span = feas[a : b + 1].all(axis=0)  # level feasible on the whole stage
+        hard = (~soft[a : b + 1]).sum(axis=0) * 1000.0
         for lv in range(n_lv):
             if not span[lv]:
                 continue
@@ -352,7 +368,7 @@ def _squeeze_dp(feas: npt.NDArray[np.bool_], stride: int) -> FloatArray | None:
                 if 0 <= lp < n_lv and span[lp] and cost[j - 1, lp] < best:
                     best, arg = cost[j - 1, lp], lp
             if arg >= 0:
-                cost[j, lv] = best + lv * (b - a) + (0.01 if arg != lv else 0.0)
+                cost[j, lv] = best + lv * (b - a) + hard[lv] + (0.01 if arg != lv else 0.0)
                 back[j, lv] = arg
     if not np.isfinite(cost[-1]).any():
         return None
@@ -374,6 +390,7 @@ def _fit_squeeze(
     q_req: FloatArray,
     ds: float,
     min_pair_m: float,
+    soft_pair_m: float,
 ) -> tuple[FloatArray, FloatArray]:
     """The squeeze profile (at each pose) and each pose's least clearance: the least squeeze
     through the feasible levels (dynamic programming, at most one level of ``_Q_STEP`` per
@@ -385,9 +402,9 @@ def _fit_squeeze(
         pts = fp.slot_points(poses, q0, col)
         c = world.clearance(pts.reshape(-1, 2), need + 1.0).reshape(len(q0), -1).min(axis=1)
         return q0, c
-    feas = _feasible(world, fp, poses, col, q_req)
+    feas, soft = _feasible(world, fp, poses, col, q_req, min_pair_m, soft_pair_m)
     stride = max(1, round(_Q_STEP * SQUEEZE_RAMP_M / ds))
-    q_lin = _squeeze_dp(feas, stride)
+    q_lin = _squeeze_dp(feas, soft, stride)
     if q_lin is None:
         raise NoPlan("the formation cannot squeeze in time for a passage on the route")
     w = max(1, round(SQUEEZE_SMOOTH_M / ds))
@@ -400,15 +417,20 @@ def _fit_squeeze(
     raise NoPlan("the formation cannot squeeze in time for a passage on the route")
 
 
+def _pair_min(pts: FloatArray) -> FloatArray:
+    """Least distance (m) between two slots at each sample of ``pts`` (m, n, 2)."""
+    m, n = pts.shape[:2]
+    if n < 2:
+        return np.full(m, np.inf)
+    iu = np.triu_indices(n, 1)
+    d = pts[:, iu[0], :] - pts[:, iu[1], :]
+    out: FloatArray = np.hypot(d[..., 0], d[..., 1]).min(axis=1)
+    return out
+
+
 def _min_pair(pts: FloatArray) -> float:
     """Least distance (m) between two slots at any sample of ``pts`` (m, n, 2)."""
-    n = pts.shape[1]
-    if n < 2:
-        return math.inf
-    diff = pts[:, :, None, :] - pts[:, None, :, :]
-    dist = np.hypot(diff[..., 0], diff[..., 1])
-    iu = np.triu_indices(n, 1)
-    return float(dist[:, iu[0], iu[1]].min())
+    return float(_pair_min(pts).min()) if len(pts) else math.inf
 
 
 # -- timing ------------------------------------------------------------------------------------
@@ -539,9 +561,12 @@ def plan(
     cruise_mps: float,
     limits: SlotLimits,
     min_pair_m: float = 0.0,
+    soft_pair_m: float = 0.0,
 ) -> PlanResult:
     """Plan the virtual leader from ``start`` ``(x, y, theta)`` through ``via`` to ``goal``
-    (module docstring). Raises :class:`NoPlan` (clean, with the reason) when there is none."""
+    (module docstring); no two slots closer than ``min_pair_m`` (m), closer than
+    ``soft_pair_m`` only where there is no other way. Raises :class:`NoPlan` (clean, with the
+    reason) when there is none."""
     fp = footprint
     need = fp.slot_radius_m
     sx, sy, sth = start
@@ -611,7 +636,7 @@ def plan(
     # passes through a squeeze that does not fit (the column's tail is longer than the
     # triangle), ask for the next squeeze up that does fit there and widen again
     q_v, c_f = _fit_squeeze(
-        world, fp, _poses_v, col_v, q_req, float(s_v[1] - s_v[0]), min_pair_m
+        world, fp, _poses_v, col_v, q_req, float(s_v[1] - s_v[0]), min_pair_m, soft_pair_m
     )
     # timing on a finer grid
     n_t = max(2, math.ceil(total / TIME_DS_M) + 1)

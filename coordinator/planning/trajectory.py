@@ -51,7 +51,7 @@ DEFAULT_SPEED_MPS = 0.05
 """Default cruise speed of a planned leader (m/s): the paper's leaders run 0.02-0.1 m/s."""
 DEFAULT_CLEARANCE_M = 0.02
 """Default planning clearance (m) beyond the safety filter's margin: room for tracking error."""
-SEPARATION_SLACK_M = 0.03
+SEPARATION_SLACK_M = 0.05
 """Slack (m) on the least slot-to-slot distance of a squeezed formation (see
 :func:`min_separation_m`): the neighbour barrier's inflation by the neighbour's speed times the
 age of its pose (0.3 m/s x 0.03-0.07 s) and a little room for tracking error."""
@@ -120,7 +120,9 @@ def plan_from_context(p: Mapping[str, Any]) -> PlanResult:
             goal_heading=p["goal_heading"],
             cruise_mps=float(p["speed_mps"]),
             limits=limits,
-            min_pair_m=float(ctx["safety_distance_m"]),
+            min_pair_m=float(ctx["safety_distance_m"]),  # never below the safety distance
+            # and preferably not inside the filter's neighbour distance (Ds + 2 l)
+            soft_pair_m=float(ctx["safety_distance_m"]) + 2.0 * float(geom["ref_offset_m"]),
         )
     except NoPlan as exc:
         raise NoPlan(f"trajectory.goal: no plan: {exc}") from None

@@ -142,7 +142,8 @@ class PlanWorld:
 
     def clearance(self, xy: FloatArray, cap_m: float) -> FloatArray:
         """Distance (m) from each row of ``xy`` (m, shape (m, 2)) to the nearest obstacle surface
-        or arena wall, at most ``cap_m``; < 0 inside an obstacle or outside the arena."""
+        or arena wall, at most ``cap_m``; < 0 inside an obstacle or outside the arena; -inf for
+        a row that is not finite."""
         pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         out = np.full(len(pts), float(cap_m), dtype=np.float64)
         a = self.arena
@@ -152,9 +153,12 @@ class PlanWorld:
                 np.minimum(pts[:, 1] - a.y_min, a.y_max - pts[:, 1]),
             )
             np.minimum(out, gap, out=out)
-        if self._tree is None or len(pts) == 0:
+        finite = np.isfinite(pts).all(axis=1)
+        out[~finite] = -np.inf  # a point that is not a point is nowhere safe
+        if self._tree is None or not finite.any():
             return out
-        geoms = shapely.points(pts)
+        where = np.flatnonzero(finite)
+        geoms = shapely.points(pts[where])
         pairs = self._tree.query(geoms, predicate="dwithin", distance=cap_m + self._r_max)
         if pairs.shape[1] > MAX_PAIRS:
             raise ValueError(
@@ -164,5 +168,5 @@ class PlanWorld:
         if pairs.shape[1]:
             pi, oi = pairs[0], pairs[1]
             d = shapely.distance(geoms[pi], self._cores[oi]) - self._radii[oi]
-            np.minimum.at(out, pi, d)
+            np.minimum.at(out, where[pi], d)
         return out
