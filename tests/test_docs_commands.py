@@ -51,7 +51,7 @@ SKIP_RULES: list[tuple[str, str]] = [
      "(test_the_by_hand_runbook_runs)"),
     (r"--robots (\d{3,}|[2-9]\d)\b", "a large fleet: minutes on 2 cores (bench/, docs/scale.md)"),
 ]  # fmt: skip
-RUNNABLE = re.compile(r"^formation (sim|up|demo|acl|certs|--version|--help)\b")
+RUNNABLE = re.compile(r"^formation (sim|up|demo|acl|certs|check|--version|--help)\b")
 SHORT_DURATION_S = "3"
 
 
