@@ -49,9 +49,9 @@ def random_map(rng: np.random.Generator, n: int) -> list[dict[str, Any]]:
         else:
             a = rng.uniform(0.0, math.pi)
             half = rng.uniform(0.15, 0.6)
-            out.append({"kind": "segment", "x1": x - half * math.cos(a), "y1": y - half * math.sin(a),
-                        "x2": x + half * math.cos(a), "y2": y + half * math.sin(a),
-                        "radius_m": 0.02})  # fmt: skip
+            dx, dy = half * math.cos(a), half * math.sin(a)
+            out.append({"kind": "segment", "x1": x - dx, "y1": y - dy, "x2": x + dx,
+                        "y2": y + dy, "radius_m": 0.02})  # fmt: skip
     return out
 
 

@@ -254,6 +254,8 @@ def test_every_scenario_key_is_in_docs_scenarios() -> None:
     from coordinator.trajectory import (
         _KINDS,
         TRAJECTORY_KINDS,
+    )
+    from coordinator.trajectory import (
         trajectory_class as make_trajectory_class,
     )
     from robot_agent.params import (

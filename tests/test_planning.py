@@ -139,7 +139,7 @@ def test_the_squeeze_rate_is_the_derivative_of_the_offsets(q: float) -> None:
 
 def test_goal_inside_an_obstacle_outside_the_arena_start_inside_are_one_line() -> None:
     pillar = [{"kind": "circle", "x": 2.0, "y": 0.0, "radius_m": 0.3}]
-    cases = [
+    cases: list[tuple[dict[str, Any], dict[str, Any], str]] = [
         ({"kind": "plan", "goal": [2.0, 0.1]}, {"obstacle": pillar}, "goal .* inside an obstacle"),
         ({"kind": "plan", "goal": [9.0, 0.0]}, {}, "goal .* outside the arena"),
         ({"kind": "plan", "goal": [3.0, 0.0], "x0": 2.0, "y0": 0.0}, {"obstacle": pillar},
@@ -152,13 +152,9 @@ def test_goal_inside_an_obstacle_outside_the_arena_start_inside_are_one_line() -
 
 def test_an_unreachable_goal_is_a_clean_no_plan() -> None:
     # the goal sits in a closed room of walls
-    room = [
-        {"kind": "polygon", "points": [[2.5, -1.0], [4.5, -1.0], [4.5, 1.0], [2.5, 1.0]],
-         "radius_m": 0.02},
-    ]  # fmt: skip
+    corners = [(2.5, -1.0), (4.5, -1.0), (4.5, 1.0), (2.5, 1.0)]
     ring = [{"kind": "segment", "x1": a[0], "y1": a[1], "x2": b[0], "y2": b[1]}
-            for a, b in zip(room[0]["points"], room[0]["points"][1:] + room[0]["points"][:1],
-                            strict=True)]  # fmt: skip
+            for a, b in zip(corners, corners[1:] + corners[:1], strict=True)]  # fmt: skip
     with pytest.raises(NoPlan, match="no plan"):
         built(scenario_data({"kind": "plan", "goal": [3.5, 0.0]}, obstacle=ring))
 
@@ -173,7 +169,7 @@ def test_the_check_command_gives_one_line_and_exit_2(tmp_path: Any) -> None:
 
 
 def test_the_loader_refuses_a_hand_written_context() -> None:
-    with pytest.raises(ScenarioError, match="trajectory.context"):
+    with pytest.raises(ScenarioError, match=r"trajectory\.context"):
         parse(scenario_data({"kind": "plan", "goal": [3.0, 0.0], "context": {}}))
 
 

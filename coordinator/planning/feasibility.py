@@ -104,7 +104,9 @@ def slot_feasibility(
         heading = np.unwrap(np.arctan2(vel[..., 1], vel[..., 0]), axis=0)
         rate = np.zeros_like(speed)
         rate[1:] = np.abs(np.diff(heading, axis=0)) / step_s
-        moving = (speed > 0.5 * limits.speed_mps) & np.vstack([[False] * n, speed[:-1] > 0.5 * limits.speed_mps])
+        moving = (speed > 0.5 * limits.speed_mps) & np.vstack(
+            [[False] * n, speed[:-1] > 0.5 * limits.speed_mps]
+        )
         turn = np.maximum(turn, np.where(moving, rate, 0.0))
     out: list[Infeasible] = []
     for j, spec in enumerate(formation.slots):
@@ -117,6 +119,8 @@ def slot_feasibility(
             if len(over):
                 k = int(over[0])
                 out.append(
-                    Infeasible(spec.slot, what, float(t[k]), float(series[k]), lim, float(series.max()))
+                    Infeasible(
+                        spec.slot, what, float(t[k]), float(series[k]), lim, float(series.max())
+                    )
                 )
     return out

@@ -56,7 +56,16 @@ class Footprint:
         allow_shrink, allow_column: offer the shrink (q <= 1) and the column (q <= 2).
     """
 
-    __slots__ = ("column_gaps_m", "column_m", "n", "nominal_m", "q_max", "s_min", "slot_radius_m", "spacing_m")
+    __slots__ = (
+        "column_gaps_m",
+        "column_m",
+        "n",
+        "nominal_m",
+        "q_max",
+        "s_min",
+        "slot_radius_m",
+        "spacing_m",
+    )
 
     def __init__(
         self,
@@ -98,8 +107,7 @@ class Footprint:
         if allow_column and self.n > 2:
             qs = np.linspace(1.0, 2.0, _CHECK_LEVELS)
             ok = all(
-                _min_pair_distance(self.offsets(float(q))[0]) >= min_separation_m - 1e-9
-                for q in qs
+                _min_pair_distance(self.offsets(float(q))[0]) >= min_separation_m - 1e-9 for q in qs
             )
             if ok:
                 q_max = 2.0

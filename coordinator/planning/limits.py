@@ -45,8 +45,10 @@ class SlotLimits:
     def __post_init__(self) -> None:
         for name in ("speed_mps", "turn_radps", "accel_mps2"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (
-                math.isfinite(v) and v > 0.0
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, int | float)
+                or not (math.isfinite(v) and v > 0.0)
             ):
                 raise ValueError(f"SlotLimits: {name} must be a finite number > 0, got {v!r}")
 

@@ -28,6 +28,7 @@ there is none.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -248,9 +249,7 @@ def _eval_ext(pieces: list[_Piece], s: FloatArray) -> tuple[FloatArray, FloatArr
     return x, y, th
 
 
-def _columns(
-    pieces: list[_Piece], s: FloatArray, fp: Footprint
-) -> tuple[FloatArray, FloatArray]:
+def _columns(pieces: list[_Piece], s: FloatArray, fp: Footprint) -> tuple[FloatArray, FloatArray]:
     """The path-following column at arc lengths ``s`` (m,): each slot where the leader was
     ``column_gaps_m`` earlier on the path, in the leader's frame, ``(c, dc/ds)`` each (m, n, 2).
 
@@ -350,7 +349,7 @@ def _squeeze_dp(
     ``soft`` only where there is no other way (a cost of 1000 per sample); the level at each
     sample (linear inside a stage), or None if there is none."""
     m, n_lv = feas.shape
-    stages = list(range(0, m - 1, stride)) + [m - 1]
+    stages = [*range(0, m - 1, stride), m - 1]
     n_st = len(stages)
     inf = math.inf
     cost = np.full((n_st, n_lv), inf)
@@ -358,8 +357,8 @@ def _squeeze_dp(
     cost[0, feas[0]] = np.nonzero(feas[0])[0].astype(float)
     for j in range(1, n_st):
         a, b = stages[j - 1], stages[j]
-        span = feas[a : b + 1].all(axis=0)  # level feasible on the whole stage
-        hard = (~soft[a : b + 1]).sum(axis=0) * 1000.0
+        span = np.asarray(feas[a : b + 1].all(axis=0))  # level feasible on the whole stage
+        hard = np.asarray((~soft[a : b + 1]).sum(axis=0)) * 1000.0
         for lv in range(n_lv):
             if not span[lv]:
                 continue
@@ -538,7 +537,7 @@ def _verify(
     x, y, th, _ = _eval(pieces, s)
     poses = np.stack([x, y, th], axis=1)
     col, _ = _columns(pieces, s, fp)
-    q_req, clear = _needed_q(world, fp, poses, col, fp.slot_radius_m)
+    q_req, _ = _needed_q(world, fp, poses, col, fp.slot_radius_m)
     bad = ~np.isfinite(q_req)
     if bad.any():
         # the corner nearest the first failing sample
@@ -576,8 +575,10 @@ def plan(
     point_clear = world.clearance(np.array(pts_in), need + 1.0)
     for name, c in zip(names, point_clear, strict=True):
         if c < 0.0:
-            where = "outside the arena" if _outside(world, pts_in[names.index(name)]) else (
-                "inside an obstacle"
+            where = (
+                "outside the arena"
+                if _outside(world, pts_in[names.index(name)])
+                else ("inside an obstacle")
             )
             raise NoPlan(f"{name} {pts_in[names.index(name)]} is {where}")
     # leave along the start heading (the robots start in formation at that heading): a first
@@ -666,10 +667,7 @@ def plan(
         turn_share *= 0.8
     else:
         raise NoPlan("no speed profile keeps every slot within the robots' limits")
-    straight = sum(
-        math.hypot(b[0] - a[0], b[1] - a[1])
-        for a, b in zip(pts_in[:-1], pts_in[1:], strict=True)
-    )
+    straight = sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in itertools.pairwise(pts_in))
     stats = PlanStats(
         length_m=total,
         straight_m=straight,

@@ -167,7 +167,6 @@ def _shifted(grid: Grid, ok: BoolArray, ox: float, oy: float) -> BoolArray:
 def _move_ok(free: BoolArray, di: int, dj: int) -> BoolArray:
     """For every cell, whether a move by ``(di, dj)`` lands on a cell free in ``free`` and, for
     a knight's move, passes over free cells (the two cells beside its midpoint)."""
-    nx, ny = free.shape
     out = _shift_bool(free, di, dj)
     if abs(di) == 2 or abs(dj) == 2:
         hi, hj = di / 2.0, dj / 2.0
@@ -189,7 +188,9 @@ def _shift_bool(a: BoolArray, di: int, dj: int) -> BoolArray:
     return out
 
 
-def _graph(lvl: npt.NDArray[np.int8], n_levels: int, res_m: float, band: BoolArray) -> sp.csr_matrix:
+def _graph(
+    lvl: npt.NDArray[np.int8], n_levels: int, res_m: float, band: BoolArray
+) -> sp.csr_matrix:
     """The heading lattice (module docstring) on the cells of ``band``."""
     free = (lvl < n_levels) & band[None, :, :]
     lvl_f = lvl.astype(np.float64)
@@ -281,7 +282,7 @@ def route(
     lvl = _level_masks(grid, fp)
     n_levels = len(_levels(fp))
     free8 = lvl < n_levels
-    free_any = free8.any(axis=0)
+    free_any: BoolArray = np.asarray(free8.any(axis=0))
     nx, ny = grid.nx, grid.ny
     legs: list[list[tuple[float, float]]] = []
     for leg in range(len(points) - 1):
@@ -289,9 +290,7 @@ def route(
         ca, cb = grid.cell_of(*a), grid.cell_of(*b)
         if ca is None or cb is None:
             raise NoPlan(f"{names[leg] if ca is None else names[leg + 1]} is off the map")
-        starts = [
-            k * nx * ny + ca[0] * ny + ca[1] for k in range(N_HEAD) if free8[k, ca[0], ca[1]]
-        ]
+        starts = [k * nx * ny + ca[0] * ny + ca[1] for k in range(N_HEAD) if free8[k, ca[0], ca[1]]]
         if not starts:
             raise NoPlan(f"the formation does not fit at {names[leg]} {a} in any heading")
         ends = [k for k in range(N_HEAD) if free8[k, cb[0], cb[1]]]
@@ -301,8 +300,7 @@ def route(
         if not ends:
             raise NoPlan(f"the formation does not fit at {names[leg + 1]} {b}")
         no_way = NoPlan(
-            f"no collision-free way for the formation from {names[leg]} {a} to "
-            f"{names[leg + 1]} {b}"
+            f"no collision-free way for the formation from {names[leg]} {a} to {names[leg + 1]} {b}"
         )
         cells = _cell_route(free_any, grid.res_m, ca, cb)
         if cells is None:

@@ -67,6 +67,7 @@ def min_separation_m(safety_distance_m: float, ref_offset_m: float) -> float:
     safety distance ``Ds`` itself."""
     return safety_distance_m + 2.0 * ref_offset_m + SEPARATION_SLACK_M
 
+
 _OWNER = "PlannedTrajectory"
 
 
@@ -252,10 +253,10 @@ class PlannedTrajectory:
         uy = min(max(2.0 * (qa - 1.5), 0.0), 1.0)
         lx, dlx = ux * ux * (3.0 - 2.0 * ux), 12.0 * ux * (1.0 - ux)
         ly, dly = uy * uy * (3.0 - 2.0 * uy), 12.0 * uy * (1.0 - uy)
+        col: Sequence[tuple[float, float]] = self._zeros
+        dcol: Sequence[tuple[float, float]] = self._zeros
         if lx > 0.0 or ly > 0.0 or dlx > 0.0 or dly > 0.0:
             col, dcol = r.column_at(s)
-        else:
-            col = dcol = self._zeros
         out = []
         for (dx, dy), (cx, cy), (gx, gy) in zip(self._nominal, col, dcol, strict=True):
             ox = (1.0 - lx) * sc * dx + lx * cx

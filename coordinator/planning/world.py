@@ -71,7 +71,9 @@ def _obstacle(k: int, table: Mapping[str, Any]) -> tuple[Any, float]:
     if radius < 0.0:
         raise ValueError(f"{where}.radius_m: must be >= 0, got {radius}")
     if kind == "circle":
-        return shapely.Point(_num(f"{where}.x", table.get("x")), _num(f"{where}.y", table.get("y"))), radius
+        return shapely.Point(
+            _num(f"{where}.x", table.get("x")), _num(f"{where}.y", table.get("y"))
+        ), radius
     if kind == "segment":
         a = (_num(f"{where}.x1", table.get("x1")), _num(f"{where}.y1", table.get("y1")))
         b = (_num(f"{where}.x2", table.get("x2")), _num(f"{where}.y2", table.get("y2")))
@@ -98,7 +100,7 @@ def _obstacle(k: int, table: Mapping[str, Any]) -> tuple[Any, float]:
 class PlanWorld:
     """Obstacles and arena of a map, with an exact, capped clearance query (module docstring)."""
 
-    __slots__ = ("arena", "n_obstacles", "_cores", "_radii", "_tree", "_r_max")
+    __slots__ = ("_cores", "_r_max", "_radii", "_tree", "arena", "n_obstacles")
 
     def __init__(
         self, obstacles: Sequence[Mapping[str, Any]], arena: Mapping[str, Any] | None
@@ -122,7 +124,9 @@ class PlanWorld:
         self._tree = shapely.STRtree(self._cores) if cores else None
         self.arena: ArenaBox | None = None
         if arena is not None:
-            box = ArenaBox(*(_num(f"arena.{k}", arena.get(k)) for k in ("x_min", "y_min", "x_max", "y_max")))
+            box = ArenaBox(
+                *(_num(f"arena.{k}", arena.get(k)) for k in ("x_min", "y_min", "x_max", "y_max"))
+            )
             if not (box.x_min < box.x_max and box.y_min < box.y_max):
                 raise ValueError(f"arena: x_min < x_max and y_min < y_max needed, got {box}")
             self.arena = box
