@@ -38,10 +38,8 @@ def _slot_poses(data: Mapping[str, Any]) -> list[tuple[float, float, float]]:
 
     traj = dict(data["trajectory"])
     kind = str(traj.pop("kind"))
-    if kind == "plan":  # planned later, from the resized scenario: its start pose is enough
-        leader = _plan_start(data, traj)
-    else:
-        leader = make_trajectory(kind, traj).sample(0.0)
+    # a plan is made later, from the resized scenario: its start pose is enough here
+    leader = _plan_start(data, traj) if kind == "plan" else make_trajectory(kind, traj).sample(0.0)
     spec = FormationSpec.from_dict(dict(data["formation"]))
     l_m = float(data.get("geometry", {}).get("ref_offset_m", 0.05))
     return [
