@@ -57,6 +57,7 @@ class Footprint:
     """
 
     __slots__ = (
+        "_cache",
         "column_gaps_m",
         "column_m",
         "n",
@@ -84,6 +85,7 @@ class Footprint:
         if not (math.isfinite(min_separation_m) and min_separation_m > 0.0):
             raise ValueError(f"Footprint: min_separation_m must be > 0, got {min_separation_m!r}")
         self.n = len(d)
+        self._cache: dict[float, FloatArray] = {}
         self.nominal_m = d
         self.slot_radius_m = float(slot_radius_m)
         spacing = _min_pair_distance(d)
@@ -112,6 +114,17 @@ class Footprint:
             if ok:
                 q_max = 2.0
         self.q_max = q_max
+
+    def _rigid(self, q: float) -> FloatArray:
+        """The offsets at ``q`` with the rigid column, cached (the searches ask for a few
+        levels thousands of times)."""
+        got = self._cache.get(q)
+        if got is None:
+            got = self.offsets_many(np.array([q]))[0][0]
+            got.setflags(write=False)
+            if len(self._cache) < 64:
+                self._cache[q] = got
+        return got
 
     def offsets(self, q: float) -> tuple[FloatArray, FloatArray]:
         """(offsets (n, 2) in m, their derivative d/dq (n, 2) in m) at morph ``q``, with the
@@ -158,7 +171,11 @@ class Footprint:
         """World positions (m, n, 2) of every slot for leader poses (m, 3) ``(x, y, theta)`` and
         morph values ``q`` (m,): ``p_i = p_L + R(theta) o_i(q)`` (eqs 3-5)."""
         p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-        o, _, _ = self.offsets_many(q, column)
+        qa = np.asarray(q, dtype=np.float64)
+        if column is None and len(qa) and np.all(qa == qa[0]):  # one squeeze: computed once
+            o = np.broadcast_to(self._rigid(float(qa[0])), (len(qa), self.n, 2))
+        else:
+            o, _, _ = self.offsets_many(qa, column)
         c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
         out = np.empty_like(o)
         out[..., 0] = p[:, 0:1] + c * o[..., 0] - s * o[..., 1]

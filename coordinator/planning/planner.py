@@ -60,6 +60,8 @@ SQUEEZE_RAMP_M: Final = 0.8
 SQUEEZE_SMOOTH_M: Final = 0.3
 """Width (m) of each of the two moving averages that smooth the squeeze profile."""
 _Q_STEP: Final = 0.1
+_CAP_M: Final = 0.01
+"""Clearance cap beyond the need (m) where a test only asks whether the footprint fits."""
 
 
 @dataclass(frozen=True)
@@ -288,7 +290,8 @@ def _needed_q(
         if len(todo) == 0:
             break
         pts = fp.slot_points(poses[todo], np.full(len(todo), q), col[todo])
-        c = world.clearance(pts.reshape(-1, 2), need_m + 1.0).reshape(len(todo), -1).min(axis=1)
+        # only "fits or not" matters here: a tight cap keeps the obstacle query small
+        c = world.clearance(pts.reshape(-1, 2), need_m + _CAP_M).reshape(len(todo), -1).min(axis=1)
         ok = c >= need_m
         q_req[todo[ok]] = q
         clear[todo[ok]] = c[ok]
@@ -321,16 +324,25 @@ def _feasible(
     reach = math.ceil(1.1 * SQUEEZE_RAMP_M * fp.q_max / VERIFY_DS_M) + 2
     mark = np.zeros(m, dtype=bool)
     for k in near:
-        mark[max(0, k - reach) : k + reach + 1] = True
+        mark[max(0, k - reach - 1) : k + reach + 2] = True
+    mark_all = mark.copy()
+    # every other sample (6 cm): a sample between two is feasible where both are (the final
+    # profile is tested exactly at every sample anyway)
+    mark[1::2] = False
+    mark[m - 1] = mark_all[m - 1]
     idx = np.flatnonzero(mark)
     for li, q in enumerate(levels):
         pts = fp.slot_points(poses[idx], np.full(len(idx), q), col[idx])
-        c = world.clearance(pts.reshape(-1, 2), fp.slot_radius_m + 1.0)
+        c = world.clearance(pts.reshape(-1, 2), fp.slot_radius_m + _CAP_M)
         pair = _pair_min(pts)
         feas[idx, li] = (c.reshape(len(idx), -1).min(axis=1) >= fp.slot_radius_m) & (
             pair >= min_pair_m
         )
         soft[idx, li] = pair >= soft_pair_m
+    odd = np.arange(1, m - 1, 2)
+    odd = odd[mark_all[odd]]
+    feas[odd] = feas[odd - 1] & feas[odd + 1]
+    soft[odd] = soft[odd - 1] & soft[odd + 1]
     return feas, soft
 
 
@@ -448,6 +460,7 @@ def _speed_profile(
     lim: SlotLimits,
     accel_share: float = 0.4,
     turn_share: float = 0.95,
+    speed_share: float = 0.93,
 ) -> tuple[FloatArray, FloatArray]:
     """Leader speed at each sample, every slot within ``lim`` (module docstring, step 4), and
     every slot's velocity per unit leader speed in the world frame (m, n, 2).
@@ -469,7 +482,7 @@ def _speed_profile(
     dpsi = np.where(big, np.abs(wx * dgy - wy * dgx) / np.maximum(gnorm, 1e-9) ** 2, 0.0)
     gmax = gnorm.max(axis=1)
     v = np.full(len(q), cruise_mps)
-    v = np.minimum(v, lim.speed_mps / np.maximum(gmax, 1e-9))
+    v = np.minimum(v, speed_share * lim.speed_mps / np.maximum(gmax, 1e-9))
     v = np.minimum(v, turn_share * lim.turn_radps / np.maximum(np.abs(kappa), 1e-9))
     v = np.minimum(v, turn_share * lim.turn_radps / np.maximum(dpsi.max(axis=1), 1e-9))
     v = np.minimum(v, np.sqrt(accel_share * lim.accel_mps2 / np.maximum(dg.max(axis=1), 1e-9)))
@@ -485,10 +498,10 @@ def _speed_profile(
 
 def _within_limits(
     s: FloatArray, v: FloatArray, t: FloatArray, g: FloatArray, lim: SlotLimits
-) -> bool:
-    """Every slot's speed, turn rate and acceleration (over ``feasibility.ACCEL_WINDOW_S``), as
-    the feasibility check measures them, within ``lim`` on a 0.02 s grid, with 5 % to
-    spare."""
+) -> tuple[float, float, float]:
+    """The largest ratio to its limit of every slot's speed, turn rate and acceleration (over
+    ``feasibility.ACCEL_WINDOW_S``), as the feasibility check measures them on a 0.02 s
+    grid."""
     from .feasibility import ACCEL_WINDOW_S
 
     step = 0.02
@@ -501,18 +514,20 @@ def _within_limits(
         vel[:, i, 0] = vu * np.interp(su, s, g[:, i, 0])
         vel[:, i, 1] = vu * np.interp(su, s, g[:, i, 1])
     speed = np.hypot(vel[..., 0], vel[..., 1])
-    if speed.max() > 0.95 * lim.speed_mps:
-        return False
     moving = speed > 0.5 * lim.speed_mps
     heading = np.unwrap(np.arctan2(vel[..., 1], vel[..., 0]), axis=0)
     rate = np.abs(np.diff(heading, axis=0)) / step
-    if np.any(np.where(moving[1:] & moving[:-1], rate, 0.0) > 0.95 * lim.turn_radps):
-        return False
+    turn = float(np.where(moving[1:] & moving[:-1], rate, 0.0).max(initial=0.0))
     w = max(1, round(ACCEL_WINDOW_S / step))
-    if len(tu) <= w:
-        return True
-    dv = vel[w:] - vel[:-w]
-    return bool(np.hypot(dv[..., 0], dv[..., 1]).max() / (w * step) <= 0.95 * lim.accel_mps2)
+    accel = 0.0
+    if len(tu) > w:
+        dv = vel[w:] - vel[:-w]
+        accel = float(np.hypot(dv[..., 0], dv[..., 1]).max()) / (w * step)
+    return (
+        float(speed.max()) / lim.speed_mps,
+        turn / lim.turn_radps,
+        accel / lim.accel_mps2,
+    )
 
 
 def _times(v: FloatArray, ds: float) -> FloatArray:
@@ -655,16 +670,34 @@ def plan(
     else:
         q_t, dq_t = np.zeros_like(s_t), np.zeros_like(s_t)
     col_t, dcol_t = _columns(pieces, s_t, fp)
-    share, turn_share = 0.4, 0.95
+    share, turn_share, speed_share = 0.4, 0.95, 0.93
     for _ in range(10):  # tighten the budgets until the slots' check passes
         v, g = _speed_profile(
-            fp, th, ka, q_t, dq_t, col_t, dcol_t, ds, cruise_mps, limits, share, turn_share
+            fp,
+            th,
+            ka,
+            q_t,
+            dq_t,
+            col_t,
+            dcol_t,
+            ds,
+            cruise_mps,
+            limits,
+            share,
+            turn_share,
+            speed_share,
         )
         t = _times(v, ds)
-        if _within_limits(s_t, v, t, g, limits):
+        r_speed, r_turn, r_accel = _within_limits(s_t, v, t, g, limits)
+        if max(r_speed, r_turn, r_accel) <= 0.95:  # 5 % to spare
             break
-        share *= 0.75
-        turn_share *= 0.8
+        # both budgets act about linearly on what they bound: scale them to 90 %
+        if r_accel > 0.95:
+            share *= max(0.3, 0.9 / r_accel)
+        if r_turn > 0.95:
+            turn_share *= max(0.3, 0.9 / r_turn)
+        if r_speed > 0.95:
+            speed_share *= max(0.3, 0.9 / r_speed)
     else:
         raise NoPlan("no speed profile keeps every slot within the robots' limits")
     straight = sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in itertools.pairwise(pts_in))
