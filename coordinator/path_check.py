@@ -1,11 +1,13 @@
 """Does a slot's planned path cross an obstacle or leave the arena? (a pure check, no planning)
 
-The coordinator does not plan around obstacles (the robots' safety filter keeps them clear of
-what they know, ``robot_agent.safety_filter``); it warns when the formation it will command
-asks for the impossible: a slot whose path, sampled over the run, brings a robot's body onto an
-obstacle or over the arena's edge. A robot on such a slot is held off by its filter and cannot
-reach the slot (tracking error, maybe a tie-break), which is worth one line in the log rather
-than a surprise in the metrics.
+A scripted trajectory is not planned around obstacles (a ``kind = "plan"`` one is:
+``coordinator.planning``, and has no conflict here by construction); the robots' safety filter
+keeps them clear of what they know (``robot_agent.safety_filter``). This check warns when the
+formation the coordinator will command asks for the impossible: a slot whose path, sampled
+over the run, brings a robot's body onto an obstacle or over the arena's edge. A robot on such a
+slot is held off by its filter and cannot reach the slot (tracking error, maybe a tie-break),
+which is worth one line in the log rather than a surprise in the metrics. A planned squeeze's
+time-varying slot offsets (``slot_offsets``) are checked as the coordinator commands them.
 
 The slot positions are where each robot's REFERENCE POINT should be (eqs 10-11); the body is a
 disc of ``body_radius_m`` around the axle centre, ``ref_offset_m`` behind, so the check takes
