@@ -26,6 +26,10 @@ from typing import NoReturn
 # subcommand -> (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("formation.sim.command", "run a scenario in-process (no Zenoh), deterministic, fast"),
+    "check": (
+        "formation.sim.check",
+        "check a scenario before a run: schema, path conflicts, slot feasibility",
+    ),
     "demo": ("formation.sim.demo", "run the paper's experiment 2 and write metrics and figures"),
     "sweep": ("formation.sweep.command", "run a parameter study: many sims, one table, plots"),
     "up": ("formation.launch.up", "start router, plant, coordinator and one agent per robot"),
@@ -61,6 +65,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 # tests/fleet/test_cli_mistakes.py checks every subcommand has one; docs/runtime.md explains them.
 EXAMPLES: dict[str, tuple[str, ...]] = {
     "formation sim": ("formation sim --scenario chevron7 --duration 30 --seed 4",),
+    "formation check": ("formation check corridor", "formation check my-mission.toml --strict"),
     "formation demo": ("formation demo --duration 20 --no-figures",),
     "formation sweep": ("formation sweep studies/ref-offset.toml --reduced --no-plots",),
     "formation up": (
@@ -116,6 +121,7 @@ EXTRA_OF_MODULE: dict[str, str] = {
     "foxglove": "sim",
     "cryptography": "sim",
     "pyarrow": "sim",
+    "shapely": "sim",
     "cv2": "camera",
     "pupil_apriltags": "camera",
     "serial": "agent",

@@ -19,6 +19,7 @@ from typing import Any
 
 from bus_schemas import keys
 from robot_agent.core.config_tables import agent_sections, build_section, world_map
+from robot_agent.core.kinematics import reference_point
 from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
@@ -204,6 +205,40 @@ def parse_world(data: dict[str, Any]) -> WorldMap:
     return world
 
 
+def plan_table(
+    data: dict[str, Any],
+    trajectory: dict[str, Any],
+    formation: dict[str, Any],
+    agent: AgentConfig,
+    initial: tuple[tuple[float, float, float], ...],
+) -> dict[str, Any]:
+    """A ``kind = "plan"`` trajectory table with the ``context`` its plan depends on: the
+    obstacles and arena as written, the formation table, the robot geometry and limits, and the
+    start pose (the first robot's reference point, eqs 10-11, and heading). Plain data (the plan
+    is a deterministic function of it; ``coordinator.core.planning.trajectory``)."""
+    if "context" in trajectory:
+        raise ScenarioError("trajectory.context: set from the rest of the scenario, not written")
+    g = agent.geometry
+    x, y, th = initial[0]
+    return {
+        **trajectory,
+        "context": {
+            "obstacles": data.get("obstacle", []),
+            "arena": data.get("arena"),
+            "formation": formation,
+            "geometry": {
+                "body_radius_m": g.body_radius_m, "ref_offset_m": g.ref_offset_m,
+                "wheel_radius_m": g.wheel_radius_m, "half_track_m": g.half_track_m,
+                "max_wheel_radps": g.max_wheel_radps,
+            },
+            "margin_m": agent.safety_filter.margin_m,
+            "safety_distance_m": agent.safety_distance_m,
+            "max_ref_speed_mps": agent.gains.max_ref_speed_mps,
+            "start": [*reference_point(x, y, th, g.ref_offset_m), th],
+        },
+    }  # fmt: skip
+
+
 def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PLR0915 (a validator: one check per key)
     """Validate a scenario dictionary (as read from TOML)."""
     _only(data, TOP_KEYS, "scenario")
@@ -268,10 +303,12 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
 
     trajectory = _table(data, "trajectory", "")
     if "kind" not in trajectory:
-        raise ScenarioError("trajectory.kind: required (line, circle, figure8, waypoints)")
+        raise ScenarioError("trajectory.kind: required (line, circle, figure8, waypoints, plan)")
     formation = _table(data, "formation", "")
     if "kind" not in formation and "slots" not in formation:
         raise ScenarioError("formation.kind: required (triangle, chevron, lattice) or slots")
+    if trajectory["kind"] == "plan":
+        trajectory = plan_table(data, trajectory, formation, agent, initial)
 
     a = _table(data, "assignment", "")
     _only(a, {"method", "hysteresis_m", "tie_tol_m"}, "assignment")

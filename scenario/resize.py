@@ -38,13 +38,28 @@ def _slot_poses(data: Mapping[str, Any]) -> list[tuple[float, float, float]]:
 
     traj = dict(data["trajectory"])
     kind = str(traj.pop("kind"))
-    leader = make_trajectory(kind, traj).sample(0.0)
+    # a plan is made later, from the resized scenario: its start pose is enough here
+    leader = _plan_start(data, traj) if kind == "plan" else make_trajectory(kind, traj).sample(0.0)
     spec = FormationSpec.from_dict(dict(data["formation"]))
     l_m = float(data.get("geometry", {}).get("ref_offset_m", 0.05))
     return [
         (*axle_from_reference_point(s.x, s.y, s.theta, l_m), s.theta)
         for s in slot_states(spec, leader)
     ]
+
+
+def _plan_start(data: Mapping[str, Any], traj: Mapping[str, Any]) -> Any:
+    """The virtual leader at rest at a planned trajectory's start: ``x0``, ``y0``, ``heading``
+    or the first robot's reference point and heading (what ``scenario.load`` plans from)."""
+    from coordinator.core.trajectory import LeaderState
+
+    robots = dict(data.get("robots", {}))
+    first = (robots.get("initial") or [[0.0, 0.0, 0.0]])[0]
+    l_m = float(data.get("geometry", {}).get("ref_offset_m", 0.05))
+    th = float(traj.get("heading", first[2]))
+    x = float(traj.get("x0", first[0] + l_m * math.cos(first[2])))
+    y = float(traj.get("y0", first[1] + l_m * math.sin(first[2])))
+    return LeaderState(0.0, x, y, th, 0.0, 0.0)
 
 
 def scenario_with_robots(data: Mapping[str, Any], n: int | None, spares: int = 0) -> dict[str, Any]:

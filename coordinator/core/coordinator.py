@@ -36,6 +36,7 @@ from coordinator.core.formation import (
     FormationSpec,
     SlotRow,
     SlotState,
+    morphed_slot_rows,
     slot_rows,
     states_from_rows,
 )
@@ -265,6 +266,8 @@ class CoordinatorCore:
         if not (ref_offset_m > 0 and math.isfinite(ref_offset_m)):
             raise ValueError(f"ref_offset_m must be positive and finite, got {ref_offset_m!r}")
         self.trajectory = trajectory
+        # a planned trajectory may squeeze the formation (time-varying slot offsets)
+        self._offsets_at = getattr(trajectory, "slot_offsets", None)
         self.formation = formation
         self.assigner = assigner
         self.ref_offset_m = ref_offset_m
@@ -329,7 +332,11 @@ class CoordinatorCore:
         """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta)."""
         leader = self.trajectory.sample(now_s - self.t0_s)
         spec = self.formation
-        theta, rows = slot_rows(spec, leader)
+        offsets = None if self._offsets_at is None else self._offsets_at(now_s - self.t0_s)
+        if offsets is None:
+            theta, rows = slot_rows(spec, leader)
+        else:
+            theta, rows = morphed_slot_rows(leader, offsets)
         ids, xy = self._ref_points(poses)
         assignment, changed = self.assigner.update_ordered(
             ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))

@@ -55,6 +55,7 @@ __all__ = [
     "first_stage_pattern",
     "formation_spacing_m",
     "grow_staged",
+    "morphed_slot_rows",
     "resized_formation_table",
     "slot_arrays",
     "slot_rows",
@@ -367,6 +368,33 @@ def slot_rows(spec: FormationSpec, leader: LeaderState) -> tuple[float, list[Slo
                     vyp - b * omega * cg,  # d/dt of eq 5
                 )
             )
+    return theta, rows
+
+
+def morphed_slot_rows(
+    leader: LeaderState, offsets: Sequence[tuple[float, float, float, float]]
+) -> tuple[float, list[SlotRow]]:
+    """:func:`slot_rows` for a formation whose slot offsets vary in time (a planned squeeze
+    through a narrow passage, ``coordinator.core.planning``): ``offsets[i]`` is ``(ox, oy, dox,
+    doy)``, slot row ``i``'s offset from the leader in the leader's body frame (m, heading +x)
+    and its rate (m/s). Eqs 3-5 summed down the tree are ``p_i = p_L + R(theta) o_i``; their
+    derivative adds the squeeze's own rate: ``v_i = v_L + omega J R(theta) o_i + R(theta)
+    o_i'``. Constant offsets (``body_offsets_m``, zero rates) give the rigid formation."""
+    theta = wrap_angle(leader.theta)
+    omega = leader.omega_radps
+    c, s = math.cos(theta), math.sin(theta)
+    vxl, vyl = leader.v_mps * c, leader.v_mps * s  # eqs 1-2
+    rows: list[SlotRow] = []
+    for ox, oy, dox, doy in offsets:
+        rx, ry = c * ox - s * oy, s * ox + c * oy
+        rows.append(
+            (
+                leader.x + rx,
+                leader.y + ry,
+                vxl - omega * ry + c * dox - s * doy,
+                vyl + omega * rx + s * dox + c * doy,
+            )
+        )
     return theta, rows
 
 

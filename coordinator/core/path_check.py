@@ -1,11 +1,13 @@
 """Does a slot's planned path cross an obstacle or leave the arena? (a pure check, no planning)
 
-The coordinator does not plan around obstacles (the robots' safety filter keeps them clear of
-what they know, ``robot_agent.core.safety_filter``); it warns when the formation it will command
-asks for the impossible: a slot whose path, sampled over the run, brings a robot's body onto an
-obstacle or over the arena's edge. A robot on such a slot is held off by its filter and cannot
-reach the slot (tracking error, maybe a tie-break), which is worth one line in the log rather
-than a surprise in the metrics.
+A scripted trajectory is not planned around obstacles (a ``kind = "plan"`` one is:
+``coordinator.core.planning``, and has no conflict here by construction); the robots' safety filter
+keeps them clear of what they know (``robot_agent.core.safety_filter``). This check warns when the
+formation the coordinator will command asks for the impossible: a slot whose path, sampled
+over the run, brings a robot's body onto an obstacle or over the arena's edge. A robot on such a
+slot is held off by its filter and cannot reach the slot (tracking error, maybe a tie-break),
+which is worth one line in the log rather than a surprise in the metrics. A planned squeeze's
+time-varying slot offsets (``slot_offsets``) are checked as the coordinator commands them.
 
 The slot positions are where each robot's REFERENCE POINT should be (eqs 10-11); the body is a
 disc of ``body_radius_m`` around the axle centre, ``ref_offset_m`` behind, so the check takes
@@ -20,7 +22,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from coordinator.core.formation import FormationSpec, slot_states
+from coordinator.core.formation import (
+    FormationSpec,
+    morphed_slot_rows,
+    slot_states,
+    states_from_rows,
+)
 from coordinator.core.trajectory import make_trajectory
 from robot_agent.core.params import CircleObstacle, SegmentObstacle, WorldMap
 
@@ -89,9 +96,19 @@ def slot_path_conflicts(
     worst: dict[tuple[int, str], tuple[float, float]] = {}
     n = math.floor(duration_s / step_s + 1e-9) + 1
     a = world.arena
+    offsets_at = getattr(
+        traj, "slot_offsets", None
+    )  # a planned squeeze (coordinator.core.planning)
     for k in range(n):
         t = t0_s + k * step_s
-        for s in slot_states(spec, traj.sample(t)):
+        leader = traj.sample(t)
+        offsets = None if offsets_at is None else offsets_at(t)
+        states = (
+            slot_states(spec, leader)
+            if offsets is None
+            else states_from_rows(spec, *morphed_slot_rows(leader, offsets))
+        )
+        for s in states:
             checks: list[tuple[str, float]] = [
                 (f"obstacle[{j}]", _clearance(s.x, s.y, o, radius))
                 for j, o in enumerate(world.obstacles)

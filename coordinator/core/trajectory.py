@@ -496,11 +496,13 @@ class Waypoints:
 # --------------------------------------------------------------------------------------------
 # Factory for scenario files
 
-_KINDS: dict[str, type[Any]] = {
+_KINDS: dict[str, type[Any] | str] = {
     "line": StraightLine,
     "circle": Circle,
     "figure8": FigureEight,
     "waypoints": Waypoints,
+    # a planned path to a goal (issue 27): imported when used (numpy, scipy, shapely)
+    "plan": "coordinator.core.planning.trajectory:PlannedTrajectory",
 }
 _ALIASES = {"straight": "line", "figure_eight": "figure8", "lemniscate": "figure8"}
 
@@ -508,10 +510,23 @@ TRAJECTORY_KINDS: tuple[str, ...] = tuple(_KINDS)
 """Kinds accepted by :func:`make_trajectory`."""
 
 
+def trajectory_class(kind: str) -> type[Any]:
+    """The class of trajectory ``kind`` (a key of the kinds table; a lazy entry is imported)."""
+    cls = _KINDS[kind]
+    if isinstance(cls, str):
+        import importlib
+
+        module, _, name = cls.partition(":")
+        cls = _KINDS[kind] = getattr(importlib.import_module(module), name)
+    return cls
+
+
 def make_trajectory(kind: str, params: Mapping[str, Any]) -> Trajectory:
     """Build a trajectory from a scenario table.
 
-    ``kind`` is one of ``"line"``, ``"circle"``, ``"figure8"``, ``"waypoints"``; ``params`` holds
+    ``kind`` is one of ``"line"``, ``"circle"``, ``"figure8"``, ``"waypoints"``, ``"plan"``
+    (``coordinator.core.planning.trajectory``: its table needs the ``context`` that
+    ``scenario.load`` adds); ``params`` holds
     the constructor's keyword arguments (e.g. ``{"x0": 0, "y0": 0, "heading": 0,
     "speed_mps": 0.05}`` for a line). Unknown kinds, unknown or missing parameters and invalid
     values raise ``ValueError``.
@@ -519,7 +534,7 @@ def make_trajectory(kind: str, params: Mapping[str, Any]) -> Trajectory:
     if not isinstance(kind, str):
         raise ValueError(f"trajectory kind must be a string, got {kind!r}")
     key = _ALIASES.get(kind.strip().lower(), kind.strip().lower())
-    cls = _KINDS.get(key)
+    cls = trajectory_class(key) if key in _KINDS else None
     if cls is None:
         raise ValueError(
             f"unknown trajectory kind {kind!r}; expected one of {', '.join(TRAJECTORY_KINDS)}"

@@ -85,6 +85,10 @@ def main(argv: list[str]) -> int:
         rt.check_names(("--name", ns.name), ("--fleet", ns.fleet))
         _check_state_path(ns.estop_state)
         if ns.check:
+            from scenario.preflight import preflight_warnings  # path conflicts, feasibility
+
+            for warning in preflight_warnings(scenario):
+                print(f"warning: {warning}", flush=True)
             robots = ", ".join(scenario.robot_ids)
             task = f"trajectory {scenario.trajectory.get('kind')}, "
             task += f"formation {scenario.formation.get('kind')}"

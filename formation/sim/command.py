@@ -168,8 +168,6 @@ def summary(m: dict[str, Any]) -> str:
             f"{'-' if saf['tiebreaks'] is None else saf['tiebreaks']}"
             + ("" if saf["filter_source"] else " (filter counters not reported: truth only)")
         )
-    for w in m.get("meta", {}).get("path_warnings", []):
-        lines.append(f"warning: {w}")
     return "\n".join(lines)
 
 
@@ -190,6 +188,11 @@ def main(argv: list[str]) -> int:
     if why is not None:
         print(f"formation sim: error: {why}", file=sys.stderr)
         return 2
+    if not args.quiet:  # every check, BEFORE the run (not after its table)
+        from scenario.preflight import preflight_warnings
+
+        for w in preflight_warnings(scn, args.duration):
+            print(f"warning: {w}", flush=True)
     out = args.out or Path("runs") / scn.name
     if out.exists() and not out.is_dir():
         print(f"formation sim: error: --out: {out} exists and is not a folder", file=sys.stderr)

@@ -78,6 +78,10 @@ MISTAKES: list[tuple[tuple[str, ...], tuple[str, ...]]] = [
     # the entry point
     (("nosuch",), ("unknown command", "nosuch")),
     (("--bogus",), ("unknown option", "--bogus")),
+    # formation check
+    (("check", "nosuch"), ("no scenario", "nosuch")),
+    (("check", "corridor", "--duration", "-1"), ("--duration",)),
+    (("check",), ("scenario",)),
     # formation sim: options
     (("sim", "--duration", "-5"), ("--duration", "> 0")),
     (("sim", "--duration", "nan"), ("--duration", "nan")),

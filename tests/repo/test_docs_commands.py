@@ -51,7 +51,7 @@ SKIP_RULES: list[tuple[str, str]] = [
      "(test_the_by_hand_runbook_runs)"),
     (r"--robots (\d{3,}|[2-9]\d)\b", "a large fleet: minutes on 2 cores (bench/, docs/scale.md)"),
 ]  # fmt: skip
-RUNNABLE = re.compile(r"^formation (sim|up|demo|acl|certs|--version|--help)\b")
+RUNNABLE = re.compile(r"^formation (sim|up|demo|acl|certs|check|--version|--help)\b")
 SHORT_DURATION_S = "3"
 
 
@@ -251,7 +251,13 @@ def test_every_subcommand_is_in_the_readme_table() -> None:
 def test_every_scenario_key_is_in_docs_scenarios() -> None:
     """The keys scenario/load.py and the cores accept are all named in docs/scenarios.md."""
     from coordinator.core.formation import FORMATION_KINDS
-    from coordinator.core.trajectory import _KINDS, TRAJECTORY_KINDS
+    from coordinator.core.trajectory import (
+        _KINDS,
+        TRAJECTORY_KINDS,
+    )
+    from coordinator.core.trajectory import (
+        trajectory_class as make_trajectory_class,
+    )
     from robot_agent.core.params import (
         Arena,
         CircleObstacle,
@@ -269,7 +275,8 @@ def test_every_scenario_key_is_in_docs_scenarios() -> None:
     names: set[str] = set(TOP_KEYS) | set(FORMATION_KINDS) | set(TRAJECTORY_KINDS)
     for cls in (RobotGeometry, TrackingGains, RepulsionParams, SafetyParams, EstimatorParams,
                 SafetyFilterParams, CircleObstacle, SegmentObstacle, Arena,
-                PlantModel, CameraModel, LinkModel, Disturbance, *_KINDS.values()):  # fmt: skip
+                PlantModel, CameraModel, LinkModel, Disturbance,
+                *(make_trajectory_class(k) for k in _KINDS)):  # fmt: skip
         names |= {f.name for f in dataclasses.fields(cls) if f.init}
     names |= {"ids", "count", "initial", "method", "greedy", "optimal", "sparse", "n", "slots"}
     names |= {"drag", "teleport", "camera_loss", "phi", "b_m", "parent", "phi_rad"}

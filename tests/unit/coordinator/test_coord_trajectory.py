@@ -287,7 +287,7 @@ def test_invalid_parameters_raise_clear_errors(make: Any, match: str) -> None:
 
 
 def test_make_trajectory_builds_every_kind() -> None:
-    assert set(TRAJECTORY_KINDS) == {"line", "circle", "figure8", "waypoints"}
+    assert set(TRAJECTORY_KINDS) == {"line", "circle", "figure8", "waypoints", "plan"}
     line = make_trajectory("line", {"x0": 0, "y0": 1, "heading": 0.5, "speed_mps": 0.1})
     assert line == StraightLine(0.0, 1.0, 0.5, 0.1)
     circ = make_trajectory("circle", {"cx": 0, "cy": 0, "radius_m": 1, "speed_mps": 0.1})

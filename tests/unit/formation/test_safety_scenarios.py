@@ -105,8 +105,19 @@ def test_corridor_scenario_survives_the_toml_round_trip(tmp_path: Path) -> None:
 # ------------------------------------------------------------------------- path check
 
 
-def test_path_check_finds_the_pillar_in_slot_1s_path_and_nothing_else() -> None:
+SCRIPTED_LINE = {"kind": "line", "x0": 0.05, "y0": 0.0, "heading": 0.0, "speed_mps": 0.05}
+
+
+def scripted_corridor() -> scenario_mod.Scenario:
+    """The corridor with a scripted leader (the straight line it had before it planned, issue
+    27): the pillar stands in slot 1's path, so the second layer (the robots' safety filter)
+    alone keeps the robot clear; what these tests are about."""
     scn = scenario_mod.load("corridor")
+    return dataclasses.replace(scn, trajectory=dict(SCRIPTED_LINE), duration_s=70.0)
+
+
+def test_path_check_finds_the_pillar_in_slot_1s_path_and_nothing_else() -> None:
+    scn = scripted_corridor()
     conflicts = path_conflicts(scn)
     assert [(c.slot, c.what) for c in conflicts] == [(1, "obstacle[2]")]
     c = conflicts[0]
@@ -139,7 +150,7 @@ def test_path_check_sees_the_arena_edge_and_segments() -> None:
 def test_coordinator_node_warns_once_about_the_pillar(capsys: pytest.CaptureFixture[str]) -> None:
     from coordinator.node.coordinator import CoordinatorNode
 
-    node = CoordinatorNode(scenario_mod.load("corridor"), "c1", "demo", lambda *a, **k: None)
+    node = CoordinatorNode(scripted_corridor(), "c1", "demo", lambda *a, **k: None)
     assert len(node.path_warnings) == 1
     err = capsys.readouterr().err
     assert err.count("warning: slot 1's path crosses obstacle[2]") == 1
@@ -200,7 +211,7 @@ EXACT = {"camera": {"pos_std_m": 0.0, "theta_std_rad": 0.0, "latency_s": 0.0},
 
 
 def _corridor(exact: bool) -> scenario_mod.Scenario:
-    scn = scenario_mod.load("corridor")
+    scn = scripted_corridor()
     if exact:
         scn = dataclasses.replace(
             scn,
