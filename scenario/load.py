@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from bus_schemas import keys
+from coordinator.core.leader import LeaderConfig
 from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
@@ -94,6 +95,9 @@ class Scenario:
     link: LinkModel
     disturbances: tuple[Disturbance, ...] = field(default_factory=tuple)
     source: str = ""
+    leader: LeaderConfig = field(default_factory=LeaderConfig)
+    """``[leader]``: the operator's limits, the deadman and whether the leader waits for its team
+    (coordinator.core.leader, docs/operate.md)."""
 
     def with_overrides(self, **changes: Any) -> Scenario:
         return dataclasses.replace(self, **changes)
@@ -186,6 +190,7 @@ TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
     "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
+    "leader",
 }  # fmt: skip
 
 
@@ -285,6 +290,11 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         tie_tol_m=_num(a, "tie_tol_m", "assignment", 0.01, lo=0.0),
     )
 
+    try:
+        leader = LeaderConfig.from_dict(_table(data, "leader", ""))
+    except (TypeError, ValueError) as exc:
+        raise ScenarioError(str(exc)) from None
+
     p = _table(data, "plant", "")
     _only(p, {"motor_tau_s", "encoder_counts_per_rev", "encoder_slip_std"}, "plant")
     plant = PlantModel(
@@ -360,4 +370,5 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         link=link,
         disturbances=tuple(sorted(disturbances, key=lambda x: x.t_s)),
         source=source,
+        leader=leader,
     )

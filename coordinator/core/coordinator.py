@@ -26,7 +26,7 @@ computed by :func:`~coordinator.core.formation.slot_rows`, the assignment by
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import replace
 from types import MappingProxyType
 from typing import Any, Final
@@ -39,6 +39,7 @@ from coordinator.core.formation import (
     slot_rows,
     states_from_rows,
 )
+from coordinator.core.leader import LeaderConfig, LeaderCore
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.core.kinematics import reference_point
 from robot_agent.core.params import AgentConfig
@@ -252,7 +253,8 @@ _NO_APPROACH: Mapping[str, SlotRow] = MappingProxyType({})
 
 
 class CoordinatorCore:
-    """Virtual leader (eqs 1-2), slots (eqs 3-5), greedy/optimal role assignment (eq 6)."""
+    """Virtual leader (eqs 1-2, a state advanced each tick: coordinator.core.leader), slots
+    (eqs 3-5), greedy/optimal role assignment (eq 6)."""
 
     def __init__(
         self,
@@ -261,20 +263,35 @@ class CoordinatorCore:
         assigner: RoleAssigner,
         ref_offset_m: float,
         t0_s: float = 0.0,
+        leader: LeaderCore | None = None,
     ) -> None:
         if not (ref_offset_m > 0 and math.isfinite(ref_offset_m)):
             raise ValueError(f"ref_offset_m must be positive and finite, got {ref_offset_m!r}")
         self.trajectory = trajectory
+        self.leader = leader if leader is not None else LeaderCore(trajectory, t0_s=t0_s)
+        self.leader.t0_s = t0_s
         self.formation = formation
         self.assigner = assigner
         self.ref_offset_m = ref_offset_m
-        self.t0_s = t0_s
+        self.errors_m: dict[str, float] = {}
+        """Tracking error (m) of each assigned robot at the last tick (reference point to the
+        setpoint of the tick before), computed while the leader waits for its team."""
         self.assignment: dict[str, int] = {}
         self.approach_speed_mps = APPROACH_SPEED_MPS
         self._approach: dict[str, list[float]] = {}  # robot -> approach point [x, y]
         self._running = False  # a tick has assigned robots (later assignments approach)
         self._last_now: float | None = None
         self._row_of: dict[int, int] | None = None
+        self._last_out: CoordinatorOutput | None = None
+
+    @property
+    def t0_s(self) -> float:
+        """Time origin of the scripted trajectory (s, the tick's clock)."""
+        return self.leader.t0_s
+
+    @t0_s.setter
+    def t0_s(self, value: float) -> None:
+        self.leader.t0_s = value
 
     @classmethod
     def from_config(
@@ -286,14 +303,19 @@ class CoordinatorCore:
         tie_tol_m: float,
         ref_offset_m: float,
         t0_s: float = 0.0,
+        leader: LeaderConfig | None = None,
+        arena: tuple[float, float, float, float] | None = None,
     ) -> CoordinatorCore:
+        kind = str(trajectory["kind"])
         traj_params = {k: v for k, v in trajectory.items() if k != "kind"}
+        traj = make_trajectory(kind, traj_params)
         return cls(
-            make_trajectory(str(trajectory["kind"]), traj_params),
+            traj,
             FormationSpec.from_dict(dict(formation)),
             RoleAssigner(method=method, hysteresis_m=hysteresis_m, tie_tol_m=tie_tol_m),
             ref_offset_m=ref_offset_m,
             t0_s=t0_s,
+            leader=LeaderCore(traj, leader, t0_s=t0_s, trajectory_kind=kind, arena=arena),
         )
 
     def _ref_points(
@@ -324,13 +346,22 @@ class CoordinatorCore:
         return state.x, state.y
 
     def tick(
-        self, now_s: float, poses: Mapping[str, tuple[float, float, float]]
+        self,
+        now_s: float,
+        poses: Mapping[str, tuple[float, float, float]],
+        held: Collection[str] = (),
     ) -> CoordinatorOutput:
-        """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta)."""
-        leader = self.trajectory.sample(now_s - self.t0_s)
+        """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta);
+        ``held``: robots known to be held (e-stopped): a leader that waits for its team stops
+        for them (coordinator.core.leader)."""
+        ids, xy = self._ref_points(poses)
+        rate = 1.0
+        if self.leader.waits() and self._last_out is not None:
+            self.errors_m = self._errors(self._last_out, ids, xy)
+            rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
+        leader = self.leader.step(now_s, rate)
         spec = self.formation
         theta, rows = slot_rows(spec, leader)
-        ids, xy = self._ref_points(poses)
         assignment, changed = self.assigner.update_ordered(
             ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))
         )
@@ -341,7 +372,28 @@ class CoordinatorCore:
         if self._approach or (changed and self._running):
             approach = self._approaches(previous, assignment, ids, xy, rows, dt)
         self._running = self._running or bool(assignment)
-        return CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
+        out = CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
+        self._last_out = out
+        return out
+
+    def _errors(
+        self, last: CoordinatorOutput, ids: list[str], xy: list[tuple[float, float]]
+    ) -> dict[str, float]:
+        """Each robot assigned at the last tick: distance (m) from its reference point now to
+        the setpoint it was given (its slot, or its approach point)."""
+        row_of = self._row_of
+        if row_of is None:
+            row_of = self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+        where = dict(zip(ids, xy, strict=True))
+        out: dict[str, float] = {}
+        rows, approach = last.rows, last.approach
+        for rid, slot in last.assignment.items():
+            p = where.get(rid)
+            if p is None:
+                continue
+            row = approach.get(rid) or rows[row_of[slot]]
+            out[rid] = math.hypot(row[0] - p[0], row[1] - p[1])
+        return out
 
     def _approaches(
         self,
