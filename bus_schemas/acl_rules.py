@@ -207,6 +207,11 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.ALIVE_ROBOT: KeyRoles(((_R, OWN), (_H, OWN_ROBOTS)), (_C, _P), token=True),
     keys.ALIVE_COORDINATOR: KeyRoles(((_C, OWN),), (_C, _P), token=True),
     keys.ALIVE_PLANT: KeyRoles((_P,), (_C,), token=True),
+    # the operator drives the virtual leader (issue 28); every coordinator instance reads them
+    # (a standby keeps them to continue after a takeover)
+    keys.CMD_VEL: KeyRoles((_O,), (_C,)),
+    keys.GOAL: KeyRoles((_O,), (_C,)),
+    keys.PATH: KeyRoles((_O,), (_C,)),
 }
 
 

@@ -48,6 +48,10 @@ COORDINATOR_STATUS = "coordinator_status"
 PLANT_STATUS = "plant_status"
 CAMERA_STATUS = "camera_status"
 ESTOP_HELD = "estop_held"
+# the operator's commands to the virtual leader (issue 28; bus_schemas.messages_operator)
+CMD_VEL = "cmd_vel"
+GOAL = "goal"
+PATH = "path"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -78,6 +82,10 @@ KEY_TEMPLATES: dict[str, str] = {
     # queried, never published: the e-stop engagements an agent (robot id) or agent host (name)
     # holds, answered only while it holds one (robot_agent.core.estop, docs/faults.md)
     ESTOP_HELD: "formation/{fleet}/estop/held/{name}",
+    # the operator drives the virtual leader: a teleop twist, a goal, a path (coordinators read)
+    CMD_VEL: "formation/{fleet}/operator/cmd_vel",
+    GOAL: "formation/{fleet}/operator/goal",
+    PATH: "formation/{fleet}/operator/path",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
@@ -86,6 +94,8 @@ _FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES,
 _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 # formation/<fleet>/coordinator/<name>/<leaf> -> message name
 _COORDINATOR_LEAVES = {HEARTBEAT: HEARTBEAT, STATUS: COORDINATOR_STATUS}
+# formation/<fleet>/operator/<leaf>
+_OPERATOR_LEAVES = frozenset({CMD_VEL, GOAL, PATH})
 
 
 class KeyInfo(NamedTuple):
@@ -256,6 +266,26 @@ def host_status_key(fleet: str, name: str) -> str:
     return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{STATUS}"
 
 
+def cmd_vel_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/cmd_vel``: teleop twist for the virtual leader (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{CMD_VEL}"
+
+
+def goal_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/goal``: drive the virtual leader to a point (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{GOAL}"
+
+
+def path_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/path``: drive the virtual leader along waypoints (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{PATH}"
+
+
+def operator_pattern(fleet: str) -> str:
+    """``formation/<fleet>/operator/*``: every operator command (coordinators subscribe)."""
+    return f"{_fleet_prefix(fleet)}/operator/*"
+
+
 # --- liveliness tokens ----------------------------------------------------------------------
 
 
@@ -404,6 +434,8 @@ def parse_key(key: str) -> KeyInfo | None:
         return KeyInfo(fleet, leaf, name=parts[3]) if _NAME_MATCH(parts[3]) else None
     if kind == ESTOP and n == 5 and parts[3] == "held":
         return KeyInfo(fleet, ESTOP_HELD, name=parts[4]) if _NAME_MATCH(parts[4]) else None
+    if kind == "operator" and n == 4 and parts[3] in _OPERATOR_LEAVES:
+        return KeyInfo(fleet, parts[3])
     if kind == "plant" and n == 4 and parts[3] == STATUS:
         return KeyInfo(fleet, PLANT_STATUS)
     if kind == "camera" and n == 5 and parts[4] == STATUS:

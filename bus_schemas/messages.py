@@ -43,9 +43,11 @@ from bus_schemas.messages_fields import (
     _X,
     _Y,
     DisturbanceKind,
+    LeaderMode,
     Mode,
     Role,
 )
+from bus_schemas.messages_operator import CmdVel, Goal, Path
 from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
@@ -95,6 +97,34 @@ class Leader:
     tick: int | None = field(
         default=None,
         metadata=f_int("lockstep: the clock `tick` this leader state answers (sent last)"),
+    )
+    # issue 28: what a standby needs to continue this leader at a takeover (all absent from an
+    # older coordinator, which only ran scripts: mode script, progress t - leader_t0, rate 1)
+    mode: str | None = field(default=None, metadata=f_enum("what drives the leader", LeaderMode))
+    progress_s: float | None = field(
+        default=None,
+        metadata=f_float(
+            "progress time of the scripted trajectory (advances at `rate`)",
+            "s",
+            lo=-_TMAX,
+            hi=_TMAX,
+        ),
+    )
+    rate: float | None = field(
+        default=None,
+        metadata=f_float(
+            "progress rate (1: full speed; < 1: waiting for the team)",
+            "",
+            lo=0.0,
+            hi=1.0,
+        ),
+    )
+    target: int | None = field(
+        default=None,
+        metadata=f_int("mode goal/path: index of the next waypoint", hi=1023),
+    )
+    deadman: bool | None = field(
+        default=None, metadata=f_bool("mode teleop: the deadman has tripped (no recent twist)")
     )
 
 
@@ -477,6 +507,9 @@ Message = (
     | CoordinatorStatus
     | PlantStatus
     | CameraStatus
+    | CmdVel
+    | Goal
+    | Path
 )
 """Any bus message."""
 
@@ -501,6 +534,9 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     CoordinatorStatus,
     PlantStatus,
     CameraStatus,
+    CmdVel,
+    Goal,
+    Path,
 )
 
 BATCH_CHUNK = 256

@@ -40,6 +40,16 @@ class Mode(StrEnum):
     ESTOP = "estop"
 
 
+class LeaderMode(StrEnum):
+    """What drives the virtual leader (coordinator.core.leader)."""
+
+    SCRIPT = "script"
+    TELEOP = "teleop"
+    GOAL = "goal"
+    PATH = "path"
+    STOP = "stop"
+
+
 class DisturbanceKind(StrEnum):
     """What a disturbance does to a simulated robot."""
 

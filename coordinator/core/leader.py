@@ -61,6 +61,7 @@ from dataclasses import dataclass, fields
 from enum import StrEnum
 from typing import Any, Final
 
+from bus_schemas.messages_fields import LeaderMode  # the modes as the leader message names them
 from coordinator.core.trajectory import LeaderState, Trajectory, wrap_angle
 
 __all__ = [
@@ -84,16 +85,6 @@ ABSURD_FACTOR: Final = 10.0
 MAX_PATH_POINTS: Final = 256
 """Most waypoints a live path may have."""
 _STOPPED_MPS: Final = 1e-9
-
-
-class LeaderMode(StrEnum):
-    """What drives the virtual leader (module docstring)."""
-
-    SCRIPT = "script"
-    TELEOP = "teleop"
-    GOAL = "goal"
-    PATH = "path"
-    STOP = "stop"
 
 
 class WaitSetting(StrEnum):

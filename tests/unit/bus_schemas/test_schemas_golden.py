@@ -19,11 +19,14 @@ from bus_schemas import (
     Assignment,
     CameraStatus,
     Clock,
+    CmdVel,
     CoordinatorStatus,
     Disturbance,
     Estop,
+    Goal,
     Heartbeat,
     Leader,
+    Path,
     PlantStatus,
     Pose,
     PoseBatch,
@@ -41,6 +44,24 @@ from bus_schemas import (
 )
 
 GOLDEN_MESSAGES: dict[str, Any] = {
+    # issue 28: a leader driven by the operator, and the operator's commands
+    "leader_operator": Leader(
+        t=12.5,
+        seq=251,
+        x=1.25,
+        y=-0.5,
+        theta=math.pi / 4,
+        v_mps=0.1,
+        omega_radps=-0.05,
+        mode="teleop",
+        progress_s=3.5,
+        rate=0.75,
+        target=0,
+        deadman=True,
+    ),
+    "cmd_vel": CmdVel(t=12.5, seq=42, v_mps=0.1, omega_radps=-0.25),
+    "goal": Goal(t=12.5, x=1.5, y=-2.0, heading=math.pi / 2),
+    "path": Path(t=12.5, xs=(0.5, 1.0), ys=(0.25, -0.25)),
     "leader": Leader(
         t=12.5, seq=250, x=1.25, y=-0.5, theta=math.pi / 4, v_mps=0.1, omega_radps=-0.05
     ),
@@ -264,6 +285,18 @@ GOLDEN_MESSAGES: dict[str, Any] = {
 
 # fmt: off
 GOLDEN_HEX: dict[str, str] = {
+    "leader_operator": (
+        "8da17601a174cb4029000000000000a3736571ccfba178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb3fe921fb54442d18a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfa999999999999aa46d6f6465a674656c656f70aa70726f67726573735f73cb400c000000000000a472617465cb3fe8000000000000a674617267657400a7646561646d616ec3"
+    ),
+    "cmd_vel": (
+        "85a17601a174cb4029000000000000a37365712aa5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfd0000000000000"
+    ),
+    "goal": (
+        "85a17601a174cb4029000000000000a178cb3ff8000000000000a179cbc000000000000000a768656164696e67cb3ff921fb54442d18"
+    ),
+    "path": (
+        "84a17601a174cb4029000000000000a2787392cb3fe0000000000000cb3ff0000000000000a2797392cb3fd0000000000000cbbfd0000000000000"
+    ),
     "leader": (
         "88a17601a174cb4029000000000000a3736571ccfaa178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb3fe921fb54442d18a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfa999999999999a"
     ),
