@@ -46,6 +46,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.election import Election
 from coordinator.node.election_io import MAX_ROBOTS, ElectionHandlers
 from coordinator.node.estop_source import EstopSource, attach_estop_source
+from coordinator.node.operator_io import OperatorInputs
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
@@ -163,6 +164,18 @@ class CoordinatorNode(ElectionHandlers):
         self.estop_source = EstopSource(
             self.estop_key, self._now, self._reject, self._internal, self.log
         )
+        # -- the operator's teleop, goals and paths, and the leader's continuation (issue 28)
+        self.operator = OperatorInputs(
+            self.fleet,
+            self.core.leader,
+            lockstep=lockstep,
+            now=self._now,
+            is_active=lambda: self.active,
+            reject=self._reject,
+            internal=self._internal,
+            log=self.log,
+        )
+        self._takeovers_seen = 0
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -374,11 +387,18 @@ class CoordinatorNode(ElectionHandlers):
                 self.core.t0_s = now_s
             if self.election.leader_t0 != self.t0_s:
                 self.election.observe_t0(self.t0_s)
+            if self.election.takeovers != self._takeovers_seen:  # continue the leader (issue 28)
+                self._takeovers_seen = self.election.takeovers
+                self.operator.took_over(now_s, self.t0_s)
             started = time.perf_counter()
-            out = self.core.tick(now_s, self.fresh_poses(now_s))
+            poses = self.fresh_poses(now_s)
+            held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
+            out = self.core.tick(now_s, poses, held)
             self.ticks += 1
             self.last = out
-            outputs = self.outputs.encode_tick(out, now_s, tick, self.t0_s or 0.0)
+            outputs = self.outputs.encode_tick(
+                out, now_s, tick, self.t0_s or 0.0, self.leader_extra()
+            )
             for key, payload, qos in outputs:
                 self._publish(key, payload, qos)
             self._replay.answer = outputs
@@ -387,6 +407,20 @@ class CoordinatorNode(ElectionHandlers):
         except Exception as exc:
             self._internal("tick", exc)
             return None
+
+    def leader_extra(self) -> dict[str, Any]:
+        """The ``leader`` message's issue-28 fields: what a standby needs to continue it."""
+        ld = self.core.leader
+        extra: dict[str, Any] = {
+            "mode": ld.mode.value,
+            "progress_s": ld.progress_s,
+            "rate": ld.rate,
+        }
+        if ld.mode in (ld.mode.GOAL, ld.mode.PATH):
+            extra["target"] = min(ld.target_index, 1023)
+        if ld.mode is ld.mode.TELEOP:
+            extra["deadman"] = ld.deadman
+        return extra
 
     # -- periodic ------------------------------------------------------------------------------
 

@@ -168,6 +168,8 @@ async def _node(
     io.subscribe(node.assignment_key, node.on_assignment)
     if not lockstep:  # a standby checks trajectory origins against the leader (election)
         io.subscribe(node.leader_key, node.on_leader)
+        io.subscribe(node.leader_key, node.operator.on_leader)  # and continues it (issue 28)
+    io.subscribe(node.operator.pattern, node.operator.on_command)  # teleop, goals, paths
     # durable e-stop state (docs/faults.md): the other coordinators', then the state file's
     store = None if estop_state is None else EstopStore(estop_state, fleet, io.log.info)
     try:
