@@ -212,6 +212,7 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.CMD_VEL: KeyRoles((_O,), (_C,)),
     keys.GOAL: KeyRoles((_O,), (_C,)),
     keys.PATH: KeyRoles((_O,), (_C,)),
+    keys.SHAPE: KeyRoles((_O,), (_C,)),
 }
 
 

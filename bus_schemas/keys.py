@@ -52,6 +52,7 @@ ESTOP_HELD = "estop_held"
 CMD_VEL = "cmd_vel"
 GOAL = "goal"
 PATH = "path"
+SHAPE = "shape"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -86,6 +87,7 @@ KEY_TEMPLATES: dict[str, str] = {
     CMD_VEL: "formation/{fleet}/operator/cmd_vel",
     GOAL: "formation/{fleet}/operator/goal",
     PATH: "formation/{fleet}/operator/path",
+    SHAPE: "formation/{fleet}/operator/shape",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
@@ -95,7 +97,7 @@ _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 # formation/<fleet>/coordinator/<name>/<leaf> -> message name
 _COORDINATOR_LEAVES = {HEARTBEAT: HEARTBEAT, STATUS: COORDINATOR_STATUS}
 # formation/<fleet>/operator/<leaf>
-_OPERATOR_LEAVES = frozenset({CMD_VEL, GOAL, PATH})
+_OPERATOR_LEAVES = frozenset({CMD_VEL, GOAL, PATH, SHAPE})
 
 
 class KeyInfo(NamedTuple):
@@ -279,6 +281,11 @@ def goal_key(fleet: str) -> str:
 def path_key(fleet: str) -> str:
     """``formation/<fleet>/operator/path``: drive the virtual leader along waypoints (operator)."""
     return f"{_fleet_prefix(fleet)}/operator/{PATH}"
+
+
+def shape_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/shape``: reshape the running formation (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{SHAPE}"
 
 
 def operator_pattern(fleet: str) -> str:

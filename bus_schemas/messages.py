@@ -46,8 +46,9 @@ from bus_schemas.messages_fields import (
     LeaderMode,
     Mode,
     Role,
+    ShapeKind,
 )
-from bus_schemas.messages_operator import CmdVel, Goal, Path
+from bus_schemas.messages_operator import CmdVel, Goal, Path, Shape
 from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
@@ -125,6 +126,16 @@ class Leader:
     )
     deadman: bool | None = field(
         default=None, metadata=f_bool("mode teleop: the deadman has tripped (no recent twist)")
+    )
+    shape: str | None = field(
+        default=None,
+        metadata=f_enum("the shape the formation was last reshaped into (absent: none)", ShapeKind),
+    )
+    reshape: float | None = field(
+        default=None,
+        metadata=f_float(
+            "fraction of the running reshape done (absent: none running)", "", lo=0.0, hi=1.0
+        ),
     )
 
 
@@ -510,6 +521,7 @@ Message = (
     | CmdVel
     | Goal
     | Path
+    | Shape
 )
 """Any bus message."""
 
@@ -537,6 +549,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     CmdVel,
     Goal,
     Path,
+    Shape,
 )
 
 BATCH_CHUNK = 256

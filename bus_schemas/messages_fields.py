@@ -50,6 +50,15 @@ class LeaderMode(StrEnum):
     STOP = "stop"
 
 
+class ShapeKind(StrEnum):
+    """A shape a running formation can be reshaped into (coordinator.core.reshape)."""
+
+    TRIANGLE = "triangle"
+    COLUMN = "column"
+    LINE = "line"
+    CHEVRON = "chevron"
+
+
 class DisturbanceKind(StrEnum):
     """What a disturbance does to a simulated robot."""
 

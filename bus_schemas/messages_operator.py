@@ -1,12 +1,14 @@
-"""The operator's commands to the virtual leader (issue 28): a teleop twist, a goal, a path.
+"""The operator's commands to the virtual leader (issue 28): a teleop twist, a goal, a path, and
+a new shape for the formation.
 
 Published by the operator's tools (``formation teleop``, ``formation goal``, ``formation path``)
 on ``formation/<fleet>/operator/*``; every coordinator instance reads them (the active one
 applies them at its next tick, a standby keeps them to continue after a takeover). Under
 ``--secure`` only an operator identity may publish them (``bus_schemas.acl_rules``).
 
-The ranges here are the contract's (bus_schemas.fields: a twist of 1e300 is refused at decode); the coordinator refuses or clamps
-what is beyond the scenario's ``[leader]`` limits and counts it (coordinator.core.leader).
+The ranges here are the contract's (bus_schemas.fields: a twist of 1e300 is refused at decode);
+the coordinator refuses or clamps what is beyond the scenario's ``[leader]`` limits and counts
+it (coordinator.core.leader).
 """
 
 from __future__ import annotations
@@ -14,13 +16,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from bus_schemas import keys
-from bus_schemas.messages_fields import _T, _V, _Periodic
+from bus_schemas.messages_fields import _T, _V, ShapeKind, _Periodic
 from bus_schemas.spec import POSITION_MAX_M as _POS
 from bus_schemas.spec import SPEED_MAX_MPS as _SPEED
 from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
 from bus_schemas.spec import (
     SameLength,
     f_angle,
+    f_enum,
     f_float,
     f_float_list,
     message,
@@ -91,4 +94,26 @@ class Path:
     )
     heading: float | None = field(
         default=None, metadata=f_angle("heading to turn to at the last point (absent: any)")
+    )
+
+
+SPACING_MAX_M = 5.0
+"""Largest spacing on the wire (m); the coordinator refuses a shape under 0.1 m or one that
+does not keep the safety distance (coordinator.core.reshape), and counts it."""
+
+
+@message(name=keys.SHAPE, publisher="operator (formation shape)", periodic=False)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Shape:
+    """Reshape the running formation into `kind`, slots `spacing_m` apart (absent: as now);
+    the slots move there over a transition time, never closer than the safety distance."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    kind: str = field(metadata=f_enum("the new shape", ShapeKind))
+    spacing_m: float | None = field(
+        default=None,
+        metadata=f_float(
+            "distance between neighbouring slots", "m", lo=0.0, hi=SPACING_MAX_M
+        ),
     )

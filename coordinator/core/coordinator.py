@@ -40,6 +40,7 @@ from coordinator.core.formation import (
     states_from_rows,
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore
+from coordinator.core.reshape import Transition, blended_rows, plan_reshape
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.core.kinematics import reference_point
 from robot_agent.core.params import AgentConfig
@@ -283,6 +284,15 @@ class CoordinatorCore:
         self._last_now: float | None = None
         self._row_of: dict[int, int] | None = None
         self._last_out: CoordinatorOutput | None = None
+        self._transition: Transition | None = None
+        self._transition_t0: float | None = None
+        self._pending_reshape: Transition | None = None
+        self._done: Transition | None = None
+        self.shape: str | None = None
+        """The kind of the last reshape asked (None: the scenario's formation)."""
+        self.reshapes: list[dict[str, Any]] = []
+        """One record per reshape completed: kind, spacing, start time, transition time and the
+        least slot separation along it (coordinator.core.reshape)."""
 
     @property
     def t0_s(self) -> float:
@@ -360,8 +370,20 @@ class CoordinatorCore:
             self.errors_m = self._errors(self._last_out, ids, xy)
             rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
         leader = self.leader.step(now_s, rate)
+        if self._done is not None:
+            self.formation, self._done = self._done.target, None
+            self._row_of = None
+            if self._pending_reshape is None:
+                self._transition = self._transition_t0 = None
         spec = self.formation
-        theta, rows = slot_rows(spec, leader)
+        if self._pending_reshape is not None:
+            self._transition, self._pending_reshape = self._pending_reshape, None
+            self._transition_t0 = now_s
+        tr = self._transition
+        if tr is None:
+            theta, rows = slot_rows(spec, leader)
+        else:
+            theta, rows = self._reshaping(tr, now_s, leader)
         assignment, changed = self.assigner.update_ordered(
             ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))
         )
@@ -375,6 +397,67 @@ class CoordinatorCore:
         out = CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
         self._last_out = out
         return out
+
+    # -- runtime reshaping (coordinator.core.reshape) -------------------------------------------
+
+    def reshape(self, kind: str, spacing_m: float, safety_m: float) -> str | None:
+        """Reshape the formation into ``kind`` with slots ``spacing_m`` apart, never closer than
+        ``safety_m`` (m) along the way; applied at the next tick. Returns why it is refused
+        (``bad_shape``, ``unsafe``), or None. A reshape during a reshape starts from where the
+        slots are."""
+        current = None
+        tr = self._transition
+        if self._done is not None:  # over, not yet switched: the new shape is where they are
+            self.formation, self._done = self._done.target, None
+            self._row_of = None
+            self._transition = self._transition_t0 = tr = None
+        if tr is not None and self._last_now is not None and self._transition_t0 is not None:
+            current = tr.progress(self._last_now - self._transition_t0)[0]
+        plan = plan_reshape(self.formation, kind, spacing_m, safety_m, current)
+        if isinstance(plan, str):
+            return plan
+        self._pending_reshape = plan
+        self.shape = kind
+        return None
+
+    def finish_reshape(self) -> None:
+        """Take the reshape asked as done at once (a standby: it does not tick; the formation
+        is the new shape when it takes over)."""
+        plan = self._pending_reshape or self._transition
+        if plan is not None:
+            self.formation = plan.target
+            self._row_of = None
+        self._pending_reshape = self._transition = self._transition_t0 = self._done = None
+
+    @property
+    def reshaping(self) -> float | None:
+        """Fraction of the running reshape done (None: no reshape running)."""
+        tr, t0, now = self._transition, self._transition_t0, self._last_now
+        if tr is None or t0 is None or now is None:
+            return None
+        return min(max((now - t0) / tr.duration_s, 0.0), 1.0)
+
+    def _reshaping(
+        self, tr: Transition, now_s: float, leader: LeaderState
+    ) -> tuple[float, list[SlotRow]]:
+        """The slots of a running reshape at ``now_s`` (the running formation's row order);
+        at its end the new shape becomes the formation (from the next tick)."""
+        assert self._transition_t0 is not None
+        offsets, rates, done = tr.progress(now_s - self._transition_t0)
+        theta, rows = blended_rows(leader, offsets, rates)
+        if done:
+            self.reshapes.append(
+                {
+                    "kind": tr.kind,
+                    "spacing_m": tr.spacing_m,
+                    "started_s": self._transition_t0,
+                    "transition_s": tr.duration_s,
+                    "least_separation_m": tr.least_separation_m,
+                    "schedule": tr.schedule,
+                }
+            )
+            self._done = tr  # the new shape becomes the formation at the next tick
+        return theta, rows
 
     def _errors(
         self, last: CoordinatorOutput, ids: list[str], xy: list[tuple[float, float]]

@@ -167,7 +167,8 @@ class CoordinatorNode(ElectionHandlers):
         # -- the operator's teleop, goals and paths, and the leader's continuation (issue 28)
         self.operator = OperatorInputs(
             self.fleet,
-            self.core.leader,
+            self.core,
+            safety_m=scenario.agent.safety_distance_m,
             lockstep=lockstep,
             now=self._now,
             is_active=lambda: self.active,
@@ -420,6 +421,11 @@ class CoordinatorNode(ElectionHandlers):
             extra["target"] = min(ld.target_index, 1023)
         if ld.mode is ld.mode.TELEOP:
             extra["deadman"] = ld.deadman
+        if self.core.shape is not None:
+            extra["shape"] = self.core.shape
+        reshaping = self.core.reshaping
+        if reshaping is not None:
+            extra["reshape"] = reshaping
         return extra
 
     # -- periodic ------------------------------------------------------------------------------

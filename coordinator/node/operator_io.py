@@ -28,8 +28,9 @@ from collections.abc import Callable, Collection
 from typing import Final
 
 import runtime as rt
-from bus_schemas import CmdVel, DecodeError, Goal, Leader, Path, decode, keys
-from coordinator.core.leader import LeaderCore, LeaderMode
+from bus_schemas import CmdVel, DecodeError, Goal, Leader, Path, Shape, decode, keys
+from coordinator.core.coordinator import CoordinatorCore
+from coordinator.core.leader import LeaderMode
 from coordinator.core.trajectory import LeaderState
 from robot_agent.core.estop import EstopLatch
 
@@ -52,8 +53,9 @@ class OperatorInputs:
     def __init__(
         self,
         fleet: str,
-        leader: LeaderCore,
+        core: CoordinatorCore,
         *,
+        safety_m: float,
         lockstep: bool,
         now: Callable[[], float],
         is_active: Callable[[], bool],
@@ -61,7 +63,10 @@ class OperatorInputs:
         internal: Callable[[str, BaseException], None],
         log: rt.NodeLog,
     ) -> None:
-        self.leader = leader
+        self.core = core
+        self.leader = core.leader
+        self.safety_m = safety_m
+        """Least distance (m) between two slots along a reshape (the robots' safety distance)."""
         self.lockstep = lockstep
         self.cmd_vel_key = keys.cmd_vel_key(fleet)
         self.goal_key = keys.goal_key(fleet)
@@ -72,7 +77,7 @@ class OperatorInputs:
         self._reject = reject
         self._internal = internal
         self.log = log
-        self.rx: dict[str, int] = {"cmd_vel": 0, "goal": 0, "path": 0}
+        self.rx: dict[str, int] = {"cmd_vel": 0, "goal": 0, "path": 0, "shape": 0}
         self._bucket = BURST_MAX
         self._bucket_s: float | None = None
         self._last_seq: int | None = None
@@ -93,6 +98,8 @@ class OperatorInputs:
                 self._on_goal(rx)
             elif leaf == keys.PATH:
                 self._on_path(rx)
+            elif leaf == keys.SHAPE:
+                self._on_shape(rx)
             else:
                 self._reject("operator", f"not an operator key: {rx.key[:100]!r}", "bad_key")
         except Exception as exc:
@@ -162,6 +169,32 @@ class OperatorInputs:
         if why is None:
             self.log.info(f"path of {len(msg.xs)} points from the operator")
         self._refused("path", why)
+
+    def _on_shape(self, rx: rt.Received) -> None:
+        if not self._admit("shape", self._now()):
+            return
+        msg = decode(rx.payload, Shape)
+        if isinstance(msg, DecodeError):
+            self._reject("shape", msg, None)
+            return
+        spacing = msg.spacing_m if msg.spacing_m is not None else self.spacing_m()
+        why = self.core.reshape(msg.kind, spacing, self.safety_m)
+        if why is not None:
+            self._reject("shape", f"refused: {msg.kind} at {spacing:.3g} m: {why}", why)
+            return
+        self.log.info(f"reshape into a {msg.kind}, slots {spacing:.3g} m apart")
+        if not self._is_active():
+            # a standby takes the new shape as it will be (a takeover mid-reshape skips the
+            # rest of the transition: docs/operate.md)
+            self.core.finish_reshape()
+
+    def spacing_m(self) -> float:
+        """The running formation's spacing (m): its least distance between two slots."""
+        off = self.core.formation.body_offsets_m.tolist()
+        gaps = [
+            math.hypot(a[0] - b[0], a[1] - b[1]) for i, a in enumerate(off) for b in off[i + 1 :]
+        ]
+        return min(gaps, default=0.4)
 
     def on_leader(self, rx: rt.Received) -> None:
         """The active instance's ``leader`` (a realtime standby keeps the last few)."""

@@ -22,7 +22,7 @@ import asyncio
 import itertools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -38,6 +38,7 @@ __all__ = [
     "finite",
     "parse_waypoints",
     "publish_and_watch",
+    "watch_leader",
 ]
 
 SPEED_STEP_MPS: Final = 0.01
@@ -122,6 +123,21 @@ async def publish_and_watch(
 ) -> Leader | None:
     """Publish ``payload`` on ``key`` (reliable) and return the first ``leader`` message
     received after it in mode ``want_mode``, or None within ``timeout_s``."""
+    return await watch_leader(
+        session, key, payload, fleet, lambda m: m.mode == want_mode, timeout_s
+    )
+
+
+async def watch_leader(
+    session: Any,
+    key: str,
+    payload: bytes,
+    fleet: str,
+    want: Callable[[Leader], bool],
+    timeout_s: float,
+) -> Leader | None:
+    """Publish ``payload`` on ``key`` (reliable) and return the first ``leader`` message
+    received after it for which ``want`` is true, or None within ``timeout_s``."""
     loop = asyncio.get_running_loop()
     got: list[Leader] = []
     t_pub = time.monotonic()
@@ -130,7 +146,7 @@ async def publish_and_watch(
         if rx.rx_s <= t_pub:
             return
         msg = decode(rx.payload, Leader)
-        if not isinstance(msg, DecodeError) and msg.mode == want_mode:
+        if not isinstance(msg, DecodeError) and want(msg):
             got.append(msg)
 
     sub = rt.subscribe(session, keys.leader_key(fleet), loop, on_leader)

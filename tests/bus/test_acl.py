@@ -113,6 +113,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("operator/cmd_vel"),
         _f("operator/goal"),
         _f("operator/path"),
+        _f("operator/shape"),
     },
     "observer.rec": set(),
 }
@@ -154,6 +155,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("operator/cmd_vel"),
         _f("operator/goal"),
         _f("operator/path"),
+        _f("operator/shape"),
     },
     "localization": {*(_f(f"robot/{r}/truth") for r in ROBOTS), _f("truths")},
     "plant": {

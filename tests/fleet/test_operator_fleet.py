@@ -6,6 +6,8 @@ One fleet (tests/support/fault_fleet.py's three robots on a slow line, with ``[l
 
 * a follower e-stopped mid-run stops the (scripted) leader within a bound, the others hold
   formation around it, and the formation goes on after the release;
+* ``formation shape`` reshapes the moving formation triangle -> column -> triangle with every
+  robot (its truth) at least the safety distance from every other and no role change;
 * ``formation teleop`` drives the leader; when its stream stops the deadman stops the leader
   within its bound, with every follower still in formation.
 
@@ -20,6 +22,7 @@ import itertools
 import math
 import signal
 import time
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,11 +31,13 @@ from conftest import Spawner
 from support.fault_fleet import SCENARIO, Fleet, Observer, formed, until, wait_formed
 
 from coordinator.core.leader import DEADMAN_S, LeaderConfig
+from scenario.load import parse
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
 CFG = LeaderConfig()
 WAITING = SCENARIO + '\n[leader]\nwait = "on"\n'
+SAFETY_M = parse(tomllib.loads(WAITING)).agent.safety_distance_m
 LINE_SPEED_MPS = 0.03  # SCENARIO's line
 LOAD_SLACK_S = 1.0
 
@@ -122,6 +127,49 @@ async def test_an_estopped_follower_stops_the_leader_and_the_formation_resumes(
         with contextlib.suppress(Exception):
             fleet.fault("release", "r3")
         raise
+    assert not _jumps(obs, t_start)
+
+
+def _shape(fleet: OperatorFleet, kind: str) -> None:
+    import subprocess
+    import sys
+
+    from conftest import child_env
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "formation", "shape", kind, "--endpoint", fleet.endpoint,
+         "--fleet", fleet.fleet, "--timeout", "5"],
+        capture_output=True, text=True, timeout=60, env=child_env(),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert f"reshaping into a {kind}" in proc.stdout
+
+
+def _reshaped(obs: Observer, kind: str, since: float) -> bool:
+    """The leader reports ``kind`` with no reshape running, since ``since``."""
+    msgs = [m for _, _, m in obs.get("leader", since)]
+    return bool(msgs) and msgs[-1].shape == kind and msgs[-1].reshape is None
+
+
+async def test_reshape_triangle_column_triangle_while_moving_keeps_separation_and_roles(
+    fleet: OperatorFleet,
+) -> None:
+    obs = fleet.obs
+    await wait_formed(fleet, timeout_s=40.0)
+    t_start = time.monotonic()
+    before = obs.latest_assignment()
+    assert before is not None and obs.get("leader", t_start - 1.0)[-1][2].v_mps > 0.0
+    for kind in ("column", "triangle"):
+        t_cmd = time.monotonic()
+        _shape(fleet, kind)
+        await until(lambda k=kind, t=t_cmd: _reshaped(obs, k, t), 40.0, f"reshaped into {kind}")
+        await wait_formed(fleet, timeout_s=20.0)
+    t_end = time.monotonic()
+    least = obs.min_separation(t_start, t_end)
+    print(f"\nreshape: least separation {least:.3f} m (safety distance {SAFETY_M:.3f} m)")
+    assert least >= SAFETY_M
+    changes = [a for _, _, a in obs.get("assignment", t_start) if a.robots != before.robots]
+    assert not changes, changes[:3]
     assert not _jumps(obs, t_start)
 
 

@@ -32,6 +32,7 @@ from bus_schemas import (
     PoseBatch,
     Setpoint,
     SetpointBatch,
+    Shape,
     Slot,
     Status,
     StatusBatch,
@@ -58,7 +59,10 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         rate=0.75,
         target=0,
         deadman=True,
+        shape="column",
+        reshape=0.25,
     ),
+    "shape": Shape(t=12.5, kind="column", spacing_m=0.5),
     "cmd_vel": CmdVel(t=12.5, seq=42, v_mps=0.1, omega_radps=-0.25),
     "goal": Goal(t=12.5, x=1.5, y=-2.0, heading=math.pi / 2),
     "path": Path(t=12.5, xs=(0.5, 1.0), ys=(0.25, -0.25)),
@@ -286,7 +290,10 @@ GOLDEN_MESSAGES: dict[str, Any] = {
 # fmt: off
 GOLDEN_HEX: dict[str, str] = {
     "leader_operator": (
-        "8da17601a174cb4029000000000000a3736571ccfba178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb3fe921fb54442d18a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfa999999999999aa46d6f6465a674656c656f70aa70726f67726573735f73cb400c000000000000a472617465cb3fe8000000000000a674617267657400a7646561646d616ec3"
+        "8fa17601a174cb4029000000000000a3736571ccfba178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb3fe921fb54442d18a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfa999999999999aa46d6f6465a674656c656f70aa70726f67726573735f73cb400c000000000000a472617465cb3fe8000000000000a674617267657400a7646561646d616ec3a57368617065a6636f6c756d6ea772657368617065cb3fd0000000000000"
+    ),
+    "shape": (
+        "84a17601a174cb4029000000000000a46b696e64a6636f6c756d6ea973706163696e675f6dcb3fe0000000000000"
     ),
     "cmd_vel": (
         "85a17601a174cb4029000000000000a37365712aa5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfd0000000000000"
