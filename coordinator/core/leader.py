@@ -295,6 +295,7 @@ class LeaderCore:
         self._anchored = False  # tau integrates (the rate left 1, or a state was adopted)
         self._last_now: float | None = None
         self._deadman_tripped = False
+        self._script_waits = self.config.waits(LeaderMode.SCRIPT, trajectory_kind)
 
     # -- commands (queued; applied at the next step) ---------------------------------------
 
@@ -428,10 +429,19 @@ class LeaderCore:
     def step(self, now_s: float, target_rate: float = 1.0) -> LeaderState:
         """Advance to ``now_s`` (s) and return the leader's state there. ``target_rate`` in [0, 1]:
         what the team allows (:class:`TeamWait`); ignored unless :meth:`waits`."""
+        if self._pending:
+            self._apply_pending()
         last = self._last_now
-        dt = 0.0 if last is None else max(0.0, now_s - last)
         self._last_now = now_s
-        self._apply_pending()
+        if (
+            self.mode is LeaderMode.SCRIPT
+            and not self._anchored
+            and (target_rate == 1.0 or not self._script_waits)
+        ):  # the scenario's script at full speed: exactly trajectory.sample(now - t0)
+            tau = self.progress_s = now_s - self.t0_s
+            s = self.state = self.trajectory.sample(tau)
+            return s
+        dt = 0.0 if last is None else max(0.0, now_s - last)
         cfg = self.config
         want = target_rate if self.waits() and _finite(target_rate) else 1.0
         want = 0.0 if want < 0.0 else 1.0 if want > 1.0 else want
