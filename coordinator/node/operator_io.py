@@ -71,7 +71,10 @@ class OperatorInputs:
         self.cmd_vel_key = keys.cmd_vel_key(fleet)
         self.goal_key = keys.goal_key(fleet)
         self.path_key = keys.path_key(fleet)
-        self.pattern = keys.operator_pattern(fleet)
+        self.shape_key = keys.shape_key(fleet)
+        self.command_keys = (self.cmd_vel_key, self.goal_key, self.path_key, self.shape_key)
+        """The keys of the operator's commands (each subscribed on its own: a declaration on
+        ``operator/*`` is refused by the router's access control under ``--secure``)."""
         self._now = now
         self._is_active = is_active
         self._reject = reject

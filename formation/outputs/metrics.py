@@ -306,8 +306,9 @@ def compute(log: RunLog, settle_s: float, settle_tol_m: float) -> dict[str, Any]
 
 def reshape_metrics(log: RunLog) -> list[dict[str, Any]]:
     """Each runtime reshape of the run (issue 28, ``log.reshapes``): its kind, start, transition
-    time (s, as the leader messages reported it running) and the least distance between two
-    robots' axle centres (m, the truth) during it."""
+    time (s, as the leader messages reported it running), the least distance between two
+    robots' axle centres (m, the truth) during it, and whether it was complete (a run that
+    ended during a reshape reports the part it saw)."""
     out: list[dict[str, Any]] = []
     for r in log.reshapes:
         start, end = float(r["start_s"]), float(r["end_s"])
@@ -327,6 +328,7 @@ def reshape_metrics(log: RunLog) -> list[dict[str, Any]]:
                 "start_s": start,
                 "transition_s": end - start,
                 "least_separation_m": _finite_or_none(least),
+                "complete": bool(r.get("complete", True)),
             }
         )
     return out

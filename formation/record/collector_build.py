@@ -163,5 +163,6 @@ def reshape_intervals(
         if last is None or shape != last[1] or frac < last[2]:
             out.append({"kind": shape, "start_s": t - origin_s, "end_s": t - origin_s})
         out[-1]["end_s"] = t - origin_s
+        out[-1]["complete"] = frac >= 1.0
         last = (t, shape, frac)
     return out

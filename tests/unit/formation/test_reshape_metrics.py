@@ -25,10 +25,11 @@ def test_intervals_split_where_the_fraction_falls_back_or_the_shape_changes() ->
     ]
     got = reshape_intervals(marks[::-1], origin_s=10.0)  # order of arrival does not matter
     assert got == [
-        {"kind": "column", "start_s": 0.0, "end_s": 1.0},
-        {"kind": "triangle", "start_s": 10.0, "end_s": 12.0},
-        {"kind": "triangle", "start_s": 20.0, "end_s": 21.0},
+        {"kind": "column", "start_s": 0.0, "end_s": 1.0, "complete": True},
+        {"kind": "triangle", "start_s": 10.0, "end_s": 12.0, "complete": True},
+        {"kind": "triangle", "start_s": 20.0, "end_s": 21.0, "complete": True},
     ]
+    assert reshape_intervals([(1.0, "line", 0.2), (2.0, "line", 0.6)], 0.0)[0]["complete"] is False
     assert reshape_intervals([], 0.0) == []
 
 
@@ -42,6 +43,7 @@ def test_reshape_metrics_measure_the_truth_during_each_reshape() -> None:
     log.reshapes = [{"kind": "column", "start_s": 1.0, "end_s": 3.0}]
     (m,) = reshape_metrics(log)
     assert m["kind"] == "column" and m["transition_s"] == 2.0 and m["start_s"] == 1.0
+    assert m["complete"] is True
     assert m["least_separation_m"] == pytest.approx(0.25)
     log.truth[:] = math.nan  # no truth during it: unknown, not 0 nor inf
     assert reshape_metrics(log)[0]["least_separation_m"] is None
