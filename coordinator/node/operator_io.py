@@ -144,9 +144,12 @@ class OperatorInputs:
         if last is not None and fresh and msg.seq <= last:
             self._reject("cmd_vel", f"seq {msg.seq} after {last}", "reordered")
             return
+        clamped = self.leader.rejects.get("clamped", 0)
         why = self.leader.command_twist(msg.v_mps, msg.omega_radps, now)
         if why is None:
             self._last_seq, self._last_twist_s = msg.seq, now
+            if self.leader.rejects.get("clamped", 0) != clamped:  # obeyed within the limits
+                self._reject("cmd_vel", "beyond the leader's limits: clamped", "clamped")
         self._refused("cmd_vel", why)
 
     def _on_goal(self, rx: rt.Received) -> None:

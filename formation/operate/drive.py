@@ -21,6 +21,7 @@ import argparse
 import asyncio
 import itertools
 import math
+import struct
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -31,10 +32,13 @@ from bus_schemas import DecodeError, Leader, decode, keys
 from bus_schemas.spec import POSITION_MAX_M
 
 __all__ = [
+    "JS_EVENT",
     "SPEED_STEP_MPS",
     "TURN_STEP_RADPS",
+    "Gamepad",
     "TeleopKeys",
     "common_options",
+    "find_gamepad",
     "finite",
     "parse_waypoints",
     "publish_and_watch",
@@ -74,6 +78,62 @@ class TeleopKeys:
         else:
             return False
         return True
+
+
+JS_EVENT = struct.Struct("<IhBB")
+"""The Linux joystick API's event (``linux/joystick.h``): time (ms), value, type, number."""
+JS_BUTTON, JS_AXIS, JS_INIT = 0x01, 0x02, 0x80
+AXIS_MAX: Final = 32767
+DEADZONE: Final = 0.1
+"""Stick deflection (fraction of full) read as zero: a centred stick drifts a little."""
+
+
+@dataclass
+class Gamepad:
+    """A gamepad read through ``/dev/input/js*`` (pure: bytes in, twist out). The left stick:
+    up/down is the speed (up forward), left/right the turn (left positive); button 0 (A /
+    cross) stops, as ``s``; any axis moved makes the gamepad the source of the twist."""
+
+    v_axis: int = 1
+    w_axis: int = 0
+    axes: dict[int, float] | None = None
+    stop_pressed: bool = False
+    _buf: bytes = b""
+
+    def feed(self, data: bytes) -> None:
+        """Events read from the device (any chunking)."""
+        buf = self._buf + data
+        n = len(buf) // JS_EVENT.size * JS_EVENT.size
+        for off in range(0, n, JS_EVENT.size):
+            _t, value, kind, number = JS_EVENT.unpack_from(buf, off)
+            kind &= ~JS_INIT
+            if kind == JS_AXIS:
+                if self.axes is None:
+                    self.axes = {}
+                self.axes[number] = max(-1.0, min(1.0, value / AXIS_MAX))
+            elif kind == JS_BUTTON and number == 0 and value:
+                self.stop_pressed = True
+        self._buf = buf[n:]
+
+    def twist(self, max_v_mps: float, max_w_radps: float) -> tuple[float, float] | None:
+        """``(v, omega)`` from the stick (None until an axis was read)."""
+        if self.axes is None:
+            return None
+
+        def dz(x: float) -> float:
+            return 0.0 if abs(x) < DEADZONE else (x - math.copysign(DEADZONE, x)) / (1 - DEADZONE)
+
+        v = -dz(self.axes.get(self.v_axis, 0.0)) * max_v_mps  # stick up is negative
+        w = -dz(self.axes.get(self.w_axis, 0.0)) * max_w_radps  # stick left is negative
+        return round(v, 6), round(w, 6)
+
+
+def find_gamepad(root: str = "/dev/input") -> str | None:
+    """The first joystick device (``/dev/input/js0``, ...) present, or None."""
+    import glob
+
+    found = sorted(glob.glob(f"{root}/js[0-9]*"))
+    return found[0] if found else None
 
 
 def finite(name: str, text: str, *, bound: float = POSITION_MAX_M) -> float:

@@ -7,6 +7,10 @@ coordinator publishes them, its mode and whether the deadman has tripped. The co
 integrates the twist within its limits (coordinator.core.leader); when this tool stops (``q``,
 Ctrl-C, a crash, a lost link) its deadman stops the leader within a few hundred ms.
 
+A gamepad (``/dev/input/js*``, the Linux joystick API; ``--gamepad``, by default the first one
+present) drives too: left stick up/down the speed, left/right the turn, button 0 stops
+(:class:`formation.operate.drive.Gamepad`); once its stick moved it sets the twist.
+
 Without a terminal (stdin not a TTY), keys are read from stdin as they come (a script can pipe
 them); ``--v`` / ``--omega`` set the starting twist and ``--duration`` ends the stream after
 that long (scripted teleop: ``formation teleop --v 0.05 --duration 10``). Under ``--secure``
@@ -28,7 +32,14 @@ import runtime as rt
 from bus_schemas import CmdVel, DecodeError, Leader, decode, encode, keys
 from bus_schemas.messages_operator import CMD_RATE_HZ
 from formation.operate.drive import SPEED_MAX_MPS as KEY_SPEED_MAX_MPS
-from formation.operate.drive import TURN_MAX_RADPS, TeleopKeys, common_options, finite
+from formation.operate.drive import (
+    TURN_MAX_RADPS,
+    Gamepad,
+    TeleopKeys,
+    common_options,
+    find_gamepad,
+    finite,
+)
 from formation.outputs import runfile
 
 
@@ -43,6 +54,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--omega", default="0", metavar="RADPS", help="starting turn rate (rad/s)")
     p.add_argument("--duration", default=None, metavar="S", help="stop the stream after S seconds")
     p.add_argument("--quiet", action="store_true", help="no status line")
+    p.add_argument(
+        "--gamepad",
+        default="auto",
+        metavar="DEV",
+        help="a joystick device (/dev/input/jsN) to drive with; auto: the first one present; "
+        "none: the keyboard only",
+    )
     return p
 
 
@@ -94,6 +112,10 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings, state: Teleop
     period = 1.0 / CMD_RATE_HZ
     end = None if ns.duration is None else time.monotonic() + ns.duration
     seq = 0
+    pad, pad_fd = Gamepad(), ns.gamepad_fd
+    if pad_fd is not None:
+        loop.add_reader(pad_fd, _read_pad, pad_fd, pad)
+        print(f"formation teleop: gamepad {ns.gamepad_path}", file=sys.stderr)
     with _raw_keys() as tty_mode:
         reader = _KeyReader(loop, tty_mode)
         try:
@@ -103,6 +125,12 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings, state: Teleop
                     state.press(k)
                 if state.quit:
                     break
+                stick = pad.twist(KEY_SPEED_MAX_MPS, TURN_MAX_RADPS)
+                if pad.stop_pressed:
+                    pad.stop_pressed = False
+                    state.press("s")
+                elif stick is not None:
+                    state.v_mps, state.omega_radps = stick
                 seq += 1
                 msg = CmdVel(
                     t=max(time.monotonic(), 0.0),
@@ -121,12 +149,35 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings, state: Teleop
                 await asyncio.sleep(max(0.0, next_t - time.monotonic()))
         finally:
             reader.close()
+            if pad_fd is not None:
+                with contextlib.suppress(Exception):
+                    loop.remove_reader(pad_fd)
+                os.close(pad_fd)
             sub.undeclare()
             if tty_mode and not ns.quiet:
                 print()
             session.close()
     print(f"formation teleop: stream stopped after {seq} twists", file=sys.stderr)
     return 0
+
+
+def _read_pad(fd: int, pad: Gamepad) -> None:
+    with contextlib.suppress(OSError):  # unplugged: the last twist stays until a key changes it
+        pad.feed(os.read(fd, 8 * 64))
+
+
+def _open_gamepad(choice: str) -> tuple[str | None, int | None]:
+    """``--gamepad``: (path, non-blocking fd) of the device to read, or (None, None). A device
+    asked for that cannot be opened is a ValueError; one found by ``auto`` is skipped."""
+    path = find_gamepad() if choice == "auto" else None if choice == "none" else choice
+    if path is None:
+        return None, None
+    try:
+        return path, os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        if choice != "auto":
+            raise ValueError(f"--gamepad {path}: {exc.strerror}") from None
+        return None, None
 
 
 class _KeyReader:
@@ -182,6 +233,7 @@ def main(argv: list[str]) -> int:
             if ns.duration <= 0:
                 raise ValueError(f"--duration must be positive, got {ns.duration:g}")
         settings = runfile.tool_settings(ns, "operator")
+        ns.gamepad_path, ns.gamepad_fd = _open_gamepad(ns.gamepad)
     except (TypeError, ValueError) as exc:
         print(f"formation teleop: error: {exc}", file=sys.stderr)
         return 2

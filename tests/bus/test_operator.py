@@ -248,3 +248,47 @@ def test_a_standby_continues_the_teleoperated_leader_without_a_jump(
     assert abs(first.v_mps - last.v_mps) <= CFG.max_accel_mps2 * 0.1 + 1e-9
     assert not _jumps(after), _jumps(after)[:5]
     del tokens
+
+
+def test_a_gamepad_drives_the_leader(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, tmp_path: Any
+) -> None:
+    """``formation teleop --gamepad DEV`` reads the Linux joystick API's events; a FIFO stands in
+    for ``/dev/input/js0`` (the same 8-byte events a kernel driver writes)."""
+    import os
+
+    from formation.operate.drive import JS_AXIS, JS_EVENT, JS_INIT
+
+    fifo = tmp_path / "js0"
+    os.mkfifo(fifo)
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, keys.coordinator_status_key(FLEET, "main"), msgpack.unpackb)
+    _coordinator(spawn, router)
+    writer = os.open(fifo, os.O_RDWR | os.O_NONBLOCK)  # held open: the tool never sees an EOF
+    try:
+        with Followers(client):
+            spawn(
+                "teleop", "--gamepad", str(fifo), "--duration", "30", "--quiet",
+                "--endpoint", router.endpoint,
+            )  # fmt: skip
+            init = JS_EVENT.pack(0, 0, JS_AXIS | JS_INIT, 0) + JS_EVENT.pack(0, 0, JS_AXIS, 1)
+            os.write(writer, init)
+            time.sleep(0.5)
+            t_stick = time.monotonic()
+            os.write(writer, JS_EVENT.pack(10, -32767, JS_AXIS, 1))  # stick fully up: forward
+            _, _, driven = leaders.wait_for(
+                lambda r, _k, m: (
+                    r > t_stick and m.mode == "teleop" and m.v_mps == CFG.max_speed_mps
+                ),
+                timeout_s=10.0,
+            )
+            # the stick asks 0.2 m/s, the leader's limit is 0.1: clamped and counted
+            status.wait_for(
+                lambda r, _k, s: r > t_stick and s["rejects"].get("cmd_vel-clamped", 0) > 0
+            )
+    finally:
+        os.close(writer)
+    assert driven.omega_radps == 0.0
+    assert not _jumps(leaders.snapshot())
+    del tokens

@@ -142,6 +142,7 @@ MISTAKES: list[tuple[tuple[str, ...], tuple[str, ...]]] = [
     (("teleop", "--omega", "abc"), ("--omega", "number")),
     (("teleop", "--duration", "-1"), ("--duration", "positive")),
     (("teleop", "--fleet", "a/b"), ("fleet", "a/b")),
+    (("teleop", "--gamepad", "/nonexistent/js0"), ("--gamepad", "No such file")),
     (("goal",), ("required",)),
     (("goal", "nan", "0"), ("X", "finite")),
     (("goal", "1", "1e300"), ("Y", "within")),
