@@ -15,16 +15,18 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bus_schemas import keys
-from coordinator.core.leader import LeaderConfig
 from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
 )
 from robot_agent.core.robot_config import _world as _robot_config_world
 from robot_agent.core.robot_config import agent_sections, build_section
+
+if TYPE_CHECKING:
+    from coordinator.core.leader import LeaderConfig
 
 SCENARIO_DIR = Path(__file__).parent / "builtin"
 
@@ -95,9 +97,9 @@ class Scenario:
     link: LinkModel
     disturbances: tuple[Disturbance, ...] = field(default_factory=tuple)
     source: str = ""
-    leader: LeaderConfig = field(default_factory=LeaderConfig)
+    leader: LeaderConfig | None = None
     """``[leader]``: the operator's limits, the deadman and whether the leader waits for its team
-    (coordinator.core.leader, docs/operate.md)."""
+    (coordinator.core.leader, docs/operate.md); None: the defaults."""
 
     def with_overrides(self, **changes: Any) -> Scenario:
         return dataclasses.replace(self, **changes)
@@ -290,10 +292,18 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:
         tie_tol_m=_num(a, "tie_tol_m", "assignment", 0.01, lo=0.0),
     )
 
-    try:
-        leader = LeaderConfig.from_dict(_table(data, "leader", ""))
-    except (TypeError, ValueError) as exc:
-        raise ScenarioError(str(exc)) from None
+    leader = None
+    leader_table = _table(data, "leader", "")
+    if leader_table:
+        # imported here: coordinator.core's package pulls numpy, and a robot's agent process
+        # imports this module without it (tests/repo/test_agent_imports.py); only a scenario
+        # with a [leader] table needs the coordinator's validation
+        from coordinator.core.leader import LeaderConfig
+
+        try:
+            leader = LeaderConfig.from_dict(leader_table)
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(str(exc)) from None
 
     p = _table(data, "plant", "")
     _only(p, {"motor_tau_s", "encoder_counts_per_rev", "encoder_slip_std"}, "plant")

@@ -377,3 +377,19 @@ def test_coordinator_leader_waits_for_a_robot_that_falls_behind() -> None:
         out = core.tick(k * DT, poses(rows))
         rows = {sid: row for sid, row in zip(out.slot_ids, out.rows, strict=True)}
     assert core.leader.wait.dropped == {"r3"} and core.leader.rate == 1.0
+
+
+def test_the_scenario_leader_table_is_validated_and_reaches_the_core() -> None:
+    import tomllib
+    from pathlib import Path
+
+    from scenario.assemble import coordinator_core
+    from scenario.load import ScenarioError, load, parse
+
+    base = tomllib.loads(Path(load("paper-exp2").source).read_text())
+    assert load("paper-exp2").leader is None  # no table: the defaults
+    core = coordinator_core(parse({**base, "leader": {"wait": "on", "deadman_s": 0.3}}))
+    assert core.leader.config.deadman_s == 0.3 and core.leader.waits()
+    for bad in ({"wait": "maybe"}, {"deadman_s": -1}, {"max_speed": 1.0}, {"deadman_s": "x"}):
+        with pytest.raises(ScenarioError, match="leader"):
+            parse({**base, "leader": bad})
