@@ -422,6 +422,13 @@ class LeaderCore:
         (as of the last step)."""
         return self.mode is LeaderMode.TELEOP and self._deadman_tripped
 
+    @property
+    def scripted(self) -> bool:
+        """The leader is the scenario's trajectory at ``now - t0``, as it has been since the start
+        (no command, no wait, no adoption): a pure function of time, which a standby can check
+        against the trajectory (coordinator.core.election)."""
+        return self.mode is LeaderMode.SCRIPT and not self._anchored
+
     def waits(self) -> bool:
         """Does the leader wait for its team in its current mode (the scenario's setting)?"""
         return self.config.waits(self.mode, self.trajectory_kind)

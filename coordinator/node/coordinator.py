@@ -412,11 +412,10 @@ class CoordinatorNode(ElectionHandlers):
     def leader_extra(self) -> dict[str, Any]:
         """The ``leader`` message's issue-28 fields: what a standby needs to continue it."""
         ld = self.core.leader
-        extra: dict[str, Any] = {
-            "mode": ld.mode.value,
-            "progress_s": ld.progress_s,
-            "rate": ld.rate,
-        }
+        extra: dict[str, Any] = {"mode": ld.mode.value}
+        if not ld.scripted:  # absent: the script at t - leader_t0 (what the election checks)
+            extra["progress_s"] = ld.progress_s
+            extra["rate"] = ld.rate
         if ld.mode in (ld.mode.GOAL, ld.mode.PATH):
             extra["target"] = min(ld.target_index, 1023)
         if ld.mode is ld.mode.TELEOP:

@@ -12,9 +12,10 @@ same inputs at the same ticks give the same leader. Handlers never raise.
 the route and the last twist (:meth:`LeaderCore.remember`). A realtime standby also keeps the
 last ``leader`` messages of the active one; when it becomes active and the leader it takes over
 is no longer the scripted trajectory at ``t - leader_t0`` (an operator drove it, or it waited
-for its team), it adopts the newest leader state that continues the ones before it (position,
-velocity, mode, progress, rate, next waypoint: :meth:`LeaderCore.adopt`), so the leader goes on
-from where it was. A scripted leader that never deviated continues from its origin as before
+for its team: its ``leader`` messages carry ``progress_s`` then, and only then), it adopts the
+newest leader state that continues the ones before it (position, velocity, mode, progress,
+rate, next waypoint: :meth:`LeaderCore.adopt`), so the leader goes on from where it was. A
+scripted leader that never deviated continues from its origin as before
 (coordinator.core.election verifies that origin). A single forged ``leader`` message does not
 continue the messages before it and is not adopted; under ``--secure`` only coordinators may
 publish ``leader`` at all.
@@ -43,7 +44,6 @@ BURST_MAX: Final = 10.0
 """Depth of that bucket (commands)."""
 LEADER_ADOPT_AGE_S: Final = 2.0
 """A standby adopts only a ``leader`` message received this recently (s) at its takeover."""
-_PROGRESS_TOL_S: Final = 1e-6
 _JUMP_SLACK_M: Final = 0.005
 
 
@@ -230,17 +230,11 @@ class OperatorInputs:
         self._leaders.clear()
         if msg is None or msg.mode is None:
             return False
+        if msg.progress_s is None:
+            return False  # the script at t - leader_t0: the origin continues it (election)
         mode = LeaderMode(msg.mode)
-        progress = msg.progress_s if msg.progress_s is not None else 0.0
+        progress = msg.progress_s
         rate = msg.rate if msg.rate is not None else 1.0
-        scripted = (
-            mode is LeaderMode.SCRIPT
-            and rate == 1.0
-            and leader_t0 is not None
-            and abs(progress - (msg.t - leader_t0)) <= _PROGRESS_TOL_S
-        )
-        if scripted:
-            return False
         state = LeaderState(progress, msg.x, msg.y, msg.theta, msg.v_mps, msg.omega_radps)
         self.leader.adopt(now_s, state, mode, progress, rate, msg.target or 0)
         self.adopted += 1

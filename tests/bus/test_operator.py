@@ -231,7 +231,7 @@ def test_a_standby_continues_the_teleoperated_leader_without_a_jump(
         time.sleep(1.0)
         main.stop(signal.SIGKILL)
         t_kill = time.monotonic()
-        status.wait_for(
+        _, _, b_active = status.wait_for(
             lambda r, _k, s: r > t_kill and s["name"] == "b" and s["role"] == "active",
             timeout_s=10.0,
         )
@@ -247,6 +247,9 @@ def test_a_standby_continues_the_teleoperated_leader_without_a_jump(
     assert math.hypot(first.x - last.x, first.y - last.y) <= CFG.max_speed_mps * 0.1 + 1e-6
     assert abs(first.v_mps - last.v_mps) <= CFG.max_accel_mps2 * 0.1 + 1e-9
     assert not _jumps(after), _jumps(after)[:5]
+    # the teleoperated leader is no function of t - leader_t0: b did not check main's origin
+    # against it (no heartbeat refused as a spoof while main ran)
+    assert b_active["rejects"].get("heartbeat-leader_t0", 0) == 0, b_active["rejects"]
     del tokens
 
 
