@@ -105,7 +105,8 @@ class Leader:
     progress_s: float | None = field(
         default=None,
         metadata=f_float(
-            "progress time of the scripted trajectory (advances at `rate`)",
+            "progress time of the scripted trajectory (advances at `rate`); absent: the leader "
+            "is the script at `t - leader_t0` (the heartbeat's), as it was from the start",
             "s",
             lo=-_TMAX,
             hi=_TMAX,

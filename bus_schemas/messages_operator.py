@@ -113,7 +113,5 @@ class Shape:
     kind: str = field(metadata=f_enum("the new shape", ShapeKind))
     spacing_m: float | None = field(
         default=None,
-        metadata=f_float(
-            "distance between neighbouring slots", "m", lo=0.0, hi=SPACING_MAX_M
-        ),
+        metadata=f_float("distance between neighbouring slots", "m", lo=0.0, hi=SPACING_MAX_M),
     )
