@@ -197,9 +197,6 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     # the engagements an agent or agent host holds, each on its own key (only a coordinator's
     # answer on `estop` may carry a release record); asked by the same
     keys.ESTOP_HELD: KeyRoles((), answerers=((_R, OWN), (_H, OWN)), askers=(_R, _H, _C, _O)),
-    # the virtual leader's teleop command (formation ros2 forwards /formation/cmd_vel); the
-    # coordinator will read it (the operator issue wires the consumer and its ACL grant)
-    keys.TELEOP: KeyRoles((_O,)),
     keys.CLOCK: KeyRoles((_P,), (_R, _H, _C)),
     keys.DISTURBANCE: KeyRoles((_O,), (_P,)),
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),
@@ -210,6 +207,12 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.ALIVE_ROBOT: KeyRoles(((_R, OWN), (_H, OWN_ROBOTS)), (_C, _P), token=True),
     keys.ALIVE_COORDINATOR: KeyRoles(((_C, OWN),), (_C, _P), token=True),
     keys.ALIVE_PLANT: KeyRoles((_P,), (_C,), token=True),
+    # the operator drives the virtual leader (issue 28); every coordinator instance reads them
+    # (a standby keeps them to continue after a takeover)
+    keys.CMD_VEL: KeyRoles((_O,), (_C,)),
+    keys.GOAL: KeyRoles((_O,), (_C,)),
+    keys.PATH: KeyRoles((_O,), (_C,)),
+    keys.SHAPE: KeyRoles((_O,), (_C,)),
 }
 
 

@@ -48,7 +48,11 @@ COORDINATOR_STATUS = "coordinator_status"
 PLANT_STATUS = "plant_status"
 CAMERA_STATUS = "camera_status"
 ESTOP_HELD = "estop_held"
-TELEOP = "teleop"
+# the operator's commands to the virtual leader (issue 28; bus_schemas.messages_operator)
+CMD_VEL = "cmd_vel"
+GOAL = "goal"
+PATH = "path"
+SHAPE = "shape"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -61,7 +65,6 @@ KEY_TEMPLATES: dict[str, str] = {
     WHEELS: "formation/{fleet}/robot/{robot}/wheels",
     STATUS: "formation/{fleet}/robot/{robot}/status",
     ESTOP: "formation/{fleet}/estop",
-    TELEOP: "formation/{fleet}/teleop",
     CLOCK: "formation/{fleet}/clock",
     DISTURBANCE: "formation/{fleet}/disturbance",
     HEARTBEAT: "formation/{fleet}/coordinator/{name}/heartbeat",
@@ -80,16 +83,21 @@ KEY_TEMPLATES: dict[str, str] = {
     # queried, never published: the e-stop engagements an agent (robot id) or agent host (name)
     # holds, answered only while it holds one (robot_agent.core.estop, docs/faults.md)
     ESTOP_HELD: "formation/{fleet}/estop/held/{name}",
+    # the operator drives the virtual leader: a teleop twist, a goal, a path (coordinators read)
+    CMD_VEL: "formation/{fleet}/operator/cmd_vel",
+    GOAL: "formation/{fleet}/operator/goal",
+    PATH: "formation/{fleet}/operator/path",
+    SHAPE: "formation/{fleet}/operator/shape",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
-_FLEET_LEAVES = frozenset(
-    {LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS, TELEOP}
-)
+_FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS})
 # formation/<fleet>/host/<name>/<leaf> -> message name
 _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 # formation/<fleet>/coordinator/<name>/<leaf> -> message name
 _COORDINATOR_LEAVES = {HEARTBEAT: HEARTBEAT, STATUS: COORDINATOR_STATUS}
+# formation/<fleet>/operator/<leaf>
+_OPERATOR_LEAVES = frozenset({CMD_VEL, GOAL, PATH, SHAPE})
 
 
 class KeyInfo(NamedTuple):
@@ -194,12 +202,6 @@ def status_key(fleet: str, robot: str) -> str:
     return _robot_key(fleet, robot, STATUS)
 
 
-def teleop_key(fleet: str) -> str:
-    """``formation/<fleet>/teleop``: an operator's velocity command for the virtual
-    leader (the ROS 2 bridge forwards ``/formation/cmd_vel`` here)."""
-    return f"{_fleet_prefix(fleet)}/{TELEOP}"
-
-
 def estop_key(fleet: str) -> str:
     """``formation/<fleet>/estop``: emergency stop for the fleet or one robot (operator)."""
     return f"{_fleet_prefix(fleet)}/{ESTOP}"
@@ -264,6 +266,31 @@ def camera_status_key(fleet: str, name: str) -> str:
 def host_status_key(fleet: str, name: str) -> str:
     """``formation/<fleet>/host/<name>/status``: status of an agent host's robots."""
     return f"{_fleet_prefix(fleet)}/host/{check_name(name)}/{STATUS}"
+
+
+def cmd_vel_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/cmd_vel``: teleop twist for the virtual leader (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{CMD_VEL}"
+
+
+def goal_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/goal``: drive the virtual leader to a point (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{GOAL}"
+
+
+def path_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/path``: drive the virtual leader along waypoints (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{PATH}"
+
+
+def shape_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/shape``: reshape the running formation (operator)."""
+    return f"{_fleet_prefix(fleet)}/operator/{SHAPE}"
+
+
+def operator_pattern(fleet: str) -> str:
+    """``formation/<fleet>/operator/*``: every operator command (coordinators subscribe)."""
+    return f"{_fleet_prefix(fleet)}/operator/*"
 
 
 # --- liveliness tokens ----------------------------------------------------------------------
@@ -414,6 +441,8 @@ def parse_key(key: str) -> KeyInfo | None:
         return KeyInfo(fleet, leaf, name=parts[3]) if _NAME_MATCH(parts[3]) else None
     if kind == ESTOP and n == 5 and parts[3] == "held":
         return KeyInfo(fleet, ESTOP_HELD, name=parts[4]) if _NAME_MATCH(parts[4]) else None
+    if kind == "operator" and n == 4 and parts[3] in _OPERATOR_LEAVES:
+        return KeyInfo(fleet, parts[3])
     if kind == "plant" and n == 4 and parts[3] == STATUS:
         return KeyInfo(fleet, PLANT_STATUS)
     if kind == "camera" and n == 5 and parts[4] == STATUS:

@@ -43,9 +43,12 @@ from bus_schemas.messages_fields import (
     _X,
     _Y,
     DisturbanceKind,
+    LeaderMode,
     Mode,
     Role,
+    ShapeKind,
 )
+from bus_schemas.messages_operator import CmdVel, Goal, Path, Shape
 from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
@@ -95,6 +98,45 @@ class Leader:
     tick: int | None = field(
         default=None,
         metadata=f_int("lockstep: the clock `tick` this leader state answers (sent last)"),
+    )
+    # issue 28: what a standby needs to continue this leader at a takeover (all absent from an
+    # older coordinator, which only ran scripts: mode script, progress t - leader_t0, rate 1)
+    mode: str | None = field(default=None, metadata=f_enum("what drives the leader", LeaderMode))
+    progress_s: float | None = field(
+        default=None,
+        metadata=f_float(
+            "progress time of the scripted trajectory (advances at `rate`); absent: the leader "
+            "is the script at `t - leader_t0` (the heartbeat's), as it was from the start",
+            "s",
+            lo=-_TMAX,
+            hi=_TMAX,
+        ),
+    )
+    rate: float | None = field(
+        default=None,
+        metadata=f_float(
+            "progress rate (1: full speed; < 1: waiting for the team)",
+            "",
+            lo=0.0,
+            hi=1.0,
+        ),
+    )
+    target: int | None = field(
+        default=None,
+        metadata=f_int("mode goal/path: index of the next waypoint", hi=1023),
+    )
+    deadman: bool | None = field(
+        default=None, metadata=f_bool("mode teleop: the deadman has tripped (no recent twist)")
+    )
+    shape: str | None = field(
+        default=None,
+        metadata=f_enum("the shape the formation was last reshaped into (absent: none)", ShapeKind),
+    )
+    reshape: float | None = field(
+        default=None,
+        metadata=f_float(
+            "fraction of the running reshape done (absent: none running)", "", lo=0.0, hi=1.0
+        ),
     )
 
 
@@ -334,29 +376,6 @@ class Estop:
     )
 
 
-@message(name=keys.TELEOP, publisher="operator / tools (formation ros2)", periodic=True)
-@dataclass(frozen=True, slots=True, kw_only=True)
-class Teleop:
-    """An operator's velocity command for the virtual leader (a unicycle, eqs 1-3), e.g. from
-    a ROS 2 ``teleop_twist_keyboard`` through ``formation ros2``. A consumer holds it for a
-    deadman time after `t` and then falls back to zero (the operator issue)."""
-
-    v: int = field(default=1, metadata=_V)
-    t: float = field(metadata=_T)
-    seq: int = field(metadata=_SEQ)
-    v_mps: float = field(
-        metadata=f_float("commanded forward speed of the virtual leader", "m/s", lo=-_SPEED,
-                         hi=_SPEED)
-    )  # fmt: skip
-    omega_radps: float = field(
-        metadata=f_float("commanded turn rate of the virtual leader", "rad/s", lo=-_TURN,
-                         hi=_TURN)
-    )  # fmt: skip
-    source: str | None = field(
-        default=None, metadata=f_str("where the command came from (e.g. `ros2:/formation/cmd_vel`)")
-    )
-
-
 def new_estop_id() -> int:
     """A fresh random engagement id for an ``Estop`` that engages, in [1, 2^63-1]."""
     while True:
@@ -492,7 +511,6 @@ Message = (
     | Clock
     | Disturbance
     | Heartbeat
-    | Teleop
     | PoseBatch
     | TruthBatch
     | SetpointBatch
@@ -501,6 +519,10 @@ Message = (
     | CoordinatorStatus
     | PlantStatus
     | CameraStatus
+    | CmdVel
+    | Goal
+    | Path
+    | Shape
 )
 """Any bus message."""
 
@@ -517,7 +539,6 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     Clock,
     Disturbance,
     Heartbeat,
-    Teleop,
     PoseBatch,
     TruthBatch,
     SetpointBatch,
@@ -526,6 +547,10 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     CoordinatorStatus,
     PlantStatus,
     CameraStatus,
+    CmdVel,
+    Goal,
+    Path,
+    Shape,
 )
 
 BATCH_CHUNK = 256

@@ -40,6 +40,25 @@ class Mode(StrEnum):
     ESTOP = "estop"
 
 
+class LeaderMode(StrEnum):
+    """What drives the virtual leader (coordinator.core.leader)."""
+
+    SCRIPT = "script"
+    TELEOP = "teleop"
+    GOAL = "goal"
+    PATH = "path"
+    STOP = "stop"
+
+
+class ShapeKind(StrEnum):
+    """A shape a running formation can be reshaped into (coordinator.core.reshape)."""
+
+    TRIANGLE = "triangle"
+    COLUMN = "column"
+    LINE = "line"
+    CHEVRON = "chevron"
+
+
 class DisturbanceKind(StrEnum):
     """What a disturbance does to a simulated robot."""
 

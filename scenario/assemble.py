@@ -35,7 +35,15 @@ def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
         scenario.assignment.tie_tol_m,
         ref_offset_m=scenario.agent.geometry.ref_offset_m,
         t0_s=t0_s,
+        leader=scenario.leader,
+        arena=_arena(scenario),
     )
+
+
+def _arena(scenario: Scenario) -> tuple[float, float, float, float] | None:
+    """The scenario's arena as (x_min, y_min, x_max, y_max) (m), or None."""
+    a = scenario.agent.world.arena
+    return None if a is None else (a.x_min, a.y_min, a.x_max, a.y_max)
 
 
 def path_conflicts(scenario: Scenario, duration_s: float | None = None) -> list[PathConflict]:

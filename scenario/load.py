@@ -15,7 +15,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bus_schemas import keys
 from robot_agent.core.config_tables import agent_sections, build_section, world_map
@@ -24,6 +24,9 @@ from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
 )
+
+if TYPE_CHECKING:
+    from coordinator.core.leader import LeaderConfig
 
 SCENARIO_DIR = Path(__file__).parent / "builtin"
 
@@ -94,6 +97,9 @@ class Scenario:
     link: LinkModel
     disturbances: tuple[Disturbance, ...] = field(default_factory=tuple)
     source: str = ""
+    leader: LeaderConfig | None = None
+    """``[leader]``: the operator's limits, the deadman and whether the leader waits for its team
+    (coordinator.core.leader, docs/operate.md); None: the defaults."""
 
     def with_overrides(self, **changes: Any) -> Scenario:
         return dataclasses.replace(self, **changes)
@@ -186,6 +192,7 @@ TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
     "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
+    "leader",
 }  # fmt: skip
 
 
@@ -321,6 +328,20 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         tie_tol_m=_num(a, "tie_tol_m", "assignment", 0.01, lo=0.0),
     )
 
+    leader = None
+    leader_table = _table(data, "leader", "")
+    if leader_table:
+        # imported here: coordinator.core.coordinator's package pulls numpy, and a robot's
+        # agent process
+        # imports this module without it (tests/repo/test_agent_imports.py); only a scenario
+        # with a [leader] table needs the coordinator's validation
+        from coordinator.core.leader import LeaderConfig
+
+        try:
+            leader = LeaderConfig.from_dict(leader_table)
+        except (TypeError, ValueError) as exc:
+            raise ScenarioError(str(exc)) from None
+
     p = _table(data, "plant", "")
     _only(p, {"motor_tau_s", "encoder_counts_per_rev", "encoder_slip_std"}, "plant")
     plant = PlantModel(
@@ -396,4 +417,5 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         link=link,
         disturbances=tuple(sorted(disturbances, key=lambda x: x.t_s)),
         source=source,
+        leader=leader,
     )

@@ -26,7 +26,7 @@ computed by :func:`~coordinator.core.formation.slot_rows`, the assignment by
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import replace
 from types import MappingProxyType
 from typing import Any, Final
@@ -40,6 +40,8 @@ from coordinator.core.formation import (
     slot_rows,
     states_from_rows,
 )
+from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
+from coordinator.core.reshape import Transition, blended_rows, plan_reshape
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.core.kinematics import reference_point
 from robot_agent.core.params import AgentConfig
@@ -253,7 +255,8 @@ _NO_APPROACH: Mapping[str, SlotRow] = MappingProxyType({})
 
 
 class CoordinatorCore:
-    """Virtual leader (eqs 1-2), slots (eqs 3-5), greedy/optimal role assignment (eq 6)."""
+    """Virtual leader (eqs 1-2, a state advanced each tick: coordinator.core.leader), slots
+    (eqs 3-5), greedy/optimal role assignment (eq 6)."""
 
     def __init__(
         self,
@@ -262,22 +265,46 @@ class CoordinatorCore:
         assigner: RoleAssigner,
         ref_offset_m: float,
         t0_s: float = 0.0,
+        leader: LeaderCore | None = None,
     ) -> None:
         if not (ref_offset_m > 0 and math.isfinite(ref_offset_m)):
             raise ValueError(f"ref_offset_m must be positive and finite, got {ref_offset_m!r}")
         self.trajectory = trajectory
+        self.leader = leader if leader is not None else LeaderCore(trajectory, t0_s=t0_s)
+        self.leader.t0_s = t0_s
         # a planned trajectory may squeeze the formation (time-varying slot offsets)
         self._offsets_at = getattr(trajectory, "slot_offsets", None)
         self.formation = formation
         self.assigner = assigner
         self.ref_offset_m = ref_offset_m
-        self.t0_s = t0_s
+        self.errors_m: dict[str, float] = {}
+        """Tracking error (m) of each assigned robot at the last tick (reference point to the
+        setpoint of the tick before), computed while the leader waits for its team."""
         self.assignment: dict[str, int] = {}
         self.approach_speed_mps = APPROACH_SPEED_MPS
         self._approach: dict[str, list[float]] = {}  # robot -> approach point [x, y]
         self._running = False  # a tick has assigned robots (later assignments approach)
         self._last_now: float | None = None
         self._row_of: dict[int, int] | None = None
+        self._last_out: CoordinatorOutput | None = None
+        self._transition: Transition | None = None
+        self._transition_t0: float | None = None
+        self._pending_reshape: Transition | None = None
+        self._done: Transition | None = None
+        self.shape: str | None = None
+        """The kind of the last reshape asked (None: the scenario's formation)."""
+        self.reshapes: list[dict[str, Any]] = []
+        """One record per reshape completed: kind, spacing, start time, transition time and the
+        least slot separation along it (coordinator.core.reshape)."""
+
+    @property
+    def t0_s(self) -> float:
+        """Time origin of the scripted trajectory (s, the tick's clock)."""
+        return self.leader.t0_s
+
+    @t0_s.setter
+    def t0_s(self, value: float) -> None:
+        self.leader.t0_s = value
 
     @classmethod
     def from_config(
@@ -289,14 +316,19 @@ class CoordinatorCore:
         tie_tol_m: float,
         ref_offset_m: float,
         t0_s: float = 0.0,
+        leader: LeaderConfig | None = None,
+        arena: tuple[float, float, float, float] | None = None,
     ) -> CoordinatorCore:
+        kind = str(trajectory["kind"])
         traj_params = {k: v for k, v in trajectory.items() if k != "kind"}
+        traj = make_trajectory(kind, traj_params)
         return cls(
-            make_trajectory(str(trajectory["kind"]), traj_params),
+            traj,
             FormationSpec.from_dict(dict(formation)),
             RoleAssigner(method=method, hysteresis_m=hysteresis_m, tie_tol_m=tie_tol_m),
             ref_offset_m=ref_offset_m,
             t0_s=t0_s,
+            leader=LeaderCore(traj, leader, t0_s=t0_s, trajectory_kind=kind, arena=arena),
         )
 
     def _ref_points(
@@ -327,17 +359,39 @@ class CoordinatorCore:
         return state.x, state.y
 
     def tick(
-        self, now_s: float, poses: Mapping[str, tuple[float, float, float]]
+        self,
+        now_s: float,
+        poses: Mapping[str, tuple[float, float, float]],
+        held: Collection[str] = (),
     ) -> CoordinatorOutput:
-        """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta)."""
-        leader = self.trajectory.sample(now_s - self.t0_s)
-        spec = self.formation
-        offsets = None if self._offsets_at is None else self._offsets_at(now_s - self.t0_s)
-        if offsets is None:
-            theta, rows = slot_rows(spec, leader)
-        else:
-            theta, rows = morphed_slot_rows(leader, offsets)
+        """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta);
+        ``held``: robots known to be held (e-stopped): a leader that waits for its team stops
+        for them (coordinator.core.leader)."""
         ids, xy = self._ref_points(poses)
+        rate = 1.0
+        if self.leader.waits() and self._last_out is not None:
+            self.errors_m = self._errors(self._last_out, ids, xy)
+            rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
+        leader = self.leader.step(now_s, rate)
+        if self._done is not None:
+            self.formation, self._done = self._done.target, None
+            self._row_of = None
+            if self._pending_reshape is None:
+                self._transition = self._transition_t0 = None
+        spec = self.formation
+        if self._pending_reshape is not None:
+            self._transition, self._pending_reshape = self._pending_reshape, None
+            self._transition_t0 = now_s
+        tr = self._transition
+        offsets = None  # a planned squeeze, at the plan's own (progress) time
+        if tr is None and self._offsets_at is not None and self.leader.mode is LeaderMode.SCRIPT:
+            offsets = self._offsets_at(self.leader.progress_s)
+        if tr is not None:
+            theta, rows = self._reshaping(tr, now_s, leader)
+        elif offsets is not None:
+            theta, rows = morphed_slot_rows(leader, offsets)
+        else:
+            theta, rows = slot_rows(spec, leader)
         assignment, changed = self.assigner.update_ordered(
             ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))
         )
@@ -348,7 +402,89 @@ class CoordinatorCore:
         if self._approach or (changed and self._running):
             approach = self._approaches(previous, assignment, ids, xy, rows, dt)
         self._running = self._running or bool(assignment)
-        return CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
+        out = CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
+        self._last_out = out
+        return out
+
+    # -- runtime reshaping (coordinator.core.reshape) -------------------------------------------
+
+    def reshape(self, kind: str, spacing_m: float, safety_m: float) -> str | None:
+        """Reshape the formation into ``kind`` with slots ``spacing_m`` apart, never closer than
+        ``safety_m`` (m) along the way; applied at the next tick. Returns why it is refused
+        (``bad_shape``, ``unsafe``), or None. A reshape during a reshape starts from where the
+        slots are."""
+        current = None
+        tr = self._transition
+        if self._done is not None:  # over, not yet switched: the new shape is where they are
+            self.formation, self._done = self._done.target, None
+            self._row_of = None
+            self._transition = self._transition_t0 = tr = None
+        if tr is not None and self._last_now is not None and self._transition_t0 is not None:
+            current = tr.progress(self._last_now - self._transition_t0)[0]
+        plan = plan_reshape(self.formation, kind, spacing_m, safety_m, current)
+        if isinstance(plan, str):
+            return plan
+        self._pending_reshape = plan
+        self.shape = kind
+        return None
+
+    def finish_reshape(self) -> None:
+        """Take the reshape asked as done at once (a standby: it does not tick; the formation
+        is the new shape when it takes over)."""
+        plan = self._pending_reshape or self._transition
+        if plan is not None:
+            self.formation = plan.target
+            self._row_of = None
+        self._pending_reshape = self._transition = self._transition_t0 = self._done = None
+
+    @property
+    def reshaping(self) -> float | None:
+        """Fraction of the running reshape done (None: no reshape running)."""
+        tr, t0, now = self._transition, self._transition_t0, self._last_now
+        if tr is None or t0 is None or now is None:
+            return None
+        return min(max((now - t0) / tr.duration_s, 0.0), 1.0)
+
+    def _reshaping(
+        self, tr: Transition, now_s: float, leader: LeaderState
+    ) -> tuple[float, list[SlotRow]]:
+        """The slots of a running reshape at ``now_s`` (the running formation's row order);
+        at its end the new shape becomes the formation (from the next tick)."""
+        assert self._transition_t0 is not None
+        offsets, rates, done = tr.progress(now_s - self._transition_t0)
+        theta, rows = blended_rows(leader, offsets, rates)
+        if done:
+            self.reshapes.append(
+                {
+                    "kind": tr.kind,
+                    "spacing_m": tr.spacing_m,
+                    "started_s": self._transition_t0,
+                    "transition_s": tr.duration_s,
+                    "least_separation_m": tr.least_separation_m,
+                    "schedule": tr.schedule,
+                }
+            )
+            self._done = tr  # the new shape becomes the formation at the next tick
+        return theta, rows
+
+    def _errors(
+        self, last: CoordinatorOutput, ids: list[str], xy: list[tuple[float, float]]
+    ) -> dict[str, float]:
+        """Each robot assigned at the last tick: distance (m) from its reference point now to
+        the setpoint it was given (its slot, or its approach point)."""
+        row_of = self._row_of
+        if row_of is None:
+            row_of = self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+        where = dict(zip(ids, xy, strict=True))
+        out: dict[str, float] = {}
+        rows, approach = last.rows, last.approach
+        for rid, slot in last.assignment.items():
+            p = where.get(rid)
+            if p is None:
+                continue
+            row = approach.get(rid) or rows[row_of[slot]]
+            out[rid] = math.hypot(row[0] - p[0], row[1] - p[1])
+        return out
 
     def _approaches(
         self,

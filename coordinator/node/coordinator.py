@@ -47,6 +47,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.election import Election, Takeover
 from coordinator.node.election_io import MAX_ROBOTS, ElectionIO
 from coordinator.node.estop_source import EstopSource
+from coordinator.node.operator_io import OperatorInputs
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
@@ -171,6 +172,19 @@ class CoordinatorNode:
         self.estop_source = EstopSource(
             self.estop_key, self._now, self.faults.reject, self.faults.internal, self.log
         )
+        # -- the operator's teleop, goals and paths, and the leader's continuation (issue 28)
+        self.operator = OperatorInputs(
+            self.fleet,
+            self.core,
+            safety_m=scenario.agent.safety_distance_m,
+            lockstep=lockstep,
+            now=self._now,
+            is_active=lambda: self.active,
+            reject=self.faults.reject,
+            internal=self.faults.internal,
+            log=self.log,
+        )
+        self._takeovers_seen = 0
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -389,11 +403,18 @@ class CoordinatorNode:
                 self.core.t0_s = now_s
             if self.election.leader_t0 != self.t0_s:
                 self.election.observe_t0(self.t0_s)
+            if self.election.takeovers != self._takeovers_seen:  # continue the leader (issue 28)
+                self._takeovers_seen = self.election.takeovers
+                self.operator.took_over(now_s, self.t0_s)
             started = time.perf_counter()
-            out = self.core.tick(now_s, self.fresh_poses(now_s))
+            poses = self.fresh_poses(now_s)
+            held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
+            out = self.core.tick(now_s, poses, held)
             self.ticks += 1
             self.last = out
-            outputs = self.outputs.encode_tick(out, now_s, tick, self.t0_s or 0.0)
+            outputs = self.outputs.encode_tick(
+                out, now_s, tick, self.t0_s or 0.0, self.leader_extra()
+            )
             for key, payload, qos in outputs:
                 self._publish(key, payload, qos)
             self._replay.answer = outputs
@@ -424,6 +445,24 @@ class CoordinatorNode:
         self.publish_heartbeat()
         if not self.lockstep:
             self.tick(now_s)
+
+    def leader_extra(self) -> dict[str, Any]:
+        """The ``leader`` message's issue-28 fields: what a standby needs to continue it."""
+        ld = self.core.leader
+        extra: dict[str, Any] = {"mode": ld.mode.value}
+        if not ld.scripted:  # absent: the script at t - leader_t0 (what the election checks)
+            extra["progress_s"] = ld.progress_s
+            extra["rate"] = ld.rate
+        if ld.mode in (ld.mode.GOAL, ld.mode.PATH):
+            extra["target"] = min(ld.target_index, 1023)
+        if ld.mode is ld.mode.TELEOP:
+            extra["deadman"] = ld.deadman
+        if self.core.shape is not None:
+            extra["shape"] = self.core.shape
+        reshaping = self.core.reshaping
+        if reshaping is not None:
+            extra["reshape"] = reshaping
+        return extra
 
     # -- periodic ------------------------------------------------------------------------------
 

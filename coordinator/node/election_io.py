@@ -106,6 +106,8 @@ class ElectionIO:
             if isinstance(msg, DecodeError):
                 self._faults.reject("leader", msg)
                 return
+            if msg.progress_s is not None:  # issue 28: an operator's or a waiting leader is no
+                return  # function of t - leader_t0: nothing to check an origin against
             self.election.observe_leader(msg.t, msg.x, msg.y, self._now())
         except Exception as exc:
             self._faults.internal("on_leader", exc)

@@ -173,6 +173,11 @@ async def _node(
     io.subscribe(node.assignment_key, node.election_io.on_assignment)
     if not lockstep:  # a standby checks trajectory origins against the leader (election)
         io.subscribe(node.leader_key, node.election_io.on_leader)
+        io.subscribe(node.leader_key, node.operator.on_leader)  # and continues it (issue 28)
+    # teleop, goals, paths, shapes: one subscription per key (under --secure the router's
+    # access control admits a declaration on exactly the keys a coordinator may read)
+    for key in node.operator.command_keys:
+        io.subscribe(key, node.operator.on_command)
     # durable e-stop state (docs/faults.md): the other coordinators', then the state file's
     store = None if estop_state is None else EstopStore(estop_state, fleet, io.log.info)
     try:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import replace
-from typing import Final
+from typing import Any, Final
 
 import runtime as rt
 from bus_schemas import (
@@ -87,10 +87,16 @@ class TickOutputs:
         return n
 
     def encode_tick(
-        self, out: CoordinatorOutput, now_s: float, tick: int | None, t0_s: float
+        self,
+        out: CoordinatorOutput,
+        now_s: float,
+        tick: int | None,
+        t0_s: float,
+        leader_extra: Mapping[str, Any] | None = None,
     ) -> Outgoing:
         """The messages of one tick at ``now_s`` (``tick``: the lockstep clock it answers;
-        ``t0_s``: the trajectory origin, for the log line of an assignment change)."""
+        ``t0_s``: the trajectory origin, for the log line of an assignment change;
+        ``leader_extra``: the optional fields of the ``leader`` message, issue 28)."""
         t = max(now_s, 0.0)
         fleet = self.fleet
         setpoints = self._setpoint_batches(out, t, tick) if self.batch else []
@@ -153,6 +159,7 @@ class TickOutputs:
             theta=ld.theta,
             v_mps=ld.v_mps,
             omega_radps=ld.omega_radps,
+            **(leader_extra or {}),
         )
         leader_out = (self.leader_key, encode(replace(leader, tick=tick)), self.leader_qos)
         if self.lockstep:  # slots, setpoints, assignment, then the leader LAST

@@ -83,6 +83,7 @@ class _Launcher:
         self.retired: list[Child] = []  # dead nodes replaced by a respawn
         self.events: list[dict[str, Any]] = []  # deaths and respawns during the run
         self.session: Any = None
+        self._operator_session: Any = None  # --secure --foxglove: the live view's commands
         self.first_truth_rx: float | None = None
         self.last_truth_rx: float | None = None
         self._subscribers: list[Any] = []
@@ -244,7 +245,26 @@ class _Launcher:
         rt.watch_liveliness(
             self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive
         )
-        self.observers.start(self.session)
+        self.observers.start(self.session, await self._commands_session())
+
+    async def _commands_session(self) -> Any:
+        """The session a ``--foxglove`` client's publishes are put with (issue 28): the
+        launcher's own; with ``--secure`` one as the operator identity (the router admits the
+        operator's commands from it only). None without ``--foxglove``."""
+        import runtime as rt
+
+        if self.cfg.foxglove_port is None:
+            return None
+        if self.secure is None:
+            return self.session
+        settings = rt.ZenohSettings(
+            connect=(),
+            mode=None,
+            config_file=str(self.secure.clients["operator"]),
+            open_timeout_s=5.0,
+        )
+        self._operator_session = await rt.open_session_async(settings)
+        return self._operator_session
 
     def _drain_subscribers(self) -> None:
         """Feed every sample the inbox holds to the collector."""
@@ -461,6 +481,9 @@ class _Launcher:
                 self.warn(f"the collector's inbox overflowed: {self._inbox.dropped} samples lost")
             await self._step("closing the recorder and the live view", self.observers.stop())
             self.failures.extend(self.observers.failures)  # warned already
+            with contextlib.suppress(Exception):
+                if self._operator_session is not None:
+                    self._operator_session.close()
             with contextlib.suppress(Exception):
                 self.session.close()
         if self.router is not None:

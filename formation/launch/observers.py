@@ -37,8 +37,9 @@ class RunObservers:
         self.failures: list[str] = []
         """What could not be done cleanly (an incomplete recording): failures of the run."""
 
-    def start(self, session: Any) -> None:
-        """Start what the run asks for on ``session`` (the launcher's, open): raises
+    def start(self, session: Any, commands: Any = None) -> None:
+        """Start what the run asks for on ``session`` (the launcher's, open; ``commands``: the
+        session the live view's client publishes are put with, issue 28): raises
         :class:`~formation.launch.plan.LaunchError` if one cannot start (the ones started before
         it are kept, for :meth:`stop`)."""
         if self.cfg.record is not None:
@@ -70,6 +71,7 @@ class RunObservers:
                     ref_offset_m=geom.ref_offset_m,
                     body_radius_m=geom.body_radius_m,
                     world=self.plan.scenario.agent.world,
+                    commands=commands,
                 )
             except RuntimeError as exc:
                 raise LaunchError(f"--foxglove {self.cfg.foxglove_port}: {exc}") from exc

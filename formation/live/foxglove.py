@@ -30,18 +30,21 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Callable
 from typing import Any, Final
 
 import foxglove
 import zenoh
 from foxglove import Channel
 from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
+from foxglove.websocket import Capability
 
 from bus_schemas import (
     DecodeError,
     Status,
     keys,
 )
+from formation.live.foxglove_ops import OperatorListener
 from formation.live.scene import SCENE_TOPIC, TF_TOPIC, SceneModel
 from formation.outputs.bus_json import (
     DERIVED_PREFIX,
@@ -85,6 +88,7 @@ class LiveServer:
         ref_offset_m: float = RobotGeometry().ref_offset_m,
         body_radius_m: float = RobotGeometry().body_radius_m,
         world: Any = None,
+        commands: Callable[[str, bytes], object] | None = None,
     ) -> None:
         if not scene_hz > 0:
             raise ValueError(f"scene_hz must be > 0, got {scene_hz!r}")
@@ -92,8 +96,17 @@ class LiveServer:
         self.scene_period_s = 1.0 / scene_hz
         self.model = SceneModel(fleet, ref_offset_m, body_radius_m, world=world)
         self.context = foxglove.Context()
+        # issue 28: a client's publishes (Teleop panel, e-stop, goal) become the operator's
+        # commands, put with ``commands`` (formation.live.foxglove_ops)
+        self.operator = OperatorListener(fleet, commands)
         self.server = foxglove.start_server(
-            name=f"formation {fleet}", host=host, port=port, context=self.context
+            name=f"formation {fleet}",
+            host=host,
+            port=port,
+            context=self.context,
+            capabilities=[Capability.ClientPublish],
+            supported_encodings=["json"],
+            server_listener=self.operator,
         )
         self.host = host
         self.messages = 0
@@ -222,11 +235,14 @@ def start_live(
     ref_offset_m: float = RobotGeometry().ref_offset_m,
     body_radius_m: float = RobotGeometry().body_radius_m,
     world: Any = None,
+    commands: zenoh.Session | None = None,
 ) -> LiveHandle:
     """Start a Foxglove WebSocket server for ``fleet`` fed from ``session``.
 
     ``port=0`` picks a free port. Raises ``RuntimeError`` if the port is taken. The caller keeps
-    owning the session and must call ``handle.close()`` before closing it.
+    owning the session and must call ``handle.close()`` before closing it. ``commands``: the
+    session a client's publishes are put with as operator commands (issue 28,
+    :mod:`formation.live.foxglove_ops`); None: they are refused.
     ``formation up --foxglove``::
 
         live = start_live(session, cfg.fleet, port=8765,
@@ -243,6 +259,7 @@ def start_live(
         ref_offset_m=ref_offset_m,
         body_radius_m=body_radius_m,
         world=world,
+        commands=None if commands is None else commands.put,
     )
     try:
         live.attach(session)

@@ -13,7 +13,9 @@ Any ROS 2 Jazzy (or later) machine whose rmw_zenoh nodes reach the fleet's Zenoh
   (visualization_msgs/msg/MarkerArray: a coloured arrow per slot by role, for RViz2);
 - ``<ns>/formation/cmd_vel`` (geometry_msgs/msg/Twist) in: validated (CDR, attachment, finite,
   within the contract's speed and turn bounds, at most ``--max-cmd-hz``) and forwarded as the
-  bus's ``Teleop`` message; every rejection is counted by reason;
+  operator's ``CmdVel``
+  (``formation/<fleet>/operator/cmd_vel``: the virtual leader's teleop input, deadman
+  included); every rejection is counted by reason;
 - ``<ns>/formation/estop`` and ``<ns>/formation/release`` (std_srvs/srv/Trigger services): the
   fleet's existing e-stop path (``formation.operate.estop_tool.send_estop``: latched by the
   coordinators, acknowledged by the robots); the reply says who acknowledged.
@@ -38,13 +40,13 @@ from typing import Any, Final
 
 import runtime as rt
 from bus_schemas import (
+    CmdVel,
     DecodeError,
     Leader,
     Pose,
     PoseBatch,
     RejectCounts,
     Slot,
-    Teleop,
     decode,
     encode,
     keys,
@@ -212,8 +214,8 @@ class BridgeCore:
 
     # --- ROS -> fleet -------------------------------------------------------------------------
 
-    def on_cmd_vel(self, payload: bytes, attachment: bytes | None, now_s: float) -> Teleop | None:
-        """A ``cmd_vel`` sample -> the bus Teleop to publish, or None (refused and counted)."""
+    def on_cmd_vel(self, payload: bytes, attachment: bytes | None, now_s: float) -> CmdVel | None:
+        """A ``cmd_vel`` sample -> the operator's CmdVel to publish, or None (refused, counted)."""
         att = rmw.decode_attachment(attachment)
         if isinstance(att, DecodeError):
             self.rejected.add(f"cmd_vel_{att.reason}")
@@ -232,13 +234,7 @@ class BridgeCore:
         self._last_cmd_s = now_s
         self._teleop_seq += 1
         self.forwarded += 1
-        return Teleop(
-            t=now_s,
-            seq=self._teleop_seq,
-            v_mps=v_mps,
-            omega_radps=omega_radps,
-            source=f"ros2:{self.topic('formation/cmd_vel')}",
-        )
+        return CmdVel(t=now_s, seq=self._teleop_seq, v_mps=v_mps, omega_radps=omega_radps)
 
 
 def _pose(x_m: float, y_m: float, theta_rad: float) -> msgs.Pose:
@@ -392,7 +388,7 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
     def on_cmd_vel(rx: rt.Received) -> None:
         teleop = core.on_cmd_vel(rx.payload, rx.attachment, time.monotonic())
         if teleop is not None:
-            io.pubs.put(keys.teleop_key(fleet), encode(teleop))
+            io.pubs.put(keys.cmd_vel_key(fleet), encode(teleop))
 
     io.subscribe(keys.all_poses_pattern(fleet), on_pose)
     io.subscribe(keys.poses_key(fleet), on_poses)

@@ -299,5 +299,36 @@ def compute(log: RunLog, settle_s: float, settle_tol_m: float) -> dict[str, Any]
             "final_leader": leader_timeline(log)[-1]["leader"] if log.t_s.size else None,
         },
         "safety": safety_metrics(log),
+        "reshapes": reshape_metrics(log),
         "meta": log.meta,
     }
+
+
+def reshape_metrics(log: RunLog) -> list[dict[str, Any]]:
+    """Each runtime reshape of the run (issue 28, ``log.reshapes``): its kind, start, transition
+    time (s, as the leader messages reported it running), the least distance between two
+    robots' axle centres (m, the truth) during it, and whether it was complete (a run that
+    ended during a reshape reports the part it saw)."""
+    out: list[dict[str, Any]] = []
+    for r in log.reshapes:
+        start, end = float(r["start_s"]), float(r["end_s"])
+        inside = (log.t_s >= start) & (log.t_s <= end)
+        least = math.inf
+        pts = log.truth[inside, :, :2]
+        n = pts.shape[1]
+        for i in range(n):
+            for j in range(i + 1, n):
+                d = np.hypot(pts[:, i, 0] - pts[:, j, 0], pts[:, i, 1] - pts[:, j, 1])
+                d = d[np.isfinite(d)]
+                if d.size:
+                    least = min(least, float(d.min()))
+        out.append(
+            {
+                "kind": r["kind"],
+                "start_s": start,
+                "transition_s": end - start,
+                "least_separation_m": _finite_or_none(least),
+                "complete": bool(r.get("complete", True)),
+            }
+        )
+    return out

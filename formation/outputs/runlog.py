@@ -73,6 +73,9 @@ class RunLog:
     world: Any = None
     filter_counts: dict[str, dict[str, Any]] = field(default_factory=dict)
     filter_source: str | None = "firmware"
+    # runtime reshapes (issue 28): one {"kind", "start_s", "end_s"} per reshape the leader
+    # messages reported (times on t_s's axis); formation.outputs.metrics adds what they cost
+    reshapes: list[dict[str, Any]] = field(default_factory=list)
 
     @classmethod
     def allocate(cls, robot_ids: list[str], slot_ids: list[int], ticks: int) -> RunLog:

@@ -60,7 +60,7 @@ from bus_schemas import (
 )
 from formation.outputs.live_table import LiveRobot, LiveView
 from formation.outputs.runlog import MODE_CODES, RunLog
-from formation.record.collector_build import RowSources, fill_rows, row_keys
+from formation.record.collector_build import RowSources, fill_rows, reshape_intervals, row_keys
 from formation.record.collector_live import live_view
 from formation.record.collector_series import Series
 from scenario import Scenario
@@ -76,6 +76,8 @@ _LEAVES: Final = frozenset(
 )  # fmt: skip
 
 
+MAX_RESHAPE_MARKS: Final = 100_000
+"""Leader messages kept for the reshape metrics (a reshape of 10 s at 50 Hz is 500)."""
 _BATCH_LEAVES: Final = frozenset({keys.TRUTHS, keys.HOST_WHEELS, keys.HOST_STATUS, keys.SETPOINTS})
 
 
@@ -162,6 +164,7 @@ class RunCollector:
         # truth rows: row key -> {robot index: (x, y, theta)}
         self._truth: dict[float, dict[int, tuple[float, float, float]]] = {}
         self._leader = Series()
+        self._reshape_marks: list[tuple[float, str | None, float]] = []  # (t, shape, fraction)
         self._slots: dict[int, Series] = {}
         self._assignment = Series()
         self._wheels = [Series() for _ in self.robot_ids]
@@ -296,6 +299,8 @@ class RunCollector:
             self._stored(
                 self._leader.add(self._row_key(leader.t), (leader.x, leader.y, leader.theta))
             )
+            if leader.reshape is not None and len(self._reshape_marks) < MAX_RESHAPE_MARKS:
+                self._reshape_marks.append((leader.t, leader.shape, leader.reshape))
         elif leaf == keys.SLOT:
             slot = decode(payload, Slot)
             if isinstance(slot, DecodeError):
@@ -524,6 +529,13 @@ class RunCollector:
                 ref_offset_m=self.ref_offset_m,
                 body_radius_m=self.body_radius_m,
             )
+        if rows.size:
+            origin = (
+                (self.t0_s if self.t0_s is not None else float(rows[0]))
+                if self.dt_s is None
+                else 0.0
+            )
+            log.reshapes = reshape_intervals(self._reshape_marks, origin)
         log.filter_counts = {
             rid: dict(counts)
             for rid, counts in zip(self.robot_ids, self._filter, strict=True)

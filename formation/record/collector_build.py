@@ -148,3 +148,20 @@ def fill_rows(
         for e in monitor.collisions
     ]
     return gaps
+
+
+def reshape_intervals(
+    marks: Sequence[tuple[float, str | None, float]], origin_s: float
+) -> list[dict[str, Any]]:
+    """The runtime reshapes (issue 28) in the leader messages' ``(t, shape, reshape fraction)``
+    marks: one ``{"kind", "start_s", "end_s"}`` per reshape (times minus ``origin_s``, the
+    RunLog's axis). A new reshape starts where the fraction falls back or the shape changes."""
+    out: list[dict[str, Any]] = []
+    last: tuple[float, str | None, float] | None = None
+    for t, shape, frac in sorted(marks, key=lambda m: m[0]):
+        if last is None or shape != last[1] or frac < last[2]:
+            out.append({"kind": shape, "start_s": t - origin_s, "end_s": t - origin_s})
+        out[-1]["end_s"] = t - origin_s
+        out[-1]["complete"] = frac >= 1.0
+        last = (t, shape, frac)
+    return out

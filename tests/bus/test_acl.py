@@ -106,7 +106,15 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("clock"),
         _f("plant/status"),
     },
-    "operator": {_f("estop"), _f("disturbance"), _f("teleop")},
+    # issue 28: only the operator drives the virtual leader
+    "operator": {
+        _f("estop"),
+        _f("disturbance"),
+        _f("operator/cmd_vel"),
+        _f("operator/goal"),
+        _f("operator/path"),
+        _f("operator/shape"),
+    },
     "observer.rec": set(),
 }
 EXPECT_PUBLISH["coordinator.standby"] = {
@@ -143,6 +151,11 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("estop"),
         _f("clock"),
         *(_f(f"coordinator/{c}/{x}") for c in ("main", "standby") for x in ("heartbeat", "status")),
+        # the operator's commands (a standby keeps them to continue after a takeover)
+        _f("operator/cmd_vel"),
+        _f("operator/goal"),
+        _f("operator/path"),
+        _f("operator/shape"),
     },
     "localization": {*(_f(f"robot/{r}/truth") for r in ROBOTS), _f("truths")},
     "plant": {

@@ -281,3 +281,48 @@ def test_access_control(router_port: int, certs: Path) -> None:
     finally:
         for session in sessions:
             session.close()
+
+
+def test_only_the_operator_drives_the_virtual_leader(router_port: int, certs: Path) -> None:
+    """Issue 28: the operator's commands (``operator/cmd_vel``, ``goal``, ``path``, ``shape``)
+    reach the coordinators from the operator's certificate only; a robot's or a coordinator's
+    forged twist is dropped by the router."""
+    observer = _open(router_port, certs, "observer")
+    coordinator = _open(router_port, certs, "coordinator.main")
+    operator = _open(router_port, certs, "operator")
+    r1 = _open(router_port, certs, "robot.r1")
+    sessions = (r1, operator, coordinator, observer)
+    ops = [f"formation/{FLEET}/operator/{leaf}" for leaf in ("cmd_vel", "goal", "path", "shape")]
+    try:
+        seen, commands = Inbox(), Inbox()
+        # one subscription per key: a coordinator may not declare on operator/* (wider than
+        # its grants), as formation coordinator does (coordinator/node/main.py)
+        subs = [
+            observer.declare_subscriber(f"formation/{FLEET}/**", seen),
+            *(coordinator.declare_subscriber(key, commands) for key in ops),
+        ]
+        own_wheels_r1 = f"formation/{FLEET}/robot/r1/wheels"
+        _prime(r1, own_wheels_r1, seen)
+        _prime(coordinator, COORDINATOR_KEYS[0], seen)
+        _prime(operator, ops[0], commands)
+        for key in ops:
+            r1.put(key, b"robot-forged")
+            coordinator.put(key, b"coordinator-forged")
+        r1.put(own_wheels_r1, b"after-forged")  # later samples of the same sessions, allowed
+        coordinator.put(COORDINATOR_KEYS[0], b"after-forged")
+        for key in ops:
+            operator.put(key, b"from-operator")
+        assert seen.wait(own_wheels_r1, b"after-forged")
+        assert seen.wait(COORDINATOR_KEYS[0], b"after-forged")
+        for key in ops:
+            assert commands.wait(key, b"from-operator"), key
+            assert not commands.has(key, b"robot-forged"), key
+            # (the coordinator's own forged put reaches its own subscriber inside its session;
+            # the router never forwarded it: the observer did not get it)
+            assert not seen.has(key, b"robot-forged") and not seen.has(key, b"coordinator-forged")
+            assert seen.has(key, b"from-operator"), key
+        for sub in subs:
+            sub.undeclare()
+    finally:
+        for session in sessions:
+            session.close()

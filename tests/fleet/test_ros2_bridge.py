@@ -1,6 +1,7 @@
 """``formation ros2``: the pure translation (BridgeCore) and, over a real router, an independent
 rmw_zenoh client (zenoh-ros2-sdk) that lists the topics with their types, receives
-``/r1/odom``, publishes ``/formation/cmd_vel`` (reaching the bus as Teleop) and calls the
+``/r1/odom``, publishes ``/formation/cmd_vel`` (reaching the bus as the operator's CmdVel) and
+calls the
 ``/formation/estop`` Trigger service (reaching the fleet's e-stop key)."""
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import pytest
 import zenoh
 from conftest import free_port
 
-from bus_schemas import Estop, Leader, Pose, Slot, Teleop, decode, encode, keys
+from bus_schemas import CmdVel, Estop, Leader, Pose, Slot, decode, encode, keys
 from bus_schemas.errors import DecodeError
 from bus_schemas.ros2 import msgs, rmw
 from formation.live.ros2_bridge import READY, BridgeCore
@@ -80,8 +81,7 @@ def test_cmd_vel_is_validated_rate_limited_and_counted() -> None:
     core = BridgeCore(max_cmd_hz=10.0)
     ok = core.on_cmd_vel(twist(0.2, -0.4), ATT, now_s=1.0)
     assert ok is not None and (ok.v_mps, ok.omega_radps) == (0.2, -0.4)
-    assert ok.source == "ros2:/formation/cmd_vel"
-    assert isinstance(decode(encode(ok), Teleop), Teleop)  # a valid bus message
+    assert isinstance(decode(encode(ok), CmdVel), CmdVel)  # a valid bus message
     nan = msgs.encode(msgs.Twist())[:4] + b"\x00" * 40 + b"\x00\x00\x00\x00\x00\x00\xf8\x7f"
     hostile = [
         (twist(0.2, 0.0), None, 2.0),  # no attachment
@@ -113,18 +113,18 @@ class BusSide:
 
     def __init__(self, session: zenoh.Session, fleet: str = "demo") -> None:
         self.session, self.fleet = session, fleet
-        self.teleops: list[Teleop] = []
+        self.teleops: list[CmdVel] = []
         self.estops: list[Estop] = []
         self._stop = threading.Event()
         self._subs = [
-            session.declare_subscriber(keys.teleop_key(fleet), self._on_teleop),
+            session.declare_subscriber(keys.cmd_vel_key(fleet), self._on_teleop),
             session.declare_subscriber(keys.estop_key(fleet), self._on_estop),
         ]
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
     def _on_teleop(self, sample: zenoh.Sample) -> None:
-        msg = decode(sample.payload.to_bytes(), Teleop)
+        msg = decode(sample.payload.to_bytes(), CmdVel)
         if not isinstance(msg, DecodeError):
             self.teleops.append(msg)
 
@@ -195,9 +195,8 @@ def test_independent_ros2_client_sees_and_drives_the_bridge(
         assert (odom["frame_id"], odom["child_frame_id"]) == ("map", "r1/base_link")
         assert odom["y"] == pytest.approx(0.5)
 
-        teleops = until(lambda: bus.teleops, 5.0, "Teleop on the bus")
+        teleops = until(lambda: bus.teleops, 5.0, "CmdVel on the bus")
         assert (teleops[0].v_mps, teleops[0].omega_radps) == (0.15, -0.25)
-        assert teleops[0].source == "ros2:/formation/cmd_vel"
 
         # the e-stop service reached the fleet's e-stop key (no robots here: nobody acked)
         response = results["trigger"]["response"]

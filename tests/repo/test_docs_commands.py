@@ -41,6 +41,8 @@ SKIP_RULES: list[tuple[str, str]] = [
     (r"^python bench/", "a benchmark: minutes of full load; its figures are in docs/benchmarks.md"),
     (r"\.\.\.|<|\bNAME\b|\bFILE\b|\bHOST\b|\brK\b|\bDIR\b|\bS\b", "a template with placeholders"),
     (r"^formation fault\b", "needs a running fleet (tests/fleet/test_faults.py)"),
+    (r"^formation (teleop|goal|path|shape)\b", "drives a running fleet "
+     "(tests/bus/test_operator.py, tests/fleet/test_operator_fleet.py)"),
     (r"^formation (top|record)\b", "watches a running fleet (tests/bus/test_top.py, "
      "tests/fleet/test_record_live.py)"),
     (r"^formation report\b", "needs a recording (tests/unit/formation/test_record_report.py)"),

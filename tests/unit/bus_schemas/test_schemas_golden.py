@@ -19,20 +19,23 @@ from bus_schemas import (
     Assignment,
     CameraStatus,
     Clock,
+    CmdVel,
     CoordinatorStatus,
     Disturbance,
     Estop,
+    Goal,
     Heartbeat,
     Leader,
+    Path,
     PlantStatus,
     Pose,
     PoseBatch,
     Setpoint,
     SetpointBatch,
+    Shape,
     Slot,
     Status,
     StatusBatch,
-    Teleop,
     Truth,
     TruthBatch,
     Wheels,
@@ -42,6 +45,27 @@ from bus_schemas import (
 )
 
 GOLDEN_MESSAGES: dict[str, Any] = {
+    # issue 28: a leader driven by the operator, and the operator's commands
+    "leader_operator": Leader(
+        t=12.5,
+        seq=251,
+        x=1.25,
+        y=-0.5,
+        theta=math.pi / 4,
+        v_mps=0.1,
+        omega_radps=-0.05,
+        mode="teleop",
+        progress_s=3.5,
+        rate=0.75,
+        target=0,
+        deadman=True,
+        shape="column",
+        reshape=0.25,
+    ),
+    "shape": Shape(t=12.5, kind="column", spacing_m=0.5),
+    "cmd_vel": CmdVel(t=12.5, seq=42, v_mps=0.1, omega_radps=-0.25),
+    "goal": Goal(t=12.5, x=1.5, y=-2.0, heading=math.pi / 2),
+    "path": Path(t=12.5, xs=(0.5, 1.0), ys=(0.25, -0.25)),
     "leader": Leader(
         t=12.5, seq=250, x=1.25, y=-0.5, theta=math.pi / 4, v_mps=0.1, omega_radps=-0.05
     ),
@@ -137,9 +161,6 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         theta=-math.pi,
     ),
     "heartbeat": Heartbeat(t=100.25, seq=401, name="primary", active=True, epoch=2, leader_t0=3.5),
-    "teleop": Teleop(
-        t=100.25, seq=402, v_mps=0.25, omega_radps=-0.5, source="ros2:/formation/cmd_vel"
-    ),
     "poses": PoseBatch(
         t=12.49,
         seq=624,
@@ -268,6 +289,21 @@ GOLDEN_MESSAGES: dict[str, Any] = {
 
 # fmt: off
 GOLDEN_HEX: dict[str, str] = {
+    "leader_operator": (
+        "8fa17601a174cb4029000000000000a3736571ccfba178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb3fe921fb54442d18a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfa999999999999aa46d6f6465a674656c656f70aa70726f67726573735f73cb400c000000000000a472617465cb3fe8000000000000a674617267657400a7646561646d616ec3a57368617065a6636f6c756d6ea772657368617065cb3fd0000000000000"
+    ),
+    "shape": (
+        "84a17601a174cb4029000000000000a46b696e64a6636f6c756d6ea973706163696e675f6dcb3fe0000000000000"
+    ),
+    "cmd_vel": (
+        "85a17601a174cb4029000000000000a37365712aa5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfd0000000000000"
+    ),
+    "goal": (
+        "85a17601a174cb4029000000000000a178cb3ff8000000000000a179cbc000000000000000a768656164696e67cb3ff921fb54442d18"
+    ),
+    "path": (
+        "84a17601a174cb4029000000000000a2787392cb3fe0000000000000cb3ff0000000000000a2797392cb3fd0000000000000cbbfd0000000000000"
+    ),
     "leader": (
         "88a17601a174cb4029000000000000a3736571ccfaa178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb3fe921fb54442d18a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfa999999999999a"
     ),
@@ -324,10 +360,6 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "heartbeat": (
         "87a17601a174cb4059100000000000a3736571cd0191a46e616d65a77072696d617279a6616374697665c3a565706f636802a96c65616465725f7430cb400c000000000000"
-    ),
-    # msgpack.packb of the plain map (an independent encoder), checked when it was added
-    "teleop": (
-        "86a17601a174cb4059100000000000a3736571cd0192a5765f6d7073cb3fd0000000000000ab6f6d6567615f7261647073cbbfe0000000000000a6736f75726365b7726f73323a2f666f726d6174696f6e2f636d645f76656c"
     ),
     "poses": (
         "88a17601a174cb4028fae147ae147ba3736571cd0270a6726f626f747392a27231a27232a17892cb3fbf7ced916872b0cb3feccccccccccccda17992cbbfdd2f1a9fbe76c9cbbfd0000000000000a5746865746192cb3ff3333333333333cbbff8000000000000a57374616d70cb4028f5c28f5c28f6"

@@ -37,7 +37,6 @@ from bus_schemas.messages import (
     Setpoint,
     SetpointBatch,
     StatusBatch,
-    Teleop,
     TruthBatch,
     WheelsBatch,
 )
@@ -170,7 +169,6 @@ EXAMPLES = [
         t=1.0, robot="r1", kind="teleport", dx=0.0, dy=0.0, duration_s=0.0, x=1.0, y=2.0, theta=0.0
     ),
     Heartbeat(t=1.0, seq=1, name="main", active=True, epoch=1, leader_t0=0.5),
-    Teleop(t=1.0, seq=1, v_mps=0.2, omega_radps=0.1),
     PoseBatch(
         t=1.0, seq=1, robots=("r1", "r2"), x=(0.1, 0.2), y=(0.3, 0.4), theta=(0.0, 1.0), stamp=0.97
     ),

@@ -1,0 +1,117 @@
+"""The operator's commands to the virtual leader (issue 28): a teleop twist, a goal, a path, and
+a new shape for the formation.
+
+Published by the operator's tools (``formation teleop``, ``formation goal``, ``formation path``)
+on ``formation/<fleet>/operator/*``; every coordinator instance reads them (the active one
+applies them at its next tick, a standby keeps them to continue after a takeover). Under
+``--secure`` only an operator identity may publish them (``bus_schemas.acl_rules``).
+
+The ranges here are the contract's (bus_schemas.fields: a twist of 1e300 is refused at decode);
+the coordinator refuses or clamps what is beyond the scenario's ``[leader]`` limits and counts
+it (coordinator.core.leader).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from bus_schemas import keys
+from bus_schemas.messages_fields import _T, _V, ShapeKind, _Periodic
+from bus_schemas.spec import POSITION_MAX_M as _POS
+from bus_schemas.spec import SPEED_MAX_MPS as _SPEED
+from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
+from bus_schemas.spec import (
+    SameLength,
+    f_angle,
+    f_enum,
+    f_float,
+    f_float_list,
+    message,
+)
+
+CMD_RATE_HZ = 20.0
+"""How often the operator's tools send a twist while teleop runs (Hz): the deadman
+(coordinator.core.leader.DEADMAN_S, 0.4 s) is 8 periods."""
+
+
+@message(name=keys.CMD_VEL, publisher="operator (formation teleop)", periodic=True, rate="20 Hz")
+@dataclass(frozen=True, slots=True, kw_only=True)
+class CmdVel(_Periodic):
+    """Teleop twist for the virtual leader, repeated while the operator drives (a deadman
+    stops the leader when it stops coming)."""
+
+    v_mps: float = field(
+        metadata=f_float(
+            "forward speed asked of the virtual leader",
+            "m/s",
+            lo=-_SPEED,
+            hi=_SPEED,
+        )
+    )
+    omega_radps: float = field(
+        metadata=f_float(
+            "turn rate asked of the virtual leader (counter-clockwise positive)",
+            "rad/s",
+            lo=-_TURN,
+            hi=_TURN,
+        )
+    )
+
+
+@message(name=keys.GOAL, publisher="operator (formation goal)", periodic=False)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Goal:
+    """Drive the virtual leader to `(x, y)` from where it is, then turn to `heading` if given;
+    replaces its plan with a continuous join."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    x: float = field(metadata=f_float("goal x, world frame", "m", lo=-_POS, hi=_POS))
+    y: float = field(metadata=f_float("goal y, world frame", "m", lo=-_POS, hi=_POS))
+    heading: float | None = field(
+        default=None, metadata=f_angle("heading to turn to at the goal (absent: any)")
+    )
+
+
+@message(
+    name=keys.PATH,
+    publisher="operator (formation path)",
+    periodic=False,
+    rules=(SameLength(("xs", "ys")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Path:
+    """Drive the virtual leader through waypoints `(xs[i], ys[i])` from where it is; replaces
+    its plan with a continuous join."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    xs: tuple[float, ...] = field(
+        metadata=f_float_list("waypoint x, world frame", "m", lo=-_POS, hi=_POS)
+    )
+    ys: tuple[float, ...] = field(
+        metadata=f_float_list("waypoint y, world frame", "m", lo=-_POS, hi=_POS)
+    )
+    heading: float | None = field(
+        default=None, metadata=f_angle("heading to turn to at the last point (absent: any)")
+    )
+
+
+SPACING_MAX_M = 5.0
+"""Largest spacing on the wire (m); the coordinator refuses a shape under 0.1 m or one that
+does not keep the safety distance (coordinator.core.reshape), and counts it."""
+
+
+@message(name=keys.SHAPE, publisher="operator (formation shape)", periodic=False)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Shape:
+    """Reshape the running formation into `kind`, slots `spacing_m` apart (absent: as now);
+    the slots move there over a transition time, never closer than the safety distance."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    kind: str = field(metadata=f_enum("the new shape", ShapeKind))
+    spacing_m: float | None = field(
+        default=None,
+        metadata=f_float("distance between neighbouring slots", "m", lo=0.0, hi=SPACING_MAX_M),
+    )

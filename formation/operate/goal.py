@@ -1,0 +1,80 @@
+"""``formation goal X Y [--heading H]``: send the virtual leader to a point (issue 28).
+
+Publishes a ``Goal`` on ``formation/<fleet>/operator/goal`` and waits for the coordinator's
+``leader`` to say mode ``goal`` (it replaces the leader's plan with a continuous join: no jump
+in position or velocity, coordinator.core.leader). A goal the coordinator refuses (outside the
+arena, see its status ``rejects``) is never taken: exit 1 after ``--timeout``. A bad number on
+the command line is one line and exit 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import sys
+import time
+
+import runtime as rt
+from bus_schemas import Goal, encode, keys
+from formation.operate.drive import common_options, finite, publish_and_watch
+from formation.outputs import runfile
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="formation goal",
+        description="Drive the virtual leader to (X, Y) in m from where it is, then turn to "
+        "--heading (rad) if given.",
+    )
+    p.add_argument("x", metavar="X", help="goal x (m, world frame)")
+    p.add_argument("y", metavar="Y", help="goal y (m, world frame)")
+    p.add_argument("--heading", default=None, metavar="RAD", help="heading at the goal (rad)")
+    common_options(p)
+    return p
+
+
+def main(argv: list[str]) -> int:
+    """Entry point of ``formation goal``."""
+    ns = build_parser().parse_args(argv)
+    try:
+        keys.check_fleet(ns.fleet)
+        x, y = finite("X", ns.x), finite("Y", ns.y)
+        heading = None
+        if ns.heading is not None:
+            heading = math.remainder(finite("--heading", ns.heading, bound=1e3), 2 * math.pi)
+        if not ns.timeout > 0:
+            raise ValueError(f"--timeout must be positive, got {ns.timeout:g}")
+        settings = runfile.tool_settings(ns, "operator")
+    except (TypeError, ValueError) as exc:
+        print(f"formation goal: error: {exc}", file=sys.stderr)
+        return 2
+    msg = Goal(t=max(time.monotonic(), 0.0), x=x, y=y, heading=heading)
+
+    async def run() -> int:
+        session = await rt.open_session_async(settings)
+        try:
+            got = await publish_and_watch(
+                session, keys.goal_key(ns.fleet), encode(msg), ns.fleet, "goal", ns.timeout
+            )
+        finally:
+            session.close()
+        if got is None:
+            print(
+                f"formation goal: no coordinator of fleet {ns.fleet!r} took the goal within "
+                f"{ns.timeout:g} s (refused? see `formation top`)",
+                file=sys.stderr,
+            )
+            return 1
+        print(f"goal ({x:g}, {y:g}) taken: the leader leaves ({got.x:.3f}, {got.y:.3f})")
+        return 0
+
+    try:
+        return asyncio.run(run())
+    except rt.TransportError as exc:
+        print(f"formation goal: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main(sys.argv[1:]))

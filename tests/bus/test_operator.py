@@ -1,0 +1,297 @@
+"""The operator in the loop (issue 28) with real processes on a real router: ``formation
+teleop`` / ``goal`` drive a ``formation coordinator``'s virtual leader, the deadman stops it when
+the stream stops, hostile commands are refused and counted, and a standby that takes over
+continues the teleoperated leader without a jump.
+
+The robots are bus inputs declared from the test session (as in test_node_coordinator.py): a
+liveliness token per robot and poses that sit exactly on the setpoints the coordinator sends
+(perfect followers, so the leader's wait for its team never holds it back here;
+tests/fleet/test_operator_fleet.py runs the real agents and plant).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import msgpack
+import pytest
+import zenoh
+from conftest import RouterHandle, Spawner
+from test_node_agent import Recorder, decoder_of
+
+import runtime as rt
+from bus_schemas import Assignment, CmdVel, Leader, Path, Pose, Setpoint, encode, keys
+from coordinator.core.leader import DEADMAN_S, LeaderConfig
+from scenario import load
+
+FLEET = "demo"
+SCENARIO = load("paper-exp2")
+START = dict(zip(SCENARIO.robot_ids, SCENARIO.initial, strict=True))
+L_M = SCENARIO.agent.geometry.ref_offset_m
+CFG = LeaderConfig()
+# the deadman, then a braking from the teleop speed within the acceleration limit, plus the
+# latency of a loaded machine (a tick, the bus, the recorder's thread)
+V_TELEOP = 0.08
+STOP_BOUND_S = DEADMAN_S + V_TELEOP / CFG.max_accel_mps2 + 0.5
+
+
+class Followers:
+    """Poses on the setpoints: each robot's reference point is where its last setpoint put
+    it (a perfect follower), published every ``period_s`` from a thread."""
+
+    def __init__(self, session: zenoh.Session, period_s: float = 0.02) -> None:
+        self.pubs = rt.Publishers(session)
+        self.period_s = period_s
+        self.at: dict[str, tuple[float, float, float]] = dict(START)
+        self._lock = threading.Lock()
+        self._sub = session.declare_subscriber(
+            keys.all_setpoints_pattern(FLEET),
+            zenoh.handlers.Callback(self._on_setpoint, indirect=False),
+        )
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _on_setpoint(self, sample: zenoh.Sample) -> None:
+        sp = decoder_of(Setpoint)(sample.payload.to_bytes())
+        if sp is None:
+            return
+        x, y = sp.x - L_M * math.cos(sp.theta), sp.y - L_M * math.sin(sp.theta)
+        with self._lock:
+            self.at[sp.robot] = (x, y, sp.theta)
+
+    def __enter__(self) -> Followers:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self._sub.undeclare()
+
+    def _run(self) -> None:
+        for seq in itertools.count(1):
+            if self._stop.is_set():
+                return
+            with self._lock:
+                at = dict(self.at)
+            for rid, (x, y, th) in sorted(at.items()):
+                msg = Pose(t=time.monotonic(), seq=seq, x=x, y=y, theta=th, robot=rid)
+                self.pubs.put(keys.pose_key(FLEET, rid), encode(msg), rt.QOS_CRITICAL)
+            self._stop.wait(self.period_s)
+
+
+@pytest.fixture
+def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
+    return session()
+
+
+def _jumps(leaders: list[tuple[float, str, Leader]]) -> list[tuple[float, float]]:
+    """(distance, allowed) of consecutive leader messages farther apart than the speed limit
+    allows over their stamps (the same publisher's clock)."""
+    bad = []
+    for (_, _, a), (_, _, b) in itertools.pairwise(leaders):
+        allowed = CFG.max_speed_mps * max(b.t - a.t, 0.0) + 1e-6
+        d = math.hypot(b.x - a.x, b.y - a.y)
+        if d > allowed:
+            bad.append((d, allowed))
+    return bad
+
+
+def _coordinator(spawn: Spawner, router: RouterHandle, *extra: str) -> Any:
+    return spawn(
+        "coordinator", "--scenario", "paper-exp2", "--endpoint", router.endpoint, *extra,
+        ready="coordinator ready",
+    )  # fmt: skip
+
+
+def test_teleop_drives_the_leader_and_the_deadman_stops_it(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    assignments = Recorder(client, keys.assignment_key(FLEET), decoder_of(Assignment))
+    _coordinator(spawn, router)
+    with Followers(client):
+        assignments.wait_for(lambda _r, _k, a: len(a.robots) == 3)
+        teleop = spawn(
+            "teleop", "--v", str(V_TELEOP), "--omega", "0.1", "--duration", "60", "--quiet",
+            "--endpoint", router.endpoint,
+        )  # fmt: skip
+        leaders.wait_for(
+            lambda _r, _k, m: m.mode == "teleop" and m.v_mps >= V_TELEOP - 1e-9, timeout_s=10.0
+        )
+        time.sleep(1.0)
+        teleop.stop(signal.SIGKILL)  # the operator's tool dies: the stream stops
+        t_kill = time.monotonic()
+        r_stop, _, stopped = leaders.wait_for(
+            lambda r, _k, m: r > t_kill and m.v_mps == 0.0 and m.omega_radps == 0.0,
+            timeout_s=10.0,
+        )
+        time.sleep(0.5)
+        _, _, still = leaders.wait_for(lambda r, *_: r > r_stop + 0.4)
+        last_asg = assignments.snapshot()[-1][2]
+    assert r_stop - t_kill <= STOP_BOUND_S, (r_stop - t_kill, STOP_BOUND_S)
+    assert stopped.deadman is True and stopped.mode == "teleop"
+    assert (still.x, still.y, still.v_mps) == (stopped.x, stopped.y, 0.0)  # it stays stopped
+    msgs = leaders.snapshot()
+    assert not _jumps(msgs), _jumps(msgs)[:5]
+    # the followers kept their slots throughout (no re-assignment)
+    assert dict(last_asg.robots) == {"r1": 0, "r2": 1, "r3": 2}
+    assert not any(a.robots != last_asg.robots for _, _, a in assignments.snapshot()[1:])
+    del tokens
+
+
+def test_hostile_commands_are_refused_counted_and_never_move_the_leader(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, keys.coordinator_status_key(FLEET, "main"), msgpack.unpackb)
+    _coordinator(spawn, router)
+    pubs = rt.Publishers(client)
+    good = msgpack.unpackb(encode(CmdVel(t=1.0, seq=1, v_mps=0.05, omega_radps=0.0)))
+    with Followers(client):
+        leaders.wait_for(lambda *_: True)
+        for bad in (math.nan, math.inf, 1e300, -1e300):
+            for name in ("v_mps", "omega_radps"):
+                pubs.put(keys.cmd_vel_key(FLEET), msgpack.packb({**good, name: bad}))
+        pubs.put(keys.cmd_vel_key(FLEET), b"\xc1garbage")
+        time.sleep(0.3)  # the rate limit's bucket refills (a burst is tested below)
+        pubs.put(keys.path_key(FLEET), encode(Path(t=1.0, xs=(0.5,) * 300, ys=(0.5,) * 300)))
+        # within the contract's range but absurd for this leader (> 10x its limits)
+        time.sleep(0.3)
+        pubs.put(keys.cmd_vel_key(FLEET), encode(CmdVel(t=1.0, seq=2, v_mps=15.0, omega_radps=0)))
+        time.sleep(0.05)
+        for i in range(200):  # a burst far beyond the rate
+            pubs.put(keys.cmd_vel_key(FLEET), encode(CmdVel(t=1.0, seq=10 + i, v_mps=0.0,
+                                                            omega_radps=0.0)))  # fmt: skip
+        t_sent = time.monotonic()
+        _, _, st = status.wait_for(
+            lambda r, _k, s: r > t_sent + 0.3 and s["rejects"].get("cmd_vel-burst", 0) > 0,
+            timeout_s=5.0,
+        )
+    rejects = st["rejects"]
+    decode_refused = sum(n for k, n in rejects.items() if k.startswith("cmd_vel-")) - rejects.get(
+        "cmd_vel-burst", 0
+    )
+    assert decode_refused >= 10, rejects  # 8 non-finite/out of range, garbage, 15 m/s
+    assert rejects.get("cmd_vel-absurd", 0) == 1, rejects
+    assert rejects.get("path-path_length", 0) == 1, rejects
+    assert rejects["cmd_vel-burst"] >= 150, rejects
+    msgs = leaders.snapshot()
+    assert not _jumps(msgs), _jumps(msgs)[:5]
+    assert all(abs(m.v_mps) <= CFG.max_speed_mps for _, _, m in msgs)
+    del tokens
+
+
+def test_a_goal_from_the_cli_is_taken_and_reached_with_a_continuous_join(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, tmp_path: Any
+) -> None:
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    _coordinator(spawn, router)
+    with Followers(client):
+        _, _, first = leaders.wait_for(lambda *_: True)
+        gx, gy = first.x + 0.3, first.y + 0.2
+        goal = spawn("goal", f"{gx}", f"{gy}", "--endpoint", router.endpoint, "--timeout", "5")
+        assert goal.proc.wait(timeout=30) == 0, goal.describe()
+        assert "taken" in goal.stdout()
+        _, _, done = leaders.wait_for(lambda _r, _k, m: m.mode == "stop", timeout_s=30.0)
+    assert math.hypot(done.x - gx, done.y - gy) <= 4 * CFG.goal_tol_m
+    msgs = leaders.snapshot()
+    assert not _jumps(msgs), _jumps(msgs)[:5]
+    join = [m for _, _, m in msgs if m.mode in ("script", "goal")]
+    for a, b in itertools.pairwise(join):  # no velocity step at the join either
+        assert abs(b.v_mps - a.v_mps) <= CFG.max_accel_mps2 * (b.t - a.t) + 0.021
+    del tokens
+
+
+def test_a_standby_continues_the_teleoperated_leader_without_a_jump(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, keys.all_coordinator_status_pattern(FLEET), msgpack.unpackb)
+    main = _coordinator(spawn, router)
+    _coordinator(spawn, router, "--name", "b", "--standby")
+    with Followers(client):
+        spawn(
+            "teleop", "--v", str(V_TELEOP), "--omega", "0.15", "--duration", "60", "--quiet",
+            "--endpoint", router.endpoint,
+        )  # fmt: skip
+        leaders.wait_for(
+            lambda _r, _k, m: m.mode == "teleop" and m.v_mps >= V_TELEOP - 1e-9, timeout_s=10.0
+        )
+        time.sleep(1.0)
+        main.stop(signal.SIGKILL)
+        t_kill = time.monotonic()
+        _, _, b_active = status.wait_for(
+            lambda r, _k, s: r > t_kill and s["name"] == "b" and s["role"] == "active",
+            timeout_s=10.0,
+        )
+        time.sleep(1.0)
+    msgs = leaders.snapshot()
+    before = [m for r, _, m in msgs if r <= t_kill]
+    after = [(r, k, m) for r, k, m in msgs if r > t_kill + 0.05]
+    assert before and after
+    last, first = before[-1], after[0][2]
+    # b went on from main's last state: same place (it did not move while nobody published),
+    # same mode, velocity within one tick's acceleration
+    assert first.mode == "teleop"
+    assert math.hypot(first.x - last.x, first.y - last.y) <= CFG.max_speed_mps * 0.1 + 1e-6
+    assert abs(first.v_mps - last.v_mps) <= CFG.max_accel_mps2 * 0.1 + 1e-9
+    assert not _jumps(after), _jumps(after)[:5]
+    # the teleoperated leader is no function of t - leader_t0: b did not check main's origin
+    # against it (no heartbeat refused as a spoof while main ran)
+    assert b_active["rejects"].get("heartbeat-leader_t0", 0) == 0, b_active["rejects"]
+    del tokens
+
+
+def test_a_gamepad_drives_the_leader(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, tmp_path: Any
+) -> None:
+    """``formation teleop --gamepad DEV`` reads the Linux joystick API's events; a FIFO stands in
+    for ``/dev/input/js0`` (the same 8-byte events a kernel driver writes)."""
+    import os
+
+    from formation.operate.drive import JS_AXIS, JS_EVENT, JS_INIT
+
+    fifo = tmp_path / "js0"
+    os.mkfifo(fifo)
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, keys.coordinator_status_key(FLEET, "main"), msgpack.unpackb)
+    _coordinator(spawn, router)
+    writer = os.open(fifo, os.O_RDWR | os.O_NONBLOCK)  # held open: the tool never sees an EOF
+    try:
+        with Followers(client):
+            spawn(
+                "teleop", "--gamepad", str(fifo), "--duration", "30", "--quiet",
+                "--endpoint", router.endpoint,
+            )  # fmt: skip
+            init = JS_EVENT.pack(0, 0, JS_AXIS | JS_INIT, 0) + JS_EVENT.pack(0, 0, JS_AXIS, 1)
+            os.write(writer, init)
+            time.sleep(0.5)
+            t_stick = time.monotonic()
+            os.write(writer, JS_EVENT.pack(10, -32767, JS_AXIS, 1))  # stick fully up: forward
+            _, _, driven = leaders.wait_for(
+                lambda r, _k, m: (
+                    r > t_stick and m.mode == "teleop" and m.v_mps == CFG.max_speed_mps
+                ),
+                timeout_s=10.0,
+            )
+            # the stick asks 0.2 m/s, the leader's limit is 0.1: clamped and counted
+            status.wait_for(
+                lambda r, _k, s: r > t_stick and s["rejects"].get("cmd_vel-clamped", 0) > 0
+            )
+    finally:
+        os.close(writer)
+    assert driven.omega_radps == 0.0
+    assert not _jumps(leaders.snapshot())
+    del tokens
