@@ -22,6 +22,7 @@ import asyncio
 import itertools
 import math
 import struct
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -41,7 +42,7 @@ __all__ = [
     "find_gamepad",
     "finite",
     "parse_waypoints",
-    "publish_and_watch",
+    "send_and_confirm",
     "watch_leader",
 ]
 
@@ -178,16 +179,6 @@ def common_options(parser: argparse.ArgumentParser) -> None:
     rt.add_zenoh_arguments(parser)
 
 
-async def publish_and_watch(
-    session: Any, key: str, payload: bytes, fleet: str, want_mode: str, timeout_s: float
-) -> Leader | None:
-    """Publish ``payload`` on ``key`` (reliable) and return the first ``leader`` message
-    received after it in mode ``want_mode``, or None within ``timeout_s``."""
-    return await watch_leader(
-        session, key, payload, fleet, lambda m: m.mode == want_mode, timeout_s
-    )
-
-
 async def watch_leader(
     session: Any,
     key: str,
@@ -220,3 +211,42 @@ async def watch_leader(
     finally:
         sub.undeclare()
     return got[0] if got else None
+
+
+def send_and_confirm(
+    prog: str,
+    settings: rt.ZenohSettings,
+    key: str,
+    payload: bytes,
+    fleet: str,
+    want: Callable[[Leader], bool],
+    timeout_s: float,
+    *,
+    taken: Callable[[Leader], str],
+    missing: str,
+) -> int:
+    """One operator command end to end (``formation goal``, ``path``, ``shape``): publish it,
+    wait for the coordinator's ``leader`` message that shows it was taken (``want``), print
+    ``taken(leader)`` and return 0; else print ``missing`` (what did not happen within
+    ``timeout_s``) and return 1, as for a bus that cannot be reached."""
+
+    async def run() -> int:
+        session = await rt.open_session_async(settings)
+        try:
+            got = await watch_leader(session, key, payload, fleet, want, timeout_s)
+        finally:
+            session.close()
+        if got is None:
+            print(
+                f"{prog}: no coordinator of fleet {fleet!r} {missing} within {timeout_s:g} s",
+                file=sys.stderr,
+            )
+            return 1
+        print(taken(got))
+        return 0
+
+    try:
+        return asyncio.run(run())
+    except rt.TransportError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 1

@@ -10,14 +10,12 @@ the command line is one line and exit 2.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import math
 import sys
 import time
 
-import runtime as rt
 from bus_schemas import Goal, encode, keys
-from formation.operate.drive import common_options, finite, publish_and_watch
+from formation.operate.drive import common_options, finite, send_and_confirm
 from formation.outputs import runfile
 
 
@@ -51,29 +49,17 @@ def main(argv: list[str]) -> int:
         return 2
     msg = Goal(t=max(time.monotonic(), 0.0), x=x, y=y, heading=heading)
 
-    async def run() -> int:
-        session = await rt.open_session_async(settings)
-        try:
-            got = await publish_and_watch(
-                session, keys.goal_key(ns.fleet), encode(msg), ns.fleet, "goal", ns.timeout
-            )
-        finally:
-            session.close()
-        if got is None:
-            print(
-                f"formation goal: no coordinator of fleet {ns.fleet!r} took the goal within "
-                f"{ns.timeout:g} s (refused? see `formation top`)",
-                file=sys.stderr,
-            )
-            return 1
-        print(f"goal ({x:g}, {y:g}) taken: the leader leaves ({got.x:.3f}, {got.y:.3f})")
-        return 0
-
-    try:
-        return asyncio.run(run())
-    except rt.TransportError as exc:
-        print(f"formation goal: {exc}", file=sys.stderr)
-        return 1
+    return send_and_confirm(
+        "formation goal",
+        settings,
+        keys.goal_key(ns.fleet),
+        encode(msg),
+        ns.fleet,
+        lambda m: m.mode == "goal",
+        ns.timeout,
+        taken=lambda m: f"goal ({x:g}, {y:g}) taken: the leader leaves ({m.x:.3f}, {m.y:.3f})",
+        missing="took the goal (refused? see `formation top`)",
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

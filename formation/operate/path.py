@@ -10,15 +10,18 @@ points): exit 1 after ``--timeout``. A bad waypoint on the command line is one l
 from __future__ import annotations
 
 import argparse
-import asyncio
 import math
 import sys
 import time
 
-import runtime as rt
 from bus_schemas import Path, encode, keys
 from coordinator.core.leader import MAX_PATH_POINTS
-from formation.operate.drive import common_options, finite, parse_waypoints, publish_and_watch
+from formation.operate.drive import (
+    common_options,
+    finite,
+    parse_waypoints,
+    send_and_confirm,
+)
 from formation.outputs import runfile
 
 
@@ -60,29 +63,19 @@ def main(argv: list[str]) -> int:
         heading=heading,
     )
 
-    async def run() -> int:
-        session = await rt.open_session_async(settings)
-        try:
-            got = await publish_and_watch(
-                session, keys.path_key(ns.fleet), encode(msg), ns.fleet, "path", ns.timeout
-            )
-        finally:
-            session.close()
-        if got is None:
-            print(
-                f"formation path: no coordinator of fleet {ns.fleet!r} took the path within "
-                f"{ns.timeout:g} s (refused? see `formation top`)",
-                file=sys.stderr,
-            )
-            return 1
-        print(f"path of {len(points)} points taken: the leader leaves ({got.x:.3f}, {got.y:.3f})")
-        return 0
-
-    try:
-        return asyncio.run(run())
-    except rt.TransportError as exc:
-        print(f"formation path: {exc}", file=sys.stderr)
-        return 1
+    return send_and_confirm(
+        "formation path",
+        settings,
+        keys.path_key(ns.fleet),
+        encode(msg),
+        ns.fleet,
+        lambda m: m.mode == "path",
+        ns.timeout,
+        taken=lambda m: (
+            f"path of {len(points)} points taken: the leader leaves ({m.x:.3f}, {m.y:.3f})"
+        ),
+        missing="took the path (refused? see `formation top`)",
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

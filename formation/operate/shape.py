@@ -12,15 +12,13 @@ kind or spacing on the command line is one line and exit 2.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import sys
 import time
 
-import runtime as rt
 from bus_schemas import Shape, ShapeKind, encode, keys
 from bus_schemas.messages_operator import SPACING_MAX_M
 from coordinator.core.reshape import SPACING_RANGE_M
-from formation.operate.drive import common_options, finite, watch_leader
+from formation.operate.drive import common_options, finite, send_and_confirm
 from formation.outputs import runfile
 
 
@@ -58,34 +56,17 @@ def main(argv: list[str]) -> int:
         return 2
     msg = Shape(t=max(time.monotonic(), 0.0), kind=ns.kind, spacing_m=spacing)
 
-    async def run() -> int:
-        session = await rt.open_session_async(settings)
-        try:
-            got = await watch_leader(
-                session,
-                keys.shape_key(ns.fleet),
-                encode(msg),
-                ns.fleet,
-                lambda m: m.shape == ns.kind and m.reshape is not None,
-                ns.timeout,
-            )
-        finally:
-            session.close()
-        if got is None:
-            print(
-                f"formation shape: no coordinator of fleet {ns.fleet!r} started the reshape "
-                f"within {ns.timeout:g} s (refused as unsafe? see `formation top`)",
-                file=sys.stderr,
-            )
-            return 1
-        print(f"reshaping into a {ns.kind}")
-        return 0
-
-    try:
-        return asyncio.run(run())
-    except rt.TransportError as exc:
-        print(f"formation shape: {exc}", file=sys.stderr)
-        return 1
+    return send_and_confirm(
+        "formation shape",
+        settings,
+        keys.shape_key(ns.fleet),
+        encode(msg),
+        ns.fleet,
+        lambda m: m.shape == ns.kind and m.reshape is not None,
+        ns.timeout,
+        taken=lambda _m: f"reshaping into a {ns.kind}",
+        missing="started the reshape (refused as unsafe? see `formation top`)",
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover
