@@ -24,6 +24,7 @@ from robot_agent.core.params import (
 )
 from robot_agent.core.robot_config import _world as _robot_config_world
 from robot_agent.core.robot_config import agent_sections, build_section
+from scenario.faults import Fault, FaultSpecError, parse_faults
 
 SCENARIO_DIR = Path(__file__).parent / "builtin"
 
@@ -94,6 +95,7 @@ class Scenario:
     link: LinkModel
     disturbances: tuple[Disturbance, ...] = field(default_factory=tuple)
     source: str = ""
+    faults: tuple[Fault, ...] = field(default_factory=tuple)  # [[fault]] (scenario.faults)
 
     def with_overrides(self, **changes: Any) -> Scenario:
         return dataclasses.replace(self, **changes)
@@ -185,7 +187,7 @@ def _robot_section(cls: Any, table: dict[str, Any], where: str) -> Any:
 TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
-    "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
+    "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle", "fault",
 }  # fmt: skip
 
 
@@ -338,6 +340,10 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
                 theta=_num(d, "theta", where) if "theta" in d else None,
             )
         )
+    try:
+        faults = parse_faults(data.get("fault"), tuple(ids), duration)
+    except FaultSpecError as exc:
+        raise ScenarioError(str(exc)) from None
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ScenarioError("description: expected a string")
@@ -360,4 +366,5 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         link=link,
         disturbances=tuple(sorted(disturbances, key=lambda x: x.t_s)),
         source=source,
+        faults=faults,
     )
