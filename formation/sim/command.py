@@ -167,7 +167,30 @@ def summary(m: dict[str, Any]) -> str:
         )
     for w in m.get("meta", {}).get("path_warnings", []):
         lines.append(f"warning: {w}")
+    lines.extend(fault_lines(m))
     return "\n".join(lines)
+
+
+def fault_lines(m: dict[str, Any]) -> list[str]:
+    """One line per fault sent (with its recovery) and per fault that never fired."""
+    out = []
+    for f in m.get("faults", []):
+        if f.get("undo"):
+            continue
+        rec = f.get("recovered_s")
+        who = f" of {f['robot']}" if f.get("robot") else ""
+        out.append(
+            f"fault[{f['fault']}] {f['kind']}{who} at t={f['t_s']:.2f} s: "
+            f"new leader {f.get('new_leader')}, back in formation "
+            f"{'never' if rec is None else f'after {rec:.2f} s'}, peak error "
+            f"{_m(f.get('peak_error_m'))}, least separation {_m(f.get('min_separation_m'))}"
+        )
+    return out
+
+
+def pending_lines(m: dict[str, Any]) -> list[str]:
+    """The faults of the scenario that never fired (a condition that never came)."""
+    return [f"fault[{p['fault']}] {p['why']}" for p in m.get("meta", {}).get("faults_pending", [])]
 
 
 def main(argv: list[str]) -> int:
@@ -218,6 +241,8 @@ def main(argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 130
+    for line in pending_lines(m):  # a clear report at the end, even with --quiet
+        print(f"formation sim: warning: {line}", file=sys.stderr)
     if not args.quiet:
         print(f"scenario {scn.name}: {scn.description}")
         print(summary(m))

@@ -59,7 +59,11 @@ def test_a_fault_table_is_parsed_into_the_scenario() -> None:
         ({"kind": "kill", "robot": "r1", "t_s": 1.0, "duration_s": 1}, "fault[0].duration_s", ""),
         ({"kind": "resume", "robot": "r1", "t_s": 1.0}, "fault[0].robot", "no earlier pause"),
         ({"kind": "kill_coordinator", "robot": "r1", "t_s": 1.0}, "fault[0]", "no robot"),
-        ({"kind": "kill", "robot": "r1", "when": "in_formation", "after_s": 30}, "fault[0].after_s", "past"),
+        (
+            {"kind": "kill", "robot": "r1", "when": "in_formation", "after_s": 30},
+            "fault[0].after_s",
+            "past",
+        ),
     ],
 )
 def test_a_bad_fault_is_one_line_naming_the_field(
