@@ -60,6 +60,7 @@ from bus_schemas.messages import (
     message_type_for_key,
     new_estop_id,
 )
+from bus_schemas.messages_fault import Fault, FaultKind
 from bus_schemas.messages_status import (
     CAMERA_MS_MAX,
     CameraState,
@@ -97,6 +98,8 @@ __all__ = [
     "Disturbance",
     "DisturbanceKind",
     "Estop",
+    "Fault",
+    "FaultKind",
     "Heartbeat",
     "Leader",
     "Message",

@@ -48,6 +48,7 @@ COORDINATOR_STATUS = "coordinator_status"
 PLANT_STATUS = "plant_status"
 CAMERA_STATUS = "camera_status"
 ESTOP_HELD = "estop_held"
+FAULT = "fault"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -62,6 +63,7 @@ KEY_TEMPLATES: dict[str, str] = {
     ESTOP: "formation/{fleet}/estop",
     CLOCK: "formation/{fleet}/clock",
     DISTURBANCE: "formation/{fleet}/disturbance",
+    FAULT: "formation/{fleet}/fault",
     HEARTBEAT: "formation/{fleet}/coordinator/{name}/heartbeat",
     POSES: "formation/{fleet}/poses",
     SETPOINTS: "formation/{fleet}/setpoints",
@@ -81,7 +83,9 @@ KEY_TEMPLATES: dict[str, str] = {
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
-_FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS})
+_FLEET_LEAVES = frozenset(
+    {LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, FAULT, POSES, SETPOINTS, TRUTHS}
+)
 # formation/<fleet>/host/<name>/<leaf> -> message name
 _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 # formation/<fleet>/coordinator/<name>/<leaf> -> message name
@@ -209,6 +213,11 @@ def clock_key(fleet: str) -> str:
 def disturbance_key(fleet: str) -> str:
     """``formation/<fleet>/disturbance``: drag/teleport a simulated robot (tools -> plant)."""
     return f"{_fleet_prefix(fleet)}/{DISTURBANCE}"
+
+
+def fault_key(fleet: str) -> str:
+    """Scripted faults: the coordinator's notices, the operator's requests."""
+    return f"{_fleet_prefix(fleet)}/{FAULT}"
 
 
 def heartbeat_key(fleet: str, name: str) -> str:

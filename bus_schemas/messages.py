@@ -24,6 +24,7 @@ from bus_schemas.messages_batch import (
     TruthBatch,
     WheelsBatch,
 )
+from bus_schemas.messages_fault import Fault
 from bus_schemas.messages_fields import (
     _PARENT,
     _POSE_THETA,
@@ -477,6 +478,7 @@ Message = (
     | CoordinatorStatus
     | PlantStatus
     | CameraStatus
+    | Fault
 )
 """Any bus message."""
 
@@ -501,6 +503,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     CoordinatorStatus,
     PlantStatus,
     CameraStatus,
+    Fault,
 )
 
 BATCH_CHUNK = 256
