@@ -43,6 +43,7 @@ down. Stdlib only.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Final
 
@@ -54,6 +55,7 @@ __all__ = [
     "FaultAction",
     "FaultScheduler",
     "FleetFaults",
+    "fleet_view",
     "parse_faults",
 ]
 
@@ -431,3 +433,34 @@ class FleetFaults:
         elif k == "kill_coordinator":
             takeover = DEFAULT_TAKEOVER_S if act.takeover_s is None else act.takeover_s
             self.coordinator_down_until_s = act.t_s + takeover
+
+
+def fleet_view(
+    assignment: Mapping[str, int],
+    rows: Sequence[Sequence[float]],
+    slot_ids: Sequence[int],
+    poses: Mapping[str, tuple[float, float, float]],
+    ref_offset_m: float,
+    tol_m: float,
+) -> tuple[str | None, bool]:
+    """What the scheduler needs after a coordinator tick: who holds slot 0, and whether every
+    robot the coordinator counted (``poses``: its measured poses, offline robots left out) is
+    assigned with its reference point (eq. 3: ``ref_offset_m`` ahead of the axle) within
+    ``tol_m`` of its slot (``rows``: ``(x, y, ...)`` per slot in ``slot_ids`` order). The
+    coordinator's own inputs, so the in-process run and the coordinator node decide alike."""
+    leader = None
+    row_of = {s: k for k, s in enumerate(slot_ids)}
+    ok = bool(poses)
+    for rid, (x, y, th) in poses.items():
+        slot = assignment.get(rid)
+        if slot is None:
+            ok = False
+            continue
+        if slot == 0:
+            leader = rid
+        sx, sy = rows[row_of[slot]][:2]
+        rx = x + ref_offset_m * math.cos(th)
+        ry = y + ref_offset_m * math.sin(th)
+        if math.hypot(rx - sx, ry - sy) > tol_m:
+            ok = False
+    return leader, ok

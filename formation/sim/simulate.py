@@ -48,7 +48,7 @@ from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick
 from robot_agent.core.neighbours import is_current, neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
-from scenario.faults import FaultAction, FaultScheduler, FleetFaults
+from scenario.faults import FaultAction, FaultScheduler, FleetFaults, fleet_view
 from sim_plant.core.plant import WheelEncoders
 from sim_plant.core.sensors import Camera
 
@@ -88,28 +88,19 @@ class FaultPlay:
         self.tol_m = scenario.settle_tol_m
         self.offline: set[int] = set()  # robot indices the coordinator and plant drop
         self.frozen: set[int] = set()  # killed or paused: the firmware does not step
-        self.cut_inputs: dict[int, tuple[Any, float, float | None]] = {}  # pose, rx, capture
+        # a cut-off robot's inputs (pose, rx, capture), frozen at its first step after the cut
+        self.cut_inputs: dict[int, tuple[Any, float, float | None] | None] = {}
         self.leader: str | None = None
         self.in_formation = False
         self.sent: list[dict[str, Any]] = []
 
-    def fire(
-        self, k: int, t_s: float, camera: Camera, poses: list[Any], rx: list[float], cap: list[Any]
-    ) -> None:
+    def fire(self, k: int, t_s: float, camera: Camera) -> None:
         """Apply the faults due at tick ``k`` (time ``t_s``)."""
         for act in self.scheduler.due(t_s, leader=self.leader, in_formation=self.in_formation):
-            self._apply(act, t_s, camera, poses, rx, cap)
+            self._apply(act, t_s, camera)
             self.sent.append({**act.as_dict(), "tick": k})
 
-    def _apply(
-        self,
-        act: FaultAction,
-        t_s: float,
-        camera: Camera,
-        poses: list[Any],
-        rx: list[float],
-        cap: list[Any],
-    ) -> None:
+    def _apply(self, act: FaultAction, t_s: float, camera: Camera) -> None:
         st = self.state
         st.apply(act)
         i = self.index.get(act.robot) if act.robot is not None else None
@@ -123,7 +114,7 @@ class FaultPlay:
                 else:
                     fw.release_estop()
         elif act.kind == "cut_link" and i is not None and i not in self.cut_inputs:
-            self.cut_inputs[i] = (poses[i], rx[i], cap[i])
+            self.cut_inputs[i] = None  # taken at its firmware's step (_faulted_step)
         elif act.kind == "restore_link" and i is not None:
             self.cut_inputs.pop(i, None)
         self.offline = {self.index[r] for r in st.offline()}
@@ -139,35 +130,14 @@ class FaultPlay:
         return {r: q for r, q in fresh.items() if r not in gone}
 
     def observe(
-        self,
-        out: CoordinatorOutput,
-        truth: tuple[tuple[float, float, float], ...],
-        slot_row: dict[int, int],
+        self, out: CoordinatorOutput, counted: dict[str, tuple[float, float, float]]
     ) -> None:
-        """After the coordinator's tick: who leads, and whether every live robot is in
-        formation (its reference point, eq. 3, within ``settle_tol_m`` of its slot; the
-        condition ``when = "in_formation"``)."""
-        asg = out.assignment
-        self.leader = None
-        ok = True
-        live = 0
-        for i, rid in enumerate(self.ids):
-            if i in self.offline:
-                continue
-            live += 1
-            slot = asg.get(rid)
-            if slot == 0:
-                self.leader = rid
-            if slot is None:
-                ok = False
-                continue
-            x, y, th = truth[i]
-            sx, sy = out.rows[slot_row[slot]][:2]
-            if math.hypot(x + self.l_m * math.cos(th) - sx, y + self.l_m * math.sin(th) - sy) > (
-                self.tol_m
-            ):
-                ok = False
-        self.in_formation = ok and live > 0
+        """After the coordinator's tick on the poses it ``counted``: who leads, and whether
+        every robot is in formation (the condition ``when = "in_formation"``;
+        :func:`scenario.faults.fleet_view`, the coordinator node's rule too)."""
+        self.leader, self.in_formation = fleet_view(
+            out.assignment, out.rows, out.slot_ids, counted, self.l_m, self.tol_m
+        )
 
 
 def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order)
@@ -249,7 +219,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             progress(t, duration)
         # 0. scripted faults
         if faults is not None:
-            faults.fire(k, t, camera, poses, pose_rx, pose_cap)
+            faults.fire(k, t, camera)
         # 1. disturbances
         while pending and pending[0].t_s <= t + 1e-9:
             d = pending.pop(0)
@@ -295,8 +265,9 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         if faults is None:
             out = coord.tick(t, fresh)
         else:
-            out = coord.tick(t, faults.coordinator_input(fresh))
-            faults.observe(out, truth, slot_row)
+            counted = faults.coordinator_input(fresh)
+            out = coord.tick(t, counted)
+            faults.observe(out, counted)
         # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
         prev_out = outputs.for_clock(k)
         t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
@@ -311,6 +282,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             prev_approach = {}
         for i, rid, step in robots:
             if faults is not None and (i in faults.frozen or i in faults.cut_inputs):
+                if faults.cut_inputs.get(i, 0) is None:  # the pose it had when cut off
+                    faults.cut_inputs[i] = (poses[i], pose_rx[i], pose_cap[i])
                 cmds.append(_faulted_step(faults, i, t, step))
                 continue
             sp = None
@@ -393,7 +366,9 @@ def _faulted_step(faults: FaultPlay, i: int, t_s: float, step: Callable[..., Any
     plant's too); a cut-off one steps on the pose it had, with no setpoint or neighbour."""
     if i in faults.frozen:
         return _ZERO_CMD
-    pose, rx, cap = faults.cut_inputs[i]
+    frozen = faults.cut_inputs[i]
+    assert frozen is not None
+    pose, rx, cap = frozen
     return step(
         t_s,
         pose=pose,
