@@ -310,6 +310,19 @@ class FaultScheduler:
         self.end_s = end_s
         self.sent: list[FaultAction] = []
 
+    @property
+    def active(self) -> bool:
+        """Something is left to fire or to undo."""
+        return bool(self._timed or self._cond or self._undo)
+
+    def add(self, fault: Fault) -> None:
+        """Schedule one more timed fault (an operator's request, ``formation fault --at T``);
+        one whose time is past fires at the next call of :meth:`due`."""
+        if fault.t_s is None:
+            raise ValueError("an added fault needs t_s")
+        self._timed.append(fault)
+        self._timed.sort(key=_order_key)
+
     def due(self, t_s: float, *, leader: str | None, in_formation: bool) -> list[FaultAction]:
         """The actions of the tick at ``t_s`` (each at most once over a run), role resolved
         to ``leader``; a role that nobody holds now waits for the next tick."""

@@ -33,6 +33,7 @@ from bus_schemas import (
     Clock,
     CoordinatorStatus,
     DecodeError,
+    Fault,
     Heartbeat,
     Pose,
     PoseBatch,
@@ -46,6 +47,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.election import Election
 from coordinator.node.election_io import MAX_ROBOTS, ElectionHandlers
 from coordinator.node.estop_source import EstopSource, attach_estop_source
+from coordinator.node.fault_schedule import FaultNotices
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
@@ -159,6 +161,10 @@ class CoordinatorNode(ElectionHandlers):
 
         # -- the latched e-stop state (robot_agent.core.estop): every instance, active or standby,
         # keeps it from the estop messages and answers queries on the estop key with it
+        # scripted faults ([[fault]], coordinator.node.fault_schedule): the active instance runs
+        # the schedule and publishes the notices; operators' requests arrive on the same key
+        self.faults = FaultNotices(scenario, self.fleet, lockstep=lockstep)
+        self.fault_key = self.faults.key
         self.estop_key = keys.estop_key(fleet)
         self.estop_source = EstopSource(
             self.estop_key, self._now, self._reject, self._internal, self.log
@@ -375,10 +381,15 @@ class CoordinatorNode(ElectionHandlers):
             if self.election.leader_t0 != self.t0_s:
                 self.election.observe_t0(self.t0_s)
             started = time.perf_counter()
-            out = self.core.tick(now_s, self.fresh_poses(now_s))
+            counted = self.fresh_poses(now_s)
+            if self.faults.state.offline():
+                counted = self.faults.counted(counted)
+            out = self.core.tick(now_s, counted)
             self.ticks += 1
             self.last = out
             outputs = self.outputs.encode_tick(out, now_s, tick, self.t0_s or 0.0)
+            if self.faults.live:
+                outputs = self.with_faults(outputs, out, counted, now_s - (self.t0_s or 0.0), tick)
             for key, payload, qos in outputs:
                 self._publish(key, payload, qos)
             self._replay.answer = outputs
@@ -387,6 +398,40 @@ class CoordinatorNode(ElectionHandlers):
         except Exception as exc:
             self._internal("tick", exc)
             return None
+
+    def with_faults(
+        self,
+        outputs: list[tuple[str, bytes, rt.QoS]],
+        out: CoordinatorOutput,
+        counted: dict[str, tuple[float, float, float]],
+        run_t_s: float,
+        tick: int | None,
+    ) -> list[tuple[str, bytes, rt.QoS]]:
+        """A tick's outputs with the scripted faults (coordinator.node.fault_schedule): no
+        setpoints while it counts as killed; the notices due next before the leader (lockstep,
+        where the leader is last) or after everything (realtime)."""
+        if self.faults.setpoints_withheld(run_t_s):
+            sp = self.setpoints_key
+            outputs = [o for o in outputs if o[0] != sp and not o[0].endswith("/setpoint")]
+        notices = self.faults.after_tick(out, counted, run_t_s, tick)
+        for n in notices:
+            self.log.info(f"t={run_t_s:.3f} s: fault notice {decode(n[1], Fault)}")
+        if not notices:
+            return outputs
+        if self.lockstep:
+            return [*outputs[:-1], *notices, outputs[-1]]
+        return [*outputs, *notices]
+
+    def on_fault(self, rx: rt.Received) -> None:
+        """An operator's ``fault`` request (``formation fault ... --at T``): scheduled."""
+        try:
+            if not self.active:
+                return
+            why = self.faults.on_request(rx.payload)
+            if why is not None:
+                self._reject("fault", why)
+        except Exception as exc:
+            self._internal("on_fault", exc)
 
     # -- periodic ------------------------------------------------------------------------------
 

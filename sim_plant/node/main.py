@@ -134,6 +134,7 @@ async def _node(
     io.subscribe(node.wheels_pattern, node.on_wheels)
     io.subscribe(node.host_wheels_pattern, node.on_host_wheels)
     io.subscribe(node.disturbance_key, node.on_disturbance)
+    io.subscribe(node.fault_key, node.on_fault)
     if ns.lockstep:
         io.subscribe(node.leader_key, node.on_leader)
     io.declare_token(node.alive_key)

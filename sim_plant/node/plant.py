@@ -47,6 +47,7 @@ from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, plant_models
 from sim_plant.core.plant import WheelEncoders
+from sim_plant.node.faults import PlantFaults
 from sim_plant.node.inputs import _DRAG, ARENA_LIMIT_M, PlantInputs, _Sim
 from sim_plant.node.outputs import PlantOutputs
 
@@ -108,6 +109,7 @@ class PlantNode(PlantInputs, PlantOutputs):
         self.leader_key = keys.leader_key(fleet)
         self.poses_key = keys.poses_key(fleet)
         self.disturbance_key = keys.disturbance_key(fleet)
+        self.fault_key = keys.fault_key(fleet)
         self.wheels_pattern = keys.all_wheels_pattern(fleet)
         self.host_wheels_pattern = keys.all_host_wheels_pattern(fleet)
         self.truths_key = keys.truths_key(fleet)
@@ -134,6 +136,7 @@ class PlantNode(PlantInputs, PlantOutputs):
         self.leader_tick: int | None = None
         self.scheduled = deque(scenario.disturbances)
         self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
+        self.faults = PlantFaults()  # scripted faults' notices (sim_plant.node.faults)
         self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
 
         self.rejected = 0
@@ -217,12 +220,20 @@ class PlantNode(PlantInputs, PlantOutputs):
                 self.applied[i, 0] = wr
                 self.applied[i, 1] = wl
 
+    def on_fault(self, rx: rt.Received) -> None:
+        """A scripted fault's notice (sim_plant.node.faults); never raises."""
+        try:
+            self.faults.on_fault(self, rx.payload)
+        except Exception as exc:
+            self._internal("on_fault", exc)
+
     # -- lockstep ------------------------------------------------------------------------------
 
     def answered(self, k: int) -> bool:
         """Every live agent answered tick ``k`` and, if a coordinator is alive, its leader."""
+        off = self.faults.offline
         for rid in self.alive:
-            if self.answer_tick[self.index[rid]] != k:
+            if self.answer_tick[self.index[rid]] != k and rid not in off:
                 return False
         return not self.coordinators or self.leader_tick == k
 
@@ -296,6 +307,7 @@ class PlantNode(PlantInputs, PlantOutputs):
                 t = tick_time(k, dt)
                 self.tick = k
                 self.sim_t = t
+                self.faults.apply_tick(self, sim, k, t)
                 self._apply_disturbances(sim, t)
                 truth = self.sense(sim, t)
                 self.clock_tracking = self.tracking_answers(k - 1)
