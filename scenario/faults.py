@@ -143,14 +143,14 @@ class FaultAction:
     takeover_s: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
-        """The metrics.json entry of a fault sent."""
+        """The metrics.json entry of a fault sent (what its bus notice carries too, so
+        ``formation sim`` and ``formation up`` list the same; ``fault`` indexes the scenario's
+        ``[[fault]]`` entries)."""
         return {
             "fault": self.fault,
             "kind": self.kind,
             "robot": self.robot,
-            "role": self.role,
             "t_s": self.t_s,
-            "planned_s": self.planned_s,
             "undo": self.undo,
         }
 

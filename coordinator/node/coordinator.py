@@ -413,7 +413,7 @@ class CoordinatorNode(ElectionHandlers):
         if self.faults.setpoints_withheld(run_t_s):
             sp = self.setpoints_key
             outputs = [o for o in outputs if o[0] != sp and not o[0].endswith("/setpoint")]
-        notices = self.faults.after_tick(out, counted, run_t_s, tick)
+        notices = self.faults.after_tick(out, counted, run_t_s, tick, self._now())
         for n in notices:
             self.log.info(f"t={run_t_s:.3f} s: fault notice {decode(n[1], Fault)}")
         if not notices:

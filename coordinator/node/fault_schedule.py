@@ -117,18 +117,21 @@ class FaultNotices:
         counted: Mapping[str, tuple[float, float, float]],
         run_t_s: float,
         tick: int | None,
+        now_s: float,
     ) -> Outgoing:
-        """The notices of the faults due next (lockstep: at tick + 1; realtime: now), applied
-        to this coordinator's own state."""
+        """The notices of the faults due next (lockstep: at tick + 1; realtime: now, at run
+        time ``run_t_s``, stamped with the bus clock ``now_s``), applied to this coordinator's
+        own state."""
         leader, in_formation = fleet_view(
             out.assignment, out.rows, out.slot_ids, counted, self.l_m, self.tol_m
         )
         if tick is not None:
             t_next, tick_next = tick_time(tick + 1, self.dt_s), tick + 1
+            stamp = t_next
         else:
-            t_next, tick_next = run_t_s, None
+            t_next, tick_next, stamp = run_t_s, None, now_s
         acts = self.scheduler.due(t_next, leader=leader, in_formation=in_formation)
-        return [self._notice(a, t_next, tick_next) for a in acts]
+        return [self._notice(a, stamp, tick_next) for a in acts]
 
     def _notice(self, act: FaultAction, t_s: float, tick: int | None) -> tuple[str, bytes, rt.QoS]:
         self.state.apply(act)
