@@ -47,7 +47,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.election import Election
 from coordinator.node.election_io import MAX_ROBOTS, ElectionHandlers
 from coordinator.node.estop_source import EstopSource, attach_estop_source
-from coordinator.node.fault_schedule import FaultNotices
+from coordinator.node.fault_schedule import FaultNotices, slot_messages
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
@@ -413,6 +413,9 @@ class CoordinatorNode(ElectionHandlers):
         if self.faults.setpoints_withheld(run_t_s):
             sp = self.setpoints_key
             outputs = [o for o in outputs if o[0] != sp and not o[0].endswith("/setpoint")]
+            if self.batch:  # the slots still go out (recorders read them from the setpoints)
+                slots = slot_messages(self.outputs, out, self._now(), tick)
+                outputs = [*slots, *outputs]
         notices = self.faults.after_tick(out, counted, run_t_s, tick, self._now())
         for n in notices:
             self.log.info(f"t={run_t_s:.3f} s: fault notice {decode(n[1], Fault)}")

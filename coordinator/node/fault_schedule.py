@@ -29,14 +29,14 @@ from collections.abc import Mapping
 from typing import Any
 
 import runtime as rt
-from bus_schemas import DecodeError, Fault, decode, encode, keys
+from bus_schemas import DecodeError, Fault, Slot, decode, encode, keys
 from coordinator.core.coordinator import CoordinatorOutput
 from robot_agent.core.lockstep import tick_time
 from scenario import Scenario
 from scenario.faults import Fault as FaultSpec
 from scenario.faults import FaultAction, FaultScheduler, FleetFaults, fleet_view
 
-__all__ = ["FaultNotices"]
+__all__ = ["FaultNotices", "slot_messages"]
 
 Outgoing = list[tuple[str, bytes, rt.QoS]]
 REQUEST_INDEX_BASE = 10_000
@@ -152,3 +152,29 @@ class FaultNotices:
     def pending(self) -> list[dict[str, Any]]:
         """The faults that never fired (the end-of-run report)."""
         return self.scheduler.pending()
+
+
+def slot_messages(outputs: Any, out: CoordinatorOutput, now_s: float, tick: int | None) -> Outgoing:
+    """Every slot of ``out`` as ``slot/<k>`` messages (``outputs``: the node's TickOutputs, for
+    the sequence numbers and QoS): what a ``--batch`` coordinator that withholds its setpoints
+    (a scripted kill_coordinator) still publishes, so a recorder knows where the slots were."""
+    msgs: Outgoing = []
+    t = max(now_s, 0.0)
+    for s in out.slots:
+        key = keys.slot_key(outputs.fleet, s.slot)
+        msg = Slot(
+            t=t,
+            seq=outputs.next_seq(key),
+            slot=s.slot,
+            role=s.role,
+            stage=s.stage,
+            parent=s.parent,
+            x=s.x,
+            y=s.y,
+            theta=s.theta,
+            vx=s.vx,
+            vy=s.vy,
+            tick=tick,
+        )
+        msgs.append((key, encode(msg), outputs.data_qos))
+    return msgs

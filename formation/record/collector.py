@@ -500,10 +500,24 @@ class RunCollector:
         key = float(k)
         if len(self._truth.get(key, ())) < len(self.robot_ids) or self._leader.max_key < key:
             return False
+        off = self.offline_at(key)
         return all(
-            series.max_key >= key or self._alive.get(f"robot/{rid}") is False
+            series.max_key >= key or self._alive.get(f"robot/{rid}") is False or rid in off
             for rid, series in zip(self.robot_ids, self._wheels, strict=True)
         )
+
+    def offline_at(self, key: float) -> set[str]:
+        """The robots a scripted fault keeps from answering at row ``key`` (killed, paused or
+        cut off, per the notices received: the plant does not wait for them either)."""
+        off: set[str] = set()
+        for at, entry in self._faults:
+            if at > key or entry["robot"] is None:
+                continue
+            if entry["kind"] in ("kill", "pause", "cut_link"):
+                off.add(entry["robot"])
+            elif entry["kind"] in ("resume", "restore_link") and entry["robot"] in off:
+                off.discard(entry["robot"])
+        return off
 
     @property
     def last_clock_tick(self) -> int | None:
