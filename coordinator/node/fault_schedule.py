@@ -59,6 +59,8 @@ class FaultNotices:
         self.sent: list[dict[str, Any]] = []
         self.requests = 0
         self.rejected = 0
+        # lockstep: the leader's QoS (same priority: the notices keep their order before it)
+        self.qos = rt.QOS_CRITICAL if lockstep else rt.QOS_CONTROL
 
     @property
     def live(self) -> bool:
@@ -147,7 +149,7 @@ class FaultNotices:
             ) else None,
             undo=True if act.undo else None,
         )  # fmt: skip
-        return (self.key, encode(msg), rt.QOS_CRITICAL if self.lockstep else rt.QOS_CONTROL)
+        return (self.key, encode(msg), self.qos)
 
     def pending(self) -> list[dict[str, Any]]:
         """The faults that never fired (the end-of-run report)."""

@@ -167,7 +167,7 @@ async def _node(
     io.subscribe(node.heartbeats_pattern, node.on_heartbeat)
     io.subscribe(node.assignment_key, node.on_assignment)
     io.subscribe(node.fault_key, node.on_fault)  # operators' requests (--at T)
-    io.pubs.get(node.fault_key, node.leader_qos)
+    io.pubs.get(node.fault_key, node.faults.qos)
     if not lockstep:  # a standby checks trajectory origins against the leader (election)
         io.subscribe(node.leader_key, node.on_leader)
     # durable e-stop state (docs/faults.md): the other coordinators', then the state file's
