@@ -43,6 +43,10 @@ def run_meta(
         "endpoint": cfg.endpoint,
         "secure": cfg.secure,
         "fleet": cfg.fleet,
+        # the scheduled disturbances (the figures mark them; the faults come from the bus)
+        "disturbances": [
+            {"t_s": d.t_s, "kind": d.kind, "robot": d.robot} for d in scn.disturbances
+        ],
         "record": None if cfg.record is None else str(cfg.record),
         "interrupted": interrupted,
         "failures": list(failures),

@@ -283,6 +283,10 @@ def analyze(
         "dt_s": collector.dt_s if lockstep else (scn.dt_s if scn is not None else None),
         "fleet": fleet,
         "source": "recording",
+        "disturbances": [
+            {"t_s": d.t_s, "kind": d.kind, "robot": d.robot}
+            for d in (scn.disturbances if scn is not None else ())
+        ],
     }
     for name in ("seed", "duration_s"):
         if name in rec.run:

@@ -154,3 +154,38 @@ def test_formation_sim_reports_a_condition_that_never_came(tmp_path: Path) -> No
     (left,) = m["meta"]["faults_pending"]
     assert left["fault"] == 0 and "never fired" in left["why"]
     assert "fault[0] never fired: kill of the leader when in_formation" in p.stderr
+
+
+def test_the_figures_mark_every_fault_and_disturbance() -> None:
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+
+    from formation.outputs import figures
+    from formation.outputs.figure_marks import event_marks, mark_time_axes
+
+    s = with_faults(
+        [
+            {"kind": "estop", "t_s": 3.0, "duration_s": 1.0},
+            {"kind": "kill", "role": "leader", "t_s": 6.0},
+        ]
+    )
+    s = dataclasses.replace(
+        s, disturbances=(scenario.Disturbance(t_s=5.0, robot="r2", kind="drag", dx=-0.1),)
+    )
+    log = simulate.run(s).log
+    marks = event_marks(log)
+    assert [(t, label, ls) for t, label, _, ls in marks] == [
+        (3.0, "estop", "-"), (4.0, "release", ":"), (5.0, "drag r2", "--"), (6.0, "kill r1", "-"),
+    ]  # fmt: skip
+    ax = Figure().add_subplot()
+    assert mark_time_axes([ax], log) == 4
+    assert sorted(float(line.get_xdata()[0]) for line in ax.get_lines()) == [3.0, 4.0, 5.0, 6.0]
+    fig = figures.error_figure(log, settle_s=6.0)
+    plt.close(fig)
+    drawn = {
+        float(line.get_xdata()[0])
+        for a in fig.axes
+        for line in a.get_lines()
+        if line.get_linestyle() in ("-", ":", "--") and len(line.get_xdata()) == 2
+    }
+    assert {3.0, 4.0, 5.0, 6.0} <= drawn
