@@ -36,6 +36,12 @@ class FaultKind(StrEnum):
     CAMERA_LOSS = "camera_loss"
 
 
+class FaultRole(StrEnum):
+    """Whom a requested fault hits, resolved by the coordinator when it fires."""
+
+    LEADER = "leader"
+
+
 @message(
     name=keys.FAULT,
     publisher="coordinator (the scenario's faults, when due) / operator (a request: --at T)",
@@ -68,6 +74,11 @@ class Fault:
         default=None,
         metadata=f_float("camera_loss: how long; a request's pause/cut/estop: undone after",
                          "s", lo=0.0, hi=_DUR),
+    )  # fmt: skip
+    role: str | None = field(
+        default=None,
+        metadata=f_enum("a request's target by role (resolved when it fires); absent: robot",
+                        FaultRole),
     )  # fmt: skip
     undo: bool | None = field(
         default=None, metadata=f_bool("true: the automatic end of a duration_s")

@@ -91,13 +91,17 @@ class FaultNotices:
             self.rejected += 1
             return f"robot {msg.robot!r} is not in the scenario"
         robot_kinds = {"kill", "pause", "resume", "cut_link", "restore_link", "camera_loss"}
-        if msg.kind in robot_kinds and msg.robot is None:
+        if msg.kind in robot_kinds and msg.robot is None and msg.role is None:
             self.rejected += 1
-            return f"{msg.kind} needs a robot"
+            return f"{msg.kind} needs a robot or a role"
+        if msg.kind == "cut_link" and not self.lockstep:
+            self.rejected += 1
+            return "cut_link has no realtime meaning yet"
         spec = FaultSpec(
             index=REQUEST_INDEX_BASE + self.requests,
             kind=msg.kind,
-            robot=msg.robot,
+            robot=msg.robot if msg.role is None else None,
+            role=msg.role,
             t_s=max(msg.t, 0.0),
             duration_s=msg.duration_s
             if msg.kind in ("pause", "cut_link", "estop", "camera_loss")

@@ -156,3 +156,33 @@ def test_every_fault_kind_in_lockstep_equals_the_in_process_run(
         ("camera_loss", "r3", False), ("estop", None, False), ("release", None, True),
         ("kill_coordinator", None, False), ("kill", "r1", False),
     ]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_formation_fault_at_schedules_on_a_running_lockstep_fleet(
+    spawn: Spawner, tmp_path: Path
+) -> None:
+    """``formation fault kill-leader --at T`` and ``pause R --at T --for S``: the active
+    coordinator schedules the requests; they land at exactly the tick of T (T late enough in
+    the run that the requests are there before it, however fast the lockstep runs)."""
+    toml = tmp_path / "calm.toml"
+    toml.write_text(EVERY_KIND.split("[[fault]]")[0].replace("every-fault", "calm"))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    out = tmp_path / "up"
+    up = spawn(
+        "up", "--lockstep", "--scenario", str(toml), "--duration", "34", "--endpoint",
+        endpoint, "--fleet", "at1", "--out", str(out), "--no-figures", "--quiet",
+    )  # fmt: skip
+    common = ["--endpoint", endpoint, "--fleet", "at1", "--timeout", "60"]
+    kill = spawn("fault", "kill-leader", "--at", "30", *common)
+    assert kill.proc.wait(timeout=90) == 0, kill.describe()
+    pause = spawn("fault", "pause", "r3", "--at", "31", "--for", "1", *common)
+    assert pause.proc.wait(timeout=90) == 0, pause.describe()
+    assert "coordinator main applies it then" in kill.stdout()
+    assert up.proc.wait(timeout=180) == 0, up.describe()
+    m = json.loads((out / "metrics.json").read_text())
+    got = [(f["fault"], f["kind"], f["robot"], f["t_s"], f["tick"]) for f in m["faults"]]
+    assert got == [
+        (10000, "kill", "r1", 30.0, 1500), (10001, "pause", "r3", 31.0, 1550),
+        (10001, "resume", "r3", 32.0, 1600),
+    ]  # fmt: skip
