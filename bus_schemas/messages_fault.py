@@ -8,7 +8,9 @@ applies, publishes one notice per action with the ``tick`` it applies at (lockst
 agent (which gets that clock after it) hold the notice when the tick comes: every node applies
 it at the same tick. In realtime ``tick`` is nil and the launcher of the run acts on it (a real
 signal). ``request: true`` is an operator's ``formation fault ... --at T``: the active
-coordinator adds it to its schedule and publishes the notice when it is due.
+coordinator adds it to its schedule and publishes the notice when it is due. A notice without
+``fault`` (no scenario index) records a fault a tool did at once (``formation fault kill r2``):
+nobody acts on it; recorders list it.
 """
 
 from __future__ import annotations

@@ -76,8 +76,8 @@ class RealtimeFaults:
         if isinstance(msg, DecodeError):
             self.rejected += 1
             return
-        if msg.request or msg.tick is not None:
-            return
+        if msg.request or msg.tick is not None or msg.fault is None:
+            return  # a request, a lockstep notice, or the record of a fault done by a tool
         try:
             self._act(msg)
         except Exception as exc:  # a fault tool must not take the run down

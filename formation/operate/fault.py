@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
 import signal
@@ -386,6 +387,16 @@ async def _resume(bus: _Bus, where: Where, kind: str, name: str) -> int:
     return pids[0]
 
 
+async def _record(session: Any, fleet: str, kind: str, robot: str | None, t: float) -> None:
+    """Put a fault done now on the record: a ``fault`` notice without a scenario index (nobody
+    acts on it; ``formation up``'s and a recorder's collector list it in metrics.json
+    ``faults``), stamped with the action's ``time.monotonic()``."""
+    msg = FaultMsg(t=t, kind=kind, robot=robot)
+    with contextlib.suppress(Exception):  # the record is a courtesy; the fault is done
+        session.put(keys.fault_key(fleet), encode(msg))
+        await asyncio.sleep(0.02)
+
+
 _SIG = {"kill": signal.SIGKILL, "pause": signal.SIGSTOP, "resume": signal.SIGCONT}
 _DONE = {"kill": "killed", "pause": "paused", "resume": "resumed"}
 
@@ -451,6 +462,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
             if found.host_name is not None:
                 raise _refuse_host(amsg.leader, found, "kill")
             t = _signal(found.pid, signal.SIGKILL)
+            await _record(session, fleet, "kill", amsg.leader, t)
             return f"killed leader {amsg.leader} (pid {found.pid}) at t={t:.6f}"
         if cmd in ("kill", "pause", "resume"):
             robot = keys.check_robot_id(ns.robot)
@@ -462,6 +474,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
                     raise _refuse_host(robot, found, cmd)
                 pid = found.pid
             t = _signal(pid, _SIG[cmd])
+            await _record(session, fleet, cmd, robot, t)
             return f"{_DONE[cmd]} {robot} (pid {pid}) at t={t:.6f}"
         if cmd in ("kill-host", "pause-host", "resume-host"):
             action = cmd.removesuffix("-host")
@@ -486,6 +499,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
             _check_local(st.host, f"coordinator {cname}")
             pid = _verified(st.pid, "coordinator", cname, where, f"coordinator {cname}")
             t = _signal(pid, signal.SIGKILL)
+            await _record(session, fleet, "kill_coordinator", None, t)
             return f"killed coordinator {cname} (pid {pid}) at t={t:.6f}"
         if cmd == "drag":
             robot = keys.check_robot_id(ns.robot)
@@ -516,6 +530,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
 
             target = keys.check_robot_id(ns.robot) if ns.robot is not None else None
             report = await send_estop(session, fleet, cmd == "estop", target)
+            await _record(session, fleet, cmd, target, report.t)
             if not report.ok:
                 raise FaultError(report.line() + " (no robot acknowledged)")
             return report.line()

@@ -45,8 +45,8 @@ class PlantFaults:
         if isinstance(msg, DecodeError):
             node._reject("fault", msg)
             return
-        if msg.request:
-            return  # an operator's request: for the coordinator
+        if msg.request or msg.fault is None:
+            return  # an operator's request (the coordinator's), or the record of a tool's act
         if msg.robot is not None and msg.robot not in node.index:
             node._reject("fault", f"robot {msg.robot!r} is not simulated here")
             return
