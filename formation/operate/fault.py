@@ -563,7 +563,10 @@ def _common_options(parser: argparse.ArgumentParser, *, suppress: bool) -> None:
         return argparse.SUPPRESS if suppress else value
 
     parser.add_argument(
-        "--fleet", default=d(keys.DEFAULT_FLEET), help=f"fleet name (default {keys.DEFAULT_FLEET})"
+        "--fleet",
+        default=d(None),
+        help="fleet name (default: $FORMATION_FLEET, else the running `formation up`'s, else "
+        f"{keys.DEFAULT_FLEET})",
     )
     parser.add_argument(
         "--timeout",

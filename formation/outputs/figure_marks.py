@@ -1,7 +1,8 @@
 """Marks on the time axes of the figures: every fault a run sent and every scheduled
 disturbance (``log.meta["faults"]`` and ``log.meta["disturbances"]``, in the log's time base),
 so a recovery reads against its cause. A fault is a solid red line, the end of its
-``duration_s`` (resume, release, ...) a dotted one, a disturbance an orange dashed line; the top axis names them."""
+``duration_s`` (resume, release, ...) a dotted one, a disturbance an orange dashed line; the
+top axis names them."""
 
 from __future__ import annotations
 
