@@ -334,8 +334,10 @@ def _refuse_host(robot: str, found: _Found, cmd: str) -> FaultError:
     others = len(found.robots) - 1
     return FaultError(
         f"{robot} runs in agent host {found.host_name} (pid {found.pid}) with {others} other "
-        f"robot(s): `{cmd} {robot}` would hit them all; use `formation fault {cmd}-host "
-        f"{found.host_name}` to do that deliberately"
+        f"robot(s): a signal would hit them all. To stop {robot} alone, start the fleet with "
+        f"one agent process per robot (`formation up --hosts 0`), or on a lockstep fleet "
+        f"schedule it (`formation fault {cmd} {robot} --at T`: the host stops that robot "
+        f"alone); `formation fault {cmd}-host {found.host_name}` hits the whole host on purpose"
     )
 
 

@@ -18,6 +18,7 @@ import argparse
 import contextlib
 import json
 import os
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -182,6 +183,12 @@ def resolve_target(ns: argparse.Namespace) -> str:
             if len(runs) == 1:
                 ns.zenoh_connect = [runs[0].endpoint]
                 note = f"the running `formation up` on {runs[0].endpoint}"
+            elif runs:
+                eps = ", ".join(f"{r.endpoint} (fleet {r.fleet})" for r in runs)
+                note = (
+                    f"several `formation up` runs on this host ({eps}): pass --endpoint or set "
+                    f"{ENDPOINT_ENV}; trying the default {rt.DEFAULT_ENDPOINT}"
+                )
     if hasattr(ns, "fleet") and ns.fleet is None:
         env = os.environ.get(FLEET_ENV, "").strip()
         port = endpoint_port(requested_endpoint(ns))
@@ -202,7 +209,9 @@ def tool_settings(ns: argparse.Namespace, identity: str) -> rt.ZenohSettings:
     otherwise, when an authenticated ``formation up`` is registered on the endpoint's port, its
     client config for ``identity`` (and its TLS endpoint); else the plain settings. The
     endpoint and fleet not given are found first (:func:`resolve_target`)."""
-    resolve_target(ns)
+    note = resolve_target(ns)
+    if note.startswith("several"):
+        print(f"note: {note}", file=sys.stderr)
     if getattr(ns, "zenoh_config", None) is None:
         port = endpoint_port(requested_endpoint(ns))
         info = lookup(port) if port is not None else None
