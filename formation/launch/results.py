@@ -80,9 +80,11 @@ def write_results(
         warn("no truth was received: no metrics written")
         return result
     from formation.outputs import metrics as metrics_mod
+    from formation.outputs.recovery import fault_recovery
 
     metrics_mod.attach_agent(log, scn.agent)  # safety metrics (issue 14): truth only
     m = metrics_mod.compute(log, plan.settle_s, scn.settle_tol_m)
+    m["faults"] = fault_recovery(log, scn.settle_tol_m)  # each fault sent, with its recovery
     sim_s = float(log.t_s[-1] - log.t_s[0])
     m["meta"]["realtime_factor"] = sim_s / run_wall_s if run_wall_s else None
     out_dir.mkdir(parents=True, exist_ok=True)

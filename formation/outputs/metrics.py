@@ -30,13 +30,6 @@ import numpy as np
 from formation.outputs.runlog import RunLog
 
 
-def fault_recovery(log: RunLog, tol_m: float) -> list[dict[str, Any]]:
-    """formation.outputs.recovery.fault_recovery (imported late: it imports this module)."""
-    from formation.outputs.recovery import fault_recovery as measure
-
-    return measure(log, tol_m)
-
-
 def formation_error(log: RunLog) -> np.ndarray:
     """(T, n) distance between each robot's reference point and its assigned slot (NaN when
     unassigned)."""
@@ -306,7 +299,5 @@ def compute(log: RunLog, settle_s: float, settle_tol_m: float) -> dict[str, Any]
             "final_leader": leader_timeline(log)[-1]["leader"] if log.t_s.size else None,
         },
         "safety": safety_metrics(log),
-        # each fault the run sent (log.meta["faults"]) with its recovery figures
-        "faults": fault_recovery(log, settle_tol_m),
         "meta": log.meta,
     }

@@ -52,6 +52,7 @@ import numpy as np
 import scenario as scenario_mod
 from bus_schemas import DecodeError, PlantStatus, decode, keys
 from formation.outputs import metrics as metrics_mod
+from formation.outputs.recovery import fault_recovery
 from formation.outputs.runlog import RunLog
 from formation.record.latency import LatencySample
 from formation.record.replay import (
@@ -313,6 +314,7 @@ def analyze(
     if tol_m is None:
         tol_m = scn.settle_tol_m if scn is not None else 0.05
     m = metrics_mod.compute(log, settle_s, tol_m)
+    m["faults"] = fault_recovery(log, tol_m)  # each fault sent, with its recovery
     m["leader_loss"] = leader_losses(log, rp, fleet, tol_m, collector.dt_s, start)
     m["latency"] = latency_stats(rp.latency, lockstep)
     m["power_peaks"] = power_peaks(log)

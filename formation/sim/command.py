@@ -103,12 +103,14 @@ def run_and_write(
     """Run ``scn`` in-process and write metrics.json, run.npz and the figures to ``out``; the
     metrics' ``meta.interrupted`` is True if ``stop`` ended the run early."""
     from formation.outputs import metrics
+    from formation.outputs.recovery import fault_recovery
     from formation.sim import simulate
 
     result = simulate.run(scn, seed=seed, duration_s=duration, stop=stop, progress=progress)
     # the same settling time as `formation up` / `formation report` for this duration
     settle_s = metrics.settle_for(scn.settle_s, scn.duration_s if duration is None else duration)
     m = metrics.compute(result.log, settle_s, scn.settle_tol_m)
+    m["faults"] = fault_recovery(result.log, scn.settle_tol_m)  # each fault, with its recovery
     m["meta"]["realtime_factor"] = result.realtime_factor
     m["firmware"] = result.firmware_status
     m["meta"]["interrupted"] = result.interrupted

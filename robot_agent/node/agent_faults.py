@@ -15,12 +15,12 @@ Stdlib only.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from bus_schemas import DecodeError, Fault, decode
 
-if TYPE_CHECKING:
-    from robot_agent.node.agent import AgentNode
+AgentNode = Any
+"""robot_agent.node.agent.AgentNode (not imported: it owns this object; no import cycle)."""
 
 __all__ = ["AgentFaults"]
 

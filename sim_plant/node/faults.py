@@ -13,13 +13,14 @@ once and counted.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 from bus_schemas import DecodeError, Fault, decode
 
-if TYPE_CHECKING:
-    from sim_plant.node.inputs import _Sim
-    from sim_plant.node.plant import PlantNode
+PlantNode = Any
+"""sim_plant.node.plant.PlantNode (not imported: it owns this object; no import cycle)."""
+_Sim = Any
+"""sim_plant.node.inputs._Sim: plant, camera, link, monitor of a run."""
 
 __all__ = ["PlantFaults"]
 

@@ -274,6 +274,9 @@ def test_every_scenario_key_is_in_docs_scenarios() -> None:
     names |= {"ids", "count", "initial", "method", "greedy", "optimal", "sparse", "n", "slots"}
     names |= {"drag", "teleport", "camera_loss", "phi", "b_m", "parent", "phi_rad"}
     names |= {"arena", "obstacle", "safety_filter", "circle", "segment", "polygon", "points"}
+    from scenario.faults import CONDITIONS, FAULT_KINDS, KEYS, ROLES
+
+    names |= set(FAULT_KINDS) | set(ROLES) | set(CONDITIONS) | set(KEYS)
     missing = sorted(n for n in names if not re.search(rf"\b{re.escape(n)}\b", doc))
     assert not missing, missing
     assert "[agent.safety]" not in (REPO_ROOT / "docs" / "faults.md").read_text()
