@@ -1,5 +1,5 @@
 """The pytest plugin of the formation package (entry point ``pytest11``: installed with the
-package, nothing to configure; docs/testing.md).
+package, nothing to configure; docs/api.md).
 
 Fixture ``fleet``: a real fleet (:class:`formation.testing.FleetRun`) started for the test and
 torn down after it, every process of it killed. The marker ``fleet`` says which::

@@ -1,4 +1,4 @@
-"""A real fleet for fault-injection tests: :class:`FleetRun` (docs/testing.md).
+"""A real fleet for fault-injection tests: :class:`FleetRun` (docs/api.md).
 
 ``FleetRun`` starts ``formation up`` from a scenario (realtime or lockstep, one agent process
 per robot or agent hosts), watches its bus with the same collector ``formation up`` measures a
