@@ -14,6 +14,7 @@ import numpy as np
 
 import scenario
 from formation.outputs import metrics
+from formation.outputs.recovery import fault_recovery
 from formation.sim import simulate
 from scenario.faults import parse_faults
 
@@ -47,7 +48,7 @@ def test_the_built_in_leader_kill_hands_the_lead_over_and_recovers() -> None:
     assert np.ptp(log.truth[k + 20 :, j, :2], axis=0).max() < 0.01  # it stands where it died
     assert (log.slot_of[k:] == 0).sum(axis=1).min() == 1  # somebody leads at every tick
     m = metrics.compute(log, 15.0, s.settle_tol_m)
-    (rec,) = m["faults"]
+    (rec,) = fault_recovery(log, s.settle_tol_m)
     assert rec["detection_s"] == 0.0 and rec["reassignment_s"] == 0.0
     assert rec["new_leader"] not in (None, victim)
     assert rec["recovered_s"] is not None and rec["recovered_s"] > 0.0
