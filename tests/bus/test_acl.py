@@ -96,6 +96,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("assignment"),
         _f("coordinator/main/heartbeat"),
         _f("coordinator/main/status"),
+        _f("fault"),  # scripted faults' notices (issue 32)
     },
     "localization": {*(_f(f"robot/{r}/pose") for r in ROBOTS), _f("poses"), *CAMERA_STATUS},
     "plant": {
@@ -106,7 +107,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("clock"),
         _f("plant/status"),
     },
-    "operator": {_f("estop"), _f("disturbance")},
+    "operator": {_f("estop"), _f("disturbance"), _f("fault")},
     "observer.rec": set(),
 }
 EXPECT_PUBLISH["coordinator.standby"] = {
@@ -132,8 +133,16 @@ EXPECT_READ: dict[str, set[str]] = {
         *_ALL_STATUS,
         _f("estop"),
         _f("clock"),
+        _f("fault"),
     },
-    "host.h1": {_f("setpoints"), _f("poses"), *_ALL_STATUS, _f("estop"), _f("clock")},
+    "host.h1": {
+        _f("setpoints"),
+        _f("poses"),
+        *_ALL_STATUS,
+        _f("estop"),
+        _f("clock"),
+        _f("fault"),
+    },
     "coordinator.main": {
         *_ALL_POSES,
         *(_f(f"robot/{r}/status") for r in ROBOTS),
@@ -142,6 +151,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("leader"),  # a standby checks trajectory origins against it (coordinator.core.election)
         _f("estop"),
         _f("clock"),
+        _f("fault"),  # an operator's request (formation fault --at T)
         *(_f(f"coordinator/{c}/{x}") for c in ("main", "standby") for x in ("heartbeat", "status")),
     },
     "localization": {*(_f(f"robot/{r}/truth") for r in ROBOTS), _f("truths")},
@@ -150,6 +160,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("host/h1/wheels"),
         _f("disturbance"),
         _f("leader"),
+        _f("fault"),
     },
     "operator": set(DATA),
     "observer.rec": set(DATA),
