@@ -55,7 +55,8 @@ def _free_port() -> int:
 
 
 class FleetRun:
-    """One ``formation up`` run of ``scenario`` (a built-in name or a TOML file) and its bus.
+    """One ``formation up`` run of ``scenario`` (a built-in name, a TOML file or the TOML text
+    itself) and its bus.
 
     ``lockstep``: sim time paced by the plant (repeatable); ``hosts``: agent hosts (0: one
     process per robot; None: ``formation up`` decides); ``duration_s``/``seed`` override the
@@ -76,9 +77,14 @@ class FleetRun:
     ) -> None:
         import scenario as scenario_mod
 
+        self.workdir = Path(workdir)
+        if "\n" in scenario:  # the TOML text itself: written into the work folder
+            self.workdir.mkdir(parents=True, exist_ok=True)
+            path = self.workdir / "scenario.toml"
+            path.write_text(scenario)
+            scenario = str(path)
         self.scenario = scenario_mod.load(scenario)
         self.scenario_arg = scenario
-        self.workdir = Path(workdir)
         self.lockstep = lockstep
         self.hosts = hosts
         self.duration_s = duration_s

@@ -133,8 +133,12 @@ def echo_main(argv: list[str]) -> int:
         import zenoh
 
         zenoh.KeyExpr(key)
-    except Exception as exc:
-        print(f"formation echo: KEY: {key!r} is not a key expression ({exc})", file=sys.stderr)
+    except Exception:
+        print(
+            f"formation echo: KEY: {key!r} is not a key expression (an empty chunk `//`, or a "
+            "leading or trailing `/`)",
+            file=sys.stderr,
+        )
         return 2
     try:
         got = asyncio.run(_echo(settings, key, ns.count, ns.wait))

@@ -18,7 +18,6 @@ import argparse
 import contextlib
 import json
 import os
-import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -209,9 +208,7 @@ def tool_settings(ns: argparse.Namespace, identity: str) -> rt.ZenohSettings:
     otherwise, when an authenticated ``formation up`` is registered on the endpoint's port, its
     client config for ``identity`` (and its TLS endpoint); else the plain settings. The
     endpoint and fleet not given are found first (:func:`resolve_target`)."""
-    note = resolve_target(ns)
-    if note.startswith("several"):
-        print(f"note: {note}", file=sys.stderr)
+    resolve_target(ns)
     if getattr(ns, "zenoh_config", None) is None:
         port = endpoint_port(requested_endpoint(ns))
         info = lookup(port) if port is not None else None
