@@ -9,7 +9,8 @@ up`` and ``formation report`` of a recording compute it the same way):
   longer gives the faulted robot a slot (a kill, pause or cut off of an assigned robot; None for
   other kinds, or if it never happens before the next fault);
 * ``reassignment_s``: from the fault to the first row, from the detection on, at which another
-  robot's slot changed (who holds slot 0 then is ``new_leader``);
+  robot's slot changed; ``new_leader`` holds slot 0 then (without a reassignment: at the end of
+  the window);
 * ``recovered_s`` / ``recovered_at_s``: from the fault to the moment after which the formation
   error (eqs. 17-18: reference point to assigned slot, from truth) of every robot still online
   stays within ``tol_m`` until the next fault or the end of the run (the settling rule of
@@ -99,13 +100,15 @@ def fault_recovery(
                 k_detect = k0 + int(gone[0])
                 entry["detection_s"] = _rounded(float(t[k_detect]) - t0)
         others = [j for j, rid in enumerate(ids) if rid != robot]
+        k_lead = k1 - 1  # who leads: right after the reassignment, else at the window's end
         if others and k_detect > 0:
             base = log.slot_of[k_detect - 1, others]
             changed = np.flatnonzero((log.slot_of[k_detect:k1][:, others] != base).any(axis=1))
             if changed.size:
                 k_re = k_detect + int(changed[0])
                 entry["reassignment_s"] = _rounded(float(t[k_re]) - t0)
-        holders = np.flatnonzero(log.slot_of[k1 - 1] == 0)
+                k_lead = k_re
+        holders = np.flatnonzero(log.slot_of[k_lead] == 0)
         entry["new_leader"] = ids[int(holders[0])] if holders.size else None
         live = [col[r] for r in ids if r not in offline]
         entry.update(_window(t, err, sep, live, (k0, k1), t0, tol_m))
