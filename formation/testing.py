@@ -268,7 +268,14 @@ class FleetRun:
     # -- faults --------------------------------------------------------------------------------
 
     async def fault(self, *args: str) -> str:
-        """Run ``formation fault ARGS`` against this fleet; its output line (or raise)."""
+        """Run ``formation fault ARGS`` against this fleet; its output line (or raise). An
+        ``--at T`` the run has already passed is refused (a lockstep run is fast: schedule
+        late enough, or in the scenario)."""
+        if "--at" in args and self.collector is not None:
+            at = float(args[args.index("--at") + 1])
+            now = self.collector.live().t_s
+            if now is not None and now >= at:
+                raise FleetRunError(f"--at {at:g}: the run is already at t = {now:.2f} s")
         argv = [
             sys.executable, "-m", "formation", "fault", *args, "--endpoint", self.endpoint,
             "--fleet", self.fleet, "--timeout", "10",

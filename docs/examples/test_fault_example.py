@@ -24,13 +24,13 @@ async def test_the_scripted_leader_kill_is_survived(fleet: FleetRun) -> None:
     assert kill["min_separation_m"] > 0.15  # nobody ran into anybody
 
 
-@pytest.mark.fleet("paper-exp2", lockstep=True, duration_s=20)
+@pytest.mark.fleet("paper-exp2", lockstep=True, duration_s=34)
 async def test_a_leader_killed_at_a_chosen_time_is_replaced(fleet: FleetRun) -> None:
     """``kill_leader(at=T)``: the coordinator applies it at sim time T, the same tick in every
     lockstep run (without ``at``: now, a real SIGKILL)."""
-    await fleet.kill_leader(at=12.0)
+    await fleet.kill_leader(at=30.0)
     await fleet.finish()
     (kill,) = fleet.recovery()
-    assert kill["t_s"] == pytest.approx(12.0)
+    assert kill["t_s"] == pytest.approx(30.0)
     assert kill["reassignment_s"] is not None and kill["reassignment_s"] < 0.1
     assert kill["new_leader"] != kill["robot"]
