@@ -66,6 +66,7 @@ from bus_schemas.messages import (
     message_type_for_key,
     new_estop_id,
 )
+from bus_schemas.messages_fault import Fault, FaultKind
 from bus_schemas.messages_status import (
     CAMERA_MS_MAX,
     CameraState,
@@ -106,6 +107,8 @@ __all__ = [
     "DisturbanceKind",
     "Estop",
     "EstopStoreState",
+    "Fault",
+    "FaultKind",
     "Goal",
     "Heartbeat",
     "Leader",

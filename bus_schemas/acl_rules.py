@@ -199,6 +199,9 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.ESTOP_HELD: KeyRoles((), answerers=((_R, OWN), (_H, OWN)), askers=(_R, _H, _C, _O)),
     keys.CLOCK: KeyRoles((_P,), (_R, _H, _C)),
     keys.DISTURBANCE: KeyRoles((_O,), (_P,)),
+    # scripted faults (bus_schemas.messages_fault): the active coordinator's notices, an
+    # operator's requests (`formation fault ... --at T`); every node of the loop applies them
+    keys.FAULT: KeyRoles((_C, _O), (_C, _P, _R, _H)),
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),
     keys.COORDINATOR_STATUS: KeyRoles(((_C, OWN),), (_C,)),
     keys.PLANT_STATUS: KeyRoles((_P,)),

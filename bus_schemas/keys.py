@@ -53,6 +53,7 @@ CMD_VEL = "cmd_vel"
 GOAL = "goal"
 PATH = "path"
 SHAPE = "shape"
+FAULT = "fault"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -67,6 +68,7 @@ KEY_TEMPLATES: dict[str, str] = {
     ESTOP: "formation/{fleet}/estop",
     CLOCK: "formation/{fleet}/clock",
     DISTURBANCE: "formation/{fleet}/disturbance",
+    FAULT: "formation/{fleet}/fault",
     HEARTBEAT: "formation/{fleet}/coordinator/{name}/heartbeat",
     POSES: "formation/{fleet}/poses",
     SETPOINTS: "formation/{fleet}/setpoints",
@@ -91,7 +93,9 @@ KEY_TEMPLATES: dict[str, str] = {
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
-_FLEET_LEAVES = frozenset({LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, POSES, SETPOINTS, TRUTHS})
+_FLEET_LEAVES = frozenset(
+    {LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, FAULT, POSES, SETPOINTS, TRUTHS}
+)
 # formation/<fleet>/host/<name>/<leaf> -> message name
 _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 # formation/<fleet>/coordinator/<name>/<leaf> -> message name
@@ -221,6 +225,11 @@ def clock_key(fleet: str) -> str:
 def disturbance_key(fleet: str) -> str:
     """``formation/<fleet>/disturbance``: drag/teleport a simulated robot (tools -> plant)."""
     return f"{_fleet_prefix(fleet)}/{DISTURBANCE}"
+
+
+def fault_key(fleet: str) -> str:
+    """Scripted faults: the coordinator's notices, the operator's requests."""
+    return f"{_fleet_prefix(fleet)}/{FAULT}"
 
 
 def heartbeat_key(fleet: str, name: str) -> str:

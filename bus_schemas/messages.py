@@ -24,6 +24,7 @@ from bus_schemas.messages_batch import (
     TruthBatch,
     WheelsBatch,
 )
+from bus_schemas.messages_fault import Fault
 from bus_schemas.messages_fields import (
     _PARENT,
     _POSE_THETA,
@@ -523,6 +524,7 @@ Message = (
     | Goal
     | Path
     | Shape
+    | Fault
 )
 """Any bus message."""
 
@@ -551,6 +553,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     Goal,
     Path,
     Shape,
+    Fault,
 )
 
 BATCH_CHUNK = 256

@@ -49,6 +49,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "record": ("formation.record.command", "record the fleet's keys to MCAP"),
     "report": ("formation.record.report", "metrics and figures from an MCAP recording"),
     "top": ("formation.live.top", "live fleet status table"),
+    "ls": ("formation.operate.ls", "list the fleets on a router"),
+    "echo": ("formation.operate.echo", "print a key's messages, decoded, one JSON a line"),
     "acl": ("bus_schemas.acl", "write the Zenoh router ACL and client configs of a fleet"),
     "certs": ("formation.launch.pki", "make the fleet CA and a certificate per identity"),
     "motor-emulator": (
@@ -98,6 +100,8 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "formation record": ("formation record --out run.mcap --duration 30 --scenario paper-exp2",),
     "formation report": ("formation report run.mcap --out run-report",),
     "formation top": ("formation top --once --wait 2",),
+    "formation ls": ("formation ls --endpoint tcp/127.0.0.1:7447",),
+    "formation echo": ("formation echo assignment --count 1", "formation echo robot/r1/status"),
     "formation acl": ("formation acl --out acl/ --robots r1,r2,r3",),
     "formation certs": ("formation certs --out pki/ --robots r1,r2,r3",),
     "formation camera": (

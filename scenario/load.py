@@ -24,6 +24,7 @@ from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
 )
+from scenario.faults import Fault, FaultSpecError, parse_faults
 
 if TYPE_CHECKING:
     from coordinator.core.leader import LeaderConfig
@@ -100,6 +101,7 @@ class Scenario:
     leader: LeaderConfig | None = None
     """``[leader]``: the operator's limits, the deadman and whether the leader waits for its team
     (coordinator.core.leader, docs/operate.md); None: the defaults."""
+    faults: tuple[Fault, ...] = field(default_factory=tuple)  # [[fault]] (scenario.faults)
 
     def with_overrides(self, **changes: Any) -> Scenario:
         return dataclasses.replace(self, **changes)
@@ -192,7 +194,7 @@ TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
     "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
-    "leader",
+    "leader", "fault",
 }  # fmt: skip
 
 
@@ -395,6 +397,10 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
                 theta=_num(d, "theta", where) if "theta" in d else None,
             )
         )
+    try:
+        faults = parse_faults(data.get("fault"), tuple(ids), duration)
+    except FaultSpecError as exc:
+        raise ScenarioError(str(exc)) from None
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ScenarioError("description: expected a string")
@@ -418,4 +424,5 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         disturbances=tuple(sorted(disturbances, key=lambda x: x.t_s)),
         source=source,
         leader=leader,
+        faults=faults,
     )

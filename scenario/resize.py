@@ -125,6 +125,12 @@ def scenario_with_robots(data: Mapping[str, Any], n: int | None, spares: int = 0
             out["disturbance"] = kept
         else:
             del out["disturbance"]
+    if "fault" in out:  # a fault of a robot that no longer exists is dropped, like a disturbance
+        kept_f = [f for f in out["fault"] if f.get("robot") is None or f.get("robot") in ids]
+        if kept_f:
+            out["fault"] = kept_f
+        else:
+            del out["fault"]
     return out
 
 

@@ -34,6 +34,7 @@ from bus_schemas import (
     Clock,
     CoordinatorStatus,
     DecodeError,
+    Fault,
     Heartbeat,
     Pose,
     PoseBatch,
@@ -47,6 +48,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.election import Election, Takeover
 from coordinator.node.election_io import MAX_ROBOTS, ElectionIO
 from coordinator.node.estop_source import EstopSource
+from coordinator.node.fault_schedule import FaultNotices, slot_messages
 from coordinator.node.operator_io import OperatorInputs
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
@@ -168,6 +170,10 @@ class CoordinatorNode:
 
         # -- the latched e-stop state (robot_agent.core.estop): every instance, active or standby,
         # keeps it from the estop messages and answers queries on the estop key with it
+        # scripted faults ([[fault]], coordinator.node.fault_schedule): the active instance runs
+        # the schedule and publishes the notices; operators' requests arrive on the same key
+        self.scripted = FaultNotices(scenario, self.fleet, lockstep=lockstep)
+        self.fault_key = self.scripted.key
         self.estop_key = keys.estop_key(fleet)
         self.estop_source = EstopSource(
             self.estop_key, self._now, self.faults.reject, self.faults.internal, self.log
@@ -408,6 +414,8 @@ class CoordinatorNode:
                 self.operator.took_over(now_s, self.t0_s)
             started = time.perf_counter()
             poses = self.fresh_poses(now_s)
+            if self.scripted.state.offline():  # a scripted kill: its robot counts as gone
+                poses = self.scripted.counted(poses)
             held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
             out = self.core.tick(now_s, poses, held)
             self.ticks += 1
@@ -415,6 +423,8 @@ class CoordinatorNode:
             outputs = self.outputs.encode_tick(
                 out, now_s, tick, self.t0_s or 0.0, self.leader_extra()
             )
+            if self.scripted.live:
+                outputs = self.with_faults(outputs, out, poses, now_s - (self.t0_s or 0.0), tick)
             for key, payload, qos in outputs:
                 self._publish(key, payload, qos)
             self._replay.answer = outputs
@@ -463,6 +473,43 @@ class CoordinatorNode:
         if reshaping is not None:
             extra["reshape"] = reshaping
         return extra
+
+    def with_faults(
+        self,
+        outputs: list[tuple[str, bytes, rt.QoS]],
+        out: CoordinatorOutput,
+        counted: dict[str, tuple[float, float, float]],
+        run_t_s: float,
+        tick: int | None,
+    ) -> list[tuple[str, bytes, rt.QoS]]:
+        """A tick's outputs with the scripted faults (coordinator.node.fault_schedule): no
+        setpoints while it counts as killed; the notices due next before the leader (lockstep,
+        where the leader is last) or after everything (realtime)."""
+        if self.scripted.setpoints_withheld(run_t_s):
+            sp = self.setpoints_key
+            outputs = [o for o in outputs if o[0] != sp and not o[0].endswith("/setpoint")]
+            if self.batch:  # the slots still go out (recorders read them from the setpoints)
+                slots = slot_messages(self.outputs, out, self._now(), tick)
+                outputs = [*slots, *outputs]
+        notices = self.scripted.after_tick(out, counted, run_t_s, tick, self._now())
+        for n in notices:
+            self.log.info(f"t={run_t_s:.3f} s: fault notice {decode(n[1], Fault)}")
+        if not notices:
+            return outputs
+        if self.lockstep:
+            return [*outputs[:-1], *notices, outputs[-1]]
+        return [*outputs, *notices]
+
+    def on_fault(self, rx: rt.Received) -> None:
+        """An operator's ``fault`` request (``formation fault ... --at T``): scheduled."""
+        try:
+            if not self.active:
+                return
+            why = self.scripted.on_request(rx.payload)
+            if why is not None:
+                self.faults.reject("fault", why)
+        except Exception as exc:
+            self.faults.internal("on_fault", exc)
 
     # -- periodic ------------------------------------------------------------------------------
 

@@ -171,6 +171,8 @@ async def _node(
     io.watch_liveliness(node.coordinators_pattern, on_alive)
     io.subscribe(node.heartbeats_pattern, node.election_io.on_heartbeat)
     io.subscribe(node.assignment_key, node.election_io.on_assignment)
+    io.subscribe(node.fault_key, node.on_fault)  # operators' requests (--at T)
+    io.pubs.get(node.fault_key, node.scripted.qos)
     if not lockstep:  # a standby checks trajectory origins against the leader (election)
         io.subscribe(node.leader_key, node.election_io.on_leader)
         io.subscribe(node.leader_key, node.operator.on_leader)  # and continues it (issue 28)

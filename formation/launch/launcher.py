@@ -21,6 +21,7 @@ from formation.launch.children import (
     group_members,
     tail_of,
 )
+from formation.launch.fault_actions import RealtimeFaults
 from formation.launch.nodes import make_secure, node_commands, router_args
 from formation.launch.observers import RunObservers
 from formation.launch.plan import LaunchError, Plan, UpConfig, UpResult, plan_run
@@ -100,6 +101,7 @@ class _Launcher:
         self.say, self.warn = self.view.say, self.view.warn
         self.stop_s: float | None = None
         self.observers = RunObservers(cfg, plan, self.say, self.warn)  # --record, --foxglove
+        self.fault_actions: RealtimeFaults | None = None  # realtime scripted faults
 
     def _header(self) -> str:
         mode = "lockstep" if self.cfg.lockstep else "realtime"
@@ -246,6 +248,20 @@ class _Launcher:
             self.session, keys.alive_pattern(self.cfg.fleet), loop, self.collector.feed_alive
         )
         self.observers.start(self.session, await self._commands_session())
+        if not self.cfg.lockstep and self.scn.faults:  # realtime: make the notices real
+            acts = RealtimeFaults(lambda: self.nodes, self._event, self._send_estop)
+            self.fault_actions = acts
+            self._subscribers.append(
+                rt.subscribe(
+                    self.session, keys.fault_key(self.cfg.fleet), loop,
+                    lambda rx: acts.on_notice(rx.payload),
+                )
+            )  # fmt: skip
+
+    async def _send_estop(self, engage: bool, robot: str | None) -> Any:
+        from formation.operate.estop_tool import send_estop
+
+        return await send_estop(self.session, self.cfg.fleet, engage, robot)
 
     async def _commands_session(self) -> Any:
         """The session a ``--foxglove`` client's publishes are put with (issue 28): the

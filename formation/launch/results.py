@@ -44,6 +44,10 @@ def run_meta(
         "endpoint": cfg.endpoint,
         "secure": cfg.secure,
         "fleet": cfg.fleet,
+        # the scheduled disturbances (the figures mark them; the faults come from the bus)
+        "disturbances": [
+            {"t_s": d.t_s, "kind": d.kind, "robot": d.robot} for d in scn.disturbances
+        ],
         "record": None if cfg.record is None else str(cfg.record),
         "interrupted": interrupted,
         "failures": list(failures),
@@ -77,9 +81,11 @@ def write_results(
         warn("no truth was received: no metrics written")
         return result
     from formation.outputs import metrics as metrics_mod
+    from formation.outputs.recovery import fault_recovery
 
     metrics_mod.attach_agent(log, scn.agent)  # safety metrics (issue 14): truth only
     m = metrics_mod.compute(log, plan.settle_s, scn.settle_tol_m)
+    m["faults"] = fault_recovery(log, scn.settle_tol_m)  # each fault sent, with its recovery
     sim_s = float(log.t_s[-1] - log.t_s[0])
     m["meta"]["realtime_factor"] = sim_s / run_wall_s if run_wall_s else None
     result.metrics = m

@@ -291,6 +291,12 @@ def main(argv: list[str]) -> int:
     except (scenario_mod.ScenarioError, ValueError) as exc:
         print(f"formation up: {exc}", file=sys.stderr)
         return 2
+    from formation.launch.fault_actions import check_layout
+
+    why = check_layout(plan.scenario, lockstep=cfg.lockstep, hosts=plan.hosts, standby=cfg.standby)
+    if why is not None:
+        print(f"formation up: {why}", file=sys.stderr)
+        return 2
     try:
         result = asyncio.run(run_up(cfg, plan))
     except KeyboardInterrupt:  # a second Ctrl-C while the results of a stopped run are written

@@ -412,7 +412,11 @@ def build_parser() -> argparse.ArgumentParser:
         "message rates, rejects, liveliness; camera trackers) from anywhere on its Zenoh "
         "network.",
     )
-    p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (default demo)")
+    p.add_argument(
+        "--fleet",
+        default=None,
+        help="fleet name (default: $FORMATION_FLEET, else the running `formation up`'s, else demo)",
+    )
     p.add_argument("--once", action="store_true", help="print one table after --wait s, exit")
     p.add_argument("--wait", type=float, default=1.5, metavar="S", help="--once: listen S s")
     p.add_argument("--period", type=float, default=0.5, metavar="S", help="redraw period (s)")
@@ -424,6 +428,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str]) -> int:
     """``formation top``: 0 on a clean stop, 1 if the session cannot open, 2 on bad args."""
     args = build_parser().parse_args(list(argv))
+    from formation.outputs.runfile import resolve_target
+
+    resolve_target(args)  # --endpoint / --fleet not given: $FORMATION_*, the running fleet
     try:
         keys.check_fleet(args.fleet)
     except ValueError as exc:

@@ -38,6 +38,7 @@ from bus_schemas import (
     DecodeError,
     Estop,
     Status,
+    StatusBatch,
     decode,
     decode_estop_answer,
     encode,
@@ -200,6 +201,22 @@ async def send_estop(
         if agrees:
             report.other.discard(rid)
 
+    def on_host_status(rx: rt.Received) -> None:
+        """An agent host's batched status: each of its robots acknowledges as its own status
+        would (issue 32: an e-stop of a host's robot read "acknowledged by none")."""
+        if rx.rx_s <= t_pub:
+            return
+        msg = decode(rx.payload, StatusBatch)
+        if isinstance(msg, DecodeError):
+            return
+        for rid, mode in zip(msg.robots, msg.mode, strict=True):
+            if robot is not None and rid != robot:
+                continue
+            agrees = (mode == "estop") == engage
+            (report.acked if agrees else report.other).add(rid)
+            if agrees:
+                report.other.discard(rid)
+
     def on_coordinator(rx: rt.Received) -> None:
         if rx.rx_s <= t_pub:
             return
@@ -214,6 +231,7 @@ async def send_estop(
 
     subs = [
         rt.subscribe(session, keys.all_status_pattern(fleet), loop, on_status),
+        rt.subscribe(session, keys.all_host_status_pattern(fleet), loop, on_host_status),
         rt.subscribe(session, keys.all_coordinator_status_pattern(fleet), loop, on_coordinator),
     ]
     try:

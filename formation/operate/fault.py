@@ -12,6 +12,8 @@ Usage::
     formation fault drag ROBOT DX DY [--duration S]   # push the simulated robot (plant only)
     formation fault estop [ROBOT]               # latched emergency stop, fleet or one robot
     formation fault release [ROBOT]             # release it
+    formation fault kill-leader --at 30         # at sim time 30 s: the active coordinator
+                                                #   schedules it (lockstep: at that very tick)
     ... [--fleet demo] [--timeout 3] [zenoh options: --endpoint tcp/127.0.0.1:7447 ...]
     (the options go before or after the command)
 
@@ -47,6 +49,14 @@ what is not.
 Against an authenticated run (``formation up --secure``) the tool uses the run's ``operator``
 credentials by itself (formation.outputs.runfile).
 
+``--at T`` (kill-leader, kill, pause, resume, kill-coordinator, estop, release; ``--for S``
+undoes a pause or an e-stop S s later): nothing is signalled now; a ``fault`` request goes to the
+active coordinator, which adds it to the run's schedule of scripted faults at sim time ``T``
+(the scenario's ``[[fault]]`` clock: lockstep sim time, realtime seconds since the trajectory
+started) and, when it is due, sends the notice every node acts on (docs/faults.md "Faults in
+scenarios"): in lockstep that is the same tick on every run. Exit 1 if no active coordinator
+answers within ``--timeout``.
+
 Prints one line saying what was done, with the ``time.monotonic()`` of the action (same clock as
 ``t`` on a local bus), and exits 0; 1 if the target was not found, not verified or could not be
 signalled; 2 for bad arguments.
@@ -56,6 +66,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import os
 import signal
@@ -81,6 +92,7 @@ from bus_schemas import (
     encode,
     keys,
 )
+from bus_schemas import Fault as FaultMsg
 from formation.outputs import runfile
 
 __all__ = ["FaultError", "Where", "build_parser", "find_processes", "main", "verify_process"]
@@ -326,8 +338,10 @@ def _refuse_host(robot: str, found: _Found, cmd: str) -> FaultError:
     others = len(found.robots) - 1
     return FaultError(
         f"{robot} runs in agent host {found.host_name} (pid {found.pid}) with {others} other "
-        f"robot(s): `{cmd} {robot}` would hit them all; use `formation fault {cmd}-host "
-        f"{found.host_name}` to do that deliberately"
+        f"robot(s): a signal would hit them all. To stop {robot} alone, start the fleet with "
+        f"one agent process per robot (`formation up --hosts 0`), or on a lockstep fleet "
+        f"schedule it (`formation fault {cmd} {robot} --at T`: the host stops that robot "
+        f"alone); `formation fault {cmd}-host {found.host_name}` hits the whole host on purpose"
     )
 
 
@@ -379,8 +393,60 @@ async def _resume(bus: _Bus, where: Where, kind: str, name: str) -> int:
     return pids[0]
 
 
+async def _record(session: Any, fleet: str, kind: str, robot: str | None, t: float) -> None:
+    """Put a fault done now on the record: a ``fault`` notice without a scenario index (nobody
+    acts on it; ``formation up``'s and a recorder's collector list it in metrics.json
+    ``faults``), stamped with the action's ``time.monotonic()``."""
+    msg = FaultMsg(t=t, kind=kind, robot=robot)
+    with contextlib.suppress(Exception):  # the record is a courtesy; the fault is done
+        session.put(keys.fault_key(fleet), encode(msg))
+        await asyncio.sleep(0.02)
+
+
 _SIG = {"kill": signal.SIGKILL, "pause": signal.SIGSTOP, "resume": signal.SIGCONT}
 _DONE = {"kill": "killed", "pause": "paused", "resume": "resumed"}
+
+
+_AT_KINDS = {
+    "kill-leader": ("kill", "leader"),
+    "kill": ("kill", None),
+    "pause": ("pause", None),
+    "resume": ("resume", None),
+    "kill-coordinator": ("kill_coordinator", None),
+    "estop": ("estop", None),
+    "release": ("release", None),
+}
+
+
+async def _request_at(bus: _Bus, session: Any, ns: argparse.Namespace) -> str:
+    """``--at T``: a request the active coordinator schedules (module docstring)."""
+    fleet = keys.check_fleet(ns.fleet)
+    kind, role = _AT_KINDS[ns.command]
+    robot = getattr(ns, "robot", None)
+    if robot is not None:
+        robot = keys.check_robot_id(robot)
+    active = await bus.newest(
+        keys.all_coordinator_status_pattern(fleet),
+        _decoded(CoordinatorStatus, lambda m: m.role == "active"),
+    )
+    if active is None:
+        raise FaultError(f"no active coordinator of fleet {fleet!r} within {bus.timeout_s:g} s")
+    msg = FaultMsg(
+        t=ns.at,
+        request=True,
+        kind=kind,
+        robot=robot,
+        role=role,
+        duration_s=getattr(ns, "for_s", None),
+    )
+    session.put(keys.fault_key(fleet), encode(msg))
+    await asyncio.sleep(0.05)  # let it leave before the session closes
+    who = f" of {robot}" if robot else " of the leader" if role else ""
+    undo = f", undone {msg.duration_s:g} s later" if msg.duration_s else ""
+    return (
+        f"requested {kind}{who} at t={ns.at:g} s (sim time){undo}: coordinator "
+        f"{active.name} applies it then"
+    )
 
 
 async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # noqa: PLR0915 (one branch per fault verb)
@@ -390,6 +456,8 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
     try:
         bus = _Bus(session, ns.timeout)
         cmd = ns.command
+        if getattr(ns, "at", None) is not None:
+            return await _request_at(bus, session, ns)
         if cmd == "kill-leader":
             amsg = await bus.newest(keys.assignment_key(fleet), _decoded(Assignment))
             if amsg is None:
@@ -400,6 +468,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
             if found.host_name is not None:
                 raise _refuse_host(amsg.leader, found, "kill")
             t = _signal(found.pid, signal.SIGKILL)
+            await _record(session, fleet, "kill", amsg.leader, t)
             return f"killed leader {amsg.leader} (pid {found.pid}) at t={t:.6f}"
         if cmd in ("kill", "pause", "resume"):
             robot = keys.check_robot_id(ns.robot)
@@ -411,6 +480,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
                     raise _refuse_host(robot, found, cmd)
                 pid = found.pid
             t = _signal(pid, _SIG[cmd])
+            await _record(session, fleet, cmd, robot, t)
             return f"{_DONE[cmd]} {robot} (pid {pid}) at t={t:.6f}"
         if cmd in ("kill-host", "pause-host", "resume-host"):
             action = cmd.removesuffix("-host")
@@ -435,6 +505,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
             _check_local(st.host, f"coordinator {cname}")
             pid = _verified(st.pid, "coordinator", cname, where, f"coordinator {cname}")
             t = _signal(pid, signal.SIGKILL)
+            await _record(session, fleet, "kill_coordinator", None, t)
             return f"killed coordinator {cname} (pid {pid}) at t={t:.6f}"
         if cmd == "drag":
             robot = keys.check_robot_id(ns.robot)
@@ -465,6 +536,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
 
             target = keys.check_robot_id(ns.robot) if ns.robot is not None else None
             report = await send_estop(session, fleet, cmd == "estop", target)
+            await _record(session, fleet, cmd, target, report.t)
             if not report.ok:  # the line says what is not acknowledged or not durable
                 raise FaultError(report.line())
             return report.line()
@@ -497,7 +569,10 @@ def _common_options(parser: argparse.ArgumentParser, *, suppress: bool) -> None:
         return argparse.SUPPRESS if suppress else value
 
     parser.add_argument(
-        "--fleet", default=d(keys.DEFAULT_FLEET), help=f"fleet name (default {keys.DEFAULT_FLEET})"
+        "--fleet",
+        default=d(None),
+        help="fleet name (default: $FORMATION_FLEET, else the running `formation up`'s, else "
+        f"{keys.DEFAULT_FLEET})",
     )
     parser.add_argument(
         "--timeout",
@@ -534,20 +609,32 @@ def build_parser() -> argparse.ArgumentParser:
             formatter_class=fmt,
         )  # fmt: skip
 
-    add("kill-leader", "SIGKILL the leader's agent")
+    def at(sp: argparse.ArgumentParser, undo: bool = False) -> argparse.ArgumentParser:
+        sp.add_argument(
+            "--at", type=float, default=None, metavar="T",
+            help="at sim time T s instead of now: the active coordinator schedules it",
+        )  # fmt: skip
+        if undo:
+            sp.add_argument(
+                "--for", dest="for_s", type=float, default=None, metavar="S",
+                help="with --at: undo it S s later",
+            )  # fmt: skip
+        return sp
+
+    at(add("kill-leader", "SIGKILL the leader's agent"))
     for name, text in (
         ("kill", "SIGKILL a robot's agent"),
         ("pause", "SIGSTOP a robot's agent (a hung process)"),
         ("resume", "SIGCONT a paused agent"),
     ):
-        add(name, text).add_argument("robot", metavar="ROBOT")
+        at(add(name, text), undo=name == "pause").add_argument("robot", metavar="ROBOT")
     for name, text in (
         ("kill-host", "SIGKILL an agent host (every robot it runs)"),
         ("pause-host", "SIGSTOP an agent host"),
         ("resume-host", "SIGCONT a paused agent host"),
     ):
         add(name, text).add_argument("name", metavar="NAME")
-    kc = add("kill-coordinator", "SIGKILL the active coordinator (or NAME)")
+    kc = at(add("kill-coordinator", "SIGKILL the active coordinator (or NAME)"))
     kc.add_argument("name", nargs="?", default=None, metavar="NAME")
     drag = add("drag", "drag a simulated robot by (DX, DY) m")
     drag.add_argument("robot", metavar="ROBOT")
@@ -555,7 +642,7 @@ def build_parser() -> argparse.ArgumentParser:
     drag.add_argument("dy", type=float, metavar="DY")
     drag.add_argument("--duration", type=float, default=0.5, metavar="S", help="(default 0.5 s)")
     for name, text in (("estop", "engage the e-stop"), ("release", "release the e-stop")):
-        add(name, f"{text} of the fleet or of ROBOT").add_argument(
+        at(add(name, f"{text} of the fleet or of ROBOT"), undo=name == "estop").add_argument(
             "robot", nargs="?", default=None, metavar="ROBOT"
         )
     return p
@@ -569,6 +656,12 @@ def main(argv: list[str]) -> int:
         keys.check_fleet(ns.fleet)
         if not ns.timeout > 0:
             raise ValueError(f"--timeout must be positive, got {ns.timeout}")
+        at_s = getattr(ns, "at", None)
+        if at_s is not None and not (0.0 <= at_s < 1e6):
+            raise ValueError(f"--at must be a sim time in [0, 1e6) s, got {at_s}")
+        for_s = getattr(ns, "for_s", None)
+        if for_s is not None and (at_s is None or not 0.0 < for_s < 1e6):
+            raise ValueError("--for S needs --at T and 0 < S < 1e6")
     except (TypeError, ValueError) as exc:
         print(f"formation fault: {exc}", file=sys.stderr)
         return 2

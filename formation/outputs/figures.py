@@ -46,6 +46,7 @@ from matplotlib.colors import to_rgba
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from formation.outputs.figure_marks import mark_time_axes
 from formation.outputs.figures_style import (
     DETAIL_MAX,
     LEGEND_MAX,
@@ -212,6 +213,7 @@ def plot_motor_power(log: RunLog, path: Path) -> None:
             ax.set_ylabel(f"{rid} (%)")
             ax.grid(True, alpha=0.3)
         axes[-1, 0].set_xlabel("time (s)")
+        mark_time_axes(list(axes[:, 0]), log)  # faults and disturbances
         if n:
             h, lab = axes[0, 0].get_legend_handles_labels()
             fig.legend(h, lab, loc="outside upper right", ncols=2, fontsize=8)
@@ -260,6 +262,7 @@ def plot_motor_power(log: RunLog, path: Path) -> None:
     axes[2].yaxis.set_major_locator(MaxNLocator(integer=True))
     axes[2].set_xlabel("time (s)")
     fig.colorbar(im, ax=axes[2], label="max |power| of the two wheels (%)")
+    mark_time_axes(list(axes), log)
     fig.suptitle(f"Motor power over {n} robots (% of maximum)")
     save_figure(fig, path)
 
@@ -319,6 +322,7 @@ def error_figure(log: RunLog, settle_s: float | None = None) -> Figure:
         ax.grid(True, alpha=0.3, which="both" if ax is ax_log else "major")
         if settle_s is not None:
             ax.axvline(settle_s, color="0.4", ls=":", lw=1)
+    mark_time_axes([ax_lin, ax_log], log)  # faults and disturbances
     if settle_s is not None:
         ax_lin.text(settle_s, 1.0, " settle", transform=ax_lin.get_xaxis_transform(),
                     va="top", fontsize=8, color="0.3")  # fmt: skip
@@ -364,6 +368,7 @@ def roles_figure(log: RunLog) -> Figure:
         ax.set_ylabel("slot")
         ax.set_xlabel("time (s)")
         ax.grid(True, alpha=0.3)
+        mark_time_axes([ax], log)
         fig.legend(loc="outside right upper", fontsize=8, title="robots", title_fontsize=8)
         ax.set_title(
             f"Slot of each robot; {len(changes)} role change(s) after the initial assignment (|)"
@@ -409,6 +414,7 @@ def roles_figure(log: RunLog) -> Figure:
     ax_ev.set_xlabel("time (s)")
     ax_ev.grid(True, alpha=0.3)
     ax_ev.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
+    mark_time_axes([ax_n, ax_ev], log)
     fig.suptitle(f"Role changes of {n} robots over {m} slots (initial assignment not counted)")
     return fig
 

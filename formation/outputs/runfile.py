@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Final
 
 import runtime as rt
+from bus_schemas import keys
 
 RUN_FILE_VERSION: Final = 1
 _LOOPBACK: Final = ("127.0.0.1", "localhost", "::1", "[::1]", "0.0.0.0")
@@ -144,6 +145,57 @@ def lookup(port: int) -> RunInfo | None:
     return info
 
 
+ENDPOINT_ENV = "FORMATION_ENDPOINT"
+FLEET_ENV = "FORMATION_FLEET"
+
+
+def live_runs() -> list[RunInfo]:
+    """Every live ``formation up`` registered on this host (stale files removed), by port."""
+    try:
+        names = sorted(runtime_dir().glob("run-*.json"))
+    except OSError:
+        return []
+    out = []
+    for path in names:
+        port = path.stem.removeprefix("run-")
+        if port.isdigit():
+            info = lookup(int(port))
+            if info is not None:
+                out.append(info)
+    return out
+
+
+def resolve_target(ns: argparse.Namespace) -> str:
+    """Fill a tool's endpoint and fleet when not given, and say where they came from.
+
+    Endpoint (no ``--endpoint``/``--zenoh-config``): ``$FORMATION_ENDPOINT``, else the one live
+    ``formation up`` on this host (its run file), else the default. Fleet (``--fleet`` not
+    given, ``ns.fleet`` None): ``$FORMATION_FLEET``, else the fleet of the run registered on
+    the endpoint's port, else the default. Returns "" or a note for the user."""
+    note = ""
+    if not getattr(ns, "zenoh_connect", None) and getattr(ns, "zenoh_config", None) is None:
+        env = os.environ.get(ENDPOINT_ENV, "").strip()
+        if env:
+            ns.zenoh_connect = [env]
+        else:
+            runs = live_runs()
+            if len(runs) == 1:
+                ns.zenoh_connect = [runs[0].endpoint]
+                note = f"the running `formation up` on {runs[0].endpoint}"
+            elif runs:
+                eps = ", ".join(f"{r.endpoint} (fleet {r.fleet})" for r in runs)
+                note = (
+                    f"several `formation up` runs on this host ({eps}): pass --endpoint or set "
+                    f"{ENDPOINT_ENV}; trying the default {rt.DEFAULT_ENDPOINT}"
+                )
+    if hasattr(ns, "fleet") and ns.fleet is None:
+        env = os.environ.get(FLEET_ENV, "").strip()
+        port = endpoint_port(requested_endpoint(ns))
+        info = lookup(port) if port is not None and not env else None
+        ns.fleet = env or (info.fleet if info is not None else keys.DEFAULT_FLEET)
+    return note
+
+
 def requested_endpoint(ns: argparse.Namespace) -> str:
     """The endpoint a tool was pointed at (its first ``--endpoint``, else the default)."""
     connect = getattr(ns, "zenoh_connect", None)
@@ -154,7 +206,9 @@ def tool_settings(ns: argparse.Namespace, identity: str) -> rt.ZenohSettings:
     """Zenoh settings of a local tool (options of ``rt.add_zenoh_arguments``) acting as
     ``identity`` (``operator`` or ``observer``): with ``--zenoh-config`` exactly what was asked;
     otherwise, when an authenticated ``formation up`` is registered on the endpoint's port, its
-    client config for ``identity`` (and its TLS endpoint); else the plain settings."""
+    client config for ``identity`` (and its TLS endpoint); else the plain settings. The
+    endpoint and fleet not given are found first (:func:`resolve_target`)."""
+    resolve_target(ns)
     if getattr(ns, "zenoh_config", None) is None:
         port = endpoint_port(requested_endpoint(ns))
         info = lookup(port) if port is not None else None

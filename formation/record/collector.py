@@ -46,6 +46,7 @@ from bus_schemas import (
     Assignment,
     Clock,
     DecodeError,
+    Fault,
     Leader,
     SetpointBatch,
     Slot,
@@ -65,6 +66,9 @@ from formation.record.collector_live import live_view
 from formation.record.collector_series import Series
 from scenario import Scenario
 
+MAX_FAULTS: Final = 10_000
+"""Fault notices kept at most (a run's scripted faults are a handful)."""
+
 __all__ = ["LiveRobot", "LiveView", "RunCollector", "key_patterns", "slot_ids_of"]
 
 _LEAVES: Final = frozenset(
@@ -72,6 +76,7 @@ _LEAVES: Final = frozenset(
         keys.TRUTH, keys.LEADER, keys.SLOT, keys.ASSIGNMENT, keys.WHEELS, keys.STATUS, keys.CLOCK,
         # the batched forms of a large fleet (plant/coordinator --batch, agent hosts)
         keys.TRUTHS, keys.HOST_WHEELS, keys.HOST_STATUS, keys.SETPOINTS,
+        keys.FAULT,  # the scripted faults' notices: metrics.json "faults"
     }
 )  # fmt: skip
 
@@ -95,6 +100,7 @@ def key_patterns(fleet: str) -> list[str]:
         keys.all_host_wheels_pattern(fleet),
         keys.all_host_status_pattern(fleet),
         keys.setpoints_key(fleet),
+        keys.fault_key(fleet),
     ]
 
 
@@ -177,6 +183,9 @@ class RunCollector:
         self._alive: dict[str, bool] = {}
         self._last_truth_key: float | None = None
         self._last_clock: Clock | None = None
+        # scripted faults' notices (bus_schemas.messages_fault), once each: row key -> entries
+        self._faults: list[tuple[float, dict[str, Any]]] = []
+        self._fault_ids: set[tuple[Any, ...]] = set()
         # Counters: per message name, plus rejected (bad payload), ignored (not ours / unknown).
         self.received: dict[str, int] = {}
         self.rejected = 0
@@ -259,7 +268,7 @@ class RunCollector:
         self.reject_reasons[reason] = self.reject_reasons.get(reason, 0) + 1
         return False
 
-    def feed(self, key: str, payload: bytes | bytearray | memoryview) -> bool:
+    def feed(self, key: str, payload: bytes | bytearray | memoryview) -> bool:  # noqa: PLR0915 (one branch per key the collector reads)
         """Take one sample of the bus. Returns True if it was used, False if it was ignored
         (another fleet, an unknown robot, a key the collector does not need) or rejected (bad
         payload: counted in ``rejected``)."""
@@ -334,12 +343,49 @@ class RunCollector:
             if status.filter is not None:
                 counts = {**status.filter, "min_clearance_m": status.min_clearance_m}
                 self._filter_counters(i, status.t, counts)
+        elif leaf == keys.FAULT:
+            return self._feed_fault(payload)
         else:  # clock
             clock = decode(payload, Clock)
             if isinstance(clock, DecodeError):
                 return self._reject(f"clock: {clock.reason}")
             self._last_clock = clock
         return True
+
+    def _feed_fault(self, payload: bytes | bytearray | memoryview) -> bool:
+        """A scripted fault's notice, kept once (a replayed tick repeats it); requests are the
+        coordinator's business."""
+        msg = decode(payload, Fault)
+        if isinstance(msg, DecodeError):
+            return self._reject(f"fault: {msg.reason}")
+        if msg.request:
+            return False
+        ident = (msg.tick, msg.fault, msg.kind, msg.robot, bool(msg.undo), msg.t)
+        if ident in self._fault_ids or len(self._faults) >= MAX_FAULTS:
+            return False
+        self._fault_ids.add(ident)
+        entry = {
+            "fault": msg.fault,
+            "kind": msg.kind,
+            "robot": msg.robot,
+            "undo": bool(msg.undo),
+            "tick": msg.tick,
+        }
+        self._faults.append((self._row_key(msg.t, msg.tick), entry))
+        return True
+
+    def fault_events(self, origin: float | None = None) -> list[dict[str, Any]]:
+        """The faults sent, in the log's time base (``t_s``: lockstep ``tick * dt``; realtime
+        bus time minus ``origin``, the log's first row)."""
+        out = []
+        for key, entry in self._faults:
+            if self.dt_s is not None:
+                t_s = key * self.dt_s
+            else:
+                base = origin if origin is not None else min(self._truth, default=key)
+                t_s = key - base
+            out.append({**entry, "t_s": t_s})
+        return out
 
     def _feed_batch(self, leaf: str, payload: bytes | bytearray | memoryview) -> bool:
         """A batched message: each entry of a known robot as its per-robot message would be."""
@@ -459,10 +505,24 @@ class RunCollector:
         key = float(k)
         if len(self._truth.get(key, ())) < len(self.robot_ids) or self._leader.max_key < key:
             return False
+        off = self.offline_at(key)
         return all(
-            series.max_key >= key or self._alive.get(f"robot/{rid}") is False
+            series.max_key >= key or self._alive.get(f"robot/{rid}") is False or rid in off
             for rid, series in zip(self.robot_ids, self._wheels, strict=True)
         )
+
+    def offline_at(self, key: float) -> set[str]:
+        """The robots a scripted fault keeps from answering at row ``key`` (killed, paused or
+        cut off, per the notices received: the plant does not wait for them either)."""
+        off: set[str] = set()
+        for at, entry in self._faults:
+            if at > key or entry["robot"] is None:
+                continue
+            if entry["kind"] in ("kill", "pause", "cut_link"):
+                off.add(entry["robot"])
+            elif entry["kind"] in ("resume", "restore_link") and entry["robot"] in off:
+                off.discard(entry["robot"])
+        return off
 
     @property
     def last_clock_tick(self) -> int | None:
@@ -542,7 +602,14 @@ class RunCollector:
             if counts is not None
         }
         log.filter_source = "status" if log.filter_counts else None
-        log.meta = {**dict(meta or {}), "collector": self.stats(info)}
+        fault_origin: float | None = None
+        if rows.size and self.dt_s is None:
+            fault_origin = self.t0_s if self.t0_s is not None else float(rows[0])
+        log.meta = {
+            **dict(meta or {}),
+            "faults": self.fault_events(fault_origin),
+            "collector": self.stats(info),
+        }
         return log
 
     def stats(self, rows_info: Mapping[str, Any] | None = None) -> dict[str, Any]:

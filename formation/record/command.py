@@ -217,7 +217,11 @@ def build_parser() -> argparse.ArgumentParser:
         "(JSON channels with JSON Schemas; open it in Foxglove or run `formation report`).",
     )
     p.add_argument("--out", type=Path, required=True, help="MCAP file to write")
-    p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name (default demo)")
+    p.add_argument(
+        "--fleet",
+        default=None,
+        help="fleet name (default: $FORMATION_FLEET, else the running `formation up`'s, else demo)",
+    )
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     p.add_argument("--raw", action="store_true", help="also keep the msgpack payloads")
     p.add_argument("--no-derived", action="store_true", help="skip the /derived/ channels")
@@ -233,6 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str]) -> int:
     """``formation record``: exit 0 after a clean stop, 1 if the session cannot open."""
     args = build_parser().parse_args(argv)
+    from formation.outputs.runfile import resolve_target
+
+    resolve_target(args)  # --endpoint / --fleet not given: $FORMATION_*, the running fleet
     try:
         keys.check_fleet(args.fleet)
     except ValueError as exc:

@@ -50,10 +50,9 @@ from typing import Any, Final
 import numpy as np
 
 import scenario as scenario_mod
-from bus_schemas import (
-    keys,
-)
+from bus_schemas import DecodeError, PlantStatus, decode, keys
 from formation.outputs import metrics as metrics_mod
+from formation.outputs.recovery import fault_recovery
 from formation.outputs.runlog import RunLog
 from formation.record.latency import LatencySample
 from formation.record.replay import (
@@ -148,8 +147,28 @@ def _t0_bus(rp: Replay, robot_ids: Sequence[str]) -> float | None:
     return None
 
 
+def run_start(rec: Recording, fleet: str) -> float | None:
+    """Realtime: the bus time the plant started its run (``t - sim_t`` of its first status
+    while running), so a recording attached from outside, after the start, measures times and
+    the settling window from the run's start as ``formation up`` does; None without one."""
+    key = keys.plant_status_key(fleet)
+    for ev in rec.events:
+        if ev.key != key or ev.payload is None:
+            continue
+        st = decode(ev.payload, PlantStatus)
+        if isinstance(st, DecodeError) or st.state != "running" or st.mode != "realtime":
+            continue
+        return float(st.t - st.sim_t)
+    return None
+
+
 def leader_losses(
-    log: RunLog, rp: Replay, fleet: str, tol_m: float, dt_s: float | None
+    log: RunLog,
+    rp: Replay,
+    fleet: str,
+    tol_m: float,
+    dt_s: float | None,
+    origin_s: float | None = None,
 ) -> list[dict[str, Any]]:
     """Every loss of the leader's liveliness token during the run, with its recovery time.
 
@@ -160,6 +179,8 @@ def leader_losses(
         return []
     if rp.lockstep:
         origin = 0.0
+    elif origin_s is not None:
+        origin = origin_s
     else:
         t0 = _t0_bus(rp, log.robot_ids)
         if t0 is None:
@@ -263,17 +284,26 @@ def analyze(
         "dt_s": collector.dt_s if lockstep else (scn.dt_s if scn is not None else None),
         "fleet": fleet,
         "source": "recording",
+        "disturbances": [
+            {"t_s": d.t_s, "kind": d.kind, "robot": d.robot}
+            for d in (scn.disturbances if scn is not None else ())
+        ],
     }
     for name in ("seed", "duration_s"):
         if name in rec.run:
             meta[name] = rec.run[name]
+    start = None if lockstep or "settle_s" in rec.run else run_start(rec, fleet)
+    if start is not None:  # attached from outside: the run's own time base (the plant's start)
+        collector.t0_s = start
+        meta["time_base"] = "plant start (from its status)"
     log = collector.build(meta)
     if log.t_s.size == 0:
         raise ReportError(f"{rec.path}: no complete truth frame of fleet {fleet!r}")
     if scn is not None:  # safety accounting (issue 14): from the truth; the filter counters
         # come from the agents' status (formation.record.collector, metrics.safety_metrics)
         metrics_mod.attach_agent(log, scn.agent)
-    duration = float(log.t_s[-1] - log.t_s[0])
+    # the run's length so far (its time base: from the plant's start when known)
+    duration = float(log.t_s[-1] if start is not None else log.t_s[-1] - log.t_s[0])
     if settle_s is None:
         if "settle_s" in rec.run:
             settle_s = float(rec.run["settle_s"])
@@ -284,7 +314,8 @@ def analyze(
     if tol_m is None:
         tol_m = scn.settle_tol_m if scn is not None else 0.05
     m = metrics_mod.compute(log, settle_s, tol_m)
-    m["leader_loss"] = leader_losses(log, rp, fleet, tol_m, collector.dt_s)
+    m["faults"] = fault_recovery(log, tol_m)  # each fault sent, with its recovery
+    m["leader_loss"] = leader_losses(log, rp, fleet, tol_m, collector.dt_s, start)
     m["latency"] = latency_stats(rp.latency, lockstep)
     m["power_peaks"] = power_peaks(log)
     m["recording"] = {

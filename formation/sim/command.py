@@ -103,12 +103,14 @@ def run_and_write(
     """Run ``scn`` in-process and write metrics.json, run.npz and the figures to ``out``; the
     metrics' ``meta.interrupted`` is True if ``stop`` ended the run early."""
     from formation.outputs import metrics
+    from formation.outputs.recovery import fault_recovery
     from formation.sim import simulate
 
     result = simulate.run(scn, seed=seed, duration_s=duration, stop=stop, progress=progress)
     # the same settling time as `formation up` / `formation report` for this duration
     settle_s = metrics.settle_for(scn.settle_s, scn.duration_s if duration is None else duration)
     m = metrics.compute(result.log, settle_s, scn.settle_tol_m)
+    m["faults"] = fault_recovery(result.log, scn.settle_tol_m)  # each fault, with its recovery
     m["meta"]["realtime_factor"] = result.realtime_factor
     m["firmware"] = result.firmware_status
     m["meta"]["interrupted"] = result.interrupted
@@ -168,7 +170,30 @@ def summary(m: dict[str, Any]) -> str:
             f"{'-' if saf['tiebreaks'] is None else saf['tiebreaks']}"
             + ("" if saf["filter_source"] else " (filter counters not reported: truth only)")
         )
+    lines.extend(fault_lines(m))
     return "\n".join(lines)
+
+
+def fault_lines(m: dict[str, Any]) -> list[str]:
+    """One line per fault sent (with its recovery) and per fault that never fired."""
+    out = []
+    for f in m.get("faults", []):
+        if f.get("undo"):
+            continue
+        rec = f.get("recovered_s")
+        who = f" of {f['robot']}" if f.get("robot") else ""
+        out.append(
+            f"fault[{f['fault']}] {f['kind']}{who} at t={f['t_s']:.2f} s: "
+            f"new leader {f.get('new_leader')}, back in formation "
+            f"{'never' if rec is None else f'after {rec:.2f} s'}, peak error "
+            f"{_m(f.get('peak_error_m'))}, least separation {_m(f.get('min_separation_m'))}"
+        )
+    return out
+
+
+def pending_lines(m: dict[str, Any]) -> list[str]:
+    """The faults of the scenario that never fired (a condition that never came)."""
+    return [f"fault[{p['fault']}] {p['why']}" for p in m.get("meta", {}).get("faults_pending", [])]
 
 
 def main(argv: list[str]) -> int:
@@ -228,6 +253,8 @@ def main(argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 130
+    for line in pending_lines(m):  # a clear report at the end, even with --quiet
+        print(f"formation sim: warning: {line}", file=sys.stderr)
     if not args.quiet:
         print(f"scenario {scn.name}: {scn.description}")
         print(summary(m))

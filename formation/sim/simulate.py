@@ -1,6 +1,12 @@
 """The closed loop in one process, over the same cores as the distributed runtime (no Zenoh).
 
 Per control tick (``dt_s``), in this order:
+0. scripted faults due at this tick fire (``[[fault]]``, :mod:`scenario.faults`), with their
+   in-process meaning (:class:`FaultPlay`): a killed, paused or cut-off robot is *offline* (the
+   coordinator no longer counts it, as when its liveliness token vanishes, and the plant stops
+   its wheels); a killed or paused agent's firmware does not step, a cut-off one steps on the
+   inputs it had; an e-stop latches the firmware of its scope; a killed coordinator's outputs
+   stop until its hot standby takes over (``takeover_s``); a camera loss occludes the robot;
 1. scheduled disturbances start (drag / teleport the truth);
 2. the camera captures truth at its own rate and delivers noisy poses after its latency;
 3. the coordinator core runs on the latest measured poses (virtual leader, slots, assignment);
@@ -42,7 +48,9 @@ from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick
 from robot_agent.core.neighbours import is_current, neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
+from scenario.faults import FaultAction, FaultScheduler, FleetFaults, fleet_view
 from sim_plant.core.encoders import WheelEncoders
+from sim_plant.core.sensors import Camera
 
 # Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
 # firmware builds its WheelCommand the same way).
@@ -64,6 +72,72 @@ class SimResult:
 
 
 PROGRESS_EVERY_TICKS = 500  # how often run() calls its progress callback
+_ZERO_CMD = WheelCommand(0.0, 0.0, 0.0, 0.0, Mode.IDLE, None, False)  # a dead agent's "command"
+
+
+class FaultPlay:
+    """The scenario's ``[[fault]]`` entries played in-process (module docstring, step 0)."""
+
+    def __init__(self, scenario: Scenario, firmwares: list[Firmware]) -> None:
+        self.ids = list(scenario.robot_ids)
+        self.index = {rid: i for i, rid in enumerate(self.ids)}
+        self.scheduler = FaultScheduler(scenario.faults)
+        self.state = FleetFaults()
+        self.firmwares = firmwares
+        self.l_m = scenario.agent.geometry.ref_offset_m
+        self.tol_m = scenario.settle_tol_m
+        self.offline: set[int] = set()  # robot indices the coordinator and plant drop
+        self.frozen: set[int] = set()  # killed or paused: the firmware does not step
+        # a cut-off robot's inputs (pose, rx, capture), frozen at its first step after the cut
+        self.cut_inputs: dict[int, tuple[Any, float, float | None] | None] = {}
+        self.leader: str | None = None
+        self.in_formation = False
+        self.sent: list[dict[str, Any]] = []
+
+    def fire(self, k: int, t_s: float, camera: Camera) -> None:
+        """Apply the faults due at tick ``k`` (time ``t_s``)."""
+        for act in self.scheduler.due(t_s, leader=self.leader, in_formation=self.in_formation):
+            self._apply(act, t_s, camera)
+            self.sent.append({**act.as_dict(), "tick": k})
+
+    def _apply(self, act: FaultAction, t_s: float, camera: Camera) -> None:
+        st = self.state
+        st.apply(act)
+        i = self.index.get(act.robot) if act.robot is not None else None
+        if act.kind == "camera_loss" and i is not None:
+            camera.occlude(i, t_s, t_s + (act.duration_s or 0.0))
+        elif act.kind in ("estop", "release"):
+            for j, rid in enumerate(self.ids):
+                fw = self.firmwares[j]
+                if st.stopped(rid):
+                    fw.engage_estop()
+                else:
+                    fw.release_estop()
+        elif act.kind == "cut_link" and i is not None and i not in self.cut_inputs:
+            self.cut_inputs[i] = None  # taken at its firmware's step (_faulted_step)
+        elif act.kind == "restore_link" and i is not None:
+            self.cut_inputs.pop(i, None)
+        self.offline = {self.index[r] for r in st.offline()}
+        self.frozen = {self.index[r] for r in st.killed | st.paused}
+
+    def coordinator_input(
+        self, fresh: dict[str, tuple[float, float, float]]
+    ) -> dict[str, tuple[float, float, float]]:
+        """The poses the coordinator counts: an offline robot's liveliness is gone."""
+        if not self.offline:
+            return fresh
+        gone = {self.ids[i] for i in self.offline}
+        return {r: q for r, q in fresh.items() if r not in gone}
+
+    def observe(
+        self, out: CoordinatorOutput, counted: dict[str, tuple[float, float, float]]
+    ) -> None:
+        """After the coordinator's tick on the poses it ``counted``: who leads, and whether
+        every robot is in formation (the condition ``when = "in_formation"``;
+        :func:`scenario.faults.fleet_view`, the coordinator node's rule too)."""
+        self.leader, self.in_formation = fleet_view(
+            out.assignment, out.rows, out.slot_ids, counted, self.l_m, self.tol_m
+        )
 
 
 def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order)
@@ -131,6 +205,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     log_cmds: list[list[WheelCommand]] = []
     slot_of_changes: list[tuple[int, list[int]]] = []
 
+    faults = FaultPlay(scenario, firmwares) if scenario.faults else None
     steps = [fw.step for fw in firmwares]
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
@@ -142,6 +217,9 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         t = tick_time(k, dt)
         if progress is not None and k % PROGRESS_EVERY_TICKS == 0:
             progress(t, duration)
+        # 0. scripted faults
+        if faults is not None:
+            faults.fire(k, t, camera)
         # 1. disturbances
         while pending and pending[0].t_s <= t + 1e-9:
             d = pending.pop(0)
@@ -184,7 +262,12 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                     fresh[ids[i]] = q
                     if pose_rx[i] < oldest_rx:
                         oldest_rx = pose_rx[i]
-        out = coord.tick(t, fresh)
+        if faults is None:
+            out = coord.tick(t, fresh)
+        else:
+            counted = faults.coordinator_input(fresh)
+            out = coord.tick(t, counted)
+            faults.observe(out, counted)
         # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
         prev_out = outputs.for_clock(k)
         t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
@@ -198,6 +281,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             prev_asg = {}
             prev_approach = {}
         for i, rid, step in robots:
+            if faults is not None and (i in faults.frozen or i in faults.cut_inputs):
+                if faults.cut_inputs.get(i, 0) is None:  # the pose it had when cut off
+                    faults.cut_inputs[i] = (poses[i], pose_rx[i], pose_cap[i])
+                cmds.append(_faulted_step(faults, i, t, step))
+                continue
             sp = None
             slot = prev_asg.get(rid)
             if slot is not None:
@@ -220,6 +308,9 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
         for i, wheels in link.poll(t):
             applied[i] = wheels
+        if faults is not None:  # the plant stops an offline robot's wheels
+            for i in faults.offline:
+                applied[i] = (0.0, 0.0)
         # record the tick (truth at t, before integrating to t + dt)
         log_truth.append(truth)
         leader = out.leader
@@ -229,7 +320,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         if out.changed or k == 0:
             asg = out.assignment
             slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
-        outputs.add(k, out)
+        if faults is None or not faults.state.coordinator_down(t):
+            outputs.add(k, out)
         # 6. plant
         plant.step(dt, applied)
     log = RunLog.from_ticks(
@@ -258,10 +350,35 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         "link": {"sent": link.sent, "dropped": link.dropped},
         "path_warnings": [c.message() for c in path_conflicts(scenario, duration)],
     }
+    log.meta["faults"] = [] if faults is None else faults.sent
+    log.meta["faults_pending"] = [] if faults is None else faults.scheduler.pending()
+    log.meta["disturbances"] = [
+        {"t_s": d.t_s, "kind": d.kind, "robot": d.robot} for d in scenario.disturbances
+    ]
     if interrupted:
         log.meta["interrupted"] = True
     status = {rid: _status_dict(fw) for rid, fw in zip(ids, firmwares, strict=True)}
     return SimResult(log=log, wall_s=wall, firmware_status=status, interrupted=interrupted)
+
+
+def _faulted_step(faults: FaultPlay, i: int, t_s: float, step: Callable[..., Any]) -> Any:
+    """Robot ``i`` under a fault: a killed or paused agent does not step (zero wheels, the
+    plant's too); a cut-off one steps on the pose it had, with no setpoint or neighbour."""
+    if i in faults.frozen:
+        return _ZERO_CMD
+    frozen = faults.cut_inputs[i]
+    assert frozen is not None
+    pose, rx, cap = frozen
+    return step(
+        t_s,
+        pose=pose,
+        pose_rx_s=rx,
+        setpoint=None,
+        setpoint_rx_s=t_s,
+        neighbours=[],
+        pose_capture_s=cap,
+        wheel_speeds=None,
+    )
 
 
 def _event_dict(e: Any, ids: list[str]) -> dict[str, Any]:

@@ -53,6 +53,7 @@ from robot_agent.core.lockstep import Replay, SetpointWindow
 from robot_agent.core.neighbour_table import NeighbourTable
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.safety_filter import Neighbour
+from robot_agent.node.agent_faults import AgentFaults
 from robot_agent.node.estop_shell import EstopQuery, EstopWitness
 from robot_agent.node.motor_output import MotorOutput
 from robot_agent.node.peer_status import PeerStatusInputs, clearance_or_none, filter_counters
@@ -196,6 +197,8 @@ class AgentNode:
         # batch and answers neighbour queries from its shared spatial index.
         self.publish_wheels = publish_wheels
         self.neighbour_fn = neighbour_fn
+        self.scripted = AgentFaults(self.robot_id)  # scripted faults, lockstep (agent_faults)
+        self.fault_key = keys.fault_key(fleet)
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -387,15 +390,30 @@ class AgentNode:
         except Exception as exc:
             self.faults.internal("on_clock", exc)
 
+    def take_arrivals(self, t_k: float) -> None:
+        """Lockstep: poses and neighbours received since the last clock count as received at
+        ``t_k``."""
+        self.sim_t = t_k
+        if self._pose_pending:
+            self.pose_rx_s = t_k
+            self._pose_pending = False
+        self.neighbour_table.settle(t_k)
+
+    def on_fault(self, rx: rt.Received) -> None:
+        """A scripted fault's notice (robot_agent.node.agent_faults); never raises."""
+        try:
+            self.scripted.on_fault(self, rx.payload)
+        except Exception as exc:
+            self.faults.internal("on_fault", exc)
+
     def clock_step(self, k: int, t_k: float) -> WheelCommand | None:
         """Lockstep tick k at sim time ``t_k``: poses and neighbours received since the last
-        clock count as received at ``t_k``, the setpoint of tick k-1 is chosen, one step."""
+        clock count as received at ``t_k``, the setpoint of tick k-1 is chosen, one step (none
+        while a scripted fault keeps this robot out: robot_agent.node.agent_faults)."""
         try:
-            self.sim_t = t_k
-            if self._pose_pending:
-                self.pose_rx_s = t_k
-                self._pose_pending = False
-            self.neighbour_table.settle(t_k)
+            if self.scripted.busy and not self.scripted.at_clock(self, k, t_k):
+                return None
+            self.take_arrivals(t_k)
             self.setpoint = self._setpoints.for_clock(k)
             self._replay.last_tick = k
             return self.step(t_k, tick=k)

@@ -355,6 +355,12 @@ class HostNode:
         except Exception as exc:
             self.faults.internal("on_setpoints", exc)
 
+    def on_fault(self, rx: rt.Received) -> None:
+        """A scripted fault's notice, for each robot of the host (robot_agent.node.agent_faults:
+        a killed robot of a host stops stepping for good; the host lives on)."""
+        for n in self.nodes.values():
+            n.on_fault(rx)
+
     def on_clock(self, rx: rt.Received) -> None:
         """Lockstep clock k: every robot steps at t_k; one batch with ``tick: k`` answers."""
         try:

@@ -145,6 +145,7 @@ async def _node(
         await attach_host_estop_state(host, io)
         io.subscribe(host.setpoints_key, host.on_setpoints)
         if lockstep:
+            io.subscribe(keys.fault_key(fleet), host.on_fault)  # scripted faults, lockstep
             io.subscribe(host.clock_key, host.on_clock)
         io.subscribe(host.poses_key, host.on_poses)
         if not lockstep:  # the other robots' modes: cooperative neighbours

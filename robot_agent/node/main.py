@@ -15,6 +15,7 @@ import contextlib
 import json
 import math
 import os
+import signal
 import sys
 import threading
 import time
@@ -377,6 +378,10 @@ async def _node(
     io.subscribe(node.setpoint_key, node.on_setpoint)
     io.subscribe(node.poses_key, node.on_poses)
     if lockstep:
+        # scripted faults (robot_agent.node.agent_faults): subscribed before the clock, so a
+        # notice sent before a clock is handled before it; a kill is this process's death
+        node.scripted.die = lambda: os.kill(os.getpid(), signal.SIGKILL)
+        io.subscribe(node.fault_key, node.on_fault)
         io.subscribe(node.clock_key, node.on_clock)
     else:  # the other robots' modes: cooperative neighbours (robot_agent.core.neighbours)
         io.subscribe(keys.all_status_pattern(setup.fleet), node.peer_status.on_status)

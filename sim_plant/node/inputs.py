@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from typing import Final
 
 import numpy as np
@@ -53,6 +53,7 @@ class PlantInputs:
         send: realtime, a valid command of robot ``i``: ``send(i, command, pose_t, rx_s)``
             (the frame stamp it was computed from, if any, and its receive time).
         stop_wheels: robot ``i``'s agent is gone: its applied wheel speeds go to zero.
+        offline: the robots a scripted fault keeps out (sim_plant.node.faults): not waited for.
     """
 
     def __init__(
@@ -64,8 +65,10 @@ class PlantInputs:
         current_tick: Callable[[], int],
         send: Callable[[int, LinkCmd, float | None, float], None],
         stop_wheels: Callable[[int], None],
+        offline: Callable[[], Collection[str]] = tuple,
     ) -> None:
         self.ids = list(ids)
+        self._offline = offline  # robots a scripted fault keeps out (no answer awaited)
         self.index = {rid: i for i, rid in enumerate(self.ids)}
         n = len(self.ids)
         self.lockstep = lockstep
@@ -94,14 +97,18 @@ class PlantInputs:
 
     def answered(self, k: int) -> bool:
         """Every live agent answered tick ``k`` and, if a coordinator is alive, its leader."""
+        off = self._offline()
         for rid in self.alive:
-            if self.answer_tick[self.index[rid]] != k:
+            if self.answer_tick[self.index[rid]] != k and rid not in off:
                 return False
         return not self.coordinators or self.leader_tick == k
 
     def missing(self, k: int) -> list[str]:
         """Who has not answered tick ``k``: live robots in id order, then ``"coordinator"``."""
-        out = [r for r in sorted(self.alive) if self.answer_tick[self.index[r]] != k]
+        off = self._offline()
+        out = [
+            r for r in sorted(self.alive) if self.answer_tick[self.index[r]] != k and r not in off
+        ]
         if self.coordinators and self.leader_tick != k:
             out.append("coordinator")
         return out

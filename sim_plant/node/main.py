@@ -141,6 +141,7 @@ async def _node(
     io.subscribe(node.wheels_pattern, inputs.on_wheels)
     io.subscribe(node.host_wheels_pattern, inputs.on_host_wheels)
     io.subscribe(node.disturbance_key, inputs.on_disturbance)
+    io.subscribe(node.fault_key, node.on_fault)
     if ns.lockstep:
         io.subscribe(node.leader_key, inputs.on_leader)
     io.declare_token(node.alive_key)

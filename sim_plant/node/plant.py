@@ -50,6 +50,7 @@ from sim_plant.core.accounting import SeparationMonitor
 from sim_plant.core.encoders import WheelEncoders
 from sim_plant.core.plant import Plant
 from sim_plant.core.sensors import Camera, CommandLink
+from sim_plant.node.faults import PlantFaults
 from sim_plant.node.inputs import _DRAG, LinkCmd, PlantInputs
 from sim_plant.node.outputs import PlantOutputs
 
@@ -121,6 +122,7 @@ class PlantNode:
         self.clock_key = keys.clock_key(fleet)
         self.leader_key = keys.leader_key(fleet)
         self.disturbance_key = keys.disturbance_key(fleet)
+        self.fault_key = keys.fault_key(fleet)
         self.wheels_pattern = keys.all_wheels_pattern(fleet)
         self.host_wheels_pattern = keys.all_host_wheels_pattern(fleet)
         self.alive_robots_pattern = keys.alive_robots_pattern(fleet)
@@ -136,6 +138,7 @@ class PlantNode:
         self.state = "waiting"
         self.tick = -1
         self.sim_t = 0.0
+        self.scripted = PlantFaults()  # scripted faults' notices (sim_plant.node.faults)
         self.inputs = PlantInputs(
             self.ids,
             lockstep=lockstep,
@@ -143,6 +146,7 @@ class PlantNode:
             current_tick=lambda: self.tick,
             send=self._send,
             stop_wheels=self._stop_wheels,
+            offline=lambda: self.scripted.offline,
         )
         self.outputs = PlantOutputs(
             self.ids, self.fleet, publish, batch=batch, poses=poses, lockstep=lockstep
@@ -233,6 +237,13 @@ class PlantNode:
                 self.applied[i, 0] = wr
                 self.applied[i, 1] = wl
 
+    def on_fault(self, rx: rt.Received) -> None:
+        """A scripted fault's notice (sim_plant.node.faults); never raises."""
+        try:
+            self.scripted.on_fault(self, rx.payload)
+        except Exception as exc:
+            self.faults.internal("on_fault", exc)
+
     # -- lockstep ------------------------------------------------------------------------------
 
     def _publish_clock(self, k: int, t_s: float) -> None:
@@ -295,6 +306,7 @@ class PlantNode:
                 t = tick_time(k, dt)
                 self.tick = k
                 self.sim_t = t
+                self.scripted.apply_tick(self, sim, k, t)
                 self._apply_disturbances(sim, t)
                 truth = self.sense(sim, t)
                 self.clock_tracking = self.inputs.tracking_answers(k - 1)

@@ -96,6 +96,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("assignment"),
         _f("coordinator/main/heartbeat"),
         _f("coordinator/main/status"),
+        _f("fault"),  # scripted faults' notices (issue 32)
     },
     "localization": {*(_f(f"robot/{r}/pose") for r in ROBOTS), _f("poses"), *CAMERA_STATUS},
     "plant": {
@@ -114,6 +115,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("operator/goal"),
         _f("operator/path"),
         _f("operator/shape"),
+        _f("fault"),
     },
     "observer.rec": set(),
 }
@@ -140,8 +142,16 @@ EXPECT_READ: dict[str, set[str]] = {
         *_ALL_STATUS,
         _f("estop"),
         _f("clock"),
+        _f("fault"),
     },
-    "host.h1": {_f("setpoints"), _f("poses"), *_ALL_STATUS, _f("estop"), _f("clock")},
+    "host.h1": {
+        _f("setpoints"),
+        _f("poses"),
+        *_ALL_STATUS,
+        _f("estop"),
+        _f("clock"),
+        _f("fault"),
+    },
     "coordinator.main": {
         *_ALL_POSES,
         *(_f(f"robot/{r}/status") for r in ROBOTS),
@@ -150,6 +160,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("leader"),  # a standby checks trajectory origins against it (coordinator.core.election)
         _f("estop"),
         _f("clock"),
+        _f("fault"),  # an operator's request (formation fault --at T)
         *(_f(f"coordinator/{c}/{x}") for c in ("main", "standby") for x in ("heartbeat", "status")),
         # the operator's commands (a standby keeps them to continue after a takeover)
         _f("operator/cmd_vel"),
@@ -163,6 +174,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("host/h1/wheels"),
         _f("disturbance"),
         _f("leader"),
+        _f("fault"),
     },
     "operator": set(DATA),
     "observer.rec": set(DATA),

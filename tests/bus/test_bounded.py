@@ -114,10 +114,10 @@ def test_fault_options_before_or_after_the_command() -> None:
         ns = parse(*argv)
         assert (ns.command, ns.robot, ns.fleet, ns.timeout) == ("kill", "r1", "f", 2.0)
         assert ns.zenoh_connect == ["tcp/127.0.0.1:9"]
-    ns = parse("kill-leader")
-    assert (ns.fleet, ns.timeout, ns.zenoh_connect) == (keys.DEFAULT_FLEET, 3.0, None)
+    ns = parse("kill-leader")  # the fleet is found later: $FORMATION_FLEET, the run file, demo
+    assert (ns.fleet, ns.timeout, ns.zenoh_connect) == (None, 3.0, None)
     text = " ".join(fault.build_parser().format_help().split())
-    assert "examples:" in text and "default 3 s" in text and "default demo" in text
+    assert "examples:" in text and "default 3 s" in text and "else demo" in text
 
 
 def test_fault_bad_arguments_exit_2(capsys: pytest.CaptureFixture[str]) -> None:

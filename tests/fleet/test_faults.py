@@ -33,6 +33,7 @@ from conftest import Spawner, free_port
 from support.fault_fleet import SCENARIO, Fleet, Observer, fleet_fixture, until, wait_formed
 
 from bus_schemas import Assignment, Heartbeat, Wheels
+from formation.testing import FleetRun
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
@@ -45,9 +46,10 @@ COLLISION_M = 2 * BODY_RADIUS_M
 # ---------------------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
-    """The module's one fleet (with a standby coordinator), shared by its tests in file order."""
+@pytest.fixture(scope="module", name="shared")
+def shared_fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
+    """The module's one fleet (with a standby coordinator), shared by its tests in file order
+    (``fleet`` is the pytest plugin's fixture: a fleet of its own per test, below)."""
     yield from fleet_fixture(tmp_path_factory, "faults", "--standby")
 
 
@@ -77,7 +79,7 @@ def zero_in_estop(w: Wheels) -> bool:
     return w.omega_r == 0.0 and w.omega_l == 0.0 and w.mode == "estop"
 
 
-async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None:
+async def test_estop_fleet_and_robot_latched_until_release(shared: Fleet) -> None:
     """Judged by the agents' own acknowledgement (their first wheels in mode ESTOP), not by the
     observer's receive time: next to CPU hogs an agent can take the e-stop 100+ ms after the
     fault CLI sent it, and the wheels it computed before that still arrive after. After the
@@ -85,10 +87,10 @@ async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None
     caught a real defect, r2 released by a starved coordinator's stale query answer
     (tests/bus/test_estop_starved.py)."""
     robots = {"r1", "r2", "r3"}
-    await wait_formed(fleet, timeout_s=40.0)
-    obs = fleet.obs
+    await wait_formed(shared, timeout_s=40.0)
+    obs = shared.obs
     try:
-        _, t_stop = fleet.fault("estop")
+        _, t_stop = shared.fault("estop")
 
         def all_zero_since(t: float) -> dict[str, tuple[float, float]] | None:
             """Each robot's first zero wheels since ``t``: (the agent's stamp, our receipt)."""
@@ -112,11 +114,11 @@ async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None
         check_stopped_after_ack(obs, acks, t_stop)
         assert {s.mode for s in obs.latest_status().values()} == {"estop"}
 
-        fleet.fault("release")
-        await wait_formed(fleet, timeout_s=10.0)
+        shared.fault("release")
+        await wait_formed(shared, timeout_s=10.0)
 
         # one robot: only r2 stops
-        _, t_stop = fleet.fault("estop", "r2")
+        _, t_stop = shared.fault("estop", "r2")
         await until(
             lambda: (st := obs.latest_status().get("r2")) is not None and st.mode == "estop",
             2.0,
@@ -135,20 +137,20 @@ async def test_estop_fleet_and_robot_latched_until_release(fleet: Fleet) -> None
             2.0,
             f"r1 and r3 tracking while r2 is stopped: {obs.latest_status()}",
         )
-        fleet.fault("release", "r2")
-        await wait_formed(fleet, timeout_s=10.0)
+        shared.fault("release", "r2")
+        await wait_formed(shared, timeout_s=10.0)
     except BaseException:
         # The fleet is shared: leave it released, so this failure does not fail the next tests
         # too (they would wait for a formation with r2 still in ESTOP).
         with contextlib.suppress(Exception):
-            fleet.fault("release")
-            fleet.fault("release", "r2")
+            shared.fault("release")
+            shared.fault("release", "r2")
         raise
 
 
-async def test_kill_leader_reassigns_within_50ms_and_reforms(fleet: Fleet) -> None:
-    obs = fleet.obs
-    await wait_formed(fleet)
+async def test_kill_leader_reassigns_within_50ms_and_reforms(shared: Fleet) -> None:
+    obs = shared.obs
+    await wait_formed(shared)
     await asyncio.sleep(random.uniform(0.0, 1.0))  # a random moment of the loop
     before = obs.latest_assignment()
     assert before is not None and before.leader is not None
@@ -160,7 +162,7 @@ async def test_kill_leader_reassigns_within_50ms_and_reforms(fleet: Fleet) -> No
         ref[who] = math.hypot(
             tr.x + 0.05 * math.cos(tr.theta) - slot0.x, tr.y + 0.05 * math.sin(tr.theta) - slot0.y
         )
-    line, t_kill = fleet.fault("kill-leader")
+    line, t_kill = shared.fault("kill-leader")
     assert f"killed leader {old}" in line
 
     def reassigned() -> tuple[float, Assignment] | None:
@@ -181,7 +183,7 @@ async def test_kill_leader_reassigns_within_50ms_and_reforms(fleet: Fleet) -> No
 
     # the survivors kept tracking (never left TRACKING) while re-forming, and re-formed
     await asyncio.sleep(1.0)
-    await wait_formed(fleet, set(others), timeout_s=20.0)
+    await wait_formed(shared, set(others), timeout_s=20.0)
     t_formed = time.monotonic()
     modes = {s.mode for _, who, s in obs.get("status", t_kill) if who in others}
     assert modes == {"tracking"}, modes
@@ -195,18 +197,18 @@ async def test_kill_leader_reassigns_within_50ms_and_reforms(fleet: Fleet) -> No
     )
     sep = obs.min_separation(t_kill)
     assert sep > COLLISION_M, f"min separation {sep:.3f} m"
-    await wait_formed(fleet, timeout_s=25.0)
+    await wait_formed(shared, timeout_s=25.0)
 
 
 async def test_paused_agent_is_dropped_within_1s_and_does_not_fight_on_resume(
-    fleet: Fleet,
+    shared: Fleet,
 ) -> None:
-    obs = fleet.obs
-    await wait_formed(fleet)
+    obs = shared.obs
+    await wait_formed(shared)
     before = obs.latest_assignment()
     assert before is not None
     victim = next(r for r, s in sorted(before.robots.items()) if s != 0)
-    line, t_pause = fleet.fault("pause", victim)
+    line, t_pause = shared.fault("pause", victim)
     pid = re.search(r"\(pid (\d+)\)", line)
     assert pid is not None, line
     try:
@@ -243,14 +245,14 @@ async def test_paused_agent_is_dropped_within_1s_and_does_not_fight_on_resume(
     ]
     assert all(w.omega_r == 0.0 and w.omega_l == 0.0 for w in early), early[:3]
     assert obs.min_separation(t_pause) > COLLISION_M
-    await wait_formed(fleet, timeout_s=25.0)
+    await wait_formed(shared, timeout_s=25.0)
 
 
-async def test_kill_active_coordinator_standby_takes_over_without_jump(fleet: Fleet) -> None:
-    obs = fleet.obs
-    await wait_formed(fleet)
+async def test_kill_active_coordinator_standby_takes_over_without_jump(shared: Fleet) -> None:
+    obs = shared.obs
+    await wait_formed(shared)
     before = dict(obs.latest_assignment().robots)  # type: ignore[union-attr]
-    line, t_kill = fleet.fault("kill-coordinator")
+    line, t_kill = shared.fault("kill-coordinator")
     killed = re.search(r"killed coordinator (\S+)", line)
     assert killed is not None
     old = killed.group(1)
@@ -289,6 +291,31 @@ async def test_kill_active_coordinator_standby_takes_over_without_jump(fleet: Fl
 # ---------------------------------------------------------------------------------------------
 # Plant and router restarts (nodes started one by one)
 # ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.fleet(SCENARIO, duration_s=60, hosts=0, extra=["--standby", "--respawn", "1.0"])
+async def test_kill_leader_through_the_plugin_fixture_and_its_recovery(fleet: FleetRun) -> None:
+    """The same fault through the pytest plugin users have (formation.pytest_plugin): a fleet
+    of its own, the kill by the operator's tool, and the recovery as the run's metrics.json
+    measures it (issue 32)."""
+    await fleet.wait_in_formation(timeout_s=40.0, tol_m=0.06)
+    old = fleet.leader
+    assert old is not None
+    assert f"killed leader {old}" in await fleet.kill_leader()
+    await asyncio.sleep(1.0)
+    # back within the scenario's settle_tol_m (the tolerance metrics.json measures with), and
+    # staying there: the respawned agent has rejoined by then
+    await fleet.wait_in_formation(timeout_s=30.0)
+    await asyncio.sleep(3.0)
+    await fleet.wait_in_formation(timeout_s=30.0)
+    await fleet.stop()
+    (kill,) = [f for f in fleet.recovery() if f["kind"] == "kill"]
+    assert kill["robot"] == old and kill["new_leader"] not in (None, old)
+    assert kill["detection_s"] is not None and kill["detection_s"] < 0.1  # frames at 30 Hz
+    assert kill["recovered_s"] is not None and kill["recovered_s"] < 40.0
+    assert kill["min_separation_m"] > COLLISION_M
+    deaths = [e["event"] for e in fleet.metrics["meta"]["events"] if "exited" in e["event"]]
+    assert deaths and deaths[0].startswith(f"agent-{old}")
 
 
 async def test_plant_and_router_restart_agents_survive_and_loop_resumes(

@@ -40,6 +40,8 @@ SKIP_RULES: list[tuple[str, str]] = [
     (r"^make (test|demo)\b", "the whole suite / the demo take minutes; `make` targets run in CI"),
     (r"^python bench/", "a benchmark: minutes of full load; its figures are in docs/benchmarks.md"),
     (r"\.\.\.|<|\bNAME\b|\bFILE\b|\bHOST\b|\brK\b|\bDIR\b|\bS\b", "a template with placeholders"),
+    (r"my-fleet\.toml|test_my_fleet\.py", "the tutorial's own files: "
+     "test_the_tutorial_runs_end_to_end runs docs/tutorial.md in order"),
     (r"^formation fault\b", "needs a running fleet (tests/fleet/test_faults.py)"),
     (r"^formation (teleop|goal|path|shape)\b", "drives a running fleet "
      "(tests/bus/test_operator.py, tests/fleet/test_operator_fleet.py)"),
@@ -283,6 +285,62 @@ def test_every_scenario_key_is_in_docs_scenarios() -> None:
     names |= {"ids", "count", "initial", "method", "greedy", "optimal", "sparse", "n", "slots"}
     names |= {"drag", "teleport", "camera_loss", "phi", "b_m", "parent", "phi_rad"}
     names |= {"arena", "obstacle", "safety_filter", "circle", "segment", "polygon", "points"}
+    from scenario.faults import CONDITIONS, FAULT_KINDS, KEYS, ROLES
+
+    names |= set(FAULT_KINDS) | set(ROLES) | set(CONDITIONS) | set(KEYS)
     missing = sorted(n for n in names if not re.search(rf"\b{re.escape(n)}\b", doc))
     assert not missing, missing
     assert "[agent.safety]" not in (REPO_ROOT / "docs" / "faults.md").read_text()
+
+
+def _tutorial() -> tuple[dict[str, str], list[str]]:
+    """docs/tutorial.md: its files (a toml or python block whose first line is ``# NAME...``)
+    and the commands of its shell blocks that use them, in order."""
+    text = (REPO_ROOT / "docs" / "tutorial.md").read_text()
+    files: dict[str, str] = {}
+    for m in re.finditer(r"^```(toml|python)\n(.*?)^```", text, re.S | re.M):
+        first = m.group(2).splitlines()[0]
+        name = re.match(r"# ([\w.-]+)", first)
+        assert name is not None, f"a tutorial file block must open with `# NAME`: {first!r}"
+        files[name.group(1)] = m.group(2)
+    commands = [
+        c
+        for block in _code_blocks(text)
+        for line in block.splitlines()
+        for c in _clean(line)
+        if re.search(r"my-fleet|test_my_fleet", c)
+    ]
+    return files, commands
+
+
+@pytest.mark.slow
+@pytest.mark.zenoh
+def test_the_tutorial_runs_end_to_end(tmp_path: Path) -> None:
+    """The tutorial's scenario (an obstacle, a scripted leader kill) in one process and as
+    processes in lockstep (equal metrics, the kill at the same tick), then its pytest fault
+    test file, each command as written, in a fresh folder."""
+    import json
+
+    files, commands = _tutorial()
+    assert set(files) == {"my-fleet.toml", "test_my_fleet.py"}
+    for name, body in files.items():
+        (tmp_path / name).write_text(body)
+    assert [c.split()[:2] for c in commands] == [
+        ["formation", "sim"], ["formation", "up"], ["python", "-m"],
+    ]  # fmt: skip
+    for cmd in commands:
+        argv = shlex.split(cmd)
+        if argv[0] == "formation":
+            argv = [sys.executable, "-m", "formation", *argv[1:]]
+            if argv[3] == "up":
+                argv += ["--endpoint", f"tcp/127.0.0.1:{free_port()}", "--quiet"]
+        else:
+            argv = [sys.executable, *argv[1:], "-p", "no:cacheprovider"]
+        p = subprocess.run(
+            argv, cwd=tmp_path, env=child_env(), capture_output=True, text=True, timeout=600
+        )
+        assert p.returncode == 0, (cmd, p.stdout[-2000:], p.stderr[-2000:])
+    sim = json.loads((tmp_path / "runs" / "my-fleet" / "metrics.json").read_text())
+    up = json.loads((tmp_path / "runs" / "my-fleet-up" / "metrics.json").read_text())
+    assert sim["robots"] == up["robots"] and sim["run"] == up["run"]
+    assert sim["faults"] == up["faults"] and sim["faults"][0]["kind"] == "kill"

@@ -19,6 +19,7 @@ from bus_schemas import (
     CoordinatorStatus,
     Disturbance,
     Estop,
+    Fault,
     Heartbeat,
     Leader,
     PlantStatus,
@@ -116,6 +117,7 @@ def test_key_builders() -> None:
     assert keys.estop_key(f) == "formation/demo/estop"
     assert keys.clock_key(f) == "formation/demo/clock"
     assert keys.disturbance_key(f) == "formation/demo/disturbance"
+    assert keys.fault_key(f) == "formation/demo/fault"
     assert keys.heartbeat_key(f, "standby") == "formation/demo/coordinator/standby/heartbeat"
     assert keys.poses_key(f) == "formation/demo/poses"
     assert keys.alive_robot_key(f, "r1") == "formation/demo/alive/robot/r1"
@@ -188,6 +190,7 @@ def test_key_parse_round_trip(fleet: str, robot: str, name: str, slot: int) -> N
         (keys.estop_key, Estop),
         (keys.clock_key, Clock),
         (keys.disturbance_key, Disturbance),
+        (keys.fault_key, Fault),
         (keys.poses_key, PoseBatch),
         (keys.setpoints_key, SetpointBatch),
         (keys.truths_key, TruthBatch),

@@ -23,6 +23,7 @@ from bus_schemas import (
     CoordinatorStatus,
     Disturbance,
     Estop,
+    Fault,
     Goal,
     Heartbeat,
     Leader,
@@ -146,6 +147,9 @@ GOLDEN_MESSAGES: dict[str, Any] = {
     "estop": Estop(t=30.0, engage=True, robot=None),
     "estop_robot": Estop(t=31.0, engage=False, robot="r3"),
     "clock": Clock(t=0.02, seq=1, tick=1),
+    "fault_notice": Fault(t=7.48, tick=374, fault=0, kind="kill", robot="r1"),
+    "fault_request": Fault(t=12.0, request=True, kind="estop", duration_s=2.0),
+    "fault_request_role": Fault(t=30.0, request=True, kind="kill", role="leader"),
     "disturbance_drag": Disturbance(
         t=20.0, robot="r1", kind="drag", dx=-0.4, dy=0.0, duration_s=2.0
     ),
@@ -351,6 +355,15 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "clock": (
         "84a17601a174cb3f947ae147ae147ba373657101a47469636b01"
+    ),
+    "fault_notice": (
+        "86a17601a174cb401deb851eb851eca47469636bcd0176a56661756c7400a46b696e64a46b696c6ca5726f626f74a27231"
+    ),
+    "fault_request_role": (
+        "85a17601a174cb403e000000000000a772657175657374c3a46b696e64a46b696c6ca4726f6c65a66c6561646572"
+    ),
+    "fault_request": (
+        "85a17601a174cb4028000000000000a772657175657374c3a46b696e64a56573746f70aa6475726174696f6e5f73cb4000000000000000"
     ),
     "disturbance_drag": (
         "87a17601a174cb4034000000000000a5726f626f74a27231a46b696e64a464726167a26478cbbfd999999999999aa26479cb0000000000000000aa6475726174696f6e5f73cb4000000000000000"

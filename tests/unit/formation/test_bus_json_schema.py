@@ -18,8 +18,12 @@ from bus_schemas import (
     MESSAGE_TYPES,
     Assignment,
     Clock,
+    CmdVel,
+    Goal,
     Leader,
+    Path,
     Pose,
+    Shape,
     Slot,
     Status,
     Truth,
@@ -31,6 +35,7 @@ from bus_schemas.messages import (
     CoordinatorStatus,
     Disturbance,
     Estop,
+    Fault,
     Heartbeat,
     PlantStatus,
     PoseBatch,
@@ -169,6 +174,11 @@ EXAMPLES = [
         t=1.0, robot="r1", kind="teleport", dx=0.0, dy=0.0, duration_s=0.0, x=1.0, y=2.0, theta=0.0
     ),
     Heartbeat(t=1.0, seq=1, name="main", active=True, epoch=1, leader_t0=0.5),
+    Fault(t=7.5, tick=375, fault=0, kind="kill", robot="r1", undo=False),
+    CmdVel(t=1.0, seq=1, v_mps=0.05, omega_radps=-0.1),
+    Goal(t=1.0, x=1.0, y=-0.5, heading=0.3),
+    Path(t=1.0, xs=(0.0, 1.0, 1.0), ys=(0.0, 0.0, 1.0), heading=None),
+    Shape(t=1.0, kind="column", spacing_m=0.3),
     PoseBatch(
         t=1.0, seq=1, robots=("r1", "r2"), x=(0.1, 0.2), y=(0.3, 0.4), theta=(0.0, 1.0), stamp=0.97
     ),

@@ -1,0 +1,42 @@
+"""The pytest plugin's ``fleet`` fixture (formation.pytest_plugin) on a realtime fleet: the
+operator's faults (``formation fault``) through it, and the run's metrics.json listing each one
+with its recovery (issue 32)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from formation.testing import FaultCommandError, FleetRun
+
+pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
+
+
+@pytest.mark.fleet("paper-exp2", duration_s=60, hosts=0)
+async def test_operator_faults_through_the_fixture_are_listed_with_their_recovery(
+    fleet: FleetRun,
+) -> None:
+    await fleet.wait_in_formation(timeout_s=60, tol_m=0.06)
+    assert "acknowledged" in await fleet.estop()
+    await asyncio.sleep(0.5)
+    await fleet.release()
+    await fleet.pause("r3")
+    await asyncio.sleep(1.5)  # more than a lease: the coordinator dropped r3
+    await fleet.resume("r3")
+    leader = fleet.leader
+    assert leader is not None
+    assert f"killed leader {leader}" in await fleet.kill_leader()
+    with pytest.raises(FaultCommandError, match="no robot 'r9'"):
+        await fleet.kill("r9")
+    await asyncio.sleep(4.0)
+    await fleet.stop()
+    got = [(f["kind"], f["robot"]) for f in fleet.recovery()]
+    assert got == [
+        ("estop", None), ("release", None), ("pause", "r3"), ("resume", "r3"), ("kill", leader),
+    ]  # fmt: skip
+    kill = fleet.recovery()[-1]
+    assert kill["detection_s"] is not None and kill["detection_s"] < 0.5
+    assert kill["new_leader"] not in (None, leader)
+    pause = fleet.recovery()[2]
+    assert pause["detection_s"] is not None and pause["detection_s"] < 1.5  # one lease
