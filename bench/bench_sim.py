@@ -199,6 +199,14 @@ def breakdown(scn: scenario_mod.Scenario) -> None:
     rest = tick_us - accounted
     print(f"  {'loop':<16}{rest:>9.2f}{rest / tick_us * 100:>7.0f}%   (setpoints, neighbours, log)")
     print(f"  {'tick':<16}{tick_us:>9.2f}   (instrumented run, timer cost removed)")
+    # The firmware's steps alone bound the loop: were every other stage free, the real-time
+    # factor could not exceed dt / (firmware time per tick).
+    fw_us = timer.net_s("firmware") / ticks * 1e6
+    if fw_us > 0.0:
+        print(
+            f"  ceiling with the firmware alone: {scn.dt_s * 1e6 / fw_us:.0f}x real time "
+            f"({fw_us:.1f} us of firmware per tick, {fw_us / len(scn.robot_ids):.2f} us a robot)"
+        )
 
 
 def main() -> None:
