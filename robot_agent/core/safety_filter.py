@@ -213,6 +213,7 @@ class SafetyFilter:
         "_budget",
         "_cons",
         "_deadlock",
+        "_evasions",
         "_gamma",
         "_gamma_slow",
         "_has_world",
@@ -254,6 +255,7 @@ class SafetyFilter:
         self._infeasible = 0
         self._rescaled = 0
         self._rejected = 0
+        self._evasions = 0
         self._min_h = math.inf
 
     # ------------------------------------------------------------------ public API
@@ -303,6 +305,11 @@ class SafetyFilter:
             if ax * ux + ay * uy < b - _TOL:
                 return False
         return True
+
+    @property
+    def evasions(self) -> int:
+        """Ticks on which ``evade`` moved a robot that was not tracking (issue 30)."""
+        return self._evasions
 
     def count_rescaled(self) -> None:
         """The firmware rescaled saturated wheels uniformly to stay admissible."""
@@ -464,4 +471,54 @@ class SafetyFilter:
                 self._active += 1
         if not tiebreak:  # (observe does nothing during a tie-break with something in range)
             deadlock.observe(now_s, ex, ey, True, False)
+        return fx, fy
+
+    def evade(
+        self,
+        px: float,
+        py: float,
+        neighbours: Sequence[Any] = (),
+        obstacles: Sequence[tuple[float, float, float]] = (),
+        extra_radius_m: float = 0.0,
+        dt_s: float = 0.0,
+    ) -> tuple[float, float]:
+        """The filter with a ZERO nominal command, for a robot that is not tracking (HOLD,
+        IDLE; issue 30, "Movers"): ``(0, 0)`` while every barrier holds and nothing comes at
+        it (every ``b <= 0``: standing still keeps them, the invariance proof of the module
+        docstring with ``u = 0``); else the least-norm command that meets the "get out"
+        demands (``b > 0``: a body or a neighbour with a known velocity approaching, or the
+        robot already inside a boundary), at up to ``max_ref_speed_mps``, and when they cannot
+        all be met the least-violation command ("Leaving a barrier"). So a robot that stopped
+        trying to reach a slot still gets out of the way of a body carried at it.
+
+        Unlike ``filter`` it runs no deadlock tie-break, does not count a filter tick and does
+        not mark this robot as having been TRACKING (the shared-frame plane's condition): a
+        robot in HOLD is a non-cooperative neighbour to the others, and answers for itself.
+        ``admissible`` then refers to these constraints (the firmware's saturation stage)."""
+        if not self.enabled:
+            self._cons = []
+            return 0.0, 0.0
+        cons = self.constraints(
+            px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s, None
+        )
+        self._cons = cons
+        for con in cons:
+            if con[2] > 0.0:
+                break
+        else:  # no demand: u = 0 meets every constraint (exactly the old HOLD output)
+            return 0.0, 0.0
+        cap = self._vcap
+        if len(cons) == 1:  # closed form: b n, or the cap along n
+            ax, ay, b = cons[0]
+            if b > cap:
+                self._infeasible += 1
+                b = cap
+            fx, fy = b * ax, b * ay
+        else:
+            fx, fy, feasible = solve_qp(0.0, 0.0, cons, cap)
+            if not feasible:
+                fx, fy, _, _ = solve_qp_relaxed(0.0, 0.0, cons, cap)
+                self._infeasible += 1
+        if fx != 0.0 or fy != 0.0:
+            self._evasions += 1
         return fx, fy
