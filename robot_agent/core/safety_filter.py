@@ -220,7 +220,9 @@ class SafetyFilter:
         "_infeasible",
         "_last_t",
         "_min_h",
+        "_n_nb",
         "_neighbours",
+        "_push_m",
         "_rejected",
         "_rescaled",
         "_shared",
@@ -241,6 +243,9 @@ class SafetyFilter:
         self._gamma = p.gamma_per_s
         self._gamma_slow = min(p.gamma_per_s, 1.0 / config.safety.max_dt_s)
         self._budget = p.noise_budget_m
+        # how far evade() may push into a neighbour's barrier when pinned: 90 % of what the
+        # margin holds beyond both positions' noise (centres keep > 2 r_b: module docstring)
+        self._push_m = 0.9 * max(0.0, p.margin_m - 2.0 * p.noise_budget_m)
         self._vcap = config.gains.max_ref_speed_mps
         self._neighbours = NeighbourBarriers(config)
         self._world = WorldBarriers(config, clear)
@@ -256,6 +261,7 @@ class SafetyFilter:
         self._rescaled = 0
         self._rejected = 0
         self._evasions = 0
+        self._n_nb = 0  # rows from neighbours at the head of the last constraints() list
         self._min_h = math.inf
 
     # ------------------------------------------------------------------ public API
@@ -350,6 +356,7 @@ class SafetyFilter:
         min_h = self._neighbours.append(
             px, py, cap, reach, gamma, rho, dt_s, frame, neighbours, cons, _INF
         )
+        self._n_nb = len(cons)
         if obstacles or self._has_world:
             min_h, bad = self._world.append(px, py, reach, gamma, rho, obstacles, cons, min_h)
             self._rejected += bad
@@ -517,8 +524,18 @@ class SafetyFilter:
         else:
             fx, fy, feasible = solve_qp(0.0, 0.0, cons, cap)
             if not feasible:
-                fx, fy, _, _ = solve_qp_relaxed(0.0, 0.0, cons, cap)
-                self._infeasible += 1
+                # Pinned (a body at it, other robots behind): push into the others' barriers
+                # by up to ``_push_m``, so that they in turn get out of the way (their own rows
+                # see this robot inside and they evade), instead of waiting for the body
+                push = self._gamma * self._push_m
+                soft = [
+                    (ax, ay, b - push if k < self._n_nb else b)
+                    for k, (ax, ay, b) in enumerate(cons)
+                ]
+                fx, fy, feasible = solve_qp(0.0, 0.0, soft, cap)
+                if not feasible:
+                    fx, fy, _, _ = solve_qp_relaxed(0.0, 0.0, soft, cap)
+                    self._infeasible += 1
         if fx != 0.0 or fy != 0.0:
             self._evasions += 1
         return fx, fy
