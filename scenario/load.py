@@ -24,6 +24,8 @@ from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
 )
+from scenario.movers import parse_movers
+from sim_plant.core.bodies import MoverBody
 
 if TYPE_CHECKING:
     from coordinator.core.leader import LeaderConfig
@@ -98,6 +100,8 @@ class Scenario:
     disturbances: tuple[Disturbance, ...] = field(default_factory=tuple)
     source: str = ""
     leader: LeaderConfig | None = None
+    movers: tuple[MoverBody, ...] = ()
+    """Bodies moving among the robots (``[[mover]]``, scenario/movers.py; issue 30)."""
     """``[leader]``: the operator's limits, the deadman and whether the leader waits for its team
     (coordinator.core.leader, docs/operate.md); None: the defaults."""
 
@@ -192,7 +196,7 @@ TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
     "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
-    "leader",
+    "leader", "mover",
 }  # fmt: skip
 
 
@@ -395,6 +399,10 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
                 theta=_num(d, "theta", where) if "theta" in d else None,
             )
         )
+    try:
+        movers = parse_movers(data.get("mover"), tuple(ids), duration)
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ScenarioError("description: expected a string")
@@ -418,4 +426,5 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         disturbances=tuple(sorted(disturbances, key=lambda x: x.t_s)),
         source=source,
         leader=leader,
+        movers=movers,
     )

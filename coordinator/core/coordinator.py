@@ -368,10 +368,12 @@ class CoordinatorCore:
         now_s: float,
         poses: Mapping[str, tuple[float, float, float]],
         held: Collection[str] = (),
+        objects: Mapping[str, tuple[float, float]] | None = None,
     ) -> CoordinatorOutput:
         """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta);
         ``held``: robots known to be held (e-stopped): a leader that waits for its team stops
-        for them (coordinator.core.leader)."""
+        for them (coordinator.core.leader); ``objects``: tracked bodies that are not fleet
+        robots (centre x, y): moving, they are movers (coordinator.core.movers)."""
         ids, xy = self._ref_points(poses)
         rate = 1.0
         if self.leader.waits() and self._last_out is not None:
@@ -397,11 +399,11 @@ class CoordinatorCore:
             theta, rows = morphed_slot_rows(leader, offsets)
         else:
             theta, rows = slot_rows(spec, leader)
-        slot_ids = spec.priority_slots
+        slot_ids: Sequence[int] = spec.priority_slots
         slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
         was_yielding = self._yielding
-        if movers.update(now_s, poses, self.assignment, held):
+        if movers.update(now_s, poses, self.assignment, held, objects):
             a_ids, a_xy, slot_ids, slot_xy = self._without_movers(ids, xy, slot_ids, slot_xy)
             assignment, changed = self.assigner.update_ordered(a_ids, a_xy, slot_ids, slot_xy)
         else:

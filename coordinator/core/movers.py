@@ -11,8 +11,8 @@ Theory of operation
 Each robot's axle centre is sampled when its pose changes (the centre, not the reference point:
 a turn in place moves the reference point at up to ``l omega`` while the robot stays put). Its
 speed is the distance to the oldest sample at least ``window_s`` old, over the time between
-(a mean over the window, so camera noise of 3 mm per axis reads as about 0.02 m/s, not as
-the 0.1 m/s one frame's jitter would). A robot is a mover on a tick when
+(a mean over the window, so camera noise of 3 mm per axis reads as about 0.01 m/s, not as
+the 0.1 m/s one frame's jitter would; ``still_mps`` is about 5 standard deviations of it). A robot is a mover on a tick when
 
 * its speed exceeds ``fast_mps`` (above what its wheels can drive: it is carried, pushed, or
   its pose is not its own), or
@@ -26,7 +26,8 @@ mover the coordinator gives it no slot, and the slot it held when it became one 
 (no other robot is sent into its way: ``reserved``); when it is no longer a mover it is a
 robot like any other and the assignment takes it back.
 
-Making room (``yielding``): a robot whose centre is within ``yield_m`` of a mover, and every
+Making room (``yielding``): a robot whose centre is within ``yield_m + lead_s * speed`` of a
+mover, and every
 robot within ``chain_m`` of a yielding one (the formation around it), yields for ``hold_s``:
 the slot it had is kept for it (given to no one else) and its setpoint is a refuge
 (``refuge``) beside the movers' lines of motion instead of the slot, so the formation steps
@@ -69,21 +70,24 @@ class MoverParams:
         clear_m: a yielding robot steps sideways until its reference point is this far (m)
             from the line a mover moves along (``refuge``).
         side_tol_m: a robot this close (m) to that line steps to its left.
+        lead_s: a mover's reach grows by what it covers in this long (s) at its speed: a
+            robot within ``yield_m + lead_s * speed`` of it yields.
     """
 
     fast_mps: float = 0.4
-    still_mps: float = 0.06
-    window_s: float = 0.25
+    still_mps: float = 0.04
+    window_s: float = 0.5
     hold_s: float = 1.0
     yield_m: float = 0.6
     chain_m: float = 0.45
     clear_m: float = 0.4
     side_tol_m: float = 0.03
+    lead_s: float = 2.0
 
     def __post_init__(self) -> None:
         names = (
             "fast_mps", "still_mps", "window_s", "hold_s", "yield_m", "chain_m", "clear_m",
-            "side_tol_m",
+            "side_tol_m", "lead_s",
         )  # fmt: skip
         for name in names:
             value = getattr(self, name)
@@ -95,7 +99,7 @@ class MoverParams:
     @classmethod
     def for_top_speed(cls, top_speed_mps: float) -> MoverParams:
         """Defaults with ``fast_mps`` a third above ``top_speed_mps`` (the robots' top speed)."""
-        return cls(fast_mps=max(cls.still_mps * 2.0, 4.0 / 3.0 * top_speed_mps))
+        return cls(fast_mps=max(2.0 * cls().still_mps, 4.0 / 3.0 * top_speed_mps))
 
 
 class MoverDetector:
@@ -104,6 +108,7 @@ class MoverDetector:
     __slots__ = (
         "_hist",
         "_last_xy",
+        "_objects",
         "_params",
         "_reserved",
         "_side",
@@ -120,6 +125,7 @@ class MoverDetector:
         self._yield_until: dict[str, float] = {}
         self._reserved: dict[str, int] = {}
         self._side: dict[tuple[str, str], float] = {}  # (robot, mover) -> side (+1 left)
+        self._objects: frozenset[str] = frozenset()  # the tracked non-fleet bodies now
         self.rejected = 0
         """Poses or times skipped as non-finite."""
 
@@ -210,22 +216,31 @@ class MoverDetector:
             ry += ny * (p.clear_m - w)
         return rx, ry
 
-    def update(  # noqa: C901 (one pass per robot, then the expiries)
+    def update(
         self,
         now_s: float,
         poses: Mapping[str, tuple[float, float, float]],
         assignment: Mapping[str, int],
         held: Collection[str] = (),
+        objects: Mapping[str, tuple[float, float]] | None = None,
     ) -> frozenset[str]:
         """One tick: ``poses`` the latest pose of each live robot (axle centre x, y, theta),
         ``assignment`` the coordinator's previous assignment (robot -> slot), ``held`` the
-        e-stopped robots. Returns the robots that get no slot now (``excluded``: the movers
-        and the robots making room for them)."""
+        e-stopped robots, ``objects`` the tracked bodies that are not fleet robots (centre x,
+        y; ids distinct from the robots'): never driven, so a mover whenever one moves faster
+        than ``still_mps``. Returns the robots that get no slot now (``excluded``: the movers
+        and the robots making room for them; an object among them is given no slot anyway)."""
         p = self._params
         if not math.isfinite(now_s):
             self.rejected += 1
-            return self.movers
-        for rid, pose in poses.items():
+            return self.excluded
+        self._objects = frozenset(objects) if objects else frozenset()
+        present: Mapping[str, object] = poses
+        seen = list(poses.items())
+        if objects:
+            seen += [(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses]
+            present = {**poses, **objects}
+        for rid, pose in seen:
             x, y = float(pose[0]), float(pose[1])
             if not (math.isfinite(x) and math.isfinite(y)):
                 self.rejected += 1
@@ -247,18 +262,22 @@ class MoverDetector:
                 if rid in assignment:
                     self._reserved.setdefault(rid, assignment[rid])
                 self._until[rid] = now_s + p.hold_s
-        for rid in [r for r in self._hist if r not in poses]:  # gone: forget it
+        for rid in [r for r in self._hist if r not in present]:  # gone: forget it
             del self._hist[rid]
             self._last_xy.pop(rid, None)
-        for rid in [r for r, until in self._until.items() if now_s >= until or r not in poses]:
+        for rid in [r for r, until in self._until.items() if now_s >= until or r not in present]:
             del self._until[rid]
         if self._until:
             self._make_room(now_s, assignment)
         for rid in [r for r, t in self._yield_until.items() if now_s >= t or r not in poses]:
             del self._yield_until[rid]
-        for rid in [r for r in self._reserved if r not in self._until and r not in self._yield_until]:
+        for rid in [
+            r for r in self._reserved if r not in self._until and r not in self._yield_until
+        ]:
             del self._reserved[rid]
-        for key in [k for k in self._side if k[0] not in self._yield_until or k[1] not in self._until]:
+        for key in [
+            k for k in self._side if k[0] not in self._yield_until or k[1] not in self._until
+        ]:
             del self._side[key]
         return self.excluded
 
@@ -267,24 +286,27 @@ class MoverDetector:
         breadth-first walk over centre distances; O(n^2) in the robots, only with a mover)."""
         p = self._params
         xy = self._last_xy
-        frontier = [xy[m] for m in self._until if m in xy]
-        radius = p.yield_m
+        # (x, y, radius): a mover reaches yield_m plus what it covers in lead_s
+        frontier = [
+            (*xy[m], p.yield_m + p.lead_s * math.hypot(*self.velocity(m)))
+            for m in sorted(self._until)
+            if m in xy
+        ]
         seen = set(self._until)
         while frontier:
-            nxt: list[tuple[float, float]] = []
+            nxt: list[tuple[float, float, float]] = []
             for rid, (x, y) in xy.items():
-                if rid in seen:
+                if rid in seen or rid in self._objects:
                     continue
-                for fx, fy in frontier:
+                for fx, fy, radius in frontier:
                     if math.hypot(x - fx, y - fy) <= radius:
                         seen.add(rid)
-                        nxt.append((x, y))
+                        nxt.append((x, y, p.chain_m))
                         if rid not in self._yield_until and rid in assignment:
                             self._reserved.setdefault(rid, assignment[rid])
                         self._yield_until[rid] = now_s + p.hold_s
                         break
             frontier = nxt
-            radius = p.chain_m
 
     def reset(self) -> None:
         """Forget every history and mover."""
