@@ -24,8 +24,7 @@ from robot_agent.core.params import (
     AgentConfig,
     WorldMap,
 )
-from scenario.movers import parse_movers
-from sim_plant.core.bodies import MoverBody
+from scenario.movers import MoverBody, parse_movers
 
 if TYPE_CHECKING:
     from coordinator.core.leader import LeaderConfig

@@ -12,7 +12,8 @@ Each robot's axle centre is sampled when its pose changes (the centre, not the r
 a turn in place moves the reference point at up to ``l omega`` while the robot stays put). Its
 speed is the distance to the oldest sample at least ``window_s`` old, over the time between
 (a mean over the window, so camera noise of 3 mm per axis reads as about 0.01 m/s, not as
-the 0.1 m/s one frame's jitter would; ``still_mps`` is about 5 standard deviations of it). A robot is a mover on a tick when
+the 0.1 m/s one frame's jitter would; ``still_mps`` is about 5 standard deviations of it). A
+robot is a mover on a tick when
 
 * its speed exceeds ``fast_mps`` (above what its wheels can drive: it is carried, pushed, or
   its pose is not its own), or

@@ -127,20 +127,26 @@ def test_a_non_finite_pose_without_a_setpoint_is_counted_once() -> None:
     assert fw.status().rejected_count == 1
 
 
-def test_evade_keeps_a_still_neighbour_behind_it() -> None:
-    """Pinched: a body inside the barrier ahead, a still robot right behind outside its barrier:
-    the command never approaches the still one (its row ``b <= 0`` is kept exactly)."""
+def test_evade_pinned_pushes_into_a_still_neighbour_by_at_most_the_spare_margin() -> None:
+    """Pinned: a body inside the barrier ahead coming on, a still robot right behind: the
+    command may approach the still one only as far as its row shifted by the spare margin
+    (``0.9 (margin - 2 noise budget)``) allows, so the centres keep more than 2 body radii; and
+    it is within the speed cap."""
     flt = SafetyFilter(NO_EST)
+    sf = NO_EST.safety_filter
+    push_m = 0.9 * (sf.margin_m - 2.0 * sf.noise_budget_m)
+    gamma = sf.gamma_per_s
     px, py = 0.05, 0.0  # reference point of a robot at the origin facing +x
-    behind = Neighbour(-0.20, 0.0)
-    ux, uy = flt.evade(px, py, [Neighbour(0.25, 0.0, vx=-0.3), behind], (), 0.0, DT_S)
-    # the row of the still robot behind: n . u >= -gamma h
-    dx, dy = px - behind.x, py - behind.y
-    dist = math.hypot(dx, dy)
-    h = dist - (flt.safety_distance_m + GEOM.ref_offset_m)
-    gamma = NO_EST.safety_filter.gamma_per_s
-    assert (dx * ux + dy * uy) / dist >= -gamma * h - 1e-9
-    assert math.hypot(ux, uy) <= NO_EST.gains.max_ref_speed_mps + 1e-9
+    for gap_m in (0.20, 0.25, 0.30):
+        behind = Neighbour(-gap_m, 0.0)
+        ux, uy = flt.evade(px, py, [Neighbour(0.25, 0.0), behind], (), 0.0, DT_S)
+        dx, dy = px - behind.x, py - behind.y
+        dist = math.hypot(dx, dy)
+        h = dist - (flt.safety_distance_m + GEOM.ref_offset_m)
+        assert (dx * ux + dy * uy) / dist >= -gamma * (h + push_m) - 1e-9
+        assert math.hypot(ux, uy) <= NO_EST.gains.max_ref_speed_mps + 1e-9
+    # the floor that shift leaves: safety distance - push - both noise budgets > touching
+    assert flt.safety_distance_m - push_m - 2.0 * sf.noise_budget_m > TOUCH_M
 
 
 def _carry(cfg: AgentConfig, speed_mps: float, heading_rad: float, offset_m: float) -> float:
