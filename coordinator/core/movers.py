@@ -181,9 +181,8 @@ class MoverDetector:
         """Where ``robot`` making room, with its reference point at ``(qx, qy)``, goes now: off
         the movers' paths. For each mover that comes at it (or stands, within ``clear_m``), the
         point is pushed sideways from the mover's line of motion until it is ``clear_m`` from
-        that line, on the side the robot was on when it started to make room for that mover
-        (kept while it yields: a noisy velocity must not flip it; the left of the motion when
-        it was within ``side_tol_m`` of the line). ``(qx, qy)`` itself when nothing asks it to
+        that line, on a side chosen when it started to make room for that mover and kept
+        while it yields (a noisy velocity must not flip it): ``_choose_side``. ``(qx, qy)`` itself when nothing asks it to
         move (it holds its place, tracking)."""
         p = self._params
         rx, ry = qx, qy
@@ -207,7 +206,7 @@ class MoverDetector:
             cross = ux * dy - uy * dx  # > 0: left of the motion
             side = self._side.get((robot, mid))
             if side is None:
-                side = -1.0 if cross < -p.side_tol_m else 1.0
+                side = self._choose_side(qx, qy, ux, uy, cross)
                 self._side[robot, mid] = side
             nx, ny = -uy * side, ux * side
             w = cross * side  # distance from the line, toward the side kept
@@ -216,6 +215,24 @@ class MoverDetector:
             rx += nx * (p.clear_m - w)
             ry += ny * (p.clear_m - w)
         return rx, ry
+
+    def _choose_side(self, qx: float, qy: float, ux: float, uy: float, cross: float) -> float:
+        """The side (+1: left of the motion ``u``) a robot at ``(qx, qy)`` steps to: away from
+        the centre of the other robots (out of the formation, not across it) when that is
+        clear by ``side_tol_m``, else the side of the mover's line it is on, else the left."""
+        tol = self._params.side_tol_m
+        pts = [
+            xy
+            for rid, xy in self._last_xy.items()
+            if rid not in self._objects and rid not in self._until
+        ]
+        if pts:
+            cx = sum(x for x, _ in pts) / len(pts)
+            cy = sum(y for _, y in pts) / len(pts)
+            out = ux * (qy - cy) - uy * (qx - cx)
+            if abs(out) > tol:
+                return 1.0 if out > 0.0 else -1.0
+        return -1.0 if cross < -tol else 1.0
 
     def update(
         self,
