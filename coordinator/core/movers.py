@@ -182,8 +182,8 @@ class MoverDetector:
         the movers' paths. For each mover that comes at it (or stands, within ``clear_m``), the
         point is pushed sideways from the mover's line of motion until it is ``clear_m`` from
         that line, on a side chosen when it started to make room for that mover and kept
-        while it yields (a noisy velocity must not flip it): ``_choose_side``. ``(qx, qy)`` itself when nothing asks it to
-        move (it holds its place, tracking)."""
+        while it yields (a noisy velocity must not flip it): ``_choose_side``. ``(qx, qy)``
+        itself when nothing asks it to move (it holds its place, tracking)."""
         p = self._params
         rx, ry = qx, qy
         for mid in sorted(self._until):

@@ -91,7 +91,7 @@ def _carry(
                 dy=2 * run_m * s,
                 duration_s=2 * lead_s,
             ),
-        ),  # fmt: skip
+        ),
         duration_s=t_pass + lead_s + 1.0,
     )
     res = simulate.run(sc)
