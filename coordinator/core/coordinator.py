@@ -463,6 +463,7 @@ class CoordinatorCore:
         reserved = movers.reserved
         where = dict(zip(ids, xy, strict=True))
         out: dict[str, SlotRow] = {}
+        points: dict[str, tuple[float, float]] = {}
         for rid in sorted(self._yielding):
             slot = reserved.get(rid)
             q = where.get(rid)
@@ -470,7 +471,8 @@ class CoordinatorCore:
                 continue
             assignment[rid] = slot
             self._approach.pop(rid, None)
-            rx, ry = movers.refuge(rid, q[0], q[1])
+            points[rid] = q
+        for rid, (rx, ry) in movers.refuges(points).items():
             out[rid] = (rx, ry, 0.0, 0.0)
         if self._row_of is None:
             self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}

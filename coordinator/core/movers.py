@@ -8,8 +8,8 @@ previous assignment).
 
 Theory of operation
 ===================
-Each robot's axle centre is sampled when its pose changes (the centre, not the reference point:
-a turn in place moves the reference point at up to ``l omega`` while the robot stays put). Its
+Each robot's axle centre is sampled on every tick (the centre, not the reference point: a turn
+in place moves the reference point at up to ``l omega`` while the robot stays put). Its
 speed is the distance to the oldest sample at least ``window_s`` old, over the time between
 (a mean over the window, so camera noise of 3 mm per axis reads as about 0.01 m/s, not as
 the 0.1 m/s one frame's jitter would; ``still_mps`` is about 5 standard deviations of it). A
@@ -22,7 +22,8 @@ robot is a mover on a tick when
   commands no motion of its own (IDLE, HOLD, ESTOP; an IDLE or HOLD robot may only evade, and
   a robot evading a body is a fine thing to keep out of the formation for a moment too).
 
-It stays a mover until ``hold_s`` after the last tick on which either held. While a robot is a
+It stays a mover until ``hold_s`` after the last tick on which either held (with ``still_mps``
+halved for a robot that is a mover already: hysteresis). While a robot is a
 mover the coordinator gives it no slot, and the slot it held when it became one is kept for it
 (no other robot is sent into its way: ``reserved``); when it is no longer a mover it is a
 robot like any other and the assignment takes it back.
@@ -71,6 +72,8 @@ class MoverParams:
         clear_m: a yielding robot steps sideways until its reference point is this far (m)
             from the line a mover moves along (``refuge``).
         side_tol_m: a robot this close (m) to that line steps to its left.
+        spacing_m: refuges at least this far apart (m; the cooperative barrier between two
+            reference points is ``Ds + 2 l`` = 0.29 m with the defaults).
         lead_s: a mover's reach grows by what it covers in this long (s) at its speed: a
             robot within ``yield_m + lead_s * speed`` of it yields.
     """
@@ -83,12 +86,13 @@ class MoverParams:
     chain_m: float = 0.45
     clear_m: float = 0.4
     side_tol_m: float = 0.03
+    spacing_m: float = 0.35
     lead_s: float = 2.0
 
     def __post_init__(self) -> None:
         names = (
             "fast_mps", "still_mps", "window_s", "hold_s", "yield_m", "chain_m", "clear_m",
-            "side_tol_m", "lead_s",
+            "side_tol_m", "lead_s", "spacing_m",
         )  # fmt: skip
         for name in names:
             value = getattr(self, name)
@@ -176,6 +180,48 @@ class MoverDetector:
         if not t1 - t0 >= self._params.window_s:
             return 0.0, 0.0
         return (x1 - x0) / (t1 - t0), (y1 - y0) / (t1 - t0)
+
+    def refuges(self, points: Mapping[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+        """The refuges of several robots making room (reference points ``points``), spaced:
+        each robot's own ``refuge``, then, the robots that must move farthest first, one whose
+        refuge is within ``spacing_m`` of a refuge already placed is pushed on (along its own
+        sideways direction, or the other robot's when it had none) until it is not. So the
+        robots stepping aside do not ask for the same place (a robot pinned between a
+        neighbour holding its refuge and the body: issue 30)."""
+        p = self._params
+        base: dict[str, tuple[float, float, float, float]] = {}
+        for rid in sorted(points):
+            qx, qy = points[rid]
+            rx, ry = self.refuge(rid, qx, qy)
+            d = math.hypot(rx - qx, ry - qy)
+            nx, ny = ((rx - qx) / d, (ry - qy) / d) if d > 1e-9 else (0.0, 0.0)
+            base[rid] = (rx, ry, nx, ny)
+        order = sorted(base, key=lambda r: (-math.hypot(base[r][0] - points[r][0],
+                                                       base[r][1] - points[r][1]), r))  # fmt: skip
+        placed: dict[str, tuple[float, float, float, float]] = {}
+        for rid in order:
+            rx, ry, nx, ny = base[rid]
+            for _ in range(2 * len(placed) + 1):
+                clash = None
+                for px, py, pnx, pny in placed.values():
+                    if math.hypot(rx - px, ry - py) < p.spacing_m:
+                        clash = (px, py, pnx, pny)
+                        break
+                if clash is None:
+                    break
+                px, py, pnx, pny = clash
+                dx, dy = (nx, ny) if nx or ny else (pnx, pny)
+                if not (dx or dy):
+                    break
+                # along (dx, dy) until spacing_m from the clashing refuge
+                ox, oy = rx - px, ry - py
+                along = ox * dx + oy * dy
+                perp2 = ox * ox + oy * oy - along * along
+                step = math.sqrt(max(0.0, p.spacing_m**2 - perp2)) - along + 1e-3
+                rx += dx * step
+                ry += dy * step
+            placed[rid] = (rx, ry, nx, ny)
+        return {rid: (v[0], v[1]) for rid, v in placed.items()}
 
     def refuge(self, robot: str, qx: float, qy: float) -> tuple[float, float]:
         """Where ``robot`` making room, with its reference point at ``(qx, qy)``, goes now: off
@@ -266,17 +312,22 @@ class MoverDetector:
             hist = self._hist.get(rid)
             if hist is None:
                 hist = self._hist[rid] = deque()
-            if self._last_xy.get(rid) != (x, y):  # a new pose (sampled when it changes)
-                self._last_xy[rid] = (x, y)
+            # one sample per tick (a pose that did not change is a robot that did not move
+            # as far as the coordinator knows; over the window that averages out)
+            self._last_xy[rid] = (x, y)
+            if not hist or now_s > hist[-1][0]:
                 hist.append((now_s, x, y))
-                # keep the newest sample at least window_s before the latest one, and after it
-                while len(hist) > 2 and now_s - hist[1][0] >= p.window_s:
-                    hist.popleft()
+            # keep the newest sample at least window_s before the latest one, and after it
+            while len(hist) > 2 and now_s - hist[1][0] >= p.window_s:
+                hist.popleft()
             speed = self.speed_mps(rid)
             if speed != speed:
                 continue
             driven = rid in assignment and rid not in held
-            if speed > p.fast_mps or (not driven and speed > p.still_mps):
+            # (hysteresis: a mover stays one down to half of still_mps, so a slow body read
+            # through the camera's noise does not flicker in and out)
+            still = 0.5 * p.still_mps if rid in self._until else p.still_mps
+            if speed > p.fast_mps or (not driven and speed > still):
                 if rid in assignment:
                     self._reserved.setdefault(rid, assignment[rid])
                 self._until[rid] = now_s + p.hold_s

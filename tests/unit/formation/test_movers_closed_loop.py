@@ -5,7 +5,7 @@ carried robot never takes a slot; scenario ``[[mover]]`` bodies (visible and not
 envelope that holds today (docs/faults.md has the whole table up to 0.5 m/s).
 
 The firmware's part (IDLE / HOLD evade): tests/unit/robot_agent/test_firmware_evade.py; the
-coordinator's detector: tests/unit/coordinator/test_movers.py.
+coordinator's detector: tests/unit/coordinator/test_coord_movers.py.
 """
 
 from __future__ import annotations
@@ -116,8 +116,9 @@ def test_a_spare_carried_through_every_robot_never_touches_the_fleet(
 ) -> None:
     """Through every robot, head-on, from behind and across both ways: the spare never
     touches a fleet robot, the fleet never touches itself, and the spare is never given a
-    slot. (The envelope that holds today: the triangle up to 0.2 m/s, the chevron up to
-    0.15 m/s; faster, some passes come closer: docs/faults.md, ``bench/bench_movers.py``.)"""
+    slot. (What holds today: the triangle at every speed up to 0.2 m/s; the chevron at 0.05 and
+    0.15 m/s, but not every pass at 0.1 and from 0.2 m/s: docs/faults.md has the table,
+    ``python bench/bench_movers.py`` measures it.)"""
     n = len(_formation(kind).robot_ids)
     for target in range(n):
         for heading in (math.pi, 0.0, math.pi / 2, -math.pi / 2):
