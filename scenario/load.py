@@ -25,6 +25,7 @@ from robot_agent.core.params import (
     WorldMap,
 )
 from scenario.faults import Fault, FaultSpecError, parse_faults
+from scenario.movers import MoverBody, parse_movers
 
 if TYPE_CHECKING:
     from coordinator.core.leader import LeaderConfig
@@ -99,6 +100,8 @@ class Scenario:
     disturbances: tuple[Disturbance, ...] = field(default_factory=tuple)
     source: str = ""
     leader: LeaderConfig | None = None
+    movers: tuple[MoverBody, ...] = ()
+    """Bodies moving among the robots (``[[mover]]``, scenario/movers.py; issue 30)."""
     """``[leader]``: the operator's limits, the deadman and whether the leader waits for its team
     (coordinator.core.leader, docs/operate.md); None: the defaults."""
     faults: tuple[Fault, ...] = field(default_factory=tuple)  # [[fault]] (scenario.faults)
@@ -194,7 +197,7 @@ TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
     "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
-    "leader", "fault",
+    "leader", "fault", "mover",
 }  # fmt: skip
 
 
@@ -401,6 +404,10 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         faults = parse_faults(data.get("fault"), tuple(ids), duration)
     except FaultSpecError as exc:
         raise ScenarioError(str(exc)) from None
+    try:
+        movers = parse_movers(data.get("mover"), tuple(ids), duration)
+    except ValueError as exc:
+        raise ScenarioError(str(exc)) from None
     description = data.get("description", "")
     if not isinstance(description, str):
         raise ScenarioError("description: expected a string")
@@ -425,4 +432,5 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         source=source,
         leader=leader,
         faults=faults,
+        movers=movers,
     )

@@ -41,6 +41,7 @@ from coordinator.core.formation import (
     states_from_rows,
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
+from coordinator.core.movers import MoverDetector, MoverParams
 from coordinator.core.reshape import Transition, blended_rows, plan_reshape
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.core.kinematics import reference_point
@@ -266,6 +267,7 @@ class CoordinatorCore:
         ref_offset_m: float,
         t0_s: float = 0.0,
         leader: LeaderCore | None = None,
+        movers: MoverParams | None = None,
     ) -> None:
         if not (ref_offset_m > 0 and math.isfinite(ref_offset_m)):
             raise ValueError(f"ref_offset_m must be positive and finite, got {ref_offset_m!r}")
@@ -281,6 +283,9 @@ class CoordinatorCore:
         """Tracking error (m) of each assigned robot at the last tick (reference point to the
         setpoint of the tick before), computed while the leader waits for its team."""
         self.assignment: dict[str, int] = {}
+        self.movers = MoverDetector(movers)
+        """Robots moving as their wheels cannot (issue 30): no slot while so, theirs kept."""
+        self._yielding: frozenset[str] = frozenset()
         self.approach_speed_mps = APPROACH_SPEED_MPS
         self._approach: dict[str, list[float]] = {}  # robot -> approach point [x, y]
         self._running = False  # a tick has assigned robots (later assignments approach)
@@ -363,10 +368,12 @@ class CoordinatorCore:
         now_s: float,
         poses: Mapping[str, tuple[float, float, float]],
         held: Collection[str] = (),
+        objects: Mapping[str, tuple[float, float]] | None = None,
     ) -> CoordinatorOutput:
         """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta);
         ``held``: robots known to be held (e-stopped): a leader that waits for its team stops
-        for them (coordinator.core.leader)."""
+        for them (coordinator.core.leader); ``objects``: tracked bodies that are not fleet
+        robots (centre x, y): moving, they are movers (coordinator.core.movers)."""
         ids, xy = self._ref_points(poses)
         rate = 1.0
         if self.leader.waits() and self._last_out is not None:
@@ -392,18 +399,91 @@ class CoordinatorCore:
             theta, rows = morphed_slot_rows(leader, offsets)
         else:
             theta, rows = slot_rows(spec, leader)
-        assignment, changed = self.assigner.update_ordered(
-            ids, xy, spec.priority_slots, list(map(rows.__getitem__, spec.priority_rows))
-        )
+        slot_ids: Sequence[int] = spec.priority_slots
+        slot_xy = list(map(rows.__getitem__, spec.priority_rows))
+        movers = self.movers
+        was_yielding = self._yielding
+        if movers.update(now_s, poses, self.assignment, held, objects):
+            a_ids, a_xy, slot_ids, slot_xy = self._without_movers(ids, xy, slot_ids, slot_xy)
+            assignment, changed = self.assigner.update_ordered(a_ids, a_xy, slot_ids, slot_xy)
+        else:
+            assignment, changed = self.assigner.update_ordered(ids, xy, slot_ids, slot_xy)
+        refuges: dict[str, SlotRow] | None = None
+        self._yielding = movers.yielding
+        if self._yielding or was_yielding:
+            refuges = self._make_room(assignment, ids, xy, rows, was_yielding)
+            changed = assignment != self.assignment
         previous, self.assignment = self.assignment, assignment
         dt = 0.0 if self._last_now is None else max(0.0, now_s - self._last_now)
         self._last_now = now_s
         approach = None
         if self._approach or (changed and self._running):
             approach = self._approaches(previous, assignment, ids, xy, rows, dt)
+        if refuges:
+            approach = {**approach, **refuges} if approach else refuges
         self._running = self._running or bool(assignment)
         out = CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
         self._last_out = out
+        return out
+
+    def _without_movers(
+        self,
+        ids: list[str],
+        xy: list[tuple[float, float]],
+        slot_ids: Sequence[int],
+        slot_xy: list[SlotRow],
+    ) -> tuple[list[str], list[tuple[float, float]], list[int], list[SlotRow]]:
+        """The assignment's input without the movers and without the slots kept for them
+        (coordinator.core.movers): a mover and a robot making room for it get no slot, and no
+        robot is sent to theirs."""
+        movers = self.movers.excluded
+        keep = [i for i, rid in enumerate(ids) if rid not in movers]
+        kept = set(self.movers.reserved.values())
+        free = [k for k, sid in enumerate(slot_ids) if sid not in kept]
+        return (
+            [ids[i] for i in keep],
+            [xy[i] for i in keep],
+            [slot_ids[k] for k in free],
+            [slot_xy[k] for k in free],
+        )
+
+    def _make_room(
+        self,
+        assignment: dict[str, int],
+        ids: list[str],
+        xy: list[tuple[float, float]],
+        rows: list[SlotRow],
+        was_yielding: frozenset[str],
+    ) -> dict[str, SlotRow]:
+        """The robots making room for a mover (coordinator.core.movers) keep the slot they had
+        (added to ``assignment``) with a refuge beside the mover's path as their setpoint (the
+        returned approach rows, velocity 0); one that stops yielding far from its slot goes
+        back to it on an approach point (as a newly assigned robot does)."""
+        movers = self.movers
+        reserved = movers.reserved
+        where = dict(zip(ids, xy, strict=True))
+        out: dict[str, SlotRow] = {}
+        points: dict[str, tuple[float, float]] = {}
+        for rid in sorted(self._yielding):
+            slot = reserved.get(rid)
+            q = where.get(rid)
+            if slot is None or q is None:
+                continue
+            assignment[rid] = slot
+            self._approach.pop(rid, None)
+            points[rid] = q
+        for rid, (rx, ry) in movers.refuges(points).items():
+            out[rid] = (rx, ry, 0.0, 0.0)
+        if self._row_of is None:
+            self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+        for rid in sorted(was_yielding - self._yielding):
+            slot = assignment.get(rid)
+            q = where.get(rid)
+            if slot is None or q is None or rid in self._approach:
+                continue
+            sx, sy, _, _ = rows[self._row_of[slot]]
+            if math.hypot(sx - q[0], sy - q[1]) > APPROACH_JOIN_M:
+                self._approach[rid] = [q[0], q[1]]
         return out
 
     # -- runtime reshaping (coordinator.core.reshape) -------------------------------------------

@@ -35,7 +35,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from operator import itemgetter
 from typing import Any
 
@@ -46,6 +46,7 @@ from formation.outputs.runlog import RunLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.core.neighbours import is_current, neighbour
+from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
 from scenario.faults import FaultAction, FaultScheduler, FleetFaults, fleet_view
@@ -64,6 +65,9 @@ class SimResult:
     wall_s: float
     firmware_status: dict[str, Any]
     interrupted: bool = False  # ``stop`` was set: the log holds the ticks run before it
+    movers: dict[str, Any] = field(default_factory=dict)
+    """Scenario ``[[mover]]`` bodies (issue 30): id -> array ``(ticks, 2)`` of the body's centre
+    (m) at each logged tick, the same ticks as ``log.t_s``."""
 
     @property
     def realtime_factor(self) -> float:
@@ -206,6 +210,14 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     slot_of_changes: list[tuple[int, list[int]]] = []
 
     faults = FaultPlay(scenario, firmwares) if scenario.faults else None
+    # scenario movers (issue 30): a body of radius R is a neighbour whose extra radius makes
+    # the barrier's centre distance R + body + margin (the filter subtracts the noise budget)
+    bodies = scenario.movers
+    body_tracks: list[list[tuple[float, float]]] = [[] for _ in bodies]
+    budget = scenario.agent.safety_filter.noise_budget_m
+    body_extra = [budget + max(0.0, m.radius_m - geom.body_radius_m) for m in bodies]
+    seen_bodies: dict[str, tuple[float, float]] = {}
+
     steps = [fw.step for fw in firmwares]
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
@@ -252,6 +264,20 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         else:
             for i in range(n):
                 neighbours[i] = pts[:i] + pts[i + 1 :]
+        # scenario movers (issue 30): the bodies at t; a visible one is seen like a robot
+        # (no velocity, age 0) by every robot's filter and as a tracked object by the
+        # coordinator; an invisible one (an untracked person) only by the logs
+        if bodies:
+            seen_bodies = {}
+            for b, (mover, track) in enumerate(zip(bodies, body_tracks, strict=True)):
+                bx, by, _, _ = mover.state(t)
+                track.append((bx, by))
+                if mover.visible:
+                    seen_bodies[mover.id] = (bx, by)
+                    extra = body_extra[b]
+                    nb = _tuple_new(Neighbour, (bx, by, math.nan, 0.0, 0.0, 0.0, False, extra))
+                    for i in range(n):
+                        neighbours[i] = [*neighbours[i], nb]
         # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
         # arrives or one goes stale)
         if delivered or t - oldest_rx > stale:
@@ -262,11 +288,12 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                     fresh[ids[i]] = q
                     if pose_rx[i] < oldest_rx:
                         oldest_rx = pose_rx[i]
+        objects = seen_bodies if bodies else None
         if faults is None:
-            out = coord.tick(t, fresh)
+            out = coord.tick(t, fresh, objects=objects)
         else:
             counted = faults.coordinator_input(fresh)
-            out = coord.tick(t, counted)
+            out = coord.tick(t, counted, objects=objects)
             faults.observe(out, counted)
         # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
         prev_out = outputs.for_clock(k)
@@ -358,7 +385,13 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     if interrupted:
         log.meta["interrupted"] = True
     status = {rid: _status_dict(fw) for rid, fw in zip(ids, firmwares, strict=True)}
-    return SimResult(log=log, wall_s=wall, firmware_status=status, interrupted=interrupted)
+    tracks = {
+        m.id: np.asarray(tr, dtype=float).reshape(-1, 2)
+        for m, tr in zip(bodies, body_tracks, strict=True)
+    }
+    return SimResult(
+        log=log, wall_s=wall, firmware_status=status, interrupted=interrupted, movers=tracks
+    )
 
 
 def _faulted_step(faults: FaultPlay, i: int, t_s: float, step: Callable[..., Any]) -> Any:

@@ -297,7 +297,9 @@ class Firmware(_FirmwareModes):
                 encoders (the estimator then predicts from the commanded speeds).
 
         Returns:
-            The wheel command; exactly zero wheels in every mode but TRACKING. Never raises.
+            The wheel command. In IDLE and HOLD the wheels are zero unless the safety filter
+            must move the robot out of the way (``_evade``: zero nominal command); in ESTOP,
+            without a pose and with the filter disabled exactly zero. Never raises.
         """
         self._steps += 1
         # The whole tick runs inside one try (zero-cost in CPython 3.11 unless it raises): a
@@ -334,8 +336,10 @@ class Firmware(_FirmwareModes):
                 return self._hold(_EV_ESTOP, "estop")
             # 2. inputs: the setpoint advanced to now_s, the pose at now_s, both fresh
             spx, spy, spvx, spvy, sp_age = self._setpoint_now(now, setpoint, setpoint_rx_s)
-            if sp_age != sp_age:  # NaN: no valid setpoint
-                return self._zero(self._last_pose_t)
+            if sp_age != sp_age:  # NaN: no valid setpoint (IDLE, or HOLD): evade only
+                if est is None:
+                    got = self._pose_quiet(now, pose, pose_rx_s)
+                return self._evade(now, dt, got, neighbours, obstacles, extra_radius_m)
             if est is None:
                 xytu = self._pose_measured(now, pose, pose_rx_s)
             else:
@@ -344,7 +348,8 @@ class Firmware(_FirmwareModes):
                 return self._zero(self._last_pose_t)
             lim = self._stale_sp
             if not -lim <= sp_age <= lim:
-                return self._hold(_EV_STALE, "setpoint stale")
+                self._stop(_EV_STALE, "setpoint stale")
+                return self._evade(now, dt, xytu, neighbours, obstacles, extra_radius_m)
             if self._mode is not _TRACKING:
                 self._transition(_EV_FRESH, "tracking")
             x, y, th, unc = xytu
@@ -402,6 +407,69 @@ class Firmware(_FirmwareModes):
             return self._zero(self._last_pose_t)
 
     # ------------------------------------------------------------------ the stages of step
+
+    def _evade(
+        self,
+        now: float,
+        dt: float,
+        xytu: tuple[float, float, float, float] | None,
+        neighbours: Sequence[Any],
+        obstacles: Sequence[tuple[float, float, float]],
+        extra_radius_m: object,
+    ) -> WheelCommand:
+        """A tick that does not track (IDLE, HOLD) but knows where the robot is (``xytu``, the
+        pose at ``now``; None: it does not, and the wheels are zero): the safety filter with a
+        zero nominal command (``SafetyFilter.evade``, issue 30), then stages 7-9. Zero wheels
+        unless a body approaches or the robot is inside a boundary: it still gets out of the
+        way. Only ESTOP, a lost pose and a disabled filter mean wheels at zero regardless."""
+        if xytu is None or not self._filter_on:
+            return self._zero(self._last_pose_t)
+        x, y, th, unc = xytu
+        l_m = self._l
+        rx, ry = reference_point(x, y, th, l_m)
+        er = extra_radius_m if type(extra_radius_m) is float else _real(extra_radius_m)
+        if unc > er:
+            er = unc
+        vx, vy = self._filter.evade(rx, ry, neighbours, obstacles, er, dt)
+        if vx == 0.0 and vy == 0.0:
+            return self._zero(self._last_pose_t)
+        v, w = twist_from_ref_velocity(vx, vy, th, l_m)  # eq 16
+        wr, wl = wheels_from_twist_raw(v, w, self._half_track, self._wheel_r)  # eq 8
+        wr, wl, sat = self._saturate(wr, wl, th)
+        if self._est is not None:
+            self._pending_cmd = (now + self._act_delay, wr, wl)
+        wmax = self._wmax
+        return _new_command(wr, wl, wr / wmax, wl / wmax, self._mode, self._last_pose_t, sat)
+
+    def _pose_quiet(
+        self, now: float, pose: object, pose_rx_s: object
+    ) -> tuple[float, float, float, float] | None:
+        """Without the estimator, on a tick with no setpoint: the latest pose as measured if
+        finite and fresh, ``(x, y, theta, 0.0)``, else None; no mode change (a bad pose is
+        counted once, as in ``_pose_measured``)."""
+        if pose is None:
+            return None
+        ox: object
+        oy: object
+        oth: object
+        ot: object
+        if isinstance(pose, tuple):
+            ox, oy, oth, ot = pose
+        else:
+            ps: Any = pose
+            ox, oy, oth, ot = ps
+        x = ox if type(ox) is float else _real(ox)
+        y = oy if type(oy) is float else _real(oy)
+        th = oth if type(oth) is float else _real(oth)
+        pose_t = ot if type(ot) is float else _real(ot)
+        prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
+        if not _isfinite(x + y + th + pose_t + prx):
+            self._reject_pose(pose, "non-finite pose")
+            return None
+        lim = self._stale_pose
+        if not -lim <= now - prx <= lim:
+            return None
+        return x, y, th, 0.0
 
     def _estimate(
         self,

@@ -3,15 +3,21 @@ and the table-driven mode machine (events and transitions) that ``Firmware.step`
 
 Modes::
 
-    IDLE      no valid setpoint received yet. Wheels exactly 0.
+    IDLE      no valid setpoint received yet. Nominal command 0 (see "Evading" below).
     TRACKING  fresh, finite pose and setpoint: run the controller.
     HOLD      we have (had) a setpoint but cannot track safely now: the pose or setpoint is
               older than its staleness limit (``|now_s - *_rx_s|``), missing, or was rejected
-              (non-finite field, slot not an int >= 0). Wheels exactly 0. The integrators
+              (non-finite field, slot not an int >= 0). Nominal command 0. The integrators
               are frozen (not updated) and the derivative state is reset on entry, so
               resuming gives no kick.
     ESTOP     latched emergency stop. Wheels exactly 0. Only ``release_estop()`` leaves it,
               to IDLE (never had a setpoint) or HOLD; the next fresh tick then goes TRACKING.
+
+Evading (issue 30, "Movers"): in IDLE and HOLD, while the robot's own pose at ``now_s`` is
+valid, the safety filter still runs on a zero nominal command (``SafetyFilter.evade``): the
+wheels are exactly 0 unless a body or a neighbour comes at the robot or it is inside a
+boundary, and then it gets out of the way. Only ESTOP, a lost pose (a dead link: no pose, too
+old, invalid estimate) and a disabled filter mean wheels at zero whatever approaches.
 
 Each tick is classified into one event (first match wins): ESTOP (latch set), INVALID (a
 non-finite clock value), NO_SETPOINT (no setpoint, or a rejected one before any valid one),

@@ -213,13 +213,16 @@ class SafetyFilter:
         "_budget",
         "_cons",
         "_deadlock",
+        "_evasions",
         "_gamma",
         "_gamma_slow",
         "_has_world",
         "_infeasible",
         "_last_t",
         "_min_h",
+        "_n_nb",
         "_neighbours",
+        "_push_m",
         "_rejected",
         "_rescaled",
         "_shared",
@@ -240,6 +243,9 @@ class SafetyFilter:
         self._gamma = p.gamma_per_s
         self._gamma_slow = min(p.gamma_per_s, 1.0 / config.safety.max_dt_s)
         self._budget = p.noise_budget_m
+        # how far evade() may push into a neighbour's barrier when pinned: 90 % of what the
+        # margin holds beyond both positions' noise (centres keep > 2 r_b: module docstring)
+        self._push_m = 0.9 * max(0.0, p.margin_m - 2.0 * p.noise_budget_m)
         self._vcap = config.gains.max_ref_speed_mps
         self._neighbours = NeighbourBarriers(config)
         self._world = WorldBarriers(config, clear)
@@ -254,6 +260,8 @@ class SafetyFilter:
         self._infeasible = 0
         self._rescaled = 0
         self._rejected = 0
+        self._evasions = 0
+        self._n_nb = 0  # rows from neighbours at the head of the last constraints() list
         self._min_h = math.inf
 
     # ------------------------------------------------------------------ public API
@@ -304,6 +312,11 @@ class SafetyFilter:
                 return False
         return True
 
+    @property
+    def evasions(self) -> int:
+        """Ticks on which ``evade`` moved a robot that was not tracking (issue 30)."""
+        return self._evasions
+
     def count_rescaled(self) -> None:
         """The firmware rescaled saturated wheels uniformly to stay admissible."""
         self._rescaled += 1
@@ -343,6 +356,7 @@ class SafetyFilter:
         min_h = self._neighbours.append(
             px, py, cap, reach, gamma, rho, dt_s, frame, neighbours, cons, _INF
         )
+        self._n_nb = len(cons)
         if obstacles or self._has_world:
             min_h, bad = self._world.append(px, py, reach, gamma, rho, obstacles, cons, min_h)
             self._rejected += bad
@@ -464,4 +478,64 @@ class SafetyFilter:
                 self._active += 1
         if not tiebreak:  # (observe does nothing during a tie-break with something in range)
             deadlock.observe(now_s, ex, ey, True, False)
+        return fx, fy
+
+    def evade(
+        self,
+        px: float,
+        py: float,
+        neighbours: Sequence[Any] = (),
+        obstacles: Sequence[tuple[float, float, float]] = (),
+        extra_radius_m: float = 0.0,
+        dt_s: float = 0.0,
+    ) -> tuple[float, float]:
+        """The filter with a ZERO nominal command, for a robot that is not tracking (HOLD,
+        IDLE; issue 30, "Movers"): ``(0, 0)`` while every barrier holds and nothing comes at
+        it (every ``b <= 0``: standing still keeps them, the invariance proof of the module
+        docstring with ``u = 0``); else the least-norm command that meets the "get out"
+        demands (``b > 0``: a body or a neighbour with a known velocity approaching, or the
+        robot already inside a boundary), at up to ``max_ref_speed_mps``, and when they cannot
+        all be met the least-violation command ("Leaving a barrier"). So a robot that stopped
+        trying to reach a slot still gets out of the way of a body carried at it.
+
+        Unlike ``filter`` it runs no deadlock tie-break, does not count a filter tick and does
+        not mark this robot as having been TRACKING (the shared-frame plane's condition): a
+        robot in HOLD is a non-cooperative neighbour to the others, and answers for itself.
+        ``admissible`` then refers to these constraints (the firmware's saturation stage)."""
+        if not self.enabled:
+            self._cons = []
+            return 0.0, 0.0
+        cons = self.constraints(
+            px, py, self._vcap, neighbours, obstacles, extra_radius_m, dt_s, None
+        )
+        self._cons = cons
+        for con in cons:
+            if con[2] > 0.0:
+                break
+        else:  # no demand: u = 0 meets every constraint (exactly the old HOLD output)
+            return 0.0, 0.0
+        cap = self._vcap
+        if len(cons) == 1:  # closed form: b n, or the cap along n
+            ax, ay, b = cons[0]
+            if b > cap:
+                self._infeasible += 1
+                b = cap
+            fx, fy = b * ax, b * ay
+        else:
+            fx, fy, feasible = solve_qp(0.0, 0.0, cons, cap)
+            if not feasible:
+                # Pinned (a body at it, other robots behind): push into the others' barriers
+                # by up to ``_push_m``, so that they in turn get out of the way (their own rows
+                # see this robot inside and they evade), instead of waiting for the body
+                push = self._gamma * self._push_m
+                soft = [
+                    (ax, ay, b - push if k < self._n_nb else b)
+                    for k, (ax, ay, b) in enumerate(cons)
+                ]
+                fx, fy, feasible = solve_qp(0.0, 0.0, soft, cap)
+                if not feasible:
+                    fx, fy, _, _ = solve_qp_relaxed(0.0, 0.0, soft, cap)
+                    self._infeasible += 1
+        if fx != 0.0 or fy != 0.0:
+            self._evasions += 1
         return fx, fy

@@ -1,0 +1,387 @@
+"""Movers (issue 30): robots the coordinator sees moving in a way their own wheels cannot
+explain, so they are moving obstacles and not members of the formation for now.
+
+Pure, stdlib only, time passed in. ``CoordinatorCore.tick`` runs one :class:`MoverDetector`, so
+the in-process simulator, lockstep and realtime coordinators decide from the same poses the same
+way (no input beyond the ones ``tick`` already has: the poses, the e-stopped robots and its own
+previous assignment).
+
+Theory of operation
+===================
+Each robot's axle centre is sampled on every tick (the centre, not the reference point: a turn
+in place moves the reference point at up to ``l omega`` while the robot stays put). Its
+speed is the distance to the oldest sample at least ``window_s`` old, over the time between
+(a mean over the window, so camera noise of 3 mm per axis reads as about 0.01 m/s, not as
+the 0.1 m/s one frame's jitter would; ``still_mps`` is about 5 standard deviations of it). A
+robot is a mover on a tick when
+
+* its speed exceeds ``fast_mps`` (above what its wheels can drive: it is carried, pushed, or
+  its pose is not its own), or
+* it is not driven toward a slot (no slot in the coordinator's previous assignment: a spare or
+  an unassigned robot, or it is e-stopped) and its speed exceeds ``still_mps``: its firmware
+  commands no motion of its own (IDLE, HOLD, ESTOP; an IDLE or HOLD robot may only evade, and
+  a robot evading a body is a fine thing to keep out of the formation for a moment too).
+
+It stays a mover until ``hold_s`` after the last tick on which either held (with ``still_mps``
+halved for a robot that is a mover already: hysteresis). While a robot is a
+mover the coordinator gives it no slot, and the slot it held when it became one is kept for it
+(no other robot is sent into its way: ``reserved``); when it is no longer a mover it is a
+robot like any other and the assignment takes it back.
+
+Making room (``yielding``): a robot whose centre is within ``yield_m + lead_s * speed`` of a
+mover, and every
+robot within ``chain_m`` of a yielding one (the formation around it), yields for ``hold_s``:
+the slot it had is kept for it (given to no one else) and its setpoint is a refuge
+(``refuge``) beside the movers' lines of motion instead of the slot, so the formation steps
+aside together, its robots tracking (cooperative with one another) and their filters keeping
+them apart and away from the body. Without this, a body carried head-on at a formation's
+leader pinned it against its own followers, which kept advancing to their slots (the
+cooperative barrier, issue 30 (b)): the leader's filter found no admissible command and its
+wheels sat at zero until contact. A yielding robot that had no slot (a spare) gets no setpoint:
+its firmware evades on a zero nominal command (robot_agent's ``SafetyFilter.evade``).
+
+What it cannot see: a robot carried while it tracks a slot, slower than ``fast_mps``, looks
+like a robot driving (only its wheels' encoders could tell; docs/faults.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass
+
+__all__ = ["MoverDetector", "MoverParams"]
+
+
+@dataclass(frozen=True, slots=True)
+class MoverParams:
+    """Thresholds of :class:`MoverDetector`.
+
+    Attributes:
+        fast_mps: a centre faster than this (m/s) is a mover whatever its mode: above the
+            robots' top speed (``max_wheel_radps * wheel_radius_m``, 0.3 m/s) with a margin
+            for noise over the window.
+        still_mps: a robot that is not driven (no slot, e-stopped) faster than this (m/s) is a
+            mover: above what 3 mm camera noise reads as over ``window_s``.
+        window_s: the speed is measured over at least this long (s).
+        hold_s: a mover stays one this long (s) after it was last seen moving so; a robot
+            making room for one yields this long after it was last near one.
+        yield_m: a robot whose centre is this close (m) to a mover's yields (makes room).
+        chain_m: a robot this close (m) to a yielding robot yields too.
+        clear_m: a yielding robot steps sideways until its reference point is this far (m)
+            from the line a mover moves along (``refuge``).
+        side_tol_m: a robot this close (m) to that line steps to its left.
+        spacing_m: refuges at least this far apart (m; the cooperative barrier between two
+            reference points is ``Ds + 2 l`` = 0.29 m with the defaults).
+        lead_s: a mover's reach grows by what it covers in this long (s) at its speed: a
+            robot within ``yield_m + lead_s * speed`` of it yields.
+    """
+
+    fast_mps: float = 0.4
+    still_mps: float = 0.04
+    window_s: float = 0.5
+    hold_s: float = 1.0
+    yield_m: float = 0.6
+    chain_m: float = 0.45
+    clear_m: float = 0.4
+    side_tol_m: float = 0.03
+    spacing_m: float = 0.35
+    lead_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        names = (
+            "fast_mps", "still_mps", "window_s", "hold_s", "yield_m", "chain_m", "clear_m",
+            "side_tol_m", "lead_s", "spacing_m",
+        )  # fmt: skip
+        for name in names:
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
+                raise ValueError(f"MoverParams.{name} must be a positive finite number: {value!r}")
+        if not self.still_mps < self.fast_mps:
+            raise ValueError("MoverParams: still_mps must be below fast_mps")
+
+    @classmethod
+    def for_top_speed(cls, top_speed_mps: float) -> MoverParams:
+        """Defaults with ``fast_mps`` a third above ``top_speed_mps`` (the robots' top speed)."""
+        return cls(fast_mps=max(2.0 * cls().still_mps, 4.0 / 3.0 * top_speed_mps))
+
+
+class MoverDetector:
+    """Which robots are movers now (see the module docstring)."""
+
+    __slots__ = (
+        "_hist",
+        "_last_xy",
+        "_objects",
+        "_params",
+        "_reserved",
+        "_side",
+        "_until",
+        "_yield_until",
+        "rejected",
+    )
+
+    def __init__(self, params: MoverParams | None = None) -> None:
+        self._params = params if params is not None else MoverParams()
+        self._hist: dict[str, deque[tuple[float, float, float]]] = {}
+        self._last_xy: dict[str, tuple[float, float]] = {}
+        self._until: dict[str, float] = {}
+        self._yield_until: dict[str, float] = {}
+        self._reserved: dict[str, int] = {}
+        self._side: dict[tuple[str, str], float] = {}  # (robot, mover) -> side (+1 left)
+        self._objects: frozenset[str] = frozenset()  # the tracked non-fleet bodies now
+        self.rejected = 0
+        """Poses or times skipped as non-finite."""
+
+    @property
+    def params(self) -> MoverParams:
+        return self._params
+
+    @property
+    def movers(self) -> frozenset[str]:
+        """The robots that were movers on the last ``update``."""
+        return frozenset(self._until)
+
+    @property
+    def yielding(self) -> frozenset[str]:
+        """The robots making room for a mover on the last ``update`` (no mover among them)."""
+        return frozenset(r for r in self._yield_until if r not in self._until)
+
+    @property
+    def excluded(self) -> frozenset[str]:
+        """Movers and the robots making room for them: no slot for any of them now."""
+        return frozenset(self._until) | frozenset(self._yield_until)
+
+    @property
+    def reserved(self) -> Mapping[str, int]:
+        """Mover or yielding robot -> the slot it held when it became one (kept for it, given
+        to no one else)."""
+        return dict(self._reserved)
+
+    def speed_mps(self, robot: str) -> float:
+        """The robot's centre speed over the window (m/s), NaN until it has one."""
+        hist = self._hist.get(robot)
+        if not hist or len(hist) < 2:
+            return math.nan
+        t1, x1, y1 = hist[-1]
+        t0, x0, y0 = hist[0]
+        if not t1 - t0 >= self._params.window_s:
+            return math.nan
+        return math.hypot(x1 - x0, y1 - y0) / (t1 - t0)
+
+    def velocity(self, robot: str) -> tuple[float, float]:
+        """The robot's centre velocity over the window (m/s), ``(0, 0)`` until it has one."""
+        hist = self._hist.get(robot)
+        if not hist or len(hist) < 2:
+            return 0.0, 0.0
+        t1, x1, y1 = hist[-1]
+        t0, x0, y0 = hist[0]
+        if not t1 - t0 >= self._params.window_s:
+            return 0.0, 0.0
+        return (x1 - x0) / (t1 - t0), (y1 - y0) / (t1 - t0)
+
+    def refuges(self, points: Mapping[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+        """The refuges of several robots making room (reference points ``points``), spaced:
+        each robot's own ``refuge``, then, the robots that must move farthest first, one whose
+        refuge is within ``spacing_m`` of a refuge already placed is pushed on (along its own
+        sideways direction, or the other robot's when it had none) until it is not. So the
+        robots stepping aside do not ask for the same place (a robot pinned between a
+        neighbour holding its refuge and the body: issue 30)."""
+        p = self._params
+        base: dict[str, tuple[float, float, float, float]] = {}
+        for rid in sorted(points):
+            qx, qy = points[rid]
+            rx, ry = self.refuge(rid, qx, qy)
+            d = math.hypot(rx - qx, ry - qy)
+            nx, ny = ((rx - qx) / d, (ry - qy) / d) if d > 1e-9 else (0.0, 0.0)
+            base[rid] = (rx, ry, nx, ny)
+        order = sorted(base, key=lambda r: (-math.hypot(base[r][0] - points[r][0],
+                                                       base[r][1] - points[r][1]), r))  # fmt: skip
+        placed: dict[str, tuple[float, float, float, float]] = {}
+        for rid in order:
+            rx, ry, nx, ny = base[rid]
+            for _ in range(2 * len(placed) + 1):
+                clash = None
+                for px, py, pnx, pny in placed.values():
+                    if math.hypot(rx - px, ry - py) < p.spacing_m:
+                        clash = (px, py, pnx, pny)
+                        break
+                if clash is None:
+                    break
+                px, py, pnx, pny = clash
+                dx, dy = (nx, ny) if nx or ny else (pnx, pny)
+                if not (dx or dy):
+                    break
+                # along (dx, dy) until spacing_m from the clashing refuge
+                ox, oy = rx - px, ry - py
+                along = ox * dx + oy * dy
+                perp2 = ox * ox + oy * oy - along * along
+                step = math.sqrt(max(0.0, p.spacing_m**2 - perp2)) - along + 1e-3
+                rx += dx * step
+                ry += dy * step
+            placed[rid] = (rx, ry, nx, ny)
+        return {rid: (v[0], v[1]) for rid, v in placed.items()}
+
+    def refuge(self, robot: str, qx: float, qy: float) -> tuple[float, float]:
+        """Where ``robot`` making room, with its reference point at ``(qx, qy)``, goes now: off
+        the movers' paths. For each mover that comes at it (or stands, within ``clear_m``), the
+        point is pushed sideways from the mover's line of motion until it is ``clear_m`` from
+        that line, on a side chosen when it started to make room for that mover and kept
+        while it yields (a noisy velocity must not flip it): ``_choose_side``. ``(qx, qy)``
+        itself when nothing asks it to move (it holds its place, tracking)."""
+        p = self._params
+        rx, ry = qx, qy
+        for mid in sorted(self._until):
+            c = self._last_xy.get(mid)
+            if c is None:
+                continue
+            vx, vy = self.velocity(mid)
+            sp = math.hypot(vx, vy)
+            dx, dy = qx - c[0], qy - c[1]
+            if sp > p.still_mps:
+                ux, uy = vx / sp, vy / sp
+            else:  # a mover standing: away from it
+                d = math.hypot(dx, dy)
+                if not d > 0.0:
+                    continue
+                ux, uy = dx / d, dy / d
+            along = dx * ux + dy * uy
+            if along < -p.clear_m:  # behind it and it moves away
+                continue
+            cross = ux * dy - uy * dx  # > 0: left of the motion
+            side = self._side.get((robot, mid))
+            if side is None:
+                side = self._choose_side(qx, qy, ux, uy, cross)
+                self._side[robot, mid] = side
+            nx, ny = -uy * side, ux * side
+            w = cross * side  # distance from the line, toward the side kept
+            if w >= p.clear_m:
+                continue
+            rx += nx * (p.clear_m - w)
+            ry += ny * (p.clear_m - w)
+        return rx, ry
+
+    def _choose_side(self, qx: float, qy: float, ux: float, uy: float, cross: float) -> float:
+        """The side (+1: left of the motion ``u``) a robot at ``(qx, qy)`` steps to: away from
+        the centre of the other robots (out of the formation, not across it) when that is
+        clear by ``side_tol_m``, else the side of the mover's line it is on, else the left."""
+        tol = self._params.side_tol_m
+        pts = [
+            xy
+            for rid, xy in self._last_xy.items()
+            if rid not in self._objects and rid not in self._until
+        ]
+        if pts:
+            cx = sum(x for x, _ in pts) / len(pts)
+            cy = sum(y for _, y in pts) / len(pts)
+            out = ux * (qy - cy) - uy * (qx - cx)
+            if abs(out) > tol:
+                return 1.0 if out > 0.0 else -1.0
+        return -1.0 if cross < -tol else 1.0
+
+    def update(
+        self,
+        now_s: float,
+        poses: Mapping[str, tuple[float, float, float]],
+        assignment: Mapping[str, int],
+        held: Collection[str] = (),
+        objects: Mapping[str, tuple[float, float]] | None = None,
+    ) -> frozenset[str]:
+        """One tick: ``poses`` the latest pose of each live robot (axle centre x, y, theta),
+        ``assignment`` the coordinator's previous assignment (robot -> slot), ``held`` the
+        e-stopped robots, ``objects`` the tracked bodies that are not fleet robots (centre x,
+        y; ids distinct from the robots'): never driven, so a mover whenever one moves faster
+        than ``still_mps``. Returns the robots that get no slot now (``excluded``: the movers
+        and the robots making room for them; an object among them is given no slot anyway)."""
+        p = self._params
+        if not math.isfinite(now_s):
+            self.rejected += 1
+            return self.excluded
+        self._objects = frozenset(objects) if objects else frozenset()
+        present: Mapping[str, object] = poses
+        seen = list(poses.items())
+        if objects:
+            seen += [(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses]
+            present = {**poses, **objects}
+        for rid, pose in seen:
+            x, y = float(pose[0]), float(pose[1])
+            if not (math.isfinite(x) and math.isfinite(y)):
+                self.rejected += 1
+                continue
+            hist = self._hist.get(rid)
+            if hist is None:
+                hist = self._hist[rid] = deque()
+            # one sample per tick (a pose that did not change is a robot that did not move
+            # as far as the coordinator knows; over the window that averages out)
+            self._last_xy[rid] = (x, y)
+            if not hist or now_s > hist[-1][0]:
+                hist.append((now_s, x, y))
+            # keep the newest sample at least window_s before the latest one, and after it
+            while len(hist) > 2 and now_s - hist[1][0] >= p.window_s:
+                hist.popleft()
+            speed = self.speed_mps(rid)
+            if speed != speed:
+                continue
+            driven = rid in assignment and rid not in held
+            # (hysteresis: a mover stays one down to half of still_mps, so a slow body read
+            # through the camera's noise does not flicker in and out)
+            still = 0.5 * p.still_mps if rid in self._until else p.still_mps
+            if speed > p.fast_mps or (not driven and speed > still):
+                if rid in assignment:
+                    self._reserved.setdefault(rid, assignment[rid])
+                self._until[rid] = now_s + p.hold_s
+        for rid in [r for r in self._hist if r not in present]:  # gone: forget it
+            del self._hist[rid]
+            self._last_xy.pop(rid, None)
+        for rid in [r for r, until in self._until.items() if now_s >= until or r not in present]:
+            del self._until[rid]
+        if self._until:
+            self._make_room(now_s, assignment)
+        for rid in [r for r, t in self._yield_until.items() if now_s >= t or r not in poses]:
+            del self._yield_until[rid]
+        for rid in [
+            r for r in self._reserved if r not in self._until and r not in self._yield_until
+        ]:
+            del self._reserved[rid]
+        for key in [
+            k for k in self._side if k[0] not in self._yield_until or k[1] not in self._until
+        ]:
+            del self._side[key]
+        return self.excluded
+
+    def _make_room(self, now_s: float, assignment: Mapping[str, int]) -> None:
+        """Mark the robots near a mover, and those near them in turn, as yielding now (a
+        breadth-first walk over centre distances; O(n^2) in the robots, only with a mover)."""
+        p = self._params
+        xy = self._last_xy
+        # (x, y, radius): a mover reaches yield_m plus what it covers in lead_s
+        frontier = [
+            (*xy[m], p.yield_m + p.lead_s * math.hypot(*self.velocity(m)))
+            for m in sorted(self._until)
+            if m in xy
+        ]
+        seen = set(self._until)
+        while frontier:
+            nxt: list[tuple[float, float, float]] = []
+            for rid, (x, y) in xy.items():
+                if rid in seen or rid in self._objects:
+                    continue
+                for fx, fy, radius in frontier:
+                    if math.hypot(x - fx, y - fy) <= radius:
+                        seen.add(rid)
+                        nxt.append((x, y, p.chain_m))
+                        if rid not in self._yield_until and rid in assignment:
+                            self._reserved.setdefault(rid, assignment[rid])
+                        self._yield_until[rid] = now_s + p.hold_s
+                        break
+            frontier = nxt
+
+    def reset(self) -> None:
+        """Forget every history and mover."""
+        self._hist.clear()
+        self._last_xy.clear()
+        self._until.clear()
+        self._yield_until.clear()
+        self._reserved.clear()
+        self._side.clear()
