@@ -20,8 +20,10 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing
+import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
@@ -166,6 +168,14 @@ def _worker_init() -> None:
         sys.path[:] = [p for p in sys.path if Path(p).name != "_compiled"]
 
 
+def _single_threaded() -> bool:
+    """Whether this process has one OS thread (native threads included), where the OS says."""
+    try:
+        return len(os.listdir("/proc/self/task")) == 1
+    except OSError:
+        return threading.active_count() == 1
+
+
 def _results_in_order(
     specs: Sequence[CaseSpec], jobs: int, runner: Callable[[CaseSpec], dict[str, Any]]
 ) -> Iterator[dict[str, Any]]:
@@ -173,11 +183,14 @@ def _results_in_order(
         for s in specs:
             yield runner(s)
         return
-    # fork where there is one: the workers start at once with the modules already imported, and
-    # no resource-tracker process outlives the pool (spawn starts one for the pool's locks);
-    # the parent has no threads here (the progress line and the plots are drawn in this thread)
+    # fork where it is safe: the workers start at once with the modules already imported, and no
+    # resource-tracker process outlives the pool (spawn starts one for the pool's locks). A fork
+    # is safe only from a process with one thread: `formation sweep` has one (the progress line
+    # and the plots are drawn in this thread), but a caller with Zenoh's or BLAS's threads (a
+    # test run, a notebook) can fork a child that waits for ever on a lock another thread held.
     methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    fork = "fork" in methods and _single_threaded()
+    ctx = multiprocessing.get_context("fork" if fork else "spawn")
     pool = ctx.Pool(min(jobs, len(specs)), initializer=_worker_init)
     try:
         yield from pool.imap_unordered(runner, specs, chunksize=1)
