@@ -441,14 +441,11 @@ class Firmware(_FirmwareModes):
         wmax = self._wmax
         return _new_command(wr, wl, wr / wmax, wl / wmax, self._mode, self._last_pose_t, sat)
 
-    def _pose_quiet(
-        self, now: float, pose: object, pose_rx_s: object
-    ) -> tuple[float, float, float, float] | None:
-        """Without the estimator, on a tick with no setpoint: the latest pose as measured if
-        finite and fresh, ``(x, y, theta, 0.0)``, else None; no mode change (a bad pose is
-        counted once, as in ``_pose_measured``)."""
-        if pose is None:
-            return None
+    def _read_pose(
+        self, pose: object, pose_rx_s: object
+    ) -> tuple[float, float, float, float, float] | None:
+        """``pose`` (x, y, theta, t) and its receive time as floats, or None for a non-finite
+        or non-numeric one (rejected and counted once): what both pose stages read."""
         ox: object
         oy: object
         oth: object
@@ -466,6 +463,18 @@ class Firmware(_FirmwareModes):
         if not _isfinite(x + y + th + pose_t + prx):
             self._reject_pose(pose, "non-finite pose")
             return None
+        return x, y, th, pose_t, prx
+
+    def _pose_quiet(
+        self, now: float, pose: object, pose_rx_s: object
+    ) -> tuple[float, float, float, float] | None:
+        """Without the estimator, on a tick with no setpoint: the latest pose as measured if
+        finite and fresh, ``(x, y, theta, 0.0)``, else None; no mode change (a bad pose is
+        counted once, as in ``_pose_measured``)."""
+        read = None if pose is None else self._read_pose(pose, pose_rx_s)
+        if read is None:
+            return None
+        x, y, th, _pose_t, prx = read
         lim = self._stale_pose
         if not -lim <= now - prx <= lim:
             return None
@@ -614,24 +623,11 @@ class Firmware(_FirmwareModes):
             self._pose_age = _NAN
             self._stop(_EV_STALE, "no pose")
             return None
-        ox: object
-        oy: object
-        oth: object
-        ot: object
-        if isinstance(pose, tuple):
-            ox, oy, oth, ot = pose
-        else:
-            ps: Any = pose
-            ox, oy, oth, ot = ps
-        x = ox if type(ox) is float else _real(ox)
-        y = oy if type(oy) is float else _real(oy)
-        th = oth if type(oth) is float else _real(oth)
-        pose_t = ot if type(ot) is float else _real(ot)
-        prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
-        if not _isfinite(x + y + th + pose_t + prx):
-            self._reject_pose(pose, "non-finite pose")
+        read = self._read_pose(pose, pose_rx_s)
+        if read is None:
             self._stop(_EV_INVALID, "pose rejected")
             return None
+        x, y, th, pose_t, prx = read
         self._last_pose_t = pose_t
         pose_age = now - prx
         self._pose_age = pose_age
