@@ -23,8 +23,12 @@ accel: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/formation demo --out runs/demo
 
+# Two tiers. The in-process tests (unit, repo, the docs' examples) are CPU-bound and share no
+# state: two workers. The real-Zenoh and whole-fleet tests run one at a time (their deadlines
+# assume the fleet under test has the machine; docs/testing.md).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q --durations=25
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests/unit tests/repo docs/examples
+	$(BIN)/python -m pytest -q --durations=15 tests/bus tests/fleet
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

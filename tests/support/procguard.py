@@ -195,10 +195,13 @@ def _orphans_of_dead_runs() -> set[int]:
     def dead_run(env: dict[bytes, bytes]) -> bool:
         if env.get(b"FORMATION_TEST_ROOT") != root:
             return False
-        owner = env[RUN_MARK_ENV.encode()].split(b",")[-1].split(b".")[0]  # the innermost run
-        if not owner.isdigit() or int(owner) == os.getpid():
+        # every run in the chain (an xdist worker's chain starts with its controller's mark; a
+        # worker's own command line does not name pytest): alive while one of them is a pytest
+        owners = [m.split(b".")[0] for m in env[RUN_MARK_ENV.encode()].split(b",")]
+        if any(o.isdigit() and int(o) == os.getpid() for o in owners):
             return False
-        return "pytest" not in _cmdline(int(owner))  # gone, or the pid is something else now
+        # each owner gone, or its pid something else now
+        return not any(o.isdigit() and "pytest" in _cmdline(int(o)) for o in owners)
 
     return _marked_processes(dead_run, since=0)
 
