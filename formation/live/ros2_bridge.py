@@ -113,8 +113,9 @@ class BridgeCore:
     # --- fleet -> ROS -------------------------------------------------------------------------
 
     def on_pose(self, robot: str, t_s: float, x_m: float, y_m: float, theta_rad: float,
-                stamp_s: float) -> list[Outgoing]:  # fmt: skip
-        """A robot's measured pose (bus ``t`` = ``t_s``) -> its odometry and its tf."""
+                stamp_ns: int) -> list[Outgoing]:  # fmt: skip
+        """A robot's measured pose (bus ``t`` = ``t_s``) -> its odometry and its tf, the
+        headers stamped ``stamp_ns`` (ns since the UNIX epoch: ROS time)."""
         prev = self._tracks.get(robot)
         track = _Track(t_s, x_m, y_m, theta_rad)
         if prev is not None:
@@ -129,7 +130,7 @@ class BridgeCore:
             track.v_mps = (dx * math.cos(mean) + dy * math.sin(mean)) / dt_s
             track.omega_radps = math.remainder(theta_rad - prev.theta_rad, math.tau) / dt_s
         self._tracks[robot] = track
-        header = msgs.Header(msgs.time_from_s(stamp_s), "map")
+        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
         pose = msgs.Pose(msgs.Point(x_m, y_m), msgs.quaternion_from_yaw(theta_rad))
         twist = msgs.Twist(msgs.Vector3(x=track.v_mps), msgs.Vector3(z=track.omega_radps))
         odom = msgs.Odometry(
@@ -150,9 +151,9 @@ class BridgeCore:
     def on_slot(self, slot: Slot) -> None:
         self._slots[slot.slot] = slot
 
-    def formation(self, stamp_s: float) -> list[Outgoing]:
-        """The leader, the slots (PoseArray, markers) and their tf, as of now."""
-        header = msgs.Header(msgs.time_from_s(stamp_s), "map")
+    def formation(self, stamp_ns: int) -> list[Outgoing]:
+        """The leader, the slots (PoseArray, markers) and their tf, stamped ``stamp_ns``."""
+        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
         out: list[Outgoing] = []
         transforms: list[msgs.TransformStamped] = []
         if self._leader is not None:
@@ -340,7 +341,7 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
     rate_hz: float,
     max_cmd_hz: float,
     *,
-    wall_s: Callable[[], float] = time.time,
+    wall_ns: Callable[[], int] = time.time_ns,
 ) -> int:
     """The bridge on an open session until ``stop``; returns the exit status."""
     from formation.operate.estop_tool import send_estop
@@ -360,14 +361,14 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
         if parsed is None or isinstance(msg, DecodeError):
             core.rejected.add(msg if isinstance(msg, DecodeError) else "pose_key")
             return
-        publish_all(core.on_pose(parsed[1], msg.t, msg.x, msg.y, msg.theta, wall_s()))
+        publish_all(core.on_pose(parsed[1], msg.t, msg.x, msg.y, msg.theta, wall_ns()))
 
     def on_poses(rx: rt.Received) -> None:
         batch = decode(rx.payload, PoseBatch)
         if isinstance(batch, DecodeError):
             core.rejected.add(batch)
             return
-        stamp = wall_s()
+        stamp = wall_ns()
         for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
             publish_all(core.on_pose(rid, batch.stamp, x, y, th, stamp))
 
@@ -446,7 +447,7 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
     period_s = 1.0 / rate_hz
     try:
         while not stop.is_set():
-            publish_all(core.formation(wall_s()))
+            publish_all(core.formation(wall_ns()))
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), period_s)
     finally:

@@ -36,8 +36,8 @@ def twist(v: float, w: float) -> bytes:
 
 def test_odometry_twist_from_consecutive_poses() -> None:
     core = BridgeCore()
-    core.on_pose("r1", 1.0, 0.0, 0.0, 0.0, stamp_s=5.0)
-    outs = core.on_pose("r1", 1.1, 0.02, 0.0, 0.05, stamp_s=5.1)
+    core.on_pose("r1", 1.0, 0.0, 0.0, 0.0, stamp_ns=5_000_000_000)
+    outs = core.on_pose("r1", 1.1, 0.02, 0.0, 0.05, stamp_ns=5_100_000_000)
     assert [o.topic for o in outs] == ["/r1/odom", "/tf"]
     odom = msgs.decode(outs[0].payload, msgs.Odometry)
     assert isinstance(odom, msgs.Odometry)
@@ -49,7 +49,7 @@ def test_odometry_twist_from_consecutive_poses() -> None:
     tf = msgs.decode(outs[1].payload, msgs.TFMessage)
     assert isinstance(tf, msgs.TFMessage)
     assert tf.transforms[0].child_frame_id == "r1/base_link"
-    assert core.on_pose("r1", 1.1, 0.0, 0.0, 0.0, stamp_s=5.2) == []  # same t: refused
+    assert core.on_pose("r1", 1.1, 0.0, 0.0, 0.0, stamp_ns=5_200_000_000) == []  # same t: refused
     assert core.rejected.by_reason == {"pose_out_of_order": 1}
 
 
@@ -61,7 +61,7 @@ def test_formation_outputs_in_a_namespace() -> None:
             Slot(t=1.0, seq=1, slot=k, role=role, stage=0, parent=None if k == 0 else 0,
                  x=float(k), y=0.0, theta=0.0, vx=0.0, vy=0.0)
         )  # fmt: skip
-    outs = {o.topic: o for o in core.formation(stamp_s=3.0)}
+    outs = {o.topic: o for o in core.formation(stamp_ns=3_000_000_000)}
     assert set(outs) == {"/lab/formation/leader", "/lab/formation/slots", "/lab/formation/markers",
                          "/tf"}  # fmt: skip
     slots = msgs.decode(outs["/lab/formation/slots"].payload, msgs.PoseArray)
