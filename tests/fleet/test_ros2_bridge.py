@@ -19,7 +19,7 @@ import pytest
 import zenoh
 from conftest import free_port
 
-from bus_schemas import CmdVel, Estop, Leader, Pose, Slot, decode, encode, keys
+from bus_schemas import CmdVel, Estop, Goal, Leader, Pose, Slot, decode, encode, keys
 from bus_schemas.errors import DecodeError
 from bus_schemas.ros2 import msgs, rmw
 from formation.live.ros2_bridge import READY, BridgeCore
@@ -102,6 +102,46 @@ def test_cmd_vel_is_validated_rate_limited_and_counted() -> None:
     }
     assert core.forwarded == 1
     assert core.on_cmd_vel(twist(0.0, 0.0), ATT, now_s=1.2) is not None
+
+
+def goal(x: float, y: float, yaw: float, frame: str = "map") -> bytes:
+    header = msgs.Header(msgs.Time(1, 0), frame)
+    pose = msgs.Pose(msgs.Point(x, y), msgs.quaternion_from_yaw(yaw))
+    return msgs.encode(msgs.PoseStamped(header, pose))
+
+
+def test_goal_becomes_the_operators_goal_and_hostile_goals_are_counted() -> None:
+    core = BridgeCore()
+    ok = core.on_goal(goal(1.5, -0.5, 0.3), ATT, now_s=1.0)
+    assert ok is not None and (ok.x, ok.y) == (1.5, -0.5)
+    assert ok.heading == pytest.approx(0.3)
+    assert isinstance(decode(encode(ok), Goal), Goal)  # a valid bus message
+    zero_q = msgs.encode(
+        msgs.PoseStamped(msgs.Header(frame_id="map"), msgs.Pose(orientation=msgs.Quaternion(w=0.0)))
+    )
+    hostile = [
+        (goal(1.0, 0.0, 0.0), None, 2.0),  # no attachment
+        (goal(1.0, 0.0, 0.0, frame="odom"), ATT, 2.0),
+        (goal(1e6, 0.0, 0.0), ATT, 2.0),
+        (zero_q, ATT, 2.0),
+        (goal(1.0, 0.0, 0.0)[:-3], ATT, 2.0),  # truncated CDR
+        (goal(1.0, 0.0, 0.0) + bytes(70_000), ATT, 2.0),  # oversized
+        (goal(1.0, 0.0, 0.0), ATT, 1.1),  # 10 Hz after the last: a flood at 5 Hz
+    ]
+    for payload, att, now in hostile:
+        assert core.on_goal(payload, att, now_s=now) is None
+    assert core.rejected.total == len(hostile)
+    assert {"goal_missing_field", "goal_frame", "goal_out_of_range", "goal_quaternion",
+            "goal_flood"} <= set(core.rejected.by_reason)  # fmt: skip
+    assert core.forwarded == 1
+
+
+def test_oversized_and_wrong_length_cmd_vel_is_counted() -> None:
+    core = BridgeCore()
+    for payload in (twist(0.1, 0.0) + bytes(8), twist(0.1, 0.0) + bytes(1 << 16), b""):
+        assert core.on_cmd_vel(payload, ATT, now_s=1.0) is None
+    assert core.rejected.by_reason == {"cmd_vel_too_large": 2, "cmd_vel_malformed": 1}
+    assert core.forwarded == 0
 
 
 # --- the bridge process and an independent ROS 2 client ----------------------------------------
