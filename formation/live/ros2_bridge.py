@@ -62,6 +62,7 @@ from bus_schemas import (
 from bus_schemas.fields import SPEED_MAX_MPS, TURN_RATE_MAX_RADPS
 from bus_schemas.ros2 import graph, msgs, rmw
 from bus_schemas.spec import POSITION_MAX_M
+from runtime.sdnotify import Notifier, pet_watchdog
 
 __all__ = ["BridgeCore", "Outgoing", "main"]
 
@@ -499,6 +500,10 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
         queryables.append(io.session.declare_queryable(key, on_query, complete=True))
 
     print(f"{READY}: domain {domain_id}, fleet {fleet}", flush=True)
+    # systemd (deploy/systemd/formation-ros2.service): READY=1 now, WATCHDOG=1 from this loop
+    notifier = Notifier()
+    notifier.ready(f"ros2 bridge: domain {domain_id}, fleet {fleet}")
+    pet = asyncio.ensure_future(pet_watchdog(notifier, stop))
     period_s = 1.0 / rate_hz
     try:
         while not stop.is_set():
@@ -506,6 +511,9 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), period_s)
     finally:
+        pet.cancel()
+        notifier.stopping()
+        notifier.close()
         for task in pending:
             task.cancel()
         for q in queryables:

@@ -299,3 +299,22 @@ def test_formation_up_ros2_shows_the_fleet_to_a_ros2_client(spawn: Any, tmp_path
     # how long after `formation up` started the client saw every topic (the report quotes it)
     print(f"topics seen {results['topics']['after_s']} s after the client started")
     run.stop()
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_bridge_speaks_sd_notify(router: Any, spawn: Any, tmp_path: Path) -> None:
+    """deploy/systemd/formation-ros2.service is Type=notify with a watchdog: READY=1 once its
+    ROS entities are declared, WATCHDOG=1 from its loop, STOPPING=1 on SIGTERM."""
+    from test_agent_boot import FakeSystemd
+
+    systemd = FakeSystemd(tmp_path / "notify.sock")
+    try:
+        bridge = spawn("ros2", "--endpoint", router.endpoint, ready=READY, env=systemd.env())
+        ready = systemd.wait("READY=1")
+        until(lambda: len([t for t in systemd.times("WATCHDOG=1") if t > ready]) >= 3, 5.0,
+              "three WATCHDOG=1 after READY=1")  # fmt: skip
+        bridge.stop()
+        systemd.wait("STOPPING=1", 5.0)
+    finally:
+        systemd.close()
