@@ -6,7 +6,8 @@ Any ROS 2 Jazzy (or later) machine whose rmw_zenoh nodes reach the fleet's Zenoh
 - ``<ns>/<id>/odom`` (nav_msgs/msg/Odometry): each robot's measured pose (``pose`` or the
   ``poses`` batch) in ``map``, child frame ``<id>/base_link``, and its twist in the body frame
   from consecutive poses (finite difference over the poses' own ``t``);
-- ``/tf`` (tf2_msgs/msg/TFMessage): ``map`` -> ``<id>/base_link`` per pose, and at
+- ``/tf`` (tf2_msgs/msg/TFMessage): ``map`` -> ``<id>/base_link`` per pose (one message with
+  every robot per ``poses`` batch), and at
   ``--rate`` Hz ``map`` -> ``formation/leader`` and ``map`` -> ``formation/slot_<k>``;
 - ``<ns>/formation/leader`` (geometry_msgs/msg/PoseStamped), ``<ns>/formation/slots``
   (geometry_msgs/msg/PoseArray, slot order) and ``<ns>/formation/markers``
@@ -130,13 +131,39 @@ class BridgeCore:
                 stamp_ns: int) -> list[Outgoing]:  # fmt: skip
         """A robot's measured pose (bus ``t`` = ``t_s``) -> its odometry and its tf, the
         headers stamped ``stamp_ns`` (ns since the UNIX epoch: ROS time)."""
+        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
+        odom = self._odometry(header, robot, t_s, x_m, y_m, theta_rad)
+        if odom is None:
+            return []
+        tf = msgs.TFMessage((self._transform(header, f"{robot}/base_link", odom.pose.pose),))
+        return [self._odom_out(robot, odom), self._tf_out(tf)]
+
+    def on_poses(self, batch: PoseBatch, stamp_ns: int) -> list[Outgoing]:
+        """A ``poses`` batch (one camera frame, bus ``t`` = its ``stamp``) -> each robot's
+        odometry, then one ``/tf`` with every robot's transform (one message per frame, not one
+        per robot: tf2 takes many transforms a message)."""
+        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
+        out: list[Outgoing] = []
+        transforms: list[msgs.TransformStamped] = []
+        for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
+            odom = self._odometry(header, rid, batch.stamp, x, y, th)
+            if odom is not None:
+                out.append(self._odom_out(rid, odom))
+                transforms.append(self._transform(header, f"{rid}/base_link", odom.pose.pose))
+        if transforms:
+            out.append(self._tf_out(msgs.TFMessage(tuple(transforms))))
+        return out
+
+    def _odometry(self, header: msgs.Header, robot: str, t_s: float, x_m: float, y_m: float,
+                  theta_rad: float) -> msgs.Odometry | None:  # fmt: skip
+        """The odometry of a pose, its twist from the previous one (None: out of order)."""
         prev = self._tracks.get(robot)
         track = _Track(t_s, x_m, y_m, theta_rad)
         if prev is not None:
             dt_s = t_s - prev.t_s
             if dt_s <= 0.0:
                 self.rejected.add("pose_out_of_order")
-                return []
+                return None
             # body-frame twist of a unicycle between two poses: forward displacement along the
             # mean heading, heading change wrapped (eqs 1-3 discretised)
             mean = prev.theta_rad + 0.5 * math.remainder(theta_rad - prev.theta_rad, math.tau)
@@ -144,22 +171,22 @@ class BridgeCore:
             track.v_mps = (dx * math.cos(mean) + dy * math.sin(mean)) / dt_s
             track.omega_radps = math.remainder(theta_rad - prev.theta_rad, math.tau) / dt_s
         self._tracks[robot] = track
-        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
         pose = msgs.Pose(msgs.Point(x_m, y_m), msgs.quaternion_from_yaw(theta_rad))
         twist = msgs.Twist(msgs.Vector3(x=track.v_mps), msgs.Vector3(z=track.omega_radps))
-        odom = msgs.Odometry(
+        return msgs.Odometry(
             header,
             f"{robot}/base_link",
             msgs.PoseWithCovariance(pose),
             msgs.TwistWithCovariance(twist),
         )
-        tf = msgs.TFMessage((self._transform(header, f"{robot}/base_link", pose),))
-        return [
-            Outgoing(
-                self.topic(f"{robot}/{graph.ODOM}"), msgs.ros_type(msgs.Odometry), msgs.encode(odom)
-            ),
-            Outgoing(graph.TF, msgs.ros_type(msgs.TFMessage), msgs.encode(tf)),
-        ]
+
+    def _odom_out(self, robot: str, odom: msgs.Odometry) -> Outgoing:
+        topic = self.topic(f"{robot}/{graph.ODOM}")
+        return Outgoing(topic, msgs.ros_type(msgs.Odometry), msgs.encode(odom))
+
+    @staticmethod
+    def _tf_out(tf: msgs.TFMessage) -> Outgoing:
+        return Outgoing(graph.TF, msgs.ros_type(msgs.TFMessage), msgs.encode(tf))
 
     def on_leader(self, leader: Leader) -> None:
         self._leader = leader
@@ -219,7 +246,7 @@ class BridgeCore:
             ]
         if transforms:
             tf = msgs.TFMessage(tuple(transforms))
-            out.append(Outgoing(graph.TF, msgs.ros_type(msgs.TFMessage), msgs.encode(tf)))
+            out.append(self._tf_out(tf))
         return out
 
     @staticmethod
@@ -416,9 +443,7 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
         if isinstance(batch, DecodeError):
             core.rejected.add(batch)
             return
-        stamp = wall_ns()
-        for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
-            publish_all(core.on_pose(rid, batch.stamp, x, y, th, stamp))
+        publish_all(core.on_poses(batch, wall_ns()))
 
     def on_leader(rx: rt.Received) -> None:
         msg = decode(rx.payload, Leader)

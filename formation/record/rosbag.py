@@ -6,7 +6,7 @@ the recording's bus samples go through the bridge's own pure translation
 types and CDR bytes:
 
 - ``/<id>/odom`` (nav_msgs/msg/Odometry) and ``/tf`` (tf2_msgs/msg/TFMessage) for every
-  recorded pose (``pose`` or the ``poses`` batch);
+  recorded pose (``pose``, or the ``poses`` batch: then one ``/tf`` for the whole batch);
 - ``/formation/leader`` (geometry_msgs/msg/PoseStamped), ``/formation/slots``
   (geometry_msgs/msg/PoseArray), ``/formation/markers`` (visualization_msgs/msg/MarkerArray) and
   their ``/tf``, one snapshot per recorded ``leader`` message.
@@ -70,10 +70,7 @@ def _outgoing(core: BridgeCore, key: str, payload: bytes, stamp_ns: int) -> list
         if isinstance(batch, DecodeError):
             core.rejected.add(batch)
             return []
-        out: list[Outgoing] = []
-        for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
-            out += core.on_pose(rid, batch.stamp, x, y, th, stamp_ns)
-        return out
+        return core.on_poses(batch, stamp_ns)
     if info.leaf == keys.LEADER:
         leader = decode(payload, Leader)
         if isinstance(leader, DecodeError):

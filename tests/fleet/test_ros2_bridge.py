@@ -19,7 +19,7 @@ import pytest
 import zenoh
 from conftest import free_port
 
-from bus_schemas import CmdVel, Estop, Goal, Leader, Pose, Slot, decode, encode, keys
+from bus_schemas import CmdVel, Estop, Goal, Leader, Pose, PoseBatch, Slot, decode, encode, keys
 from bus_schemas.errors import DecodeError
 from bus_schemas.ros2 import msgs, rmw
 from formation.live.ros2_bridge import READY, BridgeCore
@@ -51,6 +51,21 @@ def test_odometry_twist_from_consecutive_poses() -> None:
     assert tf.transforms[0].child_frame_id == "r1/base_link"
     assert core.on_pose("r1", 1.1, 0.0, 0.0, 0.0, stamp_ns=5_200_000_000) == []  # same t: refused
     assert core.rejected.by_reason == {"pose_out_of_order": 1}
+
+
+def test_a_poses_batch_gives_each_odometry_and_one_tf() -> None:
+    core = BridgeCore()
+    ids = ("r1", "r2", "r3")
+    batch = PoseBatch(t=1.0, seq=1, robots=ids, x=(0.0, 1.0, 2.0), y=(0.0,) * 3,
+                      theta=(0.0,) * 3, stamp=1.0)  # fmt: skip
+    outs = core.on_poses(batch, stamp_ns=7)
+    assert [o.topic for o in outs] == ["/r1/odom", "/r2/odom", "/r3/odom", "/tf"]
+    tf = msgs.decode(outs[-1].payload, msgs.TFMessage)
+    assert isinstance(tf, msgs.TFMessage)
+    assert [t.child_frame_id for t in tf.transforms] == [f"{r}/base_link" for r in ids]
+    assert [t.transform.translation.x for t in tf.transforms] == [0.0, 1.0, 2.0]
+    assert core.on_poses(batch, stamp_ns=8) == []  # the same frame again: each one refused
+    assert core.rejected.by_reason == {"pose_out_of_order": 3}
 
 
 def test_formation_outputs_in_a_namespace() -> None:
@@ -262,10 +277,21 @@ def test_independent_ros2_client_sees_and_drives_the_bridge(
         passed = len(bus.teleops) - before
         assert 1 <= passed <= 50 * (flood_s + 0.5) + 2, (passed, flood_s)
         assert all(t.v_mps == 0.05 for t in bus.teleops[before:])
+        # a malformed service request gets no reply and changes nothing; a goal in another
+        # frame or an oversized one is dropped
+        estops = len(bus.estops)
+        trigger_key = rmw.topic_key(3, "/formation/estop", msgs.ros_type(msgs.TriggerRequest))
+        replies = list(raw.get(trigger_key, payload=b"\x00\x01", attachment=ATT, timeout=1.0))
+        assert [r for r in replies if r.ok is not None] == [] and len(bus.estops) == estops
+        goal_key = rmw.topic_key(3, "/formation/goal", msgs.ros_type(msgs.PoseStamped))
+        raw.put(goal_key, goal(1.0, 0.0, 0.0, frame="odom"), attachment=ATT)
+        raw.put(goal_key, goal(1.0, 0.0, 0.0) + bytes(70_000), attachment=ATT)
+        time.sleep(0.3)
         bridge.stop()
         counts = bridge.stderr()
         for reason in ("cmd_vel_malformed", "cmd_vel_non_finite", "cmd_vel_missing_field",
-                       "cmd_vel_flood"):  # fmt: skip
+                       "cmd_vel_flood", "trigger_malformed", "goal_frame",
+                       "goal_too_large"):  # fmt: skip
             assert f"'{reason}'" in counts, counts
     finally:
         bus.close()

@@ -109,3 +109,43 @@ def test_export_refuses_an_existing_folder_and_a_recording_without_poses(
     with pytest.raises(RosbagError, match="no pose"):
         export_rosbag(rec, tmp_path / "empty")
     assert not (tmp_path / "empty").exists()
+
+
+def test_a_poses_batch_recording_gives_one_tf_per_frame(tmp_path: Path) -> None:
+    """A fleet whose localization sends ``poses`` batches (the plant, an agent-host run): each
+    robot's odometry per frame, and one ``/tf`` per frame with every robot in it."""
+    from bus_schemas import PoseBatch, encode
+    from runtime.tap import BusItem
+
+    ids = ("r1", "r2", "r3")
+    items = [
+        BusItem(
+            "put",
+            keys.poses_key(FLEET),
+            encode(
+                PoseBatch(
+                    t=k * DT,
+                    seq=k,
+                    robots=ids,
+                    x=(0.1 * k,) * 3,
+                    y=(0.0, 1.0, 2.0),
+                    theta=(0.0,) * 3,
+                    stamp=k * DT,
+                )
+            ),
+            1_000_000_000 + k * 20_000_000,
+        )
+        for k in range(1, 21)
+    ]
+    path = tmp_path / "batch.mcap"
+    record_items(path, items)
+    summary = export_rosbag(read_recording(path), tmp_path / "bag")
+    assert dict(summary.counts) == {"/r1/odom": 20, "/r2/odom": 20, "/r3/odom": 20, "/tf": 20}
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(tmp_path / "bag") as reader:
+        tfs: list[Any] = [
+            store.deserialize_cdr(raw, c.msgtype) for c, _, raw in reader.messages()
+            if c.topic == "/tf"
+        ]  # fmt: skip
+    assert [t.child_frame_id for t in tfs[0].transforms] == [f"{r}/base_link" for r in ids]
+    assert [t.transform.translation.y for t in tfs[-1].transforms] == [0.0, 1.0, 2.0]
