@@ -185,7 +185,7 @@ def test_formation_up_ros2_secure_runs(spawn: Any, tmp_path: Path) -> None:
     out = tmp_path / "run"
     run = spawn(
         "up", "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet", FLEET, "--out", str(out),
-        "--no-figures", "--scenario", "paper-exp1", "--duration", "4", "--ros2", "--secure",
+        "--no-figures", "--scenario", "paper-exp1", "--duration", "2", "--ros2", "--secure",
         "--quiet",
     )  # fmt: skip
     assert run.proc.wait(120.0) == 0, run.describe()
