@@ -2,7 +2,7 @@
 
     python bench/bench_ros2.py               # codec table
     python bench/bench_ros2.py --bridge 400  # also: bus pose -> /r1/odom through `formation ros2`
-    python bench/bench_ros2.py --cpu 3,100   # also: the bridge's CPU with N robots' poses at 30 Hz
+    python bench/bench_ros2.py --cpu 3,100   # also: the bridge's CPU and added latency, N robots
     python bench/bench_ros2.py --backend 400 # also: the ros2 motor backend's cmd_vel latency
 
 Codec: per message, the best of 15 rounds of 2,000 encodes / decodes (process CPU time per
@@ -14,9 +14,13 @@ the bus and listens to ``/r1/odom`` on the ROS side; the latency is from the bus
 odometry's arrival (both on this host's monotonic clock). The baseline is the same round trip
 without the bridge: a plain Zenoh put to a subscriber of this process through the same router.
 
-CPU: the ``formation ros2`` process's CPU (user + system, % of one core) over 5 s while this
-process publishes N robots' poses as the plant does (one ``poses`` batch at 30 Hz), next to the
-router's CPU in the same window (the fleet's traffic without the bridge's work).
+Load (``--cpu 3,100``): this process publishes N robots' poses as the plant does (one ``poses``
+batch at 30 Hz, the frame number in ``y``) for ``--window`` seconds, twice through the same
+router: first without the bridge (latency from the put to the batch's arrival at a subscriber
+of another session: what any fleet node sees), then with a ``formation ros2`` process (latency
+from the same put to the arrival of the first and of the last robot's ``/<id>/odom``: the
+bridge translates the batch robot by robot). The bridge's CPU (user + system, % of one core)
+and the router's in each window.
 
 Backend: ``Ros2Backend.apply`` (what the agent's motor worker calls right after a firmware tick)
 to the twist's arrival at a ROS 2 base's ``cmd_vel`` subscriber in another session through a
@@ -26,6 +30,7 @@ router (the simulated base of the tests), next to a plain put of 52 bytes on the
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import threading
 import time
@@ -152,42 +157,116 @@ def bridge_latency(count: int) -> None:
     print_latency("bus pose -> /r1/odom (bridge)", bridged, base)
 
 
-def bridge_cpu(counts: list[int], window_s: float = 5.0) -> None:
-    import zenoh
-    from common import cpu_s, router, running
+class _Arrivals:
+    """Arrival times of frame ``k`` (carried in ``y`` = k/1000) on one subscription."""
 
+    def __init__(self, decode_y: Any) -> None:
+        self.decode_y = decode_y
+        self.sent: dict[int, float] = {}
+        self.lat: list[float] = []
+        self.lock = threading.Lock()
+
+    def __call__(self, sample: Any) -> None:
+        now = time.monotonic()
+        y = self.decode_y(sample.payload.to_bytes())
+        if y is None:
+            return
+        with self.lock:
+            t0 = self.sent.get(round(y * 1000))
+            if t0 is not None:
+                self.lat.append(now - t0)
+
+
+def _poses_y(data: bytes) -> float | None:
+    from bus_schemas import PoseBatch, decode
+
+    batch = decode(data, PoseBatch)
+    return batch.y[0] if isinstance(batch, PoseBatch) else None
+
+
+def _odom_y(data: bytes) -> float | None:
+    odom = msgs.decode(data, msgs.Odometry)
+    return odom.pose.pose.position.y if isinstance(odom, msgs.Odometry) else None
+
+
+def _stream(s: Any, ids: tuple[str, ...], window_s: float, probes: list[_Arrivals]) -> float:
+    """Publish ``poses`` batches at 30 Hz for ``window_s`` (after a 0.5 s warm-up), noting each
+    frame's send time in ``probes``; returns the measured window (s)."""
     from bus_schemas import keys
 
-    print(f"{'robots':>6} {'bridge CPU %':>12} {'router CPU %':>12} {'poses/s':>8}")
+    key = keys.poses_key("bench")
+    for k in range(1, 16):  # warm up: publishers declared, tokens out
+        s.put(key, _frame(k, ids))
+        time.sleep(1 / 30)
+    t0 = time.monotonic()
+    k = 16
+    while time.monotonic() - t0 < window_s:
+        sent = time.monotonic()
+        for p in probes:
+            with p.lock:
+                p.sent[k] = sent
+        s.put(key, _frame(k, ids))
+        k += 1
+        time.sleep(max(0.0, t0 + (k - 16) / 30 - time.monotonic()))
+    time.sleep(0.3)  # the last frames arrive
+    return time.monotonic() - t0
+
+
+def bridge_load(counts: list[int], window_s: float = 10.0) -> None:
+    """The bridge's CPU and the latency it adds, N robots' poses at 30 Hz, beside the same run
+    without it (same router, same publisher, one process each)."""
+    import zenoh
+    from common import LatencyStats, cpu_s, router, running
+
+    rows: list[tuple[int, str, LatencyStats, float, float]] = []
     for n in counts:
+        ids = tuple(f"r{k + 1}" for k in range(n))
         with router() as endpoint:
             conf = zenoh.Config()
             conf.insert_json5("mode", '"client"')
             conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
             conf.insert_json5("scouting/multicast/enabled", "false")
             router_pid = _pid_listening(endpoint)
-            argv = [sys.executable, "-m", "formation", "ros2", "--endpoint", endpoint]
-            with (
-                zenoh.open(conf) as s,
-                running([*argv, "--fleet", "bench"], ready="ros2 bridge ready") as bridge,
-            ):
-                ids = tuple(f"r{k + 1}" for k in range(n))
-                key = keys.poses_key("bench")
+            with zenoh.open(conf) as pub, zenoh.open(conf) as sub_s:
+                # without the bridge: the batch itself at a subscriber (what a fleet node sees)
+                from bus_schemas import keys
 
-                for k in range(15):  # warm up: publishers declared, tokens out
-                    s.put(key, _frame(k, ids))
-                    time.sleep(1 / 30)
-                c0, r0, t0 = cpu_s(bridge.pid), cpu_s(router_pid), time.monotonic()
-                k = 15
-                while time.monotonic() - t0 < window_s:
-                    s.put(key, _frame(k, ids))
-                    k += 1
-                    time.sleep(max(0.0, t0 + (k - 15) / 30 - time.monotonic()))
-                dt = time.monotonic() - t0
-                c1, r1 = cpu_s(bridge.pid), cpu_s(router_pid)
+                plain = _Arrivals(_poses_y)
+                sub = sub_s.declare_subscriber(keys.poses_key("bench"), plain)
+                time.sleep(0.3)
+                r0 = cpu_s(router_pid)
+                dt = _stream(pub, ids, window_s, [plain])
+                rows.append((n, "poses batch, no bridge", LatencyStats.from_samples(plain.lat),
+                             math.nan, 100 * (cpu_s(router_pid) - r0) / dt))  # fmt: skip
+                sub.undeclare()
+                argv = [sys.executable, "-m", "formation", "ros2", "--endpoint", endpoint]
+                with running([*argv, "--fleet", "bench"], ready="ros2 bridge ready") as bridge:
+                    first, last = _Arrivals(_odom_y), _Arrivals(_odom_y)
+                    odom_t = msgs.ros_type(msgs.Odometry)
+                    subs = [
+                        sub_s.declare_subscriber(rmw.topic_key(0, f"/{rid}/odom", odom_t), p)
+                        for rid, p in ((ids[0], first), (ids[-1], last))
+                    ]
+                    time.sleep(0.5)
+                    c0, r0 = cpu_s(bridge.pid), cpu_s(router_pid)
+                    dt = _stream(pub, ids, window_s, [first, last])
+                    bridge_cpu = 100 * (cpu_s(bridge.pid) - c0) / dt
+                    router_cpu = 100 * (cpu_s(router_pid) - r0) / dt
+                    for sub in subs:
+                        sub.undeclare()
+                rows.append((n, f"/{ids[0]}/odom (bridge)", LatencyStats.from_samples(first.lat),
+                             bridge_cpu, router_cpu))  # fmt: skip
+                rows.append((n, f"/{ids[-1]}/odom (bridge)", LatencyStats.from_samples(last.lat),
+                             bridge_cpu, router_cpu))  # fmt: skip
+    print(
+        f"{'robots':>6} {'path':28} {'n':>5} {'p50 ms':>7} {'p99 ms':>7} "
+        f"{'bridge CPU':>10} {'router CPU':>10}"
+    )
+    for n, what, st, bcpu, rcpu in rows:
+        b = "-" if math.isnan(bcpu) else f"{bcpu:.1f}%"
         print(
-            f"{n:6d} {100 * (c1 - c0) / dt:11.1f}% {100 * (r1 - r0) / dt:11.1f}% "
-            f"{n * (k - 15) / dt:8.0f}"
+            f"{n:6d} {what:28} {st.n:5d} {st.p50_us / 1e3:7.2f} {st.p99_us / 1e3:7.2f} "
+            f"{b:>10} {rcpu:9.1f}%"
         )
 
 
@@ -256,7 +335,8 @@ def _frame(k: int, ids: tuple[str, ...]) -> bytes:
     n = len(ids)
     xs = tuple(0.01 * k + 0.1 * i for i in range(n))
     zeros = (0.0,) * n
-    batch = PoseBatch(t=k / 30, seq=k, robots=ids, x=xs, y=zeros, theta=zeros, stamp=k / 30)
+    ys = (k / 1000,) * n  # the frame number, read back from the odometry
+    batch = PoseBatch(t=k / 30, seq=k, robots=ids, x=xs, y=ys, theta=zeros, stamp=k / 30)
     return encode(batch)
 
 
@@ -280,7 +360,10 @@ def _pid_listening(endpoint: str) -> int:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--bridge", type=int, default=0, metavar="N", help="bridge latency samples")
-    p.add_argument("--cpu", default="", metavar="N,M", help="bridge CPU at these fleet sizes")
+    p.add_argument(
+        "--cpu", default="", metavar="N,M", help="bridge CPU and added latency at these sizes"
+    )
+    p.add_argument("--window", type=float, default=10.0, help="--cpu: seconds per measurement")
     p.add_argument("--backend", type=int, default=0, metavar="N", help="backend latency samples")
     ns = p.parse_args()
     codec_table()
@@ -288,7 +371,7 @@ def main() -> int:
     if ns.bridge:
         bridge_latency(ns.bridge)
     if ns.cpu:
-        bridge_cpu([int(x) for x in ns.cpu.split(",")])
+        bridge_load([int(x) for x in ns.cpu.split(",")], ns.window)
     if ns.backend:
         backend_latency(ns.backend)
     return 0

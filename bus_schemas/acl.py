@@ -22,8 +22,13 @@ coordinator ``<n>``    ``coordinator.<n>``          leader, slots, setpoints (bo
                                                     assignment, its heartbeat, status, token
 localization           ``localization[.<name>]``    poses (both forms)
 plant (simulation)     ``plant``                    poses, truth, clock, its status and token
-operator ``<name>``    ``operator[.<name>]``        e-stop, disturbances
+operator ``<name>``    ``operator[.<name>]``        e-stop, disturbances, the virtual leader's
+                                                    commands; the ROS 2 bridge's commands
+                                                    (``/formation/cmd_vel``, ``goal``, services)
 observer ``<name>``    ``observer[.<name>]``        nothing (recorder, dashboards, ``top``)
+ROS 2 bridge           ``ros2[.<name>]``            its ROS topics and graph tokens (any domain
+                                                    and namespace, bus_schemas.ros2.graph), and
+                                                    the operator's e-stop, cmd_vel and goal
 =====================  ===========================  ============================================
 
 Each identity may read (subscribe to, and be delivered) what its process reads; the operator and
@@ -270,6 +275,7 @@ def deploy_configs(
         "localization": "the localization (camera tracker)",
         "operator": "the operator's tools (formation fault, e-stop)",
         "observer": "a read-only observer (formation top, record, dashboards)",
+        "ros2": "the ROS 2 bridge (formation ros2, formation-ros2.service)",
     }
     for kind, what in per_kind.items():
         matching = [i for i in identities if i.kind == kind]
@@ -342,8 +348,9 @@ def deploy_identities(
     robots: Iterable[str] = DEPLOY_ROBOTS, coordinators: Iterable[str] = DEPLOY_COORDINATORS
 ) -> tuple[Identity, ...]:
     """The identities of the example fleet deploy/zenoh/ is generated for (``formation acl``'s
-    defaults): robots r1-r3, coordinators main and standby, localization, operator, observer."""
-    return fleet_identities(robots, coordinators)
+    defaults): robots r1-r3, coordinators main and standby, localization, operator, observer,
+    the ROS 2 bridge."""
+    return fleet_identities(robots, coordinators, ros2=True)
 
 
 # --- command line -----------------------------------------------------------------------------
@@ -367,6 +374,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--operators", type=_csv, default=[""], help="operator names ('' = plain)")
     parser.add_argument("--observers", type=_csv, default=[""])
     parser.add_argument("--plant", action="store_true", help="allow a plant simulator identity")
+    parser.add_argument(
+        "--ros2",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="the ROS 2 bridge's identity (CN ros2, `formation ros2`)",
+    )
     parser.add_argument("--router-host", default="coordinator.local")
     parser.add_argument("--port", type=int, default=DEFAULT_PORT)
     parser.add_argument("--cert-root", default=CERT_ROOT)
@@ -378,6 +391,7 @@ def main(argv: list[str] | None = None) -> int:
             plant=ns.plant,
             operators=ns.operators or [""],
             observers=ns.observers or [""],
+            ros2=ns.ros2,
         )
         paths = write_deploy_configs(
             ns.out,

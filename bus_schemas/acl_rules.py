@@ -29,6 +29,7 @@ class Kind(StrEnum):
     PLANT = "plant"
     OPERATOR = "operator"
     OBSERVER = "observer"
+    ROS2 = "ros2"  # the ROS 2 bridge, `formation ros2` (bus_schemas.ros2.graph)
 
 
 _NAMED: Final = frozenset({Kind.ROBOT, Kind.HOST, Kind.COORDINATOR})  # a name is required
@@ -99,6 +100,7 @@ def fleet_identities(
     operators: Iterable[str] = ("",),
     observers: Iterable[str] = ("",),
     hosts: Mapping[str, Iterable[str]] | None = None,
+    ros2: bool = False,
 ) -> tuple[Identity, ...]:
     """Every identity of a fleet, in a stable order (robots, hosts, coordinators, ...)."""
     out = [robot(r) for r in robots]
@@ -110,6 +112,8 @@ def fleet_identities(
         out.append(Identity(Kind.PLANT))
     out += [Identity(Kind.OPERATOR, n) for n in operators]
     out += [Identity(Kind.OBSERVER, n) for n in observers]
+    if ros2:
+        out.append(Identity(Kind.ROS2))
     cns = [i.cn for i in out]
     if len(set(cns)) != len(cns):
         raise ValueError(f"duplicate identities: {sorted(c for c in cns if cns.count(c) > 1)}")
@@ -172,38 +176,42 @@ _R, _H, _C = Kind.ROBOT, Kind.HOST, Kind.COORDINATOR
 _L, _P, _O = Kind.LOCALIZATION, Kind.PLANT, Kind.OPERATOR
 
 
+_B = Kind.ROS2  # the ROS 2 bridge: reads the formation, forwards ROS commands to operator keys
+
+
 KEY_ROLES: Final[dict[str, KeyRoles]] = {
     # the plant reads it in lockstep; a standby coordinator checks trajectory origins against it
-    keys.LEADER: KeyRoles((_C,), (_P, _C)),
-    keys.SLOT: KeyRoles((_C,)),
+    keys.LEADER: KeyRoles((_C,), (_P, _C, _B)),
+    keys.SLOT: KeyRoles((_C,), (_B,)),
     keys.SETPOINT: KeyRoles((_C,), ((_R, OWN),)),
     keys.SETPOINTS: KeyRoles((_C,), (_R, _H)),
     keys.ASSIGNMENT: KeyRoles((_C,), (_C,)),  # a standby follows the active one's
-    keys.POSE: KeyRoles((_L, _P), (_R, _C)),  # robots: neighbours' poses (repulsion)
-    keys.POSES: KeyRoles((_L, _P), (_R, _H, _C)),
+    keys.POSE: KeyRoles((_L, _P), (_R, _C, _B)),  # robots: neighbours' poses (repulsion)
+    keys.POSES: KeyRoles((_L, _P), (_R, _H, _C, _B)),
     # the camera tracker's rendered source (`formation up --camera rendered`) renders the truth
     keys.TRUTH: KeyRoles((_P,), (_L,)),
     keys.TRUTHS: KeyRoles((_P,), (_L,)),
     keys.WHEELS: KeyRoles(((_R, OWN),), (_P,)),
     # robots and hosts: the others' modes (cooperative neighbours, robot_agent.core.neighbours)
-    keys.STATUS: KeyRoles(((_R, OWN),), (_C, _R, _H)),
+    keys.STATUS: KeyRoles(((_R, OWN),), (_C, _R, _H, _B)),
     keys.HOST_WHEELS: KeyRoles(((_H, OWN),), (_P,)),
-    keys.HOST_STATUS: KeyRoles(((_H, OWN),), (_C, _R, _H)),
+    keys.HOST_STATUS: KeyRoles(((_H, OWN),), (_C, _R, _H, _B)),
     # the latched e-stop state: coordinators answer queries (robot_agent.core.estop,
     # docs/faults.md);
     # agents and hosts ask when they start or resume, coordinators when they start, the
     # operator's tool to report who holds it
-    keys.ESTOP: KeyRoles((_O,), (_R, _H, _C), answerers=(_C,), askers=(_R, _H, _C, _O)),
+    # the ROS bridge's e-stop and release services take the operator's path (send_estop)
+    keys.ESTOP: KeyRoles((_O, _B), (_R, _H, _C), answerers=(_C,), askers=(_R, _H, _C, _O, _B)),
     # the engagements an agent or agent host holds, each on its own key (only a coordinator's
     # answer on `estop` may carry a release record); asked by the same
-    keys.ESTOP_HELD: KeyRoles((), answerers=((_R, OWN), (_H, OWN)), askers=(_R, _H, _C, _O)),
+    keys.ESTOP_HELD: KeyRoles((), answerers=((_R, OWN), (_H, OWN)), askers=(_R, _H, _C, _O, _B)),
     keys.CLOCK: KeyRoles((_P,), (_R, _H, _C)),
     keys.DISTURBANCE: KeyRoles((_O,), (_P,)),
     # scripted faults (bus_schemas.messages_fault): the active coordinator's notices, an
     # operator's requests (`formation fault ... --at T`); every node of the loop applies them
     keys.FAULT: KeyRoles((_C, _O), (_C, _P, _R, _H)),
     keys.HEARTBEAT: KeyRoles(((_C, OWN),), (_C,)),
-    keys.COORDINATOR_STATUS: KeyRoles(((_C, OWN),), (_C,)),
+    keys.COORDINATOR_STATUS: KeyRoles(((_C, OWN),), (_C, _B)),
     keys.PLANT_STATUS: KeyRoles((_P,)),
     # the camera tracker's health (`formation camera`, localization/node/camera.py): tools read it
     keys.CAMERA_STATUS: KeyRoles((_L,)),
@@ -211,9 +219,10 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.ALIVE_COORDINATOR: KeyRoles(((_C, OWN),), (_C, _P), token=True),
     keys.ALIVE_PLANT: KeyRoles((_P,), (_C,), token=True),
     # the operator drives the virtual leader (issue 28); every coordinator instance reads them
-    # (a standby keeps them to continue after a takeover)
-    keys.CMD_VEL: KeyRoles((_O,), (_C,)),
-    keys.GOAL: KeyRoles((_O,), (_C,)),
+    # (a standby keeps them to continue after a takeover); the ROS bridge forwards
+    # /formation/cmd_vel and /formation/goal into them (a ROS command takes the operator's path)
+    keys.CMD_VEL: KeyRoles((_O, _B), (_C,)),
+    keys.GOAL: KeyRoles((_O, _B), (_C,)),
     keys.PATH: KeyRoles((_O,), (_C,)),
     keys.SHAPE: KeyRoles((_O,), (_C,)),
 }
@@ -273,7 +282,32 @@ def grants(ident: Identity, fleet: str = keys.DEFAULT_FLEET) -> tuple[tuple[Acce
     if ident.kind in _READ_ALL:
         add(Access.READ, keys.fleet_pattern(fleet))
         add(Access.WATCH, keys.alive_pattern(fleet))
+    for access, key in _ros2_grants(ident.kind):
+        add(access, key)
     return tuple(out)
+
+
+def _ros2_grants(kind: Kind) -> list[tuple[Access, str]]:
+    """The ROS 2 keys (rmw_zenoh's, outside ``formation/``; bus_schemas.ros2.graph): only the
+    bridge publishes its topics, declares its tokens and serves its services; an operator
+    publishes the topics it subscribes and calls its services (a ROS command reaches the fleet
+    only through the bridge, which forwards it to the operator's keys); operators and observers
+    read its topics and watch the ROS graph. No other identity may touch a ROS key."""
+    from bus_schemas.ros2 import graph
+
+    out: list[tuple[Access, str]] = []
+    if kind is Kind.ROS2:
+        out += [(Access.PUBLISH, k) for k in graph.published_keys()]
+        out += [(Access.TOKEN, k) for k in graph.token_keys()]
+        out += [(Access.READ, k) for k in graph.subscribed_keys()]
+        out += [(Access.ANSWER, k) for k in graph.served_keys()]
+    if kind is Kind.OPERATOR:
+        out += [(Access.PUBLISH, k) for k in graph.subscribed_keys()]
+        out += [(Access.ASK, k) for k in graph.served_keys()]
+    if kind in _READ_ALL:
+        out += [(Access.READ, k) for k in graph.published_keys()]
+        out.append((Access.WATCH, graph.GRAPH_PATTERN))
+    return out
 
 
 def _rule_id(ident: Identity, access: Access, flow: str) -> str:
@@ -311,6 +345,7 @@ def access_control(
                 )
                 rule_ids.append(rid)
         if Access.PUBLISH in by_access:
+            published = [k for k in by_access[Access.PUBLISH] if not k.startswith(keys.ROOT)]
             # A declared publisher sends only while it knows of a matching subscriber: let the
             # router tell it about every subscriber of the fleet, including wide ones such as a
             # recorder's formation/<fleet>/** (which no publish grant includes). Measured: with
@@ -323,7 +358,7 @@ def access_control(
                     "permission": "allow",
                     "flows": ["egress"],
                     "messages": ["declare_subscriber"],
-                    "key_exprs": [keys.fleet_pattern(fleet)],
+                    "key_exprs": [keys.fleet_pattern(fleet), *published],
                 }
             )
             rule_ids.append(rid)

@@ -18,7 +18,8 @@
 #
 # With --coordinator-host instead: the wheel with the `sim` and `camera` extras; the user
 # `formation` (group `video` for the camera); the units formation-router.service,
-# formation-coordinator@.service and formation-camera.service; every Zenoh config but the
+# formation-coordinator@.service, formation-camera.service and formation-ros2.service (the ROS 2
+# bridge, docs/ros2.md); every Zenoh config but the
 # robot's; /etc/formation/fleet.toml (from the example, if absent), camera.env (if absent) and
 # coordinator-standby.env (--standby for formation-coordinator@standby).
 #
@@ -203,7 +204,8 @@ keep() {
     fi
 }
 if [[ $coordinator_host -eq 1 ]]; then
-    for u in formation-router.service formation-coordinator@.service formation-camera.service; do
+    for u in formation-router.service formation-coordinator@.service formation-camera.service \
+        formation-ros2.service; do
         put 0644 "$script_dir/systemd/$u" "$unit_dir/$u"
     done
     for f in "$script_dir"/zenoh/*.json5; do

@@ -62,6 +62,7 @@ __all__ = [
     "encode",
     "quaternion_from_yaw",
     "ros_type",
+    "time_from_ns",
     "time_from_s",
     "time_to_s",
     "yaw_from_quaternion",
@@ -118,6 +119,13 @@ def time_from_s(t_s: float) -> Time:
         raise ValueError(f"time {t_s!r} s is not a finite non-negative number")
     ns = round(t_s * 1e9)
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def time_from_ns(t_ns: int) -> Time:
+    """A Time from integer nanoseconds (``t_ns`` >= 0: exact, no float rounding)."""
+    if t_ns < 0:
+        raise ValueError(f"time {t_ns!r} ns is negative")
+    return Time(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)
 
 
 def time_to_s(stamp: Time | Duration) -> float:

@@ -40,6 +40,8 @@ def identities(cfg: UpConfig, plan: Plan) -> list[Any]:
     if plan.hosts <= 0:
         out += [acl.robot(rid) for rid in plan.scenario.robot_ids]
     out += [acl.Identity(acl.Kind.OPERATOR), acl.Identity(acl.Kind.OBSERVER)]
+    if cfg.ros2:  # the ROS 2 bridge has its own identity (bus_schemas.ros2.graph)
+        out.append(acl.Identity(acl.Kind.ROS2))
     return out
 
 
@@ -88,8 +90,8 @@ def node_commands(
             str(plan.out_dir / "camera.toml"),
         )  # fmt: skip
         out.insert(1, ("camera", ["camera", *cam, *common_of("localization")], "camera ready"))
-    if cfg.ros2:  # docs/ros2.md: the fleet as a ROS 2 node graph (not under --secure yet)
-        out.append(("ros2", ["ros2", *common_of("operator")], "ros2 bridge ready"))
+    if cfg.ros2:  # docs/ros2.md: the fleet as a ROS 2 node graph, as its own identity
+        out.append(("ros2", ["ros2", *common_of("ros2")], "ros2 bridge ready"))
     if cfg.standby:
         standby = [
             "coordinator", "--scenario", scn_arg, "--name", "standby", "--standby",

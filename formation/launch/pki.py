@@ -331,6 +331,9 @@ def main(argv: list[str] | None = None) -> int:
         "--no-localization", action="store_true", help="no localization certificate"
     )
     parser.add_argument("--plant", action="store_true", help="also a plant (simulator) identity")
+    parser.add_argument(
+        "--no-ros2", action="store_true", help="no certificate for the ROS 2 bridge (CN ros2)"
+    )
     parser.add_argument("--cn", action="append", default=[], help="any other identity CN")
     parser.add_argument("--days", type=int, default=825)
     parser.add_argument("--force", action="store_true", help="replace existing files")
@@ -344,6 +347,8 @@ def main(argv: list[str] | None = None) -> int:
             idents.append(acl.Identity(acl.Kind.LOCALIZATION))
         if ns.plant:
             idents.append(acl.Identity(acl.Kind.PLANT))
+        if not ns.no_ros2:
+            idents.append(acl.Identity(acl.Kind.ROS2))
         cns = [i.cn for i in idents] + [_check_cn(c) for c in ns.cn]
         pki = make_pki(
             ns.out,

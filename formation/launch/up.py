@@ -279,10 +279,6 @@ def main(argv: list[str]) -> int:
     if cfg.camera == "rendered" and cfg.lockstep:
         print("formation up: --camera rendered runs in realtime only", file=sys.stderr)
         return 2
-    if cfg.ros2 and cfg.secure:
-        # the ROS keys and @ros2_lv tokens have no identity in the generated ACL yet
-        print("formation up: --ros2 does not run with --secure yet (docs/ros2.md)", file=sys.stderr)
-        return 2
     if cfg.foxglove_port is not None and not 0 <= cfg.foxglove_port <= 65535:
         print(f"formation up: --foxglove: bad port {cfg.foxglove_port}", file=sys.stderr)
         return 2

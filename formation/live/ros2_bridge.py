@@ -6,7 +6,8 @@ Any ROS 2 Jazzy (or later) machine whose rmw_zenoh nodes reach the fleet's Zenoh
 - ``<ns>/<id>/odom`` (nav_msgs/msg/Odometry): each robot's measured pose (``pose`` or the
   ``poses`` batch) in ``map``, child frame ``<id>/base_link``, and its twist in the body frame
   from consecutive poses (finite difference over the poses' own ``t``);
-- ``/tf`` (tf2_msgs/msg/TFMessage): ``map`` -> ``<id>/base_link`` per pose, and at
+- ``/tf`` (tf2_msgs/msg/TFMessage): ``map`` -> ``<id>/base_link`` per pose (one message with
+  every robot per ``poses`` batch), and at
   ``--rate`` Hz ``map`` -> ``formation/leader`` and ``map`` -> ``formation/slot_<k>``;
 - ``<ns>/formation/leader`` (geometry_msgs/msg/PoseStamped), ``<ns>/formation/slots``
   (geometry_msgs/msg/PoseArray, slot order) and ``<ns>/formation/markers``
@@ -16,9 +17,16 @@ Any ROS 2 Jazzy (or later) machine whose rmw_zenoh nodes reach the fleet's Zenoh
   operator's ``CmdVel``
   (``formation/<fleet>/operator/cmd_vel``: the virtual leader's teleop input, deadman
   included); every rejection is counted by reason;
+- ``<ns>/formation/goal`` (geometry_msgs/msg/PoseStamped, frame ``map``) in: validated the same
+  way (position within the contract's, a quaternion with a yaw, at most 5 a second) and
+  forwarded as the operator's ``Goal`` (position and heading; ``formation/<fleet>/operator/goal``);
 - ``<ns>/formation/estop`` and ``<ns>/formation/release`` (std_srvs/srv/Trigger services): the
   fleet's existing e-stop path (``formation.operate.estop_tool.send_estop``: latched by the
   coordinators, acknowledged by the robots); the reply says who acknowledged.
+
+Under ``--secure`` the bridge is its own identity (CN ``ros2``): the router lets only it publish
+these topics and declare its tokens, and lets it publish on the bus only the operator's
+``cmd_vel``, ``goal`` and ``estop`` (bus_schemas.ros2.graph, bus_schemas.acl_rules).
 
 Every entity has its rmw_zenoh liveliness token, so ``ros2 topic list -t`` and
 ``ros2 service list -t`` show them with their types. The pure translation is
@@ -42,6 +50,7 @@ import runtime as rt
 from bus_schemas import (
     CmdVel,
     DecodeError,
+    Goal,
     Leader,
     Pose,
     PoseBatch,
@@ -52,11 +61,15 @@ from bus_schemas import (
     keys,
 )
 from bus_schemas.fields import SPEED_MAX_MPS, TURN_RATE_MAX_RADPS
-from bus_schemas.ros2 import msgs, rmw
+from bus_schemas.ros2 import graph, msgs, rmw
+from bus_schemas.spec import POSITION_MAX_M
+from runtime.sdnotify import Notifier, pet_watchdog
 
 __all__ = ["BridgeCore", "Outgoing", "main"]
 
-NODE_NAME: Final = "formation_bridge"
+NODE_NAME: Final = graph.NODE_NAME
+GOAL_FRAMES: Final = ("map", "")
+"""Frames a goal may be given in: the fixed frame (REP 105), or none (taken as ``map``)."""
 READY: Final = "ros2 bridge ready"
 ROLE_COLOURS: Final[dict[str, msgs.ColorRGBA]] = {
     "leader": msgs.ColorRGBA(0.9, 0.2, 0.2, 1.0),
@@ -98,12 +111,14 @@ class BridgeCore:
 
     namespace: str = ""
     max_cmd_hz: float = 50.0
+    max_goal_hz: float = 5.0
     rejected: RejectCounts = field(default_factory=RejectCounts)
     forwarded: int = 0
     _tracks: dict[str, _Track] = field(default_factory=dict)
     _slots: dict[int, Slot] = field(default_factory=dict)
     _leader: Leader | None = None
     _last_cmd_s: float = -math.inf
+    _last_goal_s: float = -math.inf
     _teleop_seq: int = 0
 
     def topic(self, relative: str) -> str:
@@ -113,15 +128,42 @@ class BridgeCore:
     # --- fleet -> ROS -------------------------------------------------------------------------
 
     def on_pose(self, robot: str, t_s: float, x_m: float, y_m: float, theta_rad: float,
-                stamp_s: float) -> list[Outgoing]:  # fmt: skip
-        """A robot's measured pose (bus ``t`` = ``t_s``) -> its odometry and its tf."""
+                stamp_ns: int) -> list[Outgoing]:  # fmt: skip
+        """A robot's measured pose (bus ``t`` = ``t_s``) -> its odometry and its tf, the
+        headers stamped ``stamp_ns`` (ns since the UNIX epoch: ROS time)."""
+        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
+        odom = self._odometry(header, robot, t_s, x_m, y_m, theta_rad)
+        if odom is None:
+            return []
+        tf = msgs.TFMessage((self._transform(header, f"{robot}/base_link", odom.pose.pose),))
+        return [self._odom_out(robot, odom), self._tf_out(tf)]
+
+    def on_poses(self, batch: PoseBatch, stamp_ns: int) -> list[Outgoing]:
+        """A ``poses`` batch (one camera frame, bus ``t`` = its ``stamp``) -> each robot's
+        odometry, then one ``/tf`` with every robot's transform (one message per frame, not one
+        per robot: tf2 takes many transforms a message)."""
+        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
+        out: list[Outgoing] = []
+        transforms: list[msgs.TransformStamped] = []
+        for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
+            odom = self._odometry(header, rid, batch.stamp, x, y, th)
+            if odom is not None:
+                out.append(self._odom_out(rid, odom))
+                transforms.append(self._transform(header, f"{rid}/base_link", odom.pose.pose))
+        if transforms:
+            out.append(self._tf_out(msgs.TFMessage(tuple(transforms))))
+        return out
+
+    def _odometry(self, header: msgs.Header, robot: str, t_s: float, x_m: float, y_m: float,
+                  theta_rad: float) -> msgs.Odometry | None:  # fmt: skip
+        """The odometry of a pose, its twist from the previous one (None: out of order)."""
         prev = self._tracks.get(robot)
         track = _Track(t_s, x_m, y_m, theta_rad)
         if prev is not None:
             dt_s = t_s - prev.t_s
             if dt_s <= 0.0:
                 self.rejected.add("pose_out_of_order")
-                return []
+                return None
             # body-frame twist of a unicycle between two poses: forward displacement along the
             # mean heading, heading change wrapped (eqs 1-3 discretised)
             mean = prev.theta_rad + 0.5 * math.remainder(theta_rad - prev.theta_rad, math.tau)
@@ -129,20 +171,22 @@ class BridgeCore:
             track.v_mps = (dx * math.cos(mean) + dy * math.sin(mean)) / dt_s
             track.omega_radps = math.remainder(theta_rad - prev.theta_rad, math.tau) / dt_s
         self._tracks[robot] = track
-        header = msgs.Header(msgs.time_from_s(stamp_s), "map")
         pose = msgs.Pose(msgs.Point(x_m, y_m), msgs.quaternion_from_yaw(theta_rad))
         twist = msgs.Twist(msgs.Vector3(x=track.v_mps), msgs.Vector3(z=track.omega_radps))
-        odom = msgs.Odometry(
+        return msgs.Odometry(
             header,
             f"{robot}/base_link",
             msgs.PoseWithCovariance(pose),
             msgs.TwistWithCovariance(twist),
         )
-        tf = msgs.TFMessage((self._transform(header, f"{robot}/base_link", pose),))
-        return [
-            Outgoing(self.topic(f"{robot}/odom"), msgs.ros_type(msgs.Odometry), msgs.encode(odom)),
-            Outgoing("/tf", msgs.ros_type(msgs.TFMessage), msgs.encode(tf)),
-        ]
+
+    def _odom_out(self, robot: str, odom: msgs.Odometry) -> Outgoing:
+        topic = self.topic(f"{robot}/{graph.ODOM}")
+        return Outgoing(topic, msgs.ros_type(msgs.Odometry), msgs.encode(odom))
+
+    @staticmethod
+    def _tf_out(tf: msgs.TFMessage) -> Outgoing:
+        return Outgoing(graph.TF, msgs.ros_type(msgs.TFMessage), msgs.encode(tf))
 
     def on_leader(self, leader: Leader) -> None:
         self._leader = leader
@@ -150,16 +194,16 @@ class BridgeCore:
     def on_slot(self, slot: Slot) -> None:
         self._slots[slot.slot] = slot
 
-    def formation(self, stamp_s: float) -> list[Outgoing]:
-        """The leader, the slots (PoseArray, markers) and their tf, as of now."""
-        header = msgs.Header(msgs.time_from_s(stamp_s), "map")
+    def formation(self, stamp_ns: int) -> list[Outgoing]:
+        """The leader, the slots (PoseArray, markers) and their tf, stamped ``stamp_ns``."""
+        header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
         out: list[Outgoing] = []
         transforms: list[msgs.TransformStamped] = []
         if self._leader is not None:
             lp = _pose(self._leader.x, self._leader.y, self._leader.theta)
             out.append(
                 Outgoing(
-                    self.topic("formation/leader"),
+                    self.topic(graph.LEADER),
                     msgs.ros_type(msgs.PoseStamped),
                     msgs.encode(msgs.PoseStamped(header, lp)),
                 )
@@ -170,7 +214,7 @@ class BridgeCore:
         if slots:
             out.append(
                 Outgoing(
-                    self.topic("formation/slots"),
+                    self.topic(graph.SLOTS),
                     msgs.ros_type(msgs.PoseArray),
                     msgs.encode(msgs.PoseArray(header, poses)),
                 )
@@ -191,7 +235,7 @@ class BridgeCore:
             )
             out.append(
                 Outgoing(
-                    self.topic("formation/markers"),
+                    self.topic(graph.MARKERS),
                     msgs.ros_type(msgs.MarkerArray),
                     msgs.encode(msgs.MarkerArray(markers)),
                 )
@@ -202,7 +246,7 @@ class BridgeCore:
             ]
         if transforms:
             tf = msgs.TFMessage(tuple(transforms))
-            out.append(Outgoing("/tf", msgs.ros_type(msgs.TFMessage), msgs.encode(tf)))
+            out.append(self._tf_out(tf))
         return out
 
     @staticmethod
@@ -236,6 +280,36 @@ class BridgeCore:
         self.forwarded += 1
         return CmdVel(t=now_s, seq=self._teleop_seq, v_mps=v_mps, omega_radps=omega_radps)
 
+    def on_goal(self, payload: bytes, attachment: bytes | None, now_s: float) -> Goal | None:
+        """A ``/formation/goal`` PoseStamped (``map`` frame) -> the operator's Goal (position and
+        heading), or None (refused, counted: malformed, another frame, a position beyond the
+        contract's, a quaternion with no yaw, more than ``max_goal_hz``)."""
+        att = rmw.decode_attachment(attachment)
+        if isinstance(att, DecodeError):
+            self.rejected.add(f"goal_{att.reason}")
+            return None
+        msg = msgs.decode(payload, msgs.PoseStamped)
+        if isinstance(msg, DecodeError):
+            self.rejected.add(f"goal_{msg.reason}")
+            return None
+        if msg.header.frame_id not in GOAL_FRAMES:
+            self.rejected.add("goal_frame")
+            return None
+        x_m, y_m = msg.pose.position.x, msg.pose.position.y
+        heading = msgs.yaw_from_quaternion(msg.pose.orientation)
+        if abs(x_m) > POSITION_MAX_M or abs(y_m) > POSITION_MAX_M:
+            self.rejected.add("goal_out_of_range")
+            return None
+        if heading is None:
+            self.rejected.add("goal_quaternion")
+            return None
+        if now_s - self._last_goal_s < 1.0 / self.max_goal_hz:
+            self.rejected.add("goal_flood")
+            return None
+        self._last_goal_s = now_s
+        self.forwarded += 1
+        return Goal(t=now_s, x=x_m, y=y_m, heading=heading)
+
 
 def _pose(x_m: float, y_m: float, theta_rad: float) -> msgs.Pose:
     return msgs.Pose(msgs.Point(x_m, y_m), msgs.quaternion_from_yaw(theta_rad))
@@ -256,6 +330,7 @@ class _Graph:
     publishers: dict[str, tuple[Any, bytes]] = field(default_factory=dict)
     seq: dict[str, int] = field(default_factory=dict)
     next_id: int = 1
+    published: int = 0
 
     def _token(self, kind: rmw.EntityKind, topic: str, rtype: msgs.RosType) -> str:
         key = rmw.endpoint_token(
@@ -286,6 +361,7 @@ class _Graph:
         seq = self.seq[out.topic] = self.seq.get(out.topic, 0) + 1
         att = rmw.encode_attachment(rmw.Attachment(seq, wall_ns, entry[1]))
         entry[0].put(out.payload, attachment=att)
+        self.published += 1
 
     def close(self) -> None:
         for pub, _ in self.publishers.values():
@@ -340,19 +416,19 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
     rate_hz: float,
     max_cmd_hz: float,
     *,
-    wall_s: Callable[[], float] = time.time,
+    wall_ns: Callable[[], int] = time.time_ns,
 ) -> int:
     """The bridge on an open session until ``stop``; returns the exit status."""
     from formation.operate.estop_tool import send_estop
 
     core = BridgeCore(namespace=namespace, max_cmd_hz=max_cmd_hz)
-    graph = _Graph(io.session, domain_id, namespace, str(io.session.info.zid()))
-    graph.announce()
+    ros = _Graph(io.session, domain_id, namespace, str(io.session.info.zid()))
+    ros.announce()
 
     def publish_all(outs: list[Outgoing]) -> None:
         now_ns = time.time_ns()
         for out in outs:
-            graph.publish(out, now_ns)
+            ros.publish(out, now_ns)
 
     def on_pose(rx: rt.Received) -> None:
         parsed = keys.parse_robot_key(rx.key)
@@ -360,16 +436,14 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
         if parsed is None or isinstance(msg, DecodeError):
             core.rejected.add(msg if isinstance(msg, DecodeError) else "pose_key")
             return
-        publish_all(core.on_pose(parsed[1], msg.t, msg.x, msg.y, msg.theta, wall_s()))
+        publish_all(core.on_pose(parsed[1], msg.t, msg.x, msg.y, msg.theta, wall_ns()))
 
     def on_poses(rx: rt.Received) -> None:
         batch = decode(rx.payload, PoseBatch)
         if isinstance(batch, DecodeError):
             core.rejected.add(batch)
             return
-        stamp = wall_s()
-        for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
-            publish_all(core.on_pose(rid, batch.stamp, x, y, th, stamp))
+        publish_all(core.on_poses(batch, wall_ns()))
 
     def on_leader(rx: rt.Received) -> None:
         msg = decode(rx.payload, Leader)
@@ -390,13 +464,21 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
         if teleop is not None:
             io.pubs.put(keys.cmd_vel_key(fleet), encode(teleop))
 
+    def on_goal(rx: rt.Received) -> None:
+        goal = core.on_goal(rx.payload, rx.attachment, time.monotonic())
+        if goal is not None:
+            io.pubs.put(keys.goal_key(fleet), encode(goal))
+
     io.subscribe(keys.all_poses_pattern(fleet), on_pose)
     io.subscribe(keys.poses_key(fleet), on_poses)
     io.subscribe(keys.leader_key(fleet), on_leader)
     io.subscribe(keys.all_slots_pattern(fleet), on_slot)
     twist_t = msgs.ros_type(msgs.Twist)
-    cmd_key = graph.endpoint(rmw.EntityKind.SUBSCRIPTION, core.topic("formation/cmd_vel"), twist_t)
+    cmd_key = ros.endpoint(rmw.EntityKind.SUBSCRIPTION, core.topic(graph.CMD_VEL), twist_t)
     io.subscribe(cmd_key, on_cmd_vel)
+    pose_t = msgs.ros_type(msgs.PoseStamped)
+    goal_key = ros.endpoint(rmw.EntityKind.SUBSCRIPTION, core.topic(graph.GOAL), pose_t)
+    io.subscribe(goal_key, on_goal)
 
     # e-stop and release: std_srvs/srv/Trigger services on the fleet's existing e-stop path
     loop = asyncio.get_running_loop()
@@ -411,7 +493,7 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
             if isinstance(att, DecodeError) or isinstance(req, DecodeError):
                 core.rejected.add("trigger_malformed")
                 return  # no reply: a malformed request has no client to answer
-            name = "estop" if engage else "release"
+            name = "estop" if engage else "release"  # one in progress of each at a time
             if name in busy:
                 core.rejected.add("trigger_busy")
                 response = msgs.TriggerResponse(False, f"an {name} is already in progress")
@@ -429,8 +511,8 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
 
     queryables = []
     pending: set[asyncio.Task[None]] = set()
-    for name, engage in (("estop", True), ("release", False)):
-        key = graph.endpoint(rmw.EntityKind.SERVICE, core.topic(f"formation/{name}"), trigger_t)
+    for name, engage in ((graph.ESTOP, True), (graph.RELEASE, False)):
+        key = ros.endpoint(rmw.EntityKind.SERVICE, core.topic(name), trigger_t)
 
         def on_query(query: Any, engage: bool = engage) -> None:  # Zenoh's thread
             def start() -> None:
@@ -443,20 +525,28 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
         queryables.append(io.session.declare_queryable(key, on_query, complete=True))
 
     print(f"{READY}: domain {domain_id}, fleet {fleet}", flush=True)
+    # systemd (deploy/systemd/formation-ros2.service): READY=1 now, WATCHDOG=1 from this loop
+    notifier = Notifier()
+    notifier.ready(f"ros2 bridge: domain {domain_id}, fleet {fleet}")
+    pet = asyncio.ensure_future(pet_watchdog(notifier, stop))
     period_s = 1.0 / rate_hz
     try:
         while not stop.is_set():
-            publish_all(core.formation(wall_s()))
+            publish_all(core.formation(wall_ns()))
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), period_s)
     finally:
+        pet.cancel()
+        notifier.stopping()
+        notifier.close()
         for task in pending:
             task.cancel()
         for q in queryables:
             q.undeclare()
-        graph.close()
+        ros.close()
         io.log.info(
-            f"forwarded {core.forwarded} cmd_vel, rejected {core.rejected.total} "
+            f"published {ros.published} ROS messages, forwarded {core.forwarded} "
+            f"cmd_vel/goal, rejected {core.rejected.total} "
             f"{core.rejected.as_dict()}"
         )
     return 0

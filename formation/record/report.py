@@ -538,6 +538,14 @@ def build_parser() -> argparse.ArgumentParser:
         "duration), compare its metrics with the recording's (metrics.json "
         "'simulator_comparison'); exit 3 if they differ",
     )
+    p.add_argument(
+        "--rosbag",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="also write the run as a ROS 2 bag (MCAP storage) into the new folder DIR: "
+        "per robot odom, /tf, the slots, the leader (docs/ros2.md)",
+    )
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     return p
 
@@ -556,8 +564,20 @@ def main(argv: list[str]) -> int:
     if args.tol is not None and not (args.tol > 0 and math.isfinite(args.tol)):
         print("formation report: --tol must be > 0", file=sys.stderr)
         return 2
+    if args.rosbag is not None and args.rosbag.exists():
+        print(f"formation report: --rosbag {args.rosbag} exists", file=sys.stderr)
+        return 2
     try:
         rec = read_recording(args.file)
+        if args.rosbag is not None:
+            from formation.record.rosbag import RosbagError, export_rosbag
+
+            try:
+                bag = export_rosbag(rec, args.rosbag)
+            except RosbagError as exc:
+                raise ReportError(f"--rosbag: {exc}") from exc
+            if not args.quiet:
+                print(bag.line())
         report = analyze(rec, scenario=args.scenario, settle_s=args.settle, tol_m=args.tol)
     except (OSError, ReportError, scenario_mod.ScenarioError) as exc:
         print(f"formation report: {exc}", file=sys.stderr)

@@ -135,7 +135,7 @@ def test_formation_certs_cli(tmp_path: Path) -> None:
     assert certs_main(["-o", str(out), "--robots", "r2"]) == 0
     assert (out / "ca" / "ca.pem").read_bytes() == ca_before
     expected = {"robot.r1", "robot.r2", "coordinator.main", "coordinator.standby"}
-    expected |= {"localization", "operator", "observer"}
+    expected |= {"localization", "operator", "observer", "ros2"}
     for cn in expected:
         cert = x509.load_pem_x509_certificate((out / cn / "cert.pem").read_bytes())
         assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == cn

@@ -19,7 +19,7 @@ import pytest
 import zenoh
 from conftest import free_port
 
-from bus_schemas import CmdVel, Estop, Leader, Pose, Slot, decode, encode, keys
+from bus_schemas import CmdVel, Estop, Goal, Leader, Pose, PoseBatch, Slot, decode, encode, keys
 from bus_schemas.errors import DecodeError
 from bus_schemas.ros2 import msgs, rmw
 from formation.live.ros2_bridge import READY, BridgeCore
@@ -36,8 +36,8 @@ def twist(v: float, w: float) -> bytes:
 
 def test_odometry_twist_from_consecutive_poses() -> None:
     core = BridgeCore()
-    core.on_pose("r1", 1.0, 0.0, 0.0, 0.0, stamp_s=5.0)
-    outs = core.on_pose("r1", 1.1, 0.02, 0.0, 0.05, stamp_s=5.1)
+    core.on_pose("r1", 1.0, 0.0, 0.0, 0.0, stamp_ns=5_000_000_000)
+    outs = core.on_pose("r1", 1.1, 0.02, 0.0, 0.05, stamp_ns=5_100_000_000)
     assert [o.topic for o in outs] == ["/r1/odom", "/tf"]
     odom = msgs.decode(outs[0].payload, msgs.Odometry)
     assert isinstance(odom, msgs.Odometry)
@@ -49,8 +49,23 @@ def test_odometry_twist_from_consecutive_poses() -> None:
     tf = msgs.decode(outs[1].payload, msgs.TFMessage)
     assert isinstance(tf, msgs.TFMessage)
     assert tf.transforms[0].child_frame_id == "r1/base_link"
-    assert core.on_pose("r1", 1.1, 0.0, 0.0, 0.0, stamp_s=5.2) == []  # same t: refused
+    assert core.on_pose("r1", 1.1, 0.0, 0.0, 0.0, stamp_ns=5_200_000_000) == []  # same t: refused
     assert core.rejected.by_reason == {"pose_out_of_order": 1}
+
+
+def test_a_poses_batch_gives_each_odometry_and_one_tf() -> None:
+    core = BridgeCore()
+    ids = ("r1", "r2", "r3")
+    batch = PoseBatch(t=1.0, seq=1, robots=ids, x=(0.0, 1.0, 2.0), y=(0.0,) * 3,
+                      theta=(0.0,) * 3, stamp=1.0)  # fmt: skip
+    outs = core.on_poses(batch, stamp_ns=7)
+    assert [o.topic for o in outs] == ["/r1/odom", "/r2/odom", "/r3/odom", "/tf"]
+    tf = msgs.decode(outs[-1].payload, msgs.TFMessage)
+    assert isinstance(tf, msgs.TFMessage)
+    assert [t.child_frame_id for t in tf.transforms] == [f"{r}/base_link" for r in ids]
+    assert [t.transform.translation.x for t in tf.transforms] == [0.0, 1.0, 2.0]
+    assert core.on_poses(batch, stamp_ns=8) == []  # the same frame again: each one refused
+    assert core.rejected.by_reason == {"pose_out_of_order": 3}
 
 
 def test_formation_outputs_in_a_namespace() -> None:
@@ -61,7 +76,7 @@ def test_formation_outputs_in_a_namespace() -> None:
             Slot(t=1.0, seq=1, slot=k, role=role, stage=0, parent=None if k == 0 else 0,
                  x=float(k), y=0.0, theta=0.0, vx=0.0, vy=0.0)
         )  # fmt: skip
-    outs = {o.topic: o for o in core.formation(stamp_s=3.0)}
+    outs = {o.topic: o for o in core.formation(stamp_ns=3_000_000_000)}
     assert set(outs) == {"/lab/formation/leader", "/lab/formation/slots", "/lab/formation/markers",
                          "/tf"}  # fmt: skip
     slots = msgs.decode(outs["/lab/formation/slots"].payload, msgs.PoseArray)
@@ -102,6 +117,46 @@ def test_cmd_vel_is_validated_rate_limited_and_counted() -> None:
     }
     assert core.forwarded == 1
     assert core.on_cmd_vel(twist(0.0, 0.0), ATT, now_s=1.2) is not None
+
+
+def goal(x: float, y: float, yaw: float, frame: str = "map") -> bytes:
+    header = msgs.Header(msgs.Time(1, 0), frame)
+    pose = msgs.Pose(msgs.Point(x, y), msgs.quaternion_from_yaw(yaw))
+    return msgs.encode(msgs.PoseStamped(header, pose))
+
+
+def test_goal_becomes_the_operators_goal_and_hostile_goals_are_counted() -> None:
+    core = BridgeCore()
+    ok = core.on_goal(goal(1.5, -0.5, 0.3), ATT, now_s=1.0)
+    assert ok is not None and (ok.x, ok.y) == (1.5, -0.5)
+    assert ok.heading == pytest.approx(0.3)
+    assert isinstance(decode(encode(ok), Goal), Goal)  # a valid bus message
+    zero_q = msgs.encode(
+        msgs.PoseStamped(msgs.Header(frame_id="map"), msgs.Pose(orientation=msgs.Quaternion(w=0.0)))
+    )
+    hostile = [
+        (goal(1.0, 0.0, 0.0), None, 2.0),  # no attachment
+        (goal(1.0, 0.0, 0.0, frame="odom"), ATT, 2.0),
+        (goal(1e6, 0.0, 0.0), ATT, 2.0),
+        (zero_q, ATT, 2.0),
+        (goal(1.0, 0.0, 0.0)[:-3], ATT, 2.0),  # truncated CDR
+        (goal(1.0, 0.0, 0.0) + bytes(70_000), ATT, 2.0),  # oversized
+        (goal(1.0, 0.0, 0.0), ATT, 1.1),  # 10 Hz after the last: a flood at 5 Hz
+    ]
+    for payload, att, now in hostile:
+        assert core.on_goal(payload, att, now_s=now) is None
+    assert core.rejected.total == len(hostile)
+    assert {"goal_missing_field", "goal_frame", "goal_out_of_range", "goal_quaternion",
+            "goal_flood"} <= set(core.rejected.by_reason)  # fmt: skip
+    assert core.forwarded == 1
+
+
+def test_oversized_and_wrong_length_cmd_vel_is_counted() -> None:
+    core = BridgeCore()
+    for payload in (twist(0.1, 0.0) + bytes(8), twist(0.1, 0.0) + bytes(1 << 16), b""):
+        assert core.on_cmd_vel(payload, ATT, now_s=1.0) is None
+    assert core.rejected.by_reason == {"cmd_vel_too_large": 2, "cmd_vel_malformed": 1}
+    assert core.forwarded == 0
 
 
 # --- the bridge process and an independent ROS 2 client ----------------------------------------
@@ -222,10 +277,21 @@ def test_independent_ros2_client_sees_and_drives_the_bridge(
         passed = len(bus.teleops) - before
         assert 1 <= passed <= 50 * (flood_s + 0.5) + 2, (passed, flood_s)
         assert all(t.v_mps == 0.05 for t in bus.teleops[before:])
+        # a malformed service request gets no reply and changes nothing; a goal in another
+        # frame or an oversized one is dropped
+        estops = len(bus.estops)
+        trigger_key = rmw.topic_key(3, "/formation/estop", msgs.ros_type(msgs.TriggerRequest))
+        replies = list(raw.get(trigger_key, payload=b"\x00\x01", attachment=ATT, timeout=1.0))
+        assert [r for r in replies if r.ok is not None] == [] and len(bus.estops) == estops
+        goal_key = rmw.topic_key(3, "/formation/goal", msgs.ros_type(msgs.PoseStamped))
+        raw.put(goal_key, goal(1.0, 0.0, 0.0, frame="odom"), attachment=ATT)
+        raw.put(goal_key, goal(1.0, 0.0, 0.0) + bytes(70_000), attachment=ATT)
+        time.sleep(0.3)
         bridge.stop()
         counts = bridge.stderr()
         for reason in ("cmd_vel_malformed", "cmd_vel_non_finite", "cmd_vel_missing_field",
-                       "cmd_vel_flood"):  # fmt: skip
+                       "cmd_vel_flood", "trigger_malformed", "goal_frame",
+                       "goal_too_large"):  # fmt: skip
             assert f"'{reason}'" in counts, counts
     finally:
         bus.close()
@@ -259,3 +325,22 @@ def test_formation_up_ros2_shows_the_fleet_to_a_ros2_client(spawn: Any, tmp_path
     # how long after `formation up` started the client saw every topic (the report quotes it)
     print(f"topics seen {results['topics']['after_s']} s after the client started")
     run.stop()
+
+
+@pytest.mark.zenoh
+@pytest.mark.slow
+def test_bridge_speaks_sd_notify(router: Any, spawn: Any, tmp_path: Path) -> None:
+    """deploy/systemd/formation-ros2.service is Type=notify with a watchdog: READY=1 once its
+    ROS entities are declared, WATCHDOG=1 from its loop, STOPPING=1 on SIGTERM."""
+    from test_agent_boot import FakeSystemd
+
+    systemd = FakeSystemd(tmp_path / "notify.sock")
+    try:
+        bridge = spawn("ros2", "--endpoint", router.endpoint, ready=READY, env=systemd.env())
+        ready = systemd.wait("READY=1")
+        until(lambda: len([t for t in systemd.times("WATCHDOG=1") if t > ready]) >= 3, 5.0,
+              "three WATCHDOG=1 after READY=1")  # fmt: skip
+        bridge.stop()
+        systemd.wait("STOPPING=1", 5.0)
+    finally:
+        systemd.close()

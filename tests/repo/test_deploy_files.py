@@ -313,6 +313,7 @@ COORDINATOR_UNITS = (
     "formation-router.service",
     "formation-coordinator@.service",
     "formation-camera.service",
+    "formation-ros2.service",
 )
 FLEET_EXAMPLE = DEPLOY / "config" / "fleet.example.toml"
 
@@ -328,8 +329,9 @@ def test_coordinator_host_units_are_notify_with_a_watchdog(name: str) -> None:
     assert service["ExecStart"].startswith("/opt/formation/venv/bin/formation ")
     assert "--zenoh-config /etc/formation/zenoh/" in service["ExecStart"]
     if name != "formation-router.service":
-        assert "--fleet-file /etc/formation/fleet.toml" in service["ExecStart"]
         assert "formation-router.service" in unit["Unit"]["After"][-1]
+    if name in ("formation-coordinator@.service", "formation-camera.service"):
+        assert "--fleet-file /etc/formation/fleet.toml" in service["ExecStart"]
     assert unit["Install"]["WantedBy"] == ["multi-user.target"]
 
 
@@ -408,3 +410,39 @@ def test_install_coordinator_host_into_prefix(tmp_path: Path) -> None:
     assert dry.returncode == 0, dry.stderr
     assert "[sim,camera]" in dry.stdout.replace("\\", "")
     assert run_install("--coordinator-host", "--robot-id", "r1", "--dry-run").returncode == 2
+
+
+# ---------------------------------------------------------------------- every unit's command
+
+
+def _help_of(subcommand: str) -> str:
+    result = subprocess.run(
+        [sys.executable, "-m", "formation", subcommand, "--help"],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert result.returncode == 0, (subcommand, result.stderr)
+    return result.stdout
+
+
+@pytest.mark.parametrize(
+    "unit", sorted(p.name for p in (DEPLOY / "systemd").glob("*.service")), ids=str
+)
+def test_unit_runs_a_real_command_with_real_options_and_shipped_files(unit: str) -> None:
+    """Each unit's ExecStart is a ``formation`` subcommand that exists, every ``--option`` in it
+    is one that subcommand's ``--help`` lists, and every Zenoh config it names is shipped in
+    deploy/zenoh/ (what deploy/install.sh installs under /etc/formation/zenoh/)."""
+    from formation.cli import SUBCOMMANDS
+
+    (exec_start,) = parse_unit((DEPLOY / "systemd" / unit).read_text())["Service"]["ExecStart"]
+    words = exec_start.split()
+    assert words[0] == "/opt/formation/venv/bin/formation", exec_start
+    assert words[1] in SUBCOMMANDS, f"{unit}: no subcommand formation {words[1]}"
+    help_text = _help_of(words[1])
+    options = [w for w in words[2:] if w.startswith("--")]
+    assert options, exec_start
+    for option in options:
+        listed = rf"(^|[\s,\[]){re.escape(option)}(?=[\s,=\]]|$)"
+        assert re.search(listed, help_text, re.MULTILINE), (unit, option)
+    for config in re.findall(r"/etc/formation/zenoh/(\S+\.json5)", exec_start):
+        name = config.replace("%i", "main")
+        assert (DEPLOY / "zenoh" / name).is_file(), (unit, name)
