@@ -276,10 +276,18 @@ class FleetRun:
             now = self.collector.live().t_s
             if now is not None and now >= at:
                 raise FleetRunError(f"--at {at:g}: the run is already at t = {now:.2f} s")
-        argv = [
-            sys.executable, "-m", "formation", "fault", *args, "--endpoint", self.endpoint,
-            "--fleet", self.fleet, "--timeout", "10",
-        ]  # fmt: skip
+        tail = ["--endpoint", self.endpoint, "--fleet", self.fleet, "--timeout", "10"]
+        if "--at" in args and self.session is not None:
+            # a request the coordinator schedules: sent over this run's own session, at once (a
+            # lockstep run can pass T while a new `formation fault` process starts up)
+            from formation.operate import fault as fault_tool
+
+            try:
+                ns = fault_tool.build_parser().parse_args([*args, *tail])
+                return await fault_tool.request_at(self.session, ns)
+            except (fault_tool.FaultError, ValueError) as exc:
+                raise FaultCommandError(f"formation fault {' '.join(args)}: {exc}") from exc
+        argv = [sys.executable, "-m", "formation", "fault", *args, *tail]
         proc = await asyncio.create_subprocess_exec(
             *argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE
         )

@@ -95,7 +95,15 @@ from bus_schemas import (
 from bus_schemas import Fault as FaultMsg
 from formation.outputs import runfile
 
-__all__ = ["FaultError", "Where", "build_parser", "find_processes", "main", "verify_process"]
+__all__ = [
+    "FaultError",
+    "Where",
+    "build_parser",
+    "find_processes",
+    "main",
+    "request_at",
+    "verify_process",
+]
 
 
 class FaultError(RuntimeError):
@@ -418,8 +426,12 @@ _AT_KINDS = {
 }
 
 
-async def _request_at(bus: _Bus, session: Any, ns: argparse.Namespace) -> str:
-    """``--at T``: a request the active coordinator schedules (module docstring)."""
+async def request_at(session: Any, ns: argparse.Namespace) -> str:
+    """``--at T`` (``ns`` as :func:`build_parser` parses it): a request the active coordinator
+    schedules (module docstring), over an open ``session``: the CLI's and formation.testing's
+    one path (a test that schedules a fault in a fast lockstep run must not wait for a new
+    process to start)."""
+    bus = _Bus(session, ns.timeout)
     fleet = keys.check_fleet(ns.fleet)
     kind, role = _AT_KINDS[ns.command]
     robot = getattr(ns, "robot", None)
@@ -457,7 +469,7 @@ async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # no
         bus = _Bus(session, ns.timeout)
         cmd = ns.command
         if getattr(ns, "at", None) is not None:
-            return await _request_at(bus, session, ns)
+            return await request_at(session, ns)
         if cmd == "kill-leader":
             amsg = await bus.newest(keys.assignment_key(fleet), _decoded(Assignment))
             if amsg is None:
