@@ -457,7 +457,7 @@ class CoordinatorCore:
     ) -> dict[str, SlotRow]:
         """The robots making room for a mover (coordinator.core.movers) keep the slot they had
         (added to ``assignment``) with a refuge beside the mover's path as their setpoint (the
-        returned approach rows, velocity 0); one that stops yielding far from its slot goes
+        returned approach rows, with a feed-forward toward the refuge: ``aside_rows``); one that stops yielding far from its slot goes
         back to it on an approach point (as a newly assigned robot does)."""
         movers = self.movers
         reserved = movers.reserved
@@ -472,8 +472,7 @@ class CoordinatorCore:
             assignment[rid] = slot
             self._approach.pop(rid, None)
             points[rid] = q
-        for rid, (rx, ry) in movers.refuges(points).items():
-            out[rid] = (rx, ry, 0.0, 0.0)
+        out.update(movers.aside_rows(points))
         if self._row_of is None:
             self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
         for rid in sorted(was_yielding - self._yielding):

@@ -76,6 +76,12 @@ class MoverParams:
             reference points is ``Ds + 2 l`` = 0.29 m with the defaults).
         lead_s: a mover's reach grows by what it covers in this long (s) at its speed: a
             robot within ``yield_m + lead_s * speed`` of it yields.
+        aside_mps: the speed (m/s) of a refuge setpoint's feed-forward toward the refuge
+            (``aside_rows``): the robots' reference-point top speed (``max_ref_speed_mps``).
+            The slot tracking law's gain alone (eqs 21-22, ``kp`` 0.21 /s) moves a robot
+            0.35 m from its refuge at 0.07 m/s: a body at 0.3 m/s arrives first.
+        aside_gain_per_s: within ``aside_mps / aside_gain_per_s`` of its refuge the feed-forward
+            is this gain (1/s) times the distance, so the robot settles there.
     """
 
     fast_mps: float = 0.4
@@ -88,11 +94,13 @@ class MoverParams:
     side_tol_m: float = 0.03
     spacing_m: float = 0.35
     lead_s: float = 2.0
+    aside_mps: float = 0.25
+    aside_gain_per_s: float = 2.0
 
     def __post_init__(self) -> None:
         names = (
             "fast_mps", "still_mps", "window_s", "hold_s", "yield_m", "chain_m", "clear_m",
-            "side_tol_m", "lead_s", "spacing_m",
+            "side_tol_m", "lead_s", "spacing_m", "aside_mps", "aside_gain_per_s",
         )  # fmt: skip
         for name in names:
             value = getattr(self, name)
@@ -222,6 +230,25 @@ class MoverDetector:
                 ry += dy * step
             placed[rid] = (rx, ry, nx, ny)
         return {rid: (v[0], v[1]) for rid, v in placed.items()}
+
+    def aside_rows(
+        self, points: Mapping[str, tuple[float, float]]
+    ) -> dict[str, tuple[float, float, float, float]]:
+        """The setpoint rows ``(x, y, vx, vy)`` of robots making room (reference points
+        ``points``): each one's refuge (``refuges``) with a feed-forward velocity toward it,
+        ``aside_mps`` far from it and ``aside_gain_per_s`` times the distance near it. Eq 21's
+        feed-forward term carries the robot there at its top speed (recomputed every tick
+        from where it is), where the slot gain alone would take seconds."""
+        p = self._params
+        out: dict[str, tuple[float, float, float, float]] = {}
+        for rid, (rx, ry) in self.refuges(points).items():
+            qx, qy = points[rid]
+            dx, dy = rx - qx, ry - qy
+            d = math.hypot(dx, dy)
+            speed = min(p.aside_mps, p.aside_gain_per_s * d)
+            k = speed / d if d > 1e-9 else 0.0
+            out[rid] = (rx, ry, k * dx, k * dy)
+        return out
 
     def refuge(self, robot: str, qx: float, qy: float) -> tuple[float, float]:
         """Where ``robot`` making room, with its reference point at ``(qx, qy)``, goes now: off
