@@ -72,6 +72,11 @@ class MoverParams:
         clear_m: a yielding robot steps sideways until its reference point is this far (m)
             from the line a mover moves along (``refuge``).
         side_tol_m: a robot this close (m) to that line steps to its left.
+        side_turn_rad: the side a robot steps to is chosen again when the mover's direction
+            of motion turned more than this (rad) since it was chosen.
+        keep_side_m: a robot this far (m) from that line or farther steps away from it on the
+            side it is on (a robot behind the line was sent across the body's path, in front
+            of it, when every robot stepped out of the formation: issue 30, 0.3 m/s).
         spacing_m: refuges at least this far apart (m; the cooperative barrier between two
             reference points is ``Ds + 2 l`` = 0.29 m with the defaults).
         lead_s: a mover's reach grows by what it covers in this long (s) at its speed: a
@@ -92,6 +97,8 @@ class MoverParams:
     chain_m: float = 0.45
     clear_m: float = 0.4
     side_tol_m: float = 0.03
+    keep_side_m: float = 0.1
+    side_turn_rad: float = 0.35
     spacing_m: float = 0.35
     lead_s: float = 2.0
     aside_mps: float = 0.25
@@ -100,7 +107,8 @@ class MoverParams:
     def __post_init__(self) -> None:
         names = (
             "fast_mps", "still_mps", "window_s", "hold_s", "yield_m", "chain_m", "clear_m",
-            "side_tol_m", "lead_s", "spacing_m", "aside_mps", "aside_gain_per_s",
+            "side_tol_m", "keep_side_m", "side_turn_rad",
+            "lead_s", "spacing_m", "aside_mps", "aside_gain_per_s",
         )  # fmt: skip
         for name in names:
             value = getattr(self, name)
@@ -125,6 +133,7 @@ class MoverDetector:
         "_params",
         "_reserved",
         "_side",
+        "_cos_turn",
         "_until",
         "_yield_until",
         "rejected",
@@ -137,8 +146,10 @@ class MoverDetector:
         self._until: dict[str, float] = {}
         self._yield_until: dict[str, float] = {}
         self._reserved: dict[str, int] = {}
-        self._side: dict[tuple[str, str], float] = {}  # (robot, mover) -> side (+1 left)
+        # (robot, mover) -> side (+1 left of the motion), the motion's unit vector it was for
+        self._side: dict[tuple[str, str], tuple[float, float, float]] = {}
         self._objects: frozenset[str] = frozenset()  # the tracked non-fleet bodies now
+        self._cos_turn = math.cos(self._params.side_turn_rad)
         self.rejected = 0
         """Poses or times skipped as non-finite."""
 
@@ -277,10 +288,17 @@ class MoverDetector:
             if along < -p.clear_m:  # behind it and it moves away
                 continue
             cross = ux * dy - uy * dx  # > 0: left of the motion
-            side = self._side.get((robot, mid))
-            if side is None:
+            kept = self._side.get((robot, mid))
+            # a side is kept while the motion keeps its direction within side_turn_rad (a
+            # noisy velocity must not flip it); chosen again when it turned more: the first
+            # estimate of a body that just started, 2 cm over the window, can be 35 degrees
+            # off through 3 mm camera noise, and a side chosen for that line crossed the real
+            # one (issue 30, the chevron at 0.3 m/s)
+            if kept is None or kept[1] * ux + kept[2] * uy < self._cos_turn:
                 side = self._choose_side(qx, qy, ux, uy, cross)
-                self._side[robot, mid] = side
+                self._side[robot, mid] = (side, ux, uy)
+            else:
+                side = kept[0]
             nx, ny = -uy * side, ux * side
             w = cross * side  # distance from the line, toward the side kept
             if w >= p.clear_m:
@@ -290,10 +308,14 @@ class MoverDetector:
         return rx, ry
 
     def _choose_side(self, qx: float, qy: float, ux: float, uy: float, cross: float) -> float:
-        """The side (+1: left of the motion ``u``) a robot at ``(qx, qy)`` steps to: away from
+        """The side (+1: left of the motion ``u``) a robot at ``(qx, qy)`` steps to: the side of
+        the mover's line it is on when it is ``keep_side_m`` or more from that line (never
+        across the body's path: the way is shorter and the body is not in it); else away from
         the centre of the other robots (out of the formation, not across it) when that is
-        clear by ``side_tol_m``, else the side of the mover's line it is on, else the left."""
+        clear by ``side_tol_m``, else the side of the line it is on, else the left."""
         tol = self._params.side_tol_m
+        if abs(cross) >= self._params.keep_side_m:
+            return 1.0 if cross > 0.0 else -1.0
         pts = [
             xy
             for rid, xy in self._last_xy.items()
