@@ -51,7 +51,10 @@ from collections import deque
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
-__all__ = ["MoverDetector", "MoverParams"]
+__all__ = ["MoverDetector", "MoverParams", "MoverRow"]
+
+MoverRow = tuple[str, float, float, float, float]
+"""A moving obstacle: ``(id, x, y, vx, vy)``, its centre (m) and velocity (m/s)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,13 +130,13 @@ class MoverDetector:
     """Which robots are movers now (see the module docstring)."""
 
     __slots__ = (
+        "_cos_turn",
         "_hist",
         "_last_xy",
         "_objects",
         "_params",
         "_reserved",
         "_side",
-        "_cos_turn",
         "_until",
         "_yield_until",
         "rejected",
@@ -177,6 +180,18 @@ class MoverDetector:
         """Mover or yielding robot -> the slot it held when it became one (kept for it, given
         to no one else)."""
         return dict(self._reserved)
+
+    def moving(self) -> tuple[MoverRow, ...]:
+        """The movers now as ``(id, x, y, vx, vy)``: the latest centre and the velocity over the
+        window, by id (empty without movers)."""
+        if not self._until:
+            return ()
+        rows: list[MoverRow] = []
+        for mid in sorted(self._until):
+            c = self._last_xy.get(mid)
+            if c is not None:
+                rows.append((mid, c[0], c[1], *self.velocity(mid)))
+        return tuple(rows)
 
     def speed_mps(self, robot: str) -> float:
         """The robot's centre speed over the window (m/s), NaN until it has one."""
