@@ -474,7 +474,8 @@ class CoordinatorCore:
         """The robots making room for a mover (coordinator.core.movers) keep the slot they had
         (added to ``assignment``) with a refuge beside the mover's path as their setpoint (the
         returned approach rows, with a feed-forward toward the refuge: ``aside_rows``); one
-        that stops yielding far from its slot goes back to it on an approach point (as a newly assigned robot does)."""
+        that stops yielding far from its slot goes back to it on an approach point (as a newly
+        assigned robot does)."""
         movers = self.movers
         reserved = movers.reserved
         where = dict(zip(ids, xy, strict=True))
