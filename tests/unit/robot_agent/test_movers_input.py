@@ -49,3 +49,19 @@ def test_a_mover_is_a_non_cooperative_neighbour_with_its_velocity() -> None:
     assert (moved[1].cooperative, moved[1].vx, moved[1].vy) == (False, -0.3, 0.1)
     assert (moved[1].x, moved[1].y, moved[1].age_s) == (plain[1].x, plain[1].y, plain[1].age_s)
     assert math.isclose(moved[1].theta, 0.0)
+
+
+def test_an_agent_hosts_grid_applies_the_movers() -> None:
+    from robot_agent.core.host_grid import NeighbourGrid
+
+    table = NeighbourTable(lockstep=True, max_robots=8)
+    for rid, x in (("r1", 0.0), ("r2", 0.3), ("r4", 0.6)):
+        table.store(rid, x, 0.0, 0.0, 1.0, 1.0, 1.0)
+    table.relay(("r2", "r4"))
+    grid = NeighbourGrid(1.0, table.cooperative, table.seen)
+    before = grid.neighbours_of("r1", 0.0, 0.0, 1.0)
+    grid.set_movers({"r4": (-0.3, 0.0)})
+    after = grid.neighbours_of("r1", 0.0, 0.0, 1.0)
+    assert after[0] == before[0]
+    assert (after[1].cooperative, after[1].vx) == (False, -0.3)
+    assert before[1].cooperative
