@@ -39,6 +39,14 @@ leader pinned it against its own followers, which kept advancing to their slots 
 cooperative barrier, issue 30 (b)): the leader's filter found no admissible command and its
 wheels sat at zero until contact. A yielding robot that had no slot (a spare) gets no setpoint:
 its firmware evades on a zero nominal command (robot_agent's ``SafetyFilter.evade``).
+A refuge setpoint carries a feed-forward toward the refuge at ``aside_mps`` (``aside_rows``):
+the slot tracking gain alone moved a robot aside too slowly for a body at the robots' top
+speed. A robot ``keep_side_m`` or more from a mover's line steps away on its own side; nearer,
+out of the formation.
+
+What the robots learn (``moving``): each mover's id, centre and velocity, which
+``CoordinatorOutput.movers`` carries to their filters (a non-cooperative neighbour with that
+velocity: rule 4 of ``robot_agent.core.neighbours``; over Zenoh the ``movers`` message).
 
 What it cannot see: a robot carried while it tracks a slot, slower than ``fast_mps``, looks
 like a robot driving (only its wheels' encoders could tell; docs/faults.md).
