@@ -264,10 +264,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         movers = prev_out.movers if prev_out is not None else ()
         if movers:
             for mid, _, _, mvx, mvy in movers:
-                j = index.get(mid)
-                q = None if j is None else pts[j]
-                if q is not None:
-                    pts[j] = mover(q, mvx, mvy)
+                jm = index.get(mid)
+                if jm is not None:
+                    seen_nb = pts[jm]
+                    if seen_nb is not None:
+                        pts[jm] = mover(seen_nb, mvx, mvy)
         if None in pts:
             for i in range(n):
                 neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
