@@ -185,6 +185,7 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.SLOT: KeyRoles((_C,), (_B,)),
     keys.SETPOINT: KeyRoles((_C,), ((_R, OWN),)),
     keys.SETPOINTS: KeyRoles((_C,), (_R, _H)),
+    keys.MOVERS: KeyRoles((_C,), (_R, _H)),  # issue 30: the robots' filters
     keys.ASSIGNMENT: KeyRoles((_C,), (_C,)),  # a standby follows the active one's
     keys.POSE: KeyRoles((_L, _P), (_R, _C, _B)),  # robots: neighbours' poses (repulsion)
     keys.POSES: KeyRoles((_L, _P), (_R, _H, _C, _B)),

@@ -54,6 +54,7 @@ GOAL = "goal"
 PATH = "path"
 SHAPE = "shape"
 FAULT = "fault"
+MOVERS = "movers"
 
 # Key templates (for documentation and str.format); the builders below are the API.
 KEY_TEMPLATES: dict[str, str] = {
@@ -73,6 +74,7 @@ KEY_TEMPLATES: dict[str, str] = {
     POSES: "formation/{fleet}/poses",
     SETPOINTS: "formation/{fleet}/setpoints",
     TRUTHS: "formation/{fleet}/truths",
+    MOVERS: "formation/{fleet}/movers",
     HOST_WHEELS: "formation/{fleet}/host/{name}/wheels",
     HOST_STATUS: "formation/{fleet}/host/{name}/status",
     ALIVE_ROBOT: "formation/{fleet}/alive/robot/{robot}",
@@ -94,7 +96,7 @@ KEY_TEMPLATES: dict[str, str] = {
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
 _FLEET_LEAVES = frozenset(
-    {LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, FAULT, POSES, SETPOINTS, TRUTHS}
+    {LEADER, ASSIGNMENT, ESTOP, CLOCK, DISTURBANCE, FAULT, POSES, SETPOINTS, TRUTHS, MOVERS}
 )
 # formation/<fleet>/host/<name>/<leaf> -> message name
 _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
@@ -245,6 +247,11 @@ def poses_key(fleet: str) -> str:
 def setpoints_key(fleet: str) -> str:
     """``formation/<fleet>/setpoints``: batched setpoints of many robots (coordinator)."""
     return f"{_fleet_prefix(fleet)}/{SETPOINTS}"
+
+
+def movers_key(fleet: str) -> str:
+    """``formation/<fleet>/movers``: the moving obstacles the coordinator sees (issue 30)."""
+    return f"{_fleet_prefix(fleet)}/{MOVERS}"
 
 
 def truths_key(fleet: str) -> str:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 from bus_schemas import keys
 from bus_schemas.messages_batch import (
+    Movers,
     PoseBatch,
     SetpointBatch,
     StatusBatch,
@@ -515,6 +516,7 @@ Message = (
     | PoseBatch
     | TruthBatch
     | SetpointBatch
+    | Movers
     | WheelsBatch
     | StatusBatch
     | CoordinatorStatus
@@ -544,6 +546,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     PoseBatch,
     TruthBatch,
     SetpointBatch,
+    Movers,
     WheelsBatch,
     StatusBatch,
     CoordinatorStatus,

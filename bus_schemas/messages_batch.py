@@ -131,6 +131,44 @@ class SetpointBatch(_Periodic):
 
 
 @message(
+    name=keys.MOVERS,
+    publisher="coordinator",
+    periodic=True,
+    rules=(SameLength(("robots", "x", "y", "vx", "vy")),),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Movers(_Periodic):
+    """The moving obstacles of one coordinator tick (issue 30, `coordinator/core/movers.py`):
+    fleet robots carried, pushed or moving without a slot, and tracked bodies that are not
+    fleet robots, with their centre and the velocity estimated from their pose history.
+
+    Sent on the ticks that have movers (none: no message). The robots' safety filters take
+    each one as a non-cooperative neighbour moving at that velocity (rule 4 of
+    `robot_agent/core/neighbours.py`): in lockstep the message of tick k - 1 at clock k, as the
+    setpoints; in realtime the latest one received within 0.5 s.
+    """
+
+    robots: tuple[str, ...] = field(
+        metadata=f_robot_id_list("ids of the movers (fleet robots or tracked tag ids)")
+    )
+    x: tuple[float, ...] = field(
+        metadata=f_float_list("x of each mover's centre", "m", lo=-_POS, hi=_POS)
+    )
+    y: tuple[float, ...] = field(
+        metadata=f_float_list("y of each mover's centre", "m", lo=-_POS, hi=_POS)
+    )
+    vx: tuple[float, ...] = field(
+        metadata=f_float_list("velocity x of each mover", "m/s", lo=-_SPEED, hi=_SPEED)
+    )
+    vy: tuple[float, ...] = field(
+        metadata=f_float_list("velocity y of each mover", "m/s", lo=-_SPEED, hi=_SPEED)
+    )
+    tick: int | None = field(
+        default=None, metadata=f_int("lockstep: the clock `tick` these movers were computed on")
+    )
+
+
+@message(
     name=keys.HOST_WHEELS,
     publisher="agent host (batched)",
     periodic=True,

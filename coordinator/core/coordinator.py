@@ -41,7 +41,7 @@ from coordinator.core.formation import (
     states_from_rows,
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
-from coordinator.core.movers import MoverDetector, MoverParams
+from coordinator.core.movers import MoverDetector, MoverParams, MoverRow
 from coordinator.core.reshape import Transition, blended_rows, plan_reshape
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.core.kinematics import reference_point
@@ -98,6 +98,7 @@ class CoordinatorOutput:
         "_by_id",
         "_changed",
         "_leader",
+        "_movers",
         "_rows",
         "_slot_ids",
         "_slots",
@@ -110,6 +111,7 @@ class CoordinatorOutput:
     _by_id: Mapping[int, SlotState] | None
     _changed: bool
     _leader: LeaderState
+    _movers: tuple[MoverRow, ...]
     _rows: list[SlotRow]
     _slot_ids: tuple[int, ...]
     _slots: list[SlotState] | None
@@ -134,6 +136,7 @@ class CoordinatorOutput:
         self._changed = changed
         self._by_id = None
         self._approach = _NO_APPROACH
+        self._movers = ()
 
     @classmethod
     def from_rows(
@@ -145,6 +148,7 @@ class CoordinatorOutput:
         assignment: dict[str, int],
         changed: bool,
         approach: Mapping[str, SlotRow] | None = None,
+        movers: tuple[MoverRow, ...] = (),
     ) -> CoordinatorOutput:
         """Build from :func:`~coordinator.core.formation.slot_rows` output without making the
         :class:`SlotState` objects (they are made on first access to :attr:`slots`)."""
@@ -159,6 +163,7 @@ class CoordinatorOutput:
         out._changed = changed
         out._by_id = None
         out._approach = _NO_APPROACH if approach is None else approach
+        out._movers = movers
         return out
 
     @property
@@ -206,6 +211,14 @@ class CoordinatorOutput:
         slot's row."""
         return self._approach
 
+    @property
+    def movers(self) -> tuple[MoverRow, ...]:
+        """The moving obstacles now (coordinator.core.movers): ``(id, x, y, vx, vy)`` (m, m/s;
+        the centre and its velocity over the detector's window), fleet robots and tracked
+        objects, by id; the robots' filters take them as non-cooperative neighbours with that
+        velocity (robot_agent.core.neighbours.with_movers)."""
+        return self._movers
+
     def setpoint_for(self, robot: str) -> SlotState | None:
         """Robot ``robot``'s setpoint: its slot's state, or its approach point on the way."""
         slot = self._assignment.get(robot)
@@ -241,6 +254,7 @@ class CoordinatorOutput:
             and self._assignment == other._assignment
             and self._changed == other._changed
             and dict(self._approach) == dict(other._approach)
+            and self._movers == other._movers
         )
 
     __hash__ = None  # type: ignore[assignment]  # mutable assignment dict inside
@@ -422,7 +436,9 @@ class CoordinatorCore:
         if refuges:
             approach = {**approach, **refuges} if approach else refuges
         self._running = self._running or bool(assignment)
-        out = CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
+        out = CoordinatorOutput.from_rows(
+            leader, spec, theta, rows, assignment, changed, approach, movers.moving()
+        )
         self._last_out = out
         return out
 
@@ -457,8 +473,9 @@ class CoordinatorCore:
     ) -> dict[str, SlotRow]:
         """The robots making room for a mover (coordinator.core.movers) keep the slot they had
         (added to ``assignment``) with a refuge beside the mover's path as their setpoint (the
-        returned approach rows, velocity 0); one that stops yielding far from its slot goes
-        back to it on an approach point (as a newly assigned robot does)."""
+        returned approach rows, with a feed-forward toward the refuge: ``aside_rows``); one
+        that stops yielding far from its slot goes back to it on an approach point (as a newly
+        assigned robot does)."""
         movers = self.movers
         reserved = movers.reserved
         where = dict(zip(ids, xy, strict=True))
@@ -472,8 +489,7 @@ class CoordinatorCore:
             assignment[rid] = slot
             self._approach.pop(rid, None)
             points[rid] = q
-        for rid, (rx, ry) in movers.refuges(points).items():
-            out[rid] = (rx, ry, 0.0, 0.0)
+        out.update(movers.aside_rows(points))
         if self._row_of is None:
             self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
         for rid in sorted(was_yielding - self._yielding):

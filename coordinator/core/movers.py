@@ -39,6 +39,14 @@ leader pinned it against its own followers, which kept advancing to their slots 
 cooperative barrier, issue 30 (b)): the leader's filter found no admissible command and its
 wheels sat at zero until contact. A yielding robot that had no slot (a spare) gets no setpoint:
 its firmware evades on a zero nominal command (robot_agent's ``SafetyFilter.evade``).
+A refuge setpoint carries a feed-forward toward the refuge at ``aside_mps`` (``aside_rows``):
+the slot tracking gain alone moved a robot aside too slowly for a body at the robots' top
+speed. A robot ``keep_side_m`` or more from a mover's line steps away on its own side; nearer,
+out of the formation.
+
+What the robots learn (``moving``): each mover's id, centre and velocity, which
+``CoordinatorOutput.movers`` carries to their filters (a non-cooperative neighbour with that
+velocity: rule 4 of ``robot_agent.core.neighbours``; over Zenoh the ``movers`` message).
 
 What it cannot see: a robot carried while it tracks a slot, slower than ``fast_mps``, looks
 like a robot driving (only its wheels' encoders could tell; docs/faults.md).
@@ -51,7 +59,10 @@ from collections import deque
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
-__all__ = ["MoverDetector", "MoverParams"]
+__all__ = ["MoverDetector", "MoverParams", "MoverRow"]
+
+MoverRow = tuple[str, float, float, float, float]
+"""A moving obstacle: ``(id, x, y, vx, vy)``, its centre (m) and velocity (m/s)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,10 +83,21 @@ class MoverParams:
         clear_m: a yielding robot steps sideways until its reference point is this far (m)
             from the line a mover moves along (``refuge``).
         side_tol_m: a robot this close (m) to that line steps to its left.
+        side_turn_rad: the side a robot steps to is chosen again when the mover's direction
+            of motion turned more than this (rad) since it was chosen.
+        keep_side_m: a robot this far (m) from that line or farther steps away from it on the
+            side it is on (a robot behind the line was sent across the body's path, in front
+            of it, when every robot stepped out of the formation: issue 30, 0.3 m/s).
         spacing_m: refuges at least this far apart (m; the cooperative barrier between two
             reference points is ``Ds + 2 l`` = 0.29 m with the defaults).
         lead_s: a mover's reach grows by what it covers in this long (s) at its speed: a
             robot within ``yield_m + lead_s * speed`` of it yields.
+        aside_mps: the speed (m/s) of a refuge setpoint's feed-forward toward the refuge
+            (``aside_rows``): the robots' reference-point top speed (``max_ref_speed_mps``).
+            The slot tracking law's gain alone (eqs 21-22, ``kp`` 0.21 /s) moves a robot
+            0.35 m from its refuge at 0.07 m/s: a body at 0.3 m/s arrives first.
+        aside_gain_per_s: within ``aside_mps / aside_gain_per_s`` of its refuge the feed-forward
+            is this gain (1/s) times the distance, so the robot settles there.
     """
 
     fast_mps: float = 0.4
@@ -86,13 +108,18 @@ class MoverParams:
     chain_m: float = 0.45
     clear_m: float = 0.4
     side_tol_m: float = 0.03
+    keep_side_m: float = 0.1
+    side_turn_rad: float = 0.35
     spacing_m: float = 0.35
     lead_s: float = 2.0
+    aside_mps: float = 0.25
+    aside_gain_per_s: float = 2.0
 
     def __post_init__(self) -> None:
         names = (
             "fast_mps", "still_mps", "window_s", "hold_s", "yield_m", "chain_m", "clear_m",
-            "side_tol_m", "lead_s", "spacing_m",
+            "side_tol_m", "keep_side_m", "side_turn_rad",
+            "lead_s", "spacing_m", "aside_mps", "aside_gain_per_s",
         )  # fmt: skip
         for name in names:
             value = getattr(self, name)
@@ -111,6 +138,7 @@ class MoverDetector:
     """Which robots are movers now (see the module docstring)."""
 
     __slots__ = (
+        "_cos_turn",
         "_hist",
         "_last_xy",
         "_objects",
@@ -129,8 +157,10 @@ class MoverDetector:
         self._until: dict[str, float] = {}
         self._yield_until: dict[str, float] = {}
         self._reserved: dict[str, int] = {}
-        self._side: dict[tuple[str, str], float] = {}  # (robot, mover) -> side (+1 left)
+        # (robot, mover) -> side (+1 left of the motion), the motion's unit vector it was for
+        self._side: dict[tuple[str, str], tuple[float, float, float]] = {}
         self._objects: frozenset[str] = frozenset()  # the tracked non-fleet bodies now
+        self._cos_turn = math.cos(self._params.side_turn_rad)
         self.rejected = 0
         """Poses or times skipped as non-finite."""
 
@@ -158,6 +188,18 @@ class MoverDetector:
         """Mover or yielding robot -> the slot it held when it became one (kept for it, given
         to no one else)."""
         return dict(self._reserved)
+
+    def moving(self) -> tuple[MoverRow, ...]:
+        """The movers now as ``(id, x, y, vx, vy)``: the latest centre and the velocity over the
+        window, by id (empty without movers)."""
+        if not self._until:
+            return ()
+        rows: list[MoverRow] = []
+        for mid in sorted(self._until):
+            c = self._last_xy.get(mid)
+            if c is not None:
+                rows.append((mid, c[0], c[1], *self.velocity(mid)))
+        return tuple(rows)
 
     def speed_mps(self, robot: str) -> float:
         """The robot's centre speed over the window (m/s), NaN until it has one."""
@@ -223,6 +265,25 @@ class MoverDetector:
             placed[rid] = (rx, ry, nx, ny)
         return {rid: (v[0], v[1]) for rid, v in placed.items()}
 
+    def aside_rows(
+        self, points: Mapping[str, tuple[float, float]]
+    ) -> dict[str, tuple[float, float, float, float]]:
+        """The setpoint rows ``(x, y, vx, vy)`` of robots making room (reference points
+        ``points``): each one's refuge (``refuges``) with a feed-forward velocity toward it,
+        ``aside_mps`` far from it and ``aside_gain_per_s`` times the distance near it. Eq 21's
+        feed-forward term carries the robot there at its top speed (recomputed every tick
+        from where it is), where the slot gain alone would take seconds."""
+        p = self._params
+        out: dict[str, tuple[float, float, float, float]] = {}
+        for rid, (rx, ry) in self.refuges(points).items():
+            qx, qy = points[rid]
+            dx, dy = rx - qx, ry - qy
+            d = math.hypot(dx, dy)
+            speed = min(p.aside_mps, p.aside_gain_per_s * d)
+            k = speed / d if d > 1e-9 else 0.0
+            out[rid] = (rx, ry, k * dx, k * dy)
+        return out
+
     def refuge(self, robot: str, qx: float, qy: float) -> tuple[float, float]:
         """Where ``robot`` making room, with its reference point at ``(qx, qy)``, goes now: off
         the movers' paths. For each mover that comes at it (or stands, within ``clear_m``), the
@@ -250,10 +311,17 @@ class MoverDetector:
             if along < -p.clear_m:  # behind it and it moves away
                 continue
             cross = ux * dy - uy * dx  # > 0: left of the motion
-            side = self._side.get((robot, mid))
-            if side is None:
+            kept = self._side.get((robot, mid))
+            # a side is kept while the motion keeps its direction within side_turn_rad (a
+            # noisy velocity must not flip it); chosen again when it turned more: the first
+            # estimate of a body that just started, 2 cm over the window, can be 35 degrees
+            # off through 3 mm camera noise, and a side chosen for that line crossed the real
+            # one (issue 30, the chevron at 0.3 m/s)
+            if kept is None or kept[1] * ux + kept[2] * uy < self._cos_turn:
                 side = self._choose_side(qx, qy, ux, uy, cross)
-                self._side[robot, mid] = side
+                self._side[robot, mid] = (side, ux, uy)
+            else:
+                side = kept[0]
             nx, ny = -uy * side, ux * side
             w = cross * side  # distance from the line, toward the side kept
             if w >= p.clear_m:
@@ -263,10 +331,14 @@ class MoverDetector:
         return rx, ry
 
     def _choose_side(self, qx: float, qy: float, ux: float, uy: float, cross: float) -> float:
-        """The side (+1: left of the motion ``u``) a robot at ``(qx, qy)`` steps to: away from
+        """The side (+1: left of the motion ``u``) a robot at ``(qx, qy)`` steps to: the side of
+        the mover's line it is on when it is ``keep_side_m`` or more from that line (never
+        across the body's path: the way is shorter and the body is not in it); else away from
         the centre of the other robots (out of the formation, not across it) when that is
-        clear by ``side_tol_m``, else the side of the mover's line it is on, else the left."""
+        clear by ``side_tol_m``, else the side of the line it is on, else the left."""
         tol = self._params.side_tol_m
+        if abs(cross) >= self._params.keep_side_m:
+            return 1.0 if cross > 0.0 else -1.0
         pts = [
             xy
             for rid, xy in self._last_xy.items()

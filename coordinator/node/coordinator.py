@@ -391,6 +391,21 @@ class CoordinatorNode:
                 out[rid] = (e[0], e[1], e[2])
         return out
 
+    def fresh_objects(self, now_s: float) -> dict[str, tuple[float, float]] | None:
+        """Tracked bodies that are not fleet robots (issue 30): the fresh poses (as
+        ``fresh_poses``) of ids not in the scenario's fleet, e.g. a camera tag on a cart; the
+        core makes a moving one a mover (coordinator.core.movers). None if there is none."""
+        lim = self.stale_pose_s if self.lockstep else self.hold_pose_s
+        out: dict[str, tuple[float, float]] = {}
+        for rid in sorted(self.poses):
+            e = self.poses[rid]
+            if rid in self._order or rid in self.alive or e[4] is None:
+                continue
+            if not -lim <= now_s - e[4] <= lim:
+                continue
+            out[rid] = (e[0], e[1])
+        return out or None
+
     def tick(self, now_s: float, tick: int | None = None) -> CoordinatorOutput | None:
         """Run the core at ``now_s`` and publish its outputs (see the module docstring).
 
@@ -417,7 +432,7 @@ class CoordinatorNode:
             if self.scripted.state.offline():  # a scripted kill: its robot counts as gone
                 poses = self.scripted.counted(poses)
             held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
-            out = self.core.tick(now_s, poses, held)
+            out = self.core.tick(now_s, poses, held, self.fresh_objects(now_s))
             self.ticks += 1
             self.last = out
             outputs = self.outputs.encode_tick(

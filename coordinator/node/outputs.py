@@ -24,6 +24,7 @@ from bus_schemas import (
     BATCH_CHUNK,
     Assignment,
     Leader,
+    Movers,
     Setpoint,
     SetpointBatch,
     Slot,
@@ -72,6 +73,7 @@ class TickOutputs:
         self.leader_key = keys.leader_key(fleet)
         self.assignment_key = keys.assignment_key(fleet)
         self.setpoints_key = keys.setpoints_key(fleet)
+        self.movers_key = keys.movers_key(fleet)
         # Lockstep: setpoints and leader are what the plant and the agents wait for, so they
         # must arrive (BLOCK) and keep their order (one priority, the clock's).
         # Slots and assignment too: a lower priority would let the leader overtake them, and a
@@ -162,9 +164,28 @@ class TickOutputs:
             **(leader_extra or {}),
         )
         leader_out = (self.leader_key, encode(replace(leader, tick=tick)), self.leader_qos)
+        if out.movers:  # the moving obstacles (issue 30), as urgent as the setpoints
+            setpoints.append(self._movers(out, t, tick))
         if self.lockstep:  # slots, setpoints, assignment, then the leader LAST
             return [*slots, *setpoints, *extra, leader_out]
         return [*setpoints, leader_out, *slots, *extra]  # realtime: setpoints first (latency)
+
+    def _movers(
+        self, out: CoordinatorOutput, t: float, tick: int | None
+    ) -> tuple[str, bytes, rt.QoS]:
+        """The tick's movers (``CoordinatorOutput.movers``) as one ``Movers`` message."""
+        rows = out.movers[:BATCH_CHUNK]  # (more than a batch of bodies at once: the first)
+        msg = Movers(
+            t=t,
+            seq=self.next_seq(self.movers_key),
+            robots=tuple(r[0] for r in rows),
+            x=tuple(r[1] for r in rows),
+            y=tuple(r[2] for r in rows),
+            vx=tuple(r[3] for r in rows),
+            vy=tuple(r[4] for r in rows),
+            tick=tick,
+        )
+        return self.movers_key, encode(msg), self.sp_qos
 
     def _slots_due(self, slots: Sequence[SlotState], now_s: float) -> Sequence[SlotState]:
         """The slots this tick publishes on ``slot/<k>``: every slot every tick without

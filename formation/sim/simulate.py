@@ -45,7 +45,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from formation.outputs.runlog import RunLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
-from robot_agent.core.neighbours import is_current, neighbour
+from robot_agent.core.neighbours import is_current, mover, neighbour
 from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
@@ -258,6 +258,17 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             else neighbour(p[0], p[1], p[2], p[3], t, tracking[j])
             for j, p in enumerate(poses)
         ]
+        # the coordinator's movers of the previous tick (received with its setpoints): not
+        # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
+        prev_out = outputs.for_clock(k)
+        movers = prev_out.movers if prev_out is not None else ()
+        if movers:
+            for mid, _, _, mvx, mvy in movers:
+                jm = index.get(mid)
+                if jm is not None:
+                    seen_nb = pts[jm]
+                    if seen_nb is not None:
+                        pts[jm] = mover(seen_nb, mvx, mvy)
         if None in pts:
             for i in range(n):
                 neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
@@ -269,13 +280,16 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         # coordinator; an invisible one (an untracked person) only by the logs
         if bodies:
             seen_bodies = {}
-            for b, (mover, track) in enumerate(zip(bodies, body_tracks, strict=True)):
-                bx, by, _, _ = mover.state(t)
+            for b, (mover_body, track) in enumerate(zip(bodies, body_tracks, strict=True)):
+                bx, by, _, _ = mover_body.state(t)
                 track.append((bx, by))
-                if mover.visible:
-                    seen_bodies[mover.id] = (bx, by)
+                if mover_body.visible:
+                    seen_bodies[mover_body.id] = (bx, by)
                     extra = body_extra[b]
                     nb = _tuple_new(Neighbour, (bx, by, math.nan, 0.0, 0.0, 0.0, False, extra))
+                    for mid, _, _, mvx, mvy in movers:
+                        if mid == mover_body.id:
+                            nb = mover(nb, mvx, mvy)
                     for i in range(n):
                         neighbours[i] = [*neighbours[i], nb]
         # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
@@ -296,7 +310,6 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             out = coord.tick(t, counted, objects=objects)
             faults.observe(out, counted)
         # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
-        prev_out = outputs.for_clock(k)
         t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
         cmds: list[WheelCommand] = []
         if prev_out is not None:

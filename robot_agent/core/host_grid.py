@@ -12,11 +12,11 @@ firmware sums the same terms in the same order (docs/scale.md).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Final
 
-from robot_agent.core.neighbours import is_current, neighbour
+from robot_agent.core.neighbours import is_current, mover, neighbour
 from robot_agent.core.safety_filter import Neighbour
 
 __all__ = ["REACH_MARGIN", "NeighbourGrid", "Seen"]
@@ -48,7 +48,16 @@ class NeighbourGrid:
     """Every robot's latest pose (:attr:`seen`, filled by the host's pose handler) and the
     spatial hash built from it once per step time."""
 
-    __slots__ = ("_cooperative", "_grid", "_grid_now", "_near_cache", "_reach2", "cell_m", "seen")
+    __slots__ = (
+        "_cooperative",
+        "_grid",
+        "_grid_now",
+        "_movers",
+        "_near_cache",
+        "_reach2",
+        "cell_m",
+        "seen",
+    )
 
     def __init__(
         self,
@@ -68,6 +77,17 @@ class NeighbourGrid:
         self._grid: _Grid | None = None
         self._grid_now = -math.inf
         self._near_cache: dict[tuple[int, int], list[_Entry]] = {}
+        self._movers: Mapping[str, tuple[float, float]] = {}
+
+    def set_movers(self, movers: Mapping[str, tuple[float, float]]) -> None:
+        """The coordinator's moving obstacles for the next steps, id -> velocity (m/s; rule 4
+        of ``robot_agent.core.neighbours``). A mover's row reaches ``(|vx| + |vy|) / gamma``
+        farther than a still robot's, within the cooperative row's worst case that sizes the
+        cells for ``|vx| + |vy|`` up to ``max_ref_speed + (Ds + 2 l - Ds - l) gamma`` (0.75 m/s
+        with the defaults)."""
+        if movers != self._movers:
+            self._movers = movers
+            self._grid = None
 
     def invalidate(self) -> None:
         """A pose changed or a pending one became current: rebuild at the next query."""
@@ -88,12 +108,17 @@ class NeighbourGrid:
         c = self.cell_m
         coop = self._cooperative
         floor = math.floor
+        movers = self._movers
         for rid, e in self.seen.items():
             rx_s = e.rx_s
             if rx_s is None or not is_current(now_s, rx_s):
                 continue
             cell = (floor(e.x / c), floor(e.y / c))
             nb = neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
+            if movers:
+                v = movers.get(rid)
+                if v is not None:
+                    nb = mover(nb, v[0], v[1])
             entry = (e.order, rid, nb, e.x, e.y)
             bucket = grid.get(cell)
             if bucket is None:

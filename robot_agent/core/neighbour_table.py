@@ -19,11 +19,17 @@ and :meth:`NeighbourTable.cooperative`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 
 from robot_agent.core.host_grid import Seen
 from robot_agent.core.lockstep import Arrivals
-from robot_agent.core.neighbours import NEIGHBOUR_STALE_S, is_cooperative, is_current, neighbour
+from robot_agent.core.neighbours import (
+    NEIGHBOUR_STALE_S,
+    is_cooperative,
+    is_current,
+    mover,
+    neighbour,
+)
 from robot_agent.core.safety_filter import Neighbour
 
 __all__ = ["LocalTracking", "NeighbourTable"]
@@ -127,15 +133,29 @@ class NeighbourTable:
         for rid in stale:
             del self.seen[rid]
 
-    def neighbours(self, now_s: float) -> list[Neighbour]:
+    def neighbours(
+        self, now_s: float, movers: Mapping[str, tuple[float, float]] | None = None
+    ) -> list[Neighbour]:
         """Every robot whose pose was received within ``NEIGHBOUR_STALE_S`` of ``now_s``, in
-        first-seen order, as the safety filter sees it (``robot_agent.core.neighbours``)."""
+        first-seen order, as the safety filter sees it (``robot_agent.core.neighbours``);
+        ``movers``: the coordinator's moving obstacles, id -> velocity (m/s; rule 4)."""
         coop = self.cooperative
-        return [
+        out = [
             neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
             for rid, e in self.seen.items()
             if e.rx_s is not None and is_current(now_s, e.rx_s)
         ]
+        if movers:
+            ids = [
+                rid
+                for rid, e in self.seen.items()
+                if e.rx_s is not None and is_current(now_s, e.rx_s)
+            ]
+            for i, rid in enumerate(ids):
+                v = movers.get(rid)
+                if v is not None:
+                    out[i] = mover(out[i], v[0], v[1])
+        return out
 
     # -- modes -----------------------------------------------------------------------------
 

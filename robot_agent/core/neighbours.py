@@ -21,6 +21,12 @@ Zenoh equals the in-process simulator bit for bit (``formation/sim/simulate.py``
    was received within :data:`COOPERATIVE_STATUS_S` (:func:`is_cooperative`). A wrong
    "cooperative" is still safe (the filter's reciprocal barrier keeps ``h >= 0`` against a robot
    that stands still, see ``safety_filter.py``); it only matters for how fast robots pass.
+4. **Movers** (issue 30). A robot or tracked object the coordinator reports as a moving obstacle
+   (``coordinator.core.movers``: carried, pushed, moving without a slot; the coordinator's tick
+   k - 1 in lockstep, as the setpoints; its latest report within :data:`MOVERS_STALE_S` in
+   realtime) is NOT cooperative whatever its mode (it is not moving the way its filter says)
+   and carries the coordinator's velocity estimate (:func:`mover`): the filter takes the whole
+   barrier against it, plus its motion (``n . v``).
 """
 
 from __future__ import annotations
@@ -31,9 +37,11 @@ from robot_agent.core.safety_filter import Neighbour
 
 __all__ = [
     "COOPERATIVE_STATUS_S",
+    "MOVERS_STALE_S",
     "NEIGHBOUR_STALE_S",
     "is_cooperative",
     "is_current",
+    "mover",
     "neighbour",
 ]
 
@@ -42,6 +50,10 @@ NEIGHBOUR_STALE_S: Final = 1.0
 COOPERATIVE_STATUS_S: Final = 0.5
 """Realtime: a status older than this (s, receive time; 2.5 periods of the 5 Hz status) no
 longer makes its robot cooperative."""
+
+MOVERS_STALE_S: Final = 0.5
+"""Realtime: the coordinator's movers (4. below) older than this (s, receive time) are
+dropped (the robots are neighbours as rule 3 says again)."""
 
 _tuple_new = tuple.__new__
 
@@ -64,3 +76,10 @@ def neighbour(
     if age < 0.0:
         age = 0.0
     return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))
+
+
+def mover(entry: Neighbour, vx_mps: float, vy_mps: float) -> Neighbour:
+    """Rule 4: ``entry`` (a neighbour the coordinator reports as a mover) as the filter must see
+    it: not cooperative, moving at ``(vx_mps, vy_mps)`` (the coordinator's estimate; a
+    non-finite or absurd one is counted and dropped by the filter)."""
+    return entry._replace(vx=vx_mps, vy=vy_mps, cooperative=False)

@@ -56,6 +56,7 @@ from robot_agent.core.safety_filter import Neighbour
 from robot_agent.node.agent_faults import AgentFaults
 from robot_agent.node.estop_shell import EstopQuery, EstopWitness
 from robot_agent.node.motor_output import MotorOutput
+from robot_agent.node.movers_input import MoversInput
 from robot_agent.node.peer_status import PeerStatusInputs, clearance_or_none, filter_counters
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
@@ -169,9 +170,13 @@ class AgentNode:
 
         self.rx: dict[str, int] = {
             "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
+            "movers": 0,
         }  # fmt: skip
         # every drop by "<message>-<reason>" (status "rejects"), also counted by the firmware
         self.faults = rt.Faults(self.log, on_reject=self.firmware.reject)
+        # the coordinator's moving obstacles (issue 30; robot_agent.node.movers_input)
+        self.movers_in = MoversInput(lockstep=lockstep, reject=self.faults.reject)
+        self.movers_key = keys.movers_key(fleet)
         # the other robots (robot_agent.core.neighbours): poses from the frames (on_poses),
         # modes from their status messages (realtime) or the clock (lockstep)
         self.neighbour_table = NeighbourTable(
@@ -312,6 +317,14 @@ class AgentNode:
         except Exception as exc:
             self.faults.internal("on_setpoint", exc)
 
+    def on_movers(self, rx: rt.Received) -> None:
+        """The coordinator's moving obstacles (``formation/<fleet>/movers``, issue 30)."""
+        try:
+            self.rx["movers"] += 1
+            self.movers_in.on_payload(rx.payload, rx.rx_s)
+        except Exception as exc:
+            self.faults.internal("on_movers", exc)
+
     def accept_setpoint(self, sp: FwSetpoint, role: str, rx_s: float, tick: int | None) -> None:
         """Keep a valid setpoint: the newest (realtime) or the last two with ticks (lockstep)."""
         if self.lockstep:
@@ -434,7 +447,12 @@ class AgentNode:
                 setpoint=sp.sp if sp is not None else None,
                 setpoint_rx_s=sp.rx_s if sp is not None else -math.inf,
                 neighbours=(
-                    self.neighbour_table.neighbours(now_s)
+                    self.neighbour_table.neighbours(
+                        now_s,
+                        self.movers_in.for_clock(tick)
+                        if tick is not None
+                        else self.movers_in.at(now_s),
+                    )
                     if self.neighbour_fn is None
                     else self.neighbour_fn(self, now_s)
                 ),

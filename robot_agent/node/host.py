@@ -99,6 +99,7 @@ from robot_agent.node.agent import AgentNode, Publish, clock_wheels
 from robot_agent.node.estop_shell import EstopQuery, EstopWitness
 from robot_agent.node.host_estop import HostEstop
 from robot_agent.node.host_status import StatusRow, status_batches, status_row
+from robot_agent.node.movers_input import MoversInput
 from robot_agent.node.peer_status import PeerStatusInputs
 from runtime.lifecycle import gc_generation
 from runtime.sdnotify import Notifier
@@ -203,8 +204,11 @@ class HostNode:
 
         self.clocks = ClockOffsets()  # realtime: the pose frames' clock on this host's
         self.rx: dict[str, int] = {
-            "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0,
+            "poses": 0, "setpoints": 0, "estop": 0, "clock": 0, "status": 0, "movers": 0,
         }  # fmt: skip
+        # the coordinator's moving obstacles (issue 30), for every hosted robot's neighbours
+        self.movers_key = keys.movers_key(fleet)
+        self.movers_in = MoversInput(lockstep=lockstep, reject=self.faults.reject)
         self.peer_status = PeerStatusInputs(
             self.neighbour_table,
             self.rx,
@@ -334,6 +338,14 @@ class HostNode:
         except Exception as exc:
             self.faults.internal("on_poses", exc)
 
+    def on_movers(self, rx: rt.Received) -> None:
+        """The coordinator's moving obstacles (``formation/<fleet>/movers``, issue 30)."""
+        try:
+            self.rx["movers"] += 1
+            self.movers_in.on_payload(rx.payload, rx.rx_s)
+        except Exception as exc:
+            self.faults.internal("on_movers", exc)
+
     def on_setpoints(self, rx: rt.Received) -> None:
         """A setpoint batch: each hosted robot's entry as if it came on its own key."""
         try:
@@ -382,6 +394,7 @@ class HostNode:
                 n.clock_wheels = enc.get(n.robot_id)
             self.neighbour_table.settle(t_k)
             self.grid.invalidate()
+            self.grid.set_movers(self.movers_in.for_clock(k))
             self._replay.record(k, [])
             nodes = self.nodes.values()
             self._replay.answer = self._publish_steps(
@@ -395,6 +408,7 @@ class HostNode:
     def _step_now(self, robots: Iterable[AgentNode]) -> None:
         """Realtime: step ``robots`` now and publish their commands (an engaged e-stop)."""
         now = time.monotonic()
+        self.grid.set_movers(self.movers_in.at(now))
         self._publish_steps((n, n.step(now)) for n in robots)
 
     def _publish_steps(
@@ -450,6 +464,7 @@ class HostNode:
         due = [n for n in self.nodes.values() if now_s - n.last_step_s >= lim]
         chunk = due if limit is None else due[:limit]
         if chunk:
+            self.grid.set_movers(self.movers_in.at(now_s))
             self._publish_steps((n, n.step(now_s)) for n in chunk)
             for n in chunk:  # a step that failed is not retried before a period
                 if n.last_step_s < now_s:

@@ -144,6 +144,7 @@ async def _node(
         # the latched e-stop first: robots that start under an e-stop come up in ESTOP
         await attach_host_estop_state(host, io)
         io.subscribe(host.setpoints_key, host.on_setpoints)
+        io.subscribe(host.movers_key, host.on_movers)
         if lockstep:
             io.subscribe(keys.fault_key(fleet), host.on_fault)  # scripted faults, lockstep
             io.subscribe(host.clock_key, host.on_clock)

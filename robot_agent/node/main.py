@@ -377,6 +377,7 @@ async def _node(
     await attach_estop_state(node, io)  # comes up stopped under a latched e-stop
     io.subscribe(node.setpoint_key, node.on_setpoint)
     io.subscribe(node.poses_key, node.on_poses)
+    io.subscribe(node.movers_key, node.on_movers)
     if lockstep:
         # scripted faults (robot_agent.node.agent_faults): subscribed before the clock, so a
         # notice sent before a clock is handled before it; a kill is this process's death

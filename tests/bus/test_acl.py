@@ -93,6 +93,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("slot/3"),
         *(_f(f"robot/{r}/setpoint") for r in ROBOTS),
         _f("setpoints"),
+        _f("movers"),  # issue 30: the moving obstacles
         _f("assignment"),
         _f("coordinator/main/heartbeat"),
         _f("coordinator/main/status"),
@@ -138,6 +139,7 @@ EXPECT_READ: dict[str, set[str]] = {
     "robot.r1": {
         _f("robot/r1/setpoint"),
         _f("setpoints"),
+        _f("movers"),
         *_ALL_POSES,
         *_ALL_STATUS,
         _f("estop"),
@@ -146,6 +148,7 @@ EXPECT_READ: dict[str, set[str]] = {
     },
     "host.h1": {
         _f("setpoints"),
+        _f("movers"),
         _f("poses"),
         *_ALL_STATUS,
         _f("estop"),

@@ -22,6 +22,7 @@ from bus_schemas import (
     Fault,
     Heartbeat,
     Leader,
+    Movers,
     PlantStatus,
     Pose,
     PoseBatch,
@@ -193,6 +194,7 @@ def test_key_parse_round_trip(fleet: str, robot: str, name: str, slot: int) -> N
         (keys.fault_key, Fault),
         (keys.poses_key, PoseBatch),
         (keys.setpoints_key, SetpointBatch),
+        (keys.movers_key, Movers),
         (keys.truths_key, TruthBatch),
     ]:
         key = build_f(fleet)

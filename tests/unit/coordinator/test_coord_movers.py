@@ -184,3 +184,67 @@ def test_a_moving_tracked_object_is_a_mover_a_still_one_is_not() -> None:
     assert det.yielding == {"near"}
     assert excluded == {"cart", "near"}
     assert det.reserved == {"near": 0}
+
+
+def _carry_past(
+    det: MoverDetector,
+    robots: dict[str, tuple[float, float]],
+    v: tuple[float, float],
+    start: tuple[float, float],
+    ticks: int,
+    wobble: float = 0.0,
+) -> None:
+    """A spare carried at velocity ``v`` from ``start`` past still ``robots`` (no slots)."""
+    for k in range(ticks):
+        t = k * DT_S
+        # the first frames' direction is off by ``wobble`` (noise over a short displacement)
+        off = wobble if k < 20 else 0.0
+        x, y = start[0] + v[0] * t, start[1] + v[1] * t + off * t
+        poses = {rid: (px, py, 0.0) for rid, (px, py) in robots.items()}
+        det.update(t, {**poses, "spare": (x, y, 0.0)}, dict.fromkeys(robots, 0))
+
+
+def test_aside_rows_carry_a_feed_forward_toward_the_refuge() -> None:
+    """A robot making room gets its refuge with a velocity toward it: the top speed far from
+    it (the slot gain alone moved it at 0.07 m/s), proportional near it, zero there."""
+    p = MoverParams()
+    det = MoverDetector(p)
+    _carry_past(det, {"r1": (0.0, 0.0)}, (-0.3, 0.0), (1.0, 0.0), 30)
+    assert "r1" in det.yielding
+    ((rx, ry, vx, vy),) = det.aside_rows({"r1": (0.0, 0.0)}).values()
+    assert math.hypot(rx, ry) == pytest.approx(p.clear_m, abs=1e-6)
+    assert math.hypot(vx, vy) == pytest.approx(p.aside_mps)
+    assert vx * rx + vy * ry > 0.0  # toward the refuge
+    near = (rx * 0.95, ry * 0.95)
+    ((_, _, vx, vy),) = det.aside_rows({"r1": near}).values()
+    dist = math.hypot(rx - near[0], ry - near[1])
+    assert math.hypot(vx, vy) == pytest.approx(p.aside_gain_per_s * dist)
+    ((_, _, vx, vy),) = det.aside_rows({"r1": (rx, ry)}).values()
+    assert (vx, vy) == (0.0, 0.0)
+
+
+def test_a_robot_beside_a_movers_line_steps_away_on_its_own_side() -> None:
+    """A body carried along y = -0.2 (-x): the robot at y = +0.2 (0.4 m off its line, past the
+    formation's centre) keeps its side even when the first velocity estimate is skewed; the
+    robot on the line steps out of the formation."""
+    det = MoverDetector()
+    robots = {"a": (0.0, 0.2), "b": (0.0, -0.2), "c": (-0.4, 0.2), "d": (-0.4, -0.2)}
+    _carry_past(det, robots, (-0.3, 0.0), (1.0, -0.2), 40, wobble=0.3)
+    rows = det.aside_rows(robots)
+    assert rows["a"][1] >= 0.2 - 1e-9  # not across the line y = -0.2
+    assert rows["b"][1] < -0.2 - 0.3  # off the line, away from the formation (-y)
+
+
+def test_movers_are_reported_with_their_velocity() -> None:
+    core = _core()
+    poses = _in_slots(core)
+    out = None
+    for k in range(40):
+        t = k * DT_S
+        out = core.tick(t, {**poses, "r4": (1.5 - 0.3 * t, 0.0, math.pi)})
+    assert out is not None
+    ((mid, x, y, vx, vy),) = out.movers
+    assert y == 0.0
+    assert mid == "r4" and vx == pytest.approx(-0.3) and vy == pytest.approx(0.0, abs=1e-9)
+    assert x == pytest.approx(1.5 - 0.3 * 39 * DT_S)
+    assert "r4" not in out.assignment
