@@ -47,10 +47,13 @@ from formation.outputs.metrics import formation_error, settling_time
 
 __all__ = [
     "CORRIDOR_STEP_M",
+    "MESH_TOL_M",
+    "PlanMesh",
     "PlanView",
     "Replan",
     "add_plan",
     "draw_plan",
+    "plan_mesh",
     "plan_metrics",
     "plan_summary",
     "plan_view",
@@ -295,6 +298,58 @@ def plan_summary(p: Mapping[str, Any] | None) -> str | None:
     )
 
 
+# -- a mesh for 3D scenes ------------------------------------------------------------------
+
+MESH_TOL_M: Final = 0.002
+"""Simplification tolerance (m) of the corridor and path sent to a 3D scene: 2 mm, a third of
+the vertices of the exact union (the figure and the metrics use the exact one)."""
+
+
+@dataclass(frozen=True)
+class PlanMesh:
+    """A plan for a 3D scene (m): the leader ``path`` (K, 2); the corridor as ``vertices``
+    (V, 2) and ``triangles`` (T, 3) indices into them (a constrained Delaunay triangulation of
+    the corridor, holes kept open); its ``outlines`` (every ring, closed); the replans' marks
+    ``(x, y, label)``."""
+
+    path: F64
+    vertices: F64
+    triangles: npt.NDArray[np.int64]
+    outlines: tuple[F64, ...]
+    marks: tuple[tuple[float, float, str], ...] = ()
+
+
+def plan_mesh(view: PlanView, tol_m: float = MESH_TOL_M) -> PlanMesh:
+    """:class:`PlanMesh` of ``view``, simplified by ``tol_m`` (m). Each replan with a known
+    path is marked where its path starts."""
+    corridor = view.corridor.simplify(tol_m) if tol_m > 0 else view.corridor
+    tris = shapely.get_parts(shapely.constrained_delaunay_triangles(corridor))
+    index: dict[tuple[float, float], int] = {}
+    triangles: list[list[int]] = []
+    for tri in tris:
+        corners = list(tri.exterior.coords)[:3]
+        triangles.append([index.setdefault((float(x), float(y)), len(index)) for x, y in corners])
+    vertices = np.array(list(index), dtype=float).reshape(-1, 2)
+    outlines = tuple(
+        np.asarray(ring.coords)
+        for poly in _polygons(corridor)
+        for ring in (poly.exterior, *poly.interiors)
+    )
+    path_line = LineString(view.path).simplify(tol_m) if tol_m > 0 else LineString(view.path)
+    marks = tuple(
+        (float(r.path[0, 0]), float(r.path[0, 1]), f"{REPLAN_LABEL} {n}: {r.reason}")
+        for n, r in enumerate(view.replans, start=1)
+        if r.path is not None
+    )
+    return PlanMesh(
+        path=np.asarray(path_line.coords),
+        vertices=vertices,
+        triangles=np.array(triangles, dtype=np.int64).reshape(-1, 3),
+        outlines=outlines,
+        marks=marks,
+    )
+
+
 # -- drawing ---------------------------------------------------------------------------------
 
 CORRIDOR_LABEL: Final = "footprint corridor"
@@ -317,7 +372,7 @@ def corridor_patch(geom: BaseGeometry, scale: float, **kw: Any) -> Any:
     from matplotlib.path import Path as MplPath
 
     verts: list[Sequence[float]] = []
-    codes: list[int] = []
+    codes: list[Any] = []
     for poly in _polygons(geom):
         poly = orient(poly, 1.0)  # exterior counter-clockwise, holes clockwise: holes stay open
         for ring in (poly.exterior, *poly.interiors):
