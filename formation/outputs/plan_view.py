@@ -63,9 +63,13 @@ __all__ = [
 
 F64 = npt.NDArray[np.float64]
 
-CORRIDOR_STEP_M: Final = 0.02
-"""Spacing (m) of the slot positions the corridor is swept through (the plan's own samples are
-3 cm apart; a chord of 2 cm on a 0.3 m corner arc is 0.2 mm off the arc)."""
+CORRIDOR_STEP_M: Final = 0.005
+"""Largest step (m) of a slot between two of the positions the corridor is swept through (the
+chords of a slot's path then stay within a fraction of a millimetre of it; at 2 cm steps of
+the leader they cut 4 mm off a slot's disc on the ``maze`` plan)."""
+SIMPLIFY_M: Final = 1e-4
+"""Each slot's sampled path is simplified by this much (m) before it is swept: the buffers of
+the straight stretches then cost a few segments, not hundreds."""
 GOAL_TOL_M: Final = 1e-3
 """The virtual leader is on its goal within this distance (m); a plan ends on it exactly."""
 REASON_MAX: Final = 80
@@ -150,15 +154,12 @@ def replans_of(events: Iterable[Mapping[str, Any]]) -> tuple[Replan, ...]:
     return tuple(out)
 
 
-def _slot_paths(traj: Any, formation: Mapping[str, Any]) -> F64:
-    """(K, n, 2) every slot's planned position, the leader every :data:`CORRIDOR_STEP_M` of
-    its path (the squeeze's offsets included)."""
-    from coordinator.core.formation import FormationSpec, morphed_slot_rows, slot_rows
+def _slots_at(traj: Any, spec: Any, s_grid: F64) -> F64:
+    """(K, n, 2) every slot's planned position with the leader at the arc lengths ``s_grid``
+    (m; the coordinator's arithmetic, the squeeze's offsets included)."""
+    from coordinator.core.formation import morphed_slot_rows, slot_rows
 
     r = traj.result
-    spec = FormationSpec.from_dict(dict(formation))
-    s_end = float(r.s_m[-1])
-    s_grid = np.linspace(0.0, s_end, max(2, math.ceil(s_end / CORRIDOR_STEP_M) + 1))
     # the time of each arc length (s(t) is increasing: the leader never stops mid-plan)
     t_grid = traj.t_start_s + np.interp(s_grid, r.s_m, r.t_s)
     out = np.empty((len(s_grid), len(spec), 2))
@@ -170,6 +171,27 @@ def _slot_paths(traj: Any, formation: Mapping[str, Any]) -> F64:
     return out
 
 
+def _slot_paths(traj: Any, formation: Mapping[str, Any]) -> F64:
+    """(K, n, 2) every slot's planned path, no slot moving more than :data:`CORRIDOR_STEP_M`
+    between two rows: the leader every :data:`CORRIDOR_STEP_M` of its path, then finer where
+    a slot moves faster than the leader (an outer slot on a tight turn moves up to four times
+    as far on the built-in plans)."""
+    from coordinator.core.formation import FormationSpec
+
+    spec = FormationSpec.from_dict(dict(formation))
+    s_end = float(traj.result.s_m[-1])
+    s_grid = np.linspace(0.0, s_end, max(2, math.ceil(s_end / CORRIDOR_STEP_M) + 1))
+    coarse = _slots_at(traj, spec, s_grid)
+    moved = np.hypot(*np.diff(coarse, axis=0).transpose(2, 0, 1)).max(axis=1)
+    parts = np.ceil(moved / CORRIDOR_STEP_M).astype(int)
+    if (parts <= 1).all():
+        return coarse
+    fine = [s_grid[:1]]
+    for k in range(len(moved)):
+        fine.append(np.linspace(s_grid[k], s_grid[k + 1], max(parts[k], 1) + 1)[1:])
+    return _slots_at(traj, spec, np.concatenate(fine))
+
+
 def corridor_of(slot_paths: F64, radius_m: float) -> BaseGeometry:
     """The union of a disc of ``radius_m`` swept along each slot's path ((K, n, 2), m)."""
     parts = []
@@ -177,7 +199,7 @@ def corridor_of(slot_paths: F64, radius_m: float) -> BaseGeometry:
         pts = slot_paths[:, j, :]
         keep = np.r_[True, np.hypot(*np.diff(pts, axis=0).T) > 1e-9]
         pts = pts[keep]
-        geom = LineString(pts) if len(pts) >= 2 else Point(pts[0])
+        geom = LineString(pts).simplify(SIMPLIFY_M) if len(pts) >= 2 else Point(pts[0])
         parts.append(geom.buffer(radius_m, quad_segs=8))
     return shapely.union_all(parts)
 
