@@ -86,8 +86,8 @@ class Fleet:
         fleet: the bus fleet name.
         robots: the robots, in the file's order.
         world: the arena and static obstacles (None: none given).
-        scenario: what the coordinator runs (trajectory, formation, assignment, geometry), a
-            :class:`scenario.Scenario` lasting :data:`RUN_FOREVER_S`.
+        scenario: what the coordinator runs (trajectory, formation, assignment, geometry, the
+            arena and obstacles), a :class:`scenario.Scenario` lasting :data:`RUN_FOREVER_S`.
         source: the file it was read from.
     """
 
@@ -180,7 +180,9 @@ def fleet_from_dict(data: Mapping[str, Any], *, source: str = "<dict>") -> Fleet
         "duration_s": RUN_FOREVER_S,
         "robots": {"ids": [r.id for r in robots] or ["r1"]},
     }
-    for key in ("trajectory", "formation", "assignment", "geometry"):
+    # the arena and obstacles too: the coordinator's checks and a planned trajectory's plan
+    # (issue 27: its context, scenario.load.plan_table) keep the formation clear of them
+    for key in ("trajectory", "formation", "assignment", "geometry", "arena", "obstacle"):
         if key in data:
             scenario_data[key] = data[key]
     for key in ("trajectory", "formation"):
