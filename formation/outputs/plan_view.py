@@ -13,8 +13,8 @@ recording) and the live Foxglove scene (``formation.live.scene``) all read a pla
   collision-avoidance layers;
 * the plan's figures: length against the straight line through the via points, least planned
   clearance (slot point to obstacle or wall), time to the goal as planned, and the time it
-  took to plan (measured here, by planning the same inputs once more: the plan is a
-  deterministic function of the scenario, ``coordinator.core.planning.trajectory``);
+  took to plan, wall and CPU (measured here, by planning the same inputs once more: the plan
+  is a deterministic function of the scenario, ``coordinator.core.planning.trajectory``);
 * the **replans**: ``RunLog.replans``, one ``{t_s, reason, plan_time_s, length_m}`` per replan
   the coordinator made at run time (optionally ``path``: the new plan's leader path as
   ``[[x, y], ...]``, drawn when given). The coordinator plans once at start today; runtime
@@ -113,6 +113,10 @@ class PlanView:
     t_start_s: float
     squeezes: bool
     plan_time_s: float | None = None
+    """Wall time of planning (s); None when not measured."""
+    plan_cpu_s: float | None = None
+    """CPU time of this process while planning (s): less sensitive than the wall time to the
+    other processes of a loaded machine."""
     replans: tuple[Replan, ...] = field(default=())
 
 
@@ -222,6 +226,7 @@ def plan_view(
         raise ValueError("trajectory: kind = 'plan' did not build a plan")
     r = traj.result
     plan_time: float | None = None
+    plan_cpu: float | None = None
     if timed:
         start = traj.context.get("start", (0.0, 0.0, 0.0))
         canon = {
@@ -233,9 +238,9 @@ def plan_view(
             "heading": float(start[2] if traj.heading is None else traj.heading),
             "context": traj.context,
         }  # fmt: skip
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         plan_from_context(canon)  # the same inputs, planned again (not the cached result)
-        plan_time = time.perf_counter() - t0
+        plan_time, plan_cpu = time.perf_counter() - t0, time.process_time() - c0
     formation = traj.context["formation"]
     corridor = corridor_of(_slot_paths(traj, formation), r.footprint.slot_radius_m)
     st = r.stats
@@ -251,6 +256,7 @@ def plan_view(
         t_start_s=float(traj.t_start_s),
         squeezes=bool(st.squeezes),
         plan_time_s=plan_time,
+        plan_cpu_s=plan_cpu,
         replans=replans_of(replans),
     )
 
@@ -279,6 +285,7 @@ def plan_metrics(view: PlanView | None, log: Any, tol_m: float) -> dict[str, Any
         return None
     return {
         "plan_time_s": view.plan_time_s,
+        "plan_cpu_s": view.plan_cpu_s,
         "length_m": view.length_m,
         "straight_m": view.straight_m,
         "length_ratio": view.length_m / view.straight_m if view.straight_m > 0 else None,
@@ -308,12 +315,14 @@ def plan_summary(p: Mapping[str, Any] | None) -> str | None:
         return None
     ratio = p.get("length_ratio")
     took = p.get("plan_time_s")
+    cpu = p.get("plan_cpu_s")
     reached = p.get("time_to_goal_s")
     return (
         f"plan: {p['length_m']:.2f} m (straight {p['straight_m']:.2f} m"
         + (f", x{ratio:.2f}" if ratio is not None else "")
         + ")"
         + (f", planned in {took * 1e3:.0f} ms" if took is not None else "")
+        + (f" ({cpu * 1e3:.0f} ms CPU)" if cpu is not None else "")
         + f", least clearance {p['min_clearance_m']:.3f} m, time to goal "
         + (f"{reached:.1f} s" if reached is not None else "not reached")
         + f" (planned {p['planned_time_to_goal_s']:.1f} s), replans {p['replans']}"

@@ -131,7 +131,7 @@ def test_plan_metrics_of_a_run_that_reaches_its_goal() -> None:
     assert m["length_m"] == r.stats.length_m and m["straight_m"] == r.stats.straight_m
     assert m["length_ratio"] == pytest.approx(r.stats.length_m / r.stats.straight_m)
     assert m["min_clearance_m"] == r.stats.min_clearance_m
-    assert m["plan_time_s"] is not None and m["plan_time_s"] > 0.0
+    assert m["plan_time_s"] is not None and m["plan_time_s"] > 0.0 and m["plan_cpu_s"] > 0.0
     assert m["planned_time_to_goal_s"] == r.stats.duration_s
     # the leader within 1 mm of its goal, every robot on its slot: the last 0.1 s row before
     # the plan's end (decelerating at 0.04 m/s^2 it is 1 mm short 0.22 s before)
@@ -151,6 +151,7 @@ def test_time_to_goal_is_none_when_the_run_ends_early_or_a_robot_is_off_its_slot
     scn, log = leader_run("door", stop_s=30.0)
     m = plan_metrics(plan_view(scn.trajectory, timed=False), log, scn.settle_tol_m)
     assert m is not None and m["time_to_goal_s"] is None and m["plan_time_s"] is None
+    assert m["plan_cpu_s"] is None
     scn, log = leader_run("door", off_m=2.0 * scn.settle_tol_m)
     m = plan_metrics(plan_view(scn.trajectory, timed=False), log, scn.settle_tol_m)
     assert m is not None and m["time_to_goal_s"] is None
