@@ -326,7 +326,10 @@ def analyze(
     m["power_peaks"] = power_peaks(log)
     # issue 27: the plan of the run's scenario (a deterministic function of it) and the
     # replans the run reported (log.replans); null without a plan or a scenario
-    plan = add_plan(m, scn.trajectory, log, tol_m) if scn is not None else None
+    try:
+        plan = add_plan(m, scn.trajectory, log, tol_m) if scn is not None else None
+    except ValueError as exc:  # a --scenario whose trajectory does not plan
+        raise ReportError(f"the scenario's plan: {exc}") from exc
     m.setdefault("plan", None)
     m["recording"] = {
         "file": str(rec.path),

@@ -319,3 +319,18 @@ def test_a_planned_corridor_mesh_has_no_triangle_outside_the_corridor() -> None:
     centroids = tri.mean(axis=1)
     grown = view.corridor.buffer(0.003)
     assert all(grown.contains(Point(c)) for c in centroids.tolist())
+
+
+def test_a_report_whose_scenario_does_not_plan_is_a_clean_error(tmp_path: Path) -> None:
+    from test_record_report import record_items, synthetic_stream
+
+    from formation.record.replay import ReportError
+
+    data = two_robot_plan()
+    data["trajectory"]["goal"] = [1.0, 0.0]  # in the pillar
+    scn_path = tmp_path / "in-pillar.toml"
+    scn_path.write_text(to_toml(data))
+    path = tmp_path / "run.mcap"
+    record_items(path, synthetic_stream())
+    with pytest.raises(ReportError, match="trajectory.goal"):
+        report_mod.analyze(read_recording(path), scenario=str(scn_path))
