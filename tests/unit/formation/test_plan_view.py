@@ -332,5 +332,5 @@ def test_a_report_whose_scenario_does_not_plan_is_a_clean_error(tmp_path: Path) 
     scn_path.write_text(to_toml(data))
     path = tmp_path / "run.mcap"
     record_items(path, synthetic_stream())
-    with pytest.raises(ReportError, match="trajectory.goal"):
+    with pytest.raises(ReportError, match=r"trajectory\.goal"):
         report_mod.analyze(read_recording(path), scenario=str(scn_path))
