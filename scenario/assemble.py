@@ -46,15 +46,23 @@ def _arena(scenario: Scenario) -> tuple[float, float, float, float] | None:
     return None if a is None else (a.x_min, a.y_min, a.x_max, a.y_max)
 
 
+PATH_CHECK_HORIZON_S = 3600.0
+"""The slot-path conflict check samples the first hour of a run at most (36,000 instants): the
+scenario of a real fleet's file runs "for ever" (``scenario.fleet.RUN_FOREVER_S``) and a check
+of all of it would take hours before the coordinator started."""
+
+
 def path_conflicts(scenario: Scenario, duration_s: float | None = None) -> list[PathConflict]:
     """The slots whose paths cross an obstacle of ``scenario.agent.world`` or leave its arena
-    over ``duration_s`` (default: the scenario's); what the coordinator warns about."""
+    over ``duration_s`` (default: the scenario's; at most :data:`PATH_CHECK_HORIZON_S`); what
+    the coordinator warns about."""
     geom = scenario.agent.geometry
+    duration = scenario.duration_s if duration_s is None else duration_s
     return slot_path_conflicts(
         scenario.trajectory,
         scenario.formation,
         scenario.agent.world,
-        scenario.duration_s if duration_s is None else duration_s,
+        min(duration, PATH_CHECK_HORIZON_S),
         body_radius_m=geom.body_radius_m,
         ref_offset_m=geom.ref_offset_m,
     )

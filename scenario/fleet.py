@@ -20,7 +20,9 @@ annotated template)::
 
     [arena]                     # optional: x_min, y_min, x_max, y_max (m)
     [[obstacle]]                # optional: circle / segment / polygon, as in a robot config
-    [trajectory]                # the virtual leader: as in a scenario (docs/scenarios.md)
+    [trajectory]                # the virtual leader: as in a scenario (docs/scenarios.md);
+                                # kind = "plan" (docs/planning.md) also needs x0, y0, heading:
+                                # where the planned leader starts
     [formation]                 # the formation: as in a scenario
     [assignment]                # optional: greedy (default), optimal or sparse
     [geometry]                  # optional: the robots' geometry (ref_offset_m is used by the
@@ -84,8 +86,8 @@ class Fleet:
         fleet: the bus fleet name.
         robots: the robots, in the file's order.
         world: the arena and static obstacles (None: none given).
-        scenario: what the coordinator runs (trajectory, formation, assignment, geometry), a
-            :class:`scenario.Scenario` lasting :data:`RUN_FOREVER_S`.
+        scenario: what the coordinator runs (trajectory, formation, assignment, geometry, the
+            arena and obstacles), a :class:`scenario.Scenario` lasting :data:`RUN_FOREVER_S`.
         source: the file it was read from.
     """
 
@@ -178,12 +180,15 @@ def fleet_from_dict(data: Mapping[str, Any], *, source: str = "<dict>") -> Fleet
         "duration_s": RUN_FOREVER_S,
         "robots": {"ids": [r.id for r in robots] or ["r1"]},
     }
-    for key in ("trajectory", "formation", "assignment", "geometry"):
+    # the arena and obstacles too: the coordinator's checks and a planned trajectory's plan
+    # (issue 27: its context, scenario.load.plan_table) keep the formation clear of them
+    for key in ("trajectory", "formation", "assignment", "geometry", "arena", "obstacle"):
         if key in data:
             scenario_data[key] = data[key]
     for key in ("trajectory", "formation"):
         if key not in data:
             problems.append(f"{key}: required (as in a scenario, docs/scenarios.md)")
+    problems += _plan_start_problems(data.get("trajectory"))
     scenario: Scenario | None = None
     if "trajectory" in data and "formation" in data:
         try:
@@ -194,6 +199,23 @@ def fleet_from_dict(data: Mapping[str, Any], *, source: str = "<dict>") -> Fleet
     if problems or scenario is None or not isinstance(fleet, str):
         raise FleetError(source, problems or ["invalid fleet file"])
     return Fleet(fleet=fleet, robots=tuple(robots), world=world, scenario=scenario, source=source)
+
+
+PLAN_START_KEYS: Final = ("x0", "y0", "heading")
+
+
+def _plan_start_problems(trajectory: object) -> list[str]:
+    """A planned trajectory (``kind = "plan"``, issue 27) in a fleet file must say where the
+    virtual leader starts: a scenario plans from its first robot's start pose, and a fleet
+    file has no start poses (the robots are where they are; they join their slots)."""
+    if not isinstance(trajectory, Mapping) or trajectory.get("kind") != "plan":
+        return []
+    return [
+        f'trajectory.{key}: required for kind = "plan" in a fleet file (the virtual leader\'s '
+        "start pose x0, y0 in m and heading in rad: there are no start poses to plan from)"
+        for key in PLAN_START_KEYS
+        if key not in trajectory
+    ]
 
 
 def _check_task(scenario: Scenario) -> None:

@@ -72,6 +72,7 @@ class RunObservers:
                     body_radius_m=geom.body_radius_m,
                     world=self.plan.scenario.agent.world,
                     commands=commands,
+                    trajectory=self.plan.scenario.trajectory,  # its plan in the scene
                 )
             except RuntimeError as exc:
                 raise LaunchError(f"--foxglove {self.cfg.foxglove_port}: {exc}") from exc

@@ -88,6 +88,9 @@ def write_results(
     m["faults"] = fault_recovery(log, scn.settle_tol_m)  # each fault sent, with its recovery
     sim_s = float(log.t_s[-1] - log.t_s[0])
     m["meta"]["realtime_factor"] = sim_s / run_wall_s if run_wall_s else None
+    from formation.outputs.plan_view import add_plan
+
+    plan_shown = add_plan(m, scn.trajectory, log, scn.settle_tol_m)  # issue 27
     result.metrics = m
     written: list[str] = []
 
@@ -118,6 +121,7 @@ def write_results(
                     title=f"{scn.name} over Zenoh ({m['meta']['mode']}{cut}): reference "
                     "points (solid), virtual trajectories (dashed)",
                     settle_s=plan.settle_s,
+                    plan=plan_shown,
                 )
             except OSError:
                 raise

@@ -16,7 +16,10 @@ Foxglove layout serves both):
   sphere; every slot as a sphere coloured by role (leader, subleader, follower) labelled
   ``v<k+1>`` as in the paper's figures; the virtual leader as an arrow; lines from each slot's
   parent to the slot (the leader-follower tree, eqs 3-5) and from each robot's reference point to
-  its assigned slot (the tracking error vector, eqs 17-18).
+  its assigned slot (the tracking error vector, eqs 17-18); the scenario's obstacles and
+  arena; for a planned trajectory (issue 27) the planned leader path (a green line) and the
+  footprint corridor (a translucent green surface with its outline), replaced when the plan
+  changes (:meth:`LiveServer.show_plan`).
 * ``/tf`` (``foxglove.FrameTransforms``): ``world`` -> ``<robot id>`` for each robot's latest pose,
   so a 3D panel can follow one robot.
 
@@ -30,7 +33,7 @@ from __future__ import annotations
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Final
 
 import foxglove
@@ -57,6 +60,7 @@ from formation.outputs.bus_json import (
     tracking_error,
     unpack_map,
 )
+from formation.outputs.plan_view import plan_mesh, plan_view
 from robot_agent.core.params import RobotGeometry
 from runtime.tap import BusItem, BusTap
 
@@ -173,6 +177,17 @@ class LiveServer:
                 topic = f"{DERIVED_PREFIX}{parsed[1]}/tracking_error"
                 self._log(self._channel(topic, TRACKING_ERROR_SCHEMA), body, wall_ns)
 
+    def show_plan(
+        self, trajectory: Mapping[str, Any] | None, replans: Iterable[Mapping[str, Any]] = ()
+    ) -> None:
+        """Show the plan of ``trajectory`` (a scenario's trajectory table; not a plan or None:
+        no plan) in the scene from its next redraw: the planned leader path, the footprint
+        corridor (translucent) and the ``replans`` (``RunLog.replans`` events; issue 27).
+        Call it again when the plan changes (a replan): the ``plan`` entity is replaced. May
+        be called from any thread. Raises ValueError if the table does not plan."""
+        view = plan_view(trajectory, replans, timed=False) if trajectory is not None else None
+        self.model.set_plan(None if view is None else plan_mesh(view))
+
     def tick(self, _now_ns: int = 0) -> None:
         """Publish the scene and the transforms (called every ``1 / scene_hz`` s)."""
         wall_ns = time.time_ns()
@@ -236,13 +251,16 @@ def start_live(
     body_radius_m: float = RobotGeometry().body_radius_m,
     world: Any = None,
     commands: zenoh.Session | None = None,
+    trajectory: Mapping[str, Any] | None = None,
 ) -> LiveHandle:
     """Start a Foxglove WebSocket server for ``fleet`` fed from ``session``.
 
     ``port=0`` picks a free port. Raises ``RuntimeError`` if the port is taken. The caller keeps
     owning the session and must call ``handle.close()`` before closing it. ``commands``: the
     session a client's publishes are put with as operator commands (issue 28,
-    :mod:`formation.live.foxglove_ops`); None: they are refused.
+    :mod:`formation.live.foxglove_ops`); None: they are refused. ``trajectory``: the
+    scenario's trajectory table, whose plan (``kind = "plan"``) the scene shows
+    (:meth:`LiveServer.show_plan`).
     ``formation up --foxglove``::
 
         live = start_live(session, cfg.fleet, port=8765,
@@ -262,6 +280,7 @@ def start_live(
         commands=None if commands is None else commands.put,
     )
     try:
+        live.show_plan(trajectory)
         live.attach(session)
     except BaseException:
         live.close()

@@ -4,7 +4,8 @@
 ``foxglove.SceneUpdate`` / ``foxglove.FrameTransforms`` messages: each robot as a cylinder with
 a heading arrow and label, its reference point (eqs 10-11), every slot coloured by role, the
 virtual leader, the leader-follower tree (eqs 3-5), each robot's tracking error vector
-(eqs 17-18) and the scenario's obstacles and arena (``world``, issue 14). The live server
+(eqs 17-18), the scenario's obstacles and arena (``world``, issue 14) and a planned
+trajectory's leader path and footprint corridor (``set_plan``, issue 27). The live server
 (:mod:`formation.live.foxglove`) and the recorder (:mod:`formation.record.command`) both draw with
 it, so a
 recording looks like the live view.
@@ -22,16 +23,20 @@ from foxglove.messages import (
     CylinderPrimitive,
     FrameTransform,
     FrameTransforms,
+    KeyValuePair,
     LinePrimitive,
     LinePrimitiveLineType,
     Point3,
     Pose,
     Quaternion,
     SceneEntity,
+    SceneEntityDeletion,
+    SceneEntityDeletionType,
     SceneUpdate,
     SpherePrimitive,
     TextPrimitive,
     Timestamp,
+    TriangleListPrimitive,
     Vector3,
 )
 
@@ -142,6 +147,76 @@ def world_entity(world: Any, stamp: Timestamp) -> SceneEntity | None:
     )
 
 
+PLAN_ENTITY: Final = "plan"
+_PLAN_RGB: Final = (0.2, 0.75, 0.35)
+CORRIDOR_ALPHA: Final = 0.22
+PLAN_PATH_Z_M: Final = 0.002
+"""Height (m) of the planned path, just above the corridor (on the floor, ``z = 0``: a zero
+coordinate costs nothing on the wire) and under the slots and robots."""
+PLAN_REPEAT_S: Final = 1.0
+"""The plan entity (10-20 kB for the built-in scenarios) is sent when it changes and then
+once per this period (s), not with every scene: entities persist in the viewer until replaced,
+and a viewer that connects later, or a seek in a recording, gets it within the period."""
+
+
+@dataclass(frozen=True)
+class PlanPrimitives:
+    """A plan (``formation.outputs.plan_view.PlanMesh``) as Foxglove primitives, built once per
+    plan (the scene is redrawn at ``scene_hz`` with the same objects): the planned leader path
+    and the corridor's outline as lines, the corridor as a translucent triangle list, and a
+    label per replan; ``revision`` counts the plans shown (1: the first)."""
+
+    lines: tuple[LinePrimitive, ...]
+    triangles: tuple[TriangleListPrimitive, ...]
+    texts: tuple[TextPrimitive, ...]
+    revision: int
+
+
+def plan_primitives(mesh: Any, revision: int = 1) -> PlanPrimitives:
+    """:class:`PlanPrimitives` of a ``PlanMesh`` (m)."""
+    lines = [
+        LinePrimitive(
+            type=LinePrimitiveLineType.LineStrip,
+            thickness=4.0,
+            scale_invariant=True,
+            points=[Point3(x=float(x), y=float(y), z=PLAN_PATH_Z_M) for x, y in mesh.path],
+            color=_color(_PLAN_RGB, 0.95),
+        )
+    ]
+    lines += [
+        LinePrimitive(
+            type=LinePrimitiveLineType.LineStrip,
+            thickness=1.0,
+            scale_invariant=True,
+            points=[Point3(x=float(x), y=float(y), z=0.0) for x, y in ring],
+            color=_color(_PLAN_RGB, 0.6),
+        )
+        for ring in mesh.outlines
+    ]
+    triangles = []
+    if len(mesh.triangles):
+        triangles.append(
+            TriangleListPrimitive(
+                pose=_pose(0.0, 0.0),
+                points=[Point3(x=float(x), y=float(y), z=0.0) for x, y in mesh.vertices],
+                color=_color(_PLAN_RGB, CORRIDOR_ALPHA),
+                indices=[int(i) for i in mesh.triangles.reshape(-1)],
+            )
+        )
+    texts = [
+        TextPrimitive(
+            pose=_pose(x, y, 0.1),
+            billboard=True,
+            font_size=12.0,
+            scale_invariant=True,
+            color=_color((1.0, 0.35, 0.3)),
+            text=label,
+        )
+        for x, y, label in mesh.marks
+    ]
+    return PlanPrimitives(tuple(lines), tuple(triangles), tuple(texts), revision)
+
+
 def _stamp(wall_ns: int) -> Timestamp:
     return Timestamp(wall_ns // 1_000_000_000, wall_ns % 1_000_000_000)
 
@@ -178,6 +253,18 @@ class SceneModel:
     assignment: dict[str, int] = field(default_factory=dict)
     leader: Leader | None = None
     world: Any = None  # robot_agent.core.params.WorldMap: obstacles and arena (issue 14), or None
+    plan: PlanPrimitives | None = None  # the plan shown (issue 27): set_plan, never per tick
+    _revision: int = 0
+    _plan_gone: bool = False  # a plan was shown and removed: the next scene deletes it
+    _plan_sent: tuple[int, int] | None = None  # (revision, wall ns) of the last plan sent
+
+    def set_plan(self, mesh: Any) -> None:
+        """Show the plan ``mesh`` (a ``formation.outputs.plan_view.PlanMesh``; None: no plan)
+        from the next scene on: the ``"plan"`` entity is replaced (a new plan after a replan)
+        or deleted. One attribute assignment: safe while another thread draws the scene."""
+        self._revision += 1
+        self._plan_gone = mesh is None and self.plan is not None
+        self.plan = None if mesh is None else plan_primitives(mesh, self._revision)
 
     def _robot(self, rid: str) -> _Robot:
         r = self.robots.get(rid)
@@ -369,6 +456,38 @@ class SceneModel:
         world = world_entity(self.world, stamp)
         if world is not None:
             entities.append(world)
+        return self._with_plan(entities, stamp, wall_ns)
+
+    def _with_plan(
+        self, entities: list[SceneEntity], stamp: Timestamp, wall_ns: int
+    ) -> SceneUpdate:
+        """``entities`` and the plan entity when it is due (changed, or not sent for
+        :data:`PLAN_REPEAT_S`), or its deletion once after the plan was removed."""
+        plan = self.plan
+        if plan is None:
+            if not self._plan_gone:
+                return SceneUpdate(entities=entities)
+            self._plan_gone = False
+            gone = SceneEntityDeletion(
+                timestamp=stamp, type=SceneEntityDeletionType.MatchingId, id=PLAN_ENTITY
+            )
+            return SceneUpdate(deletions=[gone], entities=entities)
+        if self._plan_sent is not None:
+            revision, sent_ns = self._plan_sent
+            if revision == plan.revision and 0 <= wall_ns - sent_ns < PLAN_REPEAT_S * 1e9:
+                return SceneUpdate(entities=entities)  # the viewer still has it
+        entities.append(
+            SceneEntity(
+                timestamp=stamp,
+                frame_id=WORLD_FRAME,
+                id=PLAN_ENTITY,
+                lines=list(plan.lines),
+                triangles=list(plan.triangles),
+                texts=list(plan.texts),
+                metadata=[KeyValuePair(key="revision", value=str(plan.revision))],
+            )
+        )
+        self._plan_sent = (plan.revision, wall_ns)
         return SceneUpdate(entities=entities)
 
     def transforms(self, wall_ns: int) -> FrameTransforms:

@@ -39,6 +39,8 @@ from typing import Any, Final
 import matplotlib
 
 matplotlib.use("Agg")
+import contextlib
+
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
@@ -61,6 +63,7 @@ from formation.outputs.figures_style import (
     save_figure,
 )
 from formation.outputs.metrics import formation_error, role_changes
+from formation.outputs.plan_view import PlanView, draw_plan, plan_summary
 from formation.outputs.runlog import RunLog
 from formation.outputs.snapshots import Event, plot_snapshots
 
@@ -119,7 +122,12 @@ def caption(name: str, n_robots: int) -> str:
 # -- trajectories ----------------------------------------------------------------------------
 
 
-def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
+def plot_trajectories(
+    log: RunLog, path: Path, title: str = "", plan: PlanView | None = None
+) -> None:
+    """The robots' reference points and the virtual trajectories; with ``plan`` (issue 27)
+    also the footprint corridor (translucent), the planned leader path, the goal and each
+    replan under them (:func:`formation.outputs.plan_view.draw_plan`)."""
     if not log.t_s.size:
         save_figure(no_data_figure(title or "Trajectories"), path)
         return
@@ -138,6 +146,8 @@ def plot_trajectories(log: RunLog, path: Path, title: str = "") -> None:
         )
     )
     draw_world(ax, log.world, scale=100.0)
+    if plan is not None:
+        draw_plan(ax, plan, scale=100.0, log=log)
     if few_slots and log.t_s.size:
         for s in range(m):
             end = log.slot_xy[-1, s, :] * 100
@@ -447,6 +457,10 @@ def _summary_lines(metrics_path: Path) -> list[str]:
             f"- formation error RMS after settling: worst {max(rms_f) * 100:.2f} cm, "
             f"median {float(np.median(rms_f)) * 100:.2f} cm"
         )
+    plan = m.get("plan")
+    if isinstance(plan, dict):
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            lines.append(f"- {plan_summary(plan)}")
     return lines
 
 
@@ -487,15 +501,17 @@ def write_all(
     *,
     index: bool = True,
     events: Sequence[Event] = (),
+    plan: PlanView | None = None,
 ) -> list[Path]:
     """Write the five figures (and ``index.md`` unless ``index=False``) to ``out_dir``; return
     the paths written, the figures first. Call it after ``metrics.json`` is written so the index
     links and summarises it. ``events``: labelled disturbances for ``formation.png``
-    (:func:`formation.outputs.snapshots.events_of` a scenario's)."""
+    (:func:`formation.outputs.snapshots.events_of` a scenario's); ``plan``: the run's plan
+    (:func:`formation.outputs.plan_view.plan_view`), drawn in ``trajectories.png``."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / name for name in FIGURES]
-    plot_trajectories(log, paths[0], title)
+    plot_trajectories(log, paths[0], title, plan)
     plot_motor_power(log, paths[1])
     plot_error(log, paths[2], settle_s)
     plot_roles(log, paths[3])

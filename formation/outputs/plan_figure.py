@@ -4,8 +4,9 @@
 whose trajectory is ``kind = "plan"``: the arena and obstacles, the virtual leader's planned
 path (black), every slot's path (dashed) and the slots' discs of the footprint (body, reference
 offset, filter margin, planning clearance) every ``every_s`` seconds, coloured by the squeeze
-(blue: nominal, through green: shrunk, to red: a column). docs/planning.md shows the built-in
-scenarios' figures made this way.
+(blue: nominal, through green: shrunk, to red: a column), over the footprint corridor they
+sweep (translucent green, :mod:`formation.outputs.plan_view`). docs/planning.md shows the
+built-in scenarios' figures made this way.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 from coordinator.core.formation import FormationSpec, morphed_slot_rows, slot_rows
 from coordinator.core.planning.feasibility import trajectory_of
 from coordinator.core.planning.trajectory import PlannedTrajectory
+from formation.outputs.plan_view import draw_plan, plan_view
 from scenario.load import Scenario, load
 
 __all__ = ["plot_plan"]
@@ -62,6 +64,9 @@ def plot_plan(scn: Scenario, path: Path, every_s: float = 2.0) -> None:
         _, rows = slot_rows(spec, leader) if offs is None else morphed_slot_rows(leader, offs)
         for row in rows:
             ax.add_patch(Circle((row[0], row[1]), radius, fc=cmap(q / 2.0), ec="none", alpha=0.18))
+    view = plan_view(scn.trajectory, timed=False)
+    if view is not None:  # the footprint corridor under the discs, as in every figure
+        draw_plan(ax, view, scale=1.0)["path"].remove()
     ax.plot(r.x_m, r.y_m, "-", color="k", lw=1.5, label="planned leader path")
     ax.plot(*zip(*r.waypoints, strict=True), "o", ms=3, color="k")
     st = r.stats

@@ -76,6 +76,10 @@ class RunLog:
     # runtime reshapes (issue 28): one {"kind", "start_s", "end_s"} per reshape the leader
     # messages reported (times on t_s's axis); formation.outputs.metrics adds what they cost
     reshapes: list[dict[str, Any]] = field(default_factory=list)
+    # runtime replans of a planned trajectory (issue 27): one {"t_s", "reason", "plan_time_s",
+    # "length_m"} (optionally "path": [[x, y], ...]) per replan the coordinator made, times on
+    # t_s's axis; formation.outputs.plan_view measures and draws them. Empty: planned once.
+    replans: list[dict[str, Any]] = field(default_factory=list)
 
     @classmethod
     def allocate(cls, robot_ids: list[str], slot_ids: list[int], ticks: int) -> RunLog:

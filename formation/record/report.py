@@ -22,6 +22,10 @@ and
   adds the camera latency; lockstep: wheels ``t`` minus ``pose_t`` in sim time); p50/p99/max,
   overall and per robot.
 * ``power_peaks``: per robot and wheel, the peak |motor power| (fraction of max) and when.
+* ``plan`` (issue 27): for a ``kind = "plan"`` trajectory, the plan's figures (plan time,
+  length against the straight line, least planned clearance, time to goal as planned and as
+  run) and the replans (:mod:`formation.outputs.plan_view`); null otherwise. The trajectories
+  figure draws the planned leader path, the footprint corridor and each replan.
 
 Writes ``metrics.json`` and the figures of ``formation.outputs.figures.write_all`` (trajectories
 with
@@ -52,6 +56,7 @@ import numpy as np
 import scenario as scenario_mod
 from bus_schemas import DecodeError, PlantStatus, decode, keys
 from formation.outputs import metrics as metrics_mod
+from formation.outputs.plan_view import PlanView, add_plan
 from formation.outputs.recovery import fault_recovery
 from formation.outputs.runlog import RunLog
 from formation.record.latency import LatencySample
@@ -255,6 +260,7 @@ class Report:
     settle_s: float
     tol_m: float
     title: str
+    plan: PlanView | None = None
 
 
 def analyze(
@@ -318,6 +324,13 @@ def analyze(
     m["leader_loss"] = leader_losses(log, rp, fleet, tol_m, collector.dt_s, start)
     m["latency"] = latency_stats(rp.latency, lockstep)
     m["power_peaks"] = power_peaks(log)
+    # issue 27: the plan of the run's scenario (a deterministic function of it) and the
+    # replans the run reported (log.replans); null without a plan or a scenario
+    try:
+        plan = add_plan(m, scn.trajectory, log, tol_m) if scn is not None else None
+    except ValueError as exc:  # a --scenario whose trajectory does not plan
+        raise ReportError(f"the scenario's plan: {exc}") from exc
+    m.setdefault("plan", None)
     m["recording"] = {
         "file": str(rec.path),
         "complete": rec.complete,
@@ -331,7 +344,7 @@ def analyze(
     }
     name = scn.name if scn is not None else rec.path.stem
     title = f"{name} (recording, {meta['mode']}): reference points (solid), virtual (dashed)"
-    return Report(rec, log, m, settle_s, tol_m, title)
+    return Report(rec, log, m, settle_s, tol_m, title, plan)
 
 
 LOG_ARRAYS: Final = (
@@ -464,7 +477,9 @@ def write(report: Report, out_dir: Path, *, figures: bool = True) -> list[Path]:
     if figures:
         from formation.outputs import figures as fig_mod
 
-        written += fig_mod.write_all(report.log, out_dir, report.title, report.settle_s)
+        written += fig_mod.write_all(
+            report.log, out_dir, report.title, report.settle_s, plan=report.plan
+        )
     return written
 
 

@@ -62,9 +62,9 @@ DEFAULT_CHUNK_BYTES: Final = 256 * 1024
 """MCAP chunk size: at most this much (uncompressed) is lost if the recorder is SIGKILLed."""
 
 
-def _world_of(run: Mapping[str, str] | None) -> Any:
-    """The obstacles and arena of the scenario embedded in the run metadata (``scenario_toml``),
-    for the 3D scene; None without one or if it does not load."""
+def _scenario_of(run: Mapping[str, str] | None) -> Any:
+    """The scenario embedded in the run metadata (``scenario_toml``), for the 3D scene; None
+    without one or if it does not load."""
     text = (run or {}).get("scenario_toml")
     if not text:
         return None
@@ -73,9 +73,23 @@ def _world_of(run: Mapping[str, str] | None) -> Any:
 
         import scenario as scenario_mod
 
-        return scenario_mod.parse(tomllib.loads(text)).agent.world
+        return scenario_mod.parse(tomllib.loads(text))
     except (ValueError, TypeError):  # ScenarioError and TOMLDecodeError are ValueErrors
         return None
+
+
+def _plan_mesh_of(scn: Any) -> Any:
+    """The plan of the scenario's trajectory as a 3D mesh (issue 27), or None (no plan, or one
+    that does not plan: the run could not have started with it)."""
+    if scn is None:
+        return None
+    from formation.outputs.plan_view import plan_mesh, plan_view
+
+    try:
+        view = plan_view(scn.trajectory, timed=False)
+    except ValueError:
+        return None
+    return None if view is None else plan_mesh(view)
 
 
 @dataclass
@@ -144,7 +158,9 @@ class Recorder:
             except ImportError:  # foxglove-sdk not installed: no 3D scene in the file
                 pass
             else:
-                self._scene = SceneModel(self.fleet, world=_world_of(run))
+                scn = _scenario_of(run)
+                self._scene = SceneModel(self.fleet, world=None if scn is None else scn.agent.world)
+                self._scene.set_plan(_plan_mesh_of(scn))  # the planned path and corridor
                 self._scene_period_ns = int(1e9 / scene_hz)
         self._writer.add_metadata(
             METADATA_NAME,

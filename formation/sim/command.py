@@ -114,6 +114,9 @@ def run_and_write(
     m["meta"]["realtime_factor"] = result.realtime_factor
     m["firmware"] = result.firmware_status
     m["meta"]["interrupted"] = result.interrupted
+    from formation.outputs.plan_view import add_plan
+
+    plan = add_plan(m, scn.trajectory, result.log, scn.settle_tol_m)  # issue 27: the plan's figures
     from formation.outputs.files import save_npz_atomic, write_metrics
 
     write_metrics(out, m)  # whole or not at all (a full disk leaves no cut file)
@@ -131,6 +134,7 @@ def run_and_write(
             title=f"{scn.name}{cut}: reference points (solid), virtual trajectories (dashed)",
             settle_s=settle_s,
             events=events_of(scn.disturbances),
+            plan=plan,
         )
     return m
 
@@ -170,6 +174,11 @@ def summary(m: dict[str, Any]) -> str:
             f"{'-' if saf['tiebreaks'] is None else saf['tiebreaks']}"
             + ("" if saf["filter_source"] else " (filter counters not reported: truth only)")
         )
+    from formation.outputs.plan_view import plan_summary
+
+    plan = plan_summary(m.get("plan"))
+    if plan is not None:
+        lines.append(plan)
     lines.extend(fault_lines(m))
     return "\n".join(lines)
 

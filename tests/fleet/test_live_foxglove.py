@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 import websockets
 import zenoh
@@ -372,6 +373,126 @@ def test_scene_model_draws_the_tree_and_tracking_lines() -> None:
     assert (robot_to_slot[1][1], robot_to_slot[1].get(2, 0.0)) == pytest.approx((1.0, 0.0))
     tf = model.transforms(0).encode()
     assert b"world" in tf and b"r1" in tf
+
+
+# ---------------------------------------------------------------------------------------------
+# The plan (issue 27): the planned leader path and the footprint corridor in the scene
+# ---------------------------------------------------------------------------------------------
+
+# SceneEntity fields: metadata 6, lines 11, triangles 12, texts 13; KeyValuePair key 1, value
+# 2; LinePrimitive points 5; TriangleListPrimitive points 2, color 3, indices 5 (fixed32);
+# Point3 x 1, y 2; Color a 4; SceneUpdate deletions 1 (SceneEntityDeletion id 3)
+
+
+def _fixed32s(buf: bytes) -> list[int]:
+    """A packed ``repeated fixed32`` field."""
+    return list(struct.unpack(f"<{len(buf) // 4}I", buf))
+
+
+def plan_of(scene: bytes) -> dict[str, Any] | None:
+    """The ``plan`` entity of a SceneUpdate: revision, path points, triangle points and
+    indices, corridor alpha, texts; None when the update has none."""
+    fields = scene_entities(scene).get("plan")
+    if fields is None:
+        return None
+    meta = {dict(pb_fields(v))[1].decode(): dict(pb_fields(v))[2].decode()
+            for n, v in fields if n == 6}  # fmt: skip
+    lines = [pb_fields(v) for n, v in fields if n == 11]
+    (tri,) = [pb_fields(v) for n, v in fields if n == 12]
+
+    def xy(points: list[bytes]) -> list[tuple[float, float]]:
+        return [(dict(pb_fields(p)).get(1, 0.0), dict(pb_fields(p)).get(2, 0.0)) for p in points]
+
+    return {
+        "revision": int(meta["revision"]),
+        "path": xy([v for n, v in lines[0] if n == 5]),
+        "outlines": len(lines) - 1,
+        "vertices": xy([v for n, v in tri if n == 2]),
+        "indices": _fixed32s(next(v for n, v in tri if n == 5)),
+        "alpha": dict(pb_fields(next(v for n, v in tri if n == 3))).get(4, 1.0),
+        "texts": [dict(pb_fields(v))[6].decode() for n, v in fields if n == 13],
+    }
+
+
+def test_scene_model_shows_the_plan_and_replaces_it_when_it_changes() -> None:
+    import scenario
+    from formation.live.scene import PLAN_REPEAT_S
+    from formation.outputs.plan_view import plan_mesh, plan_view
+
+    scn = scenario.load("door")
+    view = plan_view(scn.trajectory, timed=False)
+    assert view is not None
+    mesh = plan_mesh(view)
+    model = SceneModel(FLEET, world=scn.agent.world)
+    assert plan_of(model.scene(0).encode()) is None
+    model.set_plan(mesh)
+    t0 = 1_700_000_000 * 10**9
+    got = plan_of(model.scene(t0).encode())
+    assert got is not None and got["revision"] == 1 and got["texts"] == []
+    assert np.allclose(got["path"], mesh.path)
+    assert got["path"][-1] == pytest.approx((4.0, 0.0))  # the goal
+    assert np.allclose(got["vertices"], mesh.vertices)
+    assert got["indices"] == mesh.triangles.reshape(-1).tolist() and 0.0 < got["alpha"] < 0.5
+    assert got["outlines"] == len(mesh.outlines) >= 1
+    # the viewer keeps it: not sent again until PLAN_REPEAT_S has passed
+    assert plan_of(model.scene(t0 + 100_000_000).encode()) is None
+    assert plan_of(model.scene(t0 + int(PLAN_REPEAT_S * 1e9)).encode()) is not None
+    # a replan: at once, revision 2, the new path, the replan labelled
+    moved = plan_view(
+        dict(scn.trajectory, goal=[4.0, 0.5]),
+        [{"t_s": 5.0, "reason": "goal moved", "path": [[1.0, 0.0], [2.0, 0.4]]}],
+        timed=False,
+    )
+    assert moved is not None
+    model.set_plan(plan_mesh(moved))
+    got = plan_of(model.scene(t0 + int(PLAN_REPEAT_S * 1e9) + 1).encode())
+    assert got is not None and got["revision"] == 2 and got["texts"] == ["replan 1: goal moved"]
+    assert got["path"][-1] == pytest.approx((4.0, 0.5))
+    # the plan withdrawn: one deletion of the entity, then nothing
+    model.set_plan(None)
+    gone = pb_fields(model.scene(t0 + 3 * 10**9).encode())
+    deletions = [dict(pb_fields(v))[3].decode() for n, v in gone if n == 1]
+    assert deletions == ["plan"] and plan_of(model.scene(t0 + 4 * 10**9).encode()) is None
+    assert [n for n, _ in pb_fields(model.scene(t0 + 5 * 10**9).encode()) if n == 1] == []
+
+
+def test_live_server_shows_the_plan_and_refreshes_it_when_the_plan_changes(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    """A real WebSocket client sees the plan of the scenario the server was started with,
+    then the new plan after :meth:`LiveServer.show_plan` (what a replan calls)."""
+    import scenario
+
+    scn = scenario.load("door")
+    handle = start_live(session(), FLEET, port=0, scene_hz=20.0, trajectory=scn.trajectory)
+    try:
+        live = handle.live
+
+        def revision(n: int) -> Accept:
+            def accept(topic: str, data: bytes) -> bool:
+                got = plan_of(data)
+                return got is not None and got["revision"] == n
+
+            return accept
+
+        first = asyncio.run(receive(live.url, ["/scene"], accept=revision(1)))
+        plan1 = plan_of(first["/scene"][1])
+        assert plan1 is not None and plan1["path"][-1] == pytest.approx((4.0, 0.0))
+        moved = dict(scn.trajectory, goal=[4.0, 0.5])
+        second = asyncio.run(
+            receive(
+                live.url,
+                ["/scene"],
+                after_subscribe=lambda: live.show_plan(moved),
+                accept=revision(2),
+            )
+        )
+        plan2 = plan_of(second["/scene"][1])
+        assert plan2 is not None and plan2["path"][-1] == pytest.approx((4.0, 0.5))
+        live.show_plan({"kind": "line", "speed_mps": 0.02})  # not a plan: none shown
+        assert live.model.plan is None
+    finally:
+        handle.close()
 
 
 # ---------------------------------------------------------------------------------------------

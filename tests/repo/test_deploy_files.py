@@ -385,7 +385,14 @@ def test_fleet_example_is_valid_and_read_by_the_coordinator() -> None:
         cwd=REPO, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
-    assert result.stdout.startswith("OK: fleet demo, robots r1, r2, r3")
+    lines = result.stdout.splitlines()
+    assert lines[-1].startswith("OK: fleet demo, robots r1, r2, r3")
+    # the fleet's arena reaches the coordinator's path check: the example's slow straight line
+    # (0.02 m/s from x = -1 m) leaves the 3 m arena after two minutes of a run that lasts for
+    # ever, and the check says so before the start (a warning: the run may go ahead)
+    assert [ln.split(" at t = ")[0] for ln in lines[:-1]] == [
+        f"warning: slot {k}'s path crosses arena" for k in range(3)
+    ], result.stdout
 
 
 def test_install_coordinator_host_into_prefix(tmp_path: Path) -> None:

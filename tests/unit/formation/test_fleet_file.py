@@ -110,3 +110,87 @@ def test_camera_takes_the_tags_from_the_fleet_file(tmp_path: Path) -> None:
         cwd=REPO, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert result.returncode == 2 and "invalid fleet file" in result.stderr, result.stderr
+
+
+def door_fleet() -> dict[str, Any]:
+    """The built-in ``door`` scenario as the fleet file of a real fleet: its robots with tags,
+    arena, wall, planned trajectory (``kind = "plan"``, issue 27) and formation; the start the
+    scenario plans from (its first robot's reference point, eqs 10-11) written as the plan's
+    x0, y0, heading."""
+    from scenario.load import SCENARIO_DIR
+
+    door = tomllib.loads((SCENARIO_DIR / "door.toml").read_text())
+    start = {"x0": 0.05, "y0": 0.0, "heading": 0.0}  # r1 at (0, 0, 0), l = 0.05 m
+    return {
+        "fleet": "doorway",
+        "name": "door-fleet",
+        "robot": [{"id": rid, "tag": k + 1} for k, rid in enumerate(door["robots"]["ids"])],
+        "arena": door["arena"],
+        "obstacle": door["obstacle"],
+        "trajectory": {**door["trajectory"], **start},
+        "formation": door["formation"],
+        "assignment": door["assignment"],
+    }
+
+
+def test_a_fleet_file_with_a_plan_checks_clean_and_plans_the_scenarios_path(
+    tmp_path: Path,
+) -> None:
+    import numpy as np
+
+    import scenario as scenario_mod
+    from coordinator.core.planning.feasibility import trajectory_of
+    from scenario.write import to_toml
+
+    path = tmp_path / "fleet.toml"
+    path.write_text(to_toml(door_fleet()))
+    result = subprocess.run(
+        [sys.executable, "-m", "formation", "check", str(path)],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith(f"OK: fleet doorway ({path}), door-fleet, robots 3, ")
+    assert "trajectory plan" in result.stdout and "warning" not in result.stdout
+    fleet = load_fleet(path)
+    mine = trajectory_of(fleet.scenario.trajectory).result  # type: ignore[attr-defined]
+    theirs = trajectory_of(scenario_mod.load("door").trajectory).result  # type: ignore[attr-defined]
+    for name in ("s_m", "x_m", "y_m", "theta_rad", "q", "v_mps", "t_s"):
+        assert np.array_equal(getattr(mine, name), getattr(theirs, name)), name
+    assert mine.stats == theirs.stats
+
+
+def test_a_plan_in_a_fleet_file_says_where_the_leader_starts(tmp_path: Path) -> None:
+    data = door_fleet()
+    for key in ("x0", "heading"):
+        del data["trajectory"][key]
+    found = problems(data)
+    assert [p.split(":")[0] for p in found] == ["trajectory.x0", "trajectory.heading"], found
+    # formation check names them too, exit 2
+    path = tmp_path / "fleet.toml"
+    from scenario.write import to_toml
+
+    path.write_text(to_toml(data))
+    result = subprocess.run(
+        [sys.executable, "-m", "formation", "check", str(path)],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert result.returncode == 2, result.stdout
+    assert "trajectory.x0: required" in result.stderr, result.stderr
+    data = door_fleet()
+    data["trajectory"]["goal"] = [2.0, -1.0]  # inside the wall
+    assert any(p.startswith("trajectory.goal: no plan") for p in problems(data)), problems(data)
+
+
+def test_the_obstacles_of_a_fleet_file_are_the_coordinators_too() -> None:
+    """The fleet's arena and obstacles reach the scenario the coordinator runs: its path check
+    warns about a slot crossing a pillar (over the first hour of a run that lasts for ever)."""
+    from scenario.assemble import PATH_CHECK_HORIZON_S
+    from scenario.preflight import preflight_warnings
+
+    data = example()
+    data["obstacle"] = [{"kind": "circle", "x": 0.0, "y": 0.2, "radius_m": 0.05}]
+    scn = fleet_from_dict(data).scenario
+    assert scn.agent.world.arena is not None and len(scn.agent.world.obstacles) == 1
+    assert scn.duration_s > PATH_CHECK_HORIZON_S
+    found = preflight_warnings(scn)  # the first hour, not 1e6 s (that took hours)
+    assert any("crosses obstacle[0]" in w for w in found), found
