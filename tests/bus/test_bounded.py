@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import RouterHandle
+from support.routers import RouterHandle
 
 import runtime as rt
 from bus_schemas import Truth, Wheels, encode, keys
