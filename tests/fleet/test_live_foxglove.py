@@ -30,7 +30,7 @@ from bus_schemas import Assignment, Pose, Slot, keys
 from formation.live.foxglove import SUBPROTOCOL, LiveServer, SceneModel, start_live
 
 # ---------------------------------------------------------------------------------------------
-# Minimal protobuf wire-format reader (enough to walk a foxglove.SceneUpdate)
+# Reading the SceneUpdate (the wire-format reader: support.foxglove_fleet.pb_fields)
 # ---------------------------------------------------------------------------------------------
 
 
