@@ -34,7 +34,7 @@ from bus_schemas.codec import _strict_map
 
 
 def samples() -> dict[type, Any]:
-    from bus_samples import SAMPLES  # one valid message per type (tests/support/bus_samples.py)
+    from support.bus_samples import SAMPLES  # one valid message per type (tests/support/)
 
     return dict(SAMPLES)
 

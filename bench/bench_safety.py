@@ -22,9 +22,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(
-    0, str(ROOT / "tests")
-)  # the closed-loop harness of tests/unit/formation/test_safety_closed_loop.py
+sys.path.insert(0, str(ROOT / "tests"))  # the closed-loop harness: tests/support/safety_runs.py
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
         )
 
     if not args.skip_random:
-        from test_safety_closed_loop import EXACT, NOISY, random_starts_run
+        from support.safety_runs import EXACT, NOISY, random_starts_run
 
         cfg = AgentConfig(estimator=EstimatorParams(enabled=args.estimator))
         for name, sensing in (("exact", EXACT), ("noisy", NOISY)):

@@ -1,5 +1,9 @@
 """Shared pytest fixtures for tests that run real processes and real Zenoh sessions on loopback.
 
+Only fixtures and hooks live here; the helpers a test imports are in ``tests/support/`` (a
+package on pytest's ``pythonpath``: ``from support.spawn import Spawner, free_port``), and no
+test file imports another test file (tests/repo/test_tests_layout.py).
+
 Fixtures (function scope unless noted):
 
 * ``spawn``: factory of subprocesses. ``spawn("router", "--listen", ep, ready="router listening")``
@@ -15,7 +19,8 @@ Fixtures (function scope unless noted):
 * ``start_router``: factory for more routers (``start_router()`` -> the same handle type).
 * ``session``: factory of client sessions to ``router`` (``session(**ZenohSettings fields)``),
   all closed on teardown.
-* ``free_port()``: a plain helper, a TCP port on 127.0.0.1 that was free a moment ago.
+* ``support.spawn.free_port()``: a plain helper, a TCP port on 127.0.0.1 that was free a moment
+  ago; ``support.spawn.child_env()`` the environment of a child a test starts itself.
 * Hypothesis profile ``formation``: no deadline, no ``too_slow`` health check (wall-clock limits
   fail on a loaded machine; a property is not a speed test).
 * Nothing a test starts may outlive it (autouse, every test; the /proc bookkeeping is in
@@ -35,15 +40,9 @@ Tests using ``router``, ``start_router`` or ``session`` are marked ``zenoh`` aut
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
-import socket
-import subprocess
-import sys
-import time
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -51,10 +50,8 @@ import pytest
 from hypothesis import HealthCheck, settings
 from support.procguard import (
     SIGTERM_PATIENCE_S,
-    _cmdline,
     _describe,
     _has_run_mark,
-    _kill_all,
     _live_processes,
     _marked_processes,
     _now_ticks,
@@ -65,212 +62,27 @@ from support.procguard import (
     _terminate,
     _wait_until_gone,
 )
-
-# The test folders mirror the code (unit/<package>, bus, fleet, repo); a test may reuse another
-# test module's helpers by its plain name, whichever folder it is in, so every folder is on the
-# path before any test module is imported (pytest's default import mode adds only a module's own).
-for _folder in sorted(Path(__file__).resolve().parent.glob("**/")):
-    if _folder.name not in {"__pycache__", "support"} and str(_folder) not in sys.path:
-        sys.path.append(str(_folder))
+from support.routers import RouterHandle, launch_router, stop_router
+from support.spawn import SPAWNED_GROUPS, Spawner
 
 if TYPE_CHECKING:
     import zenoh
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
 
 # Hypothesis: no wall-clock limits (a property is not a speed test: next to a CPU hog one example
 # or the data generation can take longer than the 200 ms default deadline), loaded before any
 # test module builds its own settings on top of the default.
 settings.register_profile("formation", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("formation")
-READY_TIMEOUT_S = 15.0  # python start + zenoh import on a loaded 2-core CI box
-ROUTER_READY = "router listening on "
 _ZENOH_FIXTURES = frozenset({"router", "start_router", "session"})
 
-# Process groups created by `spawn`, checked again at the end of the whole run.
-_SPAWNED_GROUPS: set[int] = set()
-
-PARENT_ENV = "FORMATION_PARENT_PID"  # = runtime.lifecycle.PARENT_ENV (tests import no runtime here)
 OUTLIVE_GRACE_S = 5.0
 """How long a process started by a test may take to finish exiting after the test's teardown
 (it was signalled and is on its way out, on a loaded machine) before it counts as left behind."""
 
 
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that the kernel considered free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        port: int = sock.getsockname()[1]
-        return port
-
-
-def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
-    """Environment for a child: the repository importable, unbuffered output, no ZENOH_CONFIG,
-    tied to this pytest (``FORMATION_PARENT_PID``: a ``python -m formation`` child dies with
-    it; the run's mark, inherited from ``os.environ``, lets the guard find it at any depth)."""
-    env = dict(os.environ)
-    env.pop("ZENOH_CONFIG", None)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH", "")) if p)
-    env["PYTHONUNBUFFERED"] = "1"
-    env[PARENT_ENV] = str(os.getpid())
-    if extra:
-        env.update(extra)
-    return env
-
-
 # ---------------------------------------------------------------------------------------------
 # Subprocesses
 # ---------------------------------------------------------------------------------------------
-
-
-class Child:
-    """One spawned process; its stdout/stderr go to files (read with :meth:`stdout`)."""
-
-    def __init__(
-        self,
-        argv: Sequence[str],
-        proc: subprocess.Popen[bytes],
-        stdout_path: Path,
-        stderr_path: Path,
-    ) -> None:
-        self.argv = list(argv)
-        self.proc = proc
-        self.stdout_path = stdout_path
-        self.stderr_path = stderr_path
-
-    @property
-    def pid(self) -> int:
-        return self.proc.pid
-
-    def stdout(self) -> str:
-        return self.stdout_path.read_text(errors="replace")
-
-    def stderr(self) -> str:
-        return self.stderr_path.read_text(errors="replace")
-
-    def describe(self) -> str:
-        return (
-            f"{' '.join(self.argv)} (pid {self.pid}, status {self.proc.returncode})\n"
-            f"--- stdout ---\n{self.stdout()}--- stderr ---\n{self.stderr()}"
-        )
-
-    def wait_for_line(self, prefix: str, timeout_s: float = READY_TIMEOUT_S) -> str:
-        """Wait until a stdout line starts with ``prefix`` and return it.
-
-        Raises ``AssertionError`` (with the child's output) if the child exits first or the line
-        does not come within ``timeout_s``.
-        """
-        deadline = time.monotonic() + timeout_s
-        while True:
-            for line in self.stdout().splitlines():
-                if line.startswith(prefix):
-                    return line
-            if self.proc.poll() is not None:
-                raise AssertionError(f"exited before printing {prefix!r}: {self.describe()}")
-            if time.monotonic() > deadline:
-                raise AssertionError(f"no {prefix!r} within {timeout_s} s: {self.describe()}")
-            time.sleep(0.005)
-
-    def send_signal(self, sig: int) -> None:
-        with contextlib.suppress(ProcessLookupError):
-            self.proc.send_signal(sig)
-
-    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = SIGTERM_PATIENCE_S) -> float:
-        """Send ``sig`` and wait for the exit; return seconds from signal to exit.
-
-        Raises ``subprocess.TimeoutExpired`` if the child is still running after ``timeout_s``.
-        """
-        start = time.monotonic()
-        self.send_signal(sig)
-        self.proc.wait(timeout=timeout_s)
-        return time.monotonic() - start
-
-
-class Spawner:
-    """The ``spawn`` fixture: starts subprocesses and cleans them up (see module docstring)."""
-
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.children: list[Child] = []
-
-    def command(
-        self,
-        argv: Sequence[str],
-        *,
-        ready: str | None = None,
-        env: dict[str, str] | None = None,
-        timeout_s: float = READY_TIMEOUT_S,
-    ) -> Child:
-        """Start ``argv`` (cwd = repository); with ``ready``, wait for a stdout line starting so."""
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        stem = f"child{len(self.children)}"
-        out_path, err_path = self.log_dir / f"{stem}.out", self.log_dir / f"{stem}.err"
-        with open(out_path, "wb") as out, open(err_path, "wb") as err:
-            proc = subprocess.Popen(
-                list(argv),
-                cwd=REPO_ROOT,
-                env=child_env(env),
-                stdin=subprocess.DEVNULL,
-                stdout=out,
-                stderr=err,
-                start_new_session=True,  # own process group: grandchildren can be found
-            )
-        _SPAWNED_GROUPS.add(proc.pid)
-        child = Child(argv, proc, out_path, err_path)
-        self.children.append(child)
-        if ready is not None:
-            child.wait_for_line(ready, timeout_s)
-        return child
-
-    def __call__(
-        self,
-        *formation_args: str,
-        ready: str | None = None,
-        env: dict[str, str] | None = None,
-        timeout_s: float = READY_TIMEOUT_S,
-    ) -> Child:
-        """Start ``python -m formation <formation_args>``."""
-        argv = [sys.executable, "-m", "formation", *formation_args]
-        return self.command(argv, ready=ready, env=env, timeout_s=timeout_s)
-
-    def python(
-        self,
-        code: str,
-        *args: str,
-        ready: str | None = None,
-        env: dict[str, str] | None = None,
-        timeout_s: float = READY_TIMEOUT_S,
-    ) -> Child:
-        """Start ``python -c code args...``."""
-        argv = [sys.executable, "-c", code, *args]
-        return self.command(argv, ready=ready, env=env, timeout_s=timeout_s)
-
-    def cleanup(self) -> list[str]:
-        """Stop every child; return the problems found (empty: all good)."""
-        problems: list[str] = []
-        running = [c for c in self.children if c.proc.poll() is None]
-        for child in running:
-            child.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + SIGTERM_PATIENCE_S
-        for child in running:
-            try:
-                child.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                child.send_signal(signal.SIGKILL)
-                child.proc.wait()
-                problems.append(f"ignored SIGTERM for > {SIGTERM_PATIENCE_S} s: {child.describe()}")
-        groups = {c.pid for c in self.children}
-        deadline = time.monotonic() + 0.5  # let grandchildren already exiting finish
-        while _live_processes(pgrps=groups) and time.monotonic() < deadline:
-            time.sleep(0.02)
-        for child in self.children:
-            leftovers = _live_processes(pgrps={child.pid})
-            if leftovers:
-                desc = ", ".join(f"{p}: {_cmdline(p)}" for p in sorted(leftovers))
-                _kill_all(leftovers)
-                problems.append(f"{' '.join(child.argv)} left processes behind: {desc}")
-            _SPAWNED_GROUPS.discard(child.pid)
-        return problems
 
 
 @pytest.fixture
@@ -290,60 +102,19 @@ def spawn(tmp_path: Path) -> Iterator[Spawner]:
 # ---------------------------------------------------------------------------------------------
 
 
-@dataclass
-class RouterHandle:
-    """A running ``formation router`` subprocess."""
-
-    endpoint: str  # e.g. "tcp/127.0.0.1:40123"
-    port: int
-    child: Child
-
-    @property
-    def proc(self) -> subprocess.Popen[bytes]:
-        return self.child.proc
-
-
-def _start_router(spawn: Spawner, *extra: str, attempts: int = 3) -> RouterHandle:
-    """Start a router on a free port, retrying on the rare port race (another process took it)."""
-    failure = ""
-    for _ in range(attempts):
-        port = free_port()
-        endpoint = f"tcp/127.0.0.1:{port}"
-        child = spawn("router", "--listen", endpoint, *extra)
-        try:
-            child.wait_for_line(ROUTER_READY)
-        except AssertionError as exc:
-            failure = str(exc)
-            if child.proc.poll() is None:
-                raise
-            continue  # exited: most likely the port was taken meanwhile
-        return RouterHandle(endpoint=endpoint, port=port, child=child)
-    raise AssertionError(f"router did not start in {attempts} attempts: {failure}")
-
-
-def _stop_router(handle: RouterHandle) -> None:
-    if handle.proc.poll() is not None:
-        return  # a test stopped or killed it on purpose and checked what it wanted
-    try:
-        handle.child.stop(signal.SIGTERM, SIGTERM_PATIENCE_S)
-    except subprocess.TimeoutExpired:
-        pytest.fail(f"router ignored SIGTERM: {handle.child.describe()}", pytrace=False)
-    assert handle.proc.returncode == 0, handle.child.describe()
-
-
 @pytest.fixture
 def start_router(spawn: Spawner) -> Iterator[Callable[..., RouterHandle]]:
     """Factory: ``start_router(*extra_router_args)`` -> a ready :class:`RouterHandle`."""
     handles: list[RouterHandle] = []
 
     def start(*extra: str) -> RouterHandle:
-        handle = _start_router(spawn, *extra)
+        handle = launch_router(spawn, *extra)
         handles.append(handle)
         return handle
 
     yield start
     for handle in handles:
-        _stop_router(handle)
+        stop_router(handle)
 
 
 @pytest.fixture
@@ -408,7 +179,7 @@ def no_leftover_processes() -> Iterator[None]:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     leftover = _wait_until_gone(
-        lambda: (_live_processes(ppid=me, pgrps=set(_SPAWNED_GROUPS)) - before) | _run_processes(),
+        lambda: (_live_processes(ppid=me, pgrps=set(SPAWNED_GROUPS)) - before) | _run_processes(),
         SIGTERM_PATIENCE_S,
     )
     if leftover:

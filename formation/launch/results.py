@@ -1,19 +1,23 @@
 """What a ``formation up`` run leaves behind: ``metrics.json``, ``run.npz``, the figures, and the
-summary it prints (:func:`write_results`, called by :mod:`formation.launch.launcher` once every
-child
-has stopped), with the run's metadata (:func:`run_meta`)."""
+summary it prints (:func:`finish_run`, called by :mod:`formation.launch.launcher` once every
+child has stopped: the exit status, the run's metadata (:func:`run_meta`) and the outputs
+(:func:`write_results`))."""
 
 from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from typing import Any
+from typing import Any, Final
 
 from formation.launch.children import Child
+from formation.launch.intake import RunIntake
+from formation.launch.journal import RunJournal
 from formation.launch.plan import Plan, UpConfig, UpResult
 from formation.outputs.files import save_npz_atomic, write_metrics
 from formation.outputs.runlog import RunLog
 from runtime.files import os_error_text
+
+EXIT_INTERRUPTED: Final = 130
 
 
 def run_meta(
@@ -148,3 +152,45 @@ def write_results(
         speed = f", {rf:.1f}x real time" if rf else ""
         print(f"{sim_s:.2f} s of {m['meta']['mode']} run{speed}; {wrote} in {out_dir}/")
     return result
+
+
+def finish_run(
+    cfg: UpConfig,
+    plan: Plan,
+    intake: RunIntake,
+    journal: RunJournal,
+    children: Iterable[Child],
+    *,
+    interrupted: bool,
+    wall_s: float,
+    stop_s: float | None,
+) -> UpResult:
+    """The stopped run's result: exit status (1 after a failure, else
+    :data:`EXIT_INTERRUPTED` after a stop signal, else 0), metadata and outputs, from what
+    ``intake``'s collector holds."""
+    run_wall = intake.run_wall_s()
+    code = 1 if journal.failures else (EXIT_INTERRUPTED if interrupted else 0)
+    result = UpResult(
+        exit_code=code,
+        out_dir=plan.out_dir,
+        failures=list(journal.failures),
+        interrupted=interrupted,
+        wall_s=wall_s,
+        run_wall_s=run_wall,
+    )
+    collector = intake.collector
+    first = collector.first_tick
+    if cfg.lockstep and first not in (None, 0):
+        journal.warn(f"the collector joined late: ticks 0..{first - 1} are missing from the log")
+    meta = run_meta(
+        cfg,
+        plan,
+        wall_s=wall_s,
+        run_wall_s=run_wall,
+        stop_s=stop_s,
+        interrupted=interrupted,
+        failures=journal.failures,
+        events=journal.events,
+        children=children,
+    )
+    return write_results(collector.build(meta), cfg, plan, result, run_wall, journal.warn)

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import json
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from support.bus_inbox import Inbox
 
 from bus_schemas import acl, keys
 from bus_schemas.acl import Access, Identity, Kind
@@ -339,34 +339,6 @@ def _client(port: int, files: acl.TlsFiles):  # type: ignore[no-untyped-def]
 def _clients(port: int, fleet, *cns: str) -> list:  # type: ignore[no-untyped-def]
     """A session per certificate name ``cns`` of the run PKI ``fleet``, in order."""
     return [_client(port, fleet.identities[cn].tls()) for cn in cns]
-
-
-class Inbox:
-    """(key, payload) of received samples, thread-safe, with waits."""
-
-    def __init__(self) -> None:
-        self.items: list[tuple[str, bytes, str]] = []
-        self._lock = threading.Lock()
-
-    def __call__(self, sample) -> None:  # type: ignore[no-untyped-def]
-        with self._lock:
-            self.items.append((str(sample.key_expr), sample.payload.to_bytes(), str(sample.kind)))
-
-    def has(self, key: str, payload: bytes | None = None) -> bool:
-        with self._lock:
-            return any(k == key and (payload is None or p == payload) for k, p, _ in self.items)
-
-    def keys(self) -> set[str]:
-        with self._lock:
-            return {k for k, _, _ in self.items}
-
-    def wait(self, key: str, payload: bytes | None = None, timeout_s: float = 5.0) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if self.has(key, payload):
-                return True
-            time.sleep(0.005)
-        return self.has(key, payload)
 
 
 def _prime(session, key: str, inbox: Inbox, timeout_s: float = 5.0) -> None:  # type: ignore[no-untyped-def]

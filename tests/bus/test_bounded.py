@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import RouterHandle
+from support.routers import RouterHandle
 
 import runtime as rt
 from bus_schemas import Truth, Wheels, encode, keys
@@ -51,11 +51,11 @@ def test_realtime_collector_thins_its_history_within_the_bound() -> None:
     assert full.stats()["decimation"] == 1
     st = bounded.stats()
     assert st["decimation"] >= 8  # 30000 values into 2000
-    assert bounded._entries <= 2000
-    stored = sum(len(r) for r in bounded._truth.values()) + sum(
-        len(s.keys) for s in bounded._thinned_series()
+    assert bounded.history.entries <= 2000
+    stored = sum(len(r) for r in bounded.history.truth.values()) + sum(
+        len(s.keys) for s in bounded.history.thinned_series()
     )
-    assert stored == bounded._entries
+    assert stored == bounded.history.entries
     log, ref = bounded.build(), full.build()
     # the whole run is still covered, at a lower time resolution, with the same poses
     stride_s = 0.02 * st["decimation"]

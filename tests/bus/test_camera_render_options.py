@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner, free_port
-from test_node_agent import Recorder, decoder_of
+from support.bus_watch import Recorder, decoder_of
+from support.routers import RouterHandle
+from support.spawn import Spawner, free_port
 
 pytest.importorskip("cv2")
 

@@ -26,7 +26,8 @@ from typing import Any
 import msgpack
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner, _start_router, _stop_router
+from support.routers import RouterHandle, launch_router, stop_router
+from support.spawn import Spawner
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
 
@@ -75,7 +76,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Recording, s
     fleet = f"contract-{uuid.uuid4().hex[:8]}"
     rec = Recording()
     try:
-        router: RouterHandle = _start_router(spawner)
+        router: RouterHandle = launch_router(spawner)
         session = _plain_session(router.endpoint)
         try:
 
@@ -115,7 +116,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Recording, s
         finally:
             session.close()
         yield rec, fleet
-        _stop_router(router)
+        stop_router(router)
     finally:
         problems = spawner.cleanup()
         assert not problems, problems

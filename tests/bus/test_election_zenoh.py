@@ -29,9 +29,10 @@ from collections.abc import Callable
 import msgpack
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner
-from test_node_agent import Recorder, decoder_of
-from test_node_coordinator import FLEET, START, PoseFeeder
+from support.bus_watch import Recorder, decoder_of
+from support.coordinator_io import FLEET, START, PoseFeeder
+from support.routers import RouterHandle
+from support.spawn import Spawner
 
 import runtime as rt
 from bus_schemas import Heartbeat, Leader, encode, keys

@@ -27,8 +27,10 @@ from typing import Any
 import msgpack
 import pytest
 import zenoh
-from conftest import Child, RouterHandle, Spawner
-from test_node_agent import Recorder, decoder_of, setpoint_msg
+from support.agent_io import setpoint_msg
+from support.bus_watch import Recorder, decoder_of
+from support.routers import RouterHandle
+from support.spawn import Child, Spawner
 
 import runtime as rt
 from bus_schemas import (

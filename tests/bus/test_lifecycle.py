@@ -16,8 +16,9 @@ from collections.abc import Callable
 
 import pytest
 import zenoh
-from conftest import Child, RouterHandle, Spawner
 from support.async_wait import wait_until
+from support.routers import RouterHandle
+from support.spawn import Child, Spawner
 
 import runtime as rt
 from runtime.lifecycle import stop_trace

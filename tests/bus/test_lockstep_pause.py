@@ -19,8 +19,8 @@ from typing import Any
 import msgpack
 import pytest
 import zenoh
-from conftest import free_port
-from test_overload import finish, lockstep_result, up
+from support.spawn import free_port
+from support.up_runs import finish_process, lockstep_result, up_process
 
 import runtime as rt
 
@@ -80,11 +80,11 @@ def agent_cmdline(pid: int) -> str:
 
 
 def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -> None:
-    base = up(tmp_path / "pause0", *ARGS)
-    unpaused = lockstep_result(finish(base, tmp_path / "pause0"))
+    base = up_process(tmp_path / "pause0", *ARGS)
+    unpaused = lockstep_result(finish_process(base, tmp_path / "pause0"))
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    run = up(tmp_path / "pause1", *ARGS, endpoint=endpoint)
+    run = up_process(tmp_path / "pause1", *ARGS, endpoint=endpoint)
     watch = Watch(endpoint, "pause1")
     pid: int | None = None
     try:
@@ -107,5 +107,5 @@ def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -
         if pid is not None:
             os.kill(pid, signal.SIGCONT)
         watch.close()
-    paused = lockstep_result(finish(run, tmp_path / "pause1"))
+    paused = lockstep_result(finish_process(run, tmp_path / "pause1"))
     assert paused == unpaused

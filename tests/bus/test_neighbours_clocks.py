@@ -14,8 +14,10 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from conftest import REPO_ROOT, RouterHandle, Spawner
-from test_node_agent import Recorder, decoder_of, setpoint_msg
+from support.agent_io import setpoint_msg
+from support.bus_watch import Recorder, decoder_of
+from support.routers import RouterHandle
+from support.spawn import REPO_ROOT, Spawner
 
 import runtime as rt
 from bus_schemas import (

@@ -11,19 +11,20 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
 
 import pytest
 import zenoh
-from conftest import REPO_ROOT, RouterHandle, Spawner, child_env
+from support.agent_io import FLEET, Feeder, nonzero, setpoint_msg, start_agent
+from support.bus_watch import Recorder, decoder_of
+from support.routers import RouterHandle
+from support.spawn import REPO_ROOT, Spawner, child_env
 
 import runtime as rt
-from bus_schemas import Estop, Pose, Setpoint, Status, Wheels, decode, encode, keys, new_estop_id
+from bus_schemas import Estop, Pose, Status, Wheels, encode, keys, new_estop_id
 from robot_agent.core.params import AgentConfig
 from robot_agent.node.main import main as agent_main
 
@@ -33,153 +34,7 @@ def _ticked(msg, tick):  # type: ignore[no-untyped-def]
     return encode(replace(msg, tick=tick))
 
 
-FLEET = "demo"
 EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of SIGTERM; 0.5 s margin for a loaded CI box
-
-# ---------------------------------------------------------------------------------------------
-# Test-side helpers (shared with test_node_coordinator, test_node_plant, test_hostile_input)
-# ---------------------------------------------------------------------------------------------
-
-
-class Recorder:
-    """Every sample of ``key_expr`` as ``(rx monotonic s, key, decoded)``, in arrival order.
-
-    The callback runs on Zenoh's network thread (``indirect=False``): the receive time is taken
-    as the sample arrives and samples of different keys keep their order.
-    """
-
-    def __init__(
-        self, session: zenoh.Session, key_expr: str, decoder: Callable[[bytes], Any]
-    ) -> None:
-        self.items: list[tuple[float, str, Any]] = []
-        self._decoder = decoder
-        self._lock = threading.Lock()
-        self._sub = session.declare_subscriber(
-            key_expr, zenoh.handlers.Callback(self._on_sample, indirect=False)
-        )
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        rx = time.monotonic()
-        msg = self._decoder(sample.payload.to_bytes())
-        with self._lock:
-            self.items.append((rx, str(sample.key_expr), msg))
-
-    def snapshot(self) -> list[tuple[float, str, Any]]:
-        with self._lock:
-            return list(self.items)
-
-    def clear(self) -> None:
-        with self._lock:
-            self.items.clear()
-
-    def wait_for(
-        self, predicate: Callable[[float, str, Any], bool], timeout_s: float = 5.0
-    ) -> tuple[float, str, Any]:
-        """The first recorded item matching ``predicate`` (waits for it; fails on timeout)."""
-        deadline = time.monotonic() + timeout_s
-        seen = 0
-        while True:
-            items = self.snapshot()
-            for item in items[seen:]:
-                if predicate(*item):
-                    return item
-            seen = len(items)
-            if time.monotonic() > deadline:
-                tail = [m for _, _, m in items[-3:]]
-                raise AssertionError(f"no matching message within {timeout_s} s; last: {tail}")
-            time.sleep(0.002)
-
-
-def decoder_of(cls: Any) -> Callable[[bytes], Any]:
-    """Strict decoder for ``cls`` that fails the test on a bad payload from a node."""
-
-    def dec(data: bytes) -> Any:
-        msg = decode(data, cls)
-        assert not hasattr(msg, "reason"), f"a node published an invalid {cls.__name__}: {msg}"
-        return msg
-
-    return dec
-
-
-class Feeder:
-    """Publishes the agent's inputs every ``period_s`` from a thread: pose (t = monotonic) and
-    setpoint (t = monotonic) built by callables, until stopped."""
-
-    def __init__(
-        self,
-        pubs: rt.Publishers,
-        robot: str,
-        pose: Callable[[], tuple[float, float, float]] | None,
-        setpoint: Callable[[], tuple[float, float]] | None,
-        period_s: float = 0.02,
-    ) -> None:
-        self.pubs = pubs
-        self.robot = robot
-        self.pose = pose
-        self.setpoint = setpoint
-        self.period_s = period_s
-        self.sent_pose_t: list[float] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def __enter__(self) -> Feeder:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-
-    def _run(self) -> None:
-        seq = 0
-        while not self._stop.is_set():
-            seq += 1
-            now = time.monotonic()
-            if self.setpoint is not None:
-                x, y = self.setpoint()
-                self.pubs.put(
-                    keys.setpoint_key(FLEET, self.robot),
-                    encode(setpoint_msg(self.robot, x, y, t=now, seq=seq)),
-                    rt.QOS_CRITICAL,
-                )
-            if self.pose is not None:
-                px, py, pth = self.pose()
-                t = time.monotonic()
-                self.pubs.put(
-                    keys.pose_key(FLEET, self.robot),
-                    encode(Pose(t=t, seq=seq, x=px, y=py, theta=pth, robot=self.robot)),
-                    rt.QOS_CRITICAL,
-                )
-                self.sent_pose_t.append(t)
-            self._stop.wait(self.period_s)
-
-
-def setpoint_msg(
-    robot: str, x: float, y: float, *, t: float, seq: int = 1, slot: int = 1
-) -> Setpoint:
-    """A follower setpoint: the reference point should be at (x, y), not moving."""
-    return Setpoint(
-        t=t,
-        seq=seq,
-        robot=robot,
-        slot=slot,
-        role="leader" if slot == 0 else "follower",
-        stage=0 if slot == 0 else 1,
-        parent=None if slot == 0 else 0,
-        x=x,
-        y=y,
-        theta=0.0,
-        vx=0.0,
-        vy=0.0,
-    )
-
-
-def nonzero(w: Wheels) -> bool:
-    return w.omega_r != 0.0 or w.omega_l != 0.0
-
 
 # ---------------------------------------------------------------------------------------------
 # Fixtures
@@ -195,10 +50,6 @@ def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
 def pubs(client: zenoh.Session) -> Iterator[rt.Publishers]:
     p = rt.Publishers(client)
     yield p
-
-
-def start_agent(spawn: Spawner, router: RouterHandle, *extra: str, robot: str = "r1") -> Any:
-    return spawn("agent", "--id", robot, "--endpoint", router.endpoint, *extra, ready="agent")
 
 
 # ---------------------------------------------------------------------------------------------

@@ -12,13 +12,14 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
 
 import msgpack
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner
-from test_node_agent import Recorder, decoder_of
+from support.bus_watch import Recorder, decoder_of
+from support.lockstep_equality import FLEET, SCENARIO, lockstep_equals_simulate
+from support.routers import RouterHandle
+from support.spawn import Spawner
 
 import runtime as rt
 from bus_schemas import (
@@ -33,7 +34,6 @@ from bus_schemas import (
     keys,
 )
 from scenario import Disturbance as ScheduledDisturbance
-from scenario import load
 
 
 def _ticked(msg, tick):  # type: ignore[no-untyped-def]
@@ -41,8 +41,6 @@ def _ticked(msg, tick):  # type: ignore[no-untyped-def]
     return encode(replace(msg, tick=tick))
 
 
-FLEET = "demo"
-SCENARIO = load("paper-exp2")
 STATUS_KEY = f"formation/{FLEET}/plant/status"
 
 
@@ -226,104 +224,6 @@ def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
     del tokens
 
 
-def _lockstep_equals_simulate(
-    scenario: Any, duration: float, *, hosts: bool = False
-) -> dict[str, Any]:
-    """Plant, coordinator and agents (or one agent host) wired through an in-memory bus (every
-    message encoded and decoded, delivered in publication order, as Zenoh does within one
-    priority) run the lockstep protocol; asserts the wheel commands and the truth equal
-    ``formation.sim.simulate.run``'s exactly. Returns what the test may look at further."""
-    import asyncio
-
-    from bus_schemas import TruthBatch, WheelsBatch, decode
-    from coordinator.node.coordinator import CoordinatorNode
-    from formation.sim.simulate import run
-    from robot_agent.node.agent import AgentNode
-    from robot_agent.node.host import HostNode
-    from sim_plant.node.plant import PlantNode
-
-    routes: list[tuple[Callable[[str], bool], Callable[[rt.Received], None]]] = []
-    wheels: dict[tuple[int, str], tuple[float, float]] = {}
-    truth: dict[tuple[float, str], tuple[float, float, float]] = {}
-    clocks: list[Clock] = []
-
-    def publish(key: str, payload: bytes, qos: rt.QoS) -> None:
-        if key.endswith("/wheels") and "/host/" in key:
-            b = decode(payload, WheelsBatch)
-            assert isinstance(b, WheelsBatch) and b.tick is not None
-            for rid, pr, pl in zip(b.robots, b.power_r, b.power_l, strict=True):
-                wheels[(b.tick, rid)] = (pr, pl)
-        elif key.endswith("/wheels"):
-            w = decode(payload, Wheels)
-            assert isinstance(w, Wheels) and w.tick is not None
-            wheels[(w.tick, key.split("/")[3])] = (w.power_r, w.power_l)
-        elif key.endswith("/truth"):
-            tr = decode(payload, Truth)
-            assert isinstance(tr, Truth) and tr.robot is not None
-            truth[(tr.t, tr.robot)] = (tr.x, tr.y, tr.theta)
-        elif key == keys.truths_key(FLEET):
-            tb = decode(payload, TruthBatch)
-            assert isinstance(tb, TruthBatch)
-            for rid, x, y, th in zip(tb.robots, tb.x, tb.y, tb.theta, strict=True):
-                truth[(tb.stamp, rid)] = (x, y, th)
-        elif key.endswith("/clock"):
-            c = decode(payload, Clock)
-            assert isinstance(c, Clock)
-            clocks.append(c)
-        for match, handler in routes:
-            if match(key):
-                handler(rt.Received(key, payload, time.monotonic()))
-
-    plant = PlantNode(scenario, FLEET, publish, lockstep=True, duration_s=duration, batch=hosts)
-    coord = CoordinatorNode(scenario, "main", FLEET, publish, lockstep=True, batch=hosts)
-    if hosts:
-        host = HostNode("h1", plant.ids, FLEET, scenario.agent, publish, lockstep=True)
-        routes.append(
-            (lambda k: k.endswith("/wheels") and "/host/" in k, plant.inputs.on_host_wheels)
-        )
-        routes.append((host.setpoints_key.__eq__, host.on_setpoints))
-        routes.append((host.poses_key.__eq__, host.on_poses))
-        routes.append((host.clock_key.__eq__, host.on_clock))
-    else:
-        agents = [AgentNode(r, FLEET, scenario.agent, publish, lockstep=True) for r in plant.ids]
-        routes.append((lambda k: k.endswith("/wheels"), plant.inputs.on_wheels))
-        for a in agents:
-            for key, handler in (
-                (a.setpoint_key, a.on_setpoint),
-                (a.poses_key, a.on_poses),
-                (a.pose_key, a.on_pose),
-                (a.clock_key, a.on_clock),
-            ):
-                routes.append((key.__eq__, handler))
-    routes.append((lambda k: k == plant.leader_key, plant.inputs.on_leader))
-    if hosts:
-        routes.append((lambda k: k == plant.outputs.poses_key, coord.on_poses))
-    else:
-        routes.append((lambda k: k.endswith("/pose"), coord.on_pose))
-    routes.append((lambda k: k == coord.clock_key, coord.on_clock))
-    for rid in plant.ids:
-        plant.inputs.on_alive_robot(keys.alive_robot_key(FLEET, rid), True)
-        coord.on_alive(keys.alive_robot_key(FLEET, rid), True)
-    plant.inputs.on_alive_coordinator(keys.alive_coordinator_key(FLEET, "main"), True)
-
-    assert asyncio.run(plant.run_lockstep(asyncio.Event())) is True
-    assert plant.timeouts == 0 and plant.faults.rejected == coord.rejected == 0
-
-    res = run(scenario, duration_s=duration)
-    log = res.log
-    ticks = round(duration / scenario.dt_s) + 1
-    assert len(wheels) == ticks * len(plant.ids)
-    for (k, rid), power in wheels.items():
-        j = plant.ids.index(rid)
-        assert power == (log.power[k, j, 0], log.power[k, j, 1]), (k, rid)
-    assert len(truth) == ticks * len(plant.ids)  # lockstep: truth at every tick
-    for (t, rid), pose in truth.items():
-        k, j = round(t / scenario.dt_s), plant.ids.index(rid)
-        assert pose == tuple(log.truth[k, j]), (t, rid)
-    firmwares = [] if hosts else [a.firmware for a in agents]
-    return {"clocks": clocks, "result": res, "ids": plant.ids, "firmwares": firmwares}
-
-
 def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> None:
     """The lockstep protocol over the shells equals ``formation.sim.simulate.run`` exactly. (The
     same holds over a real router: ``formation up --lockstep``.) The clocks relay which robots
@@ -331,7 +231,7 @@ def test_the_three_shells_reproduce_the_in_process_simulator_bit_for_bit() -> No
     # The scenario's drag comes at 30 s; one at 0.3 s exercises the scheduled disturbances.
     drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
     scenario = SCENARIO.with_overrides(disturbances=(drag,))
-    got = _lockstep_equals_simulate(scenario, 1.0)
+    got = lockstep_equals_simulate(scenario, 1.0)
     relayed = [c.tracking for c in got["clocks"]]
     assert relayed[0] == ()  # nobody answered a tick before clock 0
     assert any(set(r or ()) == set(got["ids"]) for r in relayed)  # everyone tracking later
@@ -351,7 +251,7 @@ def test_lockstep_equals_the_simulator_with_the_estimator_and_camera_latency() -
         camera=replace(SCENARIO.camera, latency_s=0.06),
         disturbances=(drag, loss),
     )
-    got = _lockstep_equals_simulate(scenario, 1.2)
+    got = lockstep_equals_simulate(scenario, 1.2)
     status = got["result"].firmware_status
     assert all(s["mode"] == "tracking" for s in status.values()), status  # rode through
 
@@ -359,4 +259,4 @@ def test_lockstep_equals_the_simulator_with_the_estimator_and_camera_latency() -
 def test_lockstep_agent_host_equals_the_simulator_bit_for_bit() -> None:
     """The same with one agent host running every robot (batched poses, setpoints, wheels)."""
     drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
-    _lockstep_equals_simulate(SCENARIO.with_overrides(disturbances=(drag,)), 1.0, hosts=True)
+    lockstep_equals_simulate(SCENARIO.with_overrides(disturbances=(drag,)), 1.0, hosts=True)

@@ -12,9 +12,9 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import free_port
 from hypothesis import given
 from hypothesis import strategies as st
+from support.spawn import free_port
 
 import runtime as rt
 from bus_schemas.ros2 import msgs, rmw

@@ -12,8 +12,9 @@ from collections.abc import Callable, Iterator
 import msgpack
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner
-from test_live_foxglove import FLEET, FleetPublisher
+from support.foxglove_fleet import FLEET, FleetPublisher
+from support.routers import RouterHandle
+from support.spawn import Spawner
 
 from bus_schemas import (
     Assignment,

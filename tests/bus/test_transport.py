@@ -22,8 +22,9 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import Child, RouterHandle, Spawner, free_port
 from support.async_wait import wait_until
+from support.routers import RouterHandle
+from support.spawn import Child, Spawner, free_port
 
 import runtime as rt
 

@@ -8,13 +8,14 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import free_port
-from test_acl import FLEET, Inbox
+from support.bus_inbox import Inbox
+from support.spawn import free_port
 
 from bus_schemas import acl, keys
 from bus_schemas.acl import Identity, Kind
 
 REPO = Path(__file__).resolve().parents[2]
+FLEET = "demo"
 
 
 # ---------------------------------------------------------------------- a local run, processes
@@ -28,7 +29,7 @@ def test_authenticated_local_run_processes(tmp_path: Path, spawn) -> None:  # ty
     arrives, it tracks the coordinator's setpoint from the localization's poses), and setpoints
     that robot r2's certificate forges for r1 never reach it (its own receive counter)."""
     import zenoh
-    from test_node_agent import setpoint_msg
+    from support.agent_io import setpoint_msg
 
     from bus_schemas import Pose, Status, decode, encode
     from formation.launch.pki import write_run_configs

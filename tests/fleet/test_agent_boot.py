@@ -21,7 +21,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import ROUTER_READY, Spawner, free_port
+from support.routers import ROUTER_READY
+from support.spawn import Spawner, free_port
 
 from robot_agent.motors.emulator import RoboClawEmulator
 

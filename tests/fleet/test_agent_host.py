@@ -25,7 +25,8 @@ from typing import Any
 import msgpack
 import numpy as np
 import pytest
-from conftest import RouterHandle, Spawner, free_port
+from support.routers import RouterHandle
+from support.spawn import Spawner, free_port
 
 import runtime as rt
 from bus_schemas import (

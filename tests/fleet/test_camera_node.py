@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner
-from test_node_agent import Recorder, decoder_of
+from support.bus_watch import Recorder, decoder_of
+from support.routers import RouterHandle
+from support.spawn import Spawner
 
 pytest.importorskip("cv2")
 
@@ -190,7 +191,7 @@ def test_systemd_unit_verifies(tmp_path: Path) -> None:
     import os
     import subprocess
 
-    from conftest import REPO_ROOT
+    from support.spawn import REPO_ROOT
 
     analyze = "/usr/bin/systemd-analyze"
     if not os.access(analyze, os.X_OK):

@@ -8,8 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from conftest import Spawner
-from test_up import finish, up
+from support.spawn import Spawner
+from support.up_runs import finish, up
 
 pytest.importorskip("cv2")
 

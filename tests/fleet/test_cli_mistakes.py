@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import REPO_ROOT, child_env
+from support.spawn import REPO_ROOT, child_env
 
 from formation import cli
 from formation.cli import EXAMPLES, SUBCOMMANDS

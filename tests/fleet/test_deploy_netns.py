@@ -54,7 +54,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import REPO_ROOT, Spawner
 from support.deploy_hosts import (
     CAMERA_SIZE,
     DEPLOY,
@@ -73,6 +72,7 @@ from support.deploy_hosts import (
     shipped_zenoh,
 )
 from support.netns import ip
+from support.spawn import REPO_ROOT, Spawner
 
 import runtime as rt
 from bus_schemas import (

@@ -20,10 +20,11 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from conftest import REPO_ROOT, RouterHandle, Spawner, child_env
+from support.agent_io import FLEET, start_agent
+from support.estop_checks import rejecting_source
+from support.routers import RouterHandle
 from support.small_fs import fill, free, read_only, small_fs
-from test_estop_identity import _rejecting_source
-from test_node_agent import FLEET, start_agent
+from support.spawn import REPO_ROOT, Spawner, child_env
 
 import runtime as rt
 from bus_schemas import CoordinatorStatus, Estop, decode_or_raise, encode, keys
@@ -48,7 +49,7 @@ def test_a_full_then_read_only_disk_is_a_fault_that_refuses_releases(tmp_path: P
     with small_fs(tmp_path / "disk") as disk:
         rejects: list[str] = []
         logged: list[str] = []
-        source = _rejecting_source(rejects)
+        source = rejecting_source(rejects)
         path = disk / "estop.msgpack"
         store = source.store = EstopStore(path, "demo", logged.append)
         try:

@@ -26,10 +26,13 @@ from dataclasses import replace
 import msgpack
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from test_node_agent import FLEET, Feeder, Recorder, decoder_of, nonzero, start_agent
+from support.agent_io import FLEET, Feeder, nonzero, start_agent
+from support.bus_watch import Recorder, decoder_of
+from support.estop_checks import answer_of, assert_stopped, rejecting_source
+from support.routers import RouterHandle
+from support.spawn import Spawner
 
 import runtime as rt
 from bus_schemas import (
@@ -41,12 +44,10 @@ from bus_schemas import (
     Wheels,
     decode,
     decode_estop_answer,
-    decode_or_raise,
     encode,
     keys,
     new_estop_id,
 )
-from coordinator.node.estop_source import EstopSource
 from robot_agent.core.estop import MAX_IDS, MAX_LATCHED, MAX_RELEASED, NO_ID, EstopLatch
 from robot_agent.core.params import AgentConfig
 from robot_agent.node.agent import AgentNode
@@ -213,16 +214,6 @@ def test_a_duplicated_id_key_is_rejected() -> None:
     assert isinstance(err, DecodeError) and err.reason == Reason.DUPLICATE_KEY, err
 
 
-def _rejecting_source(rejects: list[str]) -> EstopSource:
-    return EstopSource(
-        "formation/demo/estop",
-        lambda: 1.0,
-        lambda what, why, reason=None: rejects.append(f"{what}: {why}"),
-        lambda where, exc: rejects.append(f"internal {where}: {exc!r}"),
-        rt.NodeLog("test"),
-    )
-
-
 def test_absurd_release_records_are_rejected_and_counted_everywhere() -> None:
     bad = [
         msgpack.packb({"v": 1, "t": 2.0, "engage": False, "robot": "r1", "id": 0}),
@@ -259,14 +250,14 @@ def test_absurd_release_records_are_rejected_and_counted_everywhere() -> None:
     assert host.rejected == 3
     # a coordinator learning from the others
     rejects: list[str] = []
-    source = _rejecting_source(rejects)
+    source = rejecting_source(rejects)
     source.on_state([*bad, good])
     assert len(rejects) == 3 and all(r.startswith("estop_state: ") for r in rejects), rejects
 
 
 def test_the_coordinator_answers_with_ids_and_its_release_record() -> None:
     rejects: list[str] = []
-    source = _rejecting_source(rejects)
+    source = rejecting_source(rejects)
 
     def put(msg: Estop) -> None:
         source.on_estop(rt.Received("formation/demo/estop", encode(msg), 1.0))
@@ -277,7 +268,7 @@ def test_the_coordinator_answers_with_ids_and_its_release_record() -> None:
     got = decode_estop_answer(source.answer, lambda e: rejects.append(str(e)))
     assert got == [(False, None, None), (True, "r2", 8), (False, None, 9)]
     # a respawned coordinator learns both the engagement and the record from this one
-    respawned = _rejecting_source(rejects)
+    respawned = rejecting_source(rejects)
     respawned.on_state(source.answer)
     assert respawned.answer == source.answer and not rejects
 
@@ -432,44 +423,6 @@ def test_a_coordinator_that_saw_everything_brings_the_agent_to_the_truth(
 
 
 # --- end to end: a real agent, a real coordinator started after the e-stop --------------------
-
-
-def assert_stopped(
-    wheels: Recorder,
-    status: Recorder,
-    t0: float,
-    t1: float,
-    *,
-    min_wheels: int,
-    min_status: int,
-) -> None:
-    """Between receive times ``t0`` and ``t1`` the agent published wheels and status (at least
-    that many), every wheel command zero and every status in mode ESTOP."""
-    held_wheels = [w for r, _k, w in wheels.snapshot() if t0 < r < t1]
-    held_status = [s for r, _k, s in status.snapshot() if t0 < r < t1]
-    assert len(held_wheels) > min_wheels and len(held_status) >= min_status
-    moving = [w for w in held_wheels if nonzero(w)]
-    assert not moving, f"{len(moving)} non-zero wheels without a release: {moving[:3]}"
-    assert {s.mode for s in held_status} == {"estop"}
-
-
-def answer_of(
-    client: zenoh.Session,
-    key: str,
-    ok: Callable[[list[Estop]], bool],
-    timeout_s: float = 5.0,
-) -> list[Estop]:
-    """The answer on ``key`` once ``ok`` says it is the expected one (a queryable declared just
-    before a process said "ready" may reach the router after the test's first query: a
-    starved process sends its declarations late)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        answer = [decode_or_raise(p, Estop) for p in get_all(client, key, 1.0)]
-        if ok(answer):
-            return answer
-        if time.monotonic() > deadline:
-            pytest.fail(f"{key}: {answer}")
-        time.sleep(0.05)
 
 
 def _held(client: zenoh.Session, name: str, want: list[Estop]) -> None:

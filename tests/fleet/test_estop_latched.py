@@ -16,8 +16,8 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from conftest import child_env
 from support.fault_fleet import Fleet, fleet_fixture, formed, until
+from support.spawn import child_env
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 

@@ -25,12 +25,14 @@ from pathlib import Path
 import msgpack
 import pytest
 import zenoh
-from conftest import REPO_ROOT, RouterHandle, Spawner
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_estop_identity import _rejecting_source as _source
-from test_estop_identity import answer_of, assert_stopped
-from test_node_agent import FLEET, Feeder, Recorder, decoder_of, nonzero, start_agent
+from support.agent_io import FLEET, Feeder, nonzero, start_agent
+from support.bus_watch import Recorder, decoder_of
+from support.estop_checks import answer_of, assert_stopped
+from support.estop_checks import rejecting_source as _source
+from support.routers import RouterHandle
+from support.spawn import REPO_ROOT, Spawner
 
 import runtime as rt
 from bus_schemas import (

@@ -29,8 +29,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import Spawner, free_port
 from support.fault_fleet import SCENARIO, Fleet, Observer, fleet_fixture, until, wait_formed
+from support.spawn import Spawner, free_port
 
 from bus_schemas import Assignment, Heartbeat, Wheels
 from formation.testing import FleetRun

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import Child, Spawner, free_port
+from support.spawn import Child, Spawner, free_port
 
 import scenario
 from coordinator.core.coordinator import CoordinatorCore

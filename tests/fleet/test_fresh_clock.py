@@ -20,7 +20,7 @@ import uuid
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, Spawner, child_env, free_port
+from support.spawn import REPO_ROOT, Spawner, child_env, free_port
 
 FRESH_CLOCK_S = 2
 """Where the namespace's monotonic and boot clocks start (s)."""

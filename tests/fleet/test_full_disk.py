@@ -19,8 +19,8 @@ import uuid
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, Spawner, child_env, free_port
 from support.small_fs import fill, read_only, small_fs
+from support.spawn import REPO_ROOT, Spawner, child_env, free_port
 
 from bus_schemas import Pose, encode, keys
 from formation.record.writer import Recorder

@@ -44,9 +44,9 @@ from dataclasses import dataclass, field
 
 import pytest
 import zenoh
-from conftest import Child, Spawner
 from support.fault_fleet import Observer, until
 from support.netns import add_namespace_or_skip, delete_namespaces, ip, skip_unless_root_with_ip
+from support.spawn import Child, Spawner
 
 from bus_schemas import Assignment, Status, keys
 

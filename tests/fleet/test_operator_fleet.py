@@ -27,8 +27,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import Spawner
 from support.fault_fleet import SCENARIO, Fleet, Observer, formed, until, wait_formed
+from support.spawn import Spawner
 
 from coordinator.core.leader import DEADMAN_S, LeaderConfig
 from scenario.load import parse
@@ -46,7 +46,7 @@ class OperatorFleet(Fleet):
     """The fault fleet with a leader that waits for its team."""
 
     def __init__(self, spawner: Spawner, tmp: Path) -> None:
-        from conftest import free_port
+        from support.spawn import free_port
 
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.fleet = "operator"
@@ -134,7 +134,7 @@ def _shape(fleet: OperatorFleet, kind: str) -> None:
     import subprocess
     import sys
 
-    from conftest import child_env
+    from support.spawn import child_env
 
     proc = subprocess.run(
         [sys.executable, "-m", "formation", "shape", kind, "--endpoint", fleet.endpoint,

@@ -19,9 +19,9 @@ from typing import Any
 
 import msgpack
 import pytest
-from conftest import Spawner
+from support.fault_fleet import Fleet as _BaseFleet
 from support.fault_fleet import fleet_fixture, formed, until
-from test_estop_latched import Fleet as _BaseFleet
+from support.spawn import Spawner
 
 import runtime as rt
 from formation.operate.fuzz import fuzz_plan, payloads_for

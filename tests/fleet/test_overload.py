@@ -21,38 +21,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import child_env, free_port
+from support.spawn import child_env, free_port
+from support.up_runs import finish_process, lockstep_result, up_process
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
 HOGS = 2 * (os.cpu_count() or 2)
-
-
-def up(out: Path, *args: str, endpoint: str | None = None) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [
-            sys.executable, "-m", "formation", "up", "--scenario", "paper-exp1",
-            "--endpoint", endpoint or f"tcp/127.0.0.1:{free_port()}", "--fleet", out.name,
-            "--out", str(out), "--no-figures", "--quiet", "--ready-timeout", "60", *args,
-        ],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=child_env(),
-    )  # fmt: skip
-
-
-def finish(proc: subprocess.Popen[str], out: Path) -> dict[str, Any]:
-    """The run's metrics; the launcher must exit 0: every child stopped within its bound (2 s
-    after SIGTERM) under the hog too (runtime.lifecycle.exit_fast)."""
-    _, stderr = proc.communicate(timeout=200)
-    assert proc.returncode == 0, stderr[-2000:]
-    assert (out / "metrics.json").exists(), stderr[-2000:]
-    metrics: dict[str, Any] = json.loads((out / "metrics.json").read_text())
-    return metrics
-
-
-def lockstep_result(m: dict[str, Any]) -> dict[str, Any]:
-    """What a lockstep run decides (no wall-clock field)."""
-    run = {k: v for k, v in m["run"].items() if k != "duration_s"}
-    return {"run": run, "robots": m["robots"]}
 
 
 def wait_running(endpoints: dict[str, str], timeout_s: float = 120.0) -> None:
@@ -92,11 +66,11 @@ def wait_running(endpoints: dict[str, str], timeout_s: float = 120.0) -> None:
 
 
 def test_fleets_next_to_a_cpu_hog(tmp_path: Path) -> None:
-    base = up(tmp_path / "lockstep0", "--lockstep", "--duration", "30")
-    unloaded = lockstep_result(finish(base, tmp_path / "lockstep0"))
+    base = up_process(tmp_path / "lockstep0", "--lockstep", "--duration", "30")
+    unloaded = lockstep_result(finish_process(base, tmp_path / "lockstep0"))
     endpoints = {f: f"tcp/127.0.0.1:{free_port()}" for f in ("realtime", "lockstep1")}
-    realtime = up(tmp_path / "realtime", "--duration", "20", endpoint=endpoints["realtime"])
-    lockstep = up(
+    realtime = up_process(tmp_path / "realtime", "--duration", "20", endpoint=endpoints["realtime"])
+    lockstep = up_process(
         tmp_path / "lockstep1", "--lockstep", "--duration", "30", endpoint=endpoints["lockstep1"]
     )
     hogs: list[subprocess.Popen[bytes]] = []
@@ -106,8 +80,8 @@ def test_fleets_next_to_a_cpu_hog(tmp_path: Path) -> None:
             subprocess.Popen([sys.executable, "-c", "while True: pass"], env=child_env())
             for _ in range(HOGS)
         ]
-        rt_metrics = finish(realtime, tmp_path / "realtime")
-        loaded = lockstep_result(finish(lockstep, tmp_path / "lockstep1"))
+        rt_metrics = finish_process(realtime, tmp_path / "realtime")
+        loaded = lockstep_result(finish_process(lockstep, tmp_path / "lockstep1"))
     finally:
         for h in hogs:
             h.send_signal(signal.SIGKILL)

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, child_env
+from support.spawn import REPO_ROOT, child_env
 
 pytestmark = pytest.mark.slow
 
@@ -35,7 +35,7 @@ globals().update({{k: v for k, v in vars(mod).items() if not k.startswith("__")}
 PROBE = """
 import os, subprocess, sys, time
 from pathlib import Path
-from suite_conftest import child_env
+from support.spawn import child_env
 
 PIDS = Path(os.environ["PROBE_PIDS"])
 SLEEP = [sys.executable, "-c", "import time; time.sleep(600)"]

@@ -17,10 +17,10 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner, free_port
 from mcap.reader import make_reader
-from test_bus_json_schema import schema_errors
-from test_record_report import DT, FLEET
+from support.json_schema import schema_errors
+from support.routers import RouterHandle
+from support.spawn import Spawner, free_port
 
 import runtime as rt
 from bus_schemas import Pose, encode, keys, message_type_for_key
@@ -28,6 +28,8 @@ from formation.record import report as report_mod
 from formation.record.command import READY_PREFIX, start_recorder
 from runtime.tap import BusItem, BusTap
 
+FLEET = "demo"
+DT = 0.02
 BLOCK = zenoh.CongestionControl.BLOCK
 
 EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of SIGINT; 0.5 s margin for a loaded CI box
@@ -169,8 +171,8 @@ def test_lockstep_end_of_run_waits_for_the_final_ticks_answers_not_a_time() -> N
     leader of that tick and every live robot's wheels answering it, however late they come (on
     a starved machine the answers trail the truth); a robot whose token is gone is not waited
     for (the plant went on without it)."""
-    from test_up import FLEET as UP_FLEET
-    from test_up import bus_messages
+    from support.run_traffic import FLEET as UP_FLEET
+    from support.run_traffic import bus_messages
 
     import scenario
     from formation.record.collector import RunCollector

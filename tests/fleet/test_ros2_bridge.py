@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import free_port
+from support.spawn import free_port
 
 from bus_schemas import CmdVel, Estop, Goal, Leader, Pose, PoseBatch, Slot, decode, encode, keys
 from bus_schemas.errors import DecodeError

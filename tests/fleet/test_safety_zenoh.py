@@ -22,8 +22,8 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import Spawner, free_port
 from support.fault_fleet import Observer, fault, until
+from support.spawn import Spawner, free_port
 
 from coordinator.core.formation import FormationSpec, slot_states
 from coordinator.core.trajectory import make_trajectory

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import Child, Spawner, child_env, free_port
+from support.spawn import Child, Spawner, child_env, free_port
 
 import runtime as rt
 from bus_schemas import Disturbance, Estop, Pose, Setpoint, Status, decode, encode, keys

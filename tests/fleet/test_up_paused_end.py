@@ -18,7 +18,7 @@ import uuid
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, Spawner, child_env, free_port
+from support.spawn import REPO_ROOT, Spawner, child_env, free_port
 
 import runtime as rt
 from bus_schemas import keys

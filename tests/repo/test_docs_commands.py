@@ -24,7 +24,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, child_env, free_port
+from support.spawn import REPO_ROOT, child_env, free_port
 
 pytestmark = pytest.mark.timeout(900)
 

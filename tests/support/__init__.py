@@ -1,1 +1,22 @@
-"""Shared test support (fixtures live in tests/conftest.py)."""
+"""Shared test support: every helper more than one test file uses, by concern (the fixtures
+live in tests/conftest.py). A test file imports ``support.<module>``, never another test file
+(tests/repo/test_tests_layout.py); tests/ is on pytest's ``pythonpath`` (pyproject.toml).
+
+Processes and the bus: ``spawn`` (subprocesses, free ports, a child's environment), ``routers``
+(``formation router`` on loopback), ``procguard`` (nothing a test starts outlives it),
+``bus_watch`` (record and strictly decode a key expression), ``bus_inbox`` (received samples
+with waits), ``bus_samples`` (one valid message per type), ``async_wait``.
+
+Nodes and runs: ``agent_io`` (drive one agent), ``coordinator_io`` (drive a coordinator),
+``lockstep_equality`` (lockstep over Zenoh against the in-process simulator), ``up_runs``
+(whole ``formation up`` runs), ``run_traffic`` (an in-process run as bus traffic, for the
+collector), ``fault_fleet`` (the realtime fleet faults are injected into), ``estop_checks``,
+``foxglove_fleet`` (traffic for the live view and its protobuf frames), ``json_schema``.
+
+Cores: ``firmware_cases`` (the firmware's config, hostile numbers, one step),
+``safety_cases`` and ``safety_runs`` (the safety filter's robot and closed loops),
+``synthetic_logs`` (a run log for figures and metrics).
+
+Hosts and devices: ``netns``, ``deploy_hosts``, ``deploy_world``, ``small_fs``,
+``roboclaw_emulator``, ``ros2_base``, ``ros2_reference``, ``ros2_sdk_client``.
+"""

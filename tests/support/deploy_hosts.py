@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from conftest import REPO_ROOT, Child, Spawner
 
 from support.netns import add_namespace_or_skip, delete_namespaces, ip, skip_unless_root_with_ip
+from support.spawn import REPO_ROOT, Child, Spawner
 
 ROBOTS = ("r1", "r2", "r3")
 DEPLOY = REPO_ROOT / "deploy"
@@ -203,7 +203,7 @@ def in_ns(
 def formation_in_ns(
     ns: str, *args: str, timeout_s: float = 30.0
 ) -> subprocess.CompletedProcess[str]:
-    from conftest import child_env
+    from support.spawn import child_env
 
     return subprocess.run(
         ["ip", "netns", "exec", ns, sys.executable, "-m", "formation", *args],

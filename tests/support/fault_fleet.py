@@ -26,10 +26,10 @@ from typing import Any
 
 import msgpack
 import pytest
-from conftest import Spawner, free_port
 
 import runtime as rt
 from bus_schemas import Assignment, Heartbeat, Leader, Slot, Status, Truth, Wheels, decode, keys
+from support.spawn import Spawner, free_port
 
 SCENARIO = """\
 name = "faults"
@@ -169,7 +169,7 @@ def fault(endpoint: str, fleet: str, *args: str) -> tuple[str, float]:
     """Run ``formation fault`` and return its line and the action's time.monotonic()."""
     import subprocess
 
-    from conftest import child_env
+    from support.spawn import child_env
 
     proc = subprocess.run(
         [

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, child_env
+from support.spawn import REPO_ROOT, child_env
 
 import scenario as scenario_mod
 from formation.outputs import metrics

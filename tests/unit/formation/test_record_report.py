@@ -19,7 +19,7 @@ import msgpack
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from test_bus_json_schema import schema_errors
+from support.json_schema import schema_errors
 
 from bus_schemas import (
     Assignment,

@@ -20,14 +20,8 @@ from dataclasses import replace
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from test_safety_closed_loop import (
-    NOISY,
-    SENSING,
-    _static,
-    closed_loop,
-    random_starts_run,
-)
-from test_safety_filter import CFG, TOUCH, L
+from support.safety_cases import CFG, TOUCH, L
+from support.safety_runs import NOISY, SENSING, closed_loop, random_starts_run, static_goals
 
 from robot_agent.core.params import AgentConfig, SafetyFilterParams
 from robot_agent.core.safety_filter import Neighbour, SafetyFilter
@@ -279,7 +273,7 @@ def test_closed_loops_with_the_plane(sensing: dict[str, float]) -> None:
     with the plane on: no contact, everyone arrives."""
     out = closed_loop(
         [(-0.8, 0.0, 0.0), (0.8, 0.0, math.pi)],
-        _static([(0.8 + L, 0.0), (-0.8 - L, 0.0)]),
+        static_goals([(0.8 + L, 0.0), (-0.8 - L, 0.0)]),
         40.0,
         sensing,
         cfg=SHARED,
@@ -311,7 +305,7 @@ def test_a_robot_carried_while_tracking_breaks_its_side_and_the_others_make_way(
     goals = [(-0.6 + 0.4 * i + L, 0.0) for i in range(4)] + [(-0.4, -1.0 + L)]
     initial = [(-0.6 + 0.4 * i, 0.0, 0.0) for i in range(4)] + [(-0.4, -1.0, math.pi / 2)]
     out = closed_loop(
-        initial, _static(goals), 30.0, sensing, cfg=SHARED, drag=(4, 2.0, 0.0, 2.0, 20.0)
+        initial, static_goals(goals), 30.0, sensing, cfg=SHARED, drag=(4, 2.0, 0.0, 2.0, 20.0)
     )
     assert out.min_sep >= TOUCH + 0.03, out.min_sep
     assert max(out.errs[:4]) < 0.05, out.errs
@@ -384,10 +378,10 @@ def test_lockstep_with_the_plane_equals_the_simulator() -> None:
     the lockstep agents equal ``formation.sim.simulate.run`` bit for bit with it binding. (The
     lockstep agents' filters count the plane constraints in reach, ``SafetyFilter.plane_use``:
     a spy patched onto the class would not see the calls of the compiled core.)"""
-    from test_node_plant import _lockstep_equals_simulate
+    from support.lockstep_equality import lockstep_equals_simulate
 
     scenario = _anchor_in_formation()
-    got = _lockstep_equals_simulate(scenario, 1.5)
+    got = lockstep_equals_simulate(scenario, 1.5)
     bound = sum(fw.safety_filter.plane_use[1] for fw in got["firmwares"])
     assert bound > 10, bound
 
@@ -397,7 +391,7 @@ def test_lockstep_with_the_plane_a_lost_camera_and_a_drag_equals_the_simulator()
     fall back to the inflated barrier together, and back to the plane together) and r1 carried
     while TRACKING: still bit for bit, and both kinds of pair were used (counted by the lockstep
     agents' filters, ``SafetyFilter.plane_use``)."""
-    from test_node_plant import _lockstep_equals_simulate
+    from support.lockstep_equality import lockstep_equals_simulate
 
     from scenario import Disturbance
 
@@ -405,7 +399,7 @@ def test_lockstep_with_the_plane_a_lost_camera_and_a_drag_equals_the_simulator()
     loss = Disturbance(t_s=0.3, robot="r2", kind="camera_loss", duration_s=0.4)
     drag = Disturbance(t_s=0.9, robot="r1", kind="drag", dx=-0.05, duration_s=0.3)
     scenario = base.with_overrides(disturbances=(loss, drag))  # type: ignore[attr-defined]
-    got = _lockstep_equals_simulate(scenario, 1.5)
+    got = lockstep_equals_simulate(scenario, 1.5)
     uses = [fw.safety_filter.plane_use for fw in got["firmwares"]]
     used = {"plane": sum(u[0] for u in uses), "inflated": sum(u[2] for u in uses)}
     assert used["plane"] > 10 and used["inflated"] > 10, used
@@ -416,6 +410,6 @@ def test_lockstep_through_a_reassignment_with_the_plane_equals_the_simulator() -
     coordinator reassigns the slots and the robots cross the formation at full wheel speed, with
     saturated wheels rescaled to stay admissible (a rescale used to round a wheel power to
     1 + 2e-16, an invalid wheels message that stopped the agent: firmware.py now clamps it)."""
-    from test_node_plant import _lockstep_equals_simulate
+    from support.lockstep_equality import lockstep_equals_simulate
 
-    _lockstep_equals_simulate(_anchor_in_formation(shift=False), 1.5)
+    lockstep_equals_simulate(_anchor_in_formation(shift=False), 1.5)

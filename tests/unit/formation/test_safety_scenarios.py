@@ -292,7 +292,7 @@ def test_trajectories_figure_draws_the_world(tmp_path: Path) -> None:
 
 def test_foxglove_scene_has_the_world_entity() -> None:
     pytest.importorskip("foxglove")
-    from test_live_foxglove import pb_fields, scene_entities
+    from support.foxglove_fleet import pb_fields, scene_entities
 
     from formation.live.scene import SceneModel
 

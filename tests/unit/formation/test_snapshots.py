@@ -9,7 +9,7 @@ from pathlib import Path
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
-from test_figures_metrics import synthetic_log
+from support.synthetic_logs import synthetic_log
 
 from formation.outputs import snapshots
 from formation.outputs.figures_style import MAX_PX

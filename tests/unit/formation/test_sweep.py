@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import child_env
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.spawn import child_env
 
 from formation.sweep import command, study
 from formation.sweep.run import RESULTS_FILE, read_results, run_case, run_cases

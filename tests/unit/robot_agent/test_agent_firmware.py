@@ -7,13 +7,13 @@ tests/unit/robot_agent/test_agent_firmware_inputs.py.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from support.firmware_cases import CFG, DT, INF, NAN, WMAX, is_zero, make_sp, tick, tracking_fw
 
-from robot_agent.core.firmware import _TRANSITIONS, Firmware, Mode, Pose, Setpoint, WheelCommand
+from robot_agent.core.firmware import _TRANSITIONS, Firmware, Mode, Pose, Setpoint
 from robot_agent.core.kinematics import (
     ref_point_velocity,
     reference_point,
@@ -24,7 +24,6 @@ from robot_agent.core.kinematics import (
 )
 from robot_agent.core.params import (
     AgentConfig,
-    EstimatorParams,
     RepulsionParams,
     SafetyFilterParams,
     SafetyParams,
@@ -33,67 +32,8 @@ from robot_agent.core.repulsion import repulsion_velocity
 from robot_agent.core.safety_filter import SafetyFilter
 from robot_agent.core.tracking import TrackingController
 
-# The firmware without its pose estimator: the measured pose is used as if current and the
-# stale-pose rule holds the robot (receive age > safety.stale_pose_s). Pinned here (not the
-# default) so these tests keep describing that rule whatever the default; the estimator's
-# ride-through rule is ported below ("ride-through") and in
-# tests/unit/robot_agent/test_estimator.py.
-CFG = AgentConfig(estimator=EstimatorParams(enabled=False))
-EST = AgentConfig(estimator=EstimatorParams(enabled=True))
 GEOM = CFG.geometry
-WMAX = GEOM.max_wheel_radps
 L_REF = GEOM.ref_offset_m
-DT = 0.02
-NAN, INF = math.nan, math.inf
-
-
-def make_sp(
-    x: float = 0.5,
-    y: float = 0.0,
-    vx: float = 0.0,
-    vy: float = 0.0,
-    theta: float = 0.0,
-    slot: int = 1,
-    t: float = 0.0,
-) -> Setpoint:
-    return Setpoint(x, y, vx, vy, theta, slot, t)
-
-
-def tick(
-    fw: Firmware,
-    now: float,
-    pose: Pose | None,
-    sp: Setpoint | None,
-    *,
-    pose_rx: float | None = None,
-    sp_rx: float | None = None,
-    **kw: Any,
-) -> WheelCommand:
-    return fw.step(
-        now,
-        pose=pose,
-        pose_rx_s=now if pose_rx is None else pose_rx,
-        setpoint=sp,
-        setpoint_rx_s=now if sp_rx is None else sp_rx,
-        **kw,
-    )
-
-
-def tracking_fw(n: int = 5) -> tuple[Firmware, float]:
-    """A firmware that has tracked a setpoint 0.45 m ahead for n ticks; returns (fw, last now)."""
-    fw = Firmware(CFG)
-    now = 0.0
-    for k in range(n):
-        now = k * DT
-        cmd = tick(fw, now, Pose(0.0, 0.0, 0.0, now), make_sp(t=now))
-        assert cmd.mode is Mode.TRACKING
-    return fw, now
-
-
-def is_zero(cmd: WheelCommand) -> bool:
-    return (cmd.omega_r, cmd.omega_l, cmd.power_r, cmd.power_l) == (0.0, 0.0, 0.0, 0.0)
-
-
 # ----------------------------------------------------------------------------- basics
 
 

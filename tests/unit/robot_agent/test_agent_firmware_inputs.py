@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_agent_firmware import CFG, DT, EST, INF, NAN, WMAX, is_zero, make_sp, tick, tracking_fw
+from support.firmware_cases import CFG, DT, EST, INF, NAN, WMAX, is_zero, make_sp, tick, tracking_fw
 
 from robot_agent.core.firmware import Firmware, Mode, Pose
 

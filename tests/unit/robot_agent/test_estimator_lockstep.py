@@ -3,7 +3,7 @@
 The in-process simulator hands each firmware its emulated encoder speeds every tick
 (``Firmware.step(wheel_speeds=...)``); over the bus the lockstep clock carries them
 (``Clock.enc_robots`` / ``enc_wr`` / ``enc_wl``, docs/bus.md), and the agent and the agent host
-pass them on. The harness (``_lockstep_equals_simulate`` of tests/bus/test_node_plant.py) wires
+pass them on. The harness (``lockstep_equals_simulate`` of tests/bus/test_node_plant.py) wires
 plant,
 coordinator and agents (or one agent host) through an in-memory bus (every message encoded and
 decoded) and asserts the wheel commands and the truth equal ``formation.sim.simulate.run``'s
@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
-from test_node_plant import SCENARIO, _lockstep_equals_simulate
+from support.lockstep_equality import SCENARIO, lockstep_equals_simulate
 
 from bus_schemas import Clock
 from robot_agent.core.params import EstimatorParams
@@ -39,7 +39,7 @@ def _scenario() -> object:
 @pytest.mark.parametrize("hosts", [False, True], ids=["agents", "agent-host"])
 def test_lockstep_with_encoder_emulation_equals_the_simulator(hosts: bool) -> None:
     scenario = _scenario()
-    got = _lockstep_equals_simulate(scenario, 1.2, hosts=hosts)
+    got = lockstep_equals_simulate(scenario, 1.2, hosts=hosts)
     clocks: list[Clock] = got["clocks"]
     ids = tuple(got["ids"])
     # tick 0 has no reading yet (the encoders need two reads); every later clock carries one
@@ -62,6 +62,6 @@ def test_without_the_encoders_on_the_bus_the_runtimes_differ() -> None:
     agent_node.clock_wheels = lambda msg: {}  # type: ignore[assignment]
     try:
         with pytest.raises(AssertionError):
-            _lockstep_equals_simulate(_scenario(), 0.6)
+            lockstep_equals_simulate(_scenario(), 0.6)
     finally:
         agent_node.clock_wheels = original

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_estop_identity import _rejecting_source
+from support.estop_checks import rejecting_source
 
 import runtime as rt
 from bus_schemas import DecodeError, Estop, Reason, decode_estop_answer, encode, keys
@@ -106,12 +106,12 @@ def test_a_starting_coordinator_adds_the_agents_engagements_last(tmp_path: Path)
     """An engagement an agent still holds is taken back unless a coordinator's answer or the
     state file names its release: stale holds never outvote a release record."""
     rejects: list[str] = []
-    peer = _rejecting_source(rejects)  # another coordinator: engaged 1 and 2, released 1
+    peer = rejecting_source(rejects)  # another coordinator: engaged 1 and 2, released 1
     for engage, eid in ((True, 1), (True, 2), (False, None)):
         peer.on_estop(_msg(engage, None, eid))
     peer.on_estop(_msg(True, None, 3))
     path = tmp_path / "estop.msgpack"
-    filed = _rejecting_source(rejects)  # this coordinator before its restart: released 4
+    filed = rejecting_source(rejects)  # this coordinator before its restart: released 4
     filed.on_estop(_msg(True, "r2", 4))
     filed.on_estop(_msg(False, "r2"))
     store = EstopStore(path, "demo", lambda _line: None)
@@ -122,14 +122,14 @@ def test_a_starting_coordinator_adds_the_agents_engagements_last(tmp_path: Path)
         encode(Estop(t=1.0, engage=True, robot="r2", id=4)),
         encode(Estop(t=1.0, engage=True, robot="r1", id=5)),
     ]
-    source = _rejecting_source(rejects)
+    source = rejecting_source(rejects)
     source.on_state(peer.answer)
     source.restore(read_state(path, "demo"), path)
     source.on_state(agents, held=True)
     assert source.latch.held == {None: {3}, "r1": {5}}  # 1 and 4 released, 5 learned
     assert not rejects
     # alone and without a file it learns everything the agents hold (the safe side)
-    alone = _rejecting_source(rejects)
+    alone = rejecting_source(rejects)
     alone.on_state(agents, held=True)
     assert alone.latch.held == {None: {1}, "r2": {4}, "r1": {5}}
     # a release record from an agent is refused and releases nothing

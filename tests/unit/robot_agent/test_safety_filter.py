@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
+from support.safety_cases import CFG, DS, GEOM, RB, TOUCH, L, seg_dist
 
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint
 from robot_agent.core.kinematics import ref_point_velocity, reference_point, twist_from_wheels
@@ -34,16 +35,10 @@ from robot_agent.core.params import (
 from robot_agent.core.safety_filter import Neighbour, SafetyFilter, solve_qp
 from scenario.robot_config import ConfigError, robot_config_from_dict
 
-CFG = AgentConfig()
-GEOM = CFG.geometry
-L = GEOM.ref_offset_m
-RB = GEOM.body_radius_m
-DS = CFG.safety_distance_m
 MARGIN = CFG.safety_filter.margin_m
 BETA = CFG.safety_filter.noise_budget_m  # one position's noise, paid by the margin
 GAMMA = CFG.safety_filter.gamma_per_s
 VCAP = CFG.gains.max_ref_speed_mps
-TOUCH = 2 * RB  # bodies touch at this centre distance
 TOL = 1e-9
 
 # ----------------------------------------------------------------------------- the QP
@@ -101,13 +96,6 @@ def test_qp_examples() -> None:
 
 
 # ----------------------------------------------------------------------------- barriers
-
-
-def seg_dist(px: float, py: float, s: SegmentObstacle) -> float:
-    sx, sy = s.x2 - s.x1, s.y2 - s.y1
-    n2 = sx * sx + sy * sy
-    t = 0.0 if n2 == 0 else max(0.0, min(1.0, ((px - s.x1) * sx + (py - s.y1) * sy) / n2))
-    return math.hypot(px - (s.x1 + t * sx), py - (s.y1 + t * sy))
 
 
 def _dist_barrier(qx: float, qy: float, d: float) -> Callable[[float, float], float]:
