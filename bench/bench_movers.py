@@ -11,7 +11,8 @@ slot. The before (issue 30, the triangle, no movers handling): head-on into the 
 0.004 m, across its path 0.036-0.067 m.
 
 Run: ``.venv/bin/python bench/bench_movers.py [--speeds 0.05,0.1,...]``. A measurement: it
-asserts nothing (tests/unit/formation/test_movers_closed_loop.py asserts the envelope).
+asserts nothing (tests/unit/formation/test_movers_closed_loop.py asserts the envelope; the
+harness is tests/support/carry_runs.py).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests" / "unit" / "formation"))  # the closed-loop harness
+sys.path.insert(0, str(ROOT / "tests"))  # the closed-loop harness: tests/support/carry_runs.py
 
 DIRECTIONS = {"head-on": math.pi, "behind": 0.0, "across+": math.pi / 2, "across-": -math.pi / 2}
 
@@ -34,20 +35,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--speeds", default="0.05,0.1,0.15,0.2,0.25,0.3,0.4,0.5")
     ap.add_argument("--formations", default="triangle,chevron")
     args = ap.parse_args(argv)
-    import test_movers_closed_loop as harness
+    from support import carry_runs as harness
 
     speeds = [float(v) for v in args.speeds.split(",")]
     t0 = time.perf_counter()
     print("formation  speed m/s  " + "  ".join(f"{d:>8s}" for d in DIRECTIONS) + "  fleet  slot")
     for kind in args.formations.split(","):
-        n = len(harness._formation(kind).robot_ids)
+        n = len(harness.formation(kind).robot_ids)
         for v in speeds:
             least = dict.fromkeys(DIRECTIONS, math.inf)
             fleet = math.inf
             took = False
             for name, heading in DIRECTIONS.items():
                 for target in range(n):
-                    body, fl, slots = harness._carry(kind, target, heading, v)
+                    body, fl, slots = harness.carry(kind, target, heading, v)
                     least[name] = min(least[name], body)
                     fleet = min(fleet, fl)
                     took = took or bool((slots != -1).any())

@@ -11,8 +11,9 @@ from collections.abc import Callable
 
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner
-from test_node_agent import Recorder, decoder_of
+from support.bus_watch import Recorder, decoder_of
+from support.routers import RouterHandle
+from support.spawn import Spawner
 
 import runtime as rt
 from bus_schemas import Assignment, Movers, Pose, encode, keys

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import Spawner, free_port
+from support.spawn import Spawner, free_port
 
 import scenario
 

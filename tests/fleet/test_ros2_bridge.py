@@ -332,7 +332,7 @@ def test_formation_up_ros2_shows_the_fleet_to_a_ros2_client(spawn: Any, tmp_path
 def test_bridge_speaks_sd_notify(router: Any, spawn: Any, tmp_path: Path) -> None:
     """deploy/systemd/formation-ros2.service is Type=notify with a watchdog: READY=1 once its
     ROS entities are declared, WATCHDOG=1 from its loop, STOPPING=1 on SIGTERM."""
-    from test_agent_boot import FakeSystemd
+    from support.notify_socket import FakeSystemd
 
     systemd = FakeSystemd(tmp_path / "notify.sock")
     try:

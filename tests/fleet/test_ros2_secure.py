@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import free_port
+from support.spawn import free_port
 
 from bus_schemas import CmdVel, Estop, Goal, Pose, acl, decode, encode, keys
 from bus_schemas.acl import Access, Identity, Kind

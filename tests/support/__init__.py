@@ -10,13 +10,15 @@ with waits), ``bus_samples`` (one valid message per type), ``async_wait``.
 Nodes and runs: ``agent_io`` (drive one agent), ``coordinator_io`` (drive a coordinator),
 ``lockstep_equality`` (lockstep over Zenoh against the in-process simulator), ``up_runs``
 (whole ``formation up`` runs), ``run_traffic`` (an in-process run as bus traffic, for the
-collector), ``fault_fleet`` (the realtime fleet faults are injected into), ``estop_checks``,
+collector), ``record_stream`` (a synthetic stream and the recorder fed with it), ``fault_fleet``
+(the realtime fleet faults are injected into), ``estop_checks``,
 ``foxglove_fleet`` (traffic for the live view and its protobuf frames), ``json_schema``.
 
 Cores: ``firmware_cases`` (the firmware's config, hostile numbers, one step),
 ``safety_cases`` and ``safety_runs`` (the safety filter's robot and closed loops),
 ``synthetic_logs`` (a run log for figures and metrics).
 
-Hosts and devices: ``netns``, ``deploy_hosts``, ``deploy_world``, ``small_fs``,
-``roboclaw_emulator``, ``ros2_base``, ``ros2_reference``, ``ros2_sdk_client``.
+Hosts and devices: ``notify_socket`` (a systemd notify socket), ``netns``, ``deploy_hosts``,
+``deploy_world``, ``small_fs``, ``roboclaw_emulator``, ``ros2_base``, ``ros2_reference``,
+``ros2_sdk_client``. Closed loops: ``carry_runs`` (a spare carried through a formation).
 """

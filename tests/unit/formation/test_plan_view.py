@@ -274,7 +274,7 @@ def two_robot_plan() -> dict[str, Any]:
 
 
 def test_formation_report_measures_and_draws_the_plan_of_a_recording(tmp_path: Path) -> None:
-    from test_record_report import FLEET, record_items, synthetic_stream
+    from support.record_stream import FLEET, record_items, synthetic_stream
 
     text = to_toml(two_robot_plan())
     path = tmp_path / "run.mcap"
@@ -322,7 +322,7 @@ def test_a_planned_corridor_mesh_has_no_triangle_outside_the_corridor() -> None:
 
 
 def test_a_report_whose_scenario_does_not_plan_is_a_clean_error(tmp_path: Path) -> None:
-    from test_record_report import record_items, synthetic_stream
+    from support.record_stream import record_items, synthetic_stream
 
     from formation.record.replay import ReportError
 

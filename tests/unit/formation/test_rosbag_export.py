@@ -11,7 +11,7 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
-from test_record_report import DT, FLEET, record_items, synthetic_stream
+from support.record_stream import DT, FLEET, record_items, synthetic_stream
 
 from bus_schemas import Pose, decode, keys
 from bus_schemas.ros2 import msgs
