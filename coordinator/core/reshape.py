@@ -220,7 +220,9 @@ def _rows_of_plan(
     dropped = tuple(ids[r] for r in range(len(ids)) if r not in match)
     if added:  # the rows of the target; an added slot starts where it ends
         row_from = {j: r for r, j in match.items()}
-        start = np.array([d0[row_from[j]] if j in row_from else new_off[j] for j in range(len(new))])
+        start = np.array(
+            [d0[row_from[j]] if j in row_from else new_off[j] for j in range(len(new))]
+        )
         return target, target, start, new_off.copy(), dropped, tuple(added)
     end = np.array([new_off[match[r]] if r in match else d0[r] for r in range(len(ids))])
     return target, running, d0.copy(), end, dropped, ()
