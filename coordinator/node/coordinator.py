@@ -49,7 +49,7 @@ from coordinator.core.election import Election, Takeover
 from coordinator.node.election_io import MAX_ROBOTS, ElectionIO
 from coordinator.node.estop_source import EstopSource
 from coordinator.node.fault_schedule import FaultNotices, slot_messages
-from coordinator.node.operator_io import OperatorInputs
+from coordinator.node.operator_io import OperatorInputs, reshape_fields
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
@@ -186,6 +186,7 @@ class CoordinatorNode:
             lockstep=lockstep,
             now=self._now,
             is_active=lambda: self.active,
+            robots=lambda: self.alive,
             reject=self.faults.reject,
             internal=self.faults.internal,
             log=self.log,
@@ -470,8 +471,9 @@ class CoordinatorNode:
         if self.core.shape is not None:
             extra["shape"] = self.core.shape
         reshaping = self.core.reshaping
-        if reshaping is not None:
+        if reshaping is not None:  # and what a standby needs to continue it (issue 28)
             extra["reshape"] = reshaping
+            extra.update(reshape_fields(self.core.reshaper.state()))
         return extra
 
     def with_faults(
