@@ -288,6 +288,9 @@ class CoordinatorCore:
         self.movers = MoverDetector(movers)
         """Robots moving as their wheels cannot (issue 30): no slot while so, theirs kept."""
         self._yielding: frozenset[str] = frozenset()
+        self._released: dict[str, tuple[int, float]] = {}
+        """Robots whose slot a reshape dropped -> (that slot, until when, s): still counted as
+        driven by the mover detector while they brake (a spare that moves is a mover)."""
         self.approach_speed_mps = APPROACH_SPEED_MPS
         self._approach: dict[str, list[float]] = {}  # robot -> approach point [x, y]
         self._running = False  # a tick has assigned robots (later assignments approach)
@@ -415,7 +418,8 @@ class CoordinatorCore:
         slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
         was_yielding = self._yielding
-        if movers.update(now_s, poses, self.assignment, held, objects):
+        driven = self._driven(now_s) if self._released else self.assignment
+        if movers.update(now_s, poses, driven, held, objects):
             a_ids, a_xy, slot_ids, slot_xy = self._without_movers(ids, xy, slot_ids, slot_xy)
             assignment, changed = self.assigner.update_ordered(a_ids, a_xy, slot_ids, slot_xy)
         else:
@@ -426,6 +430,8 @@ class CoordinatorCore:
             refuges = self._make_room(assignment, ids, xy, rows, spec.slot_ids, was_yielding)
             changed = assignment != self.assignment
         previous, self.assignment = self.assignment, assignment
+        if changed and tr is None and len(previous) > len(assignment):
+            self._release(now_s, previous, assignment, spec)
         dt = 0.0 if self._last_now is None else max(0.0, now_s - self._last_now)
         self._last_now = now_s
         approach = None
@@ -437,6 +443,27 @@ class CoordinatorCore:
         out = CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
         self._last_out = out
         return out
+
+    def _release(
+        self,
+        now_s: float,
+        previous: Mapping[str, int],
+        assignment: Mapping[str, int],
+        spec: FormationSpec,
+    ) -> None:
+        """The robots that lost their slot because a reshape dropped it: driven for a while."""
+        grace = self.movers.params.window_s + self.movers.params.hold_s
+        for rid, slot in previous.items():
+            if rid not in assignment and slot not in spec:
+                self._released[rid] = (slot, now_s + grace)
+
+    def _driven(self, now_s: float) -> dict[str, int]:
+        """The previous assignment plus the robots released by a reshape that may still be
+        braking (coordinator.core.movers: a robot without a slot that moves is a mover)."""
+        for rid in [r for r, (_, until) in self._released.items() if now_s > until]:
+            del self._released[rid]
+        extra = {r: slot for r, (slot, _) in self._released.items() if r not in self.assignment}
+        return {**self.assignment, **extra}
 
     def _without_movers(
         self,
@@ -474,20 +501,20 @@ class CoordinatorCore:
         back to it on an approach point (as a newly assigned robot does)."""
         movers = self.movers
         reserved = movers.reserved
+        row_of = self._rows_by_slot(slot_ids)
         where = dict(zip(ids, xy, strict=True))
         out: dict[str, SlotRow] = {}
         points: dict[str, tuple[float, float]] = {}
         for rid in sorted(self._yielding):
             slot = reserved.get(rid)
             q = where.get(rid)
-            if slot is None or q is None:
+            if slot is None or q is None or slot not in row_of:  # (a slot a reshape dropped)
                 continue
             assignment[rid] = slot
             self._approach.pop(rid, None)
             points[rid] = q
         for rid, (rx, ry) in movers.refuges(points).items():
             out[rid] = (rx, ry, 0.0, 0.0)
-        row_of = self._rows_by_slot(slot_ids)
         for rid in sorted(was_yielding - self._yielding):
             slot = assignment.get(rid)
             q = where.get(rid)

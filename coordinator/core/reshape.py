@@ -201,9 +201,12 @@ def _rows_of_plan(
     new: FormationSpec,
     d0: np.ndarray,
     match: dict[int, int],
+    spacing_m: float,
 ) -> tuple[FormationSpec, FormationSpec, np.ndarray, np.ndarray, tuple[int, ...], tuple[int, ...]]:
     """For one matching: the target (``new`` relabelled), the formation during the transition,
-    its start and end offsets, the dropped and the added slot ids."""
+    its start and end offsets, the dropped and the added slot ids. A dropped slot ends parked
+    one ``spacing_m`` behind the new shape (abreast with the other dropped ones, in their
+    left-to-right order), so its robot, which stops there, is left behind by the formation."""
     ids = list(running.slot_ids)
     new_off = np.array(new.body_offsets_m)
     to_id: dict[int, int] = {}
@@ -225,6 +228,11 @@ def _rows_of_plan(
         )
         return target, target, start, new_off.copy(), dropped, tuple(added)
     end = np.array([new_off[match[r]] if r in match else d0[r] for r in range(len(ids))])
+    gone = sorted((r for r in range(len(ids)) if r not in match), key=lambda r: (d0[r, 1], r))
+    if gone:  # parked abreast one spacing behind the new shape, in their order across
+        back = float(new_off[:, 0].min()) - spacing_m
+        for j, r in enumerate(gone):
+            end[r] = (back, (j - 0.5 * (len(gone) - 1)) * spacing_m)
     return target, running, d0.copy(), end, dropped, ()
 
 
@@ -252,7 +260,7 @@ def plan_reshape(
     kept = _kept_rows(d0, running.slot_ids, n_new)
     best: Transition | None = None
     for match in _matchings(kept, d0, new_off)[:24]:  # the least-displacement matchings first
-        target, spec, start, end, dropped, added = _rows_of_plan(running, new, d0, match)
+        target, spec, start, end, dropped, added = _rows_of_plan(running, new, d0, match, spacing_m)
         n = len(start)
         dist = np.hypot(*(end - start).T)
         moving = [r for r in range(n) if dist[r] > 1e-9]
