@@ -110,6 +110,14 @@ class Reshaper:
         return len(plan.target) if plan is not None else len(self.formation)
 
     @property
+    def spacing_m(self) -> float:
+        """The settled formation's spacing (m): its least distance between two slots (0.4 m for
+        a single slot): what a reshape that names none keeps."""
+        off = self.formation.body_offsets_m.tolist()
+        gaps = [math.dist(a, b) for i, a in enumerate(off) for b in off[i + 1 :]]
+        return min(gaps, default=0.4)
+
+    @property
     def fraction(self) -> float | None:
         """Fraction of the running reshape done (None: none running)."""
         tr, t0, now = self.transition, self.t0_s, self._last_now

@@ -46,6 +46,7 @@ from bus_schemas import (
 )
 from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.election import Election, Takeover
+from coordinator.core.operator_script import OperatorScript
 from coordinator.node.election_io import MAX_ROBOTS, ElectionIO
 from coordinator.node.estop_source import EstopSource
 from coordinator.node.fault_schedule import FaultNotices, slot_messages
@@ -192,6 +193,13 @@ class CoordinatorNode:
             log=self.log,
         )
         self._takeovers_seen = 0
+        # the scenario's scripted operator commands ([[operator]]), played as the in-process
+        # simulator plays them (coordinator.core.operator_script)
+        self.operator_script = (
+            OperatorScript(scenario.operator, scenario.agent.safety_distance_m)
+            if scenario.operator
+            else None
+        )
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -413,10 +421,17 @@ class CoordinatorNode:
             if self.election.takeovers != self._takeovers_seen:  # continue the leader (issue 28)
                 self._takeovers_seen = self.election.takeovers
                 self.operator.took_over(now_s, self.t0_s)
+                if self.operator_script is not None:
+                    self.operator_script.skip_until(now_s - self.t0_s)
             started = time.perf_counter()
             poses = self.fresh_poses(now_s)
             if self.scripted.state.offline():  # a scripted kill: its robot counts as gone
                 poses = self.scripted.counted(poses)
+            if self.operator_script is not None:
+                for cmd, why in self.operator_script.play(
+                    self.core, now_s - self.t0_s, now_s, len(poses)
+                ):
+                    self.faults.reject("operator", f"scripted {cmd} refused: {why}", f"{cmd}-{why}")
             held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
             out = self.core.tick(now_s, poses, held)
             self.ticks += 1

@@ -196,7 +196,7 @@ class OperatorInputs:
         if isinstance(msg, DecodeError):
             self._reject("shape", msg, None)
             return
-        spacing = msg.spacing_m if msg.spacing_m is not None else self.spacing_m()
+        spacing = msg.spacing_m if msg.spacing_m is not None else self.core.reshaper.spacing_m
         # the active starts it at its next tick; a standby keeps it planned, not started, to
         # continue it at a takeover (coordinator.core.reshaping)
         reshaper = self.core.reshaper
@@ -206,14 +206,6 @@ class OperatorInputs:
             self._reject("shape", f"refused: {msg.kind} at {spacing:.3g} m: {why}", why)
             return
         self.log.info(f"reshape into a {msg.kind} of {reshaper.slots} slots {spacing:.3g} m apart")
-
-    def spacing_m(self) -> float:
-        """The running formation's spacing (m): its least distance between two slots."""
-        off = self.core.formation.body_offsets_m.tolist()
-        gaps = [
-            math.hypot(a[0] - b[0], a[1] - b[1]) for i, a in enumerate(off) for b in off[i + 1 :]
-        ]
-        return min(gaps, default=0.4)
 
     def on_leader(self, rx: rt.Received) -> None:
         """The active instance's ``leader`` (a realtime standby keeps the last few)."""
