@@ -326,6 +326,34 @@ def test_a_standby_continues_a_reshape_mid_way_without_a_jump(
     del tokens, b_active
 
 
+def test_the_number_of_slots_changes_live_and_too_many_is_refused_and_counted(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    """``formation shape KIND --slots N``: more slots than robots alive is one line and exit 2
+    at the CLI, and refused and counted at the coordinator (a Shape sent anyway); fewer is taken
+    and the leader message says how many slots the running reshape ends with."""
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, keys.coordinator_status_key(FLEET, "main"), msgpack.unpackb)
+    _coordinator(spawn, router)
+    with Followers(client):
+        leaders.wait_for(lambda *_: True)
+        many = spawn("shape", "column", "--slots", "5", "--endpoint", router.endpoint)
+        assert many.proc.wait(timeout=30) == 2, many.describe()
+        lines = many.stderr().splitlines()
+        assert len(lines) == 1 and "--slots 5" in lines[0] and "3 robots alive" in lines[0]
+        rt.Publishers(client).put(
+            keys.shape_key(FLEET), encode(Shape(t=1.0, kind="column", slots=5)), rt.QOS_CRITICAL
+        )
+        status.wait_for(lambda _r, _k, s: s["rejects"].get("shape-too_many_slots", 0) == 1)
+        fewer = spawn("shape", "column", "--slots", "2", "--endpoint", router.endpoint)
+        assert fewer.proc.wait(timeout=30) == 0, fewer.describe()
+        assert "reshaping into a column of 2 slots" in fewer.stdout()
+        _, _, m = leaders.wait_for(lambda _r, _k, m: m.slots == 2, timeout_s=5.0)
+    assert m.shape == "column" and m.reshape is not None and m.reshape_from == "scenario"
+    del tokens
+
+
 def test_a_gamepad_drives_the_leader(
     spawn: Spawner, router: RouterHandle, client: zenoh.Session, tmp_path: Any
 ) -> None:
