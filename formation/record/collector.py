@@ -170,7 +170,7 @@ class RunCollector:
         # truth rows: row key -> {robot index: (x, y, theta)}
         self._truth: dict[float, dict[int, tuple[float, float, float]]] = {}
         self._leader = Series()
-        self._reshape_marks: list[tuple[float, str | None, float]] = []  # (t, shape, fraction)
+        self._reshape_marks: list[tuple[float, str | None, float, int | None]] = []  # + slots
         self._slots: dict[int, Series] = {}
         self._assignment = Series()
         self._wheels = [Series() for _ in self.robot_ids]
@@ -309,7 +309,7 @@ class RunCollector:
                 self._leader.add(self._row_key(leader.t), (leader.x, leader.y, leader.theta))
             )
             if leader.reshape is not None and len(self._reshape_marks) < MAX_RESHAPE_MARKS:
-                self._reshape_marks.append((leader.t, leader.shape, leader.reshape))
+                self._reshape_marks.append((leader.t, leader.shape, leader.reshape, leader.slots))
         elif leaf == keys.SLOT:
             slot = decode(payload, Slot)
             if isinstance(slot, DecodeError):
@@ -565,9 +565,9 @@ class RunCollector:
         rows, info = row_keys(
             self._truth, len(self.robot_ids), self._leader if self.lockstep else None
         )
-        slot_ids = (
-            self.slot_ids if self.slot_ids is not None else sorted(self._slots)  # seen on the bus
-        )
+        # the scenario's slots, then any a runtime reshape added (seen on the bus, issue 28)
+        known = self.slot_ids if self.slot_ids is not None else []
+        slot_ids = [*known, *(s for s in sorted(self._slots) if s not in known)]
         log = RunLog.allocate(self.robot_ids, slot_ids, rows.size)
         if rows.size:
             if self.dt_s is not None:

@@ -408,7 +408,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         log.meta["operator"] = {"applied": script.applied, "rejects": dict(script.rejects)}
         log.reshapes = [
             {"kind": r["kind"], "slots": r["slots"], "start_s": r["started_s"],
-             "end_s": r["started_s"] + r["transition_s"]}
+             "end_s": r["started_s"] + r["transition_s"], "complete": True}
             for r in coord.reshapes
         ]  # fmt: skip
     if interrupted:
