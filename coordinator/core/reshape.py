@@ -212,11 +212,12 @@ def _rows_of_plan(
     d0: np.ndarray,
     match: dict[int, int],
     spacing_m: float,
+    park: str,
 ) -> tuple[FormationSpec, FormationSpec, np.ndarray, np.ndarray, tuple[int, ...], tuple[int, ...]]:
     """For one matching: the target (``new`` relabelled), the formation during the transition,
     its start and end offsets, the dropped and the added slot ids. A dropped slot ends parked
-    one ``spacing_m`` behind the new shape (abreast with the other dropped ones, in their
-    left-to-right order), so its robot, which stops there, is left behind by the formation."""
+    behind the new shape (:func:`_parking`, ``park``), so its robot, which stops there, is left
+    behind by the formation."""
     ids = list(running.slot_ids)
     new_off = np.array(new.body_offsets_m)
     to_id: dict[int, int] = {}
@@ -238,12 +239,35 @@ def _rows_of_plan(
         )
         return target, target, start, new_off.copy(), dropped, tuple(added)
     end = np.array([new_off[match[r]] if r in match else d0[r] for r in range(len(ids))])
-    gone = sorted((r for r in range(len(ids)) if r not in match), key=lambda r: (d0[r, 1], r))
-    if gone:  # parked abreast one spacing behind the new shape, in their order across
-        back = float(new_off[:, 0].min()) - spacing_m
-        for j, r in enumerate(gone):
-            end[r] = (back, (j - 0.5 * (len(gone) - 1)) * spacing_m)
+    gone = [r for r in range(len(ids)) if r not in match]
+    for r, xy in _parking(d0, gone, float(new_off[:, 0].min()) - spacing_m, spacing_m, park):
+        end[r] = xy
     return target, running, d0.copy(), end, dropped, ()
+
+
+PARKINGS: Final = ("behind", "abreast")
+"""Where dropped slots go (:func:`_parking`), tried in this order."""
+
+
+def _parking(
+    d0: np.ndarray, gone: Sequence[int], back_m: float, spacing_m: float, park: str
+) -> list[tuple[int, tuple[float, float]]]:
+    """Parking places (body frame) of the dropped rows ``gone``: ``behind``: straight back from
+    where each is to ``back_m`` (one spacing behind the new shape; never forward), one more
+    spacing back for each one already parked in its lane; ``abreast``: a row across at
+    ``back_m``, ``spacing_m`` apart, in the order they stand across (right to left)."""
+    out: list[tuple[int, tuple[float, float]]] = []
+    if park == "abreast":
+        across = sorted(gone, key=lambda r: (float(d0[r, 1]), r))
+        for j, r in enumerate(across):
+            out.append((r, (back_m, (j - 0.5 * (len(across) - 1)) * spacing_m)))
+        return out
+    for r in sorted(gone, key=lambda r: (-float(d0[r, 0]), r)):  # the front one first
+        x, y = min(back_m, float(d0[r, 0])), float(d0[r, 1])
+        while any(abs(px - x) < spacing_m and abs(py - y) < spacing_m for _, (px, py) in out):
+            x -= spacing_m
+        out.append((r, (x, y)))
+    return out
 
 
 def plan_reshape(
@@ -269,8 +293,12 @@ def plan_reshape(
     new_off = np.array(new.body_offsets_m)
     kept = _kept_rows(d0, running.slot_ids, n_new)
     best: Transition | None = None
-    for match in _matchings(kept, d0, new_off)[:24]:  # the least-displacement matchings first
-        target, spec, start, end, dropped, added = _rows_of_plan(running, new, d0, match, spacing_m)
+    parkings = PARKINGS if len(kept) < len(running) else PARKINGS[:1]
+    candidates = itertools.product(_matchings(kept, d0, new_off)[:24], parkings)
+    for match, park in candidates:  # the least-displacement matchings first
+        target, spec, start, end, dropped, added = _rows_of_plan(
+            running, new, d0, match, spacing_m, park
+        )
         n = len(start)
         dist = np.hypot(*(end - start).T)
         moving = [r for r in range(n) if dist[r] > 1e-9]
