@@ -19,8 +19,8 @@ omega J R(theta) d_i + R(theta) d_i'`` (eqs 1-5 differentiated with a moving off
 
 **Another number of slots** (``slots``). Fewer: the rearmost running slots (the least body x;
 equal x: the highest id; never the leader's) are dropped; each moves during the transition to a
-parking place one spacing behind the new shape (abreast, in the order they stand across) and
-leaves the formation at its end, so its robot, which then has no slot and stops, is left behind
+parking place behind the new shape (straight back, one spacing behind its rearmost slot; else,
+if that is not safe, in a row across there) and leaves the formation at its end, so its robot, which then has no slot and stops, is left behind
 by a formation driving on instead of standing in its way. More: the running slots are matched
 to as many slots of the new shape (least displacement, as above) and the others get fresh ids
 (above every running one: nobody's slot is renamed); an added slot stands where it ends from the
