@@ -11,7 +11,8 @@ One fleet (tests/support/fault_fleet.py's three robots on a slow line, with ``[l
 * ``formation teleop`` drives the leader; when its stream stops the deadman stops the leader
   within its bound, with every follower still in formation.
 * ``formation shape column --slots 2`` drops a robot live and ``triangle --slots 3`` takes it
-  back on a new slot, the others keeping theirs, every robot at least the safety distance apart.
+  back on the slot added, the others keeping theirs, every robot at least the safety distance
+  apart.
 
 Bounds: the deadman (0.4 s) plus a braking within the leader's acceleration limit, the rate's
 slew (0.5 per s), plus what a Python process on a loaded 2-core machine must be woken for.
@@ -208,7 +209,7 @@ async def test_the_deadman_stops_the_teleoperated_leader_with_the_followers_in_f
 
 async def test_the_formation_drops_a_robot_and_takes_it_back_live(fleet: OperatorFleet) -> None:
     """``formation shape column --slots 2`` drops the rearmost robot live (it stops behind the
-    formation), ``formation shape triangle --slots 3`` takes it back on a new slot: the two
+    formation), ``formation shape triangle --slots 3`` takes it back on the slot added: the two
     others keep their slots throughout, every robot at least the safety distance from every
     other (their truth)."""
     obs = fleet.obs
@@ -233,7 +234,6 @@ async def test_the_formation_drops_a_robot_and_takes_it_back_live(fleet: Operato
     t_end = time.monotonic()
     after = obs.latest_assignment()
     assert after is not None and set(after.robots) == set(before.robots)
-    assert after.robots[dropped] not in before.robots.values()  # a new slot number
     least = obs.min_separation(t_start, t_end)
     print(f"\nslots 3 -> 2 -> 3: least separation {least:.3f} m (safety {SAFETY_M:.3f} m)")
     assert least >= SAFETY_M
