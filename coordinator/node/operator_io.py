@@ -53,6 +53,7 @@ BURST_MAX: Final = 10.0
 LEADER_ADOPT_AGE_S: Final = 2.0
 """A standby adopts only a ``leader`` message received this recently (s) at its takeover."""
 _JUMP_SLACK_M: Final = 0.005
+_FRACTION_TOL: Final = 1e-6
 
 
 class OperatorInputs:
@@ -232,7 +233,7 @@ class OperatorInputs:
         the previous active's leader if it is not the script at that origin (module docstring).
         True if it adopted one."""
         msg = self._continuable(now_s)
-        self._continue_reshape(now_s)
+        self._continue_reshape(msg)
         self._leaders.clear()
         if msg is None or msg.mode is None:
             return False
@@ -250,11 +251,11 @@ class OperatorInputs:
         )
         return True
 
-    def _continue_reshape(self, now_s: float) -> None:
-        """At a takeover: continue the reshape the newest recent ``leader`` message says was
-        running (its fields ``reshape_t0``, ...), or settle the one this standby kept."""
-        recent = [m for rx_s, m in self._leaders if 0.0 <= now_s - rx_s <= LEADER_ADOPT_AGE_S]
-        state = None if not recent else reshape_state(recent[-1])
+    def _continue_reshape(self, msg: Leader | None) -> None:
+        """At a takeover: continue the reshape the previous active's last ``leader`` message
+        ``msg`` (one that continues the one before it) says was running (its fields
+        ``reshape_t0``, ...), or settle the one this standby kept."""
+        state = None if msg is None else reshape_state(msg)
         outcome = self.core.reshaper.take_over(state, self.safety_m)
         self.reshape_takeovers[outcome] = self.reshape_takeovers.get(outcome, 0) + 1
         if outcome != "none":
@@ -283,7 +284,10 @@ def reshape_state(msg: Leader) -> ReshapeState | None:
         return None
     if msg.slots is None or msg.spacing_m is None or msg.reshape_t0 is None:
         return None
-    if msg.reshape_s is None or msg.reshape_from is None:
+    if msg.reshape_s is None or msg.reshape_from is None or not msg.reshape_s > 0.0:
+        return None
+    done = min(max((msg.t - msg.reshape_t0) / msg.reshape_s, 0.0), 1.0)
+    if abs(done - msg.reshape) > _FRACTION_TOL:  # its fields do not agree: not a reshape's
         return None
     source = None if msg.reshape_from == ReshapeSource.SCENARIO else msg.reshape_from
     return ReshapeState(msg.shape, msg.spacing_m, msg.slots, msg.reshape_t0, msg.reshape_s, source)
