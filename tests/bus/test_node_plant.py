@@ -391,3 +391,30 @@ def test_lockstep_equals_the_simulator_with_scripted_operator_commands() -> None
     # the teleop turned the leader off its scripted straight line (heading 0 there)
     k_teleop = round(0.6 / scenario.dt_s)
     assert res.log.leader[k_teleop - 1, 2] == 0.0 and res.log.leader[-1, 2] > 0.1
+
+
+def test_lockstep_equals_the_simulator_when_a_scripted_reshape_drops_a_robot() -> None:
+    """A column of three told to be a column of two: the rearmost slot is dropped at the end of
+    the transition and its robot, without a setpoint, holds; lockstep still equals the
+    in-process simulator bit for bit."""
+    import math
+    import tomllib
+
+    from scenario.load import parse, resolve
+
+    data = tomllib.loads(resolve("paper-exp2").read_text())
+    column = [{"slot": 0}] + [
+        {"slot": k, "parent": k - 1, "b_m": 0.4, "phi_rad": math.pi / 2} for k in (1, 2)
+    ]
+    data["formation"] = {"kind": "explicit", "slots": column}
+    data["operator"] = [{"t_s": 0.1, "command": "shape", "kind": "column", "slots": 2}]
+    scenario = parse(data)
+    got = _lockstep_equals_simulate(scenario, 3.4)
+    res = got["result"]
+    (done,) = res.log.reshapes
+    assert done["slots"] == 2 and done["end_s"] <= 3.2  # the dropped slot had nowhere to go
+    ids = list(res.log.robot_ids)
+    (rear,) = [r for j, r in enumerate(ids) if res.log.slot_of[20, j] == 2]
+    last = dict(zip(ids, res.log.slot_of[-1].tolist(), strict=True))
+    assert last[rear] == -1 and sorted(last.values()) == [-1, 0, 1]  # the rearmost left
+    assert res.firmware_status[rear]["mode"] == "hold"  # no setpoint: it holds where it is
