@@ -196,15 +196,28 @@ class Reshaper:
             self.finish()
             return "finished"
         if plan is None or not state.matches(plan, source):
-            again: Transition | str = "mid"
-            if state.source != MID_RESHAPE:
-                again = plan_reshape(
-                    self.formation, state.kind, state.spacing_m, safety_m, None, state.slots
-                )
-            if isinstance(again, Transition) and state.matches(again, state.source):
+            again = plan_reshape(
+                self.formation, state.kind, state.spacing_m, safety_m, None, state.slots
+            )
+            if (
+                isinstance(again, Transition)
+                and state.source != MID_RESHAPE  # it started from offsets only the active saw
+                and state.matches(again, state.source)
+            ):
                 self._pending, self.transition = None, again
                 self.t0_s, self.source, self.shape = state.t0_s, state.source, state.kind
+                self._done = False
                 return "replanned"
+            # not to be continued: the shape asked, taken as done at once (this standby's own
+            # plan of the same command if it has one, else the one made now)
+            asked = plan is not None and (plan.kind, plan.spacing_m, plan.slots) == (
+                state.kind,
+                state.spacing_m,
+                state.slots,
+            )
+            if not asked and isinstance(again, Transition):
+                self._pending = again
+            self.shape = state.kind
             self.finish()
             return "finished"
         self._pending, self.transition, self.t0_s = None, plan, state.t0_s

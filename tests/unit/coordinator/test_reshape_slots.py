@@ -191,6 +191,13 @@ def test_a_standby_that_cannot_match_the_running_reshape_settles_it() -> None:
     assert standby.ask_standby("line", 0.4, SAFETY_M) is None
     assert standby.take_over(state, SAFETY_M) == "finished"
     assert standby.transition is None and len(standby.formation) == 3
+    line_offsets = sorted(map(tuple, shape_spec("line", 3, 0.4).body_offsets_m.tolist()))
+    assert standby.shape == "line"
+    assert sorted(map(tuple, standby.formation.body_offsets_m.tolist())) == line_offsets
+    # a standby that saw neither command settles into the shape the state names
+    blind = Reshaper(running)
+    assert blind.take_over(state, SAFETY_M) == "finished" and blind.shape == "line"
+    assert sorted(map(tuple, blind.formation.body_offsets_m.tolist())) == line_offsets
     # no reshape running at the takeover: the one kept is settled
     quiet = Reshaper(running)
     assert quiet.ask_standby("line", 0.4, SAFETY_M, slots=2) is None
