@@ -20,12 +20,13 @@ omega J R(theta) d_i + R(theta) d_i'`` (eqs 1-5 differentiated with a moving off
 **Another number of slots** (``slots``). Fewer: the rearmost running slots (the least body x;
 equal x: the highest id; never the leader's) are dropped; each moves during the transition to a
 parking place behind the new shape (straight back, one spacing behind its rearmost slot; else,
-if that is not safe, in a row across there) and leaves the formation at its end, so its robot, which then has no slot and stops, is left behind
-by a formation driving on instead of standing in its way. More: the running slots are matched
-to as many slots of the new shape (least displacement, as above) and the others get fresh ids
-(above every running one: nobody's slot is renamed); an added slot stands where it ends from the
-start, and a robot without a slot (a spare) takes it on an approach point (coordinator.core.
-coordinator: spares never sprint). The separation check covers every slot of the transition.
+if that is not safe, in a row across there) and leaves the formation at its end, so its robot,
+which then has no slot and stops, is left behind by a formation driving on instead of standing
+in its way. More: the running slots are matched to as many slots of the new shape (least
+displacement, as above) and the others get fresh ids (above every running one: nobody's slot is
+renamed); an added slot stands where it ends from the start, and a robot without a slot (a
+spare) takes it on an approach point (coordinator.core.coordinator: spares never sprint). The
+separation check covers every slot of the transition.
 
 Schedules tried, first that keeps every pair of slots at least ``safety_m`` apart all along:
 every slot at once, then one slot at a time (rear first, then front first). The least
