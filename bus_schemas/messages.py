@@ -47,10 +47,11 @@ from bus_schemas.messages_fields import (
     DisturbanceKind,
     LeaderMode,
     Mode,
+    ReshapeSource,
     Role,
     ShapeKind,
 )
-from bus_schemas.messages_operator import CmdVel, Goal, Path, Shape
+from bus_schemas.messages_operator import SLOTS_MAX, SPACING_MAX_M, CmdVel, Goal, Path, Shape
 from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
@@ -139,6 +140,30 @@ class Leader:
         metadata=f_float(
             "fraction of the running reshape done (absent: none running)", "", lo=0.0, hi=1.0
         ),
+    )
+    # the running reshape as a standby needs it to continue it at a takeover (present while one
+    # runs; coordinator.core.reshaping)
+    slots: int | None = field(
+        default=None,
+        metadata=f_int("number of slots the running reshape ends with", lo=1, hi=SLOTS_MAX),
+    )
+    spacing_m: float | None = field(
+        default=None,
+        metadata=f_float("spacing of the running reshape's shape", "m", lo=0.0, hi=SPACING_MAX_M),
+    )
+    reshape_from: str | None = field(
+        default=None,
+        metadata=f_enum("what the running reshape started from", ReshapeSource),
+    )
+    reshape_t0: float | None = field(
+        default=None,
+        metadata=f_float(
+            "start of the running reshape (the clock of `t`)", "s", lo=-_TMAX, hi=_TMAX
+        ),
+    )
+    reshape_s: float | None = field(
+        default=None,
+        metadata=f_float("transition time of the running reshape", "s", lo=0.0, hi=_DUR),
     )
 
 

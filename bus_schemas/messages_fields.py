@@ -59,6 +59,18 @@ class ShapeKind(StrEnum):
     CHEVRON = "chevron"
 
 
+class ReshapeSource(StrEnum):
+    """What a running reshape started from (coordinator.core.reshaping): a shape, the
+    scenario's formation, or where another reshape had brought the slots."""
+
+    TRIANGLE = "triangle"
+    COLUMN = "column"
+    LINE = "line"
+    CHEVRON = "chevron"
+    SCENARIO = "scenario"
+    RESHAPE = "reshape"
+
+
 class DisturbanceKind(StrEnum):
     """What a disturbance does to a simulated robot."""
 

@@ -26,6 +26,7 @@ from bus_schemas.spec import (
     f_enum,
     f_float,
     f_float_list,
+    f_int,
     message,
 )
 
@@ -100,13 +101,18 @@ class Path:
 SPACING_MAX_M = 5.0
 """Largest spacing on the wire (m); the coordinator refuses a shape under 0.1 m or one that
 does not keep the safety distance (coordinator.core.reshape), and counts it."""
+SLOTS_MAX = 1024
+"""Most slots a reshape may ask on the wire; the coordinator refuses more than the robots
+alive (``shape-too_many_slots``) and counts it."""
 
 
 @message(name=keys.SHAPE, publisher="operator (formation shape)", periodic=False)
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Shape:
-    """Reshape the running formation into `kind`, slots `spacing_m` apart (absent: as now);
-    the slots move there over a transition time, never closer than the safety distance."""
+    """Reshape the running formation into `kind` of `slots` slots (absent: as many as now),
+    `spacing_m` apart (absent: as now); the slots move there over a transition time, never closer
+    than the safety distance. Fewer slots drop the rearmost at the end of the transition; more
+    add slots that robots without one (spares) take."""
 
     v: int = field(default=1, metadata=_V)
     t: float = field(metadata=_T)
@@ -114,4 +120,8 @@ class Shape:
     spacing_m: float | None = field(
         default=None,
         metadata=f_float("distance between neighbouring slots", "m", lo=0.0, hi=SPACING_MAX_M),
+    )
+    slots: int | None = field(
+        default=None,
+        metadata=f_int("number of slots of the new shape, leader included", lo=1, hi=SLOTS_MAX),
     )

@@ -95,7 +95,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     ),
     "formation goal": ("formation goal 1.5 0.5 --heading 1.57",),
     "formation path": ("formation path --waypoints 1,0 1.5,0.5 1,1",),
-    "formation shape": ("formation shape column --spacing 0.5",),
+    "formation shape": (
+        "formation shape column --spacing 0.5",
+        "formation shape chevron --slots 4",
+    ),
     "formation motor-emulator": ("formation motor-emulator --link /tmp/roboclaw",),
     "formation record": ("formation record --out run.mcap --duration 30 --scenario paper-exp2",),
     "formation report": ("formation report run.mcap --out run-report",),

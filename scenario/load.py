@@ -26,6 +26,7 @@ from robot_agent.core.params import (
 )
 from scenario.faults import Fault, FaultSpecError, parse_faults
 from scenario.movers import MoverBody, parse_movers
+from scenario.operator import OperatorEvent, parse_operator
 
 if TYPE_CHECKING:
     from coordinator.core.leader import LeaderConfig
@@ -105,6 +106,8 @@ class Scenario:
     """``[leader]``: the operator's limits, the deadman and whether the leader waits for its team
     (coordinator.core.leader, docs/operate.md); None: the defaults."""
     faults: tuple[Fault, ...] = field(default_factory=tuple)  # [[fault]] (scenario.faults)
+    operator: tuple[OperatorEvent, ...] = ()
+    """Scripted operator commands (``[[operator]]``, scenario/operator.py; issue 28)."""
 
     def with_overrides(self, **changes: Any) -> Scenario:
         return dataclasses.replace(self, **changes)
@@ -197,7 +200,7 @@ TOP_KEYS = {
     "name", "description", "duration_s", "dt_s", "seed", "settle_s", "settle_tol_m", "robots",
     "geometry", "gains", "repulsion", "safety", "trajectory", "formation", "assignment", "plant",
     "camera", "link", "disturbance", "estimator", "safety_filter", "arena", "obstacle",
-    "leader", "fault", "mover",
+    "leader", "fault", "mover", "operator",
 }  # fmt: skip
 
 
@@ -406,6 +409,7 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         raise ScenarioError(str(exc)) from None
     try:
         movers = parse_movers(data.get("mover"), tuple(ids), duration)
+        operator = parse_operator(data.get("operator"), len(ids), duration)
     except ValueError as exc:
         raise ScenarioError(str(exc)) from None
     description = data.get("description", "")
@@ -433,4 +437,5 @@ def parse(data: dict[str, Any], source: str = "<dict>") -> Scenario:  # noqa: PL
         leader=leader,
         faults=faults,
         movers=movers,
+        operator=operator,
     )

@@ -42,7 +42,8 @@ from coordinator.core.formation import (
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
 from coordinator.core.movers import MoverDetector, MoverParams, MoverRow
-from coordinator.core.reshape import Transition, blended_rows, plan_reshape
+from coordinator.core.reshape import blended_rows
+from coordinator.core.reshaping import Reshaper
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.core.kinematics import reference_point
 from robot_agent.core.params import AgentConfig
@@ -290,7 +291,8 @@ class CoordinatorCore:
         self.leader.t0_s = t0_s
         # a planned trajectory may squeeze the formation (time-varying slot offsets)
         self._offsets_at = getattr(trajectory, "slot_offsets", None)
-        self.formation = formation
+        self.reshaper = Reshaper(formation)
+        """The settled formation and a runtime reshape over it (coordinator.core.reshaping)."""
         self.assigner = assigner
         self.ref_offset_m = ref_offset_m
         self.errors_m: dict[str, float] = {}
@@ -300,21 +302,42 @@ class CoordinatorCore:
         self.movers = MoverDetector(movers)
         """Robots moving as their wheels cannot (issue 30): no slot while so, theirs kept."""
         self._yielding: frozenset[str] = frozenset()
+        self._released: dict[str, tuple[int, float]] = {}
+        """Robots whose slot a reshape dropped -> (that slot, until when, s): still counted as
+        driven by the mover detector while they brake (a spare that moves is a mover)."""
         self.approach_speed_mps = APPROACH_SPEED_MPS
         self._approach: dict[str, list[float]] = {}  # robot -> approach point [x, y]
         self._running = False  # a tick has assigned robots (later assignments approach)
         self._last_now: float | None = None
-        self._row_of: dict[int, int] | None = None
+        self._row_of: dict[int, int] = {}
+        self._row_ids: tuple[int, ...] | None = None  # the slot ids _row_of was built for
         self._last_out: CoordinatorOutput | None = None
-        self._transition: Transition | None = None
-        self._transition_t0: float | None = None
-        self._pending_reshape: Transition | None = None
-        self._done: Transition | None = None
-        self.shape: str | None = None
+
+    @property
+    def formation(self) -> FormationSpec:
+        """The settled formation (the scenario's, or the target of the last reshape over)."""
+        return self.reshaper.formation
+
+    @formation.setter
+    def formation(self, spec: FormationSpec) -> None:
+        self.reshaper.formation = spec
+
+    @property
+    def shape(self) -> str | None:
         """The kind of the last reshape asked (None: the scenario's formation)."""
-        self.reshapes: list[dict[str, Any]] = []
-        """One record per reshape completed: kind, spacing, start time, transition time and the
-        least slot separation along it (coordinator.core.reshape)."""
+        return self.reshaper.shape
+
+    @property
+    def reshapes(self) -> list[dict[str, Any]]:
+        """One record per reshape completed (coordinator.core.reshaping)."""
+        return self.reshaper.reshapes
+
+    def _rows_by_slot(self, slot_ids: tuple[int, ...]) -> dict[int, int]:
+        """Slot id -> row for rows in ``slot_ids`` order (cached for the same tuple)."""
+        if slot_ids is not self._row_ids:
+            self._row_of = {sid: i for i, sid in enumerate(slot_ids)}
+            self._row_ids = slot_ids
+        return self._row_of
 
     @property
     def t0_s(self) -> float:
@@ -394,21 +417,13 @@ class CoordinatorCore:
             self.errors_m = self._errors(self._last_out, ids, xy)
             rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
         leader = self.leader.step(now_s, rate)
-        if self._done is not None:
-            self.formation, self._done = self._done.target, None
-            self._row_of = None
-            if self._pending_reshape is None:
-                self._transition = self._transition_t0 = None
-        spec = self.formation
-        if self._pending_reshape is not None:
-            self._transition, self._pending_reshape = self._pending_reshape, None
-            self._transition_t0 = now_s
-        tr = self._transition
+        tr = self.reshaper.advance(now_s)
+        spec = self.formation if tr is None else tr.spec
         offsets = None  # a planned squeeze, at the plan's own (progress) time
         if tr is None and self._offsets_at is not None and self.leader.mode is LeaderMode.SCRIPT:
             offsets = self._offsets_at(self.leader.progress_s)
         if tr is not None:
-            theta, rows = self._reshaping(tr, now_s, leader)
+            theta, rows = blended_rows(leader, *self.reshaper.offsets(now_s))
         elif offsets is not None:
             theta, rows = morphed_slot_rows(leader, offsets)
         else:
@@ -417,7 +432,8 @@ class CoordinatorCore:
         slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
         was_yielding = self._yielding
-        if movers.update(now_s, poses, self.assignment, held, objects):
+        driven = self._driven(now_s) if self._released else self.assignment
+        if movers.update(now_s, poses, driven, held, objects):
             a_ids, a_xy, slot_ids, slot_xy = self._without_movers(ids, xy, slot_ids, slot_xy)
             assignment, changed = self.assigner.update_ordered(a_ids, a_xy, slot_ids, slot_xy)
         else:
@@ -425,14 +441,16 @@ class CoordinatorCore:
         refuges: dict[str, SlotRow] | None = None
         self._yielding = movers.yielding
         if self._yielding or was_yielding:
-            refuges = self._make_room(assignment, ids, xy, rows, was_yielding)
+            refuges = self._make_room(assignment, ids, xy, rows, spec.slot_ids, was_yielding)
             changed = assignment != self.assignment
         previous, self.assignment = self.assignment, assignment
+        if changed and tr is None and len(previous) > len(assignment):
+            self._release(now_s, previous, assignment, spec)
         dt = 0.0 if self._last_now is None else max(0.0, now_s - self._last_now)
         self._last_now = now_s
         approach = None
         if self._approach or (changed and self._running):
-            approach = self._approaches(previous, assignment, ids, xy, rows, dt)
+            approach = self._approaches(previous, assignment, ids, xy, rows, spec.slot_ids, dt)
         if refuges:
             approach = {**approach, **refuges} if approach else refuges
         self._running = self._running or bool(assignment)
@@ -441,6 +459,27 @@ class CoordinatorCore:
         )
         self._last_out = out
         return out
+
+    def _release(
+        self,
+        now_s: float,
+        previous: Mapping[str, int],
+        assignment: Mapping[str, int],
+        spec: FormationSpec,
+    ) -> None:
+        """The robots that lost their slot because a reshape dropped it: driven for a while."""
+        grace = self.movers.params.window_s + self.movers.params.hold_s
+        for rid, slot in previous.items():
+            if rid not in assignment and slot not in spec:
+                self._released[rid] = (slot, now_s + grace)
+
+    def _driven(self, now_s: float) -> dict[str, int]:
+        """The previous assignment plus the robots released by a reshape that may still be
+        braking (coordinator.core.movers: a robot without a slot that moves is a mover)."""
+        for rid in [r for r, (_, until) in self._released.items() if now_s > until]:
+            del self._released[rid]
+        extra = {r: slot for r, (slot, _) in self._released.items() if r not in self.assignment}
+        return {**self.assignment, **extra}
 
     def _without_movers(
         self,
@@ -469,6 +508,7 @@ class CoordinatorCore:
         ids: list[str],
         xy: list[tuple[float, float]],
         rows: list[SlotRow],
+        slot_ids: tuple[int, ...],
         was_yielding: frozenset[str],
     ) -> dict[str, SlotRow]:
         """The robots making room for a mover (coordinator.core.movers) keep the slot they had
@@ -478,99 +518,57 @@ class CoordinatorCore:
         assigned robot does)."""
         movers = self.movers
         reserved = movers.reserved
+        row_of = self._rows_by_slot(slot_ids)
         where = dict(zip(ids, xy, strict=True))
         out: dict[str, SlotRow] = {}
         points: dict[str, tuple[float, float]] = {}
         for rid in sorted(self._yielding):
             slot = reserved.get(rid)
             q = where.get(rid)
-            if slot is None or q is None:
+            if slot is None or q is None or slot not in row_of:  # (a slot a reshape dropped)
                 continue
             assignment[rid] = slot
             self._approach.pop(rid, None)
             points[rid] = q
         out.update(movers.aside_rows(points))
-        if self._row_of is None:
-            self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
         for rid in sorted(was_yielding - self._yielding):
             slot = assignment.get(rid)
             q = where.get(rid)
             if slot is None or q is None or rid in self._approach:
                 continue
-            sx, sy, _, _ = rows[self._row_of[slot]]
+            sx, sy, _, _ = rows[row_of[slot]]
             if math.hypot(sx - q[0], sy - q[1]) > APPROACH_JOIN_M:
                 self._approach[rid] = [q[0], q[1]]
         return out
 
-    # -- runtime reshaping (coordinator.core.reshape) -------------------------------------------
+    # -- runtime reshaping (coordinator.core.reshaping) ----------------------------------------
 
-    def reshape(self, kind: str, spacing_m: float, safety_m: float) -> str | None:
-        """Reshape the formation into ``kind`` with slots ``spacing_m`` apart, never closer than
-        ``safety_m`` (m) along the way; applied at the next tick. Returns why it is refused
-        (``bad_shape``, ``unsafe``), or None. A reshape during a reshape starts from where the
+    def reshape(
+        self,
+        kind: str,
+        spacing_m: float,
+        safety_m: float,
+        slots: int | None = None,
+        robots: int | None = None,
+    ) -> str | None:
+        """Reshape the formation into ``kind`` with ``slots`` slots (None: as now) ``spacing_m``
+        apart, never closer than ``safety_m`` (m) along the way; applied at the next tick.
+        Returns why it is refused (``too_many_slots`` beyond ``robots`` alive, ``bad_slots``,
+        ``bad_shape``, ``unsafe``), or None. A reshape during a reshape starts from where the
         slots are."""
-        current = None
-        tr = self._transition
-        if self._done is not None:  # over, not yet switched: the new shape is where they are
-            self.formation, self._done = self._done.target, None
-            self._row_of = None
-            self._transition = self._transition_t0 = tr = None
-        if tr is not None and self._last_now is not None and self._transition_t0 is not None:
-            current = tr.progress(self._last_now - self._transition_t0)[0]
-        plan = plan_reshape(self.formation, kind, spacing_m, safety_m, current)
-        if isinstance(plan, str):
-            return plan
-        self._pending_reshape = plan
-        self.shape = kind
-        return None
-
-    def finish_reshape(self) -> None:
-        """Take the reshape asked as done at once (a standby: it does not tick; the formation
-        is the new shape when it takes over)."""
-        plan = self._pending_reshape or self._transition
-        if plan is not None:
-            self.formation = plan.target
-            self._row_of = None
-        self._pending_reshape = self._transition = self._transition_t0 = self._done = None
+        return self.reshaper.ask(kind, spacing_m, safety_m, slots, robots)
 
     @property
     def reshaping(self) -> float | None:
         """Fraction of the running reshape done (None: no reshape running)."""
-        tr, t0, now = self._transition, self._transition_t0, self._last_now
-        if tr is None or t0 is None or now is None:
-            return None
-        return min(max((now - t0) / tr.duration_s, 0.0), 1.0)
-
-    def _reshaping(
-        self, tr: Transition, now_s: float, leader: LeaderState
-    ) -> tuple[float, list[SlotRow]]:
-        """The slots of a running reshape at ``now_s`` (the running formation's row order);
-        at its end the new shape becomes the formation (from the next tick)."""
-        assert self._transition_t0 is not None
-        offsets, rates, done = tr.progress(now_s - self._transition_t0)
-        theta, rows = blended_rows(leader, offsets, rates)
-        if done:
-            self.reshapes.append(
-                {
-                    "kind": tr.kind,
-                    "spacing_m": tr.spacing_m,
-                    "started_s": self._transition_t0,
-                    "transition_s": tr.duration_s,
-                    "least_separation_m": tr.least_separation_m,
-                    "schedule": tr.schedule,
-                }
-            )
-            self._done = tr  # the new shape becomes the formation at the next tick
-        return theta, rows
+        return self.reshaper.fraction
 
     def _errors(
         self, last: CoordinatorOutput, ids: list[str], xy: list[tuple[float, float]]
     ) -> dict[str, float]:
         """Each robot assigned at the last tick: distance (m) from its reference point now to
         the setpoint it was given (its slot, or its approach point)."""
-        row_of = self._row_of
-        if row_of is None:
-            row_of = self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+        row_of = self._rows_by_slot(last.slot_ids)
         where = dict(zip(ids, xy, strict=True))
         out: dict[str, float] = {}
         rows, approach = last.rows, last.approach
@@ -589,13 +587,12 @@ class CoordinatorCore:
         ids: list[str],
         xy: list[tuple[float, float]],
         rows: list[SlotRow],
+        slot_ids: tuple[int, ...],
         dt: float,
     ) -> dict[str, SlotRow] | None:
         """Advance the approach points by ``dt`` and start those of the robots newly assigned
         far from their slot (module docstring); the approach setpoints, or None."""
-        row_of = self._row_of
-        if row_of is None:
-            row_of = self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+        row_of = self._rows_by_slot(slot_ids)
         points = self._approach
         for rid in [r for r in points if r not in assignment]:
             del points[rid]

@@ -17,6 +17,17 @@ window of the transition (``u`` the fraction of the window elapsed), so its velo
 continuous at both ends. The slot in the world: ``p_i = p_L + R(theta) d_i``, ``v_i = v_L +
 omega J R(theta) d_i + R(theta) d_i'`` (eqs 1-5 differentiated with a moving offset).
 
+**Another number of slots** (``slots``). Fewer: the rearmost running slots (the least body x;
+equal x: the highest id; never the leader's) are dropped; each moves during the transition to a
+parking place behind the new shape (straight back, one spacing behind its rearmost slot; else,
+if that is not safe, in a row across there) and leaves the formation at its end, so its robot,
+which then has no slot and stops, is left behind by a formation driving on instead of standing
+in its way. More: the running slots are matched to as many slots of the new shape (least
+displacement, as above) and the others get fresh ids (above every running one: nobody's slot is
+renamed); an added slot stands where it ends from the start, and a robot without a slot (a
+spare) takes it on an approach point (coordinator.core.coordinator: spares never sprint). The
+separation check covers every slot of the transition.
+
 Schedules tried, first that keeps every pair of slots at least ``safety_m`` apart all along:
 every slot at once, then one slot at a time (rear first, then front first). The least
 separation of a plan is computed on :data:`CHECK_SAMPLES` instants of its transition (between
@@ -43,6 +54,7 @@ from coordinator.core.trajectory import LeaderState, wrap_angle
 __all__ = [
     "BRUTE_FORCE_MAX",
     "CHECK_SAMPLES",
+    "MAX_SLOTS",
     "MIN_TRANSITION_S",
     "RESHAPE_SPEED_MPS",
     "SHAPE_KINDS",
@@ -59,6 +71,8 @@ MIN_TRANSITION_S: Final = 3.0
 CHECK_SAMPLES: Final = 1000
 BRUTE_FORCE_MAX: Final = 6
 SPACING_RANGE_M: Final = (0.1, 5.0)
+MAX_SLOTS: Final = 1024
+"""Most slots a reshape may ask (the bus contract's bound on robots of a fleet)."""
 
 
 def shape_rows(kind: str, n: int, spacing_m: float) -> list[Row]:
@@ -118,9 +132,9 @@ def _separation(d0: np.ndarray, d1: np.ndarray, windows: Sequence[tuple[float, f
 
 @dataclass(frozen=True)
 class Transition:
-    """A planned reshape: offsets of every slot (rows in the running formation's definition
-    order) before and after, each slot's window of the transition, its duration and the least
-    separation of the slots along it."""
+    """A planned reshape: offsets of every slot of the transition (rows in :attr:`spec`'s
+    definition order) before and after, each slot's window of the transition, its duration and
+    the least separation of the slots along it."""
 
     kind: str
     spacing_m: float
@@ -132,6 +146,19 @@ class Transition:
     duration_s: float
     least_separation_m: float
     schedule: str
+    spec: FormationSpec
+    """The formation during the transition (its rows are those of ``start``, ``end``): the
+    running one, or the target when slots are added (they are in the target only)."""
+    dropped: tuple[int, ...] = ()
+    """Slots of the running formation that are not in the target (fewer slots): they keep
+    their offset during the transition and are dropped at its end."""
+    added: tuple[int, ...] = ()
+    """Slots of the target that were not running (more slots): each stays where it ends."""
+
+    @property
+    def slots(self) -> int:
+        """Number of slots once the transition is over."""
+        return len(self.target)
 
     def progress(self, elapsed_s: float) -> tuple[np.ndarray, np.ndarray, bool]:
         """Offsets (n, 2) and their rates (m/s) at ``elapsed_s`` into the transition, and
@@ -147,40 +174,136 @@ class Transition:
         return self.start + s[:, None] * delta, ds[:, None] * delta, u >= 1.0
 
 
+def _kept_rows(d0: np.ndarray, ids: Sequence[int], n_new: int) -> list[int]:
+    """Rows of the running formation that keep a slot when it goes to ``n_new`` slots: all of
+    them, or, fewer, all but the rearmost (the least body x; equal x: the highest slot id), the
+    leader's row 0 always kept. A robot dropped at the rear is left behind by a formation that
+    drives forward instead of being driven through."""
+    n = len(ids)
+    if n_new >= n:
+        return list(range(n))
+    rear_first = sorted(range(1, n), key=lambda r: (round(float(d0[r, 0]), 9), -ids[r]))
+    drop = set(rear_first[: n - n_new])
+    return [r for r in range(n) if r not in drop]
+
+
+def _matchings(kept: Sequence[int], d0: np.ndarray, new_off: np.ndarray) -> list[dict[int, int]]:
+    """Candidate matchings running row -> new row (row 0 -> 0) of the ``kept`` rows, least
+    summed squared displacement first: every one for up to BRUTE_FORCE_MAX slots, else the
+    optimal one (the CAPT rule, module docstring)."""
+    rest = [r for r in kept if r != 0]
+    n_new = len(new_off)
+    if len(rest) == 0:
+        return [{0: 0}]
+    if n_new - 1 <= BRUTE_FORCE_MAX:
+        cands = [
+            {0: 0, **dict(zip(rest, cols, strict=True))}
+            for cols in itertools.permutations(range(1, n_new), len(rest))
+        ]
+        cost = [sum(float(((new_off[m[r]] - d0[r]) ** 2).sum()) for r in rest) for m in cands]
+        return [m for _, m in sorted(zip(cost, cands, strict=True), key=lambda cm: cm[0])]
+    c = ((d0[rest][:, None, :] - new_off[None, 1:, :]) ** 2).sum(axis=2)
+    rows, cols = linear_sum_assignment(c)
+    return [{0: 0, **{rest[int(i)]: int(k) + 1 for i, k in zip(rows, cols, strict=True)}}]
+
+
+def _rows_of_plan(
+    running: FormationSpec,
+    new: FormationSpec,
+    d0: np.ndarray,
+    match: dict[int, int],
+    spacing_m: float,
+    park: str,
+) -> tuple[FormationSpec, FormationSpec, np.ndarray, np.ndarray, tuple[int, ...], tuple[int, ...]]:
+    """For one matching: the target (``new`` relabelled), the formation during the transition,
+    its start and end offsets, the dropped and the added slot ids. A dropped slot ends parked
+    behind the new shape (:func:`_parking`, ``park``), so its robot, which stops there, is left
+    behind by the formation."""
+    ids = list(running.slot_ids)
+    new_off = np.array(new.body_offsets_m)
+    to_id: dict[int, int] = {}
+    for r, j in match.items():
+        to_id[new.slots[j].slot] = ids[r]
+    fresh = max(ids) + 1
+    added: list[int] = []
+    for s in new.slots:
+        if s.slot not in to_id:
+            to_id[s.slot] = fresh
+            added.append(fresh)
+            fresh += 1
+    target = _relabel(new, to_id)
+    dropped = tuple(ids[r] for r in range(len(ids)) if r not in match)
+    if added:  # the rows of the target; an added slot starts where it ends
+        row_from = {j: r for r, j in match.items()}
+        start = np.array(
+            [d0[row_from[j]] if j in row_from else new_off[j] for j in range(len(new))]
+        )
+        return target, target, start, new_off.copy(), dropped, tuple(added)
+    end = np.array([new_off[match[r]] if r in match else d0[r] for r in range(len(ids))])
+    gone = [r for r in range(len(ids)) if r not in match]
+    for r, xy in _parking(d0, gone, float(new_off[:, 0].min()) - spacing_m, spacing_m, park):
+        end[r] = xy
+    return target, running, d0.copy(), end, dropped, ()
+
+
+PARKINGS: Final = ("behind", "abreast")
+"""Where dropped slots go (:func:`_parking`), tried in this order."""
+
+
+def _parking(
+    d0: np.ndarray, gone: Sequence[int], back_m: float, spacing_m: float, park: str
+) -> list[tuple[int, tuple[float, float]]]:
+    """Parking places (body frame) of the dropped rows ``gone``: ``behind``: straight back from
+    where each is to ``back_m`` (one spacing behind the new shape; never forward), one more
+    spacing back for each one already parked in its lane; ``abreast``: a row across at
+    ``back_m``, ``spacing_m`` apart, in the order they stand across (right to left)."""
+    out: list[tuple[int, tuple[float, float]]] = []
+    if park == "abreast":
+        across = sorted(gone, key=lambda r: (float(d0[r, 1]), r))
+        for j, r in enumerate(across):
+            out.append((r, (back_m, (j - 0.5 * (len(across) - 1)) * spacing_m)))
+        return out
+    for r in sorted(gone, key=lambda r: (-float(d0[r, 0]), r)):  # the front one first
+        x, y = min(back_m, float(d0[r, 0])), float(d0[r, 1])
+        while any(abs(px - x) < spacing_m and abs(py - y) < spacing_m for _, (px, py) in out):
+            x -= spacing_m
+        out.append((r, (x, y)))
+    return out
+
+
 def plan_reshape(
     running: FormationSpec,
     kind: str,
     spacing_m: float,
     safety_m: float,
     current: np.ndarray | None = None,
+    slots: int | None = None,
 ) -> Transition | str:
-    """Plan the reshape of ``running`` into ``kind`` (module docstring), starting from the
-    offsets ``current`` (default: the running formation's); the refusal reason instead when no
-    plan keeps every pair at least ``safety_m`` (m) apart (``unsafe``) or the input is bad."""
+    """Plan the reshape of ``running`` into ``kind`` with ``slots`` slots (default: as many as
+    running; module docstring), starting from the offsets ``current`` (default: the running
+    formation's); the refusal reason instead when no plan keeps every pair at least
+    ``safety_m`` (m) apart (``unsafe``) or the input is bad (``bad_shape``, ``bad_slots``)."""
+    n_new = len(running) if slots is None else slots
+    if isinstance(n_new, bool) or not isinstance(n_new, int) or not 1 <= n_new <= MAX_SLOTS:
+        return "bad_slots"
     try:
-        new = shape_spec(kind, len(running), spacing_m)
+        new = shape_spec(kind, n_new, spacing_m)
     except ValueError:
         return "bad_shape"
     d0 = np.array(running.body_offsets_m if current is None else current, dtype=np.float64)
-    ids = list(running.slot_ids)
     new_off = np.array(new.body_offsets_m)
-    n = len(ids)
-    perms: list[list[int]] = []  # perm[r] = row of `new` for running row r
-    if n - 1 <= BRUTE_FORCE_MAX:
-        for rest in itertools.permutations(range(1, n)):
-            perms.append([0, *rest])
-        cost = [float(((new_off[p] - d0) ** 2).sum()) for p in perms]
-        perms = [p for _, p in sorted(zip(cost, perms, strict=True), key=lambda cp: cp[0])]
-    else:
-        c = ((d0[1:, None, :] - new_off[None, 1:, :]) ** 2).sum(axis=2)
-        _, cols = linear_sum_assignment(c)
-        perms.append([0, *(int(k) + 1 for k in cols)])
+    kept = _kept_rows(d0, running.slot_ids, n_new)
     best: Transition | None = None
-    for perm in perms[:24]:  # the least-displacement permutations first
-        d1 = new_off[perm]
-        dist = np.hypot(*(d1 - d0).T)
+    parkings = PARKINGS if len(kept) < len(running) else PARKINGS[:1]
+    candidates = itertools.product(_matchings(kept, d0, new_off)[:24], parkings)
+    for match, park in candidates:  # the least-displacement matchings first
+        target, spec, start, end, dropped, added = _rows_of_plan(
+            running, new, d0, match, spacing_m, park
+        )
+        n = len(start)
+        dist = np.hypot(*(end - start).T)
         moving = [r for r in range(n) if dist[r] > 1e-9]
-        rear_first = sorted(moving, key=lambda r: (d0[r, 0], r))
+        rear_first = sorted(moving, key=lambda r: (start[r, 0], r))
         schedules: list[tuple[str, list[tuple[float, float]]]] = [
             ("together", [(0.0, 1.0)] * n),
         ]
@@ -191,26 +314,26 @@ def plan_reshape(
                 win[r] = (j / k, (j + 1) / k)
             schedules.append((name, win))
         for name, win in schedules:
-            least = _separation(d0, d1, win)
+            least = _separation(start, end, win)
             span = min(
                 (w[1] - w[0] for w, dd in zip(win, dist, strict=True) if dd > 1e-9), default=1.0
             )
             duration = max(
                 MIN_TRANSITION_S, 1.5 * float(dist.max(initial=0.0)) / RESHAPE_SPEED_MPS / span
             )
-            to_id = {
-                s.slot: ids[r] for r, s in zip(range(n), (new.slots[p] for p in perm), strict=True)
-            }
             plan = Transition(
                 kind,
                 float(spacing_m),
-                _relabel(new, to_id),
-                d0,
-                d1,
+                target,
+                start,
+                end,
                 tuple(win),
                 duration,
                 least,
                 name,
+                spec,
+                dropped,
+                added,
             )
             if least >= safety_m:
                 return plan

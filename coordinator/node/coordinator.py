@@ -46,10 +46,11 @@ from bus_schemas import (
 )
 from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.election import Election, Takeover
+from coordinator.core.operator_script import OperatorScript
 from coordinator.node.election_io import MAX_ROBOTS, ElectionIO
 from coordinator.node.estop_source import EstopSource
 from coordinator.node.fault_schedule import FaultNotices, slot_messages
-from coordinator.node.operator_io import OperatorInputs
+from coordinator.node.operator_io import OperatorInputs, reshape_fields
 from coordinator.node.outputs import TickOutputs
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
@@ -186,11 +187,19 @@ class CoordinatorNode:
             lockstep=lockstep,
             now=self._now,
             is_active=lambda: self.active,
+            robots=lambda: self.alive,
             reject=self.faults.reject,
             internal=self.faults.internal,
             log=self.log,
         )
         self._takeovers_seen = 0
+        # the scenario's scripted operator commands ([[operator]]), played as the in-process
+        # simulator plays them (coordinator.core.operator_script)
+        self.operator_script = (
+            OperatorScript(scenario.operator, scenario.agent.safety_distance_m)
+            if scenario.operator
+            else None
+        )
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -427,10 +436,17 @@ class CoordinatorNode:
             if self.election.takeovers != self._takeovers_seen:  # continue the leader (issue 28)
                 self._takeovers_seen = self.election.takeovers
                 self.operator.took_over(now_s, self.t0_s)
+                if self.operator_script is not None:
+                    self.operator_script.skip_until(now_s - self.t0_s)
             started = time.perf_counter()
             poses = self.fresh_poses(now_s)
             if self.scripted.state.offline():  # a scripted kill: its robot counts as gone
                 poses = self.scripted.counted(poses)
+            if self.operator_script is not None:
+                for cmd, why in self.operator_script.play(
+                    self.core, now_s - self.t0_s, now_s, len(poses)
+                ):
+                    self.faults.reject("operator", f"scripted {cmd} refused: {why}", f"{cmd}-{why}")
             held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
             out = self.core.tick(now_s, poses, held, self.fresh_objects(now_s))
             self.ticks += 1
@@ -485,8 +501,9 @@ class CoordinatorNode:
         if self.core.shape is not None:
             extra["shape"] = self.core.shape
         reshaping = self.core.reshaping
-        if reshaping is not None:
+        if reshaping is not None:  # and what a standby needs to continue it (issue 28)
             extra["reshape"] = reshaping
+            extra.update(reshape_fields(self.core.reshaper.state()))
         return extra
 
     def with_faults(

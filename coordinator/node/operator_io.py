@@ -26,16 +26,24 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Collection
-from typing import Final
+from typing import Any, Final
 
 import runtime as rt
-from bus_schemas import CmdVel, DecodeError, Goal, Leader, Path, Shape, decode, keys
+from bus_schemas import CmdVel, DecodeError, Goal, Leader, Path, ReshapeSource, Shape, decode, keys
 from coordinator.core.coordinator import CoordinatorCore
 from coordinator.core.leader import LeaderMode
+from coordinator.core.reshaping import ReshapeState
 from coordinator.core.trajectory import LeaderState
 from robot_agent.core.estop import EstopLatch
 
-__all__ = ["BURST_MAX", "CMD_RATE_MAX_HZ", "LEADER_ADOPT_AGE_S", "OperatorInputs"]
+__all__ = [
+    "BURST_MAX",
+    "CMD_RATE_MAX_HZ",
+    "LEADER_ADOPT_AGE_S",
+    "OperatorInputs",
+    "reshape_fields",
+    "reshape_state",
+]
 
 CMD_RATE_MAX_HZ: Final = 50.0
 """Long-run rate of operator commands accepted (per second, a token bucket; realtime): the tools
@@ -45,6 +53,7 @@ BURST_MAX: Final = 10.0
 LEADER_ADOPT_AGE_S: Final = 2.0
 """A standby adopts only a ``leader`` message received this recently (s) at its takeover."""
 _JUMP_SLACK_M: Final = 0.005
+_FRACTION_TOL: Final = 1e-6
 
 
 class OperatorInputs:
@@ -59,6 +68,7 @@ class OperatorInputs:
         lockstep: bool,
         now: Callable[[], float],
         is_active: Callable[[], bool],
+        robots: Callable[[], Collection[str]],
         reject: Callable[[str, DecodeError | str, str | None], None],
         internal: Callable[[str, BaseException], None],
         log: rt.NodeLog,
@@ -77,6 +87,7 @@ class OperatorInputs:
         ``operator/*`` is refused by the router's access control under ``--secure``)."""
         self._now = now
         self._is_active = is_active
+        self._robots = robots
         self._reject = reject
         self._internal = internal
         self.log = log
@@ -87,6 +98,9 @@ class OperatorInputs:
         self._last_twist_s: float | None = None
         self._leaders: deque[tuple[float, Leader]] = deque(maxlen=8)
         self.adopted = 0
+        self.reshape_takeovers: dict[str, int] = {}
+        """What takeovers did with a reshape the previous active ran, by outcome
+        (coordinator.core.reshaping.Reshaper.take_over)."""
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -183,24 +197,16 @@ class OperatorInputs:
         if isinstance(msg, DecodeError):
             self._reject("shape", msg, None)
             return
-        spacing = msg.spacing_m if msg.spacing_m is not None else self.spacing_m()
-        why = self.core.reshape(msg.kind, spacing, self.safety_m)
+        spacing = msg.spacing_m if msg.spacing_m is not None else self.core.reshaper.spacing_m
+        # the active starts it at its next tick; a standby keeps it planned, not started, to
+        # continue it at a takeover (coordinator.core.reshaping)
+        reshaper = self.core.reshaper
+        ask = reshaper.ask if self._is_active() else reshaper.ask_standby
+        why = ask(msg.kind, spacing, self.safety_m, msg.slots, len(self._robots()))
         if why is not None:
             self._reject("shape", f"refused: {msg.kind} at {spacing:.3g} m: {why}", why)
             return
-        self.log.info(f"reshape into a {msg.kind}, slots {spacing:.3g} m apart")
-        if not self._is_active():
-            # a standby takes the new shape as it will be (a takeover mid-reshape skips the
-            # rest of the transition: docs/operate.md)
-            self.core.finish_reshape()
-
-    def spacing_m(self) -> float:
-        """The running formation's spacing (m): its least distance between two slots."""
-        off = self.core.formation.body_offsets_m.tolist()
-        gaps = [
-            math.hypot(a[0] - b[0], a[1] - b[1]) for i, a in enumerate(off) for b in off[i + 1 :]
-        ]
-        return min(gaps, default=0.4)
+        self.log.info(f"reshape into a {msg.kind} of {reshaper.slots} slots {spacing:.3g} m apart")
 
     def on_leader(self, rx: rt.Received) -> None:
         """The active instance's ``leader`` (a realtime standby keeps the last few)."""
@@ -227,6 +233,7 @@ class OperatorInputs:
         the previous active's leader if it is not the script at that origin (module docstring).
         True if it adopted one."""
         msg = self._continuable(now_s)
+        self._continue_reshape(msg)
         self._leaders.clear()
         if msg is None or msg.mode is None:
             return False
@@ -244,6 +251,18 @@ class OperatorInputs:
         )
         return True
 
+    def _continue_reshape(self, msg: Leader | None) -> None:
+        """At a takeover: continue the reshape the previous active's last ``leader`` message
+        ``msg`` (one that continues the one before it) says was running (its fields
+        ``reshape_t0``, ...), or settle the one this standby kept."""
+        state = None if msg is None else reshape_state(msg)
+        outcome = self.core.reshaper.take_over(state, self.safety_m)
+        self.reshape_takeovers[outcome] = self.reshape_takeovers.get(outcome, 0) + 1
+        if outcome != "none":
+            self.log.info(f"the reshape at the takeover: {outcome}")
+            if outcome == "finished" and state is not None:
+                self._reject("shape", "a running reshape could not be continued", "takeover")
+
     def _continuable(self, now_s: float) -> Leader | None:
         """The newest recent ``leader`` message that continues the one before it (no jump)."""
         recent = [m for rx_s, m in self._leaders if 0.0 <= now_s - rx_s <= LEADER_ADOPT_AGE_S]
@@ -256,3 +275,33 @@ class OperatorInputs:
             if math.hypot(b.x - a.x, b.y - a.y) <= reach:
                 return b
         return None
+
+
+def reshape_state(msg: Leader) -> ReshapeState | None:
+    """The running reshape a ``leader`` message describes (None: none, or an older
+    coordinator's message without the fields)."""
+    if msg.reshape is None or msg.shape is None:
+        return None
+    if msg.slots is None or msg.spacing_m is None or msg.reshape_t0 is None:
+        return None
+    if msg.reshape_s is None or msg.reshape_from is None or not msg.reshape_s > 0.0:
+        return None
+    done = min(max((msg.t - msg.reshape_t0) / msg.reshape_s, 0.0), 1.0)
+    if abs(done - msg.reshape) > _FRACTION_TOL:  # its fields do not agree: not a reshape's
+        return None
+    source = None if msg.reshape_from == ReshapeSource.SCENARIO else msg.reshape_from
+    return ReshapeState(msg.shape, msg.spacing_m, msg.slots, msg.reshape_t0, msg.reshape_s, source)
+
+
+def reshape_fields(state: ReshapeState | None) -> dict[str, Any]:
+    """The ``leader`` message's fields of a running reshape (the inverse of
+    :func:`reshape_state`)."""
+    if state is None:
+        return {}
+    return {
+        "slots": state.slots,
+        "spacing_m": state.spacing_m,
+        "reshape_from": ReshapeSource.SCENARIO.value if state.source is None else state.source,
+        "reshape_t0": state.t0_s,
+        "reshape_s": state.duration_s,
+    }

@@ -24,7 +24,7 @@ import math
 import struct
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -38,6 +38,7 @@ __all__ = [
     "TURN_STEP_RADPS",
     "Gamepad",
     "TeleopKeys",
+    "alive_robots",
     "common_options",
     "find_gamepad",
     "finite",
@@ -179,6 +180,24 @@ def common_options(parser: argparse.ArgumentParser) -> None:
     rt.add_zenoh_arguments(parser)
 
 
+async def alive_robots(session: Any, fleet: str, wait_s: float = 0.3) -> set[str]:
+    """The robots of ``fleet`` whose liveliness token is on the bus (seen within ``wait_s``)."""
+    loop = asyncio.get_running_loop()
+    alive: set[str] = set()
+
+    def on(key: str, up: bool) -> None:
+        parsed = keys.parse_alive_key(key)
+        if parsed is not None and parsed[1] == "robot" and parsed[2] is not None:
+            (alive.add if up else alive.discard)(parsed[2])
+
+    sub = rt.watch_liveliness(session, keys.alive_robots_pattern(fleet), loop, on)
+    try:
+        await asyncio.sleep(wait_s)
+    finally:
+        sub.undeclare()
+    return alive
+
+
 async def watch_leader(
     session: Any,
     key: str,
@@ -224,15 +243,21 @@ def send_and_confirm(
     *,
     taken: Callable[[Leader], str],
     missing: str,
+    check: Callable[[Any], Awaitable[str | None]] | None = None,
 ) -> int:
     """One operator command end to end (``formation goal``, ``path``, ``shape``): publish it,
     wait for the coordinator's ``leader`` message that shows it was taken (``want``), print
     ``taken(leader)`` and return 0; else print ``missing`` (what did not happen within
-    ``timeout_s``) and return 1, as for a bus that cannot be reached."""
+    ``timeout_s``) and return 1, as for a bus that cannot be reached. ``check(session)``, if
+    given, runs first: an error it returns is printed as one line, nothing is sent, exit 2."""
 
     async def run() -> int:
         session = await rt.open_session_async(settings)
         try:
+            why = None if check is None else await check(session)
+            if why is not None:
+                print(f"{prog}: error: {why}", file=sys.stderr)
+                return 2
             got = await watch_leader(session, key, payload, fleet, want, timeout_s)
         finally:
             session.close()

@@ -305,7 +305,8 @@ def compute(log: RunLog, settle_s: float, settle_tol_m: float) -> dict[str, Any]
 
 
 def reshape_metrics(log: RunLog) -> list[dict[str, Any]]:
-    """Each runtime reshape of the run (issue 28, ``log.reshapes``): its kind, start, transition
+    """Each runtime reshape of the run (issue 28, ``log.reshapes``): its kind, the number of
+    slots it ends with (None: not recorded), start, transition
     time (s, as the leader messages reported it running), the least distance between two
     robots' axle centres (m, the truth) during it, and whether it was complete (a run that
     ended during a reshape reports the part it saw)."""
@@ -329,6 +330,7 @@ def reshape_metrics(log: RunLog) -> list[dict[str, Any]]:
                 "transition_s": end - start,
                 "least_separation_m": _finite_or_none(least),
                 "complete": bool(r.get("complete", True)),
+                "slots": r.get("slots"),
             }
         )
     return out

@@ -374,9 +374,9 @@ class RunCollector:
         rows, info = row_keys(
             history.truth, len(self.robot_ids), history.leader if self.lockstep else None
         )
-        slot_ids = (
-            self.slot_ids if self.slot_ids is not None else sorted(history.slots)  # seen on the bus
-        )
+        # the scenario's slots, then any a runtime reshape added (seen on the bus, issue 28)
+        known = self.slot_ids if self.slot_ids is not None else []
+        slot_ids = [*known, *(s for s in sorted(history.slots) if s not in known)]
         log = RunLog.allocate(self.robot_ids, slot_ids, rows.size)
         origin: float | None = None  # realtime: the bus time of the log's 0 s
         if rows.size:

@@ -150,18 +150,21 @@ def fill_rows(
     return gaps
 
 
-def reshape_intervals(
-    marks: Sequence[tuple[float, str | None, float]], origin_s: float
-) -> list[dict[str, Any]]:
-    """The runtime reshapes (issue 28) in the leader messages' ``(t, shape, reshape fraction)``
-    marks: one ``{"kind", "start_s", "end_s"}`` per reshape (times minus ``origin_s``, the
-    RunLog's axis). A new reshape starts where the fraction falls back or the shape changes."""
+def reshape_intervals(marks: Sequence[tuple[Any, ...]], origin_s: float) -> list[dict[str, Any]]:
+    """The runtime reshapes (issue 28) in the leader messages' ``(t, shape, reshape fraction[,
+    slots])`` marks: one ``{"kind", "start_s", "end_s", "complete"}`` per reshape (times minus
+    ``origin_s``, the RunLog's axis), with ``"slots"`` (the number it ends with) when the marks
+    carry it. A new reshape starts where the fraction falls back or the shape changes."""
     out: list[dict[str, Any]] = []
-    last: tuple[float, str | None, float] | None = None
-    for t, shape, frac in sorted(marks, key=lambda m: m[0]):
+    last: tuple[Any, ...] | None = None
+    for mark in sorted(marks, key=lambda m: m[0]):
+        t, shape, frac = mark[0], mark[1], mark[2]
+        slots = mark[3] if len(mark) > 3 else None
         if last is None or shape != last[1] or frac < last[2]:
             out.append({"kind": shape, "start_s": t - origin_s, "end_s": t - origin_s})
         out[-1]["end_s"] = t - origin_s
         out[-1]["complete"] = frac >= 1.0
-        last = (t, shape, frac)
+        if slots is not None:
+            out[-1]["slots"] = slots
+        last = mark
     return out

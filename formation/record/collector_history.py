@@ -42,7 +42,8 @@ class RunHistory:
         self.truth: dict[float, dict[int, tuple[float, float, float]]] = {}
         self.last_truth_key: float | None = None
         self.leader = Series()
-        self.reshape_marks: list[tuple[float, str | None, float]] = []  # (t, shape, fraction)
+        # (t, shape, fraction, slots)
+        self.reshape_marks: list[tuple[float, str | None, float, int | None]] = []
         self.slots: dict[int, Series] = {}
         self.assignment = Series()
         self.wheels = [Series() for _ in range(n_robots)]
@@ -70,7 +71,7 @@ class RunHistory:
         pose = (leader.x, leader.y, leader.theta)
         self._stored(self.leader.add(self.row_key(leader.t), pose))
         if leader.reshape is not None and len(self.reshape_marks) < MAX_RESHAPE_MARKS:
-            self.reshape_marks.append((leader.t, leader.shape, leader.reshape))
+            self.reshape_marks.append((leader.t, leader.shape, leader.reshape, leader.slots))
 
     def add_slots(self, positions: SlotPositions) -> None:
         row = self.row_key(positions.t, positions.tick)

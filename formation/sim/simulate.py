@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
+from coordinator.core.operator_script import OperatorScript
 from formation.outputs.runlog import RunLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
@@ -210,6 +211,16 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     slot_of_changes: list[tuple[int, list[int]]] = []
 
     faults = FaultPlay(scenario, firmwares) if scenario.faults else None
+    # scripted operator commands ([[operator]], issue 28): played into the core before its tick,
+    # as the coordinator node does; a reshape may change the slots, so the rows are looked up
+    # by the slot ids of each output and logged by slot id
+    script = (
+        OperatorScript(scenario.operator, scenario.agent.safety_distance_m)
+        if scenario.operator
+        else None
+    )
+    log_slot_ids: list[tuple[int, ...]] = []
+    row_ids: tuple[int, ...] = coord.formation.slot_ids
     # scenario movers (issue 30): a body of radius R is a neighbour whose extra radius makes
     # the barrier's centre distance R + body + margin (the filter subtracts the noise budget)
     bodies = scenario.movers
@@ -304,15 +315,22 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                         oldest_rx = pose_rx[i]
         objects = seen_bodies if bodies else None
         if faults is None:
+            if script is not None:
+                script.play(coord, t, t, len(fresh))
             out = coord.tick(t, fresh, objects=objects)
         else:
             counted = faults.coordinator_input(fresh)
+            if script is not None:
+                script.play(coord, t, t, len(counted))
             out = coord.tick(t, counted, objects=objects)
             faults.observe(out, counted)
         # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
         t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
         cmds: list[WheelCommand] = []
         if prev_out is not None:
+            if prev_out.slot_ids is not row_ids:  # a reshape changed the rows
+                row_ids = prev_out.slot_ids
+                slot_row = {sid: r for r, sid in enumerate(row_ids)}
             prev_asg = prev_out.assignment
             prev_rows = prev_out.rows
             prev_theta = prev_out.theta
@@ -356,6 +374,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         leader = out.leader
         log_leader.append((leader.x, leader.y, leader.theta))
         log_slots.append(out.rows)
+        if script is not None:
+            log_slot_ids.append(out.slot_ids)
         log_cmds.append(cmds)
         if out.changed or k == 0:
             asg = out.assignment
@@ -364,6 +384,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             outputs.add(k, out)
         # 6. plant
         plant.step(dt, applied)
+    if script is not None:
+        slot_ids, log_slots = _by_slot_id(slot_ids, log_slot_ids, log_slots)
     log = RunLog.from_ticks(
         ids, slot_ids, dt, log_truth, log_leader, log_slots, slot_of_changes, log_cmds, l_m
     )
@@ -395,6 +417,13 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     log.meta["disturbances"] = [
         {"t_s": d.t_s, "kind": d.kind, "robot": d.robot} for d in scenario.disturbances
     ]
+    if script is not None:
+        log.meta["operator"] = {"applied": script.applied, "rejects": dict(script.rejects)}
+        log.reshapes = [
+            {"kind": r["kind"], "slots": r["slots"], "start_s": r["started_s"],
+             "end_s": r["started_s"] + r["transition_s"], "complete": True}
+            for r in coord.reshapes
+        ]  # fmt: skip
     if interrupted:
         log.meta["interrupted"] = True
     status = {rid: _status_dict(fw) for rid, fw in zip(ids, firmwares, strict=True)}
@@ -405,6 +434,26 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     return SimResult(
         log=log, wall_s=wall, firmware_status=status, interrupted=interrupted, movers=tracks
     )
+
+
+def _by_slot_id(
+    first: list[int],
+    slot_ids: list[tuple[int, ...]],
+    rows: list[list[tuple[float, float, float, float]]],
+) -> tuple[list[int], list[list[tuple[float, float, float, float]]]]:
+    """Rows of every tick on one axis of slot ids (every slot the run had, first seen first;
+    NaN where a tick had no such slot): a reshape may add, drop and reorder slots."""
+    order = list(first)
+    for ids in dict.fromkeys(slot_ids):
+        order += [s for s in ids if s not in order]
+    if all(ids == tuple(order) for ids in dict.fromkeys(slot_ids)):
+        return order, rows
+    nan_row = (math.nan, math.nan, math.nan, math.nan)
+    out = []
+    for ids, tick_rows in zip(slot_ids, rows, strict=True):
+        by_id = dict(zip(ids, tick_rows, strict=True))
+        out.append([by_id.get(s, nan_row) for s in order])
+    return order, out
 
 
 def _faulted_step(faults: FaultPlay, i: int, t_s: float, step: Callable[..., Any]) -> Any:

@@ -260,3 +260,61 @@ def test_lockstep_agent_host_equals_the_simulator_bit_for_bit() -> None:
     """The same with one agent host running every robot (batched poses, setpoints, wheels)."""
     drag = ScheduledDisturbance(t_s=0.3, robot="r1", kind="drag", dx=-0.2, duration_s=0.5)
     lockstep_equals_simulate(SCENARIO.with_overrides(disturbances=(drag,)), 1.0, hosts=True)
+
+
+def test_lockstep_equals_the_simulator_with_scripted_operator_commands() -> None:
+    """Scripted operator commands (``[[operator]]``: a reshape that adds the spare's slot, a
+    teleop stream that stops and trips the deadman, a goal) are played by the in-process
+    simulator and by the lockstep coordinator at the same ticks: the shells still equal the
+    simulator bit for bit, and the commands did what they say."""
+    import tomllib
+
+    from scenario.load import parse, resolve
+    from scenario.resize import scenario_with_robots
+
+    data = scenario_with_robots(tomllib.loads(resolve("paper-exp2").read_text()), 3, spares=1)
+    data["operator"] = [
+        {"t_s": 0.2, "command": "shape", "kind": "chevron", "slots": 4},
+        {"t_s": 0.6, "command": "teleop", "v_mps": 0.05, "omega_radps": 0.2, "duration_s": 0.5},
+        {"t_s": 1.8, "command": "goal", "x": 0.5, "y": 0.5},
+    ]
+    scenario = parse(data)
+    got = lockstep_equals_simulate(scenario, 2.4)
+    res = got["result"]
+    applied = res.log.meta["operator"]["applied"]
+    assert [a["command"] for a in applied] == ["shape", "goal"]
+    assert all(a["refused"] is None for a in applied) and not res.log.meta["operator"]["rejects"]
+    # the spare took the slot the reshape added, from the tick after the command
+    k_shape = round(0.2 / scenario.dt_s) + 1
+    assert 3 in res.log.slot_ids and (res.log.slot_of[k_shape:, 3] == 3).all()
+    assert (res.log.slot_of[: k_shape - 1, 3] == -1).all()
+    # the teleop turned the leader off its scripted straight line (heading 0 there)
+    k_teleop = round(0.6 / scenario.dt_s)
+    assert res.log.leader[k_teleop - 1, 2] == 0.0 and res.log.leader[-1, 2] > 0.1
+
+
+def test_lockstep_equals_the_simulator_when_a_scripted_reshape_drops_a_robot() -> None:
+    """A column of three told to be a column of two: the rearmost slot is dropped at the end of
+    the transition and its robot, without a setpoint, holds; lockstep still equals the
+    in-process simulator bit for bit."""
+    import math
+    import tomllib
+
+    from scenario.load import parse, resolve
+
+    data = tomllib.loads(resolve("paper-exp2").read_text())
+    column = [{"slot": 0}] + [
+        {"slot": k, "parent": k - 1, "b_m": 0.4, "phi_rad": math.pi / 2} for k in (1, 2)
+    ]
+    data["formation"] = {"kind": "explicit", "slots": column}
+    data["operator"] = [{"t_s": 0.1, "command": "shape", "kind": "column", "slots": 2}]
+    scenario = parse(data)
+    got = lockstep_equals_simulate(scenario, 3.4)
+    res = got["result"]
+    (done,) = res.log.reshapes
+    assert done["slots"] == 2 and done["end_s"] <= 3.2  # the dropped slot had nowhere to go
+    ids = list(res.log.robot_ids)
+    (rear,) = [r for j, r in enumerate(ids) if res.log.slot_of[20, j] == 2]
+    last = dict(zip(ids, res.log.slot_of[-1].tolist(), strict=True))
+    assert last[rear] == -1 and sorted(last.values()) == [-1, 0, 1]  # the rearmost left
+    assert res.firmware_status[rear]["mode"] == "hold"  # no setpoint: it holds where it is

@@ -27,7 +27,7 @@ from support.routers import RouterHandle
 from support.spawn import Spawner
 
 import runtime as rt
-from bus_schemas import Assignment, CmdVel, Leader, Path, Pose, Setpoint, encode, keys
+from bus_schemas import Assignment, CmdVel, Leader, Path, Pose, Setpoint, Shape, encode, keys
 from coordinator.core.leader import DEADMAN_S, LeaderConfig
 from scenario import load
 
@@ -251,6 +251,107 @@ def test_a_standby_continues_the_teleoperated_leader_without_a_jump(
     # the teleoperated leader is no function of t - leader_t0: b did not check main's origin
     # against it (no heartbeat refused as a spoof while main ran)
     assert b_active["rejects"].get("heartbeat-leader_t0", 0) == 0, b_active["rejects"]
+    del tokens
+
+
+def _slot_offsets(
+    leaders: list[tuple[float, str, Leader]], setpoints: list[tuple[float, str, Setpoint]]
+) -> dict[str, list[tuple[float, float, float]]]:
+    """Each robot's setpoint in the leader's body frame, ``(t, dx, dy)``, at the ticks where
+    both were received (the same ``t``: one tick's outputs)."""
+    by_t = {m.t: m for _, _, m in leaders}
+    out: dict[str, list[tuple[float, float, float]]] = {}
+    for _, _, sp in setpoints:
+        ld = by_t.get(sp.t)
+        if ld is None:
+            continue
+        c, s = math.cos(ld.theta), math.sin(ld.theta)
+        dx, dy = sp.x - ld.x, sp.y - ld.y
+        out.setdefault(sp.robot, []).append((sp.t, c * dx + s * dy, -s * dx + c * dy))
+    return out
+
+
+def test_a_standby_continues_a_reshape_mid_way_without_a_jump(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    """``formation shape column``, then the active coordinator dies mid-reshape: the standby
+    starts the same plan at the active's start time (the ``leader`` message's ``reshape_t0``,
+    ...), so every slot goes on from where it was, at the reshape's speed, to the column."""
+    from coordinator.core.reshape import RESHAPE_SPEED_MPS
+
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    setpoints = Recorder(client, keys.all_setpoints_pattern(FLEET), decoder_of(Setpoint))
+    status = Recorder(client, keys.all_coordinator_status_pattern(FLEET), msgpack.unpackb)
+    main = _coordinator(spawn, router)
+    _coordinator(spawn, router, "--name", "b", "--standby")
+    pubs = rt.Publishers(client)
+    with Followers(client):
+        status.wait_for(lambda _r, _k, s: s["name"] == "b" and s["role"] == "standby")
+        leaders.wait_for(lambda *_: True)
+        pubs.put(keys.shape_key(FLEET), encode(Shape(t=1.0, kind="column")), rt.QOS_CRITICAL)
+        leaders.wait_for(
+            lambda _r, _k, m: m.shape == "column" and (m.reshape or 0.0) >= 0.1, timeout_s=10.0
+        )
+        t_kill = time.monotonic()
+        main.stop(signal.SIGKILL)
+        _, _, b_active = status.wait_for(
+            lambda r, _k, s: r > t_kill and s["name"] == "b" and s["role"] == "active",
+            timeout_s=10.0,
+        )
+        leaders.wait_for(lambda r, *_: r > t_kill + 1.0, timeout_s=10.0)
+        _, _, b_later = status.wait_for(lambda r, _k, s: r > t_kill + 1.0 and s["name"] == "b")
+    msgs = leaders.snapshot()
+    # b's first leader message: where the sequence starts again (b's own publisher)
+    k = next(i for i in range(1, len(msgs)) if msgs[i][2].seq < msgs[i - 1][2].seq)
+    last, first = msgs[k - 1][2], msgs[k][2]
+    assert msgs[k - 1][0] <= msgs[k][0] and msgs[k][0] > t_kill
+    assert last.reshape is not None and 0.0 < last.reshape < 1.0, last
+    # b runs the very reshape main was running: same start, duration and target
+    assert first.shape == "column" and first.reshape is not None, first
+    assert (first.reshape_t0, first.reshape_s, first.slots) == (
+        last.reshape_t0,
+        last.reshape_s,
+        last.slots,
+    )
+    assert last.reshape <= first.reshape < 1.0
+    assert b_later["rejects"].get("shape-takeover", 0) == 0, b_later["rejects"]
+    # every slot goes on from where it was in the leader's frame: no faster than the reshape
+    offsets = _slot_offsets(msgs, setpoints.snapshot())
+    assert set(offsets) == set(START)
+    for rid, track in offsets.items():
+        for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(track):
+            allowed = 1.5 * RESHAPE_SPEED_MPS * (t1 - t0) + 1e-6  # the smoothstep's peak
+            assert math.hypot(x1 - x0, y1 - y0) <= allowed, (rid, t0, t1)
+    assert not _jumps(msgs[k:]), _jumps(msgs[k:])[:5]
+    del tokens, b_active
+
+
+def test_the_number_of_slots_changes_live_and_too_many_is_refused_and_counted(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session
+) -> None:
+    """``formation shape KIND --slots N``: more slots than robots alive is one line and exit 2
+    at the CLI, and refused and counted at the coordinator (a Shape sent anyway); fewer is taken
+    and the leader message says how many slots the running reshape ends with."""
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START]
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, keys.coordinator_status_key(FLEET, "main"), msgpack.unpackb)
+    _coordinator(spawn, router)
+    with Followers(client):
+        leaders.wait_for(lambda *_: True)
+        many = spawn("shape", "column", "--slots", "5", "--endpoint", router.endpoint)
+        assert many.proc.wait(timeout=30) == 2, many.describe()
+        lines = many.stderr().splitlines()
+        assert len(lines) == 1 and "--slots 5" in lines[0] and "3 robots alive" in lines[0]
+        rt.Publishers(client).put(
+            keys.shape_key(FLEET), encode(Shape(t=1.0, kind="column", slots=5)), rt.QOS_CRITICAL
+        )
+        status.wait_for(lambda _r, _k, s: s["rejects"].get("shape-too_many_slots", 0) == 1)
+        fewer = spawn("shape", "column", "--slots", "2", "--endpoint", router.endpoint)
+        assert fewer.proc.wait(timeout=30) == 0, fewer.describe()
+        assert "reshaping into a column of 2 slots" in fewer.stdout()
+        _, _, m = leaders.wait_for(lambda _r, _k, m: m.slots == 2, timeout_s=5.0)
+    assert m.shape == "column" and m.reshape is not None and m.reshape_from == "scenario"
     del tokens
 
 

@@ -161,6 +161,8 @@ MISTAKES: list[tuple[tuple[str, ...], tuple[str, ...]]] = [
     (("shape", "zigzag"), ("zigzag", "invalid choice")),
     (("shape", "column", "--spacing", "0.01"), ("--spacing", "[0.1, 5]")),
     (("shape", "column", "--spacing", "inf"), ("--spacing", "finite")),
+    (("shape", "column", "--slots", "0"), ("--slots", "[1, 1024]")),
+    (("shape", "line", "--slots", "two"), ("--slots", "whole number")),
     (("motor-emulator", "--address", "0x99"), ("--address", "0x80..0x87")),
     (("motor-emulator", "--bogus"), ("--bogus",)),
     (("ros2", "--domain-id", "300"), ("--domain-id", "0..232")),

@@ -10,6 +10,9 @@ One fleet (tests/support/fault_fleet.py's three robots on a slow line, with ``[l
   robot (its truth) at least the safety distance from every other and no role change;
 * ``formation teleop`` drives the leader; when its stream stops the deadman stops the leader
   within its bound, with every follower still in formation.
+* ``formation shape column --slots 2`` drops a robot live and ``triangle --slots 3`` takes it
+  back on the slot added, the others keeping theirs, every robot at least the safety distance
+  apart.
 
 Bounds: the deadman (0.4 s) plus a braking within the leader's acceleration limit, the rate's
 slew (0.5 per s), plus what a Python process on a loaded 2-core machine must be woken for.
@@ -130,14 +133,14 @@ async def test_an_estopped_follower_stops_the_leader_and_the_formation_resumes(
     assert not _jumps(obs, t_start)
 
 
-def _shape(fleet: OperatorFleet, kind: str) -> None:
+def _shape(fleet: OperatorFleet, kind: str, *extra: str) -> None:
     import subprocess
     import sys
 
     from support.spawn import child_env
 
     proc = subprocess.run(
-        [sys.executable, "-m", "formation", "shape", kind, "--endpoint", fleet.endpoint,
+        [sys.executable, "-m", "formation", "shape", kind, *extra, "--endpoint", fleet.endpoint,
          "--fleet", fleet.fleet, "--timeout", "5"],
         capture_output=True, text=True, timeout=60, env=child_env(),
     )  # fmt: skip
@@ -201,4 +204,42 @@ async def test_the_deadman_stops_the_teleoperated_leader_with_the_followers_in_f
     assert last.deadman is True
     # every follower still (or again) in formation around the stopped leader
     await until(lambda: formed(obs, {"r1", "r2", "r3"}), 10.0, "formation after the deadman")
+    assert not _jumps(obs, t_start)
+
+
+async def test_the_formation_drops_a_robot_and_takes_it_back_live(fleet: OperatorFleet) -> None:
+    """``formation shape column --slots 2`` drops the rearmost robot live (it stops behind the
+    formation), ``formation shape triangle --slots 3`` takes it back on the slot added: the two
+    others keep their slots throughout, every robot at least the safety distance from every
+    other (their truth)."""
+    obs = fleet.obs
+    await wait_formed(fleet, timeout_s=40.0)
+    t_start = time.monotonic()
+    before = obs.latest_assignment()
+    assert before is not None and len(before.robots) == 3
+    t_cmd = time.monotonic()
+    _shape(fleet, "column", "--slots", "2")
+    await until(
+        lambda: _reshaped(obs, "column", t_cmd) and len(obs.latest_assignment().robots) == 2,
+        40.0,
+        "reshaped into a column of two",
+    )
+    (dropped,) = set(before.robots) - set(obs.latest_assignment().robots)
+    kept = set(before.robots) - {dropped}
+    await wait_formed(fleet, kept, timeout_s=20.0)
+    t_cmd = time.monotonic()
+    _shape(fleet, "triangle", "--slots", "3")
+    await until(lambda: _reshaped(obs, "triangle", t_cmd), 40.0, "reshaped into a triangle")
+    await wait_formed(fleet, timeout_s=40.0)
+    t_end = time.monotonic()
+    after = obs.latest_assignment()
+    assert after is not None and set(after.robots) == set(before.robots)
+    least = obs.min_separation(t_start, t_end)
+    print(f"\nslots 3 -> 2 -> 3: least separation {least:.3f} m (safety {SAFETY_M:.3f} m)")
+    assert least >= SAFETY_M
+    # the two others kept their slots; the dropped one left once and came back once
+    seen = [a.robots for _, _, a in obs.get("assignment", t_start)]
+    assert all(a.get(r) == before.robots[r] for a in seen for r in kept)
+    slots = [a.get(dropped) for a in seen]
+    assert sum(1 for x, y in itertools.pairwise(slots) if x != y) == 2, slots
     assert not _jumps(obs, t_start)

@@ -65,6 +65,25 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         reshape=0.25,
     ),
     "shape": Shape(t=12.5, kind="column", spacing_m=0.5),
+    # issue 28 (slots): a reshape into a chevron of five slots running, as a standby reads it
+    "leader_reshape": Leader(
+        t=12.5,
+        seq=252,
+        x=1.25,
+        y=-0.5,
+        theta=0.0,
+        v_mps=0.1,
+        omega_radps=0.0,
+        mode="script",
+        shape="chevron",
+        reshape=0.5,
+        slots=5,
+        spacing_m=0.4,
+        reshape_from="triangle",
+        reshape_t0=8.0,
+        reshape_s=6.25,
+    ),
+    "shape_slots": Shape(t=12.5, kind="chevron", spacing_m=0.4, slots=5),
     "cmd_vel": CmdVel(t=12.5, seq=42, v_mps=0.1, omega_radps=-0.25),
     "goal": Goal(t=12.5, x=1.5, y=-2.0, heading=math.pi / 2),
     "path": Path(t=12.5, xs=(0.5, 1.0), ys=(0.25, -0.25)),
@@ -302,6 +321,12 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "shape": (
         "84a17601a174cb4029000000000000a46b696e64a6636f6c756d6ea973706163696e675f6dcb3fe0000000000000"
+    ),
+    "leader_reshape": (
+        "de0010a17601a174cb4029000000000000a3736571ccfca178cb3ff4000000000000a179cbbfe0000000000000a57468657461cb0000000000000000a5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cb0000000000000000a46d6f6465a6736372697074a57368617065a763686576726f6ea772657368617065cb3fe0000000000000a5736c6f747305a973706163696e675f6dcb3fd999999999999aac726573686170655f66726f6da8747269616e676c65aa726573686170655f7430cb4020000000000000a9726573686170655f73cb4019000000000000"
+    ),
+    "shape_slots": (
+        "85a17601a174cb4029000000000000a46b696e64a763686576726f6ea973706163696e675f6dcb3fd999999999999aa5736c6f747305"
     ),
     "cmd_vel": (
         "85a17601a174cb4029000000000000a37365712aa5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfd0000000000000"

@@ -31,6 +31,11 @@ def test_intervals_split_where_the_fraction_falls_back_or_the_shape_changes() ->
     ]
     assert reshape_intervals([(1.0, "line", 0.2), (2.0, "line", 0.6)], 0.0)[0]["complete"] is False
     assert reshape_intervals([], 0.0) == []
+    # the slot count a reshape ends with, when the leader messages carry it
+    grown = reshape_intervals([(1.0, "chevron", 0.1, 5), (4.0, "chevron", 1.0, 5)], 0.0)
+    assert grown == [
+        {"kind": "chevron", "start_s": 1.0, "end_s": 4.0, "complete": True, "slots": 5}
+    ]
 
 
 def test_reshape_metrics_measure_the_truth_during_each_reshape() -> None:
