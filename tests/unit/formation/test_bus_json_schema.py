@@ -36,6 +36,7 @@ from bus_schemas.messages import (
     Estop,
     Fault,
     Heartbeat,
+    Movers,
     PlantStatus,
     PoseBatch,
     Setpoint,
@@ -178,6 +179,10 @@ EXAMPLES = [
         t=1.0, seq=1, state="done", detector="aruco", source="scene.avi", frames=3, dropped=0,
         fps=30.0, latency_p50_ms=-2.5, detections={"r1": 3}, published={"r1": 3},
         misses={"r1": 0}, rejects={"jump": 0}, reacquired=0, internal_errors=0, truth_rejected=0,
+    ),
+    Movers(
+        t=1.0, seq=15, robots=("r4", "tag9"), x=(0.1, 0.2), y=(0.3, 0.4), vx=(0.3, 0.0),
+        vy=(0.0, -0.1), tick=7,
     ),
 ]  # fmt: skip
 
