@@ -46,6 +46,7 @@ from bus_schemas.messages import (
     LeaderMode,
     Message,
     Mode,
+    Obstacle,
     Path,
     PlantStatus,
     Pose,
@@ -67,11 +68,13 @@ from bus_schemas.messages import (
     new_estop_id,
 )
 from bus_schemas.messages_fault import Fault, FaultKind
+from bus_schemas.messages_operator import ObstacleAction, ObstacleShape
 from bus_schemas.messages_status import (
     CAMERA_MS_MAX,
     CameraState,
     CoordinatorRole,
     EstopStoreState,
+    PlanState,
     PlantState,
     RunMode,
 )
@@ -116,7 +119,11 @@ __all__ = [
     "Message",
     "MessageSpec",
     "Mode",
+    "Obstacle",
+    "ObstacleAction",
+    "ObstacleShape",
     "Path",
+    "PlanState",
     "PlantState",
     "PlantStatus",
     "Pose",

@@ -49,7 +49,7 @@ from bus_schemas.messages_fields import (
     Role,
     ShapeKind,
 )
-from bus_schemas.messages_operator import CmdVel, Goal, Path, Shape
+from bus_schemas.messages_operator import CmdVel, Goal, Obstacle, Path, Shape
 from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
@@ -524,6 +524,7 @@ Message = (
     | Goal
     | Path
     | Shape
+    | Obstacle
     | Fault
 )
 """Any bus message."""
@@ -553,6 +554,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     Goal,
     Path,
     Shape,
+    Obstacle,
     Fault,
 )
 
