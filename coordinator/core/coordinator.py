@@ -42,6 +42,7 @@ from coordinator.core.formation import (
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
 from coordinator.core.movers import MoverDetector, MoverParams
+from coordinator.core.planning.replan import Bridge, PlanSetup, PlanState, Replanner
 from coordinator.core.reshape import Transition, blended_rows, plan_reshape
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
 from robot_agent.core.kinematics import reference_point
@@ -268,6 +269,7 @@ class CoordinatorCore:
         t0_s: float = 0.0,
         leader: LeaderCore | None = None,
         movers: MoverParams | None = None,
+        plan_setup: PlanSetup | None = None,
     ) -> None:
         if not (ref_offset_m > 0 and math.isfinite(ref_offset_m)):
             raise ValueError(f"ref_offset_m must be positive and finite, got {ref_offset_m!r}")
@@ -298,6 +300,8 @@ class CoordinatorCore:
         self._done: Transition | None = None
         self.shape: str | None = None
         """The kind of the last reshape asked (None: the scenario's formation)."""
+        self.replanner = Replanner(plan_setup)
+        """Run-time plans: goals around obstacles, replans (coordinator.core.planning.replan)."""
         self.reshapes: list[dict[str, Any]] = []
         """One record per reshape completed: kind, spacing, start time, transition time and the
         least slot separation along it (coordinator.core.reshape)."""
@@ -323,6 +327,7 @@ class CoordinatorCore:
         t0_s: float = 0.0,
         leader: LeaderConfig | None = None,
         arena: tuple[float, float, float, float] | None = None,
+        plan_setup: PlanSetup | None = None,
     ) -> CoordinatorCore:
         kind = str(trajectory["kind"])
         traj_params = {k: v for k, v in trajectory.items() if k != "kind"}
@@ -334,6 +339,7 @@ class CoordinatorCore:
             ref_offset_m=ref_offset_m,
             t0_s=t0_s,
             leader=LeaderCore(traj, leader, t0_s=t0_s, trajectory_kind=kind, arena=arena),
+            plan_setup=plan_setup,
         )
 
     def _ref_points(
@@ -379,6 +385,8 @@ class CoordinatorCore:
         if self.leader.waits() and self._last_out is not None:
             self.errors_m = self._errors(self._last_out, ids, xy)
             rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
+        if self.replanner.setup is not None:
+            self._switch_plan(now_s)
         leader = self.leader.step(now_s, rate)
         if self._done is not None:
             self.formation, self._done = self._done.target, None
@@ -393,6 +401,8 @@ class CoordinatorCore:
         offsets = None  # a planned squeeze, at the plan's own (progress) time
         if tr is None and self._offsets_at is not None and self.leader.mode is LeaderMode.SCRIPT:
             offsets = self._offsets_at(self.leader.progress_s)
+        elif tr is None and self.leader.plan is not None:  # a run-time plan's squeeze
+            offsets = self.leader.plan.slot_offsets(self.leader.progress_s)
         if tr is not None:
             theta, rows = self._reshaping(tr, now_s, leader)
         elif offsets is not None:
@@ -424,7 +434,86 @@ class CoordinatorCore:
         self._running = self._running or bool(assignment)
         out = CoordinatorOutput.from_rows(leader, spec, theta, rows, assignment, changed, approach)
         self._last_out = out
+        if self.replanner.setup is not None:
+            self._replan(now_s, held, ids, xy, rows, assignment)
         return out
+
+    # -- run-time plans (coordinator.core.planning.replan) -------------------------------------
+
+    def obstacle(self, action: str, oid: str, table: dict[str, Any] | None) -> str | None:
+        """Add, move or remove the operator's planning obstacle ``oid`` (a ``PlanWorld`` table);
+        a goal followed (or a planned script) is replanned from the leader's state at the next
+        tick. Returns why it is refused, or None."""
+        rp = self.replanner
+        if rp.setup is None:
+            return "no_planner"
+        why = rp.obstacle(action, oid, table)
+        traj = self.trajectory
+        if (
+            why is None
+            and rp.goal is None
+            and self.leader.mode is LeaderMode.SCRIPT
+            and self.leader.trajectory_kind == "plan"
+            and self.leader.progress_s < getattr(traj, "duration_s", 0.0)
+        ):  # a planned script: replanned to its goal around the new world
+            gx, gy = getattr(traj, "goal", (0.0, 0.0))
+            rp.set_goal(float(gx), float(gy), getattr(traj, "goal_heading", None),
+                        f"obstacle {oid} {action}", first=False)  # fmt: skip
+        return why
+
+    def _switch_plan(self, now_s: float) -> None:
+        """Before the leader's step: switch in the plan due now, or stop where there is none."""
+        got = self.replanner.switch(now_s)
+        if got is None:
+            return
+        answer, t_switch = got
+        if isinstance(answer, str):
+            self.leader.no_way()
+            return
+        from coordinator.core.planning.timed import TimedPlan  # numpy/scipy only when planning
+
+        self.leader.follow_plan(TimedPlan(answer), t_switch)
+
+    def _replan(
+        self,
+        now_s: float,
+        held: Collection[str],
+        ids: list[str],
+        xy: list[tuple[float, float]],
+        rows: list[SlotRow],
+        assignment: Mapping[str, int],
+    ) -> None:
+        """After the tick: take a new goal, watch for stuck robots, and start the bridge of a
+        wanted plan from the leader's state of this tick (coordinator.core.planning.replan)."""
+        ld, rp = self.leader, self.replanner
+        goal = ld.take_new_goal()
+        if goal is not None:
+            rp.set_goal(*goal)
+        elif rp.goal is not None and ld.mode is not LeaderMode.GOAL:
+            if rp.state is PlanState.FOLLOWING and ld.mode is LeaderMode.STOP:
+                rp.arrived()
+            elif rp.state is not PlanState.NO_WAY:
+                rp.clear_goal()  # the operator took the leader elsewhere
+        if ld.plan is not None and ld.mode is LeaderMode.GOAL and self.errors_m:
+            if self._row_of is None:
+                self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
+            slot_of = {r: rows[self._row_of[s]][:2] for r, s in assignment.items()}
+            where = dict(zip(ids, xy, strict=True))
+            rp.robots_stuck(now_s, self.errors_m, set(held), where, slot_of)
+        if rp.wanted() is None or ld.state is None or ld.squeezed():
+            return
+        offsets = [(float(a), float(b)) for a, b in self.formation.body_offsets_m]
+        if rp.late_streak and ld.bridge is not None:  # late: the same bridge, a later switch
+            rp.request(now_s, ld.bridge, offsets, now_s + rp.bridge_least_s())
+            return
+        cfg = ld.config
+        setup = rp.setup
+        assert setup is not None
+        bridge = Bridge(ld.state, now_s, cruise_mps=setup.cruise_mps, accel_mps2=cfg.max_accel_mps2,
+                        turn_accel_radps2=cfg.max_turn_accel_radps2)  # fmt: skip
+        ld.begin_bridge(bridge)
+        # a slow planner: the switch is later, on the bridge's braking tail (a slower start)
+        rp.request(now_s, bridge, offsets, now_s + max(bridge.hold_s, rp.bridge_least_s()))
 
     def _without_movers(
         self,
