@@ -461,6 +461,15 @@ class CoordinatorCore:
                         f"obstacle {oid} {action}", first=False)  # fmt: skip
         return why
 
+    def continue_goal(self) -> bool:
+        """After a takeover (``LeaderCore.adopt``): a goal the leader was driven to is planned
+        again from the adopted state (the bridge joins it without a jump). True if so."""
+        goal = self.leader.goal_point
+        rp = self.replanner
+        if goal is None or rp.setup is None:
+            return False
+        return rp.set_goal(*goal, "takeover", first=False)
+
     def _switch_plan(self, now_s: float) -> None:
         """Before the leader's step: switch in the plan due now, or stop where there is none."""
         got = self.replanner.switch(now_s)

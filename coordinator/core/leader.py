@@ -520,6 +520,14 @@ class LeaderCore:
 
     # -- run-time plans (coordinator.core.planning.replan drives these) ---------------------
 
+    @property
+    def goal_point(self) -> tuple[float, float, float | None] | None:
+        """The goal (x, y, heading) of the route in mode goal, or None."""
+        route = self._route
+        if self.mode is not LeaderMode.GOAL or route is None or not route.goal:
+            return None
+        return (*route.points[-1], route.heading)
+
     def take_new_goal(self) -> tuple[float, float, float | None] | None:
         """The goal applied at the last step, once (None if none)."""
         goal, self.new_goal = self.new_goal, None
