@@ -503,7 +503,7 @@ class CoordinatorCore:
                 rp.arrived()
             elif rp.state is not PlanState.NO_WAY:
                 rp.clear_goal()  # the operator took the leader elsewhere
-        if ld.plan is not None and ld.mode is LeaderMode.GOAL and self.errors_m:
+        if rp.goal is not None and self.errors_m:
             if self._row_of is None:
                 self._row_of = {sid: i for i, sid in enumerate(self.formation.slot_ids)}
             slot_of = {r: rows[self._row_of[s]][:2] for r, s in assignment.items()}

@@ -45,9 +45,11 @@ nominal formation: it is asked as soon as the squeeze is over).
 
 **Stuck** (:class:`StuckWatch`): a robot assigned a slot, not held (e-stop), whose tracking
 error has stayed above :data:`STUCK_ERR_M` without shrinking by :data:`STUCK_PROGRESS_M` for
-:data:`STUCK_S` while the leader follows a plan. Something the map does not know blocks it: a
-marker disc (the robot's body radius) is put just ahead of it toward its slot and the
-formation is replanned around it; the marker goes when the robot is no longer stuck.
+:data:`STUCK_S` while the leader is driven to a planned goal. Something the map does not know
+holds it there: a marker disc (the body radius) is put where its reference point is and the
+goal is replanned from the leader's state with the rest of the formation clear of that place
+(the leader's wait for its team still slows it for the robot, coordinator.core.leader); the
+marker goes when the robot is no longer stuck (and a goal that had no way is tried again).
 """
 
 from __future__ import annotations
@@ -397,18 +399,16 @@ class Replanner:
         if self.setup is None or self.goal is None:
             return
         new = self.stuck.update(now_s, errors_m, held)
-        for rid in [r for r in self.markers if r not in self.stuck.stuck]:
-            del self.markers[rid]  # free again: its marker goes (no replan needed for that)
+        for rid in sorted(r for r in self.markers if r not in self.stuck.stuck):
+            del self.markers[rid]  # free again: its marker goes
+            if self.state is PlanState.NO_WAY:  # it was what blocked the way: try again
+                self._want = f"{rid} free"
         for rid in sorted(new):
-            p, q = where.get(rid), slot_of.get(rid)
-            if p is None or q is None:
+            p = where.get(rid)
+            if p is None or rid not in slot_of:
                 continue
-            d = math.hypot(q[0] - p[0], q[1] - p[1])
-            r = self.setup.body_radius_m
-            ux, uy = ((q[0] - p[0]) / d, (q[1] - p[1]) / d) if d > 1e-9 else (0.0, 0.0)
             self.markers[rid] = {
-                "kind": "circle", "x": p[0] + 2.0 * r * ux, "y": p[1] + 2.0 * r * uy,
-                "radius_m": r,
+                "kind": "circle", "x": p[0], "y": p[1], "radius_m": self.setup.body_radius_m,
             }  # fmt: skip
             self._want = f"stuck {rid}"
 
