@@ -470,6 +470,22 @@ class CoordinatorCore:
             return False
         return rp.set_goal(*goal, "takeover", first=False)
 
+    def _blocked_while_squeezed(self, now_s: float) -> None:
+        """The world changed while the formation is squeezed on its plan: stop at once if the
+        goal or the rest of the path (the leader within the formation's reach) is blocked."""
+        ld, rp = self.leader, self.replanner
+        plan = ld.plan
+        assert plan is not None and rp.setup is not None
+        r = plan.result
+        rest = [(float(x), float(y)) for x, y, t in zip(r.x_m, r.y_m, r.t_s, strict=True)
+                if t >= ld.progress_s][::10]  # fmt: skip
+        offs = self.formation.body_offsets_m
+        reach = float(max(math.hypot(a, b) for a, b in offs)) + rp.setup.slot_radius_m
+        why = rp.blocked(rest, reach)
+        if why is not None:
+            rp.stop_now(why, now_s)
+            ld.no_way()
+
     def _switch_plan(self, now_s: float) -> None:
         """Before the leader's step: switch in the plan due now, or stop where there is none."""
         got = self.replanner.switch(now_s)
@@ -509,10 +525,13 @@ class CoordinatorCore:
             slot_of = {r: rows[self._row_of[s]][:2] for r, s in assignment.items()}
             where = dict(zip(ids, xy, strict=True))
             rp.robots_stuck(now_s, self.errors_m, set(held), where, slot_of)
-        if rp.wanted() is None or ld.state is None or ld.squeezed():
+        if rp.wanted() is None or ld.state is None:
+            return
+        if ld.squeezed():  # the replan waits for the end of the passage, unless it must not
+            self._blocked_while_squeezed(now_s)
             return
         offsets = [(float(a), float(b)) for a, b in self.formation.body_offsets_m]
-        if rp.late_streak and ld.bridge is not None:  # late: the same bridge, a later switch
+        if rp.late_streak and isinstance(ld.bridge, Bridge):  # late: the same bridge, later
             rp.request(now_s, ld.bridge, offsets, now_s + rp.bridge_least_s())
             return
         cfg = ld.config

@@ -61,14 +61,20 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from enum import StrEnum
-from typing import TYPE_CHECKING, Any, Final
+from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from bus_schemas.messages_fields import LeaderMode  # the modes as the leader message names them
 from coordinator.core.trajectory import LeaderState, Trajectory, wrap_angle
 
 if TYPE_CHECKING:  # the planning layer imports numpy; the leader takes its objects as given
-    from coordinator.core.planning.replan import Bridge
     from coordinator.core.planning.timed import TimedPlan
+
+
+class Bridge(Protocol):
+    """The motion while a plan is computed (coordinator.core.planning.replan.Bridge)."""
+
+    def state_at(self, now_s: float) -> LeaderState: ...
+
 
 __all__ = [
     "ABSURD_FACTOR",

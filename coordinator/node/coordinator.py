@@ -194,6 +194,7 @@ class CoordinatorNode:
         self._takeovers_seen = 0
         # -- run-time plans computed off the tick (issue 27, coordinator.node.plan_worker)
         self.plan_worker = PlanWorker(self.log)
+        self.core.replanner.adaptive = not lockstep  # realtime: slow plans switch later
 
     # -- bookkeeping ---------------------------------------------------------------------------
 

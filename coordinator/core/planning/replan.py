@@ -15,8 +15,9 @@ plan can start exactly where the leader will be:
    (``leader.integrate_unicycle`` on fixed :data:`BRIDGE_STEP_S` sub-steps), for
    ``hold_s = max(BRIDGE_S, time to get there)``; after ``hold_s`` it brakes to a stop. The
    join of the bridge is continuous (it starts from the leader's state), and so is its end.
-   The switch is at the end of the hold, or later when the last plan took longer than
-   :data:`BRIDGE_S` / 1.5 (then the plan starts on the braking tail, slower or at rest).
+   The switch is at the end of the hold, or (realtime only: ``adaptive``) later when the
+   last plan took longer than :data:`BRIDGE_S` / 1.5: then the plan starts on the braking
+   tail, slower or at rest.
 2. **Request.** The plan is asked from the bridge's state at ``t_switch = t_b + hold_s``: a
    straight motion at ``v_join`` along the heading, which ``planner.plan`` continues
    (``v_start_mps``: the plan leaves along the heading at that speed). The request
@@ -330,6 +331,9 @@ class Replanner:
         self._goal_plans = 0  # plans made for the current goal (the first is not a replan)
         self.late_streak = 0
         """Late answers in a row: the next ask keeps the bridge and waits twice as long."""
+        self.adaptive = False
+        """Realtime: the switch waits 1.5 plan times when plans take longer than the bridge
+        (never in lockstep or in-process: the switch tick must not depend on a clock)."""
 
     # -- inputs ------------------------------------------------------------------------------
 
@@ -422,11 +426,13 @@ class Replanner:
         return self._request
 
     def deliver(self, request_id: int, answer: PlanResult | str, plan_ms: float | None) -> bool:
-        """The answer to request ``request_id`` (a stale one is dropped: False)."""
+        """The answer to request ``request_id`` (a stale one is dropped: False; its compute
+        time still counts as the last plan's)."""
+        if plan_ms is not None:
+            self.stats.plan_ms = plan_ms
         if self._request is None or self._request.id != request_id or self._answer is not None:
             return False
         self._answer = answer
-        self.stats.plan_ms = plan_ms
         return True
 
     def due(self, now_s: float) -> PlanRequest | None:
@@ -484,7 +490,7 @@ class Replanner:
         before the next switch (s): :data:`BRIDGE_S`, or 1.5 times the last plan's compute time
         when that is longer, doubled for every late answer in a row (at most 16 times)."""
         least = BRIDGE_S
-        if self.stats.plan_ms is not None:
+        if self.adaptive and self.stats.plan_ms is not None:
             least = max(least, 1.5e-3 * self.stats.plan_ms)
         return least * 2.0 ** min(self.late_streak, 4)
 
@@ -523,6 +529,30 @@ class Replanner:
         self._request, self._taken, self._answer = req, False, None
         self.state, self.why = PlanState.PLANNING, reason
         return req
+
+    def blocked(self, remaining_xy: Sequence[tuple[float, float]], reach_m: float) -> str | None:
+        """While a replan waits for a squeeze to end: why the leader must stop at once (the goal
+        or the rest of its path within ``reach_m`` of an obstacle added at run time), or None."""
+        assert self.setup is not None and self.goal is not None
+        added = [*self.obstacles.values(), *self.markers.values()]
+        if not added:
+            return None
+        world = PlanWorld(added, None)
+        gx, gy, _ = self.goal
+        import numpy as np
+
+        if world.clearance(np.array([[gx, gy]]), 1.0)[0] < self.setup.slot_radius_m:
+            return f"no plan: goal ({gx:g}, {gy:g}) is inside an obstacle"
+        if len(remaining_xy) and world.clearance(np.array(remaining_xy), reach_m).min() < reach_m:
+            return "no plan: an obstacle on the path while the formation is squeezed in a passage"
+        return None
+
+    def stop_now(self, why: str, now_s: float) -> None:
+        """No way found without planning (:meth:`blocked`): the leader stops (the caller)."""
+        self._want = None
+        self._request = self._answer = None
+        self.state, self.why = PlanState.NO_WAY, why
+        self.stats.events.append({"t_s": now_s, "reason": "blocked", "ok": False, "why": why})
 
     def arrived(self) -> None:
         """The leader reached the planned goal."""
