@@ -334,3 +334,39 @@ def load_world(obstacles: list[dict[str, Any]]) -> WorldMap:
         tuple(CircleObstacle(o["x"], o["y"], o["radius_m"]) for o in obstacles),
         Arena(**ARENA),
     )
+
+
+def test_a_lockstep_node_switches_at_the_same_tick_as_the_in_process_loop(yard: Any) -> None:
+    """The node's planning child process answers when it answers; in lockstep the node waits
+    for a due plan before the tick, so its leader is the in-process loop's, bit for bit."""
+    from coordinator.node.coordinator import CoordinatorNode
+
+    at = {
+        50: lambda c: c.leader.command_goal(*GOAL),
+        150: lambda c: c.obstacle("add", "box", dict(BOX)),
+    }
+    ref = Run(yard, "now")
+    ref.step(400, at)
+    node = CoordinatorNode(yard, "main", "demo", lambda *_: None, lockstep=True)
+    node.alive = set(yard.robot_ids)
+    l_m = yard.agent.geometry.ref_offset_m
+    poses = {r: tuple(p) for r, p in zip(yard.robot_ids, yard.initial, strict=True)}
+    leaders = []
+    try:
+        for k in range(400):
+            now = k * DT
+            node.sim_t = now
+            for rid, (x, y, th) in poses.items():
+                node.poses[rid] = [x, y, th, now, now]
+            if k in at:
+                at[k](node.core)
+            out = node.tick(now, tick=k)
+            assert out is not None
+            leaders.append(out.leader)
+            for rid, slot in out.assignment.items():
+                s = out.slots_by_id[slot]
+                poses[rid] = (s.x - l_m * math.cos(s.theta), s.y - l_m * math.sin(s.theta), s.theta)
+    finally:
+        node.plan_worker.close()
+    assert node.core.replanner.stats.plans == 2 and node.plan_worker.submitted == 2
+    assert leaders == ref.leaders
