@@ -80,7 +80,9 @@ def run(mode: str, seconds: float, request: PlanRequest) -> dict[str, Any]:
     sc = load("warehouse")
     core = coordinator_core(sc)
     l_m = sc.agent.geometry.ref_offset_m
-    poses = {r: tuple(p) for r, p in zip(sc.robot_ids, sc.initial, strict=True)}
+    poses: dict[str, tuple[float, float, float]] = {
+        r: (p[0], p[1], p[2]) for r, p in zip(sc.robot_ids, sc.initial, strict=True)
+    }
     worker = PlanWorker(rt.NodeLog("bench"))
     sink = _Sink()
     pool: ThreadPoolExecutor | None = None
