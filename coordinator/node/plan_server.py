@@ -16,9 +16,20 @@ import pickle
 import signal
 import struct
 import sys
-from typing import IO
+import time
+from typing import IO, Any
 
 FRAME = struct.Struct(">I")
+
+
+def timed_solve(request: Any) -> tuple[Any, float]:
+    """The answer to ``request`` (``coordinator.core.planning.replan.solve``, imported here so
+    the thread pools are set first) and its compute time (ms)."""
+    from coordinator.core.planning.replan import solve
+
+    started = time.perf_counter()
+    answer = solve(request)
+    return answer, 1e3 * (time.perf_counter() - started)
 
 
 def read_frame(stream: IO[bytes]) -> bytes | None:
@@ -40,8 +51,6 @@ def main() -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = "1"
-    from coordinator.node.plan_worker import timed_solve  # after the thread pools are set
-
     src, dst = sys.stdin.buffer, sys.stdout.buffer
     while (frame := read_frame(src)) is not None:
         request = pickle.loads(frame)

@@ -27,12 +27,11 @@ import pickle
 import subprocess
 import sys
 import threading
-import time
 from concurrent.futures import Future
 from typing import TYPE_CHECKING, Any, Final
 
 import runtime as rt
-from coordinator.node.plan_server import read_frame, write_frame
+from coordinator.node.plan_server import read_frame, timed_solve, write_frame
 
 if TYPE_CHECKING:
     from coordinator.core.planning.replan import PlanRequest, Replanner
@@ -42,15 +41,6 @@ __all__ = ["PLAN_WAIT_S", "PlanWorker", "timed_solve"]
 PLAN_WAIT_S: Final = 120.0
 """Lockstep: the longest wait for a due plan (s; the planner is bounded far below this on any
 map it accepts); beyond it the plan is taken as failed (no way: the leader stops)."""
-
-
-def timed_solve(request: PlanRequest) -> tuple[Any, float]:
-    """The answer to ``request`` (``replan.solve``) and its compute time (ms)."""
-    from coordinator.core.planning.replan import solve
-
-    started = time.perf_counter()
-    answer = solve(request)
-    return answer, 1e3 * (time.perf_counter() - started)
 
 
 class PlanWorker:
