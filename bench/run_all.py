@@ -28,6 +28,7 @@ BENCHES: dict[str, tuple[list[str], list[str]]] = {
     "bench_firmware": ([], ["--ticks", "20000"]),
     "bench_assignment": ([], ["--runs", "1"]),
     "bench_plan": ([], ["--runs", "1", "--maps", "2"]),
+    "bench_replan": ([], ["--seconds", "3"]),
     "bench_assignment_scale": ([], ["--runs", "1"]),
     "bench_sim": ([], ["--runs", "1", "--only", "paper-exp2"]),
     "bench_zenoh_rtt": ([], ["--n", "300"]),

@@ -47,6 +47,7 @@ from bus_schemas.messages import (
     Message,
     Mode,
     Movers,
+    Obstacle,
     Path,
     PlantStatus,
     Pose,
@@ -69,11 +70,13 @@ from bus_schemas.messages import (
     new_estop_id,
 )
 from bus_schemas.messages_fault import Fault, FaultKind
+from bus_schemas.messages_operator import ObstacleAction, ObstacleShape
 from bus_schemas.messages_status import (
     CAMERA_MS_MAX,
     CameraState,
     CoordinatorRole,
     EstopStoreState,
+    PlanState,
     PlantState,
     RunMode,
 )
@@ -119,7 +122,11 @@ __all__ = [
     "MessageSpec",
     "Mode",
     "Movers",
+    "Obstacle",
+    "ObstacleAction",
+    "ObstacleShape",
     "Path",
+    "PlanState",
     "PlantState",
     "PlantStatus",
     "Pose",

@@ -226,6 +226,8 @@ KEY_ROLES: Final[dict[str, KeyRoles]] = {
     keys.GOAL: KeyRoles((_O, _B), (_C,)),
     keys.PATH: KeyRoles((_O,), (_C,)),
     keys.SHAPE: KeyRoles((_O,), (_C,)),
+    # a planning obstacle at run time (issue 27): the coordinators replan around it
+    keys.OBSTACLE: KeyRoles((_O,), (_C,)),
 }
 
 

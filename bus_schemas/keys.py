@@ -53,6 +53,7 @@ CMD_VEL = "cmd_vel"
 GOAL = "goal"
 PATH = "path"
 SHAPE = "shape"
+OBSTACLE = "obstacle"
 FAULT = "fault"
 MOVERS = "movers"
 
@@ -92,6 +93,8 @@ KEY_TEMPLATES: dict[str, str] = {
     GOAL: "formation/{fleet}/operator/goal",
     PATH: "formation/{fleet}/operator/path",
     SHAPE: "formation/{fleet}/operator/shape",
+    # a planning obstacle added, moved or removed at run time (issue 27: the coordinator replans)
+    OBSTACLE: "formation/{fleet}/operator/obstacle",
 }
 
 # Leaves that sit under formation/<fleet>/ directly (no id in the key).
@@ -103,7 +106,7 @@ _HOST_LEAVES = {WHEELS: HOST_WHEELS, STATUS: HOST_STATUS}
 # formation/<fleet>/coordinator/<name>/<leaf> -> message name
 _COORDINATOR_LEAVES = {HEARTBEAT: HEARTBEAT, STATUS: COORDINATOR_STATUS}
 # formation/<fleet>/operator/<leaf>
-_OPERATOR_LEAVES = frozenset({CMD_VEL, GOAL, PATH, SHAPE})
+_OPERATOR_LEAVES = frozenset({CMD_VEL, GOAL, PATH, SHAPE, OBSTACLE})
 
 
 class KeyInfo(NamedTuple):
@@ -302,6 +305,12 @@ def path_key(fleet: str) -> str:
 def shape_key(fleet: str) -> str:
     """``formation/<fleet>/operator/shape``: reshape the running formation (operator)."""
     return f"{_fleet_prefix(fleet)}/operator/{SHAPE}"
+
+
+def obstacle_key(fleet: str) -> str:
+    """``formation/<fleet>/operator/obstacle``: a planning obstacle added, moved or removed at
+    run time (operator; the coordinator replans, issue 27)."""
+    return f"{_fleet_prefix(fleet)}/operator/{OBSTACLE}"
 
 
 def operator_pattern(fleet: str) -> str:

@@ -51,7 +51,15 @@ from bus_schemas.messages_fields import (
     Role,
     ShapeKind,
 )
-from bus_schemas.messages_operator import SLOTS_MAX, SPACING_MAX_M, CmdVel, Goal, Path, Shape
+from bus_schemas.messages_operator import (
+    SLOTS_MAX,
+    SPACING_MAX_M,
+    CmdVel,
+    Goal,
+    Obstacle,
+    Path,
+    Shape,
+)
 from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
@@ -551,6 +559,7 @@ Message = (
     | Goal
     | Path
     | Shape
+    | Obstacle
     | Fault
 )
 """Any bus message."""
@@ -581,6 +590,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     Goal,
     Path,
     Shape,
+    Obstacle,
     Fault,
 )
 

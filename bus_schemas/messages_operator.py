@@ -1,5 +1,6 @@
-"""The operator's commands to the virtual leader (issue 28): a teleop twist, a goal, a path, and
-a new shape for the formation.
+"""The operator's commands to the virtual leader (issue 28): a teleop twist, a goal, a path, a
+new shape for the formation, and a planning obstacle added, moved or removed at run time
+(issue 27: the coordinator replans around it).
 
 Published by the operator's tools (``formation teleop``, ``formation goal``, ``formation path``)
 on ``formation/<fleet>/operator/*``; every coordinator instance reads them (the active one
@@ -14,21 +15,27 @@ it (coordinator.core.leader).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 from bus_schemas import keys
 from bus_schemas.messages_fields import _T, _V, ShapeKind, _Periodic
-from bus_schemas.spec import POSITION_MAX_M as _POS
-from bus_schemas.spec import SPEED_MAX_MPS as _SPEED
-from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
 from bus_schemas.spec import (
+    META_KEY,
+    FieldSpec,
+    Kind,
+    RequiredWhen,
     SameLength,
     f_angle,
     f_enum,
     f_float,
     f_float_list,
     f_int,
+    f_name,
     message,
 )
+from bus_schemas.spec import POSITION_MAX_M as _POS
+from bus_schemas.spec import SPEED_MAX_MPS as _SPEED
+from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
 
 CMD_RATE_HZ = 20.0
 """How often the operator's tools send a twist while teleop runs (Hz): the deadman
@@ -124,4 +131,76 @@ class Shape:
     slots: int | None = field(
         default=None,
         metadata=f_int("number of slots of the new shape, leader included", lo=1, hi=SLOTS_MAX),
+    )
+
+
+class ObstacleAction(StrEnum):
+    """What an ``Obstacle`` message does to the coordinator's planning map."""
+
+    ADD = "add"
+    MOVE = "move"
+    REMOVE = "remove"
+
+
+class ObstacleShape(StrEnum):
+    """The geometry of a planning obstacle."""
+
+    CIRCLE = "circle"
+    POLYGON = "polygon"
+
+
+OBSTACLE_POINTS_MAX = 64
+"""Most vertices of a polygon obstacle on the wire."""
+OBSTACLE_RADIUS_MAX_M = 10.0
+"""Largest circle radius (m) on the wire."""
+
+
+def _f_vertices(what: str) -> dict[str, FieldSpec]:
+    return {
+        META_KEY: FieldSpec(
+            Kind.FLOAT_LIST, what, "m", lo=-_POS, hi=_POS, max_len=OBSTACLE_POINTS_MAX
+        )
+    }
+
+
+@message(
+    name=keys.OBSTACLE,
+    publisher="operator (formation obstacle)",
+    periodic=False,
+    rules=(
+        SameLength(("xs", "ys")),
+        RequiredWhen("shape", ObstacleShape.CIRCLE.value, ("x", "y", "radius_m")),
+        RequiredWhen("shape", ObstacleShape.POLYGON.value, ("xs", "ys")),
+    ),
+)
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Obstacle:
+    """Add, move (replace the geometry of) or remove the planning obstacle `id`: the coordinator
+    replans the virtual leader around it from where the leader is (no jump). A polygon is filled
+    (3 to 64 vertices, not self-intersecting, area > 0: checked by the coordinator, which counts
+    a refusal under `obstacle-<reason>`). It is an obstacle of the plan (the first layer) only:
+    the robots' safety filters keep the obstacles of their own configuration."""
+
+    v: int = field(default=1, metadata=_V)
+    t: float = field(metadata=_T)
+    id: str = field(metadata=f_name("the obstacle's name (operator-chosen)"))
+    action: str = field(metadata=f_enum("add, move (new geometry) or remove", ObstacleAction))
+    shape: str | None = field(
+        default=None, metadata=f_enum("circle or polygon (absent for remove)", ObstacleShape)
+    )
+    x: float | None = field(
+        default=None, metadata=f_float("circle centre x, world frame", "m", lo=-_POS, hi=_POS)
+    )
+    y: float | None = field(
+        default=None, metadata=f_float("circle centre y, world frame", "m", lo=-_POS, hi=_POS)
+    )
+    radius_m: float | None = field(
+        default=None,
+        metadata=f_float("circle radius", "m", lo=0.0, hi=OBSTACLE_RADIUS_MAX_M),
+    )
+    xs: tuple[float, ...] | None = field(
+        default=None, metadata=_f_vertices("polygon vertex x, world frame")
+    )
+    ys: tuple[float, ...] | None = field(
+        default=None, metadata=_f_vertices("polygon vertex y, world frame")
     )

@@ -59,6 +59,15 @@ class EstopStoreState(StrEnum):
     FAILED = "failed"
 
 
+class PlanState(StrEnum):
+    """Where the coordinator's planner is (issue 27, coordinator.core.planning.replan)."""
+
+    PLANNING = "planning"  # a plan is being computed (the leader bridges, no jump)
+    FOLLOWING = "following"  # the leader follows a plan
+    ARRIVED = "arrived"  # the last plan reached its goal
+    NO_WAY = "no_way"  # no plan: the leader decelerated to a stop (`plan_why` says why)
+
+
 class PlantState(StrEnum):
     """Phase of the plant simulator's run."""
 
@@ -138,6 +147,47 @@ class CoordinatorStatus(_NodeStatus):
     estop_store_error: str | None = field(
         default=None,
         metadata=f_str("why the state file cannot be written (with estop_store failed)"),
+    )
+    # issue 27, the coordinator plans (coordinator.core.planning.replan; docs/planning.md,
+    # "Replanning"): all absent until the coordinator makes its first run-time plan
+    plan: str | None = field(
+        default=None, metadata=f_enum("state of the run-time planner (absent: none yet)", PlanState)
+    )
+    plan_why: str | None = field(
+        default=None,
+        metadata=f_str("why the last plan was made (goal, obstacle, stuck, takeover) or, with "
+                       "plan no_way, why there is none"),
+    )  # fmt: skip
+    plans: int | None = field(
+        default=None, metadata=f_int("run-time plans made (the first for a goal and every replan)")
+    )
+    replans: int | None = field(
+        default=None,
+        metadata=f_int("of those, replans (the world changed, a robot stuck, a takeover)"),
+    )
+    plan_ms: float | None = field(
+        default=None,
+        metadata=f_float("compute time of the last plan (off the tick)", "ms", lo=0.0, hi=_TMAX),
+    )
+    plan_clearance_m: float | None = field(
+        default=None,
+        metadata=f_float(
+            "least planned clearance of the plan followed: distance from a slot point to the "
+            "nearest obstacle or wall along it (>= the footprint's slot radius)",
+            "m",
+            lo=-_POS,
+            hi=_POS,
+        ),
+    )
+    plan_late: int | None = field(
+        default=None,
+        metadata=f_int("realtime: plans not ready at their switch tick (asked again)"),
+    )
+    obstacles: int | None = field(
+        default=None, metadata=f_int("planning obstacles added at run time (operator)")
+    )
+    stuck: tuple[str, ...] | None = field(
+        default=None, metadata=f_robot_id_list("robots the coordinator takes as stuck (sorted)")
     )
 
 

@@ -46,6 +46,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "goal": ("formation.operate.goal", "send the virtual leader to a point"),
     "path": ("formation.operate.path", "send the virtual leader along waypoints"),
     "shape": ("formation.operate.shape", "reshape the running formation"),
+    "obstacle": ("formation.operate.obstacle", "add, move or remove a planning obstacle"),
     "record": ("formation.record.command", "record the fleet's keys to MCAP"),
     "report": ("formation.record.report", "metrics and figures from an MCAP recording"),
     "top": ("formation.live.top", "live fleet status table"),
@@ -98,6 +99,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
     "formation shape": (
         "formation shape column --spacing 0.5",
         "formation shape chevron --slots 4",
+    ),
+    "formation obstacle": (
+        "formation obstacle add box1 --circle 2.5 0.6 0.25",
+        "formation obstacle remove box1",
     ),
     "formation motor-emulator": ("formation motor-emulator --link /tmp/roboclaw",),
     "formation record": ("formation record --out run.mcap --duration 30 --scenario paper-exp2",),

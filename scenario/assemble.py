@@ -16,13 +16,18 @@ from typing import Any
 import numpy as np
 
 from coordinator.core.coordinator import CoordinatorCore
+from coordinator.core.leader import LeaderConfig
 from coordinator.core.path_check import PathConflict, slot_path_conflicts
+from coordinator.core.planning.limits import SlotLimits
+from coordinator.core.planning.replan import PlanSetup
+from coordinator.core.planning.trajectory import DEFAULT_CLEARANCE_M, min_separation_m
+from robot_agent.core.params import CircleObstacle
 from scenario.load import Disturbance, Scenario
 from sim_plant.core.accounting import SeparationMonitor
 from sim_plant.core.plant import Plant
 from sim_plant.core.sensors import Camera, CommandLink
 
-__all__ = ["apply_scheduled", "coordinator_core", "path_conflicts", "plant_models"]
+__all__ = ["apply_scheduled", "coordinator_core", "path_conflicts", "plan_setup", "plant_models"]
 
 
 def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
@@ -37,6 +42,47 @@ def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
         t0_s=t0_s,
         leader=scenario.leader,
         arena=_arena(scenario),
+        plan_setup=plan_setup(scenario),
+    )
+
+
+def plan_setup(scenario: Scenario) -> PlanSetup:
+    """What the coordinator's run-time plans share (coordinator.core.planning.replan): the
+    scenario's obstacles and arena as the planner's tables (a polygon arrives as its edges, as
+    the robots see it), the footprint and limits as ``kind = "plan"`` trajectories have them
+    (coordinator.core.planning.trajectory), the leader's cruise speed and accelerations."""
+    agent = scenario.agent
+    g = agent.geometry
+    world = agent.world
+    tables: list[dict[str, Any]] = []
+    for o in world.obstacles:
+        if isinstance(o, CircleObstacle):
+            tables.append({"kind": "circle", "x": o.x, "y": o.y, "radius_m": o.radius_m})
+        else:
+            tables.append({"kind": "segment", "x1": o.x1, "y1": o.y1, "x2": o.x2, "y2": o.y2,
+                           "radius_m": o.radius_m})  # fmt: skip
+    a = world.arena
+    arena = None if a is None else {"x_min": a.x_min, "y_min": a.y_min, "x_max": a.x_max,
+                                    "y_max": a.y_max}  # fmt: skip
+    clearance = DEFAULT_CLEARANCE_M
+    speed = None
+    if scenario.trajectory.get("kind") == "plan":
+        clearance = float(scenario.trajectory.get("clearance_m", clearance))
+        speed = scenario.trajectory.get("speed_mps")
+    leader = scenario.leader if scenario.leader is not None else LeaderConfig()
+    ds = agent.safety_distance_m
+    return PlanSetup(
+        obstacles=tuple(tables),
+        arena=arena,
+        slot_radius_m=g.body_radius_m + g.ref_offset_m + agent.safety_filter.margin_m + clearance,
+        min_separation_m=min_separation_m(ds, g.ref_offset_m),
+        min_pair_m=ds,
+        soft_pair_m=ds + 2.0 * g.ref_offset_m,
+        limits=SlotLimits.from_agent(agent),
+        cruise_mps=min(float(speed), leader.max_speed_mps) if speed else leader.max_speed_mps,
+        body_radius_m=g.body_radius_m,
+        accel_mps2=leader.max_accel_mps2,
+        turn_accel_radps2=leader.max_turn_accel_radps2,
     )
 
 

@@ -42,6 +42,7 @@ from coordinator.core.formation import (
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
 from coordinator.core.movers import MoverDetector, MoverParams, MoverRow
+from coordinator.core.planning.replan import Bridge, PlanSetup, PlanState, Replanner
 from coordinator.core.reshape import blended_rows
 from coordinator.core.reshaping import Reshaper
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
@@ -283,6 +284,7 @@ class CoordinatorCore:
         t0_s: float = 0.0,
         leader: LeaderCore | None = None,
         movers: MoverParams | None = None,
+        plan_setup: PlanSetup | None = None,
     ) -> None:
         if not (ref_offset_m > 0 and math.isfinite(ref_offset_m)):
             raise ValueError(f"ref_offset_m must be positive and finite, got {ref_offset_m!r}")
@@ -312,6 +314,8 @@ class CoordinatorCore:
         self._row_of: dict[int, int] = {}
         self._row_ids: tuple[int, ...] | None = None  # the slot ids _row_of was built for
         self._last_out: CoordinatorOutput | None = None
+        self.replanner = Replanner(plan_setup)
+        """Run-time plans: goals around obstacles, replans (coordinator.core.planning.replan)."""
 
     @property
     def formation(self) -> FormationSpec:
@@ -360,6 +364,7 @@ class CoordinatorCore:
         t0_s: float = 0.0,
         leader: LeaderConfig | None = None,
         arena: tuple[float, float, float, float] | None = None,
+        plan_setup: PlanSetup | None = None,
     ) -> CoordinatorCore:
         kind = str(trajectory["kind"])
         traj_params = {k: v for k, v in trajectory.items() if k != "kind"}
@@ -371,6 +376,7 @@ class CoordinatorCore:
             ref_offset_m=ref_offset_m,
             t0_s=t0_s,
             leader=LeaderCore(traj, leader, t0_s=t0_s, trajectory_kind=kind, arena=arena),
+            plan_setup=plan_setup,
         )
 
     def _ref_points(
@@ -416,12 +422,16 @@ class CoordinatorCore:
         if self.leader.waits() and self._last_out is not None:
             self.errors_m = self._errors(self._last_out, ids, xy)
             rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
+        if self.replanner.setup is not None:
+            self._switch_plan(now_s)
         leader = self.leader.step(now_s, rate)
         tr = self.reshaper.advance(now_s)
         spec = self.formation if tr is None else tr.spec
         offsets = None  # a planned squeeze, at the plan's own (progress) time
         if tr is None and self._offsets_at is not None and self.leader.mode is LeaderMode.SCRIPT:
             offsets = self._offsets_at(self.leader.progress_s)
+        elif tr is None and self.leader.plan is not None:  # a run-time plan's squeeze
+            offsets = self.leader.plan.slot_offsets(self.leader.progress_s)
         if tr is not None:
             theta, rows = blended_rows(leader, *self.reshaper.offsets(now_s))
         elif offsets is not None:
@@ -458,6 +468,8 @@ class CoordinatorCore:
             leader, spec, theta, rows, assignment, changed, approach, movers.moving()
         )
         self._last_out = out
+        if self.replanner.setup is not None:
+            self._replan(now_s, held, ids, xy, rows, spec.slot_ids, assignment)
         return out
 
     def _release(
@@ -480,6 +492,111 @@ class CoordinatorCore:
             del self._released[rid]
         extra = {r: slot for r, (slot, _) in self._released.items() if r not in self.assignment}
         return {**self.assignment, **extra}
+
+    # -- run-time plans (coordinator.core.planning.replan) -------------------------------------
+
+    def obstacle(self, action: str, oid: str, table: dict[str, Any] | None) -> str | None:
+        """Add, move or remove the operator's planning obstacle ``oid`` (a ``PlanWorld`` table);
+        a goal followed (or a planned script) is replanned from the leader's state at the next
+        tick. Returns why it is refused, or None."""
+        rp = self.replanner
+        if rp.setup is None:
+            return "no_planner"
+        why = rp.obstacle(action, oid, table)
+        traj = self.trajectory
+        if (
+            why is None
+            and rp.goal is None
+            and self.leader.mode is LeaderMode.SCRIPT
+            and self.leader.trajectory_kind == "plan"
+            and self.leader.progress_s < getattr(traj, "duration_s", 0.0)
+        ):  # a planned script: replanned to its goal around the new world
+            gx, gy = getattr(traj, "goal", (0.0, 0.0))
+            rp.set_goal(float(gx), float(gy), getattr(traj, "goal_heading", None),
+                        f"obstacle {oid} {action}", first=False)  # fmt: skip
+        return why
+
+    def continue_goal(self) -> bool:
+        """After a takeover (``LeaderCore.adopt``): a goal the leader was driven to is planned
+        again from the adopted state (the bridge joins it without a jump). True if so."""
+        goal = self.leader.goal_point
+        rp = self.replanner
+        if goal is None or rp.setup is None:
+            return False
+        return rp.set_goal(*goal, "takeover", first=False)
+
+    def _blocked_while_squeezed(self, now_s: float) -> None:
+        """The world changed while the formation is squeezed on its plan: stop at once if the
+        goal or the rest of the path (the leader within the formation's reach) is blocked."""
+        ld, rp = self.leader, self.replanner
+        plan = ld.plan
+        assert plan is not None and rp.setup is not None
+        r = plan.result
+        rest = [(float(x), float(y)) for x, y, t in zip(r.x_m, r.y_m, r.t_s, strict=True)
+                if t >= ld.progress_s][::10]  # fmt: skip
+        offs = self.formation.body_offsets_m
+        reach = float(max(math.hypot(a, b) for a, b in offs)) + rp.setup.slot_radius_m
+        why = rp.blocked(rest, reach)
+        if why is not None:
+            rp.stop_now(why, now_s)
+            ld.no_way()
+
+    def _switch_plan(self, now_s: float) -> None:
+        """Before the leader's step: switch in the plan due now, or stop where there is none."""
+        got = self.replanner.switch(now_s)
+        if got is None:
+            return
+        answer, t_switch = got
+        if isinstance(answer, str):
+            self.leader.no_way()
+            return
+        from coordinator.core.planning.timed import TimedPlan  # numpy/scipy only when planning
+
+        self.leader.follow_plan(TimedPlan(answer), t_switch)
+
+    def _replan(
+        self,
+        now_s: float,
+        held: Collection[str],
+        ids: list[str],
+        xy: list[tuple[float, float]],
+        rows: list[SlotRow],
+        slot_ids: tuple[int, ...],
+        assignment: Mapping[str, int],
+    ) -> None:
+        """After the tick: take a new goal, watch for stuck robots, and start the bridge of a
+        wanted plan from the leader's state of this tick (coordinator.core.planning.replan)."""
+        ld, rp = self.leader, self.replanner
+        goal = ld.take_new_goal()
+        if goal is not None:
+            rp.set_goal(*goal)
+        elif rp.goal is not None and ld.mode is not LeaderMode.GOAL:
+            if rp.state is PlanState.FOLLOWING and ld.mode is LeaderMode.STOP:
+                rp.arrived()
+            elif rp.state is not PlanState.NO_WAY:
+                rp.clear_goal()  # the operator took the leader elsewhere
+        if rp.goal is not None and self.errors_m:
+            row_of = self._rows_by_slot(slot_ids)
+            slot_of = {r: rows[row_of[s]][:2] for r, s in assignment.items() if s in row_of}
+            where = dict(zip(ids, xy, strict=True))
+            rp.robots_stuck(now_s, self.errors_m, set(held), where, slot_of)
+        if rp.wanted() is None or ld.state is None:
+            return
+        if ld.squeezed():  # the replan waits for the end of the passage, unless it must not
+            self._blocked_while_squeezed(now_s)
+            return
+        offsets = [(float(a), float(b)) for a, b in self.formation.body_offsets_m]
+        if rp.late_streak and isinstance(ld.bridge, Bridge):  # late: the same bridge, later
+            rp.request(now_s, ld.bridge, offsets, now_s + rp.bridge_least_s())
+            return
+        cfg = ld.config
+        setup = rp.setup
+        assert setup is not None
+        bridge = Bridge(ld.state, now_s, cruise_mps=setup.cruise_mps, accel_mps2=cfg.max_accel_mps2,
+                        turn_accel_radps2=cfg.max_turn_accel_radps2)  # fmt: skip
+        ld.begin_bridge(bridge)
+        # a slow planner: the switch is later, on the bridge's braking tail (a slower start)
+        rp.request(now_s, bridge, offsets, now_s + max(bridge.hold_s, rp.bridge_least_s()))
 
     def _without_movers(
         self,

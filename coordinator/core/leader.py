@@ -15,7 +15,9 @@ script     the scenario's trajectory sampled at a *progress time* ``tau``    a t
 teleop     the operator's twist, integrated with speed, turn-rate and        a goal or path
            acceleration limits; the deadman zeroes it (below)                command
 goal/path  a pursuit of the waypoints (the goal is a one-point path),        arrival (-> stop),
-           through the same limited integrator                               another command
+           through the same limited integrator; or, a goal planned around    another command
+           obstacles (coordinator.core.planning.replan), a bridge and then
+           the timed plan at a progress advancing at the rate ``r``
 stop       holding where it stopped (v = omega = 0)                          any command
 =========  ================================================================  =================
 
@@ -59,10 +61,20 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from enum import StrEnum
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from bus_schemas.messages_fields import LeaderMode  # the modes as the leader message names them
 from coordinator.core.trajectory import LeaderState, Trajectory, wrap_angle
+
+if TYPE_CHECKING:  # the planning layer imports numpy; the leader takes its objects as given
+    from coordinator.core.planning.timed import TimedPlan
+
+
+class Bridge(Protocol):
+    """The motion while a plan is computed (coordinator.core.planning.replan.Bridge)."""
+
+    def state_at(self, now_s: float) -> LeaderState: ...
+
 
 __all__ = [
     "ABSURD_FACTOR",
@@ -296,6 +308,12 @@ class LeaderCore:
         self._last_now: float | None = None
         self._deadman_tripped = False
         self._script_waits = self.config.waits(LeaderMode.SCRIPT, trajectory_kind)
+        self.bridge: Bridge | None = None
+        """The motion while a plan is computed (coordinator.core.planning.replan), or None."""
+        self.plan: TimedPlan | None = None
+        """The run-time plan followed (at plan time ``progress_s``), or None."""
+        self.new_goal: tuple[float, float, float | None] | None = None
+        """A goal applied at the last step (the planner takes it: :meth:`take_new_goal`)."""
 
     # -- commands (queued; applied at the next step) ---------------------------------------
 
@@ -395,6 +413,7 @@ class LeaderCore:
         self.target_index = max(0, int(target_index))
         self._anchored = True
         self._last_now = now_s
+        self.bridge = self.plan = None  # a planned goal is planned again from here (replan.py)
         if self.mode in (LeaderMode.GOAL, LeaderMode.PATH):
             routes = [c for c in self._pending if isinstance(c, _Route)]
             if self._route is None and routes:
@@ -467,6 +486,15 @@ class LeaderCore:
                 s = LeaderState(s.t, s.x, s.y, s.theta, rate * s.v_mps, rate * s.omega_radps)
             self.state = s
             return s
+        if self.bridge is not None:  # a plan is computed: the bridge, a function of time
+            b = self.bridge.state_at(now_s)
+            # the bridge does not wait for the team (at most BRIDGE_S at the join speed); the
+            # plan starts at full rate from the bridge's speed and the wait slews from there
+            self.rate = 1.0
+            self.state = LeaderState(now_s - self.t0_s, b.x, b.y, b.theta, b.v_mps, b.omega_radps)
+            return self.state
+        if self.plan is not None:
+            return self._follow(self.plan, rate * dt)
         prev = self.state
         assert prev is not None  # a non-script mode starts from a state
         v_t, w_t = self._targets(prev, now_s)
@@ -484,8 +512,66 @@ class LeaderCore:
             self._route = None
         return self.state
 
+    def _follow(self, plan: TimedPlan, dtau: float) -> LeaderState:
+        """The leader on the run-time plan, progress advanced by ``dtau`` (rate x dt)."""
+        self.progress_s += dtau
+        x, y, th, v, w = plan.state(self.progress_s)
+        r = self.rate
+        assert self._last_now is not None
+        self.state = LeaderState(self._last_now - self.t0_s, x, y, wrap_angle(th), r * v, r * w)
+        if self.progress_s >= plan.duration_s and self.mode is LeaderMode.GOAL:
+            self.mode = LeaderMode.STOP  # at rest on the goal: arrived (the plan stays, for
+            self._route = None  # the squeeze it ends in: the slots do not jump)
+        return self.state
+
+    # -- run-time plans (coordinator.core.planning.replan drives these) ---------------------
+
+    @property
+    def goal_point(self) -> tuple[float, float, float | None] | None:
+        """The goal (x, y, heading) of the route in mode goal, or None."""
+        route = self._route
+        if self.mode is not LeaderMode.GOAL or route is None or not route.goal:
+            return None
+        return (*route.points[-1], route.heading)
+
+    def take_new_goal(self) -> tuple[float, float, float | None] | None:
+        """The goal applied at the last step, once (None if none)."""
+        goal, self.new_goal = self.new_goal, None
+        return goal
+
+    def begin_bridge(self, bridge: Bridge) -> None:
+        """Leave the current motion for ``bridge`` (it starts from :attr:`state`)."""
+        self.bridge = bridge
+        self.plan = None
+        self._anchored = True
+        if self.mode not in (LeaderMode.GOAL, LeaderMode.SCRIPT):
+            self.mode = LeaderMode.GOAL
+        if self.mode is LeaderMode.SCRIPT:  # a planned script replanned to its goal
+            self.mode = LeaderMode.GOAL
+
+    def follow_plan(self, plan: TimedPlan, t_switch_s: float) -> None:
+        """Follow ``plan`` from ``t_switch_s`` (before the step of the tick at or after it)."""
+        self.bridge = None
+        self.plan = plan
+        self.mode = LeaderMode.GOAL
+        self.progress_s = 0.0
+        self._last_now = t_switch_s  # the step integrates the progress from the switch time
+
+    def no_way(self) -> None:
+        """No plan: decelerate to a stop from where the leader is, within its limits."""
+        self.bridge = self.plan = None
+        self.mode = LeaderMode.STOP
+        self._route = None
+
+    def squeezed(self) -> bool:
+        """The formation is squeezed on the run-time plan here (a replan waits for the end)."""
+        plan = self.plan
+        return plan is not None and plan.squeezed_at(self.progress_s)
+
     def _apply_pending(self) -> None:
         pending, self._pending = self._pending, []
+        if pending:
+            self.bridge = self.plan = None  # an operator's command replaces a run-time plan
         for cmd in pending:
             if self.state is None:  # before the first tick: start from the script's start
                 self.state = self.trajectory.sample(0.0)
@@ -496,6 +582,8 @@ class LeaderCore:
                 self._route = cmd
                 self.target_index = 0
                 self.mode = LeaderMode.GOAL if cmd.goal else LeaderMode.PATH
+                if cmd.goal:
+                    self.new_goal = (*cmd.points[-1], cmd.heading)
             elif cmd is LeaderMode.STOP:
                 self.mode = LeaderMode.STOP
 

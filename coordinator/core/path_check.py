@@ -31,7 +31,7 @@ from coordinator.core.formation import (
 from coordinator.core.trajectory import make_trajectory
 from robot_agent.core.params import CircleObstacle, SegmentObstacle, WorldMap
 
-__all__ = ["PathConflict", "slot_path_conflicts"]
+__all__ = ["PathConflict", "slot_path_conflicts", "trajectory_conflicts"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -86,11 +86,31 @@ def slot_path_conflicts(
     """
     if not world.obstacles and world.arena is None:
         return []
-    if not (duration_s >= 0.0 and step_s > 0.0):
-        raise ValueError("duration_s must be >= 0 and step_s > 0")
     params = {k: v for k, v in trajectory.items() if k != "kind"}
     traj = make_trajectory(str(trajectory["kind"]), params)
-    spec = FormationSpec.from_dict(dict(formation))
+    return trajectory_conflicts(
+        traj, FormationSpec.from_dict(dict(formation)), world, duration_s,
+        body_radius_m=body_radius_m, ref_offset_m=ref_offset_m, step_s=step_s, t0_s=t0_s,
+    )  # fmt: skip
+
+
+def trajectory_conflicts(
+    traj: Any,
+    spec: FormationSpec,
+    world: WorldMap,
+    duration_s: float,
+    *,
+    body_radius_m: float,
+    ref_offset_m: float,
+    step_s: float = 0.1,
+    t0_s: float = 0.0,
+) -> list[PathConflict]:
+    """:func:`slot_path_conflicts` of a trajectory object (``sample(t)``, and
+    ``slot_offsets(t)`` if its formation squeezes: a run-time plan, coordinator.core.planning)."""
+    if not world.obstacles and world.arena is None:
+        return []
+    if not (duration_s >= 0.0 and step_s > 0.0):
+        raise ValueError("duration_s must be >= 0 and step_s > 0")
     radius = body_radius_m + ref_offset_m
     first: dict[tuple[int, str], float] = {}
     worst: dict[tuple[int, str], tuple[float, float]] = {}

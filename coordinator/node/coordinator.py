@@ -52,6 +52,7 @@ from coordinator.node.estop_source import EstopSource
 from coordinator.node.fault_schedule import FaultNotices, slot_messages
 from coordinator.node.operator_io import OperatorInputs, reshape_fields
 from coordinator.node.outputs import TickOutputs
+from coordinator.node.plan_worker import PLAN_WAIT_S, PlanWorker
 from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
 from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
@@ -200,6 +201,9 @@ class CoordinatorNode:
             if scenario.operator
             else None
         )
+        # -- run-time plans computed off the tick (issue 27, coordinator.node.plan_worker)
+        self.plan_worker = PlanWorker(self.log)
+        self.core.replanner.adaptive = not lockstep  # realtime: slow plans switch later
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -438,6 +442,10 @@ class CoordinatorNode:
                 self.operator.took_over(now_s, self.t0_s)
                 if self.operator_script is not None:
                     self.operator_script.skip_until(now_s - self.t0_s)
+            replanner = self.core.replanner
+            if replanner.setup is not None:  # a plan done (realtime), or due (lockstep: wait)
+                due = self.lockstep and replanner.due(now_s) is not None
+                self.plan_worker.poll(replanner, PLAN_WAIT_S if due else None)
             started = time.perf_counter()
             poses = self.fresh_poses(now_s)
             if self.scripted.state.offline():  # a scripted kill: its robot counts as gone
@@ -449,6 +457,9 @@ class CoordinatorNode:
                     self.faults.reject("operator", f"scripted {cmd} refused: {why}", f"{cmd}-{why}")
             held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
             out = self.core.tick(now_s, poses, held, self.fresh_objects(now_s))
+            request = replanner.take_request() if replanner.setup is not None else None
+            if request is not None:
+                self.plan_worker.submit(request)
             self.ticks += 1
             self.last = out
             outputs = self.outputs.encode_tick(
@@ -571,7 +582,26 @@ class CoordinatorNode:
             tick_p50_ms=1e3 * tick_ms[len(tick_ms) // 2] if tick_ms else None,
             tick_max_ms=1e3 * tick_ms[-1] if tick_ms else None,
             **self.estop_source.status(),
+            **self.plan_status(),
         )
+
+    def plan_status(self) -> dict[str, Any]:
+        """The status's run-time plan fields (docs/planning.md), absent before any plan."""
+        rp = self.core.replanner
+        st = rp.stats
+        if rp.state is None and not st.plans and not rp.enabled:
+            return {}  # no obstacle anywhere: goals are driven straight (nothing is planned)
+        return {
+            "plan": None if rp.state is None else rp.state.value,
+            "plan_why": None if rp.why is None else rp.why[:255],
+            "plans": st.plans,
+            "replans": st.replans,
+            "plan_ms": st.plan_ms,
+            "plan_clearance_m": st.min_clearance_m,
+            "plan_late": st.late,
+            "obstacles": len(rp.obstacles),
+            "stuck": tuple(sorted(rp.stuck.stuck)),
+        }
 
     def status_map(self, now_s: float) -> dict[str, Any]:
         """The status as its wire map (what :meth:`publish_status` encodes)."""
@@ -633,6 +663,7 @@ class CoordinatorNode:
             turned = time.monotonic()
             self.stall.turned(turned)
             await asyncio.sleep(max(0.0, wake - turned))
+        self.plan_worker.close()
 
 
 _HOST: Final = socket.gethostname()[:255] or "unknown"

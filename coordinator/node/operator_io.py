@@ -29,9 +29,21 @@ from collections.abc import Callable, Collection
 from typing import Any, Final
 
 import runtime as rt
-from bus_schemas import CmdVel, DecodeError, Goal, Leader, Path, ReshapeSource, Shape, decode, keys
+from bus_schemas import (
+    CmdVel,
+    DecodeError,
+    Goal,
+    Leader,
+    Obstacle,
+    Path,
+    ReshapeSource,
+    Shape,
+    decode,
+    keys,
+)
 from coordinator.core.coordinator import CoordinatorCore
 from coordinator.core.leader import LeaderMode
+from coordinator.core.planning.replan import obstacle_table
 from coordinator.core.reshaping import ReshapeState
 from coordinator.core.trajectory import LeaderState
 from robot_agent.core.estop import EstopLatch
@@ -82,7 +94,10 @@ class OperatorInputs:
         self.goal_key = keys.goal_key(fleet)
         self.path_key = keys.path_key(fleet)
         self.shape_key = keys.shape_key(fleet)
-        self.command_keys = (self.cmd_vel_key, self.goal_key, self.path_key, self.shape_key)
+        self.obstacle_key = keys.obstacle_key(fleet)
+        self.command_keys = (
+            self.cmd_vel_key, self.goal_key, self.path_key, self.shape_key, self.obstacle_key,
+        )  # fmt: skip
         """The keys of the operator's commands (each subscribed on its own: a declaration on
         ``operator/*`` is refused by the router's access control under ``--secure``)."""
         self._now = now
@@ -91,7 +106,9 @@ class OperatorInputs:
         self._reject = reject
         self._internal = internal
         self.log = log
-        self.rx: dict[str, int] = {"cmd_vel": 0, "goal": 0, "path": 0, "shape": 0}
+        self.rx: dict[str, int] = {
+            "cmd_vel": 0, "goal": 0, "path": 0, "shape": 0, "obstacle": 0,
+        }  # fmt: skip
         self._bucket = BURST_MAX
         self._bucket_s: float | None = None
         self._last_seq: int | None = None
@@ -117,6 +134,8 @@ class OperatorInputs:
                 self._on_path(rx)
             elif leaf == keys.SHAPE:
                 self._on_shape(rx)
+            elif leaf == keys.OBSTACLE:
+                self._on_obstacle(rx)
             else:
                 self._reject("operator", f"not an operator key: {rx.key[:100]!r}", "bad_key")
         except Exception as exc:
@@ -208,6 +227,30 @@ class OperatorInputs:
             return
         self.log.info(f"reshape into a {msg.kind} of {reshaper.slots} slots {spacing:.3g} m apart")
 
+    def _on_obstacle(self, rx: rt.Received) -> None:
+        """A planning obstacle added, moved or removed (issue 27): every instance keeps the
+        map; the active one replans a goal it follows (coordinator.core.planning.replan)."""
+        if not self._admit("obstacle", self._now()):
+            return
+        msg = decode(rx.payload, Obstacle)
+        if isinstance(msg, DecodeError):
+            self._reject("obstacle", msg, None)
+            return
+        table = None
+        if msg.action != "remove":
+            try:
+                table = obstacle_table(
+                    msg.shape or "", x=msg.x, y=msg.y, radius_m=msg.radius_m, xs=msg.xs, ys=msg.ys
+                )
+            except ValueError as exc:
+                self._reject("obstacle", f"{msg.id}: {exc}", "degenerate")
+                return
+        why = self.core.obstacle(msg.action, msg.id, table)
+        if why is not None:
+            self._reject("obstacle", f"{msg.action} {msg.id}: {why}", why)
+            return
+        self.log.info(f"obstacle {msg.id}: {msg.action} ({msg.shape or '-'})")
+
     def on_leader(self, rx: rt.Received) -> None:
         """The active instance's ``leader`` (a realtime standby keeps the last few)."""
         try:
@@ -245,6 +288,8 @@ class OperatorInputs:
         state = LeaderState(progress, msg.x, msg.y, msg.theta, msg.v_mps, msg.omega_radps)
         self.leader.adopt(now_s, state, mode, progress, rate, msg.target or 0)
         self.adopted += 1
+        if self.core.continue_goal():  # a planned goal: planned again from here, no jump
+            self.log.info("replanning the goal from the continued leader (takeover)")
         self.log.info(
             f"continuing the leader in mode {mode.value} at ({msg.x:.3f}, {msg.y:.3f}), "
             f"rate {rate:.2f}"

@@ -45,6 +45,7 @@ __all__ = [
     "parse_waypoints",
     "send_and_confirm",
     "watch_leader",
+    "watch_status",
 ]
 
 SPEED_STEP_MPS: Final = 0.01
@@ -224,6 +225,41 @@ async def watch_leader(
         await asyncio.sleep(0.1)  # the subscriber is declared at the router
         pubs = rt.Publishers(session)
         pubs.put(key, payload, rt.QOS_CRITICAL)
+        deadline = time.monotonic() + timeout_s
+        while not got and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+    finally:
+        sub.undeclare()
+    return got[0] if got else None
+
+
+async def watch_status(
+    session: Any,
+    fleet: str,
+    want: Callable[[dict[str, Any]], bool],
+    timeout_s: float,
+    after_s: float,
+) -> dict[str, Any] | None:
+    """The first status (a plain map) of an ACTIVE coordinator of ``fleet`` received after
+    ``after_s`` (``time.monotonic()``) for which ``want`` is true, or None within
+    ``timeout_s``."""
+    import msgpack
+
+    loop = asyncio.get_running_loop()
+    got: list[dict[str, Any]] = []
+
+    def on_status(rx: rt.Received) -> None:
+        if rx.rx_s <= after_s or got:
+            return
+        try:
+            m = msgpack.unpackb(rx.payload)
+        except Exception:
+            return
+        if isinstance(m, dict) and m.get("role") == "active" and want(m):
+            got.append(m)
+
+    sub = rt.subscribe(session, keys.all_coordinator_status_pattern(fleet), loop, on_status)
+    try:
         deadline = time.monotonic() + timeout_s
         while not got and time.monotonic() < deadline:
             await asyncio.sleep(0.02)

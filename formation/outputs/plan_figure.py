@@ -59,7 +59,7 @@ def plot_plan(scn: Scenario, path: Path, every_s: float = 2.0) -> None:
         offs = traj.slot_offsets(float(t))
         q = 0.0
         if offs is not None:
-            _, _, k, u = traj._where(float(t))
+            _, _, k, u = traj.where(float(t))
             q = float(r.q[k] + (r.q[k + 1] - r.q[k]) * u)
         _, rows = slot_rows(spec, leader) if offs is None else morphed_slot_rows(leader, offs)
         for row in rows:

@@ -116,6 +116,7 @@ EXPECT_PUBLISH: dict[str, set[str]] = {
         _f("operator/goal"),
         _f("operator/path"),
         _f("operator/shape"),
+        _f("operator/obstacle"),
         _f("fault"),
     },
     "observer.rec": set(),
@@ -170,6 +171,7 @@ EXPECT_READ: dict[str, set[str]] = {
         _f("operator/goal"),
         _f("operator/path"),
         _f("operator/shape"),
+        _f("operator/obstacle"),
     },
     "localization": {*(_f(f"robot/{r}/truth") for r in ROBOTS), _f("truths")},
     "plant": {

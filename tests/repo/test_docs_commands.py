@@ -43,7 +43,7 @@ SKIP_RULES: list[tuple[str, str]] = [
     (r"my-fleet\.toml|test_my_fleet\.py", "the tutorial's own files: "
      "test_the_tutorial_runs_end_to_end runs docs/tutorial.md in order"),
     (r"^formation fault\b", "needs a running fleet (tests/fleet/test_faults.py)"),
-    (r"^formation (teleop|goal|path|shape)\b", "drives a running fleet "
+    (r"^formation (teleop|goal|path|shape|obstacle)\b", "drives a running fleet "
      "(tests/bus/test_operator.py, tests/fleet/test_operator_fleet.py)"),
     (r"^formation (top|record)\b", "watches a running fleet (tests/bus/test_top.py, "
      "tests/fleet/test_record_live.py)"),

@@ -461,6 +461,7 @@ def _speed_profile(
     accel_share: float = 0.4,
     turn_share: float = 0.95,
     speed_share: float = 0.93,
+    v_start_mps: float = 0.0,
 ) -> tuple[FloatArray, FloatArray]:
     """Leader speed at each sample, every slot within ``lim`` (module docstring, step 4), and
     every slot's velocity per unit leader speed in the world frame (m, n, 2).
@@ -487,12 +488,18 @@ def _speed_profile(
     v = np.minimum(v, turn_share * lim.turn_radps / np.maximum(dpsi.max(axis=1), 1e-9))
     v = np.minimum(v, np.sqrt(accel_share * lim.accel_mps2 / np.maximum(dg.max(axis=1), 1e-9)))
     a_lead = accel_share * lim.accel_mps2 / np.maximum(gmax, 1.0)
-    v[0] = 0.0
+    if v_start_mps > v[0] + 1e-12:
+        raise NoPlan(
+            f"the leader's speed {v_start_mps:.3f} m/s is beyond what the slots allow at the start"
+        )
+    v[0] = v_start_mps  # from rest, or the join speed of a run-time plan (replan.py)
     v[-1] = 0.0
     for k in range(1, len(v)):
         v[k] = min(v[k], math.sqrt(v[k - 1] ** 2 + 2.0 * a_lead[k - 1] * ds))
     for k in range(len(v) - 2, -1, -1):
         v[k] = min(v[k], math.sqrt(v[k + 1] ** 2 + 2.0 * a_lead[k] * ds))
+    if v[0] < v_start_mps - 1e-12:
+        raise NoPlan("the leader cannot slow down in time from its speed for the plan's first turn")
     return v, np.stack([wx, wy], axis=-1)
 
 
@@ -576,11 +583,16 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
     limits: SlotLimits,
     min_pair_m: float = 0.0,
     soft_pair_m: float = 0.0,
+    v_start_mps: float = 0.0,
 ) -> PlanResult:
     """Plan the virtual leader from ``start`` ``(x, y, theta)`` through ``via`` to ``goal``
     (module docstring); no two slots closer than ``min_pair_m`` (m), closer than
-    ``soft_pair_m`` only where there is no other way. Raises :class:`NoPlan` (clean, with the
-    reason) when there is none."""
+    ``soft_pair_m`` only where there is no other way. ``v_start_mps`` (>= 0): the leader's
+    speed at the start (a run-time plan joins a moving leader, going straight along ``theta``:
+    the plan leaves along it at that speed). Raises :class:`NoPlan` (clean, with the reason)
+    when there is none."""
+    if not (math.isfinite(v_start_mps) and 0.0 <= v_start_mps <= cruise_mps + 1e-12):
+        raise NoPlan(f"start speed {v_start_mps!r} m/s: must be in [0, the cruise speed]")
     fp = footprint
     need = fp.slot_radius_m
     sx, sy, sth = start
@@ -598,7 +610,8 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
             raise NoPlan(f"{name} {pts_in[names.index(name)]} is {where}")
     # leave along the start heading (the robots start in formation at that heading): a first
     # straight departure, when there is room for it
-    for ahead in (0.4, 0.2):
+    departs = False
+    for ahead in (0.4, 0.2) if v_start_mps == 0.0 else (0.4, 0.2, 0.1):
         p = (sx + ahead * math.cos(sth), sy + ahead * math.sin(sth))
         if (
             math.hypot(pts_in[1][0] - sx, pts_in[1][1] - sy) > 2.0 * ahead
@@ -606,7 +619,10 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
         ):
             pts_in.insert(1, p)
             names.insert(1, "start departure")
+            departs = True
             break
+    if v_start_mps > 0.0 and not departs:
+        raise NoPlan("no room ahead of the moving leader to leave along its heading")
     if goal_heading is not None:
         # arrive along goal_heading: a last straight approach to the goal
         gx, gy = pts_in[-1]
@@ -686,6 +702,7 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
             share,
             turn_share,
             speed_share,
+            v_start_mps,
         )
         t = _times(v, ds)
         r_speed, r_turn, r_accel = _within_limits(s_t, v, t, g, limits)

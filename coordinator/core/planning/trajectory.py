@@ -26,15 +26,12 @@ Refused with ``ValueError`` naming the field: a bad parameter; ``trajectory.goal
 
 from __future__ import annotations
 
-import bisect
 import functools
 import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
-
-import numpy as np
 
 from coordinator.core.formation import FormationSpec
 from coordinator.core.trajectory import LeaderState, wrap_angle
@@ -43,6 +40,7 @@ from .footprint import Footprint
 from .limits import SlotLimits
 from .planner import PlanResult, plan
 from .search import NoPlan
+from .timed import TimedPlan
 from .world import PlanWorld
 
 __all__ = ["DEFAULT_CLEARANCE_M", "DEFAULT_SPEED_MPS", "PlannedTrajectory", "plan_from_context"]
@@ -145,14 +143,7 @@ class PlannedTrajectory:
     heading: float | None = None
     t_start_s: float = 0.0
     result: PlanResult = field(init=False, repr=False, compare=False)
-    _t: tuple[float, ...] = field(init=False, repr=False, compare=False)
-    _morph: bool = field(init=False, repr=False, compare=False)
-    _q: tuple[float, ...] = field(init=False, repr=False, compare=False)
-    _v: tuple[float, ...] = field(init=False, repr=False, compare=False)
-    _dq: tuple[float, ...] = field(init=False, repr=False, compare=False)
-    _s: tuple[float, ...] = field(init=False, repr=False, compare=False)
-    _nominal: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
-    _zeros: tuple[tuple[float, float], ...] = field(init=False, repr=False, compare=False)
+    _timed: TimedPlan = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         goal = _pair("goal", self.goal)
@@ -189,80 +180,28 @@ class PlannedTrajectory:
             raise ValueError(f"trajectory.context: not plain data ({exc})") from None
         result = _plan_cached(key)
         object.__setattr__(self, "result", result)
-        object.__setattr__(self, "_t", tuple(float(v) for v in result.t_s))
-        object.__setattr__(self, "_morph", bool(np.any(result.q > 0.0)))
-        object.__setattr__(self, "_q", tuple(float(v) for v in result.q))
-        object.__setattr__(self, "_v", tuple(float(v) for v in result.v_mps))
-        object.__setattr__(self, "_dq", tuple(float(v) for v in result.dq_per_m))
-        object.__setattr__(self, "_s", tuple(float(v) for v in result.s_m))
-        fp = result.footprint
-        object.__setattr__(self, "_nominal", tuple((float(a), float(b)) for a, b in fp.nominal_m))
-        object.__setattr__(self, "_zeros", tuple((0.0, 0.0) for _ in range(fp.n)))
+        object.__setattr__(self, "_timed", TimedPlan(result))
         object.__setattr__(self, "t_start_s", t0)
 
     @property
     def duration_s(self) -> float:
         """Time from the start to the goal (s), excluding ``t_start_s``."""
-        return self._t[-1]
+        return self._timed.duration_s
 
-    def _where(self, t_s: float) -> tuple[float, float, int, float]:
+    def where(self, t_s: float) -> tuple[float, float, int, float]:
         """(arc length s_m, speed v_mps, sample index k, position u in [k, k+1]) at ``t_s``."""
-        tau = t_s - self.t_start_s
-        if tau <= 0.0:
-            return 0.0, 0.0, 0, 0.0
-        if tau >= self._t[-1]:
-            return self._s[-1], 0.0, len(self._t) - 2, 1.0
-        k = bisect.bisect_right(self._t, tau) - 1
-        dt = self._t[k + 1] - self._t[k]
-        v0, v1 = self._v[k], self._v[k + 1]
-        a = (v1 - v0) / dt
-        u = tau - self._t[k]
-        ds = self._s[k + 1] - self._s[k]
-        s_in = min(v0 * u + 0.5 * a * u * u, ds)
-        return self._s[k] + s_in, v0 + a * u, k, s_in / ds if ds > 0 else 0.0
+        return self._timed.where(t_s - self.t_start_s)
 
     def sample(self, t_s: float) -> LeaderState:
         """Leader state at ``t_s`` (s): eqs 1-2 along the planned path."""
         if isinstance(t_s, bool) or not isinstance(t_s, int | float) or not math.isfinite(t_s):
             raise ValueError(f"{_OWNER}.sample: t_s must be a finite number, got {t_s!r}")
         t = float(t_s)
-        s, v, _, _ = self._where(t)
-        x, y, th, kappa = self.result.pose_at(s)
-        return LeaderState(t, x, y, wrap_angle(th), v, v * kappa)
+        x, y, th, v, w = self._timed.state(t - self.t_start_s)
+        return LeaderState(t, x, y, wrap_angle(th), v, w)
 
     def slot_offsets(self, t_s: float) -> tuple[tuple[float, float, float, float], ...] | None:
         """The slots' body-frame offsets from the leader and their rates at ``t_s``: per slot
-        (definition order) ``(ox, oy, dox, doy)`` in m and m/s; None when the formation never
-        squeezes on this plan (the rigid offsets of the formation hold)."""
-        if not self._morph:
-            return None
-        r = self.result
-        s, v, k, u = self._where(float(t_s))
-        q0, q1 = self._q[k], self._q[k + 1]
-        if q0 == 0.0 and q1 == 0.0:
-            return None  # not squeezed here: the rigid formation (its exact arithmetic)
-        q = q0 + (q1 - q0) * u
-        dq_ds = self._dq[k] + (self._dq[k + 1] - self._dq[k]) * u
-        fp = r.footprint
-        # the squeeze of Footprint.offsets_many in plain floats (the per-tick path)
-        qa = min(max(q, 0.0), fp.q_max)
-        u1 = min(max(qa, 0.0), 1.0)
-        sc = 1.0 - (1.0 - fp.s_min) * u1 * u1 * (3.0 - 2.0 * u1)
-        dsc = -(1.0 - fp.s_min) * 6.0 * u1 * (1.0 - u1)
-        ux = min(max(2.0 * (qa - 1.0), 0.0), 1.0)
-        uy = min(max(2.0 * (qa - 1.5), 0.0), 1.0)
-        lx, dlx = ux * ux * (3.0 - 2.0 * ux), 12.0 * ux * (1.0 - ux)
-        ly, dly = uy * uy * (3.0 - 2.0 * uy), 12.0 * uy * (1.0 - uy)
-        col: Sequence[tuple[float, float]] = self._zeros
-        dcol: Sequence[tuple[float, float]] = self._zeros
-        if lx > 0.0 or ly > 0.0 or dlx > 0.0 or dly > 0.0:
-            col, dcol = r.column_at(s)
-        out = []
-        for (dx, dy), (cx, cy), (gx, gy) in zip(self._nominal, col, dcol, strict=True):
-            ox = (1.0 - lx) * sc * dx + lx * cx
-            oy = (1.0 - ly) * sc * dy + ly * cy
-            dox = -dlx * sc * dx + (1.0 - lx) * dsc * dx + dlx * cx
-            doy = -dly * sc * dy + (1.0 - ly) * dsc * dy + dly * cy
-            # d/dt: the squeeze's rate and the column moving along the path
-            out.append((ox, oy, (dox * dq_ds + lx * gx) * v, (doy * dq_ds + ly * gy) * v))
-        return tuple(out)
+        (definition order) ``(ox, oy, dox, doy)`` in m and m/s; None when the formation is not
+        squeezed there (the rigid offsets of the formation hold)."""
+        return self._timed.slot_offsets(float(t_s) - self.t_start_s)

@@ -172,7 +172,10 @@ def message_strategy(cls: type) -> st.SearchStrategy[Any]:
     if cls is PoseBatch:
         return _pose_batch()
     if any(isinstance(r, SameLength) for r in spec_of(cls).rules):
-        return _same_length_batch(cls)
+        batch = _same_length_batch(cls)
+        if all(isinstance(r, SameLength) for r in spec_of(cls).rules):
+            return batch
+        return batch.filter(lambda m: validate(m) is None)  # and its other rules (Obstacle)
     fields = {f.name: field_strategy(f) for f in spec_of(cls).fields if f.name != "v"}
     s = st.builds(cls, **fields)
     if spec_of(cls).rules:

@@ -28,6 +28,7 @@ from bus_schemas import (
     Heartbeat,
     Leader,
     Movers,
+    Obstacle,
     Path,
     PlantStatus,
     Pose,
@@ -84,6 +85,9 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         reshape_s=6.25,
     ),
     "shape_slots": Shape(t=12.5, kind="chevron", spacing_m=0.4, slots=5),
+    "obstacle": Obstacle(
+        t=12.5, id="box1", action="move", shape="circle", x=1.5, y=-0.5, radius_m=0.25
+    ),
     "cmd_vel": CmdVel(t=12.5, seq=42, v_mps=0.1, omega_radps=-0.25),
     "goal": Goal(t=12.5, x=1.5, y=-2.0, heading=math.pi / 2),
     "path": Path(t=12.5, xs=(0.5, 1.0), ys=(0.25, -0.25)),
@@ -327,6 +331,9 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "shape_slots": (
         "85a17601a174cb4029000000000000a46b696e64a763686576726f6ea973706163696e675f6dcb3fd999999999999aa5736c6f747305"
+    ),
+    "obstacle": (
+        "88a17601a174cb4029000000000000a26964a4626f7831a6616374696f6ea46d6f7665a57368617065a6636972636c65a178cb3ff8000000000000a179cbbfe0000000000000a87261646975735f6dcb3fd0000000000000"
     ),
     "cmd_vel": (
         "85a17601a174cb4029000000000000a37365712aa5765f6d7073cb3fb999999999999aab6f6d6567615f7261647073cbbfd0000000000000"

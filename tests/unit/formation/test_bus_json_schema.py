@@ -20,6 +20,7 @@ from bus_schemas import (
     CmdVel,
     Goal,
     Leader,
+    Obstacle,
     Path,
     Pose,
     Shape,
@@ -123,6 +124,7 @@ EXAMPLES = [
     Goal(t=1.0, x=1.0, y=-0.5, heading=0.3),
     Path(t=1.0, xs=(0.0, 1.0, 1.0), ys=(0.0, 0.0, 1.0), heading=None),
     Shape(t=1.0, kind="column", spacing_m=0.3),
+    Obstacle(t=1.0, id="box1", action="add", shape="circle", x=1.0, y=0.5, radius_m=0.2),
     PoseBatch(
         t=1.0, seq=1, robots=("r1", "r2"), x=(0.1, 0.2), y=(0.3, 0.4), theta=(0.0, 1.0), stamp=0.97
     ),
