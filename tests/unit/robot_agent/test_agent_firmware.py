@@ -13,7 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robot_agent.core.firmware import _TRANSITIONS, Firmware, Mode, Pose, Setpoint, WheelCommand
+from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
+from robot_agent.core.firmware_modes import _TRANSITIONS
 from robot_agent.core.kinematics import (
     ref_point_velocity,
     reference_point,
