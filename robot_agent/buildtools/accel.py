@@ -104,7 +104,10 @@ def build(quiet: bool = False) -> tuple[bool, str]:
             pkg,
             ignore=shutil.ignore_patterns("_compiled", "__pycache__", "*.so", "*.pyd"),
         )
-        _copy_contract(pkg / "core", work / "bus_schemas")
+        try:
+            _copy_contract(pkg / "core", work / "bus_schemas")
+        except OSError as exc:
+            return False, f"cannot copy the contract modules the core imports ({exc})"
         hashes = _accel.source_hashes(pkg / "core")
         paths = [f"robot_agent/core/{name}.py" for name in _accel.COMPILED_MODULES]
         (work / "setup.py").write_text(_SETUP.format(paths=paths, group=_accel.GROUP))
