@@ -45,7 +45,6 @@ from bus_schemas.messages import (
     Leader,
     LeaderMode,
     Message,
-    Mode,
     Movers,
     Obstacle,
     Path,
@@ -80,6 +79,7 @@ from bus_schemas.messages_status import (
     PlantState,
     RunMode,
 )
+from bus_schemas.modes import Mode
 from bus_schemas.spec import (
     MAX_LIST_LEN,
     MAX_MAP_LEN,

@@ -46,7 +46,6 @@ from bus_schemas.messages_fields import (
     _Y,
     DisturbanceKind,
     LeaderMode,
-    Mode,
     ReshapeSource,
     Role,
     ShapeKind,
@@ -61,6 +60,7 @@ from bus_schemas.messages_operator import (
     Shape,
 )
 from bus_schemas.messages_status import CameraStatus, CoordinatorStatus, PlantStatus
+from bus_schemas.modes import Mode
 from bus_schemas.spec import DURATION_MAX_S as _DUR
 from bus_schemas.spec import EPOCH_MAX as _EPOCH_MAX
 from bus_schemas.spec import POSITION_MAX_M as _POS

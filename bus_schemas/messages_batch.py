@@ -11,7 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from bus_schemas import keys
-from bus_schemas.messages_fields import Mode, Role, _Periodic
+from bus_schemas.messages_fields import Role, _Periodic
+from bus_schemas.modes import Mode
 from bus_schemas.spec import POSITION_MAX_M as _POS
 from bus_schemas.spec import SPEED_MAX_MPS as _SPEED
 from bus_schemas.spec import TIME_MAX_S as _TMAX

@@ -1,4 +1,5 @@
-"""The vocabulary the bus messages share: the enums (``Role``, ``Mode``, ``DisturbanceKind``) and
+"""The vocabulary the bus messages share: the enums (``Role``, ``LeaderMode``, ``ShapeKind``,
+``DisturbanceKind``; the firmware's ``Mode`` is in modes.py, which the firmware core imports) and
 the field specs used by several message tables (schema version, timestamp, sequence number,
 positions, slot geometry), so every message declares them alike.
 
@@ -29,15 +30,6 @@ class Role(StrEnum):
     LEADER = "leader"
     SUBLEADER = "subleader"
     FOLLOWER = "follower"
-
-
-class Mode(StrEnum):
-    """Mode of a robot agent's firmware state machine."""
-
-    IDLE = "idle"
-    TRACKING = "tracking"
-    HOLD = "hold"
-    ESTOP = "estop"
 
 
 class LeaderMode(StrEnum):

@@ -8,7 +8,9 @@ Usage::
 
 ``build`` needs mypy (which ships mypyc), setuptools and a C compiler with the Python headers;
 none of them is needed to *run* the result, and none is a dependency of the robot install. It
-copies the package's sources into a temporary directory, compiles the modules of
+copies the package's sources into a temporary directory (with the contract's modules the core
+imports, ``bus_schemas.modes``: stdlib-only, under an empty ``bus_schemas`` package, so the
+build and its check see nothing else of the contract), compiles the modules of
 ``_accel.COMPILED_MODULES`` there as one mypyc group (``CFLAGS=-ffp-contract=off``: no fused
 multiply-add, so an ARM board computes the same bits as the interpreter), then runs
 ``python -m robot_agent.buildtools.core_outputs --quick`` with the new build and with
@@ -24,6 +26,7 @@ build is never used: ``_accel.py``).
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib.util
 import json
 import os
@@ -71,6 +74,22 @@ def _core_outputs(root: Path, accel: bool) -> subprocess.CompletedProcess[str]:
     )
 
 
+def _copy_contract(core_dir: Path, dest: Path) -> None:
+    """The contract's modules the firmware core imports (``from bus_schemas.modes import
+    Mode``), copied to ``dest`` under an ``__init__`` without imports: mypy follows them for the
+    types (the editable install's import hook is invisible to it) and the check runs on them."""
+    contract = _accel.PACKAGE_DIR.parent.parent / "bus_schemas"
+    dest.mkdir()
+    (dest / "__init__.py").write_text('"""The contract modules the firmware core imports."""\n')
+    names: set[str] = set()
+    for path in core_dir.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("bus_schemas."):
+                names.add(str(node.module).split(".")[1])
+    for name in sorted(names):
+        shutil.copy2(contract / f"{name}.py", dest / f"{name}.py")
+
+
 def build(quiet: bool = False) -> tuple[bool, str]:
     """Compile, check and install; ``(ok, one-line reason)``."""
     missing = [m for m in ("mypyc", "setuptools") if importlib.util.find_spec(m) is None]
@@ -85,6 +104,10 @@ def build(quiet: bool = False) -> tuple[bool, str]:
             pkg,
             ignore=shutil.ignore_patterns("_compiled", "__pycache__", "*.so", "*.pyd"),
         )
+        try:
+            _copy_contract(pkg / "core", work / "bus_schemas")
+        except OSError as exc:
+            return False, f"cannot copy the contract modules the core imports ({exc})"
         hashes = _accel.source_hashes(pkg / "core")
         paths = [f"robot_agent/core/{name}.py" for name in _accel.COMPILED_MODULES]
         (work / "setup.py").write_text(_SETUP.format(paths=paths, group=_accel.GROUP))

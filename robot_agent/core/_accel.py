@@ -47,6 +47,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "deadlock",
     "safety_filter",
     "firmware_types",
+    "firmware_rejects",
     "firmware_modes",
     "firmware",
     "neighbours",  # the agent host's per-frame neighbour lists (host_grid): ~0.4 ms a frame

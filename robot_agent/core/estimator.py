@@ -88,10 +88,14 @@ from robot_agent.core.estimator_math import (
     _TINY_S,
     _Anchor,
     _arc,
-    _EstimatorMath,
     _isfinite,
     _Node,
+    _State,
     _wrap,
+    chain_at,
+    correct,
+    make_anchor,
+    prior,
     propagate_pose,
 )
 from robot_agent.core.params import EstimatorParams
@@ -147,22 +151,39 @@ class EstimatorStatus:
         }
 
 
-class Estimator(_EstimatorMath):
-    """Pose of one robot's axle centre at ``now`` (see the module docstring)."""
+class Estimator:
+    """Pose of one robot's axle centre at ``now`` (see the module docstring). It owns its state:
+    the odometry chain's nodes, the anchors, the counters; the arithmetic over them is the
+    plain functions of estimator_math.py."""
 
     __slots__ = (
+        "_anch",
+        "_anch_t",
         "_b_cmd",
         "_b_odom",
+        "_cmd_q",
+        "_first_is_init",
         "_fut_tol",
         "_gate",
         "_gate2",
+        "_gated_run",
+        "_head",
         "_hist",
         "_last_odom_t",
         "_max_lat",
         "_max_unc",
+        "_node_t",
+        "_nodes",
         "_nsig",
         "_odom_q",
         "_odom_to",
+        "_p",
+        "_q_rad2",
+        "_q_thm",
+        "_q_ths",
+        "_r_pos",
+        "_r_th",
+        "_still_q",
         "accepted",
         "last_reason",
         "rejected_duplicate",
@@ -171,6 +192,7 @@ class Estimator(_EstimatorMath):
         "rejected_nonfinite",
         "rejected_odometry",
         "rejected_old",
+        "replayed",
         "resets",
     )
 
@@ -183,7 +205,9 @@ class Estimator(_EstimatorMath):
         self._r_th = p.meas_theta_std_rad * p.meas_theta_std_rad
         self._odom_q = (p.odom_pos_var_per_m, p.odom_pos_var_per_s)
         self._cmd_q = (p.cmd_pos_var_per_m, p.cmd_pos_var_per_s)
-        self._q_rad2 = p.theta_var_per_rad * 2.0  # (the same bits as q * 2.0 inline)
+        self._still_q = p.cmd_pos_var_per_s  # (standing still before the first twist)
+        # 2 x theta_var_per_rad (TU sums |omega dt| / 2; the same bits as q * 2.0 inline)
+        self._q_rad2 = p.theta_var_per_rad * 2.0
         self._b_cmd = p.max_dropout_cmd_s
         self._b_odom = p.max_dropout_odom_s
         self._fut_tol = p.future_tolerance_s
@@ -200,7 +224,9 @@ class Estimator(_EstimatorMath):
         self._node_t: list[float] = []
         self._anch: list[_Anchor] = []
         self._anch_t: list[float] = []
-        self._head = None
+        # (t, node, state): the chain at t computed from that node (the last estimate's);
+        # reused when a segment starts at t
+        self._head: tuple[float, _Node, _State] | None = None
         self._last_odom_t = -math.inf
         self._gated_run = 0
         self._first_is_init = False
@@ -315,7 +341,8 @@ class Estimator(_EstimatorMath):
             self.rejected_duplicate += 1
             return "second pose with the same capture time"
         # plausibility gate on the position innovation
-        px, py, _, pp, _ = self._prior(a, t_s, self._chain_at(t_s))
+        st = chain_at(self._nodes, self._node_t, self._still_q, t_s)
+        px, py, _, pp, _ = prior(a, t_s, st, self._q_rad2, self._q_thm, self._q_ths)
         dx = x - px
         dy = y - py
         g = self._gate + self._nsig * _sqrt(pp + self._r_pos)
@@ -393,7 +420,7 @@ class Estimator(_EstimatorMath):
             if head is not None and head[0] == seg_t_s and nodes and head[1] is nodes[-1]:
                 st = head[2]
             else:
-                st = self._chain_at(seg_t_s)
+                st = chain_at(nodes, nt, self._still_q, seg_t_s)
             if odometry:
                 qm, qs = self._odom_q
                 if now_s > self._last_odom_t:
@@ -410,7 +437,7 @@ class Estimator(_EstimatorMath):
         """Stage 2 of ``tick``, the camera pose captured at ``t_s``: ``add_measurement`` (its
         result returned), with the common case inlined: a pose younger than the newest anchor,
         inside the gate (the chain at ``t_s``, the prior through the newest anchor's frame,
-        the Kalman update: ``_chain_at``, ``_prior``, ``_fuse`` and ``_anchor``)."""
+        the Kalman update: ``chain_at``, ``prior``, ``correct`` and ``make_anchor``)."""
         nt = self._node_t
         nodes = self._nodes
         anch = self._anch
@@ -426,10 +453,10 @@ class Estimator(_EstimatorMath):
         # than the chained form, and False for NaN alike)
         if not (theta > _NEG_PI and theta <= _PI):
             theta = _wrap(theta)
-        # the chain at t_s (_chain_at inlined: usually a node, no arc)
+        # the chain at t_s (chain_at inlined: usually a node, no arc)
         j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
         if j < 0:
-            st = self._chain_at(t_s)
+            st = chain_at(nodes, nt, self._still_q, t_s)
         else:
             n = nodes[j]
             if t_s - n[0] < _TINY_S:
@@ -438,7 +465,7 @@ class Estimator(_EstimatorMath):
                 st = _arc(n, t_s - n[0])
                 if j == len(nt) - 1:  # after the newest node: the next segment's start
                     self._head = (t_s, n, st)
-        # the prior through the newest anchor's frame (_prior inlined)
+        # the prior through the newest anchor's frame (prior inlined)
         ox, oy, oth, d_, tu, q = st
         at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
         dist = d_ - ad
@@ -459,7 +486,7 @@ class Estimator(_EstimatorMath):
             jump = False
         if jump:
             return self.add_measurement(now_s, t_s, x, y, theta)
-        # _fuse and _anchor inlined
+        # correct and make_anchor inlined
         self._gated_run = 0
         self.accepted += 1
         sv = pp + rp
@@ -485,6 +512,90 @@ class Estimator(_EstimatorMath):
             self._trim(now_s)
         return None
 
+    # ------------------------------------------------------------------ the history
+
+    def _start_segment(self, t_s: float, v: float, w: float, measured: bool) -> None:
+        """Append a segment starting at ``t_s`` (after every node) with its node."""
+        head = self._head
+        nodes = self._nodes
+        if head is not None and head[0] == t_s and nodes and head[1] is nodes[-1]:
+            st = head[2]
+        else:
+            st = chain_at(nodes, self._node_t, self._still_q, t_s)
+        qm, qs = self._odom_q if measured else self._cmd_q
+        nodes.append((t_s, st, v, w, measured, qm, qs))
+        self._node_t.append(t_s)
+
+    def _truncate(self, t_s: float) -> None:
+        """Drop every segment starting at or after ``t_s``."""
+        nodes = self._nodes
+        nt = self._node_t
+        while nt and nt[-1] >= t_s:
+            nt.pop()
+            nodes.pop()
+        self._head = None
+
+    def _init(self, t_s: float, x: float, y: float, theta: float) -> None:
+        """Start the anchors from the camera pose ``(x, y, theta)`` captured at ``t_s``."""
+        st = chain_at(self._nodes, self._node_t, self._still_q, t_s)
+        self._anch.append(make_anchor(t_s, x, y, theta, self._r_pos, self._r_th, x, y, theta, st))
+        self._anch_t.append(t_s)
+        self._gated_run = 0
+        self._first_is_init = True
+
+    def _fuse(self, a: _Anchor, t_s: float, zx: float, zy: float, zth: float) -> _Anchor:
+        """Anchor ``a``'s prediction at ``t_s`` corrected with a measurement: the new anchor."""
+        st = chain_at(self._nodes, self._node_t, self._still_q, t_s)
+        px, py, pth, pp, ppth = prior(a, t_s, st, self._q_rad2, self._q_thm, self._q_ths)
+        return correct(px, py, pth, pp, ppth, self._r_pos, self._r_th, t_s, zx, zy, zth, st)
+
+    def _refuse(self, later: list[_Anchor]) -> None:
+        """Fuse the measurements of ``later`` again, in order, after the newest anchor."""
+        anch = self._anch
+        anch_t = self._anch_t
+        for b in later:
+            anch.append(self._fuse(anch[-1], b[0], b[6], b[7], b[8]))
+            anch_t.append(b[0])
+
+    def _replay_after(self, t_s: float) -> None:
+        """The twists from ``t_s`` on changed: re-fuse every anchor captured after ``t_s`` (the
+        oldest is kept and re-based on the new chain)."""
+        anch = self._anch
+        anch_t = self._anch_t
+        i = bisect_right(anch_t, t_s)
+        if i >= len(anch_t):
+            return
+        if i == 0:
+            a = anch[0]
+            st = chain_at(self._nodes, self._node_t, self._still_q, a[0])
+            anch[0] = make_anchor(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], st)
+            i = 1
+            if i >= len(anch_t):
+                return
+        later = anch[i:]
+        del anch[i:]
+        del anch_t[i:]
+        self.replayed += 1
+        self._refuse(later)
+
+    def _trim(self, now_s: float) -> None:
+        """Bound the history: anchors older than ``history_s`` (keeping the newest) and the
+        nodes before the oldest anchor kept."""
+        cutoff = now_s - self._hist
+        anch_t = self._anch_t
+        n = bisect_right(anch_t, cutoff)
+        if n >= len(anch_t):
+            n = len(anch_t) - 1
+        if n > 0:
+            del anch_t[:n]
+            del self._anch[:n]
+            self._first_is_init = False
+        if anch_t:
+            j = bisect_right(self._node_t, min(cutoff, anch_t[0])) - 1
+            if j > 0:
+                del self._node_t[:j]
+                del self._nodes[:j]
+
     # ------------------------------------------------------------------ outputs
 
     def estimate(self, now_s: float) -> tuple[float, float, float, float] | None:
@@ -493,7 +604,7 @@ class Estimator(_EstimatorMath):
 
         ``uncertainty_m`` = ``n_sigma * sqrt(P)`` (m), for the safety filter's extra radius.
         The chain at ``now_s`` (usually the newest segment's arc: ``_arc`` inlined) through
-        the newest anchor's frame (``_prior`` inlined).
+        the newest anchor's frame (``prior`` inlined).
         """
         anch = self._anch
         nt = self._node_t
@@ -535,7 +646,7 @@ class Estimator(_EstimatorMath):
                     st = (ox, oy, oth, d_, tu, q)
                 self._head = (now_s, n, st)
             else:
-                ox, oy, oth, d_, tu, q = self._chain_at(now_s)
+                ox, oy, oth, d_, tu, q = chain_at(nodes, nt, self._still_q, now_s)
             _, _, _, _, app, appth, _, _, _, c, s, tx, ty, fa, ad, _, aq = a
             dist = d_ - ad
             ex = c * ox - s * oy + tx

@@ -11,10 +11,11 @@ core reads no clock: ``now_s`` and the ``*_rx_s`` stamps come from the shell's o
 so staleness never compares two hosts' clocks, and ``dt_s`` is the difference of successive
 ``now_s``.
 
-Modes, events and the transition table: ``firmware_types.py`` (its docstring); entering a
-mode, HOLD ticks, the e-stop latch, rejection counting and the status snapshot:
-``firmware_modes.py`` (the base class); this module holds ``__init__``, the tick and its
-stages.
+``Firmware`` builds and owns its parts, each with its own state: the ``Estimator``, the
+``TrackingController``, the ``SafetyFilter``, the ``ModeMachine`` (modes, events, the
+transition table and the on-entry actions: ``firmware_modes.py``) and the ``Rejections``
+counter (``firmware_rejects.py``); the data of a tick are in ``firmware_types.py``. This module
+holds the tick, its stages and the public accessors.
 In TRACKING the controller can still fail (overflow from absurd but finite input): that tick
 outputs zero and goes to HOLD like an INVALID event. Any exception inside ``step`` is caught,
 counted as a rejection and gives a zero command in HOLD (or ESTOP): ``step`` never raises.
@@ -92,25 +93,25 @@ from collections.abc import Sequence
 from typing import Any
 
 from robot_agent.core.estimator import Estimator
-from robot_agent.core.firmware_modes import _FirmwareModes
-from robot_agent.core.firmware_types import (  # noqa: F401  (moved to firmware_types.py; re-exported)
-    _E,
+from robot_agent.core.firmware_modes import (
     _ESTOP,
     _EV_ESTOP,
     _EV_FRESH,
     _EV_INVALID,
     _EV_NO_SETPOINT,
     _EV_STALE,
-    _M,
-    _NAN,
     _TRACKING,
-    _TRANSITIONS,
-    FirmwareStatus,
     Mode,
+    ModeMachine,
+    _Event,
+)
+from robot_agent.core.firmware_rejects import Rejections
+from robot_agent.core.firmware_types import (
+    _NAN,
+    FirmwareStatus,
     Pose,
     Setpoint,
     WheelCommand,
-    _Event,
     _new_command,
     _tuple_new,
 )
@@ -151,8 +152,10 @@ def _real(value: object) -> float:
     raise TypeError(f"a real number expected, got {type(value).__name__}")
 
 
-class Firmware(_FirmwareModes):
-    """One robot's controller: call ``step`` once per tick (see the module docstring)."""
+class Firmware:
+    """One robot's controller: call ``step`` once per tick (see the module docstring). It
+    builds and owns its parts: the estimator, the tracking controller, the safety filter, the
+    mode machine (over the tracker and the filter) and the rejection counter."""
 
     __slots__ = (
         "_act_delay",
@@ -174,9 +177,13 @@ class Firmware(_FirmwareModes):
         "_l",
         "_last_now",
         "_last_pose_t",
+        "_last_saturated",
         "_lead",
         "_max_dt",
+        "_modes",
+        "_pending_cmd",
         "_pose_age",
+        "_rejects",
         "_rep",
         "_rep_cap",
         "_rep_d0",
@@ -225,23 +232,19 @@ class Firmware(_FirmwareModes):
         self._filter_on = self._filter.enabled
         self._filter_fn = self._filter.filter
         self._shared_frame = self._filter.enabled and cfg.safety_filter.shared_frame
-        self._mode = Mode.IDLE
-        self._reason = "no setpoint yet"
+        self._modes = ModeMachine(self._tracker, self._filter)
+        self._rejects = Rejections()
         self._have_setpoint = False
         self._slot: int | None = None
         self._last_now: float | None = None
         self._last_pose_t: float | None = None
         self._last_saturated = False
-        self._last_rejected_pose: object = None  # (identity only: the shells' objects)
-        self._last_rejected_setpoint: object = None
         self._ex = _NAN
         self._ey = _NAN
         self._pose_age = _NAN
         self._setpoint_age = _NAN
         self._steps = 0
         self._saturated = 0
-        self._rejected = 0
-        self._rej_reason = ""
         self._role_changes = 0
         self._dt_faults = 0
         ep = cfg.estimator
@@ -314,7 +317,7 @@ class Firmware(_FirmwareModes):
         try:
             now = now_s if type(now_s) is float else _real(now_s)
             if not _isfinite(now):
-                self.reject("non-finite now_s")
+                self._rejects.add("non-finite now_s")
                 return self._hold(_EV_INVALID, "non-finite clock")
             # time: dt_s is 0.0 on the first tick and on a duplicate, backwards or stalled one
             # (counted in dt_faults; the derivative restarts, nothing integrates)
@@ -332,7 +335,8 @@ class Firmware(_FirmwareModes):
             got: tuple[float, float, float, float] | None = None
             if est is not None:
                 got = self._estimate(est, now, last, pose, pose_rx_s, pose_capture_s, wheel_speeds)
-            if self._mode is _ESTOP:
+            modes = self._modes
+            if modes.mode is _ESTOP:
                 return self._hold(_EV_ESTOP, "estop")
             # 2. inputs: the setpoint advanced to now_s, the pose at now_s, both fresh
             spx, spy, spvx, spvy, sp_age = self._setpoint_now(now, setpoint, setpoint_rx_s)
@@ -350,8 +354,8 @@ class Firmware(_FirmwareModes):
             if not -lim <= sp_age <= lim:
                 self._stop(_EV_STALE, "setpoint stale")
                 return self._evade(now, dt, xytu, neighbours, obstacles, extra_radius_m)
-            if self._mode is not _TRACKING:
-                self._transition(_EV_FRESH, "tracking")
+            if modes.mode is not _TRACKING:
+                self._apply(_EV_FRESH, "tracking")
             x, y, th, unc = xytu
             # 3. reference point (eqs 10-11) and the error e = p_setpoint - p_r (eqs 17-18)
             l_m = self._l
@@ -364,7 +368,7 @@ class Firmware(_FirmwareModes):
             tracker = self._tracker
             vx, vy = tracker.update(ex, ey, spvx, spvy, dt, self._last_saturated)
             if not tracker.last_valid:
-                self.reject("controller overflow")
+                self._rejects.add("controller overflow")
                 return self._hold(_EV_INVALID, "controller overflow")
             # 5. repulsion from neighbours / obstacles, at the axle centre
             if self._rep_on and (neighbours or obstacles):
@@ -372,8 +376,7 @@ class Firmware(_FirmwareModes):
                                                   self._rep_d0, self._rep_inv_d0,
                                                   self._rep_cap)  # fmt: skip
                 if skipped:  # (non-finite entries are skipped and counted)
-                    self._rejected += skipped
-                    self._rej_reason = "non-finite neighbour or obstacle"
+                    self._rejects.add("non-finite neighbour or obstacle", skipped)
                 vx += rvx
                 vy += rvy
             # 6. safety filter: the last Cartesian stage
@@ -400,11 +403,128 @@ class Firmware(_FirmwareModes):
             return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING,
                                              self._last_pose_t, sat))  # fmt: skip
         except Exception as exc:
-            self.reject(f"internal error: {type(exc).__name__}")
+            self._rejects.add(f"internal error: {type(exc).__name__}")
             self._last_saturated = False
-            if self._mode is not _ESTOP:
-                self._set_mode(Mode.HOLD, "internal error")
+            if self._modes.mode is not _ESTOP:
+                self._enter(Mode.HOLD, "internal error")
             return self._zero(self._last_pose_t)
+
+    # ------------------------------------------------------------------ public API
+
+    @property
+    def config(self) -> AgentConfig:
+        """The configuration this firmware runs with."""
+        return self._cfg
+
+    @property
+    def mode(self) -> Mode:
+        """Current mode."""
+        return self._modes.mode
+
+    @property
+    def safety_filter(self) -> SafetyFilter:
+        """The safety filter (counters via ``status().safety_filter``)."""
+        return self._filter
+
+    @property
+    def tracker(self) -> TrackingController:
+        """The tracking controller (for inspection in tests and logs)."""
+        return self._tracker
+
+    @property
+    def estimator(self) -> Estimator | None:
+        """The pose estimator (None when ``config.estimator.enabled`` is False)."""
+        return self._est
+
+    @property
+    def pose_uncertainty_m(self) -> float:
+        """Uncertainty (m) of the pose used on the last tick: ``n_sigma`` standard deviations
+        of the estimator's position (the safety filter's extra radius); NaN without a valid
+        estimate on that tick, 0.0 with the estimator disabled."""
+        return self._unc
+
+    @property
+    def pose_estimate(self) -> tuple[float, float, float] | None:
+        """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
+        the measured pose with the estimator disabled), or None."""
+        xyt = self._est_xyt  # (a pose may hold ints or numpy scalars: floats out)
+        return None if xyt is None else (float(xyt[0]), float(xyt[1]), float(xyt[2]))
+
+    def reject(self, reason: str) -> None:
+        """Count one bad input (e.g. a message the shell could not decode) with its reason."""
+        self._rejects.add(reason)
+
+    def engage_estop(self) -> None:
+        """Latch the emergency stop: wheels are zero from now until ``release_estop()``."""
+        self._apply(_EV_ESTOP, "estop")
+
+    def release_estop(self) -> None:
+        """Release a latched emergency stop, to HOLD (or IDLE if no setpoint was ever valid).
+
+        The next ``step`` with fresh data resumes TRACKING. No-op when not latched.
+        """
+        if self._modes.mode is not Mode.ESTOP:
+            return
+        if self._have_setpoint:
+            self._apply(_Event.RELEASE, "estop released")
+        else:
+            self._apply(_Event.RELEASE_UNCONFIGURED, "estop released, no setpoint yet")
+
+    def status(self) -> FirmwareStatus:
+        """Snapshot for the status message."""
+        pid_x, pid_y = self._tracker.snapshot()
+        modes = self._modes
+        rejects = self._rejects
+        return FirmwareStatus(
+            mode=modes.mode,
+            slot=self._slot,
+            ex=self._ex,
+            ey=self._ey,
+            saturated_count=self._saturated,
+            rejected_count=rejects.count,
+            last_pose_t=self._last_pose_t,
+            steps=self._steps,
+            reason=modes.reason,
+            last_reject_reason=rejects.last_reason,
+            estop_latched=modes.mode is Mode.ESTOP,
+            role_changes=self._role_changes,
+            dt_faults=self._dt_faults,
+            pose_age_s=self._pose_age,
+            setpoint_age_s=self._setpoint_age,
+            pid_x=pid_x,
+            pid_y=pid_y,
+            safety_filter=self._filter.status(),
+        )
+
+    # ------------------------------------------------------------------ mode changes
+
+    def _enter(self, new: Mode, reason: str) -> None:
+        """Enter mode ``new`` (the mode machine's on-entry actions); a change of mode also
+        drops the one-tick saturation memory of the anti-windup (``_last_saturated``)."""
+        if self._modes.enter(new, reason):
+            self._last_saturated = False
+
+    def _apply(self, event: _Event, reason: str) -> None:
+        """Apply ``event`` to the mode machine (``_enter`` with the table's next mode)."""
+        if self._modes.apply(event, reason):
+            self._last_saturated = False
+
+    def _zero(self, pose_t: float | None) -> WheelCommand:
+        """Zero command in the current mode."""
+        return _new_command(0.0, 0.0, 0.0, 0.0, self._modes.mode, pose_t, False)
+
+    def _stop(self, event: _Event, reason: str) -> None:
+        """Non-tracking tick: apply the event; the tick's wheels are zero (``_zero``) unless
+        the robot must evade."""
+        self._apply(event, reason)
+        self._last_saturated = False
+        if self._est is not None and self._last_now is not None:
+            self._pending_cmd = (self._last_now + self._act_delay, 0.0, 0.0)
+
+    def _hold(self, event: _Event, reason: str) -> WheelCommand:
+        """Non-tracking tick: apply the event, zero wheels."""
+        self._stop(event, reason)
+        return _new_command(0.0, 0.0, 0.0, 0.0, self._modes.mode, self._last_pose_t, False)
 
     # ------------------------------------------------------------------ the stages of step
 
@@ -439,7 +559,7 @@ class Firmware(_FirmwareModes):
         if self._est is not None:
             self._pending_cmd = (now + self._act_delay, wr, wl)
         wmax = self._wmax
-        return _new_command(wr, wl, wr / wmax, wl / wmax, self._mode, self._last_pose_t, sat)
+        return _new_command(wr, wl, wr / wmax, wl / wmax, self._modes.mode, self._last_pose_t, sat)
 
     def _read_pose(
         self, pose: object, pose_rx_s: object
@@ -461,7 +581,7 @@ class Firmware(_FirmwareModes):
         pose_t = ot if type(ot) is float else _real(ot)
         prx = pose_rx_s if type(pose_rx_s) is float else _real(pose_rx_s)
         if not _isfinite(x + y + th + pose_t + prx):
-            self._reject_pose(pose, "non-finite pose")
+            self._rejects.pose(pose, "non-finite pose")
             return None
         return x, y, th, pose_t, prx
 
@@ -516,7 +636,7 @@ class Firmware(_FirmwareModes):
                 seg_t = _NAN  # no twist this tick
                 v = w = 0.0
                 if now > last:
-                    self.reject("bad wheel speeds")
+                    self._rejects.add("bad wheel speeds")
         else:
             pending = self._pending_cmd
             if pending is not None:
@@ -545,7 +665,7 @@ class Firmware(_FirmwareModes):
         mth = oth if type(oth) is float else _real(oth)
         mt = ot if type(ot) is float else _real(ot)
         if not _isfinite(mt):
-            self.reject("non-finite pose")
+            self._rejects.add("non-finite pose")
             return est.tick(now, seg_t, v, w, odo, None, mx, my, mth)
         oc = pose_rx_s if pose_capture_s is None else pose_capture_s
         cap = oc if type(oc) is float else _real(oc)
@@ -554,7 +674,7 @@ class Firmware(_FirmwareModes):
         if reason is None:
             self._last_pose_t = mt
         else:
-            self.reject(reason)
+            self._rejects.add(reason)
         return got
 
     def _setpoint_now(
@@ -592,7 +712,7 @@ class Firmware(_FirmwareModes):
         if not _isfinite(spx + spy + spvx + spvy + spth + spt + srx) or not (
             type(slot) is int and slot >= 0
         ):
-            self._reject_setpoint(setpoint, "non-finite setpoint or bad slot")
+            self._rejects.setpoint(setpoint, "non-finite setpoint or bad slot")
             if self._have_setpoint:
                 self._stop(_EV_INVALID, "setpoint rejected")
             else:

@@ -1,164 +1,142 @@
-"""The firmware's mode machine in action, and its public accessors: entering a mode (on-entry
-actions), the HOLD / zero ticks, the e-stop latch, rejection counting, the status snapshot.
+"""The firmware's mode machine: the modes, the events a tick reports, the transition table and
+the on-entry actions.
 
-``Firmware`` (firmware.py) inherits these and adds ``__init__`` and ``step``, the control tick;
-the modes, events and transition table are in firmware_types.py. Split out of firmware.py
-(issue 12) so the control tick reads on its own.
+Modes (``bus_schemas.modes.Mode``: the status message carries the value)::
+
+    IDLE      no valid setpoint received yet. Nominal command 0 (see "Evading" below).
+    TRACKING  fresh, finite pose and setpoint: run the controller.
+    HOLD      we have (had) a setpoint but cannot track safely now: the pose or setpoint is
+              older than its staleness limit (``|now_s - *_rx_s|``), missing, or was rejected
+              (non-finite field, slot not an int >= 0). Nominal command 0. The integrators
+              are frozen (not updated) and the derivative state is reset on entry, so
+              resuming gives no kick.
+    ESTOP     latched emergency stop. Wheels exactly 0. Only ``release_estop()`` leaves it,
+              to IDLE (never had a setpoint) or HOLD; the next fresh tick then goes TRACKING.
+
+Evading (issue 30, "Movers"): in IDLE and HOLD, while the robot's own pose at ``now_s`` is
+valid, the safety filter still runs on a zero nominal command (``SafetyFilter.evade``): the
+wheels are exactly 0 unless a body or a neighbour comes at the robot or it is inside a
+boundary, and then it gets out of the way. Only ESTOP, a lost pose (a dead link: no pose, too
+old, invalid estimate) and a disabled filter mean wheels at zero whatever approaches.
+
+Each tick is classified into one event (first match wins): ESTOP (latch set), INVALID (a
+non-finite clock value), NO_SETPOINT (no setpoint, or a rejected one before any valid one),
+INVALID (rejected setpoint or pose), STALE (pose missing, or pose / setpoint too old), FRESH.
+The next mode is ``_TRANSITIONS[mode][event]``; on-entry actions run when the mode changes:
+HOLD and TRACKING reset the derivative state, IDLE and ESTOP (and IDLE -> TRACKING) reset the
+whole PID; every mode but TRACKING resets the safety filter's deadlock monitor.
+
+``Firmware`` (firmware.py) builds one ``ModeMachine`` over its tracker and safety filter and
+applies the events its tick stages report; the machine owns the mode and its reason.
 """
 
 from __future__ import annotations
 
-from robot_agent.core.estimator import Estimator
-from robot_agent.core.firmware_types import (
-    _TRANSITIONS,
-    FirmwareStatus,
-    Mode,
-    WheelCommand,
-    _Event,
-    _new_command,
-)
-from robot_agent.core.params import AgentConfig
+from enum import Enum
+from typing import Final
+
+from bus_schemas.modes import Mode
 from robot_agent.core.safety_filter import SafetyFilter
 from robot_agent.core.tracking import TrackingController
 
+__all__ = ["Mode", "ModeMachine"]
 
-class _FirmwareModes:
-    """Base class of :class:`robot_agent.core.firmware.Firmware`: the state the methods here change
-    is declared here (``__slots__``), the rest by ``Firmware``; ``Firmware.__init__`` sets it."""
 
-    __slots__ = (
-        "_last_rejected_pose",
-        "_last_rejected_setpoint",
-        "_last_saturated",
-        "_mode",
-        "_pending_cmd",
-        "_reason",
-        "_rej_reason",
-        "_rejected",
-    )
-    _cfg: AgentConfig
-    _mode: Mode
-    _reason: str
-    _filter: SafetyFilter
-    _tracker: TrackingController
-    _est: Estimator | None
-    _unc: float
-    _est_xyt: tuple[float, ...] | None
-    _rejected: int
-    _rej_reason: str
-    _have_setpoint: bool
-    _slot: int | None
-    _ex: float
-    _ey: float
-    _saturated: int
-    _last_pose_t: float | None
-    _steps: int
-    _role_changes: int
-    _dt_faults: int
-    _pose_age: float
-    _setpoint_age: float
-    _last_saturated: bool
-    _last_rejected_pose: object
-    _last_rejected_setpoint: object
-    _pending_cmd: tuple[float, float, float] | None
-    _last_now: float | None
-    _act_delay: float
+class _Event(Enum):
+    """What a tick (or an estop call) says about the inputs."""
 
-    # ------------------------------------------------------------------ public API
+    FRESH = "fresh"
+    STALE = "stale"
+    INVALID = "invalid"
+    NO_SETPOINT = "no_setpoint"
+    ESTOP = "estop"
+    RELEASE = "release"  # release_estop() after a valid setpoint was seen
+    RELEASE_UNCONFIGURED = "release_unconfigured"  # release_estop() before any setpoint
 
-    @property
-    def config(self) -> AgentConfig:
-        """The configuration this firmware runs with."""
-        return self._cfg
 
-    @property
-    def mode(self) -> Mode:
-        """Current mode."""
-        return self._mode
+_M = Mode
 
-    @property
-    def safety_filter(self) -> SafetyFilter:
-        """The safety filter (counters via ``status().safety_filter``)."""
-        return self._filter
 
-    @property
-    def tracker(self) -> TrackingController:
-        """The tracking controller (for inspection in tests and logs)."""
-        return self._tracker
+_E = _Event
 
-    @property
-    def estimator(self) -> Estimator | None:
-        """The pose estimator (None when ``config.estimator.enabled`` is False)."""
-        return self._est
 
-    @property
-    def pose_uncertainty_m(self) -> float:
-        """Uncertainty (m) of the pose used on the last tick: ``n_sigma`` standard deviations
-        of the estimator's position (the safety filter's extra radius); NaN without a valid
-        estimate on that tick, 0.0 with the estimator disabled."""
-        return self._unc
+#: The whole mode logic: next mode = _TRANSITIONS[mode][event]. Missing entries mean "stay".
+_TRANSITIONS: Final[dict[Mode, dict[_Event, Mode]]] = {
+    _M.IDLE: {
+        _E.FRESH: _M.TRACKING,
+        _E.STALE: _M.HOLD,
+        _E.INVALID: _M.HOLD,
+        _E.NO_SETPOINT: _M.IDLE,
+        _E.ESTOP: _M.ESTOP,
+    },
+    _M.TRACKING: {
+        _E.FRESH: _M.TRACKING,
+        _E.STALE: _M.HOLD,
+        _E.INVALID: _M.HOLD,
+        _E.NO_SETPOINT: _M.HOLD,
+        _E.ESTOP: _M.ESTOP,
+    },
+    _M.HOLD: {
+        _E.FRESH: _M.TRACKING,
+        _E.STALE: _M.HOLD,
+        _E.INVALID: _M.HOLD,
+        _E.NO_SETPOINT: _M.HOLD,
+        _E.ESTOP: _M.ESTOP,
+    },
+    _M.ESTOP: {
+        _E.FRESH: _M.ESTOP,
+        _E.STALE: _M.ESTOP,
+        _E.INVALID: _M.ESTOP,
+        _E.NO_SETPOINT: _M.ESTOP,
+        _E.ESTOP: _M.ESTOP,
+        _E.RELEASE: _M.HOLD,
+        _E.RELEASE_UNCONFIGURED: _M.IDLE,
+    },
+}
 
-    @property
-    def pose_estimate(self) -> tuple[float, float, float] | None:
-        """``(x, y, theta)`` of the axle centre the last tick used (estimated at ``now_s``, or
-        the measured pose with the estimator disabled), or None."""
-        xyt = self._est_xyt  # (a pose may hold ints or numpy scalars: floats out)
-        return None if xyt is None else (float(xyt[0]), float(xyt[1]), float(xyt[2]))
 
-    def reject(self, reason: str) -> None:
-        """Count one bad input (e.g. a message the shell could not decode) with its reason."""
-        self._rejected += 1
-        self._rej_reason = reason
+_TRACKING: Final = Mode.TRACKING
 
-    def engage_estop(self) -> None:
-        """Latch the emergency stop: wheels are zero from now until ``release_estop()``."""
-        self._transition(_Event.ESTOP, "estop")
 
-    def release_estop(self) -> None:
-        """Release a latched emergency stop, to HOLD (or IDLE if no setpoint was ever valid).
+_ESTOP: Final = Mode.ESTOP
 
-        The next ``step`` with fresh data resumes TRACKING. No-op when not latched.
-        """
-        if self._mode is not Mode.ESTOP:
-            return
-        if self._have_setpoint:
-            self._transition(_Event.RELEASE, "estop released")
-        else:
-            self._transition(_Event.RELEASE_UNCONFIGURED, "estop released, no setpoint yet")
 
-    def status(self) -> FirmwareStatus:
-        """Snapshot for the status message."""
-        pid_x, pid_y = self._tracker.snapshot()
-        return FirmwareStatus(
-            mode=self._mode,
-            slot=self._slot,
-            ex=self._ex,
-            ey=self._ey,
-            saturated_count=self._saturated,
-            rejected_count=self._rejected,
-            last_pose_t=self._last_pose_t,
-            steps=self._steps,
-            reason=self._reason,
-            last_reject_reason=self._rej_reason,
-            estop_latched=self._mode is Mode.ESTOP,
-            role_changes=self._role_changes,
-            dt_faults=self._dt_faults,
-            pose_age_s=self._pose_age,
-            setpoint_age_s=self._setpoint_age,
-            pid_x=pid_x,
-            pid_y=pid_y,
-            safety_filter=self._filter.status(),
-        )
+_EV_FRESH: Final = _Event.FRESH
 
-    # ------------------------------------------------------------------ internals
 
-    def _set_mode(self, new: Mode, reason: str) -> None:
-        """Enter ``new`` (running its on-entry action if it differs from the current mode)."""
-        self._reason = reason
-        old = self._mode
+_EV_STALE: Final = _Event.STALE
+
+
+_EV_INVALID: Final = _Event.INVALID
+
+
+_EV_NO_SETPOINT: Final = _Event.NO_SETPOINT
+
+
+_EV_ESTOP: Final = _Event.ESTOP
+
+
+class ModeMachine:
+    """The firmware's mode and why (see the module docstring). ``mode`` and ``reason`` are read
+    by the owner; only ``enter`` and ``apply`` change them, running the on-entry actions on the
+    tracker and the safety filter the owner built (and shares with it)."""
+
+    __slots__ = ("_filter", "_tracker", "mode", "reason")
+
+    def __init__(self, tracker: TrackingController, safety_filter: SafetyFilter) -> None:
+        self._tracker = tracker
+        self._filter = safety_filter
+        self.mode: Mode = Mode.IDLE
+        self.reason = "no setpoint yet"
+
+    def enter(self, new: Mode, reason: str) -> bool:
+        """Enter ``new`` for ``reason``, with its on-entry action if it differs from the current
+        mode; True when the mode changed."""
+        self.reason = reason
+        old = self.mode
         if new is old:
-            return
-        self._mode = new
+            return False
+        self.mode = new
         if new is not Mode.TRACKING:
             self._filter.reset_deadlock()
         tracker = self._tracker
@@ -172,35 +150,9 @@ class _FirmwareModes:
                 tracker.reset()
         else:  # IDLE or ESTOP: start again from scratch
             tracker.reset()
-        self._last_saturated = False
+        return True
 
-    def _transition(self, event: _Event, reason: str) -> Mode:
-        new = _TRANSITIONS[self._mode].get(event, self._mode)
-        self._set_mode(new, reason)
-        return new
-
-    def _zero(self, pose_t: float | None) -> WheelCommand:
-        """Zero command in the current mode."""
-        return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, pose_t, False)
-
-    def _reject_pose(self, pose: object, reason: str) -> None:
-        if pose is not self._last_rejected_pose:
-            self._last_rejected_pose = pose
-            self.reject(reason)
-
-    def _reject_setpoint(self, setpoint: object, reason: str) -> None:
-        if setpoint is not self._last_rejected_setpoint:
-            self._last_rejected_setpoint = setpoint
-            self.reject(reason)
-
-    def _stop(self, event: _Event, reason: str) -> None:
-        """Non-tracking tick: apply the event; the tick's wheels are zero (``_zero``)."""
-        self._transition(event, reason)
-        self._last_saturated = False
-        if self._est is not None and self._last_now is not None:
-            self._pending_cmd = (self._last_now + self._act_delay, 0.0, 0.0)
-
-    def _hold(self, event: _Event, reason: str) -> WheelCommand:
-        """Non-tracking tick: apply the event, zero wheels."""
-        self._stop(event, reason)
-        return _new_command(0.0, 0.0, 0.0, 0.0, self._mode, self._last_pose_t, False)
+    def apply(self, event: _Event, reason: str) -> bool:
+        """The transition of ``event`` (``_TRANSITIONS``); True when the mode changed."""
+        mode = self.mode
+        return self.enter(_TRANSITIONS[mode].get(event, mode), reason)

@@ -1,55 +1,20 @@
-"""The firmware's vocabulary: its modes, the inputs and output of one tick, the status snapshot,
-and the table-driven mode machine (events and transitions) that ``Firmware.step`` follows.
+"""The firmware's data: the inputs and output of one tick (``Pose``, ``Setpoint``,
+``WheelCommand``) and the status snapshot (``FirmwareStatus``). The modes and the mode machine:
+firmware_modes.py; ``Mode`` itself is the contract's (``bus_schemas.modes``), declared once.
 
-Modes::
-
-    IDLE      no valid setpoint received yet. Nominal command 0 (see "Evading" below).
-    TRACKING  fresh, finite pose and setpoint: run the controller.
-    HOLD      we have (had) a setpoint but cannot track safely now: the pose or setpoint is
-              older than its staleness limit (``|now_s - *_rx_s|``), missing, or was rejected
-              (non-finite field, slot not an int >= 0). Nominal command 0. The integrators
-              are frozen (not updated) and the derivative state is reset on entry, so
-              resuming gives no kick.
-    ESTOP     latched emergency stop. Wheels exactly 0. Only ``release_estop()`` leaves it,
-              to IDLE (never had a setpoint) or HOLD; the next fresh tick then goes TRACKING.
-
-Evading (issue 30, "Movers"): in IDLE and HOLD, while the robot's own pose at ``now_s`` is
-valid, the safety filter still runs on a zero nominal command (``SafetyFilter.evade``): the
-wheels are exactly 0 unless a body or a neighbour comes at the robot or it is inside a
-boundary, and then it gets out of the way. Only ESTOP, a lost pose (a dead link: no pose, too
-old, invalid estimate) and a disabled filter mean wheels at zero whatever approaches.
-
-Each tick is classified into one event (first match wins): ESTOP (latch set), INVALID (a
-non-finite clock value), NO_SETPOINT (no setpoint, or a rejected one before any valid one),
-INVALID (rejected setpoint or pose), STALE (pose missing, or pose / setpoint too old), FRESH.
-The next mode is ``_TRANSITIONS[mode][event]``; on-entry actions run when the mode changes:
-HOLD and TRACKING reset the derivative state, IDLE and ESTOP (and IDLE -> TRACKING) reset the
-whole PID.
 Data types are ``NamedTuple``s: immutable, positional, and cheap to build on the hot path
 (a frozen dataclass costs several times more per instance in CPython).
-
-Split out of firmware.py (issue 12) so the controller's step reads on its own; every name here is
-still importable from ``robot_agent.core.firmware``.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import Enum, StrEnum
-from typing import Any, Final, NamedTuple
+from typing import Any, NamedTuple
 
+from bus_schemas.modes import Mode
 from robot_agent.core.safety_filter import SafetyFilterStatus
 from robot_agent.core.tracking import PIDInfo
-
-
-class Mode(StrEnum):
-    """Firmware mode; the value is what the status message carries."""
-
-    IDLE = "idle"
-    TRACKING = "tracking"
-    HOLD = "hold"
-    ESTOP = "estop"
 
 
 class Pose(NamedTuple):
@@ -161,81 +126,7 @@ class FirmwareStatus:
         }
 
 
-class _Event(Enum):
-    """What a tick (or an estop call) says about the inputs."""
-
-    FRESH = "fresh"
-    STALE = "stale"
-    INVALID = "invalid"
-    NO_SETPOINT = "no_setpoint"
-    ESTOP = "estop"
-    RELEASE = "release"  # release_estop() after a valid setpoint was seen
-    RELEASE_UNCONFIGURED = "release_unconfigured"  # release_estop() before any setpoint
-
-
-_M = Mode
-
-
-_E = _Event
-
-
-#: The whole mode logic: next mode = _TRANSITIONS[mode][event]. Missing entries mean "stay".
-_TRANSITIONS: Final[dict[Mode, dict[_Event, Mode]]] = {
-    _M.IDLE: {
-        _E.FRESH: _M.TRACKING,
-        _E.STALE: _M.HOLD,
-        _E.INVALID: _M.HOLD,
-        _E.NO_SETPOINT: _M.IDLE,
-        _E.ESTOP: _M.ESTOP,
-    },
-    _M.TRACKING: {
-        _E.FRESH: _M.TRACKING,
-        _E.STALE: _M.HOLD,
-        _E.INVALID: _M.HOLD,
-        _E.NO_SETPOINT: _M.HOLD,
-        _E.ESTOP: _M.ESTOP,
-    },
-    _M.HOLD: {
-        _E.FRESH: _M.TRACKING,
-        _E.STALE: _M.HOLD,
-        _E.INVALID: _M.HOLD,
-        _E.NO_SETPOINT: _M.HOLD,
-        _E.ESTOP: _M.ESTOP,
-    },
-    _M.ESTOP: {
-        _E.FRESH: _M.ESTOP,
-        _E.STALE: _M.ESTOP,
-        _E.INVALID: _M.ESTOP,
-        _E.NO_SETPOINT: _M.ESTOP,
-        _E.ESTOP: _M.ESTOP,
-        _E.RELEASE: _M.HOLD,
-        _E.RELEASE_UNCONFIGURED: _M.IDLE,
-    },
-}
-
-
 _NAN = math.nan
-
-
-_TRACKING: Final = Mode.TRACKING
-
-
-_ESTOP: Final = Mode.ESTOP
-
-
-_EV_FRESH: Final = _Event.FRESH
-
-
-_EV_STALE: Final = _Event.STALE
-
-
-_EV_INVALID: Final = _Event.INVALID
-
-
-_EV_NO_SETPOINT: Final = _Event.NO_SETPOINT
-
-
-_EV_ESTOP: Final = _Event.ESTOP
 
 
 def _new_command(

@@ -1,10 +1,11 @@
 """The robot's pure cores import only the standard library (they could run on a bare robot).
 
-Everything under robot_agent/core/ (the firmware) may import the standard library and
-robot_agent itself; robot_agent/motors/ (the backends) also the contract and Zenoh; the process
-shell (robot_agent/node/) is tested below by importing it without numpy. bus_schemas/ may also
-import msgpack, and nothing else (Zenoh lives in the runtime package). The whole floor plan is
-tests/repo/test_layers.py.
+Everything under robot_agent/core/ (the firmware) may import the standard library, robot_agent
+itself and, from the contract below it, only modules that import nothing but the standard
+library (``bus_schemas.modes``: the one ``Mode`` enum); robot_agent/motors/ (the backends) also
+the contract and Zenoh; the process shell (robot_agent/node/) is tested below by importing it
+without numpy. bus_schemas/ may also import msgpack, and nothing else (Zenoh lives in the
+runtime package). The whole floor plan is tests/repo/test_layers.py.
 """
 
 from __future__ import annotations
@@ -44,10 +45,42 @@ def test_scanner_sees_the_agent_core() -> None:
     assert _top_level_imports(ROOT / "robot_agent" / "core" / "firmware.py") >= {"math"}
 
 
+def _contract_imports(path: Path) -> set[str]:
+    """Dotted names of the ``bus_schemas`` modules (or the package) ``path`` imports."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names if a.name.split(".")[0] == "bus_schemas")
+        elif (
+            isinstance(node, ast.ImportFrom)
+            and node.level == 0
+            and (node.module or "").split(".")[0] == "bus_schemas"
+        ):
+            names.add(str(node.module))
+    return names
+
+
 @pytest.mark.parametrize("path", _core_files("robot_agent/core"), ids=lambda p: p.name)
 def test_robot_agent_core_imports_only_stdlib(path: Path) -> None:
-    foreign = _top_level_imports(path) - STDLIB - {"robot_agent"}
+    """The standard library, robot_agent, and stdlib-only modules of the contract (never the
+    package ``bus_schemas`` itself: its ``__init__`` is the codec and every message)."""
+    foreign = _top_level_imports(path) - STDLIB - {"robot_agent", "bus_schemas"}
     assert not foreign, f"{path.name} imports non-stdlib modules: {sorted(foreign)}"
+    for module in sorted(_contract_imports(path)):
+        source = ROOT.joinpath(*module.split(".")).with_suffix(".py")
+        assert source.is_file(), f"{path.name} imports {module}: only a stdlib-only module of it"
+        beyond = _top_level_imports(source) - STDLIB
+        assert not beyond, f"{path.name} imports {module}, which imports {sorted(beyond)}"
+
+
+def test_the_core_takes_mode_from_the_contract() -> None:
+    """The scan above is not vacuous: the firmware's Mode is the contract's (declared once)."""
+    assert _contract_imports(ROOT / "robot_agent" / "core" / "firmware_modes.py") == {
+        "bus_schemas.modes"
+    }
+    assert not _contract_imports(ROOT / "bus_schemas" / "modes.py")
+    assert not _top_level_imports(ROOT / "bus_schemas" / "modes.py") - STDLIB
 
 
 @pytest.mark.parametrize("path", _core_files("robot_agent/motors"), ids=lambda p: p.name)

@@ -13,7 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from support.firmware_cases import CFG, DT, INF, NAN, WMAX, is_zero, make_sp, tick, tracking_fw
 
-from robot_agent.core.firmware import _TRANSITIONS, Firmware, Mode, Pose, Setpoint
+from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint
+from robot_agent.core.firmware_modes import _TRANSITIONS
 from robot_agent.core.kinematics import (
     ref_point_velocity,
     reference_point,
