@@ -8,21 +8,19 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-import struct
 import time
 from collections.abc import Callable
-from typing import Any
 
 import pytest
-import websockets
 import zenoh
 from support.bus_watch import Recorder, decoder_of
+from support.foxglove_fleet import publish_twists
 from support.routers import RouterHandle
 from support.spawn import Spawner
 
 import runtime as rt
 from bus_schemas import CmdVel, Estop, Goal, Leader, Pose, encode, keys
-from formation.live.foxglove import SUBPROTOCOL, start_live
+from formation.live.foxglove import start_live
 from formation.live.foxglove_ops import translate
 from scenario import load
 
@@ -75,19 +73,6 @@ def test_hostile_publishes_are_refused(topic: str, data: bytes) -> None:
 
 
 # -- a WebSocket client drives a real coordinator ---------------------------------------------
-
-
-async def publish_twists(url: str, twist: dict[str, Any], duration_s: float, topic: str) -> None:
-    """Connect, advertise ``topic`` (JSON, geometry_msgs/Twist) and publish ``twist`` at 20 Hz
-    for ``duration_s`` (what Foxglove's Teleop panel does while a button is held)."""
-    async with websockets.connect(url, subprotocols=[websockets.Subprotocol(SUBPROTOCOL)]) as ws:
-        channel = {"id": 1, "topic": topic, "encoding": "json", "schemaName": "geometry_msgs/Twist"}
-        await ws.send(json.dumps({"op": "advertise", "channels": [channel]}))
-        payload = json.dumps(twist).encode()
-        end = time.monotonic() + duration_s
-        while time.monotonic() < end:
-            await ws.send(struct.pack("<BI", 1, 1) + payload)  # ClientMessageData
-            await asyncio.sleep(0.05)
 
 
 @pytest.fixture

@@ -326,3 +326,57 @@ def test_only_the_operator_drives_the_virtual_leader(router_port: int, certs: Pa
     finally:
         for session in sessions:
             session.close()
+
+
+def test_a_foxglove_teleop_reaches_the_coordinators_only_from_the_operator(
+    router_port: int, certs: Path
+) -> None:
+    """Issue 28 under ``--secure``: a Foxglove client's Teleop publish, translated by the live
+    server (formation.live.foxglove_ops), reaches a coordinator when the server holds the
+    operator's identity; a server that holds only the observer's puts the same twists and the
+    router drops every one (the live server cannot lift an identity's rights)."""
+    import asyncio
+
+    from support.foxglove_fleet import publish_twists
+
+    from bus_schemas import CmdVel, DecodeError, decode
+    from formation.live.foxglove import start_live
+
+    observer = _open(router_port, certs, "observer")
+    operator = _open(router_port, certs, "operator")
+    coordinator = _open(router_port, certs, "coordinator.main")
+    key = f"formation/{FLEET}/operator/cmd_vel"
+    got = Inbox()
+    sub = coordinator.declare_subscriber(key, got)
+    _prime(operator, key, got)  # the route from the operator's session is in place
+    as_observer = start_live(observer, FLEET, port=0, commands=observer)
+    as_operator = start_live(observer, FLEET, port=0, commands=operator)
+
+    def twist(v_mps: float) -> dict[str, dict[str, float]]:
+        return {"linear": {"x": v_mps, "y": 0.0, "z": 0.0}, "angular": {"x": 0, "y": 0, "z": 0}}
+
+    def speeds() -> list[float]:
+        with got._lock:
+            items = list(got._items)
+        msgs = [decode(p, CmdVel) for k, p in items if not p.startswith(b"prime-")]
+        return [m.v_mps for m in msgs if not isinstance(m, DecodeError)]
+
+    try:
+        asyncio.run(publish_twists(as_observer.url, twist(0.01), 0.5, "/cmd_vel"))
+        asyncio.run(publish_twists(as_operator.url, twist(0.06), 0.5, "/cmd_vel"))
+        deadline = time.monotonic() + 5.0
+        while speeds().count(0.06) < 5 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.3)  # the observer's twists went out a whole half second before these
+        received = speeds()
+    finally:
+        as_observer.close()
+        as_operator.close()
+        sub.undeclare()
+        for s in (observer, operator, coordinator):
+            s.close()
+    # both servers took and put the twists: the router is what tells them apart
+    assert as_observer.live.operator.accepted >= 5
+    assert as_operator.live.operator.accepted >= 5
+    assert received.count(0.06) >= 5, received
+    assert 0.01 not in received, received

@@ -1,17 +1,23 @@
-"""A fleet's traffic for the Foxglove live view (:class:`FleetPublisher` on fleet :data:`FLEET`)
-and the reading of the protobuf frames it serves (:func:`pb_fields`, :func:`scene_entities`)."""
+"""A fleet's traffic for the Foxglove live view (:class:`FleetPublisher` on fleet :data:`FLEET`),
+the reading of the protobuf frames it serves (:func:`pb_fields`, :func:`scene_entities`) and a
+WebSocket client's publishes, as Foxglove's Teleop panel sends them (:func:`publish_twists`)."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import json
 import struct
 import threading
+import time
 from typing import Any
 
+import websockets
 import zenoh
 
 import runtime as rt
 from bus_schemas import Assignment, Leader, Pose, Slot, Status, Truth, encode, keys
+from formation.live.foxglove import SUBPROTOCOL
 
 FLEET = "demo"
 
@@ -143,3 +149,16 @@ def scene_entities(buf: bytes) -> dict[str, list[tuple[int, Any]]]:
             ident = next(v for n, v in fields if n == 3).decode()
             out[ident] = fields
     return out
+
+
+async def publish_twists(url: str, twist: dict[str, Any], duration_s: float, topic: str) -> None:
+    """Connect, advertise ``topic`` (JSON, geometry_msgs/Twist) and publish ``twist`` at 20 Hz
+    for ``duration_s`` (what Foxglove's Teleop panel does while a button is held)."""
+    async with websockets.connect(url, subprotocols=[websockets.Subprotocol(SUBPROTOCOL)]) as ws:
+        channel = {"id": 1, "topic": topic, "encoding": "json", "schemaName": "geometry_msgs/Twist"}
+        await ws.send(json.dumps({"op": "advertise", "channels": [channel]}))
+        payload = json.dumps(twist).encode()
+        end = time.monotonic() + duration_s
+        while time.monotonic() < end:
+            await ws.send(struct.pack("<BI", 1, 1) + payload)  # ClientMessageData
+            await asyncio.sleep(0.05)
