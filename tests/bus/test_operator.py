@@ -14,7 +14,6 @@ from __future__ import annotations
 import itertools
 import math
 import signal
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -23,85 +22,23 @@ import msgpack
 import pytest
 import zenoh
 from support.bus_watch import Recorder, decoder_of
+from support.operator_bus import CFG, FLEET, START, Followers, leader_jumps
 from support.routers import RouterHandle
 from support.spawn import Spawner
 
 import runtime as rt
-from bus_schemas import Assignment, CmdVel, Leader, Path, Pose, Setpoint, Shape, encode, keys
-from coordinator.core.leader import DEADMAN_S, LeaderConfig
-from scenario import load
+from bus_schemas import Assignment, CmdVel, Leader, Path, Setpoint, Shape, encode, keys
+from coordinator.core.leader import DEADMAN_S
 
-FLEET = "demo"
-SCENARIO = load("paper-exp2")
-START = dict(zip(SCENARIO.robot_ids, SCENARIO.initial, strict=True))
-L_M = SCENARIO.agent.geometry.ref_offset_m
-CFG = LeaderConfig()
 # the deadman, then a braking from the teleop speed within the acceleration limit, plus the
 # latency of a loaded machine (a tick, the bus, the recorder's thread)
 V_TELEOP = 0.08
 STOP_BOUND_S = DEADMAN_S + V_TELEOP / CFG.max_accel_mps2 + 0.5
 
 
-class Followers:
-    """Poses on the setpoints: each robot's reference point is where its last setpoint put
-    it (a perfect follower), published every ``period_s`` from a thread."""
-
-    def __init__(self, session: zenoh.Session, period_s: float = 0.02) -> None:
-        self.pubs = rt.Publishers(session)
-        self.period_s = period_s
-        self.at: dict[str, tuple[float, float, float]] = dict(START)
-        self._lock = threading.Lock()
-        self._sub = session.declare_subscriber(
-            keys.all_setpoints_pattern(FLEET),
-            zenoh.handlers.Callback(self._on_setpoint, indirect=False),
-        )
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _on_setpoint(self, sample: zenoh.Sample) -> None:
-        sp = decoder_of(Setpoint)(sample.payload.to_bytes())
-        if sp is None:
-            return
-        x, y = sp.x - L_M * math.cos(sp.theta), sp.y - L_M * math.sin(sp.theta)
-        with self._lock:
-            self.at[sp.robot] = (x, y, sp.theta)
-
-    def __enter__(self) -> Followers:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self._sub.undeclare()
-
-    def _run(self) -> None:
-        for seq in itertools.count(1):
-            if self._stop.is_set():
-                return
-            with self._lock:
-                at = dict(self.at)
-            for rid, (x, y, th) in sorted(at.items()):
-                msg = Pose(t=time.monotonic(), seq=seq, x=x, y=y, theta=th, robot=rid)
-                self.pubs.put(keys.pose_key(FLEET, rid), encode(msg), rt.QOS_CRITICAL)
-            self._stop.wait(self.period_s)
-
-
 @pytest.fixture
 def client(session: Callable[..., zenoh.Session]) -> zenoh.Session:
     return session()
-
-
-def _jumps(leaders: list[tuple[float, str, Leader]]) -> list[tuple[float, float]]:
-    """(distance, allowed) of consecutive leader messages farther apart than the speed limit
-    allows over their stamps (the same publisher's clock)."""
-    bad = []
-    for (_, _, a), (_, _, b) in itertools.pairwise(leaders):
-        allowed = CFG.max_speed_mps * max(b.t - a.t, 0.0) + 1e-6
-        d = math.hypot(b.x - a.x, b.y - a.y)
-        if d > allowed:
-            bad.append((d, allowed))
-    return bad
 
 
 def _coordinator(spawn: Spawner, router: RouterHandle, *extra: str) -> Any:
@@ -141,7 +78,7 @@ def test_teleop_drives_the_leader_and_the_deadman_stops_it(
     assert stopped.deadman is True and stopped.mode == "teleop"
     assert (still.x, still.y, still.v_mps) == (stopped.x, stopped.y, 0.0)  # it stays stopped
     msgs = leaders.snapshot()
-    assert not _jumps(msgs), _jumps(msgs)[:5]
+    assert not leader_jumps(msgs), leader_jumps(msgs)[:5]
     # the followers kept their slots throughout (no re-assignment)
     assert dict(last_asg.robots) == {"r1": 0, "r2": 1, "r3": 2}
     assert not any(a.robots != last_asg.robots for _, _, a in assignments.snapshot()[1:])
@@ -186,7 +123,7 @@ def test_hostile_commands_are_refused_counted_and_never_move_the_leader(
     assert rejects.get("path-path_length", 0) == 1, rejects
     assert rejects["cmd_vel-burst"] >= 150, rejects
     msgs = leaders.snapshot()
-    assert not _jumps(msgs), _jumps(msgs)[:5]
+    assert not leader_jumps(msgs), leader_jumps(msgs)[:5]
     assert all(abs(m.v_mps) <= CFG.max_speed_mps for _, _, m in msgs)
     del tokens
 
@@ -206,7 +143,7 @@ def test_a_goal_from_the_cli_is_taken_and_reached_with_a_continuous_join(
         _, _, done = leaders.wait_for(lambda _r, _k, m: m.mode == "stop", timeout_s=30.0)
     assert math.hypot(done.x - gx, done.y - gy) <= 4 * CFG.goal_tol_m
     msgs = leaders.snapshot()
-    assert not _jumps(msgs), _jumps(msgs)[:5]
+    assert not leader_jumps(msgs), leader_jumps(msgs)[:5]
     join = [m for _, _, m in msgs if m.mode in ("script", "goal")]
     for a, b in itertools.pairwise(join):  # no velocity step at the join either
         assert abs(b.v_mps - a.v_mps) <= CFG.max_accel_mps2 * (b.t - a.t) + 0.021
@@ -247,7 +184,7 @@ def test_a_standby_continues_the_teleoperated_leader_without_a_jump(
     assert first.mode == "teleop"
     assert math.hypot(first.x - last.x, first.y - last.y) <= CFG.max_speed_mps * 0.1 + 1e-6
     assert abs(first.v_mps - last.v_mps) <= CFG.max_accel_mps2 * 0.1 + 1e-9
-    assert not _jumps(after), _jumps(after)[:5]
+    assert not leader_jumps(after), leader_jumps(after)[:5]
     # the teleoperated leader is no function of t - leader_t0: b did not check main's origin
     # against it (no heartbeat refused as a spoof while main ran)
     assert b_active["rejects"].get("heartbeat-leader_t0", 0) == 0, b_active["rejects"]
@@ -323,7 +260,7 @@ def test_a_standby_continues_a_reshape_mid_way_without_a_jump(
         for (t0, x0, y0), (t1, x1, y1) in itertools.pairwise(track):
             allowed = 1.5 * RESHAPE_SPEED_MPS * (t1 - t0) + 1e-6  # the smoothstep's peak
             assert math.hypot(x1 - x0, y1 - y0) <= allowed, (rid, t0, t1)
-    assert not _jumps(msgs[k:]), _jumps(msgs[k:])[:5]
+    assert not leader_jumps(msgs[k:]), leader_jumps(msgs[k:])[:5]
     del tokens, b_active
 
 
@@ -395,5 +332,5 @@ def test_a_gamepad_drives_the_leader(
     finally:
         os.close(writer)
     assert driven.omega_radps == 0.0
-    assert not _jumps(leaders.snapshot())
+    assert not leader_jumps(leaders.snapshot())
     del tokens

@@ -20,9 +20,10 @@ from typing import Any
 import msgpack
 import pytest
 import zenoh
-from conftest import RouterHandle, Spawner
-from test_node_agent import Recorder, decoder_of
-from test_operator import Followers, _jumps
+from support.bus_watch import Recorder, decoder_of
+from support.operator_bus import Followers, leader_jumps
+from support.routers import RouterHandle
+from support.spawn import Spawner
 
 import runtime as rt
 from bus_schemas import Leader, keys
@@ -130,7 +131,7 @@ def test_a_goal_is_planned_replanned_round_a_new_obstacle_and_stopped_by_one_on_
             lambda r, _k, m: r > t_block and m.mode == "stop" and m.v_mps == 0.0, timeout_s=20.0
         )
     msgs = [m for r, _k, m in leaders.snapshot()]
-    assert not _jumps(leaders.snapshot()), _jumps(leaders.snapshot())[:5]
+    assert not leader_jumps(leaders.snapshot()), leader_jumps(leaders.snapshot())[:5]
     for a, b in itertools.pairwise(msgs):  # no velocity step at any join either
         assert abs(b.v_mps - a.v_mps) <= 0.1 * max(b.t - a.t, 0.0) + 1e-6, (a, b)
     assert r_stop > t_block
@@ -169,5 +170,5 @@ def test_a_standby_continues_a_planned_goal_without_a_jump(
     assert first.mode == "goal"
     assert math.hypot(first.x - last.x, first.y - last.y) <= 0.1 * 0.1 + 1e-6
     assert abs(first.v_mps - last.v_mps) <= 0.1 * 0.1 + 1e-9
-    assert not _jumps([(r, k, m) for r, k, m in msgs if r > t_kill + 0.05])
+    assert not leader_jumps([(r, k, m) for r, k, m in msgs if r > t_kill + 0.05])
     del tokens
