@@ -21,16 +21,28 @@ Zenoh equals the in-process simulator bit for bit (``formation/sim/simulate.py``
    was received within :data:`COOPERATIVE_STATUS_S` (:func:`is_cooperative`). A wrong
    "cooperative" is still safe (the filter's reciprocal barrier keeps ``h >= 0`` against a robot
    that stands still, see ``safety_filter.py``); it only matters for how fast robots pass.
+4. **Motion.** With motion bounds (``SafetyFilterParams.accel_bound_mps2``) each robot's claims
+   (its commands' reference-point velocities and the bound its firmware enforces,
+   ``robot_agent.core.neighbour_motion``) are kept per robot (:class:`ClaimRing`, tick times on
+   the local clock); the entry carries :func:`~robot_agent.core.neighbour_motion.motion_view`
+   of them, or none (the worst case) when they are missing, stale or absurd. In-process: the
+   claims of the previous ticks' commands. Over Zenoh: the ``wheels`` messages, their ``t``
+   through :class:`robot_agent.core.clocksync.ClockOffset` in realtime.
 """
 
 from __future__ import annotations
 
 from typing import Final
 
+from collections import deque
+
+from robot_agent.core.neighbour_motion import Claim, MotionView
 from robot_agent.core.safety_filter import Neighbour
 
 __all__ = [
+    "CLAIMS_KEPT",
     "COOPERATIVE_STATUS_S",
+    "ClaimRing",
     "NEIGHBOUR_STALE_S",
     "is_cooperative",
     "is_current",
@@ -43,7 +55,31 @@ COOPERATIVE_STATUS_S: Final = 0.5
 """Realtime: a status older than this (s, receive time; 2.5 periods of the 5 Hz status) no
 longer makes its robot cooperative."""
 
+CLAIMS_KEPT: Final = 8
+"""Claims kept per robot: the newest at or before a pose's capture must be among them (eight
+30 Hz ticks: 0.26 s, over the 60-100 ms of camera latency)."""
+
 _tuple_new = tuple.__new__
+
+
+class ClaimRing:
+    """One robot's latest :data:`CLAIMS_KEPT` claims, in receive order (oldest first); a claim
+    not newer than the last one kept is dropped (counted): a replay or a reordered message."""
+
+    __slots__ = ("claims", "dropped")
+
+    def __init__(self) -> None:
+        self.claims: deque[Claim] = deque(maxlen=CLAIMS_KEPT)
+        self.dropped = 0
+
+    def add(self, claim: Claim) -> bool:
+        """Keep ``claim`` (its ``t_s`` on the local clock); False (counted) if not newer."""
+        c = self.claims
+        if c and not claim.t_s > c[-1].t_s:
+            self.dropped += 1
+            return False
+        c.append(claim)
+        return True
 
 
 def is_current(now_s: float, rx_s: float) -> bool:
@@ -57,10 +93,19 @@ def is_cooperative(now_s: float, tracking: bool, status_rx_s: float) -> bool:
 
 
 def neighbour(
-    x: float, y: float, theta: float, capture_s: float, now_s: float, cooperative: bool
+    x: float,
+    y: float,
+    theta: float,
+    capture_s: float,
+    now_s: float,
+    cooperative: bool,
+    motion: MotionView | None = None,
 ) -> Neighbour:
-    """The safety filter's view of one neighbour measured at ``capture_s`` (local clock)."""
+    """The safety filter's view of one neighbour measured at ``capture_s`` (local clock), with
+    the view of its motion claims if any (rule 4)."""
     age = now_s - capture_s
     if age < 0.0:
         age = 0.0
-    return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))
+    if motion is None:
+        return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))
+    return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0, motion))
