@@ -251,10 +251,20 @@ class Truth:
     robot: str | None = field(default=None, metadata=f_robot_id("robot (= the key's id)"))
 
 
-@message(name=keys.WHEELS, publisher="agent", periodic=True)
+_CLAIM = ("ux", "uy", "w", "accel")
+
+
+@message(name=keys.WHEELS, publisher="agent", periodic=True, rules=(Together(_CLAIM),))
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Wheels:
-    """Wheel command of one robot (eq 8 after saturation); power = omega / max wheel speed."""
+    """Wheel command of one robot (eq 8 after saturation); power = omega / max wheel speed.
+
+    A robot with a motion bound (`safety_filter.accel_bound_mps2`) adds its motion claim
+    (`ux`, `uy`, `w`, `accel`, all or none): from `t` on its firmware changes the command's
+    body twist (v, l omega) by at most `accel` times the elapsed time, in every mode; its
+    neighbours' safety filters extrapolate it with this velocity
+    (robot_agent/core/neighbour_motion.py).
+    """
 
     v: int = field(default=1, metadata=_V)
     t: float = field(metadata=_T)
@@ -288,6 +298,39 @@ class Wheels:
     )
     mode: str | None = field(
         default=None, metadata=f_enum("firmware mode after the step of this command", Mode)
+    )
+    ux: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the reference point's velocity this command gives, x (world)",
+            "m/s",
+            lo=-100.0,
+            hi=100.0,
+        ),
+    )
+    uy: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the reference point's velocity this command gives, y (world)",
+            "m/s",
+            lo=-100.0,
+            hi=100.0,
+        ),
+    )
+    w: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the turn rate this command gives", "rad/s", lo=-1000.0, hi=1000.0
+        ),
+    )
+    accel: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the bound the firmware enforces on the body twist's change",
+            "m/s^2",
+            lo=0.0,
+            hi=100.0,
+        ),
     )
 
 

@@ -269,9 +269,14 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 None
                 if p is None or not is_current(t, pose_rx[j])
                 else neighbour(
-                    p[0], p[1], p[2], p[3], t, tracking[j],
+                    p[0],
+                    p[1],
+                    p[2],
+                    p[3],
+                    t,
+                    tracking[j],
                     motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
-                )  # fmt: skip
+                )
                 for j, p in enumerate(poses)
             ]
         if None in pts:

@@ -262,11 +262,7 @@ class Firmware(_FirmwareModes):
         if self._est is None:
             self._unc = 0.0
         # stage 10, the motion bound (robot_agent.core.neighbour_motion): every tick, any mode
-        a_max = cfg.safety_filter.accel_bound_mps2
-        self._limiter: MotionLimiter | None = None
-        if a_max > 0.0:
-            g = cfg.geometry
-            self._limiter = MotionLimiter(a_max, g.wheel_radius_m, g.half_track_m, g.ref_offset_m)
+        self._limiter: MotionLimiter | None = MotionLimiter.of(cfg)
         self._xyt_seen: object = None  # (identity only: the pose the limiter last took theta of)
 
     def step(

@@ -65,6 +65,7 @@ import math
 from collections.abc import Sequence
 from typing import Final, NamedTuple
 
+from .params import AgentConfig
 from .qp import _TOL
 
 __all__ = [
@@ -262,6 +263,15 @@ class MotionLimiter:
         """The claim of the last tick's command (None while the heading is unknown)."""
         self.limited = 0
         """Ticks on which the bound changed the command."""
+
+    @classmethod
+    def of(cls, config: AgentConfig) -> MotionLimiter | None:
+        """The limiter ``config`` asks for (``safety_filter.accel_bound_mps2``), None if 0."""
+        a_max = config.safety_filter.accel_bound_mps2
+        if not a_max > 0.0:
+            return None
+        g = config.geometry
+        return cls(a_max, g.wheel_radius_m, g.half_track_m, g.ref_offset_m)
 
     def limit(self, now_s: float, wr: float, wl: float, th: float) -> tuple[float, float]:
         """The wheel command ``(wr, wl)`` (rad/s, within the wheel limits) of the tick at

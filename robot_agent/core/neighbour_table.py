@@ -15,6 +15,9 @@ and :meth:`NeighbourTable.cooperative`).
 * **Cooperative** (rule 3): in lockstep the ids the clock relays (:meth:`~NeighbourTable.relay`);
   in realtime a robot run by this process says its own mode (``local_tracking``), any other
   robot's latest status said TRACKING and is fresh (:meth:`~NeighbourTable.note_mode`).
+* **Motion claims** (rule 4): with ``motion`` (the robots enforce motion bounds), each robot's
+  latest claims, their tick times on the local clock (:meth:`~NeighbourTable.note_claim`); the
+  entries carry their view (:func:`robot_agent.core.neighbour_motion.motion_view`).
 """
 
 from __future__ import annotations
@@ -23,7 +26,14 @@ from collections.abc import Callable, Iterable
 
 from robot_agent.core.host_grid import Seen
 from robot_agent.core.lockstep import Arrivals
-from robot_agent.core.neighbours import NEIGHBOUR_STALE_S, is_cooperative, is_current, neighbour
+from robot_agent.core.neighbour_motion import Claim, motion_view
+from robot_agent.core.neighbours import (
+    NEIGHBOUR_STALE_S,
+    ClaimRing,
+    is_cooperative,
+    is_current,
+    neighbour,
+)
 from robot_agent.core.safety_filter import Neighbour
 
 __all__ = ["LocalTracking", "NeighbourTable"]
@@ -41,11 +51,15 @@ class NeighbourTable:
         max_robots: distinct ids kept, for poses and for modes each.
         local_tracking: the mode of the robots this process runs (see :data:`LocalTracking`);
             their status messages are ignored. None: no robot is run here.
+        motion: ``(ref_offset_m, top_speed_mps, claim_max_age_s)`` when the robots publish
+            motion claims (``SafetyFilterParams.accel_bound_mps2`` > 0); None: no claims.
     """
 
     __slots__ = (
+        "_claims",
         "_local",
         "_modes",
+        "_motion",
         "_next_order",
         "_pending",
         "lockstep",
@@ -55,9 +69,16 @@ class NeighbourTable:
     )
 
     def __init__(
-        self, *, lockstep: bool, max_robots: int, local_tracking: LocalTracking | None = None
+        self,
+        *,
+        lockstep: bool,
+        max_robots: int,
+        local_tracking: LocalTracking | None = None,
+        motion: tuple[float, float, float] | None = None,
     ) -> None:
         self.lockstep = lockstep
+        self._motion = motion
+        self._claims: dict[str, ClaimRing] = {}  # id -> its latest claims (local clock)
         self.max_robots = max_robots
         self._local = local_tracking
         self.seen: dict[str, Seen] = {}
@@ -114,8 +135,10 @@ class NeighbourTable:
         return True
 
     def clear(self) -> None:
-        """Forget every pose (this process resumed from a stop: old poses must not count)."""
+        """Forget every pose and claim (this process resumed from a stop: old ones must not
+        count)."""
         self.seen.clear()
+        self._claims.clear()
         self._pending.take()
 
     def _prune(self, now_s: float) -> None:
@@ -131,11 +154,49 @@ class NeighbourTable:
         """Every robot whose pose was received within ``NEIGHBOUR_STALE_S`` of ``now_s``, in
         first-seen order, as the safety filter sees it (``robot_agent.core.neighbours``)."""
         coop = self.cooperative
-        return [
-            neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
-            for rid, e in self.seen.items()
-            if e.rx_s is not None and is_current(now_s, e.rx_s)
-        ]
+        if self._motion is None:
+            return [
+                neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
+                for rid, e in self.seen.items()
+                if e.rx_s is not None and is_current(now_s, e.rx_s)
+            ]
+        l_m, vmax, max_age = self._motion
+        claims = self._claims
+        out = []
+        for rid, e in self.seen.items():
+            if e.rx_s is None or not is_current(now_s, e.rx_s):
+                continue
+            ring = claims.get(rid)
+            view = (
+                None
+                if ring is None
+                else motion_view(ring.claims, e.capture_s, now_s, l_m, vmax, max_age)
+            )
+            out.append(neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s), view))
+        return out
+
+    # -- motion claims ---------------------------------------------------------------------
+
+    def note_claim(self, rid: str, claim: Claim, now_s: float) -> bool:
+        """Robot ``rid``'s motion claim (``t_s`` on the local clock), received at ``now_s``;
+        False when not kept (no claims configured, the table full of current ids, or not newer
+        than the last one: counted in that ring's ``dropped``)."""
+        if self._motion is None:
+            return False
+        claims = self._claims
+        ring = claims.get(rid)
+        if ring is None:
+            if len(claims) >= self.max_robots:
+                for old in [
+                    r
+                    for r, g in claims.items()
+                    if not g.claims or now_s - g.claims[-1].t_s > NEIGHBOUR_STALE_S
+                ]:
+                    del claims[old]
+                if len(claims) >= self.max_robots:
+                    return False
+            ring = claims[rid] = ClaimRing()
+        return ring.add(claim)
 
     # -- modes -----------------------------------------------------------------------------
 

@@ -32,9 +32,8 @@ Zenoh equals the in-process simulator bit for bit (``formation/sim/simulate.py``
 
 from __future__ import annotations
 
-from typing import Final
-
 from collections import deque
+from typing import Final
 
 from robot_agent.core.neighbour_motion import Claim, MotionView
 from robot_agent.core.safety_filter import Neighbour
@@ -42,8 +41,8 @@ from robot_agent.core.safety_filter import Neighbour
 __all__ = [
     "CLAIMS_KEPT",
     "COOPERATIVE_STATUS_S",
-    "ClaimRing",
     "NEIGHBOUR_STALE_S",
+    "ClaimRing",
     "is_cooperative",
     "is_current",
     "neighbour",

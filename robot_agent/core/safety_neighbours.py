@@ -24,9 +24,9 @@ from collections.abc import Sequence
 from typing import Any
 
 from .kinematics import reference_point
+from .neighbour_motion import append_claimed, view_is_sane
 from .params import AgentConfig
 from .qp import _TOL
-from .neighbour_motion import append_claimed, view_is_sane
 from .safety_plane import SharedFramePlane
 from .safety_types import _isfinite
 

@@ -50,6 +50,7 @@ from robot_agent.core.firmware import Firmware, Mode, WheelCommand
 from robot_agent.core.firmware import Pose as FwPose
 from robot_agent.core.firmware import Setpoint as FwSetpoint
 from robot_agent.core.lockstep import Replay, SetpointWindow
+from robot_agent.core.neighbour_motion import Claim
 from robot_agent.core.neighbour_table import NeighbourTable
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.safety_filter import Neighbour
@@ -169,13 +170,24 @@ class AgentNode:
 
         self.rx: dict[str, int] = {
             "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
+            "wheels": 0,
         }  # fmt: skip
         # every drop by "<message>-<reason>" (status "rejects"), also counted by the firmware
         self.faults = rt.Faults(self.log, on_reject=self.firmware.reject)
         # the other robots (robot_agent.core.neighbours): poses from the frames (on_poses),
         # modes from their status messages (realtime) or the clock (lockstep)
+        sfp = config.safety_filter
+        g = config.geometry
+        # motion claims (robot_agent.core.neighbour_motion): realtime, from the other robots'
+        # wheels messages (on_wheels)
+        self.claims_on = sfp.accel_bound_mps2 > 0.0 and not lockstep
         self.neighbour_table = NeighbourTable(
-            lockstep=lockstep, max_robots=MAX_NEIGHBOURS, local_tracking=self._own_tracking
+            lockstep=lockstep,
+            max_robots=MAX_NEIGHBOURS,
+            local_tracking=self._own_tracking,
+            motion=(g.ref_offset_m, g.max_speed_mps, sfp.claim_max_age_s)
+            if self.claims_on
+            else None,
         )
         self.peer_status = PeerStatusInputs(
             self.neighbour_table, self.rx, self.faults.reject, self.faults.internal
@@ -287,6 +299,28 @@ class AgentNode:
             self.neighbour_table.end_frame()
         except Exception as exc:
             self.faults.internal("on_poses", exc)
+
+    def on_wheels(self, rx: rt.Received) -> None:
+        """Realtime, with motion bounds: another robot's wheels message carries its motion
+        claim (``robot_agent.core.neighbour_motion``), its tick time on the local clock through
+        the sender's clock offset (``robot_agent.core.clocksync``)."""
+        try:
+            self.rx["wheels"] += 1
+            parsed = keys.parse_robot_key(rx.key)
+            if parsed is None or parsed[1] == self.robot_id:
+                return
+            msg = decode(rx.payload, Wheels)
+            if isinstance(msg, DecodeError):
+                self.faults.reject("wheels", msg)
+                return
+            if msg.ux is None or msg.uy is None or msg.w is None or msg.accel is None:
+                return  # (no claim: this robot keeps the worst case for it)
+            t = self.clocks.capture_to_local(rx.key, msg.t, msg.t, rx.rx_s)
+            claim = Claim(t, msg.ux, msg.uy, msg.w, msg.accel)
+            if not self.neighbour_table.note_claim(parsed[1], claim, rx.rx_s):
+                self.faults.reject("wheels", "claim not newer or table full", "claim")
+        except Exception as exc:
+            self.faults.internal("on_wheels", exc)
 
     def on_setpoint(self, rx: rt.Received) -> None:
         """Own setpoint: keep the newest (realtime) or the last two with their ticks (lockstep)."""
@@ -453,6 +487,9 @@ class AgentNode:
             if not self.publish_wheels:
                 return cmd
             self._seq_wheels += 1
+            claim = self.firmware.motion_claim
+            if claim is not None and claim.t_s != now_s:
+                claim = None  # (the bound held the previous tick's claim: none for this one)
             payload = encode(
                 Wheels(
                     t=max(now_s, 0.0),
@@ -465,6 +502,10 @@ class AgentNode:
                     tick=tick,
                     saturated=cmd.saturated,
                     mode=str(cmd.mode),
+                    ux=None if claim is None else claim.ux_mps,
+                    uy=None if claim is None else claim.uy_mps,
+                    w=None if claim is None else claim.omega_radps,
+                    accel=None if claim is None else claim.accel_mps2,
                 )
             )
             self._replay.answer = payload
