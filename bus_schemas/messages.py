@@ -429,13 +429,14 @@ def new_estop_id() -> int:
 
 
 _ENC = ("enc_robots", "enc_wr", "enc_wl")
+_CLAIMS = ("claim_robots", "claim_t", "claim_ux", "claim_uy", "claim_w", "claim_accel")
 
 
 @message(
     name=keys.CLOCK,
     publisher="plant, lockstep only",
     periodic=True,
-    rules=(Together(_ENC), SameLength(_ENC)),
+    rules=(Together(_ENC), SameLength(_ENC), Together(_CLAIMS), SameLength(_CLAIMS)),
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Clock:
@@ -479,6 +480,28 @@ class Clock:
             lo=-_WHEEL,
             hi=_WHEEL,
         ),
+    )
+    claim_robots: tuple[str, ...] | None = field(
+        default=None,
+        metadata=f_robot_id_list(
+            "robots whose wheels answering the previous tick carried a motion claim (`claim_*`"
+            " follow: that message's `t`, `ux`, `uy`, `w`, `accel`)"
+        ),
+    )
+    claim_t: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `t`", "s", lo=0.0, hi=_TMAX)
+    )
+    claim_ux: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `ux`", "m/s", lo=-100.0, hi=100.0)
+    )
+    claim_uy: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `uy`", "m/s", lo=-100.0, hi=100.0)
+    )
+    claim_w: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `w`", "rad/s", lo=-1000.0, hi=1000.0)
+    )
+    claim_accel: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `accel`", "m/s^2", lo=0.0, hi=100.0)
     )
 
 

@@ -179,8 +179,8 @@ class AgentNode:
         sfp = config.safety_filter
         g = config.geometry
         # motion claims (robot_agent.core.neighbour_motion): realtime, from the other robots'
-        # wheels messages (on_wheels)
-        self.claims_on = sfp.accel_bound_mps2 > 0.0 and not lockstep
+        # wheels messages (on_wheels); lockstep, relayed by the clock (on_clock)
+        self.claims_on = sfp.accel_bound_mps2 > 0.0
         self.neighbour_table = NeighbourTable(
             lockstep=lockstep,
             max_robots=MAX_NEIGHBOURS,
@@ -419,10 +419,25 @@ class AgentNode:
                 self._publish(self.wheels_key, again, self.wheels_qos)  # re-announced clock
                 return
             self.neighbour_table.relay(msg.tracking or ())
+            if self.claims_on and msg.claim_robots:
+                self._relayed_claims(msg)
             self.clock_wheels = clock_wheels(msg).get(self.robot_id)
             self.clock_step(k, msg.t)
         except Exception as exc:
             self.faults.internal("on_clock", exc)
+
+    def _relayed_claims(self, msg: Clock) -> None:
+        """Lockstep: the motion claims the clock relays (the answers to the previous tick, sim
+        time: one clock for every node), as the in-process simulator hands them over."""
+        rows, ts, uxs = msg.claim_robots, msg.claim_t, msg.claim_ux
+        uys, ws, accs = msg.claim_uy, msg.claim_w, msg.claim_accel
+        if rows is None or ts is None or uxs is None or uys is None or ws is None or accs is None:
+            return  # (the codec's Together rule: all or none)
+        note = self.neighbour_table.note_claim
+        me = self.robot_id
+        for rid, t, ux, uy, w, a in zip(rows, ts, uxs, uys, ws, accs, strict=True):
+            if rid != me:
+                note(rid, Claim(t, ux, uy, w, a), msg.t)
 
     def take_arrivals(self, t_k: float) -> None:
         """Lockstep: poses and neighbours received since the last clock count as received at
