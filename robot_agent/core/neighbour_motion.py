@@ -231,6 +231,7 @@ class MotionLimiter:
     Args:
         accel_mps2: the bound ``A`` (> 0).
         wheel_radius_m, half_track_m, ref_offset_m: the robot's geometry (eq 8, eqs 10-11).
+        max_wheel_radps: the wheel limit (a limited command is rounded back into it).
     """
 
     __slots__ = (
@@ -242,12 +243,18 @@ class MotionLimiter:
         "_last_t",
         "_r",
         "_th",
+        "_wmax",
         "claim",
         "limited",
     )
 
     def __init__(
-        self, accel_mps2: float, wheel_radius_m: float, half_track_m: float, ref_offset_m: float
+        self,
+        accel_mps2: float,
+        wheel_radius_m: float,
+        half_track_m: float,
+        ref_offset_m: float,
+        max_wheel_radps: float = math.inf,
     ) -> None:
         if not (0.0 < accel_mps2 <= MAX_ACCEL_MPS2):
             raise ValueError(f"accel_mps2 must be in (0, {MAX_ACCEL_MPS2}], got {accel_mps2!r}")
@@ -255,6 +262,7 @@ class MotionLimiter:
         self._r = wheel_radius_m
         self._half_track = half_track_m
         self._l = ref_offset_m
+        self._wmax = max_wheel_radps
         self._bv = 0.0  # the previous command's body twist (v, l omega): at rest before the first
         self._bw = 0.0
         self._last_t = math.nan
@@ -271,7 +279,7 @@ class MotionLimiter:
         if not a_max > 0.0:
             return None
         g = config.geometry
-        return cls(a_max, g.wheel_radius_m, g.half_track_m, g.ref_offset_m)
+        return cls(a_max, g.wheel_radius_m, g.half_track_m, g.ref_offset_m, g.max_wheel_radps)
 
     def limit(self, now_s: float, wr: float, wl: float, th: float) -> tuple[float, float]:
         """The wheel command ``(wr, wl)`` (rad/s, within the wheel limits) of the tick at
@@ -298,10 +306,11 @@ class MotionLimiter:
             bv = pv + k * dv
             bw = pw + k * dw
             # the twist back to wheels (eq 8): on the segment between two commands within the
-            # box, hence within it
+            # box, hence within it (up to rounding, which the clamp takes back: an ulp)
             w = bw / l_m
-            wr = (bv + self._half_track * w) / r
-            wl = (bv - self._half_track * w) / r
+            wmax = self._wmax
+            wr = min(max((bv + self._half_track * w) / r, -wmax), wmax)
+            wl = min(max((bv - self._half_track * w) / r, -wmax), wmax)
             self.limited += 1
         omega = bw / l_m
         if not _isfinite(th):

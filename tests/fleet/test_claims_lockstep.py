@@ -19,7 +19,7 @@ REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.zenoh]
 
 
-def _task(tmp: Path) -> Path:
+def _task(tmp: Path, accel: float = 0.25) -> Path:
     """The Robotarium task with the realtime shells' configuration (no shared-frame plane: the
     claims carry every pair), camera latency and noise, and a motion bound; 4 s."""
     text = (REPO / "scenario" / "builtin" / "anchor-triangle.toml").read_text()
@@ -28,17 +28,18 @@ def _task(tmp: Path) -> Path:
     )
     text = text.replace("latency_s = 0.0\n[link]", "latency_s = 0.06\n[link]")
     text = text.replace("pos_std_m = 0.0", "pos_std_m = 0.003")
-    text = text.replace("shared_frame = true", "shared_frame = false\naccel_bound_mps2 = 0.25")
-    assert "accel_bound_mps2 = 0.25" in text and "latency_s = 0.06" in text
+    text = text.replace("shared_frame = true", f"shared_frame = false\naccel_bound_mps2 = {accel}")
+    assert "accel_bound_mps2" in text and "latency_s = 0.06" in text
     path = tmp / "anchor-claims.toml"
     path.write_text(text)
     return path
 
 
+@pytest.mark.parametrize("accel", [0.25, 0.0])
 def test_lockstep_with_motion_claims_equals_the_in_process_run(
-    spawn: Spawner, tmp_path: Path
+    spawn: Spawner, tmp_path: Path, accel: float
 ) -> None:
-    toml = _task(tmp_path)
+    toml = _task(tmp_path, accel)
     out = tmp_path / "up"
     up = spawn(
         "up", "--lockstep", "--scenario", str(toml), "--endpoint",

@@ -44,7 +44,7 @@ def _twist(wr: float, wl: float) -> tuple[float, float]:
 
 
 def _limiter(a: float) -> MotionLimiter:
-    return MotionLimiter(a, GEOM.wheel_radius_m, GEOM.half_track_m, L_M)
+    return MotionLimiter(a, GEOM.wheel_radius_m, GEOM.half_track_m, L_M, WMAX)
 
 
 wheel = st.floats(-WMAX, WMAX)
@@ -69,7 +69,7 @@ def test_limiter_bounds_every_change_and_claims_what_it_commands(
     for dt, wr, wl, th in steps:
         now += dt
         out_r, out_l = lim.limit(now, wr, wl, th)
-        assert abs(out_r) <= WMAX * (1 + 1e-12) and abs(out_l) <= WMAX * (1 + 1e-12)
+        assert abs(out_r) <= WMAX and abs(out_l) <= WMAX  # exactly: power within [-1, 1]
         b = _twist(out_r, out_l)
         room = 0.0 if first else a * dt
         assert math.hypot(b[0] - prev[0], b[1] - prev[1]) <= room + 1e-12
