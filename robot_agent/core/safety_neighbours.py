@@ -11,7 +11,10 @@ with the constraint ``n . u >= -gamma h + n . v_j`` (not cooperative: the robot 
 responsibility, plus the neighbour's known velocity ``v_j``) or ``n . u >= -gamma h / 2``
 (cooperative: the reciprocal half). For a cooperative neighbour measured in this robot's own
 camera frame, with ``shared_frame``, the plane of ``robot_agent.core.safety_plane`` replaces the
-``V a_j`` inflation. A neighbour entry is an ``(x, y)`` tuple (a fresh position of a robot
+``V a_j`` inflation; for a neighbour whose entry carries a motion claim's view (a ninth field,
+``Neighbour.motion``), the claimed row of ``robot_agent.core.neighbour_motion`` does (its
+reference point extrapolated with the claimed velocity, inflated by what its enforced bound lets
+it deviate; full responsibility). A neighbour entry is an ``(x, y)`` tuple (a fresh position of a robot
 treated as an obstacle: the fast path) or a ``Neighbour`` (``robot_agent.core.safety_types``); a
 non-finite or absurd field is counted (``rejected``) and the position kept, as old as allowed
 and not moving.
