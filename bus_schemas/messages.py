@@ -304,8 +304,8 @@ class Wheels:
         metadata=f_float(
             "motion claim: the reference point's velocity this command gives, x (world)",
             "m/s",
-            lo=-100.0,
-            hi=100.0,
+            lo=-_SPEED,
+            hi=_SPEED,
         ),
     )
     uy: float | None = field(
@@ -313,8 +313,8 @@ class Wheels:
         metadata=f_float(
             "motion claim: the reference point's velocity this command gives, y (world)",
             "m/s",
-            lo=-100.0,
-            hi=100.0,
+            lo=-_SPEED,
+            hi=_SPEED,
         ),
     )
     w: float | None = field(
@@ -492,10 +492,10 @@ class Clock:
         default=None, metadata=f_float_list("each claim's `t`", "s", lo=0.0, hi=_TMAX)
     )
     claim_ux: tuple[float, ...] | None = field(
-        default=None, metadata=f_float_list("each claim's `ux`", "m/s", lo=-100.0, hi=100.0)
+        default=None, metadata=f_float_list("each claim's `ux`", "m/s", lo=-_SPEED, hi=_SPEED)
     )
     claim_uy: tuple[float, ...] | None = field(
-        default=None, metadata=f_float_list("each claim's `uy`", "m/s", lo=-100.0, hi=100.0)
+        default=None, metadata=f_float_list("each claim's `uy`", "m/s", lo=-_SPEED, hi=_SPEED)
     )
     claim_w: tuple[float, ...] | None = field(
         default=None, metadata=f_float_list("each claim's `w`", "rad/s", lo=-1000.0, hi=1000.0)

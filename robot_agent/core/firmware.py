@@ -455,9 +455,11 @@ class Firmware(_FirmwareModes):
                 self._pending_cmd = (now + self._act_delay, wr, wl)
             wmax = self._wmax
             return _new_command(wr, wl, wr / wmax, wl / wmax, cmd.mode, cmd.pose_t, cmd.saturated)
-        except Exception as exc:  # (a firmware loop must not die: the last command, held)
+        except Exception as exc:  # (a firmware loop must not die: the last twist, held)
             self.reject(f"internal error: {type(exc).__name__}")
-            return cmd
+            wr, wl = lim.held_wheels()
+            wmax = self._wmax
+            return _new_command(wr, wl, wr / wmax, wl / wmax, cmd.mode, cmd.pose_t, cmd.saturated)
 
     @property
     def motion_claim(self) -> Claim | None:

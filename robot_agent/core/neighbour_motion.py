@@ -326,5 +326,14 @@ class MotionLimiter:
             self.claim = None
         return wr, wl
 
+    def held_wheels(self) -> tuple[float, float]:
+        """The wheels of the previous command's twist (held: no change at all)."""
+        w = self._bw / self._l
+        wmax = self._wmax
+        r = self._r
+        wr = min(max((self._bv + self._half_track * w) / r, -wmax), wmax)
+        wl = min(max((self._bv - self._half_track * w) / r, -wmax), wmax)
+        return wr, wl
+
     def _omega_prev(self) -> float:
         return self._bw / self._l

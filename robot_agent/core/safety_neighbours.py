@@ -14,10 +14,10 @@ camera frame, with ``shared_frame``, the plane of ``robot_agent.core.safety_plan
 ``V a_j`` inflation; for a neighbour whose entry carries a motion claim's view (a ninth field,
 ``Neighbour.motion``), the claimed row of ``robot_agent.core.neighbour_motion`` does (its
 reference point extrapolated with the claimed velocity, inflated by what its enforced bound lets
-it deviate; full responsibility). A neighbour entry is an ``(x, y)`` tuple (a fresh position of a robot
-treated as an obstacle: the fast path) or a ``Neighbour`` (``robot_agent.core.safety_types``); a
-non-finite or absurd field is counted (``rejected``) and the position kept, as old as allowed
-and not moving.
+it deviate; full responsibility). A neighbour entry is an ``(x, y)`` tuple (a fresh position of
+a robot treated as an obstacle: the fast path) or a ``Neighbour``
+(``robot_agent.core.safety_types``); a non-finite or absurd field is counted (``rejected``) and
+the position kept, as old as allowed and not moving.
 """
 
 from __future__ import annotations

@@ -329,3 +329,10 @@ def test_the_barrier_holds_against_a_neighbour_that_moves_any_way_its_claims_all
 
 def test_clock_tolerance_is_small_against_the_latency() -> None:
     assert 0.0 < CLOCK_TOL_S <= 0.005
+
+
+def test_held_wheels_are_the_previous_twist() -> None:
+    lim = _limiter(0.5)
+    lim.limit(0.0, 0.0, 0.0, 0.0)
+    wr, wl = lim.limit(1.0, 5.0, 3.0, 0.0)  # room 0.5 m/s: within it
+    assert lim.held_wheels() == pytest.approx((wr, wl), abs=1e-12)
