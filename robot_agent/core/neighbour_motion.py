@@ -86,6 +86,10 @@ reference-point velocity it claims): 10-50 x what the estimator holds with a cam
 CLOCK_TOL_S: Final = 0.002
 """Added to every interval of the model (s): a remote time on the local clock reads late by the
 link's least one-way delay (microseconds on one host, under a millisecond on a LAN)."""
+DEAD_RECKON_S: Final = 0.5
+"""A robot publishes a claim while moving only if its heading is at most this old (s): a
+dead-reckoned one (ticks without a pose) drifts from the truth, and the claim's heading
+allowance is :data:`HEADING_TOL_RAD`; at rest the claim (zero) needs no heading."""
 MAX_ACCEL_MPS2: Final = 100.0
 """A claimed bound above this (m/s^2) is absurd (rejected): ``SafetyFilterParams``'s range."""
 
@@ -238,6 +242,7 @@ class MotionLimiter:
         "_a",
         "_bv",
         "_bw",
+        "_dr_s",
         "_half_track",
         "_l",
         "_last_t",
@@ -267,6 +272,7 @@ class MotionLimiter:
         self._bw = 0.0
         self._last_t = math.nan
         self._th = math.nan  # heading at the previous tick (dead-reckoned when not given)
+        self._dr_s = 0.0  # how long the heading has been dead-reckoned
         self.claim: Claim | None = None
         """The claim of the last tick's command (None while the heading is unknown)."""
         self.limited = 0
@@ -285,7 +291,9 @@ class MotionLimiter:
         """The wheel command ``(wr, wl)`` (rad/s, within the wheel limits) of the tick at
         ``now_s``, its body-twist change bounded by ``A`` times the time since the previous
         tick (none on the first tick, or if the clock did not advance); ``th`` the heading
-        the tick used (NaN: unknown, dead-reckoned from the last one). Sets :attr:`claim`."""
+        the tick used (NaN: unknown, dead-reckoned from the last one). Sets :attr:`claim`
+        (None while the heading is unknown, or dead-reckoned longer than
+        :data:`DEAD_RECKON_S` while moving)."""
         last = self._last_t
         elapsed = now_s - last if now_s > last else 0.0  # (NaN last: the first tick)
         if not _isfinite(elapsed):
@@ -313,12 +321,15 @@ class MotionLimiter:
             wl = min(max((bv - self._half_track * w) / r, -wmax), wmax)
             self.limited += 1
         omega = bw / l_m
-        if not _isfinite(th):
+        if _isfinite(th):
+            self._dr_s = 0.0
+        else:  # (a tick without a pose: HOLD's evasion on an estimate, an e-stop's ramp)
             th = self._th + self._omega_prev() * elapsed
+            self._dr_s += elapsed
         self._th = th
         self._bv = bv
         self._bw = bw
-        if _isfinite(th):
+        if _isfinite(th) and (self._dr_s <= DEAD_RECKON_S or (bv == 0.0 and bw == 0.0)):
             c = math.cos(th)
             s = math.sin(th)
             self.claim = Claim(now_s, c * bv - s * bw, s * bv + c * bw, omega, self._a)

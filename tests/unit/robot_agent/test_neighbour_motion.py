@@ -336,3 +336,13 @@ def test_held_wheels_are_the_previous_twist() -> None:
     lim.limit(0.0, 0.0, 0.0, 0.0)
     wr, wl = lim.limit(1.0, 5.0, 3.0, 0.0)  # room 0.5 m/s: within it
     assert lim.held_wheels() == pytest.approx((wr, wl), abs=1e-12)
+
+
+def test_a_moving_robot_without_a_heading_stops_claiming_after_half_a_second() -> None:
+    lim = _limiter(0.5)
+    lim.limit(0.0, 5.0, 5.0, 0.3)  # (the first tick: at rest, heading known)
+    for k in range(1, 40):
+        lim.limit(k * 0.033, 5.0, 5.0, math.nan if k > 5 else 0.3)
+        moving = lim.claim is not None and math.hypot(lim.claim.ux_mps, lim.claim.uy_mps) > 0
+        assert (lim.claim is not None) == (k <= 5 + int(0.5 / 0.033)), k
+        assert k <= 5 or lim.claim is None or moving
