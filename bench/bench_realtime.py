@@ -84,12 +84,13 @@ def in_process(scn: scenario_mod.Scenario) -> dict[str, Any]:
     }
 
 
-def realtime(accel_mps2: float, duration_s: float | None) -> dict[str, Any]:
-    """One ``formation up`` run of the task (its own router on a port of its own)."""
+def realtime(accel_mps2: float, duration_s: float | None, keep: Path | None) -> dict[str, Any]:
+    """One ``formation up`` run of the task (its own router on a port of its own); its output
+    folder (metrics, logs) is kept in ``keep`` if given."""
     with tempfile.TemporaryDirectory(prefix="bench-realtime-") as tmp:
         path = Path(tmp) / "anchor-realtime.toml"
         path.write_text(task_toml(accel_mps2))
-        out = Path(tmp) / "out"
+        out = Path(tmp) / "out" if keep is None else keep
         cmd = [
             sys.executable, "-m", "formation.cli", "up", "--scenario", str(path),
             "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--out", str(out),
@@ -129,6 +130,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--without", action="store_true", help="also runs without claims")
     ap.add_argument("--duration", type=float, default=None, help="realtime seconds (task: 60)")
     ap.add_argument("--no-realtime", action="store_true", help="the in-process rows only")
+    ap.add_argument("--keep", type=Path, default=None, help="keep each run's folder in DIR")
     args = ap.parse_args(argv)
     base = scenario_mod.load("anchor-triangle")
     exact = in_process(base)
@@ -155,7 +157,8 @@ def main(argv: list[str]) -> int:
     if not args.no_realtime:
         for a in accels:
             for r in range(args.repeat if a > 0 else 1):
-                m = realtime(a, args.duration)
+                keep = None if args.keep is None else args.keep / f"a{a:g}-run{r + 1}"
+                m = realtime(a, args.duration, keep)
                 tag = f"claims A {a:g}" if a > 0 else "no claims (V a)"
                 _row(f"realtime 60 ms + 3 mm, {tag}, run {r + 1}", m)
                 if a > 0:

@@ -54,9 +54,11 @@ COOPERATIVE_STATUS_S: Final = 0.5
 """Realtime: a status older than this (s, receive time; 2.5 periods of the 5 Hz status) no
 longer makes its robot cooperative."""
 
-CLAIMS_KEPT: Final = 8
-"""Claims kept per robot: the newest at or before a pose's capture must be among them (eight
-30 Hz ticks: 0.26 s, over the 60-100 ms of camera latency)."""
+CLAIMS_KEPT: Final = 32
+"""Claims kept per robot: the newest at or before a pose's capture must be among them. A
+realtime agent ticks on each pose and on its 50 Hz timer between them (~60 claims a second);
+32 cover ~0.5 s, the neighbours' largest age (``max_age_s``), under load too (8 covered
+~0.13 s: a capture older than that under load lost its claims and fell back to ``V a``)."""
 
 _tuple_new = tuple.__new__
 
