@@ -285,10 +285,20 @@ class Truth:
     robot: str | None = field(default=None, metadata=f_robot_id("robot (= the key's id)"))
 
 
-@message(name=keys.WHEELS, publisher="agent", periodic=True)
+_CLAIM = ("ux", "uy", "w", "accel")
+
+
+@message(name=keys.WHEELS, publisher="agent", periodic=True, rules=(Together(_CLAIM),))
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Wheels:
-    """Wheel command of one robot (eq 8 after saturation); power = omega / max wheel speed."""
+    """Wheel command of one robot (eq 8 after saturation); power = omega / max wheel speed.
+
+    A robot with a motion bound (`safety_filter.accel_bound_mps2`) adds its motion claim
+    (`ux`, `uy`, `w`, `accel`, all or none): from `t` on its firmware changes the command's
+    body twist (v, l omega) by at most `accel` times the elapsed time, in every mode; its
+    neighbours' safety filters extrapolate it with this velocity
+    (robot_agent/core/neighbour_motion.py).
+    """
 
     v: int = field(default=1, metadata=_V)
     t: float = field(metadata=_T)
@@ -322,6 +332,39 @@ class Wheels:
     )
     mode: str | None = field(
         default=None, metadata=f_enum("firmware mode after the step of this command", Mode)
+    )
+    ux: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the reference point's velocity this command gives, x (world)",
+            "m/s",
+            lo=-_SPEED,
+            hi=_SPEED,
+        ),
+    )
+    uy: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the reference point's velocity this command gives, y (world)",
+            "m/s",
+            lo=-_SPEED,
+            hi=_SPEED,
+        ),
+    )
+    w: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the turn rate this command gives", "rad/s", lo=-1000.0, hi=1000.0
+        ),
+    )
+    accel: float | None = field(
+        default=None,
+        metadata=f_float(
+            "motion claim: the bound the firmware enforces on the body twist's change",
+            "m/s^2",
+            lo=0.0,
+            hi=100.0,
+        ),
     )
 
 
@@ -420,13 +463,14 @@ def new_estop_id() -> int:
 
 
 _ENC = ("enc_robots", "enc_wr", "enc_wl")
+_CLAIMS = ("claim_robots", "claim_t", "claim_ux", "claim_uy", "claim_w", "claim_accel")
 
 
 @message(
     name=keys.CLOCK,
     publisher="plant, lockstep only",
     periodic=True,
-    rules=(Together(_ENC), SameLength(_ENC)),
+    rules=(Together(_ENC), SameLength(_ENC), Together(_CLAIMS), SameLength(_CLAIMS)),
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Clock:
@@ -470,6 +514,28 @@ class Clock:
             lo=-_WHEEL,
             hi=_WHEEL,
         ),
+    )
+    claim_robots: tuple[str, ...] | None = field(
+        default=None,
+        metadata=f_robot_id_list(
+            "robots whose wheels answering the previous tick carried a motion claim (`claim_*`"
+            " follow: that message's `t`, `ux`, `uy`, `w`, `accel`)"
+        ),
+    )
+    claim_t: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `t`", "s", lo=0.0, hi=_TMAX)
+    )
+    claim_ux: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `ux`", "m/s", lo=-_SPEED, hi=_SPEED)
+    )
+    claim_uy: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `uy`", "m/s", lo=-_SPEED, hi=_SPEED)
+    )
+    claim_w: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `w`", "rad/s", lo=-1000.0, hi=1000.0)
+    )
+    claim_accel: tuple[float, ...] | None = field(
+        default=None, metadata=f_float_list("each claim's `accel`", "m/s^2", lo=0.0, hi=100.0)
     )
 
 

@@ -46,7 +46,8 @@ from coordinator.core.operator_script import OperatorScript
 from formation.outputs.runlog import RunLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
-from robot_agent.core.neighbours import is_current, mover, neighbour
+from robot_agent.core.neighbour_motion import motion_view
+from robot_agent.core.neighbours import ClaimRing, is_current, mover, neighbour
 from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
@@ -198,6 +199,10 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
     neighbours: list[list[Any]] = [[] for _ in ids]
     tracking = [False] * n  # robot j's firmware was TRACKING on the previous tick
+    # motion claims (rule 4 of robot_agent.core.neighbours): the previous ticks' commands
+    sfp = scenario.agent.safety_filter
+    rings = [ClaimRing() for _ in ids] if sfp.accel_bound_mps2 > 0.0 else None
+    vmax = geom.max_speed_mps
     pending = list(scenario.disturbances)
     fresh: dict[str, tuple[float, float, float]] = {}
     oldest_rx = math.inf  # earliest receive time among the poses in `fresh`
@@ -263,12 +268,28 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         # repulsion and the safety filter, with its age now (capture to this tick) and whether
         # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
         # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
-        pts = [
-            None
-            if p is None or not is_current(t, pose_rx[j])
-            else neighbour(p[0], p[1], p[2], p[3], t, tracking[j])
-            for j, p in enumerate(poses)
-        ]
+        if rings is None:
+            pts = [
+                None
+                if p is None or not is_current(t, pose_rx[j])
+                else neighbour(p[0], p[1], p[2], p[3], t, tracking[j])
+                for j, p in enumerate(poses)
+            ]
+        else:
+            pts = [
+                None
+                if p is None or not is_current(t, pose_rx[j])
+                else neighbour(
+                    p[0],
+                    p[1],
+                    p[2],
+                    p[3],
+                    t,
+                    tracking[j],
+                    motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
+                )
+                for j, p in enumerate(poses)
+            ]
         # the coordinator's movers of the previous tick (received with its setpoints): not
         # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
         prev_out = outputs.for_clock(k)
@@ -362,6 +383,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 )
             )
         tracking = [c[4] is Mode.TRACKING for c in cmds]
+        if rings is not None:
+            for ring, fw in zip(rings, firmwares, strict=True):
+                claim = fw.motion_claim
+                if claim is not None and (not ring.claims or ring.claims[-1] is not claim):
+                    ring.add(claim)
         # 5. command link
         link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
         for i, wheels in link.poll(t):

@@ -40,6 +40,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "tracking",
     "repulsion",
     "qp",
+    "neighbour_motion",
     "safety_types",
     "safety_plane",
     "safety_world",

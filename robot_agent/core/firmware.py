@@ -124,6 +124,7 @@ from .kinematics import (
     twist_from_wheels_raw,
     wheels_from_twist_raw,
 )
+from .neighbour_motion import Claim, MotionLimiter
 from .params import AgentConfig
 from .repulsion import repulsion_raw
 from .safety_filter import Neighbour, SafetyFilter
@@ -179,6 +180,7 @@ class Firmware:
         "_last_pose_t",
         "_last_saturated",
         "_lead",
+        "_limiter",
         "_max_dt",
         "_modes",
         "_pending_cmd",
@@ -203,6 +205,7 @@ class Firmware:
         "_wheel_r",
         "_wmax",
         "_wmax_neg",
+        "_xyt_seen",
     )
 
     def __init__(self, config: AgentConfig | None = None) -> None:
@@ -261,8 +264,11 @@ class Firmware:
         self._est_xyt: tuple[float, ...] | None = None
         if self._est is None:
             self._unc = 0.0
+        # stage 10, the motion bound (robot_agent.core.neighbour_motion): every tick, any mode
+        self._limiter: MotionLimiter | None = MotionLimiter.of(cfg)
+        self._xyt_seen: object = None  # (identity only: the pose the limiter last took theta of)
 
-    def step(  # noqa: PLR0915 (the paper's pipeline, stage by stage, in one place)
+    def step(
         self,
         now_s: float | object,
         *,
@@ -302,8 +308,30 @@ class Firmware:
         Returns:
             The wheel command. In IDLE and HOLD the wheels are zero unless the safety filter
             must move the robot out of the way (``_evade``: zero nominal command); in ESTOP,
-            without a pose and with the filter disabled exactly zero. Never raises.
+            without a pose and with the filter disabled exactly zero; with a motion bound
+            (``safety_filter.accel_bound_mps2``) every one of these ramps to its value at that
+            bound (stage 10). Never raises.
         """
+        cmd = self._pipeline(now_s, pose, pose_rx_s, setpoint, setpoint_rx_s, neighbours,
+                             obstacles, extra_radius_m, pose_capture_s, wheel_speeds)  # fmt: skip
+        if self._limiter is None:
+            return cmd
+        return self._bound(self._limiter, cmd)
+
+    def _pipeline(  # noqa: PLR0915 (the paper's pipeline, stage by stage, in one place)
+        self,
+        now_s: float | object,
+        pose: Pose | object | None,
+        pose_rx_s: float | object,
+        setpoint: Setpoint | object | None,
+        setpoint_rx_s: float | object,
+        neighbours: Sequence[tuple[float, float] | Neighbour],
+        obstacles: Sequence[tuple[float, float, float]],
+        extra_radius_m: float | object,
+        pose_capture_s: float | object | None,
+        wheel_speeds: tuple[float, float] | object | None,
+    ) -> WheelCommand:
+        """Stages 1-9 of one tick (``step``'s arguments and result, without the bound)."""
         self._steps += 1
         # The whole tick runs inside one try (zero-cost in CPython 3.11 unless it raises): a
         # firmware loop must not die, it stops the wheels instead. The arguments are outside
@@ -527,6 +555,42 @@ class Firmware:
         return _new_command(0.0, 0.0, 0.0, 0.0, self._modes.mode, self._last_pose_t, False)
 
     # ------------------------------------------------------------------ the stages of step
+
+    def _bound(self, lim: MotionLimiter, cmd: WheelCommand) -> WheelCommand:
+        """Stage 10, the motion bound (``robot_agent.core.neighbour_motion``): the tick's wheels
+        with their twist change bounded, in every mode; the claim published with them."""
+        try:
+            now = self._last_now
+            if now is None:  # (no valid clock yet: at rest, the first tick's command)
+                return cmd
+            xyt = self._est_xyt
+            th = _NAN
+            if xyt is not None and xyt is not self._xyt_seen:  # a heading of this tick
+                th = float(xyt[2])
+            self._xyt_seen = xyt
+            wr, wl = lim.limit(now, cmd.omega_r, cmd.omega_l, th)
+            if wr == cmd.omega_r and wl == cmd.omega_l:
+                return cmd
+            if self._est is not None:  # the prediction's input is what the wheels get
+                self._pending_cmd = (now + self._act_delay, wr, wl)
+            wmax = self._wmax
+            return _new_command(wr, wl, wr / wmax, wl / wmax, cmd.mode, cmd.pose_t, cmd.saturated)
+        except Exception as exc:  # (a firmware loop must not die: the last twist, held)
+            self.reject(f"internal error: {type(exc).__name__}")
+            wr, wl = lim.held_wheels()
+            wmax = self._wmax
+            return _new_command(wr, wl, wr / wmax, wl / wmax, cmd.mode, cmd.pose_t, cmd.saturated)
+
+    @property
+    def motion_claim(self) -> Claim | None:
+        """The claim of the last tick's command (``robot_agent.core.neighbour_motion``): None
+        without a motion bound or while the heading is unknown."""
+        return None if self._limiter is None else self._limiter.claim
+
+    @property
+    def bound_limited(self) -> int:
+        """Ticks on which the motion bound changed the command (0 without one)."""
+        return 0 if self._limiter is None else self._limiter.limited
 
     def _evade(
         self,

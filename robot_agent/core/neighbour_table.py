@@ -15,6 +15,9 @@ and :meth:`NeighbourTable.cooperative`).
 * **Cooperative** (rule 3): in lockstep the ids the clock relays (:meth:`~NeighbourTable.relay`);
   in realtime a robot run by this process says its own mode (``local_tracking``), any other
   robot's latest status said TRACKING and is fresh (:meth:`~NeighbourTable.note_mode`).
+* **Motion claims** (rule 4): with ``motion`` (the robots enforce motion bounds), each robot's
+  latest claims, their tick times on the local clock (:meth:`~NeighbourTable.note_claim`); the
+  entries carry their view (:func:`robot_agent.core.neighbour_motion.motion_view`).
 """
 
 from __future__ import annotations
@@ -23,8 +26,10 @@ from collections.abc import Callable, Iterable, Mapping
 
 from robot_agent.core.host_grid import Seen
 from robot_agent.core.lockstep import Arrivals
+from robot_agent.core.neighbour_motion import Claim, motion_view
 from robot_agent.core.neighbours import (
     NEIGHBOUR_STALE_S,
+    ClaimRing,
     is_cooperative,
     is_current,
     mover,
@@ -47,11 +52,15 @@ class NeighbourTable:
         max_robots: distinct ids kept, for poses and for modes each.
         local_tracking: the mode of the robots this process runs (see :data:`LocalTracking`);
             their status messages are ignored. None: no robot is run here.
+        motion: ``(ref_offset_m, top_speed_mps, claim_max_age_s)`` when the robots publish
+            motion claims (``SafetyFilterParams.accel_bound_mps2`` > 0); None: no claims.
     """
 
     __slots__ = (
+        "_claims",
         "_local",
         "_modes",
+        "_motion",
         "_next_order",
         "_pending",
         "lockstep",
@@ -61,9 +70,16 @@ class NeighbourTable:
     )
 
     def __init__(
-        self, *, lockstep: bool, max_robots: int, local_tracking: LocalTracking | None = None
+        self,
+        *,
+        lockstep: bool,
+        max_robots: int,
+        local_tracking: LocalTracking | None = None,
+        motion: tuple[float, float, float] | None = None,
     ) -> None:
         self.lockstep = lockstep
+        self._motion = motion
+        self._claims: dict[str, ClaimRing] = {}  # id -> its latest claims (local clock)
         self.max_robots = max_robots
         self._local = local_tracking
         self.seen: dict[str, Seen] = {}
@@ -120,8 +136,10 @@ class NeighbourTable:
         return True
 
     def clear(self) -> None:
-        """Forget every pose (this process resumed from a stop: old poses must not count)."""
+        """Forget every pose and claim (this process resumed from a stop: old ones must not
+        count)."""
         self.seen.clear()
+        self._claims.clear()
         self._pending.take()
 
     def _prune(self, now_s: float) -> None:
@@ -140,11 +158,26 @@ class NeighbourTable:
         first-seen order, as the safety filter sees it (``robot_agent.core.neighbours``);
         ``movers``: the coordinator's moving obstacles, id -> velocity (m/s; rule 4)."""
         coop = self.cooperative
-        out = [
-            neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
-            for rid, e in self.seen.items()
-            if e.rx_s is not None and is_current(now_s, e.rx_s)
-        ]
+        if self._motion is None:
+            out = [
+                neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
+                for rid, e in self.seen.items()
+                if e.rx_s is not None and is_current(now_s, e.rx_s)
+            ]
+        else:
+            l_m, vmax, max_age = self._motion
+            claims = self._claims
+            out = []
+            for rid, e in self.seen.items():
+                if e.rx_s is None or not is_current(now_s, e.rx_s):
+                    continue
+                ring = claims.get(rid)
+                view = (
+                    None
+                    if ring is None
+                    else motion_view(ring.claims, e.capture_s, now_s, l_m, vmax, max_age)
+                )
+                out.append(neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s), view))
         if movers:
             ids = [
                 rid
@@ -156,6 +189,29 @@ class NeighbourTable:
                 if v is not None:
                     out[i] = mover(out[i], v[0], v[1])
         return out
+
+    # -- motion claims ---------------------------------------------------------------------
+
+    def note_claim(self, rid: str, claim: Claim, now_s: float) -> bool:
+        """Robot ``rid``'s motion claim (``t_s`` on the local clock), received at ``now_s``;
+        False when not kept (no claims configured, the table full of current ids, or not newer
+        than the last one: counted in that ring's ``dropped``)."""
+        if self._motion is None:
+            return False
+        claims = self._claims
+        ring = claims.get(rid)
+        if ring is None:
+            if len(claims) >= self.max_robots:
+                for old in [
+                    r
+                    for r, g in claims.items()
+                    if not g.claims or now_s - g.claims[-1].t_s > NEIGHBOUR_STALE_S
+                ]:
+                    del claims[old]
+                if len(claims) >= self.max_robots:
+                    return False
+            ring = claims[rid] = ClaimRing()
+        return ring.add(claim)
 
     # -- modes -----------------------------------------------------------------------------
 

@@ -27,18 +27,29 @@ Zenoh equals the in-process simulator bit for bit (``formation/sim/simulate.py``
    realtime) is NOT cooperative whatever its mode (it is not moving the way its filter says)
    and carries the coordinator's velocity estimate (:func:`mover`): the filter takes the whole
    barrier against it, plus its motion (``n . v``).
+5. **Motion.** With motion bounds (``SafetyFilterParams.accel_bound_mps2``) each robot's claims
+   (its commands' reference-point velocities and the bound its firmware enforces,
+   ``robot_agent.core.neighbour_motion``) are kept per robot (:class:`ClaimRing`, tick times on
+   the local clock); the entry carries :func:`~robot_agent.core.neighbour_motion.motion_view`
+   of them, or none (the worst case) when they are missing, stale or absurd. In-process: the
+   claims of the previous ticks' commands. Over Zenoh: the ``wheels`` messages, their ``t``
+   through :class:`robot_agent.core.clocksync.ClockOffset` in realtime.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Final
 
+from robot_agent.core.neighbour_motion import Claim, MotionView
 from robot_agent.core.safety_filter import Neighbour
 
 __all__ = [
+    "CLAIMS_KEPT",
     "COOPERATIVE_STATUS_S",
     "MOVERS_STALE_S",
     "NEIGHBOUR_STALE_S",
+    "ClaimRing",
     "is_cooperative",
     "is_current",
     "mover",
@@ -55,7 +66,33 @@ MOVERS_STALE_S: Final = 0.5
 """Realtime: the coordinator's movers (4. below) older than this (s, receive time) are
 dropped (the robots are neighbours as rule 3 says again)."""
 
+CLAIMS_KEPT: Final = 32
+"""Claims kept per robot: the newest at or before a pose's capture must be among them. A
+realtime agent ticks on each pose and on its 50 Hz timer between them (~60 claims a second);
+32 cover ~0.5 s, the neighbours' largest age (``max_age_s``), under load too (8 covered
+~0.13 s: a capture older than that under load lost its claims and fell back to ``V a``)."""
+
 _tuple_new = tuple.__new__
+
+
+class ClaimRing:
+    """One robot's latest :data:`CLAIMS_KEPT` claims, in receive order (oldest first); a claim
+    not newer than the last one kept is dropped (counted): a replay or a reordered message."""
+
+    __slots__ = ("claims", "dropped")
+
+    def __init__(self) -> None:
+        self.claims: deque[Claim] = deque(maxlen=CLAIMS_KEPT)
+        self.dropped = 0
+
+    def add(self, claim: Claim) -> bool:
+        """Keep ``claim`` (its ``t_s`` on the local clock); False (counted) if not newer."""
+        c = self.claims
+        if c and not claim.t_s > c[-1].t_s:
+            self.dropped += 1
+            return False
+        c.append(claim)
+        return True
 
 
 def is_current(now_s: float, rx_s: float) -> bool:
@@ -69,17 +106,27 @@ def is_cooperative(now_s: float, tracking: bool, status_rx_s: float) -> bool:
 
 
 def neighbour(
-    x: float, y: float, theta: float, capture_s: float, now_s: float, cooperative: bool
+    x: float,
+    y: float,
+    theta: float,
+    capture_s: float,
+    now_s: float,
+    cooperative: bool,
+    motion: MotionView | None = None,
 ) -> Neighbour:
-    """The safety filter's view of one neighbour measured at ``capture_s`` (local clock)."""
+    """The safety filter's view of one neighbour measured at ``capture_s`` (local clock), with
+    the view of its motion claims if any (rule 4)."""
     age = now_s - capture_s
     if age < 0.0:
         age = 0.0
-    return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))
+    if motion is None:
+        return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))
+    return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0, motion))
 
 
 def mover(entry: Neighbour, vx_mps: float, vy_mps: float) -> Neighbour:
     """Rule 4: ``entry`` (a neighbour the coordinator reports as a mover) as the filter must see
     it: not cooperative, moving at ``(vx_mps, vy_mps)`` (the coordinator's estimate; a
-    non-finite or absurd one is counted and dropped by the filter)."""
-    return entry._replace(vx=vx_mps, vy=vy_mps, cooperative=False)
+    non-finite or absurd one is counted and dropped by the filter), without its motion
+    claims (rule 5: its own commands are not how it moves)."""
+    return entry._replace(vx=vx_mps, vy=vy_mps, cooperative=False, motion=None)

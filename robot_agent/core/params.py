@@ -321,6 +321,15 @@ class SafetyFilterParams:
         frame_max_age_s: the shared-frame plane is used for frames at most this old (s); an
             older frame falls back to the inflated reciprocal barrier (both robots of a pair
             see the same age, so both fall back together).
+        accel_bound_mps2: the motion bound this robot enforces and publishes (m/s^2; 0: none,
+            the default): its firmware changes the body twist ``(v, l omega)`` of its wheel
+            command by at most this times the elapsed time, in every mode (an e-stop ramps
+            down), and each command is published with its reference-point velocity (a motion
+            claim, ``robot_agent.core.neighbour_motion``). A neighbour with a fresh, sane claim
+            is extrapolated with the claimed velocity and inflated by what the bound lets it
+            deviate (about ``0.5 A a^2``) instead of ``neighbour_speed_mps * a``.
+        claim_max_age_s: a neighbour's newest motion claim older than this (s, local clock),
+            or none at all, means the worst case (``neighbour_speed_mps * a``).
     """
 
     enabled: bool = True
@@ -341,6 +350,8 @@ class SafetyFilterParams:
     convoy_gain: float = ranged(2.5, 1.0, 10.0)
     convoy_gap_m: float = ranged(0.05, 0.0, 0.5)
     frame_max_age_s: float = ranged(0.1, 0.0, 0.5)
+    accel_bound_mps2: float = ranged(0.0, 0.0, 100.0)
+    claim_max_age_s: float = ranged(0.25, 0.0, 1.0)
 
     def __post_init__(self) -> None:
         _require(isinstance(self.enabled, bool), f"enabled must be a bool, got {self.enabled!r}")
@@ -356,6 +367,8 @@ class SafetyFilterParams:
         _positive("convoy_gain", self.convoy_gain)
         _require(self.convoy_gain >= 1.0, "convoy_gain must be >= 1")
         _non_negative("frame_max_age_s", self.frame_max_age_s)
+        _non_negative("accel_bound_mps2", self.accel_bound_mps2)
+        _non_negative("claim_max_age_s", self.claim_max_age_s)
         _non_negative("margin_m", self.margin_m)
         _non_negative("noise_budget_m", self.noise_budget_m)
         _require(

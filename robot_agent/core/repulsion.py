@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 from robot_agent.core.params import RepulsionParams
 
@@ -83,7 +84,7 @@ def repulsion_velocity_counted(
 def repulsion_raw(
     px: float,
     py: float,
-    neighbours: Iterable[Sequence[float]],
+    neighbours: Iterable[Sequence[Any]],  # (x, y, ...): a Neighbour or a pair
     obstacles: Iterable[tuple[float, float, float]],
     k: float,
     d0: float,

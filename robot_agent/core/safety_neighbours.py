@@ -11,10 +11,13 @@ with the constraint ``n . u >= -gamma h + n . v_j`` (not cooperative: the robot 
 responsibility, plus the neighbour's known velocity ``v_j``) or ``n . u >= -gamma h / 2``
 (cooperative: the reciprocal half). For a cooperative neighbour measured in this robot's own
 camera frame, with ``shared_frame``, the plane of ``robot_agent.core.safety_plane`` replaces the
-``V a_j`` inflation. A neighbour entry is an ``(x, y)`` tuple (a fresh position of a robot
-treated as an obstacle: the fast path) or a ``Neighbour`` (``robot_agent.core.safety_types``); a
-non-finite or absurd field is counted (``rejected``) and the position kept, as old as allowed
-and not moving.
+``V a_j`` inflation; for a neighbour whose entry carries a motion claim's view (a ninth field,
+``Neighbour.motion``), the claimed row of ``robot_agent.core.neighbour_motion`` does (its
+reference point extrapolated with the claimed velocity, inflated by what its enforced bound lets
+it deviate; full responsibility). A neighbour entry is an ``(x, y)`` tuple (a fresh position of
+a robot treated as an obstacle: the fast path) or a ``Neighbour``
+(``robot_agent.core.safety_types``); a non-finite or absurd field is counted (``rejected``) and
+the position kept, as old as allowed and not moving.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from .kinematics import reference_point
+from .neighbour_motion import append_claimed, view_is_sane
 from .params import AgentConfig
 from .qp import _TOL
 from .safety_plane import SharedFramePlane
@@ -160,7 +164,11 @@ class NeighbourBarriers:
                         cons.append((1.0, 0.0, -gamma * h))
                 continue
             else:
-                qx, qy, th, age, vx, vy, coop, rad = nb
+                if len(nb) == 8:
+                    qx, qy, th, age, vx, vy, coop, rad = nb
+                    view = None
+                else:  # with a motion claim's view (robot_agent.core.neighbour_motion)
+                    qx, qy, th, age, vx, vy, coop, rad, view = nb
                 if quick < 0.0:  # the first full entry of this call
                     quick = self._d_coop + self._l + self._vnb * self._max_age
                     quick = quick + rho + 2.0 * reach + _TOL
@@ -176,6 +184,8 @@ class NeighbourBarriers:
                 else:  # no radius, no velocity (neighbours.neighbour's entries): the same bits
                     lim = quick
                     nlim = nquick
+                if view is not None:  # (a claimed shift: no quick reject)
+                    lim = _INF
                 dx = px - qx
                 dy = py - qy
                 # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
@@ -206,6 +216,19 @@ class NeighbourBarriers:
                     vx = vy = 0.0
                     age = self._max_age
                     rad = 0.0
+                    view = None
+                if view is not None:
+                    if _isfinite(th) and view_is_sane(view):
+                        # the claimed motion replaces the V a inflation (neighbour_motion)
+                        qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
+                        rad -= self._budget
+                        dd = self._d_coop + (rad if rad > 0.0 else 0.0) + rho
+                        held = dt_s if dt_s > 0.0 else 1.0 / self._gmax_slow
+                        h = append_claimed(px, py, qx, qy, view, dd, gamma, held, cap, cons)
+                        if h < min_h:
+                            min_h = h
+                        continue
+                    self.rejected += 1
                 if age < 0.0:
                     age = 0.0
                 elif age > self._max_age:

@@ -28,6 +28,9 @@ class Neighbour(NamedTuple):
             component beyond 10 x the neighbour top speed is rejected (counted, taken as 0).
         cooperative: it is TRACKING and runs this filter (fresh status): half responsibility.
         radius_m: extra radius for the neighbour's own uncertainty (m).
+        motion: what its motion claims say (``robot_agent.core.neighbour_motion.motion_view``),
+            None for the worst case (``neighbour_speed_mps`` times the age). An entry built
+            with eight fields has none.
     """
 
     x: float
@@ -38,6 +41,7 @@ class Neighbour(NamedTuple):
     vy: float = 0.0
     cooperative: bool = False
     radius_m: float = 0.0
+    motion: tuple[float, float, float, float, float, float, float, float, float] | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -50,6 +50,7 @@ from robot_agent.core.firmware import Firmware, Mode, WheelCommand
 from robot_agent.core.firmware import Pose as FwPose
 from robot_agent.core.firmware import Setpoint as FwSetpoint
 from robot_agent.core.lockstep import Replay, SetpointWindow
+from robot_agent.core.neighbour_motion import Claim
 from robot_agent.core.neighbour_table import NeighbourTable
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.safety_filter import Neighbour
@@ -171,6 +172,7 @@ class AgentNode:
         self.rx: dict[str, int] = {
             "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
             "movers": 0,
+            "wheels": 0,
         }  # fmt: skip
         # every drop by "<message>-<reason>" (status "rejects"), also counted by the firmware
         self.faults = rt.Faults(self.log, on_reject=self.firmware.reject)
@@ -179,8 +181,18 @@ class AgentNode:
         self.movers_key = keys.movers_key(fleet)
         # the other robots (robot_agent.core.neighbours): poses from the frames (on_poses),
         # modes from their status messages (realtime) or the clock (lockstep)
+        sfp = config.safety_filter
+        g = config.geometry
+        # motion claims (robot_agent.core.neighbour_motion): realtime, from the other robots'
+        # wheels messages (on_wheels); lockstep, relayed by the clock (on_clock)
+        self.claims_on = sfp.accel_bound_mps2 > 0.0
         self.neighbour_table = NeighbourTable(
-            lockstep=lockstep, max_robots=MAX_NEIGHBOURS, local_tracking=self._own_tracking
+            lockstep=lockstep,
+            max_robots=MAX_NEIGHBOURS,
+            local_tracking=self._own_tracking,
+            motion=(g.ref_offset_m, g.max_speed_mps, sfp.claim_max_age_s)
+            if self.claims_on
+            else None,
         )
         self.peer_status = PeerStatusInputs(
             self.neighbour_table, self.rx, self.faults.reject, self.faults.internal
@@ -293,6 +305,28 @@ class AgentNode:
         except Exception as exc:
             self.faults.internal("on_poses", exc)
 
+    def on_wheels(self, rx: rt.Received) -> None:
+        """Realtime, with motion bounds: another robot's wheels message carries its motion
+        claim (``robot_agent.core.neighbour_motion``), its tick time on the local clock through
+        the sender's clock offset (``robot_agent.core.clocksync``)."""
+        try:
+            self.rx["wheels"] += 1
+            parsed = keys.parse_robot_key(rx.key)
+            if parsed is None or parsed[1] == self.robot_id:
+                return
+            msg = decode(rx.payload, Wheels)
+            if isinstance(msg, DecodeError):
+                self.faults.reject("wheels", msg)
+                return
+            if msg.ux is None or msg.uy is None or msg.w is None or msg.accel is None:
+                return  # (no claim: this robot keeps the worst case for it)
+            t = self.clocks.capture_to_local(rx.key, msg.t, msg.t, rx.rx_s)
+            claim = Claim(t, msg.ux, msg.uy, msg.w, msg.accel)
+            if not self.neighbour_table.note_claim(parsed[1], claim, rx.rx_s):
+                self.faults.reject("wheels", "claim not newer or table full", "claim")
+        except Exception as exc:
+            self.faults.internal("on_wheels", exc)
+
     def on_setpoint(self, rx: rt.Received) -> None:
         """Own setpoint: keep the newest (realtime) or the last two with their ticks (lockstep)."""
         try:
@@ -398,10 +432,25 @@ class AgentNode:
                 self._publish(self.wheels_key, again, self.wheels_qos)  # re-announced clock
                 return
             self.neighbour_table.relay(msg.tracking or ())
+            if self.claims_on and msg.claim_robots:
+                self._relayed_claims(msg)
             self.clock_wheels = clock_wheels(msg).get(self.robot_id)
             self.clock_step(k, msg.t)
         except Exception as exc:
             self.faults.internal("on_clock", exc)
+
+    def _relayed_claims(self, msg: Clock) -> None:
+        """Lockstep: the motion claims the clock relays (the answers to the previous tick, sim
+        time: one clock for every node), as the in-process simulator hands them over."""
+        rows, ts, uxs = msg.claim_robots, msg.claim_t, msg.claim_ux
+        uys, ws, accs = msg.claim_uy, msg.claim_w, msg.claim_accel
+        if rows is None or ts is None or uxs is None or uys is None or ws is None or accs is None:
+            return  # (the codec's Together rule: all or none)
+        note = self.neighbour_table.note_claim
+        me = self.robot_id
+        for rid, t, ux, uy, w, a in zip(rows, ts, uxs, uys, ws, accs, strict=True):
+            if rid != me:
+                note(rid, Claim(t, ux, uy, w, a), msg.t)
 
     def take_arrivals(self, t_k: float) -> None:
         """Lockstep: poses and neighbours received since the last clock count as received at
@@ -471,6 +520,9 @@ class AgentNode:
             if not self.publish_wheels:
                 return cmd
             self._seq_wheels += 1
+            claim = self.firmware.motion_claim
+            if claim is not None and claim.t_s != now_s:
+                claim = None  # (the bound held the previous tick's claim: none for this one)
             payload = encode(
                 Wheels(
                     t=max(now_s, 0.0),
@@ -483,6 +535,10 @@ class AgentNode:
                     tick=tick,
                     saturated=cmd.saturated,
                     mode=str(cmd.mode),
+                    ux=None if claim is None else claim.ux_mps,
+                    uy=None if claim is None else claim.uy_mps,
+                    w=None if claim is None else claim.omega_radps,
+                    accel=None if claim is None else claim.accel_mps2,
                 )
             )
             self._replay.answer = payload

@@ -387,6 +387,8 @@ async def _node(
     else:  # the other robots' modes: cooperative neighbours (robot_agent.core.neighbours)
         io.subscribe(keys.all_status_pattern(setup.fleet), node.peer_status.on_status)
         io.subscribe(keys.all_host_status_pattern(setup.fleet), node.peer_status.on_host_status)
+        if node.claims_on:  # the other robots' motion claims (robot_agent.core.neighbour_motion)
+            io.subscribe(keys.all_wheels_pattern(setup.fleet), node.on_wheels)
     io.subscribe(node.pose_key, node.on_pose)
     io.declare_token(node.alive_key)
     print(f"agent {setup.robot_id} ready", flush=True)

@@ -85,6 +85,8 @@ class PlantInputs:
         self.answer_tick: list[int | None] = [None] * n
         # lockstep: the answer's mode was TRACKING (Wheels.mode); relayed in the next clock
         self.answer_tracking: list[bool] = [False] * n
+        # lockstep: the answer's motion claim (Wheels t, ux, uy, w, accel); relayed likewise
+        self.answer_claim: list[tuple[float, float, float, float, float] | None] = [None] * n
         self.leader_tick: int | None = None
         self.bus_disturbances: deque[Disturbance] = deque(maxlen=64)
         self.changed = asyncio.Event()  # an answer, a token, anything the waits look at
@@ -120,6 +122,17 @@ class PlantInputs:
         tick = self.answer_tick
         tr = self.answer_tracking
         out = tuple(rid for i, rid in enumerate(self.ids) if tr[i] and tick[i] == k)
+        return out[:MAX_LIST_LEN]
+
+    def claim_answers(self, k: int) -> list[tuple[str, tuple[float, float, float, float, float]]]:
+        """The motion claims of the answers to tick ``k`` (in robot order, at most a list's
+        bound), what clock ``k + 1`` relays (``robot_agent.core.neighbours``, rule 4)."""
+        tick = self.answer_tick
+        out = [
+            (rid, c)
+            for i, (rid, c) in enumerate(zip(self.ids, self.answer_claim, strict=True))
+            if c is not None and tick[i] == k
+        ]
         return out[:MAX_LIST_LEN]
 
     # -- inputs --------------------------------------------------------------------------------
@@ -198,7 +211,12 @@ class PlantInputs:
                 self.ignored += 1
                 return
             tracking = msg.mode == "tracking"
-            self._command(i, msg.omega_r, msg.omega_l, msg.tick, msg.pose_t, rx.rx_s, tracking)
+            claim = None
+            if msg.ux is not None and msg.uy is not None and msg.w is not None:
+                claim = (msg.t, msg.ux, msg.uy, msg.w, msg.accel or 0.0)
+            self._command(
+                i, msg.omega_r, msg.omega_l, msg.tick, msg.pose_t, rx.rx_s, tracking, claim
+            )
         except Exception as exc:
             self._faults.internal("on_wheels", exc)
 
@@ -233,6 +251,7 @@ class PlantInputs:
         pose_t: float | None,
         rx_s: float,
         tracking: bool = False,
+        claim: tuple[float, float, float, float, float] | None = None,
     ) -> None:
         """Robot ``i``'s command: into the link now (realtime) or at the tick's end (lockstep);
         ``tracking``: the command said mode TRACKING (relayed in the next clock)."""
@@ -241,6 +260,7 @@ class PlantInputs:
             if tick is not None:
                 self.answer_tick[i] = tick
                 self.answer_tracking[i] = tracking
+                self.answer_claim[i] = claim
                 if tick == self._current_tick():
                     self.changed.set()
         else:

@@ -133,6 +133,7 @@ class PlantNode:
         # the wheel speeds the physics applies (what the link delivered)
         self.applied: npt.NDArray[np.float64] = np.zeros((self.n, 2))
         self.clock_tracking: tuple[str, ...] = ()  # what the current clock carries
+        self.clock_claims: list[tuple[str, tuple[float, float, float, float, float]]] = []
         self.scheduled = deque(scenario.disturbances)
         self.timeouts = 0
         self.state = "waiting"
@@ -260,6 +261,7 @@ class PlantNode:
             seq=self.outputs.next_seq(self.clock_key),
             tick=k,
             tracking=self.clock_tracking,
+            **_claim_fields(self.clock_claims),
             enc_robots=robots,
             enc_wr=wr,
             enc_wl=wl,
@@ -310,6 +312,7 @@ class PlantNode:
                 self._apply_disturbances(sim, t)
                 truth = self.sense(sim, t)
                 self.clock_tracking = self.inputs.tracking_answers(k - 1)
+                self.clock_claims = self.inputs.claim_answers(k - 1)
                 self._publish_clock(k, t)
                 await self._wait_answers(stop, k, t)
                 if stop.is_set():
@@ -476,3 +479,20 @@ class PlantNode:
         """Wake the waits (answers, fleet) at once on SIGINT/SIGTERM."""
         await stop.wait()
         self.inputs.changed.set()
+
+
+def _claim_fields(
+    claims: list[tuple[str, tuple[float, float, float, float, float]]],
+) -> dict[str, Any]:
+    """``Clock``'s ``claim_*`` columns of the relayed claims (none: the fields absent)."""
+    if not claims:
+        return {}
+    cols = list(zip(*(c for _, c in claims), strict=True))
+    return {
+        "claim_robots": tuple(rid for rid, _ in claims),
+        "claim_t": tuple(cols[0]),
+        "claim_ux": tuple(cols[1]),
+        "claim_uy": tuple(cols[2]),
+        "claim_w": tuple(cols[3]),
+        "claim_accel": tuple(cols[4]),
+    }

@@ -118,6 +118,10 @@ SAMPLES: dict[type, Any] = {
         tick=99,
         saturated=False,
         mode="tracking",
+        ux=0.05,
+        uy=-0.01,
+        w=0.08,
+        accel=0.25,
     ),
     Status: Status(
         t=1.0,
@@ -144,6 +148,12 @@ SAMPLES: dict[type, Any] = {
         enc_robots=("r1", "r2"),
         enc_wr=(1.5, -0.25),
         enc_wl=(1.0, 0.0),
+        claim_robots=("r1",),
+        claim_t=(0.967,),
+        claim_ux=(0.05,),
+        claim_uy=(-0.01,),
+        claim_w=(0.08,),
+        claim_accel=(0.25,),
     ),
     Fault: Fault(
         t=1.0,

@@ -162,6 +162,7 @@ nbr = st.builds(
     vy=st.just(0.0),
     cooperative=st.booleans(),
     radius_m=st.floats(min_value=0.0, max_value=0.05),
+    motion=st.none(),  # (motion claims: tests/unit/robot_agent/test_neighbour_motion.py)
 )
 circle = st.builds(
     CircleObstacle, x=coord, y=coord, radius_m=st.floats(min_value=0.0, max_value=0.3)
