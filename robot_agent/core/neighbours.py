@@ -129,4 +129,5 @@ def mover(entry: Neighbour, vx_mps: float, vy_mps: float) -> Neighbour:
     it: not cooperative, moving at ``(vx_mps, vy_mps)`` (the coordinator's estimate; a
     non-finite or absurd one is counted and dropped by the filter), without its motion
     claims (rule 5: its own commands are not how it moves)."""
-    return entry._replace(vx=vx_mps, vy=vy_mps, cooperative=False, motion=None)
+    x, y, theta, age = entry[0], entry[1], entry[2], entry[3]  # eight fields: no claims
+    return _tuple_new(Neighbour, (x, y, theta, age, vx_mps, vy_mps, False, entry[7]))
