@@ -71,8 +71,8 @@ from formation.record.collector_decode import (
 )
 from formation.record.collector_faults import FaultNotices
 from formation.record.collector_history import RunHistory
-from formation.record.collector_plans import PlanNotices
 from formation.record.collector_live import live_view
+from formation.record.collector_plans import PlanNotices
 from formation.record.collector_robots import RobotStates
 from scenario import Scenario
 
