@@ -12,6 +12,9 @@ lockstep run equals the in-process one bit for bit.
 * ``teleop``: the twist is given to the leader on every tick of ``[t_s, t_s + duration_s)``,
   received at that tick (the operator's tool streams it); after it the leader's deadman stops it.
 * ``goal``, ``path``, ``stop``: the leader's command, once; a refusal is counted.
+* ``obstacle``: :meth:`CoordinatorCore.obstacle` with the table the coordinator node builds from
+  an ``Obstacle`` message (``coordinator.core.planning.replan.obstacle_table``), once; a
+  degenerate polygon is refused as ``obstacle-degenerate``, as the node's operator input does.
 
 A command is due at the first tick at or after its ``t_s`` (within :data:`EPS_S`). A coordinator
 that takes over skips the one-shot commands due before its first tick (the previous active
@@ -57,6 +60,16 @@ class _Event(Protocol):
     def heading(self) -> float | None: ...
     @property
     def waypoints(self) -> tuple[tuple[float, float], ...]: ...
+    @property
+    def oid(self) -> str | None: ...
+    @property
+    def action(self) -> str | None: ...
+    @property
+    def shape(self) -> str | None: ...
+    @property
+    def radius_m(self) -> float | None: ...
+    @property
+    def points(self) -> tuple[tuple[float, float], ...]: ...
 
     def as_dict(self) -> dict[str, Any]: ...
 
@@ -126,4 +139,25 @@ class OperatorScript:
         if e.command == "stop":
             leader.command_stop()
             return None
+        if e.command == "obstacle":
+            return _obstacle(core, e)
         return f"unknown command {e.command!r}"
+
+
+def _obstacle(core: CoordinatorCore, e: _Event) -> str | None:
+    """A scripted planning obstacle, built and applied as the node's ``Obstacle`` input does
+    (coordinator.node.operator_io)."""
+    from coordinator.core.planning.replan import obstacle_table
+
+    assert e.oid is not None and e.action is not None
+    table = None
+    if e.action != "remove":
+        try:
+            table = obstacle_table(
+                e.shape or "", x=e.x, y=e.y, radius_m=e.radius_m,
+                xs=[p[0] for p in e.points] if e.points else None,
+                ys=[p[1] for p in e.points] if e.points else None,
+            )  # fmt: skip
+        except ValueError:
+            return "degenerate"
+    return core.obstacle(e.action, e.oid, table)

@@ -34,15 +34,18 @@ import json
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
+from dataclasses import replace
 from typing import Any, Final
 
 import foxglove
+import numpy as np
 import zenoh
 from foxglove import Channel
 from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 from foxglove.websocket import Capability
 
 from bus_schemas import (
+    CoordinatorStatus,
     DecodeError,
     Status,
     keys,
@@ -60,7 +63,7 @@ from formation.outputs.bus_json import (
     tracking_error,
     unpack_map,
 )
-from formation.outputs.plan_view import plan_mesh, plan_view
+from formation.outputs.plan_view import REPLAN_LABEL, PlanMesh, plan_mesh, plan_view
 from robot_agent.core.params import RobotGeometry
 from runtime.tap import BusItem, BusTap
 
@@ -113,6 +116,9 @@ class LiveServer:
             server_listener=self.operator,
         )
         self.host = host
+        self._plan_mesh: PlanMesh | None = None  # the plan of show_plan (None: none)
+        self._plans_seen: dict[str, int] = {}  # coordinator name -> plans its status counted
+        self._plan_marks: list[tuple[float, float, str]] = []  # the run-time plans seen
         self.messages = 0
         self.rejected = 0
         self._channels: dict[str, Channel] = {}
@@ -170,6 +176,8 @@ class LiveServer:
         self.messages += 1
         self.model.update(item.key, msg)
         self._log(self._channel("/" + item.key, json_schema(cls)), jsonable(obj), wall_ns)
+        if isinstance(msg, CoordinatorStatus) and msg.plans is not None:
+            self._on_plans(msg)
         if isinstance(msg, Status):
             parsed = keys.parse_robot_key(item.key)
             body = tracking_error(msg)
@@ -186,7 +194,37 @@ class LiveServer:
         Call it again when the plan changes (a replan): the ``plan`` entity is replaced. May
         be called from any thread. Raises ValueError if the table does not plan."""
         view = plan_view(trajectory, replans, timed=False) if trajectory is not None else None
-        self.model.set_plan(None if view is None else plan_mesh(view))
+        self._plan_mesh = None if view is None else plan_mesh(view)
+        self._show_plan()
+
+    def _on_plans(self, msg: CoordinatorStatus) -> None:
+        """A coordinator's status counted a new run-time plan (an operator's goal, a replan):
+        the scene's ``plan`` entity is redrawn with a mark, labelled with the status's reason,
+        where the virtual leader is. The status carries no path (docs/planning.md): the leader's
+        track shows the path it follows."""
+        assert msg.plans is not None
+        seen = self._plans_seen.get(msg.name, 0)
+        self._plans_seen[msg.name] = max(seen, msg.plans)
+        leader = self.model.leader
+        if msg.plans <= seen or leader is None:
+            return
+        n = len(self._plan_marks) + 1
+        why = msg.plan_why or "?"
+        label = f"{REPLAN_LABEL} {n}: " + (f"no way: {why}" if msg.plan == "no_way" else why)
+        self._plan_marks.append((float(leader.x), float(leader.y), label))
+        self._show_plan()
+
+    def _show_plan(self) -> None:
+        """The plan of show_plan with the run-time plans' marks (an empty plan with only the
+        marks for a trajectory that is not planned); nothing while there is neither."""
+        mesh = self._plan_mesh
+        if not self._plan_marks:
+            self.model.set_plan(mesh)
+            return
+        if mesh is None:
+            empty = np.empty((0, 2))
+            mesh = PlanMesh(empty, empty, np.empty((0, 3), dtype=np.int64), ())
+        self.model.set_plan(replace(mesh, marks=(*mesh.marks, *self._plan_marks)))
 
     def tick(self, _now_ns: int = 0) -> None:
         """Publish the scene and the transforms (called every ``1 / scene_hz`` s)."""

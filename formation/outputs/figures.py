@@ -63,7 +63,7 @@ from formation.outputs.figures_style import (
     save_figure,
 )
 from formation.outputs.metrics import formation_error, role_changes
-from formation.outputs.plan_view import PlanView, draw_plan, plan_summary
+from formation.outputs.plan_view import PlanView, draw_plan, draw_replans, plan_summary, replans_of
 from formation.outputs.runlog import RunLog
 from formation.outputs.snapshots import Event, plot_snapshots
 
@@ -127,7 +127,8 @@ def plot_trajectories(
 ) -> None:
     """The robots' reference points and the virtual trajectories; with ``plan`` (issue 27)
     also the footprint corridor (translucent), the planned leader path, the goal and each
-    replan under them (:func:`formation.outputs.plan_view.draw_plan`)."""
+    replan under them (:func:`formation.outputs.plan_view.draw_plan`); without it, the
+    run-time plans of ``log.replans`` (:func:`formation.outputs.plan_view.draw_replans`)."""
     if not log.t_s.size:
         save_figure(no_data_figure(title or "Trajectories"), path)
         return
@@ -148,6 +149,8 @@ def plot_trajectories(
     draw_world(ax, log.world, scale=100.0)
     if plan is not None:
         draw_plan(ax, plan, scale=100.0, log=log)
+    elif log.replans:  # plans made at run time only (an operator's goal around an obstacle)
+        draw_replans(ax, replans_of(log.replans), scale=100.0, log=log)
     if few_slots and log.t_s.size:
         for s in range(m):
             end = log.slot_xy[-1, s, :] * 100

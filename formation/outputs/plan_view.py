@@ -17,15 +17,21 @@ recording) and the live Foxglove scene (``formation.live.scene``) all read a pla
   is a deterministic function of the scenario, ``coordinator.core.planning.trajectory``);
 * the **replans**: ``RunLog.replans``, one ``{t_s, reason, plan_time_s, length_m}`` per replan
   the coordinator made at run time (optionally ``path``: the new plan's leader path as
-  ``[[x, y], ...]``, drawn when given). The coordinator plans once at start today; runtime
-  replanning fills the list (the in-process simulator from the coordinator, a recording from
-  the coordinator's status) and the metrics, the figures and the scene take it as it is.
+  ``[[x, y], ...]``, drawn when given): every plan the coordinator switched in at run time
+  (the first plan of an operator's goal, every replan) or found to have no way. The in-process
+  simulator fills the list from the coordinator core (:func:`replan_events`: with each path);
+  a recording from the coordinator's status (``formation.record.collector_plans``: times,
+  reasons and plan times; the status carries no path, so a recorded replan is a mark where
+  the virtual leader was, and the path it then followed is the leader's logged track).
 
 :func:`plan_metrics` is the ``plan`` entry of metrics.json (``null`` for a run without a plan):
 the plan's figures plus what the run did with it (``time_to_goal_s``: from the start of the run
 to the first instant after which the virtual leader is on its goal and every assigned robot is
-within the settling band of its slot; ``replans`` and their list). :func:`draw_plan` draws the
-corridor (translucent), the planned path, the goal and every replan on a matplotlib axis.
+within the settling band of its slot; ``replans`` and their list; ``runtime``: the coordinator's
+counts, :func:`planner_counts`). A scripted trajectory with run-time plans (an operator's goal
+around an obstacle) gets a ``plan`` entry of those only (:func:`runtime_plan_metrics`).
+:func:`draw_plan` draws the corridor (translucent), the planned path, the goal and every replan
+on a matplotlib axis.
 """
 
 from __future__ import annotations
@@ -53,11 +59,15 @@ __all__ = [
     "Replan",
     "add_plan",
     "draw_plan",
+    "draw_replans",
     "plan_mesh",
     "plan_metrics",
     "plan_summary",
     "plan_view",
+    "planner_counts",
+    "replan_events",
     "replans_of",
+    "runtime_plan_metrics",
     "time_to_goal",
 ]
 
@@ -156,6 +166,39 @@ def replans_of(events: Iterable[Mapping[str, Any]]) -> tuple[Replan, ...]:
         )
     out.sort(key=lambda r: r.t_s)
     return tuple(out)
+
+
+def replan_events(events: Iterable[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """``RunLog.replans`` from the coordinator core's ``ReplanStats.events`` (times on the
+    tick clock, which is the log's axis in-process): a plan switched in keeps its path; a plan
+    refused (no way) has its reason followed by the planner's one line and no length."""
+    out: list[dict[str, Any]] = []
+    for e in events:
+        ms = _number(e.get("plan_ms"))
+        reason = str(e.get("reason", "?"))
+        if not e.get("ok", False):
+            reason = f"{reason}: {e.get('why') or 'no plan'}"
+        rec: dict[str, Any] = {
+            "t_s": e.get("t_s"), "reason": reason[:REASON_MAX],
+            "plan_time_s": None if ms is None else ms / 1e3, "length_m": e.get("length_m"),
+        }  # fmt: skip
+        if e.get("path") is not None:
+            rec["path"] = [[float(a), float(b)] for a, b in e["path"]]
+        out.append(rec)
+    return out
+
+
+def planner_counts(stats: Any) -> dict[str, Any]:
+    """The coordinator's run-time planner figures (a ``ReplanStats``, or the status's fields
+    as the collector read them): plans made, replans among them, the last plan's compute time
+    (ms), the least planned clearance of the plan followed (m), late plans."""
+    return {
+        "plans": int(stats.plans),
+        "replans": int(stats.replans),
+        "plan_ms": _number(stats.plan_ms),
+        "min_clearance_m": _number(stats.min_clearance_m),
+        "late": int(stats.late),
+    }
 
 
 def _slots_at(traj: Any, spec: Any, s_grid: F64) -> F64:
@@ -301,11 +344,30 @@ def plan_metrics(view: PlanView | None, log: Any, tol_m: float) -> dict[str, Any
     }
 
 
+def runtime_plan_metrics(log: Any) -> dict[str, Any] | None:
+    """The ``plan`` entry of a run whose trajectory is not planned but whose coordinator made
+    plans at run time (an operator's goal around an obstacle): the replans and the
+    coordinator's counts only; None if it made none."""
+    events = replans_of(getattr(log, "replans", ()))
+    counts = getattr(log, "meta", {}).get("planner")
+    if not events and not counts:
+        return None
+    return {
+        "replans": len(events),
+        "replan_events": [r.as_dict() for r in events],
+        "runtime": counts,
+    }
+
+
 def add_plan(m: dict[str, Any], trajectory: Mapping[str, Any], log: Any, tol_m: float) -> Any:
     """Set ``m["plan"]`` (metrics.json) from the run's trajectory table and ``log`` (its
     ``replans``); return the :class:`PlanView` for the figures (None without a plan)."""
     view = plan_view(trajectory, getattr(log, "replans", ()))
     m["plan"] = plan_metrics(view, log, tol_m)
+    if m["plan"] is None:
+        m["plan"] = runtime_plan_metrics(log)
+    elif getattr(log, "meta", {}).get("planner"):
+        m["plan"]["runtime"] = log.meta["planner"]
     return view
 
 
@@ -313,6 +375,11 @@ def plan_summary(p: Mapping[str, Any] | None) -> str | None:
     """One line for the run's summary table; None without a plan."""
     if not p:
         return None
+    if "length_m" not in p:  # run-time plans only (runtime_plan_metrics)
+        rt = p.get("runtime") or {}
+        return f"plan: made at run time {rt.get('plans', p['replans'])} time(s), " + (
+            f"replans {rt.get('replans', p['replans'])}"
+        )
     ratio = p.get("length_ratio")
     took = p.get("plan_time_s")
     cpu = p.get("plan_cpu_s")
@@ -434,8 +501,18 @@ def draw_plan(ax: Any, view: PlanView, scale: float = 100.0, log: Any = None) ->
         view.goal[0] * scale, view.goal[1] * scale, "*", color=(0.1, 0.35, 0.15), ms=12,
         mec="white", zorder=6, label="goal",
     )  # fmt: skip
+    marks = draw_replans(ax, view.replans, scale, log)
+    return {"corridor": patch, "path": line, "goal": goal, "replans": marks}
+
+
+def draw_replans(
+    ax: Any, replans: Sequence[Replan], scale: float = 100.0, log: Any = None
+) -> list[Any]:
+    """Draw each replan on ``ax`` (:func:`draw_plan`; also alone, for a run whose plans were
+    all made at run time): its new path dashed when known, a marker where the virtual leader
+    was (on ``log`` when given) labelled ``replan k (t s): reason``. Returns the markers."""
     marks = []
-    for n, rp in enumerate(view.replans, start=1):
+    for n, rp in enumerate(replans, start=1):
         xy = _leader_at(log, rp.t_s) if log is not None else None
         if rp.path is not None:
             ax.plot(
@@ -454,7 +531,7 @@ def draw_plan(ax: Any, view: PlanView, scale: float = 100.0, log: Any = None) ->
             xytext=(8, -12), textcoords="offset points", fontsize=8, color="tab:red", zorder=6,
         )  # fmt: skip
         marks.append(mark)
-    return {"corridor": patch, "path": line, "goal": goal, "replans": marks}
+    return marks
 
 
 def _leader_at(log: Any, t_s: float) -> tuple[float, float] | None:

@@ -76,9 +76,10 @@ class RunLog:
     # runtime reshapes (issue 28): one {"kind", "start_s", "end_s"} per reshape the leader
     # messages reported (times on t_s's axis); formation.outputs.metrics adds what they cost
     reshapes: list[dict[str, Any]] = field(default_factory=list)
-    # runtime replans of a planned trajectory (issue 27): one {"t_s", "reason", "plan_time_s",
-    # "length_m"} (optionally "path": [[x, y], ...]) per replan the coordinator made, times on
-    # t_s's axis; formation.outputs.plan_view measures and draws them. Empty: planned once.
+    # run-time plans (issue 27): one {"t_s", "reason", "plan_time_s", "length_m"} (optionally
+    # "path": [[x, y], ...]) per plan the coordinator switched in at run time (an operator's
+    # goal, every replan) or found to have no way, times on t_s's axis;
+    # formation.outputs.plan_view measures and draws them. Empty: none (planned once at start)
     replans: list[dict[str, Any]] = field(default_factory=list)
 
     @classmethod

@@ -11,7 +11,9 @@ all drive it.
 What it listens to (the bus contract, docs/bus.md): ``robot/<id>/truth`` (rows), ``leader``,
 ``slot/<k>``, ``assignment``, ``robot/<id>/wheels`` (motor power), ``robot/<id>/status`` (mode,
 live view, and the safety filter counters ``filter`` / ``min_clearance_m`` of each robot's newest
-status: ``RunLog.filter_counts``, ``filter_source`` ``"status"``) and ``clock``. Every payload
+status: ``RunLog.filter_counts``, ``filter_source`` ``"status"``), ``clock`` and each
+coordinator's status (its run-time plans: ``RunLog.replans`` and ``meta["planner"]``,
+:mod:`formation.record.collector_plans`). Every payload
 is decoded with the strict ``bus_schemas`` decoder; a bad one is counted (``rejected``) and
 otherwise ignored.
 
@@ -54,7 +56,7 @@ import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
-from bus_schemas import Assignment, Clock, Fault, Leader, keys
+from bus_schemas import Assignment, Clock, CoordinatorStatus, Fault, Leader, keys
 from formation.outputs.live_table import LiveView
 from formation.outputs.runlog import MODE_CODES, RunLog
 from formation.record.collector_build import fill_rows, reshape_intervals, row_keys
@@ -70,6 +72,7 @@ from formation.record.collector_decode import (
 from formation.record.collector_faults import FaultNotices
 from formation.record.collector_history import RunHistory
 from formation.record.collector_live import live_view
+from formation.record.collector_plans import PlanNotices
 from formation.record.collector_robots import RobotStates
 from scenario import Scenario
 
@@ -91,6 +94,7 @@ def key_patterns(fleet: str) -> list[str]:
         keys.all_host_status_pattern(fleet),
         keys.setpoints_key(fleet),
         keys.fault_key(fleet),
+        keys.all_coordinator_status_pattern(fleet),
     ]
 
 
@@ -154,6 +158,7 @@ class RunCollector:
         self.history = RunHistory(len(self.robot_ids), dt_s, max_entries)
         self.robots = RobotStates(self.robot_ids, self.fleet)
         self.faults = FaultNotices()
+        self.plans = PlanNotices()
         self._apply: dict[type[Any], Callable[[Any], bool]] = {
             TruthFrame: self._on_truth,
             WheelPowers: self._on_wheels,
@@ -163,6 +168,7 @@ class RunCollector:
             Assignment: self._on_assignment,
             Clock: self._on_clock,
             Fault: self._on_fault,
+            CoordinatorStatus: self._on_coordinator_status,
         }
 
     @classmethod
@@ -269,6 +275,10 @@ class RunCollector:
         """A scripted fault's notice, kept once (a replayed tick repeats it)."""
         return self.faults.add(fault, self.history.row_key(fault.t, fault.tick))
 
+    def _on_coordinator_status(self, status: CoordinatorStatus) -> bool:
+        """A coordinator's status: its run-time plans (collector_plans)."""
+        return self.plans.add(status, self.history.row_key(status.t))
+
     def feed_alive(self, key: str, alive: bool) -> None:
         """A liveliness token of this fleet appeared (``alive``) or vanished."""
         self.robots.feed_alive(key, alive)
@@ -322,14 +332,7 @@ class RunCollector:
     def fault_events(self, origin: float | None = None) -> list[dict[str, Any]]:
         """The faults sent, in the log's time base (``t_s``: lockstep ``tick * dt``; realtime
         bus time minus ``origin``, the log's first row)."""
-        dt_s, truth = self.dt_s, self.history.truth
-
-        def key_time(key: float) -> float:
-            if dt_s is not None:
-                return key * dt_s
-            return key - (origin if origin is not None else min(truth, default=key))
-
-        return self.faults.events(key_time)
+        return self.faults.events(self._origin_time(origin))
 
     @property
     def last_clock_tick(self) -> int | None:
@@ -394,6 +397,8 @@ class RunCollector:
                 body_radius_m=self.body_radius_m,
             )
             log.reshapes = reshape_intervals(history.reshape_marks, origin or 0.0)
+        key_time = self._origin_time(origin)
+        log.replans = self.plans.events(key_time)
         log.filter_counts = self.robots.filter_counts()
         log.filter_source = "status" if log.filter_counts else None
         log.meta = {
@@ -401,7 +406,21 @@ class RunCollector:
             "faults": self.fault_events(origin),
             "collector": self.stats(info),
         }
+        planner = self.plans.counts()
+        if planner is not None:
+            log.meta["planner"] = planner
         return log
+
+    def _origin_time(self, origin: float | None) -> Callable[[float], float]:
+        """Row key -> the log's time (lockstep ``key * dt``; realtime bus time - ``origin``)."""
+        dt_s, truth = self.dt_s, self.history.truth
+
+        def key_time(key: float) -> float:
+            if dt_s is not None:
+                return key * dt_s
+            return key - (origin if origin is not None else min(truth, default=key))
+
+        return key_time
 
     def stats(self, rows_info: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """Counters for the run's metadata: messages received per name, rejected, ignored, and

@@ -18,6 +18,7 @@ from typing import Any, Final, NamedTuple
 from bus_schemas import (
     Assignment,
     Clock,
+    CoordinatorStatus,
     DecodeError,
     Fault,
     Leader,
@@ -54,6 +55,7 @@ LEAVES: Final = frozenset(
         # the batched forms of a large fleet (plant/coordinator --batch, agent hosts)
         keys.TRUTHS, keys.HOST_WHEELS, keys.HOST_STATUS, keys.SETPOINTS,
         keys.FAULT,  # the scripted faults' notices: metrics.json "faults"
+        keys.COORDINATOR_STATUS,  # its run-time plans (issue 27): metrics.json "plan"
     }
 )  # fmt: skip
 
@@ -109,7 +111,15 @@ class SlotPositions:
 
 
 Observation = (
-    TruthFrame | WheelPowers | RobotStatuses | SlotPositions | Leader | Assignment | Clock | Fault
+    TruthFrame
+    | WheelPowers
+    | RobotStatuses
+    | SlotPositions
+    | Leader
+    | Assignment
+    | Clock
+    | Fault
+    | CoordinatorStatus
 )
 
 
@@ -270,6 +280,7 @@ _DECODERS: Final[Mapping[str, _Decoder]] = {
     keys.ASSIGNMENT: _message(Assignment, "assignment"),
     keys.CLOCK: _message(Clock, "clock"),
     keys.FAULT: _message(Fault, "fault"),
+    keys.COORDINATOR_STATUS: _message(CoordinatorStatus, "coordinator status"),
 }
 assert frozenset(_DECODERS) == LEAVES
 

@@ -234,6 +234,9 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     body_extra = [budget + max(0.0, m.radius_m - geom.body_radius_m) for m in bodies]
     seen_bodies: dict[str, tuple[float, float]] = {}
 
+    # run-time plans (issue 27): a plan the core asks is solved at once, before the next tick
+    # (the lockstep node waits for it before its switch tick: the same leader, bit for bit)
+    replanner = coord.replanner
     steps = [fw.step for fw in firmwares]
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
@@ -339,11 +342,15 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             if script is not None:
                 script.play(coord, t, t, len(fresh))
             out = coord.tick(t, fresh, objects=objects)
+            if replanner.setup is not None:
+                _plan_now(replanner)
         else:
             counted = faults.coordinator_input(fresh)
             if script is not None:
                 script.play(coord, t, t, len(counted))
             out = coord.tick(t, counted, objects=objects)
+            if replanner.setup is not None:
+                _plan_now(replanner)
             faults.observe(out, counted)
         # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
         t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
@@ -450,6 +457,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
              "end_s": r["started_s"] + r["transition_s"], "complete": True}
             for r in coord.reshapes
         ]  # fmt: skip
+    if replanner.stats.plans or replanner.stats.events:
+        from formation.outputs.plan_view import planner_counts, replan_events
+
+        log.replans = replan_events(replanner.stats.events)
+        log.meta["planner"] = planner_counts(replanner.stats)
     if interrupted:
         log.meta["interrupted"] = True
     status = {rid: _status_dict(fw) for rid, fw in zip(ids, firmwares, strict=True)}
@@ -460,6 +472,19 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     return SimResult(
         log=log, wall_s=wall, firmware_status=status, interrupted=interrupted, movers=tracks
     )
+
+
+def _plan_now(replanner: Any) -> None:
+    """Solve the plan ``replanner`` asks, at once (its compute time measured, for the record
+    only: nothing in the loop reads it in-process)."""
+    from coordinator.core.planning.replan import solve
+
+    req = replanner.take_request()
+    if req is None:
+        return
+    t0 = time.perf_counter()
+    answer = solve(req)
+    replanner.deliver(req.id, answer, (time.perf_counter() - t0) * 1e3)
 
 
 def _by_slot_id(

@@ -274,7 +274,8 @@ class ReplanStats:
     late: int = 0
     events: list[dict[str, Any]] = field(default_factory=list)
     """One record per plan switched in or refused: ``t_s``, ``reason``, ``ok``, ``why``,
-    ``length_m``, ``min_clearance_m``, ``path`` (the leader's waypoints)."""
+    ``plan_ms`` (its compute time as the shell measured it, None if unknown), ``length_m``,
+    ``min_clearance_m``, ``path`` (the leader's waypoints)."""
 
 
 class StuckWatch:
@@ -327,6 +328,7 @@ class Replanner:
         self._request: PlanRequest | None = None
         self._taken = False  # the shell has the request
         self._answer: PlanResult | str | None = None
+        self._answer_ms: float | None = None  # the compute time of ``_answer``
         self._next_id = 1
         self._goal_plans = 0  # plans made for the current goal (the first is not a replan)
         self.late_streak = 0
@@ -433,6 +435,7 @@ class Replanner:
         if self._request is None or self._request.id != request_id or self._answer is not None:
             return False
         self._answer = answer
+        self._answer_ms = plan_ms
         return True
 
     def due(self, now_s: float) -> PlanRequest | None:
@@ -466,7 +469,9 @@ class Replanner:
             self.stats.replans += 1
         self._goal_plans += 1
         ok = not isinstance(answer, str)
-        event: dict[str, Any] = {"t_s": now_s, "reason": r.reason, "ok": ok}
+        event: dict[str, Any] = {
+            "t_s": now_s, "reason": r.reason, "ok": ok, "plan_ms": self._answer_ms,
+        }  # fmt: skip
         if isinstance(answer, str):
             self.state, self.why = PlanState.NO_WAY, answer
             event["why"] = answer

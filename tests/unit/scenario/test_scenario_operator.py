@@ -52,6 +52,50 @@ def test_entries_parse_in_time_order() -> None:
         ({"t_s": 1.0, "command": "stop", "x": 1.0}, "unknown key(s) x"),
         ({"t_s": 1.0, "command": "path", "waypoints": [[1.0]]}, "waypoints[0]"),
         ({"command": "stop"}, "needs t_s"),
+        ({"t_s": 1.0, "command": "obstacle", "id": "b"}, "needs action"),
+        ({"t_s": 1.0, "command": "obstacle", "id": "b", "action": "hide"}, "operator[0].action"),
+        ({"t_s": 1.0, "command": "obstacle", "id": "", "action": "remove"}, "operator[0].id"),
+        ({"t_s": 1.0, "command": "obstacle", "id": "b", "action": "add"}, "operator[0].shape"),
+        (
+            {
+                "t_s": 1.0,
+                "command": "obstacle",
+                "id": "b",
+                "action": "add",
+                "shape": "circle",
+                "x": 1.0,
+                "y": 0.0,
+            },
+            "a circle needs radius_m, x, y",
+        ),
+        (
+            {
+                "t_s": 1.0,
+                "command": "obstacle",
+                "id": "b",
+                "action": "add",
+                "shape": "circle",
+                "x": 1.0,
+                "y": 0.0,
+                "radius_m": 0.0,
+            },
+            "radius_m must be > 0",
+        ),
+        (
+            {
+                "t_s": 1.0,
+                "command": "obstacle",
+                "id": "b",
+                "action": "move",
+                "shape": "polygon",
+                "points": [[0, 0], [1, 0]],
+            },
+            "operator[0].points",
+        ),
+        (
+            {"t_s": 1.0, "command": "obstacle", "id": "b", "action": "remove", "x": 1.0},
+            "remove takes no x",
+        ),
     ],
 )
 def test_a_bad_entry_is_one_line_naming_it(entry: dict[str, Any], needle: str) -> None:
@@ -85,3 +129,37 @@ def test_the_player_applies_each_command_at_its_tick_and_counts_refusals() -> No
     again.skip_until(0.3)
     again.play(core, 0.3, 0.3, robots=3)
     assert again.applied == [] and again.active
+
+
+def test_a_scripted_obstacle_reaches_the_planner_and_a_degenerate_one_is_refused() -> None:
+    """The ``obstacle`` command is applied as the coordinator node's ``Obstacle`` input: the
+    same table (``obstacle_table``), refusals counted (``obstacle-<reason>``)."""
+    events = parse_operator(
+        [
+            {"t_s": 0.0, "command": "obstacle", "id": "box", "action": "add", "shape": "polygon",
+             "points": [[1, 1], [2, 1], [2, 2], [1, 2]]},
+            {"t_s": 0.0, "command": "obstacle", "id": "bow", "action": "add", "shape": "polygon",
+             "points": [[0, 0], [1, 1], [1, 0], [0, 1]]},  # crosses itself
+            {"t_s": 0.1, "command": "obstacle", "id": "box", "action": "move", "shape": "circle",
+             "x": 2.0, "y": 0.5, "radius_m": 0.2},
+            {"t_s": 0.2, "command": "obstacle", "id": "nope", "action": "remove"},
+        ],
+        3,
+        10.0,
+    )  # fmt: skip
+    assert events[2].as_dict()["id"] == "box" and events[0].points[1] == (2.0, 1.0)
+    sc = parse(tomllib.loads(resolve("corridor").read_text()))  # a world with obstacles
+    core = coordinator_core(sc)
+    player = OperatorScript(events, 0.2)
+    refused = player.play(core, 0.0, 0.0, 3)
+    assert refused == [("obstacle", "degenerate")]
+    assert core.replanner.obstacles["box"]["kind"] == "polygon"
+    player.play(core, 0.1, 0.1, 3)
+    assert core.replanner.obstacles["box"] == {
+        "kind": "circle",
+        "x": 2.0,
+        "y": 0.5,
+        "radius_m": 0.2,
+    }
+    assert player.play(core, 0.2, 0.2, 3) == [("obstacle", "unknown")]
+    assert player.rejects == {"obstacle-degenerate": 1, "obstacle-unknown": 1}
