@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import Spawner, free_port
+from support.spawn import Spawner, free_port
 
 from formation.sim import command as sim_cli
 
