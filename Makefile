@@ -26,9 +26,12 @@ demo: $(STAMP)
 # Two tiers. The in-process tests (unit, repo, the docs' examples) are CPU-bound and share no
 # state: two workers. The real-Zenoh and whole-fleet tests run one at a time (their deadlines
 # assume the fleet under test has the machine; docs/testing.md).
+# Both tiers run whatever the first one gives; the target fails if either failed.
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests/unit tests/repo docs/examples
-	$(BIN)/python -m pytest -q --durations=15 tests/bus tests/fleet
+	@rc=0; \
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests/unit tests/repo docs/examples || rc=1; \
+	$(BIN)/python -m pytest -q --durations=15 tests/bus tests/fleet || rc=1; \
+	exit $$rc
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
