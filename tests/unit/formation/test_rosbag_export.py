@@ -177,13 +177,11 @@ def test_a_recorded_estimator_twist_is_the_odometrys_when_fresh(tmp_path: Path) 
     export_rosbag(rec, tmp_path / "bag")
     store = get_typestore(Stores.ROS2_JAZZY)
     with Reader(tmp_path / "bag") as reader:
-        odom = {
-            topic: [
-                (ts, store.deserialize_cdr(raw, c.msgtype).twist)
-                for c, ts, raw in reader.messages() if c.topic == topic
-            ]
-            for topic in ("/r1/odom", "/r2/odom")
-        }  # fmt: skip
+        odom: dict[str, list[tuple[int, Any]]] = {"/r1/odom": [], "/r2/odom": []}
+        for c, ts, raw in reader.messages():
+            if c.topic in odom:
+                msg: Any = store.deserialize_cdr(raw, c.msgtype)
+                odom[c.topic].append((ts, msg.twist))
     for ts, tw in odom["/r1/odom"]:
         if ts - t0 < 400 * ms:
             assert (tw.twist.linear.x, tw.twist.angular.z) == (0.125, -0.5)
