@@ -368,7 +368,16 @@ class Wheels:
     )
 
 
-@message(name=keys.STATUS, publisher="agent", periodic=True, rate=">= 5 Hz")
+_TWIST = ("v_mps", "omega_radps")
+
+
+@message(
+    name=keys.STATUS,
+    publisher="agent",
+    periodic=True,
+    rate=">= 5 Hz",
+    rules=(Together(_TWIST),),
+)
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Status:
     """Health of one robot agent."""
@@ -419,6 +428,26 @@ class Status:
             "m",
             lo=-2 * _POS,
             hi=2 * _POS,
+        ),
+    )
+    # issue 29: the estimator's twist, for a ROS 2 odometry (formation/live/ros2_bridge.py)
+    v_mps: float | None = field(
+        default=None,
+        metadata=f_float(
+            "estimator: forward speed of the axle centre (body frame, eq 9's v) at `t`; absent: "
+            "unknown (no estimator, no valid estimate)",
+            "m/s",
+            lo=-_SPEED,
+            hi=_SPEED,
+        ),
+    )
+    omega_radps: float | None = field(
+        default=None,
+        metadata=f_float(
+            "estimator: turn rate of the robot (eq 9's omega) at `t`; absent with `v_mps`",
+            "rad/s",
+            lo=-_TURN,
+            hi=_TURN,
         ),
     )
 

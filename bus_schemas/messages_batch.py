@@ -16,9 +16,11 @@ from bus_schemas.modes import Mode
 from bus_schemas.spec import POSITION_MAX_M as _POS
 from bus_schemas.spec import SPEED_MAX_MPS as _SPEED
 from bus_schemas.spec import TIME_MAX_S as _TMAX
+from bus_schemas.spec import TURN_RATE_MAX_RADPS as _TURN
 from bus_schemas.spec import WHEEL_RATE_MAX_RADPS as _WHEEL
 from bus_schemas.spec import (
     SameLength,
+    Together,
     f_angle,
     f_angle_list,
     f_enum_list,
@@ -212,6 +214,9 @@ class WheelsBatch(_Periodic):
     )
 
 
+_TWIST = ("twist_robots", "v_mps", "omega_radps")
+
+
 @message(
     name=keys.HOST_STATUS,
     publisher="agent host (batched), >= 5 Hz",
@@ -224,6 +229,8 @@ class WheelsBatch(_Periodic):
                 "filter_active", "filter_violations", "filter_infeasible", "filter_tiebreaks",
             )
         ),
+        Together(_TWIST),
+        SameLength(_TWIST),
     ),
 )  # fmt: skip
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -267,4 +274,27 @@ class StatusBatch(_Periodic):
     )
     filter_tiebreaks: tuple[int, ...] | None = field(
         default=None, metadata=f_int_list("safety filter: deadlock tie-breaks triggered")
+    )
+    # issue 29: the estimator's twist of the robots that know it (formation/live/ros2_bridge.py)
+    twist_robots: tuple[str, ...] | None = field(
+        default=None,
+        metadata=f_robot_id_list(
+            "robots whose estimator twist follows (`v_mps`, `omega_radps`): those of `robots` "
+            "with a valid estimate; a robot not listed: unknown"
+        ),
+    )
+    v_mps: tuple[float, ...] | None = field(
+        default=None,
+        metadata=f_float_list(
+            "estimator: forward speed of each one's axle centre (body frame, eq 9's v) at `t`",
+            "m/s",
+            lo=-_SPEED,
+            hi=_SPEED,
+        ),
+    )
+    omega_radps: tuple[float, ...] | None = field(
+        default=None,
+        metadata=f_float_list(
+            "estimator: turn rate of each one (eq 9's omega) at `t`", "rad/s", lo=-_TURN, hi=_TURN
+        ),
     )

@@ -4,8 +4,11 @@ Any ROS 2 Jazzy (or later) machine whose rmw_zenoh nodes reach the fleet's Zenoh
 (docs/ros2.md), with ``<ns>`` the ``--namespace`` (empty by default) and frames after REP 105:
 
 - ``<ns>/<id>/odom`` (nav_msgs/msg/Odometry): each robot's measured pose (``pose`` or the
-  ``poses`` batch) in ``map``, child frame ``<id>/base_link``, and its twist in the body frame
-  from consecutive poses (finite difference over the poses' own ``t``);
+  ``poses`` batch) in ``map``, child frame ``<id>/base_link``, and its twist in the body frame:
+  its estimator's (``v_mps``, ``omega_radps`` of its ``status`` or its host's batch) when a
+  status received within :data:`TWIST_FRESH_S` has it, else from consecutive poses (finite
+  difference over the poses' own ``t``); the twist's covariance says which
+  (:data:`TWIST_COV_ESTIMATOR`, :data:`TWIST_COV_FINITE_DIFFERENCE`);
 - ``/tf`` (tf2_msgs/msg/TFMessage): ``map`` -> ``<id>/base_link`` per pose (one message with
   every robot per ``poses`` batch), and at
   ``--rate`` Hz ``map`` -> ``formation/leader`` and ``map`` -> ``formation/slot_<k>``;
@@ -56,6 +59,8 @@ from bus_schemas import (
     PoseBatch,
     RejectCounts,
     Slot,
+    Status,
+    StatusBatch,
     decode,
     encode,
     keys,
@@ -64,13 +69,41 @@ from bus_schemas.fields import SPEED_MAX_MPS, TURN_RATE_MAX_RADPS
 from bus_schemas.ros2 import graph, msgs, rmw
 from bus_schemas.spec import POSITION_MAX_M
 from runtime.sdnotify import Notifier, pet_watchdog
+from runtime.timers import STATUS_PERIOD_S
 
-__all__ = ["BridgeCore", "Outgoing", "main"]
+__all__ = [
+    "TWIST_COV_ESTIMATOR",
+    "TWIST_COV_FINITE_DIFFERENCE",
+    "TWIST_FRESH_S",
+    "BridgeCore",
+    "Outgoing",
+    "main",
+]
 
 NODE_NAME: Final = graph.NODE_NAME
 GOAL_FRAMES: Final = ("map", "")
 """Frames a goal may be given in: the fixed frame (REP 105), or none (taken as ``map``)."""
 READY: Final = "ros2 bridge ready"
+TWIST_FRESH_S: Final = 2 * STATUS_PERIOD_S
+"""A robot's estimator twist (its newest status's) is used while received at most this long ago
+(s, the bridge's clock): two status periods."""
+
+
+def _twist_cov(var_v: float, var_omega: float) -> tuple[float, ...]:
+    """A planar twist's 6x6 row-major covariance (vx, vy, vz, wx, wy, wz): ``var_v`` on vx and
+    vy (a unicycle's lateral speed is zero but for slip), ``var_omega`` on wz, 0 elsewhere."""
+    cov = [0.0] * 36
+    cov[0] = cov[7] = var_v
+    cov[35] = var_omega
+    return tuple(cov)
+
+
+TWIST_COV_ESTIMATOR: Final = _twist_cov(0.02**2, 0.1**2)
+"""Twist covariance of the estimator's twist (the encoders' mean over the last tick, or the
+commanded one without encoders): (0.02 m/s)^2 and (0.1 rad/s)^2."""
+TWIST_COV_FINITE_DIFFERENCE: Final = _twist_cov(0.1**2, 0.5**2)
+"""Twist covariance of the finite difference of two camera poses (larger: a few mm of pose
+noise over one camera period of tens of ms is ~0.1 m/s): (0.1 m/s)^2 and (0.5 rad/s)^2."""
 ROLE_COLOURS: Final[dict[str, msgs.ColorRGBA]] = {
     "leader": msgs.ColorRGBA(0.9, 0.2, 0.2, 1.0),
     "subleader": msgs.ColorRGBA(0.95, 0.6, 0.1, 1.0),
@@ -99,6 +132,15 @@ class _Track:
     omega_radps: float = 0.0
 
 
+@dataclass(frozen=True, slots=True)
+class _EstTwist:
+    """A robot's estimator twist as its newest status gave it, and when it was received."""
+
+    rx_s: float
+    v_mps: float
+    omega_radps: float
+
+
 @dataclass
 class BridgeCore:
     """Bus messages in, ROS 2 payloads out. Pure: stamps and times are arguments.
@@ -115,6 +157,7 @@ class BridgeCore:
     rejected: RejectCounts = field(default_factory=RejectCounts)
     forwarded: int = 0
     _tracks: dict[str, _Track] = field(default_factory=dict)
+    _twists: dict[str, _EstTwist] = field(default_factory=dict)
     _slots: dict[int, Slot] = field(default_factory=dict)
     _leader: Leader | None = None
     _last_cmd_s: float = -math.inf
@@ -127,26 +170,46 @@ class BridgeCore:
 
     # --- fleet -> ROS -------------------------------------------------------------------------
 
+    def on_status(self, robot: str, status: Status, rx_s: float) -> None:
+        """A robot's ``status`` received at ``rx_s`` (s, the bridge's monotonic clock): its
+        estimator twist, if it has one, for its odometry (a status without: unknown)."""
+        if status.v_mps is None or status.omega_radps is None:
+            self._twists.pop(robot, None)
+        else:
+            self._twists[robot] = _EstTwist(rx_s, status.v_mps, status.omega_radps)
+
+    def on_status_batch(self, batch: StatusBatch, rx_s: float) -> None:
+        """An agent host's status batch received at ``rx_s``: the estimator twist of each
+        robot it lists in ``twist_robots``; its other robots' twists are unknown."""
+        for rid in batch.robots:
+            self._twists.pop(rid, None)
+        if batch.twist_robots is None or batch.v_mps is None or batch.omega_radps is None:
+            return
+        for rid, v, w in zip(batch.twist_robots, batch.v_mps, batch.omega_radps, strict=True):
+            self._twists[rid] = _EstTwist(rx_s, v, w)
+
     def on_pose(self, robot: str, t_s: float, x_m: float, y_m: float, theta_rad: float,
-                stamp_ns: int) -> list[Outgoing]:  # fmt: skip
+                stamp_ns: int, now_s: float | None = None) -> list[Outgoing]:  # fmt: skip
         """A robot's measured pose (bus ``t`` = ``t_s``) -> its odometry and its tf, the
-        headers stamped ``stamp_ns`` (ns since the UNIX epoch: ROS time)."""
+        headers stamped ``stamp_ns`` (ns since the UNIX epoch: ROS time); ``now_s`` is the
+        bridge's monotonic clock (None: no estimator twist is used, the finite difference)."""
         header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
-        odom = self._odometry(header, robot, t_s, x_m, y_m, theta_rad)
+        odom = self._odometry(header, robot, t_s, x_m, y_m, theta_rad, now_s)
         if odom is None:
             return []
         tf = msgs.TFMessage((self._transform(header, f"{robot}/base_link", odom.pose.pose),))
         return [self._odom_out(robot, odom), self._tf_out(tf)]
 
-    def on_poses(self, batch: PoseBatch, stamp_ns: int) -> list[Outgoing]:
+    def on_poses(self, batch: PoseBatch, stamp_ns: int, now_s: float | None = None
+                  ) -> list[Outgoing]:  # fmt: skip
         """A ``poses`` batch (one camera frame, bus ``t`` = its ``stamp``) -> each robot's
         odometry, then one ``/tf`` with every robot's transform (one message per frame, not one
-        per robot: tf2 takes many transforms a message)."""
+        per robot: tf2 takes many transforms a message); ``now_s`` as in :meth:`on_pose`."""
         header = msgs.Header(msgs.time_from_ns(stamp_ns), "map")
         out: list[Outgoing] = []
         transforms: list[msgs.TransformStamped] = []
         for rid, x, y, th in zip(batch.robots, batch.x, batch.y, batch.theta, strict=True):
-            odom = self._odometry(header, rid, batch.stamp, x, y, th)
+            odom = self._odometry(header, rid, batch.stamp, x, y, th, now_s)
             if odom is not None:
                 out.append(self._odom_out(rid, odom))
                 transforms.append(self._transform(header, f"{rid}/base_link", odom.pose.pose))
@@ -155,8 +218,9 @@ class BridgeCore:
         return out
 
     def _odometry(self, header: msgs.Header, robot: str, t_s: float, x_m: float, y_m: float,
-                  theta_rad: float) -> msgs.Odometry | None:  # fmt: skip
-        """The odometry of a pose, its twist from the previous one (None: out of order)."""
+                  theta_rad: float, now_s: float | None) -> msgs.Odometry | None:  # fmt: skip
+        """The odometry of a pose (None: out of order), its twist the estimator's when fresh
+        at ``now_s``, else from the previous pose."""
         prev = self._tracks.get(robot)
         track = _Track(t_s, x_m, y_m, theta_rad)
         if prev is not None:
@@ -172,12 +236,18 @@ class BridgeCore:
             track.omega_radps = math.remainder(theta_rad - prev.theta_rad, math.tau) / dt_s
         self._tracks[robot] = track
         pose = msgs.Pose(msgs.Point(x_m, y_m), msgs.quaternion_from_yaw(theta_rad))
-        twist = msgs.Twist(msgs.Vector3(x=track.v_mps), msgs.Vector3(z=track.omega_radps))
+        est = self._twists.get(robot)
+        if now_s is not None and est is not None and 0.0 <= now_s - est.rx_s <= TWIST_FRESH_S:
+            v_mps, omega_radps, cov = est.v_mps, est.omega_radps, TWIST_COV_ESTIMATOR
+        else:
+            v_mps, omega_radps = track.v_mps, track.omega_radps
+            cov = TWIST_COV_FINITE_DIFFERENCE
+        twist = msgs.Twist(msgs.Vector3(x=v_mps), msgs.Vector3(z=omega_radps))
         return msgs.Odometry(
             header,
             f"{robot}/base_link",
             msgs.PoseWithCovariance(pose),
-            msgs.TwistWithCovariance(twist),
+            msgs.TwistWithCovariance(twist, cov),
         )
 
     def _odom_out(self, robot: str, odom: msgs.Odometry) -> Outgoing:
@@ -436,14 +506,31 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
         if parsed is None or isinstance(msg, DecodeError):
             core.rejected.add(msg if isinstance(msg, DecodeError) else "pose_key")
             return
-        publish_all(core.on_pose(parsed[1], msg.t, msg.x, msg.y, msg.theta, wall_ns()))
+        publish_all(
+            core.on_pose(parsed[1], msg.t, msg.x, msg.y, msg.theta, wall_ns(), time.monotonic())
+        )
 
     def on_poses(rx: rt.Received) -> None:
         batch = decode(rx.payload, PoseBatch)
         if isinstance(batch, DecodeError):
             core.rejected.add(batch)
             return
-        publish_all(core.on_poses(batch, wall_ns()))
+        publish_all(core.on_poses(batch, wall_ns(), time.monotonic()))
+
+    def on_status(rx: rt.Received) -> None:
+        parsed = keys.parse_robot_key(rx.key)
+        msg = decode(rx.payload, Status)
+        if parsed is None or isinstance(msg, DecodeError):
+            core.rejected.add(msg if isinstance(msg, DecodeError) else "status_key")
+            return
+        core.on_status(parsed[1], msg, time.monotonic())
+
+    def on_status_batch(rx: rt.Received) -> None:
+        batch = decode(rx.payload, StatusBatch)
+        if isinstance(batch, DecodeError):
+            core.rejected.add(batch)
+            return
+        core.on_status_batch(batch, time.monotonic())
 
     def on_leader(rx: rt.Received) -> None:
         msg = decode(rx.payload, Leader)
@@ -471,6 +558,8 @@ async def run_bridge(  # noqa: PLR0915 (the bridge's wiring: one handler per ROS
 
     io.subscribe(keys.all_poses_pattern(fleet), on_pose)
     io.subscribe(keys.poses_key(fleet), on_poses)
+    io.subscribe(keys.all_status_pattern(fleet), on_status)
+    io.subscribe(keys.all_host_status_pattern(fleet), on_status_batch)
     io.subscribe(keys.leader_key(fleet), on_leader)
     io.subscribe(keys.all_slots_pattern(fleet), on_slot)
     twist_t = msgs.ros_type(msgs.Twist)

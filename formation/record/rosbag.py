@@ -6,7 +6,9 @@ the recording's bus samples go through the bridge's own pure translation
 types and CDR bytes:
 
 - ``/<id>/odom`` (nav_msgs/msg/Odometry) and ``/tf`` (tf2_msgs/msg/TFMessage) for every
-  recorded pose (``pose``, or the ``poses`` batch: then one ``/tf`` for the whole batch);
+  recorded pose (``pose``, or the ``poses`` batch: then one ``/tf`` for the whole batch), the
+  twist the estimator's of the recorded ``status`` / host ``status`` when fresh by ``log_time``
+  (as the bridge judges it by its clock), else the finite difference;
 - ``/formation/leader`` (geometry_msgs/msg/PoseStamped), ``/formation/slots``
   (geometry_msgs/msg/PoseArray), ``/formation/markers`` (visualization_msgs/msg/MarkerArray) and
   their ``/tf``, one snapshot per recorded ``leader`` message.
@@ -27,7 +29,17 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from bus_schemas import DecodeError, Leader, Pose, PoseBatch, Slot, decode, keys
+from bus_schemas import (
+    DecodeError,
+    Leader,
+    Pose,
+    PoseBatch,
+    Slot,
+    Status,
+    StatusBatch,
+    decode,
+    keys,
+)
 from bus_schemas.ros2 import msgs
 from formation.live.ros2_bridge import BridgeCore, Outgoing
 from formation.record.replay import Recording
@@ -55,22 +67,38 @@ class RosbagSummary:
 
 
 def _outgoing(core: BridgeCore, key: str, payload: bytes, stamp_ns: int) -> list[Outgoing]:
-    """One recorded bus sample -> the bridge's ROS messages for it (may be none)."""
+    """One recorded bus sample -> the bridge's ROS messages for it (may be none); the bridge's
+    clock is the recorder's (``stamp_ns``)."""
     info = keys.parse_key(key)
     if info is None:
+        return []
+    now_s = stamp_ns * 1e-9
+    if info.leaf == keys.STATUS and info.robot is not None:
+        status = decode(payload, Status)
+        if isinstance(status, DecodeError):
+            core.rejected.add(status)
+        else:
+            core.on_status(info.robot, status, now_s)
+        return []
+    if info.leaf == keys.HOST_STATUS:
+        hb = decode(payload, StatusBatch)
+        if isinstance(hb, DecodeError):
+            core.rejected.add(hb)
+        else:
+            core.on_status_batch(hb, now_s)
         return []
     if info.leaf == keys.POSE and info.robot is not None:
         pose = decode(payload, Pose)
         if isinstance(pose, DecodeError):
             core.rejected.add(pose)
             return []
-        return core.on_pose(info.robot, pose.t, pose.x, pose.y, pose.theta, stamp_ns)
+        return core.on_pose(info.robot, pose.t, pose.x, pose.y, pose.theta, stamp_ns, now_s)
     if info.leaf == keys.POSES:
         batch = decode(payload, PoseBatch)
         if isinstance(batch, DecodeError):
             core.rejected.add(batch)
             return []
-        return core.on_poses(batch, stamp_ns)
+        return core.on_poses(batch, stamp_ns, now_s)
     if info.leaf == keys.LEADER:
         leader = decode(payload, Leader)
         if isinstance(leader, DecodeError):

@@ -678,6 +678,17 @@ class Estimator:
             segments=len(self._nodes),
         )
 
+    def twist(self, now_s: float) -> tuple[float, float] | None:
+        """``(v_mps, omega_radps)``: the twist of the segment holding at ``now_s`` (eq 9's
+        ``(v, omega)``: the encoders' mean where measured, else the commanded one), or None
+        before any segment. Read-only (a status, never the control path)."""
+        nt = self._node_t
+        i = bisect_right(nt, now_s) - 1
+        if i < 0:
+            return None
+        n = self._nodes[i]
+        return n[2], n[3]
+
     @property
     def last_capture_s(self) -> float | None:
         """Capture time of the newest fused camera pose (local clock), or None."""

@@ -59,6 +59,7 @@ from robot_agent.node.estop_shell import EstopQuery, EstopWitness
 from robot_agent.node.motor_output import MotorOutput
 from robot_agent.node.movers_input import MoversInput
 from robot_agent.node.peer_status import PeerStatusInputs, clearance_or_none, filter_counters
+from robot_agent.node.status_twist import estimator_twist
 from runtime.sdnotify import Notifier
 from runtime.timers import run_timers
 
@@ -553,6 +554,7 @@ class AgentNode:
         st = self.firmware.status()
         self._seq_status += 1
         flt = st.safety_filter
+        tw = estimator_twist(self.firmware, now_s)
         return Status(
             t=max(now_s, 0.0),
             seq=self._seq_status,
@@ -569,6 +571,8 @@ class AgentNode:
             rejects=self.faults.rejects.as_dict(),
             filter=None if flt is None else filter_counters(flt),
             min_clearance_m=None if flt is None else clearance_or_none(flt.min_clearance_m),
+            v_mps=None if tw is None else tw[0],
+            omega_radps=None if tw is None else tw[1],
         )
 
     def publish_status(self) -> None:

@@ -473,10 +473,10 @@ class HostNode:
 
     def status_batches(self, now_s: float) -> list[StatusBatch]:
         """The status of every hosted robot, in chunks."""
-        return self._status_messages(now_s, [self._status_row(r) for r in self.order])
+        return self._status_messages(now_s, [self._status_row(r, now_s) for r in self.order])
 
-    def _status_row(self, rid: str) -> StatusRow:
-        return status_row(rid, self.nodes[rid].firmware)
+    def _status_row(self, rid: str, now_s: float) -> StatusRow:
+        return status_row(rid, self.nodes[rid].firmware, now_s)
 
     def _status_messages(self, now_s: float, rows: list[StatusRow]) -> list[StatusBatch]:
         out = status_batches(rows, max(now_s, 0.0), self._seq_status, self.pid, self.hostname)
@@ -497,7 +497,7 @@ class HostNode:
                     self.estop_query.request(now)
             start = len(rows)
             end = len(self.order) if self.lockstep else start + STATUS_STEP
-            rows.extend(self._status_row(r) for r in self.order[start:end])
+            rows.extend(self._status_row(r, self._status_t) for r in self.order[start:end])
             if len(rows) < len(self.order):
                 return time.monotonic() + WATCHDOG_YIELD_S
             self._status_rows = []

@@ -19,10 +19,27 @@ import pytest
 import zenoh
 from support.spawn import free_port
 
-from bus_schemas import CmdVel, Estop, Goal, Leader, Pose, PoseBatch, Slot, decode, encode, keys
+from bus_schemas import (
+    CmdVel,
+    Estop,
+    Goal,
+    Leader,
+    Pose,
+    PoseBatch,
+    Slot,
+    Status,
+    decode,
+    encode,
+    keys,
+)
 from bus_schemas.errors import DecodeError
 from bus_schemas.ros2 import msgs, rmw
-from formation.live.ros2_bridge import READY, BridgeCore
+from formation.live.ros2_bridge import (
+    READY,
+    TWIST_COV_ESTIMATOR,
+    TWIST_COV_FINITE_DIFFERENCE,
+    BridgeCore,
+)
 
 ATT = rmw.encode_attachment(rmw.Attachment(1, 0, bytes(16)))
 
@@ -196,6 +213,8 @@ class BusSide:
             f = self.fleet
             put = self.session.put
             put(keys.pose_key(f, "r1"), encode(Pose(t=t, seq=k, x=0.01 * k, y=0.5, theta=0.1)))
+            put(keys.status_key(f, "r1"), encode(Status(t=t, seq=k, mode="tracking", slot=0,
+                pid=1, host="h", rejected=0, v_mps=0.2, omega_radps=-0.05)))  # fmt: skip
             put(keys.leader_key(f), encode(Leader(t=t, seq=k, x=0.01 * k, y=0.0, theta=0.0,
                                                   v_mps=0.2, omega_radps=0.0)))  # fmt: skip
             put(keys.slot_key(f, 0), encode(Slot(t=t, seq=k, slot=0, role="leader", stage=0,
@@ -249,6 +268,9 @@ def test_independent_ros2_client_sees_and_drives_the_bridge(
         (odom,) = results["odom"]["samples"]
         assert (odom["frame_id"], odom["child_frame_id"]) == ("map", "r1/base_link")
         assert odom["y"] == pytest.approx(0.5)
+        # the robot's status (20 Hz here) carries its estimator twist: the odometry's (issue 29)
+        assert (odom["v"], odom["omega"]) == (0.2, -0.05)
+        assert odom["cov_vx"] == TWIST_COV_ESTIMATOR[0]
 
         teleops = until(lambda: bus.teleops, 5.0, "CmdVel on the bus")
         assert (teleops[0].v_mps, teleops[0].omega_radps) == (0.15, -0.25)
@@ -322,6 +344,11 @@ def test_formation_up_ros2_shows_the_fleet_to_a_ros2_client(spawn: Any, tmp_path
     assert topics["/formation/slots"] == ["geometry_msgs/msg/PoseArray"]
     (odom,) = results["odom"]["samples"]
     assert odom["child_frame_id"] == "r1/base_link"
+    # the twist: the robot's estimator's (its host's status batch) or, were it stale on this
+    # loaded machine, the finite difference; the covariance says which
+    assert odom["cov_vx"] in (TWIST_COV_ESTIMATOR[0], TWIST_COV_FINITE_DIFFERENCE[0])
+    source = "estimator" if odom["cov_vx"] == TWIST_COV_ESTIMATOR[0] else "finite difference"
+    print(f"odometry twist from the {source}")
     # how long after `formation up` started the client saw every topic (the report quotes it)
     print(f"topics seen {results['topics']['after_s']} s after the client started")
     run.stop()

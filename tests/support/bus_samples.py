@@ -138,6 +138,8 @@ SAMPLES: dict[type, Any] = {
         robot="r2",
         filter={"ticks": 10, "active": 2},
         min_clearance_m=0.05,
+        v_mps=0.12,
+        omega_radps=-0.25,
     ),
     Estop: Estop(t=1.0, engage=True, robot="r3", id=2**62 + 12345),
     Clock: Clock(
@@ -240,6 +242,9 @@ SAMPLES: dict[type, Any] = {
         filter_violations=(0, 0),
         filter_infeasible=(1, 0),
         filter_tiebreaks=(0, 2),
+        twist_robots=("r1",),
+        v_mps=(0.12,),
+        omega_radps=(-0.25,),
     ),
     CoordinatorStatus: CoordinatorStatus(
         t=12.5,

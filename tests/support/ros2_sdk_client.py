@@ -57,6 +57,9 @@ def main(port: int, domain_id: int, mode: str) -> None:
                 "child_frame_id": msg.child_frame_id,
                 "x": float(msg.pose.pose.position.x),
                 "y": float(msg.pose.pose.position.y),
+                "v": float(msg.twist.twist.linear.x),
+                "omega": float(msg.twist.twist.angular.z),
+                "cov_vx": float(msg.twist.covariance[0]),
             }
         )
         got.set()
@@ -67,7 +70,8 @@ def main(port: int, domain_id: int, mode: str) -> None:
         type_hash=odom_hash, domain_id=domain_id, **router,
     )  # fmt: skip
     got.wait(10.0)
-    say(what="odom", samples=odoms[:1])
+    time.sleep(1.0)  # a few more (the robots' status twists arrive at 5 Hz)
+    say(what="odom", samples=odoms[-1:])
     sub.close()
     if mode == "watch":
         return

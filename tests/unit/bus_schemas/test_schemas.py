@@ -25,6 +25,7 @@ from bus_schemas import (
     SchemaError,
     Slot,
     Status,
+    StatusBatch,
     decode,
     decode_or_raise,
     encode,
@@ -289,7 +290,22 @@ def test_encode_rejects_invalid_messages() -> None:
             Reason.INCONSISTENT,
             "robots",
         ),
-    ]
+        # issue 29, the estimator's twist: both or neither, parallel lists in a batch
+        (
+            Status(t=0.0, seq=0, mode="idle", slot=None, pid=0, host="", rejected=0, v_mps=0.1),
+            Reason.MISSING_FIELD,
+            "omega_radps",
+        ),
+        (
+            StatusBatch(
+                t=0.0, seq=0, pid=0, host="", robots=("r1",), mode=("idle",), slot=(-1,),
+                rejected=(0,), ex=(0.0,), ey=(0.0,),
+                twist_robots=("r1",), v_mps=(0.1, 0.2), omega_radps=(0.0,),
+            ),
+            Reason.INCONSISTENT,
+            "twist_robots",
+        ),
+    ]  # fmt: skip
     for msg, reason, field in cases:
         err = validate(msg)
         assert err is not None and (err.reason, err.field) == (reason, field), (msg, err)

@@ -168,6 +168,17 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         robot="r2",
     ),
     "status_min": Status(t=1.0, seq=1, mode="idle", slot=None, pid=0, host="", rejected=0),
+    "status_twist": Status(
+        t=2.0,
+        seq=10,
+        mode="tracking",
+        slot=0,
+        pid=7,
+        host="pi-r1",
+        rejected=0,
+        v_mps=0.125,
+        omega_radps=-0.5,
+    ),
     "estop": Estop(t=30.0, engage=True, robot=None),
     "estop_robot": Estop(t=31.0, engage=False, robot="r3"),
     "clock": Clock(t=0.02, seq=1, tick=1),
@@ -246,6 +257,21 @@ GOLDEN_MESSAGES: dict[str, Any] = {
         rejected=(0, 2),
         ex=(0.01, 0.0),
         ey=(-0.02, 0.0),
+    ),
+    "host_status_twist": StatusBatch(
+        t=2.0,
+        seq=11,
+        pid=7,
+        host="ws-1",
+        robots=("r1", "r2"),
+        mode=("tracking", "idle"),
+        slot=(0, -1),
+        rejected=(0, 0),
+        ex=(0.0, 0.0),
+        ey=(0.0, 0.0),
+        twist_robots=("r1",),
+        v_mps=(0.125,),
+        omega_radps=(-0.5,),
     ),
     "coordinator_status": CoordinatorStatus(
         t=12.5,
@@ -383,6 +409,9 @@ GOLDEN_HEX: dict[str, str] = {
     "status_min": (
         "88a17601a174cb3ff0000000000000a373657101a46d6f6465a469646c65a4736c6f74c0a370696400a4686f7374a0a872656a656374656400"
     ),
+    "status_twist": (
+        "8aa17601a174cb4000000000000000a37365710aa46d6f6465a8747261636b696e67a4736c6f7400a370696407a4686f7374a570692d7231a872656a656374656400a5765f6d7073cb3fc0000000000000ab6f6d6567615f7261647073cbbfe0000000000000"
+    ),
     "estop": (
         "84a17601a174cb403e000000000000a6656e67616765c3a5726f626f74c0"
     ),
@@ -428,6 +457,9 @@ GOLDEN_HEX: dict[str, str] = {
     ),
     "host_status": (
         "8ba17601a174cb4029000000000000a37365713fa3706964cd1093a4686f7374a477732d31a6726f626f747392a27231a27232a46d6f646592a8747261636b696e67a469646c65a4736c6f749200ffa872656a6563746564920002a2657892cb3f847ae147ae147bcb0000000000000000a2657992cbbf947ae147ae147bcb0000000000000000"
+    ),
+    "host_status_twist": (
+        "8ea17601a174cb4000000000000000a37365710ba370696407a4686f7374a477732d31a6726f626f747392a27231a27232a46d6f646592a8747261636b696e67a469646c65a4736c6f749200ffa872656a6563746564920000a2657892cb0000000000000000cb0000000000000000a2657992cb0000000000000000cb0000000000000000ac74776973745f726f626f747391a27231a5765f6d707391cb3fc0000000000000ab6f6d6567615f726164707391cbbfe0000000000000"
     ),
     "coordinator_status": (
         "de0017a17601a174cb4029000000000000a37365713fa46d6f6465a86c6f636b73746570a872656a656374656402a772656a6563747381ae706f73652d6d616c666f726d656402af696e7465726e616c5f6572726f727300a2727882a5636c6f636bcd0271a4706f7365cd04e2a46e616d65a46d61696ea4726f6c65a6616374697665a565706f636801a974616b656f7665727301a973746570646f776e7300a57469636b73cd0271a5616c69766592a27231a27232aa61737369676e6d656e7482a2723100a2723201a66c6561646572a27231ab6573746f705f666c656574c2ac6573746f705f726f626f747391a27232a3706964cd1094a4686f7374a477732d31ab7469636b5f7035305f6d73cb3fd0000000000000ab7469636b5f6d61785f6d73cb3ff8000000000000"
@@ -497,3 +529,16 @@ def test_clock_bytes_assembled_from_the_msgpack_spec() -> None:
     )
     assert encode(GOLDEN_MESSAGES["clock"]) == expected
     assert expected.hex() == GOLDEN_HEX["clock"]
+
+
+def test_twist_fields_as_a_generic_decoder_sees_them() -> None:
+    """The estimator's twist (issue 29) as plain MessagePack: float64 0.125 and -0.5 under the
+    keys `v_mps` and `omega_radps`; the older goldens, without them, still decode (above)."""
+    st = msgpack.unpackb(bytes.fromhex(GOLDEN_HEX["status_twist"]))
+    assert (st["v_mps"], st["omega_radps"]) == (0.125, -0.5)
+    assert bytes.fromhex(GOLDEN_HEX["status_twist"]).endswith(
+        b"\xa5v_mps\xcb" + bytes.fromhex("3fc0000000000000")
+        + b"\xabomega_radps\xcb" + bytes.fromhex("bfe0000000000000")
+    )  # fmt: skip
+    hb = msgpack.unpackb(bytes.fromhex(GOLDEN_HEX["host_status_twist"]))
+    assert (hb["twist_robots"], hb["v_mps"], hb["omega_radps"]) == (["r1"], [0.125], [-0.5])

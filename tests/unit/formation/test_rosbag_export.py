@@ -149,3 +149,46 @@ def test_a_poses_batch_recording_gives_one_tf_per_frame(tmp_path: Path) -> None:
         ]  # fmt: skip
     assert [t.child_frame_id for t in tfs[0].transforms] == [f"{r}/base_link" for r in ids]
     assert [t.transform.translation.y for t in tfs[-1].transforms] == [0.0, 1.0, 2.0]
+
+
+def test_a_recorded_estimator_twist_is_the_odometrys_when_fresh(tmp_path: Path) -> None:
+    """Issue 29: the bag's odometry takes a robot's estimator twist from the recorded host
+    status while it is fresh by the recorder's log time (as the bridge by its clock), else the
+    finite difference; the twist covariance says which."""
+    from bus_schemas import PoseBatch, StatusBatch, encode
+    from formation.live.ros2_bridge import TWIST_COV_ESTIMATOR, TWIST_COV_FINITE_DIFFERENCE
+    from runtime.tap import BusItem
+
+    ms = 1_000_000
+    status = StatusBatch(
+        t=0.0, seq=1, pid=1, host="h", robots=("r1", "r2"), mode=("tracking",) * 2,
+        slot=(0, 1), rejected=(0, 0), ex=(0.0, 0.0), ey=(0.0, 0.0),
+        twist_robots=("r1",), v_mps=(0.125,), omega_radps=(-0.5,),
+    )  # fmt: skip
+    items = [BusItem("put", keys.host_status_key(FLEET, "h"), encode(status), 1000 * ms)]
+    for k in range(1, 41):  # frames every 20 ms: fresh for 0.4 s after the status, then stale
+        frame = PoseBatch(t=k * DT, seq=k, robots=("r1", "r2"), x=(0.002 * k, 0.0),
+                          y=(0.0, 1.0), theta=(0.0, 0.0), stamp=k * DT)  # fmt: skip
+        items.append(BusItem("put", keys.poses_key(FLEET), encode(frame), 1000 * ms + k * 20 * ms))
+    path = tmp_path / "twist.mcap"
+    record_items(path, items)
+    rec = read_recording(path)
+    (t0,) = [ev.log_ns for ev in rec.events if ev.key == keys.host_status_key(FLEET, "h")]
+    export_rosbag(rec, tmp_path / "bag")
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(tmp_path / "bag") as reader:
+        odom: dict[str, list[tuple[int, Any]]] = {"/r1/odom": [], "/r2/odom": []}
+        for c, ts, raw in reader.messages():
+            if c.topic in odom:
+                msg: Any = store.deserialize_cdr(raw, c.msgtype)
+                odom[c.topic].append((ts, msg.twist))
+    for ts, tw in odom["/r1/odom"]:
+        if ts - t0 < 400 * ms:
+            assert (tw.twist.linear.x, tw.twist.angular.z) == (0.125, -0.5)
+            assert tuple(tw.covariance) == TWIST_COV_ESTIMATOR
+        elif ts - t0 > 400 * ms:  # stale: the finite difference (0.002 m per 20 ms frame)
+            assert tw.twist.linear.x == pytest.approx(0.002 / DT)
+            assert tuple(tw.covariance) == TWIST_COV_FINITE_DIFFERENCE
+    assert {tuple(tw.covariance) for _, tw in odom["/r2/odom"]} == {TWIST_COV_FINITE_DIFFERENCE}
+    assert sum(ts - t0 < 400 * ms for ts, _ in odom["/r1/odom"]) == 19
+    assert sum(ts - t0 > 400 * ms for ts, _ in odom["/r1/odom"]) == 20
