@@ -195,13 +195,14 @@ def _orphans_of_dead_runs() -> set[int]:
     def dead_run(env: dict[bytes, bytes]) -> bool:
         if env.get(b"FORMATION_TEST_ROOT") != root:
             return False
-        # every run in the chain (an xdist worker's chain starts with its controller's mark; a
-        # worker's own command line does not name pytest): alive while one of them is a pytest
-        owners = [m.split(b".")[0] for m in env[RUN_MARK_ENV.encode()].split(b",")]
-        if any(o.isdigit() and int(o) == os.getpid() for o in owners):
+        owner = env[RUN_MARK_ENV.encode()].split(b",")[-1].split(b".")[0]  # the innermost run
+        if not owner.isdigit() or int(owner) == os.getpid():
             return False
-        # each owner gone, or its pid something else now
-        return not any(o.isdigit() and "pytest" in _cmdline(int(o)) for o in owners)
+        if "pytest" in _cmdline(int(owner)):
+            return False  # that run is going on
+        # an xdist worker's command line does not name pytest; its parent (the controller) does
+        stat = _proc_stat(int(owner))
+        return stat is None or "pytest" not in _cmdline(stat[1])  # gone, or something else now
 
     return _marked_processes(dead_run, since=0)
 
