@@ -284,7 +284,7 @@ class FleetRun:
 
             try:
                 ns = fault_tool.build_parser().parse_args([*args, *tail])
-                return await fault_tool.request_at(self.session, ns)
+                return await fault_tool.request_at(self.session, ns, running=True)
             except (fault_tool.FaultError, ValueError) as exc:
                 raise FaultCommandError(f"formation fault {' '.join(args)}: {exc}") from exc
         argv = [sys.executable, "-m", "formation", "fault", *args, *tail]

@@ -426,23 +426,19 @@ _AT_KINDS = {
 }
 
 
-async def request_at(session: Any, ns: argparse.Namespace) -> str:
+async def request_at(session: Any, ns: argparse.Namespace, *, running: bool = False) -> str:
     """``--at T`` (``ns`` as :func:`build_parser` parses it): a request the active coordinator
     schedules (module docstring), over an open ``session``: the CLI's and formation.testing's
-    one path (a test that schedules a fault in a fast lockstep run must not wait for a new
-    process to start)."""
+    one path. The CLI first waits for the active coordinator's status (a fleet still starting
+    has nobody to take the request yet). ``running``: the caller knows the fleet runs (it
+    watches it), so the request goes at once; waiting for a status first let a fast lockstep
+    run pass T under load."""
     bus = _Bus(session, ns.timeout)
     fleet = keys.check_fleet(ns.fleet)
     kind, role = _AT_KINDS[ns.command]
     robot = getattr(ns, "robot", None)
     if robot is not None:
         robot = keys.check_robot_id(robot)
-    active = await bus.newest(
-        keys.all_coordinator_status_pattern(fleet),
-        _decoded(CoordinatorStatus, lambda m: m.role == "active"),
-    )
-    if active is None:
-        raise FaultError(f"no active coordinator of fleet {fleet!r} within {bus.timeout_s:g} s")
     msg = FaultMsg(
         t=ns.at,
         request=True,
@@ -451,14 +447,21 @@ async def request_at(session: Any, ns: argparse.Namespace) -> str:
         role=role,
         duration_s=getattr(ns, "for_s", None),
     )
-    session.put(keys.fault_key(fleet), encode(msg))
-    await asyncio.sleep(0.05)  # let it leave before the session closes
     who = f" of {robot}" if robot else " of the leader" if role else ""
     undo = f", undone {msg.duration_s:g} s later" if msg.duration_s else ""
-    return (
-        f"requested {kind}{who} at t={ns.at:g} s (sim time){undo}: coordinator "
-        f"{active.name} applies it then"
+    line = f"requested {kind}{who} at t={ns.at:g} s (sim time){undo}"
+    if running:
+        session.put(keys.fault_key(fleet), encode(msg))
+        return f"{line}: the active coordinator applies it then"
+    active = await bus.newest(
+        keys.all_coordinator_status_pattern(fleet),
+        _decoded(CoordinatorStatus, lambda m: m.role == "active"),
     )
+    if active is None:
+        raise FaultError(f"no active coordinator of fleet {fleet!r} within {bus.timeout_s:g} s")
+    session.put(keys.fault_key(fleet), encode(msg))
+    await asyncio.sleep(0.05)  # let it leave before the session closes
+    return f"{line}: coordinator {active.name} applies it then"
 
 
 async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # noqa: PLR0915 (one branch per fault verb)
