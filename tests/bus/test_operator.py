@@ -179,10 +179,13 @@ def test_a_standby_continues_the_teleoperated_leader_without_a_jump(
     after = [(r, k, m) for r, k, m in msgs if r > t_kill + 0.05]
     assert before and after
     last, first = before[-1], after[0][2]
-    # b went on from main's last state: same place (it did not move while nobody published),
+    # b went on from main's last state: no farther than the speed limit allows over the gap
+    # between the two messages (stamps of one machine's monotonic clock; the gap is a tick on a
+    # quiet machine, 0.65 s was seen next to a CPU hog, and the teleop stream went on meanwhile),
     # same mode, velocity within one tick's acceleration
     assert first.mode == "teleop"
-    assert math.hypot(first.x - last.x, first.y - last.y) <= CFG.max_speed_mps * 0.1 + 1e-6
+    gap_s = max(first.t - last.t, 0.1)
+    assert math.hypot(first.x - last.x, first.y - last.y) <= CFG.max_speed_mps * gap_s + 1e-6
     assert abs(first.v_mps - last.v_mps) <= CFG.max_accel_mps2 * 0.1 + 1e-9
     assert not leader_jumps(after), leader_jumps(after)[:5]
     # the teleoperated leader is no function of t - leader_t0: b did not check main's origin
