@@ -24,50 +24,13 @@ from support.bus_watch import Recorder, decoder_of
 from support.operator_bus import Followers, leader_jumps
 from support.routers import RouterHandle
 from support.spawn import Spawner
+from support.yard import yard_toml
 
 import runtime as rt
 from bus_schemas import Leader, keys
 
 FLEET = "demo"
-YARD = """\
-name = "yard"
-description = "A triangle in a yard with a pillar: goals are planned around obstacles."
-duration_s = 600.0
-dt_s = 0.02
-seed = 27
-
-[robots]
-ids = ["r1", "r2", "r3"]
-initial = [[0.0, 0.0, 0.0], [-0.4, 0.2, 0.0], [-0.4, -0.2, 0.0]]
-
-[trajectory]
-kind = "line"
-x0 = 0.05
-y0 = 0.0
-heading = 0.0
-speed_mps = 0.0
-
-[formation]
-kind = "triangle"
-b_m = 0.4
-
-[assignment]
-method = "greedy"
-hysteresis_m = 0.05
-tie_tol_m = 0.01
-
-[arena]
-x_min = -1.5
-y_min = -2.0
-x_max = 4.0
-y_max = 2.0
-
-[[obstacle]]
-kind = "circle"
-x = 1.0
-y = 0.0
-radius_m = 0.2
-"""
+YARD = yard_toml(duration_s=600.0, pillar_x=1.0)
 START = {"r1": (0.0, 0.0, 0.0), "r2": (-0.4, 0.2, 0.0), "r3": (-0.4, -0.2, 0.0)}
 
 

@@ -13,7 +13,8 @@ Nodes and runs: ``agent_io`` (drive one agent), ``coordinator_io`` (drive a coor
 collector), ``record_stream`` (a synthetic stream and the recorder fed with it), ``fault_fleet``
 (the realtime fleet faults are injected into), ``estop_checks``,
 ``foxglove_fleet`` (traffic for the live view, its protobuf frames, a Teleop panel's publishes),
-``operator_bus`` (perfect followers of a coordinator under test, leader jumps), ``json_schema``.
+``operator_bus`` (perfect followers of a coordinator under test, leader jumps), ``yard`` (the
+replanning tests' scenario), ``json_schema``.
 
 Cores: ``firmware_cases`` (the firmware's config, hostile numbers, one step),
 ``safety_cases`` and ``safety_runs`` (the safety filter's robot and closed loops),

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.yard import yard_toml
 
 from bus_schemas import PlanState
 from coordinator.core.coordinator import CoordinatorCore
@@ -39,45 +40,7 @@ from robot_agent.core.params import WorldMap
 from scenario import load
 from scenario.assemble import coordinator_core, plan_setup
 
-YARD = """\
-name = "yard"
-description = "A triangle in a yard with a pillar: goals are planned around obstacles."
-duration_s = 60.0
-dt_s = 0.02
-seed = 27
-
-[robots]
-ids = ["r1", "r2", "r3"]
-initial = [[0.0, 0.0, 0.0], [-0.4, 0.2, 0.0], [-0.4, -0.2, 0.0]]
-
-[trajectory]
-kind = "line"
-x0 = 0.05
-y0 = 0.0
-heading = 0.0
-speed_mps = 0.0
-
-[formation]
-kind = "triangle"
-b_m = 0.4
-
-[assignment]
-method = "greedy"
-hysteresis_m = 0.05
-tie_tol_m = 0.01
-
-[arena]
-x_min = -1.5
-y_min = -2.0
-x_max = 4.0
-y_max = 2.0
-
-[[obstacle]]
-kind = "circle"
-x = 1.5
-y = 0.0
-radius_m = 0.2
-"""
+YARD = yard_toml(duration_s=60.0, pillar_x=1.5)
 DT = 0.02
 GOAL = (3.2, 0.0)
 PILLAR = (1.5, 0.0, 0.2)
