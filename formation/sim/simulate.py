@@ -271,28 +271,22 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         # repulsion and the safety filter, with its age now (capture to this tick) and whether
         # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
         # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
-        if rings is None:
-            pts = [
+        pts = [
+            None
+            if p is None or not is_current(t, pose_rx[j])
+            else neighbour(
+                p[0],
+                p[1],
+                p[2],
+                p[3],
+                t,
+                tracking[j],
                 None
-                if p is None or not is_current(t, pose_rx[j])
-                else neighbour(p[0], p[1], p[2], p[3], t, tracking[j])
-                for j, p in enumerate(poses)
-            ]
-        else:
-            pts = [
-                None
-                if p is None or not is_current(t, pose_rx[j])
-                else neighbour(
-                    p[0],
-                    p[1],
-                    p[2],
-                    p[3],
-                    t,
-                    tracking[j],
-                    motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
-                )
-                for j, p in enumerate(poses)
-            ]
+                if rings is None
+                else motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
+            )
+            for j, p in enumerate(poses)
+        ]
         # the coordinator's movers of the previous tick (received with its setpoints): not
         # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
         prev_out = outputs.for_clock(k)
