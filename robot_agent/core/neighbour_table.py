@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterable, Mapping
 
 from robot_agent.core.host_grid import Seen
 from robot_agent.core.lockstep import Arrivals
-from robot_agent.core.neighbour_motion import Claim, motion_view
+from robot_agent.core.neighbour_motion import Claim, MotionView, motion_view
 from robot_agent.core.neighbours import (
     NEIGHBOUR_STALE_S,
     ClaimRing,
@@ -158,37 +158,34 @@ class NeighbourTable:
         first-seen order, as the safety filter sees it (``robot_agent.core.neighbours``);
         ``movers``: the coordinator's moving obstacles, id -> velocity (m/s; rule 4)."""
         coop = self.cooperative
-        if self._motion is None:
-            out = [
-                neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s))
-                for rid, e in self.seen.items()
-                if e.rx_s is not None and is_current(now_s, e.rx_s)
-            ]
-        else:
-            l_m, vmax, max_age = self._motion
-            claims = self._claims
-            out = []
-            for rid, e in self.seen.items():
-                if e.rx_s is None or not is_current(now_s, e.rx_s):
-                    continue
-                ring = claims.get(rid)
-                view = (
-                    None
-                    if ring is None
-                    else motion_view(ring.claims, e.capture_s, now_s, l_m, vmax, max_age)
-                )
-                out.append(neighbour(e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s), view))
+        current = [
+            (rid, e)
+            for rid, e in self.seen.items()
+            if e.rx_s is not None and is_current(now_s, e.rx_s)
+        ]
+        out = [
+            neighbour(
+                e.x, e.y, e.theta, e.capture_s, now_s, coop(rid, now_s), self._view(rid, e, now_s)
+            )
+            for rid, e in current
+        ]
         if movers:
-            ids = [
-                rid
-                for rid, e in self.seen.items()
-                if e.rx_s is not None and is_current(now_s, e.rx_s)
-            ]
-            for i, rid in enumerate(ids):
+            for i, (rid, _) in enumerate(current):
                 v = movers.get(rid)
                 if v is not None:
                     out[i] = mover(out[i], v[0], v[1])
         return out
+
+    def _view(self, rid: str, e: Seen, now_s: float) -> MotionView | None:
+        """What robot ``rid``'s motion claims say at ``now_s`` (None: no claims configured or
+        kept for it, the worst case)."""
+        if self._motion is None:
+            return None
+        ring = self._claims.get(rid)
+        if ring is None:
+            return None
+        l_m, vmax, max_age = self._motion
+        return motion_view(ring.claims, e.capture_s, now_s, l_m, vmax, max_age)
 
     # -- motion claims ---------------------------------------------------------------------
 
