@@ -22,13 +22,14 @@ filters as usual (``SafetyFilter.filter``), so every barrier of the filter's pro
 from __future__ import annotations
 
 import math
+from typing import Final
 
 from robot_agent.core.params import SafetyFilterParams
 
 __all__ = ["Deadlock"]
 
-_hypot = math.hypot
-_NAN = math.nan
+_hypot: Final = math.hypot
+_NAN: Final = math.nan
 
 
 class Deadlock:

@@ -42,15 +42,16 @@ import math
 from bisect import bisect_right
 from math import cos as _cos  # (imported, not assigned: mypyc compiles these to C calls)
 from math import sin as _sin
+from typing import Final
 
-_isfinite = math.isfinite
-_PI = math.pi
-_NEG_PI = -math.pi
-_TWO_PI = 2.0 * math.pi
+_isfinite: Final = math.isfinite
+_PI: Final = math.pi
+_NEG_PI: Final = -math.pi
+_TWO_PI: Final = 2.0 * math.pi
 
 # A capture time within this of a node (both float sums of ticks) is taken at the node: at most
 # nanometres of motion.
-_TINY_S = 1e-9
+_TINY_S: Final = 1e-9
 
 # chain state at a time: (ox, oy, oth, D, TU, Q)
 _State = tuple[float, float, float, float, float, float]

@@ -90,7 +90,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Final
 
 from robot_agent.core.estimator import Estimator
 from robot_agent.core.firmware_modes import (
@@ -139,8 +139,9 @@ __all__ = [
     "WheelCommand",
 ]
 
-_isfinite = math.isfinite
-#: ``Firmware._setpoint_now``'s answer when the tick holds (no valid setpoint): age NaN
+_isfinite: Final = math.isfinite
+#: ``Firmware._setpoint_now``'s answer when the tick holds (no valid setpoint): age NaN (not
+#: Final: mypyc cannot tell a Final tuple of NaNs from an unset one, a NameError)
 _NO_SETPOINT = (_NAN, _NAN, _NAN, _NAN, _NAN)
 
 

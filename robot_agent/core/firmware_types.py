@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
 from bus_schemas.modes import Mode
 from robot_agent.core.safety_filter import SafetyFilterStatus
@@ -126,7 +126,7 @@ class FirmwareStatus:
         }
 
 
-_NAN = math.nan
+_NAN: Final = math.nan
 
 
 def _new_command(
@@ -142,4 +142,4 @@ def _new_command(
     return _tuple_new(WheelCommand, (omega_r, omega_l, power_r, power_l, mode, pose_t, saturated))
 
 
-_tuple_new = tuple.__new__
+_tuple_new: Final = tuple.__new__

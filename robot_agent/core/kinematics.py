@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from math import cos as _cos  # (imported, not assigned: mypyc compiles these to C calls)
 from math import sin as _sin
+from typing import Final
 
 from robot_agent.core.params import RobotGeometry
 
@@ -30,9 +31,9 @@ __all__ = [
     "wrap_angle",
 ]
 
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
-_isfinite = math.isfinite
+_PI: Final = math.pi
+_TWO_PI: Final = 2.0 * math.pi
+_isfinite: Final = math.isfinite
 
 
 def wrap_angle(a: float) -> float:

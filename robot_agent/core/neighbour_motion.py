@@ -93,8 +93,8 @@ allowance is :data:`HEADING_TOL_RAD`; at rest the claim (zero) needs no heading.
 MAX_ACCEL_MPS2: Final = 100.0
 """A claimed bound above this (m/s^2) is absurd (rejected): ``SafetyFilterParams``'s range."""
 
-_hypot = math.hypot
-_isfinite = math.isfinite
+_hypot: Final = math.hypot
+_isfinite: Final = math.isfinite
 
 
 class Claim(NamedTuple):

@@ -72,7 +72,7 @@ realtime agent ticks on each pose and on its 50 Hz timer between them (~60 claim
 32 cover ~0.5 s, the neighbours' largest age (``max_age_s``), under load too (8 covered
 ~0.13 s: a capture older than that under load lost its claims and fell back to ``V a``)."""
 
-_tuple_new = tuple.__new__
+_tuple_new: Final = tuple.__new__
 
 
 class ClaimRing:

@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Final
 
-_sqrt = math.sqrt
+_sqrt: Final = math.sqrt
 
 
-_TOL = 1e-9  # feasibility tolerance of a constraint (m/s)
+_TOL: Final = 1e-9  # feasibility tolerance of a constraint (m/s)
 
 
 def solve_qp(

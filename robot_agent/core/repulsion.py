@@ -18,16 +18,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, Final
 
 from robot_agent.core.params import RepulsionParams
 
 __all__ = ["repulsion_velocity", "repulsion_velocity_counted"]
 
-_EPS_M = 1e-9  # distances (m) below this are evaluated at this (the push saturates anyway)
-_M_MAX = 1e100  # cap on one push (m/s) before summing; far above any real cap
-_hypot = math.hypot
-_isfinite = math.isfinite
+_EPS_M: Final = 1e-9  # distances (m) below this are evaluated at this (the push saturates anyway)
+_M_MAX: Final = 1e100  # cap on one push (m/s) before summing; far above any real cap
+_hypot: Final = math.hypot
+_isfinite: Final = math.isfinite
 
 
 def repulsion_velocity(

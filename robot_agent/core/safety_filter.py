@@ -178,7 +178,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Final
 
 from robot_agent.core.deadlock import Deadlock
 from robot_agent.core.params import AgentConfig
@@ -199,10 +199,11 @@ __all__ = [
     "solve_qp",
 ]
 
-_hypot = math.hypot
-_NAN = math.nan
-_INF = math.inf
-_VIOLATION_M = 1e-6  # a barrier below -1 um at the input counts as a violation (not rounding)
+_hypot: Final = math.hypot
+_NAN: Final = math.nan
+_INF: Final = math.inf
+# a barrier below -1 um at the input counts as a violation (not rounding)
+_VIOLATION_M: Final = 1e-6
 
 
 class SafetyFilter:

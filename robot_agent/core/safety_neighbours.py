@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Final
 
 from .kinematics import reference_point
 from .neighbour_motion import append_claimed, view_is_sane
@@ -35,8 +35,8 @@ from .safety_types import _isfinite
 
 __all__ = ["NeighbourBarriers"]
 
-_hypot = math.hypot
-_INF = math.inf
+_hypot: Final = math.hypot
+_INF: Final = math.inf
 
 
 class NeighbourBarriers:

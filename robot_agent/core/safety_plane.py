@@ -76,13 +76,14 @@ without its filter (carried by hand, coasting toward the other after a power cut
 from __future__ import annotations
 
 import math
+from typing import Final
 
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.qp import _TOL
 
 __all__ = ["SharedFramePlane"]
 
-_hypot = math.hypot
+_hypot: Final = math.hypot
 
 
 class SharedFramePlane:

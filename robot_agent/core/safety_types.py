@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
-_isfinite = math.isfinite
+_isfinite: Final = math.isfinite
 
 
-_NAN = math.nan
+_NAN: Final = math.nan
 
 
 class Neighbour(NamedTuple):

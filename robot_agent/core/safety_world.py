@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Final
 
 from robot_agent.core.params import AgentConfig, CircleObstacle, SegmentObstacle
 from robot_agent.core.qp import _sqrt
 
 __all__ = ["WorldBarriers"]
 
-_hypot = math.hypot
+_hypot: Final = math.hypot
 
 
 class WorldBarriers:

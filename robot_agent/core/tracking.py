@@ -27,14 +27,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 from robot_agent.core.params import TrackingGains
 
 __all__ = ["AxisPID", "PIDInfo", "TrackingController"]
 
-_isfinite = math.isfinite
-_INF = math.inf
-_hypot = math.hypot
+_isfinite: Final = math.isfinite
+_INF: Final = math.inf
+_hypot: Final = math.hypot
 
 
 @dataclass(frozen=True, slots=True)
