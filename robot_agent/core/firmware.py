@@ -169,7 +169,6 @@ class Firmware:
         "_extrap",
         "_ey",
         "_filter",
-        "_filter_fn",
         "_filter_on",
         "_fused_pose",
         "_geom",
@@ -234,7 +233,6 @@ class Firmware:
         self._tracker = TrackingController(cfg.gains)
         self._filter = SafetyFilter(cfg)
         self._filter_on = self._filter.enabled
-        self._filter_fn = self._filter.filter
         self._shared_frame = self._filter.enabled and cfg.safety_filter.shared_frame
         self._modes = ModeMachine(self._tracker, self._filter)
         self._rejects = Rejections()
@@ -417,8 +415,10 @@ class Firmware:
                 frame = None  # (shared_frame: the own latest camera pose and its age)
                 if self._shared_frame and pose is not None:
                     frame = self._own_frame(now, pose, pose_capture_s)
-                vx, vy = self._filter_fn(now, rx, ry, vx, vy, ex, ey, neighbours, obstacles, er, dt,
-                                         frame)  # fmt: skip
+                # (a method call, not a bound method kept in an attribute: compiled, a native
+                # call with unboxed floats instead of a Python call with keyword parsing)
+                vx, vy = self._filter.filter(now, rx, ry, vx, vy, ex, ey, neighbours, obstacles,
+                                             er, dt, frame)  # fmt: skip
             # 7. eq 16: reference-point velocity -> (v, omega)
             v, w = twist_from_ref_velocity(vx, vy, th, l_m)
             # 8. eq 8: (v, omega) -> wheel speeds

@@ -100,9 +100,13 @@ def repulsion_raw(
     sx = 0.0
     sy = 0.0
     nd0 = -d0
+    # (float-typed locals: the compiled core unboxes each field once and does the arithmetic
+    # natively; an int field is its float value, as Python's mixed arithmetic takes it)
     for nb in neighbours:  # (x, y) or a longer tuple starting with x, y (safety_filter)
-        dx = px - nb[0]
-        dy = py - nb[1]
+        qx: float = nb[0]
+        qy: float = nb[1]
+        dx = px - qx
+        dy = py - qy
         # Cheap box reject first (most neighbours are far); NaN/inf also fail these tests.
         # (-d0 < dx < d0 and ... written as four plain comparisons: fewer bytecodes)
         if not (dx < d0 and dx > nd0 and dy < d0 and dy > nd0):

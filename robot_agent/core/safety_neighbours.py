@@ -143,6 +143,16 @@ class NeighbourBarriers:
                     # a plane constraint binds only if G < reach (see safety_plane)
                     q2 = self._d_coop + self._l + self._gap + 2.0 * (rho + reach) + 3.0 * off
                     q2_tol = q2 + _TOL
+        # (float-typed locals: the compiled core unboxes each field of an entry once and does
+        # the arithmetic natively; an int field is its float value, as Python's mixed
+        # arithmetic takes it)
+        qx: float
+        qy: float
+        th: float
+        age: float
+        vx: float
+        vy: float
+        rad: float
         for nb in neighbours:
             if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
                 qx, qy = nb
