@@ -167,7 +167,9 @@ class Estimator:
         "_gate",
         "_gate2",
         "_gated_run",
-        "_head",
+        "_head_nt",
+        "_head_st",
+        "_head_t",
         "_hist",
         "_last_odom_t",
         "_max_lat",
@@ -224,9 +226,14 @@ class Estimator:
         self._node_t: list[float] = []
         self._anch: list[_Anchor] = []
         self._anch_t: list[float] = []
-        # (t, node, state): the chain at t computed from that node (the last estimate's);
-        # reused when a segment starts at t
-        self._head: tuple[float, _Node, _State] | None = None
+        # the head: the chain at _head_t (NaN: none) computed from the newest node then (the
+        # last estimate's), _head_st; reused when a segment starts at _head_t while that node
+        # is still the newest. That node is told by its start time, _head_nt: nodes are only
+        # appended with later start times or dropped with the head (three attributes, not a
+        # tuple (t, node, state): compiled, no boxing of the node and the state every tick)
+        self._head_t = math.nan
+        self._head_nt = math.nan
+        self._head_st: _State = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self._last_odom_t = -math.inf
         self._gated_run = 0
         self._first_is_init = False
@@ -255,7 +262,7 @@ class Estimator:
         self._node_t.clear()
         self._anch.clear()
         self._anch_t.clear()
-        self._head = None
+        self._head_t = math.nan
         self._last_odom_t = -math.inf
         self._gated_run = 0
 
@@ -416,9 +423,8 @@ class Estimator:
             else:
                 self.add_command(seg_t_s, v_mps, omega_radps)
         elif odometry or not (nodes and nodes[-1][2] == v_mps and nodes[-1][3] == omega_radps):
-            head = self._head
-            if head is not None and head[0] == seg_t_s and nodes and head[1] is nodes[-1]:
-                st = head[2]
+            if self._head_t == seg_t_s and nt[-1] == self._head_nt:  # (a head: nodes exist)
+                st = self._head_st
             else:
                 st = chain_at(nodes, nt, self._still_q, seg_t_s)
             if odometry:
@@ -464,7 +470,9 @@ class Estimator:
             else:
                 st = _arc(n, t_s - n[0])
                 if j == len(nt) - 1:  # after the newest node: the next segment's start
-                    self._head = (t_s, n, st)
+                    self._head_t = t_s
+                    self._head_nt = n[0]
+                    self._head_st = st
         # the prior through the newest anchor's frame (prior inlined)
         ox, oy, oth, d_, tu, q = st
         at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
@@ -516,10 +524,9 @@ class Estimator:
 
     def _start_segment(self, t_s: float, v: float, w: float, measured: bool) -> None:
         """Append a segment starting at ``t_s`` (after every node) with its node."""
-        head = self._head
         nodes = self._nodes
-        if head is not None and head[0] == t_s and nodes and head[1] is nodes[-1]:
-            st = head[2]
+        if self._head_t == t_s and self._node_t[-1] == self._head_nt:  # (a head: nodes exist)
+            st = self._head_st
         else:
             st = chain_at(nodes, self._node_t, self._still_q, t_s)
         qm, qs = self._odom_q if measured else self._cmd_q
@@ -533,7 +540,7 @@ class Estimator:
         while nt and nt[-1] >= t_s:
             nt.pop()
             nodes.pop()
-        self._head = None
+        self._head_t = math.nan
 
     def _init(self, t_s: float, x: float, y: float, theta: float) -> None:
         """Start the anchors from the camera pose ``(x, y, theta)`` captured at ``t_s``."""
@@ -644,7 +651,9 @@ class Estimator:
                     tu = tu + (h if h >= 0.0 else -h)
                     q = q + (qm * d + qs * dt)
                     st = (ox, oy, oth, d_, tu, q)
-                self._head = (now_s, n, st)
+                self._head_t = now_s
+                self._head_nt = nt0
+                self._head_st = st
             else:
                 ox, oy, oth, d_, tu, q = chain_at(nodes, nt, self._still_q, now_s)
             _, _, _, _, app, appth, _, _, _, c, s, tx, ty, fa, ad, _, aq = a
