@@ -448,12 +448,9 @@ class Estimator:
         nodes = self._nodes
         anch = self._anch
         anch_t = self._anch_t
-        if not (
-            anch
-            and anch_t[-1] < t_s <= now_s
-            and now_s - t_s <= self._max_lat
-            and _isfinite(now_s + t_s + x + y + theta)
-        ):
+        # (finite: x - x is 0.0 for a finite x only; the test without a call)
+        if not (anch and anch_t[-1] < t_s <= now_s and now_s - t_s <= self._max_lat
+                and (s := now_s + t_s + x + y + theta) - s == 0.0):  # fmt: skip
             return self.add_measurement(now_s, t_s, x, y, theta)
         # (-pi < a <= pi as two plain comparisons with a constant -pi: fewer bytecodes
         # than the chained form, and False for NaN alike)

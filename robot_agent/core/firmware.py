@@ -183,7 +183,9 @@ class Firmware:
         "_limiter",
         "_max_dt",
         "_modes",
-        "_pending_cmd",
+        "_pend_t",
+        "_pend_wl",
+        "_pend_wr",
         "_pose_age",
         "_rejects",
         "_rep",
@@ -255,9 +257,13 @@ class Firmware:
         self._act_delay = ep.actuation_delay_s
         self._lead = ep.setpoint_lead_s
         self._fused_pose: object = None  # the last pose object fused (identity only)
-        # (t, omega_r, omega_l) of the last command, handed to the estimator on the next tick
-        # unless encoder speeds replace it (it only matters for times after that tick)
-        self._pending_cmd: tuple[float, float, float] | None = None
+        # the last command (from _pend_t on: omega_r, omega_l), handed to the estimator on the
+        # next tick unless encoder speeds replace it (it only matters for times after that
+        # tick); _pend_t NaN: none (three attributes, not a tuple: compiled, three unboxed
+        # floats instead of four objects a tick)
+        self._pend_t = _NAN
+        self._pend_wr = 0.0
+        self._pend_wl = 0.0
         self._unc = _NAN
         # the pose (first three fields: x, y, theta) the last tick used: a Pose or an estimate
         self._est_xyt: tuple[float, ...] | None = None
@@ -343,7 +349,8 @@ class Firmware:
         # tick's wheels are zero.
         try:
             now = now_s if type(now_s) is float else _real(now_s)
-            if not _isfinite(now):
+            # (finite: x - x is 0.0 for a finite x only; the test without a call, as below)
+            if now - now != 0.0:
                 self._rejects.add("non-finite now_s")
                 return self._hold(_EV_INVALID, "non-finite clock")
             # time: dt_s is 0.0 on the first tick and on a duplicate, backwards or stalled one
@@ -426,8 +433,10 @@ class Firmware:
             # 9. saturation
             wr, wl, sat = self._saturate(wr, wl, th)
             self._last_saturated = sat
-            if est is not None:  # for the prediction (see _pending_cmd)
-                self._pending_cmd = (now + self._act_delay, wr, wl)
+            if est is not None:  # for the prediction (see _pend_t)
+                self._pend_t = now + self._act_delay
+                self._pend_wr = wr
+                self._pend_wl = wl
             wmax = self._wmax  # (_new_command inlined: one Python call less per tick)
             return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING,
                                              self._last_pose_t, sat))  # fmt: skip
@@ -548,7 +557,9 @@ class Firmware:
         self._apply(event, reason)
         self._last_saturated = False
         if self._est is not None and self._last_now is not None:
-            self._pending_cmd = (self._last_now + self._act_delay, 0.0, 0.0)
+            self._pend_t = self._last_now + self._act_delay
+            self._pend_wr = 0.0
+            self._pend_wl = 0.0
 
     def _hold(self, event: _Event, reason: str) -> WheelCommand:
         """Non-tracking tick: apply the event, zero wheels."""
@@ -573,7 +584,9 @@ class Firmware:
             if wr == cmd.omega_r and wl == cmd.omega_l:
                 return cmd
             if self._est is not None:  # the prediction's input is what the wheels get
-                self._pending_cmd = (now + self._act_delay, wr, wl)
+                self._pend_t = now + self._act_delay
+                self._pend_wr = wr
+                self._pend_wl = wl
             wmax = self._wmax
             return _new_command(wr, wl, wr / wmax, wl / wmax, cmd.mode, cmd.pose_t, cmd.saturated)
         except Exception as exc:  # (a firmware loop must not die: the last twist, held)
@@ -622,7 +635,9 @@ class Firmware:
         wr, wl = wheels_from_twist_raw(v, w, self._half_track, self._wheel_r)  # eq 8
         wr, wl, sat = self._saturate(wr, wl, th)
         if self._est is not None:
-            self._pending_cmd = (now + self._act_delay, wr, wl)
+            self._pend_t = now + self._act_delay
+            self._pend_wr = wr
+            self._pend_wl = wl
         wmax = self._wmax
         return _new_command(wr, wl, wr / wmax, wl / wmax, self._modes.mode, self._last_pose_t, sat)
 
@@ -691,7 +706,8 @@ class Firmware:
                 hr = self._half_r
                 v = hr * (wr + wl)
                 w = hr * (wr - wl) / self._half_track
-                ok = now > last and _isfinite(v + w)  # (also catches overflow)
+                s = v + w
+                ok = now > last and s - s == 0.0  # finite (also catches overflow)
             except (TypeError, ValueError):
                 ok = False
             if ok:
@@ -703,16 +719,16 @@ class Firmware:
                 if now > last:
                     self._rejects.add("bad wheel speeds")
         else:
-            pending = self._pending_cmd
-            if pending is not None:
-                seg_t, pwr, pwl = pending
+            seg_t = self._pend_t
+            if seg_t == seg_t:  # a command pending (not NaN)
+                pwr = self._pend_wr
+                pwl = self._pend_wl
                 hr = self._half_r
                 v = hr * (pwr + pwl)
                 w = hr * (pwr - pwl) / self._half_track
-            else:
-                seg_t = _NAN  # no twist this tick
+            else:  # (seg_t NaN: no twist this tick)
                 v = w = 0.0
-        self._pending_cmd = None
+        self._pend_t = _NAN
         if pose is None or pose is self._fused_pose:
             return est.tick(now, seg_t, v, w, odo, None, 0.0, 0.0, 0.0)
         self._fused_pose = pose
@@ -729,7 +745,7 @@ class Firmware:
         my = oy if type(oy) is float else _real(oy)
         mth = oth if type(oth) is float else _real(oth)
         mt = ot if type(ot) is float else _real(ot)
-        if not _isfinite(mt):
+        if mt - mt != 0.0:  # not finite
             self._rejects.add("non-finite pose")
             return est.tick(now, seg_t, v, w, odo, None, mx, my, mth)
         oc = pose_rx_s if pose_capture_s is None else pose_capture_s
@@ -774,7 +790,8 @@ class Firmware:
         spt = ot if type(ot) is float else _real(ot)
         srx = setpoint_rx_s if type(setpoint_rx_s) is float else _real(setpoint_rx_s)
         # (the slot: an int >= 0, not a bool)
-        if not _isfinite(spx + spy + spvx + spvy + spth + spt + srx) or not (
+        s = spx + spy + spvx + spvy + spth + spt + srx
+        if s - s != 0.0 or not (  # not finite
             type(slot) is int and slot >= 0
         ):
             self._rejects.setpoint(setpoint, "non-finite setpoint or bad slot")

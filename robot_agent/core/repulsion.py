@@ -94,7 +94,8 @@ def repulsion_raw(
     """``repulsion_velocity_counted`` with the parameters read once (the firmware's per-tick
     call): gain ``k``, influence ``d0`` (> 0), ``inv_d0 = 1.0 / d0``, cap ``cap``; repulsion
     enabled."""
-    if not _isfinite(px + py):
+    s = px + py
+    if s - s != 0.0:  # not finite (x - x is 0.0 for a finite x only)
         return 0.0, 0.0, 0
     skipped = 0
     sx = 0.0

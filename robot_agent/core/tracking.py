@@ -221,8 +221,9 @@ class TrackingController:
     integrator can only know about saturation it has already seen).
     """
 
-    __slots__ = ("_ilim", "_kp", "_kp_inv_ti", "_kp_td", "_last", "_limited", "_tau", "_vmax",
-                 "_x", "_y", "last_valid")  # fmt: skip
+    __slots__ = ("_ilim", "_kp", "_kp_inv_ti", "_kp_td", "_l_dt", "_l_dx", "_l_dy", "_l_ex",
+                 "_l_ey", "_l_freeze", "_l_limx", "_l_limy", "_l_pending", "_limited", "_tau",
+                 "_vmax", "_x", "_y", "last_valid")  # fmt: skip
 
     def __init__(self, gains: TrackingGains) -> None:
         self._x = AxisPID(gains)
@@ -236,19 +237,25 @@ class TrackingController:
         self._ilim = ax._ilim
         self._vmax = float(gains.max_ref_speed_mps)
         self._limited = False
-        # (ex, ey, d_x, d_y, dt, frozen, limited_x, limited_y) of the last inlined update, not
-        # yet written into the axes' snapshot fields (None: nothing pending)
-        self._last: tuple[float, float, float, float, float, bool, bool, bool] | None = None
+        # ex, ey, d_x, d_y, dt, frozen, limited_x, limited_y of the last inlined update, not
+        # yet written into the axes' snapshot fields while _l_pending (attributes, not a tuple:
+        # compiled, unboxed floats instead of six objects a tick)
+        self._l_pending = False
+        self._l_ex = self._l_ey = self._l_dx = self._l_dy = self._l_dt = 0.0
+        self._l_freeze = self._l_limx = self._l_limy = False
         #: False if the last update had non-finite input or output and returned (0, 0).
         self.last_valid = True
 
     def _sync(self) -> None:
         """Write the last inlined update's snapshot fields into the axes."""
-        last = self._last
-        if last is not None:
-            self._last = None
-            ex, ey, dx, dy, dt_s, freeze, limx, limy = last
-            for pid, e, d, lim in ((self._x, ex, dx, limx), (self._y, ey, dy, limy)):
+        if self._l_pending:
+            self._l_pending = False
+            dt_s = self._l_dt
+            freeze = self._l_freeze
+            for pid, e, d, lim in (
+                (self._x, self._l_ex, self._l_dx, self._l_limx),
+                (self._y, self._l_ey, self._l_dy, self._l_limy),
+            ):
                 pid._last_error = e
                 pid._last_d = d
                 pid._last_dt = dt_s
@@ -274,7 +281,7 @@ class TrackingController:
 
     def reset(self) -> None:
         """Reset both axes (integral and derivative) and the speed-cap flag."""
-        self._last = None
+        self._l_pending = False
         self._x.reset()
         self._y.reset()
         self._limited = False
@@ -300,7 +307,9 @@ class TrackingController:
         ``(0.0, 0.0)`` with ``last_valid = False`` and leaves the state untouched; a non-finite
         output (overflow) also returns ``(0.0, 0.0)``, the stored state staying finite.
         """
-        if not _isfinite(ex + ey + ff_vx + ff_vy):
+        # (finite: x - x is 0.0 for a finite x only; the tests without a call, as below)
+        s = ex + ey + ff_vx + ff_vy
+        if s - s != 0.0:
             self.last_valid = False
             return 0.0, 0.0
         freeze = freeze_integrator or self._limited
@@ -334,7 +343,8 @@ class TrackingController:
                 cand = integ
             dx = kp_td * edot
             out = kp * ex + kp_inv_ti * cand + dx
-            if _isfinite(out + edot):  # commit only finite state (PX4 PID.cpp)
+            s = out + edot
+            if s - s == 0.0:  # commit only finite state (PX4 PID.cpp)
                 pidx._integral = cand
                 pidx._edot = edot
                 pidx._prev_error = ex
@@ -363,7 +373,8 @@ class TrackingController:
                 cand = integ
             dy = kp_td * edot
             out = kp * ey + kp_inv_ti * cand + dy
-            if _isfinite(out + edot):  # commit only finite state (PX4 PID.cpp)
+            s = out + edot
+            if s - s == 0.0:  # commit only finite state (PX4 PID.cpp)
                 pidy._integral = cand
                 pidy._edot = edot
                 pidy._prev_error = ey
@@ -373,13 +384,21 @@ class TrackingController:
                 out = kp * ey + kp_inv_ti * integ
             uy = ff_vy + out
             # the axes' snapshot fields, written into them only when read (``_sync``)
-            self._last = (ex, ey, dx, dy, dt_s, freeze, limx, limy)
+            self._l_ex = ex
+            self._l_ey = ey
+            self._l_dx = dx
+            self._l_dy = dy
+            self._l_dt = dt_s
+            self._l_freeze = freeze
+            self._l_limx = limx
+            self._l_limy = limy
+            self._l_pending = True
         else:
-            self._last = None
+            self._l_pending = False
             ux = ff_vx + self._x.update(ex, dt_s, freeze)
             uy = ff_vy + self._y.update(ey, dt_s, freeze)
         speed = _hypot(ux, uy)
-        if not _isfinite(speed):
+        if speed - speed != 0.0:  # not finite
             self.last_valid = False
             return 0.0, 0.0
         self.last_valid = True
