@@ -472,7 +472,9 @@ class Estimator:
                     self._head_st = st
         # the prior through the newest anchor's frame (prior inlined)
         ox, oy, oth, d_, tu, q = st
-        at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
+        # (typed names for the unused fields, not _: compiled, _ is an object and each float
+        # unpacked into it is boxed)
+        at, _x, _y, _th, app, ppth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
         dist = d_ - ad
         px = c * ox - s * oy + tx
         py = s * ox + c * oy + ty
@@ -626,7 +628,7 @@ class Estimator:
         else:
             if nt and nt[-1] <= now_s + _TINY_S:
                 n = nodes[-1]
-                nt0, st, v, w, _, qm, qs = n
+                nt0, st, v, w, _measured, qm, qs = n
                 dt = now_s - nt0
                 if dt < _TINY_S:
                     ox, oy, oth, d_, tu, q = st
@@ -653,7 +655,8 @@ class Estimator:
                 self._head_st = st
             else:
                 ox, oy, oth, d_, tu, q = chain_at(nodes, nt, self._still_q, now_s)
-            _, _, _, _, app, appth, _, _, _, c, s, tx, ty, fa, ad, _, aq = a
+            # (typed names for the unused fields, not _: see _pose_in)
+            _t, _x, _y, _th, app, appth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, _tu, aq = a
             dist = d_ - ad
             ex = c * ox - s * oy + tx
             ey = s * ox + c * oy + ty

@@ -93,7 +93,9 @@ def propagate_pose(
 
 def _arc(n: _Node, dt: float) -> _State:
     """The chain ``dt`` s after node ``n`` (its segment's twist held): eq 9, and the sums."""
-    _, st, v, w, _, qm, qs = n
+    # (typed names for the unused fields, not _: compiled, _ is an object and each float
+    # unpacked into it is boxed)
+    _t, st, v, w, _measured, qm, qs = n
     ox, oy, oth, d_, tu, q = st
     h = w * dt * 0.5
     vdt = v * dt
@@ -159,7 +161,7 @@ def prior(
     correction frame, ``(x, y, theta, P, Pth)``; ``q_rad2`` (2 x ``theta_var_per_rad``: TU sums
     ``|omega dt| / 2``), ``q_thm``, ``q_ths``: the heading's process noise rates."""
     ox, oy, oth, d_, tu, q = st
-    at, _, _, _, app, ppth, _, _, _, c, s, tx, ty, fa, ad, atu, aq = a
+    at, _x, _y, _th, app, ppth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, atu, aq = a
     dist = d_ - ad
     return (c * ox - s * oy + tx, s * ox + c * oy + ty, oth + fa,
             app + (q - aq) + ppth * dist * dist,

@@ -431,13 +431,20 @@ class Firmware:
             # 8. eq 8: (v, omega) -> wheel speeds
             wr, wl = wheels_from_twist_raw(v, w, self._half_track, self._wheel_r)
             # 9. saturation
-            wr, wl, sat = self._saturate(wr, wl, th)
+            wmax = self._wmax
+            nwmax = self._wmax_neg
+            # (_saturate's fast path inlined, a call less per tick: inside the limits; also
+            # False for NaN)
+            if wr <= wmax and wr >= nwmax and wl <= wmax and wl >= nwmax:
+                sat = False
+            else:
+                wr, wl, sat = self._saturate(wr, wl, th)
             self._last_saturated = sat
             if est is not None:  # for the prediction (see _pend_t)
                 self._pend_t = now + self._act_delay
                 self._pend_wr = wr
                 self._pend_wl = wl
-            wmax = self._wmax  # (_new_command inlined: one Python call less per tick)
+            # (_new_command inlined: one Python call less per tick)
             return _tuple_new(WheelCommand, (wr, wl, wr / wmax, wl / wmax, _TRACKING,
                                              self._last_pose_t, sat))  # fmt: skip
         except Exception as exc:

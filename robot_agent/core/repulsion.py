@@ -27,7 +27,6 @@ __all__ = ["repulsion_velocity", "repulsion_velocity_counted"]
 _EPS_M: Final = 1e-9  # distances (m) below this are evaluated at this (the push saturates anyway)
 _M_MAX: Final = 1e100  # cap on one push (m/s) before summing; far above any real cap
 _hypot: Final = math.hypot
-_isfinite: Final = math.isfinite
 
 
 def repulsion_velocity(
@@ -94,8 +93,7 @@ def repulsion_raw(
     """``repulsion_velocity_counted`` with the parameters read once (the firmware's per-tick
     call): gain ``k``, influence ``d0`` (> 0), ``inv_d0 = 1.0 / d0``, cap ``cap``; repulsion
     enabled."""
-    s = px + py
-    if s - s != 0.0:  # not finite (x - x is 0.0 for a finite x only)
+    if (s := px + py) - s != 0.0:  # not finite (x - x is 0.0 for a finite x only)
         return 0.0, 0.0, 0
     skipped = 0
     sx = 0.0
@@ -111,7 +109,7 @@ def repulsion_raw(
         # Cheap box reject first (most neighbours are far); NaN/inf also fail these tests.
         # (-d0 < dx < d0 and ... written as four plain comparisons: fewer bytecodes)
         if not (dx < d0 and dx > nd0 and dy < d0 and dy > nd0):
-            if not _isfinite(dx + dy):
+            if (chk := dx + dy) - chk != 0.0:  # not finite
                 skipped += 1
             continue
         d = _hypot(dx, dy)
@@ -129,33 +127,34 @@ def repulsion_raw(
             m = _M_MAX
         sx += m * ux
         sy += m * uy
-    for ox, oy, r in obstacles:
-        if not (0.0 <= r < math.inf):
-            skipped += 1
-            continue
-        dx = px - ox
-        dy = py - oy
-        reach = d0 + r
-        if not (-reach < dx < reach and -reach < dy < reach):
-            if not _isfinite(dx + dy):
+    if obstacles:  # (no iterator for the usual empty tuple)
+        for ox, oy, r in obstacles:
+            if not (0.0 <= r < math.inf):
                 skipped += 1
-            continue
-        dc = _hypot(dx, dy)
-        d = dc - r  # distance to the surface
-        if d >= d0:
-            continue
-        if dc > 0.0:
-            ux = dx / dc
-            uy = dy / dc
-        else:  # at the centre: pick +x
-            ux, uy = 1.0, 0.0
-        if d < _EPS_M:
-            d = _EPS_M
-        m = k * (1.0 / d - inv_d0) / (d * d)
-        if m > _M_MAX:  # absurd gains: keep every term (and so the sum) finite
-            m = _M_MAX
-        sx += m * ux
-        sy += m * uy
+                continue
+            dx = px - ox
+            dy = py - oy
+            reach = d0 + r
+            if not (-reach < dx < reach and -reach < dy < reach):
+                if (chk := dx + dy) - chk != 0.0:  # not finite
+                    skipped += 1
+                continue
+            dc = _hypot(dx, dy)
+            d = dc - r  # distance to the surface
+            if d >= d0:
+                continue
+            if dc > 0.0:
+                ux = dx / dc
+                uy = dy / dc
+            else:  # at the centre: pick +x
+                ux, uy = 1.0, 0.0
+            if d < _EPS_M:
+                d = _EPS_M
+            m = k * (1.0 / d - inv_d0) / (d * d)
+            if m > _M_MAX:  # absurd gains: keep every term (and so the sum) finite
+                m = _M_MAX
+            sx += m * ux
+            sy += m * uy
     if sx == 0.0 and sy == 0.0:
         return 0.0, 0.0, skipped
     s = _hypot(sx, sy)  # finite: each term is at most _M_MAX

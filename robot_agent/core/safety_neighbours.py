@@ -145,7 +145,8 @@ class NeighbourBarriers:
                     q2_tol = q2 + _TOL
         # (float-typed locals: the compiled core unboxes each field of an entry once and does
         # the arithmetic natively; an int field is its float value, as Python's mixed
-        # arithmetic takes it)
+        # arithmetic takes it. "x - x == 0.0" is the finiteness test without a call: it holds
+        # for a finite x only)
         qx: float
         qy: float
         th: float
@@ -160,7 +161,7 @@ class NeighbourBarriers:
                 dy = py - qy
                 # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
                 if not (dx < lim_plain and dx > nlim_plain and dy < lim_plain and dy > nlim_plain):
-                    if not _isfinite(dx + dy):
+                    if (chk := dx + dy) - chk != 0.0:  # not finite
                         self.rejected += 1
                     continue
                 d = _hypot(dx, dy)
@@ -200,11 +201,11 @@ class NeighbourBarriers:
                 dy = py - qy
                 # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
                 if not (dx < lim and dx > nlim and dy < lim and dy > nlim) and lim < _INF:
-                    if not _isfinite(dx + dy):
+                    if (chk := dx + dy) - chk != 0.0:  # not finite
                         self.rejected += 1
                     continue
                 if pl is not None and coop:
-                    if age == pl[4] and _isfinite(th):
+                    if age == pl[4] and th - th == 0.0:  # finite th
                         # same frame as this robot's own pose, both cooperative: the plane
                         g = self._plane.constraint(
                             px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons
@@ -217,8 +218,8 @@ class NeighbourBarriers:
                     elif age != pl[4]:
                         self.other_frame += 1
                 if not (
-                    _isfinite(age)
-                    and _isfinite(rad)
+                    age - age == 0.0  # finite (x - x is 0.0 for a finite x only)
+                    and rad - rad == 0.0
                     and -self._vbad < vx < self._vbad
                     and -self._vbad < vy < self._vbad
                 ):  # non-finite or absurd: keep the position, as old as allowed, not moving
@@ -228,7 +229,7 @@ class NeighbourBarriers:
                     rad = 0.0
                     view = None
                 if view is not None:
-                    if _isfinite(th) and view_is_sane(view):
+                    if th - th == 0.0 and view_is_sane(view):  # finite th
                         # the claimed motion replaces the V a inflation (neighbour_motion)
                         qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
                         rad -= self._budget
@@ -245,7 +246,7 @@ class NeighbourBarriers:
                     age = self._max_age
                 rad -= self._budget
                 infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
-                if coop and _isfinite(th):
+                if coop and th - th == 0.0:  # finite th
                     qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
                     share = 0.5
                     dd = self._d_coop + infl
@@ -257,7 +258,7 @@ class NeighbourBarriers:
             dy = py - qy
             lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
             if not (-lim < dx < lim and -lim < dy < lim):
-                if not _isfinite(dx + dy):
+                if (chk := dx + dy) - chk != 0.0:  # not finite
                     self.rejected += 1
                 continue
             d = _hypot(dx, dy)

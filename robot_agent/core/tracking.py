@@ -223,7 +223,7 @@ class TrackingController:
 
     __slots__ = ("_ilim", "_kp", "_kp_inv_ti", "_kp_td", "_l_dt", "_l_dx", "_l_dy", "_l_ex",
                  "_l_ey", "_l_freeze", "_l_limx", "_l_limy", "_l_pending", "_limited", "_tau",
-                 "_vmax", "_x", "_y", "last_valid")  # fmt: skip
+                 "_vmax", "_vmax2_in", "_x", "_y", "last_valid")  # fmt: skip
 
     def __init__(self, gains: TrackingGains) -> None:
         self._x = AxisPID(gains)
@@ -236,6 +236,7 @@ class TrackingController:
         self._tau = ax._tau
         self._ilim = ax._ilim
         self._vmax = float(gains.max_ref_speed_mps)
+        self._vmax2_in = 0.99 * self._vmax * self._vmax  # (see the end of update)
         self._limited = False
         # ex, ey, d_x, d_y, dt, frozen, limited_x, limited_y of the last inlined update, not
         # yet written into the axes' snapshot fields while _l_pending (attributes, not a tuple:
@@ -397,6 +398,13 @@ class TrackingController:
             self._l_pending = False
             ux = ff_vx + self._x.update(ex, dt_s, freeze)
             uy = ff_vy + self._y.update(ey, dt_s, freeze)
+        # well inside the cap (1 % below it in the square: far beyond any rounding of the sum
+        # or of hypot), hypot is finite and below the cap: the output is (ux, uy) as below,
+        # known without the call
+        if ux * ux + uy * uy < self._vmax2_in:
+            self.last_valid = True
+            self._limited = False
+            return ux, uy
         speed = _hypot(ux, uy)
         if speed - speed != 0.0:  # not finite
             self.last_valid = False
