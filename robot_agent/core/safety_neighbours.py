@@ -175,11 +175,14 @@ class NeighbourBarriers:
                         cons.append((1.0, 0.0, -gamma * h))
                 continue
             else:
-                if len(nb) == 8:
-                    qx, qy, th, age, vx, vy, coop, rad = nb
+                # (a tuple, as a Neighbour is, typed so: compiled, its fields are read in place
+                # instead of through an iterator; any other sequence is read as its tuple)
+                ent: tuple[Any, ...] = nb if isinstance(nb, tuple) else tuple(nb)
+                if len(ent) == 8:
+                    qx, qy, th, age, vx, vy, coop, rad = ent
                     view = None
                 else:  # with a motion claim's view (robot_agent.core.neighbour_motion)
-                    qx, qy, th, age, vx, vy, coop, rad, view = nb
+                    qx, qy, th, age, vx, vy, coop, rad, view = ent
                 if quick < 0.0:  # the first full entry of this call
                     quick = self._d_coop + self._l + self._vnb * self._max_age
                     quick = quick + rho + 2.0 * reach + _TOL
