@@ -148,6 +148,43 @@ def test_compiled_core_outputs_equal_pure_python_bit_for_bit() -> None:
         pytest.fail(f"line {first}: compiled {compiled[first]!r} != pure {lines[first]!r}")
 
 
+# The ticks core_outputs does not reach (its pinned dump always has a setpoint): no setpoint yet,
+# a setpoint, a stale pose, an estop, its release; commands and the final status of each core
+_NO_SETPOINT_TICKS = """
+from robot_agent.core import Firmware, Pose, Setpoint
+for est in (True, False):
+    from robot_agent.core import AgentConfig, EstimatorParams
+    fw = Firmware(AgentConfig(estimator=EstimatorParams(enabled=est)))
+    for k in range(40):
+        now = k * 0.02
+        sp = None if k < 10 else Setpoint(0.3, 0.1, 0.05, 0.0, 0.0, 0, now)
+        if k < 25:  # then the same pose, ever older: stale (HOLD)
+            pose, prx = Pose(0.0, 0.0, 0.0, now), now
+        if k == 30:
+            fw.engage_estop()
+        if k == 35:
+            fw.release_estop()
+        cmd = fw.step(now, pose=pose, pose_rx_s=prx, setpoint=sp,
+                      setpoint_rx_s=now, neighbours=[(0.2, 0.0)])
+        print(repr(tuple(cmd)))
+    print(repr(fw.status()))
+"""
+
+
+def test_idle_hold_and_estop_ticks_equal_pure_python_and_reject_nothing() -> None:
+    """The paths the pinned dump misses: mypyc once read a Final tuple of NaNs (the "no
+    setpoint" answer) as unset, a NameError on every tick without a setpoint, counted as a
+    rejection; the build's check did not see it."""
+    _needs_build()
+    compiled = _run(_NO_SETPOINT_TICKS, ROOT)
+    pure = _run(_NO_SETPOINT_TICKS, ROOT, **{_accel.ENV: "0"})
+    assert compiled.returncode == 0 and pure.returncode == 0, compiled.stderr + pure.stderr
+    assert compiled.stdout == pure.stdout
+    statuses = [ln for ln in pure.stdout.splitlines() if ln.startswith("FirmwareStatus(")]
+    assert len(statuses) == 2
+    assert all("rejected_count=0," in st and "last_reject_reason=''" in st for st in statuses)
+
+
 def test_an_edit_after_the_build_is_never_shadowed_by_the_stale_binary(tmp_path: Path) -> None:
     _needs_build()
     pkg = _copy_package(tmp_path)
