@@ -94,6 +94,7 @@ from robot_agent.core.estimator_math import (
     _wrap,
     chain_at,
     correct,
+    last_at_or_before,
     make_anchor,
     prior,
     propagate_pose,
@@ -457,7 +458,7 @@ class Estimator:
         if not (theta > _NEG_PI and theta <= _PI):
             theta = _wrap(theta)
         # the chain at t_s (chain_at inlined: usually a node, no arc)
-        j = bisect_right(nt, t_s + _TINY_S) - 1  # the last node at or before t_s
+        j = last_at_or_before(nt, t_s + _TINY_S)  # the last node at or before t_s
         if j < 0:
             st = chain_at(nodes, nt, self._still_q, t_s)
         else:

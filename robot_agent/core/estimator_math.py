@@ -110,6 +110,17 @@ def _arc(n: _Node, dt: float) -> _State:
             tu + (h if h >= 0.0 else -h), q + (qm * d + qs * dt))  # fmt: skip
 
 
+def last_at_or_before(times: list[float], t: float) -> int:
+    """The index of the last of ``times`` (ascending) at or before ``t``, -1 if none: the same
+    as ``bisect_right(times, t) - 1``, scanning back from the newest (a camera pose is a few
+    ticks old and never older than ``max_latency_s``: a few steps; compiled, a native loop
+    instead of a call of ``bisect`` over boxed floats)."""
+    i = len(times) - 1
+    while i >= 0 and times[i] > t:
+        i -= 1
+    return i
+
+
 def chain_at(nodes: list[_Node], node_t: list[float], still_q_s: float, t: float) -> _State:
     """The chain's state at ``t`` (see the module docstring): the node at or before ``t``
     (``node_t`` holds the nodes' start times, ascending) advanced along its segment's arc;

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import itertools
 import math
@@ -13,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robot_agent.core.estimator import Estimator, propagate_pose
+from robot_agent.core.estimator_math import last_at_or_before
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint
 from robot_agent.core.params import AgentConfig, EstimatorParams
 from sim_plant.core.encoders import WheelEncoders
@@ -505,3 +507,12 @@ def test_firmware_never_moves_past_the_dropout_bound(
                 assert cmd.mode is Mode.HOLD
                 assert (cmd.omega_r, cmd.omega_l) == (0.0, 0.0)
             k += 1
+
+
+@given(
+    st.lists(st.floats(-10.0, 10.0), max_size=40, unique=True).map(sorted),
+    st.floats(-11.0, 11.0),
+)
+def test_last_at_or_before_is_bisect_right_minus_one(times: list[float], t: float) -> None:
+    """The node lookup of a camera pose (a scan back from the newest) finds what bisect does."""
+    assert last_at_or_before(times, t) == bisect.bisect_right(times, t) - 1
