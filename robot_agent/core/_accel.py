@@ -3,7 +3,7 @@
 The per-tick code of the firmware (estimator, tracking, repulsion, safety filter, mode machine)
 and of the agent host's neighbour lists (:data:`COMPILED_MODULES`) is plain, fully annotated
 Python. ``python -m robot_agent.buildtools.accel build`` compiles *the same files* with mypyc into
-``robot_agent/_compiled/`` (about 2x faster, outputs equal bit for bit: the build checks it
+``robot_agent/_compiled/`` (about 5x faster, outputs equal bit for bit: the build checks it
 before installing, and tests/unit/robot_agent/test_accel.py checks it again). Nothing else changes:
 there is one
 source of truth, and a robot without a C compiler runs the pure code.
