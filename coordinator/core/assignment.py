@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from coordinator.core.formation import LEADER_SLOT
 from coordinator.core.matching import (
     GREEDY_PY_MAX_PAIRS,
+    KEPT_CHECK_MIN_PAIRS,
     METHODS,
     Method,
     SlotLike,
@@ -21,6 +22,7 @@ from coordinator.core.matching import (
     assignment_cost,
     check_finite,
     check_tolerance,
+    greedy_kept,
     greedy_ordered,
     greedy_py,
     natural_key,
@@ -126,6 +128,15 @@ class RoleAssigner:
             ids = [key[i] for i in perm]
             rxy = [robot_xy[i] for i in perm]
         k = min(n, len(slot_ids))
+        if self.method == "greedy" and n * k >= KEPT_CHECK_MIN_PAIRS:
+            # a large fleet whose formation holds: the incumbent, proved in one numpy pass
+            kept = greedy_kept(
+                ids, rxy, slot_ids, slot_xy, k, self._assignment, self.hysteresis_m, self.tie_tol_m
+            )
+            if kept is not None:
+                if k < len(slot_ids):  # the slots left over are not in the check
+                    check_finite(ids, rxy, slot_ids, slot_xy)
+                return self._store(kept)
         if self.method == "greedy" and 0 < n * k <= GREEDY_PY_MAX_PAIRS:
             # The greedy loop checks finiteness on the way (see greedy_py).
             new = greedy_py(
