@@ -70,6 +70,9 @@ _HALF_PI: Final = math.pi / 2.0
 FloatArray = npt.NDArray[np.float64]
 SlotRow = tuple[float, float, float, float]
 """One slot's ``(x, y, vx, vy)``: position (m) and feed-forward velocity (m/s)."""
+_Turn = tuple[float, float, float, float, tuple[tuple[float, float], ...]]
+"""slot_rows' memo: heading theta (rad), its sign (copysign(1, theta): 0.0 and -0.0 differ in
+sin), cos and sin of theta, and per definition row cos and sin of gamma (eq 3)."""
 
 
 class FormationSpec:
@@ -92,6 +95,7 @@ class FormationSpec:
         "_slot_ids",
         "_slots",
         "_tree",
+        "_turn",
     )
 
     @classmethod
@@ -185,6 +189,7 @@ class FormationSpec:
         )
         self._priority_rows = tuple(index[sid] for sid in self._priority)
         self._slot_ids = tuple(s.slot for s in slots_t)
+        self._turn: _Turn | None = None  # slot_rows' memo of the last heading's cos and sin
 
     # -- construction helpers ------------------------------------------------------------------
 
@@ -350,16 +355,25 @@ def slot_rows(spec: FormationSpec, leader: LeaderState) -> tuple[float, list[Slo
     theta = wrap_angle(leader.theta)
     omega = leader.omega_radps
     v = leader.v_mps
-    cos, sin = math.cos, math.sin
+    turn = spec._turn
+    if (
+        turn is None or turn[0] != theta or (theta == 0.0 and math.copysign(1.0, theta) != turn[1])
+    ):  # a new heading: its trigonometry (the same calls, so the same bits, as every tick)
+        cos, sin = math.cos, math.sin
+        trig: list[tuple[float, float]] = []
+        for _, _, phi in spec._tree:
+            gamma = phi + theta - _HALF_PI  # eq 3
+            trig.append((cos(gamma), sin(gamma)))
+        turn = (theta, math.copysign(1.0, theta), cos(theta), sin(theta), tuple(trig))
+        spec._turn = turn
+    _, _, cth, sth, cs = turn
     rows: list[SlotRow] = []
     append = rows.append
-    for parent, b, phi in spec._tree:
+    for (parent, b, _), (cg, sg) in zip(spec._tree, cs, strict=True):
         if parent < 0:
-            append((leader.x, leader.y, v * cos(theta), v * sin(theta)))  # eqs 1-2
+            append((leader.x, leader.y, v * cth, v * sth))  # eqs 1-2
         else:
             xp, yp, vxp, vyp = rows[parent]
-            gamma = phi + theta - _HALF_PI  # eq 3
-            cg, sg = cos(gamma), sin(gamma)
             append(
                 (
                     xp - b * cg,  # eq 4 (corrected)
