@@ -432,12 +432,14 @@ class CoordinatorCore:
             offsets = self._offsets_at(self.leader.progress_s)
         elif tr is None and self.leader.plan is not None:  # a run-time plan's squeeze
             offsets = self.leader.plan.slot_offsets(self.leader.progress_s)
+        spacing_m = None  # the slots' least spacing, for a rigid formation (RoleAssigner)
         if tr is not None:
             theta, rows = blended_rows(leader, *self.reshaper.offsets(now_s))
         elif offsets is not None:
             theta, rows = morphed_slot_rows(leader, offsets)
         else:
             theta, rows = slot_rows(spec, leader)
+            spacing_m = spec.least_spacing_m
         slot_ids: Sequence[int] = spec.priority_slots
         slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
@@ -445,9 +447,13 @@ class CoordinatorCore:
         driven = self._driven(now_s) if self._released else self.assignment
         if movers.update(now_s, poses, driven, held, objects):
             a_ids, a_xy, slot_ids, slot_xy = self._without_movers(ids, xy, slot_ids, slot_xy)
-            assignment, changed = self.assigner.update_ordered(a_ids, a_xy, slot_ids, slot_xy)
+            assignment, changed = self.assigner.update_ordered(
+                a_ids, a_xy, slot_ids, slot_xy, spacing_m
+            )
         else:
-            assignment, changed = self.assigner.update_ordered(ids, xy, slot_ids, slot_xy)
+            assignment, changed = self.assigner.update_ordered(
+                ids, xy, slot_ids, slot_xy, spacing_m
+            )
         refuges: dict[str, SlotRow] | None = None
         self._yielding = movers.yielding
         if self._yielding or was_yielding:

@@ -88,6 +88,7 @@ class FormationSpec:
         "_by_id",
         "_children",
         "_index",
+        "_least_spacing",
         "_offsets",
         "_parent_index",
         "_priority",
@@ -190,6 +191,7 @@ class FormationSpec:
         self._priority_rows = tuple(index[sid] for sid in self._priority)
         self._slot_ids = tuple(s.slot for s in slots_t)
         self._turn: _Turn | None = None  # slot_rows' memo of the last heading's cos and sin
+        self._least_spacing: float | None = None  # least_spacing_m, computed on first use
 
     # -- construction helpers ------------------------------------------------------------------
 
@@ -284,6 +286,22 @@ class FormationSpec:
     def n_stages(self) -> int:
         """Number of stages including the leader's stage 0."""
         return 1 + max(s.stage for s in self._slots)
+
+    @property
+    def least_spacing_m(self) -> float:
+        """The least distance (m) between two slots of the rigid formation (+inf with one
+        slot): the same in every pose of :func:`slot_rows`, up to rounding (1e-16 of the
+        coordinates). The role assigner's proof that the incumbents hold
+        (``coordinator.core.matching.kept_by_spacing``) reads it."""
+        least = self._least_spacing
+        if least is None:
+            off = self._offsets
+            least = math.inf
+            for i in range(1, len(off)):
+                d = np.hypot(off[:i, 0] - off[i, 0], off[:i, 1] - off[i, 1])
+                least = min(least, float(d.min()))
+            self._least_spacing = least
+        return least
 
     @property
     def body_offsets_m(self) -> FloatArray:

@@ -50,6 +50,7 @@ __all__ = [
     "greedy_kept",
     "greedy_ordered",
     "greedy_py",
+    "kept_by_spacing",
     "natural_key",
     "optimal_ordered",
     "robots_xy",
@@ -343,6 +344,75 @@ def _kept_distances(
     own: FloatArray = dist[rows, cols]
     dist[rows, cols] = np.inf
     return own, dist
+
+
+def kept_by_spacing(
+    robot_ids: Sequence[str],
+    rxy: Sequence[tuple[float, float]],
+    slot_ids: Sequence[int],
+    sxy: Sequence[Sequence[float]],
+    k: int,
+    incumbent: Mapping[str, int] | None,
+    hyst: float,
+    gap: float,
+    spacing_m: float,
+) -> dict[str, int] | None:
+    """The incumbent, when the slots' spacing proves that the rules keep it; else None (then
+    the caller runs the rule). O(n) where the rules cost O(n k): the per-tick check of a
+    formation that holds.
+
+    ``spacing_m``: no two of the slots ``sxy`` are closer than this (m; a rigid formation's
+    least slot-to-slot distance, ``FormationSpec.least_spacing_m``). ``gap`` (m): how much a
+    challenger must be farther from a slot than that slot's incumbent is after its margin
+    ``hyst``: ``tol`` for the greedy rule, ``tol / k`` for the optimal one (its tie-break term
+    lies in ``[0, tol / k)``). Validated input as :func:`greedy_ordered`'s, or not: a position
+    that is not finite returns None.
+
+    Why it holds: each of the first ``k`` slots has an incumbent robot (a distinct one), at
+    distance ``d_j``; ``d`` is the largest. A robot holding slot ``j'`` is at least
+    ``spacing_m - d`` from any other slot ``j`` (the triangle inequality), and the incumbent of
+    ``j`` costs at most ``d - hyst``. So when ``spacing_m - d > d - hyst + gap`` (plus
+    :data:`_KEPT_MARGIN_M`, far above the rounding of these sums) and every robot holding no
+    slot now is farther than that from every slot (checked one by one), each slot's incumbent
+    is the only robot within ``gap`` of its least cost: the greedy rule picks it slot after
+    slot, and the incumbents take every row's least cost, the unique optimum.
+    """
+    if not incumbent or k == 0 or not spacing_m > 0.0:
+        return None
+    cols = _kept_columns(robot_ids, slot_ids, k, incumbent)
+    if cols is None:
+        return None
+    sqrt = math.sqrt
+    far = 0.0
+    total = 0.0
+    for j in range(k):
+        srow = sxy[j]
+        rx, ry = rxy[cols[j]]
+        dx = srow[0] - rx
+        dy = srow[1] - ry
+        d = sqrt(dx * dx + dy * dy)
+        total += d
+        if d > far:
+            far = d
+    adj = far - hyst if hyst > 0.0 else far
+    if not (math.isfinite(total) and spacing_m - far > adj + gap + _KEPT_MARGIN_M):
+        return None
+    if len(robot_ids) > k:  # robots holding no slot now: each against every slot
+        held = set(cols)
+        bound = adj + gap + _KEPT_MARGIN_M
+        isfinite = math.isfinite
+        for i, (rx, ry) in enumerate(rxy):
+            if i in held:
+                continue
+            if not (isfinite(rx) and isfinite(ry)):
+                return None
+            for j in range(k):
+                srow = sxy[j]
+                dx = srow[0] - rx
+                dy = srow[1] - ry
+                if not sqrt(dx * dx + dy * dy) > bound:
+                    return None
+    return _in_id_order(robot_ids, slot_ids, cols)
 
 
 def greedy_kept(
