@@ -5,6 +5,7 @@ the bits of a fresh computation."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from coordinator.core.assignment import RoleAssigner
-from coordinator.core.formation import FormationSpec, slot_rows
+from coordinator.core.formation import FormationSpec, SlotRow, slot_rows
 from coordinator.core.matching import (
     _optimal_kept,
     greedy_kept,
@@ -31,7 +32,7 @@ def _spec(kind: str, n: int) -> FormationSpec:
 
 def _fleet(
     spec: FormationSpec, rng: np.random.Generator, noise_m: float, spares: int, theta: float
-) -> tuple[list[str], list[tuple[float, float]], tuple[int, ...], list[tuple[float, ...]]]:
+) -> tuple[list[str], list[tuple[float, float]], tuple[int, ...], list[SlotRow]]:
     """Robots near the slots of ``spec`` (``noise_m`` off, ids in natural order, a shuffled
     holder per slot) plus ``spares`` robots anywhere; the slots in priority order."""
     leader = LeaderState(
@@ -186,7 +187,7 @@ def test_least_spacing_is_the_closest_pair() -> None:
     assert FormationSpec.chevron(1).least_spacing_m == math.inf
 
 
-def _bits(rows: list[tuple[float, ...]]) -> list[str]:
+def _bits(rows: Sequence[Sequence[float]]) -> list[str]:
     return [v.hex() for row in rows for v in row]
 
 
