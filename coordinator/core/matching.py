@@ -349,10 +349,10 @@ def _kept_distances(
 def kept_by_spacing(
     robot_ids: Sequence[str],
     rxy: Sequence[tuple[float, float]],
-    slot_ids: Sequence[int],
     sxy: Sequence[Sequence[float]],
     k: int,
     incumbent: Mapping[str, int] | None,
+    row_of: Mapping[int, int],
     hyst: float,
     gap: float,
     spacing_m: float,
@@ -361,12 +361,12 @@ def kept_by_spacing(
     the caller runs the rule). O(n) where the rules cost O(n k): the per-tick check of a
     formation that holds.
 
-    ``spacing_m``: no two of the slots ``sxy`` are closer than this (m; a rigid formation's
-    least slot-to-slot distance, ``FormationSpec.least_spacing_m``). ``gap`` (m): how much a
-    challenger must be farther from a slot than that slot's incumbent is after its margin
-    ``hyst``: ``tol`` for the greedy rule, ``tol / k`` for the optimal one (its tie-break term
-    lies in ``[0, tol / k)``). Validated input as :func:`greedy_ordered`'s, or not: a position
-    that is not finite returns None.
+    ``sxy``: the slots' rows (x, y first) in priority order, ``row_of`` slot id -> row;
+    ``spacing_m``: no two of these slots are closer than this (m; a rigid formation's least
+    slot-to-slot distance, ``FormationSpec.least_spacing_m``). ``gap`` (m): how much farther
+    from a slot than its incumbent's cost a challenger must be: ``tol`` for the greedy rule,
+    ``tol / k`` for the optimal one (its tie-break term lies in ``[0, tol / k)``). Input
+    ordered as :func:`greedy_ordered`'s; a position that is not finite returns None.
 
     Why it holds: each of the first ``k`` slots has an incumbent robot (a distinct one), at
     distance ``d_j``; ``d`` is the largest. A robot holding slot ``j'`` is at least
@@ -379,15 +379,25 @@ def kept_by_spacing(
     """
     if not incumbent or k == 0 or not spacing_m > 0.0:
         return None
-    cols = _kept_columns(robot_ids, slot_ids, k, incumbent)
-    if cols is None:
-        return None
     sqrt = math.sqrt
+    get = incumbent.get
+    out: dict[str, int] = {}  # robot -> its slot, natural id order (as the rules return it)
+    taken = [False] * k
+    spare: list[int] = []
     far = 0.0
     total = 0.0
-    for j in range(k):
+    for i, rid in enumerate(robot_ids):
+        sid = get(rid)
+        j = -1 if sid is None else row_of.get(sid, -1)
+        if j < 0 or j >= k or sid is None:  # no slot among the first k
+            spare.append(i)
+            continue
+        if taken[j]:  # two robots hold one slot: the rule decides
+            return None
+        taken[j] = True
+        out[rid] = sid
         srow = sxy[j]
-        rx, ry = rxy[cols[j]]
+        rx, ry = rxy[i]
         dx = srow[0] - rx
         dy = srow[1] - ry
         d = sqrt(dx * dx + dy * dy)
@@ -395,24 +405,21 @@ def kept_by_spacing(
         if d > far:
             far = d
     adj = far - hyst if hyst > 0.0 else far
-    if not (math.isfinite(total) and spacing_m - far > adj + gap + _KEPT_MARGIN_M):
+    bound = adj + gap + _KEPT_MARGIN_M
+    if len(out) != k or not (math.isfinite(total) and spacing_m - far > bound):
         return None
-    if len(robot_ids) > k:  # robots holding no slot now: each against every slot
-        held = set(cols)
-        bound = adj + gap + _KEPT_MARGIN_M
-        isfinite = math.isfinite
-        for i, (rx, ry) in enumerate(rxy):
-            if i in held:
-                continue
-            if not (isfinite(rx) and isfinite(ry)):
+    isfinite = math.isfinite
+    for i in spare:  # robots holding no slot now: each against every slot
+        rx, ry = rxy[i]
+        if not (isfinite(rx) and isfinite(ry)):
+            return None
+        for j in range(k):
+            srow = sxy[j]
+            dx = srow[0] - rx
+            dy = srow[1] - ry
+            if not sqrt(dx * dx + dy * dy) > bound:
                 return None
-            for j in range(k):
-                srow = sxy[j]
-                dx = srow[0] - rx
-                dy = srow[1] - ry
-                if not sqrt(dx * dx + dy * dy) > bound:
-                    return None
-    return _in_id_order(robot_ids, slot_ids, cols)
+    return out
 
 
 def greedy_kept(

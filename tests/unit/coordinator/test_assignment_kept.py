@@ -30,6 +30,10 @@ def _spec(kind: str, n: int) -> FormationSpec:
     return FormationSpec.triangle() if kind == "triangle" else getattr(FormationSpec, kind)(n)
 
 
+def _rows(slot_ids: Sequence[int]) -> dict[int, int]:
+    return {sid: j for j, sid in enumerate(slot_ids)}
+
+
 def _fleet(
     spec: FormationSpec, rng: np.random.Generator, noise_m: float, spares: int, theta: float
 ) -> tuple[list[str], list[tuple[float, float]], tuple[int, ...], list[SlotRow]]:
@@ -119,7 +123,7 @@ def test_each_check_returns_the_rule_or_nothing(
     greedy = greedy_py(ids, xy, sids, sxy, k, inc, hyst, tol)
     optimal = optimal_ordered(ids, xy, sids, sxy, inc, hyst, tol)
     for got in (
-        kept_by_spacing(ids, xy, sids, sxy, k, inc, hyst, tol, spec.least_spacing_m),
+        kept_by_spacing(ids, xy, sxy, k, inc, _rows(sids), hyst, tol, spec.least_spacing_m),
         greedy_kept(ids, xy, sids, sxy, k, inc, hyst, tol),
     ):
         assert got is None or (got == greedy and list(got) == list(greedy))
@@ -130,7 +134,7 @@ def test_each_check_returns_the_rule_or_nothing(
             if hyst > 0.0 and inc.get(rid) == sid:
                 cost[j][i] -= hyst
     for got in (
-        kept_by_spacing(ids, xy, sids, sxy, k, inc, hyst, gap, spec.least_spacing_m),
+        kept_by_spacing(ids, xy, sxy, k, inc, _rows(sids), hyst, gap, spec.least_spacing_m),
         _optimal_kept(ids, sids, k, inc, cost, tol),
         _optimal_kept(ids, sids, k, inc, np.array(cost), tol),
     ):
@@ -147,12 +151,16 @@ def test_a_formation_that_holds_is_proved_kept(kind: str) -> None:
     ids, xy, sids, sxy = _fleet(spec, rng, 0.005, 0, 0.7)
     k = len(sids)
     inc = greedy_py(ids, xy, sids, sxy, k, None, 0.0, 0.01)
-    assert kept_by_spacing(ids, xy, sids, sxy, k, inc, 0.05, 0.01, spec.least_spacing_m) == inc
+    assert (
+        kept_by_spacing(ids, xy, sxy, k, inc, _rows(sids), 0.05, 0.01, spec.least_spacing_m) == inc
+    )
     assert greedy_kept(ids, xy, sids, sxy, k, inc, 0.05, 0.01) == inc
     assert optimal_ordered(ids, xy, sids, sxy, inc, 0.05, 0.01) == inc
     other = next(r for r in ids if inc[r] == sids[1])
     xy[ids.index(other)] = (sxy[0][0] + 0.01, sxy[0][1])  # next to the leader slot
-    assert kept_by_spacing(ids, xy, sids, sxy, k, inc, 0.05, 0.01, spec.least_spacing_m) is None
+    assert (
+        kept_by_spacing(ids, xy, sxy, k, inc, _rows(sids), 0.05, 0.01, spec.least_spacing_m) is None
+    )
     got = greedy_kept(ids, xy, sids, sxy, k, inc, 0.05, 0.01)
     assert got is None or got == greedy_py(ids, xy, sids, sxy, k, inc, 0.05, 0.01)
 
@@ -166,7 +174,7 @@ def test_checks_refuse_positions_that_are_not_finite() -> None:
         for i in (0, len(ids) - 1):  # a slot holder and the spare
             moved = list(xy)
             moved[i] = (bad, 0.0)
-            assert kept_by_spacing(ids, moved, sids, sxy, k, inc, 0.05, 0.01, 0.4) is None
+            assert kept_by_spacing(ids, moved, sxy, k, inc, _rows(sids), 0.05, 0.01, 0.4) is None
             assert greedy_kept(ids, moved, sids, sxy, k, inc, 0.05, 0.01) is None
             a = RoleAssigner("greedy")
             a.seed_incumbent(inc)
