@@ -418,28 +418,33 @@ class CoordinatorCore:
         for them (coordinator.core.leader); ``objects``: tracked bodies that are not fleet
         robots (centre x, y): moving, they are movers (coordinator.core.movers)."""
         ids, xy = self._ref_points(poses)
+        ld = self.leader
         rate = 1.0
-        if self.leader.waits() and self._last_out is not None:
+        if ld.waits() and self._last_out is not None:
             self.errors_m = self._errors(self._last_out, ids, xy)
-            rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
-        if self.replanner.setup is not None:
+            rate = ld.wait.target_rate(now_s, self.errors_m, held)
+        planning = self.replanner.setup is not None
+        if planning:
             self._switch_plan(now_s)
-        leader = self.leader.step(now_s, rate)
-        tr = self.reshaper.advance(now_s)
-        spec = self.formation if tr is None else tr.spec
-        offsets = None  # a planned squeeze, at the plan's own (progress) time
-        if tr is None and self._offsets_at is not None and self.leader.mode is LeaderMode.SCRIPT:
-            offsets = self._offsets_at(self.leader.progress_s)
-        elif tr is None and self.leader.plan is not None:  # a run-time plan's squeeze
-            offsets = self.leader.plan.slot_offsets(self.leader.progress_s)
+        leader = ld.step(now_s, rate)
+        reshaper = self.reshaper
+        tr = reshaper.advance(now_s)
         spacing_m = None  # the slots' least spacing, for a rigid formation (RoleAssigner)
         if tr is not None:
-            theta, rows = blended_rows(leader, *self.reshaper.offsets(now_s))
-        elif offsets is not None:
-            theta, rows = morphed_slot_rows(leader, offsets)
+            spec = tr.spec
+            theta, rows = blended_rows(leader, *reshaper.offsets(now_s))
         else:
-            theta, rows = slot_rows(spec, leader)
-            spacing_m = spec.least_spacing_m
+            spec = reshaper.formation
+            offsets = None  # a planned squeeze, at the plan's own (progress) time
+            if self._offsets_at is not None and ld.mode is LeaderMode.SCRIPT:
+                offsets = self._offsets_at(ld.progress_s)
+            elif ld.plan is not None:  # a run-time plan's squeeze
+                offsets = ld.plan.slot_offsets(ld.progress_s)
+            if offsets is not None:
+                theta, rows = morphed_slot_rows(leader, offsets)
+            else:
+                theta, rows = slot_rows(spec, leader)
+                spacing_m = spec.least_spacing_m
         slot_ids: Sequence[int] = spec.priority_slots
         slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
@@ -474,7 +479,8 @@ class CoordinatorCore:
             leader, spec, theta, rows, assignment, changed, approach, movers.moving()
         )
         self._last_out = out
-        if self.replanner.setup is not None:
+        if planning and (ld.new_goal is not None or self.replanner.goal is not None):
+            # (without a goal, new or followed, _replan has nothing to do)
             self._replan(now_s, held, ids, xy, rows, spec.slot_ids, assignment)
         return out
 
