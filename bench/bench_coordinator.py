@@ -102,8 +102,8 @@ def record(name: str, duration_s: float) -> tuple[Any, list[tuple[Any, ...]]]:
     try:
         simulate.run(scn, duration_s=duration_s)
     finally:
-        CoordinatorCore.tick = tick  # type: ignore[method-assign,assignment]
-        CoordinatorCore.reshape = reshape  # type: ignore[method-assign,assignment]
+        CoordinatorCore.tick = tick  # type: ignore[method-assign]
+        CoordinatorCore.reshape = reshape  # type: ignore[method-assign]
     return scn, calls
 
 
