@@ -109,8 +109,10 @@ def record(name: str, duration_s: float) -> tuple[Any, list[tuple[Any, ...]]]:
 
 def child(root: Path, path: Path, runs: int) -> dict[str, Any]:
     cmd = [sys.executable, "-c", _CHILD, str(root), str(path), str(runs)]
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
-    result: dict[str, Any] = json.loads(out.strip().splitlines()[-1])
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"bench_coordinator: the replay in {root} failed:\n{done.stderr[-2000:]}")
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
     return result
 
 
