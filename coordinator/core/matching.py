@@ -602,11 +602,11 @@ def optimal_ordered(
     if k == 0:
         return {}
     if n_r * k <= GREEDY_PY_MAX_PAIRS:
-        rows = _cost_rows_py(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst)
-        kept = _optimal_kept(robot_ids, slot_ids, k, incumbent, rows, tol)
+        cost_rows = _cost_rows_py(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst)
+        kept = _optimal_kept(robot_ids, slot_ids, k, incumbent, cost_rows, tol)
         if kept is not None:
             return kept
-        cost = np.array(rows, dtype=np.float64).reshape(k, n_r)
+        cost = np.array(cost_rows, dtype=np.float64).reshape(k, n_r)
     else:
         _, cost = _costs(
             robot_ids, _as_array(rxy), slot_ids[:k], _as_array(sxy[:k]), incumbent, hyst
