@@ -401,20 +401,25 @@ class MoverDetector:
                 self.rejected += 1
                 continue
             n_ok += 1
-            hist = hists.get(rid)
-            if hist is None:
-                hist = hists[rid] = deque()
             # one sample per tick (a pose that did not change is a robot that did not move
             # as far as the coordinator knows; over the window that averages out)
             last_xy[rid] = (x, y)
-            if not hist or now_s > hist[-1][0]:
-                hist.append((now_s, x, y))
-            # keep the newest sample at least window_s before the latest one, and after it
-            while len(hist) > 2 and now_s - hist[1][0] >= window_s:
-                hist.popleft()
-            if len(hist) < 2:  # speed_mps: NaN until there is a window
+            hist = hists.get(rid)
+            if hist is None:  # a first sample: no speed yet (speed_mps is NaN)
+                hists[rid] = deque(((now_s, x, y),))
                 continue
-            t1, x1, y1 = hist[-1]
+            last = hist[-1]  # (a history is never empty: it starts with a sample, keeps 2)
+            if now_s > last[0]:
+                last = (now_s, x, y)
+                hist.append(last)
+            # keep the newest sample at least window_s before the latest one, and after it
+            n = len(hist)
+            while n > 2 and now_s - hist[1][0] >= window_s:
+                hist.popleft()
+                n -= 1
+            if n < 2:  # speed_mps: NaN until there is a window
+                continue
+            t1, x1, y1 = last
             t0, x0, y0 = hist[0]
             if not t1 - t0 >= window_s:
                 continue
