@@ -18,6 +18,18 @@ the slot position, both in m: the points the tracking controller drives together
 
 :class:`coordinator.core.assignment.RoleAssigner` keeps the incumbent between loops; the sparse
 solver for large fleets is :mod:`coordinator.core.scale_assign`.
+
+**Shortcuts that return the rules' own answer.** Re-run every tick, both rules almost always
+return the incumbent: the formation holds. Three checks prove that without running the rule,
+and return None (the rule runs) whenever they cannot: :func:`kept_by_spacing` (O(n), plain
+Python: each slot's incumbent is closer than the formation's least slot spacing allows any
+other robot to be, by the triangle inequality; the coordinator's tick gives it the spacing of a
+rigid formation), :func:`greedy_kept` (one numpy pass over the (k, n) distances, from
+:data:`KEPT_CHECK_MIN_PAIRS` pairs) and the optimal rule's check of its cost rows before the
+Hungarian solver. Each proves that every challenger is farther than the incumbent's cost plus
+the tie tolerance (and a 1 um margin, far above rounding), so the rule's comparisons, ties and
+hysteresis included, pick the incumbent: the answer is the same dict, in the same order, as the
+rule's (tests/unit/coordinator/test_assignment_kept.py checks it on random fleets).
 """
 
 from __future__ import annotations
