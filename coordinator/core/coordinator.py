@@ -61,8 +61,6 @@ __all__ = [
     "pose_stale_s",
 ]
 
-_new = object.__new__
-
 APPROACH_SPEED_MPS: Final = 0.1
 """Closing speed (m/s, relative to its slot) of a newly assigned robot's approach point: 40 % of
 the firmware's reference-speed clamp (``TrackingGains.max_ref_speed_mps``, 0.25 m/s), so the
@@ -158,7 +156,7 @@ class CoordinatorOutput:
     ) -> CoordinatorOutput:
         """Build from :func:`~coordinator.core.formation.slot_rows` output without making the
         :class:`SlotState` objects (they are made on first access to :attr:`slots`)."""
-        out: CoordinatorOutput = _new(cls)
+        out: CoordinatorOutput = cls.__new__(cls)  # (mypyc: not object.__new__)
         out._leader = leader
         out._slots = None
         out._spec = spec
