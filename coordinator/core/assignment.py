@@ -71,9 +71,9 @@ class RoleAssigner:
         self._n_changes = 0
         # tuple of robot ids as given -> permutation into natural order (update_ordered)
         self._order_cache: dict[tuple[str, ...], tuple[int, ...] | None] = {}
-        # slot id -> row of the slot ids last given (a tuple object: the spec's, every tick)
+        # slot id -> row of the slot ids last given as a tuple (the spec's, every tick)
         self._row_of: dict[int, int] = {}
-        self._rows_for: Sequence[int] | None = None
+        self._rows_for: tuple[int, ...] | None = None
 
     def update(
         self, robots: Mapping[str, tuple[float, float]], slots: Sequence[SlotLike]
@@ -141,9 +141,10 @@ class RoleAssigner:
         if spacing_m is not None and self.method != "sparse" and self._assignment:
             tol = self.tie_tol_m
             gap = tol if self.method == "greedy" else (tol / k if k and tol > 0.0 else 0.0)
-            if slot_ids is not self._rows_for:  # slot id -> row, kept for the same ids
+            if slot_ids is not self._rows_for:  # slot id -> row, kept for the same tuple
                 self._row_of = {sid: j for j, sid in enumerate(slot_ids)}
-                self._rows_for = slot_ids
+                # (only a tuple is kept: a list given again may have changed in between)
+                self._rows_for = slot_ids if type(slot_ids) is tuple else None
             kept = kept_by_spacing(
                 ids, rxy, slot_xy, k, self._assignment, self._row_of, self.hysteresis_m, gap,
                 spacing_m,

@@ -209,3 +209,19 @@ def test_slot_rows_memo_gives_the_bits_of_a_fresh_spec() -> None:
         t2, rows2 = slot_rows(FormationSpec.chevron(7), leader)
         assert t1.hex() == t2.hex()
         assert _bits(rows1) == _bits(rows2)
+
+
+def test_a_slot_list_changed_in_place_is_read_again() -> None:
+    """The assigner keeps the slot id -> row table for a tuple only: a list given again after
+    an edit in place is read afresh."""
+    spec = FormationSpec.triangle()
+    ids, xy, sids, sxy = _fleet(spec, np.random.default_rng(3), 0.0, 0, 0.0)
+    slot_ids = list(sids)
+    a = RoleAssigner("greedy")
+    first, _ = a.update_ordered(ids, xy, slot_ids, sxy, spec.least_spacing_m)
+    slot_ids[1], slot_ids[2] = slot_ids[2], slot_ids[1]  # the same rows under swapped ids
+    fresh = RoleAssigner("greedy")
+    fresh.seed_incumbent(first)
+    want = fresh.update_ordered(ids, xy, list(slot_ids), sxy)
+    assert a.update_ordered(ids, xy, slot_ids, sxy, spec.least_spacing_m) == want
+    assert want[0] != first
