@@ -128,19 +128,33 @@ class CoordinatorOutput:
         slots: Sequence[SlotState],
         assignment: dict[str, int],
         changed: bool,
+        spec: FormationSpec | None = None,
+        theta: float = 0.0,
+        rows: list[SlotRow] | None = None,
+        approach: Mapping[str, SlotRow] | None = None,
+        movers: tuple[MoverRow, ...] = (),
     ) -> None:
-        slot_list = list(slots)
+        """From the slots' states; or, with ``rows`` (and ``spec``, ``theta``; ``slots``
+        unread), from their numbers (:meth:`from_rows`)."""
         self._leader = leader
+        self._assignment = assignment
+        self._changed = changed
+        self._by_id = None
+        self._approach = _NO_APPROACH if approach is None else approach
+        self._movers = movers
+        if rows is not None and spec is not None:
+            self._slots = None
+            self._spec = spec
+            self._theta = theta
+            self._rows = rows
+            self._slot_ids = spec.slot_ids
+            return
+        slot_list = list(slots)
         self._slots = slot_list
         self._spec = None
         self._theta = slot_list[0].theta if slot_list else wrap_angle(leader.theta)
         self._rows = [(s.x, s.y, s.vx, s.vy) for s in slot_list]
         self._slot_ids = tuple(s.slot for s in slot_list)
-        self._assignment = assignment
-        self._changed = changed
-        self._by_id = None
-        self._approach = _NO_APPROACH
-        self._movers = ()
 
     @classmethod
     def from_rows(
@@ -156,19 +170,7 @@ class CoordinatorOutput:
     ) -> CoordinatorOutput:
         """Build from :func:`~coordinator.core.formation.slot_rows` output without making the
         :class:`SlotState` objects (they are made on first access to :attr:`slots`)."""
-        out: CoordinatorOutput = cls.__new__(cls)  # (mypyc: not object.__new__)
-        out._leader = leader
-        out._slots = None
-        out._spec = spec
-        out._theta = theta
-        out._rows = rows
-        out._slot_ids = spec.slot_ids
-        out._assignment = assignment
-        out._changed = changed
-        out._by_id = None
-        out._approach = _NO_APPROACH if approach is None else approach
-        out._movers = movers
-        return out
+        return cls(leader, (), assignment, changed, spec, theta, rows, approach, movers)
 
     @property
     def leader(self) -> LeaderState:
