@@ -25,7 +25,7 @@ A formation from a scenario table (``FormationSpec.from_dict``) is read by
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, Final
 
 import numpy as np
@@ -105,10 +105,11 @@ class FormationSpec:
         the table's forms are documented in :func:`coordinator.core.formation_table.read_table`."""
         form = read_table(d)
         if isinstance(form, BuilderForm):
-            params = dict(form.params)
-            if form.kind == "triangle":
-                return cls.triangle(**params)
-            return (cls.chevron if form.kind == "chevron" else cls.lattice)(**params)
+            build: dict[str, Callable[..., FormationSpec]] = {
+                "triangle": cls.triangle, "chevron": cls.chevron, "lattice": cls.lattice,
+            }  # fmt: skip
+            # (called as a value: mypyc's direct call of a classmethod with ** fails)
+            return build[form.kind](**dict(form.params))
         spec = cls.from_tree(form.rows)
         form.check(spec.slots)
         return spec
