@@ -146,9 +146,6 @@ class StraightLine:
         _set(self, "heading", wrap_angle(_real(name, "heading", self.heading)))
         _set(self, "speed_mps", _non_negative(name, "speed_mps", self.speed_mps))
         _set(self, "t_start_s", _non_negative(name, "t_start_s", self.t_start_s))
-        # the heading's cos and sin, once (not fields: equality and repr are the fields')
-        _set(self, "_cos_h", math.cos(self.heading))
-        _set(self, "_sin_h", math.sin(self.heading))
 
     def sample(self, t_s: float) -> LeaderState:
         """Leader state at ``t_s`` (s); eqs 1-2 with constant v and theta."""
@@ -159,8 +156,8 @@ class StraightLine:
         d = self.speed_mps * tau
         return LeaderState(
             t,
-            self.x0 + d * self._cos_h,  # type: ignore[attr-defined]  # (set in __post_init__)
-            self.y0 + d * self._sin_h,  # type: ignore[attr-defined]
+            self.x0 + d * math.cos(self.heading),
+            self.y0 + d * math.sin(self.heading),
             self.heading,
             self.speed_mps,
             0.0,
