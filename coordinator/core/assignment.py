@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from coordinator.core.formation import LEADER_SLOT
 from coordinator.core.matching import (
     GREEDY_PY_MAX_PAIRS,
+    KEPT_CHECK_MIN_PAIRS,
     METHODS,
     Method,
     SlotLike,
@@ -21,8 +22,10 @@ from coordinator.core.matching import (
     assignment_cost,
     check_finite,
     check_tolerance,
+    greedy_kept,
     greedy_ordered,
     greedy_py,
+    kept_by_spacing,
     natural_key,
     optimal_ordered,
     robots_xy,
@@ -68,6 +71,9 @@ class RoleAssigner:
         self._n_changes = 0
         # tuple of robot ids as given -> permutation into natural order (update_ordered)
         self._order_cache: dict[tuple[str, ...], tuple[int, ...] | None] = {}
+        # slot id -> row of the slot ids last given as a tuple (the spec's, every tick)
+        self._row_of: dict[int, int] = {}
+        self._rows_for: tuple[int, ...] | None = None
 
     def update(
         self, robots: Mapping[str, tuple[float, float]], slots: Sequence[SlotLike]
@@ -93,6 +99,7 @@ class RoleAssigner:
         robot_xy: Sequence[tuple[float, float]],
         slot_ids: Sequence[int],
         slot_xy: Sequence[Sequence[float]],
+        spacing_m: float | None = None,
     ) -> tuple[dict[str, int], bool]:
         """:meth:`update` for input the caller has already put in order (the per-tick hot path of
         :class:`~coordinator.core.coordinator.CoordinatorCore`).
@@ -102,6 +109,11 @@ class RoleAssigner:
         first, then by stage and id: ``FormationSpec.priority_order()``) with ``slot_xy`` rows
         whose first two entries are x, y (m). Non-finite positions raise ``ValueError`` as in
         :meth:`update`; the order and uniqueness are the caller's contract and not checked.
+
+        ``spacing_m``: no two of the slots are closer than this (m), when the caller knows it
+        (a rigid formation: ``FormationSpec.least_spacing_m``). Then a formation that holds
+        keeps its incumbents by a check in O(n) (``kept_by_spacing``: the same answer as the
+        rule, proved) instead of the rule's O(n k).
         """
         n = len(robot_ids)
         if n != len(robot_xy) or len(slot_ids) != len(slot_xy):
@@ -126,6 +138,30 @@ class RoleAssigner:
             ids = [key[i] for i in perm]
             rxy = [robot_xy[i] for i in perm]
         k = min(n, len(slot_ids))
+        if spacing_m is not None and self.method != "sparse" and self._assignment:
+            tol = self.tie_tol_m
+            gap = tol if self.method == "greedy" else (tol / k if k and tol > 0.0 else 0.0)
+            if slot_ids is not self._rows_for:  # slot id -> row, kept for the same tuple
+                self._row_of = {sid: j for j, sid in enumerate(slot_ids)}
+                # (only a tuple is kept: a list given again may have changed in between)
+                self._rows_for = slot_ids if type(slot_ids) is tuple else None
+            kept = kept_by_spacing(
+                ids, rxy, slot_xy, k, self._assignment, self._row_of, self.hysteresis_m, gap,
+                spacing_m,
+            )  # fmt: skip
+            if kept is not None:
+                if k < len(slot_ids):  # the slots left over are not in the check
+                    check_finite(ids, rxy, slot_ids, slot_xy)
+                return self._store(kept)
+        if self.method == "greedy" and n * k >= KEPT_CHECK_MIN_PAIRS:
+            # a large fleet whose formation holds: the incumbent, proved in one numpy pass
+            kept = greedy_kept(
+                ids, rxy, slot_ids, slot_xy, k, self._assignment, self.hysteresis_m, self.tie_tol_m
+            )
+            if kept is not None:
+                if k < len(slot_ids):  # the slots left over are not in the check
+                    check_finite(ids, rxy, slot_ids, slot_xy)
+                return self._store(kept)
         if self.method == "greedy" and 0 < n * k <= GREEDY_PY_MAX_PAIRS:
             # The greedy loop checks finiteness on the way (see greedy_py).
             new = greedy_py(

@@ -18,9 +18,13 @@ rule is here, in the core, so the in-process simulator and the Zenoh coordinator
 
 The tick is on the simulator's hot path (one call per 20 ms tick of sim time, and the sim runs
 some thousand times faster than real time), so it works on plain floats and tuples: the slots are
-computed by :func:`~coordinator.core.formation.slot_rows`, the assignment by
-:meth:`RoleAssigner.update_ordered`, and the :class:`SlotState` objects of
-:attr:`CoordinatorOutput.slots` are only built if someone asks for them.
+computed by :func:`~coordinator.core.formation.slot_rows` (the trigonometry once per heading),
+the assignment by :meth:`RoleAssigner.update_ordered` (given the rigid formation's least slot
+spacing, it proves in O(n) that the incumbents hold instead of running the rule:
+``coordinator.core.matching.kept_by_spacing``), and the :class:`SlotState` objects of
+:attr:`CoordinatorOutput.slots` are only built if someone asks for them. Every shortcut returns
+the bits of the full computation (``bench/bench_coordinator.py --against`` compares the outputs
+of two trees).
 """
 
 from __future__ import annotations
@@ -56,8 +60,6 @@ __all__ = [
     "CoordinatorOutput",
     "pose_stale_s",
 ]
-
-_new = object.__new__
 
 APPROACH_SPEED_MPS: Final = 0.1
 """Closing speed (m/s, relative to its slot) of a newly assigned robot's approach point: 40 % of
@@ -126,19 +128,33 @@ class CoordinatorOutput:
         slots: Sequence[SlotState],
         assignment: dict[str, int],
         changed: bool,
+        spec: FormationSpec | None = None,
+        theta: float = 0.0,
+        rows: list[SlotRow] | None = None,
+        approach: Mapping[str, SlotRow] | None = None,
+        movers: tuple[MoverRow, ...] = (),
     ) -> None:
-        slot_list = list(slots)
+        """From the slots' states; or, with ``rows`` (and ``spec``, ``theta``; ``slots``
+        unread), from their numbers (:meth:`from_rows`)."""
         self._leader = leader
+        self._assignment = assignment
+        self._changed = changed
+        self._by_id = None
+        self._approach = _NO_APPROACH if approach is None else approach
+        self._movers = movers
+        if rows is not None and spec is not None:
+            self._slots = None
+            self._spec = spec
+            self._theta = theta
+            self._rows = rows
+            self._slot_ids = spec.slot_ids
+            return
+        slot_list = list(slots)
         self._slots = slot_list
         self._spec = None
         self._theta = slot_list[0].theta if slot_list else wrap_angle(leader.theta)
         self._rows = [(s.x, s.y, s.vx, s.vy) for s in slot_list]
         self._slot_ids = tuple(s.slot for s in slot_list)
-        self._assignment = assignment
-        self._changed = changed
-        self._by_id = None
-        self._approach = _NO_APPROACH
-        self._movers = ()
 
     @classmethod
     def from_rows(
@@ -154,19 +170,7 @@ class CoordinatorOutput:
     ) -> CoordinatorOutput:
         """Build from :func:`~coordinator.core.formation.slot_rows` output without making the
         :class:`SlotState` objects (they are made on first access to :attr:`slots`)."""
-        out: CoordinatorOutput = _new(cls)
-        out._leader = leader
-        out._slots = None
-        out._spec = spec
-        out._theta = theta
-        out._rows = rows
-        out._slot_ids = spec.slot_ids
-        out._assignment = assignment
-        out._changed = changed
-        out._by_id = None
-        out._approach = _NO_APPROACH if approach is None else approach
-        out._movers = movers
-        return out
+        return cls(leader, (), assignment, changed, spec, theta, rows, approach, movers)
 
     @property
     def leader(self) -> LeaderState:
@@ -418,26 +422,33 @@ class CoordinatorCore:
         for them (coordinator.core.leader); ``objects``: tracked bodies that are not fleet
         robots (centre x, y): moving, they are movers (coordinator.core.movers)."""
         ids, xy = self._ref_points(poses)
+        ld = self.leader
         rate = 1.0
-        if self.leader.waits() and self._last_out is not None:
+        if ld.waits() and self._last_out is not None:
             self.errors_m = self._errors(self._last_out, ids, xy)
-            rate = self.leader.wait.target_rate(now_s, self.errors_m, held)
-        if self.replanner.setup is not None:
+            rate = ld.wait.target_rate(now_s, self.errors_m, held)
+        planning = self.replanner.setup is not None
+        if planning:
             self._switch_plan(now_s)
-        leader = self.leader.step(now_s, rate)
-        tr = self.reshaper.advance(now_s)
-        spec = self.formation if tr is None else tr.spec
-        offsets = None  # a planned squeeze, at the plan's own (progress) time
-        if tr is None and self._offsets_at is not None and self.leader.mode is LeaderMode.SCRIPT:
-            offsets = self._offsets_at(self.leader.progress_s)
-        elif tr is None and self.leader.plan is not None:  # a run-time plan's squeeze
-            offsets = self.leader.plan.slot_offsets(self.leader.progress_s)
+        leader = ld.step(now_s, rate)
+        reshaper = self.reshaper
+        tr = reshaper.advance(now_s)
+        spacing_m = None  # the slots' least spacing, for a rigid formation (RoleAssigner)
         if tr is not None:
-            theta, rows = blended_rows(leader, *self.reshaper.offsets(now_s))
-        elif offsets is not None:
-            theta, rows = morphed_slot_rows(leader, offsets)
+            spec = tr.spec
+            theta, rows = blended_rows(leader, *reshaper.offsets(now_s))
         else:
-            theta, rows = slot_rows(spec, leader)
+            spec = reshaper.formation
+            offsets = None  # a planned squeeze, at the plan's own (progress) time
+            if self._offsets_at is not None and ld.mode is LeaderMode.SCRIPT:
+                offsets = self._offsets_at(ld.progress_s)
+            elif ld.plan is not None:  # a run-time plan's squeeze
+                offsets = ld.plan.slot_offsets(ld.progress_s)
+            if offsets is not None:
+                theta, rows = morphed_slot_rows(leader, offsets)
+            else:
+                theta, rows = slot_rows(spec, leader)
+                spacing_m = spec.least_spacing_m
         slot_ids: Sequence[int] = spec.priority_slots
         slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
@@ -445,9 +456,13 @@ class CoordinatorCore:
         driven = self._driven(now_s) if self._released else self.assignment
         if movers.update(now_s, poses, driven, held, objects):
             a_ids, a_xy, slot_ids, slot_xy = self._without_movers(ids, xy, slot_ids, slot_xy)
-            assignment, changed = self.assigner.update_ordered(a_ids, a_xy, slot_ids, slot_xy)
+            assignment, changed = self.assigner.update_ordered(
+                a_ids, a_xy, slot_ids, slot_xy, spacing_m
+            )
         else:
-            assignment, changed = self.assigner.update_ordered(ids, xy, slot_ids, slot_xy)
+            assignment, changed = self.assigner.update_ordered(
+                ids, xy, slot_ids, slot_xy, spacing_m
+            )
         refuges: dict[str, SlotRow] | None = None
         self._yielding = movers.yielding
         if self._yielding or was_yielding:
@@ -468,7 +483,8 @@ class CoordinatorCore:
             leader, spec, theta, rows, assignment, changed, approach, movers.moving()
         )
         self._last_out = out
-        if self.replanner.setup is not None:
+        if planning and (ld.new_goal is not None or self.replanner.goal is not None):
+            # (without a goal, new or followed, _replan has nothing to do)
             self._replan(now_s, held, ids, xy, rows, spec.slot_ids, assignment)
         return out
 

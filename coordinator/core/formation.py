@@ -25,7 +25,7 @@ A formation from a scenario table (``FormationSpec.from_dict``) is read by
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any, Final
 
 import numpy as np
@@ -70,6 +70,9 @@ _HALF_PI: Final = math.pi / 2.0
 FloatArray = npt.NDArray[np.float64]
 SlotRow = tuple[float, float, float, float]
 """One slot's ``(x, y, vx, vy)``: position (m) and feed-forward velocity (m/s)."""
+_Turn = tuple[float, float, float, float, tuple[tuple[float, float], ...]]
+"""slot_rows' memo: heading theta (rad), its sign (copysign(1, theta): 0.0 and -0.0 differ in
+sin), cos and sin of theta, and per definition row cos and sin of gamma (eq 3)."""
 
 
 class FormationSpec:
@@ -85,6 +88,7 @@ class FormationSpec:
         "_by_id",
         "_children",
         "_index",
+        "_least_spacing",
         "_offsets",
         "_parent_index",
         "_priority",
@@ -92,6 +96,7 @@ class FormationSpec:
         "_slot_ids",
         "_slots",
         "_tree",
+        "_turn",
     )
 
     @classmethod
@@ -100,10 +105,11 @@ class FormationSpec:
         the table's forms are documented in :func:`coordinator.core.formation_table.read_table`."""
         form = read_table(d)
         if isinstance(form, BuilderForm):
-            params = dict(form.params)
-            if form.kind == "triangle":
-                return cls.triangle(**params)
-            return (cls.chevron if form.kind == "chevron" else cls.lattice)(**params)
+            build: dict[str, Callable[..., FormationSpec]] = {
+                "triangle": cls.triangle, "chevron": cls.chevron, "lattice": cls.lattice,
+            }  # fmt: skip
+            # (called as a value: mypyc's direct call of a classmethod with ** fails)
+            return build[form.kind](**dict(form.params))
         spec = cls.from_tree(form.rows)
         form.check(spec.slots)
         return spec
@@ -185,6 +191,8 @@ class FormationSpec:
         )
         self._priority_rows = tuple(index[sid] for sid in self._priority)
         self._slot_ids = tuple(s.slot for s in slots_t)
+        self._turn: _Turn | None = None  # slot_rows' memo of the last heading's cos and sin
+        self._least_spacing: float | None = None  # least_spacing_m, computed on first use
 
     # -- construction helpers ------------------------------------------------------------------
 
@@ -281,6 +289,22 @@ class FormationSpec:
         return 1 + max(s.stage for s in self._slots)
 
     @property
+    def least_spacing_m(self) -> float:
+        """The least distance (m) between two slots of the rigid formation (+inf with one
+        slot): the same in every pose of :func:`slot_rows`, up to rounding (1e-16 of the
+        coordinates). The role assigner's proof that the incumbents hold
+        (``coordinator.core.matching.kept_by_spacing``) reads it."""
+        least = self._least_spacing
+        if least is None:
+            off = self._offsets
+            least = math.inf
+            for i in range(1, len(off)):
+                d = np.hypot(off[:i, 0] - off[i, 0], off[:i, 1] - off[i, 1])
+                least = min(least, float(d.min()))
+            self._least_spacing = least
+        return least
+
+    @property
     def body_offsets_m(self) -> FloatArray:
         """(n, 2) read-only offsets (m) of the slots from the leader with the leader heading +x,
         in definition order."""
@@ -350,16 +374,25 @@ def slot_rows(spec: FormationSpec, leader: LeaderState) -> tuple[float, list[Slo
     theta = wrap_angle(leader.theta)
     omega = leader.omega_radps
     v = leader.v_mps
-    cos, sin = math.cos, math.sin
+    turn = spec._turn
+    if (
+        turn is None or turn[0] != theta or (theta == 0.0 and math.copysign(1.0, theta) != turn[1])
+    ):  # a new heading: its trigonometry (the same calls, so the same bits, as every tick)
+        cos, sin = math.cos, math.sin
+        trig: list[tuple[float, float]] = []
+        for _, _, phi in spec._tree:
+            gamma = phi + theta - _HALF_PI  # eq 3
+            trig.append((cos(gamma), sin(gamma)))
+        turn = (theta, math.copysign(1.0, theta), cos(theta), sin(theta), tuple(trig))
+        spec._turn = turn
+    _, _, cth, sth, cs = turn
     rows: list[SlotRow] = []
     append = rows.append
-    for parent, b, phi in spec._tree:
+    for (parent, b, _), (cg, sg) in zip(spec._tree, cs, strict=True):
         if parent < 0:
-            append((leader.x, leader.y, v * cos(theta), v * sin(theta)))  # eqs 1-2
+            append((leader.x, leader.y, v * cth, v * sth))  # eqs 1-2
         else:
             xp, yp, vxp, vyp = rows[parent]
-            gamma = phi + theta - _HALF_PI  # eq 3
-            cg, sg = cos(gamma), sin(gamma)
             append(
                 (
                     xp - b * cg,  # eq 4 (corrected)

@@ -18,6 +18,18 @@ the slot position, both in m: the points the tracking controller drives together
 
 :class:`coordinator.core.assignment.RoleAssigner` keeps the incumbent between loops; the sparse
 solver for large fleets is :mod:`coordinator.core.scale_assign`.
+
+**Shortcuts that return the rules' own answer.** Re-run every tick, both rules almost always
+return the incumbent: the formation holds. Three checks prove that without running the rule,
+and return None (the rule runs) whenever they cannot: :func:`kept_by_spacing` (O(n), plain
+Python: each slot's incumbent is closer than the formation's least slot spacing allows any
+other robot to be, by the triangle inequality; the coordinator's tick gives it the spacing of a
+rigid formation), :func:`greedy_kept` (one numpy pass over the (k, n) distances, from
+:data:`KEPT_CHECK_MIN_PAIRS` pairs) and the optimal rule's check of its cost rows before the
+Hungarian solver. Each proves that every challenger is farther than the incumbent's cost plus
+the tie tolerance (and a 1 um margin, far above rounding), so the rule's comparisons, ties and
+hysteresis included, pick the incumbent: the answer is the same dict, in the same order, as the
+rule's (tests/unit/coordinator/test_assignment_kept.py checks it on random fleets).
 """
 
 from __future__ import annotations
@@ -37,6 +49,7 @@ from coordinator.core.formation import LEADER_SLOT, SlotState
 
 __all__ = [
     "GREEDY_PY_MAX_PAIRS",
+    "KEPT_CHECK_MIN_PAIRS",
     "METHODS",
     "Method",
     "SlotLike",
@@ -46,8 +59,10 @@ __all__ = [
     "check_finite",
     "check_incumbent",
     "check_tolerance",
+    "greedy_kept",
     "greedy_ordered",
     "greedy_py",
+    "kept_by_spacing",
     "natural_key",
     "optimal_ordered",
     "robots_xy",
@@ -199,6 +214,10 @@ def greedy_ordered(
     k = min(len(robot_ids), len(slot_ids))
     if k == 0:
         return {}
+    if len(robot_ids) * k >= KEPT_CHECK_MIN_PAIRS:
+        kept = greedy_kept(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst, tol)
+        if kept is not None:
+            return kept
     if len(robot_ids) * k <= GREEDY_PY_MAX_PAIRS:
         return greedy_py(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst, tol)
     return _greedy_np(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst, tol)
@@ -252,7 +271,8 @@ def greedy_py(
     """Plain-Python greedy (small fleets): the arithmetic and comparisons of :func:`_greedy_np`.
 
     Per slot, the costs of the untaken robots (eq 6 as cdist computes it, less the margin on the
-    incumbent), then the first robot in natural order within ``tol`` of the smallest.
+    incumbent: the rule of :func:`_slot_costs`, written out here because this loop runs every
+    tick), then the first robot in natural order within ``tol`` of the smallest.
 
     ``check``: the positions are not validated yet. Every robot meets slot 0 and every used slot
     meets a robot, so a NaN/inf coordinate makes some cost non-finite: the sum of the costs is
@@ -261,17 +281,28 @@ def greedy_py(
     """
     n = len(robot_ids)
     inc = _incumbent_slots(robot_ids, incumbent, hyst)
+    sqrt = math.sqrt
     free = list(range(n))  # untaken columns, ascending = natural id order
     got: list[int | None] = [None] * n  # robot column -> slot id
     total = 0.0
     for j in range(k):
         sid = slot_ids[j]
-        costs = _slot_costs(sxy[j], sid, rxy, free, inc, hyst)
+        srow = sxy[j]
+        sx = srow[0]
+        sy = srow[1]
+        costs: list[float] = []
         best = math.inf
-        for c in costs:
+        for i in free:
+            rx, ry = rxy[i]
+            dx = sx - rx
+            dy = sy - ry
+            c = sqrt(dx * dx + dy * dy)
+            if inc is not None and inc[i] == sid:
+                c -= hyst
             total += c
             if c < best:
                 best = c
+            costs.append(c)
         lim = best + tol
         pos = 0
         for c in costs:  # the first tie (lowest id) wins; best itself is one
@@ -284,6 +315,167 @@ def greedy_py(
     if check and (not math.isfinite(total) or k < len(slot_ids)):
         check_finite(robot_ids, rxy, slot_ids, sxy)
     return {rid: sid for rid, sid in zip(robot_ids, got, strict=True) if sid is not None}
+
+
+# The incumbent kept at once (greedy_kept, optimal_kept): from this many (slot, robot) pairs one
+# vectorised check of the incumbent is cheaper than the greedy loop (plain Python) or the
+# Hungarian solver; below it the check costs more than the solvers save.
+KEPT_CHECK_MIN_PAIRS: Final = 100
+_KEPT_MARGIN_M: Final = 1e-6
+"""The check's safety margin (m): far above the rounding of any cost here (1e-16 relative), so
+the check's arithmetic need not be the solvers' bit for bit; a challenger within a micrometre
+of the incumbent's bound sends the tick to the solver, which decides it exactly."""
+
+
+def _kept_columns(
+    robot_ids: Sequence[str], slot_ids: Sequence[int], k: int, incumbent: Mapping[str, int]
+) -> list[int] | None:
+    """Each of the first ``k`` slots' incumbent robot column, or None when a slot has none (or
+    two robots claim one)."""
+    col_of: dict[int, int] = {}
+    get = incumbent.get
+    for i, rid in enumerate(robot_ids):
+        sid = get(rid)
+        if sid is not None:
+            if sid in col_of:
+                return None
+            col_of[sid] = i
+    cols = [col_of.get(sid, -1) for sid in slot_ids[:k]]
+    return None if -1 in cols else cols
+
+
+def _kept_distances(
+    rxy: Sequence[tuple[float, float]], sxy: Sequence[Sequence[float]], k: int, cols: list[int]
+) -> tuple[FloatArray, FloatArray] | None:
+    """(distance of each of the first ``k`` slots to its incumbent, (k, n) distances with the
+    incumbents' entries set to +inf), or None when a position is not finite."""
+    dist: FloatArray = cdist(_as_array(sxy[:k]), _as_array(rxy))
+    if not math.isfinite(float(dist.sum())):
+        return None
+    rows = np.arange(k)
+    own: FloatArray = dist[rows, cols]
+    dist[rows, cols] = np.inf
+    return own, dist
+
+
+def kept_by_spacing(
+    robot_ids: Sequence[str],
+    rxy: Sequence[tuple[float, float]],
+    sxy: Sequence[Sequence[float]],
+    k: int,
+    incumbent: Mapping[str, int] | None,
+    row_of: Mapping[int, int],
+    hyst: float,
+    gap: float,
+    spacing_m: float,
+) -> dict[str, int] | None:
+    """The incumbent, when the slots' spacing proves that the rules keep it; else None (then
+    the caller runs the rule). O(n) where the rules cost O(n k): the per-tick check of a
+    formation that holds.
+
+    ``sxy``: the slots' rows (x, y first) in priority order, ``row_of`` slot id -> row;
+    ``spacing_m``: no two of these slots are closer than this (m; a rigid formation's least
+    slot-to-slot distance, ``FormationSpec.least_spacing_m``). ``gap`` (m): how much farther
+    from a slot than its incumbent's cost a challenger must be: ``tol`` for the greedy rule,
+    ``tol / k`` for the optimal one (its tie-break term lies in ``[0, tol / k)``). Input
+    ordered as :func:`greedy_ordered`'s; a position that is not finite returns None.
+
+    Why it holds: each of the first ``k`` slots has an incumbent robot (a distinct one), at
+    distance ``d_j``; ``d`` is the largest. A robot holding slot ``j'`` is at least
+    ``spacing_m - d`` from any other slot ``j`` (the triangle inequality), and the incumbent of
+    ``j`` costs at most ``d - hyst``. So when ``spacing_m - d > d - hyst + gap`` (plus
+    :data:`_KEPT_MARGIN_M`, far above the rounding of these sums) and every robot holding no
+    slot now is farther than that from every slot (checked one by one), each slot's incumbent
+    is the only robot within ``gap`` of its least cost: the greedy rule picks it slot after
+    slot, and the incumbents take every row's least cost, the unique optimum.
+    """
+    if not incumbent or k == 0 or not spacing_m > 0.0:
+        return None
+    sqrt = math.sqrt
+    get = incumbent.get
+    out: dict[str, int] = {}  # robot -> its slot, natural id order (as the rules return it)
+    taken = [False] * k
+    spare: list[int] = []
+    far = 0.0
+    total = 0.0
+    for i, rid in enumerate(robot_ids):
+        sid = get(rid)
+        j = -1 if sid is None else row_of.get(sid, -1)
+        if j < 0 or j >= k or sid is None:  # no slot among the first k
+            spare.append(i)
+            continue
+        if taken[j]:  # two robots hold one slot: the rule decides
+            return None
+        taken[j] = True
+        out[rid] = sid
+        srow = sxy[j]
+        rx, ry = rxy[i]
+        dx = srow[0] - rx
+        dy = srow[1] - ry
+        d = sqrt(dx * dx + dy * dy)
+        total += d
+        if d > far:
+            far = d
+    adj = far - hyst if hyst > 0.0 else far
+    bound = adj + gap + _KEPT_MARGIN_M
+    if len(out) != k or not (math.isfinite(total) and spacing_m - far > bound):
+        return None
+    isfinite = math.isfinite
+    for i in spare:  # robots holding no slot now: each against every slot
+        rx, ry = rxy[i]
+        if not (isfinite(rx) and isfinite(ry)):
+            return None
+        for j in range(k):
+            srow = sxy[j]
+            dx = srow[0] - rx
+            dy = srow[1] - ry
+            if not sqrt(dx * dx + dy * dy) > bound:
+                return None
+    return out
+
+
+def greedy_kept(
+    robot_ids: Sequence[str],
+    rxy: Sequence[tuple[float, float]],
+    slot_ids: Sequence[int],
+    sxy: Sequence[Sequence[float]],
+    k: int,
+    incumbent: Mapping[str, int] | None,
+    hyst: float,
+    tol: float,
+) -> dict[str, int] | None:
+    """The greedy rule's answer when it is provably the incumbent, else None (then the caller
+    runs the rule). Validated input as :func:`greedy_ordered`'s; ``k`` slots are filled.
+
+    Each of the first ``k`` slots has an incumbent robot (a distinct one) and every other robot
+    is farther from that slot than the incumbent's cost (its distance less ``hyst``) plus
+    ``tol`` (plus :data:`_KEPT_MARGIN_M`). Then, slot by slot in priority order, the incumbent
+    is untaken (the earlier slots took their own), its cost is the least, and no other robot is
+    within ``tol`` of it: the rule picks it, as it picks it when it runs. One numpy pass over the
+    (k, n) distances, for large fleets (``KEPT_CHECK_MIN_PAIRS``) whose formation holds.
+    """
+    if not incumbent or k == 0:
+        return None
+    cols = _kept_columns(robot_ids, slot_ids, k, incumbent)
+    if cols is None:
+        return None
+    got = _kept_distances(rxy, sxy, k, cols)
+    if got is None:
+        return None
+    own, others = got
+    adj = own - hyst if hyst > 0.0 else own
+    if not bool((others.min(axis=1) > adj + (tol + _KEPT_MARGIN_M)).all()):
+        return None
+    return _in_id_order(robot_ids, slot_ids, cols)
+
+
+def _in_id_order(
+    robot_ids: Sequence[str], slot_ids: Sequence[int], cols: list[int]
+) -> dict[str, int]:
+    """robot id -> slot id for slot ``slot_ids[j]`` held by column ``cols[j]``, in column
+    (natural id) order, as the solvers return it."""
+    slot_at = dict(zip(cols, slot_ids, strict=False))
+    return {robot_ids[i]: slot_at[i] for i in sorted(slot_at)}
 
 
 def check_finite(
@@ -327,7 +519,7 @@ def _greedy_np(
     return {robot_ids[i]: out[i] for i in sorted(out)}
 
 
-def _cost_matrix_py(
+def _cost_rows_py(
     robot_ids: Sequence[str],
     rxy: Sequence[tuple[float, float]],
     slot_ids: Sequence[int],
@@ -335,13 +527,13 @@ def _cost_matrix_py(
     k: int,
     incumbent: Mapping[str, int] | None,
     hyst: float,
-) -> FloatArray:
-    """:func:`_costs`' adjusted cost (first ``k`` slots x robots) built in plain Python: for small
-    fleets cheaper than cdist's call overhead, and the same numbers (sqrt(dx*dx + dy*dy))."""
+) -> list[list[float]]:
+    """:func:`_costs`' adjusted cost (first ``k`` slots x robots, one list a slot) built in
+    plain Python: for small fleets cheaper than cdist's call overhead, and the same numbers
+    (sqrt(dx*dx + dy*dy))."""
     inc = _incumbent_slots(robot_ids, incumbent, hyst)
     cols = range(len(robot_ids))
-    rows = [_slot_costs(sxy[j], slot_ids[j], rxy, cols, inc, hyst) for j in range(k)]
-    return np.array(rows, dtype=np.float64).reshape(k, len(robot_ids))
+    return [_slot_costs(sxy[j], slot_ids[j], rxy, cols, inc, hyst) for j in range(k)]
 
 
 @functools.lru_cache(maxsize=32)
@@ -356,6 +548,55 @@ def _tie_break(n_r: int, k: int, tol: float) -> FloatArray:
     term: FloatArray = (tol / k) * weight[:, None] * rank[None, :]
     term.setflags(write=False)
     return term
+
+
+def _optimal_kept(
+    robot_ids: Sequence[str],
+    slot_ids: Sequence[int],
+    k: int,
+    incumbent: Mapping[str, int] | None,
+    cost: Sequence[list[float]] | FloatArray,
+    tol: float,
+) -> dict[str, int] | None:
+    """The optimal rule's answer when it is provably the incumbent, else None (then the solver
+    runs). ``cost``: the (k, n) adjusted costs (eq 6 less the incumbent's margin), rows in
+    slot priority order, before the tie-break term.
+
+    Each of the first ``k`` slots has an incumbent robot (a distinct one) whose cost is below
+    every other robot's in that row by more than ``tol / k`` (the tie-break term lies in
+    ``[0, tol / k)``) plus :data:`_KEPT_MARGIN_M`. Then the incumbents take every row's least
+    cost (with the tie-break added), which no assignment undercuts, and any other assignment
+    pays more in some row: the minimum is the incumbent, and it is the only one, so it is what
+    the Hungarian solver returns.
+    """
+    if not incumbent or k == 0:
+        return None
+    cols = _kept_columns(robot_ids, slot_ids, k, incumbent)
+    if cols is None:
+        return None
+    gap = (tol / k if tol > 0.0 else 0.0) + _KEPT_MARGIN_M
+    if isinstance(cost, np.ndarray):
+        if not math.isfinite(float(cost.sum())):
+            return None
+        at = np.arange(k)
+        own = cost[at, cols]
+        others = cost.copy()
+        others[at, cols] = np.inf
+        if not bool((others.min(axis=1) > own + gap).all()):
+            return None
+        return _in_id_order(robot_ids, slot_ids, cols)
+    isfinite = math.isfinite
+    for row, c in zip(cost, cols, strict=True):
+        own_c = row[c]
+        bound = own_c + gap
+        if not isfinite(bound):
+            return None
+        for i, v in enumerate(row):
+            if not (v > bound or i == c):  # (a NaN or a challenger: the solver decides)
+                return None
+            if not isfinite(v):
+                return None
+    return _in_id_order(robot_ids, slot_ids, cols)
 
 
 def optimal_ordered(
@@ -373,11 +614,18 @@ def optimal_ordered(
     if k == 0:
         return {}
     if n_r * k <= GREEDY_PY_MAX_PAIRS:
-        cost = _cost_matrix_py(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst)
+        cost_rows = _cost_rows_py(robot_ids, rxy, slot_ids, sxy, k, incumbent, hyst)
+        kept = _optimal_kept(robot_ids, slot_ids, k, incumbent, cost_rows, tol)
+        if kept is not None:
+            return kept
+        cost = np.array(cost_rows, dtype=np.float64).reshape(k, n_r)
     else:
         _, cost = _costs(
             robot_ids, _as_array(rxy), slot_ids[:k], _as_array(sxy[:k]), incumbent, hyst
         )
+        kept = _optimal_kept(robot_ids, slot_ids, k, incumbent, cost, tol)
+        if kept is not None:
+            return kept
     if tol > 0.0:
         cost += _tie_break(n_r, k, tol)
     rows, cols = linear_sum_assignment(cost)

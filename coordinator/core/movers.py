@@ -56,13 +56,15 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 __all__ = ["MoverDetector", "MoverParams", "MoverRow"]
 
 MoverRow = tuple[str, float, float, float, float]
 """A moving obstacle: ``(id, x, y, vx, vy)``, its centre (m) and velocity (m/s)."""
+
+_EMPTY: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,7 +161,7 @@ class MoverDetector:
         self._reserved: dict[str, int] = {}
         # (robot, mover) -> side (+1 left of the motion), the motion's unit vector it was for
         self._side: dict[tuple[str, str], tuple[float, float, float]] = {}
-        self._objects: frozenset[str] = frozenset()  # the tracked non-fleet bodies now
+        self._objects: frozenset[str] = _EMPTY  # the tracked non-fleet bodies now
         self._cos_turn = math.cos(self._params.side_turn_rad)
         self.rejected = 0
         """Poses or times skipped as non-finite."""
@@ -176,11 +178,15 @@ class MoverDetector:
     @property
     def yielding(self) -> frozenset[str]:
         """The robots making room for a mover on the last ``update`` (no mover among them)."""
+        if not self._yield_until:  # (every tick without a mover: no set to build)
+            return _EMPTY
         return frozenset(r for r in self._yield_until if r not in self._until)
 
     @property
     def excluded(self) -> frozenset[str]:
         """Movers and the robots making room for them: no slot for any of them now."""
+        if not self._until and not self._yield_until:
+            return _EMPTY
         return frozenset(self._until) | frozenset(self._yield_until)
 
     @property
@@ -370,57 +376,101 @@ class MoverDetector:
         if not math.isfinite(now_s):
             self.rejected += 1
             return self.excluded
-        self._objects = frozenset(objects) if objects else frozenset()
+        self._objects = frozenset(objects) if objects else _EMPTY
         present: Mapping[str, object] = poses
-        seen = list(poses.items())
+        seen: Iterable[tuple[str, Sequence[float]]] = poses.items()
         if objects:
-            seen += [(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses]
+            seen = [
+                *poses.items(),
+                *[(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses],
+            ]
             present = {**poses, **objects}
+        # The per-tick hot path (one pass per robot): locals, the speed of speed_mps inline
+        # (the same arithmetic), and the bookkeeping below only when there is something to do.
+        isfinite = math.isfinite
+        hypot = math.hypot
+        hists = self._hist
+        last_xy = self._last_xy
+        until = self._until
+        window_s = p.window_s
+        fast_mps = p.fast_mps
+        n_ok = 0
         for rid, pose in seen:
             x, y = float(pose[0]), float(pose[1])
-            if not (math.isfinite(x) and math.isfinite(y)):
+            if not (isfinite(x) and isfinite(y)):
                 self.rejected += 1
                 continue
-            hist = self._hist.get(rid)
-            if hist is None:
-                hist = self._hist[rid] = deque()
+            n_ok += 1
             # one sample per tick (a pose that did not change is a robot that did not move
             # as far as the coordinator knows; over the window that averages out)
-            self._last_xy[rid] = (x, y)
-            if not hist or now_s > hist[-1][0]:
-                hist.append((now_s, x, y))
+            last_xy[rid] = (x, y)
+            hist = hists.get(rid)
+            if hist is None:  # a first sample: no speed yet (speed_mps is NaN)
+                hists[rid] = deque(((now_s, x, y),))
+                continue
+            last = hist[-1]  # (a history is never empty: it starts with a sample, keeps 2)
+            if now_s > last[0]:
+                last = (now_s, x, y)
+                hist.append(last)
             # keep the newest sample at least window_s before the latest one, and after it
-            while len(hist) > 2 and now_s - hist[1][0] >= p.window_s:
+            n = len(hist)
+            while n > 2 and now_s - hist[1][0] >= window_s:
                 hist.popleft()
-            speed = self.speed_mps(rid)
+                n -= 1
+            if n < 2:  # speed_mps: NaN until there is a window
+                continue
+            t1, x1, y1 = last
+            t0, x0, y0 = hist[0]
+            if not t1 - t0 >= window_s:
+                continue
+            speed = hypot(x1 - x0, y1 - y0) / (t1 - t0)
             if speed != speed:
                 continue
-            driven = rid in assignment and rid not in held
-            # (hysteresis: a mover stays one down to half of still_mps, so a slow body read
-            # through the camera's noise does not flicker in and out)
-            still = 0.5 * p.still_mps if rid in self._until else p.still_mps
-            if speed > p.fast_mps or (not driven and speed > still):
+            if speed > fast_mps:
+                mover = True
+            else:
+                driven = rid in assignment and rid not in held
+                # (hysteresis: a mover stays one down to half of still_mps, so a slow body
+                # read through the camera's noise does not flicker in and out)
+                still = 0.5 * p.still_mps if rid in until else p.still_mps
+                mover = not driven and speed > still
+            if mover:
                 if rid in assignment:
                     self._reserved.setdefault(rid, assignment[rid])
-                self._until[rid] = now_s + p.hold_s
-        for rid in [r for r in self._hist if r not in present]:  # gone: forget it
-            del self._hist[rid]
-            self._last_xy.pop(rid, None)
-        for rid in [r for r, until in self._until.items() if now_s >= until or r not in present]:
-            del self._until[rid]
-        if self._until:
-            self._make_room(now_s, assignment)
-        for rid in [r for r, t in self._yield_until.items() if now_s >= t or r not in poses]:
-            del self._yield_until[rid]
-        for rid in [
-            r for r in self._reserved if r not in self._until and r not in self._yield_until
-        ]:
-            del self._reserved[rid]
-        for key in [
-            k for k in self._side if k[0] not in self._yield_until or k[1] not in self._until
-        ]:
-            del self._side[key]
+                until[rid] = now_s + p.hold_s
+        self._expire(now_s, n_ok, present, poses, assignment)
         return self.excluded
+
+    def _expire(
+        self,
+        now_s: float,
+        n_seen: int,
+        present: Mapping[str, object],
+        poses: Mapping[str, object],
+        assignment: Mapping[str, int],
+    ) -> None:
+        """End of ``update``: forget the robots gone (``n_seen`` finite poses were taken now),
+        end the movers and yields whose hold is over, mark the robots making room now."""
+        hists, until, ylds = self._hist, self._until, self._yield_until
+        # every history is of a robot seen now unless the table holds more ids than that
+        if len(hists) != n_seen:
+            for rid in [r for r in hists if r not in present]:  # gone: forget it
+                del hists[rid]
+                self._last_xy.pop(rid, None)
+        if until:
+            for rid in [r for r, t in until.items() if now_s >= t or r not in present]:
+                del until[rid]
+            if until:
+                self._make_room(now_s, assignment)
+        if ylds:
+            for rid in [r for r, t in ylds.items() if now_s >= t or r not in poses]:
+                del ylds[rid]
+        if self._reserved:
+            for rid in [r for r in self._reserved if r not in until and r not in ylds]:
+                del self._reserved[rid]
+        if self._side:
+            for key in [k for k in self._side if k[0] not in ylds or k[1] not in until]:
+                del self._side[key]
 
     def _make_room(self, now_s: float, assignment: Mapping[str, int]) -> None:
         """Mark the robots near a mover, and those near them in turn, as yielding now (a

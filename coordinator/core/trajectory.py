@@ -107,9 +107,13 @@ def _non_negative(owner: str, name: str, value: object) -> float:
     return f
 
 
-def _time(owner: str, t_s: float) -> float:
+def _time(owner: object, t_s: float) -> float:
+    """``t_s`` (s) as a float; ValueError naming ``owner``'s class if it is not a finite number."""
+    if type(t_s) is float and math.isfinite(t_s):  # (every tick: one test)
+        return t_s
     if isinstance(t_s, bool) or not isinstance(t_s, int | float) or not math.isfinite(t_s):
-        raise ValueError(f"{owner}.sample: t_s must be a finite number, got {t_s!r}")
+        name = type(owner).__name__
+        raise ValueError(f"{name}.sample: t_s must be a finite number, got {t_s!r}")
     return float(t_s)
 
 
@@ -145,7 +149,7 @@ class StraightLine:
 
     def sample(self, t_s: float) -> LeaderState:
         """Leader state at ``t_s`` (s); eqs 1-2 with constant v and theta."""
-        t = _time(type(self).__name__, t_s)
+        t = _time(self, t_s)
         tau = t - self.t_start_s
         if tau <= 0.0:
             return LeaderState(t, self.x0, self.y0, self.heading, 0.0, 0.0)
@@ -204,7 +208,7 @@ class Circle:
 
     def sample(self, t_s: float) -> LeaderState:
         """Leader state at ``t_s`` (s)."""
-        t = _time(type(self).__name__, t_s)
+        t = _time(self, t_s)
         tau = max(0.0, t - self.t_start_s)
         sign = 1.0 if self.ccw else -1.0
         # Reduce the phase modulo one lap so accuracy does not decay over long runs.
@@ -274,7 +278,7 @@ class FigureEight:
 
     def sample(self, t_s: float) -> LeaderState:
         """Leader state at ``t_s`` (s)."""
-        t = _time(type(self).__name__, t_s)
+        t = _time(self, t_s)
         tau = max(0.0, t - self.t_start_s)
         w = _TWO_PI / self.period_s
         ph = w * math.remainder(tau, self.period_s)
@@ -473,7 +477,7 @@ class Waypoints:
 
     def sample(self, t_s: float) -> LeaderState:
         """Leader state at ``t_s`` (s), evaluated exactly on the precomputed path."""
-        t = _time(type(self).__name__, t_s)
+        t = _time(self, t_s)
         tau = t - self.t_start_s
         if tau <= 0.0:
             first = self._pieces[0]

@@ -25,7 +25,7 @@ import sim_plant.core.sensors as sensors_mod
 from coordinator.core.assignment import RoleAssigner, assign_optimal
 from coordinator.core.coordinator import CoordinatorCore, CoordinatorOutput
 from coordinator.core.formation import FormationSpec, slot_arrays, slot_rows, slot_states
-from coordinator.core.matching import _cost_matrix_py, _costs, _greedy_np
+from coordinator.core.matching import _cost_rows_py, _costs, _greedy_np
 from coordinator.core.matching import greedy_py as _greedy_py
 from coordinator.core.trajectory import LeaderState
 from formation.outputs import metrics
@@ -385,7 +385,7 @@ def test_greedy_python_equals_numpy(
     assert list(py) == [r for r in ids if r in py]
     # The optimal rule's cost matrix: plain Python == cdist with the hysteresis applied.
     _, cost = _costs(ids, np.array(rxy), sids[:k], np.array(sxy[:k]), inc, hyst)
-    np.testing.assert_array_equal(_cost_matrix_py(ids, rxy, sids, sxy, k, inc, hyst), cost)
+    np.testing.assert_array_equal(_cost_rows_py(ids, rxy, sids, sxy, k, inc, hyst), cost)
 
 
 def test_role_assigner_ordered_update_equals_update() -> None:
