@@ -16,7 +16,7 @@ import json
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -222,7 +222,9 @@ def test_inbox_latest_mode_bounds_distinct_keys() -> None:
     assert len(inbox.snapshot()) == 3 and inbox.dropped == 7
 
 
-def feed_from_thread(jobs: list[tuple[Callable[[rt.Received], object], rt.Received, bool]]) -> None:
+def feed_from_thread(
+    jobs: Sequence[tuple[Callable[[rt.Received], object], rt.Received, bool]],
+) -> None:
     """Push ``(handler, sample, wake)`` jobs into the running loop's LoopFeed from a thread."""
     feed = rt.loop_feed(asyncio.get_running_loop())
 
