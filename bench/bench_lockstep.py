@@ -12,7 +12,14 @@ collector) as a subprocess tree for ``--duration`` sim seconds of paper-exp2 and
 Each robot count runs twice: one ``formation agent`` process per robot, and one
 ``formation agent-host`` for all robots with the batched bus (``--hosts 1``, docs/scale.md).
 
-Usage: ``python bench/bench_lockstep.py [--duration 60] [--robots 3 ...]``. Prints; asserts nothing.
+``--marginal S`` also runs each configuration for ``S`` sim seconds (less than ``--duration``)
+and prints the CPU milliseconds per tick of each process kind over the ticks the longer run
+added: start-up, shutdown and the launcher's end-of-run work cancel out, what remains is the
+steady lockstep's cost per tick (at 50 Hz, 20x real time is 1 ms of wall per tick: on 2 cores
+the sum must stay well under 2 ms).
+
+Usage: ``python bench/bench_lockstep.py [--duration 60] [--robots 3 ...] [--marginal 6]``.
+Prints; asserts nothing.
 """
 
 from __future__ import annotations
@@ -82,7 +89,11 @@ def watch_tree_cpu(
     return launcher_cpu, cpu
 
 
-def run_lockstep(robots: int, duration_s: float, out: Path, hosts: int = 0) -> None:
+def run_lockstep(
+    robots: int, duration_s: float, out: Path, hosts: int = 0, *, quiet: bool = False
+) -> dict[str, float] | None:
+    """One ``formation up --lockstep`` run; prints its figures (unless ``quiet``) and returns
+    the CPU seconds by process kind (None if it failed)."""
     argv = [
         sys.executable, "-m", "formation", "up", "--scenario", "paper-exp2", "--lockstep",
         "--duration", str(duration_s), "--robots", str(robots), "--quiet", "--no-figures",
@@ -96,7 +107,14 @@ def run_lockstep(robots: int, duration_s: float, out: Path, hosts: int = 0) -> N
     wall = time.monotonic() - wall0
     if proc.returncode != 0:
         print(f"  formation up failed with status {proc.returncode}; see {out}/logs/")
-        return
+        return None
+    by_name: dict[str, float] = {}
+    for name, seconds in cpu.values():
+        key = "agents (sum)" if name.startswith("agent") else name
+        by_name[key] = by_name.get(key, 0.0) + seconds
+    by_name["launcher (collector)"] = launcher_cpu
+    if quiet:
+        return by_name
     m = json.loads((out / "metrics.json").read_text())
     meta = m["meta"]
     sim_s = m["run"]["duration_s"]
@@ -108,20 +126,43 @@ def run_lockstep(robots: int, duration_s: float, out: Path, hosts: int = 0) -> N
         f"{meta['wall_s'] - run_wall - (meta['stop_s'] or 0):.1f} s, stop {meta['stop_s']:.2f} s)"
     )
     print(f"    ticks {m['run']['ticks']} truth frames; final leader {m['run']['final_leader']}")
-    by_name: dict[str, float] = {}
-    for name, seconds in cpu.values():
-        key = "agents (sum)" if name.startswith("agent") else name
-        by_name[key] = by_name.get(key, 0.0) + seconds
-    by_name["launcher (collector)"] = launcher_cpu
     row = ", ".join(f"{k} {v:.1f}" for k, v in sorted(by_name.items(), key=lambda kv: -kv[1]))
     print(f"    CPU seconds (2 cores, {2 * wall:.0f} core-s available): {row}")
+    return by_name
+
+
+def print_marginal(
+    long: dict[str, float] | None,
+    short: dict[str, float] | None,
+    duration_s: float,
+    short_s: float,
+    dt_s: float,
+) -> None:
+    """The CPU per tick of the ticks the longer run added, by process kind."""
+    if long is None or short is None:
+        return
+    ticks = (duration_s - short_s) / dt_s
+    per_tick = {k: 1000.0 * (v - short.get(k, 0.0)) / ticks for k, v in long.items()}
+    row = ", ".join(f"{k} {v:.2f}" for k, v in sorted(per_tick.items(), key=lambda kv: -kv[1]))
+    total = sum(per_tick.values())
+    print(f"    CPU ms per tick ({duration_s:g} s run minus {short_s:g} s run): {row}; "
+          f"total {total:.2f}")  # fmt: skip
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--duration", type=float, default=60.0, help="sim seconds per run")
     p.add_argument("--robots", type=int, nargs="+", default=[3], help="robot counts")
+    p.add_argument(
+        "--marginal",
+        type=float,
+        default=None,
+        metavar="S",
+        help="also run S sim seconds and print the CPU per tick of the difference",
+    )
     args = p.parse_args()
+    if args.marginal is not None and not 0 < args.marginal < args.duration:
+        p.error(f"--marginal must be above 0 and below --duration ({args.duration:g})")
     import scenario
     from formation.sim import simulate
 
@@ -131,8 +172,13 @@ def main() -> int:
     print(f"  in-process simulator (reference, one process): {ref.realtime_factor:.1f}x real time")
     with tempfile.TemporaryDirectory(prefix="bench-lockstep-") as tmp:
         for n in args.robots:
-            run_lockstep(n, args.duration, Path(tmp) / f"r{n}")
-            run_lockstep(n, args.duration, Path(tmp) / f"r{n}-host", hosts=1)
+            for hosts, name in ((0, f"r{n}"), (1, f"r{n}-host")):
+                cpu = run_lockstep(n, args.duration, Path(tmp) / name, hosts=hosts)
+                if args.marginal is not None:
+                    short = run_lockstep(
+                        n, args.marginal, Path(tmp) / f"{name}-short", hosts=hosts, quiet=True
+                    )
+                    print_marginal(cpu, short, args.duration, args.marginal, scn.dt_s)
     return 0
 
 

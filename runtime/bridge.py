@@ -28,6 +28,7 @@ import asyncio
 import contextlib
 import threading
 import time
+import weakref
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,10 +40,12 @@ __all__ = [
     "BufferedSubscription",
     "Inbox",
     "LivelinessHandler",
+    "LoopFeed",
     "Push",
     "Received",
     "SampleHandler",
     "declare_token",
+    "loop_feed",
     "subscribe",
     "subscribe_buffered",
     "subscribe_on_thread",
@@ -341,24 +344,104 @@ def subscribe_buffered(
     return BufferedSubscription(session, key_expr, push, capacity=capacity, name=name)
 
 
+class LoopFeed:
+    """The hand-over of samples to one event loop's handlers: one FIFO of ``(handler,
+    Received)`` shared by every callable subscription of the loop, so the handlers run in the
+    order the session received the samples, across keys too.
+
+    A burst of samples wakes the loop once: :meth:`push` (Zenoh's thread) appends under a short
+    lock and schedules one :meth:`_drain` with ``call_soon_threadsafe`` only when none is
+    pending; the drain runs the handlers of everything queued, in order. Before, each sample
+    was a ``call_soon_threadsafe`` of its own (a ``Handle``, a write to the loop's self-pipe
+    and, when the loop slept, a wake-up of its thread): a lockstep clock and the poses before
+    it now cost the agent one. ``wake=False`` (:func:`subscribe`): the sample waits in the
+    FIFO, in its place, without scheduling a drain; the next sample that wakes the loop (or
+    :meth:`flush`) runs it, before itself.
+
+    A handler that raises does not keep the others from running: the exception goes to the
+    loop's exception handler, as an exception of a ``call_soon`` callback did.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+        self._lock = threading.Lock()
+        self._pending: deque[tuple[SampleHandler, Received]] = deque()
+        self._scheduled = False
+        self.drains = 0
+        """How many drains ran (each: one wake-up of the loop for a burst)."""
+        self.handled = 0
+        """How many samples the drains handed to their handlers."""
+
+    def push(self, fn: SampleHandler, rx: Received, wake: bool = True) -> None:
+        """Queue ``fn(rx)`` (any thread; never blocks but for the short lock)."""
+        with self._lock:
+            self._pending.append((fn, rx))
+            if self._scheduled or not wake:
+                return
+            self._scheduled = True
+        try:
+            self._loop.call_soon_threadsafe(self._drain)
+        except RuntimeError:  # the loop is closed: the node is exiting and the sample is moot
+            with self._lock:
+                self._scheduled = False
+
+    def flush(self) -> None:
+        """On the loop: run the handlers of what is queued now (``wake=False`` samples)."""
+        self._drain()
+
+    def _drain(self) -> None:  # on the loop
+        with self._lock:
+            items, self._pending = self._pending, deque()
+            self._scheduled = False
+        if not items:
+            return
+        self.drains += 1
+        self.handled += len(items)
+        for fn, rx in items:
+            try:
+                fn(rx)
+            except Exception as exc:
+                self._loop.call_exception_handler(
+                    {"message": f"handler of {rx.key!r} raised", "exception": exc}
+                )
+
+
+_FEEDS: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, LoopFeed] = weakref.WeakKeyDictionary()
+
+
+def loop_feed(loop: asyncio.AbstractEventLoop) -> LoopFeed:
+    """The one :class:`LoopFeed` of ``loop`` (made on first use; call it from the loop's
+    thread, as :func:`subscribe` does)."""
+    feed = _FEEDS.get(loop)
+    if feed is None:
+        feed = _FEEDS[loop] = LoopFeed(loop)
+    return feed
+
+
 def subscribe(
     session: zenoh.Session,
     key_expr: str,
     loop: asyncio.AbstractEventLoop,
     handler: Inbox | SampleHandler,
+    *,
+    wake: bool = True,
 ) -> zenoh.Subscriber[None]:
     """Subscribe to ``key_expr`` and deliver each sample to the event loop ``loop``, in the
     order the session received them (across keys too: see the module docstring).
 
-    ``handler`` is a callable run on the loop thread with one :class:`Received` per sample, or
-    an :class:`Inbox`.
+    ``handler`` is a callable run on the loop thread with one :class:`Received` per sample
+    (through the loop's :class:`LoopFeed`), or an :class:`Inbox`. ``wake=False`` (callables
+    only): a sample of this key does not wake the loop; it is handled, in its place, when the
+    next sample that does wakes it (a lockstep node's inputs that only its next clock reads).
     """
     if isinstance(handler, Inbox):
+        if not wake:
+            raise ValueError("wake=False is for callables: an Inbox has its own (Inbox(wake=))")
         handler.bind(loop)
         return subscribe_on_thread(session, key_expr, handler.push)
     fn = handler
-    call_soon = loop.call_soon_threadsafe
-    return subscribe_on_thread(session, key_expr, lambda rx: call_soon(fn, rx))
+    push = loop_feed(loop).push
+    return subscribe_on_thread(session, key_expr, lambda rx: push(fn, rx, wake))
 
 
 # --------------------------------------------------------------------------------------------

@@ -406,10 +406,14 @@ class NodeIO:
     settings: _tp.ZenohSettings
     _keep: list[Any] = field(default_factory=list)
 
-    def subscribe(self, key_expr: str, handler: Callable[[Received], object]) -> None:
+    def subscribe(
+        self, key_expr: str, handler: Callable[[Received], object], *, wake: bool = True
+    ) -> None:
         """Deliver every sample of ``key_expr`` to ``handler`` on the loop, in arrival order
-        (:func:`runtime.bridge.subscribe`, the one bridge)."""
-        self._keep.append(subscribe(self.session, key_expr, self.loop, handler))
+        (:func:`runtime.bridge.subscribe`, the one bridge). ``wake=False``: a sample of this
+        key is handled, in its place, when the next one that wakes the loop arrives (a
+        lockstep node's inputs that only its next clock reads)."""
+        self._keep.append(subscribe(self.session, key_expr, self.loop, handler, wake=wake))
 
     def watch_liveliness(self, pattern: str, on_change: LivelinessHandler) -> None:
         """Call ``on_change(key, alive)`` on the loop when a token matching ``pattern`` appears

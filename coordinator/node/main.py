@@ -202,11 +202,14 @@ async def _run(
     standby: bool,
 ) -> int:
     batch = node.batch
+    # Lockstep: the poses are read at the next clock only (they precede it: same publisher),
+    # so they wait for it (runtime.bridge.LoopFeed) instead of waking the loop each
+    lazy = not lockstep
     if batch:
         io.pubs.get(node.setpoints_key, node.sp_qos)
-        io.subscribe(node.poses_key, node.on_poses)
+        io.subscribe(node.poses_key, node.on_poses, wake=lazy)
     else:
-        io.subscribe(node.poses_pattern, node.on_pose)
+        io.subscribe(node.poses_pattern, node.on_pose, wake=lazy)
     if lockstep:
         io.subscribe(node.clock_key, node.on_clock)
     io.declare_token(node.alive_key)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import replace
 from typing import Any, Final
 
 import runtime as rt
@@ -121,8 +120,9 @@ class TickOutputs:
                 theta=s.theta,
                 vx=s.vx,
                 vy=s.vy,
+                tick=tick,
             )
-            setpoints.append((key, encode(replace(sp, tick=tick)), self.sp_qos))
+            setpoints.append((key, encode(sp), self.sp_qos))
         slots: Outgoing = []
         for s in self._slots_due(out.slots, now_s):
             key = keys.slot_key(fleet, s.slot)
@@ -138,8 +138,9 @@ class TickOutputs:
                 theta=s.theta,
                 vx=s.vx,
                 vy=s.vy,
+                tick=tick,
             )
-            slots.append((key, encode(replace(msg, tick=tick)), self.data_qos))
+            slots.append((key, encode(msg), self.data_qos))
         extra: Outgoing = []
         if out.changed or now_s - self._last_assignment_t >= ASSIGNMENT_REPEAT_S:
             self._last_assignment_t = now_s
@@ -161,9 +162,10 @@ class TickOutputs:
             theta=ld.theta,
             v_mps=ld.v_mps,
             omega_radps=ld.omega_radps,
+            tick=tick,
             **(leader_extra or {}),
         )
-        leader_out = (self.leader_key, encode(replace(leader, tick=tick)), self.leader_qos)
+        leader_out = (self.leader_key, encode(leader), self.leader_qos)
         if out.movers:  # the moving obstacles (issue 30), as urgent as the setpoints
             setpoints.append(self._movers(out, t, tick))
         if self.lockstep:  # slots, setpoints, assignment, then the leader LAST

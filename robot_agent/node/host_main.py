@@ -143,12 +143,15 @@ async def _node(
         io.pubs.get(host.status_key, rt.QOS_TELEMETRY)
         # the latched e-stop first: robots that start under an e-stop come up in ESTOP
         await attach_host_estop_state(host, io)
-        io.subscribe(host.setpoints_key, host.on_setpoints)
-        io.subscribe(host.movers_key, host.on_movers)
+        # lockstep: setpoints, movers and poses are read at the next clock only, so they wait
+        # for it (runtime.bridge.LoopFeed) instead of waking the loop each (docs/runtime.md)
+        lazy = not lockstep
+        io.subscribe(host.setpoints_key, host.on_setpoints, wake=lazy)
+        io.subscribe(host.movers_key, host.on_movers, wake=lazy)
         if lockstep:
             io.subscribe(keys.fault_key(fleet), host.on_fault)  # scripted faults, lockstep
             io.subscribe(host.clock_key, host.on_clock)
-        io.subscribe(host.poses_key, host.on_poses)
+        io.subscribe(host.poses_key, host.on_poses, wake=lazy)
         if not lockstep:  # the other robots' modes: cooperative neighbours
             io.subscribe(keys.all_status_pattern(fleet), host.peer_status.on_status)
             io.subscribe(keys.all_host_status_pattern(fleet), host.peer_status.on_host_status)

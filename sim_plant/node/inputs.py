@@ -238,9 +238,19 @@ class PlantInputs:
                     continue
                 tracking = modes is not None and modes[j] == "tracking"
                 p_t = pose_t if pose_t >= 0.0 else None
-                self._command(i, wr, wl, msg.tick, p_t, rx.rx_s, tracking)
+                self._command(i, wr, wl, msg.tick, p_t, rx.rx_s, tracking, notify=False)
+            if self.lockstep and msg.tick == self._current_tick():
+                self._notify_if_answered(msg.tick)  # once for the batch
         except Exception as exc:
             self._faults.internal("on_host_wheels", exc)
+
+    def _notify_if_answered(self, k: int) -> None:
+        """Lockstep: wake the plant's wait for tick ``k``'s answers once they are all in, not
+        at every answer (each wake was a turn of its task: a timeout armed and cancelled,
+        :meth:`answered` again). What else can end the wait (a token gone, a scripted fault)
+        sets :attr:`changed` itself."""
+        if self.answered(k):
+            self.changed.set()
 
     def _command(
         self,
@@ -252,17 +262,20 @@ class PlantInputs:
         rx_s: float,
         tracking: bool = False,
         claim: tuple[float, float, float, float, float] | None = None,
+        *,
+        notify: bool = True,
     ) -> None:
         """Robot ``i``'s command: into the link now (realtime) or at the tick's end (lockstep);
-        ``tracking``: the command said mode TRACKING (relayed in the next clock)."""
+        ``tracking``: the command said mode TRACKING (relayed in the next clock); ``notify``:
+        wake the answer wait if this completes the tick (a batch does it once, at its end)."""
         self.last_cmd[i] = (wr, wl)
         if self.lockstep:
             if tick is not None:
                 self.answer_tick[i] = tick
                 self.answer_tracking[i] = tracking
                 self.answer_claim[i] = claim
-                if tick == self._current_tick():
-                    self.changed.set()
+                if notify and tick == self._current_tick():
+                    self._notify_if_answered(tick)
         else:
             self._send(i, (self.generation[i], wr, wl), pose_t, rx_s)
 
@@ -280,7 +293,7 @@ class PlantInputs:
                 return
             self.leader_tick = tick
             if tick == self._current_tick():
-                self.changed.set()
+                self._notify_if_answered(tick)
         except Exception as exc:
             self._faults.internal("on_leader", exc)
 

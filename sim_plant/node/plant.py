@@ -242,6 +242,7 @@ class PlantNode:
         """A scripted fault's notice (sim_plant.node.faults); never raises."""
         try:
             self.scripted.on_fault(self, rx.payload)
+            self.inputs.changed.set()  # (a robot kept out may be the answer the wait lacks)
         except Exception as exc:
             self.faults.internal("on_fault", exc)
 

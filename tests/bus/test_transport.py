@@ -16,7 +16,7 @@ import json
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -222,6 +222,86 @@ def test_inbox_latest_mode_bounds_distinct_keys() -> None:
     assert len(inbox.snapshot()) == 3 and inbox.dropped == 7
 
 
+def feed_from_thread(
+    jobs: Sequence[tuple[Callable[[rt.Received], object], rt.Received, bool]],
+) -> None:
+    """Push ``(handler, sample, wake)`` jobs into the running loop's LoopFeed from a thread."""
+    feed = rt.loop_feed(asyncio.get_running_loop())
+
+    def run() -> None:
+        for fn, rx, wake in jobs:
+            feed.push(fn, rx, wake)
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    thread.join()
+
+
+async def test_loop_feed_runs_every_handler_in_arrival_order_once_per_burst() -> None:
+    feed = rt.loop_feed(asyncio.get_running_loop())
+    assert rt.loop_feed(asyncio.get_running_loop()) is feed  # one per loop: one order
+    got: list[tuple[str, int]] = []
+
+    def a(r: rt.Received) -> None:
+        got.append(("a", int(r.payload)))
+
+    def b(r: rt.Received) -> None:
+        got.append(("b", int(r.payload)))
+
+    jobs = [(a if n % 3 else b, item("k", n), True) for n in range(300)]
+    feed_from_thread(jobs)  # the loop runs nothing while the thread pushes: one burst
+    await asyncio.sleep(0)
+    assert got == [("a" if n % 3 else "b", n) for n in range(300)]
+    assert (feed.drains, feed.handled) == (1, 300)
+
+
+async def test_loop_feed_without_wake_waits_in_its_place_for_the_next_wake() -> None:
+    feed = rt.loop_feed(asyncio.get_running_loop())
+    got: list[int] = []
+
+    def on(r: rt.Received) -> None:
+        got.append(int(r.payload))
+
+    feed_from_thread([(on, item("lazy", n), False) for n in range(3)])
+    await asyncio.sleep(0.02)
+    assert got == [] and feed.drains == 0  # nothing scheduled: the loop slept on
+    feed_from_thread([(on, item("clock", 3), True), (on, item("lazy", 4), False)])
+    await asyncio.sleep(0)
+    assert got == [0, 1, 2, 3, 4]  # the waiting samples first, in their order
+    feed_from_thread([(on, item("lazy", 5), False)])
+    feed.flush()  # a reader that wants them now
+    assert got == [0, 1, 2, 3, 4, 5] and feed.drains == 2
+
+
+async def test_loop_feed_a_raising_handler_does_not_stop_the_others() -> None:
+    loop = asyncio.get_running_loop()
+    errors: list[dict[str, Any]] = []
+    loop.set_exception_handler(lambda _loop, ctx: errors.append(ctx))
+    got: list[int] = []
+
+    def bad(r: rt.Received) -> None:
+        raise ValueError(f"bad {int(r.payload)}")
+
+    def good(r: rt.Received) -> None:
+        got.append(int(r.payload))
+
+    feed_from_thread(
+        [(good, item("k", 0), True), (bad, item("x", 1), True), (good, item("k", 2), True)]
+    )
+    await asyncio.sleep(0)
+    assert got == [0, 2]
+    assert len(errors) == 1 and "'x'" in errors[0]["message"]
+    assert str(errors[0]["exception"]) == "bad 1"
+
+
+def test_loop_feed_push_after_the_loop_closed_is_dropped_quietly() -> None:
+    loop = asyncio.new_event_loop()
+    feed = rt.LoopFeed(loop)
+    loop.close()
+    feed.push(lambda r: None, item("k", 0))  # the node is exiting: no exception escapes
+    assert feed.drains == 0
+
+
 # ---------------------------------------------------------------------------------------------
 # Pub/sub through a router subprocess
 # ---------------------------------------------------------------------------------------------
@@ -255,6 +335,29 @@ async def test_pub_sub_round_trip_through_the_asyncio_bridge(
     await wait_until(lambda: queue.received == 50)
     assert [r.payload for r in queue.drain()] == payloads
     assert len(pubs) == 1  # one publisher declared, reused
+
+
+@pytest.mark.zenoh
+async def test_a_sample_without_wake_is_handled_before_the_next_waking_one_over_zenoh(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    loop = asyncio.get_running_loop()
+    sub_session, pub_session = session(), session()
+    got: list[tuple[str, bytes]] = []
+    rt.subscribe(sub_session, "test/lazy/pose", loop, lambda r: got.append(("pose", r.payload)),
+                 wake=False)  # fmt: skip
+    rt.subscribe(sub_session, "test/lazy/clock", loop, lambda r: got.append(("clock", r.payload)))
+    with pytest.raises(ValueError, match="callables"):
+        rt.subscribe(sub_session, "test/lazy/x", loop, rt.Inbox("queue"), wake=False)
+    await asyncio.sleep(0.05)  # let the subscriptions reach the router
+    pubs = rt.Publishers(pub_session)
+    for n in range(5):
+        pubs.put("test/lazy/pose", bytes([n]), rt.QOS_CRITICAL)
+    await asyncio.sleep(0.2)
+    assert got == []  # delivered to this process, waiting for a sample that wakes the loop
+    pubs.put("test/lazy/clock", b"k", rt.QOS_CRITICAL)
+    await wait_until(lambda: len(got) == 6)
+    assert got == [*(("pose", bytes([n])) for n in range(5)), ("clock", b"k")]
 
 
 @pytest.mark.zenoh
