@@ -345,10 +345,16 @@ class Camera:
         for frame in self._due(t_s):
             stamp = frame.stamp_t
             if isinstance(frame, _RowFrame):
-                ids, rows = frame.ids, frame.poses
-            else:
-                ids, rows = frame.ids.tolist(), frame.poses.tolist()
-            out.extend([(i, stamp, x, y, th) for i, (x, y, th) in zip(ids, rows, strict=True)])
+                out.extend(
+                    [
+                        (i, stamp, x, y, th)
+                        for i, (x, y, th) in zip(frame.ids, frame.poses, strict=True)
+                    ]
+                )
+            else:  # lists, not tuples: unpacked as such (the compiled build checks the types)
+                rows: list[list[float]] = frame.poses.tolist()
+                ids: list[int] = frame.ids.tolist()
+                out.extend([(i, stamp, r[0], r[1], r[2]) for i, r in zip(ids, rows, strict=True)])
         return out
 
 
