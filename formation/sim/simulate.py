@@ -471,11 +471,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
 def _plan_now(replanner: Any) -> None:
     """Solve the plan ``replanner`` asks, at once (its compute time measured, for the record
     only: nothing in the loop reads it in-process)."""
-    from coordinator.core.planning.replan import solve
-
     req = replanner.take_request()
     if req is None:
         return
+    from coordinator.core.planning.replan import solve  # only when a plan is asked (rare)
+
     t0 = time.perf_counter()
     answer = solve(req)
     replanner.deliver(req.id, answer, (time.perf_counter() - t0) * 1e3)

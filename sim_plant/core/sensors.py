@@ -36,12 +36,11 @@ one draw of all the tick's random numbers, the same stream as the equivalent :me
 from __future__ import annotations
 
 import heapq
-import itertools
 import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Generic, NamedTuple, TypeVar
+from typing import Any, Final, Generic, NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -56,12 +55,12 @@ IntArray = npt.NDArray[np.int64]
 CmdT = TypeVar("CmdT")
 PoseRow = tuple[float, float, float]
 
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
+_PI: Final = math.pi
+_TWO_PI: Final = 2.0 * math.pi
 _tuple_new = tuple.__new__  # a NamedTuple without its generated __new__ frame (hot path)
 
 # Sim times come from sums of float steps; treat anything within this of a deadline as due.
-_TIME_EPS_S = 1e-9
+_TIME_EPS_S: Final = 1e-9
 
 
 def _check_prob(name: str, p: float) -> float:
@@ -272,17 +271,20 @@ class Camera:
         ps, ts = self.pos_std_m, self.theta_std_rad
         n = self._n
         meas: list[PoseRow] = []
-        append = meas.append
+        # typed: the compiled build (sim_plant.core._accel) keeps these as C doubles
+        nx: float
+        ny: float
+        nt: float
         if ps > 0.0 or ts > 0.0:
             assert rng is not None
-            noise = rng.standard_normal((n, 3)).tolist()
+            noise: list[list[float]] = rng.standard_normal((n, 3)).tolist()
             for (x, y, th), (nx, ny, nt) in zip(rows, noise, strict=True):
                 r = (_PI - (th + ts * nt)) % _TWO_PI
-                append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
+                meas.append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
         else:
             for x, y, th in rows:
                 r = (_PI - th) % _TWO_PI
-                append((x, y, _PI - (r if r < _TWO_PI else 0.0)))
+                meas.append((x, y, _PI - (r if r < _TWO_PI else 0.0)))
         ids: Sequence[int] = range(n)  # immutable, shared by the frames
         if self.miss_prob > 0.0:
             assert rng is not None
@@ -390,7 +392,7 @@ class CommandLink(Generic[CmdT]):
         self.fifo = bool(fifo)
         # Heap of (deliver_t, seq, i, cmd); seq breaks ties in send order and never compares cmd.
         self._heap: list[tuple[float, int, int, CmdT]] = []
-        self._seq = itertools.count()
+        self._seq = 0  # messages queued so far: the next one's tie-breaking number
         self._last_deliver: dict[int, float] = {}
         self.sent = 0
         self.dropped = 0
@@ -424,7 +426,9 @@ class CommandLink(Generic[CmdT]):
         if self.fifo:
             deliver = max(deliver, self._last_deliver.get(i, -math.inf))
             self._last_deliver[i] = deliver
-        heapq.heappush(self._heap, (deliver, next(self._seq), int(i), cmd))
+        seq = self._seq
+        self._seq = seq + 1
+        heapq.heappush(self._heap, (deliver, seq, int(i), cmd))
         return deliver
 
     def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
@@ -468,7 +472,9 @@ class CommandLink(Generic[CmdT]):
                 if prev is not None and prev > deliver:
                     deliver = prev
                 last[i] = deliver
-            push(heap, (deliver, next(seq), i, cmds[i]))
+            push(heap, (deliver, seq, i, cmds[i]))
+            seq += 1
+        self._seq = seq
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
