@@ -376,14 +376,13 @@ class Plant:
         # Typed locals and direct math.sin/cos calls: the compiled build (sim_plant.core._accel)
         # keeps them as C doubles; a non-number raises TypeError on the assignment there and on
         # the comparison here.
-        x: float
-        y: float
-        th: float
         cr: float
         cl: float
         try:
-            for (x, y, th), (w0r, w0l), cmd in zip(rows, wrows, cmds, strict=True):
-                cr, cl = cmd
+            for j in range(len(rows)):  # the lengths are equal (checked above)
+                x, y, th = rows[j]
+                w0r, w0l = wrows[j]
+                cr, cl = cmds[j]
                 # False for NaN, for +-inf and beyond the limit: those go the general way to be
                 # zeroed or clamped and counted. (Nothing is committed before the loop ends.)
                 if not (-lim <= cr <= lim and -lim <= cl <= lim):

@@ -392,6 +392,7 @@ class CommandLink(Generic[CmdT]):
         self.fifo = bool(fifo)
         # Heap of (deliver_t, seq, i, cmd); seq breaks ties in send order and never compares cmd.
         self._heap: list[tuple[float, int, int, CmdT]] = []
+        self._latest = -math.inf  # latest delivery time queued since the heap was last empty
         self._seq = 0  # messages queued so far: the next one's tie-breaking number
         self._last_deliver: dict[int, float] = {}
         self.sent = 0
@@ -428,6 +429,8 @@ class CommandLink(Generic[CmdT]):
             self._last_deliver[i] = deliver
         seq = self._seq
         self._seq = seq + 1
+        if deliver > self._latest:
+            self._latest = deliver
         heapq.heappush(self._heap, (deliver, seq, int(i), cmd))
         return deliver
 
@@ -461,6 +464,7 @@ class CommandLink(Generic[CmdT]):
         seq = self._seq
         last = self._last_deliver
         fifo = self.fifo
+        latest = self._latest
         push = heapq.heappush
         for i in range(m):
             if loss_u is not None and loss_u[i] < loss_p:
@@ -472,17 +476,31 @@ class CommandLink(Generic[CmdT]):
                 if prev is not None and prev > deliver:
                     deliver = prev
                 last[i] = deliver
+            if deliver > latest:
+                latest = deliver
             push(heap, (deliver, seq, i, cmds[i]))
             seq += 1
         self._seq = seq
+        self._latest = latest
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
         t = float(t_s) + _TIME_EPS_S
-        out: list[tuple[int, CmdT]] = []
         heap = self._heap
-        while heap and heap[0][0] <= t:
-            _, _, i, cmd = heapq.heappop(heap)
-            out.append((i, cmd))
+        if heap and self._latest <= t:
+            # Everything queued is due (the usual case: a tick's messages arrive before the
+            # next tick). One sort gives the order of the heap pops below, since the keys
+            # (delivery time, send number) are unique; list.sort compares (float, int) tuples
+            # in C.
+            heap.sort()
+            out = [(i, cmd) for _, _, i, cmd in heap]
+            heap.clear()
+        else:
+            out = []
+            while heap and heap[0][0] <= t:
+                _, _, i, cmd = heapq.heappop(heap)
+                out.append((i, cmd))
+        if not heap:
+            self._latest = -math.inf
         self.delivered += len(out)
         return out
