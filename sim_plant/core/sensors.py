@@ -35,7 +35,6 @@ one draw of all the tick's random numbers, the same stream as the equivalent :me
 
 from __future__ import annotations
 
-import heapq
 import math
 from collections import deque
 from collections.abc import Sequence
@@ -390,9 +389,10 @@ class CommandLink(Generic[CmdT]):
             raise ValueError("rng is required when jitter or loss is configured")
         self._rng = rng
         self.fifo = bool(fifo)
-        # Heap of (deliver_t, seq, i, cmd); seq breaks ties in send order and never compares cmd.
-        self._heap: list[tuple[float, int, int, CmdT]] = []
-        self._latest = -math.inf  # latest delivery time queued since the heap was last empty
+        # Messages in flight, (deliver_t, seq, i, cmd) in send order; seq breaks ties in send
+        # order and never compares cmd. poll() takes the due ones out and sorts them: a tick's
+        # messages are due together, so one C-level sort beats a heap pop per message.
+        self._queue: list[tuple[float, int, int, CmdT]] = []
         self._seq = 0  # messages queued so far: the next one's tie-breaking number
         self._last_deliver: dict[int, float] = {}
         self.sent = 0
@@ -402,7 +402,7 @@ class CommandLink(Generic[CmdT]):
     @property
     def in_flight(self) -> int:
         """Messages queued and not yet delivered."""
-        return len(self._heap)
+        return len(self._queue)
 
     def send(self, t_s: float, i: int, cmd: CmdT) -> float | None:
         """Send ``cmd`` to robot ``i`` at ``t_s``; returns its delivery time, or None if lost."""
@@ -429,9 +429,7 @@ class CommandLink(Generic[CmdT]):
             self._last_deliver[i] = deliver
         seq = self._seq
         self._seq = seq + 1
-        if deliver > self._latest:
-            self._latest = deliver
-        heapq.heappush(self._heap, (deliver, seq, int(i), cmd))
+        self._queue.append((deliver, seq, int(i), cmd))
         return deliver
 
     def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
@@ -460,12 +458,10 @@ class CommandLink(Generic[CmdT]):
             else:
                 jitter_u = rng.random(m).tolist()
         base = t + self.latency_s
-        heap = self._heap
+        queue = self._queue
         seq = self._seq
         last = self._last_deliver
         fifo = self.fifo
-        latest = self._latest
-        push = heapq.heappush
         for i in range(m):
             if loss_u is not None and loss_u[i] < loss_p:
                 self.dropped += 1
@@ -476,31 +472,22 @@ class CommandLink(Generic[CmdT]):
                 if prev is not None and prev > deliver:
                     deliver = prev
                 last[i] = deliver
-            if deliver > latest:
-                latest = deliver
-            push(heap, (deliver, seq, i, cmds[i]))
+            queue.append((deliver, seq, i, cmds[i]))
             seq += 1
         self._seq = seq
-        self._latest = latest
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
         t = float(t_s) + _TIME_EPS_S
-        heap = self._heap
-        if heap and self._latest <= t:
-            # Everything queued is due (the usual case: a tick's messages arrive before the
-            # next tick). One sort gives the order of the heap pops below, since the keys
-            # (delivery time, send number) are unique; list.sort compares (float, int) tuples
-            # in C.
-            heap.sort()
-            out = [(i, cmd) for _, _, i, cmd in heap]
-            heap.clear()
+        queue = self._queue
+        due = [m for m in queue if m[0] <= t]
+        if not due:
+            return []
+        if len(due) < len(queue):
+            self._queue = [m for m in queue if m[0] > t]
         else:
-            out = []
-            while heap and heap[0][0] <= t:
-                _, _, i, cmd = heapq.heappop(heap)
-                out.append((i, cmd))
-        if not heap:
-            self._latest = -math.inf
+            queue.clear()
+        due.sort()  # delivery order, ties in send order: the keys (deliver_t, seq) are unique
+        out = [(i, cmd) for _, _, i, cmd in due]
         self.delivered += len(out)
         return out
