@@ -49,7 +49,9 @@ the operations of the vectorised path in the same order (``math.sin``/``cos`` gi
 as ``np.sin``/``cos``, float ``%`` the same as ``np.mod``), so both paths give bit-identical
 states; the tests check it. The tuples are then the current state and the arrays are rebuilt only
 when something asks for them (:attr:`Plant.truth`, a drag, a teleport, ...).
-:meth:`Plant.truth_rows` reads the state without building an array.
+:meth:`Plant.truth_rows` reads the state without building an array. The small-fleet loop keeps
+typed float locals and calls ``math.sin``/``cos`` directly, so that the compiled build
+(``sim_plant.core._accel``) runs it on C doubles (the same operations, the same bits).
 """
 
 from __future__ import annotations
