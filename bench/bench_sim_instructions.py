@@ -13,12 +13,16 @@ to run, and the objects of the imports are frozen out of the garbage collector b
 add tens of thousands of instructions per tick to one side). Fleets: paper-exp2 (3 robots, the
 ticks of 4-8 s) and the 30-robot chevron of ``bench_sim.py`` (the ticks of 1-3 s).
 
-``--against DIR`` counts a second source tree (e.g. ``git archive <commit>`` unpacked, with its
-own ``make accel`` builds) in the same run: the baseline beside the figure. ``--pure`` counts with
-``FORMATION_ACCEL=0`` (no compiled firmware, no compiled simulator). Instructions are not time
-(a C call and a cache miss differ); read them beside ``bench_sim.py``'s figures.
+``--no-gc`` counts with the garbage collector off during the run: the loop's own work (when
+a collection falls depends on every allocation, so its share moves between two versions for
+reasons of its own). ``--against DIR`` counts a second source tree (e.g. ``git archive
+<commit>`` unpacked, with its own ``make accel`` builds) in the same run: the baseline beside the
+figure. ``--pure`` counts with ``FORMATION_ACCEL=0`` (no compiled firmware, no compiled
+simulator). Instructions are not time (a C call and a cache miss differ); read them beside
+``bench_sim.py``'s figures.
 
-Run: ``.venv/bin/python bench/bench_sim_instructions.py [--against DIR] [--pure] [--only NAME]``.
+Run: ``.venv/bin/python bench/bench_sim_instructions.py [--against DIR] [--pure] [--no-gc]
+[--only NAME]``.
 A measurement, not a test: the exit code is 0 unless it crashes; without valgrind it says so.
 """
 
@@ -40,7 +44,7 @@ FLEETS: dict[str, tuple[float, float]] = {"paper-exp2": (4.0, 8.0), "chevron30":
 # The child: one simulate.run of a fleet from one tree; prints the builds in use and the ticks.
 _CHILD = """
 import gc, sys
-root, name, seconds = sys.argv[1], sys.argv[2], float(sys.argv[3])
+root, name, seconds, no_gc = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4] == "1"
 sys.path.insert(0, root)
 sys.path.insert(0, root + "/bench")
 import scenario
@@ -58,20 +62,24 @@ else:
     scn = scenario.load(name)
 gc.collect()
 gc.freeze()  # the imports' objects: a full collection in the counted window does not walk them
+if no_gc:
+    gc.disable()
 res = simulate.run(scn, duration_s=seconds)
 print("firmware:", fw.STATUS, "| simulator:", sim_status, file=sys.stderr)
 print("ticks:", res.log.t_s.size, file=sys.stderr)
 """
 
 
-def _instructions(root: Path, name: str, seconds: float, pure: bool) -> tuple[int, int, str]:
+def _instructions(
+    root: Path, name: str, seconds: float, pure: bool, no_gc: bool
+) -> tuple[int, int, str]:
     """Instructions (callgrind ``Ir``) of a whole child run, its ticks and the builds' status."""
     env = dict(os.environ, PYTHONHASHSEED="0")
     env.pop("PYTHONPATH", None)
     if pure:
         env["FORMATION_ACCEL"] = "0"
-    cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null",
-           sys.executable, "-c", _CHILD, str(root), name, str(seconds)]  # fmt: skip
+    cmd = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null", sys.executable,
+           "-c", _CHILD, str(root), name, str(seconds), str(int(no_gc))]  # fmt: skip
     out = subprocess.run(cmd, env=env, cwd=root, capture_output=True, text=True, check=True).stderr
     ir = re.search(r"Collected : (\d+)", out)
     ticks = re.search(r"ticks: (\d+)", out)
@@ -81,11 +89,11 @@ def _instructions(root: Path, name: str, seconds: float, pure: bool) -> tuple[in
     return int(ir.group(1)), int(ticks.group(1)), status
 
 
-def per_tick(root: Path, name: str, pure: bool) -> tuple[float, str]:
+def per_tick(root: Path, name: str, pure: bool, no_gc: bool = False) -> tuple[float, str]:
     """Instructions per tick of ``root``'s simulator on fleet ``name``, and the builds' status."""
     short_s, long_s = FLEETS[name]
-    base, base_ticks, _ = _instructions(root, name, short_s, pure)
-    more, more_ticks, status = _instructions(root, name, long_s, pure)
+    base, base_ticks, _ = _instructions(root, name, short_s, pure, no_gc)
+    more, more_ticks, status = _instructions(root, name, long_s, pure, no_gc)
     return (more - base) / (more_ticks - base_ticks), status
 
 
@@ -94,6 +102,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--against", type=Path, help="a second source tree, counted the same way")
     ap.add_argument("--pure", action="store_true", help="FORMATION_ACCEL=0 (nothing compiled)")
     ap.add_argument("--only", choices=sorted(FLEETS), help="one fleet")
+    ap.add_argument(
+        "--no-gc", action="store_true", help="the loop's own work: the garbage collector off"
+    )
     args = ap.parse_args(argv)
     if shutil.which("valgrind") is None:
         print("bench_sim_instructions: valgrind is not installed; nothing measured")
@@ -106,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         results = {}
         for label, root in trees:
-            ir, status = per_tick(root, name, args.pure)
+            ir, status = per_tick(root, name, args.pure, args.no_gc)
             results[label] = ir
             print(f"{name:10s} {label:9s} {root}: {ir:10.0f} instructions/tick  ({status})")
         if args.against is not None:
