@@ -7,7 +7,8 @@ by tens of percent from run to run. This counts the CPU instructions of the same
 
 Each count is the difference of two runs of one fleet (more sim time in the second), divided by
 the extra ticks, so the interpreter's start, the imports, the setup and the
-first ticks cancel out; ``PYTHONHASHSEED=0`` keeps the interpreter's own work the same from run
+first ticks cancel out; one BLAS thread (an idle OpenBLAS worker spins, its count depending on
+timing) and ``PYTHONHASHSEED=0`` keep the interpreter's own work the same from run
 to run, and the objects of the imports are frozen out of the garbage collector before the run
 (a full collection that happens to fall in one run's window would otherwise walk them all and
 add tens of thousands of instructions per tick to one side). Fleets: paper-exp2 (3 robots, the
@@ -74,7 +75,9 @@ def _instructions(
     root: Path, name: str, seconds: float, pure: bool, no_gc: bool
 ) -> tuple[int, int, str]:
     """Instructions (callgrind ``Ir``) of a whole child run, its ticks and the builds' status."""
-    env = dict(os.environ, PYTHONHASHSEED="0")
+    # one BLAS thread: an idle OpenBLAS worker spins for a while after each call, and its
+    # instructions (counted too) would depend on the machine's timing
+    env = dict(os.environ, PYTHONHASHSEED="0", OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     env.pop("PYTHONPATH", None)
     if pure:
         env["FORMATION_ACCEL"] = "0"
