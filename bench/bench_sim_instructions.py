@@ -6,13 +6,14 @@ by tens of percent from run to run. This counts the CPU instructions of the same
 (valgrind's callgrind, ``Ir``), which repeat closely whatever else runs.
 
 Each count is the difference of two runs of one fleet (more sim time in the second), divided by
-the extra ticks, so the interpreter's start, the imports, the setup and the
-first ticks cancel out; one BLAS thread (an idle OpenBLAS worker spins, its count depending on
-timing) and ``PYTHONHASHSEED=0`` keep the interpreter's own work the same from run
-to run, and the objects of the imports are frozen out of the garbage collector before the run
-(a full collection that happens to fall in one run's window would otherwise walk them all and
-add tens of thousands of instructions per tick to one side). Fleets: paper-exp2 (3 robots, the
-ticks of 4-8 s) and the 30-robot chevron of ``bench_sim.py`` (the ticks of 1-3 s).
+the extra ticks, so the interpreter's start, the imports, the setup and the first ticks cancel
+out. One BLAS thread (an idle OpenBLAS worker spins, its count depending on timing) and
+``PYTHONHASHSEED=0`` keep the interpreter's own work the same from run to run, and the objects of
+the imports are frozen out of the garbage collector before the run (a full collection that
+falls in one run's window would otherwise walk them all). Fleets: paper-exp2 (3 robots, the
+ticks of 4-8 s) and the 30-robot chevron of ``bench_sim.py`` (the ticks of 1-3 s). Even so the
+whole tick's count moves by about 10 % between repeats on this loop (docs/benchmarks.md): compare
+several pairs.
 
 ``--no-gc`` counts with the garbage collector off during the run: the loop's own work (when
 a collection falls depends on every allocation, so its share moves between two versions for
