@@ -14,11 +14,14 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q -e '.[agent,sim,camera,dev]'
 	@# the compiled firmware core (mypyc); without a C compiler the pure-Python core runs
 	$(BIN)/python -m robot_agent.buildtools.accel build --quiet || echo "(the pure-Python firmware core runs)"
+	@# the compiled simulator side (plant, camera, link, the in-process loop; sim_plant/core/_accel.py)
+	$(BIN)/python -m formation.sim.accel_build build --quiet || echo "(the pure-Python simulator runs)"
 	touch $(STAMP)
 
-# rebuild the compiled firmware core after editing it (a stale build is never used)
+# rebuild the compiled firmware core and simulator after editing them (a stale build is never used)
 accel: $(STAMP)
 	$(BIN)/python -m robot_agent.buildtools.accel build
+	$(BIN)/python -m formation.sim.accel_build build
 
 demo: $(STAMP)
 	$(BIN)/formation demo --out runs/demo
@@ -44,4 +47,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
 
 clean:
-	rm -rf $(VENV) runs build *.egg-info robot_agent/_compiled
+	rm -rf $(VENV) runs build *.egg-info robot_agent/_compiled sim_plant/_compiled

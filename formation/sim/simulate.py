@@ -24,7 +24,9 @@ per tick).
 Speed: the loop runs each component's small-fleet path (plain Python on tuples where numpy's
 per-call overhead would dominate; bit-identical to the vectorised paths, which large fleets use),
 keeps per-tick records in lists and builds the log arrays once at the end
-(``RunLog.from_ticks``). ``bench/bench_sim.py`` measures it.
+(``RunLog.from_ticks``). This module and the plant, camera and link it drives also run compiled
+(mypyc) when ``make accel`` built them: the same sources, the same bits
+(``sim_plant.core._accel``). ``bench/bench_sim.py`` measures it.
 
 Everything random comes from one seeded generator, so a seed gives the same run.
 """
@@ -238,6 +240,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     # (the lockstep node waits for it before its switch tick: the same leader, bit for bit)
     replanner = coord.replanner
     steps = [fw.step for fw in firmwares]
+    tracking_mode = Mode.TRACKING
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
     interrupted = False
@@ -383,7 +386,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                     wheel_speeds=None if wheel_meas is None else wheel_meas[i],
                 )
             )
-        tracking = [c[4] is Mode.TRACKING for c in cmds]
+        tracking = [c[4] is tracking_mode for c in cmds]
         if rings is not None:
             for ring, fw in zip(rings, firmwares, strict=True):
                 claim = fw.motion_claim
@@ -471,11 +474,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
 def _plan_now(replanner: Any) -> None:
     """Solve the plan ``replanner`` asks, at once (its compute time measured, for the record
     only: nothing in the loop reads it in-process)."""
-    from coordinator.core.planning.replan import solve
-
     req = replanner.take_request()
     if req is None:
         return
+    from coordinator.core.planning.replan import solve  # only when a plan is asked (rare)
+
     t0 = time.perf_counter()
     answer = solve(req)
     replanner.deliver(req.id, answer, (time.perf_counter() - t0) * 1e3)

@@ -1,7 +1,14 @@
 """Simulated plant (numpy, vectorised over robots): ground truth, sensors, safety accounting.
 
 Pure cores only: time is passed in, randomness comes from a ``numpy.random.Generator`` passed in.
+
+The per-tick modules may run compiled (mypyc) when a build of exactly these sources exists:
+``_accel.activate`` decides before anything of the core is imported (see ``_accel.py``).
 """
+
+from . import _accel
+
+_accel.activate(__name__, __path__)
 
 from sim_plant.core.accounting import (
     BoundsMonitor,

@@ -49,26 +49,24 @@ the operations of the vectorised path in the same order (``math.sin``/``cos`` gi
 as ``np.sin``/``cos``, float ``%`` the same as ``np.mod``), so both paths give bit-identical
 states; the tests check it. The tuples are then the current state and the arrays are rebuilt only
 when something asks for them (:attr:`Plant.truth`, a drag, a teleport, ...).
-:meth:`Plant.truth_rows` reads the state without building an array.
+:meth:`Plant.truth_rows` reads the state without building an array. The small-fleet loop keeps
+typed float locals and calls ``math.sin``/``cos`` directly, so that the compiled build
+(``sim_plant.core._accel``) runs it on C doubles (the same operations, the same bits).
 """
 
 from __future__ import annotations
 
 import math
 import sys
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
 from sim_plant.core.carry import Carries
 from sim_plant.core.commands import CommandGuard
-from sim_plant.core.encoders import (
-    _TWO_PI,
-    _check_finite_scalar,
-)
+from sim_plant.core.encoders import _check_finite_scalar
 from sim_plant.core.kinematics import (
-    _PI,
     FloatArray,
     GeometryLike,
     PoseRow,
@@ -89,7 +87,10 @@ WheelRow = tuple[float, float]
 #: 128; a camera frame 82 vs 94 us for 64 robots, 157 vs 124 us for 128.
 SMALL_N = 64
 
-_MAX_FLOAT = sys.float_info.max
+_MAX_FLOAT: Final = sys.float_info.max
+# the constants of sim_plant.core.kinematics (the same bits), Final: inlined when compiled
+_PI: Final = math.pi
+_TWO_PI: Final = 2.0 * math.pi
 
 
 class Plant:
@@ -347,7 +348,7 @@ class Plant:
             rows = self.truth_rows()
         wrows = self._wrows
         if wrows is None:
-            wrows = self._wrows = tuple(tuple(w) for w in self._wheels.tolist())  # type: ignore[misc]
+            wrows = self._wrows = tuple((w[0], w[1]) for w in self._wheels.tolist())
         cmds: Any = wheel_cmd.tolist() if isinstance(wheel_cmd, np.ndarray) else wheel_cmd
         try:
             if len(cmds) != len(rows):
@@ -356,7 +357,8 @@ class Plant:
             return False
         # Without a wheel limit the largest finite float: the test below then still sends
         # NaN and +-inf the general way.
-        lim = self._guard.max_wheel_radps if self._guard.wheel_limit else _MAX_FLOAT
+        guard = self._guard
+        lim: float = guard.max_wheel_radps if guard.wheel_limit else _MAX_FLOAT
         tau = self._motor_tau_s
         lag = tau > 0.0
         if dt != self._lag_dt:  # the loop's dt is constant: compute the lag factors once
@@ -370,12 +372,19 @@ class Plant:
         radius = self._radius_m
         track = 2.0 * self._half_track_m
         half_dt = 0.5 * dt
-        sin, cos = math.sin, math.cos
         new_rows: list[PoseRow] = []
         new_w: list[WheelRow] = []
         angles: list[tuple[float, float]] = []
+        # Typed locals and direct math.sin/cos calls: the compiled build (sim_plant.core._accel)
+        # keeps them as C doubles; a non-number raises TypeError on the assignment there and on
+        # the comparison here.
+        cr: float
+        cl: float
         try:
-            for (x, y, th), (w0r, w0l), (cr, cl) in zip(rows, wrows, cmds, strict=True):
+            for j in range(len(rows)):  # the lengths are equal (checked above)
+                x, y, th = rows[j]
+                w0r, w0l = wrows[j]
+                cr, cl = cmds[j]
                 # False for NaN, for +-inf and beyond the limit: those go the general way to be
                 # zeroed or clamped and counted. (Nothing is committed before the loop ends.)
                 if not (-lim <= cr <= lim and -lim <= cl <= lim):
@@ -391,12 +400,16 @@ class Plant:
                 angles.append((mr * dt, ml * dt))
                 v = kv * (mr + ml)  # eq 7 (corrected), as _twist
                 half_turn = radius * (mr - ml) / track * half_dt
-                ratio = sin(half_turn) / half_turn if half_turn != 0.0 else 1.0
+                ratio = math.sin(half_turn) / half_turn if half_turn != 0.0 else 1.0
                 chord = v * dt * ratio  # eq 9, exact arc, as unicycle_integrate
                 mid = th + half_turn
                 r = (_PI - (mid + half_turn)) % _TWO_PI  # wrap_angles
                 new_rows.append(
-                    (x + chord * cos(mid), y + chord * sin(mid), _PI - (r if r < _TWO_PI else 0.0))
+                    (
+                        x + chord * math.cos(mid),
+                        y + chord * math.sin(mid),
+                        _PI - (r if r < _TWO_PI else 0.0),
+                    )
                 )
         except (TypeError, ValueError):  # not pairs of real numbers
             return False

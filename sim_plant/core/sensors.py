@@ -35,13 +35,11 @@ one draw of all the tick's random numbers, the same stream as the equivalent :me
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Generic, NamedTuple, TypeVar
+from typing import Any, Final, Generic, NamedTuple, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -56,12 +54,12 @@ IntArray = npt.NDArray[np.int64]
 CmdT = TypeVar("CmdT")
 PoseRow = tuple[float, float, float]
 
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
+_PI: Final = math.pi
+_TWO_PI: Final = 2.0 * math.pi
 _tuple_new = tuple.__new__  # a NamedTuple without its generated __new__ frame (hot path)
 
 # Sim times come from sums of float steps; treat anything within this of a deadline as due.
-_TIME_EPS_S = 1e-9
+_TIME_EPS_S: Final = 1e-9
 
 
 def _check_prob(name: str, p: float) -> float:
@@ -272,17 +270,20 @@ class Camera:
         ps, ts = self.pos_std_m, self.theta_std_rad
         n = self._n
         meas: list[PoseRow] = []
-        append = meas.append
+        # typed: the compiled build (sim_plant.core._accel) keeps these as C doubles
+        nx: float
+        ny: float
+        nt: float
         if ps > 0.0 or ts > 0.0:
             assert rng is not None
-            noise = rng.standard_normal((n, 3)).tolist()
+            noise: list[list[float]] = rng.standard_normal((n, 3)).tolist()
             for (x, y, th), (nx, ny, nt) in zip(rows, noise, strict=True):
                 r = (_PI - (th + ts * nt)) % _TWO_PI
-                append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
+                meas.append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
         else:
             for x, y, th in rows:
                 r = (_PI - th) % _TWO_PI
-                append((x, y, _PI - (r if r < _TWO_PI else 0.0)))
+                meas.append((x, y, _PI - (r if r < _TWO_PI else 0.0)))
         ids: Sequence[int] = range(n)  # immutable, shared by the frames
         if self.miss_prob > 0.0:
             assert rng is not None
@@ -345,10 +346,16 @@ class Camera:
         for frame in self._due(t_s):
             stamp = frame.stamp_t
             if isinstance(frame, _RowFrame):
-                ids, rows = frame.ids, frame.poses
-            else:
-                ids, rows = frame.ids.tolist(), frame.poses.tolist()
-            out.extend([(i, stamp, x, y, th) for i, (x, y, th) in zip(ids, rows, strict=True)])
+                out.extend(
+                    [
+                        (i, stamp, x, y, th)
+                        for i, (x, y, th) in zip(frame.ids, frame.poses, strict=True)
+                    ]
+                )
+            else:  # lists, not tuples: unpacked as such (the compiled build checks the types)
+                rows: list[list[float]] = frame.poses.tolist()
+                ids: list[int] = frame.ids.tolist()
+                out.extend([(i, stamp, r[0], r[1], r[2]) for i, r in zip(ids, rows, strict=True)])
         return out
 
 
@@ -382,9 +389,11 @@ class CommandLink(Generic[CmdT]):
             raise ValueError("rng is required when jitter or loss is configured")
         self._rng = rng
         self.fifo = bool(fifo)
-        # Heap of (deliver_t, seq, i, cmd); seq breaks ties in send order and never compares cmd.
-        self._heap: list[tuple[float, int, int, CmdT]] = []
-        self._seq = itertools.count()
+        # Messages in flight, (deliver_t, seq, i, cmd) in send order; seq breaks ties in send
+        # order and never compares cmd. poll() takes the due ones out and sorts them: a tick's
+        # messages are due together, so one C-level sort beats a heap pop per message.
+        self._queue: list[tuple[float, int, int, CmdT]] = []
+        self._seq = 0  # messages queued so far: the next one's tie-breaking number
         self._last_deliver: dict[int, float] = {}
         self.sent = 0
         self.dropped = 0
@@ -393,7 +402,7 @@ class CommandLink(Generic[CmdT]):
     @property
     def in_flight(self) -> int:
         """Messages queued and not yet delivered."""
-        return len(self._heap)
+        return len(self._queue)
 
     def send(self, t_s: float, i: int, cmd: CmdT) -> float | None:
         """Send ``cmd`` to robot ``i`` at ``t_s``; returns its delivery time, or None if lost."""
@@ -418,7 +427,9 @@ class CommandLink(Generic[CmdT]):
         if self.fifo:
             deliver = max(deliver, self._last_deliver.get(i, -math.inf))
             self._last_deliver[i] = deliver
-        heapq.heappush(self._heap, (deliver, next(self._seq), int(i), cmd))
+        seq = self._seq
+        self._seq = seq + 1
+        self._queue.append((deliver, seq, int(i), cmd))
         return deliver
 
     def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
@@ -447,11 +458,10 @@ class CommandLink(Generic[CmdT]):
             else:
                 jitter_u = rng.random(m).tolist()
         base = t + self.latency_s
-        heap = self._heap
+        queue = self._queue
         seq = self._seq
         last = self._last_deliver
         fifo = self.fifo
-        push = heapq.heappush
         for i in range(m):
             if loss_u is not None and loss_u[i] < loss_p:
                 self.dropped += 1
@@ -462,15 +472,22 @@ class CommandLink(Generic[CmdT]):
                 if prev is not None and prev > deliver:
                     deliver = prev
                 last[i] = deliver
-            push(heap, (deliver, next(seq), i, cmds[i]))
+            queue.append((deliver, seq, i, cmds[i]))
+            seq += 1
+        self._seq = seq
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
         t = float(t_s) + _TIME_EPS_S
-        out: list[tuple[int, CmdT]] = []
-        heap = self._heap
-        while heap and heap[0][0] <= t:
-            _, _, i, cmd = heapq.heappop(heap)
-            out.append((i, cmd))
+        queue = self._queue
+        due = [m for m in queue if m[0] <= t]
+        if not due:
+            return []
+        if len(due) < len(queue):
+            self._queue = [m for m in queue if m[0] > t]
+        else:
+            queue.clear()
+        due.sort()  # delivery order, ties in send order: the keys (deliver_t, seq) are unique
+        out = [(i, cmd) for _, _, i, cmd in due]
         self.delivered += len(out)
         return out
