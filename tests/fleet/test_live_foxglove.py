@@ -30,6 +30,8 @@ from support.spawn import Spawner, free_port
 from bus_schemas import Assignment, Pose, Slot, keys
 from formation.live.foxglove import SUBPROTOCOL, LiveServer, SceneModel, start_live
 
+pytestmark = pytest.mark.shares_cpu
+
 # ---------------------------------------------------------------------------------------------
 # Reading the SceneUpdate (the wire-format reader: support.foxglove_fleet.pb_fields)
 # ---------------------------------------------------------------------------------------------
@@ -369,6 +371,7 @@ def test_live_server_shows_the_plan_and_refreshes_it_when_the_plan_changes(
 
 @pytest.mark.zenoh
 @pytest.mark.slow
+@pytest.mark.alone
 def test_up_foxglove_serves_a_running_fleet_over_websocket(spawn: Spawner, tmp_path: Path) -> None:
     """``formation up --lockstep --foxglove PORT``: a WebSocket client subscribes to bus
     channels, a derived channel and the 3D scene of the running fleet, then SIGINT ends it."""
