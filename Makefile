@@ -26,14 +26,17 @@ accel: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/formation demo --out runs/demo
 
-# Two tiers. The in-process tests (unit, repo, the docs' examples) are CPU-bound and share no
-# state: two workers. The real-Zenoh and whole-fleet tests run one at a time (their deadlines
-# assume the fleet under test has the machine; docs/testing.md).
-# Both tiers run whatever the first one gives; the target fails if either failed.
+# Two parts (docs/testing.md). First, on two pytest-xdist workers, the in-process tiers (unit,
+# repo, the docs' examples) together with the tier-2 tests (tests/bus, tests/fleet) marked
+# shares_cpu: they assert no wall-clock bound, so they may run beside each other and beside the
+# CPU-bound in-process tests, whose CPU time fills the fleets' waiting. Then the tier-2 tests
+# marked alone (every other one: a latency, rate or exit-time bound, a realtime formation's
+# quality, a CPU hog of its own) one at a time: their deadlines assume the fleet under test has
+# the machine. Both parts run whatever the first one gives; the target fails if either failed.
 test: $(STAMP)
 	@rc=0; \
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests/unit tests/repo docs/examples || rc=1; \
-	$(BIN)/python -m pytest -q --durations=15 tests/bus tests/fleet || rc=1; \
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 -m "not alone" tests docs/examples || rc=1; \
+	$(BIN)/python -m pytest -q --durations=15 -m alone tests/bus tests/fleet || rc=1; \
 	exit $$rc
 
 lint: $(STAMP)

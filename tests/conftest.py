@@ -36,6 +36,12 @@ Fixtures (function scope unless noted):
   run whose pytest is gone (it was SIGKILLed) are killed when a run starts.
 
 Tests using ``router``, ``start_router`` or ``session`` are marked ``zenoh`` automatically.
+
+Tier 2 (``tests/bus``, ``tests/fleet``) has two parts (docs/testing.md). A test there is marked
+``alone`` automatically (``make test`` runs these one at a time, after everything else) unless it
+is marked ``shares_cpu``: it asserts no wall-clock bound (a latency, a rate, an exit time, a
+realtime formation's quality), so it may run on two workers beside the in-process tiers. An
+explicit ``@pytest.mark.alone`` on a test overrides its module's ``shares_cpu``.
 """
 
 from __future__ import annotations
@@ -74,6 +80,7 @@ if TYPE_CHECKING:
 settings.register_profile("formation", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("formation")
 _ZENOH_FIXTURES = frozenset({"router", "start_router", "session"})
+TESTS_DIR = Path(__file__).resolve().parent
 
 OUTLIVE_GRACE_S = 5.0
 """How long a process started by a test may take to finish exiting after the test's teardown
@@ -149,10 +156,37 @@ def session(router: RouterHandle) -> Iterator[Callable[..., zenoh.Session]]:
 # ---------------------------------------------------------------------------------------------
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        "shares_cpu: a tests/bus or tests/fleet test that asserts no wall-clock bound: make test "
+        "runs it on two workers beside the in-process tiers (docs/testing.md)",
+    )
+    config.addinivalue_line(
+        "markers",
+        "alone: a tests/bus or tests/fleet test that make test runs one at a time (set on every "
+        "test there not marked shares_cpu; explicit on a test, it overrides its module's mark)",
+    )
+
+
+def _runs_alone(item: pytest.Item) -> bool:
+    """Whether make test runs ``item`` in tier 2's serial part (the module docstring)."""
+    if not item.path.is_relative_to(TESTS_DIR):
+        return False
+    if item.path.relative_to(TESTS_DIR).parts[0] not in ("bus", "fleet"):
+        return False
+    if any(m.name == "alone" for m in item.own_markers):
+        return True  # explicit on the test: overrides its module's shares_cpu
+    return item.get_closest_marker("shares_cpu") is None
+
+
+@pytest.hookimpl(tryfirst=True)  # before -m selects on the marks set here
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if _ZENOH_FIXTURES.intersection(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.zenoh)
+        if _runs_alone(item):
+            item.add_marker(pytest.mark.alone)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -26,6 +26,8 @@ from support.bus_inbox import Inbox
 from bus_schemas import acl, keys
 from bus_schemas.acl import Access, Identity, Kind
 
+pytestmark = pytest.mark.shares_cpu
+
 FLEET = "demo"
 ROBOTS = ("r1", "r2", "r3")  # r3 is run by agent host h1
 IDENTS = (

@@ -20,6 +20,8 @@ from bus_schemas import Truth, Wheels, encode, keys
 from formation.operate import fault
 from formation.record.collector import RunCollector
 
+pytestmark = pytest.mark.shares_cpu
+
 FLEET = "bounded"
 IDS = ["r1", "r2", "r3"]
 

@@ -29,7 +29,7 @@ import zenoh
 from support.routers import RouterHandle, launch_router, stop_router
 from support.spawn import Spawner
 
-pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
+pytestmark = [pytest.mark.zenoh, pytest.mark.slow, pytest.mark.shares_cpu]
 
 ROBOTS = ("r1", "r2", "r3")
 SCENARIO = "paper-exp2"

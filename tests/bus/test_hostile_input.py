@@ -51,6 +51,8 @@ from bus_schemas import (
 from bus_schemas.spec import POSITION_MAX_M as POS
 from bus_schemas.spec import TIME_MAX_S, WHEEL_RATE_MAX_RADPS
 
+pytestmark = pytest.mark.shares_cpu
+
 
 def _ticked(msg, tick):  # type: ignore[no-untyped-def]
     """``msg`` encoded with its lockstep ``tick`` (a declared field of setpoint/slot/leader)."""

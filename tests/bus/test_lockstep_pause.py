@@ -24,7 +24,7 @@ from support.up_runs import finish_process, lockstep_result, up_process
 
 import runtime as rt
 
-pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
+pytestmark = [pytest.mark.slow, pytest.mark.zenoh, pytest.mark.shares_cpu]
 
 ARGS = ("--lockstep", "--duration", "12", "--lease-ms", "300")
 

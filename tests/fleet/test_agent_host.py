@@ -52,6 +52,8 @@ from robot_agent.node.host_main import expand_ids
 from runtime.lifecycle import GC_FULL_EVERY, GC_MIDDLE_EVERY
 from scenario import load
 
+pytestmark = pytest.mark.shares_cpu
+
 FLEET = "demo"
 
 
@@ -334,6 +336,7 @@ def test_lockstep_agent_hosts_reproduce_per_robot_agents_bit_for_bit(
     assert np.array_equal(ra["slot_xy"][held], rb["slot_xy"][held]), "slot_xy"
 
 
+@pytest.mark.alone
 def test_thirty_robots_on_two_hosts_hold_the_formation_in_realtime(
     spawn: Spawner, tmp_path: Path
 ) -> None:
@@ -349,6 +352,7 @@ def test_thirty_robots_on_two_hosts_hold_the_formation_in_realtime(
     assert max(e for e in errors if e is not None) < 0.05
 
 
+@pytest.mark.alone
 def test_agent_host_process_rejects_hostile_bytes_and_exits_on_sigint(
     spawn: Spawner, router: RouterHandle, session: Any
 ) -> None:

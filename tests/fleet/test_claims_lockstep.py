@@ -16,7 +16,7 @@ from support.spawn import Spawner, free_port
 from formation.sim import command as sim_cli
 
 REPO = Path(__file__).resolve().parents[2]
-pytestmark = [pytest.mark.zenoh]
+pytestmark = [pytest.mark.zenoh, pytest.mark.shares_cpu]
 
 
 def _task(tmp: Path, accel: float = 0.25) -> Path:

@@ -30,7 +30,7 @@ from formation import cli
 from formation.cli import EXAMPLES, SUBCOMMANDS
 
 # The table runs ~60 fresh Pythons; on a loaded shared machine that takes minutes.
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.timeout(900), pytest.mark.shares_cpu]
 
 BASE = REPO_ROOT / "scenario" / "builtin" / "paper-exp2.toml"
 

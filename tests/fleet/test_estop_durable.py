@@ -31,6 +31,8 @@ from bus_schemas import CoordinatorStatus, Estop, decode_or_raise, encode, keys
 from coordinator.node.estop_source import EstopSource
 from coordinator.node.estop_store import FAILED, RETRY_S, SAVED, EstopStore, read_state
 
+pytestmark = pytest.mark.shares_cpu
+
 KEY = "formation/demo/estop"
 
 

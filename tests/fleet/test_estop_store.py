@@ -53,6 +53,8 @@ from coordinator.node.estop_store import (
 )
 from robot_agent.core.estop import NO_ID, EstopLatch
 
+pytestmark = pytest.mark.shares_cpu
+
 KEY = "formation/demo/estop"
 
 
@@ -330,6 +332,7 @@ def test_the_coordinator_refuses_an_unusable_state_path(tmp_path: Path) -> None:
 
 
 @pytest.mark.zenoh
+@pytest.mark.alone
 def test_a_coordinator_restarted_alone_keeps_the_fleet_stopped(
     spawn: Spawner,
     router: RouterHandle,

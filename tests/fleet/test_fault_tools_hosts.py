@@ -15,7 +15,7 @@ import pytest
 from support.spawn import Spawner, free_port
 
 REPO = Path(__file__).resolve().parents[2]
-pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
+pytestmark = [pytest.mark.slow, pytest.mark.zenoh, pytest.mark.shares_cpu]
 
 
 def tool(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:

@@ -32,6 +32,8 @@ from formation.sim import simulate
 from formation.sim.command import run_and_write
 from scenario import ScenarioError, fleet_shape, load_with_robots, scenario_with_robots
 
+pytestmark = pytest.mark.shares_cpu
+
 
 def _table(name: str) -> dict[str, Any]:
     return tomllib.loads(scenario.resolve(name).read_text())

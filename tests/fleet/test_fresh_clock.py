@@ -22,6 +22,8 @@ from pathlib import Path
 import pytest
 from support.spawn import REPO_ROOT, Spawner, child_env, free_port
 
+pytestmark = pytest.mark.shares_cpu
+
 FRESH_CLOCK_S = 2
 """Where the namespace's monotonic and boot clocks start (s)."""
 FAR_ZONE = {"TZ": "Pacific/Kiritimati", "LC_ALL": "C"}

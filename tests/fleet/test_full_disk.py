@@ -27,6 +27,8 @@ from formation.record.writer import Recorder
 from runtime.files import write_atomic
 from runtime.tap import BusItem
 
+pytestmark = pytest.mark.shares_cpu
+
 FLEET = "demo"
 UP_BOUND_S = 120.0
 """A short run's whole life, start to exit, on a loaded 2-core machine: a bound, not a speed."""

@@ -30,6 +30,8 @@ from support.spawn import Spawner, free_port
 from bus_schemas import Assignment, Pose, Slot, keys
 from formation.live.foxglove import SUBPROTOCOL, LiveServer, SceneModel, start_live
 
+pytestmark = pytest.mark.shares_cpu
+
 # ---------------------------------------------------------------------------------------------
 # Reading the SceneUpdate (the wire-format reader: support.foxglove_fleet.pb_fields)
 # ---------------------------------------------------------------------------------------------
@@ -173,7 +175,11 @@ def test_liveliness_is_a_channel_and_a_lost_robot_is_marked_in_the_scene(
         return r2 is not None and "(lost)" in _label(r2)
 
     with FleetPublisher(session()) as fleet:
-        first = asyncio.run(receive(live.url, ["/scene"]))
+        # the first scene that shows r2 (one drawn before r2's first messages arrived lacks it:
+        # next to a CPU hog the server can draw one before the publisher's first round)
+        first = asyncio.run(
+            receive(live.url, ["/scene"], accept=lambda _t, d: "robot/r2" in scene_entities(d))
+        )
         assert "(lost)" not in _label(scene_entities(first["/scene"][1])["robot/r2"])
         got = asyncio.run(
             receive(
@@ -369,6 +375,7 @@ def test_live_server_shows_the_plan_and_refreshes_it_when_the_plan_changes(
 
 @pytest.mark.zenoh
 @pytest.mark.slow
+@pytest.mark.alone
 def test_up_foxglove_serves_a_running_fleet_over_websocket(spawn: Spawner, tmp_path: Path) -> None:
     """``formation up --lockstep --foxglove PORT``: a WebSocket client subscribes to bus
     channels, a derived channel and the 3D scene of the running fleet, then SIGINT ends it."""

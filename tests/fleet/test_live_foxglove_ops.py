@@ -24,7 +24,7 @@ from formation.live.foxglove import start_live
 from formation.live.foxglove_ops import translate
 from scenario import load
 
-pytestmark = pytest.mark.zenoh
+pytestmark = [pytest.mark.zenoh, pytest.mark.shares_cpu]
 
 FLEET = "demo"
 START = dict(zip(load("paper-exp2").robot_ids, load("paper-exp2").initial, strict=True))

@@ -20,6 +20,8 @@ from support.spawn import Spawner, free_port
 
 import scenario
 
+pytestmark = pytest.mark.shares_cpu
+
 SCENARIO = Path(__file__).with_name("carried_robots.toml")
 RUN_TIMEOUT_S = 120.0
 TOUCH_M = 0.150  # two bodies of 0.075 m radius

@@ -17,7 +17,7 @@ from support.spawn import Spawner, free_port
 import scenario as scenario_mod
 from formation.sim import command as sim_cli
 
-pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
+pytestmark = [pytest.mark.zenoh, pytest.mark.slow, pytest.mark.shares_cpu]
 
 
 def test_the_door_is_passed_over_zenoh_as_in_process(spawn: Spawner, tmp_path: Path) -> None:

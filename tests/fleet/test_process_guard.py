@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from support.spawn import REPO_ROOT, child_env
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.shares_cpu]
 
 SUITE_CONFTEST = str(REPO_ROOT / "tests" / "conftest.py")
 CONFTEST = f"""

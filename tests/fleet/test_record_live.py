@@ -28,6 +28,8 @@ from formation.record import report as report_mod
 from formation.record.command import READY_PREFIX, start_recorder
 from runtime.tap import BusItem, BusTap
 
+pytestmark = pytest.mark.shares_cpu
+
 FLEET = "demo"
 DT = 0.02
 BLOCK = zenoh.CongestionControl.BLOCK
@@ -40,6 +42,7 @@ EXIT_BOUND_S = 1.5  # requirement: exit within 1 s of SIGINT; 0.5 s margin for a
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.alone
 def test_bus_tap_survives_handler_errors_and_bounds_its_close(
     session: Callable[..., zenoh.Session],
 ) -> None:
@@ -66,6 +69,7 @@ def test_bus_tap_survives_handler_errors_and_bounds_its_close(
     assert len(handled) == n  # the worker has stopped
 
 
+@pytest.mark.alone
 def test_bus_tap_keeps_a_backlog_its_router_had_when_the_router_exits(spawn: Spawner) -> None:
     """A tap whose worker is slower than the bus (1 ms of Python per sample: a recorder on a
     starved machine) and whose router exits right after the last put: every sample published
@@ -111,6 +115,7 @@ def test_bus_tap_keeps_a_backlog_its_router_had_when_the_router_exits(spawn: Spa
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.alone
 def test_record_command_finalizes_the_file_within_a_second_of_sigint(
     spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session], tmp_path: Path
 ) -> None:

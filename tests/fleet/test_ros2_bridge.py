@@ -41,6 +41,8 @@ from formation.live.ros2_bridge import (
     BridgeCore,
 )
 
+pytestmark = pytest.mark.shares_cpu
+
 ATT = rmw.encode_attachment(rmw.Attachment(1, 0, bytes(16)))
 
 

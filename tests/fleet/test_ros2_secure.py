@@ -23,6 +23,8 @@ from bus_schemas.errors import DecodeError
 from bus_schemas.ros2 import graph, msgs, rmw
 from formation.live.ros2_bridge import READY
 
+pytestmark = pytest.mark.shares_cpu
+
 FLEET = "demo"
 ATT = rmw.encode_attachment(rmw.Attachment(1, 0, bytes(16)))
 ODOM_KEY = rmw.topic_key(0, "/r1/odom", msgs.ros_type(msgs.Odometry))

@@ -14,7 +14,7 @@ from support.spawn import Spawner, free_port
 from formation.sim import command as sim_cli
 
 REPO = Path(__file__).resolve().parents[2]
-pytestmark = [pytest.mark.zenoh]
+pytestmark = [pytest.mark.zenoh, pytest.mark.shares_cpu]
 
 EVERY_KIND = """
 name = "every-fault"

@@ -43,6 +43,8 @@ from formation.record.collector import RunCollector, slot_ids_of
 from formation.sim import simulate
 from scenario import scenario_with_robots, to_toml
 
+pytestmark = pytest.mark.shares_cpu
+
 # ---------------------------------------------------------------------------------------------
 # Collector: the in-process run as bus traffic
 # ---------------------------------------------------------------------------------------------
@@ -312,6 +314,7 @@ def test_paper_exp2_lockstep_swaps_the_leader(spawn: Spawner, tmp_path: Path) ->
 
 @pytest.mark.zenoh
 @pytest.mark.slow
+@pytest.mark.alone
 def test_paper_exp1_realtime_converges(spawn: Spawner, tmp_path: Path) -> None:
     out = tmp_path / "exp1"
     m = finish(up(spawn, out, "--scenario", "paper-exp1", "--duration", "15"), out)
@@ -389,6 +392,7 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.zenoh
 @pytest.mark.slow
+@pytest.mark.alone
 def test_ctrl_c_stops_everything_quickly(spawn: Spawner, tmp_path: Path) -> None:
     out = tmp_path / "ctrl-c"
     child = up(spawn, out, "--scenario", "paper-exp1", "--duration", "120")

@@ -26,7 +26,7 @@ import runtime as rt
 from bus_schemas import Disturbance, Estop, Pose, Setpoint, Status, decode, encode, keys
 from formation.outputs import runfile
 
-pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
+pytestmark = [pytest.mark.slow, pytest.mark.zenoh, pytest.mark.shares_cpu]
 
 UP_READY_S = 90.0  # python start of ~8 processes on a loaded 2-core box
 
@@ -146,6 +146,7 @@ class Publisher:
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.alone
 def test_sigkill_of_the_launcher_leaves_no_process_and_frees_the_port(
     spawn: Spawner, ups: list[Child], tmp_path: Path
 ) -> None:
