@@ -339,6 +339,8 @@ def test_the_tutorial_runs_end_to_end(tmp_path: Path) -> None:
         p = subprocess.run(
             argv, cwd=tmp_path, env=child_env(), capture_output=True, text=True, timeout=600
         )
+        if p.returncode != 0:  # whole, in the report's captured output (an assertion's text is
+            print(cmd, p.stdout[-6000:], p.stderr[-6000:], sep="\n")  # truncated by pytest)
         assert p.returncode == 0, (cmd, p.stdout[-2000:], p.stderr[-2000:])
     sim = json.loads((tmp_path / "runs" / "my-fleet" / "metrics.json").read_text())
     up = json.loads((tmp_path / "runs" / "my-fleet-up" / "metrics.json").read_text())
