@@ -187,7 +187,7 @@ def test_agent_survives_counts_and_keeps_answering(
     must = {
         "setpoints": hostile(
             sp,
-            "theta",
+            "slot",
             {"slot": [10**9]},
             [
                 ("no tick", no_tick),
@@ -288,7 +288,7 @@ def test_coordinator_survives_counts_and_keeps_answering(
     assert before["rejected"] == 0
 
     bad_id = forged(encode(pose), robots=["R1"])  # not a robot id
-    must_pose = hostile(pose, "stamp", {"theta": [1e300]}, [("bad id", bad_id)])
+    must_pose = hostile(pose, "x", {"theta": [1e300]}, [("bad id", bad_id)])
     must_clock = hostile(Clock(t=0.0, seq=1, tick=0), "tick", {"tick": -1})
     sent_pose = publish_all(pubs, k_pose, must_pose)
     far = encode(replace(pose, x=(POS,), y=(-POS,)))  # at the bounds: valid, must not crash
