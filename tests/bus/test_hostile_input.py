@@ -27,7 +27,7 @@ from typing import Any
 import msgpack
 import pytest
 import zenoh
-from support.agent_io import setpoint_batch, setpoint_msg
+from support.agent_io import setpoint_msg
 from support.bus_watch import Recorder, decoder_of
 from support.routers import RouterHandle
 from support.spawn import Child, Spawner
@@ -40,6 +40,7 @@ from bus_schemas import (
     Estop,
     Leader,
     Message,
+    Pose,
     PoseBatch,
     Status,
     Wheels,
@@ -156,13 +157,11 @@ def test_agent_survives_counts_and_keeps_answering(
     child = spawn(
         "agent", "--id", "r1", "--lockstep", "--endpoint", router.endpoint, ready="agent r1"
     )
-    # lockstep: the agent's setpoint and own pose are its entries of the batches
-    k_sp, k_batch = keys.setpoints_key(FLEET), keys.poses_key(FLEET)
-    k_estop, k_clock = keys.estop_key(FLEET), keys.clock_key(FLEET)
-    sp = setpoint_batch(setpoint_msg("r1", 0.45, 0.0, t=0.0), 0)
-    batch = PoseBatch(
-        t=0.0, seq=1, robots=("r1", "r2"), x=(0.0, 0.5), y=(0.0, 0.5), theta=(0.0, 0.0), stamp=0.0
-    )
+    k_pose, k_sp = keys.pose_key(FLEET, "r1"), keys.setpoint_key(FLEET, "r1")
+    k_batch, k_estop, k_clock = keys.poses_key(FLEET), keys.estop_key(FLEET), keys.clock_key(FLEET)
+    pose = Pose(t=0.0, seq=1, x=0.0, y=0.0, theta=0.0, robot="r1")
+    sp = setpoint_msg("r1", 0.45, 0.0, t=0.0)
+    batch = PoseBatch(t=0.0, seq=1, robots=("r2",), x=(0.5,), y=(0.5,), theta=(0.0,), stamp=0.0)
     release = Estop(t=0.0, engage=False, robot=None)
 
     def clock(k: int) -> bytes:
@@ -170,50 +169,52 @@ def test_agent_survives_counts_and_keeps_answering(
 
     def valid_once() -> None:
         for key, payload in (
-            (k_sp, encode(sp)),
+            (k_pose, encode(pose)),
+            (k_sp, _ticked(sp, 0)),
             (k_batch, encode(batch)),
             (k_estop, encode(release)),
             (k_clock, clock(0)),
         ):
             pubs.put(key, payload, rt.QOS_CRITICAL)
 
-    inputs = ("pose", "setpoint", "setpoints", "poses", "estop", "clock")
-    warm_up(status, lambda s: s.rx, inputs, valid_once)
+    warm_up(status, lambda s: s.rx, ("pose", "setpoint", "poses", "estop", "clock"), valid_once)
     status.clear()
     _, _, before = status.wait_for(lambda *_: True)
     assert before.rejected == 0
 
-    no_tick = encode(replace(sp, tick=None))  # lockstep setpoints must carry their tick
+    misaddressed = encode(Pose(t=0.0, seq=2, x=0.0, y=0.0, theta=0.0, robot="r2"))
+    no_tick = encode(sp)  # lockstep setpoints must carry their tick
     must = {
-        "setpoints": hostile(
+        "pose": hostile(
+            pose,
+            "x",
+            {"theta": 1e300},
+            [
+                ("misaddressed", misaddressed),
+                ("far away", forged(encode(pose), t=1e300, x=1e300, y=-1e300)),
+            ],
+        ),
+        "setpoint": hostile(
             sp,
             "slot",
-            {"slot": [10**9]},
+            {"slot": 10**9},
             [
                 ("no tick", no_tick),
-                ("fast", forged(encode(replace(sp, tick=2**63)), x=[1e300], t=1e300)),
-                ("slots without positions", forged(encode(sp), slot_x=None, slot_y=None)),
-                ("absurd slot position", forged(encode(sp), slot_x=[1e300])),
-                ("slot rows of two lengths", forged(encode(sp), slots=[0, 1])),
-                ("lengths differ", forged(encode(sp), robots=["r1", "r2"])),
+                ("fast", forged(_ticked(sp, 2**63), x=1e300, t=1e300)),
             ],
         ),
         "poses": hostile(
             batch,
             "robots",
             {"robots": ["r2"] * 2000},
-            [
-                ("far stamp", forged(encode(batch), stamp=1e300)),
-                ("far away", forged(encode(batch), x=[1e300, 0.5])),
-            ],
+            [("far stamp", forged(encode(batch), stamp=1e300))],
         ),
         "estop": hostile(release, "engage", {"robot": "r" * 1000}),
         "clock": hostile(Clock(t=0.0, seq=1, tick=0), "tick", {"tick": -1}),
     }
     absurd = {  # valid for the decoder (at the plausibility bounds); the firmware must cope
-        "setpoints": [
-            ("fast", encode(setpoint_batch(setpoint_msg("r1", POS, 0.0, t=TIME_MAX_S), 2**63)))
-        ],
+        "pose": [("far away", encode(Pose(t=TIME_MAX_S, seq=3, x=POS, y=-POS, theta=0.0)))],
+        "setpoint": [("fast", _ticked(setpoint_msg("r1", POS, 0.0, t=TIME_MAX_S), 2**63))],
         "poses": [
             (
                 "far neighbour",
@@ -221,10 +222,10 @@ def test_agent_survives_counts_and_keeps_answering(
                     PoseBatch(
                         t=0.0,
                         seq=2,
-                        robots=("r3", "r1"),
-                        x=(1e-300, POS),
-                        y=(0.0, -POS),
-                        theta=(0.0, 0.0),
+                        robots=("r3",),
+                        x=(1e-300,),
+                        y=(0.0,),
+                        theta=(0.0,),
                         stamp=TIME_MAX_S,
                     )
                 ),
@@ -234,7 +235,8 @@ def test_agent_survives_counts_and_keeps_answering(
         "clock": [],
     }
     key_of = {
-        "setpoints": k_sp,
+        "pose": k_pose,
+        "setpoint": k_sp,
         "poses": k_batch,
         "estop": k_estop,
         "clock": k_clock,
@@ -274,29 +276,29 @@ def test_coordinator_survives_counts_and_keeps_answering(
         router.endpoint,
         ready="coordinator ready",
     )
-    # lockstep: the coordinator reads the plant's pose frames
-    k_pose, k_clock = keys.poses_key(FLEET), keys.clock_key(FLEET)
-    pose = PoseBatch(t=0.0, seq=1, robots=("r1",), x=(0.4,), y=(0.0,), theta=(0.0,), stamp=0.0)
+    k_pose, k_clock = keys.pose_key(FLEET, "r1"), keys.clock_key(FLEET)
+    pose = Pose(t=0.0, seq=1, x=0.4, y=0.0, theta=0.0, robot="r1")
 
     def valid_once() -> None:
         pubs.put(k_pose, encode(pose), rt.QOS_CRITICAL)
         pubs.put(k_clock, encode(Clock(t=0.0, seq=1, tick=0)), rt.QOS_CRITICAL)
 
-    warm_up(status, lambda s: s["rx"], ("poses", "clock"), valid_once)
+    warm_up(status, lambda s: s["rx"], ("pose", "clock"), valid_once)
     status.clear()
     _, _, before = status.wait_for(lambda *_: True)
     assert before["rejected"] == 0
 
-    bad_id = forged(encode(pose), robots=["R1"])  # not a robot id
-    must_pose = hostile(pose, "x", {"theta": [1e300]}, [("bad id", bad_id)])
+    other = encode(Pose(t=0.0, seq=2, x=0.0, y=0.0, theta=0.0, robot="r2"))
+    must_pose = hostile(pose, "x", {"theta": 1e300}, [("other robot's pose", other)])
     must_clock = hostile(Clock(t=0.0, seq=1, tick=0), "tick", {"tick": -1})
+    bad_id_key = f"formation/{FLEET}/robot/R1/pose"  # matches robot/*/pose, not a robot id
     sent_pose = publish_all(pubs, k_pose, must_pose)
-    far = encode(replace(pose, x=(POS,), y=(-POS,)))  # at the bounds: valid, must not crash
-    sent_pose += publish_all(pubs, k_pose, [("far", far)])
+    sent_pose += publish_all(pubs, bad_id_key, [("bad id", encode(pose))])
+    sent_pose += publish_all(pubs, k_pose, [("far", forged(encode(pose), x=1e300, y=1e300))])
     sent_clock = publish_all(pubs, k_clock, must_clock)
-    want = {"poses": before["rx"]["poses"] + sent_pose, "clock": before["rx"]["clock"] + sent_clock}
+    want = {"pose": before["rx"]["pose"] + sent_pose, "clock": before["rx"]["clock"] + sent_clock}
     after = wait_counts(status, lambda s: s["rx"], want)
-    assert after["rejected"] - before["rejected"] >= len(must_pose) + len(must_clock)
+    assert after["rejected"] - before["rejected"] >= len(must_pose) + len(must_clock) + 1
     assert after["internal_errors"] == 0
     assert_alive(child)
 

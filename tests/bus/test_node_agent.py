@@ -18,15 +18,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from support.agent_io import (
-    FLEET,
-    Feeder,
-    nonzero,
-    pose_frame,
-    setpoint_batch,
-    setpoint_msg,
-    start_agent,
-)
+from support.agent_io import FLEET, Feeder, nonzero, setpoint_msg, start_agent
 from support.bus_watch import Recorder, decoder_of
 from support.routers import RouterHandle
 from support.spawn import REPO_ROOT, Spawner, child_env
@@ -207,9 +199,9 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
     def clock(k: int) -> None:
         pubs.put(clock_key, encode(Clock(t=k * dt, seq=k + 1, tick=k)), rt.QOS_CRITICAL)
 
-    def setpoint(tick: int, x: float, y: float) -> None:  # lockstep: the coordinator's batch
-        msg = setpoint_batch(setpoint_msg("r1", x, y, t=tick * dt, seq=tick + 1), tick)
-        pubs.put(keys.setpoints_key(FLEET), encode(msg), rt.QOS_CRITICAL)
+    def setpoint(tick: int, x: float, y: float) -> None:
+        msg = setpoint_msg("r1", x, y, t=tick * dt, seq=tick + 1)
+        pubs.put(keys.setpoint_key(FLEET, "r1"), _ticked(msg, tick), rt.QOS_CRITICAL)
 
     # Warm up with clocks 0, 1, ... until an answer shows the pose and setpoint arrived before
     # the clock (the test session knows the agent's subscriptions by then); K: next free tick.
@@ -219,7 +211,7 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
         if k > 0:
             setpoint(k - 1, 0.45, 0.0)  # the firmware reads the pose only with a setpoint
         pose = Pose(t=k * dt, seq=k + 1, x=0.0, y=0.0, theta=0.0, robot="r1")
-        pubs.put(keys.poses_key(FLEET), encode(pose_frame(pose)), rt.QOS_CRITICAL)
+        pubs.put(keys.pose_key(FLEET, "r1"), encode(pose), rt.QOS_CRITICAL)
         clock(k)
         time.sleep(0.02)
         if [w for _, _, w in wheels.snapshot() if w.pose_t is not None and w.pose_t == w.t]:

@@ -401,26 +401,6 @@ async def test_publisher_qos_reaches_the_wire(session: Callable[..., zenoh.Sessi
 
 
 @pytest.mark.zenoh
-async def test_matched_says_whether_a_subscriber_wants_the_key(
-    session: Callable[..., zenoh.Session],
-) -> None:
-    """A lockstep plant and coordinator send the per-robot forms only while matched: a
-    wildcard subscriber (a recorder) makes the key wanted, its undeclaration unwanted."""
-    sub_session, pub_session = session(), session()
-    pubs = rt.Publishers(pub_session)
-    key = "test/match/robot/r1/truth"
-    await asyncio.sleep(0.05)
-    assert pubs.matched(key, rt.QOS_CRITICAL) is False
-    samples: list[zenoh.Sample] = []
-    sub = sub_session.declare_subscriber("test/match/**", samples.append)
-    await wait_until(lambda: pubs.matched(key))
-    pubs.put(key, b"x")  # (the QoS of its first use)
-    await wait_until(lambda: len(samples) == 1)
-    sub.undeclare()
-    await wait_until(lambda: not pubs.matched(key))
-
-
-@pytest.mark.zenoh
 async def test_namespace_isolates_sessions_on_one_router(
     session: Callable[..., zenoh.Session],
 ) -> None:

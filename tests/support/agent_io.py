@@ -10,7 +10,7 @@ from collections.abc import Callable
 from typing import Any
 
 import runtime as rt
-from bus_schemas import Pose, PoseBatch, Setpoint, SetpointBatch, Wheels, encode, keys
+from bus_schemas import Pose, Setpoint, Wheels, encode, keys
 from support.routers import RouterHandle
 from support.spawn import Spawner
 
@@ -91,25 +91,6 @@ def setpoint_msg(
         vx=0.0,
         vy=0.0,
     )
-
-
-def setpoint_batch(sp: Setpoint, tick: int | None) -> SetpointBatch:
-    """``sp`` as the one entry of a lockstep setpoint batch (what a lockstep agent reads), with
-    its slot's position."""
-    return SetpointBatch(
-        t=sp.t, seq=sp.seq, robots=(sp.robot,), slot=(sp.slot,), role=(sp.role,),
-        stage=(sp.stage,), x=(sp.x,), y=(sp.y,), theta=sp.theta, vx=(sp.vx,), vy=(sp.vy,),
-        tick=tick, slots=(sp.slot,), slot_x=(sp.x,), slot_y=(sp.y,),
-    )  # fmt: skip
-
-
-def pose_frame(pose: Pose) -> PoseBatch:
-    """``pose`` as the one entry of a pose frame (what lockstep agents and coordinators read)."""
-    assert pose.robot is not None
-    return PoseBatch(
-        t=pose.t, seq=pose.seq, robots=(pose.robot,), x=(pose.x,), y=(pose.y,),
-        theta=(pose.theta,), stamp=pose.t,
-    )  # fmt: skip
 
 
 def nonzero(w: Wheels) -> bool:

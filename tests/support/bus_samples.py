@@ -204,9 +204,6 @@ SAMPLES: dict[type, Any] = {
         vx=(0.1, 0.1),
         vy=(0.0, 0.0),
         tick=7,
-        slots=(0, 1, 2),
-        slot_x=(0.1, 0.2, -0.2),
-        slot_y=(0.3, 0.4, 0.4),
     ),
     Movers: Movers(
         t=1.0,

@@ -57,36 +57,3 @@ def test_lockstep_publishes_every_slot_at_once_a_period_as_before() -> None:
     full = [k for k, t in enumerate(ticks) if t]
     assert full == [0, 50, 100]  # sim time: ticks 0, 1 s, 2 s
     assert all(sorted(ticks[k]) == list(range(n)) for k in full)
-
-
-def test_lockstep_batches_carry_every_slot_once_and_per_key_forms_only_when_wanted() -> None:
-    """Lockstep: the setpoint batches of a tick hold every slot's position exactly once (300
-    robots: two messages) and the setpoints of every assigned robot; ``setpoint`` and
-    ``slot/<k>`` go out only for keys a subscriber wants."""
-    from bus_schemas import Setpoint, SetpointBatch
-
-    n = 300
-    scn = load_with_robots("paper-exp2", n)
-    core = coordinator_core(scn)
-    order = {rid: i for i, rid in enumerate(scn.robot_ids)}
-    wanted = {keys.setpoint_key(FLEET, "r7"), keys.slot_key(FLEET, 3)}
-    outs = TickOutputs(
-        FLEET, order, lockstep=True, batch=False, log=rt.NodeLog("test"),
-        wanted=lambda key, qos: key in wanted,
-    )  # fmt: skip
-    poses = {rid: (p[0], p[1], p[2]) for rid, p in zip(scn.robot_ids, scn.initial, strict=True)}
-    out = core.tick(0.0, poses)
-    msgs = outs.encode_tick(out, 0.0, 0, 0.0)
-    batches = [decode(p, SetpointBatch) for k, p, _ in msgs if k == keys.setpoints_key(FLEET)]
-    assert len(batches) == 2 and all(isinstance(b, SetpointBatch) for b in batches)
-    slots = [s for b in batches for s in zip(b.slots, b.slot_x, b.slot_y, strict=True)]
-    assert slots == [(s.slot, s.x, s.y) for s in out.slots]  # every slot once, in order
-    assert sorted(r for b in batches for r in b.robots) == sorted(out.assignment)
-    per_key = [k for k, _, _ in msgs if "/robot/" in k or "/slot/" in k]
-    assert sorted(per_key) == sorted(wanted)  # only what a subscriber wants
-    sp = next(decode(p, Setpoint) for k, p, _ in msgs if k == keys.setpoint_key(FLEET, "r7"))
-    assert isinstance(sp, Setpoint) and sp.tick == 0
-    # a coordinator withholding its setpoints still says where the slots are
-    only = decode(outs.slot_batches(out, 0.02, 1)[0][1], SetpointBatch)
-    assert isinstance(only, SetpointBatch) and only.robots == () and only.tick == 1
-    assert only.slots is not None and len(only.slots) == 256
