@@ -91,30 +91,20 @@ class TruthBatch(_PoseFrame):
     )
 
 
-_SLOT_ROWS = ("slots", "slot_x", "slot_y")
-
-
 @message(
     name=keys.SETPOINTS,
     publisher="coordinator (batched)",
     periodic=True,
-    rules=(
-        SameLength(("robots", "slot", "role", "stage", "x", "y", "vx", "vy")),
-        Together(_SLOT_ROWS),
-        SameLength(_SLOT_ROWS),
-    ),
+    rules=(SameLength(("robots", "slot", "role", "stage", "x", "y", "vx", "vy")),),
 )
 @dataclass(frozen=True, slots=True, kw_only=True)
 class SetpointBatch(_Periodic):
     """The setpoints of many robots of one coordinator tick, as parallel arrays.
 
-    The batched form of `robot/<id>/setpoint` (agent hosts, and every agent in lockstep, read
-    it); the meaning of each entry is that of `Setpoint` (where the reference point should be,
-    eqs 10-11, and the feed-forward velocity). Every slot of a formation shares one heading,
-    `theta`. Sent as several messages (same `t`, consecutive `seq`) when the fleet exceeds one
-    batch. In lockstep it also carries every slot's position of the tick (`slots`, `slot_x`,
-    `slot_y`: what `slot/<k>` says, split over the messages of the tick like the setpoints),
-    so one message per tick serves the agents and the run's collector (docs/runtime.md).
+    The batched form of `robot/<id>/setpoint` for large fleets (agent hosts read it); the
+    meaning of each entry is that of `Setpoint` (where the reference point should be, eqs 10-11,
+    and the feed-forward velocity). Every slot of a formation shares one heading, `theta`. Sent
+    as several messages (same `t`, consecutive `seq`) when the fleet exceeds one batch.
     """
 
     robots: tuple[str, ...] = field(metadata=f_robot_id_list("robot ids, one per setpoint"))
@@ -140,22 +130,6 @@ class SetpointBatch(_Periodic):
     )
     tick: int | None = field(
         default=None, metadata=f_int("lockstep: the clock `tick` these setpoints were computed on")
-    )
-    slots: tuple[int, ...] | None = field(
-        default=None,
-        metadata=f_int_list(
-            "lockstep: slots whose position follows (`slot_x`, `slot_y`), each slot of the tick "
-            "in exactly one message of it",
-            hi=keys.MAX_SLOT,
-        ),
-    )
-    slot_x: tuple[float, ...] | None = field(
-        default=None,
-        metadata=f_float_list("x of each of `slots` (reference point)", "m", lo=-_POS, hi=_POS),
-    )
-    slot_y: tuple[float, ...] | None = field(
-        default=None,
-        metadata=f_float_list("y of each of `slots` (reference point)", "m", lo=-_POS, hi=_POS),
     )
 
 

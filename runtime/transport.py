@@ -518,15 +518,6 @@ class Publishers:
         """Publish ``payload`` on ``key`` (raises ``zenoh.ZError`` once the session is closed)."""
         self.get(key, qos).put(payload)
 
-    def matched(self, key: str, qos: QoS | None = None) -> bool:
-        """Whether a subscriber anywhere matches ``key`` now (the publisher's matching status,
-        ~1 us). A publisher of a form that only outside readers take (a lockstep run's
-        per-robot forms next to its batches: a recorder, the ROS 2 bridge, a foreign agent)
-        builds and encodes it only for them. Zenoh learns of a subscriber when its declaration
-        arrives: one declared before the sender's first message on its link is matched from
-        that message on."""
-        return bool(self.get(key, qos).matching_status.matching)
-
     def undeclare_all(self) -> None:
         """Undeclare every cached publisher (no-op for those of a closed session)."""
         for pub, _ in self._pubs.values():

@@ -27,7 +27,6 @@ import os
 import socket
 import time
 from collections import deque
-from collections.abc import Callable
 from typing import Any, Final
 
 import runtime as rt
@@ -87,7 +86,6 @@ class CoordinatorNode:
         standby: bool = False,
         batch: bool = False,
         log: rt.NodeLog | None = None,
-        wanted: Callable[[str, rt.QoS], bool] | None = None,
     ) -> None:
         self.scenario = scenario
         self.batch = batch
@@ -119,7 +117,7 @@ class CoordinatorNode:
         self._order = {rid: i for i, rid in enumerate(scenario.robot_ids)}
         # what a tick publishes, encoded (coordinator.node.outputs: keys, QoS, sequence numbers)
         self.outputs = TickOutputs(
-            self.fleet, self._order, lockstep=lockstep, batch=batch, log=self.log, wanted=wanted
+            self.fleet, self._order, lockstep=lockstep, batch=batch, log=self.log
         )
         self.leader_key = self.outputs.leader_key
         self.assignment_key = self.outputs.assignment_key
@@ -344,8 +342,7 @@ class CoordinatorNode:
         return None
 
     def on_poses(self, rx: rt.Received) -> None:
-        """A batched pose frame (``--batch``, lockstep): each entry as if it came on its
-        robot's key."""
+        """A batched pose frame (``--batch``): each entry as if it came on its robot's key."""
         try:
             self.rx["poses"] += 1
             msg = decode(rx.payload, PoseBatch)
@@ -534,9 +531,7 @@ class CoordinatorNode:
         if self.scripted.setpoints_withheld(run_t_s):
             sp = self.setpoints_key
             outputs = [o for o in outputs if o[0] != sp and not o[0].endswith("/setpoint")]
-            if self.lockstep:  # the slots still go out (the collector reads the batches)
-                outputs = [*self.outputs.slot_batches(out, self._now(), tick), *outputs]
-            elif self.batch:  # the slots still go out (recorders read them from the setpoints)
+            if self.batch:  # the slots still go out (recorders read them from the setpoints)
                 slots = slot_messages(self.outputs, out, self._now(), tick)
                 outputs = [*slots, *outputs]
         notices = self.scripted.after_tick(out, counted, run_t_s, tick, self._now())

@@ -16,7 +16,6 @@ from pathlib import Path
 
 import runtime as rt
 from bus_schemas import keys
-from coordinator.core.formation import FormationSpec
 from coordinator.node.coordinator import CoordinatorNode
 from coordinator.node.estop_source import attach_estop_source
 from coordinator.node.estop_store import EstopStore
@@ -149,7 +148,7 @@ async def _node(
 ) -> int:
     node = CoordinatorNode(
         scenario, name, fleet, io.pubs.put, lockstep=lockstep, standby=standby, batch=batch,
-        log=io.log, wanted=io.pubs.matched,
+        log=io.log,
     )  # fmt: skip
     # Only a stop of the whole process lets the token expire (keep-alives come from Zenoh's own
     # threads, not this loop), after a whole lease of silence (runtime.stall).
@@ -157,10 +156,6 @@ async def _node(
     io.pubs.get(node.leader_key, node.leader_qos)
     for rid in () if batch else scenario.robot_ids:
         io.pubs.get(keys.setpoint_key(fleet, rid), node.sp_qos)
-    if lockstep:  # declared now: their matching status is known by the first tick
-        io.pubs.get(node.setpoints_key, node.sp_qos)
-        for slot in FormationSpec.from_dict(dict(scenario.formation)).slot_ids:
-            io.pubs.get(keys.slot_key(fleet, slot), node.data_qos)
 
     def on_alive(key: str, alive: bool) -> None:
         # Stopping: the fleet's tokens vanish together (`formation up` stops every node at once)
@@ -210,7 +205,7 @@ async def _run(
     # Lockstep: the poses are read at the next clock only (they precede it: same publisher),
     # so they wait for it (runtime.bridge.LoopFeed) instead of waking the loop each
     lazy = not lockstep
-    if batch or lockstep:  # lockstep reads the pose frames, one message a frame
+    if batch:
         io.pubs.get(node.setpoints_key, node.sp_qos)
         io.subscribe(node.poses_key, node.on_poses, wake=lazy)
     else:

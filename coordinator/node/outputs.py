@@ -10,18 +10,12 @@ every ``slot/<k>`` only every :data:`BATCH_SLOT_PERIOD_S` (docs/scale.md): in lo
 them in one tick a period; in realtime spread over the ticks (a few slots per tick, each slot
 once a period) rather than a burst of a hundred messages once a second, which held the
 coordinator, the router and the launcher for milliseconds next to a pose frame.
-
-Lockstep always sends the SetpointBatch chunks, with every slot's position of the tick in them
-(``slots``, ``slot_x``, ``slot_y``): what the agents and the run's collector read, one message
-per tick for up to 256 robots. Each robot's ``setpoint`` and each ``slot/<k>`` (all of them
-every tick; with ``--batch`` once a period) are then sent only while a subscriber matches its
-key (``wanted``: a recorder, the ROS 2 bridge, a foreign agent).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, Final
 
 import runtime as rt
@@ -63,11 +57,8 @@ class TickOutputs:
         lockstep: bool,
         batch: bool,
         log: rt.NodeLog,
-        wanted: Callable[[str, rt.QoS], bool] | None = None,
     ) -> None:
         self.fleet = fleet
-        # lockstep: whether anyone subscribes to a per-robot or per-slot key (None: everyone)
-        self._wanted = wanted
         self.lockstep = lockstep
         self.batch = batch
         self.log = log
@@ -109,16 +100,13 @@ class TickOutputs:
         ``leader_extra``: the optional fields of the ``leader`` message, issue 28)."""
         t = max(now_s, 0.0)
         fleet = self.fleet
-        batched = self.batch or self.lockstep
-        setpoints = self._setpoint_batches(out, t, tick) if batched else []
+        setpoints = self._setpoint_batches(out, t, tick) if self.batch else []
         by_slot = out.slots_by_id
         approach = out.approach  # newly assigned robots on their way (coordinator.core.coordinator)
         for rid, slot_id in () if self.batch else out.assignment.items():
-            key = keys.setpoint_key(fleet, rid)
-            if not self._outside(key, self.sp_qos):
-                continue
             s = by_slot[slot_id] if rid not in approach else out.setpoint_for(rid)
             assert s is not None
+            key = keys.setpoint_key(fleet, rid)
             sp = Setpoint(
                 t=t,
                 seq=self.next_seq(key),
@@ -138,8 +126,6 @@ class TickOutputs:
         slots: Outgoing = []
         for s in self._slots_due(out.slots, now_s):
             key = keys.slot_key(fleet, s.slot)
-            if not self._outside(key, self.data_qos):
-                continue
             msg = Slot(
                 t=t,
                 seq=self.next_seq(key),
@@ -186,13 +172,6 @@ class TickOutputs:
             return [*slots, *setpoints, *extra, leader_out]
         return [*setpoints, leader_out, *slots, *extra]  # realtime: setpoints first (latency)
 
-    def _outside(self, key: str, qos: rt.QoS) -> bool:
-        """Whether a per-robot or per-slot form is sent: always in realtime; in lockstep (whose
-        own readers take the batches) only while someone subscribes to ``key``."""
-        if not self.lockstep:
-            return True
-        return self._wanted is None or self._wanted(key, qos)
-
     def _movers(
         self, out: CoordinatorOutput, t: float, tick: int | None
     ) -> tuple[str, bytes, rt.QoS]:
@@ -234,35 +213,19 @@ class TickOutputs:
         self._slot_next = (first + count) % n
         return [slots[(first + j) % n] for j in range(count)]
 
-    def slot_batches(self, out: CoordinatorOutput, now_s: float, tick: int | None) -> Outgoing:
-        """Lockstep: the tick's slot positions in SetpointBatch messages without setpoints
-        (what a coordinator that withholds its setpoints still sends, so the run's collector
-        knows where the slots were: coordinator.node.fault_schedule)."""
-        return self._setpoint_batches(out, max(now_s, 0.0), tick, robots=False)
-
-    def _setpoint_batches(
-        self, out: CoordinatorOutput, t: float, tick: int | None, *, robots: bool = True
-    ) -> Outgoing:
-        """``--batch`` and lockstep: every assigned robot's setpoint (none unless ``robots``)
-        in SetpointBatch chunks (robot order); lockstep: with every slot's position, in
-        definition order, split over the same chunks (at least one message a tick, even with
-        nobody assigned)."""
+    def _setpoint_batches(self, out: CoordinatorOutput, t: float, tick: int | None) -> Outgoing:
+        """``--batch``: every assigned robot's setpoint in SetpointBatch chunks (robot order)."""
         by_slot = out.slots_by_id
         order = self._order
-        assigned = out.assignment.items() if robots else ()
-        rows = sorted(assigned, key=lambda a: (order.get(a[0], 1 << 30), a[0]))
+        rows = sorted(out.assignment.items(), key=lambda a: (order.get(a[0], 1 << 30), a[0]))
         msgs: Outgoing = []
         theta = out.theta
         approach = out.approach
-        lockstep = self.lockstep
-        slots = out.slots if lockstep else ()
-        end = max(len(rows), len(slots), 1 if lockstep else 0)
-        for i in range(0, end, BATCH_CHUNK):
+        for i in range(0, len(rows), BATCH_CHUNK):
             chunk = [
                 (rid, (out.setpoint_for(rid) if rid in approach else None) or by_slot[sid])
                 for rid, sid in rows[i : i + BATCH_CHUNK]
             ]
-            part = slots[i : i + BATCH_CHUNK]
             msg = SetpointBatch(
                 t=t,
                 seq=self.next_seq(self.setpoints_key),
@@ -276,9 +239,6 @@ class TickOutputs:
                 vx=tuple(s.vx for _, s in chunk),
                 vy=tuple(s.vy for _, s in chunk),
                 tick=tick,
-                slots=tuple(s.slot for s in part) if lockstep else None,
-                slot_x=tuple(s.x for s in part) if lockstep else None,
-                slot_y=tuple(s.y for s in part) if lockstep else None,
             )
             msgs.append((self.setpoints_key, encode(msg), self.sp_qos))
         return msgs

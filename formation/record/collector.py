@@ -79,15 +79,12 @@ from scenario import Scenario
 __all__ = ["RunCollector", "key_patterns", "slot_ids_of"]
 
 
-def key_patterns(fleet: str, *, lockstep: bool = False) -> list[str]:
-    """The key expressions a collector of ``fleet`` must subscribe to. A lockstep run's truth
-    and slots come in its batches (``truths``; ``setpoints`` with every slot's position), so its
-    collector leaves out each robot's ``truth`` and each ``slot/<k>``: its plant and coordinator
-    send those only to subscribers that want them (docs/runtime.md)."""
-    per_key = [] if lockstep else [keys.all_truth_pattern(fleet), keys.all_slots_pattern(fleet)]
+def key_patterns(fleet: str) -> list[str]:
+    """The key expressions a collector of ``fleet`` must subscribe to."""
     return [
-        *per_key,
+        keys.all_truth_pattern(fleet),
         keys.leader_key(fleet),
+        keys.all_slots_pattern(fleet),
         keys.assignment_key(fleet),
         keys.all_wheels_pattern(fleet),
         keys.all_status_pattern(fleet),

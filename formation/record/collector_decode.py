@@ -249,14 +249,10 @@ def _slot(sample: Admitted, payload: Payload, index: Mapping[str, int]) -> Any:
 
 
 def _setpoints(sample: Admitted, payload: Payload, index: Mapping[str, int]) -> Any:
-    # lockstep: every slot's position of the tick (slots, slot_x, slot_y); else the assigned
-    # slots' positions of every tick (slot keys come at 1 Hz)
+    # the assigned slots' positions of every tick (slot keys come at 1 Hz)
     msg = decode(payload, SetpointBatch)
     if isinstance(msg, DecodeError):
         return Rejected(f"setpoints: {msg.reason}")
-    if msg.slots is not None and msg.slot_x is not None and msg.slot_y is not None:
-        rows = zip(msg.slots, msg.slot_x, msg.slot_y, strict=True)
-        return SlotPositions(msg.t, msg.tick, tuple((s, (x, y)) for s, x, y in rows))
     rows = zip(msg.slot, msg.x, msg.y, strict=True)
     return SlotPositions(msg.t, msg.tick, tuple((s, (x, y)) for s, x, y in rows))
 

@@ -38,7 +38,6 @@ from bus_schemas import (
     PoseBatch,
     RejectCounts,
     Setpoint,
-    SetpointBatch,
     Status,
     Wheels,
     decode,
@@ -148,7 +147,6 @@ class AgentNode:
 
         self.pose_key = keys.pose_key(fleet, robot_id)
         self.setpoint_key = keys.setpoint_key(fleet, robot_id)
-        self.setpoints_key = keys.setpoints_key(fleet)
         self.poses_key = keys.poses_key(fleet)
         self.estop_key = keys.estop_key(fleet)
         self.clock_key = keys.clock_key(fleet)
@@ -175,7 +173,7 @@ class AgentNode:
         self.rx: dict[str, int] = {
             "pose": 0, "setpoint": 0, "poses": 0, "estop": 0, "clock": 0, "status": 0,
             "movers": 0,
-            "wheels": 0, "setpoints": 0,
+            "wheels": 0,
         }  # fmt: skip
         # every drop by "<message>-<reason>" (status "rejects"), also counted by the firmware
         self.faults = rt.Faults(self.log, on_reject=self.firmware.reject)
@@ -287,8 +285,7 @@ class AgentNode:
 
     def on_poses(self, rx: rt.Received) -> None:
         """Batched poses: the other robots' poses and capture times, for repulsion and the
-        safety filter (``robot_agent.core.neighbours``); lockstep: this robot's own pose too
-        (its entry is what ``robot/<id>/pose`` would say: one message a frame instead of two)."""
+        safety filter (``robot_agent.core.neighbours``)."""
         try:
             self.rx["poses"] += 1
             msg = decode(rx.payload, PoseBatch)
@@ -305,11 +302,6 @@ class AgentNode:
             for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
                 if rid != me:
                     store(rid, x, y, th, cap, rx_s, now)
-                elif rx_s is None:  # lockstep: as on_pose
-                    self.rx["pose"] += 1
-                    self.pose = FwPose(x, y, th, msg.stamp)
-                    self.pose_capture_s = msg.stamp
-                    self._pose_pending = True
             self.neighbour_table.end_frame()
         except Exception as exc:
             self.faults.internal("on_poses", exc)
@@ -359,25 +351,6 @@ class AgentNode:
             self.accept_setpoint(sp, msg.role, rx.rx_s, tick)
         except Exception as exc:
             self.faults.internal("on_setpoint", exc)
-
-    def on_setpoints(self, rx: rt.Received) -> None:
-        """Lockstep: the coordinator's setpoint batch; this robot's entry is what
-        ``robot/<id>/setpoint`` would say (none: no setpoint this tick, as without a message)."""
-        try:
-            self.rx["setpoints"] += 1
-            msg = decode(rx.payload, SetpointBatch)
-            if isinstance(msg, DecodeError):
-                self.faults.reject("setpoints", msg)
-                return
-            me = self.robot_id
-            if me not in msg.robots:
-                return
-            j = msg.robots.index(me)
-            self.rx["setpoint"] += 1
-            sp = FwSetpoint(msg.x[j], msg.y[j], msg.vx[j], msg.vy[j], msg.theta, msg.slot[j], msg.t)
-            self.accept_setpoint(sp, msg.role[j], rx.rx_s, msg.tick if self.lockstep else None)
-        except Exception as exc:
-            self.faults.internal("on_setpoints", exc)
 
     def on_movers(self, rx: rt.Received) -> None:
         """The coordinator's moving obstacles (``formation/<fleet>/movers``, issue 30)."""

@@ -376,14 +376,9 @@ async def _node(
     io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
     await attach_estop_state(node, io)  # comes up stopped under a latched e-stop
     # Lockstep: setpoints, poses and movers are read at the next clock only, so their samples
-    # wait for it (runtime.bridge.LoopFeed) instead of waking the loop each (docs/runtime.md);
-    # they come as the batches every node of the run reads (this robot's setpoint and pose are
-    # its entries of them: one delivery each instead of two), realtime on this robot's keys
+    # wait for it (runtime.bridge.LoopFeed) instead of waking the loop each (docs/runtime.md)
     lazy = not lockstep
-    if lockstep:
-        io.subscribe(node.setpoints_key, node.on_setpoints, wake=False)
-    else:
-        io.subscribe(node.setpoint_key, node.on_setpoint)
+    io.subscribe(node.setpoint_key, node.on_setpoint, wake=lazy)
     io.subscribe(node.poses_key, node.on_poses, wake=lazy)
     io.subscribe(node.movers_key, node.on_movers, wake=lazy)
     if lockstep:
@@ -397,8 +392,7 @@ async def _node(
         io.subscribe(keys.all_host_status_pattern(setup.fleet), node.peer_status.on_host_status)
         if node.claims_on:  # the other robots' motion claims (robot_agent.core.neighbour_motion)
             io.subscribe(keys.all_wheels_pattern(setup.fleet), node.on_wheels)
-    if not lockstep:
-        io.subscribe(node.pose_key, node.on_pose)
+    io.subscribe(node.pose_key, node.on_pose, wake=lazy)
     io.declare_token(node.alive_key)
     print(f"agent {setup.robot_id} ready", flush=True)
     notifier.status(f"agent {setup.robot_id}: connected, control loop running")

@@ -129,16 +129,11 @@ async def _node(
         batch=ns.batch,
         poses=not ns.no_poses,
         log=io.log,
-        wanted=io.pubs.matched,
     )
     outputs, inputs = node.outputs, node.inputs
     io.pubs.get(outputs.poses_key, outputs.data_qos)
     for key in () if ns.batch else outputs.pose_keys:
         io.pubs.get(key, outputs.data_qos)
-    if ns.lockstep:  # declared now: their matching status is known by the first tick
-        io.pubs.get(outputs.truths_key, outputs.truth_qos)
-        for key in () if ns.batch else outputs.truth_keys:
-            io.pubs.get(key, outputs.truth_qos)
     if ns.lockstep:
         io.pubs.get(node.clock_key, rt.QOS_CRITICAL)
     io.watch_liveliness(node.alive_robots_pattern, inputs.on_alive_robot)

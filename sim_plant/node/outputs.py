@@ -7,18 +7,13 @@ owns, as it owns its :class:`~sim_plant.node.inputs.PlantInputs`: it is given th
 robots and the ``publish`` callable, and keeps the sequence numbers and the latency bookkeeping.
 The publication order is the in-process simulator's (docs/process-shells.md): lockstep runs over the
 bus reproduce it bit for bit (tests/bus/test_node_plant.py).
-
-Lockstep publishes the batched forms (``truths``, ``poses``: one message each per tick or frame
-for up to 256 robots, which every node of the run reads) and each robot's ``truth`` and ``pose``
-only while a subscriber matches its key (``wanted``: a recorder, the ROS 2 bridge, a foreign
-agent): a delivery costs every process on the way a wake-up (docs/benchmarks.md).
 """
 
 from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any, Final
 
 import numpy as np
@@ -65,10 +60,7 @@ class PlantOutputs:
         publish: ``publish(key, payload, qos)``.
         batch: truth as TruthBatch and frames as PoseBatch only (agent hosts, ``--batch``).
         poses: publish camera frames (False: a real tracker publishes the poses).
-        lockstep: every output must arrive and keep its order (QoS); no latency bookkeeping;
-            truth as TruthBatch too, and the per-robot forms only where ``wanted``.
-        wanted: ``wanted(key, qos)``: whether anyone subscribes to ``key``
-            (``runtime.Publishers.matched``); None: every key is wanted.
+        lockstep: every output must arrive and keep its order (QoS); no latency bookkeeping.
     """
 
     def __init__(
@@ -80,10 +72,8 @@ class PlantOutputs:
         batch: bool,
         poses: bool,
         lockstep: bool,
-        wanted: Callable[[str, rt.QoS], bool] | None = None,
     ) -> None:
         self.ids = list(ids)
-        self._wanted = wanted
         self._publish = publish
         self.batch = batch
         self.poses = poses
@@ -122,23 +112,13 @@ class PlantOutputs:
                 self.latencies_s.append(rx_s - published)
                 self.latency_pub_s.append(published)
 
-    def _per_robot(self, key: str, qos: rt.QoS) -> bool:
-        """Whether robot ``key``'s own form is published: always in realtime without
-        ``--batch``; in lockstep only while someone subscribes to it (module docstring)."""
-        if not self.lockstep:
-            return True
-        return self._wanted is None or self._wanted(key, qos)
-
     def publish_truth(self, t_s: float, truth: npt.NDArray[np.float64]) -> None:
         t = max(t_s, 0.0)
-        if self.batch or self.lockstep:
+        if self.batch:
             self._publish_truth_batch(t, truth)
-            if self.batch:
-                return
+            return
         for i, row in enumerate(truth.tolist()):
             key = self.truth_keys[i]
-            if not self._per_robot(key, self.truth_qos):
-                continue
             msg = Truth(
                 t=t, seq=self.next_seq(key), x=row[0], y=row[1], theta=row[2], robot=self.ids[i]
             )
@@ -190,8 +170,6 @@ class PlantOutputs:
             return  # agent hosts and a --batch coordinator read the batches only
         for i, _, x, y, theta in rows:
             key = self.pose_keys[i]
-            if not self._per_robot(key, self.data_qos):
-                continue
             msg = Pose(
                 t=stamp,
                 seq=self.next_seq(key),

@@ -26,7 +26,6 @@ import asyncio
 import math
 import time
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -97,7 +96,6 @@ class PlantNode:
         batch: bool = False,
         log: rt.NodeLog | None = None,
         poses: bool = True,
-        wanted: Callable[[str, rt.QoS], bool] | None = None,
     ) -> None:
         self.scenario = scenario
         self.batch = batch
@@ -152,13 +150,7 @@ class PlantNode:
             offline=lambda: self.scripted.offline,
         )
         self.outputs = PlantOutputs(
-            self.ids,
-            self.fleet,
-            publish,
-            batch=batch,
-            poses=poses,
-            lockstep=lockstep,
-            wanted=wanted,
+            self.ids, self.fleet, publish, batch=batch, poses=poses, lockstep=lockstep
         )
 
     # -- bookkeeping ---------------------------------------------------------------------------

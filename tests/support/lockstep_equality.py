@@ -69,15 +69,8 @@ def lockstep_equals_simulate(
             if match(key):
                 handler(rt.Received(key, payload, time.monotonic()))
 
-    def nobody(key: str, qos: rt.QoS) -> bool:
-        return False  # no outside subscriber: the per-robot forms are not sent (lockstep)
-
-    plant = PlantNode(
-        scenario, FLEET, publish, lockstep=True, duration_s=duration, batch=hosts, wanted=nobody
-    )
-    coord = CoordinatorNode(
-        scenario, "main", FLEET, publish, lockstep=True, batch=hosts, wanted=nobody
-    )
+    plant = PlantNode(scenario, FLEET, publish, lockstep=True, duration_s=duration, batch=hosts)
+    coord = CoordinatorNode(scenario, "main", FLEET, publish, lockstep=True, batch=hosts)
     if hosts:
         host = HostNode("h1", plant.ids, FLEET, scenario.agent, publish, lockstep=True)
         routes.append(
@@ -90,14 +83,18 @@ def lockstep_equals_simulate(
         agents = [AgentNode(r, FLEET, scenario.agent, publish, lockstep=True) for r in plant.ids]
         routes.append((lambda k: k.endswith("/wheels"), plant.inputs.on_wheels))
         for a in agents:
-            for key, handler in (  # what `formation agent --lockstep` subscribes to
-                (a.setpoints_key, a.on_setpoints),
+            for key, handler in (
+                (a.setpoint_key, a.on_setpoint),
                 (a.poses_key, a.on_poses),
+                (a.pose_key, a.on_pose),
                 (a.clock_key, a.on_clock),
             ):
                 routes.append((key.__eq__, handler))
     routes.append((lambda k: k == plant.leader_key, plant.inputs.on_leader))
-    routes.append((lambda k: k == plant.outputs.poses_key, coord.on_poses))
+    if hosts:
+        routes.append((lambda k: k == plant.outputs.poses_key, coord.on_poses))
+    else:
+        routes.append((lambda k: k.endswith("/pose"), coord.on_pose))
     routes.append((lambda k: k == coord.clock_key, coord.on_clock))
     for rid in plant.ids:
         plant.inputs.on_alive_robot(keys.alive_robot_key(FLEET, rid), True)
