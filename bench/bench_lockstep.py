@@ -16,7 +16,9 @@ Each robot count runs twice: one ``formation agent`` process per robot, and one
 and prints the CPU milliseconds per tick of each process kind over the ticks the longer run
 added: start-up, shutdown and the launcher's end-of-run work cancel out, what remains is the
 steady lockstep's cost per tick (at 50 Hz, 20x real time is 1 ms of wall per tick: on 2 cores
-the sum must stay well under 2 ms).
+the sum must stay well under 2 ms); and the context switches per tick of each kind (every
+thread's, voluntary and not, from ``/proc/<pid>/task/*/status``): the cost of a tick is mostly
+wake-ups, and their count moves less with the machine's load than the CPU time does.
 
 Usage: ``python bench/bench_lockstep.py [--duration 60] [--robots 3 ...] [--marginal 6]``.
 Prints; asserts nothing.
@@ -36,6 +38,24 @@ from pathlib import Path
 from common import REPO_ROOT, free_port
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def context_switches(pid: int) -> int:
+    """Context switches (voluntary and not) of every thread of ``pid`` so far (0 if gone)."""
+    total = 0
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return 0
+    for tid in tasks:
+        try:
+            text = Path(f"/proc/{pid}/task/{tid}/status").read_text()
+        except OSError:
+            continue
+        for line in text.splitlines():
+            if "ctxt_switches:" in line:
+                total += int(line.split()[1])
+    return total
 
 
 def proc_table() -> dict[int, tuple[int, float, str]]:
@@ -73,27 +93,29 @@ def descendants(root: int, table: dict[int, tuple[int, float, str]]) -> list[int
 
 def watch_tree_cpu(
     proc: subprocess.Popen[str] | subprocess.Popen[bytes], period_s: float = 0.2
-) -> tuple[float, dict[int, tuple[str, float]]]:
-    """Until ``proc`` exits: its CPU seconds and, per descendant pid, (short command, CPU
-    seconds), each the largest value seen (a process that exited keeps its last reading)."""
-    cpu: dict[int, tuple[str, float]] = {}
-    launcher_cpu = 0.0
+) -> tuple[tuple[float, int], dict[int, tuple[str, float, int]]]:
+    """Until ``proc`` exits: its (CPU seconds, context switches) and, per descendant pid, (short
+    command, CPU seconds, context switches), each the largest value seen (a process that exited
+    keeps its last reading)."""
+    cpu: dict[int, tuple[str, float, int]] = {}
+    launcher = (0.0, 0)
     while proc.poll() is None:
         table = proc_table()
         if proc.pid in table:
-            launcher_cpu = table[proc.pid][1]
+            launcher = (table[proc.pid][1], max(launcher[1], context_switches(proc.pid)))
         for pid in descendants(proc.pid, table):
-            name = cpu[pid][0] if pid in cpu else table[pid][2]  # a zombie has no cmdline
-            cpu[pid] = (name, max(table[pid][1], cpu.get(pid, ("", 0.0))[1]))
+            old = cpu.get(pid, (table[pid][2], 0.0, 0))  # a zombie has no cmdline: keep it
+            switches = max(context_switches(pid), old[2])
+            cpu[pid] = (old[0], max(table[pid][1], old[1]), switches)
         time.sleep(period_s)
-    return launcher_cpu, cpu
+    return launcher, cpu
 
 
 def run_lockstep(
     robots: int, duration_s: float, out: Path, hosts: int = 0, *, quiet: bool = False
-) -> dict[str, float] | None:
+) -> dict[str, tuple[float, int]] | None:
     """One ``formation up --lockstep`` run; prints its figures (unless ``quiet``) and returns
-    the CPU seconds by process kind (None if it failed)."""
+    the (CPU seconds, context switches) by process kind (None if it failed)."""
     argv = [
         sys.executable, "-m", "formation", "up", "--scenario", "paper-exp2", "--lockstep",
         "--duration", str(duration_s), "--robots", str(robots), "--quiet", "--no-figures",
@@ -103,16 +125,17 @@ def run_lockstep(
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
     wall0 = time.monotonic()
     proc = subprocess.Popen(argv, cwd=REPO_ROOT, env=env)
-    launcher_cpu, cpu = watch_tree_cpu(proc, 0.2)
+    launcher, cpu = watch_tree_cpu(proc, 0.2)
     wall = time.monotonic() - wall0
     if proc.returncode != 0:
         print(f"  formation up failed with status {proc.returncode}; see {out}/logs/")
         return None
-    by_name: dict[str, float] = {}
-    for name, seconds in cpu.values():
+    by_name: dict[str, tuple[float, int]] = {}
+    for name, seconds, switches in cpu.values():
         key = "agents (sum)" if name.startswith("agent") else name
-        by_name[key] = by_name.get(key, 0.0) + seconds
-    by_name["launcher (collector)"] = launcher_cpu
+        had = by_name.get(key, (0.0, 0))
+        by_name[key] = (had[0] + seconds, had[1] + switches)
+    by_name["launcher (collector)"] = launcher
     if quiet:
         return by_name
     m = json.loads((out / "metrics.json").read_text())
@@ -126,27 +149,30 @@ def run_lockstep(
         f"{meta['wall_s'] - run_wall - (meta['stop_s'] or 0):.1f} s, stop {meta['stop_s']:.2f} s)"
     )
     print(f"    ticks {m['run']['ticks']} truth frames; final leader {m['run']['final_leader']}")
-    row = ", ".join(f"{k} {v:.1f}" for k, v in sorted(by_name.items(), key=lambda kv: -kv[1]))
+    row = ", ".join(f"{k} {v[0]:.1f}" for k, v in sorted(by_name.items(), key=lambda kv: -kv[1][0]))
     print(f"    CPU seconds (2 cores, {2 * wall:.0f} core-s available): {row}")
     return by_name
 
 
 def print_marginal(
-    long: dict[str, float] | None,
-    short: dict[str, float] | None,
+    long: dict[str, tuple[float, int]] | None,
+    short: dict[str, tuple[float, int]] | None,
     duration_s: float,
     short_s: float,
     dt_s: float,
 ) -> None:
-    """The CPU per tick of the ticks the longer run added, by process kind."""
+    """The CPU and the context switches per tick of the ticks the longer run added, by
+    process kind."""
     if long is None or short is None:
         return
     ticks = (duration_s - short_s) / dt_s
-    per_tick = {k: 1000.0 * (v - short.get(k, 0.0)) / ticks for k, v in long.items()}
-    row = ", ".join(f"{k} {v:.2f}" for k, v in sorted(per_tick.items(), key=lambda kv: -kv[1]))
-    total = sum(per_tick.values())
-    print(f"    CPU ms per tick ({duration_s:g} s run minus {short_s:g} s run): {row}; "
-          f"total {total:.2f}")  # fmt: skip
+    for what, scale, fmt, i in (("CPU ms", 1000.0, ".2f", 0), ("context switches", 1.0, ".1f", 1)):
+        per_tick = {k: scale * (v[i] - short.get(k, (0.0, 0))[i]) / ticks for k, v in long.items()}
+        ranked = sorted(per_tick.items(), key=lambda kv: -kv[1])
+        row = ", ".join(f"{k} {v:{fmt}}" for k, v in ranked)
+        total = sum(per_tick.values())
+        print(f"    {what} per tick ({duration_s:g} s run minus {short_s:g} s run): {row}; "
+              f"total {total:{fmt}}")  # fmt: skip
 
 
 def main() -> int:
