@@ -196,7 +196,7 @@ def test_an_edit_after_the_build_is_never_shadowed_by_the_stale_binary(tmp_path:
     assert out.returncode == 0, out.stderr
     active, where, status, edited = out.stdout.splitlines()
     assert active == "False" and where == str(src) and edited == "True"
-    assert "sources changed since the compiled build: firmware" in status
+    assert "sources changed since the compiled build: robot_agent.core.firmware" in status
     status_cmd = [sys.executable, "-m", "robot_agent.buildtools.accel", "status"]
     env = dict(os.environ, PYTHONPATH=str(tmp_path))
     env.pop(_accel.ENV, None)
