@@ -79,15 +79,16 @@ def test_a_build_of_other_sources_is_not_used_and_names_the_changed_modules(
 ) -> None:
     build = tmp_path / "_compiled"
     hashes = _accel.source_hashes()
-    _manifest(build, sources=dict(hashes, firmware="0" * 64, qp="1" * 64))
+    fw, qp = "robot_agent.core.firmware", "robot_agent.core.qp"
+    _manifest(build, sources=dict(hashes, **{fw: "0" * 64, qp: "1" * 64}))
     use, why = _accel.decide(environ={}, build_dir=build)
     assert not use
-    assert "sources changed since the compiled build: firmware, qp" in why
+    assert f"sources changed since the compiled build: {fw}, {qp}" in why
     _manifest(build)  # the very sources on disk: this build would be used
     use, why = _accel.decide(environ={}, build_dir=build)
     assert use and f"compiled (mypyc, {len(_accel.COMPILED_MODULES)} modules" in why
     missing = dict(hashes)
-    del missing["estimator"]
+    del missing["robot_agent.core.estimator"]
     _manifest(build, sources=missing)
     assert "estimator" in _accel.decide(environ={}, build_dir=build)[1]
 
