@@ -15,10 +15,11 @@ $(STAMP): pyproject.toml
 	@# the compiled firmware core (mypyc); without a C compiler the pure-Python core runs
 	$(BIN)/python -m robot_agent.buildtools.accel build --quiet || echo "(the pure-Python firmware core runs)"
 	@# the compiled simulator side (plant, camera, link, the in-process loop; sim_plant/core/_accel.py)
-	$(BIN)/python -m formation.sim.accel_build build --quiet || echo "(the pure-Python simulator runs)"
+	@# and the coordinator's tick (coordinator/core/_accel.py)
+	$(BIN)/python -m formation.sim.accel_build build --quiet || echo "(pure Python runs where not built)"
 	touch $(STAMP)
 
-# rebuild the compiled firmware core and simulator after editing them (a stale build is never used)
+# rebuild the compiled builds after an edit (firmware, simulator, coordinator; a stale one is unused)
 accel: $(STAMP)
 	$(BIN)/python -m robot_agent.buildtools.accel build
 	$(BIN)/python -m formation.sim.accel_build build
@@ -50,4 +51,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/run_all.py
 
 clean:
-	rm -rf $(VENV) runs build *.egg-info robot_agent/_compiled sim_plant/_compiled
+	rm -rf $(VENV) runs build *.egg-info robot_agent/_compiled sim_plant/_compiled coordinator/_compiled

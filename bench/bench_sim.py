@@ -32,6 +32,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import scenario as scenario_mod
+from coordinator.core import _accel as coord_accel
 from coordinator.core import coordinator as coord_core
 from coordinator.core import trajectory as traj_mod
 from coordinator.core.assignment import RoleAssigner
@@ -49,6 +50,8 @@ from sim_plant.core.sensors import Camera, CommandLink
 # Stages whose methods the compiled simulator (sim_plant.core._accel) calls natively: a wrapper
 # set on the class is not seen, so with that build their time is part of "loop".
 NATIVE_STAGES = ("camera", "link", "plant")
+# Likewise inside the compiled coordinator (coordinator.core._accel): its time is "coordinator".
+COORDINATOR_NATIVE_STAGES = ("  slots", "  assignment")
 
 
 def chevron_scenario(n: int, duration_s: float = 60.0, seed: int = 5) -> scenario_mod.Scenario:
@@ -199,10 +202,12 @@ def breakdown(scn: scenario_mod.Scenario) -> None:
     tick_us = (res.wall_s - overhead) / ticks * 1e6  # the tick without the timers' cost
     accounted = sum(timer.net_s(s) for s in top) / ticks * 1e6
     native = set(NATIVE_STAGES) if sim_accel.status()[0] else set()
+    in_coordinator = set(COORDINATOR_NATIVE_STAGES) if coord_accel.status()[0] else set()
     print(f"  {'stage':<16}{'us/tick':>9}{'share':>8}{'calls/tick':>12}")
     for stage in order:
-        if stage in native:
-            print(f"  {stage:<16}{'in loop':>9}   (compiled: called natively, not timed alone)")
+        if stage in native or stage in in_coordinator:
+            where = "in loop" if stage in native else "in coord"
+            print(f"  {stage:<16}{where:>9}   (compiled: called natively, not timed alone)")
             continue
         us = timer.net_s(stage) / ticks * 1e6
         print(
@@ -233,6 +238,7 @@ def main() -> None:
     print("$ " + " ".join([Path(sys.executable).name, *sys.argv]))
     print(f"firmware core: {fw_accel.STATUS}")
     print(f"simulator: {sim_accel.status()[1]}")
+    print(f"coordinator: {coord_accel.status()[1]}")
     fleets = {
         "paper-exp2": lambda: scenario_mod.load("paper-exp2"),
         "chevron7": lambda: scenario_mod.load("chevron7"),

@@ -1,7 +1,14 @@
 """Coordinator core: virtual-leader trajectories, formation geometry and role assignment.
 
 Pure (numpy/scipy, no I/O, no clock): time is always passed in. See docs/architecture.md.
+
+The per-tick modules may run compiled (mypyc) when a build of exactly these sources exists:
+``_accel.activate`` decides before anything of the core is imported (see ``_accel.py``).
 """
+
+from . import _accel
+
+_accel.activate(__name__, __path__)
 
 from coordinator.core.assignment import (
     RoleAssigner,

@@ -223,7 +223,7 @@ class FormationSpec:
 
     @classmethod
     def triangle(
-        cls, b_m: float = 0.4, phi: tuple[float, float] = (math.pi / 3.0, 2.0 * math.pi / 3.0)
+        cls, b_m: object = 0.4, phi: Sequence[float] = (math.pi / 3.0, 2.0 * math.pi / 3.0)
     ) -> FormationSpec:
         """The paper's Fig 2a: slots 1 and 2 follow the leader at ``b_m`` (m) and angles ``phi``
         (rad; default behind-left and behind-right, an equilateral triangle of side ``b_m``)."""
@@ -233,7 +233,7 @@ class FormationSpec:
         return cls.from_tree([(0, None, 0.0, 0.0), (1, 0, b, phi[0]), (2, 0, b, phi[1])])
 
     @classmethod
-    def chevron(cls, n: int, b_m: float = 0.4) -> FormationSpec:
+    def chevron(cls, n: object, b_m: object = 0.4) -> FormationSpec:
         """A filled chevron (wedge) of ``n`` slots, leader included, neighbours ``b_m`` (m) apart.
 
         Stage 1 is the paper's triangle (slots 1, 2 at phi = pi/3, 2 pi/3). Stage ``s >= 2`` is a
@@ -248,7 +248,7 @@ class FormationSpec:
         return cls.from_tree(chevron_rows(_count(owner, n), _finite(owner, "b_m", b_m)))
 
     @classmethod
-    def lattice(cls, n: int, b_m: float = 0.4) -> FormationSpec:
+    def lattice(cls, n: object, b_m: object = 0.4) -> FormationSpec:
         """A triangular lattice of ``n`` slots, leader included, nearest neighbours ``b_m`` apart.
 
         Stage ``s`` is a row of ``s + 1`` slots ``s sqrt(3)/2 b_m`` behind the leader (the last
@@ -346,7 +346,7 @@ class FormationSpec:
         """Row of ``slot`` in definition order (and in :func:`slot_arrays`)."""
         return self._index[slot]
 
-    def grown(self, n: int) -> FormationSpec:
+    def grown(self, n: object) -> FormationSpec:
         """This formation grown (or cut) to ``n`` slots by the paper's staged rule (Fig 2b);
         see :func:`grow_staged`."""
         return grow_staged(self, n)
@@ -494,7 +494,7 @@ def formation_spacing_m(spec: FormationSpec) -> float:
     return float(dist.min())
 
 
-def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
+def grow_staged(spec: FormationSpec, n: object) -> FormationSpec:
     """``spec`` grown (or cut) to exactly ``n`` slots by the paper's staged rule (Fig 2b).
 
     Every slot of a stage becomes the sub-leader of its own followers in the next stage, placed
@@ -545,7 +545,7 @@ def grow_staged(spec: FormationSpec, n: int) -> FormationSpec:
     return FormationSpec.from_tree(rows)
 
 
-def resized_formation_table(table: Mapping[str, Any], n: int) -> dict[str, Any]:
+def resized_formation_table(table: Mapping[str, Any], n: object) -> dict[str, Any]:
     """A scenario ``[formation]`` table for exactly ``n`` slots (what ``--robots N`` needs).
 
     ``chevron`` and ``lattice`` keep their kind with ``n`` replaced (their builders are staged

@@ -38,7 +38,7 @@ import functools
 import math
 import re
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Final, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -111,15 +111,17 @@ def robots_xy(
     """Robot ids in natural order and their positions (m) as float pairs, validated."""
     if not isinstance(robots, Mapping):
         raise ValueError(f"robots must be a mapping id -> (x, y), got {type(robots).__name__}")
-    for rid in robots:
+    keys: Iterable[object] = robots  # as given: the compiled build checks no declared type here
+    for rid in keys:
         if not isinstance(rid, str):
             raise ValueError(f"robot ids must be strings, got {rid!r}")
     ids = sorted(robots, key=natural_key)
     xy: list[tuple[float, float]] = []
     bad: list[str] = []
     isfinite = math.isfinite
+    given: Mapping[str, object] = robots
     for rid in ids:
-        p = robots[rid]
+        p: Any = given[rid]
         try:
             px, py = p
             fx, fy = float(px), float(py)
@@ -141,12 +143,14 @@ def slots_xy(slots: Sequence[SlotLike]) -> tuple[list[int], list[tuple[float, fl
     """
     rows: list[tuple[tuple[bool, int, int], int, float, float]] = []
     seen: set[int] = set()
-    for s in slots:
+    entries: Iterable[object] = slots
+    for s in entries:
         if isinstance(s, SlotState):
             sid, x, y, stage = s.slot, s.x, s.y, s.stage
         else:
+            row: Any = s
             try:
-                sid_raw, x_raw, y_raw = s
+                sid_raw, x_raw, y_raw = row
                 sid, x, y = int(sid_raw), float(x_raw), float(y_raw)
             except (TypeError, ValueError):
                 raise ValueError(f"a slot must be a SlotState or (slot, x, y), got {s!r}") from None
@@ -195,7 +199,8 @@ def check_incumbent(incumbent: Mapping[str, int] | None) -> None:
         return
     if not isinstance(incumbent, Mapping):
         raise ValueError(f"incumbent must be a mapping robot id -> slot, got {incumbent!r}")
-    for rid, sid in incumbent.items():
+    entries: Iterable[tuple[object, object]] = incumbent.items()
+    for rid, sid in entries:
         if not isinstance(rid, str) or isinstance(sid, bool) or not isinstance(sid, int):
             raise ValueError(f"incumbent entries must be str -> int, got {rid!r}: {sid!r}")
 

@@ -95,8 +95,8 @@ def _role(slot: int, has_children: bool) -> str:
     return "subleader" if has_children else "follower"
 
 
-def _count(owner: str, n: int) -> int:
-    if not _is_int(n) or int(n) < 1:
+def _count(owner: str, n: object) -> int:
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or int(n) < 1:
         raise ValueError(
             f"{owner}: n (number of slots, leader included) must be an int >= 1, got {n!r}"
         )

@@ -2,9 +2,10 @@
 
 ``python -m formation.sim.accel_outputs`` prints, per case, a SHA-256 of everything a run
 returns (the log's arrays, separation, collisions, firmware status, link counters, faults,
-operator and mover records). The simulator-side compiled build (``formation.sim.accel_build``)
-runs it with the build and with ``FORMATION_ACCEL=0`` and installs the build only if both print
-the same; ``tests/unit/sim_plant/test_sim_accel.py`` compares the two again.
+operator and mover records). The simulator's and the coordinator's compiled builds
+(``formation.sim.accel_build``) run it with the new build and with ``FORMATION_ACCEL=0`` and
+install a build only if both print the same; ``tests/unit/sim_plant/test_sim_accel.py`` and
+``tests/unit/coordinator/test_coordinator_accel.py`` compare the two again.
 
 The cases cover every path of the compiled modules: the small-fleet plant, camera and link with a
 drag (paper-exp2), wheel encoders, scripted faults (leader-kill), an operator reshape, a scenario
@@ -23,6 +24,7 @@ from typing import Any
 import numpy as np
 
 import scenario as scenario_mod
+from coordinator.core import _accel as coordinator_accel
 from formation.sim import simulate
 from scenario.load import parse, resolve
 from sim_plant.core import _accel
@@ -115,6 +117,7 @@ def digest(res: simulate.SimResult) -> str:
 
 def main() -> int:
     print(f"simulator: {_accel.status()[1]}", file=sys.stderr)
+    print(f"coordinator: {coordinator_accel.status()[1]}", file=sys.stderr)
     for name, scn, duration_s in cases():
         print(name, digest(simulate.run(scn, duration_s=duration_s)), flush=True)
     return 0

@@ -79,15 +79,16 @@ def test_a_build_of_other_sources_is_not_used_and_names_the_changed_modules(
 ) -> None:
     build = tmp_path / "_compiled"
     hashes = _accel.source_hashes()
-    _manifest(build, sources=dict(hashes, firmware="0" * 64, qp="1" * 64))
+    fw, qp = "robot_agent.core.firmware", "robot_agent.core.qp"
+    _manifest(build, sources=dict(hashes, **{fw: "0" * 64, qp: "1" * 64}))
     use, why = _accel.decide(environ={}, build_dir=build)
     assert not use
-    assert "sources changed since the compiled build: firmware, qp" in why
+    assert f"sources changed since the compiled build: {fw}, {qp}" in why
     _manifest(build)  # the very sources on disk: this build would be used
     use, why = _accel.decide(environ={}, build_dir=build)
     assert use and f"compiled (mypyc, {len(_accel.COMPILED_MODULES)} modules" in why
     missing = dict(hashes)
-    del missing["estimator"]
+    del missing["robot_agent.core.estimator"]
     _manifest(build, sources=missing)
     assert "estimator" in _accel.decide(environ={}, build_dir=build)[1]
 
@@ -196,7 +197,7 @@ def test_an_edit_after_the_build_is_never_shadowed_by_the_stale_binary(tmp_path:
     assert out.returncode == 0, out.stderr
     active, where, status, edited = out.stdout.splitlines()
     assert active == "False" and where == str(src) and edited == "True"
-    assert "sources changed since the compiled build: firmware" in status
+    assert "sources changed since the compiled build: robot_agent.core.firmware" in status
     status_cmd = [sys.executable, "-m", "robot_agent.buildtools.accel", "status"]
     env = dict(os.environ, PYTHONPATH=str(tmp_path))
     env.pop(_accel.ENV, None)
