@@ -66,6 +66,7 @@ from coordinator.core.trajectory import LeaderState, wrap_angle
 
 from .footprint import Footprint
 from .limits import SlotLimits
+from .plan_bridge import PlanBridge
 from .planner import PlanResult, plan
 from .search import NoPlan
 from .world import PlanWorld
@@ -502,14 +503,19 @@ class Replanner:
     def request(
         self,
         now_s: float,
-        bridge: Bridge,
+        bridge: Bridge | PlanBridge,
         offsets_m: Sequence[tuple[float, float]],
         t_switch_s: float | None = None,
+        *,
+        note: str | None = None,
     ) -> PlanRequest:
         """Ask the plan for the wanted reason from ``bridge``, to switch in at ``t_switch_s``
-        (default: the end of the bridge's hold)."""
+        (default: the end of the bridge's hold); ``note``: how the bridge departs from the
+        usual, said after the reason (``plan_why``)."""
         assert self.setup is not None and self.goal is not None
         reason = self._want or "goal"
+        if note is not None:
+            reason = f"{reason} ({note})"
         self._want = None
         t_sw = bridge.t0_s + bridge.hold_s if t_switch_s is None else t_switch_s
         s = bridge.state_at(t_sw)
