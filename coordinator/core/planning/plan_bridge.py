@@ -155,9 +155,7 @@ def bridge_on_plan(
         return None
     x, y, th = r.x_m[k0 : k1 + 1], r.y_m[k0 : k1 + 1], r.theta_rad[k0 : k1 + 1]
     c, s = np.cos(th), np.sin(th)
-    pts = [
-        np.stack([x + c * ox - s * oy, y + s * ox + c * oy], axis=1) for ox, oy in offsets_m
-    ]
+    pts = [np.stack([x + c * ox - s * oy, y + s * ox + c * oy], axis=1) for ox, oy in offsets_m]
     world = PlanWorld(list(added), None)
     if float(world.clearance(np.concatenate(pts), slot_radius_m + 0.01).min()) < slot_radius_m:
         return BLOCKED

@@ -231,6 +231,7 @@ def solve(req: PlanRequest) -> PlanResult | str:
             min_pair_m=s.min_pair_m,
             soft_pair_m=s.soft_pair_m,
             v_start_mps=req.v_start_mps,
+            start_nominal=True,  # replans are asked with the formation nominal (not squeezed)
         )
     except (NoPlan, ValueError) as exc:
         return f"no plan: {exc}"
