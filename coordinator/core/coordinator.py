@@ -46,7 +46,12 @@ from coordinator.core.formation import (
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
 from coordinator.core.movers import MoverDetector, MoverParams, MoverRow
-from coordinator.core.planning.plan_bridge import BLOCKED, PlanBridge, bridge_on_plan
+from coordinator.core.planning.plan_bridge import (
+    BLOCKED,
+    PlanBridge,
+    bridge_on_plan,
+    clear_to_end,
+)
 from coordinator.core.planning.replan import Bridge, PlanSetup, PlanState, Replanner
 from coordinator.core.planning.timed import TimedPlan
 from coordinator.core.planning.trajectory import PlannedTrajectory
@@ -566,6 +571,15 @@ class CoordinatorCore:
         if got is None:
             return
         answer, t_switch = got
+        bridge = self.leader.bridge
+        if (
+            isinstance(answer, str)
+            and isinstance(bridge, PlanBridge)
+            and self.replanner.keep_followed
+        ):
+            tau, rate = bridge.progress(t_switch - bridge.t0_s)  # no way: the plan it had, on
+            self.leader.follow_plan(bridge.followed, t_switch, tau, rate)  # from the bridge
+            return
         if isinstance(answer, str):
             self.leader.no_way()
             return
@@ -604,13 +618,18 @@ class CoordinatorCore:
             return
         offsets = [(float(a), float(b)) for a, b in self.formation.body_offsets_m]
         if rp.late_streak and isinstance(ld.bridge, Bridge | PlanBridge):  # late: the same
-            rp.request(now_s, ld.bridge, offsets, now_s + rp.bridge_least_s())  # bridge, later
+            rp.request(now_s, ld.bridge, offsets, now_s + rp.bridge_least_s(),  # bridge, later
+                       keep_followed=rp.keep_followed)  # fmt: skip
             return
         bridge, note = self._bridge(now_s, offsets)
+        keep = False
+        if isinstance(bridge, PlanBridge):
+            added = [*rp.obstacles.values(), *rp.markers.values()]
+            keep = clear_to_end(bridge.followed, bridge.tau0_s, added, rp.setup.slot_radius_m)  # type: ignore[union-attr]
         ld.begin_bridge(bridge)
         # a slow planner: the switch is later, on the bridge's braking tail (a slower start)
         t_switch = now_s + max(bridge.hold_s, rp.bridge_least_s())
-        rp.request(now_s, bridge, offsets, t_switch, note=note)
+        rp.request(now_s, bridge, offsets, t_switch, note=note, keep_followed=keep)
 
     def _bridge(
         self, now_s: float, offsets: list[tuple[float, float]]

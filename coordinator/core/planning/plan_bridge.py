@@ -24,7 +24,10 @@ the time ``e`` since the ask ``t0_s``:
 beyond the bridge's stop, not squeeze within it (a bridge keeps the nominal formation), and the
 formation's slots along it (to its stop) must clear the obstacles added at run time; else it
 says why not (the coordinator then brakes on the straight bridge, and the reason is in the
-status's ``plan_why``).
+status's ``plan_why``). :func:`clear_to_end`: whether the whole rest of the followed plan is
+still clear; then a replan that finds no way from the bridge's end does not stop the leader:
+it goes on along the followed plan from where the bridge is (the plan it had is still a
+collision-free trajectory of the new world).
 """
 
 from __future__ import annotations
@@ -41,15 +44,18 @@ from coordinator.core.trajectory import LeaderState, wrap_angle
 from .timed import NOMINAL_Q, TimedPlan
 from .world import PlanWorld
 
-__all__ = ["BLOCKED", "MAX_HOLD_S", "STEP_S", "PlanBridge", "bridge_on_plan"]
+__all__ = ["BLOCKED", "MAX_HOLD_S", "STEP_S", "PlanBridge", "bridge_on_plan", "clear_to_end"]
 
 BLOCKED: Final = "the followed plan is blocked within the bridge"
 
 STEP_S: Final = 0.005
 """Grid of the bridge's hold (s): the same as the straight bridge's sub-step."""
-MAX_HOLD_S: Final = 4.0
+MAX_HOLD_S: Final = 6.0
 """Longest hold waiting for a straight piece (s); beyond it the bridge ends where the least hold
 does, on the curve (the new plan then leaves along the tangent)."""
+DEPARTURE_M: Final = 0.4
+"""Longest straight departure of a plan asked from a bridge on the followed plan (m): the
+planner's own."""
 _STRAIGHT_AHEAD_M: Final = 0.01
 """The hold ends at least this far (m) into a straight piece (past its first timing sample)."""
 
@@ -99,6 +105,23 @@ class PlanBridge:
     def v_join_mps(self) -> float:
         """The speed at the end of the hold (the new plan starts with it)."""
         return self.state_at(self.t0_s + self.hold_s).v_mps
+
+    def departure_m(self, now_s: float) -> float | None:
+        """How far (m) the new plan asked at ``now_s`` may leave straight along its heading
+        and stay on the followed route: to the corner point of the followed path ahead (the
+        route's vertex its arc rounds), at most :data:`DEPARTURE_M`; None when the bridge is on
+        a curve there."""
+        s_end = self.followed.where(self.progress(max(0.0, now_s - self.t0_s))[0])[0]
+        pieces = self.followed.result.pieces
+        i = max(0, bisect.bisect_right([p.s0 for p in pieces], s_end) - 1)
+        p = pieces[i]
+        if p.kappa != 0.0:
+            return None
+        d = p.s0 + p.length - s_end
+        if i + 1 < len(pieces) and pieces[i + 1].kappa != 0.0:
+            arc = pieces[i + 1]
+            d += math.tan(0.5 * arc.length * abs(arc.kappa)) / abs(arc.kappa)
+        return min(DEPARTURE_M, d) if d > 1e-3 else None
 
     def state_at(self, now_s: float) -> LeaderState:
         """The leader at ``now_s`` (>= ``t0_s``; earlier reads as ``t0_s``)."""
@@ -160,3 +183,29 @@ def bridge_on_plan(
     if float(world.clearance(np.concatenate(pts), slot_radius_m + 0.01).min()) < slot_radius_m:
         return BLOCKED
     return None
+
+
+def clear_to_end(
+    followed: TimedPlan,
+    tau0_s: float,
+    added: Sequence[Mapping[str, Any]],
+    slot_radius_m: float,
+) -> bool:
+    """Whether the rest of the followed plan from ``tau0_s`` keeps every slot (its planned
+    squeeze included, every 3 cm of the path) ``slot_radius_m`` clear of the obstacles
+    ``added`` at run time: then a replan that finds no way keeps it instead of stopping."""
+    if not added:
+        return True
+    r = followed.result
+    k0 = max(0, int(np.searchsorted(r.t_s, tau0_s)) - 1)
+    idx = [*range(k0, len(r.t_s), 6), len(r.t_s) - 1]
+    pts: list[tuple[float, float]] = []
+    nominal = [(float(a), float(b)) for a, b in r.footprint.nominal_m]
+    for k in idx:
+        x, y, th = float(r.x_m[k]), float(r.y_m[k]), float(r.theta_rad[k])
+        offs = followed.slot_offsets(float(r.t_s[k]))
+        rows = nominal if offs is None else [(o[0], o[1]) for o in offs]
+        c, s = math.cos(th), math.sin(th)
+        pts.extend((x + c * ox - s * oy, y + s * ox + c * oy) for ox, oy in rows)
+    world = PlanWorld(list(added), None)
+    return float(world.clearance(np.array(pts), slot_radius_m + 0.01).min()) >= slot_radius_m

@@ -641,6 +641,7 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
     soft_pair_m: float = 0.0,
     v_start_mps: float = 0.0,
     start_nominal: bool = False,
+    departure_m: float | None = None,
 ) -> PlanResult:
     """Plan the virtual leader from ``start`` ``(x, y, theta)`` through ``via`` to ``goal``
     (module docstring); no two slots closer than ``min_pair_m`` (m), closer than
@@ -649,7 +650,8 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
     the plan leaves along it at that speed). ``start_nominal``: the formation is nominal at
     the start (a run-time plan: the leader's formation there), so the squeeze starts at 0 and
     the route needs no more squeeze near the start than the ramp from it gives. Raises
-    :class:`NoPlan` (clean, with the reason) when there is none."""
+    :class:`NoPlan` (clean, with the reason) when there is none. ``departure_m``: the length
+    of the straight departure (m; default: 0.4, 0.2 or 0.1, the first with room)."""
     if not (math.isfinite(v_start_mps) and 0.0 <= v_start_mps <= cruise_mps + 1e-12):
         raise NoPlan(f"start speed {v_start_mps!r} m/s: must be in [0, the cruise speed]")
     fp = footprint
@@ -670,7 +672,8 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
     # leave along the start heading (the robots start in formation at that heading): a first
     # straight departure, when there is room for it
     departs = False
-    for ahead in (0.4, 0.2) if v_start_mps == 0.0 else (0.4, 0.2, 0.1):
+    aheads = (0.4, 0.2) if v_start_mps == 0.0 else (0.4, 0.2, 0.1)
+    for ahead in aheads if departure_m is None else (departure_m,):
         p = (sx + ahead * math.cos(sth), sy + ahead * math.sin(sth))
         if (
             math.hypot(pts_in[1][0] - sx, pts_in[1][1] - sy) > 2.0 * ahead
@@ -694,7 +697,7 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
     grid = make_grid(world, fp, need, pts_in)
     attempts: list[tuple[float, float, list[float]] | None] = [None]
     if start_nominal:  # the route again, with each squeeze no nearer the start than its ramp
-        least = [0.0] + [(q - 1.0 + _Q_STEP) * SQUEEZE_RAMP_M for q in (1.0, 2.0) if q <= fp.q_max]
+        least = [0.0] + [min(q, 1.5) * SQUEEZE_RAMP_M for q in (1.0, 2.0) if q <= fp.q_max]
         attempts.append((sx, sy, least))
     for k, ramp in enumerate(attempts):
         try:

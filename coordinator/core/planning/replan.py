@@ -212,6 +212,9 @@ class PlanRequest:
     obstacles: tuple[Mapping[str, Any], ...]
     offsets_m: tuple[tuple[float, float], ...]
     setup: PlanSetup
+    departure_m: float | None = None
+    """The straight departure (m) that stays on the followed route (a bridge on the followed
+    plan: ``plan_bridge.PlanBridge.departure_m``), or None: the planner's own choice."""
 
 
 def solve(req: PlanRequest) -> PlanResult | str:
@@ -232,6 +235,7 @@ def solve(req: PlanRequest) -> PlanResult | str:
             soft_pair_m=s.soft_pair_m,
             v_start_mps=req.v_start_mps,
             start_nominal=True,  # replans are asked with the formation nominal (not squeezed)
+            departure_m=req.departure_m,
         )
     except (NoPlan, ValueError) as exc:
         return f"no plan: {exc}"
@@ -335,6 +339,8 @@ class Replanner:
         self._goal_plans = 0  # plans made for the current goal (the first is not a replan)
         self.late_streak = 0
         """Late answers in a row: the next ask keeps the bridge and waits twice as long."""
+        self.keep_followed = False
+        """The request in flight keeps the followed plan if it finds no way (:meth:`request`)."""
         self.adaptive = False
         """Realtime: the switch waits 1.5 plan times when plans take longer than the bridge
         (never in lockstep or in-process: the switch tick must not depend on a clock)."""
@@ -474,7 +480,10 @@ class Replanner:
         event: dict[str, Any] = {
             "t_s": now_s, "reason": r.reason, "ok": ok, "plan_ms": self._answer_ms,
         }  # fmt: skip
-        if isinstance(answer, str):
+        if isinstance(answer, str) and self.keep_followed:
+            self.state, self.why = PlanState.FOLLOWING, f"{r.reason} (kept the followed plan)"
+            event.update(why=answer, kept=True)
+        elif isinstance(answer, str):
             self.state, self.why = PlanState.NO_WAY, answer
             event["why"] = answer
         else:
@@ -509,11 +518,15 @@ class Replanner:
         t_switch_s: float | None = None,
         *,
         note: str | None = None,
+        keep_followed: bool = False,
     ) -> PlanRequest:
         """Ask the plan for the wanted reason from ``bridge``, to switch in at ``t_switch_s``
         (default: the end of the bridge's hold); ``note``: how the bridge departs from the
-        usual, said after the reason (``plan_why``)."""
+        usual, said after the reason (``plan_why``); ``keep_followed``: the bridge is on the
+        followed plan and all of its rest is still clear (``plan_bridge.clear_to_end``): no way
+        keeps it (the caller resumes it) instead of stopping."""
         assert self.setup is not None and self.goal is not None
+        self.keep_followed = keep_followed
         reason = self._want or "goal"
         if note is not None:
             reason = f"{reason} ({note})"
@@ -536,6 +549,7 @@ class Replanner:
             ),
             offsets_m=tuple((float(a), float(b)) for a, b in offsets_m),
             setup=self.setup,
+            departure_m=bridge.departure_m(t_sw) if isinstance(bridge, PlanBridge) else None,
         )
         self._next_id += 1
         self._request, self._taken, self._answer = req, False, None
