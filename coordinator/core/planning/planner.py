@@ -671,20 +671,21 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
             raise NoPlan(f"{name} {pts_in[names.index(name)]} is {where}")
     # leave along the start heading (the robots start in formation at that heading): a first
     # straight departure, when there is room for it
-    departs = False
     aheads = (0.4, 0.2) if v_start_mps == 0.0 else (0.4, 0.2, 0.1)
+    departures: list[tuple[float, float] | None] = []
     for ahead in aheads if departure_m is None else (departure_m,):
         p = (sx + ahead * math.cos(sth), sy + ahead * math.sin(sth))
         if (
             math.hypot(pts_in[1][0] - sx, pts_in[1][1] - sy) > 2.0 * ahead
             and world.clearance(np.array([p]), need + 1.0)[0] >= need
         ):
-            pts_in.insert(1, p)
-            names.insert(1, "start departure")
-            departs = True
-            break
-    if v_start_mps > 0.0 and not departs:
-        raise NoPlan("no room ahead of the moving leader to leave along its heading")
+            departures.append(p)
+            if not start_nominal:  # a run-time plan tries the shorter ones when one fails
+                break
+    if not departures:
+        if v_start_mps > 0.0:
+            raise NoPlan("no room ahead of the moving leader to leave along its heading")
+        departures.append(None)
     if goal_heading is not None:
         # arrive along goal_heading: a last straight approach to the goal
         gx, gy = pts_in[-1]
@@ -694,14 +695,20 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
                 pts_in.insert(len(pts_in) - 1, p)
                 names.insert(len(names) - 1, "goal approach")
                 break
-    grid = make_grid(world, fp, need, pts_in)
     attempts: list[tuple[float, float, list[float]] | None] = [None]
     if start_nominal:  # the route again, with each squeeze no nearer the start than its ramp
         least = [0.0] + [min(q, 1.5) * SQUEEZE_RAMP_M for q in (1.0, 2.0) if q <= fp.q_max]
         attempts.append((sx, sy, least))
-    for k, ramp in enumerate(attempts):
+    tries = [(d, ramp) for d in departures for ramp in attempts]
+    base_pts, base_names = pts_in, names
+    for k, (dep, ramp) in enumerate(tries):
+        pts_in, names = list(base_pts), list(base_names)
+        if dep is not None:  # leave along the start heading: a first straight departure
+            pts_in.insert(1, dep)
+            names.insert(1, "start departure")
         try:
-            first_straight = start_nominal and departs
+            grid = make_grid(world, fp, need, pts_in)
+            first_straight = start_nominal and dep is not None
             routed = _routed(world, fp, grid, pts_in, goal_heading, names, ramp, first_straight)
             pieces, s_v, q_req, total, pts, _poses_v, col_v = routed
             # squeeze profile on the verify grid, then re-verify at the final q
@@ -718,7 +725,7 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
             )
             break
         except NoPlan:
-            if k == len(attempts) - 1:
+            if k == len(tries) - 1:
                 raise
     # timing on a finer grid
     n_t = max(2, math.ceil(total / TIME_DS_M) + 1)
