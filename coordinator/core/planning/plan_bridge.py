@@ -56,6 +56,9 @@ does, on the curve (the new plan then leaves along the tangent)."""
 DEPARTURE_M: Final = 0.4
 """Longest straight departure of a plan asked from a bridge on the followed plan (m): the
 planner's own."""
+MIN_DEPARTURE_M: Final = 0.1
+"""Shortest such departure (m): nearer the corner point the planner's own departures are
+used (a corner right after the start leaves no room for its arc)."""
 _STRAIGHT_AHEAD_M: Final = 0.01
 """The hold ends at least this far (m) into a straight piece (past its first timing sample)."""
 
@@ -121,7 +124,7 @@ class PlanBridge:
         if i + 1 < len(pieces) and pieces[i + 1].kappa != 0.0:
             arc = pieces[i + 1]
             d += math.tan(0.5 * arc.length * abs(arc.kappa)) / abs(arc.kappa)
-        return min(DEPARTURE_M, d) if d > 1e-3 else None
+        return min(DEPARTURE_M, d) if d >= MIN_DEPARTURE_M else None
 
     def state_at(self, now_s: float) -> LeaderState:
         """The leader at ``now_s`` (>= ``t0_s``; earlier reads as ``t0_s``)."""

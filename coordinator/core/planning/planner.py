@@ -60,6 +60,9 @@ SQUEEZE_RAMP_M: Final = 0.8
 SQUEEZE_SMOOTH_M: Final = 0.3
 """Width (m) of each of the two moving averages that smooth the squeeze profile."""
 _Q_STEP: Final = 0.1
+_MIN_SEEN_RADIUS_M: Final = 0.05
+"""A run-time plan's arc of a smaller radius must be long enough for the timing grid to see
+it (two samples), or its turn rate would not be bounded."""
 _CAP_M: Final = 0.01
 """Clearance cap beyond the need (m) where a test only asks whether the footprint fits."""
 
@@ -623,6 +626,11 @@ def _routed(
                 radii[got] *= 0.5
                 continue
             pieces, s_v, poses_v, col_v, q_req, total_a = got
+            if straight_first and any(
+                p.length < 2.0 * TIME_DS_M and abs(p.kappa) > 1.0 / _MIN_SEEN_RADIUS_M
+                for p in pieces
+            ):
+                break  # a sharp arc the timing grid would not see (its turn rate unbounded)
             return pieces, s_v, q_req, float(total_a[0]), pts, poses_v, col_v
     raise NoPlan("no smooth path was found along the route (the passages are too tight)")
 

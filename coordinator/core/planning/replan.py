@@ -8,8 +8,16 @@ computed OFF the tick (the node shell's worker process; the in-process simulator
 switched in later. What the leader does meanwhile must be known when the plan is asked, so the
 plan can start exactly where the leader will be:
 
-1. **Bridge.** When a plan is wanted at tick time ``t_b``, the leader leaves its mode for a
-   :class:`Bridge`, a fixed function of the time since ``t_b``: from its state there (position,
+1. **Bridge.** When a plan is wanted at tick time ``t_b`` while the leader follows a plan (a
+   run-time plan or a ``kind = "plan"`` script) that goes on clear of the run's obstacles
+   beyond the bridge, the leader stays ON it: a ``plan_bridge.PlanBridge``, the followed plan
+   at a progress advancing at the rate it had, a fixed function of the time since ``t_b``,
+   held until a straight piece of the path (the paper's coordinator "creates no-collision
+   trajectories of the virtual leader": it keeps the one it has while the next is computed).
+   Otherwise (no followed plan; a followed plan that ends or squeezes within the bridge) it
+   leaves its mode for a straight :class:`Bridge` (braking at once, ``v_join = 0``, when the
+   followed plan is blocked within the bridge: said in ``plan_why``), a fixed function of the
+   time since ``t_b``: from its state there (position,
    heading, speed ``v0``, turn rate ``w0``) the speed goes to ``v_join = clip(v0, 0, cruise)``
    at the leader's acceleration limit and the turn rate to 0 at its turn-acceleration limit
    (``leader.integrate_unicycle`` on fixed :data:`BRIDGE_STEP_S` sub-steps), for
@@ -20,7 +28,9 @@ plan can start exactly where the leader will be:
    tail, slower or at rest.
 2. **Request.** The plan is asked from the bridge's state at ``t_switch = t_b + hold_s``: a
    straight motion at ``v_join`` along the heading, which ``planner.plan`` continues
-   (``v_start_mps``: the plan leaves along the heading at that speed). The request
+   (``v_start_mps``: the plan leaves along the heading at that speed; ``start_nominal``: from
+   the nominal formation; ``departure_m``: after a bridge on the followed plan, the straight
+   departure ends at most at the followed route's next corner point). The request
    (:class:`PlanRequest`) is plain data: the world (the scenario's obstacles, the operator's,
    the stuck markers), the formation's offsets, the goal; :func:`solve` is a deterministic
    function of it.
@@ -35,7 +45,10 @@ plan can start exactly where the leader will be:
    state one ``hold_s`` later; the late answer is dropped.
 4. **No way** (``NoPlan``): the leader decelerates to a stop within its limits (mode ``stop``)
    and :attr:`Replanner.state` is ``no_way`` with the planner's one line in
-   :attr:`Replanner.why`.
+   :attr:`Replanner.why`; unless the bridge was on the followed plan and all of its rest is
+   still clear of the run's obstacles (:attr:`Replanner.keep_followed`): then the leader goes
+   on along it from where the bridge is (``following``, ``plan_why`` "... (kept the followed
+   plan)").
 
 What makes a plan wanted: a goal (``formation goal``) when the world has an obstacle (an open
 field keeps the leader's straight pursuit, coordinator.core.leader); an obstacle added, moved
