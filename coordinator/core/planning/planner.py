@@ -719,6 +719,9 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
             first_straight = start_nominal and dep is not None
             routed = _routed(world, fp, grid, pts_in, goal_heading, names, ramp, first_straight)
             pieces, s_v, q_req, total, pts, _poses_v, col_v = routed
+            if start_nominal and abs(math.remainder(pieces[0].h0 - sth, 2.0 * math.pi)) > 1e-6:
+                # (a run-time plan from rest without a departure: the heading would jump)
+                raise NoPlan("the plan cannot leave along the leader's heading")
             # squeeze profile on the verify grid, then re-verify at the final q
             q_v, c_f = _fit_squeeze(
                 world,
