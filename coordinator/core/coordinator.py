@@ -46,7 +46,15 @@ from coordinator.core.formation import (
 )
 from coordinator.core.leader import LeaderConfig, LeaderCore, LeaderMode
 from coordinator.core.movers import MoverDetector, MoverParams, MoverRow
+from coordinator.core.planning.plan_bridge import (
+    BLOCKED,
+    PlanBridge,
+    bridge_on_plan,
+    clear_to_end,
+)
 from coordinator.core.planning.replan import Bridge, PlanSetup, PlanState, Replanner
+from coordinator.core.planning.timed import TimedPlan
+from coordinator.core.planning.trajectory import PlannedTrajectory
 from coordinator.core.reshape import blended_rows
 from coordinator.core.reshaping import Reshaper
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
@@ -563,11 +571,18 @@ class CoordinatorCore:
         if got is None:
             return
         answer, t_switch = got
+        bridge = self.leader.bridge
+        if (
+            isinstance(answer, str)
+            and isinstance(bridge, PlanBridge)
+            and self.replanner.keep_followed
+        ):
+            tau, rate = bridge.progress(t_switch - bridge.t0_s)  # no way: the plan it had, on
+            self.leader.follow_plan(bridge.followed, t_switch, tau, rate)  # from the bridge
+            return
         if isinstance(answer, str):
             self.leader.no_way()
             return
-        from coordinator.core.planning.timed import TimedPlan  # numpy/scipy only when planning
-
         self.leader.follow_plan(TimedPlan(answer), t_switch)
 
     def _replan(
@@ -602,17 +617,58 @@ class CoordinatorCore:
             self._blocked_while_squeezed(now_s)
             return
         offsets = [(float(a), float(b)) for a, b in self.formation.body_offsets_m]
-        if rp.late_streak and isinstance(ld.bridge, Bridge):  # late: the same bridge, later
-            rp.request(now_s, ld.bridge, offsets, now_s + rp.bridge_least_s())
+        if rp.late_streak and isinstance(ld.bridge, Bridge | PlanBridge):  # late: the same
+            rp.request(now_s, ld.bridge, offsets, now_s + rp.bridge_least_s(),  # bridge, later
+                       keep_followed=rp.keep_followed)  # fmt: skip
             return
-        cfg = ld.config
-        setup = rp.setup
-        assert setup is not None
-        bridge = Bridge(ld.state, now_s, cruise_mps=setup.cruise_mps, accel_mps2=cfg.max_accel_mps2,
-                        turn_accel_radps2=cfg.max_turn_accel_radps2)  # fmt: skip
+        bridge, note = self._bridge(now_s, offsets)
+        keep = False
+        if isinstance(bridge, PlanBridge):
+            added = [*rp.obstacles.values(), *rp.markers.values()]
+            keep = clear_to_end(bridge.followed, bridge.tau0_s, added, rp.setup.slot_radius_m)  # type: ignore[union-attr]
         ld.begin_bridge(bridge)
         # a slow planner: the switch is later, on the bridge's braking tail (a slower start)
-        rp.request(now_s, bridge, offsets, now_s + max(bridge.hold_s, rp.bridge_least_s()))
+        t_switch = now_s + max(bridge.hold_s, rp.bridge_least_s())
+        rp.request(now_s, bridge, offsets, t_switch, note=note, keep_followed=keep)
+
+    def _bridge(
+        self, now_s: float, offsets: list[tuple[float, float]]
+    ) -> tuple[Bridge | PlanBridge, str | None]:
+        """The leader's motion while a plan is computed, from its state of this tick, and a
+        note for ``plan_why`` when it brakes: on the plan it follows (a run-time plan or a
+        planned script) when that plan goes on clear of the run's obstacles
+        (coordinator.core.planning.plan_bridge), else the straight bridge; braking at once
+        (a straight bridge to rest) when the followed plan is blocked within the bridge."""
+        ld, rp = self.leader, self.replanner
+        cfg, setup = ld.config, rp.setup
+        assert setup is not None and ld.state is not None
+        followed = self._followed()
+        cruise = setup.cruise_mps
+        note = None
+        if followed is not None:
+            timed, tau = followed
+            v_max = max(float(timed.result.v_mps.max()), 1e-3)
+            pb = PlanBridge(timed, tau, ld.rate, now_s, least_s=rp.bridge_least_s(),
+                            brake_per_s=0.5 * cfg.max_accel_mps2 / v_max)  # fmt: skip
+            added = [*rp.obstacles.values(), *rp.markers.values()]
+            why = bridge_on_plan(pb, offsets, added, setup.slot_radius_m)
+            if why is None:
+                return pb, None
+            if why == BLOCKED:
+                cruise, note = 0.0, f"braking: {why}"
+        bridge = Bridge(ld.state, now_s, cruise_mps=cruise, accel_mps2=cfg.max_accel_mps2,
+                        turn_accel_radps2=cfg.max_turn_accel_radps2)  # fmt: skip
+        return bridge, note
+
+    def _followed(self) -> tuple[TimedPlan, float] | None:
+        """The plan the leader follows and its plan time now, or None (not on a plan)."""
+        ld = self.leader
+        if ld.plan is not None and ld.bridge is None:
+            return ld.plan, ld.progress_s
+        traj = ld.trajectory
+        if ld.mode is LeaderMode.SCRIPT and isinstance(traj, PlannedTrajectory):
+            return traj.timed, ld.progress_s - traj.t_start_s
+        return None
 
     def _without_movers(
         self,

@@ -549,12 +549,17 @@ class LeaderCore:
         if self.mode is LeaderMode.SCRIPT:  # a planned script replanned to its goal
             self.mode = LeaderMode.GOAL
 
-    def follow_plan(self, plan: TimedPlan, t_switch_s: float) -> None:
-        """Follow ``plan`` from ``t_switch_s`` (before the step of the tick at or after it)."""
+    def follow_plan(
+        self, plan: TimedPlan, t_switch_s: float, progress_s: float = 0.0, rate: float = 1.0
+    ) -> None:
+        """Follow ``plan`` from ``t_switch_s`` (before the step of the tick at or after it), at
+        plan time ``progress_s`` and progress rate ``rate`` there (a new plan: its start at full
+        rate; the followed plan kept after a replan found no way: where its bridge is)."""
         self.bridge = None
         self.plan = plan
         self.mode = LeaderMode.GOAL
-        self.progress_s = 0.0
+        self.progress_s = progress_s
+        self.rate = rate
         self._last_now = t_switch_s  # the step integrates the progress from the switch time
 
     def no_way(self) -> None:

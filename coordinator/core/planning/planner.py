@@ -60,6 +60,9 @@ SQUEEZE_RAMP_M: Final = 0.8
 SQUEEZE_SMOOTH_M: Final = 0.3
 """Width (m) of each of the two moving averages that smooth the squeeze profile."""
 _Q_STEP: Final = 0.1
+_MIN_SEEN_RADIUS_M: Final = 0.05
+"""A run-time plan's arc of a smaller radius must be long enough for the timing grid to see
+it (two samples), or its turn rate would not be bounded."""
 _CAP_M: Final = 0.01
 """Clearance cap beyond the need (m) where a test only asks whether the footprint fits."""
 
@@ -354,19 +357,26 @@ def _q_levels(fp: Footprint) -> FloatArray:
 
 
 def _squeeze_dp(
-    feas: npt.NDArray[np.bool_], soft: npt.NDArray[np.bool_], stride: int
+    feas: npt.NDArray[np.bool_],
+    soft: npt.NDArray[np.bool_],
+    stride: int,
+    start_nominal: bool = False,
 ) -> FloatArray | None:
     """The least squeeze path through ``feas`` (m, L): one level step at most per ``stride``
     samples, every sample of a stage feasible at the levels on both its ends, levels outside
-    ``soft`` only where there is no other way (a cost of 1000 per sample); the level at each
-    sample (linear inside a stage), or None if there is none."""
+    ``soft`` only where there is no other way (a cost of 1000 per sample), from level 0 at the
+    start when ``start_nominal``; the level at each sample (linear inside a stage), or None if
+    there is none."""
     m, n_lv = feas.shape
     stages = [*range(0, m - 1, stride), m - 1]
     n_st = len(stages)
     inf = math.inf
     cost = np.full((n_st, n_lv), inf)
     back = np.zeros((n_st, n_lv), dtype=np.int64)
-    cost[0, feas[0]] = np.nonzero(feas[0])[0].astype(float)
+    first = feas[0].copy()
+    if start_nominal:
+        first[1:] = False
+    cost[0, first] = np.nonzero(first)[0].astype(float)
     for j in range(1, n_st):
         a, b = stages[j - 1], stages[j]
         span = np.asarray(feas[a : b + 1].all(axis=0))  # level feasible on the whole stage
@@ -402,11 +412,13 @@ def _fit_squeeze(
     ds: float,
     min_pair_m: float,
     soft_pair_m: float,
+    start_nominal: bool = False,
 ) -> tuple[FloatArray, FloatArray]:
     """The squeeze profile (at each pose) and each pose's least clearance: the least squeeze
     through the feasible levels (dynamic programming, at most one level of ``_Q_STEP`` per
-    ``SQUEEZE_RAMP_M * _Q_STEP`` of travel), smoothed by two moving averages of
-    ``SQUEEZE_SMOOTH_M`` when that still fits, then tested exactly."""
+    ``SQUEEZE_RAMP_M * _Q_STEP`` of travel; from the nominal formation when
+    ``start_nominal``), smoothed by two moving averages of ``SQUEEZE_SMOOTH_M`` when that
+    still fits, then tested exactly."""
     need = fp.slot_radius_m
     if not np.any(q_req > 0.0):
         q0 = np.zeros(len(poses))
@@ -415,12 +427,16 @@ def _fit_squeeze(
         return q0, c
     feas, soft = _feasible(world, fp, poses, col, q_req, min_pair_m, soft_pair_m)
     stride = max(1, round(_Q_STEP * SQUEEZE_RAMP_M / ds))
-    q_lin = _squeeze_dp(feas, soft, stride)
+    q_lin = _squeeze_dp(feas, soft, stride, start_nominal)
     if q_lin is None:
         raise NoPlan("the formation cannot squeeze in time for a passage on the route")
     w = max(1, round(SQUEEZE_SMOOTH_M / ds))
     q_smooth = uniform_filter1d(uniform_filter1d(q_lin, size=w, mode="nearest"), w, mode="nearest")
-    for q in (np.clip(q_smooth, 0.0, fp.q_max), q_lin):
+    q_smooth = np.clip(q_smooth, 0.0, fp.q_max)
+    if start_nominal:  # the averages reach back to the start: fade them in (C1, 0 at the start)
+        u = np.clip(np.arange(len(q_smooth)) * ds / SQUEEZE_SMOOTH_M, 0.0, 1.0)
+        q_smooth = q_smooth * (u * u * (3.0 - 2.0 * u))
+    for q in (q_smooth, q_lin):
         pts = fp.slot_points(poses, q, col)
         c = world.clearance(pts.reshape(-1, 2), need + 1.0).reshape(len(q), -1).min(axis=1)
         if np.all(c >= need) and _min_pair(pts) >= min_pair_m:
@@ -571,6 +587,54 @@ def _verify(
     return pieces, s, poses, col, q_req, np.array([total])
 
 
+def _routed(
+    world: PlanWorld,
+    fp: Footprint,
+    grid: Grid,
+    pts_in: list[tuple[float, float]],
+    goal_heading: float | None,
+    names: list[str],
+    ramp: tuple[float, float, list[float]] | None,
+    straight_first: bool,
+) -> tuple[list[_Piece], FloatArray, FloatArray, float, list[tuple[float, float]], FloatArray,
+           FloatArray]:  # fmt: skip
+    """The route (``search.route``, ``ramp`` its ``squeeze_from``; ``straight_first``: its
+    first leg, start to departure, straight), shortcut and verified: ``(pieces, verify arc
+    lengths, needed squeeze, length, corner points, poses, column)``."""
+    legs = route(grid, fp, pts_in, goal_heading, names, ramp)
+    if straight_first:  # a run-time plan leaves along the leader's heading:
+        legs[0] = [legs[0][0], legs[0][-1]]  # the departure straight (tested exactly below)
+    # shortcut each leg (the via points stay); fall back to the raw grid path
+    h_prev: float | None = None  # the trajectory starts on its first segment's heading
+    short: list[tuple[float, float]] = [pts_in[0]]
+    for leg in legs:
+        cut = shortcut(grid, fp, leg, h_prev)
+        short.extend(cut[1:])
+        h_prev = math.atan2(cut[-1][1] - cut[-2][1], cut[-1][0] - cut[-2][0])
+    raw: list[tuple[float, float]] = [pts_in[0]]
+    for leg in legs:
+        raw.extend(_collinear_free(leg)[1:])
+    keep = set(pts_in)
+    for pts in (_drop_short(short, keep, 2.5 * grid.res_m), raw):
+        pts = _drop_close(pts)
+        radii = [CORNER_RADIUS_M] * max(0, len(pts) - 2)
+        for _ in range(12):
+            got = _verify(world, fp, pts, radii)
+            if isinstance(got, int):
+                if got < 0 or radii[got] <= MIN_CORNER_RADIUS_M:
+                    break
+                radii[got] *= 0.5
+                continue
+            pieces, s_v, poses_v, col_v, q_req, total_a = got
+            if straight_first and any(
+                p.length < 2.0 * TIME_DS_M and abs(p.kappa) > 1.0 / _MIN_SEEN_RADIUS_M
+                for p in pieces
+            ):
+                break  # a sharp arc the timing grid would not see (its turn rate unbounded)
+            return pieces, s_v, q_req, float(total_a[0]), pts, poses_v, col_v
+    raise NoPlan("no smooth path was found along the route (the passages are too tight)")
+
+
 def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, squeeze, timing)
     world: PlanWorld,
     footprint: Footprint,
@@ -584,13 +648,18 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
     min_pair_m: float = 0.0,
     soft_pair_m: float = 0.0,
     v_start_mps: float = 0.0,
+    start_nominal: bool = False,
+    departure_m: float | None = None,
 ) -> PlanResult:
     """Plan the virtual leader from ``start`` ``(x, y, theta)`` through ``via`` to ``goal``
     (module docstring); no two slots closer than ``min_pair_m`` (m), closer than
     ``soft_pair_m`` only where there is no other way. ``v_start_mps`` (>= 0): the leader's
     speed at the start (a run-time plan joins a moving leader, going straight along ``theta``:
-    the plan leaves along it at that speed). Raises :class:`NoPlan` (clean, with the reason)
-    when there is none."""
+    the plan leaves along it at that speed). ``start_nominal``: the formation is nominal at
+    the start (a run-time plan: the leader's formation there), so the squeeze starts at 0 and
+    the route needs no more squeeze near the start than the ramp from it gives. Raises
+    :class:`NoPlan` (clean, with the reason) when there is none. ``departure_m``: the length
+    of the straight departure (m; default: 0.4, 0.2 or 0.1, the first with room)."""
     if not (math.isfinite(v_start_mps) and 0.0 <= v_start_mps <= cruise_mps + 1e-12):
         raise NoPlan(f"start speed {v_start_mps!r} m/s: must be in [0, the cruise speed]")
     fp = footprint
@@ -610,19 +679,21 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
             raise NoPlan(f"{name} {pts_in[names.index(name)]} is {where}")
     # leave along the start heading (the robots start in formation at that heading): a first
     # straight departure, when there is room for it
-    departs = False
-    for ahead in (0.4, 0.2) if v_start_mps == 0.0 else (0.4, 0.2, 0.1):
+    aheads = (0.4, 0.2) if v_start_mps == 0.0 else (0.4, 0.2, 0.1)
+    departures: list[tuple[float, float] | None] = []
+    for ahead in aheads if departure_m is None else (departure_m,):
         p = (sx + ahead * math.cos(sth), sy + ahead * math.sin(sth))
         if (
             math.hypot(pts_in[1][0] - sx, pts_in[1][1] - sy) > 2.0 * ahead
             and world.clearance(np.array([p]), need + 1.0)[0] >= need
         ):
-            pts_in.insert(1, p)
-            names.insert(1, "start departure")
-            departs = True
-            break
-    if v_start_mps > 0.0 and not departs:
-        raise NoPlan("no room ahead of the moving leader to leave along its heading")
+            departures.append(p)
+            if not start_nominal:  # a run-time plan tries the shorter ones when one fails
+                break
+    if not departures:
+        if v_start_mps > 0.0:
+            raise NoPlan("no room ahead of the moving leader to leave along its heading")
+        departures.append(None)
     if goal_heading is not None:
         # arrive along goal_heading: a last straight approach to the goal
         gx, gy = pts_in[-1]
@@ -632,44 +703,41 @@ def plan(  # noqa: PLR0915 (the planner's phases in order: search, shortcuts, sq
                 pts_in.insert(len(pts_in) - 1, p)
                 names.insert(len(names) - 1, "goal approach")
                 break
-    grid = make_grid(world, fp, need, pts_in)
-    legs = route(grid, fp, pts_in, goal_heading, names)
-    # shortcut each leg (the via points stay); fall back to the raw grid path
-    h_prev: float | None = None  # the trajectory starts on its first segment's heading
-    short: list[tuple[float, float]] = [pts_in[0]]
-    for leg in legs:
-        cut = shortcut(grid, fp, leg, h_prev)
-        short.extend(cut[1:])
-        h_prev = math.atan2(cut[-1][1] - cut[-2][1], cut[-1][0] - cut[-2][0])
-    raw: list[tuple[float, float]] = [pts_in[0]]
-    for leg in legs:
-        raw.extend(_collinear_free(leg)[1:])
-    result = None
-    keep = set(pts_in)
-    for pts in (_drop_short(short, keep, 2.5 * grid.res_m), raw):
-        pts = _drop_close(pts)
-        radii = [CORNER_RADIUS_M] * max(0, len(pts) - 2)
-        for _ in range(12):
-            got = _verify(world, fp, pts, radii)
-            if isinstance(got, int):
-                if got < 0 or radii[got] <= MIN_CORNER_RADIUS_M:
-                    break
-                radii[got] *= 0.5
-                continue
-            result = (pts, got)
+    attempts: list[tuple[float, float, list[float]] | None] = [None]
+    if start_nominal:  # the route again, with each squeeze no nearer the start than its ramp
+        least = [0.0] + [min(q, 1.5) * SQUEEZE_RAMP_M for q in (1.0, 2.0) if q <= fp.q_max]
+        attempts.append((sx, sy, least))
+    tries = [(d, ramp) for d in departures for ramp in attempts]
+    base_pts, base_names = pts_in, names
+    for k, (dep, ramp) in enumerate(tries):
+        pts_in, names = list(base_pts), list(base_names)
+        if dep is not None:  # leave along the start heading: a first straight departure
+            pts_in.insert(1, dep)
+            names.insert(1, "start departure")
+        try:
+            grid = make_grid(world, fp, need, pts_in)
+            first_straight = start_nominal and dep is not None
+            routed = _routed(world, fp, grid, pts_in, goal_heading, names, ramp, first_straight)
+            pieces, s_v, q_req, total, pts, _poses_v, col_v = routed
+            if start_nominal and abs(math.remainder(pieces[0].h0 - sth, 2.0 * math.pi)) > 1e-6:
+                # (a run-time plan from rest without a departure: the heading would jump)
+                raise NoPlan("the plan cannot leave along the leader's heading")
+            # squeeze profile on the verify grid, then re-verify at the final q
+            q_v, c_f = _fit_squeeze(
+                world,
+                fp,
+                _poses_v,
+                col_v,
+                q_req,
+                float(s_v[1] - s_v[0]),
+                min_pair_m,
+                soft_pair_m,
+                start_nominal,
+            )
             break
-        if result is not None:
-            break
-    if result is None:
-        raise NoPlan("no smooth path was found along the route (the passages are too tight)")
-    pts, (pieces, s_v, _poses_v, col_v, q_req, total_a) = result
-    total = float(total_a[0])
-    # squeeze profile on the verify grid, then re-verify at the final q: where the smoothed q
-    # passes through a squeeze that does not fit (the column's tail is longer than the
-    # triangle), ask for the next squeeze up that does fit there and widen again
-    q_v, c_f = _fit_squeeze(
-        world, fp, _poses_v, col_v, q_req, float(s_v[1] - s_v[0]), min_pair_m, soft_pair_m
-    )
+        except NoPlan:
+            if k == len(tries) - 1:
+                raise
     # timing on a finer grid
     n_t = max(2, math.ceil(total / TIME_DS_M) + 1)
     s_t = np.linspace(0.0, total, n_t)

@@ -8,8 +8,16 @@ computed OFF the tick (the node shell's worker process; the in-process simulator
 switched in later. What the leader does meanwhile must be known when the plan is asked, so the
 plan can start exactly where the leader will be:
 
-1. **Bridge.** When a plan is wanted at tick time ``t_b``, the leader leaves its mode for a
-   :class:`Bridge`, a fixed function of the time since ``t_b``: from its state there (position,
+1. **Bridge.** When a plan is wanted at tick time ``t_b`` while the leader follows a plan (a
+   run-time plan or a ``kind = "plan"`` script) that goes on clear of the run's obstacles
+   beyond the bridge, the leader stays ON it: a ``plan_bridge.PlanBridge``, the followed plan
+   at a progress advancing at the rate it had, a fixed function of the time since ``t_b``,
+   held until a straight piece of the path (the paper's coordinator "creates no-collision
+   trajectories of the virtual leader": it keeps the one it has while the next is computed).
+   Otherwise (no followed plan; a followed plan that ends or squeezes within the bridge) it
+   leaves its mode for a straight :class:`Bridge` (braking at once, ``v_join = 0``, when the
+   followed plan is blocked within the bridge: said in ``plan_why``), a fixed function of the
+   time since ``t_b``: from its state there (position,
    heading, speed ``v0``, turn rate ``w0``) the speed goes to ``v_join = clip(v0, 0, cruise)``
    at the leader's acceleration limit and the turn rate to 0 at its turn-acceleration limit
    (``leader.integrate_unicycle`` on fixed :data:`BRIDGE_STEP_S` sub-steps), for
@@ -20,7 +28,9 @@ plan can start exactly where the leader will be:
    tail, slower or at rest.
 2. **Request.** The plan is asked from the bridge's state at ``t_switch = t_b + hold_s``: a
    straight motion at ``v_join`` along the heading, which ``planner.plan`` continues
-   (``v_start_mps``: the plan leaves along the heading at that speed). The request
+   (``v_start_mps``: the plan leaves along the heading at that speed; ``start_nominal``: from
+   the nominal formation; ``departure_m``: after a bridge on the followed plan, the straight
+   departure ends at most at the followed route's next corner point). The request
    (:class:`PlanRequest`) is plain data: the world (the scenario's obstacles, the operator's,
    the stuck markers), the formation's offsets, the goal; :func:`solve` is a deterministic
    function of it.
@@ -35,7 +45,10 @@ plan can start exactly where the leader will be:
    state one ``hold_s`` later; the late answer is dropped.
 4. **No way** (``NoPlan``): the leader decelerates to a stop within its limits (mode ``stop``)
    and :attr:`Replanner.state` is ``no_way`` with the planner's one line in
-   :attr:`Replanner.why`.
+   :attr:`Replanner.why`; unless the bridge was on the followed plan and all of its rest is
+   still clear of the run's obstacles (:attr:`Replanner.keep_followed`): then the leader goes
+   on along it from where the bridge is (``following``, ``plan_why`` "... (kept the followed
+   plan)").
 
 What makes a plan wanted: a goal (``formation goal``) when the world has an obstacle (an open
 field keeps the leader's straight pursuit, coordinator.core.leader); an obstacle added, moved
@@ -66,6 +79,7 @@ from coordinator.core.trajectory import LeaderState, wrap_angle
 
 from .footprint import Footprint
 from .limits import SlotLimits
+from .plan_bridge import PlanBridge
 from .planner import PlanResult, plan
 from .search import NoPlan
 from .world import PlanWorld
@@ -211,6 +225,9 @@ class PlanRequest:
     obstacles: tuple[Mapping[str, Any], ...]
     offsets_m: tuple[tuple[float, float], ...]
     setup: PlanSetup
+    departure_m: float | None = None
+    """The straight departure (m) that stays on the followed route (a bridge on the followed
+    plan: ``plan_bridge.PlanBridge.departure_m``), or None: the planner's own choice."""
 
 
 def solve(req: PlanRequest) -> PlanResult | str:
@@ -230,6 +247,8 @@ def solve(req: PlanRequest) -> PlanResult | str:
             min_pair_m=s.min_pair_m,
             soft_pair_m=s.soft_pair_m,
             v_start_mps=req.v_start_mps,
+            start_nominal=True,  # replans are asked with the formation nominal (not squeezed)
+            departure_m=req.departure_m,
         )
     except (NoPlan, ValueError) as exc:
         return f"no plan: {exc}"
@@ -333,6 +352,8 @@ class Replanner:
         self._goal_plans = 0  # plans made for the current goal (the first is not a replan)
         self.late_streak = 0
         """Late answers in a row: the next ask keeps the bridge and waits twice as long."""
+        self.keep_followed = False
+        """The request in flight keeps the followed plan if it finds no way (:meth:`request`)."""
         self.adaptive = False
         """Realtime: the switch waits 1.5 plan times when plans take longer than the bridge
         (never in lockstep or in-process: the switch tick must not depend on a clock)."""
@@ -472,7 +493,10 @@ class Replanner:
         event: dict[str, Any] = {
             "t_s": now_s, "reason": r.reason, "ok": ok, "plan_ms": self._answer_ms,
         }  # fmt: skip
-        if isinstance(answer, str):
+        if isinstance(answer, str) and self.keep_followed:
+            self.state, self.why = PlanState.FOLLOWING, f"{r.reason} (kept the followed plan)"
+            event.update(why=answer, kept=True)
+        elif isinstance(answer, str):
             self.state, self.why = PlanState.NO_WAY, answer
             event["why"] = answer
         else:
@@ -502,14 +526,23 @@ class Replanner:
     def request(
         self,
         now_s: float,
-        bridge: Bridge,
+        bridge: Bridge | PlanBridge,
         offsets_m: Sequence[tuple[float, float]],
         t_switch_s: float | None = None,
+        *,
+        note: str | None = None,
+        keep_followed: bool = False,
     ) -> PlanRequest:
         """Ask the plan for the wanted reason from ``bridge``, to switch in at ``t_switch_s``
-        (default: the end of the bridge's hold)."""
+        (default: the end of the bridge's hold); ``note``: how the bridge departs from the
+        usual, said after the reason (``plan_why``); ``keep_followed``: the bridge is on the
+        followed plan and all of its rest is still clear (``plan_bridge.clear_to_end``): no way
+        keeps it (the caller resumes it) instead of stopping."""
         assert self.setup is not None and self.goal is not None
+        self.keep_followed = keep_followed
         reason = self._want or "goal"
+        if note is not None:
+            reason = f"{reason} ({note})"
         self._want = None
         t_sw = bridge.t0_s + bridge.hold_s if t_switch_s is None else t_switch_s
         s = bridge.state_at(t_sw)
@@ -529,6 +562,7 @@ class Replanner:
             ),
             offsets_m=tuple((float(a), float(b)) for a, b in offsets_m),
             setup=self.setup,
+            departure_m=bridge.departure_m(t_sw) if isinstance(bridge, PlanBridge) else None,
         )
         self._next_id += 1
         self._request, self._taken, self._answer = req, False, None

@@ -21,6 +21,7 @@ search along the path.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
@@ -147,6 +148,22 @@ def _level_masks(grid: Grid, fp: Footprint) -> npt.NDArray[np.int8]:
     return out
 
 
+def _ramp_limit(
+    grid: Grid,
+    lvl: npt.NDArray[np.int8],
+    n_levels: int,
+    squeeze_from: tuple[float, float, Sequence[float]],
+) -> None:
+    """Mark not free (in place) the states of ``lvl`` that need a squeeze level nearer to the
+    nominal start than its ramp allows (:func:`route`'s ``squeeze_from``)."""
+    sx, sy, least_m = squeeze_from
+    gx = grid.x0 + grid.res_m * np.arange(grid.nx) - sx
+    gy = grid.y0 + grid.res_m * np.arange(grid.ny) - sy
+    d = np.hypot(gx[:, None], gy[None, :])
+    ramp = np.array([*least_m, 0.0])[np.minimum(lvl, n_levels)]
+    lvl[(d[None, :, :] < ramp) & (d[None, :, :] > 2.0 * grid.res_m)] = n_levels
+
+
 def _shifted(grid: Grid, ok: BoolArray, ox: float, oy: float) -> BoolArray:
     """For every cell, whether the point ``(ox, oy)`` (m) away from its centre is clear."""
     di, dj = round(ox / grid.res_m), round(oy / grid.res_m)
@@ -270,6 +287,7 @@ def route(
     points: list[tuple[float, float]],
     goal_heading: float | None,
     names: list[str],
+    squeeze_from: tuple[float, float, Sequence[float]] | None = None,
 ) -> list[list[tuple[float, float]]]:
     """Polylines of leader positions, one per leg between consecutive ``points`` (start,
     via..., goal; ``names`` name them in messages), along which the footprint fits (grid
@@ -278,9 +296,16 @@ def route(
     Each leg first finds a route of cells (8-connected, footprint fits in some heading), then
     searches the heading lattice in a band of :data:`BANDS_M` round it, widening the band when
     the lattice finds no way in it (same answer as the whole map when the band is wide enough,
-    a fraction of the work)."""
+    a fraction of the work).
+
+    ``squeeze_from`` ``(x, y, least_m)``: the formation is nominal at ``(x, y)`` (a run-time
+    plan's start) and squeezes to level ``k`` (:func:`_levels`) no nearer than ``least_m[k]``
+    to it (the squeeze's ramp); a state nearer that needs more is not free (the cells next to
+    the start excepted: the exact test decides there)."""
     lvl = _level_masks(grid, fp)
     n_levels = len(_levels(fp))
+    if squeeze_from is not None:
+        _ramp_limit(grid, lvl, n_levels, squeeze_from)
     free8 = lvl < n_levels
     free_any: BoolArray = np.asarray(free8.any(axis=0))
     nx, ny = grid.nx, grid.ny

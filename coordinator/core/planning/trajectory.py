@@ -184,6 +184,12 @@ class PlannedTrajectory:
         object.__setattr__(self, "t_start_s", t0)
 
     @property
+    def timed(self) -> TimedPlan:
+        """The plan read at plan time (``t_s - t_start_s``): a replan's bridge follows it
+        (``plan_bridge.PlanBridge``)."""
+        return self._timed
+
+    @property
     def duration_s(self) -> float:
         """Time from the start to the goal (s), excluding ``t_start_s``."""
         return self._timed.duration_s

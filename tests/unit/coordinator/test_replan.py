@@ -9,6 +9,7 @@ when due, as the lockstep node waits for them, or never, as a realtime planner t
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable
@@ -26,16 +27,18 @@ from coordinator.core.coordinator import CoordinatorCore
 from coordinator.core.formation import FormationSpec
 from coordinator.core.path_check import trajectory_conflicts
 from coordinator.core.planning import NoPlan, PlanWorld
+from coordinator.core.planning.plan_bridge import MAX_HOLD_S, PlanBridge, bridge_on_plan
 from coordinator.core.planning.replan import (
     BRIDGE_S,
     STUCK_S,
     Bridge,
+    PlanRequest,
     obstacle_table,
     solve,
 )
 from coordinator.core.planning.timed import TimedPlan
 from coordinator.core.planning.trajectory import min_separation_m
-from coordinator.core.trajectory import LeaderState
+from coordinator.core.trajectory import LeaderState, wrap_angle
 from robot_agent.core.params import WorldMap
 from scenario import load
 from scenario.assemble import coordinator_core, plan_setup
@@ -215,6 +218,135 @@ def test_the_bridge_is_one_function_of_time_from_the_leader_state() -> None:
     end = coarse.state_at(t_end)
     assert coarse.hold_s >= BRIDGE_S and end.v_mps == 0.05 and end.omega_radps == 0.0
     assert coarse.state_at(t_end + 5.0).v_mps == 0.0  # after the hold it brakes to a stop
+
+
+# -- a replan departs on the followed plan (coordinator.core.planning.plan_bridge) --------------
+
+NEAR_YARD = yard_toml(duration_s=60.0, pillar_x=1.0)  # tests/bus/test_replan_bus.py's yard
+NEAR_GOAL = (2.2, 0.0)
+NEAR_BOX = {"kind": "circle", "x": 1.8, "y": -0.45, "radius_m": 0.15}
+MID_TURN_K = 1350
+"""The tick the box is added at: the formation rounds the pillar, its leader turning back
+toward the goal (omega 0.08 rad/s), its left slot beside the pillar."""
+
+
+@pytest.fixture(scope="module")
+def near_yard(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    path: Path = tmp_path_factory.mktemp("near") / "yard.toml"
+    path.write_text(NEAR_YARD)
+    return load(str(path))
+
+
+def test_a_replan_asked_mid_turn_departs_on_the_followed_plan(near_yard: Any) -> None:
+    run = Run(near_yard)
+    run.step(MID_TURN_K, {10: lambda c: c.leader.command_goal(*NEAR_GOAL)})
+    run.step(1, {run.k: lambda c: c.obstacle("add", "box", dict(NEAR_BOX))})
+    core, rp = run.core, run.core.replanner
+    bridge = core.leader.bridge
+    assert isinstance(bridge, PlanBridge) and rp.state is PlanState.PLANNING
+    ask = bridge.state_at(bridge.t0_s)
+    assert abs(ask.omega_radps) > 0.05, ask  # asked mid-turn
+    assert ask == dataclasses.replace(run.leaders[-1], t=ask.t)  # the bridge starts where it is
+    # the bridge ends on the followed path, and the plan is asked from there
+    cfg, setup = core.leader.config, rp.setup
+    assert setup is not None
+    path = bridge.followed.result
+
+    def off_path(s: LeaderState) -> float:
+        return float(np.hypot(path.x_m - s.x, path.y_m - s.y).min())
+
+    req = run._pending
+    end = bridge.state_at(req.t_switch_s)
+    assert off_path(end) <= 3e-3 and end.omega_radps == 0.0  # on a straight piece of it
+    assert req.start == (end.x, end.y, end.theta) and req.v_start_mps == end.v_mps
+    # on the followed plan: a plan, switched in without a jump, clear of the box and the pillar
+    run.step(800)
+    assert rp.stats.replans == 1 and rp.state is PlanState.FOLLOWING, rp.why
+    ev = rp.stats.events[-1]
+    assert ev["ok"] and ev["reason"] == "obstacle box added"
+    _continuous(run.leaders, run.rows, core)
+    k_sw = math.ceil(ev["t_s"] / DT - 1e-9)
+    a, b = run.leaders[k_sw - 1], run.leaders[k_sw]
+    assert abs(b.omega_radps - a.omega_radps) <= cfg.max_turn_accel_radps2 * DT
+    for ox, oy, r in ((1.0, 0.0, 0.2), (NEAR_BOX["x"], NEAR_BOX["y"], NEAR_BOX["radius_m"])):
+        least = min(math.hypot(x - ox, y - oy) for row in run.rows[k_sw:] for x, y, _, _ in row)
+        assert least - r >= setup.slot_radius_m - 1e-3, (ox, oy, least - r)
+
+
+def test_a_replan_whose_followed_plan_is_blocked_brakes_and_says_so(near_yard: Any) -> None:
+    run = Run(near_yard)
+    run.step(1500, {10: lambda c: c.leader.command_goal(*NEAR_GOAL)})
+    ahead = run.leaders[-1]
+    on_path = {"kind": "circle", "x": ahead.x + 0.1 * math.cos(ahead.theta),
+               "y": ahead.y + 0.1 * math.sin(ahead.theta), "radius_m": 0.02}  # fmt: skip
+    run.step(1, {run.k: lambda c: c.obstacle("add", "pebble", on_path)})
+    rp = run.core.replanner
+    assert isinstance(run.core.leader.bridge, Bridge)
+    assert (
+        rp.why == "obstacle pebble added (braking: the followed plan is blocked within the bridge)"
+    )
+    run.step(100)
+    assert rp.stats.events[-1]["reason"] == rp.why or rp.state is PlanState.NO_WAY
+    _continuous(run.leaders, run.rows, run.core)
+
+
+@pytest.fixture(scope="module")
+def followed(yard: Any) -> TimedPlan:
+    """The plan round the pillar that the leader follows after a goal (the yard's)."""
+    run = Run(yard)
+    run.step(100, {10: lambda c: c.leader.command_goal(*GOAL)})
+    plan = run.core.leader.plan
+    assert plan is not None and any(p.kappa != 0.0 for p in plan.result.pieces)
+    return plan
+
+
+SLOW_OK = [HealthCheck.too_slow, HealthCheck.function_scoped_fixture]
+
+
+@settings(max_examples=8, deadline=None, derandomize=True, suppress_health_check=SLOW_OK)
+@given(share=st.floats(0.0, 0.9), rate=st.sampled_from([1.0, 0.6, 0.25]))
+def test_a_bridge_on_a_curved_plan_stays_on_it_and_the_switch_has_no_jump(
+    yard: Any, followed: TimedPlan, share: float, rate: float
+) -> None:
+    setup = plan_setup(yard)
+    r = followed.result
+    t0 = 7.0
+    tau0 = share * followed.duration_s
+    pb = PlanBridge(followed, tau0, rate, t0, least_s=BRIDGE_S, brake_per_s=0.5)
+    body = FormationSpec.from_dict({"kind": "triangle", "b_m": 0.4}).body_offsets_m
+    offsets = [(float(a), float(b)) for a, b in body]
+    if bridge_on_plan(pb, offsets, [], setup.slot_radius_m) is not None:
+        return  # the followed plan ends within the bridge: the straight bridge's case
+    x, y, th, v, w = followed.state(tau0)
+    first = pb.state_at(t0)
+    assert (first.x, first.y, first.theta, first.v_mps, first.omega_radps) == (
+        x, y, wrap_angle(th), rate * v, rate * w,
+    )  # fmt: skip
+    n = math.ceil(pb.hold_s / DT)
+    states = [pb.state_at(t0 + k * DT) for k in range(n)] + [pb.state_at(t0 + pb.hold_s)]
+    lim = setup.limits
+    for s in states:  # on the followed path: at a sample of it (5 mm apart), along its heading
+        k = int(np.argmin(np.hypot(r.x_m - s.x, r.y_m - s.y)))
+        assert math.hypot(r.x_m[k] - s.x, r.y_m[k] - s.y) <= 3e-3
+        assert abs(wrap_angle(float(r.theta_rad[k]) - s.theta)) <= 3e-3 / 0.3 + 1e-9
+    for a, b in itertools.pairwise(states):
+        dt = b.t - a.t
+        assert math.hypot(b.x - a.x, b.y - a.y) <= setup.cruise_mps * dt + 1e-9
+        assert abs(b.v_mps - a.v_mps) <= lim.accel_mps2 * dt + 1e-9
+    end = states[-1]
+    assert end.omega_radps == 0.0 or pb.hold_s > MAX_HOLD_S - BRIDGE_S or pb.hold_s == 0.5
+    # the plan asked from the bridge's end starts there: no jump in position, heading, speed
+    req = PlanRequest(
+        id=1, reason="test", t_switch_s=t0 + pb.hold_s, start=(end.x, end.y, end.theta),
+        v_start_mps=end.v_mps, goal=GOAL, goal_heading=None, obstacles=setup.obstacles,
+        offsets_m=tuple(offsets), setup=setup,
+    )  # fmt: skip
+    got = solve(req)
+    assert not isinstance(got, str), got
+    nx, ny, nth, nv, nw = TimedPlan(got).state(0.0)
+    assert (nx, ny, nv) == (end.x, end.y, end.v_mps)
+    assert abs(wrap_angle(nth - end.theta)) <= 1e-12
+    assert nw == 0.0 and abs(nw - end.omega_radps) <= setup.turn_accel_radps2 * DT
 
 
 def test_operator_obstacles_are_checked_like_the_scenario_s() -> None:
