@@ -8,11 +8,13 @@ figure, which is steadier on a shared machine), then the time per tick of each s
 
 The stage breakdown comes from a separate run in which the components' methods are wrapped with
 timers (the loop itself carries no instrumentation); the wrappers' own cost is measured on a
-no-op and subtracted. "loop" is the rest of that run's tick: setpoints, neighbour lists, the
-fresh-pose set, log appends; with the compiled simulator (``make accel``; the first lines say
-which builds run) also the camera, link and plant, which the compiled loop calls natively. On a
-shared VM (CPU steal) figures vary by tens of percent from run to run; compare stages within one
-run. Measures only; asserts nothing.
+no-op and subtracted. "collector" is the youngest generation's collection every 500 ticks (the
+automatic collections are paused over the loop: formation/sim/collector.py); "monitor" and "log
+arrays" run once, at the end. "loop" is the rest of that run's tick: setpoints, neighbour lists,
+the fresh-pose set, log appends, allocation; with the compiled simulator (``make accel``; the
+first lines say which builds run) also the camera, link and plant, which the compiled loop calls
+natively. On a shared VM (CPU steal) figures vary by tens of percent from run to run; compare
+stages within one run. Measures only; asserts nothing.
 
 Run: .venv/bin/python bench/bench_sim.py [--runs 5] [--only paper-exp2]
 """
@@ -40,6 +42,7 @@ from coordinator.core.formation import FormationSpec, slot_states
 from coordinator.core.trajectory import make_trajectory
 from formation.outputs.runlog import RunLog
 from formation.sim import simulate
+from formation.sim.collector import CollectorPause
 from robot_agent.core import _accel as fw_accel
 from robot_agent.core.firmware import Firmware
 from sim_plant.core import _accel as sim_accel
@@ -162,6 +165,7 @@ def patched(timer: StageTimer) -> Iterator[None]:
         (Plant, "step", "plant"),
         (SeparationMonitor, "update_many", "monitor"),
         (RunLog, "from_ticks", "log arrays"),
+        (CollectorPause, "collect_young", "collector"),
     ]
     for cls in (traj_mod.StraightLine, traj_mod.Circle, traj_mod.Waypoints, traj_mod.FigureEight):
         targets.append((cls, "sample", "  leader"))
@@ -196,6 +200,7 @@ def breakdown(scn: scenario_mod.Scenario) -> None:
         "plant",
         "monitor",
         "log arrays",
+        "collector",
     ]
     top = [s for s in order if not s.startswith(" ")]
     overhead = sum(timer.calls[s] for s in top) * timer.overhead_s

@@ -151,11 +151,13 @@ class RunLog:
             kk, ii = np.nonzero(rows_idx >= 0)
             target[kk, ii] = slot_xy[kk, rows_idx[kk, ii]]
         cmds = list(flat(power_mode))
-        power = np.fromiter(flat(map(itemgetter(2, 3), cmds)), f64, 2 * len(cmds))
-        power = power.reshape(ticks, n, 2)
+        power = np.empty((ticks, n, 2))  # one field at a time: no pair tuple per command
+        power[:, :, 0] = np.fromiter(map(itemgetter(2), cmds), f64, len(cmds)).reshape(ticks, n)
+        power[:, :, 1] = np.fromiter(map(itemgetter(3), cmds), f64, len(cmds)).reshape(ticks, n)
         # Mode objects -> codes keyed by identity (C-level hashing of ints; few distinct modes).
-        mode_ids = list(map(id, map(itemgetter(4), cmds)))
-        distinct = dict(zip(mode_ids, map(itemgetter(4), cmds), strict=True))
+        modes = list(map(itemgetter(4), cmds))
+        mode_ids = list(map(id, modes))
+        distinct = dict(zip(mode_ids, modes, strict=True))
         code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
         mode = np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(cmds))
         mode = mode.reshape(ticks, n)

@@ -24,8 +24,11 @@ per tick).
 Speed: the loop runs each component's small-fleet path (plain Python on tuples where numpy's
 per-call overhead would dominate; bit-identical to the vectorised paths, which large fleets use),
 keeps per-tick records in lists and builds the log arrays once at the end
-(``RunLog.from_ticks``). This module and the plant, camera and link it drives also run compiled
-(mypyc) when ``make accel`` built them: the same sources, the same bits
+(``RunLog.from_ticks``). The cyclic garbage collector is paused over the loop
+(:class:`formation.sim.collector.CollectorPause`: the loop makes no reference cycles, and an
+automatic collection would walk the growing log again and again); its youngest generation is
+collected every ``YOUNG_EVERY_TICKS`` ticks. This module and the plant, camera and link it
+drives also run compiled (mypyc) when ``make accel`` built them: the same sources, the same bits
 (``sim_plant.core._accel``). ``bench/bench_sim.py`` measures it.
 
 Everything random comes from one seeded generator, so a seed gives the same run.
@@ -46,6 +49,7 @@ import numpy as np
 from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.operator_script import OperatorScript
 from formation.outputs.runlog import RunLog
+from formation.sim.collector import YOUNG_EVERY_TICKS, CollectorPause
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.core.neighbour_motion import motion_view
@@ -244,176 +248,184 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
     interrupted = False
-    for k in range(ticks):
-        if k and stop is not None and stop.is_set():
-            interrupted = True
-            break
-        t = tick_time(k, dt)
-        if progress is not None and k % PROGRESS_EVERY_TICKS == 0:
-            progress(t, duration)
-        # 0. scripted faults
-        if faults is not None:
-            faults.fire(k, t, camera)
-        # 1. disturbances
-        while pending and pending[0].t_s <= t + 1e-9:
-            d = pending.pop(0)
-            apply_scheduled(plant, index[d.robot], d, camera)
-        truth = plant.truth_rows()
-        if encoders is not None:  # mean wheel speeds over the last tick, as measured
-            wheel_meas = encoders.read(t, plant.wheel_angles())
-        # 2. camera
-        camera.capture(t, truth)
-        delivered = camera.poll(t)
-        if delivered:
-            for i, stamp, x, y, th in delivered:
-                poses[i] = _tuple_new(Pose, (x, y, th, stamp))
-                pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
-                xyt[i] = (x, y, th)
-                pose_rx[i] = t
-        # every other robot's latest measured pose received within NEIGHBOUR_STALE_S, for
-        # repulsion and the safety filter, with its age now (capture to this tick) and whether
-        # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
-        # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
-        pts = [
-            None
-            if p is None or not is_current(t, pose_rx[j])
-            else neighbour(
-                p[0],
-                p[1],
-                p[2],
-                p[3],
-                t,
-                tracking[j],
+    collector = CollectorPause()
+    try:
+        for k in range(ticks):
+            if k and stop is not None and stop.is_set():
+                interrupted = True
+                break
+            t = tick_time(k, dt)
+            if progress is not None and k % PROGRESS_EVERY_TICKS == 0:
+                progress(t, duration)
+            if k % YOUNG_EVERY_TICKS == 0:
+                collector.collect_young()  # a cycle dropped since the last call is freed now
+            # 0. scripted faults
+            if faults is not None:
+                faults.fire(k, t, camera)
+            # 1. disturbances
+            while pending and pending[0].t_s <= t + 1e-9:
+                d = pending.pop(0)
+                apply_scheduled(plant, index[d.robot], d, camera)
+            truth = plant.truth_rows()
+            if encoders is not None:  # mean wheel speeds over the last tick, as measured
+                wheel_meas = encoders.read(t, plant.wheel_angles())
+            # 2. camera
+            camera.capture(t, truth)
+            delivered = camera.poll(t)
+            if delivered:
+                for i, stamp, x, y, th in delivered:
+                    poses[i] = _tuple_new(Pose, (x, y, th, stamp))
+                    pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
+                    xyt[i] = (x, y, th)
+                    pose_rx[i] = t
+            # every other robot's latest measured pose received within NEIGHBOUR_STALE_S, for
+            # repulsion and the safety filter, with its age now (capture to this tick) and whether
+            # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
+            # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
+            pts = [
                 None
-                if rings is None
-                else motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
-            )
-            for j, p in enumerate(poses)
-        ]
-        # the coordinator's movers of the previous tick (received with its setpoints): not
-        # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
-        prev_out = outputs.for_clock(k)
-        movers = prev_out.movers if prev_out is not None else ()
-        if movers:
-            for mid, _, _, mvx, mvy in movers:
-                jm = index.get(mid)
-                if jm is not None:
-                    seen_nb = pts[jm]
-                    if seen_nb is not None:
-                        pts[jm] = mover(seen_nb, mvx, mvy)
-        if None in pts:
-            for i in range(n):
-                neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
-        else:
-            for i in range(n):
-                neighbours[i] = pts[:i] + pts[i + 1 :]
-        # scenario movers (issue 30): the bodies at t; a visible one is seen like a robot
-        # (no velocity, age 0) by every robot's filter and as a tracked object by the
-        # coordinator; an invisible one (an untracked person) only by the logs
-        if bodies:
-            seen_bodies = {}
-            for b, (mover_body, track) in enumerate(zip(bodies, body_tracks, strict=True)):
-                bx, by, _, _ = mover_body.state(t)
-                track.append((bx, by))
-                if mover_body.visible:
-                    seen_bodies[mover_body.id] = (bx, by)
-                    extra = body_extra[b]
-                    nb = _tuple_new(Neighbour, (bx, by, math.nan, 0.0, 0.0, 0.0, False, extra))
-                    for mid, _, _, mvx, mvy in movers:
-                        if mid == mover_body.id:
-                            nb = mover(nb, mvx, mvy)
-                    for i in range(n):
-                        neighbours[i] = [*neighbours[i], nb]
-        # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
-        # arrives or one goes stale)
-        if delivered or t - oldest_rx > stale:
-            fresh = {}
-            oldest_rx = math.inf
-            for i, q in enumerate(xyt):
-                if q is not None and t - pose_rx[i] <= stale:
-                    fresh[ids[i]] = q
-                    if pose_rx[i] < oldest_rx:
-                        oldest_rx = pose_rx[i]
-        objects = seen_bodies if bodies else None
-        if faults is None:
-            if script is not None:
-                script.play(coord, t, t, len(fresh))
-            out = coord.tick(t, fresh, objects=objects)
-            if replanner.setup is not None:
-                _plan_now(replanner)
-        else:
-            counted = faults.coordinator_input(fresh)
-            if script is not None:
-                script.play(coord, t, t, len(counted))
-            out = coord.tick(t, counted, objects=objects)
-            if replanner.setup is not None:
-                _plan_now(replanner)
-            faults.observe(out, counted)
-        # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
-        t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
-        cmds: list[WheelCommand] = []
-        if prev_out is not None:
-            if prev_out.slot_ids is not row_ids:  # a reshape changed the rows
-                row_ids = prev_out.slot_ids
-                slot_row = {sid: r for r, sid in enumerate(row_ids)}
-            prev_asg = prev_out.assignment
-            prev_rows = prev_out.rows
-            prev_theta = prev_out.theta
-            prev_approach = prev_out.approach  # newly assigned robots on their way (core)
-        else:
-            prev_asg = {}
-            prev_approach = {}
-        for i, rid, step in robots:
-            if faults is not None and (i in faults.frozen or i in faults.cut_inputs):
-                if faults.cut_inputs.get(i, 0) is None:  # the pose it had when cut off
-                    faults.cut_inputs[i] = (poses[i], pose_rx[i], pose_cap[i])
-                cmds.append(_faulted_step(faults, i, t, step))
-                continue
-            sp = None
-            slot = prev_asg.get(rid)
-            if slot is not None:
-                x, y, vx, vy = prev_approach.get(rid) or prev_rows[slot_row[slot]]
-                sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
-            cmds.append(
-                step(
+                if p is None or not is_current(t, pose_rx[j])
+                else neighbour(
+                    p[0],
+                    p[1],
+                    p[2],
+                    p[3],
                     t,
-                    pose=poses[i],
-                    pose_rx_s=pose_rx[i],
-                    setpoint=sp,
-                    setpoint_rx_s=t_prev,
-                    neighbours=neighbours[i],
-                    pose_capture_s=pose_cap[i],
-                    wheel_speeds=None if wheel_meas is None else wheel_meas[i],
+                    tracking[j],
+                    None
+                    if rings is None
+                    else motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
                 )
-            )
-        tracking = [c[4] is tracking_mode for c in cmds]
-        if rings is not None:
-            for ring, fw in zip(rings, firmwares, strict=True):
-                claim = fw.motion_claim
-                if claim is not None and (not ring.claims or ring.claims[-1] is not claim):
-                    ring.add(claim)
-        # 5. command link
-        link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
-        for i, wheels in link.poll(t):
-            applied[i] = wheels
-        if faults is not None:  # the plant stops an offline robot's wheels
-            for i in faults.offline:
-                applied[i] = (0.0, 0.0)
-        # record the tick (truth at t, before integrating to t + dt)
-        log_truth.append(truth)
-        leader = out.leader
-        log_leader.append((leader.x, leader.y, leader.theta))
-        log_slots.append(out.rows)
-        if script is not None:
-            log_slot_ids.append(out.slot_ids)
-        log_cmds.append(cmds)
-        if out.changed or k == 0:
-            asg = out.assignment
-            slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
-        if faults is None or not faults.state.coordinator_down(t):
-            outputs.add(k, out)
-        # 6. plant
-        plant.step(dt, applied)
+                for j, p in enumerate(poses)
+            ]
+            # the coordinator's movers of the previous tick (received with its setpoints): not
+            # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
+            prev_out = outputs.for_clock(k)
+            movers = prev_out.movers if prev_out is not None else ()
+            if movers:
+                for mid, _, _, mvx, mvy in movers:
+                    jm = index.get(mid)
+                    if jm is not None:
+                        seen_nb = pts[jm]
+                        if seen_nb is not None:
+                            pts[jm] = mover(seen_nb, mvx, mvy)
+            if None in pts:
+                for i in range(n):
+                    neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
+            else:  # every robot's list is the others' entries in order: a copy less one
+                for i in range(n):
+                    others = pts.copy()
+                    del others[i]
+                    neighbours[i] = others
+            # scenario movers (issue 30): the bodies at t; a visible one is seen like a robot
+            # (no velocity, age 0) by every robot's filter and as a tracked object by the
+            # coordinator; an invisible one (an untracked person) only by the logs
+            if bodies:
+                seen_bodies = {}
+                for b, (mover_body, track) in enumerate(zip(bodies, body_tracks, strict=True)):
+                    bx, by, _, _ = mover_body.state(t)
+                    track.append((bx, by))
+                    if mover_body.visible:
+                        seen_bodies[mover_body.id] = (bx, by)
+                        extra = body_extra[b]
+                        nb = _tuple_new(Neighbour, (bx, by, math.nan, 0.0, 0.0, 0.0, False, extra))
+                        for mid, _, _, mvx, mvy in movers:
+                            if mid == mover_body.id:
+                                nb = mover(nb, mvx, mvy)
+                        for i in range(n):
+                            neighbours[i] = [*neighbours[i], nb]
+            # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
+            # arrives or one goes stale)
+            if delivered or t - oldest_rx > stale:
+                fresh = {}
+                oldest_rx = math.inf
+                for i, q in enumerate(xyt):
+                    if q is not None and t - pose_rx[i] <= stale:
+                        fresh[ids[i]] = q
+                        if pose_rx[i] < oldest_rx:
+                            oldest_rx = pose_rx[i]
+            objects = seen_bodies if bodies else None
+            if faults is None:
+                if script is not None:
+                    script.play(coord, t, t, len(fresh))
+                out = coord.tick(t, fresh, objects=objects)
+                if replanner.setup is not None:
+                    _plan_now(replanner)
+            else:
+                counted = faults.coordinator_input(fresh)
+                if script is not None:
+                    script.play(coord, t, t, len(counted))
+                out = coord.tick(t, counted, objects=objects)
+                if replanner.setup is not None:
+                    _plan_now(replanner)
+                faults.observe(out, counted)
+            # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
+            t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
+            cmds: list[WheelCommand] = []
+            if prev_out is not None:
+                if prev_out.slot_ids is not row_ids:  # a reshape changed the rows
+                    row_ids = prev_out.slot_ids
+                    slot_row = {sid: r for r, sid in enumerate(row_ids)}
+                prev_asg = prev_out.assignment
+                prev_rows = prev_out.rows
+                prev_theta = prev_out.theta
+                prev_approach = prev_out.approach  # newly assigned robots on their way (core)
+            else:
+                prev_asg = {}
+                prev_approach = {}
+            for i, rid, step in robots:
+                if faults is not None and (i in faults.frozen or i in faults.cut_inputs):
+                    if faults.cut_inputs.get(i, 0) is None:  # the pose it had when cut off
+                        faults.cut_inputs[i] = (poses[i], pose_rx[i], pose_cap[i])
+                    cmds.append(_faulted_step(faults, i, t, step))
+                    continue
+                sp = None
+                slot = prev_asg.get(rid)
+                if slot is not None:
+                    x, y, vx, vy = prev_approach.get(rid) or prev_rows[slot_row[slot]]
+                    sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
+                cmds.append(
+                    step(
+                        t,
+                        pose=poses[i],
+                        pose_rx_s=pose_rx[i],
+                        setpoint=sp,
+                        setpoint_rx_s=t_prev,
+                        neighbours=neighbours[i],
+                        pose_capture_s=pose_cap[i],
+                        wheel_speeds=None if wheel_meas is None else wheel_meas[i],
+                    )
+                )
+            tracking = [c[4] is tracking_mode for c in cmds]
+            if rings is not None:
+                for ring, fw in zip(rings, firmwares, strict=True):
+                    claim = fw.motion_claim
+                    if claim is not None and (not ring.claims or ring.claims[-1] is not claim):
+                        ring.add(claim)
+            # 5. command link
+            link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
+            for i, wheels in link.poll(t):
+                applied[i] = wheels
+            if faults is not None:  # the plant stops an offline robot's wheels
+                for i in faults.offline:
+                    applied[i] = (0.0, 0.0)
+            # record the tick (truth at t, before integrating to t + dt)
+            log_truth.append(truth)
+            leader = out.leader
+            log_leader.append((leader.x, leader.y, leader.theta))
+            log_slots.append(out.rows)
+            if script is not None:
+                log_slot_ids.append(out.slot_ids)
+            log_cmds.append(cmds)
+            if out.changed or k == 0:
+                asg = out.assignment
+                slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
+            if faults is None or not faults.state.coordinator_down(t):
+                outputs.add(k, out)
+            # 6. plant
+            plant.step(dt, applied)
+    finally:
+        collector.resume()
     if script is not None:
         slot_ids, log_slots = _by_slot_id(slot_ids, log_slot_ids, log_slots)
     log = RunLog.from_ticks(
