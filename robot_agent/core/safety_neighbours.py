@@ -154,11 +154,14 @@ class NeighbourBarriers:
         # (float-typed locals: the compiled core unboxes each field of an entry once and does
         # the arithmetic natively; an int field is its float value, as Python's mixed
         # arithmetic takes it. "x - x == 0.0" is the finiteness test without a call: it holds
-        # for a finite x only)
+        # for a finite x only; a full entry's heading and age are held as read, oth and oage,
+        # and unboxed past its quick reject, which does not use them: most entries are far)
         qx: float
         qy: float
         th: float
         age: float
+        oth: Any
+        oage: Any
         vx: float
         vy: float
         rad: float
@@ -169,7 +172,7 @@ class NeighbourBarriers:
             ent: tuple[Any, ...] = nb if isinstance(nb, tuple) else _as_tuple(nb)
             n = len(ent)
             if n == 8:  # a Neighbour (neighbours.neighbour's entries: the usual case)
-                qx, qy, th, age, vx, vy, coop, rad = ent
+                qx, qy, oth, oage, vx, vy, coop, rad = ent
                 view = None
             elif n == 2:  # a fresh position of a robot treated as an obstacle (fast path)
                 qx, qy = ent
@@ -191,7 +194,7 @@ class NeighbourBarriers:
                         cons.append((1.0, 0.0, -gamma * h))
                 continue
             else:  # with a motion claim's view (robot_agent.core.neighbour_motion)
-                qx, qy, th, age, vx, vy, coop, rad, view = ent
+                qx, qy, oth, oage, vx, vy, coop, rad, view = ent
             if quick < 0.0:  # the first full entry of this call
                 quick = self._d_coop + self._l + self._vnb * self._max_age
                 quick = quick + rho + 2.0 * reach + _TOL
@@ -216,6 +219,8 @@ class NeighbourBarriers:
                 if (chk := dx + dy) - chk != 0.0:  # not finite
                     self.rejected += 1
                 continue
+            th = oth
+            age = oage
             if pl is not None and coop:
                 if age == pl[4] and th - th == 0.0:  # finite th
                     # same frame as this robot's own pose, both cooperative: the plane
