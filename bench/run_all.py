@@ -26,6 +26,7 @@ HERE = Path(__file__).resolve().parent
 # name -> (full arguments, quick arguments). Order: cheapest first, soaks last.
 BENCHES: dict[str, tuple[list[str], list[str]]] = {
     "bench_firmware": ([], ["--ticks", "20000"]),
+    "bench_firmware_fleet": ([], ["--seconds", "2", "--repeats", "1"]),
     "bench_assignment": ([], ["--runs", "1"]),
     "bench_plan": ([], ["--runs", "1", "--maps", "2"]),
     "bench_replan": ([], ["--seconds", "3"]),

@@ -95,38 +95,16 @@ def repulsion_raw(
     enabled."""
     if (s := px + py) - s != 0.0:  # not finite (x - x is 0.0 for a finite x only)
         return 0.0, 0.0, 0
-    skipped = 0
-    sx = 0.0
-    sy = 0.0
-    nd0 = -d0
-    # (float-typed locals: the compiled core unboxes each field once and does the arithmetic
-    # natively; an int field is its float value, as Python's mixed arithmetic takes it)
-    for nb in neighbours:  # (x, y) or a longer tuple starting with x, y (safety_filter)
-        qx: float = nb[0]
-        qy: float = nb[1]
-        dx = px - qx
-        dy = py - qy
-        # Cheap box reject first (most neighbours are far); NaN/inf also fail these tests.
-        # (-d0 < dx < d0 and ... written as four plain comparisons: fewer bytecodes)
-        if not (dx < d0 and dx > nd0 and dy < d0 and dy > nd0):
-            if (chk := dx + dy) - chk != 0.0:  # not finite
-                skipped += 1
-            continue
-        d = _hypot(dx, dy)
-        if d >= d0:
-            continue
-        if d > 0.0:
-            ux = dx / d
-            uy = dy / d
-            if d < _EPS_M:
-                d = _EPS_M
-        else:  # coincident: no direction to be had, pick +x
-            ux, uy, d = 1.0, 0.0, _EPS_M
-        m = k * (1.0 / d - inv_d0) / (d * d)
-        if m > _M_MAX:  # absurd gains: keep every term (and so the sum) finite
-            m = _M_MAX
-        sx += m * ux
-        sy += m * uy
+    # (a list or a tuple as it is: _pushes may read it twice; any other iterable once, here)
+    nbs: Any = neighbours if isinstance(neighbours, (list, tuple)) else list(neighbours)
+    try:
+        sx, sy, skipped = _pushes(px, py, nbs, k, d0, inv_d0)
+    except TypeError:
+        # an entry that is not a tuple (a list, ...), which the compiled core refuses where
+        # _pushes types its entries as tuples (pure Python takes any sequence there): the same
+        # sums from the start over its first two fields as a tuple (_pushes has no effect but
+        # its result; a bad field raises TypeError here again, as it did there)
+        sx, sy, skipped = _pushes(px, py, [(nb[0], nb[1]) for nb in nbs], k, d0, inv_d0)
     if obstacles:  # (no iterator for the usual empty tuple)
         for ox, oy, r in obstacles:
             if not (0.0 <= r < math.inf):
@@ -162,3 +140,55 @@ def repulsion_raw(
         return sx, sy, skipped
     f = cap / s
     return sx * f, sy * f, skipped
+
+
+def _pushes(
+    px: float,
+    py: float,
+    neighbours: Sequence[tuple[Any, ...]],
+    k: float,
+    d0: float,
+    inv_d0: float,
+) -> tuple[float, float, int]:
+    """The neighbours' pushes at ``(px, py)`` (finite), summed in their order: ``(sx, sy,
+    skipped)``. Compiled, each entry is typed as a tuple, so its x and y are read in place
+    (a generic item lookup cost ~100 instructions each) and an entry of another type raises
+    TypeError (``repulsion_raw`` then reads every entry as a tuple); in pure Python any
+    sequence passes."""
+    skipped = 0
+    sx = 0.0
+    sy = 0.0
+    nd0 = -d0
+    # (float-typed locals: the compiled core unboxes each field once and does the arithmetic
+    # natively; an int field is its float value, as Python's mixed arithmetic takes it)
+    qx: float
+    qy: float
+    for nb in neighbours:  # (x, y) or a longer tuple starting with x, y (safety_filter)
+        qx = nb[0]
+        qy = nb[1]
+        dx = px - qx
+        dy = py - qy
+        # Cheap box reject first (most neighbours are far); NaN/inf also fail these tests.
+        # (-d0 < dx < d0 and ... written as four plain comparisons: fewer bytecodes)
+        if not (dx < d0 and dx > nd0 and dy < d0 and dy > nd0):
+            if (chk := dx + dy) - chk != 0.0:  # not finite
+                skipped += 1
+            continue
+        # the push of eq. "k_rep (1/d - 1/d0) / d^2" (Khatib's potential field, which the
+        # paper names for collision avoidance), away from the neighbour
+        d = _hypot(dx, dy)
+        if d >= d0:
+            continue
+        if d > 0.0:
+            ux = dx / d
+            uy = dy / d
+            if d < _EPS_M:
+                d = _EPS_M
+        else:  # coincident: no direction to be had, pick +x
+            ux, uy, d = 1.0, 0.0, _EPS_M
+        m = k * (1.0 / d - inv_d0) / (d * d)
+        if m > _M_MAX:  # absurd gains: keep every term (and so the sum) finite
+            m = _M_MAX
+        sx += m * ux
+        sy += m * uy
+    return sx, sy, skipped

@@ -39,6 +39,14 @@ _hypot: Final = math.hypot
 _INF: Final = math.inf
 
 
+def _as_tuple(entry: object) -> tuple[Any, ...]:
+    """A neighbour entry that is not a tuple (a list, ...) as its tuple; one without a length
+    raises TypeError, as ``len`` does."""
+    seq: Any = entry
+    len(seq)
+    return tuple(seq)
+
+
 class NeighbourBarriers:
     """One robot's barrier data against its neighbours (``AgentConfig.safety_filter``) and the
     counters of what it did with them."""
@@ -146,17 +154,28 @@ class NeighbourBarriers:
         # (float-typed locals: the compiled core unboxes each field of an entry once and does
         # the arithmetic natively; an int field is its float value, as Python's mixed
         # arithmetic takes it. "x - x == 0.0" is the finiteness test without a call: it holds
-        # for a finite x only)
+        # for a finite x only; a full entry's heading and age are held as read, oth and oage,
+        # and unboxed past its quick reject, which does not use them: most entries are far)
         qx: float
         qy: float
         th: float
         age: float
+        oth: Any
+        oage: Any
         vx: float
         vy: float
         rad: float
         for nb in neighbours:
-            if len(nb) == 2:  # a fresh position of a robot treated as an obstacle (fast path)
-                qx, qy = nb
+            # (a tuple, as a Neighbour and an (x, y) pair are, typed so: compiled, its length
+            # and fields are read in place instead of through generic calls; any other sequence
+            # is read as its tuple)
+            ent: tuple[Any, ...] = nb if isinstance(nb, tuple) else _as_tuple(nb)
+            n = len(ent)
+            if n == 8:  # a Neighbour (neighbours.neighbour's entries: the usual case)
+                qx, qy, oth, oage, vx, vy, coop, rad = ent
+                view = None
+            elif n == 2:  # a fresh position of a robot treated as an obstacle (fast path)
+                qx, qy = ent
                 dx = px - qx
                 dy = py - qy
                 # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
@@ -174,89 +193,82 @@ class NeighbourBarriers:
                     else:
                         cons.append((1.0, 0.0, -gamma * h))
                 continue
-            else:
-                # (a tuple, as a Neighbour is, typed so: compiled, its fields are read in place
-                # instead of through an iterator; any other sequence is read as its tuple)
-                ent: tuple[Any, ...] = nb if isinstance(nb, tuple) else tuple(nb)
-                if len(ent) == 8:
-                    qx, qy, th, age, vx, vy, coop, rad = ent
-                    view = None
-                else:  # with a motion claim's view (robot_agent.core.neighbour_motion)
-                    qx, qy, th, age, vx, vy, coop, rad, view = ent
-                if quick < 0.0:  # the first full entry of this call
-                    quick = self._d_coop + self._l + self._vnb * self._max_age
-                    quick = quick + rho + 2.0 * reach + _TOL
-                    if q2_tol > quick:
-                        quick = q2_tol
-                    nquick = -quick
-                    two_over_g = 2.0 / gamma
-                # quick reject of a far neighbour (any share, age, shift by l); a non-finite
-                # field makes the bound NaN and takes the full path below
-                if rad > 0.0 or vx != 0.0 or vy != 0.0:
-                    lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
-                    nlim = -lim
-                else:  # no radius, no velocity (neighbours.neighbour's entries): the same bits
-                    lim = quick
-                    nlim = nquick
-                if view is not None:  # (a claimed shift: no quick reject)
-                    lim = _INF
-                dx = px - qx
-                dy = py - qy
-                # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
-                if not (dx < lim and dx > nlim and dy < lim and dy > nlim) and lim < _INF:
-                    if (chk := dx + dy) - chk != 0.0:  # not finite
-                        self.rejected += 1
-                    continue
-                if pl is not None and coop:
-                    if age == pl[4] and th - th == 0.0:  # finite th
-                        # same frame as this robot's own pose, both cooperative: the plane
-                        g = self._plane.constraint(
-                            px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons
-                        )
-                        if g is not None:
-                            self.plane_pairs += 1
-                            if g < min_h:
-                                min_h = g
-                            continue
-                    elif age != pl[4]:
-                        self.other_frame += 1
-                if not (
-                    age - age == 0.0  # finite (x - x is 0.0 for a finite x only)
-                    and rad - rad == 0.0
-                    and -self._vbad < vx < self._vbad
-                    and -self._vbad < vy < self._vbad
-                ):  # non-finite or absurd: keep the position, as old as allowed, not moving
+            else:  # with a motion claim's view (robot_agent.core.neighbour_motion)
+                qx, qy, oth, oage, vx, vy, coop, rad, view = ent
+            if quick < 0.0:  # the first full entry of this call
+                quick = self._d_coop + self._l + self._vnb * self._max_age
+                quick = quick + rho + 2.0 * reach + _TOL
+                if q2_tol > quick:
+                    quick = q2_tol
+                nquick = -quick
+                two_over_g = 2.0 / gamma
+            # quick reject of a far neighbour (any share, age, shift by l); a non-finite
+            # field makes the bound NaN and takes the full path below
+            if rad > 0.0 or vx != 0.0 or vy != 0.0:
+                lim = quick + (rad if rad > 0.0 else 0.0) + (abs(vx) + abs(vy)) * two_over_g
+                nlim = -lim
+            else:  # no radius, no velocity (neighbours.neighbour's entries): the same bits
+                lim = quick
+                nlim = nquick
+            if view is not None:  # (a claimed shift: no quick reject)
+                lim = _INF
+            dx = px - qx
+            dy = py - qy
+            # (-lim < dx < lim and ... as four plain comparisons: fewer bytecodes)
+            if not (dx < lim and dx > nlim and dy < lim and dy > nlim) and lim < _INF:
+                if (chk := dx + dy) - chk != 0.0:  # not finite
                     self.rejected += 1
-                    vx = vy = 0.0
-                    age = self._max_age
-                    rad = 0.0
-                    view = None
-                if view is not None:
-                    if th - th == 0.0 and view_is_sane(view):  # finite th
-                        # the claimed motion replaces the V a inflation (neighbour_motion)
-                        qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
-                        rad -= self._budget
-                        dd = self._d_coop + (rad if rad > 0.0 else 0.0) + rho
-                        held = dt_s if dt_s > 0.0 else 1.0 / self._gmax_slow
-                        h = append_claimed(px, py, qx, qy, view, dd, gamma, held, cap, cons)
-                        if h < min_h:
-                            min_h = h
+                continue
+            th = oth
+            age = oage
+            if pl is not None and coop:
+                if age == pl[4] and th - th == 0.0:  # finite th
+                    # same frame as this robot's own pose, both cooperative: the plane
+                    g = self._plane.constraint(px, py, qx, qy, th, pl, rho, gamma, gmax, cap, cons)
+                    if g is not None:
+                        self.plane_pairs += 1
+                        if g < min_h:
+                            min_h = g
                         continue
-                    self.rejected += 1
-                if age < 0.0:
-                    age = 0.0
-                elif age > self._max_age:
-                    age = self._max_age
-                rad -= self._budget
-                infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
-                if coop and th - th == 0.0:  # finite th
+                elif age != pl[4]:
+                    self.other_frame += 1
+            if not (
+                age - age == 0.0  # finite (x - x is 0.0 for a finite x only)
+                and rad - rad == 0.0
+                and -self._vbad < vx < self._vbad
+                and -self._vbad < vy < self._vbad
+            ):  # non-finite or absurd: keep the position, as old as allowed, not moving
+                self.rejected += 1
+                vx = vy = 0.0
+                age = self._max_age
+                rad = 0.0
+                view = None
+            if view is not None:
+                if th - th == 0.0 and view_is_sane(view):  # finite th
+                    # the claimed motion replaces the V a inflation (neighbour_motion)
                     qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
-                    share = 0.5
-                    dd = self._d_coop + infl
-                    vx = vy = 0.0
-                else:
-                    share = 1.0
-                    dd = self._d_plain + infl
+                    rad -= self._budget
+                    dd = self._d_coop + (rad if rad > 0.0 else 0.0) + rho
+                    held = dt_s if dt_s > 0.0 else 1.0 / self._gmax_slow
+                    h = append_claimed(px, py, qx, qy, view, dd, gamma, held, cap, cons)
+                    if h < min_h:
+                        min_h = h
+                    continue
+                self.rejected += 1
+            if age < 0.0:
+                age = 0.0
+            elif age > self._max_age:
+                age = self._max_age
+            rad -= self._budget
+            infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
+            if coop and th - th == 0.0:  # finite th
+                qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
+                share = 0.5
+                dd = self._d_coop + infl
+                vx = vy = 0.0
+            else:
+                share = 1.0
+                dd = self._d_plain + infl
             dx = px - qx
             dy = py - qy
             lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
