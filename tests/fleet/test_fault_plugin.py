@@ -39,7 +39,7 @@ async def test_operator_faults_through_the_fixture_are_listed_with_their_recover
     await fleet.wait_in_formation(timeout_s=30.0)
     await asyncio.sleep(3.0)
     await fleet.wait_in_formation(timeout_s=30.0)
-    await fleet.stop()
+    metrics = await fleet.stop()
     got = [(f["kind"], f["robot"]) for f in fleet.recovery()]
     assert got == [
         ("estop", None), ("release", None), ("pause", "r3"), ("resume", "r3"), ("kill", leader),
@@ -49,7 +49,7 @@ async def test_operator_faults_through_the_fixture_are_listed_with_their_recover
     assert kill["new_leader"] not in (None, leader)
     assert kill["recovered_s"] is not None and kill["recovered_s"] < 40.0
     assert kill["min_separation_m"] > 2 * BODY_RADIUS_M
-    deaths = [e["event"] for e in fleet.metrics["meta"]["events"] if "exited" in e["event"]]
+    deaths = [e["event"] for e in metrics["meta"]["events"] if "exited" in e["event"]]
     assert deaths and deaths[0].startswith(f"agent-{leader}")
     pause = fleet.recovery()[2]
     assert pause["detection_s"] is not None and pause["detection_s"] < 1.5  # one lease
