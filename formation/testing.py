@@ -118,8 +118,15 @@ class FleetRun:
         return args + self.extra
 
     async def start(self, timeout_s: float = START_TIMEOUT_S) -> FleetRun:
-        """Start the fleet and wait until every robot's truth is on the bus."""
+        """Start the fleet and wait until every robot's truth is on the bus, or until the run
+        ended well (exit 0, ``metrics.json`` written) if it ended before its truth was seen: a
+        short lockstep run does not wait for this observer and, on a loaded machine, may be
+        over first (:meth:`finish` then returns its metrics; a fault request says it ended)."""
         self.workdir.mkdir(parents=True, exist_ok=True)
+        # the observer's imports (Zenoh, numpy) before the run: next to a 4-process CPU hog they
+        # took longer than a 20 s lockstep run, which ended before the observer's session opened
+        self._make_collector()
+        deadline = time.monotonic() + timeout_s
         for _ in range(PORT_TRIES):
             self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
             log = (self.workdir / "up.log").open("wb")
@@ -133,36 +140,49 @@ class FleetRun:
             await asyncio.sleep(0.3)
             if self.proc.returncode is None or "port busy" not in self.output():
                 break
-        await self._observe()
-        deadline = time.monotonic() + timeout_s
+        await self._observe(deadline)
         while True:
             view = self.collector.live()
             if view.t_s is not None and all(r.alive for r in view.robots if r.robot):
                 return self
             if self.proc is not None and self.proc.returncode is not None:
-                raise FleetRunError(f"formation up ended at start:\n{self.output()[-2000:]}")
+                if self.proc.returncode == 0 and (self.out / "metrics.json").exists():
+                    return self  # it ran to its end before its truth was seen
+                raise FleetRunError(
+                    f"formation up ended at start (exit {self.proc.returncode}):\n"
+                    f"{self.output()[-2000:]}"
+                )
             if time.monotonic() > deadline:
                 raise FleetRunError(f"no truth of the fleet within {timeout_s:g} s")
             await asyncio.sleep(0.1)
 
-    async def _observe(self) -> None:
-        import runtime as rt
-        from bus_schemas import keys
-        from formation.record.collector import RunCollector, key_patterns
+    def _make_collector(self) -> None:
+        import runtime  # noqa: F401  (imported here, before the run: see start)
+        from formation.record.collector import RunCollector
 
         self.collector = RunCollector.for_scenario(
             self.scenario, fleet=self.fleet, lockstep=self.lockstep
         )
+
+    async def _observe(self, deadline: float) -> None:
+        """Open the observer's session on the run's router (it comes up with the run) and feed
+        the collector; give up when the run has ended (no router any more) or at ``deadline``."""
+        import runtime as rt
+        from bus_schemas import keys
+        from formation.record.collector import key_patterns
+
         loop = asyncio.get_running_loop()
         settings = rt.ZenohSettings(connect=(self.endpoint,), open_timeout_s=10.0)
-        for _ in range(50):  # the router comes up with the run
+        while self.session is None:
             try:
-                self.session = await rt.open_session_async(settings)
-                break
+                self.session = await rt.open_session_async(settings, timeout_s=1.0)
             except rt.TransportError:
-                await asyncio.sleep(0.2)
-        if self.session is None:
-            raise FleetRunError(f"no router at {self.endpoint}:\n{self.output()[-2000:]}")
+                if self.proc is not None and self.proc.returncode is not None:
+                    return  # the run is over: start() says how it ended
+                if time.monotonic() > deadline:
+                    raise FleetRunError(
+                        f"no router at {self.endpoint}:\n{self.output()[-2000:]}"
+                    ) from None
         feed = self.collector.feed
         self._subs = [
             rt.subscribe(self.session, p, loop, lambda rx: feed(rx.key, rx.payload))
@@ -270,7 +290,11 @@ class FleetRun:
     async def fault(self, *args: str) -> str:
         """Run ``formation fault ARGS`` against this fleet; its output line (or raise). An
         ``--at T`` the run has already passed is refused (a lockstep run is fast: schedule
-        late enough, or in the scenario)."""
+        late enough, or in the scenario), and so is any fault once the run has ended."""
+        if self.proc is not None and self.proc.returncode is not None:
+            raise FleetRunError(
+                f"formation fault {' '.join(args)}: the run has ended (exit {self.proc.returncode})"
+            )
         if "--at" in args and self.collector is not None:
             at = float(args[args.index("--at") + 1])
             now = self.collector.live().t_s

@@ -1,14 +1,16 @@
 """The pytest plugin's ``fleet`` fixture (formation.pytest_plugin) on a realtime fleet: the
 operator's faults (``formation fault``) through it, and the run's metrics.json listing each one
-with its recovery (issue 32)."""
+with its recovery (issue 32). And :class:`FleetRun` on a lockstep run that is over before its
+observer's session opens (what a CPU hog did to the tutorial's fault test)."""
 
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
 import pytest
 
-from formation.testing import FaultCommandError, FleetRun
+from formation.testing import FaultCommandError, FleetRun, FleetRunError
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh]
 
@@ -40,3 +42,32 @@ async def test_operator_faults_through_the_fixture_are_listed_with_their_recover
     assert kill["new_leader"] not in (None, leader)
     pause = fleet.recovery()[2]
     assert pause["detection_s"] is not None and pause["detection_s"] < 1.5  # one lease
+
+
+class _LateObserver(FleetRun):
+    """A FleetRun whose observer connects only once the run has ended: next to a 4-process CPU
+    hog the tutorial's 20 s lockstep run ended before the test's imports and session were done
+    (the observer then retried a gone router for minutes; a run seen only at its end failed)."""
+
+    async def _observe(self, deadline: float) -> None:
+        assert self.proc is not None
+        await self.proc.wait()
+        await super()._observe(deadline)
+
+
+@pytest.mark.shares_cpu
+async def test_a_lockstep_run_over_before_its_observer_connects_starts_and_finishes(
+    tmp_path: Path,
+) -> None:
+    run = _LateObserver("paper-exp1", workdir=tmp_path / "fleet", lockstep=True, duration_s=3)
+    try:
+        assert await run.start(timeout_s=120.0) is run  # not a hang, not "ended at start"
+        assert run.session is None  # it never saw the run: the run was over
+        metrics = await run.finish()
+        assert metrics["run"]["duration_s"] == pytest.approx(3.0, abs=0.05)
+        assert metrics["meta"]["interrupted"] is False
+        assert run.recovery() == []
+        with pytest.raises(FleetRunError, match="the run has ended"):
+            await run.kill_leader()
+    finally:
+        await run.close()
