@@ -376,10 +376,16 @@ class MoverDetector:
         if not math.isfinite(now_s):
             self.rejected += 1
             return self.excluded
+        was_objects = self._objects
         self._objects = frozenset(objects) if objects else _EMPTY
         present: Mapping[str, object] = poses
         seen: Iterable[tuple[str, Sequence[float]]] = poses.items()
         if objects:
+            # a robot that has just become an object (its agent died: the plant stopped its
+            # wheels) is measured from now on: its own driving before does not make it a mover
+            for oid in self._objects - was_objects:
+                if oid not in poses and self._hist.pop(oid, None) is not None:
+                    self._last_xy.pop(oid, None)
             seen = [
                 *poses.items(),
                 *[(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses],
