@@ -427,8 +427,9 @@ class CoordinatorCore:
     ) -> CoordinatorOutput:
         """``poses``: the latest fresh pose of every live robot (axle centre x, y, theta);
         ``held``: robots known to be held (e-stopped): a leader that waits for its team stops
-        for them (coordinator.core.leader); ``objects``: tracked bodies that are not fleet
-        robots (centre x, y): moving, they are movers (coordinator.core.movers)."""
+        for them (coordinator.core.leader); ``objects``: tracked bodies that are not counted
+        robots (centre x, y; a cart's tag, a dead robot still tracked): moving, they are movers
+        (coordinator.core.movers)."""
         ids, xy = self._ref_points(poses)
         ld = self.leader
         rate = 1.0

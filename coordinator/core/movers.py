@@ -161,7 +161,7 @@ class MoverDetector:
         self._reserved: dict[str, int] = {}
         # (robot, mover) -> side (+1 left of the motion), the motion's unit vector it was for
         self._side: dict[tuple[str, str], tuple[float, float, float]] = {}
-        self._objects: frozenset[str] = _EMPTY  # the tracked non-fleet bodies now
+        self._objects: frozenset[str] = _EMPTY  # the tracked objects now
         self._cos_turn = math.cos(self._params.side_turn_rad)
         self.rejected = 0
         """Poses or times skipped as non-finite."""
@@ -368,18 +368,27 @@ class MoverDetector:
     ) -> frozenset[str]:
         """One tick: ``poses`` the latest pose of each live robot (axle centre x, y, theta),
         ``assignment`` the coordinator's previous assignment (robot -> slot), ``held`` the
-        e-stopped robots, ``objects`` the tracked bodies that are not fleet robots (centre x,
-        y; ids distinct from the robots'): never driven, so a mover whenever one moves faster
-        than ``still_mps``. Returns the robots that get no slot now (``excluded``: the movers
-        and the robots making room for them; an object among them is given no slot anyway)."""
+        e-stopped robots, ``objects`` the tracked bodies that are not counted robots (centre x,
+        y; ids distinct from the robots': a cart's tag, a robot whose agent is dead, hung or cut
+        off, its wheels stopped; such a robot's history restarts when it becomes one, so its
+        own driving before is not motion of an object): never driven, so a mover whenever one
+        moves faster than ``still_mps``. Returns the robots that get no slot now
+        (``excluded``: the movers and the robots making room for them; an object among them is
+        given no slot anyway)."""
         p = self._params
         if not math.isfinite(now_s):
             self.rejected += 1
             return self.excluded
+        was_objects = self._objects
         self._objects = frozenset(objects) if objects else _EMPTY
         present: Mapping[str, object] = poses
         seen: Iterable[tuple[str, Sequence[float]]] = poses.items()
         if objects:
+            # a robot that has just become an object (its agent died: the plant stopped its
+            # wheels) is measured from now on: its own driving before does not make it a mover
+            for oid in self._objects - was_objects:
+                if oid not in poses and self._hist.pop(oid, None) is not None:
+                    self._last_xy.pop(oid, None)
             seen = [
                 *poses.items(),
                 *[(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses],

@@ -27,6 +27,7 @@ import os
 import socket
 import time
 from collections import deque
+from collections.abc import Mapping
 from typing import Any, Final
 
 import runtime as rt
@@ -404,15 +405,23 @@ class CoordinatorNode:
                 out[rid] = (e[0], e[1], e[2])
         return out
 
-    def fresh_objects(self, now_s: float) -> dict[str, tuple[float, float]] | None:
-        """Tracked bodies that are not fleet robots (issue 30): the fresh poses (as
-        ``fresh_poses``) of ids not in the scenario's fleet, e.g. a camera tag on a cart; the
-        core makes a moving one a mover (coordinator.core.movers). None if there is none."""
+    def fresh_objects(
+        self, now_s: float, counted: Mapping[str, object]
+    ) -> dict[str, tuple[float, float]] | None:
+        """Tracked bodies the core does not count as robots (issue 30): the fresh poses (as
+        ``fresh_poses``) of ids not in the scenario's fleet, e.g. a camera tag on a cart, and of
+        the fleet's robots left out of ``counted`` (the poses the core counts: a robot whose
+        agent is dead or hung, or a scripted fault's offline robot). The core makes a moving one
+        a mover (coordinator.core.movers): a dead robot's wheels are stopped, so it moves only
+        when it is carried or pushed, and the others must then see its velocity and make room.
+        None if there is none."""
         lim = self.stale_pose_s if self.lockstep else self.hold_pose_s
         out: dict[str, tuple[float, float]] = {}
         for rid in sorted(self.poses):
             e = self.poses[rid]
-            if rid in self._order or rid in self.alive or e[4] is None:
+            if rid in counted or e[4] is None:
+                continue
+            if rid not in self._order and rid in self.alive:
                 continue
             if not -lim <= now_s - e[4] <= lim:
                 continue
@@ -456,7 +465,7 @@ class CoordinatorNode:
                 ):
                     self.faults.reject("operator", f"scripted {cmd} refused: {why}", f"{cmd}-{why}")
             held = self.operator.held(self.estop, poses) if self.core.leader.waits() else ()
-            out = self.core.tick(now_s, poses, held, self.fresh_objects(now_s))
+            out = self.core.tick(now_s, poses, held, self.fresh_objects(now_s, poses))
             request = replanner.take_request() if replanner.setup is not None else None
             if request is not None:
                 self.plan_worker.submit(request)

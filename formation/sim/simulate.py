@@ -141,6 +141,24 @@ class FaultPlay:
         gone = {self.ids[i] for i in self.offline}
         return {r: q for r, q in fresh.items() if r not in gone}
 
+    def objects(
+        self,
+        fresh: dict[str, tuple[float, float, float]],
+        counted: dict[str, tuple[float, float, float]],
+        bodies: dict[str, tuple[float, float]] | None,
+    ) -> dict[str, tuple[float, float]] | None:
+        """The tracked bodies the coordinator is given (as the coordinator node's
+        ``fresh_objects``): the scenario's visible ``bodies`` and every offline robot with a
+        fresh pose. Its wheels are stopped, so it moves only when carried or pushed: then it is
+        a mover (coordinator.core.movers) and the others make room and see its velocity."""
+        if len(counted) == len(fresh):
+            return bodies
+        out = dict(bodies) if bodies else {}
+        for rid, q in fresh.items():
+            if rid not in counted:
+                out[rid] = (q[0], q[1])
+        return out
+
     def observe(
         self, out: CoordinatorOutput, counted: dict[str, tuple[float, float, float]]
     ) -> None:
@@ -355,7 +373,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 counted = faults.coordinator_input(fresh)
                 if script is not None:
                     script.play(coord, t, t, len(counted))
-                out = coord.tick(t, counted, objects=objects)
+                out = coord.tick(t, counted, objects=faults.objects(fresh, counted, objects))
                 if replanner.setup is not None:
                     _plan_now(replanner)
                 faults.observe(out, counted)

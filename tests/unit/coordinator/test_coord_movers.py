@@ -248,3 +248,28 @@ def test_movers_are_reported_with_their_velocity() -> None:
     assert mid == "r4" and vx == pytest.approx(-0.3) and vy == pytest.approx(0.0, abs=1e-9)
     assert x == pytest.approx(1.5 - 0.3 * 39 * DT_S)
     assert "r4" not in out.assignment
+
+
+def test_a_robot_turned_object_is_measured_from_then_on_and_a_mover_when_carried() -> None:
+    """A robot whose agent died leaves the poses and is given as an object (its wheels are
+    stopped): its driving before does not make it a mover (the window starts again), a hand
+    carrying it afterwards does, with its velocity."""
+    det = MoverDetector()
+    for k in range(30):  # 1 s: driving its slot at 0.2 m/s (driven: no mover)
+        t = k * DT_S
+        det.update(t, {"dead": (0.2 * t, 0.0, 0.0), "r2": (0.0, 1.0, 0.0)}, {"dead": 0, "r2": 1})
+    assert det.movers == frozenset()
+    x0 = 0.2 * 29 * DT_S
+    t_kill = 30 * DT_S
+    for k in range(30, 60):  # its agent died: stopped, an object (no slot, not driven)
+        t = k * DT_S
+        det.update(t, {"r2": (0.0, 1.0, 0.0)}, {"r2": 0}, objects={"dead": (x0, 0.0)})
+        assert det.movers == frozenset(), f"a stopped dead robot is no mover (t={t:.2f})"
+    t_drag = 60 * DT_S
+    for k in range(60, 90):  # carried back at 0.15 m/s
+        t = k * DT_S
+        obj = {"dead": (x0 - 0.15 * (t - t_drag), 0.0)}
+        det.update(t, {"r2": (0.0, 1.0, 0.0)}, {"r2": 0}, objects=obj)
+    assert det.movers == {"dead"}
+    assert det.velocity("dead") == pytest.approx((-0.15, 0.0))
+    assert t_kill < t_drag

@@ -190,3 +190,25 @@ def test_the_figures_mark_every_fault_and_disturbance() -> None:
         if line.get_linestyle() in ("-", ":", "--") and len(line.get_xdata()) == 2
     }
     assert {3.0, 4.0, 5.0, 6.0} <= drawn
+
+
+def test_a_dead_robot_carried_is_a_mover_the_others_keep_the_safety_distance() -> None:
+    """paper-exp2's leader killed, then the scenario's hand drags its robot back (0.2 m/s, below
+    the robots' top speed) through where the others now stand. A dead robot's pose is still
+    tracked: the coordinator takes it as an object (its wheels are stopped), so when it moves it
+    is a mover: the others make room and their filters see its velocity. Before, it was nobody's
+    input but the filters', as a still obstacle: 0.173 m (kill at 20 s) and 0.188 m (28 s), below
+    the safety distance; the filter alone lags a body it thinks still by its speed over gamma."""
+    base = scenario.load("paper-exp2")
+    ds_m = 2 * base.agent.geometry.body_radius_m + base.agent.safety_filter.margin_m
+    drag = tuple(dataclasses.replace(d, duration_s=3.0) for d in base.disturbances)
+    assert [(d.t_s, d.robot, d.dx) for d in drag] == [(30.0, "r1", -0.6)]
+    for kill_s in (20.0, 28.0):
+        faults = parse_faults([{"kind": "kill", "robot": "r1", "t_s": kill_s}], base.robot_ids, 34)
+        s = dataclasses.replace(base, duration_s=34.0, disturbances=drag, faults=faults)
+        log = simulate.run(s).log
+        k = rows(log, 30.0, 34.0)
+        j = log.robot_ids.index("r1")
+        assert np.ptp(log.truth[k, j, 0]) > 0.5  # it was dragged
+        sep = metrics.min_pair_distance(log.truth)
+        assert float(sep.min()) >= ds_m, f"kill at {kill_s} s: {float(sep.min()):.4f} m"

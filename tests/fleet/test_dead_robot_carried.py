@@ -1,0 +1,58 @@
+"""A dead robot carried through the formation (``dead_robot_carried.toml``): the leader's agent
+is killed at 2 s (the plant stops its wheels), and from 4 s a hand drags its robot 0.6 m back
+over 3 s (0.2 m/s). Its pose is still tracked, so the coordinator gives it to the mover detector
+as an object: dragged, it is a mover (the others make room and their filters see its
+velocity: coordinator.core.movers). ``formation up --lockstep`` as real processes equals
+``formation sim`` bit for bit (the coordinator node and the in-process simulator take the same
+robots as objects). tests/unit/formation/test_sim_faults.py tries more kill times in-process."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.spawn import Spawner, free_port
+
+import scenario
+
+pytestmark = pytest.mark.shares_cpu
+
+SCENARIO = Path(__file__).with_name("dead_robot_carried.toml")
+RUN_TIMEOUT_S = 120.0
+SEPARATED_M = 0.21
+
+
+@pytest.mark.zenoh
+def test_a_dead_robot_carried_over_zenoh_behaves_as_in_process(
+    spawn: Spawner, tmp_path: Path
+) -> None:
+    from formation.sim.command import run_and_write
+
+    out = tmp_path / "up"
+    child = spawn(
+        "up", "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet",
+        f"t{uuid.uuid4().hex[:8]}", "--out", str(out), "--no-figures",
+        "--scenario", str(SCENARIO), "--lockstep", "--hosts", "0",
+    )  # fmt: skip
+    child.proc.wait(timeout=RUN_TIMEOUT_S)
+    assert child.proc.returncode == 0, child.describe()
+    m = json.loads((out / "metrics.json").read_text())
+    sc = scenario.load(str(SCENARIO))
+    run_and_write(sc, tmp_path / "sim", figures=False)
+    m_sim = json.loads((tmp_path / "sim" / "metrics.json").read_text())
+    up_log, sim_log = np.load(out / "run.npz"), np.load(tmp_path / "sim" / "run.npz")
+    # (not "power": the recording holds a dead agent's last wheels message, the simulator
+    # logs the zero wheels the plant applies)
+    for key in ("t_s", "truth", "ref", "slot_of"):
+        assert np.array_equal(up_log[key], sim_log[key]), key
+    assert m["robots"] == m_sim["robots"]
+    assert m["run"] == m_sim["run"]
+    assert m["run"]["collisions"] == 0
+    # the others made room: 0.229 m; without the dead robot among the objects 0.193 m
+    assert m["run"]["min_separation_m"] > SEPARATED_M
+    t = np.asarray(sim_log["t_s"]) - sim_log["t_s"][0]
+    dragged = np.asarray(sim_log["truth"])[(t >= 4.0) & (t <= 7.5), 0, 0]
+    assert np.ptp(dragged) > 0.55  # r1 was dragged
