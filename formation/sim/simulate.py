@@ -348,14 +348,14 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             if faults is None:
                 if script is not None:
                     script.play(coord, t, t, len(fresh))
-                out = coord.tick(t, fresh, objects=objects)
+                out = coord.tick(t, fresh, (), objects)  # by position (see step below)
                 if replanner.setup is not None:
                     _plan_now(replanner)
             else:
                 counted = faults.coordinator_input(fresh)
                 if script is not None:
                     script.play(coord, t, t, len(counted))
-                out = coord.tick(t, counted, objects=objects)
+                out = coord.tick(t, counted, (), objects)
                 if replanner.setup is not None:
                     _plan_now(replanner)
                 faults.observe(out, counted)
