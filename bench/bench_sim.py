@@ -160,6 +160,7 @@ def patched(timer: StageTimer) -> Iterator[None]:
         (RoleAssigner, "update_ordered", "  assignment"),
         (coord_core, "slot_rows", "  slots"),
         (Firmware, "step", "firmware"),
+        (Firmware, "step_positional", "firmware"),  # the in-process loop's entry
         (CommandLink, "send_all", "link"),
         (CommandLink, "poll", "link"),
         (Plant, "step", "plant"),

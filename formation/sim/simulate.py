@@ -261,7 +261,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     # run-time plans (issue 27): a plan the core asks is solved at once, before the next tick
     # (the lockstep node waits for it before its switch tick: the same leader, bit for bit)
     replanner = coord.replanner
-    steps = [fw.step for fw in firmwares]
+    steps = [fw.step_positional for fw in firmwares]
     tracking_mode = Mode.TRACKING
     robots = list(zip(range(n), ids, steps, strict=True))
     wall0 = time.perf_counter()
@@ -366,14 +366,14 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             if faults is None:
                 if script is not None:
                     script.play(coord, t, t, len(fresh))
-                out = coord.tick(t, fresh, objects=objects)
+                out = coord.tick(t, fresh, (), objects)  # by position (see step below)
                 if replanner.setup is not None:
                     _plan_now(replanner)
             else:
                 counted = faults.coordinator_input(fresh)
                 if script is not None:
                     script.play(coord, t, t, len(counted))
-                out = coord.tick(t, counted, objects=faults.objects(fresh, counted, objects))
+                out = coord.tick(t, counted, (), faults.objects(fresh, counted, objects))
                 if replanner.setup is not None:
                     _plan_now(replanner)
                 faults.observe(out, counted)
@@ -402,16 +402,18 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 if slot is not None:
                     x, y, vx, vy = prev_approach.get(rid) or prev_rows[slot_row[slot]]
                     sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
+                # (by position: Firmware.step's keyword arguments cost more than the call
+                # across two compiled groups)
                 cmds.append(
                     step(
                         t,
-                        pose=poses[i],
-                        pose_rx_s=pose_rx[i],
-                        setpoint=sp,
-                        setpoint_rx_s=t_prev,
-                        neighbours=neighbours[i],
-                        pose_capture_s=pose_cap[i],
-                        wheel_speeds=None if wheel_meas is None else wheel_meas[i],
+                        poses[i],
+                        pose_rx[i],
+                        sp,
+                        t_prev,
+                        neighbours[i],
+                        pose_cap[i],
+                        None if wheel_meas is None else wheel_meas[i],
                     )
                 )
             tracking = [c[4] is tracking_mode for c in cmds]
@@ -536,22 +538,14 @@ def _by_slot_id(
 
 def _faulted_step(faults: FaultPlay, i: int, t_s: float, step: Callable[..., Any]) -> Any:
     """Robot ``i`` under a fault: a killed or paused agent does not step (zero wheels, the
-    plant's too); a cut-off one steps on the pose it had, with no setpoint or neighbour."""
+    plant's too); a cut-off one steps on the pose it had, with no setpoint or neighbour.
+    ``step`` is the robot's ``Firmware.step_positional``."""
     if i in faults.frozen:
         return _ZERO_CMD
     frozen = faults.cut_inputs[i]
     assert frozen is not None
     pose, rx, cap = frozen
-    return step(
-        t_s,
-        pose=pose,
-        pose_rx_s=rx,
-        setpoint=None,
-        setpoint_rx_s=t_s,
-        neighbours=[],
-        pose_capture_s=cap,
-        wheel_speeds=None,
-    )
+    return step(t_s, pose, rx, None, t_s, [], cap, None)  # Firmware.step_positional
 
 
 def _event_dict(e: Any, ids: list[str]) -> dict[str, Any]:

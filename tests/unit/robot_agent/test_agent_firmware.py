@@ -11,7 +11,18 @@ import math
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from support.firmware_cases import CFG, DT, INF, NAN, WMAX, is_zero, make_sp, tick, tracking_fw
+from support.firmware_cases import (
+    CFG,
+    DT,
+    EST,
+    INF,
+    NAN,
+    WMAX,
+    is_zero,
+    make_sp,
+    tick,
+    tracking_fw,
+)
 
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint
 from robot_agent.core.firmware_modes import _TRANSITIONS
@@ -427,6 +438,43 @@ def test_wheels_within_limits_for_any_input(
         if estop and i >= len(seq) // 2:
             assert cmd.mode is Mode.ESTOP
         assert abs(fw.tracker.x.integral_ms) <= CFG.gains.integral_limit_ms
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(
+    seq=steps,
+    nbrs=st.lists(st.tuples(vals, vals), max_size=3),
+    est=st.booleans(),
+    wheels=st.one_of(st.none(), st.tuples(vals, vals)),
+)
+def test_step_positional_is_step(
+    seq: list[tuple[float, Pose | None, Setpoint | None, float, float]],
+    nbrs: list[tuple[float, float]],
+    est: bool,
+    wheels: tuple[float, float] | None,
+) -> None:
+    """``step_positional`` (the in-process loop's entry) is ``step`` with the same arguments by
+    position: the same commands, bit for bit, and the same state after, on any input."""
+    cfg = EST if est else CFG
+    by_kw, by_pos = Firmware(cfg), Firmware(cfg)
+    now = 0.0
+    for dt, pose, sp, pose_age, sp_age in seq:
+        now = now + dt if math.isfinite(now + dt) else now
+        cap = None if pose is None else now - pose_age - 0.01
+        a = by_kw.step(
+            now,
+            pose=pose,
+            pose_rx_s=now - pose_age,
+            setpoint=sp,
+            setpoint_rx_s=now - sp_age,
+            neighbours=nbrs,
+            pose_capture_s=cap,
+            wheel_speeds=wheels,
+        )
+        b = by_pos.step_positional(now, pose, now - pose_age, sp, now - sp_age, nbrs, cap, wheels)
+        assert repr(a) == repr(b)  # repr: bit-exact floats (NaN included)
+    assert repr(by_kw.status()) == repr(by_pos.status())
+    assert repr(by_kw.pose_estimate) == repr(by_pos.pose_estimate)
 
 
 # ----------------------------------------------------------------------------- status
