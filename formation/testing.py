@@ -3,7 +3,8 @@
 ``FleetRun`` starts ``formation up`` from a scenario (realtime or lockstep, one agent process
 per robot or agent hosts), watches its bus with the same collector ``formation up`` measures a
 run with (:class:`formation.record.collector.RunCollector`), injects faults through the
-``formation fault`` tool (so a test does what an operator does, with the same checks) and reads
+``formation fault`` tool's code (:func:`formation.operate.fault.apply`, so a test does what an
+operator does, with the same checks; over the observer's session, in this process) and reads
 the run's ``metrics.json`` at the end: :meth:`FleetRun.recovery` is its ``faults`` list, each
 fault with its detection, reassignment and recovery times, least separation and peak error.
 
@@ -301,24 +302,35 @@ class FleetRun:
             if now is not None and now >= at:
                 raise FleetRunError(f"--at {at:g}: the run is already at t = {now:.2f} s")
         tail = ["--endpoint", self.endpoint, "--fleet", self.fleet, "--timeout", "10"]
-        if "--at" in args and self.session is not None:
-            # a request the coordinator schedules: sent over this run's own session, at once (a
-            # lockstep run can pass T while a new `formation fault` process starts up)
-            from formation.operate import fault as fault_tool
+        if self.session is None:  # nothing watched yet: the tool itself, with its own session
+            return await self._fault_process([*args, *tail])
+        import runtime as rt
+        from formation.operate import fault as fault_tool
 
+        # over this run's own session, in this process: a `formation fault` process costs 1-2 s
+        # to start (its CLI is tested on its own); an `--at T` request goes at once (a lockstep
+        # run can pass T while a new process starts up)
+        try:
             try:
                 ns = fault_tool.build_parser().parse_args([*args, *tail])
+            except SystemExit:  # argparse printed why (as the CLI does)
+                raise ValueError(f"bad arguments {list(args)}") from None
+            if "--at" in args:
                 return await fault_tool.request_at(self.session, ns, running=True)
-            except (fault_tool.FaultError, ValueError) as exc:
-                raise FaultCommandError(f"formation fault {' '.join(args)}: {exc}") from exc
-        argv = [sys.executable, "-m", "formation", "fault", *args, *tail]
+            where = fault_tool.Where.of(self.fleet, rt.ZenohSettings(connect=(self.endpoint,)))
+            return await fault_tool.apply(self.session, ns, where)
+        except (fault_tool.FaultError, rt.TransportError, ValueError) as exc:
+            raise FaultCommandError(f"formation fault {' '.join(args)}: {exc}") from exc
+
+    async def _fault_process(self, argv: list[str]) -> str:
         proc = await asyncio.create_subprocess_exec(
-            *argv, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE
-        )
+            sys.executable, "-m", "formation", "fault", *argv,
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
         out, err = await asyncio.wait_for(proc.communicate(), 60.0)
         if proc.returncode != 0:
             raise FaultCommandError(
-                f"formation fault {' '.join(args)}: exit {proc.returncode}: "
+                f"formation fault {' '.join(argv)}: exit {proc.returncode}: "
                 f"{err.decode(errors='replace').strip()}"
             )
         return out.decode(errors="replace").strip()

@@ -98,6 +98,7 @@ from formation.outputs import runfile
 __all__ = [
     "FaultError",
     "Where",
+    "apply",
     "build_parser",
     "find_processes",
     "main",
@@ -464,100 +465,107 @@ async def request_at(session: Any, ns: argparse.Namespace, *, running: bool = Fa
     return f"{line}: coordinator {active.name} applies it then"
 
 
-async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:  # noqa: PLR0915 (one branch per fault verb)
-    fleet = keys.check_fleet(ns.fleet)
-    where = Where.of(fleet, settings)
+async def _run(ns: argparse.Namespace, settings: rt.ZenohSettings) -> str:
+    where = Where.of(keys.check_fleet(ns.fleet), settings)
     session = await rt.open_session_async(settings)
     try:
-        bus = _Bus(session, ns.timeout)
-        cmd = ns.command
-        if getattr(ns, "at", None) is not None:
-            return await request_at(session, ns)
-        if cmd == "kill-leader":
-            amsg = await bus.newest(keys.assignment_key(fleet), _decoded(Assignment))
-            if amsg is None:
-                raise FaultError(f"no assignment of fleet {fleet!r} within {ns.timeout:g} s")
-            if amsg.leader is None:
-                raise FaultError("the assignment has no leader")
-            found = await _locate_robot(bus, where, amsg.leader)
-            if found.host_name is not None:
-                raise _refuse_host(amsg.leader, found, "kill")
-            t = _signal(found.pid, signal.SIGKILL)
-            await _record(session, fleet, "kill", amsg.leader, t)
-            return f"killed leader {amsg.leader} (pid {found.pid}) at t={t:.6f}"
-        if cmd in ("kill", "pause", "resume"):
-            robot = keys.check_robot_id(ns.robot)
-            if cmd == "resume":  # a stopped agent publishes nothing
-                pid = await _resume(bus, where, "agent", robot)
-            else:
-                found = await _locate_robot(bus, where, robot)
-                if found.host_name is not None:
-                    raise _refuse_host(robot, found, cmd)
-                pid = found.pid
-            t = _signal(pid, _SIG[cmd])
-            await _record(session, fleet, cmd, robot, t)
-            return f"{_DONE[cmd]} {robot} (pid {pid}) at t={t:.6f}"
-        if cmd in ("kill-host", "pause-host", "resume-host"):
-            action = cmd.removesuffix("-host")
-            name = keys.check_name(ns.name)
-            if action == "resume":
-                pid = await _resume(bus, where, "agent-host", name)
-            else:
-                pid = await _locate_host(bus, where, name)
-            t = _signal(pid, _SIG[action])
-            return f"{_DONE[action]} agent host {name} (pid {pid}) at t={t:.6f}"
-        if cmd == "kill-coordinator":
-            key = keys.all_coordinator_status_pattern(fleet)
-            name = ns.name
-
-            def wanted(m: CoordinatorStatus) -> bool:
-                return m.name == name if name is not None else m.role == "active"
-
-            st = await bus.newest(key, _decoded(CoordinatorStatus, wanted))
-            if st is None:
-                raise FaultError(f"no status of coordinator {name or '(active)'} within timeout")
-            cname = st.name
-            _check_local(st.host, f"coordinator {cname}")
-            pid = _verified(st.pid, "coordinator", cname, where, f"coordinator {cname}")
-            t = _signal(pid, signal.SIGKILL)
-            await _record(session, fleet, "kill_coordinator", None, t)
-            return f"killed coordinator {cname} (pid {pid}) at t={t:.6f}"
-        if cmd == "drag":
-            robot = keys.check_robot_id(ns.robot)
-            seen = await bus.first_of(
-                [
-                    (keys.truth_key(fleet, robot), _decoded(Truth)),
-                    (keys.truths_key(fleet), _decoded(TruthBatch, lambda m: robot in m.robots)),
-                ]
-            )
-            if seen is None:
-                raise FaultError(
-                    f"no robot {robot!r} simulated in fleet {fleet!r} (no truth of it within "
-                    f"{ns.timeout:g} s): nothing to drag"
-                )
-            msg = Disturbance(
-                t=time.monotonic(),
-                robot=robot,
-                kind="drag",
-                dx=ns.dx,
-                dy=ns.dy,
-                duration_s=ns.duration,
-            )
-            session.put(keys.disturbance_key(fleet), encode(msg))
-            await asyncio.sleep(0.05)  # let it leave before the session closes
-            return f"dragged {robot} by ({ns.dx:g}, {ns.dy:g}) m over {ns.duration:g} s"
-        if cmd in ("estop", "release"):
-            from formation.operate.estop_tool import send_estop  # publish + acknowledgements
-
-            target = keys.check_robot_id(ns.robot) if ns.robot is not None else None
-            report = await send_estop(session, fleet, cmd == "estop", target)
-            await _record(session, fleet, cmd, target, report.t)
-            if not report.ok:  # the line says what is not acknowledged or not durable
-                raise FaultError(report.line())
-            return report.line()
-        raise FaultError(f"unknown command {cmd!r}")
+        return await apply(session, ns, where)
     finally:
         session.close()
+
+
+async def apply(session: Any, ns: argparse.Namespace, where: Where) -> str:  # noqa: PLR0915 (one branch per fault verb)
+    """The fault ``ns`` asks for (as :func:`build_parser` parses it) on the fleet ``where``,
+    over an open ``session``: the CLI's and formation.testing's one path (a test that watches
+    the fleet already has a session; a new ``formation fault`` process costs 1-2 s)."""
+    fleet = keys.check_fleet(ns.fleet)
+    bus = _Bus(session, ns.timeout)
+    cmd = ns.command
+    if getattr(ns, "at", None) is not None:
+        return await request_at(session, ns)
+    if cmd == "kill-leader":
+        amsg = await bus.newest(keys.assignment_key(fleet), _decoded(Assignment))
+        if amsg is None:
+            raise FaultError(f"no assignment of fleet {fleet!r} within {ns.timeout:g} s")
+        if amsg.leader is None:
+            raise FaultError("the assignment has no leader")
+        found = await _locate_robot(bus, where, amsg.leader)
+        if found.host_name is not None:
+            raise _refuse_host(amsg.leader, found, "kill")
+        t = _signal(found.pid, signal.SIGKILL)
+        await _record(session, fleet, "kill", amsg.leader, t)
+        return f"killed leader {amsg.leader} (pid {found.pid}) at t={t:.6f}"
+    if cmd in ("kill", "pause", "resume"):
+        robot = keys.check_robot_id(ns.robot)
+        if cmd == "resume":  # a stopped agent publishes nothing
+            pid = await _resume(bus, where, "agent", robot)
+        else:
+            found = await _locate_robot(bus, where, robot)
+            if found.host_name is not None:
+                raise _refuse_host(robot, found, cmd)
+            pid = found.pid
+        t = _signal(pid, _SIG[cmd])
+        await _record(session, fleet, cmd, robot, t)
+        return f"{_DONE[cmd]} {robot} (pid {pid}) at t={t:.6f}"
+    if cmd in ("kill-host", "pause-host", "resume-host"):
+        action = cmd.removesuffix("-host")
+        name = keys.check_name(ns.name)
+        if action == "resume":
+            pid = await _resume(bus, where, "agent-host", name)
+        else:
+            pid = await _locate_host(bus, where, name)
+        t = _signal(pid, _SIG[action])
+        return f"{_DONE[action]} agent host {name} (pid {pid}) at t={t:.6f}"
+    if cmd == "kill-coordinator":
+        key = keys.all_coordinator_status_pattern(fleet)
+        name = ns.name
+
+        def wanted(m: CoordinatorStatus) -> bool:
+            return m.name == name if name is not None else m.role == "active"
+
+        st = await bus.newest(key, _decoded(CoordinatorStatus, wanted))
+        if st is None:
+            raise FaultError(f"no status of coordinator {name or '(active)'} within timeout")
+        cname = st.name
+        _check_local(st.host, f"coordinator {cname}")
+        pid = _verified(st.pid, "coordinator", cname, where, f"coordinator {cname}")
+        t = _signal(pid, signal.SIGKILL)
+        await _record(session, fleet, "kill_coordinator", None, t)
+        return f"killed coordinator {cname} (pid {pid}) at t={t:.6f}"
+    if cmd == "drag":
+        robot = keys.check_robot_id(ns.robot)
+        seen = await bus.first_of(
+            [
+                (keys.truth_key(fleet, robot), _decoded(Truth)),
+                (keys.truths_key(fleet), _decoded(TruthBatch, lambda m: robot in m.robots)),
+            ]
+        )
+        if seen is None:
+            raise FaultError(
+                f"no robot {robot!r} simulated in fleet {fleet!r} (no truth of it within "
+                f"{ns.timeout:g} s): nothing to drag"
+            )
+        msg = Disturbance(
+            t=time.monotonic(),
+            robot=robot,
+            kind="drag",
+            dx=ns.dx,
+            dy=ns.dy,
+            duration_s=ns.duration,
+        )
+        session.put(keys.disturbance_key(fleet), encode(msg))
+        await asyncio.sleep(0.05)  # let it leave before the session closes
+        return f"dragged {robot} by ({ns.dx:g}, {ns.dy:g}) m over {ns.duration:g} s"
+    if cmd in ("estop", "release"):
+        from formation.operate.estop_tool import send_estop  # publish + acknowledgements
+
+        target = keys.check_robot_id(ns.robot) if ns.robot is not None else None
+        report = await send_estop(session, fleet, cmd == "estop", target)
+        await _record(session, fleet, cmd, target, report.t)
+        if not report.ok:  # the line says what is not acknowledged or not durable
+            raise FaultError(report.line())
+        return report.line()
+    raise FaultError(f"unknown command {cmd!r}")
 
 
 # ---------------------------------------------------------------------------------------------

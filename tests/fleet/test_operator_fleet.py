@@ -1,5 +1,7 @@
 """The operator in the loop with a whole fleet of real processes (issue 28): plant, coordinator
-and one agent per robot (``formation up``), the operator's real tools.
+and one agent per robot (``formation up``), the operator's real tools (``formation shape`` run
+as its ``main`` in this process: a process start costs 1-2 s; tests/bus/test_operator.py runs it
+as a process).
 
 One fleet (tests/support/fault_fleet.py's three robots on a slow line, with ``[leader] wait =
 "on"``) is shared by the tests of this module, in file order:
@@ -21,6 +23,7 @@ slew (0.5 per s), plus what a Python process on a loaded 2-core machine must be 
 from __future__ import annotations
 
 import contextlib
+import io
 import itertools
 import math
 import signal
@@ -134,18 +137,24 @@ async def test_an_estopped_follower_stops_the_leader_and_the_formation_resumes(
 
 
 def _shape(fleet: OperatorFleet, kind: str, *extra: str) -> None:
-    import subprocess
-    import sys
+    """``formation shape KIND EXTRA`` against the fleet: the tool's ``main`` in this process (on
+    a thread: it runs an event loop of its own), not a new process, which costs 1-2 s to start;
+    the command as a process is tested in tests/bus/test_operator.py."""
+    from concurrent.futures import ThreadPoolExecutor
 
-    from support.spawn import child_env
+    from formation.operate import shape
 
-    proc = subprocess.run(
-        [sys.executable, "-m", "formation", "shape", kind, *extra, "--endpoint", fleet.endpoint,
-         "--fleet", fleet.fleet, "--timeout", "5"],
-        capture_output=True, text=True, timeout=60, env=child_env(),
-    )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
-    assert f"reshaping into a {kind}" in proc.stdout
+    argv = [kind, *extra, "--endpoint", fleet.endpoint, "--fleet", fleet.fleet, "--timeout", "5"]
+    out, err = io.StringIO(), io.StringIO()
+
+    def run() -> int:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            return shape.main(argv)
+
+    with ThreadPoolExecutor(1) as pool:
+        rc = pool.submit(run).result(timeout=60)
+    assert rc == 0, err.getvalue()
+    assert f"reshaping into a {kind}" in out.getvalue()
 
 
 def _reshaped(obs: Observer, kind: str, since: float) -> bool:

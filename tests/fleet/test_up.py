@@ -316,12 +316,15 @@ def test_paper_exp2_lockstep_swaps_the_leader(spawn: Spawner, tmp_path: Path) ->
 @pytest.mark.slow
 @pytest.mark.alone
 def test_paper_exp1_realtime_converges(spawn: Spawner, tmp_path: Path) -> None:
+    """11 s, not 15: the late error is ~0.009 m then (in process and in four realtime runs at
+    load 10), the bound 0.03 m (docs/testing.md, "Keeping tier 2 short")."""
     out = tmp_path / "exp1"
-    m = finish(up(spawn, out, "--scenario", "paper-exp1", "--duration", "15"), out)
+    duration_s = 11.0
+    m = finish(up(spawn, out, "--scenario", "paper-exp1", "--duration", f"{duration_s:g}"), out)
     assert m["meta"]["mode"] == "realtime"
     assert m["run"]["collisions"] == 0
     assert m["run"]["final_leader"] == "r1"
-    assert m["run"]["duration_s"] > 13.0
+    assert m["run"]["duration_s"] > duration_s - 2.0
     z = np.load(out / "run.npz")
     arrays = ("t_s", "truth", "ref", "target", "slot_of", "slot_xy", "leader", "power", "mode")
     log = RunLog(

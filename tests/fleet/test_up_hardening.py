@@ -157,8 +157,11 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_frees_the_port(
     os.kill(paused, signal.SIGSTOP)  # a hung child must go too
     up.send_signal(signal.SIGKILL)
     up.proc.wait(5)
-    time.sleep(2.0)
-    alive = {p: state(p) for p in kids if state(p) is not None}
+    deadline = time.monotonic() + 2.0  # every child gone within 2 s: polled, not slept out
+    while (alive := {p: s for p in kids if (s := state(p)) is not None}) and (
+        time.monotonic() < deadline
+    ):
+        time.sleep(0.05)
     assert not alive, f"children still running 2 s after the launcher's SIGKILL: {alive}"
     assert port_is_free(port)
     assert runfile.lookup(port) is None  # the stale run file is ignored (and removed)

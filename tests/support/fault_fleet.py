@@ -5,9 +5,10 @@ as ``formation up --respawn 1.0`` on a free port with an :class:`Observer` on it
 session stamping every message of interest with ``time.monotonic()`` on receipt, the clock
 ``formation fault`` prints its actions on); :func:`fleet_fixture` is the body of a module-scoped
 fixture (one fleet per test module: starting one is slow). Also the waits the fault tests share
-(:func:`until`, :func:`formed`, :func:`wait_formed`) and :func:`fault`, the ``formation fault``
-CLI. Used by test_faults.py, test_estop_latched.py, test_multihost.py, test_outsider_fuzz.py
-and test_safety_zenoh.py; ``bench/bench_soak.py`` reads ``SCENARIO``.
+(:func:`until`, :func:`formed`, :func:`wait_formed`) and :func:`fault`, what the
+``formation fault`` CLI does, in this process. Used by test_faults.py, test_estop_latched.py,
+test_multihost.py, test_outsider_fuzz.py and test_safety_zenoh.py; ``bench/bench_soak.py``
+reads ``SCENARIO``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,6 @@ import itertools
 import math
 import os
 import re
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -165,31 +165,32 @@ def formed(obs: Observer, robots: set[str], tol_m: float = 0.06) -> bool:
     )
 
 
-def fault(endpoint: str, fleet: str, *args: str) -> tuple[str, float]:
-    """Run ``formation fault`` and return its line and the action's time.monotonic()."""
-    import subprocess
+def fault(endpoint: str, fleet: str, *args: str, session: Any = None) -> tuple[str, float]:
+    """Do what ``formation fault ARGS`` does, with its code
+    (:func:`formation.operate.fault.apply`) in this process, over ``session`` (else a session of
+    its own), and return its line and the action's time.monotonic(). A ``formation fault``
+    process costs 1-2 s to start; these tests need the fault delivered, and the CLI itself is
+    tested on its own (test_fault_tools_hosts.py, test_estop_durable.py, test_up_hardening.py,
+    test_scripted_faults.py)."""
+    from concurrent.futures import ThreadPoolExecutor
 
-    from support.spawn import child_env
+    from formation.operate import fault as fault_tool
 
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "formation",
-            "fault",
-            "--fleet",
-            fleet,
-            "--endpoint",
-            endpoint,
-            *args,
-        ],
-        capture_output=True,
-        text=True,
-        timeout=60,  # a bound on a Python start + one action, not a property: loaded machines
-        env=child_env(),
-    )
-    assert proc.returncode == 0, proc.stderr
-    line = proc.stdout.strip()
+    ns = fault_tool.build_parser().parse_args(["--fleet", fleet, "--endpoint", endpoint, *args])
+    where = fault_tool.Where.of(fleet, rt.ZenohSettings(connect=(endpoint,)))
+
+    async def deliver() -> str:
+        own = session is None
+        s = await rt.open_session_async(rt.ZenohSettings(connect=(endpoint,))) if own else session
+        try:
+            return await fault_tool.apply(s, ns, where)
+        finally:
+            if own:
+                s.close()
+
+    # its own event loop on a thread: callers are sync, some inside a test's running loop
+    with ThreadPoolExecutor(1) as pool:
+        line = pool.submit(lambda: asyncio.run(deliver())).result(timeout=60)
     m = re.search(r"t=([0-9.]+)", line)
     return line, float(m.group(1)) if m else time.monotonic()
 
@@ -217,7 +218,7 @@ class Fleet:
         self.obs = Observer(self.endpoint, self.fleet)
 
     def fault(self, *args: str) -> tuple[str, float]:
-        return fault(self.endpoint, self.fleet, *args)
+        return fault(self.endpoint, self.fleet, *args, session=self.obs.session)
 
 
 def fleet_fixture(
