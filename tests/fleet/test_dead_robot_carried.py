@@ -8,15 +8,12 @@ robots as objects). tests/unit/formation/test_sim_faults.py tries more kill time
 
 from __future__ import annotations
 
-import json
-import uuid
 from pathlib import Path
 
 import numpy as np
 import pytest
-from support.spawn import Spawner, free_port
-
-import scenario
+from support.lockstep_pair import lockstep_and_sim
+from support.spawn import Spawner
 
 pytestmark = pytest.mark.shares_cpu
 
@@ -29,21 +26,7 @@ SEPARATED_M = 0.21
 def test_a_dead_robot_carried_over_zenoh_behaves_as_in_process(
     spawn: Spawner, tmp_path: Path
 ) -> None:
-    from formation.sim.command import run_and_write
-
-    out = tmp_path / "up"
-    child = spawn(
-        "up", "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet",
-        f"t{uuid.uuid4().hex[:8]}", "--out", str(out), "--no-figures",
-        "--scenario", str(SCENARIO), "--lockstep", "--hosts", "0",
-    )  # fmt: skip
-    child.proc.wait(timeout=RUN_TIMEOUT_S)
-    assert child.proc.returncode == 0, child.describe()
-    m = json.loads((out / "metrics.json").read_text())
-    sc = scenario.load(str(SCENARIO))
-    run_and_write(sc, tmp_path / "sim", figures=False)
-    m_sim = json.loads((tmp_path / "sim" / "metrics.json").read_text())
-    up_log, sim_log = np.load(out / "run.npz"), np.load(tmp_path / "sim" / "run.npz")
+    m, m_sim, up_log, sim_log = lockstep_and_sim(spawn, SCENARIO, tmp_path, "0", RUN_TIMEOUT_S)
     # (not "power": the recording holds a dead agent's last wheels message, the simulator
     # logs the zero wheels the plant applies)
     for key in ("t_s", "truth", "ref", "slot_of"):

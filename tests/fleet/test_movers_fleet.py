@@ -10,13 +10,12 @@ movers one tick late, as the agents do), nobody touches, the spare never takes a
 
 from __future__ import annotations
 
-import json
-import uuid
 from pathlib import Path
 
 import numpy as np
 import pytest
-from support.spawn import Spawner, free_port
+from support.lockstep_pair import lockstep_and_sim
+from support.spawn import Spawner
 
 import scenario
 
@@ -37,21 +36,7 @@ def test_a_carried_spare_over_zenoh_behaves_as_in_process(
     slots. (With the batched bus the recording rebuilds the slot targets from the setpoint
     batches, which carry the refuges, and the modes from the less frequent host status: the
     formation-error metrics differ there, not the motion.)"""
-    from formation.sim.command import run_and_write
-
-    out = tmp_path / "up"
-    child = spawn(
-        "up", "--endpoint", f"tcp/127.0.0.1:{free_port()}", "--fleet",
-        f"t{uuid.uuid4().hex[:8]}", "--out", str(out), "--no-figures",
-        "--scenario", str(SCENARIO), "--lockstep", "--hosts", hosts,
-    )  # fmt: skip
-    child.proc.wait(timeout=RUN_TIMEOUT_S)
-    assert child.proc.returncode == 0, child.describe()
-    m = json.loads((out / "metrics.json").read_text())
-    sc = scenario.load(str(SCENARIO))
-    run_and_write(sc, tmp_path / "sim", figures=False)
-    m_sim = json.loads((tmp_path / "sim" / "metrics.json").read_text())
-    up_log, sim_log = np.load(out / "run.npz"), np.load(tmp_path / "sim" / "run.npz")
+    m, m_sim, up_log, sim_log = lockstep_and_sim(spawn, SCENARIO, tmp_path, hosts, RUN_TIMEOUT_S)
     for key in ("t_s", "truth", "ref", "power", "slot_of"):
         assert np.array_equal(up_log[key], sim_log[key]), key
     if hosts == "0":
