@@ -106,8 +106,16 @@ class Path:
 
 
 SPACING_MAX_M = 5.0
-"""Largest spacing on the wire (m); the coordinator refuses a shape under 0.1 m or one that
-does not keep the safety distance (coordinator.core.reshape), and counts it."""
+"""Largest spacing on the wire (m); the coordinator refuses a shape under
+:data:`SPACING_MIN_M` or one that does not keep the safety distance (coordinator.core.reshape),
+and counts it."""
+SPACING_MIN_M = 0.1
+"""Smallest spacing the coordinator reshapes to (m): ``coordinator.core.reshape.SPACING_RANGE_M``
+is (SPACING_MIN_M, SPACING_MAX_M) (tests/unit/formation/test_operate_drive.py compares);
+``formation shape`` refuses less before it sends anything."""
+PATH_POINTS_MAX = 256
+"""Most waypoints the coordinator follows (``coordinator.core.leader.MAX_PATH_POINTS``, compared
+by the same test); ``formation path`` refuses more before it sends anything."""
 SLOTS_MAX = 1024
 """Most slots a reshape may ask on the wire; the coordinator refuses more than the robots
 alive (``shape-too_many_slots``) and counts it."""

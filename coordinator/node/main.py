@@ -3,7 +3,8 @@
 Checks the names and the scenario (a bad one exits 2 before the ready line), then runs
 :class:`coordinator.node.coordinator.CoordinatorNode` under ``runtime.serve``. The node is
 described in
-:mod:`coordinator.node.coordinator`.
+:mod:`coordinator.node.coordinator`. The node and its core (numpy, scipy) are imported once the
+arguments are checked: a mistake on the command line is reported without them.
 """
 
 from __future__ import annotations
@@ -13,15 +14,15 @@ import asyncio
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import runtime as rt
 from bus_schemas import keys
-from coordinator.node.coordinator import CoordinatorNode
-from coordinator.node.estop_source import attach_estop_source
-from coordinator.node.estop_store import EstopStore
 from runtime.sdnotify import Notifier, pet_watchdog
-from scenario import Scenario
-from scenario.assemble import coordinator_core
+
+if TYPE_CHECKING:
+    from coordinator.node.coordinator import CoordinatorNode
+    from scenario import Scenario
 
 __all__ = ["build_parser", "main"]
 
@@ -81,9 +82,9 @@ def main(argv: list[str]) -> int:
     ns = build_parser().parse_args(argv)
     log = rt.NodeLog(f"coordinator {ns.name}")
     try:
+        _check_state_path(ns.estop_state)
         scenario = _scenario(ns)
         rt.check_names(("--name", ns.name), ("--fleet", ns.fleet))
-        _check_state_path(ns.estop_state)
         if ns.check:
             from scenario.preflight import preflight_warnings  # path conflicts, feasibility
 
@@ -131,7 +132,14 @@ def _scenario(ns: argparse.Namespace) -> Scenario:
         return fleet_file.scenario
     ns.fleet = ns.fleet or keys.DEFAULT_FLEET
     # the core is built now so that a bad trajectory fails before the ready line
-    return rt.load_scenario(ns.scenario, check=coordinator_core)
+    return rt.load_scenario(ns.scenario, check=_build_core)
+
+
+def _build_core(scenario: Scenario) -> object:
+    """The coordinator core of ``scenario`` (imported here: numpy and scipy, ~0.5 s)."""
+    from scenario.assemble import coordinator_core
+
+    return coordinator_core(scenario)
 
 
 async def _node(
@@ -146,6 +154,10 @@ async def _node(
     batch: bool = False,
     estop_state: Path | None = None,
 ) -> int:
+    from coordinator.node.coordinator import CoordinatorNode
+    from coordinator.node.estop_source import attach_estop_source
+    from coordinator.node.estop_store import EstopStore
+
     node = CoordinatorNode(
         scenario, name, fleet, io.pubs.put, lockstep=lockstep, standby=standby, batch=batch,
         log=io.log,

@@ -91,7 +91,6 @@ from pathlib import Path
 import scenario as scenario_mod
 from bus_schemas import keys
 from bus_schemas.session import DEFAULT_ENDPOINT, LEASE_MS
-from formation.launch.launcher import run_up
 from formation.launch.plan import (
     LaunchError,
     Plan,
@@ -111,6 +110,14 @@ __all__ = [
     "plan_run",
     "run_up",
 ]
+
+
+async def run_up(cfg: UpConfig, plan: Plan | None = None) -> UpResult:
+    """:func:`formation.launch.launcher.run_up`, imported when a run starts: the launcher brings
+    the collector (numpy, scipy), which a mistake on the command line need not wait for."""
+    from formation.launch.launcher import run_up as run
+
+    return await run(cfg, plan)
 
 
 # ---------------------------------------------------------------------------------------------

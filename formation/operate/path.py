@@ -15,7 +15,7 @@ import sys
 import time
 
 from bus_schemas import Path, encode, keys
-from coordinator.core.leader import MAX_PATH_POINTS
+from bus_schemas.messages_operator import PATH_POINTS_MAX
 from formation.operate.drive import (
     common_options,
     finite,
@@ -45,8 +45,8 @@ def main(argv: list[str]) -> int:
     try:
         keys.check_fleet(ns.fleet)
         points = parse_waypoints(ns.waypoints)
-        if len(points) > MAX_PATH_POINTS:
-            raise ValueError(f"at most {MAX_PATH_POINTS} waypoints, got {len(points)}")
+        if len(points) > PATH_POINTS_MAX:
+            raise ValueError(f"at most {PATH_POINTS_MAX} waypoints, got {len(points)}")
         heading = None
         if ns.heading is not None:
             heading = math.remainder(finite("--heading", ns.heading, bound=1e3), 2 * math.pi)

@@ -20,8 +20,7 @@ import time
 from typing import Any
 
 from bus_schemas import Shape, ShapeKind, encode, keys
-from bus_schemas.messages_operator import SLOTS_MAX, SPACING_MAX_M
-from coordinator.core.reshape import SPACING_RANGE_M
+from bus_schemas.messages_operator import SLOTS_MAX, SPACING_MAX_M, SPACING_MIN_M
 from formation.operate.drive import alive_robots, common_options, finite, send_and_confirm
 from formation.outputs import runfile
 
@@ -55,7 +54,7 @@ def main(argv: list[str]) -> int:
         spacing = None
         if ns.spacing is not None:
             spacing = finite("--spacing", ns.spacing, bound=SPACING_MAX_M)
-            lo, hi = SPACING_RANGE_M
+            lo, hi = SPACING_MIN_M, SPACING_MAX_M
             if not lo <= spacing <= hi:
                 raise ValueError(f"--spacing must be in [{lo:g}, {hi:g}] m, got {ns.spacing}")
         slots = None if ns.slots is None else _slot_count(ns.slots)

@@ -120,7 +120,7 @@ async def test_an_estopped_follower_stops_the_leader_and_the_formation_resumes(
         stopped = [m for _, _, m in obs.get("leader", r_stopped)]
         assert stopped[-1].rate == 0.0
         # r1 and r2 hold their slots around the stopped leader
-        await until(lambda: formed(obs, {"r1", "r2"}), 10.0, "r1 and r2 in formation")
+        await wait_formed(fleet, {"r1", "r2"}, timeout_s=10.0)
         fleet.fault("release", "r3")
         t_release = time.monotonic()
         await wait_formed(fleet, timeout_s=20.0)

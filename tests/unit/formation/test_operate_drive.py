@@ -76,3 +76,15 @@ def test_waypoints_parse_and_refuse() -> None:
     for bad in (["1"], ["1,2,3"], ["a,1"], ["1,inf"], ["1,1", "1,1"], ["1e300,0"], [""]):
         with pytest.raises(ValueError):
             parse_waypoints(bad)
+
+
+def test_the_operator_tools_bounds_are_the_coordinators() -> None:
+    """``formation shape`` and ``formation path`` check their arguments against the contract's
+    bounds (bus_schemas, light to import); the coordinator refuses by its own constants, which
+    must be the same."""
+    from bus_schemas.messages_operator import PATH_POINTS_MAX, SPACING_MAX_M, SPACING_MIN_M
+    from coordinator.core.leader import MAX_PATH_POINTS
+    from coordinator.core.reshape import SPACING_RANGE_M
+
+    assert (SPACING_MIN_M, SPACING_MAX_M) == SPACING_RANGE_M
+    assert PATH_POINTS_MAX == MAX_PATH_POINTS
