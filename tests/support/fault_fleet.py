@@ -1,6 +1,12 @@
 """The realtime fleet that tests/fleet/test_faults.py injects faults into, and what observes it.
 
-``SCENARIO``: three robots on a slow line (realtime, triangle formation). :class:`Fleet` runs it
+``SCENARIO``: three robots on a slow line (realtime, triangle formation), starting on their
+slots. The tests inject faults into the formed formation; from the former start 0.18 m off the
+slots every fleet spent ~5.5 s before ``formed`` held, and then only just: the followers' errors
+were still at the 6 cm tolerance, closing at ~1.5 cm/s (in process), so a fault right after the
+first formation hit a formation still converging (test_operator_fleet.py's e-stop test: r1 and
+r2 once not within 6 cm in 10 s next to a CPU hog, once 4.2 s in 17 runs here; from the slots
+they stay within ~4 mm). :class:`Fleet` runs it
 as ``formation up --respawn 1.0`` on a free port with an :class:`Observer` on its bus (a client
 session stamping every message of interest with ``time.monotonic()`` on receipt, the clock
 ``formation fault`` prints its actions on); :func:`fleet_fixture` is the body of a module-scoped
@@ -41,7 +47,9 @@ settle_s = 10.0
 
 [robots]
 ids = ["r1", "r2", "r3"]
-initial = [[0.35, 0.0, 0.0], [0.15, 0.35, 0.0], [0.15, -0.35, 0.0]]
+# on their slots: each robot's reference point (ref_offset_m = 0.05 m ahead of its axle) starts
+# on its slot of the triangle (leader at x0, followers 0.4 m back at 30 degrees: x 0.0536, y 0.2)
+initial = [[0.35, 0.0, 0.0], [0.0036, 0.2, 0.0], [0.0036, -0.2, 0.0]]
 
 [trajectory]
 kind = "line"
