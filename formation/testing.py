@@ -40,6 +40,14 @@ START_TIMEOUT_S: Final = 90.0
 PORT_TRIES: Final = 5
 """Ports tried when the one picked was taken meanwhile (``formation up`` says "port busy")."""
 
+FAULT_TIMEOUT_S: Final = 10.0
+"""``formation fault --timeout`` for a robot of the run (its status comes at 5 Hz, late next to a
+CPU hog), for the fleet and for the leader."""
+UNKNOWN_ROBOT_TIMEOUT_S: Final = 1.0
+"""``--timeout`` for a robot the run does not have: the tool's refusal ("no robot ...") is not
+waited for 10 s."""
+_ROBOT_COMMANDS: Final = frozenset({"kill", "pause", "resume", "drag", "estop", "release"})
+
 
 class FleetRunError(RuntimeError):
     """The fleet did not start, or ended badly; the message holds the tail of its output."""
@@ -301,7 +309,8 @@ class FleetRun:
             now = self.collector.live().t_s
             if now is not None and now >= at:
                 raise FleetRunError(f"--at {at:g}: the run is already at t = {now:.2f} s")
-        tail = ["--endpoint", self.endpoint, "--fleet", self.fleet, "--timeout", "10"]
+        timeout_s = UNKNOWN_ROBOT_TIMEOUT_S if self._unknown_robot(args) else FAULT_TIMEOUT_S
+        tail = ["--endpoint", self.endpoint, "--fleet", self.fleet, "--timeout", f"{timeout_s:g}"]
         if self.session is None:  # nothing watched yet: the tool itself, with its own session
             return await self._fault_process([*args, *tail])
         import runtime as rt
@@ -321,6 +330,14 @@ class FleetRun:
             return await fault_tool.apply(self.session, ns, where)
         except (fault_tool.FaultError, rt.TransportError, ValueError) as exc:
             raise FaultCommandError(f"formation fault {' '.join(args)}: {exc}") from exc
+
+    def _unknown_robot(self, args: tuple[str, ...]) -> bool:
+        """``args`` name a robot (``kill r9``, ``estop r2``...) that this run's collector does not
+        have (the scenario's robots)."""
+        if len(args) < 2 or args[0] not in _ROBOT_COMMANDS or args[1].startswith("-"):
+            return False
+        robots = {r.robot for r in self.collector.live().robots} if self.collector else set()
+        return bool(robots) and args[1] not in robots
 
     async def _fault_process(self, argv: list[str]) -> str:
         proc = await asyncio.create_subprocess_exec(
