@@ -25,7 +25,7 @@ def test_paper_exp1_converges_with_the_rendered_camera(spawn: Spawner, tmp_path:
     out = tmp_path / "exp1-camera"
     m = finish(
         up(
-            spawn, out, "--scenario", "paper-exp1", "--duration", "15", "--camera", "rendered",
+            spawn, out, "--scenario", "paper-exp1", "--duration", "11", "--camera", "rendered",
             "--secure",  # the ACL must let the tracker read the truth it renders
         ),
         out,
@@ -47,6 +47,8 @@ def test_paper_exp1_converges_with_the_rendered_camera(spawn: Spawner, tmp_path:
     t = log.t_s
     early = np.nanmean(err[(t >= 1.0) & (t <= 3.0)], axis=0)
     late = np.nanmean(err[t >= t[-1] - 2.0], axis=0)
+    # 11 s, not 15 s (as test_up.py's realtime exp1): at 11 s the late errors were 5.1-5.3,
+    # 9.3-9.5 and 8.2-8.4 mm against early ones of 33-35, 63-65 and 55-57 mm (three runs, load ~5)
     assert np.all(late < 0.5 * early), (early, late)
     assert np.all(late < 0.03), late
 
