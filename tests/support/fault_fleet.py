@@ -3,10 +3,11 @@
 ``SCENARIO``: three robots on a slow line (realtime, triangle formation), starting on their
 slots. The tests inject faults into the formed formation; from the former start 0.18 m off the
 slots every fleet spent ~5.5 s before ``formed`` held, and then only just: the followers' errors
-were still at the 6 cm tolerance, closing at ~1.5 cm/s (in process), so a fault right after the
-first formation hit a formation still converging (test_operator_fleet.py's e-stop test: r1 and
-r2 once not within 6 cm in 10 s next to a CPU hog, once 4.2 s in 17 runs here; from the slots
-they stay within ~4 mm). :class:`Fleet` runs it
+were still at the 6 cm tolerance, closing at ~1 cm/s, so a fault right after the first
+formation hit a formation still converging (test_operator_fleet.py's e-stop test: r2 at 6.0 cm
+when r3 was e-stopped, then 4.9, 3.9, 3.0 cm a second apart, one realtime run; r1 and r2 once
+not within 6 cm in 10 s next to a CPU hog, once after 4.2 s in 17 runs next to 2-4 hogs). From
+the slots every error stays within ~4 mm (in process). :class:`Fleet` runs it
 as ``formation up --respawn 1.0`` on a free port with an :class:`Observer` on its bus (a client
 session stamping every message of interest with ``time.monotonic()`` on receipt, the clock
 ``formation fault`` prints its actions on); :func:`fleet_fixture` is the body of a module-scoped
