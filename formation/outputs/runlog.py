@@ -38,6 +38,15 @@ def reference_points(truth: F64, ref_offset_m: float) -> F64:
     return out
 
 
+def mode_codes(modes: Sequence[Any]) -> I64:
+    """:data:`MODE_CODES` of firmware modes (``Mode`` members or their names; anything else 0),
+    ``(len(modes),)``. Keyed by identity: C-level hashing of ints, few distinct modes."""
+    mode_ids = list(map(id, modes))
+    distinct = dict(zip(mode_ids, modes, strict=True))
+    code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
+    return np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(mode_ids))
+
+
 @dataclass
 class RunLog:
     """Time series of one run. Shapes: T ticks, n robots, m slots.
@@ -128,17 +137,47 @@ class RunLog:
         n, m, ticks = len(robot_ids), len(slot_ids), len(truth)
         flat = chain.from_iterable
         f64 = np.float64
-        t_s = np.arange(ticks, dtype=f64) * dt_s  # == k * dt_s, tick by tick
         # np.fromiter over flattened tuples: C-level iteration, several times faster than
         # np.array's nested-sequence discovery.
         tr = np.fromiter(flat(flat(truth)), f64, ticks * n * 3).reshape(ticks, n, 3)
-        ref = reference_points(tr, ref_offset_m)  # eqs 10-11 over the whole log at once
         width = len(slot_rows[0][0]) if ticks and m else 2
         slot_xy = np.ascontiguousarray(
             np.fromiter(flat(flat(slot_rows)), f64, ticks * m * width).reshape(ticks, m, width)[
                 :, :, :2
             ]
         )
+        cmds = list(flat(power_mode))
+        power = np.empty((ticks, n, 2))  # one field at a time: no pair tuple per command
+        power[:, :, 0] = np.fromiter(map(itemgetter(2), cmds), f64, len(cmds)).reshape(ticks, n)
+        power[:, :, 1] = np.fromiter(map(itemgetter(3), cmds), f64, len(cmds)).reshape(ticks, n)
+        mode = mode_codes(list(map(itemgetter(4), cmds))).reshape(ticks, n)
+        leader_arr = np.fromiter(flat(leader), f64, ticks * 3).reshape(ticks, 3)
+        return cls.from_arrays(
+            robot_ids, slot_ids, dt_s, tr, leader_arr, slot_xy, slot_of_changes, power, mode,
+            ref_offset_m,
+        )  # fmt: skip
+
+    @classmethod
+    def from_arrays(
+        cls,
+        robot_ids: list[str],
+        slot_ids: list[int],
+        dt_s: float,
+        truth: F64,
+        leader: F64,
+        slot_xy: F64,
+        slot_of_changes: Sequence[tuple[int, Sequence[int]]],
+        power: F64,
+        mode: I64,
+        ref_offset_m: float,
+    ) -> RunLog:
+        """The log from its recorded arrays (shapes as the class says; ``slot_xy``'s slots in
+        ``slot_ids`` order) and the slot changes (as :meth:`from_ticks`): ``t_s``, ``ref``
+        (eqs 10-11), ``slot_of`` and ``target`` are derived here in one vectorised pass."""
+        ticks, n = truth.shape[0], len(robot_ids)
+        m = len(slot_ids)
+        t_s = np.arange(ticks, dtype=np.float64) * dt_s  # == k * dt_s, tick by tick
+        ref = reference_points(truth, ref_offset_m)  # eqs 10-11 over the whole log at once
         slot_of = np.full((ticks, n), -1, dtype=np.int64)
         for j, (k, row) in enumerate(slot_of_changes):
             end = slot_of_changes[j + 1][0] if j + 1 < len(slot_of_changes) else ticks
@@ -150,28 +189,16 @@ class RunLog:
             rows_idx = row_of[slot_of]  # slot_of == -1 reads the last entry, which is -1
             kk, ii = np.nonzero(rows_idx >= 0)
             target[kk, ii] = slot_xy[kk, rows_idx[kk, ii]]
-        cmds = list(flat(power_mode))
-        power = np.empty((ticks, n, 2))  # one field at a time: no pair tuple per command
-        power[:, :, 0] = np.fromiter(map(itemgetter(2), cmds), f64, len(cmds)).reshape(ticks, n)
-        power[:, :, 1] = np.fromiter(map(itemgetter(3), cmds), f64, len(cmds)).reshape(ticks, n)
-        # Mode objects -> codes keyed by identity (C-level hashing of ints; few distinct modes).
-        modes = list(map(itemgetter(4), cmds))
-        mode_ids = list(map(id, modes))
-        distinct = dict(zip(mode_ids, modes, strict=True))
-        code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
-        mode = np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(cmds))
-        mode = mode.reshape(ticks, n)
-        leader_arr = np.fromiter(flat(leader), f64, ticks * 3).reshape(ticks, 3)
         return cls(
             robot_ids=list(robot_ids),
             slot_ids=list(slot_ids),
             t_s=t_s,
-            truth=tr,
+            truth=truth,
             ref=ref,
             target=target,
             slot_of=slot_of,
             slot_xy=slot_xy,
-            leader=leader_arr,
+            leader=leader,
             power=power,
             mode=mode,
         )

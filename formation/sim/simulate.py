@@ -23,8 +23,9 @@ per tick).
 
 Speed: the loop runs each component's small-fleet path (plain Python on tuples where numpy's
 per-call overhead would dominate; bit-identical to the vectorised paths, which large fleets use),
-keeps per-tick records in lists and builds the log arrays once at the end
-(``RunLog.from_ticks``). The cyclic garbage collector is paused over the loop
+keeps per-tick records as flat lists of numbers (:class:`formation.sim.ticklog.TickLog`: the
+tick's tuples and commands are freed at once, not kept for the collector to walk) and builds the
+log arrays once at the end. The cyclic garbage collector is paused over the loop
 (:class:`formation.sim.collector.CollectorPause`: the loop makes no reference cycles, and an
 automatic collection would walk the growing log again and again); its youngest generation is
 collected every ``YOUNG_EVERY_TICKS`` ticks. This module and the plant, camera and link it
@@ -50,6 +51,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.operator_script import OperatorScript
 from formation.outputs.runlog import RunLog
 from formation.sim.collector import YOUNG_EVERY_TICKS, CollectorPause
+from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.core.neighbour_motion import motion_view
@@ -232,11 +234,6 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     oldest_rx = math.inf  # earliest receive time among the poses in `fresh`
     outputs: SetpointWindow[CoordinatorOutput] = SetpointWindow()  # the coordinator's outputs
 
-    # What the log keeps per tick (converted to arrays once, at the end).
-    log_truth: list[tuple[tuple[float, float, float], ...]] = []
-    log_leader: list[tuple[float, float, float]] = []
-    log_slots: list[list[tuple[float, float, float, float]]] = []
-    log_cmds: list[list[WheelCommand]] = []
     slot_of_changes: list[tuple[int, list[int]]] = []
 
     faults = FaultPlay(scenario, firmwares) if scenario.faults else None
@@ -248,7 +245,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         if scenario.operator
         else None
     )
-    log_slot_ids: list[tuple[int, ...]] = []
+    # what the log keeps per tick, as flat lists (converted to arrays once, at the end)
+    ticklog = TickLog(keyed=script is not None)
     row_ids: tuple[int, ...] = coord.formation.slot_ids
     # scenario movers (issue 30): a body of radius R is a neighbour whose extra radius makes
     # the barrier's centre distance R + body + margin (the filter subtracts the noise budget)
@@ -430,13 +428,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 for i in faults.offline:
                     applied[i] = (0.0, 0.0)
             # record the tick (truth at t, before integrating to t + dt)
-            log_truth.append(truth)
             leader = out.leader
-            log_leader.append((leader.x, leader.y, leader.theta))
-            log_slots.append(out.rows)
-            if script is not None:
-                log_slot_ids.append(out.slot_ids)
-            log_cmds.append(cmds)
+            ticklog.record(truth, leader.x, leader.y, leader.theta, out.rows, out.slot_ids, cmds)
             if out.changed or k == 0:
                 asg = out.assignment
                 slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
@@ -446,11 +439,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             plant.step(dt, applied)
     finally:
         collector.resume()
-    if script is not None:
-        slot_ids, log_slots = _by_slot_id(slot_ids, log_slot_ids, log_slots)
-    log = RunLog.from_ticks(
-        ids, slot_ids, dt, log_truth, log_leader, log_slots, slot_of_changes, log_cmds, l_m
-    )
+    log = ticklog.runlog(ids, slot_ids, dt, slot_of_changes, l_m)
     # The separation accounting reads only the truth and feeds nothing back into the loop, so it
     # runs once over the logged truth, vectorised over ticks (the same events and minimum as
     # one update per tick).
@@ -514,26 +503,6 @@ def _plan_now(replanner: Any) -> None:
     t0 = time.perf_counter()
     answer = solve(req)
     replanner.deliver(req.id, answer, (time.perf_counter() - t0) * 1e3)
-
-
-def _by_slot_id(
-    first: list[int],
-    slot_ids: list[tuple[int, ...]],
-    rows: list[list[tuple[float, float, float, float]]],
-) -> tuple[list[int], list[list[tuple[float, float, float, float]]]]:
-    """Rows of every tick on one axis of slot ids (every slot the run had, first seen first;
-    NaN where a tick had no such slot): a reshape may add, drop and reorder slots."""
-    order = list(first)
-    for ids in dict.fromkeys(slot_ids):
-        order += [s for s in ids if s not in order]
-    if all(ids == tuple(order) for ids in dict.fromkeys(slot_ids)):
-        return order, rows
-    nan_row = (math.nan, math.nan, math.nan, math.nan)
-    out = []
-    for ids, tick_rows in zip(slot_ids, rows, strict=True):
-        by_id = dict(zip(ids, tick_rows, strict=True))
-        out.append([by_id.get(s, nan_row) for s in order])
-    return order, out
 
 
 def _faulted_step(faults: FaultPlay, i: int, t_s: float, step: Callable[..., Any]) -> Any:

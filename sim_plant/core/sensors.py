@@ -39,6 +39,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any, Final, Generic, NamedTuple, TypeVar
 
 import numpy as np
@@ -57,6 +58,7 @@ PoseRow = tuple[float, float, float]
 _PI: Final = math.pi
 _TWO_PI: Final = 2.0 * math.pi
 _tuple_new = tuple.__new__  # a NamedTuple without its generated __new__ frame (hot path)
+_deliver_t = itemgetter(0)  # a queued message's delivery time (the sort key of CommandLink.poll)
 
 # Sim times come from sums of float steps; treat anything within this of a deadline as due.
 _TIME_EPS_S: Final = 1e-9
@@ -389,9 +391,10 @@ class CommandLink(Generic[CmdT]):
             raise ValueError("rng is required when jitter or loss is configured")
         self._rng = rng
         self.fifo = bool(fifo)
-        # Messages in flight, (deliver_t, seq, i, cmd) in send order; seq breaks ties in send
-        # order and never compares cmd. poll() takes the due ones out and sorts them: a tick's
-        # messages are due together, so one C-level sort beats a heap pop per message.
+        # Messages in flight, (deliver_t, seq, i, cmd) in send order (seq increasing: sends
+        # append, poll() keeps the order of the rest). poll() takes the due ones out and sorts
+        # them: a tick's messages are due together, so one C-level sort beats a heap pop per
+        # message.
         self._queue: list[tuple[float, int, int, CmdT]] = []
         self._seq = 0  # messages queued so far: the next one's tie-breaking number
         self._last_deliver: dict[int, float] = {}
@@ -487,7 +490,10 @@ class CommandLink(Generic[CmdT]):
             self._queue = [m for m in queue if m[0] > t]
         else:
             queue.clear()
-        due.sort()  # delivery order, ties in send order: the keys (deliver_t, seq) are unique
+        # Delivery order, ties in send order: the order of (deliver_t, seq). The queue is in
+        # seq order and the sort is stable, so sorting on deliver_t alone gives exactly that
+        # order, comparing C floats instead of tuples (a float key is list.sort's fast path).
+        due.sort(key=_deliver_t)
         out = [(i, cmd) for _, _, i, cmd in due]
         self.delivered += len(out)
         return out

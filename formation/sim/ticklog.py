@@ -1,0 +1,121 @@
+"""What the in-process loop records per tick, kept as flat lists of numbers (:class:`TickLog`).
+
+The loop's log holds, per tick, the true poses, the virtual leader, every slot's row and each
+robot's commanded power and mode. Kept as the per-tick objects themselves (the plant's pose
+tuples, the coordinator's row tuples, the firmware's commands), about a hundred container
+objects a tick stay alive at 30 robots: the garbage collector's youngest generation walks each
+of them once (``formation.sim.collector``, about 15 us a tick at 30 robots) and building the
+arrays at the end has to walk the nested tuples again (``np.fromiter`` over chained iterators,
+about 15 us a tick). Here each tick's numbers are appended to flat lists instead (a float is not
+tracked by the collector; ``list.extend`` of a tuple copies its references in C), the objects
+are freed by reference counting the moment the loop drops them, and the arrays are built at the
+end by one ``np.array`` per list. The same floats, so the same bits as
+:meth:`formation.outputs.runlog.RunLog.from_ticks`.
+
+It runs compiled with the loop (``sim_plant.core._accel``); standard library per tick, numpy at
+the end only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any, Final
+
+import numpy as np
+
+from formation.outputs.runlog import RunLog, mode_codes
+
+__all__ = ["SLOT_ROW_WIDTH", "TickLog"]
+
+SLOT_ROW_WIDTH: Final = 4
+"""Entries of a coordinator slot row, ``(x_m, y_m, vx_mps, vy_mps)``; the log keeps ``x, y``."""
+
+
+class TickLog:
+    """One run's per-tick record as flat lists; :meth:`runlog` turns it into a :class:`RunLog`.
+
+    ``keyed``: the slots may change during the run (an operator reshape): each tick's slot ids
+    are kept too and the rows are put on one axis of slot ids at the end (:meth:`runlog`).
+    """
+
+    def __init__(self, keyed: bool) -> None:
+        self.ticks = 0
+        self._keyed = keyed
+        self._truth: list[float] = []  # per tick n x (x_m, y_m, theta_rad)
+        self._leader: list[float] = []  # per tick (x_m, y_m, theta_rad)
+        self._slots: list[float] = []  # per tick m x SLOT_ROW_WIDTH
+        self._slot_ids: list[tuple[int, ...]] = []  # per tick, when keyed
+        self._power: list[float] = []  # per tick n x (power_r, power_l)
+        self._modes: list[object] = []  # per tick n modes (shared objects: no copies)
+
+    def record(
+        self,
+        truth: Sequence[Sequence[float]],
+        leader_x_m: float,
+        leader_y_m: float,
+        leader_theta_rad: float,
+        rows: Sequence[Sequence[float]],
+        slot_ids: tuple[int, ...],
+        cmds: Sequence[Any],
+    ) -> None:
+        """Keep one tick: ``truth`` the ``n`` rows ``(x, y, theta)``; the leader; ``rows`` the
+        ``m`` slot rows (:data:`SLOT_ROW_WIDTH` entries) of the slots ``slot_ids``; ``cmds`` per
+        robot a sequence whose entries 2, 3 and 4 are power right, power left and the mode (a
+        ``WheelCommand``)."""
+        tr = self._truth
+        for pose in truth:
+            tr.extend(pose)
+        ld = self._leader
+        ld.append(leader_x_m)
+        ld.append(leader_y_m)
+        ld.append(leader_theta_rad)
+        sl = self._slots
+        for row in rows:
+            sl.extend(row)
+        if self._keyed:
+            self._slot_ids.append(slot_ids)
+        pw = self._power
+        md = self._modes
+        for c in cmds:
+            pw.append(c[2])
+            pw.append(c[3])
+            md.append(c[4])
+        self.ticks += 1
+
+    def runlog(
+        self,
+        robot_ids: list[str],
+        slot_ids: list[int],
+        dt_s: float,
+        slot_of_changes: Sequence[tuple[int, Sequence[int]]],
+        ref_offset_m: float,
+    ) -> RunLog:
+        """The record as a :class:`RunLog` (``slot_ids``: the slots of the first tick; with
+        ``keyed``, every slot the run had, first seen first, NaN where a tick had no such slot).
+        """
+        ticks = self.ticks
+        n = len(robot_ids)
+        f64 = np.float64
+        truth = np.array(self._truth, dtype=f64).reshape(ticks, n, 3)
+        leader = np.array(self._leader, dtype=f64).reshape(ticks, 3)
+        power = np.array(self._power, dtype=f64).reshape(ticks, n, 2)
+        mode = mode_codes(self._modes).reshape(ticks, n)
+        order = list(slot_ids)
+        if self._keyed:
+            for ids in dict.fromkeys(self._slot_ids):
+                order += [s for s in ids if s not in order]
+        m = len(order)
+        rows = np.array(self._slots, dtype=f64).reshape(-1, SLOT_ROW_WIDTH)[:, :2]
+        if not self._keyed or all(ids == tuple(order) for ids in dict.fromkeys(self._slot_ids)):
+            slot_xy = np.ascontiguousarray(rows.reshape(ticks, m, 2))
+        else:  # a reshape added, dropped or reordered slots: each row to its slot id's column
+            col = {s: c for c, s in enumerate(order)}
+            kk = [k for k, ids in enumerate(self._slot_ids) for _ in ids]
+            cc = [col[s] for ids in self._slot_ids for s in ids]
+            slot_xy = np.full((ticks, m, 2), math.nan)
+            slot_xy[kk, cc] = rows
+        return RunLog.from_arrays(
+            robot_ids, order, dt_s, truth, leader, slot_xy, slot_of_changes, power, mode,
+            ref_offset_m,
+        )  # fmt: skip
