@@ -422,8 +422,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                         ring.add(claim)
             # 5. command link
             link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
-            for i, wheels in link.poll(t):
-                applied[i] = wheels
+            link.poll_into(t, applied)  # applied[i]: the wheels robot i received last
             if faults is not None:  # the plant stops an offline robot's wheels
                 for i in faults.offline:
                     applied[i] = (0.0, 0.0)

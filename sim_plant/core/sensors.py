@@ -481,11 +481,25 @@ class CommandLink(Generic[CmdT]):
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
+        return [(i, cmd) for _, _, i, cmd in self._take_due(t_s)]
+
+    def poll_into(self, t_s: float, latest: list[CmdT]) -> int:
+        """:meth:`poll` written into ``latest``: each due message's command into ``latest[i]``
+        in delivery order (the last one delivered to a robot stays); returns how many. The same
+        as ``for i, cmd in poll(t_s): latest[i] = cmd``, without a pair per message."""
+        due = self._take_due(t_s)
+        for m in due:
+            latest[m[2]] = m[3]
+        return len(due)
+
+    def _take_due(self, t_s: float) -> list[tuple[float, int, int, CmdT]]:
+        """The messages due by ``t_s``, taken out of the queue (counted as delivered), in
+        delivery order (ties in send order)."""
         t = float(t_s) + _TIME_EPS_S
         queue = self._queue
         due = [m for m in queue if m[0] <= t]
         if not due:
-            return []
+            return due
         if len(due) < len(queue):
             self._queue = [m for m in queue if m[0] > t]
         else:
@@ -494,6 +508,5 @@ class CommandLink(Generic[CmdT]):
         # seq order and the sort is stable, so sorting on deliver_t alone gives exactly that
         # order, comparing C floats instead of tuples (a float key is list.sort's fast path).
         due.sort(key=_deliver_t)
-        out = [(i, cmd) for _, _, i, cmd in due]
-        self.delivered += len(out)
-        return out
+        self.delivered += len(due)
+        return due
