@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from operator import itemgetter
 from typing import Any
@@ -221,6 +221,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     poses: list[Pose | None] = [None] * n
     xyt: list[tuple[float, float, float] | None] = [None] * n
     pose_rx = [-math.inf] * n
+    pose_objs: list[Any] = poses  # the same lists, read without unboxing (see t_obj below)
+    rx_objs: list[Any] = pose_rx
     pose_cap: list[float | None] = [None] * n
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
     neighbours: list[list[Any]] = [[] for _ in ids]
@@ -271,6 +273,10 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 interrupted = True
                 break
             t = tick_time(k, dt)
+            # the tick's time, the poses and their receive times as Python objects (Any): the
+            # compiled loop passes them to the firmware's functions as they are, where a typed
+            # float would be unboxed and boxed again at each call (the same values)
+            t_obj: Any = t
             if progress is not None and k % PROGRESS_EVERY_TICKS == 0:
                 progress(t, duration)
             if k % YOUNG_EVERY_TICKS == 0:
@@ -289,30 +295,33 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             camera.capture(t, truth)
             delivered = camera.poll(t)
             if delivered:
-                for i, stamp, x, y, th in delivered:
+                meas: Any  # (i, stamp, x, y, theta), its numbers passed on as they are
+                for meas in delivered:
+                    i = meas[0]
+                    x, y, th, stamp = meas[2], meas[3], meas[4], meas[1]
                     poses[i] = _tuple_new(Pose, (x, y, th, stamp))
                     pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
                     xyt[i] = (x, y, th)
-                    pose_rx[i] = t
+                    rx_objs[i] = t_obj
             # every other robot's latest measured pose received within NEIGHBOUR_STALE_S, for
             # repulsion and the safety filter, with its age now (capture to this tick) and whether
             # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
             # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
             pts = [
                 None
-                if p is None or not is_current(t, pose_rx[j])
+                if p is None or not is_current(t_obj, rx_objs[j])
                 else neighbour(
                     p[0],
                     p[1],
                     p[2],
                     p[3],
-                    t,
+                    t_obj,
                     tracking[j],
                     None
                     if rings is None
-                    else motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
+                    else motion_view(rings[j].claims, p[3], t_obj, l_m, vmax, sfp.claim_max_age_s),
                 )
-                for j, p in enumerate(poses)
+                for j, p in enumerate(pose_objs)
             ]
             # the coordinator's movers of the previous tick (received with its setpoints): not
             # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
@@ -377,15 +386,17 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 faults.observe(out, counted)
             # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
             t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
+            t_prev_obj: Any = t_prev  # (as t_obj; the rows below likewise)
             cmds: list[WheelCommand] = []
             if prev_out is not None:
                 if prev_out.slot_ids is not row_ids:  # a reshape changed the rows
                     row_ids = prev_out.slot_ids
                     slot_row = {sid: r for r, sid in enumerate(row_ids)}
                 prev_asg = prev_out.assignment
-                prev_rows = prev_out.rows
-                prev_theta = prev_out.theta
-                prev_approach = prev_out.approach  # newly assigned robots on their way (core)
+                prev_rows: list[Any] = prev_out.rows
+                prev_theta: Any = prev_out.theta
+                # newly assigned robots on their way (core)
+                prev_approach: Mapping[str, Any] = prev_out.approach
             else:
                 prev_asg = {}
                 prev_approach = {}
@@ -398,17 +409,17 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 sp = None
                 slot = prev_asg.get(rid)
                 if slot is not None:
-                    x, y, vx, vy = prev_approach.get(rid) or prev_rows[slot_row[slot]]
-                    sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
+                    row = prev_approach.get(rid) or prev_rows[slot_row[slot]]  # (x, y, vx, vy)
+                    sp = _tuple_new(Setpoint, (*row, prev_theta, slot, t_prev_obj))
                 # (by position: Firmware.step's keyword arguments cost more than the call
                 # across two compiled groups)
                 cmds.append(
                     step(
-                        t,
+                        t_obj,
                         poses[i],
-                        pose_rx[i],
+                        rx_objs[i],
                         sp,
-                        t_prev,
+                        t_prev_obj,
                         neighbours[i],
                         pose_cap[i],
                         None if wheel_meas is None else wheel_meas[i],

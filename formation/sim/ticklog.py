@@ -9,7 +9,7 @@ arrays at the end has to walk the nested tuples again (``np.fromiter`` over chai
 about 15 us a tick). Here each tick's numbers are appended to flat lists instead (a float is not
 tracked by the collector; ``list.extend`` of a tuple copies its references in C), the objects
 are freed by reference counting the moment the loop drops them, and the arrays are built at the
-end by one ``np.array`` per list. The same floats, so the same bits as
+end by one ``np.fromiter`` per list. The same floats, so the same bits as
 :meth:`formation.outputs.runlog.RunLog.from_ticks`.
 
 It runs compiled with the loop (``sim_plant.core._accel``); standard library per tick, numpy at
@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from typing import Any, Final
 
 import numpy as np
+import numpy.typing as npt
 
 from formation.outputs.runlog import RunLog, mode_codes
 
@@ -96,17 +97,16 @@ class TickLog:
         """
         ticks = self.ticks
         n = len(robot_ids)
-        f64 = np.float64
-        truth = np.array(self._truth, dtype=f64).reshape(ticks, n, 3)
-        leader = np.array(self._leader, dtype=f64).reshape(ticks, 3)
-        power = np.array(self._power, dtype=f64).reshape(ticks, n, 2)
+        truth = _floats(self._truth).reshape(ticks, n, 3)
+        leader = _floats(self._leader).reshape(ticks, 3)
+        power = _floats(self._power).reshape(ticks, n, 2)
         mode = mode_codes(self._modes).reshape(ticks, n)
         order = list(slot_ids)
         if self._keyed:
             for ids in dict.fromkeys(self._slot_ids):
                 order += [s for s in ids if s not in order]
         m = len(order)
-        rows = np.array(self._slots, dtype=f64).reshape(-1, SLOT_ROW_WIDTH)[:, :2]
+        rows = _floats(self._slots).reshape(-1, SLOT_ROW_WIDTH)[:, :2]
         if not self._keyed or all(ids == tuple(order) for ids in dict.fromkeys(self._slot_ids)):
             slot_xy = np.ascontiguousarray(rows.reshape(ticks, m, 2))
         else:  # a reshape added, dropped or reordered slots: each row to its slot id's column
@@ -119,3 +119,9 @@ class TickLog:
             robot_ids, order, dt_s, truth, leader, slot_xy, slot_of_changes, power, mode,
             ref_offset_m,
         )  # fmt: skip
+
+
+def _floats(values: list[float]) -> npt.NDArray[np.float64]:
+    """``values`` as a float64 array (``np.fromiter`` over a list: about 16 ns a value here,
+    ``np.array``'s sequence discovery about 24)."""
+    return np.fromiter(values, np.float64, len(values))
