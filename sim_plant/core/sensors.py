@@ -397,6 +397,7 @@ class CommandLink(Generic[CmdT]):
         # message.
         self._queue: list[tuple[float, int, int, CmdT]] = []
         self._seq = 0  # messages queued so far: the next one's tie-breaking number
+        self._latest = -math.inf  # the latest delivery time in the queue (-inf: empty)
         self._last_deliver: dict[int, float] = {}
         self.sent = 0
         self.dropped = 0
@@ -433,6 +434,8 @@ class CommandLink(Generic[CmdT]):
         seq = self._seq
         self._seq = seq + 1
         self._queue.append((deliver, seq, int(i), cmd))
+        if deliver > self._latest:
+            self._latest = deliver
         return deliver
 
     def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
@@ -465,6 +468,7 @@ class CommandLink(Generic[CmdT]):
         seq = self._seq
         last = self._last_deliver
         fifo = self.fifo
+        latest = self._latest
         for i in range(m):
             if loss_u is not None and loss_u[i] < loss_p:
                 self.dropped += 1
@@ -477,7 +481,10 @@ class CommandLink(Generic[CmdT]):
                 last[i] = deliver
             queue.append((deliver, seq, i, cmds[i]))
             seq += 1
+            if deliver > latest:
+                latest = deliver
         self._seq = seq
+        self._latest = latest
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
@@ -497,13 +504,15 @@ class CommandLink(Generic[CmdT]):
         delivery order (ties in send order)."""
         t = float(t_s) + _TIME_EPS_S
         queue = self._queue
-        due = [m for m in queue if m[0] <= t]
-        if not due:
-            return due
-        if len(due) < len(queue):
+        if self._latest <= t:  # all of them (the usual case: latency + jitter within a tick)
+            due = queue
+            self._queue = []
+            self._latest = -math.inf
+        else:  # (the latest one stays queued)
+            due = [m for m in queue if m[0] <= t]
+            if not due:
+                return due
             self._queue = [m for m in queue if m[0] > t]
-        else:
-            queue.clear()
         # Delivery order, ties in send order: the order of (deliver_t, seq). The queue is in
         # seq order and the sort is stable, so sorting on deliver_t alone gives exactly that
         # order, comparing C floats instead of tuples (a float key is list.sort's fast path).
