@@ -166,6 +166,7 @@ def patched(timer: StageTimer) -> Iterator[None]:
         (Plant, "step", "plant"),
         (SeparationMonitor, "update_many", "monitor"),
         (RunLog, "from_ticks", "log arrays"),
+        (RunLog, "from_flat", "log arrays"),  # the in-process loop's (formation.sim.ticklog)
         (CollectorPause, "collect_young", "collector"),
     ]
     for cls in (traj_mod.StraightLine, traj_mod.Circle, traj_mod.Waypoints, traj_mod.FigureEight):

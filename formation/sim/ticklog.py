@@ -9,28 +9,20 @@ arrays at the end has to walk the nested tuples again (``np.fromiter`` over chai
 about 15 us a tick). Here each tick's numbers are appended to flat lists instead (a float is not
 tracked by the collector; ``list.extend`` of a tuple copies its references in C), the objects
 are freed by reference counting the moment the loop drops them, and the arrays are built at the
-end by one ``np.fromiter`` per list. The same floats, so the same bits as
-:meth:`formation.outputs.runlog.RunLog.from_ticks`.
+end by one ``np.fromiter`` per list (:meth:`formation.outputs.runlog.RunLog.from_flat`). The
+same floats, so the same bits as :meth:`~formation.outputs.runlog.RunLog.from_ticks`.
 
-It runs compiled with the loop (``sim_plant.core._accel``); standard library per tick, numpy at
-the end only.
+It runs compiled with the loop (``sim_plant.core._accel``); standard library only.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from typing import Any, Final
+from typing import Any
 
-import numpy as np
-import numpy.typing as npt
+from formation.outputs.runlog import RunLog
 
-from formation.outputs.runlog import RunLog, mode_codes
-
-__all__ = ["SLOT_ROW_WIDTH", "TickLog"]
-
-SLOT_ROW_WIDTH: Final = 4
-"""Entries of a coordinator slot row, ``(x_m, y_m, vx_mps, vy_mps)``; the log keeps ``x, y``."""
+__all__ = ["TickLog"]
 
 
 class TickLog:
@@ -45,7 +37,7 @@ class TickLog:
         self._keyed = keyed
         self._truth: list[float] = []  # per tick n x (x_m, y_m, theta_rad)
         self._leader: list[float] = []  # per tick (x_m, y_m, theta_rad)
-        self._slots: list[float] = []  # per tick m x SLOT_ROW_WIDTH
+        self._slots: list[float] = []  # per tick m x (x_m, y_m, vx_mps, vy_mps)
         self._slot_ids: list[tuple[int, ...]] = []  # per tick, when keyed
         self._power: list[float] = []  # per tick n x (power_r, power_l)
         self._modes: list[object] = []  # per tick n modes (shared objects: no copies)
@@ -61,7 +53,7 @@ class TickLog:
         cmds: Sequence[Any],
     ) -> None:
         """Keep one tick: ``truth`` the ``n`` rows ``(x, y, theta)``; the leader; ``rows`` the
-        ``m`` slot rows (:data:`SLOT_ROW_WIDTH` entries) of the slots ``slot_ids``; ``cmds`` per
+        ``m`` slot rows (``(x, y, vx, vy)``) of the slots ``slot_ids``; ``cmds`` per
         robot a sequence whose entries 2, 3 and 4 are power right, power left and the mode (a
         ``WheelCommand``)."""
         tr = self._truth
@@ -92,36 +84,10 @@ class TickLog:
         slot_of_changes: Sequence[tuple[int, Sequence[int]]],
         ref_offset_m: float,
     ) -> RunLog:
-        """The record as a :class:`RunLog` (``slot_ids``: the slots of the first tick; with
-        ``keyed``, every slot the run had, first seen first, NaN where a tick had no such slot).
-        """
-        ticks = self.ticks
-        n = len(robot_ids)
-        truth = _floats(self._truth).reshape(ticks, n, 3)
-        leader = _floats(self._leader).reshape(ticks, 3)
-        power = _floats(self._power).reshape(ticks, n, 2)
-        mode = mode_codes(self._modes).reshape(ticks, n)
-        order = list(slot_ids)
-        if self._keyed:
-            for ids in dict.fromkeys(self._slot_ids):
-                order += [s for s in ids if s not in order]
-        m = len(order)
-        rows = _floats(self._slots).reshape(-1, SLOT_ROW_WIDTH)[:, :2]
-        if not self._keyed or all(ids == tuple(order) for ids in dict.fromkeys(self._slot_ids)):
-            slot_xy = np.ascontiguousarray(rows.reshape(ticks, m, 2))
-        else:  # a reshape added, dropped or reordered slots: each row to its slot id's column
-            col = {s: c for c, s in enumerate(order)}
-            kk = [k for k, ids in enumerate(self._slot_ids) for _ in ids]
-            cc = [col[s] for ids in self._slot_ids for s in ids]
-            slot_xy = np.full((ticks, m, 2), math.nan)
-            slot_xy[kk, cc] = rows
-        return RunLog.from_arrays(
-            robot_ids, order, dt_s, truth, leader, slot_xy, slot_of_changes, power, mode,
+        """The record as a :class:`RunLog` (:meth:`RunLog.from_flat`; ``slot_ids``: the slots of
+        the first tick)."""
+        return RunLog.from_flat(
+            robot_ids, slot_ids, dt_s, self.ticks, self._truth, self._leader, self._slots,
+            self._slot_ids if self._keyed else None, slot_of_changes, self._power, self._modes,
             ref_offset_m,
         )  # fmt: skip
-
-
-def _floats(values: list[float]) -> npt.NDArray[np.float64]:
-    """``values`` as a float64 array (``np.fromiter`` over a list: about 16 ns a value here,
-    ``np.array``'s sequence discovery about 24)."""
-    return np.fromiter(values, np.float64, len(values))
