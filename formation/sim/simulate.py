@@ -400,6 +400,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             else:
                 prev_asg = {}
                 prev_approach = {}
+            approaching = len(prev_approach) > 0  # (usually none: no lookup per robot)
             for i, rid, step in robots:
                 if faults is not None and (i in faults.frozen or i in faults.cut_inputs):
                     if faults.cut_inputs.get(i, 0) is None:  # the pose it had when cut off
@@ -409,7 +410,9 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 sp = None
                 slot = prev_asg.get(rid)
                 if slot is not None:
-                    row = prev_approach.get(rid) or prev_rows[slot_row[slot]]  # (x, y, vx, vy)
+                    row = prev_approach.get(rid) if approaching else None  # (x, y, vx, vy)
+                    if row is None:
+                        row = prev_rows[slot_row[slot]]
                     sp = _tuple_new(Setpoint, (*row, prev_theta, slot, t_prev_obj))
                 # (by position: Firmware.step's keyword arguments cost more than the call
                 # across two compiled groups)
