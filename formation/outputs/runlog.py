@@ -42,7 +42,7 @@ SLOT_ROW_WIDTH = 4
 """Entries of a coordinator slot row, ``(x_m, y_m, vx_mps, vy_mps)``; the log keeps ``x, y``."""
 
 
-def _floats(values: list[float]) -> F64:
+def floats_of(values: list[float]) -> F64:
     """``values`` as a float64 array (``np.fromiter`` over a list: about 12-16 ns a value here,
     ``np.array``'s sequence discovery about 24)."""
     return np.fromiter(values, np.float64, len(values))
@@ -174,32 +174,33 @@ class RunLog:
         slot_ids: list[int],
         dt_s: float,
         ticks: int,
-        truth: list[float],
-        leader: list[float],
-        slot_rows: list[float],
+        truth: F64,
+        leader: F64,
+        slot_rows: F64,
         tick_slot_ids: Sequence[tuple[int, ...]] | None,
         slot_of_changes: Sequence[tuple[int, Sequence[int]]],
-        power: list[float],
-        modes: list[Any],
+        power: F64,
+        mode: I64,
         ref_offset_m: float,
     ) -> RunLog:
-        """Build the arrays at the end of a run from per-tick numbers kept in flat lists
-        (``formation.sim.ticklog.TickLog``), tick after tick: ``truth`` ``n`` x ``(x, y,
-        theta)``, ``leader`` ``(x, y, theta)``, ``slot_rows`` the tick's slot rows of
+        """Build the arrays at the end of a run from per-tick numbers kept flat
+        (``formation.sim.ticklog.TickLog``: 1-d arrays, tick after tick): ``truth`` ``n`` x
+        ``(x, y, theta)``, ``leader`` ``(x, y, theta)``, ``slot_rows`` the tick's slot rows of
         :data:`SLOT_ROW_WIDTH` entries (``(x, y, ...)``), ``power`` ``n`` x ``(power_r,
-        power_l)``, ``modes`` ``n`` modes; ``slot_of_changes`` as in :meth:`from_ticks`.
+        power_l)``, ``mode`` ``n`` :data:`MODE_CODES`; ``slot_of_changes`` as in
+        :meth:`from_ticks`.
 
         ``tick_slot_ids``: None when every tick has the rows of ``slot_ids``; else each tick's
         slot ids (an operator reshape may add, drop and reorder slots), and the log's slots are
         every slot the run had, first seen first (``slot_ids`` first), NaN where a tick had no
-        such slot. One ``np.fromiter`` per list: the same floats, the same bits.
+        such slot.
         """
         n = len(robot_ids)
-        tr = _floats(truth).reshape(ticks, n, 3)
-        leader_arr = _floats(leader).reshape(ticks, 3)
-        power_arr = _floats(power).reshape(ticks, n, 2)
-        mode = mode_codes(modes).reshape(ticks, n)
-        rows = _floats(slot_rows).reshape(-1, SLOT_ROW_WIDTH)[:, :2]
+        tr = truth.reshape(ticks, n, 3)
+        leader_arr = leader.reshape(ticks, 3)
+        power_arr = power.reshape(ticks, n, 2)
+        mode_arr = mode.reshape(ticks, n)
+        rows = slot_rows.reshape(-1, SLOT_ROW_WIDTH)[:, :2]
         order = list(slot_ids)
         distinct = list(dict.fromkeys(tick_slot_ids)) if tick_slot_ids is not None else []
         for ids in distinct:
@@ -215,7 +216,7 @@ class RunLog:
             slot_xy = np.full((ticks, m, 2), np.nan)
             slot_xy[kk, cc] = rows
         return cls.from_arrays(
-            robot_ids, order, dt_s, tr, leader_arr, slot_xy, slot_of_changes, power_arr, mode,
+            robot_ids, order, dt_s, tr, leader_arr, slot_xy, slot_of_changes, power_arr, mode_arr,
             ref_offset_m,
         )  # fmt: skip
 

@@ -1,6 +1,7 @@
 """The loop's flat per-tick record (formation/sim/ticklog.py) gives the RunLog that the per-tick
 objects gave (RunLog.from_ticks, and the slots put on one axis of slot ids after a reshape, as
-the loop did before): the same arrays bit for bit, for any fleet, any slots and any reshapes."""
+the loop did before): the same arrays bit for bit, for any fleet, any slots and any reshapes,
+converted in chunks of any size."""
 
 from __future__ import annotations
 
@@ -61,7 +62,7 @@ def test_the_flat_record_gives_the_arrays_of_the_per_tick_objects(
 ) -> None:
     n, ticks, per_tick, keyed = run
     ids = [f"r{i}" for i in range(n)]
-    log = TickLog(keyed=keyed)
+    log = TickLog(keyed=keyed, chunk_ticks=data.draw(st.integers(1, 5)))
     truth: list[tuple[tuple[float, ...], ...]] = []
     leader: list[tuple[float, float, float]] = []
     slots: list[list[tuple[float, ...]]] = []
