@@ -23,13 +23,13 @@ per tick).
 
 Speed: the loop runs each component's small-fleet path (plain Python on tuples where numpy's
 per-call overhead would dominate; bit-identical to the vectorised paths, which large fleets use),
-keeps per-tick records as flat lists of numbers (:class:`formation.sim.ticklog.TickLog`: the
-tick's tuples and commands are freed at once, not kept for the collector to walk) and builds the
-log arrays once at the end. The cyclic garbage collector is paused over the loop
+keeps per-tick records as flat lists of numbers (:class:`formation.sim.ticklog.TickLog`: the tick's
+tuples and commands are freed at once, not kept for the collector to walk), converted to arrays
+every few hundred ticks and joined at the end. The cyclic garbage collector is paused over the loop
 (:class:`formation.sim.collector.CollectorPause`: the loop makes no reference cycles, and an
 automatic collection would walk the growing log again and again); its youngest generation is
-collected every ``YOUNG_EVERY_TICKS`` ticks. This module and the plant, camera and link it
-drives also run compiled (mypyc) when ``make accel`` built them: the same sources, the same bits
+collected every ``YOUNG_EVERY_TICKS`` ticks. This module and the plant, camera and link it drives
+also run compiled (mypyc) when ``make accel`` built them: the same sources, the same bits
 (``sim_plant.core._accel``). ``bench/bench_sim.py`` measures it.
 
 Everything random comes from one seeded generator, so a seed gives the same run.
