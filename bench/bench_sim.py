@@ -7,14 +7,15 @@ including building the log arrays; best and median of ``--runs`` runs, plus the 
 figure, which is steadier on a shared machine), then the time per tick of each stage.
 
 The stage breakdown comes from a separate run in which the components' methods are wrapped with
-timers (the loop itself carries no instrumentation); the wrappers' own cost is measured on a
-no-op and subtracted. "collector" is the youngest generation's collection every 500 ticks (the
-automatic collections are paused over the loop: formation/sim/collector.py); "monitor" and "log
-arrays" run once, at the end. "loop" is the rest of that run's tick: setpoints, neighbour lists,
-the fresh-pose set, log appends, allocation; with the compiled simulator (``make accel``; the
-first lines say which builds run) also the camera, link and plant, which the compiled loop calls
-natively. On a shared VM (CPU steal) figures vary by tens of percent from run to run; compare
-stages within one run. Measures only; asserts nothing.
+timers (the loop itself carries no instrumentation); the wrappers' own cost is measured on a no-op
+and subtracted. "collector" is the youngest generation's collection every 500 ticks (the automatic
+collections are paused over the loop: formation/sim/collector.py); "monitor" and "log arrays" run
+once, at the end (the in-process loop's log converts its numbers to arrays every 250 ticks,
+formation/sim/ticklog.py: that part is in "loop"). "loop" is the rest of that run's tick: setpoints,
+neighbour lists, the fresh-pose set, log appends, allocation; with the compiled simulator (``make
+accel``; the first lines say which builds run) also the camera, link and plant, which the compiled
+loop calls natively. On a shared VM (CPU steal) figures vary by tens of percent from run to run;
+compare stages within one run. Measures only; asserts nothing.
 
 Run: .venv/bin/python bench/bench_sim.py [--runs 5] [--only paper-exp2]
 """
@@ -166,6 +167,7 @@ def patched(timer: StageTimer) -> Iterator[None]:
         (Plant, "step", "plant"),
         (SeparationMonitor, "update_many", "monitor"),
         (RunLog, "from_ticks", "log arrays"),
+        (RunLog, "from_flat", "log arrays"),  # the in-process loop's (formation.sim.ticklog)
         (CollectorPause, "collect_young", "collector"),
     ]
     for cls in (traj_mod.StraightLine, traj_mod.Circle, traj_mod.Waypoints, traj_mod.FigureEight):

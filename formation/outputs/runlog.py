@@ -38,6 +38,25 @@ def reference_points(truth: F64, ref_offset_m: float) -> F64:
     return out
 
 
+SLOT_ROW_WIDTH = 4
+"""Entries of a coordinator slot row, ``(x_m, y_m, vx_mps, vy_mps)``; the log keeps ``x, y``."""
+
+
+def floats_of(values: list[float]) -> F64:
+    """``values`` as a float64 array (``np.fromiter`` over a list: about 12-16 ns a value here,
+    ``np.array``'s sequence discovery about 24)."""
+    return np.fromiter(values, np.float64, len(values))
+
+
+def mode_codes(modes: Sequence[Any]) -> I64:
+    """:data:`MODE_CODES` of firmware modes (``Mode`` members or their names; anything else 0),
+    ``(len(modes),)``. Keyed by identity: C-level hashing of ints, few distinct modes."""
+    mode_ids = list(map(id, modes))
+    distinct = dict(zip(mode_ids, modes, strict=True))
+    code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
+    return np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(mode_ids))
+
+
 @dataclass
 class RunLog:
     """Time series of one run. Shapes: T ticks, n robots, m slots.
@@ -128,17 +147,100 @@ class RunLog:
         n, m, ticks = len(robot_ids), len(slot_ids), len(truth)
         flat = chain.from_iterable
         f64 = np.float64
-        t_s = np.arange(ticks, dtype=f64) * dt_s  # == k * dt_s, tick by tick
         # np.fromiter over flattened tuples: C-level iteration, several times faster than
         # np.array's nested-sequence discovery.
         tr = np.fromiter(flat(flat(truth)), f64, ticks * n * 3).reshape(ticks, n, 3)
-        ref = reference_points(tr, ref_offset_m)  # eqs 10-11 over the whole log at once
         width = len(slot_rows[0][0]) if ticks and m else 2
         slot_xy = np.ascontiguousarray(
             np.fromiter(flat(flat(slot_rows)), f64, ticks * m * width).reshape(ticks, m, width)[
                 :, :, :2
             ]
         )
+        cmds = list(flat(power_mode))
+        power = np.empty((ticks, n, 2))  # one field at a time: no pair tuple per command
+        power[:, :, 0] = np.fromiter(map(itemgetter(2), cmds), f64, len(cmds)).reshape(ticks, n)
+        power[:, :, 1] = np.fromiter(map(itemgetter(3), cmds), f64, len(cmds)).reshape(ticks, n)
+        mode = mode_codes(list(map(itemgetter(4), cmds))).reshape(ticks, n)
+        leader_arr = np.fromiter(flat(leader), f64, ticks * 3).reshape(ticks, 3)
+        return cls.from_arrays(
+            robot_ids, slot_ids, dt_s, tr, leader_arr, slot_xy, slot_of_changes, power, mode,
+            ref_offset_m,
+        )  # fmt: skip
+
+    @classmethod
+    def from_flat(
+        cls,
+        robot_ids: list[str],
+        slot_ids: list[int],
+        dt_s: float,
+        ticks: int,
+        truth: F64,
+        leader: F64,
+        slot_rows: F64,
+        tick_slot_ids: Sequence[tuple[int, ...]] | None,
+        slot_of_changes: Sequence[tuple[int, Sequence[int]]],
+        power: F64,
+        mode: I64,
+        ref_offset_m: float,
+    ) -> RunLog:
+        """Build the arrays at the end of a run from per-tick numbers kept flat
+        (``formation.sim.ticklog.TickLog``: 1-d arrays, tick after tick): ``truth`` ``n`` x
+        ``(x, y, theta)``, ``leader`` ``(x, y, theta)``, ``slot_rows`` the tick's slot rows of
+        :data:`SLOT_ROW_WIDTH` entries (``(x, y, ...)``), ``power`` ``n`` x ``(power_r,
+        power_l)``, ``mode`` ``n`` :data:`MODE_CODES`; ``slot_of_changes`` as in
+        :meth:`from_ticks`.
+
+        ``tick_slot_ids``: None when every tick has the rows of ``slot_ids``; else each tick's
+        slot ids (an operator reshape may add, drop and reorder slots), and the log's slots are
+        every slot the run had, first seen first (``slot_ids`` first), NaN where a tick had no
+        such slot.
+        """
+        n = len(robot_ids)
+        tr = truth.reshape(ticks, n, 3)
+        leader_arr = leader.reshape(ticks, 3)
+        power_arr = power.reshape(ticks, n, 2)
+        mode_arr = mode.reshape(ticks, n)
+        rows = slot_rows.reshape(-1, SLOT_ROW_WIDTH)[:, :2]
+        order = list(slot_ids)
+        distinct = list(dict.fromkeys(tick_slot_ids)) if tick_slot_ids is not None else []
+        for ids in distinct:
+            order += [s for s in ids if s not in order]
+        m = len(order)
+        if all(ids == tuple(order) for ids in distinct):
+            slot_xy = np.ascontiguousarray(rows.reshape(ticks, m, 2))
+        else:  # a reshape added, dropped or reordered slots: each row to its slot id's column
+            assert tick_slot_ids is not None
+            col = {s: c for c, s in enumerate(order)}
+            kk = [k for k, ids in enumerate(tick_slot_ids) for _ in ids]
+            cc = [col[s] for ids in tick_slot_ids for s in ids]
+            slot_xy = np.full((ticks, m, 2), np.nan)
+            slot_xy[kk, cc] = rows
+        return cls.from_arrays(
+            robot_ids, order, dt_s, tr, leader_arr, slot_xy, slot_of_changes, power_arr, mode_arr,
+            ref_offset_m,
+        )  # fmt: skip
+
+    @classmethod
+    def from_arrays(
+        cls,
+        robot_ids: list[str],
+        slot_ids: list[int],
+        dt_s: float,
+        truth: F64,
+        leader: F64,
+        slot_xy: F64,
+        slot_of_changes: Sequence[tuple[int, Sequence[int]]],
+        power: F64,
+        mode: I64,
+        ref_offset_m: float,
+    ) -> RunLog:
+        """The log from its recorded arrays (shapes as the class says; ``slot_xy``'s slots in
+        ``slot_ids`` order) and the slot changes (as :meth:`from_ticks`): ``t_s``, ``ref``
+        (eqs 10-11), ``slot_of`` and ``target`` are derived here in one vectorised pass."""
+        ticks, n = truth.shape[0], len(robot_ids)
+        m = len(slot_ids)
+        t_s = np.arange(ticks, dtype=np.float64) * dt_s  # == k * dt_s, tick by tick
+        ref = reference_points(truth, ref_offset_m)  # eqs 10-11 over the whole log at once
         slot_of = np.full((ticks, n), -1, dtype=np.int64)
         for j, (k, row) in enumerate(slot_of_changes):
             end = slot_of_changes[j + 1][0] if j + 1 < len(slot_of_changes) else ticks
@@ -150,28 +252,16 @@ class RunLog:
             rows_idx = row_of[slot_of]  # slot_of == -1 reads the last entry, which is -1
             kk, ii = np.nonzero(rows_idx >= 0)
             target[kk, ii] = slot_xy[kk, rows_idx[kk, ii]]
-        cmds = list(flat(power_mode))
-        power = np.empty((ticks, n, 2))  # one field at a time: no pair tuple per command
-        power[:, :, 0] = np.fromiter(map(itemgetter(2), cmds), f64, len(cmds)).reshape(ticks, n)
-        power[:, :, 1] = np.fromiter(map(itemgetter(3), cmds), f64, len(cmds)).reshape(ticks, n)
-        # Mode objects -> codes keyed by identity (C-level hashing of ints; few distinct modes).
-        modes = list(map(itemgetter(4), cmds))
-        mode_ids = list(map(id, modes))
-        distinct = dict(zip(mode_ids, modes, strict=True))
-        code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
-        mode = np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(cmds))
-        mode = mode.reshape(ticks, n)
-        leader_arr = np.fromiter(flat(leader), f64, ticks * 3).reshape(ticks, 3)
         return cls(
             robot_ids=list(robot_ids),
             slot_ids=list(slot_ids),
             t_s=t_s,
-            truth=tr,
+            truth=truth,
             ref=ref,
             target=target,
             slot_of=slot_of,
             slot_xy=slot_xy,
-            leader=leader_arr,
+            leader=leader,
             power=power,
             mode=mode,
         )

@@ -23,12 +23,13 @@ per tick).
 
 Speed: the loop runs each component's small-fleet path (plain Python on tuples where numpy's
 per-call overhead would dominate; bit-identical to the vectorised paths, which large fleets use),
-keeps per-tick records in lists and builds the log arrays once at the end
-(``RunLog.from_ticks``). The cyclic garbage collector is paused over the loop
+keeps per-tick records as flat lists of numbers (:class:`formation.sim.ticklog.TickLog`: the tick's
+tuples and commands are freed at once, not kept for the collector to walk), converted to arrays
+every few hundred ticks and joined at the end. The cyclic garbage collector is paused over the loop
 (:class:`formation.sim.collector.CollectorPause`: the loop makes no reference cycles, and an
 automatic collection would walk the growing log again and again); its youngest generation is
-collected every ``YOUNG_EVERY_TICKS`` ticks. This module and the plant, camera and link it
-drives also run compiled (mypyc) when ``make accel`` built them: the same sources, the same bits
+collected every ``YOUNG_EVERY_TICKS`` ticks. This module and the plant, camera and link it drives
+also run compiled (mypyc) when ``make accel`` built them: the same sources, the same bits
 (``sim_plant.core._accel``). ``bench/bench_sim.py`` measures it.
 
 Everything random comes from one seeded generator, so a seed gives the same run.
@@ -39,7 +40,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from operator import itemgetter
 from typing import Any
@@ -50,6 +51,7 @@ from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from coordinator.core.operator_script import OperatorScript
 from formation.outputs.runlog import RunLog
 from formation.sim.collector import YOUNG_EVERY_TICKS, CollectorPause
+from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.core.neighbour_motion import motion_view
@@ -219,6 +221,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     poses: list[Pose | None] = [None] * n
     xyt: list[tuple[float, float, float] | None] = [None] * n
     pose_rx = [-math.inf] * n
+    pose_objs: list[Any] = poses  # the same lists, read without unboxing (see t_obj below)
+    rx_objs: list[Any] = pose_rx
     pose_cap: list[float | None] = [None] * n
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
     neighbours: list[list[Any]] = [[] for _ in ids]
@@ -232,11 +236,6 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     oldest_rx = math.inf  # earliest receive time among the poses in `fresh`
     outputs: SetpointWindow[CoordinatorOutput] = SetpointWindow()  # the coordinator's outputs
 
-    # What the log keeps per tick (converted to arrays once, at the end).
-    log_truth: list[tuple[tuple[float, float, float], ...]] = []
-    log_leader: list[tuple[float, float, float]] = []
-    log_slots: list[list[tuple[float, float, float, float]]] = []
-    log_cmds: list[list[WheelCommand]] = []
     slot_of_changes: list[tuple[int, list[int]]] = []
 
     faults = FaultPlay(scenario, firmwares) if scenario.faults else None
@@ -248,7 +247,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
         if scenario.operator
         else None
     )
-    log_slot_ids: list[tuple[int, ...]] = []
+    # what the log keeps per tick, as flat lists (converted to arrays once, at the end)
+    ticklog = TickLog(keyed=script is not None)
     row_ids: tuple[int, ...] = coord.formation.slot_ids
     # scenario movers (issue 30): a body of radius R is a neighbour whose extra radius makes
     # the barrier's centre distance R + body + margin (the filter subtracts the noise budget)
@@ -273,6 +273,10 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 interrupted = True
                 break
             t = tick_time(k, dt)
+            # the tick's time, the poses and their receive times as Python objects (Any): the
+            # compiled loop passes them to the firmware's functions as they are, where a typed
+            # float would be unboxed and boxed again at each call (the same values)
+            t_obj: Any = t
             if progress is not None and k % PROGRESS_EVERY_TICKS == 0:
                 progress(t, duration)
             if k % YOUNG_EVERY_TICKS == 0:
@@ -291,30 +295,33 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             camera.capture(t, truth)
             delivered = camera.poll(t)
             if delivered:
-                for i, stamp, x, y, th in delivered:
+                meas: Any  # (i, stamp, x, y, theta), its numbers passed on as they are
+                for meas in delivered:
+                    i = meas[0]
+                    x, y, th, stamp = meas[2], meas[3], meas[4], meas[1]
                     poses[i] = _tuple_new(Pose, (x, y, th, stamp))
                     pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
                     xyt[i] = (x, y, th)
-                    pose_rx[i] = t
+                    rx_objs[i] = t_obj
             # every other robot's latest measured pose received within NEIGHBOUR_STALE_S, for
             # repulsion and the safety filter, with its age now (capture to this tick) and whether
             # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
             # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
             pts = [
                 None
-                if p is None or not is_current(t, pose_rx[j])
+                if p is None or not is_current(t_obj, rx_objs[j])
                 else neighbour(
                     p[0],
                     p[1],
                     p[2],
                     p[3],
-                    t,
+                    t_obj,
                     tracking[j],
                     None
                     if rings is None
-                    else motion_view(rings[j].claims, p[3], t, l_m, vmax, sfp.claim_max_age_s),
+                    else motion_view(rings[j].claims, p[3], t_obj, l_m, vmax, sfp.claim_max_age_s),
                 )
-                for j, p in enumerate(poses)
+                for j, p in enumerate(pose_objs)
             ]
             # the coordinator's movers of the previous tick (received with its setpoints): not
             # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
@@ -379,18 +386,21 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 faults.observe(out, counted)
             # 4. firmware, on the setpoints of the previous tick (received at that tick's time)
             t_prev = tick_time(k - SETPOINT_DELAY_TICKS, dt)
+            t_prev_obj: Any = t_prev  # (as t_obj; the rows below likewise)
             cmds: list[WheelCommand] = []
             if prev_out is not None:
                 if prev_out.slot_ids is not row_ids:  # a reshape changed the rows
                     row_ids = prev_out.slot_ids
                     slot_row = {sid: r for r, sid in enumerate(row_ids)}
                 prev_asg = prev_out.assignment
-                prev_rows = prev_out.rows
-                prev_theta = prev_out.theta
-                prev_approach = prev_out.approach  # newly assigned robots on their way (core)
+                prev_rows: list[Any] = prev_out.rows
+                prev_theta: Any = prev_out.theta
+                # newly assigned robots on their way (core)
+                prev_approach: Mapping[str, Any] = prev_out.approach
             else:
                 prev_asg = {}
                 prev_approach = {}
+            approaching = len(prev_approach) > 0  # (usually none: no lookup per robot)
             for i, rid, step in robots:
                 if faults is not None and (i in faults.frozen or i in faults.cut_inputs):
                     if faults.cut_inputs.get(i, 0) is None:  # the pose it had when cut off
@@ -400,17 +410,19 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 sp = None
                 slot = prev_asg.get(rid)
                 if slot is not None:
-                    x, y, vx, vy = prev_approach.get(rid) or prev_rows[slot_row[slot]]
-                    sp = _tuple_new(Setpoint, (x, y, vx, vy, prev_theta, slot, t_prev))
+                    row = prev_approach.get(rid) if approaching else None  # (x, y, vx, vy)
+                    if row is None:
+                        row = prev_rows[slot_row[slot]]
+                    sp = _tuple_new(Setpoint, (*row, prev_theta, slot, t_prev_obj))
                 # (by position: Firmware.step's keyword arguments cost more than the call
                 # across two compiled groups)
                 cmds.append(
                     step(
-                        t,
+                        t_obj,
                         poses[i],
-                        pose_rx[i],
+                        rx_objs[i],
                         sp,
-                        t_prev,
+                        t_prev_obj,
                         neighbours[i],
                         pose_cap[i],
                         None if wheel_meas is None else wheel_meas[i],
@@ -424,19 +436,13 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                         ring.add(claim)
             # 5. command link
             link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
-            for i, wheels in link.poll(t):
-                applied[i] = wheels
+            link.poll_into(t, applied)  # applied[i]: the wheels robot i received last
             if faults is not None:  # the plant stops an offline robot's wheels
                 for i in faults.offline:
                     applied[i] = (0.0, 0.0)
             # record the tick (truth at t, before integrating to t + dt)
-            log_truth.append(truth)
             leader = out.leader
-            log_leader.append((leader.x, leader.y, leader.theta))
-            log_slots.append(out.rows)
-            if script is not None:
-                log_slot_ids.append(out.slot_ids)
-            log_cmds.append(cmds)
+            ticklog.record(truth, leader.x, leader.y, leader.theta, out.rows, out.slot_ids, cmds)
             if out.changed or k == 0:
                 asg = out.assignment
                 slot_of_changes.append((k, [asg.get(rid, -1) for rid in ids]))
@@ -446,11 +452,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             plant.step(dt, applied)
     finally:
         collector.resume()
-    if script is not None:
-        slot_ids, log_slots = _by_slot_id(slot_ids, log_slot_ids, log_slots)
-    log = RunLog.from_ticks(
-        ids, slot_ids, dt, log_truth, log_leader, log_slots, slot_of_changes, log_cmds, l_m
-    )
+    log = ticklog.runlog(ids, slot_ids, dt, slot_of_changes, l_m)
     # The separation accounting reads only the truth and feeds nothing back into the loop, so it
     # runs once over the logged truth, vectorised over ticks (the same events and minimum as
     # one update per tick).
@@ -514,26 +516,6 @@ def _plan_now(replanner: Any) -> None:
     t0 = time.perf_counter()
     answer = solve(req)
     replanner.deliver(req.id, answer, (time.perf_counter() - t0) * 1e3)
-
-
-def _by_slot_id(
-    first: list[int],
-    slot_ids: list[tuple[int, ...]],
-    rows: list[list[tuple[float, float, float, float]]],
-) -> tuple[list[int], list[list[tuple[float, float, float, float]]]]:
-    """Rows of every tick on one axis of slot ids (every slot the run had, first seen first;
-    NaN where a tick had no such slot): a reshape may add, drop and reorder slots."""
-    order = list(first)
-    for ids in dict.fromkeys(slot_ids):
-        order += [s for s in ids if s not in order]
-    if all(ids == tuple(order) for ids in dict.fromkeys(slot_ids)):
-        return order, rows
-    nan_row = (math.nan, math.nan, math.nan, math.nan)
-    out = []
-    for ids, tick_rows in zip(slot_ids, rows, strict=True):
-        by_id = dict(zip(ids, tick_rows, strict=True))
-        out.append([by_id.get(s, nan_row) for s in order])
-    return order, out
 
 
 def _faulted_step(faults: FaultPlay, i: int, t_s: float, step: Callable[..., Any]) -> Any:

@@ -33,6 +33,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "sim_plant.core.carry",
     "sim_plant.core.plant",
     "sim_plant.core.sensors",
+    "formation.sim.ticklog",
     "formation.sim.simulate",
 )
 #: The project's root: the folder holding the ``sim_plant`` and ``formation`` packages.

@@ -374,7 +374,7 @@ class Plant:
         half_dt = 0.5 * dt
         new_rows: list[PoseRow] = []
         new_w: list[WheelRow] = []
-        angles: list[tuple[float, float]] = []
+        angles: list[float] = []  # per robot the turn of the right wheel, then the left's
         # Typed locals and direct math.sin/cos calls: the compiled build (sim_plant.core._accel)
         # keeps them as C doubles; a non-number raises TypeError on the assignment there and on
         # the comparison here.
@@ -397,7 +397,8 @@ class Plant:
                     mr = cr = float(cr)  # the wheel state holds floats, as the arrays do
                     ml = cl = float(cl)
                     new_w.append((cr, cl))
-                angles.append((mr * dt, ml * dt))
+                angles.append(mr * dt)
+                angles.append(ml * dt)
                 v = kv * (mr + ml)  # eq 7 (corrected), as _twist
                 half_turn = radius * (mr - ml) / track * half_dt
                 ratio = math.sin(half_turn) / half_turn if half_turn != 0.0 else 1.0
@@ -414,9 +415,9 @@ class Plant:
         except (TypeError, ValueError):  # not pairs of real numbers
             return False
         self._guard.none_saturated(len(rows))
-        for a, (dr, dl) in zip(self._angles, angles, strict=True):
-            a[0] += dr
-            a[1] += dl
+        for j, a in enumerate(self._angles):
+            a[0] += angles[2 * j]
+            a[1] += angles[2 * j + 1]
         self._rows = PoseRows(new_rows)
         self._wrows = tuple(new_w)
         self._np_stale = True

@@ -39,6 +39,7 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any, Final, Generic, NamedTuple, TypeVar
 
 import numpy as np
@@ -57,6 +58,7 @@ PoseRow = tuple[float, float, float]
 _PI: Final = math.pi
 _TWO_PI: Final = 2.0 * math.pi
 _tuple_new = tuple.__new__  # a NamedTuple without its generated __new__ frame (hot path)
+_deliver_t = itemgetter(0)  # a queued message's delivery time (the sort key of CommandLink.poll)
 
 # Sim times come from sums of float steps; treat anything within this of a deadline as due.
 _TIME_EPS_S: Final = 1e-9
@@ -389,11 +391,13 @@ class CommandLink(Generic[CmdT]):
             raise ValueError("rng is required when jitter or loss is configured")
         self._rng = rng
         self.fifo = bool(fifo)
-        # Messages in flight, (deliver_t, seq, i, cmd) in send order; seq breaks ties in send
-        # order and never compares cmd. poll() takes the due ones out and sorts them: a tick's
-        # messages are due together, so one C-level sort beats a heap pop per message.
+        # Messages in flight, (deliver_t, seq, i, cmd) in send order (seq increasing: sends
+        # append, poll() keeps the order of the rest). poll() takes the due ones out and sorts
+        # them: a tick's messages are due together, so one C-level sort beats a heap pop per
+        # message.
         self._queue: list[tuple[float, int, int, CmdT]] = []
         self._seq = 0  # messages queued so far: the next one's tie-breaking number
+        self._latest = -math.inf  # the latest delivery time in the queue (-inf: empty)
         self._last_deliver: dict[int, float] = {}
         self.sent = 0
         self.dropped = 0
@@ -430,6 +434,8 @@ class CommandLink(Generic[CmdT]):
         seq = self._seq
         self._seq = seq + 1
         self._queue.append((deliver, seq, int(i), cmd))
+        if deliver > self._latest:
+            self._latest = deliver
         return deliver
 
     def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
@@ -462,6 +468,7 @@ class CommandLink(Generic[CmdT]):
         seq = self._seq
         last = self._last_deliver
         fifo = self.fifo
+        latest = self._latest
         for i in range(m):
             if loss_u is not None and loss_u[i] < loss_p:
                 self.dropped += 1
@@ -474,20 +481,41 @@ class CommandLink(Generic[CmdT]):
                 last[i] = deliver
             queue.append((deliver, seq, i, cmds[i]))
             seq += 1
+            if deliver > latest:
+                latest = deliver
         self._seq = seq
+        self._latest = latest
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
+        return [(i, cmd) for _, _, i, cmd in self._take_due(t_s)]
+
+    def poll_into(self, t_s: float, latest: list[CmdT]) -> int:
+        """:meth:`poll` written into ``latest``: each due message's command into ``latest[i]``
+        in delivery order (the last one delivered to a robot stays); returns how many. The same
+        as ``for i, cmd in poll(t_s): latest[i] = cmd``, without a pair per message."""
+        due = self._take_due(t_s)
+        for m in due:
+            latest[m[2]] = m[3]
+        return len(due)
+
+    def _take_due(self, t_s: float) -> list[tuple[float, int, int, CmdT]]:
+        """The messages due by ``t_s``, taken out of the queue (counted as delivered), in
+        delivery order (ties in send order)."""
         t = float(t_s) + _TIME_EPS_S
         queue = self._queue
-        due = [m for m in queue if m[0] <= t]
-        if not due:
-            return []
-        if len(due) < len(queue):
+        if self._latest <= t:  # all of them (the usual case: latency + jitter within a tick)
+            due = queue
+            self._queue = []
+            self._latest = -math.inf
+        else:  # (the latest one stays queued)
+            due = [m for m in queue if m[0] <= t]
+            if not due:
+                return due
             self._queue = [m for m in queue if m[0] > t]
-        else:
-            queue.clear()
-        due.sort()  # delivery order, ties in send order: the keys (deliver_t, seq) are unique
-        out = [(i, cmd) for _, _, i, cmd in due]
-        self.delivered += len(out)
-        return out
+        # Delivery order, ties in send order: the order of (deliver_t, seq). The queue is in
+        # seq order and the sort is stable, so sorting on deliver_t alone gives exactly that
+        # order, comparing C floats instead of tuples (a float key is list.sort's fast path).
+        due.sort(key=_deliver_t)
+        self.delivered += len(due)
+        return due

@@ -1,7 +1,7 @@
 """CommandLink delivers in the order a heap of (delivery time, send number) would pop: the link
 keeps its messages in a list and sorts the due ones (sim_plant/core/sensors.py), which must give
 exactly the order, the times and the counters of the textbook priority queue, for any mix of
-sends, lossy and jittered, FIFO or not, and polls at any times."""
+sends, lossy and jittered, FIFO or not, and polls (as pairs or into a list) at any times."""
 
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ class HeapLink:
 
 steps = st.lists(
     st.tuples(
-        st.sampled_from(["send", "send_all", "poll"]),
+        st.sampled_from(["send", "send_all", "poll", "poll_into"]),
         st.floats(0.0, 0.05),  # time advance, s
         st.integers(0, 5),  # robot or fleet size
     ),
@@ -91,6 +91,14 @@ def test_the_link_delivers_as_a_heap_would(
             link.send_all(t, cmds)
             for i, cmd in enumerate(cmds):
                 ref.send(t, i, cmd)
+        elif what == "poll_into":  # the due commands written into a list by robot index
+            latest = ["", "held", "", "", "", ""]
+            expected = list(latest)
+            due = ref.poll(t)
+            for i, cmd in due:
+                expected[i] = cmd
+            assert link.poll_into(t, latest) == len(due)
+            assert latest == expected
         else:
             assert link.poll(t) == ref.poll(t)
     assert link.poll(t + 1.0) == ref.poll(t + 1.0)
