@@ -28,6 +28,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "coordinator.core.formation",
     "coordinator.core.matching",
     "coordinator.core.movers",
+    "coordinator.core.leader",
     "coordinator.core.coordinator",
 )
 #: The project's root: the folder holding the ``coordinator`` package.
