@@ -204,8 +204,8 @@ class LeaderCore:
         arena: tuple[float, float, float, float] | None = None,
     ) -> None:
         self.trajectory = trajectory
-        self.config = config if config is not None else LeaderConfig()
-        self.trajectory_kind = trajectory_kind
+        self._config = config if config is not None else LeaderConfig()
+        self._trajectory_kind = trajectory_kind
         self.arena = arena
         """(xmin, ymin, xmax, ymax) in m: goals and path points outside are refused."""
         self.t0_s = t0_s
@@ -227,13 +227,24 @@ class LeaderCore:
         self._anchored = False  # tau integrates (the rate left 1, or a state was adopted)
         self._last_now: float | None = None
         self._deadman_tripped = False
-        self._script_waits = self.config.waits(LeaderMode.SCRIPT, trajectory_kind)
+        self._script_waits = self._config.waits(LeaderMode.SCRIPT, trajectory_kind)
+        """:meth:`waits` in mode script (the config and the trajectory's kind are fixed)."""
         self.bridge: Bridge | None = None
         """The motion while a plan is computed (coordinator.core.planning.replan), or None."""
         self.plan: TimedPlan | None = None
         """The run-time plan followed (at plan time ``progress_s``), or None."""
         self.new_goal: tuple[float, float, float | None] | None = None
         """A goal applied at the last step (the planner takes it: :meth:`take_new_goal`)."""
+
+    @property
+    def config(self) -> LeaderConfig:
+        """The leader's limits and wait setting (fixed for the leader's life)."""
+        return self._config
+
+    @property
+    def trajectory_kind(self) -> str:
+        """The scenario trajectory's kind (``"plan"``: a planned one; fixed)."""
+        return self._trajectory_kind
 
     # -- commands (queued; applied at the next step) ---------------------------------------
 
@@ -370,6 +381,8 @@ class LeaderCore:
 
     def waits(self) -> bool:
         """Does the leader wait for its team in its current mode (the scenario's setting)?"""
+        if self.mode is LeaderMode.SCRIPT:  # (every tick of a script: the answer of __init__)
+            return self._script_waits
         return self.config.waits(self.mode, self.trajectory_kind)
 
     def step(self, now_s: float, target_rate: float = 1.0) -> LeaderState:
