@@ -93,6 +93,13 @@ ABSURD_FACTOR: Final = 10.0
 MAX_PATH_POINTS: Final = 256
 """Most waypoints a live path may have."""
 _STOPPED_MPS: Final = 1e-9
+# The modes as module constants: compiled (coordinator/core/_accel.py), a Final constant is a C
+# static, where ``LeaderMode.SCRIPT`` is an attribute lookup on the enum class (0.1 us) each time.
+_SCRIPT: Final = LeaderMode.SCRIPT
+_TELEOP: Final = LeaderMode.TELEOP
+_GOAL: Final = LeaderMode.GOAL
+_PATH: Final = LeaderMode.PATH
+_STOP: Final = LeaderMode.STOP
 
 
 def integrate_unicycle(
@@ -209,7 +216,7 @@ class LeaderCore:
         self.arena = arena
         """(xmin, ymin, xmax, ymax) in m: goals and path points outside are refused."""
         self.t0_s = t0_s
-        self.mode = LeaderMode.SCRIPT
+        self.mode = _SCRIPT
         self.rate = 1.0
         """The progress rate applied at the last step (1: full speed)."""
         self.progress_s = 0.0
@@ -227,7 +234,7 @@ class LeaderCore:
         self._anchored = False  # tau integrates (the rate left 1, or a state was adopted)
         self._last_now: float | None = None
         self._deadman_tripped = False
-        self._script_waits = self._config.waits(LeaderMode.SCRIPT, trajectory_kind)
+        self._script_waits = self._config.waits(_SCRIPT, trajectory_kind)
         """:meth:`waits` in mode script (the config and the trajectory's kind are fixed)."""
         self.bridge: Bridge | None = None
         """The motion while a plan is computed (coordinator.core.planning.replan), or None."""
@@ -296,7 +303,7 @@ class LeaderCore:
 
     def command_stop(self) -> None:
         """Stop where the leader is (decelerating within the limits)."""
-        self._queue(LeaderMode.STOP)
+        self._queue(_STOP)
 
     def _check_points(self, points: Sequence[tuple[float, float]]) -> str | None:
         if not 1 <= len(points) <= MAX_PATH_POINTS:
@@ -345,14 +352,14 @@ class LeaderCore:
         self._anchored = True
         self._last_now = now_s
         self.bridge = self.plan = None  # a planned goal is planned again from here (replan.py)
-        if self.mode in (LeaderMode.GOAL, LeaderMode.PATH):
+        if self.mode in (_GOAL, _PATH):
             routes = [c for c in self._pending if isinstance(c, _Route)]
             if self._route is None and routes:
                 self._route = routes[-1]
             if self._route is None or self.target_index >= len(self._route.points):
-                self.mode = LeaderMode.STOP
+                self.mode = _STOP
         self._pending = [c for c in self._pending if isinstance(c, _Twist)]
-        if self.mode is not LeaderMode.TELEOP:
+        if self.mode is not _TELEOP:
             self._pending.clear()
 
     def remember(self) -> None:
@@ -370,18 +377,18 @@ class LeaderCore:
     def deadman(self) -> bool:
         """True when the leader is under teleop and the last twist is older than the deadman
         (as of the last step)."""
-        return self.mode is LeaderMode.TELEOP and self._deadman_tripped
+        return self.mode is _TELEOP and self._deadman_tripped
 
     @property
     def scripted(self) -> bool:
         """The leader is the scenario's trajectory at ``now - t0``, as it has been since the start
         (no command, no wait, no adoption): a pure function of time, which a standby can check
         against the trajectory (coordinator.core.election)."""
-        return self.mode is LeaderMode.SCRIPT and not self._anchored
+        return self.mode is _SCRIPT and not self._anchored
 
     def waits(self) -> bool:
         """Does the leader wait for its team in its current mode (the scenario's setting)?"""
-        if self.mode is LeaderMode.SCRIPT:  # (every tick of a script: the answer of __init__)
+        if self.mode is _SCRIPT:  # (every tick of a script: the answer of __init__)
             return self._script_waits
         return self.config.waits(self.mode, self.trajectory_kind)
 
@@ -393,7 +400,7 @@ class LeaderCore:
         last = self._last_now
         self._last_now = now_s
         if (
-            self.mode is LeaderMode.SCRIPT
+            self.mode is _SCRIPT
             and not self._anchored
             and (target_rate == 1.0 or not self._script_waits)
         ):  # the scenario's script at full speed: exactly trajectory.sample(now - t0)
@@ -406,7 +413,7 @@ class LeaderCore:
         want = 0.0 if want < 0.0 else 1.0 if want > 1.0 else want
         rate = _toward(self.rate, want, cfg.wait_rate_slew_per_s * dt)
         self.rate = rate
-        if self.mode is LeaderMode.SCRIPT:
+        if self.mode is _SCRIPT:
             if rate != 1.0:
                 self._anchored = True
             if self._anchored:
@@ -440,8 +447,8 @@ class LeaderCore:
             w = 0.0
         x, y, th = integrate_unicycle(prev.x, prev.y, prev.theta, v, w, dt)
         self.state = LeaderState(now_s - self.t0_s, x, y, wrap_angle(th), v, w)
-        if self.mode in (LeaderMode.GOAL, LeaderMode.PATH) and self._arrived(self.state):
-            self.mode = LeaderMode.STOP
+        if self.mode in (_GOAL, _PATH) and self._arrived(self.state):
+            self.mode = _STOP
             self._route = None
         return self.state
 
@@ -452,8 +459,8 @@ class LeaderCore:
         r = self.rate
         assert self._last_now is not None
         self.state = LeaderState(self._last_now - self.t0_s, x, y, wrap_angle(th), r * v, r * w)
-        if self.progress_s >= plan.duration_s and self.mode is LeaderMode.GOAL:
-            self.mode = LeaderMode.STOP  # at rest on the goal: arrived (the plan stays, for
+        if self.progress_s >= plan.duration_s and self.mode is _GOAL:
+            self.mode = _STOP  # at rest on the goal: arrived (the plan stays, for
             self._route = None  # the squeeze it ends in: the slots do not jump)
         return self.state
 
@@ -463,7 +470,7 @@ class LeaderCore:
     def goal_point(self) -> tuple[float, float, float | None] | None:
         """The goal (x, y, heading) of the route in mode goal, or None."""
         route = self._route
-        if self.mode is not LeaderMode.GOAL or route is None or not route.goal:
+        if self.mode is not _GOAL or route is None or not route.goal:
             return None
         return (*route.points[-1], route.heading)
 
@@ -477,10 +484,10 @@ class LeaderCore:
         self.bridge = bridge
         self.plan = None
         self._anchored = True
-        if self.mode not in (LeaderMode.GOAL, LeaderMode.SCRIPT):
-            self.mode = LeaderMode.GOAL
-        if self.mode is LeaderMode.SCRIPT:  # a planned script replanned to its goal
-            self.mode = LeaderMode.GOAL
+        if self.mode not in (_GOAL, _SCRIPT):
+            self.mode = _GOAL
+        if self.mode is _SCRIPT:  # a planned script replanned to its goal
+            self.mode = _GOAL
 
     def follow_plan(
         self, plan: TimedPlan, t_switch_s: float, progress_s: float = 0.0, rate: float = 1.0
@@ -490,7 +497,7 @@ class LeaderCore:
         rate; the followed plan kept after a replan found no way: where its bridge is)."""
         self.bridge = None
         self.plan = plan
-        self.mode = LeaderMode.GOAL
+        self.mode = _GOAL
         self.progress_s = progress_s
         self.rate = rate
         self._last_now = t_switch_s  # the step integrates the progress from the switch time
@@ -498,7 +505,7 @@ class LeaderCore:
     def no_way(self) -> None:
         """No plan: decelerate to a stop from where the leader is, within its limits."""
         self.bridge = self.plan = None
-        self.mode = LeaderMode.STOP
+        self.mode = _STOP
         self._route = None
 
     def squeezed(self) -> bool:
@@ -515,20 +522,20 @@ class LeaderCore:
                 self.state = self.trajectory.sample(0.0)
             if isinstance(cmd, _Twist):
                 self._twist = cmd
-                self.mode = LeaderMode.TELEOP
+                self.mode = _TELEOP
             elif isinstance(cmd, _Route):
                 self._route = cmd
                 self.target_index = 0
-                self.mode = LeaderMode.GOAL if cmd.goal else LeaderMode.PATH
+                self.mode = _GOAL if cmd.goal else _PATH
                 if cmd.goal:
                     self.new_goal = (*cmd.points[-1], cmd.heading)
-            elif cmd is LeaderMode.STOP:
-                self.mode = LeaderMode.STOP
+            elif cmd is _STOP:
+                self.mode = _STOP
 
     def _targets(self, s: LeaderState, now_s: float) -> tuple[float, float]:
         """The (v, omega) the leader steers toward in a non-script mode."""
         cfg = self.config
-        if self.mode is LeaderMode.TELEOP:
+        if self.mode is _TELEOP:
             tw = self._twist
             self._deadman_tripped = tw is None or not (now_s - tw.rx_s <= cfg.deadman_s)
             if self._deadman_tripped or tw is None:
@@ -536,7 +543,7 @@ class LeaderCore:
             return tw.v_mps, tw.omega_radps
         self._deadman_tripped = False
         route = self._route
-        if self.mode is LeaderMode.STOP or route is None:
+        if self.mode is _STOP or route is None:
             return 0.0, 0.0
         pts = route.points
         i = self.target_index

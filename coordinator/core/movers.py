@@ -396,7 +396,6 @@ class MoverDetector:
             present = {**poses, **objects}
         # The per-tick hot path (one pass per robot): locals, the speed of speed_mps inline
         # (the same arithmetic), and the bookkeeping below only when there is something to do.
-        isfinite = math.isfinite
         hypot = math.hypot
         hists = self._hist
         last_xy = self._last_xy
@@ -406,7 +405,8 @@ class MoverDetector:
         n_ok = 0
         for rid, pose in seen:
             x, y = float(pose[0]), float(pose[1])
-            if not (isfinite(x) and isfinite(y)):
+            # math.isfinite, in the calls mypyc makes C's (isfinite is a Python call compiled)
+            if math.isinf(x) or math.isnan(x) or math.isinf(y) or math.isnan(y):
                 self.rejected += 1
                 continue
             n_ok += 1
