@@ -396,7 +396,8 @@ class CoordinatorCore:
         """Reference points (eqs 10-11) of the finite poses: (ids, (x, y) in m), input order.
 
         The arithmetic of ``robot_agent.core.kinematics.reference_point`` (the same operations
-        in the same order, so the same bits: ``tests/unit/coordinator/test_coord_core.py``),
+        in the same order, so the same bits:
+        ``tests/unit/coordinator/test_coord_reference_points.py``),
         written out: compiled, this loop calls C's ``cos``, ``sin``, ``isinf`` and ``isnan``
         where a call into the firmware's build would box four floats and a tuple per robot."""
         l_m = self.ref_offset_m
