@@ -366,8 +366,8 @@ def kept_by_spacing(
     rxy: Sequence[tuple[float, float]],
     sxy: Sequence[Sequence[float]],
     k: int,
-    incumbent: Mapping[str, int] | None,
-    row_of: Mapping[int, int],
+    incumbent: dict[str, int] | None,
+    row_of: dict[int, int],
     hyst: float,
     gap: float,
     spacing_m: float,
@@ -394,14 +394,14 @@ def kept_by_spacing(
     """
     if not incumbent or k == 0 or not spacing_m > 0.0:
         return None
-    get = incumbent.get
+    # (incumbent and row_of are dicts, whose get mypyc calls in C: the per-tick check)
     out: dict[str, int] = {}  # robot -> its slot, natural id order (as the rules return it)
     taken = [False] * k
     spare: list[int] = []
     far = 0.0
     total = 0.0
     for i, rid in enumerate(robot_ids):
-        sid = get(rid)
+        sid = incumbent.get(rid)
         j = -1 if sid is None else row_of.get(sid, -1)
         if j < 0 or j >= k or sid is None:  # no slot among the first k
             spare.append(i)
