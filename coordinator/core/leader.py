@@ -52,6 +52,10 @@ tracking error of ``wait_err_full_m`` to 0 at ``wait_err_stop_m``, and is 0 whil
 robot is held (e-stopped, or its pose stale while it keeps its slot). A robot that holds the
 formation back for longer than ``wait_drop_s`` is dropped from the wait (the leader goes on
 without it) until its error is back under ``wait_err_full_m``.
+
+The limits (:class:`LeaderConfig`, :class:`WaitSetting`, :data:`DEADMAN_S`) are in
+``coordinator.core.leader_config`` (re-exported here): this module is compiled with the
+coordinator's tick (coordinator/core/_accel.py), that one is not (docs/architecture.md).
 """
 
 from __future__ import annotations
