@@ -1,7 +1,8 @@
 """Which coordinator core runs: the pure-Python sources or their compiled build (mypyc).
 
 The coordinator's per-tick modules (:data:`COMPILED_MODULES`: the tick of ``CoordinatorCore``,
-the movers' pass, the slot matching, the role assignment and the formation geometry) are plain,
+the virtual leader's step, the movers' pass, the slot matching, the role assignment and the
+formation geometry) are plain,
 fully annotated Python. ``python -m formation.sim.accel_build build`` compiles *the same files*
 with mypyc into ``coordinator/_compiled/`` (one group, ``coordinator_accel``), checks that the
 in-process simulator's outputs (which run this core every tick) are equal bit for bit to the pure
@@ -12,8 +13,9 @@ The decision follows the rules of every compiled build (``robot_agent/core/_acce
 :class:`~robot_agent.core._accel.CompiledBuild`): ``FORMATION_ACCEL=0``, no build, another
 interpreter or edited sources mean pure Python. ``coordinator/core/__init__.py`` calls
 :func:`activate` before it imports anything. The modules left out gain nothing from mypyc (their
-work is numpy's: ``slots``, ``trajectory``, the planner) or run once per run, not per tick.
-Standard library only.
+work is numpy's: ``slots``, the planner), run once per run, not per tick, or must stay Python:
+``trajectory`` (a ``runtime_checkable`` protocol; frozen dataclasses that validate by coercing and
+pickle) and ``leader_config`` (the same; docs/architecture.md). Standard library only.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "coordinator.core.formation",
     "coordinator.core.matching",
     "coordinator.core.movers",
+    "coordinator.core.leader",
     "coordinator.core.coordinator",
 )
 #: The project's root: the folder holding the ``coordinator`` package.

@@ -58,7 +58,6 @@ from coordinator.core.planning.trajectory import PlannedTrajectory
 from coordinator.core.reshape import blended_rows
 from coordinator.core.reshaping import Reshaper
 from coordinator.core.trajectory import LeaderState, Trajectory, make_trajectory, wrap_angle
-from robot_agent.core.kinematics import reference_point
 from robot_agent.core.params import AgentConfig
 
 __all__ = [
@@ -394,14 +393,19 @@ class CoordinatorCore:
     def _ref_points(
         self, poses: Mapping[str, tuple[float, float, float]]
     ) -> tuple[list[str], list[tuple[float, float]]]:
-        """Reference points (eqs 10-11) of the finite poses: (ids, (x, y) in m), input order."""
+        """Reference points (eqs 10-11) of the finite poses: (ids, (x, y) in m), input order.
+
+        The arithmetic of ``robot_agent.core.kinematics.reference_point`` (the same operations
+        in the same order, so the same bits:
+        ``tests/unit/coordinator/test_coord_reference_points.py``),
+        written out: compiled, this loop calls C's ``cos``, ``sin``, ``isinf`` and ``isnan``
+        where a call into the firmware's build would box four floats and a tuple per robot."""
         l_m = self.ref_offset_m
-        isfinite = math.isfinite
         ids: list[str] = []
         xy: list[tuple[float, float]] = []
-        for rid, (x, y, th) in poses.items():
-            xr, yr = reference_point(x, y, th, l_m)
-            if isfinite(xr) and isfinite(yr):
+        for rid, (x, y, th) in poses.items():  # (math.f(...) spelled out: mypyc's C calls)
+            xr, yr = x + l_m * math.cos(th), y + l_m * math.sin(th)  # eqs 10-11
+            if not (math.isinf(xr) or math.isnan(xr) or math.isinf(yr) or math.isnan(yr)):
                 ids.append(rid)
                 xy.append((xr, yr))
         return ids, xy

@@ -386,9 +386,12 @@ def slot_rows(spec: FormationSpec, leader: LeaderState) -> tuple[float, list[Slo
         turn = (theta, math.copysign(1.0, theta), cos(theta), sin(theta), tuple(trig))
         spec._turn = turn
     _, _, cth, sth, cs = turn
+    tree = spec._tree  # (cs holds one (cos, sin) per entry of tree: made from it above)
     rows: list[SlotRow] = []
     append = rows.append
-    for (parent, b, _), (cg, sg) in zip(spec._tree, cs, strict=True):
+    for i in range(len(tree)):  # (compiled, a native loop; zip(..., strict=True) is a call)
+        parent, b, _ = tree[i]
+        cg, sg = cs[i]
         if parent < 0:
             append((leader.x, leader.y, v * cth, v * sth))  # eqs 1-2
         else:

@@ -52,6 +52,10 @@ tracking error of ``wait_err_full_m`` to 0 at ``wait_err_stop_m``, and is 0 whil
 robot is held (e-stopped, or its pose stale while it keeps its slot). A robot that holds the
 formation back for longer than ``wait_drop_s`` is dropped from the wait (the leader goes on
 without it) until its error is back under ``wait_err_full_m``.
+
+The limits (:class:`LeaderConfig`, :class:`WaitSetting`, :data:`DEADMAN_S`) are in
+``coordinator.core.leader_config`` (re-exported here): this module is compiled with the
+coordinator's tick (coordinator/core/_accel.py), that one is not (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -59,11 +63,11 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, fields
-from enum import StrEnum
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from bus_schemas.messages_fields import LeaderMode  # the modes as the leader message names them
+from coordinator.core.leader_config import DEADMAN_S, LeaderConfig, WaitSetting
 from coordinator.core.trajectory import LeaderState, Trajectory, wrap_angle
 
 if TYPE_CHECKING:  # the planning layer imports numpy; the leader takes its objects as given
@@ -88,91 +92,18 @@ __all__ = [
     "integrate_unicycle",
 ]
 
-DEADMAN_S: Final = 0.4
-"""Default deadman (s): a teleop twist older than this is no longer obeyed. The operator's tool
-sends 20 per second, so 0.4 s is 8 lost messages (a loaded host or Wi-Fi hiccup does not trip
-it) and short enough that a leader at 0.1 m/s has gone 4 cm before it starts braking."""
 ABSURD_FACTOR: Final = 10.0
 """A twist beyond this multiple of a limit is refused, not clamped: it is garbage, not haste."""
 MAX_PATH_POINTS: Final = 256
 """Most waypoints a live path may have."""
 _STOPPED_MPS: Final = 1e-9
-
-
-class WaitSetting(StrEnum):
-    """``[leader] wait`` of a scenario: whether the leader waits for its team."""
-
-    AUTO = "auto"  # on for teleop, goals, paths and `kind = "plan"` trajectories
-    ON = "on"
-    OFF = "off"
-
-
-@dataclass(frozen=True)
-class LeaderConfig:
-    """The leader's limits and the wait-for-team setting (scenario ``[leader]``)."""
-
-    max_speed_mps: float = 0.1
-    """Teleop, goal and path speed limit (m/s): the paper's leaders run at 0.02-0.1 m/s."""
-    max_turn_radps: float = 0.3
-    """Turn-rate limit (rad/s): a slot 0.5 m off the leader's axis then moves at most 0.15 m/s
-    faster than the leader, under the firmware's 0.25 m/s reference clamp."""
-    max_accel_mps2: float = 0.1
-    max_turn_accel_radps2: float = 0.6
-    deadman_s: float = DEADMAN_S
-    goal_tol_m: float = 0.02
-    """A goal or the last point of a path is reached within this distance (m)."""
-    heading_tol_rad: float = 0.02
-    lookahead_m: float = 0.25
-    """An interior waypoint of a path counts as passed within this distance (m)."""
-    wait: WaitSetting = WaitSetting.AUTO
-    wait_err_full_m: float = 0.10
-    wait_err_stop_m: float = 0.30
-    wait_rate_slew_per_s: float = 0.5
-    wait_drop_s: float = 20.0
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            if f.name == "wait":
-                continue
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"leader.{f.name}: must be a number, got {value!r}")
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"leader.{f.name}: must be finite and > 0, got {value!r}")
-            object.__setattr__(self, f.name, float(value))
-        try:
-            object.__setattr__(self, "wait", WaitSetting(self.wait))
-        except ValueError:
-            raise ValueError(
-                f"leader.wait: must be one of {', '.join(w.value for w in WaitSetting)}, "
-                f"got {self.wait!r}"
-            ) from None
-        if self.wait_err_stop_m <= self.wait_err_full_m:
-            raise ValueError(
-                f"leader.wait_err_stop_m ({self.wait_err_stop_m}) must exceed "
-                f"leader.wait_err_full_m ({self.wait_err_full_m})"
-            )
-
-    @classmethod
-    def from_dict(cls, table: Mapping[str, Any]) -> LeaderConfig:
-        """From a scenario's ``[leader]`` table; unknown keys raise ValueError."""
-        allowed = {f.name for f in fields(cls)}
-        unknown = sorted(str(k) for k in table if k not in allowed)
-        if unknown:
-            raise ValueError(
-                f"leader: unknown key(s) {', '.join(unknown)}; "
-                f"allowed: {', '.join(sorted(allowed))}"
-            )
-        return cls(**dict(table))
-
-    def waits(self, mode: LeaderMode, trajectory_kind: str) -> bool:
-        """Does the leader wait for its team in ``mode`` (``auto``: for an operator's leader and
-        for planned trajectories)?"""
-        if self.wait is WaitSetting.ON:
-            return True
-        if self.wait is WaitSetting.OFF:
-            return False
-        return mode is not LeaderMode.SCRIPT or trajectory_kind == "plan"
+# The modes as module constants: compiled (coordinator/core/_accel.py), a Final constant is a C
+# static, where ``LeaderMode.SCRIPT`` is an attribute lookup on the enum class (0.1 us) each time.
+_SCRIPT: Final = LeaderMode.SCRIPT
+_TELEOP: Final = LeaderMode.TELEOP
+_GOAL: Final = LeaderMode.GOAL
+_PATH: Final = LeaderMode.PATH
+_STOP: Final = LeaderMode.STOP
 
 
 def integrate_unicycle(
@@ -284,12 +215,12 @@ class LeaderCore:
         arena: tuple[float, float, float, float] | None = None,
     ) -> None:
         self.trajectory = trajectory
-        self.config = config if config is not None else LeaderConfig()
-        self.trajectory_kind = trajectory_kind
+        self._config = config if config is not None else LeaderConfig()
+        self._trajectory_kind = trajectory_kind
         self.arena = arena
         """(xmin, ymin, xmax, ymax) in m: goals and path points outside are refused."""
         self.t0_s = t0_s
-        self.mode = LeaderMode.SCRIPT
+        self.mode = _SCRIPT
         self.rate = 1.0
         """The progress rate applied at the last step (1: full speed)."""
         self.progress_s = 0.0
@@ -307,13 +238,24 @@ class LeaderCore:
         self._anchored = False  # tau integrates (the rate left 1, or a state was adopted)
         self._last_now: float | None = None
         self._deadman_tripped = False
-        self._script_waits = self.config.waits(LeaderMode.SCRIPT, trajectory_kind)
+        self._script_waits = self._config.waits(_SCRIPT, trajectory_kind)
+        """:meth:`waits` in mode script (the config and the trajectory's kind are fixed)."""
         self.bridge: Bridge | None = None
         """The motion while a plan is computed (coordinator.core.planning.replan), or None."""
         self.plan: TimedPlan | None = None
         """The run-time plan followed (at plan time ``progress_s``), or None."""
         self.new_goal: tuple[float, float, float | None] | None = None
         """A goal applied at the last step (the planner takes it: :meth:`take_new_goal`)."""
+
+    @property
+    def config(self) -> LeaderConfig:
+        """The leader's limits and wait setting (fixed for the leader's life)."""
+        return self._config
+
+    @property
+    def trajectory_kind(self) -> str:
+        """The scenario trajectory's kind (``"plan"``: a planned one; fixed)."""
+        return self._trajectory_kind
 
     # -- commands (queued; applied at the next step) ---------------------------------------
 
@@ -365,7 +307,7 @@ class LeaderCore:
 
     def command_stop(self) -> None:
         """Stop where the leader is (decelerating within the limits)."""
-        self._queue(LeaderMode.STOP)
+        self._queue(_STOP)
 
     def _check_points(self, points: Sequence[tuple[float, float]]) -> str | None:
         if not 1 <= len(points) <= MAX_PATH_POINTS:
@@ -414,14 +356,14 @@ class LeaderCore:
         self._anchored = True
         self._last_now = now_s
         self.bridge = self.plan = None  # a planned goal is planned again from here (replan.py)
-        if self.mode in (LeaderMode.GOAL, LeaderMode.PATH):
+        if self.mode in (_GOAL, _PATH):
             routes = [c for c in self._pending if isinstance(c, _Route)]
             if self._route is None and routes:
                 self._route = routes[-1]
             if self._route is None or self.target_index >= len(self._route.points):
-                self.mode = LeaderMode.STOP
+                self.mode = _STOP
         self._pending = [c for c in self._pending if isinstance(c, _Twist)]
-        if self.mode is not LeaderMode.TELEOP:
+        if self.mode is not _TELEOP:
             self._pending.clear()
 
     def remember(self) -> None:
@@ -439,17 +381,19 @@ class LeaderCore:
     def deadman(self) -> bool:
         """True when the leader is under teleop and the last twist is older than the deadman
         (as of the last step)."""
-        return self.mode is LeaderMode.TELEOP and self._deadman_tripped
+        return self.mode is _TELEOP and self._deadman_tripped
 
     @property
     def scripted(self) -> bool:
         """The leader is the scenario's trajectory at ``now - t0``, as it has been since the start
         (no command, no wait, no adoption): a pure function of time, which a standby can check
         against the trajectory (coordinator.core.election)."""
-        return self.mode is LeaderMode.SCRIPT and not self._anchored
+        return self.mode is _SCRIPT and not self._anchored
 
     def waits(self) -> bool:
         """Does the leader wait for its team in its current mode (the scenario's setting)?"""
+        if self.mode is _SCRIPT:  # (every tick of a script: the answer of __init__)
+            return self._script_waits
         return self.config.waits(self.mode, self.trajectory_kind)
 
     def step(self, now_s: float, target_rate: float = 1.0) -> LeaderState:
@@ -460,7 +404,7 @@ class LeaderCore:
         last = self._last_now
         self._last_now = now_s
         if (
-            self.mode is LeaderMode.SCRIPT
+            self.mode is _SCRIPT
             and not self._anchored
             and (target_rate == 1.0 or not self._script_waits)
         ):  # the scenario's script at full speed: exactly trajectory.sample(now - t0)
@@ -473,7 +417,7 @@ class LeaderCore:
         want = 0.0 if want < 0.0 else 1.0 if want > 1.0 else want
         rate = _toward(self.rate, want, cfg.wait_rate_slew_per_s * dt)
         self.rate = rate
-        if self.mode is LeaderMode.SCRIPT:
+        if self.mode is _SCRIPT:
             if rate != 1.0:
                 self._anchored = True
             if self._anchored:
@@ -507,8 +451,8 @@ class LeaderCore:
             w = 0.0
         x, y, th = integrate_unicycle(prev.x, prev.y, prev.theta, v, w, dt)
         self.state = LeaderState(now_s - self.t0_s, x, y, wrap_angle(th), v, w)
-        if self.mode in (LeaderMode.GOAL, LeaderMode.PATH) and self._arrived(self.state):
-            self.mode = LeaderMode.STOP
+        if self.mode in (_GOAL, _PATH) and self._arrived(self.state):
+            self.mode = _STOP
             self._route = None
         return self.state
 
@@ -519,8 +463,8 @@ class LeaderCore:
         r = self.rate
         assert self._last_now is not None
         self.state = LeaderState(self._last_now - self.t0_s, x, y, wrap_angle(th), r * v, r * w)
-        if self.progress_s >= plan.duration_s and self.mode is LeaderMode.GOAL:
-            self.mode = LeaderMode.STOP  # at rest on the goal: arrived (the plan stays, for
+        if self.progress_s >= plan.duration_s and self.mode is _GOAL:
+            self.mode = _STOP  # at rest on the goal: arrived (the plan stays, for
             self._route = None  # the squeeze it ends in: the slots do not jump)
         return self.state
 
@@ -530,7 +474,7 @@ class LeaderCore:
     def goal_point(self) -> tuple[float, float, float | None] | None:
         """The goal (x, y, heading) of the route in mode goal, or None."""
         route = self._route
-        if self.mode is not LeaderMode.GOAL or route is None or not route.goal:
+        if self.mode is not _GOAL or route is None or not route.goal:
             return None
         return (*route.points[-1], route.heading)
 
@@ -544,10 +488,10 @@ class LeaderCore:
         self.bridge = bridge
         self.plan = None
         self._anchored = True
-        if self.mode not in (LeaderMode.GOAL, LeaderMode.SCRIPT):
-            self.mode = LeaderMode.GOAL
-        if self.mode is LeaderMode.SCRIPT:  # a planned script replanned to its goal
-            self.mode = LeaderMode.GOAL
+        if self.mode not in (_GOAL, _SCRIPT):
+            self.mode = _GOAL
+        if self.mode is _SCRIPT:  # a planned script replanned to its goal
+            self.mode = _GOAL
 
     def follow_plan(
         self, plan: TimedPlan, t_switch_s: float, progress_s: float = 0.0, rate: float = 1.0
@@ -557,7 +501,7 @@ class LeaderCore:
         rate; the followed plan kept after a replan found no way: where its bridge is)."""
         self.bridge = None
         self.plan = plan
-        self.mode = LeaderMode.GOAL
+        self.mode = _GOAL
         self.progress_s = progress_s
         self.rate = rate
         self._last_now = t_switch_s  # the step integrates the progress from the switch time
@@ -565,7 +509,7 @@ class LeaderCore:
     def no_way(self) -> None:
         """No plan: decelerate to a stop from where the leader is, within its limits."""
         self.bridge = self.plan = None
-        self.mode = LeaderMode.STOP
+        self.mode = _STOP
         self._route = None
 
     def squeezed(self) -> bool:
@@ -582,20 +526,20 @@ class LeaderCore:
                 self.state = self.trajectory.sample(0.0)
             if isinstance(cmd, _Twist):
                 self._twist = cmd
-                self.mode = LeaderMode.TELEOP
+                self.mode = _TELEOP
             elif isinstance(cmd, _Route):
                 self._route = cmd
                 self.target_index = 0
-                self.mode = LeaderMode.GOAL if cmd.goal else LeaderMode.PATH
+                self.mode = _GOAL if cmd.goal else _PATH
                 if cmd.goal:
                     self.new_goal = (*cmd.points[-1], cmd.heading)
-            elif cmd is LeaderMode.STOP:
-                self.mode = LeaderMode.STOP
+            elif cmd is _STOP:
+                self.mode = _STOP
 
     def _targets(self, s: LeaderState, now_s: float) -> tuple[float, float]:
         """The (v, omega) the leader steers toward in a non-script mode."""
         cfg = self.config
-        if self.mode is LeaderMode.TELEOP:
+        if self.mode is _TELEOP:
             tw = self._twist
             self._deadman_tripped = tw is None or not (now_s - tw.rx_s <= cfg.deadman_s)
             if self._deadman_tripped or tw is None:
@@ -603,7 +547,7 @@ class LeaderCore:
             return tw.v_mps, tw.omega_radps
         self._deadman_tripped = False
         route = self._route
-        if self.mode is LeaderMode.STOP or route is None:
+        if self.mode is _STOP or route is None:
             return 0.0, 0.0
         pts = route.points
         i = self.target_index

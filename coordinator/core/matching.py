@@ -247,7 +247,6 @@ def _slot_costs(
     plain Python: eq 6 as cdist computes it (sqrt(dx*dx + dy*dy)), less the hysteresis margin
     ``hyst`` (m) where the robot is the slot's incumbent (``inc``: :func:`_incumbent_slots`).
     The one cost rule of the plain-Python greedy and optimal solvers."""
-    sqrt = math.sqrt
     sx = srow[0]
     sy = srow[1]
     out: list[float] = []
@@ -255,7 +254,7 @@ def _slot_costs(
         rx, ry = rxy[i]
         dx = sx - rx
         dy = sy - ry
-        c = sqrt(dx * dx + dy * dy)
+        c = math.sqrt(dx * dx + dy * dy)
         if inc is not None and inc[i] == sid:
             c -= hyst
         out.append(c)
@@ -286,7 +285,6 @@ def greedy_py(
     """
     n = len(robot_ids)
     inc = _incumbent_slots(robot_ids, incumbent, hyst)
-    sqrt = math.sqrt
     free = list(range(n))  # untaken columns, ascending = natural id order
     got: list[int | None] = [None] * n  # robot column -> slot id
     total = 0.0
@@ -301,7 +299,7 @@ def greedy_py(
             rx, ry = rxy[i]
             dx = sx - rx
             dy = sy - ry
-            c = sqrt(dx * dx + dy * dy)
+            c = math.sqrt(dx * dx + dy * dy)
             if inc is not None and inc[i] == sid:
                 c -= hyst
             total += c
@@ -368,8 +366,8 @@ def kept_by_spacing(
     rxy: Sequence[tuple[float, float]],
     sxy: Sequence[Sequence[float]],
     k: int,
-    incumbent: Mapping[str, int] | None,
-    row_of: Mapping[int, int],
+    incumbent: dict[str, int] | None,
+    row_of: dict[int, int],
     hyst: float,
     gap: float,
     spacing_m: float,
@@ -396,15 +394,14 @@ def kept_by_spacing(
     """
     if not incumbent or k == 0 or not spacing_m > 0.0:
         return None
-    sqrt = math.sqrt
-    get = incumbent.get
+    # (incumbent and row_of are dicts, whose get mypyc calls in C: the per-tick check)
     out: dict[str, int] = {}  # robot -> its slot, natural id order (as the rules return it)
     taken = [False] * k
     spare: list[int] = []
     far = 0.0
     total = 0.0
     for i, rid in enumerate(robot_ids):
-        sid = get(rid)
+        sid = incumbent.get(rid)
         j = -1 if sid is None else row_of.get(sid, -1)
         if j < 0 or j >= k or sid is None:  # no slot among the first k
             spare.append(i)
@@ -417,7 +414,7 @@ def kept_by_spacing(
         rx, ry = rxy[i]
         dx = srow[0] - rx
         dy = srow[1] - ry
-        d = sqrt(dx * dx + dy * dy)
+        d = math.sqrt(dx * dx + dy * dy)
         total += d
         if d > far:
             far = d
@@ -434,7 +431,7 @@ def kept_by_spacing(
             srow = sxy[j]
             dx = srow[0] - rx
             dy = srow[1] - ry
-            if not sqrt(dx * dx + dy * dy) > bound:
+            if not math.sqrt(dx * dx + dy * dy) > bound:
                 return None
     return out
 

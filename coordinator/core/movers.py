@@ -55,7 +55,6 @@ like a robot driving (only its wheels' encoders could tell; docs/faults.md).
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -154,7 +153,9 @@ class MoverDetector:
 
     def __init__(self, params: MoverParams | None = None) -> None:
         self._params = params if params is not None else MoverParams()
-        self._hist: dict[str, deque[tuple[float, float, float]]] = {}
+        # robot -> its samples (t, x, y), oldest first: a list, which mypyc indexes, appends to
+        # and pops in C (a deque's every operation is a Python call compiled); some 26 samples
+        self._hist: dict[str, list[tuple[float, float, float]]] = {}
         self._last_xy: dict[str, tuple[float, float]] = {}
         self._until: dict[str, float] = {}
         self._yield_until: dict[str, float] = {}
@@ -396,7 +397,6 @@ class MoverDetector:
             present = {**poses, **objects}
         # The per-tick hot path (one pass per robot): locals, the speed of speed_mps inline
         # (the same arithmetic), and the bookkeeping below only when there is something to do.
-        isfinite = math.isfinite
         hypot = math.hypot
         hists = self._hist
         last_xy = self._last_xy
@@ -406,7 +406,8 @@ class MoverDetector:
         n_ok = 0
         for rid, pose in seen:
             x, y = float(pose[0]), float(pose[1])
-            if not (isfinite(x) and isfinite(y)):
+            # math.isfinite, in the calls mypyc makes C's (isfinite is a Python call compiled)
+            if math.isinf(x) or math.isnan(x) or math.isinf(y) or math.isnan(y):
                 self.rejected += 1
                 continue
             n_ok += 1
@@ -415,7 +416,7 @@ class MoverDetector:
             last_xy[rid] = (x, y)
             hist = hists.get(rid)
             if hist is None:  # a first sample: no speed yet (speed_mps is NaN)
-                hists[rid] = deque(((now_s, x, y),))
+                hists[rid] = [(now_s, x, y)]
                 continue
             last = hist[-1]  # (a history is never empty: it starts with a sample, keeps 2)
             if now_s > last[0]:
@@ -424,7 +425,7 @@ class MoverDetector:
             # keep the newest sample at least window_s before the latest one, and after it
             n = len(hist)
             while n > 2 and now_s - hist[1][0] >= window_s:
-                hist.popleft()
+                hist.pop(0)
                 n -= 1
             if n < 2:  # speed_mps: NaN until there is a window
                 continue
