@@ -38,6 +38,7 @@ import numpy as np
 
 from coordinator.core.coordinator import CoordinatorOutput, pose_stale_s
 from formation.outputs.runlog import RunLog
+from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.core.neighbours import is_current, neighbour
@@ -129,10 +130,7 @@ class Experiment:
         self._fresh: dict[str, tuple[float, float, float]] = {}
         self._oldest_rx = math.inf
         self._outputs: SetpointWindow[CoordinatorOutput] = SetpointWindow()
-        self._log_truth: list[tuple[tuple[float, float, float], ...]] = []
-        self._log_leader: list[tuple[float, float, float]] = []
-        self._log_slots: list[list[tuple[float, float, float, float]]] = []
-        self._log_cmds: list[list[Any]] = []
+        self._ticklog = TickLog(keyed=False)  # the record, as formation sim keeps it
         self._slot_of_changes: list[tuple[int, list[int]]] = []
         self.clamped_actions = 0
         self._k = 0
@@ -259,11 +257,10 @@ class Experiment:
         self._link.send_all(t, wheels)
         for i, w in self._link.poll(t):
             self._applied[i] = w
-        self._log_truth.append(truth)
         leader = out.leader
-        self._log_leader.append((leader.x, leader.y, leader.theta))
-        self._log_slots.append(out.rows)
-        self._log_cmds.append(logged)
+        self._ticklog.record(
+            truth, leader.x, leader.y, leader.theta, out.rows, out.slot_ids, logged
+        )
         asg = out.assignment
         if out.changed or k == 0:
             self._slot_of_changes.append((k, [asg.get(rid, -1) for rid in self.robot_ids]))
@@ -289,15 +286,11 @@ class Experiment:
         if self._k <= 0:
             raise ValueError("no tick stepped yet")
         scn = self.scenario
-        log = RunLog.from_ticks(
+        log = self._ticklog.runlog(
             self.robot_ids,
             self._slot_ids,
             self.dt_s,
-            self._log_truth,
-            self._log_leader,
-            self._log_slots,
             self._slot_of_changes,
-            self._log_cmds,
             scn.agent.geometry.ref_offset_m,
         )
         # a fresh monitor each call: log() may be called mid-run and again at the end
