@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck bench clean venv accel
+.PHONY: demo test lint typecheck bench clean venv accel builds
 
 venv: $(STAMP)
 
@@ -12,17 +12,27 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[agent,sim,camera,dev]'
-	@# the compiled firmware core (mypyc); without a C compiler the pure-Python core runs
-	$(BIN)/python -m robot_agent.buildtools.accel build --quiet || echo "(the pure-Python firmware core runs)"
-	@# the compiled simulator side (plant, camera, link, the in-process loop; sim_plant/core/_accel.py)
-	@# and the coordinator's tick (coordinator/core/_accel.py)
-	$(BIN)/python -m formation.sim.accel_build build --quiet || echo "(pure Python runs where not built)"
+	$(MAKE) --no-print-directory BUILD_FLAGS=--quiet builds
 	touch $(STAMP)
 
 # rebuild the compiled builds after an edit (firmware, simulator, coordinator; a stale one is unused)
 accel: $(STAMP)
-	$(BIN)/python -m robot_agent.buildtools.accel build
-	$(BIN)/python -m formation.sim.accel_build build
+	$(MAKE) --no-print-directory builds
+
+# The three compiled (mypyc) builds at once: the firmware core (robot_agent/core/_accel.py), the
+# simulator side (plant, camera, link, the in-process loop; sim_plant/core/_accel.py) and the
+# coordinator's tick (coordinator/core/_accel.py). Each is one gcc over one C file, compiled in
+# its own temporary copy, checked against pure Python there and installed into its own folder, so
+# they are independent: side by side they keep two cores busy (docs/testing.md, "Times"). A build
+# that fails says why in one line and pure Python runs in its place (no C compiler: all three).
+builds:
+	@$(BIN)/python -m robot_agent.buildtools.accel build $(BUILD_FLAGS) \
+	  || echo "(the pure-Python firmware core runs)" & \
+	$(BIN)/python -m formation.sim.accel_build build --only simulator $(BUILD_FLAGS) \
+	  || echo "(the pure-Python simulator runs)" & \
+	$(BIN)/python -m formation.sim.accel_build build --only coordinator $(BUILD_FLAGS) \
+	  || echo "(the pure-Python coordinator runs)" & \
+	wait
 
 demo: $(STAMP)
 	$(BIN)/formation demo --out runs/demo
