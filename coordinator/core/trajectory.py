@@ -27,6 +27,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
+# the state every sample returns: its own module, compiled with the coordinator's tick
+from coordinator.core.leader_state import LeaderState
 from robot_agent.core.kinematics import wrap_angle  # the one wrap to (-pi, pi]; NaN for non-finite
 
 __all__ = [
@@ -42,52 +44,6 @@ __all__ = [
 ]
 
 _TWO_PI = 2.0 * math.pi
-
-
-@dataclass(frozen=True, slots=True)
-class LeaderState:
-    """State of the virtual leader at time ``t`` (s).
-
-    ``x``, ``y`` in m; ``theta`` heading in rad, wrapped to (-pi, pi]; ``v_mps`` speed along the
-    heading (m/s); ``omega_radps`` heading rate (rad/s).
-    """
-
-    t: float
-    x: float
-    y: float
-    theta: float
-    v_mps: float
-    omega_radps: float
-
-    def __init__(
-        self, t: float, x: float, y: float, theta: float, v_mps: float, omega_radps: float
-    ) -> None:
-        # The dataclass's own __init__ of a frozen class stores each field with
-        # object.__setattr__; the slots' descriptors store the same values without the lookup
-        # (one state per coordinator tick: 0.45 us instead of 0.75 us). Same fields, same order.
-        _SET_T(self, t)
-        _SET_X(self, x)
-        _SET_Y(self, y)
-        _SET_THETA(self, theta)
-        _SET_V(self, v_mps)
-        _SET_OMEGA(self, omega_radps)
-
-    @property
-    def vx(self) -> float:
-        """World-frame x velocity, m/s (eq 1)."""
-        return self.v_mps * math.cos(self.theta)
-
-    @property
-    def vy(self) -> float:
-        """World-frame y velocity, m/s (eq 2)."""
-        return self.v_mps * math.sin(self.theta)
-
-
-# The slot descriptors' setters LeaderState.__init__ stores with (dataclass(slots=True) made the
-# class, so they are taken from it once it exists).
-_SET_T, _SET_X, _SET_Y, _SET_THETA, _SET_V, _SET_OMEGA = (
-    vars(LeaderState)[f.name].__set__ for f in dataclasses.fields(LeaderState)
-)
 
 
 @runtime_checkable
