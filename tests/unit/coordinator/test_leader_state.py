@@ -5,7 +5,9 @@ replaced, compiled (with the coordinator's build, when ``make accel`` made it) a
 * a dataclass: its fields, ``replace``, equality and hash over the fields, ``repr``;
 * it pickles and copies to an equal state;
 * the pure sources (``FORMATION_ACCEL=0``, in a child process) give the same ``repr``, pickle
-  bytes and ``vx``/``vy`` bits as the build this process loaded.
+  bytes and ``vx``/``vy`` bits as the build this process loaded, and the same samples of the
+  closed-form trajectories (line, circle, figure eight: their arithmetic is compiled here too),
+  before, at and after their start.
 """
 
 from __future__ import annotations
@@ -74,9 +76,16 @@ def test_pickles_and_copies(s: LeaderState) -> None:
 _CHILD = """
 import pickle, sys
 from coordinator.core.leader_state import LeaderState
+from coordinator.core.trajectory import Circle, FigureEight, StraightLine
 states = [LeaderState(0.1 * k, -1.5 + k, 2.0 / (k + 1), 0.3 * k - 3.0, 0.07 * k, -0.01 * k)
           for k in range(7)]
 sys.stdout.write(repr([(repr(s), pickle.dumps(s).hex(), s.vx.hex(), s.vy.hex()) for s in states]))
+trajectories = [StraightLine(0.3, -1.0, 2.5, 0.07, 1.0), StraightLine(-0.0, 0.0, -3.0, 0.0),
+                Circle(0.5, -0.2, 1.3, 0.11, 0.4, False, 2.0), Circle(0.0, 0.0, 0.7, 0.05),
+                FigureEight(-0.3, 0.2, 1.1, 37.0, 0.9, 1.5), FigureEight(0.0, 0.0, 0.8, 20.0)]
+times = [-1.0, -0.0, 0.0, 1e-300, 1.0, 1.5, 2.0, 12345.678] + [0.02 * k for k in range(2000)]
+for tr in trajectories:
+    sys.stdout.write(repr([repr(tr.sample(t)) for t in times]))
 """
 
 
