@@ -1,10 +1,10 @@
 """Which coordinator core runs: the pure-Python sources or their compiled build (mypyc).
 
 The coordinator's per-tick modules (:data:`COMPILED_MODULES`: the tick of ``CoordinatorCore``,
-the virtual leader's step, the movers' pass, the slot matching, the role assignment and the
-formation geometry) are plain,
-fully annotated Python. ``python -m formation.sim.accel_build build`` compiles *the same files*
-with mypyc into ``coordinator/_compiled/`` (one group, ``coordinator_accel``), checks that the
+the virtual leader's state and step, the movers' pass, the slot matching, the role assignment
+and the formation geometry) are plain, fully annotated Python. ``python -m
+formation.sim.accel_build build`` compiles *the same files* with mypyc into
+``coordinator/_compiled/`` (one group, ``coordinator_accel``), checks that the
 in-process simulator's outputs (which run this core every tick) are equal bit for bit to the pure
 sources' before installing, and ``tests/unit/coordinator/test_coordinator_accel.py`` checks it
 again. The same build serves the in-process simulator and the coordinator process over Zenoh.
@@ -15,7 +15,9 @@ interpreter or edited sources mean pure Python. ``coordinator/core/__init__.py``
 :func:`activate` before it imports anything. The modules left out gain nothing from mypyc (their
 work is numpy's: ``slots``, the planner), run once per run, not per tick, or must stay Python:
 ``trajectory`` (a ``runtime_checkable`` protocol; frozen dataclasses that validate by coercing and
-pickle) and ``leader_config`` (the same; docs/architecture.md). Standard library only.
+pickle: its per-tick ``LeaderState`` and the closed-form samples' arithmetic are compiled in
+``leader_state``) and ``leader_config`` (the
+same; docs/architecture.md). Standard library only.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from robot_agent.core._accel import CompiledBuild
 
 #: The compiled modules, by dotted name, in dependency order.
 COMPILED_MODULES: tuple[str, ...] = (
+    "coordinator.core.leader_state",  # LeaderState, made every tick (trajectory re-exports it)
     "coordinator.core.assignment",
     "coordinator.core.formation",
     "coordinator.core.matching",

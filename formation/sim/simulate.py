@@ -410,10 +410,13 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 sp = None
                 slot = prev_asg.get(rid)
                 if slot is not None:
-                    row = prev_approach.get(rid) if approaching else None  # (x, y, vx, vy)
+                    row: Any = prev_approach.get(rid) if approaching else None  # (x, y, vx, vy)
                     if row is None:
                         row = prev_rows[slot_row[slot]]
-                    sp = _tuple_new(Setpoint, (*row, prev_theta, slot, t_prev_obj))
+                    # the Setpoint's seven fields in one tuple (no list built to unpack the row)
+                    sp = _tuple_new(
+                        Setpoint, (row[0], row[1], row[2], row[3], prev_theta, slot, t_prev_obj)
+                    )
                 # (by position: Firmware.step's keyword arguments cost more than the call
                 # across two compiled groups)
                 cmds.append(

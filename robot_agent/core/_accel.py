@@ -167,6 +167,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "firmware",
     "neighbours",  # the agent host's per-frame neighbour lists (host_grid): ~0.4 ms a frame
     "host_grid",  # for 100 robots (bench/bench_host.py)
+    "lockstep",  # the tick time and setpoint window every simulator and lockstep tick asks
 )
 #: The firmware's compiled modules' sources (``robot_agent/core``).
 PACKAGE_DIR = Path(__file__).resolve().parent

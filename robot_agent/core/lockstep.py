@@ -23,7 +23,6 @@ The rules:
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Hashable
 from typing import Final, Generic, TypeVar
 
@@ -34,6 +33,9 @@ T = TypeVar("T")
 SETPOINT_DELAY_TICKS: Final = 1
 """A setpoint computed on tick k is used on tick k + 1."""
 
+_WINDOW: Final = 2
+"""How many ticks' setpoints :class:`SetpointWindow` keeps."""
+
 
 def tick_time(k: int, dt_s: float) -> float:
     """Sim time (s) of tick ``k`` with period ``dt_s``: exactly ``k * dt_s`` (no accumulation)."""
@@ -41,16 +43,23 @@ def tick_time(k: int, dt_s: float) -> float:
 
 
 class SetpointWindow(Generic[T]):
-    """The setpoints of the last two ticks; on clock k, the one computed on tick k - 1."""
+    """The setpoints of the last two ticks; on clock k, the one computed on tick k - 1.
+
+    A list of at most two entries, not a ``deque(maxlen=2)``: the same entries, and compiled
+    (with the firmware, ``robot_agent/core/_accel.py``) a list's operations are C calls where a
+    deque's are Python method calls."""
 
     __slots__ = ("_items",)
 
     def __init__(self) -> None:
-        self._items: deque[tuple[int, T]] = deque(maxlen=2)
+        self._items: list[tuple[int, T]] = []
 
     def add(self, tick: int, item: T) -> None:
         """Keep ``item``, computed on ``tick`` (the older of two kept ticks is dropped)."""
-        self._items.append((tick, item))
+        items = self._items
+        items.append((tick, item))
+        if len(items) > _WINDOW:
+            del items[0]
 
     def for_clock(self, k: int) -> T | None:
         """The item computed on tick ``k - SETPOINT_DELAY_TICKS`` (the newest such), or None."""

@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from formation.outputs.runlog import RunLog
+from formation.outputs.runlog import RunLog, floats_of
 from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Mode, WheelCommand
 
@@ -96,3 +97,13 @@ def test_the_flat_record_gives_the_arrays_of_the_per_tick_objects(
         assert a.shape == b.shape and a.dtype == b.dtype, name
         assert a.tobytes() == b.tobytes(), name
         assert a.flags.writeable, name
+
+
+@given(st.lists(st.floats(width=64) | st.integers(-(2**53), 2**53), max_size=300))
+def test_floats_of_packs_each_number_s_double(values: list[float]) -> None:
+    """``floats_of`` (the chunks' conversion): the doubles ``np.fromiter`` gives, bit for bit
+    (NaN payloads, signed zeros, infinities, ints as their floats), in a writable array."""
+    got = floats_of(values)
+    want = np.fromiter(values, np.float64, len(values))
+    assert got.dtype == np.float64 and got.shape == (len(values),) and got.flags.writeable
+    assert got.tobytes() == want.tobytes()

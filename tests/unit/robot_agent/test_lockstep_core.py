@@ -4,6 +4,7 @@ tested directly: pure cores, time passed in."""
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import pytest
 from hypothesis import given
@@ -55,6 +56,36 @@ def test_setpoint_window_missing_tick_means_no_setpoint() -> None:
     assert w.for_clock(4) == "sp3b"
     w.clear()
     assert w.for_clock(4) is None
+
+
+_WINDOW_OPS = st.lists(
+    st.one_of(
+        st.tuples(st.just("add"), st.integers(0, 6), st.integers()),
+        st.tuples(st.just("ask"), st.integers(0, 7), st.just(0)),
+        st.tuples(st.just("clear"), st.just(0), st.just(0)),
+    ),
+    max_size=40,
+)
+
+
+@given(_WINDOW_OPS)
+def test_setpoint_window_is_the_newest_of_the_last_two_added(
+    ops: list[tuple[str, int, int]],
+) -> None:
+    """The window against its definition: the last two entries added (a ``deque(maxlen=2)``),
+    on clock k the newest of them computed on tick k - SETPOINT_DELAY_TICKS."""
+    w: SetpointWindow[int] = SetpointWindow()
+    model: deque[tuple[int, int]] = deque(maxlen=2)
+    for op, tick, item in ops:
+        if op == "add":
+            w.add(tick, item)
+            model.append((tick, item))
+        elif op == "clear":
+            w.clear()
+            model.clear()
+        else:
+            want = [i for t, i in model if t == tick - SETPOINT_DELAY_TICKS]
+            assert w.for_clock(tick) == (want[-1] if want else None)
 
 
 def test_arrivals_are_handed_over_once_in_order() -> None:
