@@ -92,6 +92,7 @@ import numbers
 from collections.abc import Sequence
 from typing import Any, Final
 
+from robot_agent.core import _accel
 from robot_agent.core.estimator import Estimator
 from robot_agent.core.firmware_modes import (
     _ESTOP,
@@ -142,10 +143,13 @@ __all__ = [
 
 _isfinite: Final = math.isfinite
 _NEG_INF: Final = -math.inf
-#: A tick selects the neighbours that can matter (``robot_agent.core.neighbour_select``) from
-#: lists of at least this many entries: below, the walks it saves cost less than the selection
-#: (a small fleet's neighbours are mostly near anyway)
+#: The compiled core selects the neighbours that can matter (``robot_agent.core.neighbour_select``)
+#: from lists of at least this many entries: below, the walks it saves cost less than the
+#: selection (a small fleet's neighbours are mostly near anyway). Pure Python never does: there
+#: the selection costs more than it saves (chevron30: ~5 % more per tick; docs/benchmarks.md).
+#: The outputs are the same bit for bit either way.
 SELECT_MIN_ENTRIES: Final = 8
+_NEVER: Final = 1 << 62  # (no list is this long)
 #: ``Firmware._setpoint_now``'s answer when the tick holds (no valid setpoint): age NaN (not
 #: Final: mypyc cannot tell a Final tuple of NaNs from an unset one, a NameError)
 _NO_SETPOINT = (_NAN, _NAN, _NAN, _NAN, _NAN)
@@ -202,6 +206,7 @@ class Firmware:
         "_rep_on",
         "_role_changes",
         "_saturated",
+        "_select_min",
         "_select_on",
         "_setpoint_age",
         "_shared_frame",
@@ -246,6 +251,7 @@ class Firmware:
         # the far neighbours dropped once per tick (neighbour_select), not with the
         # shared-frame plane (its bound may be larger than the one the selection uses)
         self._select_on = (self._rep_on or self._filter_on) and not self._shared_frame
+        self._select_min = SELECT_MIN_ENTRIES if _accel.ACTIVE else _NEVER
         self._modes = ModeMachine(self._tracker, self._filter)
         self._rejects = Rejections()
         self._have_setpoint = False
@@ -444,7 +450,7 @@ class Firmware:
             if (
                 self._select_on
                 and isinstance(neighbours, list)
-                and len(neighbours) >= SELECT_MIN_ENTRIES
+                and len(neighbours) >= self._select_min
                 and type(extra_radius_m) is float
             ):
                 d0 = self._rep_d0 if self._rep_on else _NEG_INF
