@@ -39,7 +39,6 @@ Zenoh equals the in-process simulator bit for bit (``formation/sim/simulate.py``
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Sequence
 from typing import Any, Final
 
 from robot_agent.core.neighbour_motion import Claim, MotionView, motion_view
@@ -136,11 +135,11 @@ def mover(entry: Neighbour, vx_mps: float, vy_mps: float) -> Neighbour:
 
 
 def neighbours_at(
-    poses: Sequence[Any],
-    rx_s: Sequence[Any],
+    poses: list[Any],
+    rx_s: list[Any],
     now_s: float,
-    cooperative: Sequence[bool],
-    rings: Sequence[ClaimRing] | None = None,
+    cooperative: list[bool],
+    rings: list[ClaimRing] | None = None,
     l_m: float = 0.0,
     vmax_mps: float = 0.0,
     claim_max_age_s: float = 0.0,
@@ -151,9 +150,10 @@ def neighbours_at(
     ``cooperative[j]`` and, when ``rings`` is given, the :func:`motion_view` of ``rings[j]``'s
     claims (``l_m``, ``vmax_mps``, ``claim_max_age_s``: its arguments). The same entries as
     those calls one by one (the in-process loop builds every robot's list from them once a
-    tick: one call instead of one per robot and check)."""
+    tick: one call instead of one per robot and check; lists, read by index when compiled)."""
     out: list[Neighbour | None] = []
-    for j, p in enumerate(poses):
+    for j in range(len(poses)):
+        p = poses[j]
         if p is None or not is_current(now_s, rx_s[j]):
             out.append(None)
             continue
