@@ -54,8 +54,7 @@ from formation.sim.collector import YOUNG_EVERY_TICKS, CollectorPause
 from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
-from robot_agent.core.neighbour_motion import motion_view
-from robot_agent.core.neighbours import ClaimRing, is_current, mover, neighbour
+from robot_agent.core.neighbours import ClaimRing, mover, neighbours_at
 from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
 from scenario.assemble import apply_scheduled, coordinator_core, path_conflicts, plant_models
@@ -307,22 +306,10 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             # repulsion and the safety filter, with its age now (capture to this tick) and whether
             # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
             # rule of robot_agent.core.neighbours, which the Zenoh agents and hosts use too
-            pts = [
-                None
-                if p is None or not is_current(t_obj, rx_objs[j])
-                else neighbour(
-                    p[0],
-                    p[1],
-                    p[2],
-                    p[3],
-                    t_obj,
-                    tracking[j],
-                    None
-                    if rings is None
-                    else motion_view(rings[j].claims, p[3], t_obj, l_m, vmax, sfp.claim_max_age_s),
-                )
-                for j, p in enumerate(pose_objs)
-            ]
+            # (one call for the fleet: robot_agent.core.neighbours.neighbours_at)
+            pts = neighbours_at(
+                pose_objs, rx_objs, t, tracking, rings, l_m, vmax, sfp.claim_max_age_s
+            )
             # the coordinator's movers of the previous tick (received with its setpoints): not
             # cooperative, with their velocity (rule 4 of robot_agent.core.neighbours)
             prev_out = outputs.for_clock(k)

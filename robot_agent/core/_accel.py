@@ -161,6 +161,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "safety_neighbours",
     "deadlock",
     "safety_filter",
+    "neighbour_select",  # a long neighbour list's far entries dropped once a tick
     "firmware_types",
     "firmware_rejects",
     "firmware_modes",

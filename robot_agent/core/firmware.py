@@ -92,6 +92,7 @@ import numbers
 from collections.abc import Sequence
 from typing import Any, Final
 
+from robot_agent.core import _accel
 from robot_agent.core.estimator import Estimator
 from robot_agent.core.firmware_modes import (
     _ESTOP,
@@ -125,6 +126,7 @@ from .kinematics import (
     wheels_from_twist_raw,
 )
 from .neighbour_motion import Claim, MotionLimiter
+from .neighbour_select import near_entries
 from .params import AgentConfig
 from .repulsion import repulsion_raw
 from .safety_filter import Neighbour, SafetyFilter
@@ -140,6 +142,14 @@ __all__ = [
 ]
 
 _isfinite: Final = math.isfinite
+_NEG_INF: Final = -math.inf
+#: The compiled core selects the neighbours that can matter (``robot_agent.core.neighbour_select``)
+#: from lists of at least this many entries: below, the walks it saves cost less than the
+#: selection (a small fleet's neighbours are mostly near anyway). Pure Python never does: there
+#: the selection costs more than it saves (chevron30: ~5 % more per tick; docs/benchmarks.md).
+#: The outputs are the same bit for bit either way.
+SELECT_MIN_ENTRIES: Final = 8
+_NEVER: Final = 1 << 62  # (no list is this long)
 #: ``Firmware._setpoint_now``'s answer when the tick holds (no valid setpoint): age NaN (not
 #: Final: mypyc cannot tell a Final tuple of NaNs from an unset one, a NameError)
 _NO_SETPOINT = (_NAN, _NAN, _NAN, _NAN, _NAN)
@@ -196,6 +206,8 @@ class Firmware:
         "_rep_on",
         "_role_changes",
         "_saturated",
+        "_select_min",
+        "_select_on",
         "_setpoint_age",
         "_shared_frame",
         "_slot",
@@ -236,6 +248,10 @@ class Firmware:
         self._filter = SafetyFilter(cfg)
         self._filter_on = self._filter.enabled
         self._shared_frame = self._filter.enabled and cfg.safety_filter.shared_frame
+        # the far neighbours dropped once per tick (neighbour_select), not with the
+        # shared-frame plane (its bound may be larger than the one the selection uses)
+        self._select_on = (self._rep_on or self._filter_on) and not self._shared_frame
+        self._select_min = SELECT_MIN_ENTRIES if _accel.ACTIVE else _NEVER
         self._modes = ModeMachine(self._tracker, self._filter)
         self._rejects = Rejections()
         self._have_setpoint = False
@@ -428,9 +444,27 @@ class Firmware:
             if not tracker.last_valid:
                 self._rejects.add("controller overflow")
                 return self._hold(_EV_INVALID, "controller overflow")
-            # 5. repulsion from neighbours / obstacles, at the axle centre
+            # 5a. of a long list, the neighbours that can matter to stages 5 and 6 (the same
+            # entries in the same order, less those both would skip without a trace)
+            near = neighbours
+            if (
+                self._select_on
+                and isinstance(neighbours, list)
+                and len(neighbours) >= self._select_min
+                and type(extra_radius_m) is float
+            ):
+                d0 = self._rep_d0 if self._rep_on else _NEG_INF
+                box = _NEG_INF
+                if self._filter_on:
+                    er = extra_radius_m  # (as stage 6 takes it)
+                    if unc > er:
+                        er = unc
+                    box = self._filter.reach_box_m(er, dt)
+                near = near_entries(neighbours, x, y, d0, rx, ry, box)
+            # 5. repulsion from neighbours / obstacles, at the axle centre (called whenever there
+            # are neighbours at all: its sum of no pushes, 0.0, is added as before)
             if self._rep_on and (neighbours or obstacles):
-                rvx, rvy, skipped = repulsion_raw(x, y, neighbours, obstacles, self._rep_k,
+                rvx, rvy, skipped = repulsion_raw(x, y, near, obstacles, self._rep_k,
                                                   self._rep_d0, self._rep_inv_d0,
                                                   self._rep_cap)  # fmt: skip
                 if skipped:  # (non-finite entries are skipped and counted)
@@ -448,7 +482,7 @@ class Firmware:
                     frame = self._own_frame(now, pose, pose_capture_s)
                 # (a method call, not a bound method kept in an attribute: compiled, a native
                 # call with unboxed floats instead of a Python call with keyword parsing)
-                vx, vy = self._filter.filter(now, rx, ry, vx, vy, ex, ey, neighbours, obstacles,
+                vx, vy = self._filter.filter(now, rx, ry, vx, vy, ex, ey, near, obstacles,
                                              er, dt, frame)  # fmt: skip
             # 7. eq 16: reference-point velocity -> (v, omega)
             v, w = twist_from_ref_velocity(vx, vy, th, l_m)

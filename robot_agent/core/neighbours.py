@@ -39,9 +39,9 @@ Zenoh equals the in-process simulator bit for bit (``formation/sim/simulate.py``
 from __future__ import annotations
 
 from collections import deque
-from typing import Final
+from typing import Any, Final
 
-from robot_agent.core.neighbour_motion import Claim, MotionView
+from robot_agent.core.neighbour_motion import Claim, MotionView, motion_view
 from robot_agent.core.safety_filter import Neighbour
 
 __all__ = [
@@ -54,6 +54,7 @@ __all__ = [
     "is_current",
     "mover",
     "neighbour",
+    "neighbours_at",
 ]
 
 NEIGHBOUR_STALE_S: Final = 1.0
@@ -131,3 +132,36 @@ def mover(entry: Neighbour, vx_mps: float, vy_mps: float) -> Neighbour:
     claims (rule 5: its own commands are not how it moves)."""
     x, y, theta, age = entry[0], entry[1], entry[2], entry[3]  # eight fields: no claims
     return _tuple_new(Neighbour, (x, y, theta, age, vx_mps, vy_mps, False, entry[7]))
+
+
+def neighbours_at(
+    poses: list[Any],
+    rx_s: list[Any],
+    now_s: float,
+    cooperative: list[bool],
+    rings: list[ClaimRing] | None = None,
+    l_m: float = 0.0,
+    vmax_mps: float = 0.0,
+    claim_max_age_s: float = 0.0,
+) -> list[Neighbour | None]:
+    """Rules 1, 2, 3 and 5 for a whole fleet in one call: entry ``j`` is :func:`neighbour` of
+    robot ``j``'s latest pose ``poses[j]`` (``(x, y, theta, capture_s)``, local clock), received
+    at ``rx_s[j]``, if it :func:`is_current` at ``now_s`` (else None, as for no pose), with
+    ``cooperative[j]`` and, when ``rings`` is given, the :func:`motion_view` of ``rings[j]``'s
+    claims (``l_m``, ``vmax_mps``, ``claim_max_age_s``: its arguments). The same entries as
+    those calls one by one (the in-process loop builds every robot's list from them once a
+    tick: one call instead of one per robot and check; lists, read by index when compiled)."""
+    out: list[Neighbour | None] = []
+    for j in range(len(poses)):
+        p = poses[j]
+        if p is None or not is_current(now_s, rx_s[j]):
+            out.append(None)
+            continue
+        # (typed as a tuple, as a Pose is: compiled, its fields are read in place)
+        pose: tuple[Any, ...] = p if isinstance(p, tuple) else tuple(p)
+        capture = pose[3]
+        view = None
+        if rings is not None:
+            view = motion_view(rings[j].claims, capture, now_s, l_m, vmax_mps, claim_max_age_s)
+        out.append(neighbour(pose[0], pose[1], pose[2], capture, now_s, cooperative[j], view))
+    return out

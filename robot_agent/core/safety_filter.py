@@ -326,6 +326,32 @@ class SafetyFilter:
         """Forget deadlock timing (the robot left TRACKING)."""
         self._deadlock.reset()
 
+    def _rho(self, extra_radius_m: float) -> float:
+        """This robot's own uncertainty that inflates a barrier: only what is beyond the
+        margin's noise budget (module docstring); 0 for a NaN."""
+        rho = extra_radius_m - self._budget
+        if not rho > 0.0:  # also NaN
+            rho = 0.0
+        return rho
+
+    def _gamma_for(self, dt_s: float) -> float:
+        """The barrier gain of a tick of ``dt_s`` (0 = unknown): lowered to ``1 / dt_s`` if
+        larger (``gamma dt <= 1``, the invariance proof of the module docstring)."""
+        gamma = self._gamma
+        if not 0.0 < dt_s * gamma <= 1.0:
+            gamma = 1.0 / dt_s if dt_s * self._gamma_slow > 1.0 else self._gamma_slow
+        return gamma
+
+    def reach_box_m(self, extra_radius_m: float, dt_s: float) -> float:
+        """The half-width (m) of the box around the reference point outside which ``filter``
+        (``extra_radius_m``, ``dt_s``: its arguments; no ``frame``) skips a neighbour entry of
+        eight fields with no radius and no velocity without reading more of it: the bound its
+        neighbour rows test first (``NeighbourBarriers.quick_m``, the same floats), for
+        ``robot_agent.core.neighbour_select``. Not valid with the shared-frame plane, whose
+        bound may be larger."""
+        reach = (self._vcap + _TOL) / self._gamma_for(dt_s)
+        return self._neighbours.quick_m(self._rho(extra_radius_m), reach)
+
     def constraints(
         self,
         px: float,
@@ -343,13 +369,8 @@ class SafetyFilter:
         ``frame``: this robot's own latest camera pose ``(x, y, theta, age_s)`` when the
         shared-frame plane may be used (``filter`` passes it only with ``shared_frame`` on and
         when this robot was TRACKING on the previous tick); None: never."""
-        # only the uncertainty beyond the margin's noise budget inflates (module docstring)
-        rho = extra_radius_m - self._budget
-        if not rho > 0.0:  # also NaN
-            rho = 0.0
-        gamma = self._gamma
-        if not 0.0 < dt_s * gamma <= 1.0:
-            gamma = 1.0 / dt_s if dt_s * self._gamma_slow > 1.0 else self._gamma_slow
+        rho = self._rho(extra_radius_m)
+        gamma = self._gamma_for(dt_s)
         cons: list[tuple[float, float, float]] = []
         # A constraint n.u >= b can bind a command of speed <= cap only if b > -cap, that is
         # h < (cap + n.v) / (share * gamma): the reach beyond the boundary.

@@ -107,6 +107,15 @@ class NeighbourBarriers:
             far = max(far, plane + 3.0 * off)
         return far
 
+    def quick_m(self, rho: float, reach: float) -> float:
+        """The quick-reject half-width (m) of ``append`` for an entry of eight fields with no
+        radius and no velocity, without the shared-frame plane: a box around the reference
+        point outside which such an entry can bind nothing, whatever its share, age or heading
+        (``rho``, ``reach``: as in ``append``). One formula for ``append`` and
+        ``robot_agent.core.neighbour_select`` (``SafetyFilter.reach_box_m``)."""
+        quick = self._d_coop + self._l + self._vnb * self._max_age
+        return quick + rho + 2.0 * reach + _TOL
+
     def append(  # noqa: PLR0915 (per-neighbour constraints, inlined on the compiled hot path)
         self,
         px: float,
@@ -196,8 +205,7 @@ class NeighbourBarriers:
             else:  # with a motion claim's view (robot_agent.core.neighbour_motion)
                 qx, qy, oth, oage, vx, vy, coop, rad, view = ent
             if quick < 0.0:  # the first full entry of this call
-                quick = self._d_coop + self._l + self._vnb * self._max_age
-                quick = quick + rho + 2.0 * reach + _TOL
+                quick = self.quick_m(rho, reach)
                 if q2_tol > quick:
                     quick = q2_tol
                 nquick = -quick
