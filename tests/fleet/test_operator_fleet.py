@@ -12,9 +12,12 @@ One fleet (tests/support/fault_fleet.py's three robots on a slow line, with ``[l
   robot (its truth) at least the safety distance from every other and no role change;
 * ``formation teleop`` drives the leader; when its stream stops the deadman stops the leader
   within its bound, with every follower still in formation.
-* ``formation shape column --slots 2`` drops a robot live and ``triangle --slots 3`` takes it
+* ``formation shape triangle --slots 2`` drops a robot live and ``triangle --slots 3`` takes it
   back on the slot added, the others keeping theirs, every robot at least the safety distance
-  apart.
+  apart (the kept slots do not move: two reshapes of 3 s, the shortest transition, instead of a
+  column's 12.4 s each way; a drop into another shape is planned in-process in
+  tests/unit/coordinator/test_reshape_slots.py and runs over the bus in
+  tests/bus/test_node_plant.py).
 
 Bounds: the deadman (0.4 s) plus a braking within the leader's acceleration limit, the rate's
 slew (0.5 per s), plus what a Python process on a loaded 2-core machine must be woken for.
@@ -52,8 +55,8 @@ B_M = 0.4  # SCENARIO's triangle
 # (coordinator.core.reshape: its peak speed RESHAPE_SPEED_MPS): triangle (0.4) -> column takes
 # 8.1 s each way instead of 12.4 s at 0.4 m. The planned least separation stays above the safety
 # distance (0.19 m): 0.24 m (0.28 m at 0.4 m); the robots' truth was 0.28 m in a realtime run.
-# (The drop test keeps its 0.4 m column: with 0.3 m a kept robot changed its slot when the third
-# came back, one run.)
+# (The drop test's column at 0.3 m made a kept robot change its slot when the third came back,
+# one run; it now drops into a triangle of two, whose kept slots do not move.)
 COLUMN_M = 0.3
 
 
@@ -226,21 +229,22 @@ async def test_the_deadman_stops_the_teleoperated_leader_with_the_followers_in_f
 
 
 async def test_the_formation_drops_a_robot_and_takes_it_back_live(fleet: OperatorFleet) -> None:
-    """``formation shape column --slots 2`` drops the rearmost robot live (it stops behind the
+    """``formation shape triangle --slots 2`` drops a rear robot live (it stops behind the
     formation), ``formation shape triangle --slots 3`` takes it back on the slot added: the two
     others keep their slots throughout, every robot at least the safety distance from every
-    other (their truth)."""
+    other (their truth). The kept slots stay where they are, so each reshape is the shortest
+    transition (3 s) instead of a column's 12.4 s."""
     obs = fleet.obs
     await wait_formed(fleet, timeout_s=40.0)
     t_start = time.monotonic()
     before = obs.latest_assignment()
     assert before is not None and len(before.robots) == 3
     t_cmd = time.monotonic()
-    _shape(fleet, "column", "--slots", "2")
+    _shape(fleet, "triangle", "--slots", "2")
     await until(
-        lambda: _reshaped(obs, "column", t_cmd) and len(obs.latest_assignment().robots) == 2,
+        lambda: _reshaped(obs, "triangle", t_cmd) and len(obs.latest_assignment().robots) == 2,
         40.0,
-        "reshaped into a column of two",
+        "reshaped into a triangle of two",
     )
     (dropped,) = set(before.robots) - set(obs.latest_assignment().robots)
     kept = set(before.robots) - {dropped}

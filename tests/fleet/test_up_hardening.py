@@ -24,6 +24,7 @@ from support.spawn import Child, Spawner, child_env, free_port
 
 import runtime as rt
 from bus_schemas import Disturbance, Estop, Pose, Setpoint, Status, decode, encode, keys
+from formation.cli import EXIT_INTERRUPTED
 from formation.outputs import runfile
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh, pytest.mark.shares_cpu]
@@ -31,12 +32,8 @@ pytestmark = [pytest.mark.slow, pytest.mark.zenoh, pytest.mark.shares_cpu]
 UP_READY_S = 90.0  # python start of ~8 processes on a loaded 2-core box
 
 
-@pytest.fixture
-def ups(spawn: Spawner) -> Iterator[list[Child]]:
-    """Launchers started by a test: SIGTERMed at teardown with time to write their results
-    (torn down before ``spawn``, whose 2 s SIGTERM patience is for nodes)."""
-    started: list[Child] = []
-    yield started
+def stop_ups(started: list[Child]) -> None:
+    """SIGTERM every launcher still running and give each 20 s to write its results."""
     for up in started:
         if up.proc.poll() is None:
             up.send_signal(signal.SIGTERM)
@@ -48,6 +45,41 @@ def ups(spawn: Spawner) -> Iterator[list[Child]]:
             pytest.fail(f"formation up ignored SIGTERM for 20 s: {up.describe()}")
 
 
+@pytest.fixture
+def ups(spawn: Spawner) -> Iterator[list[Child]]:
+    """Launchers started by a test: SIGTERMed at teardown with time to write their results
+    (torn down before ``spawn``, whose 2 s SIGTERM patience is for nodes)."""
+    started: list[Child] = []
+    yield started
+    stop_ups(started)
+
+
+def launch_up(
+    spawn: Spawner,
+    out: Path,
+    *extra: str,
+    robots: int = 3,
+    duration: float = 120.0,
+    ups: list[Child] | None = None,
+) -> tuple[Child, int]:
+    """Start ``formation up`` (realtime) on a free port; :func:`wait_ready` waits for it."""
+    port = free_port()
+    child = spawn(
+        "up", "--robots", str(robots), "--duration", repr(duration),
+        "--endpoint", f"tcp/127.0.0.1:{port}", "--out", str(out), "--no-figures",
+        "--ready-timeout", "80", *extra,
+    )  # fmt: skip
+    if ups is not None:
+        ups.append(child)
+    return child, port
+
+
+def wait_ready(child: Child, robots: int = 3, hosts: int | None = None) -> None:
+    """Wait until every node of ``child``'s run is ready (its agents' or agent hosts' line)."""
+    n = robots if hosts is None else hosts
+    child.wait_for_line(f"  {n} agent" + (" hosts" if hosts else "s"), timeout_s=UP_READY_S)
+
+
 def start_up(
     spawn: Spawner,
     out: Path,
@@ -57,17 +89,9 @@ def start_up(
     ups: list[Child] | None = None,
 ) -> tuple[Child, int]:
     """``formation up`` (realtime) on a free port, returned once every node is ready."""
-    port = free_port()
-    child = spawn(
-        "up", "--robots", str(robots), "--duration", repr(duration),
-        "--endpoint", f"tcp/127.0.0.1:{port}", "--out", str(out), "--no-figures",
-        "--ready-timeout", "80", *extra,
-    )  # fmt: skip
-    if ups is not None:
-        ups.append(child)
+    child, port = launch_up(spawn, out, *extra, robots=robots, duration=duration, ups=ups)
     hosts = [a for i, a in enumerate(extra) if i > 0 and extra[i - 1] == "--hosts"]
-    n = int(hosts[0]) if hosts else robots
-    child.wait_for_line(f"  {n} agent" + (" hosts" if hosts else "s"), timeout_s=UP_READY_S)
+    wait_ready(child, robots, int(hosts[0]) if hosts else None)
     return child, port
 
 
@@ -77,14 +101,36 @@ def run_info(port: int) -> runfile.RunInfo:
     return info
 
 
+def fault_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "formation", "fault", *args]
+
+
 def fault(*args: str, timeout_s: float = 30.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "formation", "fault", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-        env=child_env(),
+        fault_command(*args), capture_output=True, text=True, timeout=timeout_s, env=child_env()
     )
+
+
+def faults_at_once(
+    *calls: tuple[str, ...], timeout_s: float = 30.0
+) -> list[subprocess.CompletedProcess[str]]:
+    """``formation fault`` with each of ``calls``' arguments, all running at the same time (calls
+    that change nothing, so their order does not matter); their results in ``calls``' order."""
+    procs = [
+        subprocess.Popen(
+            fault_command(*args),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=child_env(),
+        )
+        for args in calls
+    ]
+    results = []
+    for proc in procs:
+        out, err = proc.communicate(timeout=timeout_s)
+        results.append(subprocess.CompletedProcess(proc.args, proc.returncode, out, err))
+    return results
 
 
 def state(pid: int) -> str | None:
@@ -172,6 +218,20 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_frees_the_port(
 # ---------------------------------------------------------------------------------------------
 
 
+def wait_for_line_after(child: Child, marker: str, prefix: str, timeout_s: float) -> str:
+    """Wait for a stdout line of ``child`` starting with ``prefix`` after its line ``marker``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        lines = child.stdout().splitlines()
+        at = next((i for i, line in enumerate(lines) if line.startswith(marker)), None)
+        found = [] if at is None else [x for x in lines[at + 1 :] if x.startswith(prefix)]
+        if found:
+            return found[0]
+        assert child.proc.poll() is None, f"exited before {prefix!r}: {child.describe()}"
+        assert time.monotonic() < deadline, f"no {prefix!r} after {marker!r}: {child.describe()}"
+        time.sleep(0.05)
+
+
 def test_router_and_plant_deaths_are_events_with_respawn(
     spawn: Spawner, ups: list[Child], tmp_path: Path
 ) -> None:
@@ -183,7 +243,12 @@ def test_router_and_plant_deaths_are_events_with_respawn(
     time.sleep(2.0)
     os.kill(run_info(port).children["plant"], signal.SIGKILL)
     up.wait_for_line("formation up: plant respawned", timeout_s=30)
-    assert up.proc.wait(60) == 0, up.describe()
+    # the run goes on after both restarts: a progress line after the plant's respawn (one every
+    # 5 s of the run); then a stop signal instead of the rest of the 30 s (status 130 after a
+    # stop, 1 after any failure of the run)
+    wait_for_line_after(up, "formation up: plant respawned", "t ", timeout_s=30)
+    up.send_signal(signal.SIGTERM)
+    assert up.proc.wait(60) == EXIT_INTERRUPTED, up.describe()
     import json
 
     meta = json.loads((out / "metrics.json").read_text())["meta"]
@@ -202,9 +267,21 @@ def test_router_and_plant_deaths_are_events_with_respawn(
 # ---------------------------------------------------------------------------------------------
 
 
-@pytest.fixture
-def secure_run(spawn: Spawner, ups: list[Child], tmp_path: Path) -> Iterator[tuple[Child, int]]:
-    yield start_up(spawn, tmp_path / "run", "--secure", robots=3, duration=120.0, ups=ups)
+@pytest.fixture(scope="module")
+def secure_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Child, int]]:
+    """One authenticated run for the module's two tests: each only tries to get in and is
+    refused (the operator's e-stop of the second is released), so the run they see is the
+    same as a fresh one's."""
+    base = tmp_path_factory.mktemp("secure")
+    spawner = Spawner(base / "procs")
+    started: list[Child] = []
+    try:
+        yield start_up(spawner, base / "run", "--secure", robots=3, duration=120.0, ups=started)
+    finally:
+        stop_ups(started)
+        problems = spawner.cleanup()
+    if problems:
+        pytest.fail("\n\n".join(problems), pytrace=False)
 
 
 def test_secure_run_refuses_clients_without_the_fleet_certificate(
@@ -263,7 +340,9 @@ def test_secure_run_refuses_forged_setpoints_poses_and_estop(
 
     sub = observer.declare_subscriber(keys.fleet_pattern(fleet), on_any)
     try:
-        time.sleep(1.0)
+        deadline = time.monotonic() + 10.0
+        while not seen["status"] and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert seen["status"], "the observer identity receives the fleet's status"
         forged: list[tuple[str, Any]] = [
             (keys.estop_key(fleet), Estop(t=marker_t, engage=True, robot=None)),
@@ -326,8 +405,11 @@ def test_secure_run_refuses_forged_setpoints_poses_and_estop(
 def test_fault_tool_never_touches_another_fleet_and_refuses_forged_status(
     spawn: Spawner, ups: list[Child], tmp_path: Path
 ) -> None:
-    up_a, port_a = start_up(spawn, tmp_path / "a", robots=3, ups=ups)
-    up_b, port_b = start_up(spawn, tmp_path / "b", robots=3, ups=ups)
+    (up_a, port_a), (up_b, port_b) = (
+        launch_up(spawn, tmp_path / name, robots=3, ups=ups) for name in ("a", "b")
+    )  # both fleets start at once
+    wait_ready(up_a)
+    wait_ready(up_b)
     ep_a = f"tcp/127.0.0.1:{port_a}"
     a, b = run_info(port_a), run_info(port_b)
     b_pids = dict(b.children)
@@ -338,11 +420,14 @@ def test_fault_tool_never_touches_another_fleet_and_refuses_forged_status(
             assert state(pid) not in (None, "T", "t"), f"fleet B's {name} (pid {pid}) was hit"
 
     # an unknown robot: one line, status 1; `drag` of it too
-    for args in (("kill", "r9"), ("pause", "r9"), ("drag", "r9", "0.1", "0")):
-        res = fault(*args, "--endpoint", ep_a, "--timeout", "1.5")
-        assert res.returncode == 1, (args, res)
-        assert len(res.stderr.strip().splitlines()) == 1 and "r9" in res.stderr, res.stderr
-    res = fault("resume", "r9", "--endpoint", ep_a)
+    unknown = (("kill", "r9"), ("pause", "r9"), ("drag", "r9", "0.1", "0"))
+    *results, res = faults_at_once(
+        *((*args, "--endpoint", ep_a, "--timeout", "1.5") for args in unknown),
+        ("resume", "r9", "--endpoint", ep_a),
+    )
+    for args, one in zip(unknown, results, strict=True):
+        assert one.returncode == 1, (args, one)
+        assert len(one.stderr.strip().splitlines()) == 1 and "r9" in one.stderr, one.stderr
     assert res.returncode == 1 and "no paused agent r9" in res.stderr, res.stderr
 
     # pause A's r2 (verified: its status and its command line), options after the command
@@ -366,12 +451,13 @@ def test_fault_tool_never_touches_another_fleet_and_refuses_forged_status(
             )  # fmt: skip
             pub = Publisher(forger, keys.status_key(a.fleet, "r2"), encode(st))
             try:
-                for cmd in ("kill", "pause"):
-                    res = fault(cmd, "r2", "--endpoint", ep_a)
-                    assert res.returncode == 1, res
-                    assert "refused" in res.stderr and str(victim) in res.stderr, res.stderr
-                # and resume: a robot that publishes status is not paused
-                res = fault("resume", "r2", "--endpoint", ep_a)
+                # kill and pause refused; resume too: a robot that publishes status is not paused
+                *refused, res = faults_at_once(
+                    *((cmd, "r2", "--endpoint", ep_a) for cmd in ("kill", "pause", "resume"))
+                )
+                for one in refused:
+                    assert one.returncode == 1, one
+                    assert "refused" in one.stderr and str(victim) in one.stderr, one.stderr
                 assert res.returncode == 1 and "publishing status" in res.stderr, res.stderr
             finally:
                 pub.stop()
