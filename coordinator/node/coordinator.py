@@ -644,7 +644,11 @@ class CoordinatorNode:
         """Until ``stop``: the realtime tick loop (not in lockstep), status and heartbeat."""
         period = 1.0 / rate_hz
         now = time.monotonic()
-        next_tick = now
+        # A primary listens before it speaks (realtime): an instance already active (a standby
+        # that took over while this one was still starting, on a starved machine) is heard
+        # within the settle time, and the split-brain rule steps this one down before its first
+        # tick, so the robots never get a second virtual leader with another origin.
+        next_tick = now + self.election.settle_s if self.active and not self.lockstep else now
         next_status = now
         next_hb = now
         self.election.start(self.sim_t if self.lockstep else now)

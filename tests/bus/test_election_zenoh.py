@@ -15,6 +15,9 @@ in-bound epoch, origins 100 s earlier, 0 and 50 s later) from *before* b starts,
 the forger first; b checks origins against the ``leader`` messages it observes, refuses the
 spoofs, and after main's SIGKILL continues main's trajectory (with the old first-heartbeat rule
 this test saw a 1.86 m jump).
+
+The third is the start-up race: the standby is up and active before the primary starts; the
+primary must step down without a tick of its own (one more virtual leader otherwise).
 """
 
 from __future__ import annotations
@@ -230,3 +233,44 @@ def test_a_standby_that_hears_a_spoofed_active_first_never_moves_the_leader(
     bad = jumps(msgs)
     assert not bad, (bad[:5], standby.stderr()[-3000:])
     del tokens
+
+
+def test_an_instance_started_after_another_took_over_never_ticks(
+    spawn: Spawner, router: RouterHandle, session: Callable[..., zenoh.Session]
+) -> None:
+    """The start-up race of ``formation up --standby`` on a starved machine: the standby came
+    up first, found no instance and took over; the primary (started without ``--standby``,
+    active from its start) comes up later. It listens for the settle time before its first
+    tick, hears the active instance's heartbeat with the higher epoch and steps down, so the
+    robots never get a second virtual leader (before: it ticked at once with an origin of its
+    own for a few ticks until the split-brain rule stopped it, 6.6 mm from the other's)."""
+    client = session()
+    pubs = rt.Publishers(client)
+    tokens = {r: rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in START}
+    leaders = Recorder(client, keys.leader_key(FLEET), decoder_of(Leader))
+    status = Recorder(client, f"formation/{FLEET}/coordinator/*/status", msgpack.unpackb)
+    with PoseFeeder(pubs, set(START)):
+        spawn(
+            "coordinator", "--scenario", "paper-exp2", "--endpoint", router.endpoint,
+            "--standby", "--name", "b", ready="coord",
+        )  # fmt: skip
+        status.wait_for(lambda _r, _k, s: s.get("name") == "b" and s.get("role") == "active")
+        leaders.wait_for(lambda *_: True)  # b ticks
+        t_main = time.monotonic()
+        spawn(
+            "coordinator", "--scenario", "paper-exp2", "--endpoint", router.endpoint,
+            ready="coord",
+        )  # fmt: skip
+        _, _, st = status.wait_for(
+            lambda r, _k, s: r > t_main and s.get("name") == "main", timeout_s=10.0
+        )
+        time.sleep(1.0)
+    msgs = [m for m in leaders.snapshot() if m[0] > t_main - 0.5]
+    assert len(msgs) > 40
+    bad = jumps(msgs)
+    assert not bad, bad[:5]
+    roles = {s["name"]: s["role"] for r, _, s in status.snapshot() if r > t_main + 0.8}
+    assert roles == {"b": "active", "main": "standby"}, roles
+    mains = [s for r, _, s in status.snapshot() if s.get("name") == "main"]
+    assert all(s.get("ticks", 0) == 0 for s in mains), [s.get("ticks") for s in mains]
+    del tokens, st
