@@ -463,7 +463,8 @@ class CoordinatorCore:
                 theta, rows = slot_rows(spec, leader)
                 spacing_m = spec.least_spacing_m
         slot_ids: Sequence[int] = spec.priority_slots
-        slot_xy = [rows[r] for r in spec.priority_rows]  # (compiled: C's list indexing)
+        # (not a comprehension: compiled, that unboxes each row and boxes a copy of it)
+        slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
         was_yielding = self._yielding
         driven = self._driven(now_s) if self._released else self.assignment
