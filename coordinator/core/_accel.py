@@ -15,8 +15,8 @@ interpreter or edited sources mean pure Python. ``coordinator/core/__init__.py``
 :func:`activate` before it imports anything. The modules left out gain nothing from mypyc (their
 work is numpy's: ``slots``, the planner), run once per run, not per tick, or must stay Python:
 ``trajectory`` (a ``runtime_checkable`` protocol; frozen dataclasses that validate by coercing and
-pickle: its per-tick ``LeaderState`` and the closed-form samples' arithmetic are compiled in
-``leader_state``) and ``leader_config`` (the
+pickle: its per-tick ``LeaderState``, the closed-form samples' arithmetic and their samplers,
+which the leader calls every tick, are compiled in ``leader_state``) and ``leader_config`` (the
 same; docs/architecture.md). Standard library only.
 """
 

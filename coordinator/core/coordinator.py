@@ -463,6 +463,7 @@ class CoordinatorCore:
                 theta, rows = slot_rows(spec, leader)
                 spacing_m = spec.least_spacing_m
         slot_ids: Sequence[int] = spec.priority_slots
+        # (not a comprehension: compiled, that unboxes each row and boxes a copy of it)
         slot_xy = list(map(rows.__getitem__, spec.priority_rows))
         movers = self.movers
         was_yielding = self._yielding

@@ -377,26 +377,27 @@ def slot_rows(spec: FormationSpec, leader: LeaderState) -> tuple[float, list[Slo
     turn = spec._turn
     if (
         turn is None or turn[0] != theta or (theta == 0.0 and math.copysign(1.0, theta) != turn[1])
-    ):  # a new heading: its trigonometry (the same calls, so the same bits, as every tick)
-        cos, sin = math.cos, math.sin
+    ):  # a new heading: its trigonometry (the same calls, so the same bits, as every tick;
+        # math.cos and math.sin spelled out: compiled, C's, where a local alias is a Python call)
         trig: list[tuple[float, float]] = []
         for _, _, phi in spec._tree:
             gamma = phi + theta - _HALF_PI  # eq 3
-            trig.append((cos(gamma), sin(gamma)))
-        turn = (theta, math.copysign(1.0, theta), cos(theta), sin(theta), tuple(trig))
+            trig.append((math.cos(gamma), math.sin(gamma)))
+        turn = (theta, math.copysign(1.0, theta), math.cos(theta), math.sin(theta), tuple(trig))
         spec._turn = turn
     _, _, cth, sth, cs = turn
     tree = spec._tree  # (cs holds one (cos, sin) per entry of tree: made from it above)
     rows: list[SlotRow] = []
-    append = rows.append
-    for i in range(len(tree)):  # (compiled, a native loop; zip(..., strict=True) is a call)
+    # (compiled: a native loop, zip(..., strict=True) is a call; rows.append is C's list
+    # append, where a bound method kept in a local is a Python call)
+    for i in range(len(tree)):
         parent, b, _ = tree[i]
         cg, sg = cs[i]
         if parent < 0:
-            append((leader.x, leader.y, v * cth, v * sth))  # eqs 1-2
+            rows.append((leader.x, leader.y, v * cth, v * sth))  # eqs 1-2
         else:
             xp, yp, vxp, vyp = rows[parent]
-            append(
+            rows.append(
                 (
                     xp - b * cg,  # eq 4 (corrected)
                     yp - b * sg,  # eq 5 (corrected)

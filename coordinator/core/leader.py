@@ -68,7 +68,8 @@ from typing import TYPE_CHECKING, Any, Final, Protocol
 
 from bus_schemas.messages_fields import LeaderMode  # the modes as the leader message names them
 from coordinator.core.leader_config import DEADMAN_S, LeaderConfig, WaitSetting
-from coordinator.core.trajectory import LeaderState, Trajectory, wrap_angle
+from coordinator.core.leader_state import Sampler
+from coordinator.core.trajectory import LeaderState, Trajectory, sampler, wrap_angle
 
 if TYPE_CHECKING:  # the planning layer imports numpy; the leader takes its objects as given
     from coordinator.core.planning.timed import TimedPlan
@@ -215,6 +216,9 @@ class LeaderCore:
         arena: tuple[float, float, float, float] | None = None,
     ) -> None:
         self.trajectory = trajectory
+        # its compiled sampler (None: sampled through its own method), for this trajectory
+        self._sampler: Sampler | None = sampler(trajectory)
+        self._sampler_of: object = trajectory
         self._config = config if config is not None else LeaderConfig()
         self._trajectory_kind = trajectory_kind
         self.arena = arena
@@ -256,6 +260,19 @@ class LeaderCore:
     def trajectory_kind(self) -> str:
         """The scenario trajectory's kind (``"plan"``: a planned one; fixed)."""
         return self._trajectory_kind
+
+    def _sample(self, tau: float) -> LeaderState:
+        """``self.trajectory.sample(tau)``: through its compiled sampler when it has one (the
+        same function of the same floats: the same bits; ``tau`` as the float ``sample`` takes
+        it), else, or for a time that is not finite (its ``ValueError``), its own method."""
+        sp = self._sampler
+        if (
+            sp is not None
+            and self.trajectory is self._sampler_of
+            and not (math.isinf(tau) or math.isnan(tau))
+        ):
+            return sp.sample(float(tau))
+        return self.trajectory.sample(tau)
 
     # -- commands (queued; applied at the next step) ---------------------------------------
 
@@ -409,7 +426,7 @@ class LeaderCore:
             and (target_rate == 1.0 or not self._script_waits)
         ):  # the scenario's script at full speed: exactly trajectory.sample(now - t0)
             tau = self.progress_s = now_s - self.t0_s
-            s = self.state = self.trajectory.sample(tau)
+            s = self.state = self._sample(tau)
             return s
         dt = 0.0 if last is None else max(0.0, now_s - last)
         cfg = self.config
@@ -425,7 +442,7 @@ class LeaderCore:
                 tau = self.progress_s
             else:
                 tau = self.progress_s = now_s - self.t0_s
-            s = self.trajectory.sample(tau)
+            s = self._sample(tau)
             if rate != 1.0:
                 s = LeaderState(s.t, s.x, s.y, s.theta, rate * s.v_mps, rate * s.omega_radps)
             self.state = s

@@ -21,7 +21,9 @@ compiled state holds its fields as floats (an ``int`` given is stored as the sam
 The samples' arithmetic is here for the same reason: ``trajectory``'s classes validate their
 parameters and the time (``ValueError``), then call these with checked floats, so the arithmetic,
 the ``sin``/``cos`` and the state run compiled; the operations and their order are the ones the
-classes had, so the same bits compiled and pure. Pure, stdlib only.
+classes had, so the same bits compiled and pure. The :class:`Sampler` classes hold a
+trajectory's checked parameters and call these, so the leader's step samples its script without
+a Python frame (``coordinator.core.trajectory.sampler``). Pure, stdlib only.
 """
 
 from __future__ import annotations
@@ -34,7 +36,17 @@ from typing import Any, Final
 
 from robot_agent.core.kinematics import wrap_angle  # the one wrap to (-pi, pi]; NaN for non-finite
 
-__all__ = ["TWO_PI", "LeaderState", "circle_state", "figure8_state", "line_state"]
+__all__ = [
+    "TWO_PI",
+    "CircleSampler",
+    "Figure8Sampler",
+    "LeaderState",
+    "LineSampler",
+    "Sampler",
+    "circle_state",
+    "figure8_state",
+    "line_state",
+]
 
 TWO_PI: Final = 2.0 * math.pi
 
@@ -171,3 +183,85 @@ def figure8_state(
     if since <= 0.0:
         return LeaderState(t, x, y, theta, 0.0, 0.0)
     return LeaderState(t, x, y, theta, math.sqrt(v2), (dx * ddy - dy * ddx) / v2)
+
+
+class Sampler:
+    """A closed-form trajectory's checked parameters and its sample, compiled: what
+    ``LeaderCore.step`` calls every tick in place of the trajectory's own ``sample`` (a Python
+    method, whose frame cost more than its arithmetic). ``coordinator.core.trajectory.sampler``
+    makes one from a ``StraightLine``, ``Circle`` or ``FigureEight``; ``sample(t)`` is that
+    trajectory's ``sample(t)`` bit for bit for a finite float ``t`` (the same function of the
+    same floats), which the caller checks."""
+
+    def sample(self, t: float) -> LeaderState:
+        """The state at the finite time ``t`` (s)."""
+        raise NotImplementedError
+
+
+class LineSampler(Sampler):
+    """``StraightLine.sample`` (:func:`line_state`)."""
+
+    def __init__(
+        self, x0: float, y0: float, heading: float, speed_mps: float, t_start_s: float
+    ) -> None:
+        self.x0 = x0
+        self.y0 = y0
+        self.heading = heading
+        self.speed_mps = speed_mps
+        self.t_start_s = t_start_s
+
+    def sample(self, t: float) -> LeaderState:
+        return line_state(t, self.x0, self.y0, self.heading, self.speed_mps, self.t_start_s)
+
+
+class CircleSampler(Sampler):
+    """``Circle.sample`` (:func:`circle_state`)."""
+
+    def __init__(
+        self,
+        cx: float,
+        cy: float,
+        radius_m: float,
+        speed_mps: float,
+        start_angle_rad: float,
+        sign: float,
+        t_start_s: float,
+    ) -> None:
+        self.cx = cx
+        self.cy = cy
+        self.radius_m = radius_m
+        self.speed_mps = speed_mps
+        self.start_angle_rad = start_angle_rad
+        self.sign = sign
+        self.t_start_s = t_start_s
+
+    def sample(self, t: float) -> LeaderState:
+        return circle_state(
+            t, self.cx, self.cy, self.radius_m, self.speed_mps, self.start_angle_rad, self.sign,
+            self.t_start_s,
+        )  # fmt: skip
+
+
+class Figure8Sampler(Sampler):
+    """``FigureEight.sample`` (:func:`figure8_state`)."""
+
+    def __init__(
+        self,
+        cx: float,
+        cy: float,
+        a_m: float,
+        period_s: float,
+        rotation_rad: float,
+        t_start_s: float,
+    ) -> None:
+        self.cx = cx
+        self.cy = cy
+        self.a_m = a_m
+        self.period_s = period_s
+        self.rotation_rad = rotation_rad
+        self.t_start_s = t_start_s
+
+    def sample(self, t: float) -> LeaderState:
+        return figure8_state(
+            t, self.cx, self.cy, self.a_m, self.period_s, self.rotation_rad, self.t_start_s
+        )

@@ -394,7 +394,11 @@ def kept_by_spacing(
     """
     if not incumbent or k == 0 or not spacing_m > 0.0:
         return None
-    # (incumbent and row_of are dicts, whose get mypyc calls in C: the per-tick check)
+    # (incumbent and row_of are dicts, whose get mypyc calls in C: the per-tick check; the
+    # positions as lists, which mypyc indexes in C where a Sequence's every index is a Python
+    # call compiled: the same values)
+    robots: list[tuple[float, float]] = rxy if isinstance(rxy, list) else list(rxy)
+    rows: list[Sequence[float]] = sxy if isinstance(sxy, list) else list(sxy)
     out: dict[str, int] = {}  # robot -> its slot, natural id order (as the rules return it)
     taken = [False] * k
     spare: list[int] = []
@@ -410,8 +414,8 @@ def kept_by_spacing(
             return None
         taken[j] = True
         out[rid] = sid
-        srow = sxy[j]
-        rx, ry = rxy[i]
+        srow = rows[j]
+        rx, ry = robots[i]
         dx = srow[0] - rx
         dy = srow[1] - ry
         d = math.sqrt(dx * dx + dy * dy)

@@ -57,6 +57,7 @@ from __future__ import annotations
 import math
 from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Final
 
 __all__ = ["MoverDetector", "MoverParams", "MoverRow"]
 
@@ -64,6 +65,57 @@ MoverRow = tuple[str, float, float, float, float]
 """A moving obstacle: ``(id, x, y, vx, vy)``, its centre (m) and velocity (m/s)."""
 
 _EMPTY: frozenset[str] = frozenset()
+_SURE: Final = 0.999999
+"""``_slower``'s margin on the squared distance: far above the rounding of either side."""
+_NORMAL_SQ: Final = 1e-290
+"""``_slower`` decides nothing below this squared limit (m^2: products near underflow)..."""
+_HUGE_SQ: Final = 1e290
+"""... nor above this one (m^2: products near overflow)."""
+
+
+def _slower(dx_m: float, dy_m: float, dt_s: float, limit_mps: float) -> bool:
+    """``hypot(dx_m, dy_m) / dt_s <= limit_mps`` for certain, decided without ``math.hypot``
+    (in the compiled build a Python call: the largest cost of a robot's pass in
+    ``MoverDetector.update``). True only when the squared distance is below the squared limit
+    by the margin ``_SURE``: ``math.hypot`` is within one ulp of the exact norm and the products
+    and sums round by a few ulps, so the exact speed is then ``(1 - 5e-7)`` of the limit or
+    less, and its rounded quotient can only be at most the limit (rounding is monotone). False
+    when unsure or out of the normal range (overflow, underflow): the caller then computes the
+    speed itself, as before, so every decision is the one the speed gives."""
+    lim_m = limit_mps * dt_s
+    lim_sq = lim_m * lim_m
+    if not _NORMAL_SQ < lim_sq < _HUGE_SQ:
+        return False
+    return dx_m * dx_m + dy_m * dy_m < _SURE * lim_sq
+
+
+class _Sample:
+    """One sample of a centre: time ``t`` (s), ``x``, ``y`` (m). A class of its own, not a
+    tuple: compiled, its floats are read in place (a tuple's are checked and unboxed, all three
+    at each read) and it is one object, not four."""
+
+    __slots__ = ("t", "x", "y")
+
+    def __init__(self, t_s: float, x_m: float, y_m: float) -> None:
+        self.t = t_s
+        self.x = x_m
+        self.y = y_m
+
+
+class _Track:
+    """One robot's (or object's) centre: the latest ``x``, ``y`` (m) and its samples over the
+    window. One object per robot, updated in place each tick (compiled: the floats unboxed), so
+    a tick stores no new pair per robot beside the sample."""
+
+    __slots__ = ("samples", "x", "y")
+
+    def __init__(self, t_s: float, x_m: float, y_m: float) -> None:
+        self.x = x_m
+        self.y = y_m
+        # its samples, oldest first: a list, which mypyc indexes, appends to and pops in C (a
+        # deque's every operation is a Python call compiled); some 26 samples; never empty: it
+        # starts with a sample and keeps 2
+        self.samples: list[_Sample] = [_Sample(t_s, x_m, y_m)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,12 +192,11 @@ class MoverDetector:
 
     __slots__ = (
         "_cos_turn",
-        "_hist",
-        "_last_xy",
         "_objects",
         "_params",
         "_reserved",
         "_side",
+        "_tracks",
         "_until",
         "_yield_until",
         "rejected",
@@ -153,10 +204,8 @@ class MoverDetector:
 
     def __init__(self, params: MoverParams | None = None) -> None:
         self._params = params if params is not None else MoverParams()
-        # robot -> its samples (t, x, y), oldest first: a list, which mypyc indexes, appends to
-        # and pops in C (a deque's every operation is a Python call compiled); some 26 samples
-        self._hist: dict[str, list[tuple[float, float, float]]] = {}
-        self._last_xy: dict[str, tuple[float, float]] = {}
+        # robot -> its latest centre and its samples over the window
+        self._tracks: dict[str, _Track] = {}
         self._until: dict[str, float] = {}
         self._yield_until: dict[str, float] = {}
         self._reserved: dict[str, int] = {}
@@ -203,29 +252,33 @@ class MoverDetector:
             return ()
         rows: list[MoverRow] = []
         for mid in sorted(self._until):
-            c = self._last_xy.get(mid)
+            c = self._tracks.get(mid)
             if c is not None:
-                rows.append((mid, c[0], c[1], *self.velocity(mid)))
+                rows.append((mid, c.x, c.y, *self.velocity(mid)))
         return tuple(rows)
 
     def speed_mps(self, robot: str) -> float:
         """The robot's centre speed over the window (m/s), NaN until it has one."""
-        hist = self._hist.get(robot)
+        track = self._tracks.get(robot)
+        hist = track.samples if track is not None else None
         if not hist or len(hist) < 2:
             return math.nan
-        t1, x1, y1 = hist[-1]
-        t0, x0, y0 = hist[0]
+        last, first = hist[-1], hist[0]
+        t1, x1, y1 = last.t, last.x, last.y
+        t0, x0, y0 = first.t, first.x, first.y
         if not t1 - t0 >= self._params.window_s:
             return math.nan
         return math.hypot(x1 - x0, y1 - y0) / (t1 - t0)
 
     def velocity(self, robot: str) -> tuple[float, float]:
         """The robot's centre velocity over the window (m/s), ``(0, 0)`` until it has one."""
-        hist = self._hist.get(robot)
+        track = self._tracks.get(robot)
+        hist = track.samples if track is not None else None
         if not hist or len(hist) < 2:
             return 0.0, 0.0
-        t1, x1, y1 = hist[-1]
-        t0, x0, y0 = hist[0]
+        last, first = hist[-1], hist[0]
+        t1, x1, y1 = last.t, last.x, last.y
+        t0, x0, y0 = first.t, first.x, first.y
         if not t1 - t0 >= self._params.window_s:
             return 0.0, 0.0
         return (x1 - x0) / (t1 - t0), (y1 - y0) / (t1 - t0)
@@ -301,12 +354,12 @@ class MoverDetector:
         p = self._params
         rx, ry = qx, qy
         for mid in sorted(self._until):
-            c = self._last_xy.get(mid)
+            c = self._tracks.get(mid)
             if c is None:
                 continue
             vx, vy = self.velocity(mid)
             sp = math.hypot(vx, vy)
-            dx, dy = qx - c[0], qy - c[1]
+            dx, dy = qx - c.x, qy - c.y
             if sp > p.still_mps:
                 ux, uy = vx / sp, vy / sp
             else:  # a mover standing: away from it
@@ -347,8 +400,8 @@ class MoverDetector:
         if abs(cross) >= self._params.keep_side_m:
             return 1.0 if cross > 0.0 else -1.0
         pts = [
-            xy
-            for rid, xy in self._last_xy.items()
+            (c.x, c.y)
+            for rid, c in self._tracks.items()
             if rid not in self._objects and rid not in self._until
         ]
         if pts:
@@ -377,29 +430,13 @@ class MoverDetector:
         (``excluded``: the movers and the robots making room for them; an object among them is
         given no slot anyway)."""
         p = self._params
-        if not math.isfinite(now_s):
+        if math.isinf(now_s) or math.isnan(now_s):  # (math.isfinite: a Python call compiled)
             self.rejected += 1
             return self.excluded
-        was_objects = self._objects
-        self._objects = frozenset(objects) if objects else _EMPTY
-        present: Mapping[str, object] = poses
-        seen: Iterable[tuple[str, Sequence[float]]] = poses.items()
-        if objects:
-            # a robot that has just become an object (its agent died: the plant stopped its
-            # wheels) is measured from now on: its own driving before does not make it a mover
-            for oid in self._objects - was_objects:
-                if oid not in poses and self._hist.pop(oid, None) is not None:
-                    self._last_xy.pop(oid, None)
-            seen = [
-                *poses.items(),
-                *[(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses],
-            ]
-            present = {**poses, **objects}
+        seen, present = self._observed(poses, objects)
         # The per-tick hot path (one pass per robot): locals, the speed of speed_mps inline
         # (the same arithmetic), and the bookkeeping below only when there is something to do.
-        hypot = math.hypot
-        hists = self._hist
-        last_xy = self._last_xy
+        tracks = self._tracks
         until = self._until
         window_s = p.window_s
         fast_mps = p.fast_mps
@@ -411,29 +448,34 @@ class MoverDetector:
                 self.rejected += 1
                 continue
             n_ok += 1
+            track = tracks.get(rid)
+            if track is None:  # a first sample: no speed yet (speed_mps is NaN)
+                tracks[rid] = _Track(now_s, x, y)
+                continue
             # one sample per tick (a pose that did not change is a robot that did not move
             # as far as the coordinator knows; over the window that averages out)
-            last_xy[rid] = (x, y)
-            hist = hists.get(rid)
-            if hist is None:  # a first sample: no speed yet (speed_mps is NaN)
-                hists[rid] = [(now_s, x, y)]
-                continue
+            track.x = x
+            track.y = y
+            hist = track.samples
             last = hist[-1]  # (a history is never empty: it starts with a sample, keeps 2)
-            if now_s > last[0]:
-                last = (now_s, x, y)
+            if now_s > last.t:
+                last = _Sample(now_s, x, y)
                 hist.append(last)
             # keep the newest sample at least window_s before the latest one, and after it
             n = len(hist)
-            while n > 2 and now_s - hist[1][0] >= window_s:
+            while n > 2 and now_s - hist[1].t >= window_s:
                 hist.pop(0)
                 n -= 1
             if n < 2:  # speed_mps: NaN until there is a window
                 continue
-            t1, x1, y1 = last
-            t0, x0, y0 = hist[0]
-            if not t1 - t0 >= window_s:
+            first = hist[0]
+            dt_s = last.t - first.t
+            if not dt_s >= window_s:
                 continue
-            speed = hypot(x1 - x0, y1 - y0) / (t1 - t0)
+            dx_m, dy_m = last.x - first.x, last.y - first.y
+            if _slower(dx_m, dy_m, dt_s, fast_mps) and rid in assignment and rid not in held:
+                continue  # driven and not faster than its wheels drive: not a mover (below)
+            speed = math.hypot(dx_m, dy_m) / dt_s
             if speed != speed:
                 continue
             if speed > fast_mps:
@@ -451,6 +493,28 @@ class MoverDetector:
         self._expire(now_s, n_ok, present, poses, assignment)
         return self.excluded
 
+    def _observed(
+        self,
+        poses: Mapping[str, tuple[float, float, float]],
+        objects: Mapping[str, tuple[float, float]] | None,
+    ) -> tuple[Iterable[tuple[str, Sequence[float]]], Mapping[str, object]]:
+        """Start of ``update``: the poses to sample (the robots', then the objects' not among
+        them) and every id present now; the tracked objects taken."""
+        was_objects = self._objects
+        self._objects = frozenset(objects) if objects else _EMPTY
+        if not objects:
+            return poses.items(), poses
+        # a robot that has just become an object (its agent died: the plant stopped its
+        # wheels) is measured from now on: its own driving before does not make it a mover
+        for oid in self._objects - was_objects:
+            if oid not in poses:
+                self._tracks.pop(oid, None)
+        seen = [
+            *poses.items(),
+            *[(oid, (xy[0], xy[1], 0.0)) for oid, xy in objects.items() if oid not in poses],
+        ]
+        return seen, {**poses, **objects}
+
     def _expire(
         self,
         now_s: float,
@@ -461,12 +525,11 @@ class MoverDetector:
     ) -> None:
         """End of ``update``: forget the robots gone (``n_seen`` finite poses were taken now),
         end the movers and yields whose hold is over, mark the robots making room now."""
-        hists, until, ylds = self._hist, self._until, self._yield_until
-        # every history is of a robot seen now unless the table holds more ids than that
-        if len(hists) != n_seen:
-            for rid in [r for r in hists if r not in present]:  # gone: forget it
-                del hists[rid]
-                self._last_xy.pop(rid, None)
+        tracks, until, ylds = self._tracks, self._until, self._yield_until
+        # every track is of a robot seen now unless the table holds more ids than that
+        if len(tracks) != n_seen:
+            for rid in [r for r in tracks if r not in present]:  # gone: forget it
+                del tracks[rid]
         if until:
             for rid in [r for r, t in until.items() if now_s >= t or r not in present]:
                 del until[rid]
@@ -486,19 +549,20 @@ class MoverDetector:
         """Mark the robots near a mover, and those near them in turn, as yielding now (a
         breadth-first walk over centre distances; O(n^2) in the robots, only with a mover)."""
         p = self._params
-        xy = self._last_xy
+        tracks = self._tracks
         # (x, y, radius): a mover reaches yield_m plus what it covers in lead_s
         frontier = [
-            (*xy[m], p.yield_m + p.lead_s * math.hypot(*self.velocity(m)))
+            (tracks[m].x, tracks[m].y, p.yield_m + p.lead_s * math.hypot(*self.velocity(m)))
             for m in sorted(self._until)
-            if m in xy
+            if m in tracks
         ]
         seen = set(self._until)
         while frontier:
             nxt: list[tuple[float, float, float]] = []
-            for rid, (x, y) in xy.items():
+            for rid, track in tracks.items():
                 if rid in seen or rid in self._objects:
                     continue
+                x, y = track.x, track.y
                 for fx, fy, radius in frontier:
                     if math.hypot(x - fx, y - fy) <= radius:
                         seen.add(rid)
@@ -511,8 +575,7 @@ class MoverDetector:
 
     def reset(self) -> None:
         """Forget every history and mover."""
-        self._hist.clear()
-        self._last_xy.clear()
+        self._tracks.clear()
         self._until.clear()
         self._yield_until.clear()
         self._reserved.clear()

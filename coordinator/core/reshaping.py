@@ -236,7 +236,8 @@ class Reshaper:
         """At a tick at ``now_s``: a reshape over at the last tick settles, a pending one starts;
         the reshape running now, or None."""
         self._last_now = now_s
-        self._settle()
+        if self._done:  # (else _settle has nothing to do: a Python call spared every tick)
+            self._settle()
         if self._pending is not None:
             self.transition, self._pending, self.t0_s = self._pending, None, now_s
         return self.transition

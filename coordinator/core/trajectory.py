@@ -31,7 +31,11 @@ from typing import Any, Protocol, runtime_checkable
 # compiled with the coordinator's tick
 from coordinator.core.leader_state import (
     TWO_PI,
+    CircleSampler,
+    Figure8Sampler,
     LeaderState,
+    LineSampler,
+    Sampler,
     circle_state,
     figure8_state,
     line_state,
@@ -47,6 +51,7 @@ __all__ = [
     "Trajectory",
     "Waypoints",
     "make_trajectory",
+    "sampler",
     "wrap_angle",
 ]
 
@@ -448,6 +453,30 @@ class Waypoints:
         x, y, h = piece.at(min(s - piece.s0_m, piece.length_m))
         omega = piece.sign * self.speed_mps / piece.radius_m
         return LeaderState(t, x, y, wrap_angle(h), self.speed_mps, omega)
+
+
+# --------------------------------------------------------------------------------------------
+# The compiled samplers of the closed-form trajectories
+
+
+def sampler(trajectory: object) -> Sampler | None:
+    """The compiled sampler of ``trajectory`` (``coordinator.core.leader_state``): its
+    ``sample(t)`` is ``trajectory.sample(t)`` bit for bit for a finite float ``t``, without a
+    Python frame (``LeaderCore.step`` samples through it every tick). None for any other
+    trajectory, a subclass included (its ``sample`` may differ): the caller calls ``sample``."""
+    if type(trajectory) is StraightLine:
+        t = trajectory
+        return LineSampler(t.x0, t.y0, t.heading, t.speed_mps, t.t_start_s)
+    if type(trajectory) is Circle:
+        c = trajectory
+        sign = 1.0 if c.ccw else -1.0  # (as Circle.sample)
+        return CircleSampler(
+            c.cx, c.cy, c.radius_m, c.speed_mps, c.start_angle_rad, sign, c.t_start_s
+        )
+    if type(trajectory) is FigureEight:
+        f = trajectory
+        return Figure8Sampler(f.cx, f.cy, f.a_m, f.period_s, f.rotation_rad, f.t_start_s)
+    return None
 
 
 # --------------------------------------------------------------------------------------------
