@@ -361,6 +361,46 @@ class Camera:
         return out
 
 
+class _InFlight:
+    """Messages sent together (one :meth:`CommandLink.send_all` or one :meth:`CommandLink.send`)
+    and not delivered yet, in send order: robot ``dest[j]`` gets ``cmds[j]`` at ``when_s[j]``;
+    ``lo_s`` and ``hi_s`` are the earliest and the latest of ``when_s``. Three flat lists and no
+    tuple per message (the compiled build would unbox a typed tuple and box it again at each
+    step); a batch whose messages are all due is delivered without looking at their times."""
+
+    def __init__(
+        self, dest: list[int], cmds: list[Any], when_s: list[float], lo_s: float, hi_s: float
+    ) -> None:
+        self.dest = dest
+        self.cmds = cmds
+        self.when_s = when_s
+        self.lo_s = lo_s
+        self.hi_s = hi_s
+
+    def split(self, t: float) -> tuple[list[int], _InFlight | None]:
+        """Positions of the messages due by ``t`` (in send order), and the batch of the rest
+        (None if none is left)."""
+        due: list[int] = []
+        dest: list[int] = []
+        cmds: list[Any] = []
+        when: list[float] = []
+        lo = math.inf
+        hi = -math.inf
+        w: float
+        for j, w in enumerate(self.when_s):
+            if w <= t:
+                due.append(j)
+            else:
+                dest.append(self.dest[j])
+                cmds.append(self.cmds[j])
+                when.append(w)
+                if w < lo:
+                    lo = w
+                if w > hi:
+                    hi = w
+        return due, (_InFlight(dest, cmds, when, lo, hi) if dest else None)
+
+
 class CommandLink(Generic[CmdT]):
     """Delayed, jittered, lossy delivery of commands to robots (one-way link).
 
@@ -372,7 +412,7 @@ class CommandLink(Generic[CmdT]):
         fifo: keep per-robot order (a message never overtakes an earlier one to the same robot).
 
     Counters: ``sent`` (every :meth:`send`), ``dropped`` (lost), ``delivered`` (returned by
-    :meth:`poll`); ``in_flight`` = sent - dropped - delivered.
+    :meth:`poll`); ``in_flight`` = sent - dropped - delivered. Robots are indices ``i >= 0``.
     """
 
     def __init__(
@@ -391,14 +431,14 @@ class CommandLink(Generic[CmdT]):
             raise ValueError("rng is required when jitter or loss is configured")
         self._rng = rng
         self.fifo = bool(fifo)
-        # Messages in flight, (deliver_t, seq, i, cmd) in send order (seq increasing: sends
-        # append, poll() keeps the order of the rest). poll() takes the due ones out and sorts
-        # them: a tick's messages are due together, so one C-level sort beats a heap pop per
-        # message.
-        self._queue: list[tuple[float, int, int, CmdT]] = []
-        self._seq = 0  # messages queued so far: the next one's tie-breaking number
-        self._latest = -math.inf  # the latest delivery time in the queue (-inf: empty)
-        self._last_deliver: dict[int, float] = {}
+        # Messages in flight, in batches in send order (sends append a batch; a poll keeps the
+        # order of the rest). Delivery order is the order of (delivery time, send order).
+        self._batches: list[_InFlight] = []
+        self._in_flight = 0
+        # Some message in flight was sent without fifo: per robot, send order may then differ
+        # from delivery order (poll_into must sort). Cleared when the link is empty.
+        self._unordered = False
+        self._last_deliver: list[float] = []  # per robot, its last message's delivery time (fifo)
         self.sent = 0
         self.dropped = 0
         self.delivered = 0
@@ -406,13 +446,31 @@ class CommandLink(Generic[CmdT]):
     @property
     def in_flight(self) -> int:
         """Messages queued and not yet delivered."""
-        return len(self._queue)
+        return self._in_flight
+
+    def _grow(self, m: int) -> list[float]:
+        """The per-robot delivery times, for robots ``0 .. m - 1`` at least."""
+        last = self._last_deliver
+        if len(last) < m:
+            last.extend([-math.inf] * (m - len(last)))
+        return last
+
+    def _enqueue(
+        self, dest: list[int], cmds: list[Any], when: list[float], lo: float, hi: float
+    ) -> None:
+        self._batches.append(_InFlight(dest, cmds, when, lo, hi))
+        self._in_flight += len(dest)
+        if not self.fifo:
+            self._unordered = True
 
     def send(self, t_s: float, i: int, cmd: CmdT) -> float | None:
         """Send ``cmd`` to robot ``i`` at ``t_s``; returns its delivery time, or None if lost."""
         t = float(t_s)
         if not math.isfinite(t):
             raise ValueError(f"t_s must be finite, got {t_s!r}")
+        robot = int(i)
+        if robot < 0:
+            raise ValueError(f"i must be a robot index >= 0, got {i!r}")
         self.sent += 1
         rng = self._rng
         # Draw loss then jitter for every message so the random stream does not depend on outcome.
@@ -429,13 +487,10 @@ class CommandLink(Generic[CmdT]):
             return None
         deliver = t + self.latency_s + extra
         if self.fifo:
-            deliver = max(deliver, self._last_deliver.get(i, -math.inf))
-            self._last_deliver[i] = deliver
-        seq = self._seq
-        self._seq = seq + 1
-        self._queue.append((deliver, seq, int(i), cmd))
-        if deliver > self._latest:
-            self._latest = deliver
+            last = self._grow(robot + 1)
+            deliver = max(deliver, last[robot])
+            last[robot] = deliver
+        self._enqueue([robot], [cmd], [deliver], deliver, deliver)
         return deliver
 
     def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
@@ -464,58 +519,106 @@ class CommandLink(Generic[CmdT]):
             else:
                 jitter_u = rng.random(m).tolist()
         base = t + self.latency_s
-        queue = self._queue
-        seq = self._seq
-        last = self._last_deliver
         fifo = self.fifo
-        latest = self._latest
+        last = self._grow(m) if fifo else self._last_deliver
+        dest: list[int] = []
+        out: list[Any] = []
+        when: list[float] = []
+        lo = math.inf
+        hi = -math.inf
+        lost = 0
         for i in range(m):
             if loss_u is not None and loss_u[i] < loss_p:
-                self.dropped += 1
+                lost += 1
                 continue
             deliver = base if jitter_u is None else base + jitter_u[i] * jitter
             if fifo:
-                prev = last.get(i)
-                if prev is not None and prev > deliver:
+                prev = last[i]
+                if prev > deliver:
                     deliver = prev
                 last[i] = deliver
-            queue.append((deliver, seq, i, cmds[i]))
-            seq += 1
-            if deliver > latest:
-                latest = deliver
-        self._seq = seq
-        self._latest = latest
+            dest.append(i)
+            out.append(cmds[i])
+            when.append(deliver)
+            if deliver < lo:
+                lo = deliver
+            if deliver > hi:
+                hi = deliver
+        self.dropped += lost
+        if dest:
+            self._enqueue(dest, out, when, lo, hi)
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
-        return [(i, cmd) for _, _, i, cmd in self._take_due(t_s)]
+        return [(i, cmd) for _, i, cmd in self._take_due(t_s)]
 
     def poll_into(self, t_s: float, latest: list[CmdT]) -> int:
         """:meth:`poll` written into ``latest``: each due message's command into ``latest[i]``
         in delivery order (the last one delivered to a robot stays); returns how many. The same
-        as ``for i, cmd in poll(t_s): latest[i] = cmd``, without a pair per message."""
-        due = self._take_due(t_s)
-        for m in due:
-            latest[m[2]] = m[3]
-        return len(due)
+        as ``for i, cmd in poll(t_s): latest[i] = cmd``, without a pair per message.
 
-    def _take_due(self, t_s: float) -> list[tuple[float, int, int, CmdT]]:
-        """The messages due by ``t_s``, taken out of the queue (counted as delivered), in
-        delivery order (ties in send order)."""
+        With fifo, a robot's messages are delivered in the order they were sent, so the last
+        one delivered to a robot is the last one sent among its due messages: they are written
+        in send order, batch by batch, with no sort (the same final ``latest``)."""
+        if self._unordered:
+            due = self._take_due(t_s)
+            for m in due:
+                latest[m[1]] = m[2]
+            return len(due)
         t = float(t_s) + _TIME_EPS_S
-        queue = self._queue
-        if self._latest <= t:  # all of them (the usual case: latency + jitter within a tick)
-            due = queue
-            self._queue = []
-            self._latest = -math.inf
-        else:  # (the latest one stays queued)
-            due = [m for m in queue if m[0] <= t]
-            if not due:
-                return due
-            self._queue = [m for m in queue if m[0] > t]
-        # Delivery order, ties in send order: the order of (deliver_t, seq). The queue is in
-        # seq order and the sort is stable, so sorting on deliver_t alone gives exactly that
-        # order, comparing C floats instead of tuples (a float key is list.sort's fast path).
+        batches = self._batches
+        if not batches:
+            return 0
+        keep: list[_InFlight] = []
+        count = 0
+        for b in batches:
+            if b.hi_s <= t:  # all due (the usual case: latency + jitter within a tick)
+                dest = b.dest
+                cmds = b.cmds
+                for j in range(len(dest)):
+                    latest[dest[j]] = cmds[j]
+                count += len(dest)
+            elif b.lo_s > t:  # none due
+                keep.append(b)
+            else:
+                pos, rest = b.split(t)
+                for j in pos:
+                    latest[b.dest[j]] = b.cmds[j]
+                count += len(pos)
+                if rest is not None:
+                    keep.append(rest)
+        self._batches = keep
+        self._delivered(count)
+        return count
+
+    def _delivered(self, count: int) -> None:
+        self._in_flight -= count
+        self.delivered += count
+        if not self._in_flight:
+            self._unordered = False
+
+    def _take_due(self, t_s: float) -> list[tuple[float, int, Any]]:
+        """The messages due by ``t_s`` as ``(deliver_t, i, cmd)``, taken out of the queue
+        (counted as delivered), in delivery order (ties in send order)."""
+        t = float(t_s) + _TIME_EPS_S
+        due: list[tuple[float, int, Any]] = []
+        keep: list[_InFlight] = []
+        for b in self._batches:
+            if b.hi_s <= t:
+                due.extend(zip(b.when_s, b.dest, b.cmds, strict=True))
+            elif b.lo_s > t:
+                keep.append(b)
+            else:
+                pos, rest = b.split(t)
+                due.extend([(b.when_s[j], b.dest[j], b.cmds[j]) for j in pos])
+                if rest is not None:
+                    keep.append(rest)
+        if not due:
+            return due
+        self._batches = keep
+        # Delivery order, ties in send order: the messages are collected in send order and the
+        # sort is stable, so sorting on deliver_t alone gives exactly that order, comparing C
+        # floats instead of tuples (a float key is list.sort's fast path).
         due.sort(key=_deliver_t)
-        self.delivered += len(due)
+        self._delivered(len(due))
         return due
