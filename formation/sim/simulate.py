@@ -294,8 +294,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             camera.capture(t, truth)
             delivered = camera.poll(t)
             if delivered:
-                meas: Any  # (i, stamp, x, y, theta), its numbers passed on as they are
-                for meas in delivered:
+                meas: tuple[Any, ...]  # (i, stamp, x, y, theta), its numbers passed on as
+                for meas in delivered:  # they are (a tuple: its items read natively)
                     i = meas[0]
                     x, y, th, stamp = meas[2], meas[3], meas[4], meas[1]
                     poses[i] = _tuple_new(Pose, (x, y, th, stamp))
@@ -400,9 +400,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                     row: Any = prev_approach.get(rid) if approaching else None  # (x, y, vx, vy)
                     if row is None:
                         row = prev_rows[slot_row[slot]]
+                    # a tuple (SlotRow): typed so, its items are read natively when compiled
+                    r4: tuple[Any, ...] = row if isinstance(row, tuple) else tuple(row)
                     # the Setpoint's seven fields in one tuple (no list built to unpack the row)
                     sp = _tuple_new(
-                        Setpoint, (row[0], row[1], row[2], row[3], prev_theta, slot, t_prev_obj)
+                        Setpoint, (r4[0], r4[1], r4[2], r4[3], prev_theta, slot, t_prev_obj)
                     )
                 # (by position: Firmware.step's keyword arguments cost more than the call
                 # across two compiled groups)

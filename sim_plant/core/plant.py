@@ -343,29 +343,24 @@ class Plant:
         command needs the general path: not ``n`` pairs of real numbers, or a wheel that is
         non-finite or over the limit (to be zeroed / clamped and counted there).
         """
-        rows = self._rows
-        if rows is None:
-            rows = self.truth_rows()
-        wrows = self._wrows
-        if wrows is None:
-            wrows = self._wrows = tuple((w[0], w[1]) for w in self._wheels.tolist())
+        rows, wrows = self._tuple_state()
         cmds: Any = wheel_cmd.tolist() if isinstance(wheel_cmd, np.ndarray) else wheel_cmd
+        # typed views for the compiled build: a tuple's item and a list's are read natively
+        # (PoseRows is a tuple), a pair command (the loop's) is unpacked without an iterator
+        prow: tuple[PoseRow, ...] = rows
         try:
             if len(cmds) != len(rows):
                 return False
+            clist: list[Any] = cmds if type(cmds) is list else list(cmds)
         except TypeError:
             return False
         # Without a wheel limit the largest finite float: the test below then still sends
         # NaN and +-inf the general way.
         guard = self._guard
         lim: float = guard.max_wheel_radps if guard.wheel_limit else _MAX_FLOAT
-        tau = self._motor_tau_s
-        lag = tau > 0.0
+        lag = self._motor_tau_s > 0.0
         if dt != self._lag_dt:  # the loop's dt is constant: compute the lag factors once
-            self._lag_dt = dt
-            # mean of the lag over the step, and its decay over the step
-            self._lag_factor = -tau * math.expm1(-dt / tau) / dt if lag else 0.0
-            self._lag_decay = math.exp(-dt / tau) if lag else 0.0
+            self._set_lag(dt)
         factor = self._lag_factor
         decay = self._lag_decay
         kv = 0.5 * self._radius_m
@@ -382,9 +377,15 @@ class Plant:
         cl: float
         try:
             for j in range(len(rows)):  # the lengths are equal (checked above)
-                x, y, th = rows[j]
+                x, y, th = prow[j]
                 w0r, w0l = wrows[j]
-                cr, cl = cmds[j]
+                c = clist[j]
+                if type(c) is tuple and len(c) == 2:
+                    pair: tuple[Any, ...] = c
+                    cr = pair[0]
+                    cl = pair[1]
+                else:
+                    cr, cl = c
                 # False for NaN, for +-inf and beyond the limit: those go the general way to be
                 # zeroed or clamped and counted. (Nothing is committed before the loop ends.)
                 if not (-lim <= cr <= lim and -lim <= cl <= lim):
@@ -415,14 +416,42 @@ class Plant:
         except (TypeError, ValueError):  # not pairs of real numbers
             return False
         self._guard.none_saturated(len(rows))
-        for j, a in enumerate(self._angles):
-            a[0] += angles[2 * j]
-            a[1] += angles[2 * j + 1]
+        self._add_turns(angles)
         self._rows = PoseRows(new_rows)
         self._wrows = tuple(new_w)
         self._np_stale = True
         self._t_s += dt
         return True
+
+    def _tuple_state(self) -> tuple[PoseRows, tuple[WheelRow, ...]]:
+        """The poses and the wheel speeds as tuples (built from the arrays if those are the
+        state)."""
+        rows = self._rows
+        if rows is None:
+            rows = self.truth_rows()
+        wrows = self._wrows
+        if wrows is None:
+            wrows = self._wrows = tuple((w[0], w[1]) for w in self._wheels.tolist())
+        return rows, wrows
+
+    def _set_lag(self, dt: float) -> None:
+        """The lag's factors for steps of ``dt``: the mean of the lag over a step, and its decay
+        over a step (0 without lag)."""
+        tau = self._motor_tau_s
+        lag = tau > 0.0
+        self._lag_dt = dt
+        self._lag_factor = -tau * math.expm1(-dt / tau) / dt if lag else 0.0
+        self._lag_decay = math.exp(-dt / tau) if lag else 0.0
+
+    def _add_turns(self, turns: list[float]) -> None:
+        """Add a step's wheel turns (per robot right then left, rad) to the wheel angles."""
+        ar: float  # typed: a float add when compiled, not a generic in-place one
+        al: float
+        for j, a in enumerate(self._angles):
+            ar = a[0]
+            al = a[1]
+            a[0] = ar + turns[2 * j]
+            a[1] = al + turns[2 * j + 1]
 
     # ------------------------------------------------------------------ disturbances
 

@@ -162,6 +162,7 @@ class Camera:
         self.measurements_delivered = 0
         self.measurements_occluded = 0
         self._occluded: dict[int, tuple[float, float]] = {}
+        self._noise_buf: FloatArray = np.empty((0, 3), dtype=np.float64)
 
     def occlude(self, i: int, t0_s: float, t1_s: float) -> None:
         """Robot ``i`` is out of view for captures stamped in ``[t0_s, t1_s)`` (an occlusion, a
@@ -278,7 +279,7 @@ class Camera:
         nt: float
         if ps > 0.0 or ts > 0.0:
             assert rng is not None
-            noise: list[list[float]] = rng.standard_normal((n, 3)).tolist()
+            noise: list[list[float]] = rng.standard_normal(out=self._noise_out(n)).tolist()
             for (x, y, th), (nx, ny, nt) in zip(rows, noise, strict=True):
                 r = (_PI - (th + ts * nt)) % _TWO_PI
                 meas.append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
@@ -294,6 +295,14 @@ class Camera:
             ids = [i for i, ok in zip(ids, seen, strict=True) if ok]
             meas = [m for m, ok in zip(meas, seen, strict=True) if ok]
         self._queue.append(_tuple_new(_RowFrame, (t, t + self.latency_s, ids, meas)))
+
+    def _noise_out(self, n: int) -> FloatArray:
+        """The ``(n, 3)`` array a frame's noise is drawn into (kept: one allocation less a
+        frame; ``standard_normal(out=)`` draws the numbers of ``standard_normal((n, 3))``)."""
+        buf = self._noise_buf
+        if buf.shape[0] != n:
+            buf = self._noise_buf = np.empty((n, 3), dtype=np.float64)
+        return buf
 
     def _due(self, t_s: float) -> list[CameraFrame | _RowFrame]:
         t = float(t_s) + _TIME_EPS_S
@@ -439,6 +448,7 @@ class CommandLink(Generic[CmdT]):
         # from delivery order (poll_into must sort). Cleared when the link is empty.
         self._unordered = False
         self._last_deliver: list[float] = []  # per robot, its last message's delivery time (fifo)
+        self._draws: FloatArray = np.empty(0, dtype=np.float64)
         self.sent = 0
         self.dropped = 0
         self.delivered = 0
@@ -512,12 +522,12 @@ class CommandLink(Generic[CmdT]):
             rng = self._rng
             assert rng is not None
             if loss_p > 0.0 and jitter > 0.0:
-                u = rng.random(2 * m).tolist()
+                u = rng.random(out=self._draws_out(2 * m)).tolist()
                 loss_u, jitter_u = u[0::2], u[1::2]
             elif loss_p > 0.0:
-                loss_u = rng.random(m).tolist()
+                loss_u = rng.random(out=self._draws_out(m)).tolist()
             else:
-                jitter_u = rng.random(m).tolist()
+                jitter_u = rng.random(out=self._draws_out(m)).tolist()
         base = t + self.latency_s
         fifo = self.fifo
         last = self._grow(m) if fifo else self._last_deliver
@@ -547,6 +557,14 @@ class CommandLink(Generic[CmdT]):
         self.dropped += lost
         if dest:
             self._enqueue(dest, out, when, lo, hi)
+
+    def _draws_out(self, size: int) -> FloatArray:
+        """The array a tick's ``size`` uniform draws go into (kept: one allocation less a tick;
+        ``random(out=)`` draws the numbers of ``random(size)``)."""
+        buf = self._draws
+        if buf.shape[0] != size:
+            buf = self._draws = np.empty(size, dtype=np.float64)
+        return buf
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
