@@ -280,7 +280,15 @@ class Camera:
         if ps > 0.0 or ts > 0.0:
             assert rng is not None
             noise: list[list[float]] = rng.standard_normal(out=self._noise_out(n)).tolist()
-            for (x, y, th), (nx, ny, nt) in zip(rows, noise, strict=True):
+            # indexed, not zipped: typed views read natively when compiled (no iterator)
+            seq: tuple[PoseRow, ...] = rows if isinstance(rows, tuple) else tuple(rows)
+            nz: list[float]
+            for j in range(n):
+                x, y, th = seq[j]
+                nz = noise[j]
+                nx = nz[0]
+                ny = nz[1]
+                nt = nz[2]
                 r = (_PI - (th + ts * nt)) % _TWO_PI
                 meas.append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
         else:
@@ -353,16 +361,16 @@ class Camera:
 
     def poll(self, t_s: float) -> list[tuple[int, float, float, float, float]]:
         """Due measurements as ``(i, stamp_t, x_m, y_m, theta_rad)``, oldest frame first."""
-        out: list[tuple[int, float, float, float, float]] = []
+        # items typed Any: each tuple is built from the objects as they are (not unboxed and
+        # boxed again for a list of typed tuples, when compiled)
+        out: list[Any] = []
         for frame in self._due(t_s):
-            stamp = frame.stamp_t
+            stamp: Any = frame.stamp_t  # (a float object: passed on, not boxed per robot)
             if isinstance(frame, _RowFrame):
-                out.extend(
-                    [
-                        (i, stamp, x, y, th)
-                        for i, (x, y, th) in zip(frame.ids, frame.poses, strict=True)
-                    ]
-                )
+                poses: list[Any] = frame.poses  # (Any: not unboxed when compiled)
+                p: tuple[Any, ...]  # (x, y, theta): its numbers passed on as they are
+                for i, p in zip(frame.ids, poses, strict=True):
+                    out.append((i, stamp, p[0], p[1], p[2]))
             else:  # lists, not tuples: unpacked as such (the compiled build checks the types)
                 rows: list[list[float]] = frame.poses.tolist()
                 ids: list[int] = frame.ids.tolist()
