@@ -93,6 +93,11 @@ _PI: Final = math.pi
 _TWO_PI: Final = 2.0 * math.pi
 
 
+def _listed(cmd: Any) -> list[Any]:
+    """A wheel command that is not a list, as one (an array's rows as lists of floats)."""
+    return cmd.tolist() if isinstance(cmd, np.ndarray) else list(cmd)
+
+
 class Plant:
     """n differential-drive robots: true poses, wheel limits, motor lag, teleport and drag.
 
@@ -295,7 +300,8 @@ class Plant:
             raise ValueError(f"dt_s must be finite and >= 0, got {dt_s!r}")
         if dt == 0.0:
             return
-        small = not self._carries.any and self._pose.shape[0] <= SMALL_N
+        # (the wheel angles: one row per robot, a list's length, not an array attribute)
+        small = not self._carries.any and len(self._angles) <= SMALL_N
         if small and self._step_small(dt, wheel_cmd):
             return
         self._sync_arrays()
@@ -344,14 +350,14 @@ class Plant:
         non-finite or over the limit (to be zeroed / clamped and counted there).
         """
         rows, wrows = self._tuple_state()
-        cmds: Any = wheel_cmd.tolist() if isinstance(wheel_cmd, np.ndarray) else wheel_cmd
         # typed views for the compiled build: a tuple's item and a list's are read natively
         # (PoseRows is a tuple), a pair command (the loop's) is unpacked without an iterator
         prow: tuple[PoseRow, ...] = rows
+        cmds: Any = wheel_cmd
         try:
             if len(cmds) != len(rows):
                 return False
-            clist: list[Any] = cmds if type(cmds) is list else list(cmds)
+            clist: list[Any] = cmds if type(cmds) is list else _listed(cmds)
         except TypeError:
             return False
         # Without a wheel limit the largest finite float: the test below then still sends

@@ -524,18 +524,18 @@ class CommandLink(Generic[CmdT]):
         self.sent += m
         loss_p = self.loss_prob
         jitter = self.jitter_s
-        loss_u: list[float] | None = None  # per message: the loss draw, then the jitter draw
-        jitter_u: list[float] | None = None
+        # per message its loss draw, then its jitter draw: message i's are u[stride * i] and
+        # u[stride * i + 1] when both are drawn, else the one drawn is u[i]
+        u: list[float] = []
+        stride = 2 if loss_p > 0.0 and jitter > 0.0 else 1
         if (loss_p > 0.0 or jitter > 0.0) and m:
             rng = self._rng
             assert rng is not None
-            if loss_p > 0.0 and jitter > 0.0:
-                u = rng.random(out=self._draws_out(2 * m)).tolist()
-                loss_u, jitter_u = u[0::2], u[1::2]
-            elif loss_p > 0.0:
-                loss_u = rng.random(out=self._draws_out(m)).tolist()
-            else:
-                jitter_u = rng.random(out=self._draws_out(m)).tolist()
+            u = rng.random(out=self._draws_out(stride * m)).tolist()
+        lossy = loss_p > 0.0
+        jittery = jitter > 0.0
+        ji = stride - 1  # the jitter draw's offset
+        items: list[Any] = cmds if type(cmds) is list else list(cmds)  # (read natively)
         base = t + self.latency_s
         fifo = self.fifo
         last = self._grow(m) if fifo else self._last_deliver
@@ -546,17 +546,17 @@ class CommandLink(Generic[CmdT]):
         hi = -math.inf
         lost = 0
         for i in range(m):
-            if loss_u is not None and loss_u[i] < loss_p:
+            if lossy and u[stride * i] < loss_p:
                 lost += 1
                 continue
-            deliver = base if jitter_u is None else base + jitter_u[i] * jitter
+            deliver = base + u[stride * i + ji] * jitter if jittery else base
             if fifo:
                 prev = last[i]
                 if prev > deliver:
                     deliver = prev
                 last[i] = deliver
             dest.append(i)
-            out.append(cmds[i])
+            out.append(items[i])
             when.append(deliver)
             if deliver < lo:
                 lo = deliver
