@@ -149,8 +149,9 @@ class Plant:
         pose[:, 2] = wrap_angles(pose[:, 2])
         self._pose: FloatArray = pose
         self._wheels: FloatArray = np.zeros((n, 2))
-        # Cumulative wheel angles (rad): what ideal encoders count (also while carried).
-        self._angles: list[list[float]] = [[0.0, 0.0] for _ in range(n)]
+        # Cumulative wheel angles (rad): what ideal encoders count (also while carried); flat,
+        # per robot the right wheel's then the left's.
+        self._angles: list[float] = [0.0] * (2 * n)
         self._carries = Carries(n)
         self._guard = CommandGuard(n, max_w, bool(wheel_limit))
         # Small-fleet state as tuples (see the module docstring). Invariant: when _np_stale the
@@ -208,7 +209,8 @@ class Plant:
         """Cumulative angle of each wheel since the start, ``(angle_r, angle_l)`` in rad: the
         integral of the (lagged) wheel speed, what an ideal encoder counts. The wheels turn
         (and count) while the robot is carried, too."""
-        return [(a[0], a[1]) for a in self._angles]
+        a = self._angles
+        return [(a[j], a[j + 1]) for j in range(0, len(a), 2)]
 
     @property
     def body_twist(self) -> FloatArray:
@@ -300,8 +302,8 @@ class Plant:
             raise ValueError(f"dt_s must be finite and >= 0, got {dt_s!r}")
         if dt == 0.0:
             return
-        # (the wheel angles: one row per robot, a list's length, not an array attribute)
-        small = not self._carries.any and len(self._angles) <= SMALL_N
+        # (the wheel angles: two per robot, a list's length, not an array attribute)
+        small = not self._carries.any and len(self._angles) <= 2 * SMALL_N
         if small and self._step_small(dt, wheel_cmd):
             return
         self._sync_arrays()
@@ -329,9 +331,10 @@ class Plant:
                 return unicycle_integrate(pose, v, w, span_s)
 
             self._pose = self._carries.advance(self._pose, ta, tb, dt, move)
-        for a, (mr, ml) in zip(self._angles, mean.tolist(), strict=True):
-            a[0] += mr * dt
-            a[1] += ml * dt
+        a = self._angles
+        for j, (mr, ml) in enumerate(mean.tolist()):
+            a[2 * j] += mr * dt
+            a[2 * j + 1] += ml * dt
 
         if tau > 0.0:
             self._wheels = cmd + (self._wheels - cmd) * math.exp(-dt / tau)
@@ -375,7 +378,8 @@ class Plant:
         half_dt = 0.5 * dt
         new_rows: list[PoseRow] = []
         new_w: list[WheelRow] = []
-        angles: list[float] = []  # per robot the turn of the right wheel, then the left's
+        old_angles = self._angles
+        angles: list[float] = []  # the wheel angles after the step (as self._angles)
         # Typed locals and direct math.sin/cos calls: the compiled build (sim_plant.core._accel)
         # keeps them as C doubles; a non-number raises TypeError on the assignment there and on
         # the comparison here.
@@ -404,8 +408,8 @@ class Plant:
                     mr = cr = float(cr)  # the wheel state holds floats, as the arrays do
                     ml = cl = float(cl)
                     new_w.append((cr, cl))
-                angles.append(mr * dt)
-                angles.append(ml * dt)
+                angles.append(old_angles[2 * j] + mr * dt)
+                angles.append(old_angles[2 * j + 1] + ml * dt)
                 v = kv * (mr + ml)  # eq 7 (corrected), as _twist
                 half_turn = radius * (mr - ml) / track * half_dt
                 ratio = math.sin(half_turn) / half_turn if half_turn != 0.0 else 1.0
@@ -422,7 +426,7 @@ class Plant:
         except (TypeError, ValueError):  # not pairs of real numbers
             return False
         self._guard.none_saturated(len(rows))
-        self._add_turns(angles)
+        self._angles = angles
         self._rows = PoseRows(new_rows)
         self._wrows = tuple(new_w)
         self._np_stale = True
@@ -448,16 +452,6 @@ class Plant:
         self._lag_dt = dt
         self._lag_factor = -tau * math.expm1(-dt / tau) / dt if lag else 0.0
         self._lag_decay = math.exp(-dt / tau) if lag else 0.0
-
-    def _add_turns(self, turns: list[float]) -> None:
-        """Add a step's wheel turns (per robot right then left, rad) to the wheel angles."""
-        ar: float  # typed: a float add when compiled, not a generic in-place one
-        al: float
-        for j, a in enumerate(self._angles):
-            ar = a[0]
-            al = a[1]
-            a[0] = ar + turns[2 * j]
-            a[1] = al + turns[2 * j + 1]
 
     # ------------------------------------------------------------------ disturbances
 
@@ -526,7 +520,7 @@ class Plant:
         self._wheels = np.vstack([self._wheels, np.zeros((1, 2))])
         self._carries.append()
         self._guard.append()
-        self._angles.append([0.0, 0.0])
+        self._angles.extend((0.0, 0.0))
         return self.n - 1
 
     def remove_robot(self, i: int) -> None:
@@ -538,4 +532,4 @@ class Plant:
         self._wheels = np.delete(self._wheels, idx, axis=0)
         self._carries.delete(idx)
         self._guard.delete(idx)
-        del self._angles[idx]
+        del self._angles[2 * idx : 2 * idx + 2]
