@@ -42,7 +42,6 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -65,7 +64,6 @@ from sim_plant.core.sensors import Camera
 # Build the firmware's NamedTuple inputs without the generated __new__ frame (hot path; the
 # firmware builds its WheelCommand the same way).
 _tuple_new = tuple.__new__
-_xy_of = itemgetter(0, 1)  # the first two fields of a tuple, as a tuple (C-level)
 
 
 @dataclass
@@ -263,6 +261,12 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     steps = [fw.step_positional for fw in firmwares]
     tracking_mode = Mode.TRACKING
     robots = list(zip(range(n), ids, steps, strict=True))
+    # module globals read once: a compiled loop would look each up in the module's dict at
+    # every use (the firmware's NamedTuple types and the constructor that skips their __new__)
+    new_tuple: Any = _tuple_new
+    pose_type: Any = Pose
+    setpoint_type: Any = Setpoint
+    wc: tuple[Any, ...]  # a WheelCommand, its items read natively when compiled
     wall0 = time.perf_counter()
     interrupted = False
     collector = CollectorPause()
@@ -292,16 +296,16 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                 wheel_meas = encoders.read(t, plant.wheel_angles())
             # 2. camera
             camera.capture(t, truth)
-            delivered = camera.poll(t)
+            delivered: list[Any] = camera.poll(t)  # (Any: its tuples are not unboxed)
             if delivered:
-                meas: Any  # (i, stamp, x, y, theta), its numbers passed on as they are
-                for meas in delivered:
-                    i = meas[0]
+                meas: tuple[Any, ...]  # (i, stamp, x, y, theta), its numbers passed on as
+                for meas in delivered:  # they are (a tuple: its items read natively)
+                    seen: int = meas[0]  # (an int: the lists below are indexed natively)
                     x, y, th, stamp = meas[2], meas[3], meas[4], meas[1]
-                    poses[i] = _tuple_new(Pose, (x, y, th, stamp))
-                    pose_cap[i] = stamp  # capture time, on the loop's (sim) clock
-                    xyt[i] = (x, y, th)
-                    rx_objs[i] = t_obj
+                    poses[seen] = new_tuple(pose_type, (x, y, th, stamp))
+                    pose_cap[seen] = stamp  # capture time, on the loop's (sim) clock
+                    xyt[seen] = (x, y, th)
+                    rx_objs[seen] = t_obj
             # every other robot's latest measured pose received within NEIGHBOUR_STALE_S, for
             # repulsion and the safety filter, with its age now (capture to this tick) and whether
             # it was TRACKING on the previous tick (then it runs the same filter: cooperative); the
@@ -400,9 +404,11 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                     row: Any = prev_approach.get(rid) if approaching else None  # (x, y, vx, vy)
                     if row is None:
                         row = prev_rows[slot_row[slot]]
+                    # a tuple (SlotRow): typed so, its items are read natively when compiled
+                    r4: tuple[Any, ...] = row if isinstance(row, tuple) else tuple(row)
                     # the Setpoint's seven fields in one tuple (no list built to unpack the row)
-                    sp = _tuple_new(
-                        Setpoint, (row[0], row[1], row[2], row[3], prev_theta, slot, t_prev_obj)
+                    sp = new_tuple(
+                        setpoint_type, (r4[0], r4[1], r4[2], r4[3], prev_theta, slot, t_prev_obj)
                     )
                 # (by position: Firmware.step's keyword arguments cost more than the call
                 # across two compiled groups)
@@ -418,14 +424,20 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                         None if wheel_meas is None else wheel_meas[i],
                     )
                 )
-            tracking = [c[4] is tracking_mode for c in cmds]
+            # each robot's mode and wheels (omega_r, omega_l), in one pass over the commands
+            cmd_objs: list[Any] = cmds
+            tracking = []
+            wheels: list[Any] = []
+            for wc in cmd_objs:
+                tracking.append(wc[4] is tracking_mode)
+                wheels.append((wc[0], wc[1]))
             if rings is not None:
                 for ring, fw in zip(rings, firmwares, strict=True):
                     claim = fw.motion_claim
                     if claim is not None and (not ring.claims or ring.claims[-1] is not claim):
                         ring.add(claim)
             # 5. command link
-            link.send_all(t, list(map(_xy_of, cmds)))  # (omega_r, omega_l)
+            link.send_all(t, wheels)
             link.poll_into(t, applied)  # applied[i]: the wheels robot i received last
             if faults is not None:  # the plant stops an offline robot's wheels
                 for i in faults.offline:

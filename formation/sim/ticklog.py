@@ -79,7 +79,9 @@ class TickLog:
         robot a sequence whose entries 2, 3 and 4 are power right, power left and the mode (a
         ``WheelCommand``)."""
         tr = self._truth
-        for pose in truth:
+        # the plant's PoseRows is a tuple: typed so, it is iterated natively when compiled
+        poses: tuple[Any, ...] = truth if isinstance(truth, tuple) else tuple(truth)
+        for pose in poses:
             tr.extend(pose)
         ld = self._leader
         ld.append(leader_x_m)
@@ -93,9 +95,11 @@ class TickLog:
         pw = self._power
         md = self._modes
         for c in cmds:
-            pw.append(c[2])
-            pw.append(c[3])
-            md.append(c[4])
+            # a WheelCommand is a tuple: typed so, its items are read natively when compiled
+            w: tuple[Any, ...] = c if isinstance(c, tuple) else tuple(c)
+            pw.append(w[2])
+            pw.append(w[3])
+            md.append(w[4])
         self.ticks += 1
         if self.ticks % self._chunk_ticks == 0:
             self._convert()

@@ -93,6 +93,11 @@ _PI: Final = math.pi
 _TWO_PI: Final = 2.0 * math.pi
 
 
+def _listed(cmd: Any) -> list[Any]:
+    """A wheel command that is not a list, as one (an array's rows as lists of floats)."""
+    return cmd.tolist() if isinstance(cmd, np.ndarray) else list(cmd)
+
+
 class Plant:
     """n differential-drive robots: true poses, wheel limits, motor lag, teleport and drag.
 
@@ -144,8 +149,9 @@ class Plant:
         pose[:, 2] = wrap_angles(pose[:, 2])
         self._pose: FloatArray = pose
         self._wheels: FloatArray = np.zeros((n, 2))
-        # Cumulative wheel angles (rad): what ideal encoders count (also while carried).
-        self._angles: list[list[float]] = [[0.0, 0.0] for _ in range(n)]
+        # Cumulative wheel angles (rad): what ideal encoders count (also while carried); flat,
+        # per robot the right wheel's then the left's.
+        self._angles: list[float] = [0.0] * (2 * n)
         self._carries = Carries(n)
         self._guard = CommandGuard(n, max_w, bool(wheel_limit))
         # Small-fleet state as tuples (see the module docstring). Invariant: when _np_stale the
@@ -203,7 +209,8 @@ class Plant:
         """Cumulative angle of each wheel since the start, ``(angle_r, angle_l)`` in rad: the
         integral of the (lagged) wheel speed, what an ideal encoder counts. The wheels turn
         (and count) while the robot is carried, too."""
-        return [(a[0], a[1]) for a in self._angles]
+        a = self._angles
+        return [(a[j], a[j + 1]) for j in range(0, len(a), 2)]
 
     @property
     def body_twist(self) -> FloatArray:
@@ -295,7 +302,8 @@ class Plant:
             raise ValueError(f"dt_s must be finite and >= 0, got {dt_s!r}")
         if dt == 0.0:
             return
-        small = not self._carries.any and self._pose.shape[0] <= SMALL_N
+        # (the wheel angles: two per robot, a list's length, not an array attribute)
+        small = not self._carries.any and len(self._angles) <= 2 * SMALL_N
         if small and self._step_small(dt, wheel_cmd):
             return
         self._sync_arrays()
@@ -323,9 +331,10 @@ class Plant:
                 return unicycle_integrate(pose, v, w, span_s)
 
             self._pose = self._carries.advance(self._pose, ta, tb, dt, move)
-        for a, (mr, ml) in zip(self._angles, mean.tolist(), strict=True):
-            a[0] += mr * dt
-            a[1] += ml * dt
+        a = self._angles
+        for j, (mr, ml) in enumerate(mean.tolist()):
+            a[2 * j] += mr * dt
+            a[2 * j + 1] += ml * dt
 
         if tau > 0.0:
             self._wheels = cmd + (self._wheels - cmd) * math.exp(-dt / tau)
@@ -343,29 +352,24 @@ class Plant:
         command needs the general path: not ``n`` pairs of real numbers, or a wheel that is
         non-finite or over the limit (to be zeroed / clamped and counted there).
         """
-        rows = self._rows
-        if rows is None:
-            rows = self.truth_rows()
-        wrows = self._wrows
-        if wrows is None:
-            wrows = self._wrows = tuple((w[0], w[1]) for w in self._wheels.tolist())
-        cmds: Any = wheel_cmd.tolist() if isinstance(wheel_cmd, np.ndarray) else wheel_cmd
+        rows, wrows = self._tuple_state()
+        # typed views for the compiled build: a tuple's item and a list's are read natively
+        # (PoseRows is a tuple), a pair command (the loop's) is unpacked without an iterator
+        prow: tuple[PoseRow, ...] = rows
+        cmds: Any = wheel_cmd
         try:
             if len(cmds) != len(rows):
                 return False
+            clist: list[Any] = cmds if type(cmds) is list else _listed(cmds)
         except TypeError:
             return False
         # Without a wheel limit the largest finite float: the test below then still sends
         # NaN and +-inf the general way.
         guard = self._guard
         lim: float = guard.max_wheel_radps if guard.wheel_limit else _MAX_FLOAT
-        tau = self._motor_tau_s
-        lag = tau > 0.0
+        lag = self._motor_tau_s > 0.0
         if dt != self._lag_dt:  # the loop's dt is constant: compute the lag factors once
-            self._lag_dt = dt
-            # mean of the lag over the step, and its decay over the step
-            self._lag_factor = -tau * math.expm1(-dt / tau) / dt if lag else 0.0
-            self._lag_decay = math.exp(-dt / tau) if lag else 0.0
+            self._set_lag(dt)
         factor = self._lag_factor
         decay = self._lag_decay
         kv = 0.5 * self._radius_m
@@ -374,7 +378,8 @@ class Plant:
         half_dt = 0.5 * dt
         new_rows: list[PoseRow] = []
         new_w: list[WheelRow] = []
-        angles: list[float] = []  # per robot the turn of the right wheel, then the left's
+        old_angles = self._angles
+        angles: list[float] = []  # the wheel angles after the step (as self._angles)
         # Typed locals and direct math.sin/cos calls: the compiled build (sim_plant.core._accel)
         # keeps them as C doubles; a non-number raises TypeError on the assignment there and on
         # the comparison here.
@@ -382,9 +387,15 @@ class Plant:
         cl: float
         try:
             for j in range(len(rows)):  # the lengths are equal (checked above)
-                x, y, th = rows[j]
+                x, y, th = prow[j]
                 w0r, w0l = wrows[j]
-                cr, cl = cmds[j]
+                c = clist[j]
+                if type(c) is tuple and len(c) == 2:
+                    pair: tuple[Any, ...] = c
+                    cr = pair[0]
+                    cl = pair[1]
+                else:
+                    cr, cl = c
                 # False for NaN, for +-inf and beyond the limit: those go the general way to be
                 # zeroed or clamped and counted. (Nothing is committed before the loop ends.)
                 if not (-lim <= cr <= lim and -lim <= cl <= lim):
@@ -397,8 +408,8 @@ class Plant:
                     mr = cr = float(cr)  # the wheel state holds floats, as the arrays do
                     ml = cl = float(cl)
                     new_w.append((cr, cl))
-                angles.append(mr * dt)
-                angles.append(ml * dt)
+                angles.append(old_angles[2 * j] + mr * dt)
+                angles.append(old_angles[2 * j + 1] + ml * dt)
                 v = kv * (mr + ml)  # eq 7 (corrected), as _twist
                 half_turn = radius * (mr - ml) / track * half_dt
                 ratio = math.sin(half_turn) / half_turn if half_turn != 0.0 else 1.0
@@ -415,14 +426,32 @@ class Plant:
         except (TypeError, ValueError):  # not pairs of real numbers
             return False
         self._guard.none_saturated(len(rows))
-        for j, a in enumerate(self._angles):
-            a[0] += angles[2 * j]
-            a[1] += angles[2 * j + 1]
+        self._angles = angles
         self._rows = PoseRows(new_rows)
         self._wrows = tuple(new_w)
         self._np_stale = True
         self._t_s += dt
         return True
+
+    def _tuple_state(self) -> tuple[PoseRows, tuple[WheelRow, ...]]:
+        """The poses and the wheel speeds as tuples (built from the arrays if those are the
+        state)."""
+        rows = self._rows
+        if rows is None:
+            rows = self.truth_rows()
+        wrows = self._wrows
+        if wrows is None:
+            wrows = self._wrows = tuple((w[0], w[1]) for w in self._wheels.tolist())
+        return rows, wrows
+
+    def _set_lag(self, dt: float) -> None:
+        """The lag's factors for steps of ``dt``: the mean of the lag over a step, and its decay
+        over a step (0 without lag)."""
+        tau = self._motor_tau_s
+        lag = tau > 0.0
+        self._lag_dt = dt
+        self._lag_factor = -tau * math.expm1(-dt / tau) / dt if lag else 0.0
+        self._lag_decay = math.exp(-dt / tau) if lag else 0.0
 
     # ------------------------------------------------------------------ disturbances
 
@@ -491,7 +520,7 @@ class Plant:
         self._wheels = np.vstack([self._wheels, np.zeros((1, 2))])
         self._carries.append()
         self._guard.append()
-        self._angles.append([0.0, 0.0])
+        self._angles.extend((0.0, 0.0))
         return self.n - 1
 
     def remove_robot(self, i: int) -> None:
@@ -503,4 +532,4 @@ class Plant:
         self._wheels = np.delete(self._wheels, idx, axis=0)
         self._carries.delete(idx)
         self._guard.delete(idx)
-        del self._angles[idx]
+        del self._angles[2 * idx : 2 * idx + 2]

@@ -162,6 +162,7 @@ class Camera:
         self.measurements_delivered = 0
         self.measurements_occluded = 0
         self._occluded: dict[int, tuple[float, float]] = {}
+        self._noise_buf: FloatArray = np.empty((0, 3), dtype=np.float64)
 
     def occlude(self, i: int, t0_s: float, t1_s: float) -> None:
         """Robot ``i`` is out of view for captures stamped in ``[t0_s, t1_s)`` (an occlusion, a
@@ -278,8 +279,16 @@ class Camera:
         nt: float
         if ps > 0.0 or ts > 0.0:
             assert rng is not None
-            noise: list[list[float]] = rng.standard_normal((n, 3)).tolist()
-            for (x, y, th), (nx, ny, nt) in zip(rows, noise, strict=True):
+            noise: list[list[float]] = rng.standard_normal(out=self._noise_out(n)).tolist()
+            # indexed, not zipped: typed views read natively when compiled (no iterator)
+            seq: tuple[PoseRow, ...] = rows if isinstance(rows, tuple) else tuple(rows)
+            nz: list[float]
+            for j in range(n):
+                x, y, th = seq[j]
+                nz = noise[j]
+                nx = nz[0]
+                ny = nz[1]
+                nt = nz[2]
                 r = (_PI - (th + ts * nt)) % _TWO_PI
                 meas.append((x + ps * nx, y + ps * ny, _PI - (r if r < _TWO_PI else 0.0)))
         else:
@@ -294,6 +303,14 @@ class Camera:
             ids = [i for i, ok in zip(ids, seen, strict=True) if ok]
             meas = [m for m, ok in zip(meas, seen, strict=True) if ok]
         self._queue.append(_tuple_new(_RowFrame, (t, t + self.latency_s, ids, meas)))
+
+    def _noise_out(self, n: int) -> FloatArray:
+        """The ``(n, 3)`` array a frame's noise is drawn into (kept: one allocation less a
+        frame; ``standard_normal(out=)`` draws the numbers of ``standard_normal((n, 3))``)."""
+        buf = self._noise_buf
+        if buf.shape[0] != n:
+            buf = self._noise_buf = np.empty((n, 3), dtype=np.float64)
+        return buf
 
     def _due(self, t_s: float) -> list[CameraFrame | _RowFrame]:
         t = float(t_s) + _TIME_EPS_S
@@ -344,21 +361,61 @@ class Camera:
 
     def poll(self, t_s: float) -> list[tuple[int, float, float, float, float]]:
         """Due measurements as ``(i, stamp_t, x_m, y_m, theta_rad)``, oldest frame first."""
-        out: list[tuple[int, float, float, float, float]] = []
+        # items typed Any: each tuple is built from the objects as they are (not unboxed and
+        # boxed again for a list of typed tuples, when compiled)
+        out: list[Any] = []
         for frame in self._due(t_s):
-            stamp = frame.stamp_t
+            stamp: Any = frame.stamp_t  # (a float object: passed on, not boxed per robot)
             if isinstance(frame, _RowFrame):
-                out.extend(
-                    [
-                        (i, stamp, x, y, th)
-                        for i, (x, y, th) in zip(frame.ids, frame.poses, strict=True)
-                    ]
-                )
+                poses: list[Any] = frame.poses  # (Any: not unboxed when compiled)
+                p: tuple[Any, ...]  # (x, y, theta): its numbers passed on as they are
+                for i, p in zip(frame.ids, poses, strict=True):
+                    out.append((i, stamp, p[0], p[1], p[2]))
             else:  # lists, not tuples: unpacked as such (the compiled build checks the types)
                 rows: list[list[float]] = frame.poses.tolist()
                 ids: list[int] = frame.ids.tolist()
                 out.extend([(i, stamp, r[0], r[1], r[2]) for i, r in zip(ids, rows, strict=True)])
         return out
+
+
+class _InFlight:
+    """Messages sent together (one :meth:`CommandLink.send_all` or one :meth:`CommandLink.send`)
+    and not delivered yet, in send order: robot ``dest[j]`` gets ``cmds[j]`` at ``when_s[j]``;
+    ``lo_s`` and ``hi_s`` are the earliest and the latest of ``when_s``. Three flat lists and no
+    tuple per message (the compiled build would unbox a typed tuple and box it again at each
+    step); a batch whose messages are all due is delivered without looking at their times."""
+
+    def __init__(
+        self, dest: list[int], cmds: list[Any], when_s: list[float], lo_s: float, hi_s: float
+    ) -> None:
+        self.dest = dest
+        self.cmds = cmds
+        self.when_s = when_s
+        self.lo_s = lo_s
+        self.hi_s = hi_s
+
+    def split(self, t: float) -> tuple[list[int], _InFlight | None]:
+        """Positions of the messages due by ``t`` (in send order), and the batch of the rest
+        (None if none is left)."""
+        due: list[int] = []
+        dest: list[int] = []
+        cmds: list[Any] = []
+        when: list[float] = []
+        lo = math.inf
+        hi = -math.inf
+        w: float
+        for j, w in enumerate(self.when_s):
+            if w <= t:
+                due.append(j)
+            else:
+                dest.append(self.dest[j])
+                cmds.append(self.cmds[j])
+                when.append(w)
+                if w < lo:
+                    lo = w
+                if w > hi:
+                    hi = w
+        return due, (_InFlight(dest, cmds, when, lo, hi) if dest else None)
 
 
 class CommandLink(Generic[CmdT]):
@@ -372,7 +429,7 @@ class CommandLink(Generic[CmdT]):
         fifo: keep per-robot order (a message never overtakes an earlier one to the same robot).
 
     Counters: ``sent`` (every :meth:`send`), ``dropped`` (lost), ``delivered`` (returned by
-    :meth:`poll`); ``in_flight`` = sent - dropped - delivered.
+    :meth:`poll`); ``in_flight`` = sent - dropped - delivered. Robots are indices ``i >= 0``.
     """
 
     def __init__(
@@ -391,14 +448,15 @@ class CommandLink(Generic[CmdT]):
             raise ValueError("rng is required when jitter or loss is configured")
         self._rng = rng
         self.fifo = bool(fifo)
-        # Messages in flight, (deliver_t, seq, i, cmd) in send order (seq increasing: sends
-        # append, poll() keeps the order of the rest). poll() takes the due ones out and sorts
-        # them: a tick's messages are due together, so one C-level sort beats a heap pop per
-        # message.
-        self._queue: list[tuple[float, int, int, CmdT]] = []
-        self._seq = 0  # messages queued so far: the next one's tie-breaking number
-        self._latest = -math.inf  # the latest delivery time in the queue (-inf: empty)
-        self._last_deliver: dict[int, float] = {}
+        # Messages in flight, in batches in send order (sends append a batch; a poll keeps the
+        # order of the rest). Delivery order is the order of (delivery time, send order).
+        self._batches: list[_InFlight] = []
+        self._in_flight = 0
+        # Some message in flight was sent without fifo: per robot, send order may then differ
+        # from delivery order (poll_into must sort). Cleared when the link is empty.
+        self._unordered = False
+        self._last_deliver: list[float] = []  # per robot, its last message's delivery time (fifo)
+        self._draws: FloatArray = np.empty(0, dtype=np.float64)
         self.sent = 0
         self.dropped = 0
         self.delivered = 0
@@ -406,13 +464,31 @@ class CommandLink(Generic[CmdT]):
     @property
     def in_flight(self) -> int:
         """Messages queued and not yet delivered."""
-        return len(self._queue)
+        return self._in_flight
+
+    def _grow(self, m: int) -> list[float]:
+        """The per-robot delivery times, for robots ``0 .. m - 1`` at least."""
+        last = self._last_deliver
+        if len(last) < m:
+            last.extend([-math.inf] * (m - len(last)))
+        return last
+
+    def _enqueue(
+        self, dest: list[int], cmds: list[Any], when: list[float], lo: float, hi: float
+    ) -> None:
+        self._batches.append(_InFlight(dest, cmds, when, lo, hi))
+        self._in_flight += len(dest)
+        if not self.fifo:
+            self._unordered = True
 
     def send(self, t_s: float, i: int, cmd: CmdT) -> float | None:
         """Send ``cmd`` to robot ``i`` at ``t_s``; returns its delivery time, or None if lost."""
         t = float(t_s)
         if not math.isfinite(t):
             raise ValueError(f"t_s must be finite, got {t_s!r}")
+        robot = int(i)
+        if robot < 0:
+            raise ValueError(f"i must be a robot index >= 0, got {i!r}")
         self.sent += 1
         rng = self._rng
         # Draw loss then jitter for every message so the random stream does not depend on outcome.
@@ -429,13 +505,10 @@ class CommandLink(Generic[CmdT]):
             return None
         deliver = t + self.latency_s + extra
         if self.fifo:
-            deliver = max(deliver, self._last_deliver.get(i, -math.inf))
-            self._last_deliver[i] = deliver
-        seq = self._seq
-        self._seq = seq + 1
-        self._queue.append((deliver, seq, int(i), cmd))
-        if deliver > self._latest:
-            self._latest = deliver
+            last = self._grow(robot + 1)
+            deliver = max(deliver, last[robot])
+            last[robot] = deliver
+        self._enqueue([robot], [cmd], [deliver], deliver, deliver)
         return deliver
 
     def send_all(self, t_s: float, cmds: Sequence[CmdT]) -> None:
@@ -451,71 +524,127 @@ class CommandLink(Generic[CmdT]):
         self.sent += m
         loss_p = self.loss_prob
         jitter = self.jitter_s
-        loss_u: list[float] | None = None  # per message: the loss draw, then the jitter draw
-        jitter_u: list[float] | None = None
+        # per message its loss draw, then its jitter draw: message i's are u[stride * i] and
+        # u[stride * i + 1] when both are drawn, else the one drawn is u[i]
+        u: list[float] = []
+        stride = 2 if loss_p > 0.0 and jitter > 0.0 else 1
         if (loss_p > 0.0 or jitter > 0.0) and m:
             rng = self._rng
             assert rng is not None
-            if loss_p > 0.0 and jitter > 0.0:
-                u = rng.random(2 * m).tolist()
-                loss_u, jitter_u = u[0::2], u[1::2]
-            elif loss_p > 0.0:
-                loss_u = rng.random(m).tolist()
-            else:
-                jitter_u = rng.random(m).tolist()
+            u = rng.random(out=self._draws_out(stride * m)).tolist()
+        lossy = loss_p > 0.0
+        jittery = jitter > 0.0
+        ji = stride - 1  # the jitter draw's offset
+        items: list[Any] = cmds if type(cmds) is list else list(cmds)  # (read natively)
         base = t + self.latency_s
-        queue = self._queue
-        seq = self._seq
-        last = self._last_deliver
         fifo = self.fifo
-        latest = self._latest
+        last = self._grow(m) if fifo else self._last_deliver
+        dest: list[int] = []
+        out: list[Any] = []
+        when: list[float] = []
+        lo = math.inf
+        hi = -math.inf
+        lost = 0
         for i in range(m):
-            if loss_u is not None and loss_u[i] < loss_p:
-                self.dropped += 1
+            if lossy and u[stride * i] < loss_p:
+                lost += 1
                 continue
-            deliver = base if jitter_u is None else base + jitter_u[i] * jitter
+            deliver = base + u[stride * i + ji] * jitter if jittery else base
             if fifo:
-                prev = last.get(i)
-                if prev is not None and prev > deliver:
+                prev = last[i]
+                if prev > deliver:
                     deliver = prev
                 last[i] = deliver
-            queue.append((deliver, seq, i, cmds[i]))
-            seq += 1
-            if deliver > latest:
-                latest = deliver
-        self._seq = seq
-        self._latest = latest
+            dest.append(i)
+            out.append(items[i])
+            when.append(deliver)
+            if deliver < lo:
+                lo = deliver
+            if deliver > hi:
+                hi = deliver
+        self.dropped += lost
+        if dest:
+            self._enqueue(dest, out, when, lo, hi)
+
+    def _draws_out(self, size: int) -> FloatArray:
+        """The array a tick's ``size`` uniform draws go into (kept: one allocation less a tick;
+        ``random(out=)`` draws the numbers of ``random(size)``)."""
+        buf = self._draws
+        if buf.shape[0] != size:
+            buf = self._draws = np.empty(size, dtype=np.float64)
+        return buf
 
     def poll(self, t_s: float) -> list[tuple[int, CmdT]]:
         """Messages due by ``t_s`` as ``(i, cmd)``, in delivery order (ties in send order)."""
-        return [(i, cmd) for _, _, i, cmd in self._take_due(t_s)]
+        return [(i, cmd) for _, i, cmd in self._take_due(t_s)]
 
     def poll_into(self, t_s: float, latest: list[CmdT]) -> int:
         """:meth:`poll` written into ``latest``: each due message's command into ``latest[i]``
         in delivery order (the last one delivered to a robot stays); returns how many. The same
-        as ``for i, cmd in poll(t_s): latest[i] = cmd``, without a pair per message."""
-        due = self._take_due(t_s)
-        for m in due:
-            latest[m[2]] = m[3]
-        return len(due)
+        as ``for i, cmd in poll(t_s): latest[i] = cmd``, without a pair per message.
 
-    def _take_due(self, t_s: float) -> list[tuple[float, int, int, CmdT]]:
-        """The messages due by ``t_s``, taken out of the queue (counted as delivered), in
-        delivery order (ties in send order)."""
+        With fifo, a robot's messages are delivered in the order they were sent, so the last
+        one delivered to a robot is the last one sent among its due messages: they are written
+        in send order, batch by batch, with no sort (the same final ``latest``)."""
+        if self._unordered:
+            due = self._take_due(t_s)
+            for m in due:
+                latest[m[1]] = m[2]
+            return len(due)
         t = float(t_s) + _TIME_EPS_S
-        queue = self._queue
-        if self._latest <= t:  # all of them (the usual case: latency + jitter within a tick)
-            due = queue
-            self._queue = []
-            self._latest = -math.inf
-        else:  # (the latest one stays queued)
-            due = [m for m in queue if m[0] <= t]
-            if not due:
-                return due
-            self._queue = [m for m in queue if m[0] > t]
-        # Delivery order, ties in send order: the order of (deliver_t, seq). The queue is in
-        # seq order and the sort is stable, so sorting on deliver_t alone gives exactly that
-        # order, comparing C floats instead of tuples (a float key is list.sort's fast path).
+        batches = self._batches
+        if not batches:
+            return 0
+        keep: list[_InFlight] = []
+        count = 0
+        for b in batches:
+            if b.hi_s <= t:  # all due (the usual case: latency + jitter within a tick)
+                dest = b.dest
+                cmds = b.cmds
+                for j in range(len(dest)):
+                    latest[dest[j]] = cmds[j]
+                count += len(dest)
+            elif b.lo_s > t:  # none due
+                keep.append(b)
+            else:
+                pos, rest = b.split(t)
+                for j in pos:
+                    latest[b.dest[j]] = b.cmds[j]
+                count += len(pos)
+                if rest is not None:
+                    keep.append(rest)
+        self._batches = keep
+        self._delivered(count)
+        return count
+
+    def _delivered(self, count: int) -> None:
+        self._in_flight -= count
+        self.delivered += count
+        if not self._in_flight:
+            self._unordered = False
+
+    def _take_due(self, t_s: float) -> list[tuple[float, int, Any]]:
+        """The messages due by ``t_s`` as ``(deliver_t, i, cmd)``, taken out of the queue
+        (counted as delivered), in delivery order (ties in send order)."""
+        t = float(t_s) + _TIME_EPS_S
+        due: list[tuple[float, int, Any]] = []
+        keep: list[_InFlight] = []
+        for b in self._batches:
+            if b.hi_s <= t:
+                due.extend(zip(b.when_s, b.dest, b.cmds, strict=True))
+            elif b.lo_s > t:
+                keep.append(b)
+            else:
+                pos, rest = b.split(t)
+                due.extend([(b.when_s[j], b.dest[j], b.cmds[j]) for j in pos])
+                if rest is not None:
+                    keep.append(rest)
+        if not due:
+            return due
+        self._batches = keep
+        # Delivery order, ties in send order: the messages are collected in send order and the
+        # sort is stable, so sorting on deliver_t alone gives exactly that order, comparing C
+        # floats instead of tuples (a float key is list.sort's fast path).
         due.sort(key=_deliver_t)
-        self.delivered += len(due)
+        self._delivered(len(due))
         return due

@@ -1,7 +1,9 @@
 """CommandLink delivers in the order a heap of (delivery time, send number) would pop: the link
-keeps its messages in a list and sorts the due ones (sim_plant/core/sensors.py), which must give
-exactly the order, the times and the counters of the textbook priority queue, for any mix of
-sends, lossy and jittered, FIFO or not, and polls (as pairs or into a list) at any times."""
+keeps its messages in batches in send order, sorts the due ones for a poll and writes them in
+send order for a FIFO poll_into (sim_plant/core/sensors.py), which must give exactly the order,
+the times and the counters of the textbook priority queue, for any mix of sends, lossy and
+jittered, FIFO or not (switched mid-run too), and polls (as pairs or into a list) at any
+times."""
 
 from __future__ import annotations
 
@@ -52,7 +54,7 @@ class HeapLink:
 
 steps = st.lists(
     st.tuples(
-        st.sampled_from(["send", "send_all", "poll", "poll_into"]),
+        st.sampled_from(["send", "send_all", "poll", "poll_into", "fifo"]),
         st.floats(0.0, 0.05),  # time advance, s
         st.integers(0, 5),  # robot or fleet size
     ),
@@ -99,8 +101,11 @@ def test_the_link_delivers_as_a_heap_would(
                 expected[i] = cmd
             assert link.poll_into(t, latest) == len(due)
             assert latest == expected
+        elif what == "fifo":  # switched with messages in flight
+            link.fifo = ref.fifo = not ref.fifo
         else:
             assert link.poll(t) == ref.poll(t)
+        assert link.in_flight == len(ref.heap)
     assert link.poll(t + 1.0) == ref.poll(t + 1.0)
     assert link.in_flight == 0
     assert link.sent - link.dropped == link.delivered

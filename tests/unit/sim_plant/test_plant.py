@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robot_agent.core.params import RobotGeometry
+from sim_plant.core import plant as plant_mod
 from sim_plant.core.kinematics import unicycle_integrate, wrap_angles
 from sim_plant.core.plant import Plant
 
@@ -309,6 +310,46 @@ def test_add_and_remove_robot() -> None:
     np.testing.assert_allclose(
         plant.truth[1, :2], [5.0 + 0.15 * math.cos(heading), 5.0 + 0.15 * math.sin(heading)]
     )
+
+
+def _wheel_angle_run(
+    seed: int, n: int, tau_s: float, small_n: int
+) -> tuple[list[list[tuple[float, float]]], bytes]:
+    """Wheel angles after each step of a run with a robot added (after step 10) and robot 0
+    removed (after step 20; the angles just before the removal are the extra last entry),
+    the command as pairs of floats (the loop's form), stepped in plain Python when the fleet
+    is at most ``small_n`` robots and vectorised otherwise; and the final truth's bytes."""
+    rng = np.random.default_rng(seed)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plant_mod, "SMALL_N", small_n)
+        plant = Plant(rng.uniform(-1.0, 1.0, (n, 3)), GEOM, motor_tau_s=tau_s)
+        angles = []
+        before_removal = []
+        for k in range(30):
+            cmd = rng.uniform(-0.9, 0.9, (plant.n, 2)) * GEOM.max_wheel_radps
+            plant.step(0.02, [(wr, wl) for wr, wl in cmd.tolist()])
+            if k == 10:
+                plant.add_robot([0.2, 0.1, 1.0])
+            if k == 20:
+                before_removal = plant.wheel_angles()
+                plant.remove_robot(0)
+            angles.append(plant.wheel_angles())
+        return [*angles, before_removal], plant.truth.tobytes()
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 5), st.sampled_from([0.0, 0.05]))
+def test_wheel_angles_small_path_equals_vectorised(seed: int, n: int, tau_s: float) -> None:
+    """The small-fleet step's wheel angles (built anew each step) are the vectorised step's
+    bit for bit, and add_robot / remove_robot keep each robot's own angles."""
+    small = _wheel_angle_run(seed, n, tau_s, small_n=64)
+    assert small == _wheel_angle_run(seed, n, tau_s, small_n=0)
+    angles = small[0]
+    assert [len(a) for a in angles[9:12]] == [n, n + 1, n + 1]
+    assert angles[10][-1] == (0.0, 0.0)  # the added robot has not turned yet
+    assert angles[11][:n] != angles[10][:n]  # the others turned on
+    assert angles[20] == angles[-1][1:]  # robot 0 gone: the others' angles moved down one
+    assert len(angles[20]) == n
 
 
 def test_thousand_robots_vectorised() -> None:
