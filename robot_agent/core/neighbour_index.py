@@ -83,6 +83,18 @@ def _span(cells: list[int]) -> tuple[int, int]:
     return lo, hi
 
 
+def _x_of(ent: tuple[Any, ...]) -> float:
+    """A plain entry's x."""
+    x: float = ent[0]
+    return x
+
+
+def _y_of(ent: tuple[Any, ...]) -> float:
+    """A plain entry's y."""
+    y: float = ent[1]
+    return y
+
+
 def _is_plain(nb: object, lim: float) -> bool:
     """``nb`` is a plain entry (module docstring): a tuple of eight fields, position, velocity
     and radius floats, the position within ``+-lim``, no radius and no velocity."""
@@ -137,9 +149,10 @@ class NeighbourIndex:
         special = 0  # (bit j: entry j is a candidate of every query)
         count = 0  # entries that are not None
         plain_j: list[int] = []
-        plain_x: list[float] = []
-        plain_y: list[float] = []
+        cx: list[int] = []  # (the plain entries' cells)
+        cy: list[int] = []
         lim = COORD_LIMIT_M
+        inv = 1.0 / cell_m
         for j in range(len(entries)):
             nb = entries[j]
             if nb is None:
@@ -147,22 +160,19 @@ class NeighbourIndex:
             count += 1
             if _is_plain(nb, lim):
                 ent: tuple[Any, ...] = nb
+                qx: float = ent[0]
+                qy: float = ent[1]
                 plain_j.append(j)
-                plain_x.append(ent[0])
-                plain_y.append(ent[1])
+                cx.append(_cell(qx, inv))
+                cy.append(_cell(qy, inv))
             else:
                 special |= 1 << j
         self._special = special
         self._count = count
-        # the grid: the plain entries' cells, doubled until at most _MAX_CELLS_PER_ENTRY a plain
-        # entry (a sparse fleet: large cells; any size gives the same answers)
+        # the grid over the plain entries' cells, its cell doubled until it has at most
+        # _MAX_CELLS_PER_ENTRY cells a plain entry (a sparse fleet; any cell: the same answers)
         cap = _MAX_CELLS_BASE + _MAX_CELLS_PER_ENTRY * len(plain_j)
-        cx: list[int] = []
-        cy: list[int] = []
         while True:
-            inv = 1.0 / cell_m
-            cx = [_cell(v, inv) for v in plain_x]
-            cy = [_cell(v, inv) for v in plain_y]
             kx0, kx1 = _span(cx)
             ky0, ky1 = _span(cy)
             nx = kx1 - kx0 + 1
@@ -170,6 +180,9 @@ class NeighbourIndex:
             if nx * ny <= cap:
                 break
             cell_m *= 2.0
+            inv = 1.0 / cell_m
+            cx = [_cell(_x_of(entries[j]), inv) for j in plain_j]
+            cy = [_cell(_y_of(entries[j]), inv) for j in plain_j]
         masks = [0] * (nx * ny)
         for k in range(len(plain_j)):
             c = (cx[k] - kx0) * ny + (cy[k] - ky0)
