@@ -54,7 +54,7 @@ from formation.sim.collector import YOUNG_EVERY_TICKS, CollectorPause
 from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
-from robot_agent.core.neighbour_index import NEIGHBOUR_CELL_M, NeighbourIndex
+from robot_agent.core.neighbour_index import NEIGHBOUR_CELL_M, neighbour_lists
 from robot_agent.core.neighbours import ClaimRing, mover, neighbours_at
 from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
@@ -339,11 +339,10 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                             if mid == mover_body.id:
                                 nb = mover(nb, mvx, mvy)
                         seen_tail.append(nb)
-            # every robot's list: the others' entries in order, then the bodies, as a view of
-            # one grid of the tick's entries (its firmware reads only the entries near it)
-            # (views, not lists: Firmware.step takes any sequence of entries)
-            views: list[Any] = NeighbourIndex(pts, NEIGHBOUR_CELL_M).views(seen_tail)
-            neighbours = views
+            # every robot's list: the others' entries in order, then the bodies; for a fleet
+            # whose firmwares select, views of one grid of the tick's entries (each firmware
+            # reads only the entries near it)
+            neighbours = neighbour_lists(pts, seen_tail, NEIGHBOUR_CELL_M)
             # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
             # arrives or one goes stale)
             if delivered or t - oldest_rx > stale:

@@ -92,7 +92,6 @@ import numbers
 from collections.abc import Sequence
 from typing import Any, Final
 
-from robot_agent.core import _accel
 from robot_agent.core.estimator import Estimator
 from robot_agent.core.firmware_modes import (
     _ESTOP,
@@ -127,7 +126,8 @@ from .kinematics import (
 )
 from .neighbour_index import NeighbourView
 from .neighbour_motion import Claim, MotionLimiter
-from .neighbour_select import near_entries
+from .neighbour_select import SELECT_MIN_ENTRIES as SELECT_MIN_ENTRIES
+from .neighbour_select import near_entries, select_min_entries
 from .params import AgentConfig
 from .repulsion import repulsion_raw
 from .safety_filter import Neighbour, SafetyFilter
@@ -144,13 +144,6 @@ __all__ = [
 
 _isfinite: Final = math.isfinite
 _NEG_INF: Final = -math.inf
-#: The compiled core selects the neighbours that can matter (``robot_agent.core.neighbour_select``)
-#: from lists of at least this many entries: below, the walks it saves cost less than the
-#: selection (a small fleet's neighbours are mostly near anyway). Pure Python never does: there
-#: the selection costs more than it saves (chevron30: ~5 % more per tick; docs/benchmarks.md).
-#: The outputs are the same bit for bit either way.
-SELECT_MIN_ENTRIES: Final = 8
-_NEVER: Final = 1 << 62  # (no list is this long)
 #: ``Firmware._setpoint_now``'s answer when the tick holds (no valid setpoint): age NaN (not
 #: Final: mypyc cannot tell a Final tuple of NaNs from an unset one, a NameError)
 _NO_SETPOINT = (_NAN, _NAN, _NAN, _NAN, _NAN)
@@ -252,7 +245,7 @@ class Firmware:
         # the far neighbours dropped once per tick (neighbour_select), not with the
         # shared-frame plane (its bound may be larger than the one the selection uses)
         self._select_on = (self._rep_on or self._filter_on) and not self._shared_frame
-        self._select_min = SELECT_MIN_ENTRIES if _accel.ACTIVE else _NEVER
+        self._select_min = select_min_entries()
         self._modes = ModeMachine(self._tracker, self._filter)
         self._rejects = Rejections()
         self._have_setpoint = False
