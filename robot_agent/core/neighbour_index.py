@@ -20,19 +20,21 @@ a shorter list, the *candidates* in list order, and leaves out only entries that
   when its cell meets the box around the two boxes the walk tests (repulsion's ``d0`` at
   ``(x, y)``, the filter's ``box_m`` at ``(rx, ry)``), widened by :data:`PAD_M`, far more than
   the rounding of a difference of two coordinates within the limit (~1e-10 m). A cell number
-  is ``floor(c / cell_m)``, the same float division for an entry and a bound (monotone: an
-  entry inside the widened box is in a cell the query visits). Outside: the walk would find it
-  outside both boxes, with finite differences, and drop it without reading more;
+  is ``floor(c * (1 / cell_m))``, the same float operations for an entry and a bound
+  (monotone: an entry inside the widened box is in a cell the query meets). Outside: the walk
+  would find it outside both boxes, with finite differences, and drop it without reading more;
 * every other entry (a motion claim's view, a radius, a velocity, a list, anything odd or
   far away) and every ``tail`` entry is a candidate; a malformed one raises in the walk as it
   would in ``near_entries``, and then the whole list is the answer, as there.
 
 A query the grid cannot answer exactly (a non-finite or far centre, a non-finite or infinite
-half-width) walks the whole list. The grid is a flat list of cells over the plain entries'
-bounding box, each cell a bit mask of its entries (bit ``j``: ``entries[j]``), its cell doubled
-until it has at most 64 + 8 cells a plain entry (a sparse fleet); a query ORs the masks of the
-cells it meets (clipped to the grid) with the special entries' mask and walks the bits in
-order: no sort, no dictionary, native integers up to 62 robots.
+half-width) walks the whole list. The grid is two lists of strips over the plain entries'
+bounding box, one per axis (the cells' columns and rows), each strip a bit mask of its entries
+(bit ``j``: ``entries[j]``), the cell doubled until there are at most 64 + 8 strips a plain
+entry (a sparse fleet). A query's cells hold the entries of its x strips AND of its y strips:
+it ORs the masks of the strips it meets on each axis (clipped to the grid), ANDs the two, adds
+the special entries' mask and walks the bits in order: no sort, no dictionary, one read a
+strip, native integers up to 62 robots.
 """
 
 from __future__ import annotations
@@ -53,9 +55,10 @@ __all__ = [
 ]
 
 NEIGHBOUR_CELL_M: Final = 0.3
-"""The in-process simulator's cell (m): about half the width of the boxes a firmware asks for
-with the default parameters (the filter's +-0.54 m), so a query visits about 3 x 3 cells. Any
-positive size gives the same answers; this one is the fastest measured (docs/benchmarks.md)."""
+"""The in-process simulator's cell (m): with the default parameters a firmware's boxes (the
+filter's +-0.54 m) meet about 5 strips an axis. Any positive size gives the same answers; at
+chevron30 0.2 and 0.3 m give the same candidates (6.8 a robot, 5.7 kept), 0.6 m more (9.4);
+0.3 m reads fewer strips (docs/benchmarks.md)."""
 
 COORD_LIMIT_M: Final = 1.0e6
 """A plain entry's coordinates and a query's centres lie within +-this (m): a difference of two
@@ -100,6 +103,14 @@ def _cell(c: float, inv_cell: float) -> int:
     if float(k) > v:
         k -= 1
     return k
+
+
+def _or_of(strips: list[int], a: int, b: int) -> int:
+    """The OR of ``strips[a]`` to ``strips[b]`` (0 for none)."""
+    out = 0
+    for c in range(a, b + 1):
+        out |= strips[c]
+    return out
 
 
 def _span(cells: list[int]) -> tuple[int, int]:
@@ -169,10 +180,11 @@ class NeighbourIndex:
         "_inv_cell",
         "_kx0",
         "_ky0",
-        "_masks",
         "_nx",
         "_ny",
         "_special",
+        "_strips_x",
+        "_strips_y",
     )
 
     def __init__(self, entries: list[Any], cell_m: float) -> None:
@@ -202,31 +214,36 @@ class NeighbourIndex:
                 special |= 1 << j
         self._special = special
         self._count = count
-        # the grid over the plain entries' cells, its cell doubled until it has at most
-        # _MAX_CELLS_PER_ENTRY cells a plain entry (a sparse fleet; any cell: the same answers)
+        # the strips over the plain entries' cells, the cell doubled until there are at most
+        # _MAX_CELLS_PER_ENTRY strips a plain entry (a sparse fleet; any cell: the same answers)
         cap = _MAX_CELLS_BASE + _MAX_CELLS_PER_ENTRY * len(plain_j)
         while True:
             kx0, kx1 = _span(cx)
             ky0, ky1 = _span(cy)
             nx = kx1 - kx0 + 1
             ny = ky1 - ky0 + 1
-            if nx * ny <= cap:
+            if nx + ny <= cap:
                 break
             cell_m *= 2.0
             inv = 1.0 / cell_m
             cx = [_cell(_x_of(entries[j]), inv) for j in plain_j]
             cy = [_cell(_y_of(entries[j]), inv) for j in plain_j]
-        masks = [0] * (nx * ny)
+        strips_x = [0] * nx
+        strips_y = [0] * ny
         for k in range(len(plain_j)):
-            c = (cx[k] - kx0) * ny + (cy[k] - ky0)
-            masks[c] = masks[c] | (1 << plain_j[k])
+            bit = 1 << plain_j[k]
+            c = cx[k] - kx0
+            strips_x[c] = strips_x[c] | bit
+            c = cy[k] - ky0
+            strips_y[c] = strips_y[c] | bit
         self._cell_m = cell_m
         self._inv_cell = inv
         self._kx0 = kx0
         self._ky0 = ky0
         self._nx = nx
         self._ny = ny
-        self._masks = masks
+        self._strips_x = strips_x
+        self._strips_y = strips_y
 
     @property
     def entries(self) -> list[Any]:
@@ -312,11 +329,9 @@ class NeighbourIndex:
                 ay = 0
             if by >= ny:
                 by = ny - 1
-            masks = self._masks
-            for cx in range(ax, bx + 1):
-                row = cx * ny
-                for c in range(row + ay, row + by + 1):
-                    mask |= masks[c]
+            # (the entries of the cells (cx, cy) in range: those of the x strips in range AND
+            # of the y strips in range)
+            mask |= _or_of(self._strips_x, ax, bx) & _or_of(self._strips_y, ay, by)
         if mask >> i & 1:
             mask ^= 1 << i
         return mask
