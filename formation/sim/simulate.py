@@ -54,7 +54,8 @@ from formation.sim.collector import YOUNG_EVERY_TICKS, CollectorPause
 from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
-from robot_agent.core.neighbour_index import NEIGHBOUR_CELL_M, neighbour_lists
+from robot_agent.core.neighbour_index import NEIGHBOUR_CELL_M, NeighbourIndex
+from robot_agent.core.neighbour_select import select_min_entries
 from robot_agent.core.neighbours import ClaimRing, mover, neighbours_at
 from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
@@ -339,10 +340,23 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                             if mid == mover_body.id:
                                 nb = mover(nb, mvx, mvy)
                         seen_tail.append(nb)
-            # every robot's list: the others' entries in order, then the bodies; for a fleet
-            # whose firmwares select, views of one grid of the tick's entries (each firmware
-            # reads only the entries near it)
-            neighbours = neighbour_lists(pts, seen_tail, NEIGHBOUR_CELL_M)
+            # every robot's list: the others' entries in order, then the bodies; where the
+            # firmware selects from it (compiled, long lists), a view of one grid of the tick's
+            # entries (each firmware reads only the entries near it: neighbour_index)
+            if n - 1 + len(seen_tail) >= select_min_entries():
+                neighbours = NeighbourIndex(pts, NEIGHBOUR_CELL_M).views(seen_tail)
+            elif None in pts:
+                for i in range(n):
+                    neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
+                    if seen_tail:
+                        neighbours[i].extend(seen_tail)
+            else:  # every robot's list is the others' entries in order: a copy less one
+                for i in range(n):
+                    others = pts.copy()
+                    del others[i]
+                    if seen_tail:
+                        others.extend(seen_tail)
+                    neighbours[i] = others
             # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
             # arrives or one goes stale)
             if delivered or t - oldest_rx > stale:

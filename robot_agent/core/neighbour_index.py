@@ -43,7 +43,7 @@ import math
 from collections.abc import Sequence
 from typing import Any, Final
 
-from .neighbour_select import _near, near_entries, select_min_entries
+from .neighbour_select import _near, near_entries
 
 __all__ = [
     "COORD_LIMIT_M",
@@ -51,7 +51,6 @@ __all__ = [
     "PAD_M",
     "NeighbourIndex",
     "NeighbourView",
-    "neighbour_lists",
 ]
 
 NEIGHBOUR_CELL_M: Final = 0.3
@@ -68,32 +67,6 @@ PAD_M: Final = 1.0e-6
 _NEG_INF: Final = -math.inf
 _MAX_CELLS_BASE: Final = 64  # (the grid: at most this many cells plus ...
 _MAX_CELLS_PER_ENTRY: Final = 8  # ... this many a plain entry, its cell doubled until so)
-
-
-def neighbour_lists(entries: list[Any], tail: list[Any], cell_m: float) -> list[Any]:
-    """Every robot's neighbour list for one tick (robot ``i``'s: ``entries`` but ``entries[i]``
-    and the Nones, in order, then ``tail``): views of one :class:`NeighbourIndex` when a list
-    is long enough for the firmware to select from (``select_min_entries``: compiled, at least
-    8 entries), else the lists themselves (a small fleet, pure Python: a view would cost more
-    than it saves)."""
-    n = len(entries)
-    if n - 1 + len(tail) >= select_min_entries():
-        return NeighbourIndex(entries, cell_m).views(tail)
-    out: list[Any] = []
-    if None in entries:
-        for i in range(n):
-            lst = [q for j, q in enumerate(entries) if j != i and q is not None]
-            if tail:
-                lst.extend(tail)
-            out.append(lst)
-    else:  # the others' entries in order: a copy less one
-        for i in range(n):
-            others = entries.copy()
-            del others[i]
-            if tail:
-                others.extend(tail)
-            out.append(others)
-    return out
 
 
 def _cell(c: float, inv_cell: float) -> int:

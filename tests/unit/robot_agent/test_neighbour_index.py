@@ -14,13 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robot_agent.core import Firmware, Pose, Setpoint
-from robot_agent.core.neighbour_index import (
-    COORD_LIMIT_M,
-    NeighbourIndex,
-    NeighbourView,
-    neighbour_lists,
-)
-from robot_agent.core.neighbour_select import near_entries, select_min_entries
+from robot_agent.core.neighbour_index import COORD_LIMIT_M, NeighbourIndex, NeighbourView
+from robot_agent.core.neighbour_select import near_entries
 from robot_agent.core.params import AgentConfig
 from robot_agent.core.safety_filter import Neighbour
 
@@ -202,16 +197,18 @@ def test_an_idle_firmware_evades_on_a_view() -> None:
 
 @pytest.mark.parametrize("n", [1, 3, 9, 30])
 @pytest.mark.parametrize("holes", [False, True])
-def test_the_loop_s_lists_are_the_others_entries_then_the_tail(n: int, holes: bool) -> None:
-    """``neighbour_lists``: robot i's list is every other entry (Nones left out), in order,
-    then the tail, whether it is a view (a long list, compiled) or a list."""
+def test_every_view_is_the_others_entries_then_the_tail(n: int, holes: bool) -> None:
+    """``views``: robot i's is every other entry (Nones left out), in order, then the tail."""
     entries: list[Any] = [n8(0.4 * j, 0.1 * j, 0.0, 0.0, 0.0, 0.0, True, 0.0) for j in range(n)]
     if holes:
         entries[n // 2] = None
     tail = [n8(1.0, 1.0, math.nan, 0.0, 0.0, 0.0, False, 0.2)]
-    lists = neighbour_lists(entries, tail, 0.3)
-    assert len(lists) == n
-    for i, got in enumerate(lists):
+    views = NeighbourIndex(entries, 0.3).views(tail)
+    assert len(views) == n
+    for i, got in enumerate(views):
         want = [e for j, e in enumerate(entries) if j != i and e is not None] + tail
         assert same_objects(got, want)
-        assert isinstance(got, NeighbourView) == (n - 1 + len(tail) >= select_min_entries())
+        assert same_objects(
+            got.near(0.4 * i, 0.1 * i, 0.25, 0.4 * i + 0.05, 0.1 * i, 0.54),
+            near_entries(want, 0.4 * i, 0.1 * i, 0.25, 0.4 * i + 0.05, 0.1 * i, 0.54),
+        )
