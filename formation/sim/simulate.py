@@ -226,7 +226,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     rx_objs: list[Any] = pose_rx
     pose_cap: list[float | None] = [None] * n
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
-    neighbours: list[Any] = [[] for _ in ids]  # (robot i's: a NeighbourView each tick)
+    neighbours: list[Any] = [[] for _ in ids]  # robot i's list (or view) of the tick
+    view_min = select_min_entries()  # lists this long or longer are views (neighbour_index)
     tracking = [False] * n  # robot j's firmware was TRACKING on the previous tick
     # motion claims (rule 4 of robot_agent.core.neighbours): the previous ticks' commands
     sfp = scenario.agent.safety_filter
@@ -343,7 +344,7 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
             # every robot's list: the others' entries in order, then the bodies; where the
             # firmware selects from it (compiled, long lists), a view of one grid of the tick's
             # entries (each firmware reads only the entries near it: neighbour_index)
-            if n - 1 + len(seen_tail) >= select_min_entries():
+            if n - 1 + len(seen_tail) >= view_min:
                 neighbours = NeighbourIndex(pts, NEIGHBOUR_CELL_M).views(seen_tail)
             elif None in pts:
                 for i in range(n):
