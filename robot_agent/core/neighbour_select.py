@@ -2,7 +2,9 @@
 once, before repulsion and the safety filter walk it.
 
 Stdlib only, pure. A shell passes every robot it knows (the in-process simulator: all the others,
-29 entries a tick at 30 robots), and both per-neighbour loops of a tick (``repulsion._pushes``,
+29 entries a tick at 30 robots, as a ``neighbour_index.NeighbourView``, whose near entries are
+this function's answer computed from the entries of the cells near the robot only), and both
+per-neighbour loops of a tick (``repulsion._pushes``,
 ``safety_neighbours.NeighbourBarriers.append``) read each entry in full, only to skip most of
 them with a box test. :func:`near_entries` reads an entry's position (and the three fields that
 widen the filter's box) and drops it only when BOTH loops would skip it without a trace:
