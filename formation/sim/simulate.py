@@ -53,6 +53,8 @@ from formation.sim.collector import YOUNG_EVERY_TICKS, CollectorPause
 from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelCommand
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
+from robot_agent.core.neighbour_index import NEIGHBOUR_CELL_M, NeighbourIndex
+from robot_agent.core.neighbour_select import select_min_entries
 from robot_agent.core.neighbours import ClaimRing, mover, neighbours_at
 from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
@@ -222,7 +224,8 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
     rx_objs: list[Any] = pose_rx
     pose_cap: list[float | None] = [None] * n
     applied: list[tuple[float, float]] = [(0.0, 0.0)] * n
-    neighbours: list[list[Any]] = [[] for _ in ids]
+    neighbours: list[Any] = [[] for _ in ids]  # robot i's list (or view) of the tick
+    view_min = select_min_entries()  # lists this long or longer are views (neighbour_index)
     tracking = [False] * n  # robot j's firmware was TRACKING on the previous tick
     # motion claims (rule 4 of robot_agent.core.neighbours): the previous ticks' commands
     sfp = scenario.agent.safety_filter
@@ -325,17 +328,10 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                         seen_nb = pts[jm]
                         if seen_nb is not None:
                             pts[jm] = mover(seen_nb, mvx, mvy)
-            if None in pts:
-                for i in range(n):
-                    neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
-            else:  # every robot's list is the others' entries in order: a copy less one
-                for i in range(n):
-                    others = pts.copy()
-                    del others[i]
-                    neighbours[i] = others
             # scenario movers (issue 30): the bodies at t; a visible one is seen like a robot
-            # (no velocity, age 0) by every robot's filter and as a tracked object by the
-            # coordinator; an invisible one (an untracked person) only by the logs
+            # (no velocity, age 0) by every robot's filter, after the robots, and as a tracked
+            # object by the coordinator; an invisible one (an untracked person) only by the logs
+            seen_tail: list[Any] = []
             if bodies:
                 seen_bodies = {}
                 for b, (mover_body, track) in enumerate(zip(bodies, body_tracks, strict=True)):
@@ -348,8 +344,24 @@ def run(  # noqa: PLR0915 (the in-process loop: one tick's stages in their order
                         for mid, _, _, mvx, mvy in movers:
                             if mid == mover_body.id:
                                 nb = mover(nb, mvx, mvy)
-                        for i in range(n):
-                            neighbours[i] = [*neighbours[i], nb]
+                        seen_tail.append(nb)
+            # every robot's list: the others' entries in order, then the bodies; where the
+            # firmware selects from it (compiled, long lists), a view of one grid of the tick's
+            # entries (each firmware reads only the entries near it: neighbour_index)
+            if n - 1 + len(seen_tail) >= view_min:
+                neighbours = NeighbourIndex(pts, NEIGHBOUR_CELL_M).views(seen_tail)
+            elif None in pts:
+                for i in range(n):
+                    neighbours[i] = [q for j, q in enumerate(pts) if j != i and q is not None]
+                    if seen_tail:
+                        neighbours[i].extend(seen_tail)
+            else:  # every robot's list is the others' entries in order: a copy less one
+                for i in range(n):
+                    others = pts.copy()
+                    del others[i]
+                    if seen_tail:
+                        others.extend(seen_tail)
+                    neighbours[i] = others
             # 3. coordinator on the measured poses that are fresh (the set changes only when a pose
             # arrives or one goes stale)
             if delivered or t - oldest_rx > stale:

@@ -162,6 +162,7 @@ COMPILED_MODULES: tuple[str, ...] = (
     "deadlock",
     "safety_filter",
     "neighbour_select",  # a long neighbour list's far entries dropped once a tick
+    "neighbour_index",  # the in-process fleet's entries in a grid once a tick: near ones read
     "firmware_types",
     "firmware_rejects",
     "firmware_modes",

@@ -92,7 +92,6 @@ import numbers
 from collections.abc import Sequence
 from typing import Any, Final
 
-from robot_agent.core import _accel
 from robot_agent.core.estimator import Estimator
 from robot_agent.core.firmware_modes import (
     _ESTOP,
@@ -125,8 +124,10 @@ from .kinematics import (
     twist_from_wheels_raw,
     wheels_from_twist_raw,
 )
+from .neighbour_index import NeighbourView
 from .neighbour_motion import Claim, MotionLimiter
-from .neighbour_select import near_entries
+from .neighbour_select import SELECT_MIN_ENTRIES as SELECT_MIN_ENTRIES
+from .neighbour_select import near_entries, select_min_entries
 from .params import AgentConfig
 from .repulsion import repulsion_raw
 from .safety_filter import Neighbour, SafetyFilter
@@ -143,13 +144,6 @@ __all__ = [
 
 _isfinite: Final = math.isfinite
 _NEG_INF: Final = -math.inf
-#: The compiled core selects the neighbours that can matter (``robot_agent.core.neighbour_select``)
-#: from lists of at least this many entries: below, the walks it saves cost less than the
-#: selection (a small fleet's neighbours are mostly near anyway). Pure Python never does: there
-#: the selection costs more than it saves (chevron30: ~5 % more per tick; docs/benchmarks.md).
-#: The outputs are the same bit for bit either way.
-SELECT_MIN_ENTRIES: Final = 8
-_NEVER: Final = 1 << 62  # (no list is this long)
 #: ``Firmware._setpoint_now``'s answer when the tick holds (no valid setpoint): age NaN (not
 #: Final: mypyc cannot tell a Final tuple of NaNs from an unset one, a NameError)
 _NO_SETPOINT = (_NAN, _NAN, _NAN, _NAN, _NAN)
@@ -251,7 +245,7 @@ class Firmware:
         # the far neighbours dropped once per tick (neighbour_select), not with the
         # shared-frame plane (its bound may be larger than the one the selection uses)
         self._select_on = (self._rep_on or self._filter_on) and not self._shared_frame
-        self._select_min = SELECT_MIN_ENTRIES if _accel.ACTIVE else _NEVER
+        self._select_min = select_min_entries()
         self._modes = ModeMachine(self._tracker, self._filter)
         self._rejects = Rejections()
         self._have_setpoint = False
@@ -297,7 +291,7 @@ class Firmware:
         pose_rx_s: float | object,
         setpoint: Setpoint | object | None,
         setpoint_rx_s: float | object,
-        neighbours: Sequence[tuple[float, float] | Neighbour] = (),
+        neighbours: Sequence[tuple[float, float] | Neighbour] | NeighbourView = (),
         obstacles: Sequence[tuple[float, float, float]] = (),
         extra_radius_m: float | object = 0.0,
         pose_capture_s: float | object | None = None,
@@ -313,7 +307,8 @@ class Firmware:
             setpoint_rx_s: local time the setpoint was received (s).
             neighbours: other robots' axle-centre positions (m), for repulsion and the safety
                 filter: ``(x, y)`` tuples (a fresh position of a robot treated as an obstacle)
-                or ``safety_filter.Neighbour``s (with heading, age, velocity, cooperative).
+                or ``safety_filter.Neighbour``s (with heading, age, velocity, cooperative); or a
+                ``neighbour_index.NeighbourView``, a list over the in-process fleet's grid.
             obstacles: circles ``(x, y, radius_m)`` (m), for repulsion and the safety filter
                 (on top of the configured ``AgentConfig.world``).
             extra_radius_m: extra position uncertainty (m) of this robot, which the safety
@@ -346,7 +341,7 @@ class Firmware:
         pose_rx_s: float | object,
         setpoint: Setpoint | object | None,
         setpoint_rx_s: float | object,
-        neighbours: Sequence[tuple[float, float] | Neighbour],
+        neighbours: Sequence[tuple[float, float] | Neighbour] | NeighbourView,
         pose_capture_s: float | object | None,
         wheel_speeds: tuple[float, float] | object | None,
     ) -> WheelCommand:
@@ -370,7 +365,7 @@ class Firmware:
         pose_rx_s: float | object,
         setpoint: Setpoint | object | None,
         setpoint_rx_s: float | object,
-        neighbours: Sequence[tuple[float, float] | Neighbour],
+        neighbours: Sequence[tuple[float, float] | Neighbour] | NeighbourView,
         obstacles: Sequence[tuple[float, float, float]],
         extra_radius_m: float | object,
         pose_capture_s: float | object | None,
@@ -446,10 +441,18 @@ class Firmware:
                 return self._hold(_EV_INVALID, "controller overflow")
             # 5a. of a long list, the neighbours that can matter to stages 5 and 6 (the same
             # entries in the same order, less those both would skip without a trace)
-            near = neighbours
+            # (a NeighbourView, the in-process loop's list over the fleet's grid: its near
+            # entries from the grid, the same ones; else its whole list)
+            view: NeighbourView | None = None
+            listed: Sequence[Any] = ()
+            if isinstance(neighbours, NeighbourView):
+                view = neighbours
+            else:
+                listed = neighbours
+            near = listed
             if (
                 self._select_on
-                and isinstance(neighbours, list)
+                and (view is not None or isinstance(listed, list))
                 and len(neighbours) >= self._select_min
                 and type(extra_radius_m) is float
             ):
@@ -460,7 +463,12 @@ class Firmware:
                     if unc > er:
                         er = unc
                     box = self._filter.reach_box_m(er, dt)
-                near = near_entries(neighbours, x, y, d0, rx, ry, box)
+                if view is not None:
+                    near = view.near(x, y, d0, rx, ry, box)
+                else:
+                    near = near_entries(listed, x, y, d0, rx, ry, box)
+            elif view is not None:
+                near = view.full()
             # 5. repulsion from neighbours / obstacles, at the axle centre (called whenever there
             # are neighbours at all: its sum of no pushes, 0.0, is added as before)
             if self._rep_on and (neighbours or obstacles):
@@ -676,7 +684,7 @@ class Firmware:
         now: float,
         dt: float,
         xytu: tuple[float, float, float, float] | None,
-        neighbours: Sequence[Any],
+        neighbours: Sequence[Any] | NeighbourView,
         obstacles: Sequence[tuple[float, float, float]],
         extra_radius_m: object,
     ) -> WheelCommand:
@@ -693,7 +701,8 @@ class Firmware:
         er = extra_radius_m if type(extra_radius_m) is float else _real(extra_radius_m)
         if unc > er:
             er = unc
-        vx, vy = self._filter.evade(rx, ry, neighbours, obstacles, er, dt)
+        listed = neighbours.full() if isinstance(neighbours, NeighbourView) else neighbours
+        vx, vy = self._filter.evade(rx, ry, listed, obstacles, er, dt)
         if vx == 0.0 and vy == 0.0:
             return self._zero(self._last_pose_t)
         v, w = twist_from_ref_velocity(vx, vy, th, l_m)  # eq 16

@@ -2,7 +2,9 @@
 once, before repulsion and the safety filter walk it.
 
 Stdlib only, pure. A shell passes every robot it knows (the in-process simulator: all the others,
-29 entries a tick at 30 robots), and both per-neighbour loops of a tick (``repulsion._pushes``,
+29 entries a tick at 30 robots, as a ``neighbour_index.NeighbourView``, whose near entries are
+this function's answer computed from the entries of the cells near the robot only), and both
+per-neighbour loops of a tick (``repulsion._pushes``,
 ``safety_neighbours.NeighbourBarriers.append``) read each entry in full, only to skip most of
 them with a box test. :func:`near_entries` reads an entry's position (and the three fields that
 widen the filter's box) and drops it only when BOTH loops would skip it without a trace:
@@ -29,9 +31,25 @@ then raise as they always did, and the firmware counts it.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, Final
 
-__all__ = ["near_entries"]
+from robot_agent.core import _accel
+
+__all__ = ["SELECT_MIN_ENTRIES", "near_entries", "select_min_entries"]
+
+#: The compiled core selects the neighbours that can matter from lists of at least this many
+#: entries: below, the walks it saves cost less than the selection (a small fleet's neighbours
+#: are mostly near anyway). Pure Python never does: there the selection costs more than it
+#: saves (chevron30: ~5 % more per tick; docs/benchmarks.md). The outputs are the same bit for
+#: bit either way.
+SELECT_MIN_ENTRIES: Final = 8
+_NEVER: Final = 1 << 62  # (no list is this long)
+
+
+def select_min_entries() -> int:
+    """The shortest neighbour list a firmware of this process selects from
+    (:data:`SELECT_MIN_ENTRIES` with the compiled core; pure Python: none, a huge number)."""
+    return SELECT_MIN_ENTRIES if _accel.ACTIVE else _NEVER
 
 
 def near_entries(
