@@ -97,20 +97,19 @@ def _upper_pairs(n: int) -> IntArray:
     return pairs
 
 
-def _pair_distances(truth: FloatArray) -> FloatArray:
-    """``(T, n (n - 1) / 2)`` centre distances of the poses ``truth[t, i, (x, y, ...)]``, pairs
-    ``i < j`` in pdist's order, each ``sqrt(dx*dx + dy*dy)`` with ``dx = x_i - x_j``.
+def _pair_squares(truth: FloatArray, dx: FloatArray, dy: FloatArray) -> FloatArray:
+    """``(n (n - 1) / 2, T)`` squared centre distances ``dx*dx + dy*dy`` (``dx = x_i - x_j``) of
+    the poses ``truth[t, i, (x, y, ...)]``, pairs ``i < j`` in pdist's order, pair-major, written
+    into ``dx`` (returned); ``dx`` and ``dy`` are buffers of that shape, reused block after block
+    (fresh ones cost a page fault per 4 KiB at every block).
 
-    Computed pair-major (a transposed view is returned): robot ``i``'s pairs are the rows
-    ``j = i + 1 .. n - 1`` of one block, each a subtraction of two contiguous time series, not a
-    gather by index per element (the same operations on the same operands: the same bits); the
-    squares, sum and root are taken in place.
+    Robot ``i``'s pairs are the rows ``j = i + 1 .. n - 1`` of one block, each a subtraction of
+    two contiguous time series, not a gather by index per element (the same operations on the
+    same operands as pdist's ``sqrt(dx*dx + dy*dy)`` before its root: the same bits).
     """
     x = np.ascontiguousarray(truth[:, :, 0].T)  # (n, T)
     y = np.ascontiguousarray(truth[:, :, 1].T)
-    n, ticks = x.shape
-    dx = np.empty((n * (n - 1) // 2, ticks))
-    dy = np.empty_like(dx)
+    n = x.shape[0]
     row = 0
     for i in range(n - 1):
         end = row + n - 1 - i
@@ -119,8 +118,7 @@ def _pair_distances(truth: FloatArray) -> FloatArray:
         row = end
     np.multiply(dx, dx, out=dx)
     np.multiply(dy, dy, out=dy)
-    np.add(dx, dy, out=dx)
-    return np.sqrt(dx, out=dx).T
+    return np.add(dx, dy, out=dx)
 
 
 def contacts_and_min_distance(
@@ -316,11 +314,18 @@ class SeparationMonitor:
         ii, jj = pairs[:, 0], pairs[:, 1]
         contact = self.contact_dist_m
         block = max(1, PAIR_BLOCK_ELEMENTS // len(pairs))
+        dx_buf = np.empty((len(pairs), min(block, ticks)))
+        dy_buf = np.empty_like(dx_buf)
         new: list[CollisionEvent] = []
         in_contact = self._in_contact
         for k0 in range(0, ticks, block):
-            d = _pair_distances(arr[k0 : k0 + block])  # (ticks, pairs), pdist's order of pairs
-            dmin = d.min(axis=1)
+            chunk = arr[k0 : k0 + block]
+            width = chunk.shape[0]
+            sq = _pair_squares(chunk, dx_buf[:, :width], dy_buf[:, :width])  # (pairs, ticks)
+            # Each tick's minimum distance is the root of its minimum square: the root is
+            # correctly rounded, hence monotone, so sqrt(min(s)) == min(sqrt(s)) bit for bit;
+            # the roots of all the pairs are taken only for a block where some pair touches.
+            dmin = np.sqrt(sq.min(axis=0))
             kmin = int(np.argmin(dmin))  # the first tick that reaches the block's minimum
             if dmin[kmin] < self._min_sep_m:
                 self._min_sep_m = float(dmin[kmin])
@@ -329,6 +334,7 @@ class SeparationMonitor:
             if not dmin[kmin] < contact:  # no pair touches in the block: no event, none after
                 in_contact = set()
                 continue
+            d = np.sqrt(sq, out=sq).T  # (ticks, pairs): pdist's distances, in pdist's order
             touching = d < contact
             prev = np.zeros((1, len(pairs)), dtype=np.bool_)
             for a, b in in_contact:
