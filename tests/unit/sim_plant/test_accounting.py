@@ -173,3 +173,35 @@ def test_update_many_in_blocks_equals_one_update_per_tick(
     assert batch.in_contact == one.in_contact
     assert batch.last_min_separation_m == one.last_min_separation_m
     assert batch.updates == one.updates == ticks
+
+
+def test_update_many_minimum_tick_when_two_squares_share_a_root() -> None:
+    """Two ticks whose closest pairs have different squared distances but the same distance: the
+    minimum's time is the first of them, as with one update per tick (the batch path roots each
+    tick's minimum square; the root is correctly rounded, so that is each tick's minimum
+    distance, ties included)."""
+    rng = np.random.default_rng(7)
+    found = None
+    for _ in range(1000):
+        dx, dy = rng.uniform(0.2, 0.5, 2)
+        r = float(np.sqrt(dx * dx + dy * dy))
+        if r * r > dx * dx + dy * dy:  # tick 0 (r, 0): larger square, the same root
+            found = (dx, dy, r)
+            break
+    assert found is not None
+    dx, dy, r = found
+    walk = np.array(
+        [
+            [[0.0, 0.0, 0.0], [r, 0.0, 0.0], [5.0, 5.0, 0.0]],
+            [[0.0, 0.0, 0.0], [dx, dy, 0.0], [5.0, 5.0, 0.0]],
+            [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [5.0, 5.0, 0.0]],
+        ]
+    )
+    t = np.array([0.0, 0.02, 0.04])
+    one, batch = SeparationMonitor(0.05), SeparationMonitor(0.05)
+    for k in range(3):
+        one.update(float(t[k]), walk[k])
+    batch.update_many(t, walk)
+    assert one.min_separation_m == batch.min_separation_m == r
+    assert one.min_separation_t_s == batch.min_separation_t_s == 0.0
+    assert batch.last_min_separation_m == one.last_min_separation_m
