@@ -158,6 +158,8 @@ class Estimator:
     plain functions of estimator_math.py."""
 
     __slots__ = (
+        "_a_obj",
+        "_a_rt",
         "_anch",
         "_anch_t",
         "_b_cmd",
@@ -175,6 +177,8 @@ class Estimator:
         "_last_odom_t",
         "_max_lat",
         "_max_unc",
+        "_n_obj",
+        "_n_rt",
         "_node_t",
         "_nodes",
         "_nsig",
@@ -235,6 +239,14 @@ class Estimator:
         self._head_t = math.nan
         self._head_nt = math.nan
         self._head_st: _State = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        # the newest anchor and the newest node as read last (a memo keyed by identity: the
+        # tuple object in the list, held here, and its fields; compiled, the fields are kept
+        # unboxed, so a tick that reads the same tuple again does not unbox its 17 / 11 floats)
+        self._a_obj: object = None
+        self._a_rt: _Anchor = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                               0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # fmt: skip
+        self._n_obj: object = None
+        self._n_rt: _Node = (0.0, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), 0.0, 0.0, False, 0.0, 0.0)
         self._last_odom_t = -math.inf
         self._gated_run = 0
         self._first_is_init = False
@@ -434,7 +446,12 @@ class Estimator:
                     self._last_odom_t = now_s
             else:
                 qm, qs = self._cmd_q
-            nodes.append((seg_t_s, st, v_mps, omega_radps, odometry, qm, qs))
+            node: _Node = (seg_t_s, st, v_mps, omega_radps, odometry, qm, qs)
+            no: object = node  # (boxed once: the list's tuple, remembered with its fields)
+            nodes_o: list[Any] = nodes
+            nodes_o.append(no)
+            self._n_obj = no
+            self._n_rt = node
             nt.append(seg_t_s)
             anch_t = self._anch_t
             if anch_t and anch_t[-1] > seg_t_s:
@@ -475,7 +492,9 @@ class Estimator:
         ox, oy, oth, d_, tu, q = st
         # (typed names for the unused fields, not _: compiled, _ is an object and each float
         # unpacked into it is boxed)
-        at, _x, _y, _th, app, ppth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, atu, aq = anch[-1]
+        at, _x, _y, _th, app, ppth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, atu, aq = (
+            self._newest_anchor()
+        )
         dist = d_ - ad
         px = c * ox - s * oy + tx
         py = s * ox + c * oy + ty
@@ -512,13 +531,47 @@ class Estimator:
         fa = th - oth
         c = _cos(fa)
         s = _sin(fa)
-        anch.append((t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
-                     c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa, d_, tu,
-                     q))  # fmt: skip
-        anch_t.append(t_s)
+        self._append_anchor((t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
+                             c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa, d_, tu,
+                             q))  # fmt: skip
         if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
             self._trim(now_s)
         return None
+
+    def _newest_anchor(self) -> _Anchor:
+        """``self._anch[-1]`` (there is one), through the identity memo ``_a_obj`` /
+        ``_a_rt``: the same tuple, the same fields (compiled: no unboxing when it is the one
+        read or appended last, the common case: one new anchor a camera frame)."""
+        anch_o: list[Any] = self._anch
+        ao: object = anch_o[-1]
+        if ao is self._a_obj:
+            return self._a_rt
+        a: _Anchor = anch_o[-1]
+        self._a_obj = ao
+        self._a_rt = a
+        return a
+
+    def _append_anchor(self, new: _Anchor) -> None:
+        """Append the newest anchor ``new`` (captured after every other one), remembered in
+        the memo of ``_newest_anchor``."""
+        ao: object = new  # (boxed once: the list's tuple)
+        anch_o: list[Any] = self._anch
+        anch_o.append(ao)
+        self._anch_t.append(new[0])
+        self._a_obj = ao
+        self._a_rt = new
+
+    def _newest_node(self) -> _Node:
+        """``self._nodes[-1]`` (there is one), through the identity memo ``_n_obj`` /
+        ``_n_rt`` (as ``_newest_anchor``: one new node a tick)."""
+        nodes_o: list[Any] = self._nodes
+        no: object = nodes_o[-1]
+        if no is self._n_obj:
+            return self._n_rt
+        n: _Node = nodes_o[-1]
+        self._n_obj = no
+        self._n_rt = n
+        return n
 
     # ------------------------------------------------------------------ the history
 
@@ -618,7 +671,7 @@ class Estimator:
         nodes = self._nodes
         if not anch:
             return None
-        a = anch[-1]
+        a = self._newest_anchor()
         at = a[0]
         age = now_s - at
         bound = self._b_odom if now_s - self._last_odom_t <= self._odom_to else self._b_cmd
@@ -628,8 +681,7 @@ class Estimator:
             ex, ey, eth, pp = a[1], a[2], a[3], a[4]
         else:
             if nt and nt[-1] <= now_s + _TINY_S:
-                n = nodes[-1]
-                nt0, st, v, w, _measured, qm, qs = n
+                nt0, st, v, w, _measured, qm, qs = self._newest_node()
                 dt = now_s - nt0
                 if dt < _TINY_S:
                     ox, oy, oth, d_, tu, q = st

@@ -196,6 +196,13 @@ def test_tick_is_bit_for_bit_the_three_calls(
         if cap is not None:
             assert tick.last_reason == want_reason
         assert tick.status() == calls.status()
+        # the identity memo of the newest anchor and node (fields kept unboxed) is the lists'
+        # newest tuple, whatever replays, resets and trims did to the lists
+        for est in (calls, tick):
+            if est._anch:
+                assert est._newest_anchor() == est._anch[-1]
+            if est._nodes:
+                assert est._newest_node() == est._nodes[-1]
         x, y, th = propagate_pose(x, y, th, v, w, DT)
         last = now
 
