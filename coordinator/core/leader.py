@@ -215,10 +215,9 @@ class LeaderCore:
         trajectory_kind: str = "",
         arena: tuple[float, float, float, float] | None = None,
     ) -> None:
-        self.trajectory = trajectory
-        # its compiled sampler (None: sampled through its own method), for this trajectory
+        self._trajectory = trajectory
+        # its compiled sampler (None: sampled through its own method); set with the trajectory
         self._sampler: Sampler | None = sampler(trajectory)
-        self._sampler_of: object = trajectory
         self._config = config if config is not None else LeaderConfig()
         self._trajectory_kind = trajectory_kind
         self.arena = arena
@@ -257,6 +256,16 @@ class LeaderCore:
         return self._config
 
     @property
+    def trajectory(self) -> Trajectory:
+        """The scenario's trajectory (the script; a new one brings its own sampler)."""
+        return self._trajectory
+
+    @trajectory.setter
+    def trajectory(self, trajectory: Trajectory) -> None:
+        self._trajectory = trajectory
+        self._sampler = sampler(trajectory)
+
+    @property
     def trajectory_kind(self) -> str:
         """The scenario trajectory's kind (``"plan"``: a planned one; fixed)."""
         return self._trajectory_kind
@@ -266,13 +275,9 @@ class LeaderCore:
         same function of the same floats: the same bits; ``tau`` as the float ``sample`` takes
         it), else, or for a time that is not finite (its ``ValueError``), its own method."""
         sp = self._sampler
-        if (
-            sp is not None
-            and self.trajectory is self._sampler_of
-            and not (math.isinf(tau) or math.isnan(tau))
-        ):
+        if sp is not None and not (math.isinf(tau) or math.isnan(tau)):
             return sp.sample(float(tau))
-        return self.trajectory.sample(tau)
+        return self._trajectory.sample(tau)
 
     # -- commands (queued; applied at the next step) ---------------------------------------
 
