@@ -134,13 +134,23 @@ def faults_at_once(
 
 
 def state(pid: int) -> str | None:
-    """/proc state letter of ``pid`` (None: gone or a zombie)."""
+    """/proc state letter of the first of ``pid``'s threads still running (None: gone, or every
+    thread a zombie). A killed process's main thread shows ``Z`` while its other threads may
+    still be exiting, and the last of them to exit is the one that closes its sockets: a
+    process is gone only when all of its threads are."""
     try:
-        raw = Path(f"/proc/{pid}/stat").read_text()
+        tasks = os.listdir(f"/proc/{pid}/task")
     except OSError:
         return None
-    letter = raw[raw.rfind(")") + 2 :].split()[0]
-    return None if letter in ("Z", "X") else letter
+    for task in tasks:
+        try:
+            raw = Path(f"/proc/{pid}/task/{task}/stat").read_text()
+        except OSError:
+            continue
+        letter = raw[raw.rfind(")") + 2 :].split()[0]
+        if letter not in ("Z", "X"):
+            return letter
+    return None
 
 
 def port_is_free(port: int) -> bool:
@@ -154,6 +164,14 @@ def port_is_free(port: int) -> bool:
         except OSError:
             return False
     return True
+
+
+def holders(port: int) -> str:
+    """The lines of /proc/net/tcp whose local port is ``port`` (state in hex: 0A listening,
+    06 TIME_WAIT), for a failure's message."""
+    rows = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    mine = [r for r in rows if int(r.split()[1].split(":")[1], 16) == port]
+    return "\n".join(mine) or "(no socket on it in /proc/net/tcp)"
 
 
 def children_of(pid: int) -> set[int]:
@@ -209,7 +227,9 @@ def test_sigkill_of_the_launcher_leaves_no_process_and_frees_the_port(
     ):
         time.sleep(0.05)
     assert not alive, f"children still running 2 s after the launcher's SIGKILL: {alive}"
-    assert port_is_free(port)
+    while not (free := port_is_free(port)) and time.monotonic() < deadline:
+        time.sleep(0.05)  # a socket is closed by the kernel as its last thread exits
+    assert free, f"port {port} still held 2 s after the launcher's SIGKILL:\n{holders(port)}"
     assert runfile.lookup(port) is None  # the stale run file is ignored (and removed)
 
 
