@@ -54,12 +54,26 @@ def floats_of(values: list[float]) -> F64:
     return out
 
 
+def ints_of(values: list[int]) -> I64:
+    """``values`` (each within int64) as an int64 array, packed as :func:`floats_of` packs."""
+    n = len(values)
+    out = np.empty(n, np.int64)
+    struct.pack_into(f"{n}q", out.data, 0, *values)
+    return out
+
+
+def mode_code(mode: object) -> int:
+    """The :data:`MODE_CODES` value of one firmware mode (a ``Mode`` member or its name;
+    anything else 0)."""
+    return MODE_CODES.get(str(mode), 0)
+
+
 def mode_codes(modes: Sequence[Any]) -> I64:
-    """:data:`MODE_CODES` of firmware modes (``Mode`` members or their names; anything else 0),
-    ``(len(modes),)``. Keyed by identity: C-level hashing of ints, few distinct modes."""
+    """:data:`MODE_CODES` of firmware modes (:func:`mode_code` of each), ``(len(modes),)``.
+    Keyed by identity: C-level hashing of ints, few distinct modes."""
     mode_ids = list(map(id, modes))
     distinct = dict(zip(mode_ids, modes, strict=True))
-    code_of = {i: MODE_CODES.get(str(md), 0) for i, md in distinct.items()}
+    code_of = {i: mode_code(md) for i, md in distinct.items()}
     return np.fromiter(map(code_of.__getitem__, mode_ids), np.int64, len(mode_ids))
 
 

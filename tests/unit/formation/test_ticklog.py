@@ -11,13 +11,14 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from formation.outputs.runlog import RunLog, floats_of
+from formation.outputs.runlog import RunLog, floats_of, ints_of
 from formation.sim.ticklog import TickLog
 from robot_agent.core.firmware import Mode, WheelCommand
 
 ARRAYS = ("t_s", "truth", "ref", "target", "slot_of", "slot_xy", "leader", "power", "mode")
 floats = st.floats(allow_nan=True, allow_infinity=False, width=64)
 MODES = (Mode.IDLE, Mode.TRACKING, Mode.HOLD, Mode.ESTOP)
+ODD_MODES = ("hold", "no such mode", None)  # a mode's name is coded as the mode, anything else 0
 
 
 def by_slot_id(
@@ -74,7 +75,7 @@ def test_the_flat_record_gives_the_arrays_of_the_per_tick_objects(
         rows = [tuple(data.draw(floats) for _ in range(4)) for _ in per_tick[k]]
         cm = [
             WheelCommand(0.1, 0.2, data.draw(floats), data.draw(floats),
-                         data.draw(st.sampled_from(MODES)), None, False)
+                         data.draw(st.sampled_from(MODES + ODD_MODES)), None, False)
             for _ in range(n)
         ]  # fmt: skip
         log.record(tr, ld[0], ld[1], ld[2], rows, per_tick[k], cm)
@@ -107,3 +108,11 @@ def test_floats_of_packs_each_number_s_double(values: list[float]) -> None:
     want = np.fromiter(values, np.float64, len(values))
     assert got.dtype == np.float64 and got.shape == (len(values),) and got.flags.writeable
     assert got.tobytes() == want.tobytes()
+
+
+@given(st.lists(st.integers(-(2**63), 2**63 - 1), max_size=300))
+def test_ints_of_packs_each_int64(values: list[int]) -> None:
+    """``ints_of`` (the chunks' mode codes): the int64 array ``np.array`` gives, writable."""
+    got = ints_of(values)
+    assert got.dtype == np.int64 and got.shape == (len(values),) and got.flags.writeable
+    assert got.tolist() == values
