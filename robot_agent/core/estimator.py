@@ -90,7 +90,6 @@ from robot_agent.core.estimator_math import (
     _arc,
     _isfinite,
     _Node,
-    _State,
     _wrap,
     chain_at,
     correct,
@@ -158,8 +157,6 @@ class Estimator:
     plain functions of estimator_math.py."""
 
     __slots__ = (
-        "_a_obj",
-        "_a_rt",
         "_anch",
         "_anch_t",
         "_b_cmd",
@@ -170,15 +167,18 @@ class Estimator:
         "_gate",
         "_gate2",
         "_gated_run",
+        "_h_d",
+        "_h_oth",
+        "_h_ox",
+        "_h_oy",
+        "_h_q",
+        "_h_tu",
         "_head_nt",
-        "_head_st",
         "_head_t",
         "_hist",
         "_last_odom_t",
         "_max_lat",
         "_max_unc",
-        "_n_obj",
-        "_n_rt",
         "_node_t",
         "_nodes",
         "_nsig",
@@ -232,21 +232,19 @@ class Estimator:
         self._anch: list[_Anchor] = []
         self._anch_t: list[float] = []
         # the head: the chain at _head_t (NaN: none) computed from the newest node then (the
-        # last estimate's), _head_st; reused when a segment starts at _head_t while that node
-        # is still the newest. That node is told by its start time, _head_nt: nodes are only
-        # appended with later start times or dropped with the head (three attributes, not a
-        # tuple (t, node, state): compiled, no boxing of the node and the state every tick)
+        # last estimate's), the state (_h_ox, _h_oy, _h_oth, _h_d, _h_tu, _h_q); reused when a
+        # segment starts at _head_t while that node is still the newest. That node is told by
+        # its start time, _head_nt: nodes are only appended with later start times or dropped
+        # with the head (plain float attributes, not a tuple: compiled, stored unboxed, no
+        # tuple and no float objects every tick)
         self._head_t = math.nan
         self._head_nt = math.nan
-        self._head_st: _State = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        # the newest anchor and the newest node as read last (a memo keyed by identity: the
-        # tuple object in the list, held here, and its fields; compiled, the fields are kept
-        # unboxed, so a tick that reads the same tuple again does not unbox its 17 / 11 floats)
-        self._a_obj: object = None
-        self._a_rt: _Anchor = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                               0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # fmt: skip
-        self._n_obj: object = None
-        self._n_rt: _Node = (0.0, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), 0.0, 0.0, False, 0.0, 0.0)
+        self._h_ox = 0.0
+        self._h_oy = 0.0
+        self._h_oth = 0.0
+        self._h_d = 0.0
+        self._h_tu = 0.0
+        self._h_q = 0.0
         self._last_odom_t = -math.inf
         self._gated_run = 0
         self._first_is_init = False
@@ -286,10 +284,10 @@ class Estimator:
         nt = self._node_t
         nodes = self._nodes
         if nt and t_s <= nt[-1]:
-            if nodes[-1][4] and t_s < nt[-1]:
+            if nodes[-1].measured and t_s < nt[-1]:
                 return  # never overwrite measured odometry with a guess
             self._truncate(t_s)
-        elif nodes and nodes[-1][2] == v_mps and nodes[-1][3] == omega_radps:
+        elif nodes and nodes[-1].v == v_mps and nodes[-1].w == omega_radps:
             return  # same twist continues: one segment
         self._start_segment(t_s, v_mps, omega_radps, False)
         anch_t = self._anch_t
@@ -355,8 +353,8 @@ class Estimator:
             return "pose older than the replay history"
         i = len(anch_t) - 1 if t_s > anch_t[-1] else bisect_right(anch_t, t_s) - 1
         a = anch[i]
-        if a[0] == t_s:
-            if a[6] == x and a[7] == y and a[8] == theta:
+        if a.t == t_s:
+            if a.zx == x and a.zy == y and a.zth == theta:
                 return None  # the same pose presented again
             self.rejected_duplicate += 1
             return "second pose with the same capture time"
@@ -435,23 +433,22 @@ class Estimator:
                 self.add_odometry(seg_t_s, now_s, v_mps, omega_radps)
             else:
                 self.add_command(seg_t_s, v_mps, omega_radps)
-        elif odometry or not (nodes and nodes[-1][2] == v_mps and nodes[-1][3] == omega_radps):
-            if self._head_t == seg_t_s and nt[-1] == self._head_nt:  # (a head: nodes exist)
-                st = self._head_st
-            else:
-                st = chain_at(nodes, nt, self._still_q, seg_t_s)
+        elif odometry or not (nodes and nodes[-1].v == v_mps and nodes[-1].w == omega_radps):
             if odometry:
                 qm, qs = self._odom_q
                 if now_s > self._last_odom_t:
                     self._last_odom_t = now_s
             else:
                 qm, qs = self._cmd_q
-            node: _Node = (seg_t_s, st, v_mps, omega_radps, odometry, qm, qs)
-            no: object = node  # (boxed once: the list's tuple, remembered with its fields)
-            nodes_o: list[Any] = nodes
-            nodes_o.append(no)
-            self._n_obj = no
-            self._n_rt = node
+            if self._head_t == seg_t_s and nt[-1] == self._head_nt:  # (a head: nodes exist)
+                node = _Node(seg_t_s, self._h_ox, self._h_oy, self._h_oth, self._h_d,
+                             self._h_tu, self._h_q, v_mps, omega_radps, odometry, qm,
+                             qs)  # fmt: skip
+            else:
+                ox, oy, oth, d_, tu, q = chain_at(nodes, nt, self._still_q, seg_t_s)
+                node = _Node(seg_t_s, ox, oy, oth, d_, tu, q, v_mps, omega_radps, odometry, qm,
+                             qs)  # fmt: skip
+            nodes.append(node)
             nt.append(seg_t_s)
             anch_t = self._anch_t
             if anch_t and anch_t[-1] > seg_t_s:
@@ -477,31 +474,27 @@ class Estimator:
         # the chain at t_s (chain_at inlined: usually a node, no arc)
         j = last_at_or_before(nt, t_s + _TINY_S)  # the last node at or before t_s
         if j < 0:
-            st = chain_at(nodes, nt, self._still_q, t_s)
+            ox, oy, oth, d_, tu, q = chain_at(nodes, nt, self._still_q, t_s)
         else:
             n = nodes[j]
-            if t_s - n[0] < _TINY_S:
-                st = n[1]
+            if t_s - n.t < _TINY_S:  # (one assignment of six: compiled, no tuple is built)
+                ox, oy, oth, d_, tu, q = n.ox, n.oy, n.oth, n.d, n.tu, n.q
             else:
-                st = _arc(n, t_s - n[0])
+                ox, oy, oth, d_, tu, q = _arc(n, t_s - n.t)
                 if j == len(nt) - 1:  # after the newest node: the next segment's start
-                    self._head_t = t_s
-                    self._head_nt = n[0]
-                    self._head_st = st
+                    self._set_head(t_s, n.t, ox, oy, oth, d_, tu, q)
         # the prior through the newest anchor's frame (prior inlined)
-        ox, oy, oth, d_, tu, q = st
-        # (typed names for the unused fields, not _: compiled, _ is an object and each float
-        # unpacked into it is boxed)
-        at, _x, _y, _th, app, ppth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, atu, aq = (
-            self._newest_anchor()
-        )
-        dist = d_ - ad
-        px = c * ox - s * oy + tx
-        py = s * ox + c * oy + ty
-        pth = oth + fa
-        pp = app + (q - aq) + ppth * dist * dist
-        ppth = (ppth + self._q_rad2 * (tu - atu) + self._q_thm * dist
-                + self._q_ths * (t_s - at))  # fmt: skip
+        a = anch[-1]
+        c = a.c
+        s = a.s
+        ppth = a.ppth
+        dist = d_ - a.d
+        px = c * ox - s * oy + a.tx
+        py = s * ox + c * oy + a.ty
+        pth = oth + a.fa
+        pp = a.pp + (q - a.q) + ppth * dist * dist
+        ppth = (ppth + self._q_rad2 * (tu - a.tu) + self._q_thm * dist
+                + self._q_ths * (t_s - a.t))  # fmt: skip
         dx = x - px
         dy = y - py
         rp = self._r_pos
@@ -531,59 +524,40 @@ class Estimator:
         fa = th - oth
         c = _cos(fa)
         s = _sin(fa)
-        self._append_anchor((t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
-                             c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa, d_, tu,
-                             q))  # fmt: skip
+        anch.append(_Anchor(t_s, wx, wy, th, (1.0 - k) * pp, (1.0 - kt) * ppth, x, y, theta,
+                            c, s, wx - (c * ox - s * oy), wy - (s * ox + c * oy), fa, d_, tu,
+                            q))  # fmt: skip
+        anch_t.append(t_s)
         if anch_t[0] < now_s - self._hist - 0.25:  # amortised: every ~0.25 s
             self._trim(now_s)
         return None
 
-    def _newest_anchor(self) -> _Anchor:
-        """``self._anch[-1]`` (there is one), through the identity memo ``_a_obj`` /
-        ``_a_rt``: the same tuple, the same fields (compiled: no unboxing when it is the one
-        read or appended last, the common case: one new anchor a camera frame)."""
-        anch_o: list[Any] = self._anch
-        ao: object = anch_o[-1]
-        if ao is self._a_obj:
-            return self._a_rt
-        a: _Anchor = anch_o[-1]
-        self._a_obj = ao
-        self._a_rt = a
-        return a
-
-    def _append_anchor(self, new: _Anchor) -> None:
-        """Append the newest anchor ``new`` (captured after every other one), remembered in
-        the memo of ``_newest_anchor``."""
-        ao: object = new  # (boxed once: the list's tuple)
-        anch_o: list[Any] = self._anch
-        anch_o.append(ao)
-        self._anch_t.append(new[0])
-        self._a_obj = ao
-        self._a_rt = new
-
-    def _newest_node(self) -> _Node:
-        """``self._nodes[-1]`` (there is one), through the identity memo ``_n_obj`` /
-        ``_n_rt`` (as ``_newest_anchor``: one new node a tick)."""
-        nodes_o: list[Any] = self._nodes
-        no: object = nodes_o[-1]
-        if no is self._n_obj:
-            return self._n_rt
-        n: _Node = nodes_o[-1]
-        self._n_obj = no
-        self._n_rt = n
-        return n
+    def _set_head(self, t_s: float, node_t_s: float, ox: float, oy: float, oth: float,
+                  d: float, tu: float, q: float) -> None:  # fmt: skip
+        """The head: the chain ``(ox, oy, oth, d, tu, q)`` at ``t_s`` from the newest node,
+        started at ``node_t_s``."""
+        self._head_t = t_s
+        self._head_nt = node_t_s
+        self._h_ox = ox
+        self._h_oy = oy
+        self._h_oth = oth
+        self._h_d = d
+        self._h_tu = tu
+        self._h_q = q
 
     # ------------------------------------------------------------------ the history
 
     def _start_segment(self, t_s: float, v: float, w: float, measured: bool) -> None:
         """Append a segment starting at ``t_s`` (after every node) with its node."""
         nodes = self._nodes
-        if self._head_t == t_s and self._node_t[-1] == self._head_nt:  # (a head: nodes exist)
-            st = self._head_st
-        else:
-            st = chain_at(nodes, self._node_t, self._still_q, t_s)
         qm, qs = self._odom_q if measured else self._cmd_q
-        nodes.append((t_s, st, v, w, measured, qm, qs))
+        if self._head_t == t_s and self._node_t[-1] == self._head_nt:  # (a head: nodes exist)
+            node = _Node(t_s, self._h_ox, self._h_oy, self._h_oth, self._h_d, self._h_tu,
+                         self._h_q, v, w, measured, qm, qs)  # fmt: skip
+        else:
+            ox, oy, oth, d_, tu, q = chain_at(nodes, self._node_t, self._still_q, t_s)
+            node = _Node(t_s, ox, oy, oth, d_, tu, q, v, w, measured, qm, qs)
+        nodes.append(node)
         self._node_t.append(t_s)
 
     def _truncate(self, t_s: float) -> None:
@@ -614,8 +588,8 @@ class Estimator:
         anch = self._anch
         anch_t = self._anch_t
         for b in later:
-            anch.append(self._fuse(anch[-1], b[0], b[6], b[7], b[8]))
-            anch_t.append(b[0])
+            anch.append(self._fuse(anch[-1], b.t, b.zx, b.zy, b.zth))
+            anch_t.append(b.t)
 
     def _replay_after(self, t_s: float) -> None:
         """The twists from ``t_s`` on changed: re-fuse every anchor captured after ``t_s`` (the
@@ -627,8 +601,8 @@ class Estimator:
             return
         if i == 0:
             a = anch[0]
-            st = chain_at(self._nodes, self._node_t, self._still_q, a[0])
-            anch[0] = make_anchor(a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], st)
+            st = chain_at(self._nodes, self._node_t, self._still_q, a.t)
+            anch[0] = make_anchor(a.t, a.x, a.y, a.th, a.pp, a.ppth, a.zx, a.zy, a.zth, st)
             i = 1
             if i >= len(anch_t):
                 return
@@ -671,23 +645,27 @@ class Estimator:
         nodes = self._nodes
         if not anch:
             return None
-        a = self._newest_anchor()
-        at = a[0]
-        age = now_s - at
+        a = anch[-1]
+        age = now_s - a.t
         bound = self._b_odom if now_s - self._last_odom_t <= self._odom_to else self._b_cmd
         if not age <= bound:  # also False for NaN
             return None
         if age <= 0.0:
-            ex, ey, eth, pp = a[1], a[2], a[3], a[4]
+            ex, ey, eth, pp = a.x, a.y, a.th, a.pp
         else:
             if nt and nt[-1] <= now_s + _TINY_S:
-                nt0, st, v, w, _measured, qm, qs = self._newest_node()
+                n = nodes[-1]
+                nt0 = n.t
                 dt = now_s - nt0
-                if dt < _TINY_S:
-                    ox, oy, oth, d_, tu, q = st
-                else:  # _arc(n, dt) inlined
-                    ox, oy, oth, d_, tu, q = st
-                    h = w * dt * 0.5
+                ox = n.ox
+                oy = n.oy
+                oth = n.oth
+                d_ = n.d
+                tu = n.tu
+                q = n.q
+                if not dt < _TINY_S:  # _arc(n, dt) inlined
+                    v = n.v
+                    h = n.w * dt * 0.5
                     vdt = v * dt
                     if -0.1 < h < 0.1:  # _sinc inlined
                         h2 = h * h
@@ -701,20 +679,25 @@ class Estimator:
                     oth = mid + h
                     d_ = d_ + d
                     tu = tu + (h if h >= 0.0 else -h)
-                    q = q + (qm * d + qs * dt)
-                    st = (ox, oy, oth, d_, tu, q)
+                    q = q + (n.qm * d + n.qs * dt)
+                # the head (_set_head inlined)
                 self._head_t = now_s
                 self._head_nt = nt0
-                self._head_st = st
+                self._h_ox = ox
+                self._h_oy = oy
+                self._h_oth = oth
+                self._h_d = d_
+                self._h_tu = tu
+                self._h_q = q
             else:
                 ox, oy, oth, d_, tu, q = chain_at(nodes, nt, self._still_q, now_s)
-            # (typed names for the unused fields, not _: see _pose_in)
-            _t, _x, _y, _th, app, appth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, _tu, aq = a
-            dist = d_ - ad
-            ex = c * ox - s * oy + tx
-            ey = s * ox + c * oy + ty
-            eth = oth + fa
-            pp = app + (q - aq) + appth * dist * dist
+            c = a.c
+            s = a.s
+            dist = d_ - a.d
+            ex = c * ox - s * oy + a.tx
+            ey = s * ox + c * oy + a.ty
+            eth = oth + a.fa
+            pp = a.pp + (q - a.q) + a.ppth * dist * dist
             if not (eth > _NEG_PI and eth <= _PI):
                 eth = _wrap(eth)
         u = self._nsig * _sqrt(pp)
@@ -749,7 +732,7 @@ class Estimator:
         if i < 0:
             return None
         n = self._nodes[i]
-        return n[2], n[3]
+        return n.v, n.w
 
     @property
     def last_capture_s(self) -> float | None:

@@ -10,7 +10,8 @@ The twists (segments of constant ``(v, omega)``) are integrated once, in an arbi
 frame*, into a chain of **nodes**: a node is the start of a segment, with the dead-reckoned pose
 there and the running sums the variances need (distance, turn, process noise)::
 
-    node     = (t, state, v, omega, measured, q_m, q_s),  state = (ox, oy, oth, D, TU, Q)
+    node     = (t, ox, oy, oth, D, TU, Q, v, omega, measured, q_m, q_s)   (class _Node)
+    state    = (ox, oy, oth, D, TU, Q)
     chain(t) = the state of the node at or before t, advanced along its segment's arc
 
 ``D`` is the distance travelled since the chain's origin, ``TU`` the sum of ``|omega dt| / 2``,
@@ -22,10 +23,10 @@ Each fused camera pose is an **anchor**: the posterior (x, y, theta, P, Pth) at 
 in the world, the measurement, and the *correction frame* that maps the chain onto the world
 from that capture on (a rotation by ``A`` and a translation)::
 
-    anchor   = (t, x, y, th, P, Pth, zx, zy, zth, cos A, sin A, tx, ty, A, D, TU, Q)
+    anchor   = (t, x, y, th, P, Pth, zx, zy, zth, cos A, sin A, tx, ty, A, D, TU, Q)  (_Anchor)
     world(t) = R(A) chain(t) + (tx, ty),  theta = chain_theta(t) + A     (t >= anchor.t)
 
-(one flat tuple: the correction frame ``(cos A, sin A, tx, ty, A)`` and the chain's running sums
+(one flat object: the correction frame ``(cos A, sin A, tx, ty, A)`` and the chain's running sums
 ``D, TU, Q`` at the capture inline). The unicycle's motion over a twist is the same in any rigid
 frame, so this is the pose a propagation from the anchor gives (equal to rounding). The estimate
 at ``now`` is then one arc (from the newest node) and a rigid transform, whatever the camera
@@ -42,7 +43,7 @@ import math
 from bisect import bisect_right
 from math import cos as _cos  # (imported, not assigned: mypyc compiles these to C calls)
 from math import sin as _sin
-from typing import Final
+from typing import Final, final
 
 _isfinite: Final = math.isfinite
 _PI: Final = math.pi
@@ -55,14 +56,65 @@ _TINY_S: Final = 1e-9
 
 # chain state at a time: (ox, oy, oth, D, TU, Q)
 _State = tuple[float, float, float, float, float, float]
-# node tuple fields: (t, state, v, omega, measured, q_m, q_s)
-_Node = tuple[float, _State, float, float, bool, float, float]
-# anchor tuple fields (flat): (t, x, y, th, P, Pth, zx, zy, zth, cos A, sin A, tx, ty, A, D, TU,
-# Q): the posterior, the measurement, the correction frame and the chain's sums at t
-_Anchor = tuple[
-    float, float, float, float, float, float, float, float, float,
-    float, float, float, float, float, float, float, float,
-]  # fmt: skip
+
+
+@final
+class _Node:
+    """A node of the chain: the start ``t`` of a segment of twist ``(v, w)`` (``measured``:
+    the encoders', else the commanded one; position noise rates ``qm`` (m^2/m), ``qs``
+    (m^2/s)) and the chain's state there, ``(ox, oy, oth, d, tu, q)``. Immutable by
+    convention. A small class, not a tuple: compiled, its floats are stored unboxed in one
+    object (no float object to allocate, read or free per field)."""
+
+    __slots__ = ("d", "measured", "oth", "ox", "oy", "q", "qm", "qs", "t", "tu", "v", "w")
+
+    def __init__(self, t: float, ox: float, oy: float, oth: float, d: float, tu: float,
+                 q: float, v: float, w: float, measured: bool, qm: float,
+                 qs: float) -> None:  # fmt: skip
+        self.t = t
+        self.ox = ox
+        self.oy = oy
+        self.oth = oth
+        self.d = d
+        self.tu = tu
+        self.q = q
+        self.v = v
+        self.w = w
+        self.measured = measured
+        self.qm = qm
+        self.qs = qs
+
+
+@final
+class _Anchor:
+    """An anchor (see the module docstring): the posterior ``(x, y, th, pp, ppth)`` at its
+    capture time ``t``, the measurement ``(zx, zy, zth)``, the correction frame ``(c, s, tx,
+    ty, fa)`` (``c = cos fa``, ``s = sin fa``) and the chain's sums ``(d, tu, q)`` at ``t``.
+    Immutable by convention; a small class for the reason of ``_Node``."""
+
+    __slots__ = ("c", "d", "fa", "pp", "ppth", "q", "s", "t", "th", "tu", "tx", "ty", "x", "y",
+                 "zth", "zx", "zy")  # fmt: skip
+
+    def __init__(self, t: float, x: float, y: float, th: float, pp: float, ppth: float,
+                 zx: float, zy: float, zth: float, c: float, s: float, tx: float, ty: float,
+                 fa: float, d: float, tu: float, q: float) -> None:  # fmt: skip
+        self.t = t
+        self.x = x
+        self.y = y
+        self.th = th
+        self.pp = pp
+        self.ppth = ppth
+        self.zx = zx
+        self.zy = zy
+        self.zth = zth
+        self.c = c
+        self.s = s
+        self.tx = tx
+        self.ty = ty
+        self.fa = fa
+        self.d = d
+        self.tu = tu
+        self.q = q
 
 
 def _wrap(a: float) -> float:
@@ -93,21 +145,18 @@ def propagate_pose(
 
 def _arc(n: _Node, dt: float) -> _State:
     """The chain ``dt`` s after node ``n`` (its segment's twist held): eq 9, and the sums."""
-    # (typed names for the unused fields, not _: compiled, _ is an object and each float
-    # unpacked into it is boxed)
-    _t, st, v, w, _measured, qm, qs = n
-    ox, oy, oth, d_, tu, q = st
-    h = w * dt * 0.5
+    v = n.v
+    h = n.w * dt * 0.5
     vdt = v * dt
     if -0.1 < h < 0.1:  # _sinc inlined
         h2 = h * h
         chord = vdt * (1.0 - h2 * (1.0 / 6.0 - h2 * (1.0 / 120.0)))
     else:
         chord = vdt * (_sin(h) / h)
-    mid = oth + h
+    mid = n.oth + h
     d = vdt if v >= 0.0 else -vdt  # (-v * dt: the same bits)
-    return (ox + chord * _cos(mid), oy + chord * _sin(mid), mid + h, d_ + d,
-            tu + (h if h >= 0.0 else -h), q + (qm * d + qs * dt))  # fmt: skip
+    return (n.ox + chord * _cos(mid), n.oy + chord * _sin(mid), mid + h, n.d + d,
+            n.tu + (h if h >= 0.0 else -h), n.q + (n.qm * d + n.qs * dt))  # fmt: skip
 
 
 def last_at_or_before(times: list[float], t: float) -> int:
@@ -134,12 +183,11 @@ def chain_at(nodes: list[_Node], node_t: list[float], still_q_s: float, t: float
         if not node_t:
             return 0.0, 0.0, 0.0, 0.0, 0.0, still_q_s * t
         n = nodes[0]
-        ox, oy, oth, d_, tu, q = n[1]
-        return ox, oy, oth, d_, tu, q + still_q_s * (t - n[0])
+        return n.ox, n.oy, n.oth, n.d, n.tu, n.q + still_q_s * (t - n.t)
     n = nodes[i]
-    dt = t - n[0]
+    dt = t - n.t
     if dt < _TINY_S:
-        return n[1]
+        return n.ox, n.oy, n.oth, n.d, n.tu, n.q
     return _arc(n, dt)
 
 
@@ -161,8 +209,8 @@ def make_anchor(
     a = th - oth
     c = _cos(a)
     s = _sin(a)
-    return (t, x, y, th, pp, ppth, zx, zy, zth,
-            c, s, x - (c * ox - s * oy), y - (s * ox + c * oy), a, d_, tu, q)  # fmt: skip
+    return _Anchor(t, x, y, th, pp, ppth, zx, zy, zth,
+                   c, s, x - (c * ox - s * oy), y - (s * ox + c * oy), a, d_, tu, q)  # fmt: skip
 
 
 def prior(
@@ -172,12 +220,14 @@ def prior(
     correction frame, ``(x, y, theta, P, Pth)``; ``q_rad2`` (2 x ``theta_var_per_rad``: TU sums
     ``|omega dt| / 2``), ``q_thm``, ``q_ths``: the heading's process noise rates."""
     ox, oy, oth, d_, tu, q = st
-    at, _x, _y, _th, app, ppth, _zx, _zy, _zth, c, s, tx, ty, fa, ad, atu, aq = a
-    dist = d_ - ad
-    return (c * ox - s * oy + tx, s * ox + c * oy + ty, oth + fa,
-            app + (q - aq) + ppth * dist * dist,
-            ppth + q_rad2 * (tu - atu) + q_thm * dist
-            + q_ths * (t - at))  # fmt: skip
+    c = a.c
+    s = a.s
+    ppth = a.ppth
+    dist = d_ - a.d
+    return (c * ox - s * oy + a.tx, s * ox + c * oy + a.ty, oth + a.fa,
+            a.pp + (q - a.q) + ppth * dist * dist,
+            ppth + q_rad2 * (tu - a.tu) + q_thm * dist
+            + q_ths * (t - a.t))  # fmt: skip
 
 
 def correct(

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from robot_agent.core.estimator import Estimator, propagate_pose
-from robot_agent.core.estimator_math import last_at_or_before
+from robot_agent.core.estimator_math import chain_at, last_at_or_before
 from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint
 from robot_agent.core.params import AgentConfig, EstimatorParams
 from sim_plant.core.encoders import WheelEncoders
@@ -196,13 +196,14 @@ def test_tick_is_bit_for_bit_the_three_calls(
         if cap is not None:
             assert tick.last_reason == want_reason
         assert tick.status() == calls.status()
-        # the identity memo of the newest anchor and node (fields kept unboxed) is the lists'
-        # newest tuple, whatever replays, resets and trims did to the lists
+        # the head (the chain at _head_t, reused by the next segment) is the chain there while
+        # the node it was computed from is still the newest
         for est in (calls, tick):
-            if est._anch:
-                assert est._newest_anchor() == est._anch[-1]
-            if est._nodes:
-                assert est._newest_node() == est._nodes[-1]
+            if est._nodes and est._head_t == est._head_t and est._nodes[-1].t == est._head_nt:
+                head = (est._h_ox, est._h_oy, est._h_oth, est._h_d, est._h_tu, est._h_q)
+                assert head == chain_at(
+                    est._nodes, est._node_t, params.cmd_pos_var_per_s, est._head_t
+                )
         x, y, th = propagate_pose(x, y, th, v, w, DT)
         last = now
 
