@@ -74,6 +74,10 @@ realtime agent ticks on each pose and on its 50 Hz timer between them (~60 claim
 ~0.13 s: a capture older than that under load lost its claims and fell back to ``V a``)."""
 
 _tuple_new: Final = tuple.__new__
+# (compiled: the class and the zero fields held as the module's objects, read from static
+# slots, instead of a look-up of the imported name and three new floats an entry)
+_NEIGHBOUR: Final = Neighbour
+_ZERO: Final[object] = 0.0
 
 
 class ClaimRing:
@@ -120,9 +124,10 @@ def neighbour(
     age = now_s - capture_s
     if age < 0.0:
         age = 0.0
+    zero = _ZERO
     if motion is None:
-        return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))
-    return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0, motion))
+        return _tuple_new(_NEIGHBOUR, (x, y, theta, age, zero, zero, cooperative, zero))
+    return _tuple_new(_NEIGHBOUR, (x, y, theta, age, zero, zero, cooperative, zero, motion))
 
 
 def mover(entry: Neighbour, vx_mps: float, vy_mps: float) -> Neighbour:

@@ -284,7 +284,9 @@ class NeighbourBarriers:
                 age = self._max_age
             rad -= self._budget
             infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
-            shifted = coop and th - th == 0.0  # (finite th): the reciprocal row at p_j
+            shifted = False  # (a bool, not coop's object: compiled, tested natively)
+            if coop and th - th == 0.0:  # finite th: the reciprocal row at p_j
+                shifted = True
             if shifted:
                 share = 0.5
                 dd = self._d_coop + infl
