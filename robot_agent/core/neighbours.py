@@ -121,6 +121,20 @@ def neighbour(
 ) -> Neighbour:
     """The safety filter's view of one neighbour measured at ``capture_s`` (local clock), with
     the view of its motion claims if any (rule 4)."""
+    return _entry(x, y, theta, capture_s, now_s, cooperative, motion)
+
+
+def _entry(
+    x: object,
+    y: object,
+    theta: object,
+    capture_s: float,
+    now_s: float,
+    cooperative: bool,
+    motion: MotionView | None,
+) -> Neighbour:
+    """:func:`neighbour` with the position and heading as the float objects they are
+    (compiled: put in the entry as given, not unboxed and boxed again)."""
     age = now_s - capture_s
     if age < 0.0:
         age = 0.0
@@ -168,5 +182,14 @@ def neighbours_at(
         view = None
         if rings is not None:
             view = motion_view(rings[j].claims, capture, now_s, l_m, vmax_mps, claim_max_age_s)
-        out.append(neighbour(pose[0], pose[1], pose[2], capture, now_s, cooperative[j], view))
+        x = pose[0]
+        y = pose[1]
+        th = pose[2]
+        # (floats: the entry holds these objects, as neighbour's holds the same values; a bool,
+        # not the test itself: compiled, a narrowed x would be unboxed and boxed again)
+        floats = type(x) is float and type(y) is float and type(th) is float
+        if floats:
+            out.append(_entry(x, y, th, capture, now_s, cooperative[j], view))
+        else:
+            out.append(neighbour(x, y, th, capture, now_s, cooperative[j], view))
     return out
