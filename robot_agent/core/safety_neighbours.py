@@ -186,9 +186,9 @@ class NeighbourBarriers:
         # instead of through an iterator object; any other sequence as its list)
         listed: list[Any] = neighbours if isinstance(neighbours, list) else list(neighbours)
         # (the early reject of a cooperative entry needs this robot's point within the bound)
-        near_origin = (
-            -_SHIFT_BOUND_M < px < _SHIFT_BOUND_M and -_SHIFT_BOUND_M < py < _SHIFT_BOUND_M
-        )
+        bound = _SHIFT_BOUND_M
+        near_origin = -bound < px < bound and -bound < py < bound
+        shift_m = self._shift_m
         for nb in listed:
             # (a tuple, as a Neighbour and an (x, y) pair are, typed so: compiled, its length
             # and fields are read in place instead of through generic calls; any other sequence
@@ -284,36 +284,33 @@ class NeighbourBarriers:
                 age = self._max_age
             rad -= self._budget
             infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
-            shifted = False  # (a bool, not coop's object: compiled, tested natively)
             if coop and th - th == 0.0:  # finite th: the reciprocal row at p_j
-                shifted = True
-            if shifted:
                 share = 0.5
                 dd = self._d_coop + infl
                 vx = vy = 0.0
-            else:
-                share = 1.0
-                dd = self._d_plain + infl
-            lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
-            dx = px - qx
-            dy = py - qy
-            if shifted:
+                lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
                 # a neighbour whose axle centre is beyond lim + |l| (+ pad) on an axis has its
                 # reference point beyond lim there too (coordinates within the bound: the
                 # rounding is ~1e-9 m): skipped below, finite, without its shift (cos, sin:
                 # most cooperative entries in the quick box end here). A NaN or +inf lim
                 # never takes this exit (a lim <= 0: the box below is empty too).
-                far = lim + self._shift_m
+                dx = px - qx
+                dy = py - qy
+                far = lim + shift_m
                 if (
                     (dx >= far or dx <= -far or dy >= far or dy <= -far)
                     and near_origin
-                    and -_SHIFT_BOUND_M < qx < _SHIFT_BOUND_M
-                    and -_SHIFT_BOUND_M < qy < _SHIFT_BOUND_M
+                    and -bound < qx < bound
+                    and -bound < qy < bound
                 ):
                     continue
                 qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
-                dx = px - qx
-                dy = py - qy
+            else:
+                share = 1.0
+                dd = self._d_plain + infl
+                lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL  # (as above)
+            dx = px - qx
+            dy = py - qy
             if not (-lim < dx < lim and -lim < dy < lim):
                 if (chk := dx + dy) - chk != 0.0:  # not finite
                     self.rejected += 1
