@@ -11,8 +11,9 @@ robot ``i``'s list (every entry but its own and the Nones, in order, then ``tail
 
 :meth:`NeighbourView.near` answers exactly what ``near_entries`` answers on that list: the same
 entries, the same objects, in the same order (``tests/unit/robot_agent/test_neighbour_index.py``
-compares them on random fleets). It hands ``near_entries``'s own walk (``neighbour_select._near``)
-a shorter list, the *candidates* in list order, and leaves out only entries that walk would drop:
+compares them on random fleets). It walks ``near_entries``'s own test (``neighbour_select._drops``,
+through ``_near_of``) over fewer entries, the *candidates* in list order (read from the bit mask
+below, without building their list), and leaves out only entries that walk would drop:
 
 * a plain entry is a tuple of eight fields whose position ``(x, y)``, velocity ``(vx, vy)`` and
   radius are floats (the type itself), the position finite and within :data:`COORD_LIMIT_M`,
@@ -43,7 +44,7 @@ import math
 from collections.abc import Sequence
 from typing import Any, Final
 
-from .neighbour_select import _near, near_entries
+from .neighbour_select import _near_of, near_entries
 
 __all__ = [
     "COORD_LIMIT_M",
@@ -347,17 +348,8 @@ class NeighbourView:
         mask = index.candidates(self._i, x, y, d0, rx, ry, box_m)
         if mask < 0:
             return near_entries(self.full(), x, y, d0, rx, ry, box_m)
-        ents = index.entries
-        cands: list[Any] = []
-        while mask:  # (lowest bit first: the entries in list order)
-            low = mask & -mask
-            cands.append(ents[low.bit_length() - 1])
-            mask ^= low
-        tail = self._tail
-        if tail:
-            cands.extend(tail)
-        try:
-            return _near(cands, x, y, d0, rx, ry, box_m)
+        try:  # (the candidates, in list order, walked without building their list)
+            return _near_of(index.entries, mask, self._tail, x, y, d0, rx, ry, box_m)
         except Exception:  # a malformed entry: near_entries answers the whole list
             return self.full()
 

@@ -84,36 +84,64 @@ def _near(
 ) -> list[Any]:
     """:func:`near_entries` on a list (raises on a field that is not a number)."""
     out: list[Any] = []
-    nd0 = -d0
-    nbox = -box_m
+    for nb in neighbours:
+        if not _drops(nb, x, y, d0, rx, ry, box_m):
+            out.append(nb)
+    return out
+
+
+def _near_of(
+    entries: list[Any],
+    mask: int,
+    tail: list[Any],
+    x: float,
+    y: float,
+    d0: float,
+    rx: float,
+    ry: float,
+    box_m: float,
+) -> list[Any]:
+    """:func:`_near` of the list of ``entries[j]`` for each bit ``j`` of ``mask`` (lowest
+    first), then ``tail``, without building that list (``neighbour_index.NeighbourView.near``'s
+    candidates)."""
+    out: list[Any] = []
+    while mask:  # (lowest bit first: the entries in list order)
+        low = mask & -mask
+        nb = entries[low.bit_length() - 1]
+        mask ^= low
+        if not _drops(nb, x, y, d0, rx, ry, box_m):
+            out.append(nb)
+    for nb in tail:
+        if not _drops(nb, x, y, d0, rx, ry, box_m):
+            out.append(nb)
+    return out
+
+
+def _drops(nb: Any, x: float, y: float, d0: float, rx: float, ry: float, box_m: float) -> bool:
+    """Neither loop can use entry ``nb`` (module docstring; raises on a field that is not a
+    number)."""
+    if not isinstance(nb, tuple):
+        return False
+    ent: tuple[Any, ...] = nb
+    n = len(ent)  # (compared as a name: "len(ent) == 8" would make ent a fixed tuple,
+    if n != 8:  # compiled, unboxed whole at each item read)
+        return False
     # (float-typed locals: compiled, each field is unboxed once and compared natively; the
     # fields are read by index, the position first: a near entry's other fields are not read)
-    qx: float
-    qy: float
-    vx: float
-    vy: float
-    rad: float
-    for nb in neighbours:
-        if isinstance(nb, tuple):
-            ent: tuple[Any, ...] = nb
-            n = len(ent)  # (compared as a name: "len(ent) == 8" would make ent a fixed tuple,
-            if n == 8:  # compiled, unboxed whole at each item read)
-                qx = ent[0]
-                qy = ent[1]
-                dx = x - qx
-                dy = y - qy
-                fx = rx - qx
-                fy = ry - qy
-                if (
-                    (dx >= d0 or dx <= nd0 or dy >= d0 or dy <= nd0)
-                    and (fx >= box_m or fx <= nbox or fy >= box_m or fy <= nbox)
-                    and (s := dx + dy) - s == 0.0  # finite (x - x is 0.0 for those only)
-                    and (f := fx + fy) - f == 0.0
-                ):
-                    rad = ent[7]
-                    vx = ent[4]
-                    vy = ent[5]
-                    if not (rad > 0.0 or vx != 0.0 or vy != 0.0):
-                        continue  # far from both: neither loop would read more of it
-        out.append(nb)
-    return out
+    qx: float = ent[0]
+    qy: float = ent[1]
+    dx = x - qx
+    dy = y - qy
+    fx = rx - qx
+    fy = ry - qy
+    if (
+        (dx >= d0 or dx <= -d0 or dy >= d0 or dy <= -d0)
+        and (fx >= box_m or fx <= -box_m or fy >= box_m or fy <= -box_m)
+        and (s := dx + dy) - s == 0.0  # finite (x - x is 0.0 for those only)
+        and (f := fx + fy) - f == 0.0
+    ):
+        rad: float = ent[7]
+        vx: float = ent[4]
+        vy: float = ent[5]
+        return not (rad > 0.0 or vx != 0.0 or vy != 0.0)  # far from both: read no more
+    return False

@@ -74,6 +74,10 @@ realtime agent ticks on each pose and on its 50 Hz timer between them (~60 claim
 ~0.13 s: a capture older than that under load lost its claims and fell back to ``V a``)."""
 
 _tuple_new: Final = tuple.__new__
+# (compiled: the class and the zero fields held as the module's objects, read from static
+# slots, instead of a look-up of the imported name and three new floats an entry)
+_NEIGHBOUR: Final = Neighbour
+_ZERO: Final[object] = 0.0
 
 
 class ClaimRing:
@@ -117,12 +121,27 @@ def neighbour(
 ) -> Neighbour:
     """The safety filter's view of one neighbour measured at ``capture_s`` (local clock), with
     the view of its motion claims if any (rule 4)."""
+    return _entry(x, y, theta, capture_s, now_s, cooperative, motion)
+
+
+def _entry(
+    x: object,
+    y: object,
+    theta: object,
+    capture_s: float,
+    now_s: float,
+    cooperative: bool,
+    motion: MotionView | None,
+) -> Neighbour:
+    """:func:`neighbour` with the position and heading as the float objects they are
+    (compiled: put in the entry as given, not unboxed and boxed again)."""
     age = now_s - capture_s
     if age < 0.0:
         age = 0.0
+    zero = _ZERO
     if motion is None:
-        return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0))
-    return _tuple_new(Neighbour, (x, y, theta, age, 0.0, 0.0, cooperative, 0.0, motion))
+        return _tuple_new(_NEIGHBOUR, (x, y, theta, age, zero, zero, cooperative, zero))
+    return _tuple_new(_NEIGHBOUR, (x, y, theta, age, zero, zero, cooperative, zero, motion))
 
 
 def mover(entry: Neighbour, vx_mps: float, vy_mps: float) -> Neighbour:
@@ -163,5 +182,14 @@ def neighbours_at(
         view = None
         if rings is not None:
             view = motion_view(rings[j].claims, capture, now_s, l_m, vmax_mps, claim_max_age_s)
-        out.append(neighbour(pose[0], pose[1], pose[2], capture, now_s, cooperative[j], view))
+        x = pose[0]
+        y = pose[1]
+        th = pose[2]
+        # (floats: the entry holds these objects, as neighbour's holds the same values; a bool,
+        # not the test itself: compiled, a narrowed x would be unboxed and boxed again)
+        floats = type(x) is float and type(y) is float and type(th) is float
+        if floats:
+            out.append(_entry(x, y, th, capture, now_s, cooperative[j], view))
+        else:
+            out.append(neighbour(x, y, th, capture, now_s, cooperative[j], view))
     return out

@@ -37,6 +37,12 @@ __all__ = ["NeighbourBarriers"]
 
 _hypot: Final = math.hypot
 _INF: Final = math.inf
+_SHIFT_BOUND_M: Final = 1.0e6
+"""Coordinates within +-this (m) let ``append`` reject a cooperative entry before its shift by
+``l`` (eqs 10-11): every difference and sum it would compute is then exact to ~1e-9 m."""
+_SHIFT_PAD_M: Final = 1.0e-6
+"""How far (m) beyond ``l`` that early reject stays from the shifted box: far more than that
+rounding."""
 
 
 def _as_tuple(entry: object) -> tuple[Any, ...]:
@@ -61,6 +67,7 @@ class NeighbourBarriers:
         "_l",
         "_max_age",
         "_plane",
+        "_shift_m",
         "_vbad",
         "_vnb",
         "other_frame",
@@ -73,6 +80,7 @@ class NeighbourBarriers:
         p = config.safety_filter
         l_m = g.ref_offset_m
         self._l = l_m
+        self._shift_m = abs(l_m) + _SHIFT_PAD_M  # (how far a shift by l moves a point, at most)
         ds = 2.0 * g.body_radius_m + p.margin_m
         self._d_plain = ds + l_m  # p_i to c_j
         self._d_coop = ds + 2.0 * l_m  # p_i to p_j
@@ -174,7 +182,14 @@ class NeighbourBarriers:
         vx: float
         vy: float
         rad: float
-        for nb in neighbours:
+        # (a list, as the firmware's neighbour selection answers: compiled, walked by index
+        # instead of through an iterator object; any other sequence as its list)
+        listed: list[Any] = neighbours if isinstance(neighbours, list) else list(neighbours)
+        # (the early reject of a cooperative entry needs this robot's point within the bound)
+        bound = _SHIFT_BOUND_M
+        near_origin = -bound < px < bound and -bound < py < bound
+        shift_m = self._shift_m
+        for nb in listed:
             # (a tuple, as a Neighbour and an (x, y) pair are, typed so: compiled, its length
             # and fields are read in place instead of through generic calls; any other sequence
             # is read as its tuple)
@@ -269,17 +284,33 @@ class NeighbourBarriers:
                 age = self._max_age
             rad -= self._budget
             infl = self._vnb * age + (rad if rad > 0.0 else 0.0) + rho
-            if coop and th - th == 0.0:  # finite th
-                qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
+            if coop and th - th == 0.0:  # finite th: the reciprocal row at p_j
                 share = 0.5
                 dd = self._d_coop + infl
                 vx = vy = 0.0
+                lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
+                # a neighbour whose axle centre is beyond lim + |l| (+ pad) on an axis has its
+                # reference point beyond lim there too (coordinates within the bound: the
+                # rounding is ~1e-9 m): skipped below, finite, without its shift (cos, sin:
+                # most cooperative entries in the quick box end here). A NaN or +inf lim
+                # never takes this exit (a lim <= 0: the box below is empty too).
+                dx = px - qx
+                dy = py - qy
+                far = lim + shift_m
+                if (
+                    (dx >= far or dx <= -far or dy >= far or dy <= -far)
+                    and near_origin
+                    and -bound < qx < bound
+                    and -bound < qy < bound
+                ):
+                    continue
+                qx, qy = reference_point(qx, qy, th, self._l)  # eqs 10-11
             else:
                 share = 1.0
                 dd = self._d_plain + infl
+                lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL  # (as above)
             dx = px - qx
             dy = py - qy
-            lim = dd + (cap + abs(vx) + abs(vy)) / (share * gamma) + _TOL
             if not (-lim < dx < lim and -lim < dy < lim):
                 if (chk := dx + dy) - chk != 0.0:  # not finite
                     self.rejected += 1

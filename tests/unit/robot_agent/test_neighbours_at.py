@@ -43,8 +43,10 @@ def one_by_one(
     return out
 
 
+# a coordinate: a float, or now and then an int (read as its float by the compiled core)
+coord = st.one_of(st.floats(-2, 2), st.integers(-2, 2))
 robot = st.tuples(
-    st.one_of(st.none(), st.tuples(st.floats(-2, 2), st.floats(-2, 2), st.floats(-4, 4))),
+    st.one_of(st.none(), st.tuples(coord, coord, st.one_of(st.floats(-4, 4), st.integers(-4, 4)))),
     st.floats(min_value=-0.1, max_value=1.5),  # capture age at now (< 0: in the future)
     st.floats(min_value=-0.1, max_value=1.5),  # receive age at now (> 1 s: stale)
     st.booleans(),
