@@ -23,7 +23,9 @@ the controller on the master side:
   like an unplugged USB device).
 
 A partial packet is discarded after ``INTER_BYTE_TIMEOUT_S`` of silence, like the real
-controller resynchronises on a gap.
+controller resynchronises on a gap: silence seen by the emulator (that long, and as many
+looks that found nothing to read as fit in it), not the time between two of its reads, which a
+starved thread stretches.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from pathlib import Path
 from robot_agent.motors.roboclaw_protocol import crc16
 
 INTER_BYTE_TIMEOUT_S = 0.05
+_LOOK_S = 0.005  # how long one look at the line waits for a byte (s)
 
 # command -> number of data bytes of a write (CRC follows), or None for a read (no CRC sent)
 _WRITE_LENGTHS = {14: 1, 34: 4, 37: 8}
@@ -144,9 +147,10 @@ class RoboClawEmulator:
     def _run(self) -> None:
         buf = bytearray()
         last_byte_s = time.monotonic()
+        quiet_looks = 0  # looks in a row that found nothing to read, since the last byte
         while not self._stop.is_set():
             try:
-                ready, _, _ = select.select([self._master_fd], [], [], 0.005)
+                ready, _, _ = select.select([self._master_fd], [], [], _LOOK_S)
             except (OSError, ValueError):
                 return
             now = time.monotonic()
@@ -157,18 +161,25 @@ class RoboClawEmulator:
                     data = b""
                     time.sleep(0.002)
                 if data:
-                    if buf and now - last_byte_s > INTER_BYTE_TIMEOUT_S:
-                        buf.clear()
+                    # (no gap test here: the bytes were waiting when this thread looked, so a
+                    # late look, on a loaded machine, is no silence on the line)
                     buf += data
                     last_byte_s = now
+                    quiet_looks = 0
                     with self._lock:
                         silent = self.silent
                     if silent:
                         buf.clear()
                     else:
                         self._parse(buf)
-            elif buf and now - last_byte_s > INTER_BYTE_TIMEOUT_S:
-                buf.clear()
+            elif buf:
+                # silence: as long as the gap, and seen by as many empty looks as it takes
+                # (a thread starved between two looks stretches the time, not the looks)
+                quiet_looks += 1
+                if now - last_byte_s > INTER_BYTE_TIMEOUT_S and quiet_looks * _LOOK_S >= (
+                    INTER_BYTE_TIMEOUT_S
+                ):
+                    buf.clear()
             self._check_timeout(now)
 
     def _check_timeout(self, now: float) -> None:

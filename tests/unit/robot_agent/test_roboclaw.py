@@ -103,6 +103,37 @@ def test_emulator_rejects_bad_crc_and_acks_good_one(emulator: RoboClawEmulator) 
         assert emulator.speeds() == (500, -500)
 
 
+def test_emulator_joins_a_packet_split_by_a_short_gap_and_drops_one_cut_by_silence(
+    emulator: RoboClawEmulator,
+) -> None:
+    """A packet in two writes 10 ms apart is one packet, and so is one whose second half waited
+    150 ms for a starved emulator to look (the bytes were waiting: no silence on the line);
+    half a packet followed by silence well over INTER_BYTE_TIMEOUT_S is dropped, and the next
+    whole packet is acked."""
+    good = speed_packet(0x80, 300, -300)
+    with serial.Serial(emulator.port, 38400, timeout=2.0) as port:
+        port.write(good[:3])
+        time.sleep(0.01)
+        port.write(good[3:])
+        assert port.read(1) == b"\xff"
+        assert emulator.speeds() == (300, -300)
+        # a starved emulator: its thread reads the first half, then cannot run for 150 ms (it
+        # waits for its lock, held here) while the second half has long been waiting
+        with emulator._lock:
+            port.write(good[:3])
+            time.sleep(0.05)
+            port.write(good[3:])
+            time.sleep(0.15)
+        assert port.read(1) == b"\xff"
+        assert emulator.packets_ok == 2 and emulator.crc_errors == 0
+        port.write(speed_packet(0x80, 100, 100)[:4])  # cut: never finished
+        time.sleep(0.3)
+        port.write(good)
+        assert port.read(1) == b"\xff"
+        assert emulator.speeds() == (300, -300) and emulator.crc_errors == 0
+        assert emulator.packets_ok == 3
+
+
 # ---------------------------------------------------------------------- open
 
 
@@ -136,7 +167,7 @@ def test_open_rejects_firmware_reply_with_bad_crc(emulator: RoboClawEmulator) ->
     st = b.status()
     assert st.crc_errors == 1 and not st.connected
     assert st.last_error is not None and "command 21" in st.last_error
-    assert b.open() is True  # the next reply is clean
+    assert b.open() is True, b.status()  # the next reply is clean
     b.close()
 
 
