@@ -680,15 +680,7 @@ class Estimator:
                     d_ = d_ + d
                     tu = tu + (h if h >= 0.0 else -h)
                     q = q + (n.qm * d + n.qs * dt)
-                # the head (_set_head inlined)
-                self._head_t = now_s
-                self._head_nt = nt0
-                self._h_ox = ox
-                self._h_oy = oy
-                self._h_oth = oth
-                self._h_d = d_
-                self._h_tu = tu
-                self._h_q = q
+                self._set_head(now_s, nt0, ox, oy, oth, d_, tu, q)
             else:
                 ox, oy, oth, d_, tu, q = chain_at(nodes, nt, self._still_q, now_s)
             c = a.c
