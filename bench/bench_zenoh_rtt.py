@@ -7,7 +7,14 @@ Two processes (this one and an echo subprocess started with fork+exec), 100-byte
 * peer: the echo listens as a peer and this process connects to it directly, no router;
 * callback: the pong is caught in a Zenoh callback (threading.Event);
 * asyncio: the pong goes through ``runtime.transport`` (call_soon_threadsafe into an Inbox
-  awaited on an event loop), as in every process shell.
+  awaited on an event loop), as in every process shell;
+* channel: the pong waits in a Zenoh ring and this process's thread takes it with a blocking
+  ``recv()``: no Python on Zenoh's thread, no event loop (a lockstep agent's tick thread,
+  ``runtime.bridge.TickPump``).
+
+After the table, the CPU time of this process (every thread) per round trip of each variant:
+what a delivery costs the receiving process, the figure that bounds the lockstep's speed on a
+2-core machine (docs/benchmarks.md).
 
 Usage: ``python bench/bench_zenoh_rtt.py [--n 2000] [--warmup 200] [--payload-bytes 100]``.
 Prints results; asserts nothing.
@@ -26,8 +33,10 @@ from common import LatencyStats, measure_floor, print_latency, print_latency_hea
 VARIANTS = [
     ("router", "callback"),
     ("router", "asyncio"),
+    ("router", "channel"),
     ("peer", "callback"),
     ("peer", "asyncio"),
+    ("peer", "channel"),
 ]
 
 
@@ -57,6 +66,9 @@ def main(argv: list[str] | None = None) -> int:
         results[(topology, receive)] = stats
         base = results.get((topology, "callback")) if receive != "callback" else None
         print_latency(f"{topology:<6} {receive:<8} round trip", stats, floor=base)
+    print("CPU of this process per round trip (us, every thread):")
+    for (topology, receive), stats in results.items():
+        print(f"  {topology:<6} {receive:<8} {stats.cpu_us:7.1f}")
     print(
         "reference (docs field notes, same class of machine): peer/callback p50 ~115 us "
         "p99 ~170 us; router p50 ~205 us p99 ~275 us; asyncio bridge adds ~40-60 us"

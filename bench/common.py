@@ -50,7 +50,7 @@ ECHO_READY = "echo ready"
 ROUTER_READY = "router listening on "
 
 Topology = Literal["router", "peer"]
-Receive = Literal["callback", "asyncio"]
+Receive = Literal["callback", "asyncio", "channel"]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -80,10 +80,15 @@ class LatencyStats:
     p99_us: float
     max_us: float
     mean_us: float
+    cpu_us: float = math.nan
+    """CPU time of the measuring process (every thread) per sample, where measured."""
 
     @classmethod
-    def from_samples(cls, samples_s: Sequence[float], lost: int = 0) -> LatencyStats:
-        """Summarise latencies given in seconds."""
+    def from_samples(
+        cls, samples_s: Sequence[float], lost: int = 0, cpu_s: float | None = None
+    ) -> LatencyStats:
+        """Summarise latencies given in seconds (``cpu_s``: the process's CPU seconds over
+        them, if measured)."""
         us = sorted(s * 1e6 for s in samples_s)
         if not us:
             return cls(0, lost, *(math.nan,) * 6)
@@ -96,6 +101,7 @@ class LatencyStats:
             p99_us=percentile(us, 99),
             max_us=us[-1],
             mean_us=sum(us) / len(us),
+            cpu_us=math.nan if cpu_s is None else cpu_s * 1e6 / (len(us) + lost),
         )
 
 
@@ -279,7 +285,7 @@ def _ping_payload(seq: int, size: int) -> bytes:
 
 def _ping_pong_callback(
     session: zenoh.Session, n: int, warmup: int, size: int
-) -> tuple[list[float], int]:
+) -> tuple[list[float], int, float]:
     """Receive pongs in a Zenoh callback that sets a ``threading.Event``."""
     expected = [-1]
     got = threading.Event()
@@ -293,8 +299,11 @@ def _ping_pong_callback(
     _wait_matched(pub)
     samples: list[float] = []
     lost = 0
+    cpu0 = 0.0
     try:
         for i in range(warmup + n):
+            if i == warmup:
+                cpu0 = time.process_time()
             payload = _ping_payload(i, size)
             expected[0] = i
             got.clear()
@@ -306,25 +315,56 @@ def _ping_pong_callback(
             if i >= warmup:
                 samples.append(time.perf_counter() - t0)
     finally:
+        cpu = time.process_time() - cpu0
         sub.undeclare()
         pub.undeclare()
-    return samples, lost
+    return samples, lost, cpu
+
+
+def _ping_pong_channel(
+    session: zenoh.Session, n: int, warmup: int, size: int
+) -> tuple[list[float], int, float]:
+    """Receive pongs from a Zenoh ring (``RingChannel``) with a blocking ``recv()`` on this
+    thread: no Python on Zenoh's thread (what ``runtime.bridge.TickPump``'s thread does)."""
+    sub = session.declare_subscriber(PONG_KEY, zenoh.handlers.RingChannel(64))
+    pub = _declare_fast_publisher(session, PING_KEY)
+    _wait_matched(pub)
+    samples: list[float] = []
+    cpu0 = 0.0
+    try:
+        for i in range(warmup + n):
+            if i == warmup:
+                cpu0 = time.process_time()
+            t0 = time.perf_counter()
+            pub.put(_ping_payload(i, size))
+            while _seq(sub.recv().payload.to_bytes()) != i:
+                pass
+            if i >= warmup:
+                samples.append(time.perf_counter() - t0)
+    finally:
+        cpu = time.process_time() - cpu0
+        sub.undeclare()
+        pub.undeclare()
+    return samples, 0, cpu
 
 
 def _ping_pong_asyncio(
     session: zenoh.Session, n: int, warmup: int, size: int
-) -> tuple[list[float], int]:
+) -> tuple[list[float], int, float]:
     """Receive pongs through the asyncio bridge (``transport.subscribe`` + ``Inbox``)."""
 
-    async def run() -> tuple[list[float], int]:
+    async def run() -> tuple[list[float], int, float]:
         inbox = rt.Inbox("queue")
         sub = rt.subscribe(session, PONG_KEY, asyncio.get_running_loop(), inbox)
         pub = _declare_fast_publisher(session, PING_KEY)
         _wait_matched(pub)
         samples: list[float] = []
         lost = 0
+        cpu0 = 0.0
         try:
             for i in range(warmup + n):
+                if i == warmup:
+                    cpu0 = time.process_time()
                 payload = _ping_payload(i, size)
                 t0 = time.perf_counter()
                 pub.put(payload)
@@ -338,9 +378,10 @@ def _ping_pong_asyncio(
                 if i >= warmup:
                     samples.append(time.perf_counter() - t0)
         finally:
+            cpu = time.process_time() - cpu0
             sub.undeclare()
             pub.undeclare()
-        return samples, lost
+        return samples, lost, cpu
 
     return asyncio.run(run())
 
@@ -359,7 +400,9 @@ def measure_floor(
     (how the fleet runs); ``"peer"``: the echo is a listening peer and this process a peer
     connected to it, no router. ``receive="callback"``: the pong is caught in a Zenoh callback
     (threading.Event); ``"asyncio"``: through ``transport.subscribe`` into an ``Inbox`` awaited
-    on an event loop (what the process shells do). ``n`` round trips are timed after ``warmup``.
+    on an event loop (what the process shells do); ``"channel"``: a blocking ``recv()`` on a
+    Zenoh ring (a lockstep agent's tick thread). ``n`` round trips are timed after ``warmup``;
+    the result's ``cpu_us`` is this process's CPU per round trip (every thread).
     """
     if n < 1 or warmup < 0 or payload_bytes < 8:
         raise ValueError("need n >= 1, warmup >= 0, payload_bytes >= 8")
@@ -383,12 +426,14 @@ def measure_floor(
         session = rt.open_session(mine)
         stack.callback(session.close)
         if receive == "callback":
-            samples, lost = _ping_pong_callback(session, n, warmup, payload_bytes)
+            samples, lost, cpu = _ping_pong_callback(session, n, warmup, payload_bytes)
         elif receive == "asyncio":
-            samples, lost = _ping_pong_asyncio(session, n, warmup, payload_bytes)
+            samples, lost, cpu = _ping_pong_asyncio(session, n, warmup, payload_bytes)
+        elif receive == "channel":
+            samples, lost, cpu = _ping_pong_channel(session, n, warmup, payload_bytes)
         else:
             raise ValueError(f"unknown receive {receive!r}")
-    return LatencyStats.from_samples(samples, lost)
+    return LatencyStats.from_samples(samples, lost, cpu)
 
 
 def _exit_with_parent() -> None:

@@ -4,8 +4,8 @@ One floor above the contract (``bus_schemas``) and below the process shells (doc
 
 * :mod:`runtime.transport`: Zenoh settings, config, sessions, QoS, publishers;
 * :mod:`runtime.bridge`: the one subscription bridge (Zenoh's network thread -> a loop
-  callback in arrival order, an ``Inbox``, or :mod:`runtime.tap`'s worker thread), liveliness
-  tokens and watches;
+  callback in arrival order, an ``Inbox``, :mod:`runtime.tap`'s worker thread, or a lockstep
+  node's ``TickPump``), liveliness tokens and watches;
 * :mod:`runtime.lifecycle`: ``run_node`` (signals, bounded shutdown) and ``serve``, the one node
   bootstrap;
 * :mod:`runtime.log` (``NodeLog``), :mod:`runtime.faults` (``Faults``: rejects and internal
@@ -35,6 +35,7 @@ from runtime.bridge import (
     LoopFeed,
     Received,
     SampleHandler,
+    TickPump,
     declare_token,
     loop_feed,
     subscribe,
@@ -95,6 +96,7 @@ __all__ = [
     "Received",
     "SampleHandler",
     "StallDetector",
+    "TickPump",
     "TransportError",
     "UsageError",
     "ZenohSettings",

@@ -19,7 +19,10 @@ Where the sample goes is the consumer's choice, one of three:
 * one worker thread fed through a bounded queue (:class:`runtime.tap.BusTap`: the recorder, the
   live view and ``formation top``, whose handlers may be slow and must not hold up a loop); its
   samples first wait in a Zenoh-side FIFO (:func:`subscribe_buffered`), so a busy worker never
-  stops the session from reading its link.
+  stops the session from reading its link;
+* a lockstep node's per-tick inputs, taken by one thread of its own from Zenoh-side rings
+  (:class:`TickPump`): no Python runs on Zenoh's thread for them and no event loop wakes, so a
+  tick costs the process one wake-up (see the class).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ __all__ = [
     "Push",
     "Received",
     "SampleHandler",
+    "TickPump",
     "declare_token",
     "loop_feed",
     "subscribe",
@@ -342,6 +346,118 @@ def subscribe_buffered(
     ``formation up`` run ended ticks early; its router was even forced to exit, trying to flush
     it). Buffered here, a backlog is in this process when the router goes away."""
     return BufferedSubscription(session, key_expr, push, capacity=capacity, name=name)
+
+
+class TickPump:
+    """A lockstep node's per-tick inputs, handled on one thread of its own, tick by tick.
+
+    A lockstep node is woken by one *trigger* per tick (an agent's ``clock``); every other input
+    of the tick (a *side*: an agent's setpoint, poses, own pose, movers, fault notices) is read
+    only when that trigger comes. Each key gets a Zenoh-side ring (``zenoh.handlers.RingChannel``:
+    Zenoh's thread stores the sample without the interpreter lock and never waits); the pump's
+    thread blocks on the trigger's ring (without the lock) and, for each trigger sample, under
+    ``guard``, first hands every side sample waiting to its handler (side by side in the order
+    :meth:`side` declared them; each key's samples in their order), then the trigger's.
+
+    Against a callback on Zenoh's thread and a wake of the event loop (:class:`LoopFeed`), a
+    sample costs no switch of the interpreter lock and the tick no wake of the loop: measured in
+    docs/benchmarks.md ("The agents' ticks on a pump of their own"). The order *across* keys is
+    the price: a side sample that arrived just after the trigger (but before the pump looked) is
+    handled before it. So a side input must be tick-tagged (a setpoint, movers, a fault notice:
+    kept for the tick they name) or causally before the trigger (the plant's poses, sent before
+    its clock on the same link; the next ones only after this node answered).
+
+    ``guard`` is held while handlers run: whatever else touches the node's state (the event
+    loop's e-stop and status) takes it too, so the state has one owner at a time. The rings hold
+    ``capacity`` samples each (a flood drops the oldest; the trigger's are the plant's clocks,
+    one a tick). Handlers must not raise (they count their own errors); one that does is counted
+    in :attr:`errors` and the rest still run. The thread ends when the session closes (or
+    :meth:`undeclare`); samples still waiting then are dropped.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        guard: contextlib.AbstractContextManager[Any],
+        *,
+        capacity: int = 256,
+        name: str = "tick-pump",
+    ) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {capacity}")
+        self._session = session
+        self._guard = guard
+        self._capacity = capacity
+        self._name = name
+        self._sides: list[tuple[Any, SampleHandler]] = []
+        self._subs: list[zenoh.Subscriber[Any]] = []
+        self._thread: threading.Thread | None = None
+        self.ticks = 0
+        """Trigger samples handled so far."""
+        self.handled = 0
+        """Samples handed to their handlers so far (triggers and sides)."""
+        self.errors = 0
+        """Handlers that raised (each sample's handler is still called)."""
+
+    def _ring(self, key_expr: str) -> Any:
+        sub = self._session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(self._capacity))
+        self._subs.append(sub)
+        return sub.handler
+
+    def side(self, key_expr: str, fn: SampleHandler) -> None:
+        """Declare a side input: its samples are handled just before the next trigger's."""
+        if self._thread is not None:
+            raise RuntimeError("TickPump.side after start: declare every side first")
+        self._sides.append((self._ring(key_expr), fn))
+
+    def start(self, key_expr: str, fn: SampleHandler) -> None:
+        """Declare the trigger and start the thread (once)."""
+        if self._thread is not None:
+            raise RuntimeError("TickPump.start twice")
+        trigger = self._ring(key_expr)
+        self._thread = threading.Thread(
+            target=self._pump, args=(trigger, fn), name=self._name, daemon=True
+        )
+        self._thread.start()
+
+    def _call(self, fn: SampleHandler, sample: zenoh.Sample) -> None:
+        self.handled += 1
+        try:
+            fn(_to_received(sample))
+        except Exception:
+            self.errors += 1
+
+    def _pump(self, trigger: Any, fn: SampleHandler) -> None:
+        sides = self._sides
+        call = self._call
+        while True:
+            try:
+                sample = trigger.recv()  # blocks without the interpreter lock
+            except zenoh.ZError:  # undeclared or the session closed
+                return
+            with self._guard:
+                try:
+                    for ring, side_fn in sides:
+                        while (waiting := ring.try_recv()) is not None:
+                            call(side_fn, waiting)
+                except zenoh.ZError:  # closed while draining
+                    return
+                self.ticks += 1
+                call(fn, sample)
+
+    def undeclare(self) -> None:
+        """Stop receiving; the thread ends (what waits is dropped)."""
+        for sub in self._subs:
+            with contextlib.suppress(zenoh.ZError):
+                sub.undeclare()
+
+    def join(self, timeout_s: float | None = None) -> bool:
+        """After :meth:`undeclare` (or the session's close): wait for the thread; False on
+        timeout."""
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            return not self._thread.is_alive()
+        return True
 
 
 class LoopFeed:

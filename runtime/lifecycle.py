@@ -34,7 +34,14 @@ from typing import Any, Final
 import zenoh
 
 from runtime import transport as _tp
-from runtime.bridge import LivelinessHandler, Received, declare_token, subscribe, watch_liveliness
+from runtime.bridge import (
+    LivelinessHandler,
+    Received,
+    TickPump,
+    declare_token,
+    subscribe,
+    watch_liveliness,
+)
 from runtime.log import NodeLog
 
 __all__ = [
@@ -415,6 +422,15 @@ class NodeIO:
         lockstep node's inputs that only its next clock reads)."""
         self._keep.append(subscribe(self.session, key_expr, self.loop, handler, wake=wake))
 
+    def tick_pump(
+        self, guard: contextlib.AbstractContextManager[Any], *, name: str = "tick-pump"
+    ) -> TickPump:
+        """A lockstep node's :class:`runtime.bridge.TickPump` on this session, kept (and
+        undeclared) with the node's subscriptions; declare its sides, then ``start`` it."""
+        pump = TickPump(self.session, guard, name=name)
+        self._keep.append(pump)
+        return pump
+
     def watch_liveliness(self, pattern: str, on_change: LivelinessHandler) -> None:
         """Call ``on_change(key, alive)`` on the loop when a token matching ``pattern`` appears
         or vanishes (those already alive are reported once)."""
@@ -425,7 +441,11 @@ class NodeIO:
         self._keep.append(declare_token(self.session, key))
 
     def close(self) -> None:
-        """Drop the tokens and subscriptions (the session close undeclares them too)."""
+        """Drop the tokens and subscriptions (the session close undeclares them too); a tick
+        pump's thread ends."""
+        for kept in self._keep:
+            if isinstance(kept, TickPump):
+                kept.undeclare()
         self._keep.clear()
 
 

@@ -43,7 +43,8 @@ def tick_time(k: int, dt_s: float) -> float:
 
 
 class SetpointWindow(Generic[T]):
-    """The setpoints of the last two ticks; on clock k, the one computed on tick k - 1.
+    """The setpoints of the last two ticks (two distinct ticks: a tick added again replaces its
+    entry); on clock k, the one computed on tick k - 1.
 
     A list of at most two entries, not a ``deque(maxlen=2)``: the same entries, and compiled
     (with the firmware, ``robot_agent/core/_accel.py``) a list's operations are C calls where a
@@ -55,8 +56,15 @@ class SetpointWindow(Generic[T]):
         self._items: list[tuple[int, T]] = []
 
     def add(self, tick: int, item: T) -> None:
-        """Keep ``item``, computed on ``tick`` (the older of two kept ticks is dropped)."""
+        """Keep ``item``, computed on ``tick``: it replaces an entry of the same tick (the
+        coordinator answers a re-announced clock with the same setpoints again, and an agent
+        may take several of them before the clock it waits for), else the older of two kept
+        ticks is dropped."""
         items = self._items
+        for j in range(len(items)):
+            if items[j][0] == tick:
+                del items[j]
+                break
         items.append((tick, item))
         if len(items) > _WINDOW:
             del items[0]

@@ -21,6 +21,7 @@ Theory of operation: docs/process-shells.md (inputs, outputs, realtime and locks
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import os
 import socket
@@ -217,6 +218,10 @@ class AgentNode:
         self.neighbour_fn = neighbour_fn
         self.scripted = AgentFaults(self.robot_id)  # scripted faults, lockstep (agent_faults)
         self.fault_key = keys.fault_key(fleet)
+        # Held by the loop's entry points (e-stop, status) while they touch this state. A
+        # lockstep agent process runs its per-tick handlers on a thread of its own
+        # (runtime.bridge.TickPump) and sets a lock here that the pump holds too.
+        self.guard: contextlib.AbstractContextManager[object] = contextlib.nullcontext()
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -375,6 +380,10 @@ class AgentNode:
     def on_estop(self, rx: rt.Received) -> None:
         """Fleet or own estop: latch or release that scope (robot_agent.core.estop); the firmware is
         in ESTOP (zero wheels at once in realtime) while the fleet's or this robot's is latched."""
+        with self.guard:
+            self._on_estop(rx)
+
+    def _on_estop(self, rx: rt.Received) -> None:
         try:
             self.rx["estop"] += 1
             msg = decode(rx.payload, Estop)
@@ -393,6 +402,10 @@ class AgentNode:
         """The coordinators' latched e-stop state (a query's ``(engage, robot, id)`` entries,
         any robots'): adds engagements, releases one held here only if the answer saw that
         engagement released (``EstopLatch.merge_answer``). No answer: nothing changes."""
+        with self.guard:
+            self._on_estop_state(answers)
+
+    def _on_estop_state(self, answers: list[tuple[bool, str | None, int | None]]) -> None:
         try:
             if not answers:
                 return
@@ -577,6 +590,10 @@ class AgentNode:
 
     def publish_status(self) -> None:
         """Publish one status message (never raises)."""
+        with self.guard:
+            self._publish_status()
+
+    def _publish_status(self) -> None:
         try:
             now = self.sim_t if self.lockstep else time.monotonic()
             if not self.lockstep and self.estop_query.due(now):

@@ -375,24 +375,30 @@ async def _node(
     io.pubs.get(node.wheels_key, node.wheels_qos)
     io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
     await attach_estop_state(node, io)  # comes up stopped under a latched e-stop
-    # Lockstep: setpoints, poses and movers are read at the next clock only, so their samples
-    # wait for it (runtime.bridge.LoopFeed) instead of waking the loop each (docs/runtime.md)
-    lazy = not lockstep
-    io.subscribe(node.setpoint_key, node.on_setpoint, wake=lazy)
-    io.subscribe(node.poses_key, node.on_poses, wake=lazy)
-    io.subscribe(node.movers_key, node.on_movers, wake=lazy)
     if lockstep:
-        # scripted faults (robot_agent.node.agent_faults): subscribed before the clock, so a
-        # notice sent before a clock is handled before it; a kill is this process's death
+        # One thread takes each clock and, just before it, the inputs that only a clock reads
+        # (runtime.bridge.TickPump; docs/runtime.md): setpoints, movers and fault notices name
+        # their tick, the plant's poses come before its clock. A scripted kill is this
+        # process's death (robot_agent.node.agent_faults).
         node.scripted.die = lambda: os.kill(os.getpid(), signal.SIGKILL)
-        io.subscribe(node.fault_key, node.on_fault)
-        io.subscribe(node.clock_key, node.on_clock)
-    else:  # the other robots' modes: cooperative neighbours (robot_agent.core.neighbours)
+        node.guard = threading.RLock()
+        pump = io.tick_pump(node.guard, name=f"agent-{setup.robot_id}-ticks")
+        pump.side(node.fault_key, node.on_fault)
+        pump.side(node.setpoint_key, node.on_setpoint)
+        pump.side(node.poses_key, node.on_poses)
+        pump.side(node.movers_key, node.on_movers)
+        pump.side(node.pose_key, node.on_pose)
+        pump.start(node.clock_key, node.on_clock)
+    else:
+        io.subscribe(node.setpoint_key, node.on_setpoint)
+        io.subscribe(node.poses_key, node.on_poses)
+        io.subscribe(node.movers_key, node.on_movers)
+        # the other robots' modes: cooperative neighbours (robot_agent.core.neighbours)
         io.subscribe(keys.all_status_pattern(setup.fleet), node.peer_status.on_status)
         io.subscribe(keys.all_host_status_pattern(setup.fleet), node.peer_status.on_host_status)
         if node.claims_on:  # the other robots' motion claims (robot_agent.core.neighbour_motion)
             io.subscribe(keys.all_wheels_pattern(setup.fleet), node.on_wheels)
-    io.subscribe(node.pose_key, node.on_pose, wake=lazy)
+        io.subscribe(node.pose_key, node.on_pose)
     io.declare_token(node.alive_key)
     print(f"agent {setup.robot_id} ready", flush=True)
     notifier.status(f"agent {setup.robot_id}: connected, control loop running")

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import signal
 import threading
@@ -358,6 +359,76 @@ async def test_a_sample_without_wake_is_handled_before_the_next_waking_one_over_
     pubs.put("test/lazy/clock", b"k", rt.QOS_CRITICAL)
     await wait_until(lambda: len(got) == 6)
     assert got == [*(("pose", bytes([n])) for n in range(5)), ("clock", b"k")]
+
+
+@pytest.mark.zenoh
+async def test_tick_pump_hands_the_sides_then_the_trigger_on_its_own_thread_under_the_guard(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    sub_session, pub_session = session(), session()
+    guard = threading.RLock()
+    got: list[tuple[str, bytes, bool, bool]] = []
+
+    def on(name: str) -> Callable[[rt.Received], None]:
+        def handle(r: rt.Received) -> None:
+            mine = threading.current_thread().name == "pump-under-test"
+            got.append((name, r.payload, mine, guard._is_owned()))  # type: ignore[attr-defined]
+            if r.payload == b"raise":
+                raise ValueError("a handler that raises")
+
+        return handle
+
+    pump = rt.TickPump(sub_session, guard, capacity=4, name="pump-under-test")
+    pump.side("test/pump/fault", on("fault"))
+    pump.side("test/pump/pose", on("pose"))
+    pump.start("test/pump/clock", on("clock"))
+    with pytest.raises(RuntimeError, match="after start"):
+        pump.side("test/pump/late", on("late"))
+    with pytest.raises(RuntimeError, match="twice"):
+        pump.start("test/pump/clock", on("clock"))
+    await asyncio.sleep(0.05)  # let the subscriptions reach the router
+    pubs = rt.Publishers(pub_session, default_qos=rt.QOS_CRITICAL)
+    for n in range(6):  # more than the ring holds: the oldest two are dropped
+        pubs.put("test/pump/pose", bytes([n]))
+    pubs.put("test/pump/fault", b"raise")
+    await asyncio.sleep(0.2)
+    assert got == []  # the sides wait for the trigger
+    pubs.put("test/pump/clock", b"k1")
+    await wait_until(lambda: len(got) == 6)
+    # sides in declaration order (each key in its own order), then the trigger; every call on
+    # the pump's thread with the guard held; the raising handler is counted, the rest still ran
+    assert [(n, p) for n, p, _, _ in got] == [
+        ("fault", b"raise"),
+        *(("pose", bytes([n])) for n in range(2, 6)),
+        ("clock", b"k1"),
+    ]
+    assert all(mine and held for _, _, mine, held in got)
+    assert (pump.ticks, pump.handled, pump.errors) == (1, 6, 1)
+    with guard:  # the loop holds the guard: the next tick waits for it
+        pubs.put("test/pump/clock", b"k2")
+        await asyncio.sleep(0.2)
+        assert len(got) == 6
+    await wait_until(lambda: len(got) == 7)
+    assert got[-1][:2] == ("clock", b"k2")
+    pump.undeclare()
+    assert await asyncio.to_thread(pump.join, 2.0)  # the thread ends
+    pubs.put("test/pump/clock", b"k3")
+    await asyncio.sleep(0.1)
+    assert len(got) == 7 and pump.ticks == 2
+
+
+@pytest.mark.zenoh
+async def test_tick_pump_thread_ends_when_its_session_closes(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    own = session()
+    pump = rt.TickPump(own, contextlib.nullcontext(), name="pump-closed")
+    pump.side("test/pumpc/pose", lambda r: None)
+    pump.start("test/pumpc/clock", lambda r: None)
+    with pytest.raises(ValueError, match="capacity"):
+        rt.TickPump(own, contextlib.nullcontext(), capacity=0)
+    own.close()
+    assert await asyncio.to_thread(pump.join, 2.0)
 
 
 @pytest.mark.zenoh

@@ -68,17 +68,31 @@ _WINDOW_OPS = st.lists(
 )
 
 
+def test_setpoint_window_repeats_of_a_tick_do_not_push_out_the_previous_tick() -> None:
+    """A re-announced clock k+1 makes the coordinator send setpoint(k+1) again; an agent that
+    takes those repeats before clock k+1 (its tick thread) still steps on setpoint(k)."""
+    w: SetpointWindow[str] = SetpointWindow()
+    w.add(4, "sp4")
+    for n in range(3):
+        w.add(5, f"sp5 repeat {n}")
+    assert w.for_clock(5) == "sp4"
+    assert w.for_clock(6) == "sp5 repeat 2"
+
+
 @given(_WINDOW_OPS)
-def test_setpoint_window_is_the_newest_of_the_last_two_added(
+def test_setpoint_window_is_the_newest_of_the_last_two_ticks_added(
     ops: list[tuple[str, int, int]],
 ) -> None:
-    """The window against its definition: the last two entries added (a ``deque(maxlen=2)``),
-    on clock k the newest of them computed on tick k - SETPOINT_DELAY_TICKS."""
+    """The window against its definition: the entries of the last two distinct ticks added (a
+    tick added again replaces its entry and becomes the newest), on clock k the one computed on
+    tick k - SETPOINT_DELAY_TICKS."""
     w: SetpointWindow[int] = SetpointWindow()
     model: deque[tuple[int, int]] = deque(maxlen=2)
     for op, tick, item in ops:
         if op == "add":
             w.add(tick, item)
+            for old in [e for e in model if e[0] == tick]:
+                model.remove(old)
             model.append((tick, item))
         elif op == "clear":
             w.clear()
