@@ -64,6 +64,7 @@ subscriptions and every robot's token are declared.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import math
 import os
@@ -236,11 +237,32 @@ class HostNode:
             self.faults,
             step_now=None if lockstep else self._step_now,
         )
+        # Held by the loop's entry points (e-stop, status) while they touch this state. A
+        # lockstep host runs its per-tick handlers on a thread of its own
+        # (runtime.bridge.TickPump) and sets a lock here that the pump holds too.
+        self.guard: contextlib.AbstractContextManager[object] = contextlib.nullcontext()
         # realtime: the process turned the automatic garbage collection off (host_main) and the
         # host collects after each watchdog round, between two frames (collect_garbage)
         self.manual_gc = False
         self.gc_rounds = 0
         self.gc_s = -math.inf
+
+    # -- the loop's e-stop entry points (HostEstop's, under the guard) ---------------------------
+
+    def on_estop(self, rx: rt.Received) -> None:
+        """An ``estop`` message (:meth:`HostEstop.on_estop`)."""
+        with self.guard:
+            self.estop.on_estop(rx)
+
+    def on_estop_state(self, payloads: Sequence[bytes], token: int = 0) -> None:
+        """The coordinators' latched state (:meth:`HostEstop.on_estop_state`)."""
+        with self.guard:
+            self.estop.on_estop_state(payloads, token)
+
+    def on_estop_held(self, payloads: Sequence[bytes], token: int = 0) -> None:
+        """The engagements other agents hold (:meth:`HostEstop.on_estop_held`)."""
+        with self.guard:
+            self.estop.on_estop_held(payloads, token)
 
     # -- bookkeeping ---------------------------------------------------------------------------
 
@@ -488,6 +510,10 @@ class HostNode:
         :data:`STATUS_STEP` robots per call (~20 us per robot), the batches published once every
         robot's is taken, so a frame never waits for a whole fleet's status; returns when to go
         on (``runtime.timers``) while the round is not complete. Lockstep: all at once."""
+        with self.guard:
+            return self._publish_status()
+
+    def _publish_status(self) -> float | None:
         try:
             rows = self._status_rows
             if not rows:  # a new round

@@ -20,6 +20,7 @@ import gc
 import os
 import re
 import sys
+import threading
 
 import runtime as rt
 from bus_schemas import keys
@@ -141,18 +142,25 @@ async def _node(
         host.stall.gap_s = rt.hang_gap_for(io.settings.lease_ms)
         io.pubs.get(host.wheels_key, host.wheels_qos)
         io.pubs.get(host.status_key, rt.QOS_TELEMETRY)
+        if lockstep:  # the tick thread's lock, before anything the loop runs takes it
+            host.guard = threading.RLock()
         # the latched e-stop first: robots that start under an e-stop come up in ESTOP
         await attach_host_estop_state(host, io)
-        # lockstep: setpoints, movers and poses are read at the next clock only, so they wait
-        # for it (runtime.bridge.LoopFeed) instead of waking the loop each (docs/runtime.md)
-        lazy = not lockstep
-        io.subscribe(host.setpoints_key, host.on_setpoints, wake=lazy)
-        io.subscribe(host.movers_key, host.on_movers, wake=lazy)
         if lockstep:
-            io.subscribe(keys.fault_key(fleet), host.on_fault)  # scripted faults, lockstep
-            io.subscribe(host.clock_key, host.on_clock)
-        io.subscribe(host.poses_key, host.on_poses, wake=lazy)
-        if not lockstep:  # the other robots' modes: cooperative neighbours
+            # One thread takes each clock and, just before it, the inputs only a clock reads
+            # (runtime.bridge.TickPump, as a lockstep agent's; docs/runtime.md): fault notices,
+            # setpoint batches and movers name their tick, the plant's poses come before it.
+            pump = io.tick_pump(host.guard, name=f"agent-host-{name}-ticks")
+            pump.side(keys.fault_key(fleet), host.on_fault)
+            pump.side(host.setpoints_key, host.on_setpoints)
+            pump.side(host.movers_key, host.on_movers)
+            pump.side(host.poses_key, host.on_poses)
+            pump.start(host.clock_key, host.on_clock)
+        else:
+            io.subscribe(host.setpoints_key, host.on_setpoints)
+            io.subscribe(host.movers_key, host.on_movers)
+            io.subscribe(host.poses_key, host.on_poses)
+            # the other robots' modes: cooperative neighbours
             io.subscribe(keys.all_status_pattern(fleet), host.peer_status.on_status)
             io.subscribe(keys.all_host_status_pattern(fleet), host.peer_status.on_host_status)
         for r in ids:
@@ -185,12 +193,12 @@ async def attach_host_estop_state(host: HostNode, io: rt.NodeIO) -> None:
         io,
         fleet=host.fleet,
         name=host.name,
-        on_estop=host.estop.on_estop,
+        on_estop=host.on_estop,
         query=host.estop_query,
         witness=host.witness,
         internal=host.faults.internal,
-        on_state=host.estop.on_estop_state,
-        on_held=host.estop.on_estop_held,
+        on_state=host.on_estop_state,
+        on_held=host.on_estop_held,
     )
 
 
