@@ -31,7 +31,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Literal
@@ -283,6 +283,26 @@ def _ping_payload(seq: int, size: int) -> bytes:
     return seq.to_bytes(8, "little") + bytes(max(0, size - 8))
 
 
+def _timed_round_trips(
+    n: int, warmup: int, round_trip: Callable[[int], bool]
+) -> tuple[list[float], int, float]:
+    """Time ``round_trip(i)`` (True: the pong came back) ``n`` times after ``warmup``; returns the
+    samples (s), how many were lost and this process's CPU seconds over the timed ones."""
+    samples: list[float] = []
+    lost = 0
+    cpu0 = time.process_time()
+    for i in range(warmup + n):
+        if i == warmup:
+            cpu0 = time.process_time()
+        t0 = time.perf_counter()
+        if not round_trip(i):
+            lost += i >= warmup
+            continue
+        if i >= warmup:
+            samples.append(time.perf_counter() - t0)
+    return samples, lost, time.process_time() - cpu0
+
+
 def _ping_pong_callback(
     session: zenoh.Session, n: int, warmup: int, size: int
 ) -> tuple[list[float], int, float]:
@@ -297,28 +317,19 @@ def _ping_pong_callback(
     sub = session.declare_subscriber(PONG_KEY, on_pong)
     pub = _declare_fast_publisher(session, PING_KEY)
     _wait_matched(pub)
-    samples: list[float] = []
-    lost = 0
-    cpu0 = 0.0
+
+    def round_trip(i: int) -> bool:
+        payload = _ping_payload(i, size)
+        expected[0] = i
+        got.clear()
+        pub.put(payload)
+        return got.wait(timeout=0.1 if i < warmup else 1.0)
+
     try:
-        for i in range(warmup + n):
-            if i == warmup:
-                cpu0 = time.process_time()
-            payload = _ping_payload(i, size)
-            expected[0] = i
-            got.clear()
-            t0 = time.perf_counter()
-            pub.put(payload)
-            if not got.wait(timeout=0.1 if i < warmup else 1.0):
-                lost += i >= warmup
-                continue
-            if i >= warmup:
-                samples.append(time.perf_counter() - t0)
+        return _timed_round_trips(n, warmup, round_trip)
     finally:
-        cpu = time.process_time() - cpu0
         sub.undeclare()
         pub.undeclare()
-    return samples, lost, cpu
 
 
 def _ping_pong_channel(
@@ -329,23 +340,18 @@ def _ping_pong_channel(
     sub = session.declare_subscriber(PONG_KEY, zenoh.handlers.RingChannel(64))
     pub = _declare_fast_publisher(session, PING_KEY)
     _wait_matched(pub)
-    samples: list[float] = []
-    cpu0 = 0.0
+
+    def round_trip(i: int) -> bool:
+        pub.put(_ping_payload(i, size))
+        while _seq(sub.recv().payload.to_bytes()) != i:
+            pass
+        return True
+
     try:
-        for i in range(warmup + n):
-            if i == warmup:
-                cpu0 = time.process_time()
-            t0 = time.perf_counter()
-            pub.put(_ping_payload(i, size))
-            while _seq(sub.recv().payload.to_bytes()) != i:
-                pass
-            if i >= warmup:
-                samples.append(time.perf_counter() - t0)
+        return _timed_round_trips(n, warmup, round_trip)
     finally:
-        cpu = time.process_time() - cpu0
         sub.undeclare()
         pub.undeclare()
-    return samples, 0, cpu
 
 
 def _ping_pong_asyncio(
