@@ -9,7 +9,7 @@ samples *across* keys of one session (zenoh-python's default runs each subscribe
 of its own, so a plant's pose could be overtaken by its next clock); lockstep relies on that
 order (docs/runtime.md).
 
-Where the sample goes is the consumer's choice, one of three:
+Where the sample goes is the consumer's choice, one of four:
 
 * a callable run on an asyncio loop with one :class:`Received` per sample, in arrival order
   (:func:`subscribe` with a callable: every process shell);
@@ -361,7 +361,7 @@ class TickPump:
 
     Against a callback on Zenoh's thread and a wake of the event loop (:class:`LoopFeed`), a
     sample costs no switch of the interpreter lock and the tick no wake of the loop: measured in
-    docs/benchmarks.md ("The agents' ticks on a pump of their own"). The order *across* keys is
+    docs/benchmarks.md ("Lockstep agents on a tick thread of their own"). The order *across* keys is
     the price: a side sample that arrived just after the trigger (but before the pump looked) is
     handled before it. So a side input must be tick-tagged (a setpoint, movers, a fault notice:
     kept for the tick they name) or causally before the trigger (the plant's poses, sent before

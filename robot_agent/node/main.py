@@ -374,6 +374,8 @@ async def _node(
     # Declare the publishers first, so the first command is not delayed by a declaration.
     io.pubs.get(node.wheels_key, node.wheels_qos)
     io.pubs.get(node.status_key, rt.QOS_TELEMETRY)
+    if lockstep:  # the tick thread's lock, before anything the loop runs takes it
+        node.guard = threading.RLock()
     await attach_estop_state(node, io)  # comes up stopped under a latched e-stop
     if lockstep:
         # One thread takes each clock and, just before it, the inputs that only a clock reads
@@ -381,7 +383,6 @@ async def _node(
         # their tick, the plant's poses come before its clock. A scripted kill is this
         # process's death (robot_agent.node.agent_faults).
         node.scripted.die = lambda: os.kill(os.getpid(), signal.SIGKILL)
-        node.guard = threading.RLock()
         pump = io.tick_pump(node.guard, name=f"agent-{setup.robot_id}-ticks")
         pump.side(node.fault_key, node.on_fault)
         pump.side(node.setpoint_key, node.on_setpoint)
