@@ -212,6 +212,14 @@ class SeparationMonitor:
 
     def update(self, t_s: float, truth: npt.ArrayLike) -> list[CollisionEvent]:
         """Account the poses ``truth`` (``(n, 3)`` or ``(n, 2)``) at ``t_s``; returns new events."""
+        if (
+            isinstance(truth, np.ndarray)
+            and truth.ndim == 2
+            and 2 <= truth.shape[0] <= PY_MAX_N
+            and truth.shape[1] >= 2
+            and truth.dtype == np.float64
+        ):
+            truth = truth.tolist()  # a few robots: plain Python (the plant node's truth, a tick)
         if isinstance(truth, list | tuple) and 2 <= len(truth) <= PY_MAX_N:
             small = self._update_rows(t_s, truth)
             if small is not None:

@@ -205,3 +205,40 @@ def test_update_many_minimum_tick_when_two_squares_share_a_root() -> None:
     assert one.min_separation_m == batch.min_separation_m == r
     assert one.min_separation_t_s == batch.min_separation_t_s == 0.0
     assert batch.last_min_separation_m == one.last_min_separation_m
+
+
+_SMALL_FLEET = st.integers(2, 12).flatmap(
+    lambda n: st.lists(
+        st.tuples(
+            st.floats(-50, 50, allow_nan=False, width=64),
+            st.floats(-50, 50, allow_nan=False, width=64),
+            st.floats(-4, 4, allow_nan=False),
+        ),
+        min_size=n,
+        max_size=n,
+    )
+)
+
+
+@given(st.lists(_SMALL_FLEET, min_size=1, max_size=6), st.floats(0.0, 2.0))
+def test_update_with_an_array_equals_the_array_path_bit_for_bit(
+    ticks: list[list[tuple[float, float, float]]], radius: float
+) -> None:
+    """A few robots' truth as an array takes the plain-Python path (the plant node's truth at
+    every tick); its events, minimum and last separation equal those of the numpy path
+    (``contacts_and_min_distance``: pdist) bit for bit."""
+    fast, ref = SeparationMonitor(radius), SeparationMonitor(radius)
+    ref_in_contact: set[tuple[int, int]] = set()
+    for k, rows in enumerate(ticks):
+        arr = np.array(rows, dtype=np.float64)
+        new = fast.update(0.02 * k, arr)
+        pairs, dists, min_d = contacts_and_min_distance(arr[:, :2], ref.contact_dist_m)
+        expected = [
+            (a, b, d)
+            for (a, b), d in zip(pairs.tolist(), dists.tolist(), strict=True)
+            if (a, b) not in ref_in_contact
+        ]
+        ref_in_contact = {(a, b) for a, b in pairs.tolist()}
+        assert [(e.i, e.j, e.distance_m) for e in new] == expected
+        assert fast.in_contact == frozenset(ref_in_contact)
+        assert fast.last_min_separation_m == min_d
