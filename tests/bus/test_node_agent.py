@@ -251,6 +251,42 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
     w5 = answer(K + 5)
     assert not nonzero(w5) and w5.pose_t == pose_t
 
+    # The tick thread reads the setpoints waiting before a clock, so the coordinator's repeats
+    # of tick K+6 (it answers a re-announced clock again) may come before clock K+6 is
+    # handled: they must not push out tick K+5's, the one clock K+6 steps on.
+    def pose_at(k: int) -> None:
+        pose = Pose(t=k * dt, seq=k + 1, x=0.0, y=0.0, theta=0.0, robot="r1")
+        pubs.put(keys.pose_key(FLEET, "r1"), encode(pose), rt.QOS_CRITICAL)
+
+    setpoint(K + 5, 0.45, 0.0)  # ahead
+    for _ in range(3):
+        setpoint(K + 6, 0.05, 0.4)  # left, three times
+    pose_at(K + 6)
+    clock(K + 6)
+    w6 = answer(K + 6)
+    # ahead: both wheels forward (tick K+6's, to the left, would turn: omega_l < 0 < omega_r)
+    assert w6.omega_r > 0.5 and w6.omega_l > 0.5, "tick K+5's setpoint"
+
+    # An e-stop is handled on the event loop while the tick thread steps (under the agent's
+    # guard): the next clock's answer is zero wheels in mode estop, until the release.
+    status = Recorder(client, keys.status_key(FLEET, "r1"), decoder_of(Status))
+    estop = Estop(t=time.monotonic(), engage=True, robot=None, id=new_estop_id())
+    pubs.put(keys.estop_key(FLEET), encode(estop), rt.QOS_CRITICAL)
+    status.wait_for(lambda _r, _k, st: st.mode == "estop", timeout_s=3.0)
+    setpoint(K + 7, 0.45, 0.0)
+    pose_at(K + 7)
+    clock(K + 7)
+    w7 = answer(K + 7)
+    assert not nonzero(w7) and w7.mode == "estop"
+    release = Estop(t=time.monotonic(), engage=False, robot=None, id=None)
+    pubs.put(keys.estop_key(FLEET), encode(release), rt.QOS_CRITICAL)
+    status.wait_for(lambda _r, _k, st: st.mode != "estop", timeout_s=3.0)
+    setpoint(K + 8, 0.45, 0.0)
+    pose_at(K + 8)
+    clock(K + 8)
+    w8 = answer(K + 8)
+    assert w8.mode != "estop" and w8.omega_r > 0.5 and w8.omega_l > 0.5, "released: it moves"
+
 
 # ---------------------------------------------------------------------------------------------
 # Robot config
