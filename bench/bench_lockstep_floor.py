@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import subprocess
 import sys
 import threading
 import time
@@ -85,8 +86,9 @@ class Child:
         print(f"cpu {cpu / self.ticks * 1e3:.4f}", flush=True)
 
 
-def run_answerer(role: str, design: str, child: Child, robot: str) -> None:
-    """An agent (answers clock k with its wheels) or the coordinator (setpoints, then leader)."""
+def run_answerer(role: str, design: str, child: Child) -> None:
+    """An agent (``role`` its robot id: answers clock k with its wheels) or the coordinator
+    (setpoints, then leader)."""
 
     def on_clock(rx: rt.Received) -> None:
         k = _tick_of(rx.payload)
@@ -97,7 +99,7 @@ def run_answerer(role: str, design: str, child: Child, robot: str) -> None:
             child.pubs.put("floor/setpoints", _msg(k))
             child.pubs.put("floor/leader", _msg(k))
         else:
-            child.pubs.put(f"floor/wheels/{robot}", _msg(k))
+            child.pubs.put(f"floor/wheels/{role}", _msg(k))
 
     def on_setpoints(rx: rt.Received) -> None:
         pass  # read and dropped: its cost is the delivery
@@ -190,16 +192,16 @@ def child_main(argv: list[str]) -> int:
         if role == "plant":
             run_plant(design, child, int(robots))
         else:
-            run_answerer(role, design, child, role)
+            run_answerer(role, design, child)
     finally:
         child.session.close()
     return 0
 
 
-def _read_rest(proc: object) -> dict[str, float]:
+def _read_rest(proc: subprocess.Popen[bytes]) -> dict[str, float]:
     out: dict[str, float] = {}
-    stdout = proc.stdout  # type: ignore[attr-defined]
-    for line in stdout.read().decode(errors="replace").splitlines():
+    assert proc.stdout is not None
+    for line in proc.stdout.read().decode(errors="replace").splitlines():
         parts = line.split()
         if len(parts) == 2 and parts[0] in ("wall", "cpu"):
             out[parts[0]] = float(parts[1])
