@@ -14,7 +14,10 @@ work a tick (a stand-in for its decode, step and encode). Receive designs:
   (``runtime.TickPump``: Zenoh-side rings, a blocking ``recv()``), the plant its answers with
   blocking ``recv()`` on rings, no Python on Zenoh's threads;
 * ``agents``: the agents on ``TickPump``, the plant and the coordinator on their loops (what
-  ``formation up --lockstep`` does since the agents' tick thread).
+  ``formation up --lockstep`` did with the agents' tick thread);
+* ``plant``: as ``agents``, and the plant ticks on a thread of its own, woken once a tick by its
+  answers' handlers on Zenoh's thread (``subscribe_on_thread``: what ``formation up
+  --lockstep`` does since the plant's tick thread); the coordinator on its loop.
 
 Prints, for each design, the speed at 50 Hz (sim seconds per wall second) and the CPU
 milliseconds a tick of each process kind over the timed ticks: what the real lockstep
@@ -39,7 +42,7 @@ from common import cpu_s, free_port, running, stop_process
 
 import runtime as rt
 
-DESIGNS = ("loop", "agents", "pump")
+DESIGNS = ("loop", "agents", "plant", "pump")
 READY = "floor child ready"
 DT_S = 0.02  # 50 Hz, as paper-exp2
 WARMUP = 100
@@ -104,7 +107,7 @@ def run_answerer(role: str, design: str, child: Child) -> None:
     def on_setpoints(rx: rt.Received) -> None:
         pass  # read and dropped: its cost is the delivery
 
-    if design == "loop" or (design == "agents" and role == "coordinator"):
+    if design == "loop" or (design in ("agents", "plant") and role == "coordinator"):
 
         async def main() -> None:
             loop = asyncio.get_running_loop()
@@ -152,6 +155,27 @@ def run_plant(design: str, child: Child, robots: int) -> None:
                 got += _tick_of(wheels.recv().payload.to_bytes()) == k
             while _tick_of(leader.recv().payload.to_bytes()) != k:
                 pass
+    elif design == "plant":
+        answers_in = threading.Event()
+        lock = threading.Lock()
+        expect = [0, 0]  # tick, answers of it
+
+        def on_answer_thread(rx: rt.Received) -> None:  # Zenoh's thread
+            with lock:
+                if _tick_of(rx.payload) == expect[0]:
+                    expect[1] += 1
+                    if expect[1] == robots + 1:
+                        answers_in.set()
+
+        rt.subscribe_on_thread(child.session, "floor/wheels/*", on_answer_thread)
+        rt.subscribe_on_thread(child.session, "floor/leader", on_answer_thread)
+        time.sleep(0.3)
+        for k in range(total):
+            with lock:
+                expect[0], expect[1] = k, 0
+                answers_in.clear()
+                publish(k)
+            answers_in.wait()
     else:
 
         async def main() -> None:

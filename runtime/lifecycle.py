@@ -40,6 +40,7 @@ from runtime.bridge import (
     TickPump,
     declare_token,
     subscribe,
+    subscribe_on_thread,
     watch_liveliness,
 )
 from runtime.log import NodeLog
@@ -421,6 +422,13 @@ class NodeIO:
         key is handled, in its place, when the next one that wakes the loop arrives (a
         lockstep node's inputs that only its next clock reads)."""
         self._keep.append(subscribe(self.session, key_expr, self.loop, handler, wake=wake))
+
+    def subscribe_on_thread(self, key_expr: str, handler: Callable[[Received], object]) -> None:
+        """Call ``handler`` on Zenoh's network thread for every sample of ``key_expr``, in the
+        order the session received them (:func:`runtime.bridge.subscribe_on_thread`): no wake
+        of the loop. The handler must hold the node's guard itself and never block (a
+        lockstep plant's answers, each a few microseconds)."""
+        self._keep.append(subscribe_on_thread(self.session, key_expr, handler))
 
     def tick_pump(
         self, guard: contextlib.AbstractContextManager[Any], *, name: str = "tick-pump"

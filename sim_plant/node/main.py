@@ -138,12 +138,16 @@ async def _node(
         io.pubs.get(node.clock_key, rt.QOS_CRITICAL)
     io.watch_liveliness(node.alive_robots_pattern, inputs.on_alive_robot)
     io.watch_liveliness(node.alive_coordinators_pattern, inputs.on_alive_coordinator)
-    io.subscribe(node.wheels_pattern, inputs.on_wheels)
-    io.subscribe(node.host_wheels_pattern, inputs.on_host_wheels)
-    io.subscribe(node.disturbance_key, inputs.on_disturbance)
-    io.subscribe(node.fault_key, node.on_fault)
+    # lockstep: the inputs are handled on Zenoh's thread, in the order the session received
+    # them (a fault notice for tick k+1 before the leader of tick k), the tick thread woken
+    # once a tick (PlantNode)
+    inputs_on = io.subscribe_on_thread if ns.lockstep else io.subscribe
+    inputs_on(node.wheels_pattern, inputs.on_wheels)
+    inputs_on(node.host_wheels_pattern, inputs.on_host_wheels)
+    inputs_on(node.disturbance_key, inputs.on_disturbance)
+    inputs_on(node.fault_key, node.on_fault)
     if ns.lockstep:
-        io.subscribe(node.leader_key, inputs.on_leader)
+        inputs_on(node.leader_key, inputs.on_leader)
     io.declare_token(node.alive_key)
     print("plant ready", flush=True)
     code = await node.run(stop, ns.wait_robots)

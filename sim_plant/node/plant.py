@@ -23,7 +23,9 @@ Theory of operation: docs/process-shells.md (inputs, outputs, realtime and locks
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -79,7 +81,12 @@ class PlantNode:
     (:class:`PlantOutputs`: truth and camera-frame publication, the realtime latency
     bookkeeping) and :attr:`faults` (rejected inputs, internal errors).
 
-    Handlers run on the event loop and never raise.
+    Handlers never raise. In realtime everything runs on the event loop. In lockstep the run is
+    a thread of its own (:meth:`run_lockstep_blocking`): it publishes the clock, sleeps until
+    the input handlers (on Zenoh's thread, in the order the session received the samples) say
+    the tick's last answer is in (:attr:`PlantInputs.wake`) and steps; the event loop keeps the
+    status and the tokens. Every one of them holds :attr:`guard` while it touches the node's
+    state.
     """
 
     def __init__(
@@ -109,6 +116,12 @@ class PlantNode:
         self.log = log if log is not None else rt.NodeLog("plant")
         self._publish = publish
         self.faults = rt.Faults(self.log)  # every drop by "<message>-<reason>" (status "rejects")
+        # lockstep: the tick thread, Zenoh's thread (the inputs) and the event loop share the
+        # state; each holds this while it touches it (realtime: everything on the loop)
+        self.guard: contextlib.AbstractContextManager[Any] = (
+            threading.RLock() if lockstep else contextlib.nullcontext()
+        )
+        self.halt = threading.Event()  # the lockstep thread stops (SIGINT/SIGTERM)
 
         self.ids: list[str] = list(scenario.robot_ids)
         self.n = len(self.ids)
@@ -148,6 +161,7 @@ class PlantNode:
             send=self._send,
             stop_wheels=self._stop_wheels,
             offline=lambda: self.scripted.offline,
+            guard=self.guard,
         )
         self.outputs = PlantOutputs(
             self.ids, self.fleet, publish, batch=batch, poses=poses, lockstep=lockstep
@@ -240,11 +254,12 @@ class PlantNode:
 
     def on_fault(self, rx: rt.Received) -> None:
         """A scripted fault's notice (sim_plant.node.faults); never raises."""
-        try:
-            self.scripted.on_fault(self, rx.payload)
-            self.inputs.changed.set()  # (a robot kept out may be the answer the wait lacks)
-        except Exception as exc:
-            self.faults.internal("on_fault", exc)
+        with self.guard:
+            try:
+                self.scripted.on_fault(self, rx.payload)
+                self.inputs.wake.set()  # (a robot kept out may be the answer the wait lacks)
+            except Exception as exc:
+                self.faults.internal("on_fault", exc)
 
     # -- lockstep ------------------------------------------------------------------------------
 
@@ -269,66 +284,90 @@ class PlantNode:
         )
         self._publish(self.clock_key, encode(msg), rt.QOS_CRITICAL)
 
-    async def _wait_answers(self, stop: asyncio.Event, k: int, t_s: float) -> None:
-        inputs = self.inputs
+    def _wait_answers(self, k: int, t_s: float) -> bool:
+        """Until tick ``k``'s answers are in (or the timeout: counted, lost agents dropped),
+        announcing the clock again every :data:`REANNOUNCE_S`; False when halted. The tick
+        thread sleeps without the guard; :attr:`PlantInputs.wake` wakes it."""
+        inputs, guard, wake = self.inputs, self.guard, self.inputs.wake
         start = time.monotonic()
         deadline = start + self.lockstep_timeout_s
         next_announce = start + REANNOUNCE_S
-        while not inputs.answered(k):
-            if stop.is_set():
-                return
+        while True:
+            with guard:
+                if inputs.answered(k):
+                    return True
+            if self.halt.is_set():
+                return False
             now = time.monotonic()
             if now >= deadline:
-                self.timeouts += 1
-                missing = inputs.missing(k)
-                self.log.limited(
-                    "timeout",
-                    f"tick {k}: no answer from {', '.join(missing)} within "
-                    f"{self.lockstep_timeout_s:g} s; going on ({self.timeouts} timeouts)",
-                )
-                inputs.drop_lost(missing)
-                return
+                with guard:
+                    self.timeouts += 1
+                    missing = inputs.missing(k)
+                    self.log.limited(
+                        "timeout",
+                        f"tick {k}: no answer from {', '.join(missing)} within "
+                        f"{self.lockstep_timeout_s:g} s; going on ({self.timeouts} timeouts)",
+                    )
+                    inputs.drop_lost(missing)
+                return True
             if now >= next_announce:
-                self._publish_clock(k, t_s)
+                with guard:
+                    self._publish_clock(k, t_s)
                 next_announce = now + REANNOUNCE_S
-            inputs.changed.clear()
-            try:
-                async with asyncio.timeout(min(deadline, next_announce) - now):
-                    await inputs.changed.wait()
-            except TimeoutError:
-                pass
+            wake.wait(min(deadline, next_announce) - now)
+            wake.clear()  # (then answered() again: a wake after the wait is not lost)
 
-    async def run_lockstep(self, stop: asyncio.Event) -> bool:
-        """The lockstep loop; True when ``--duration`` ended it."""
-        sim = self.build(0.0)
+    def run_lockstep_blocking(self) -> bool:
+        """The lockstep loop, on the calling thread until the duration or :attr:`halt`; True
+        when ``--duration`` ended it."""
+        guard = self.guard
+        with guard:
+            sim = self.build(0.0)
         dt = self.scenario.dt_s
         ticks = None if self.duration_s is None else round(self.duration_s / dt) + 1
         k = 0
-        while not stop.is_set() and (ticks is None or k < ticks):
+        while not self.halt.is_set() and (ticks is None or k < ticks):
             try:
-                t = tick_time(k, dt)
-                self.tick = k
-                self.sim_t = t
-                self.scripted.apply_tick(self, sim, k, t)
-                self._apply_disturbances(sim, t)
-                truth = self.sense(sim, t)
-                self.clock_tracking = self.inputs.tracking_answers(k - 1)
-                self.clock_claims = self.inputs.claim_answers(k - 1)
-                self._publish_clock(k, t)
-                await self._wait_answers(stop, k, t)
-                if stop.is_set():
+                with guard:
+                    t = tick_time(k, dt)
+                    self.tick = k
+                    self.sim_t = t
+                    self.scripted.apply_tick(self, sim, k, t)
+                    self._apply_disturbances(sim, t)
+                    truth = self.sense(sim, t)
+                    self.clock_tracking = self.inputs.tracking_answers(k - 1)
+                    self.clock_claims = self.inputs.claim_answers(k - 1)
+                    self._publish_clock(k, t)
+                if not self._wait_answers(k, t):
                     break
-                gen, cmd = self.inputs.generation, self.inputs.last_cmd
-                for i in range(self.n):
-                    sim.link.send(t, i, (gen[i], float(cmd[i, 0]), float(cmd[i, 1])))
-                self._deliver(sim, t)
-                sim.monitor.update(t, truth)
-                sim.plant.step(dt, self.applied)
+                with guard:
+                    gen, cmd = self.inputs.generation, self.inputs.last_cmd
+                    for i in range(self.n):
+                        sim.link.send(t, i, (gen[i], float(cmd[i, 0]), float(cmd[i, 1])))
+                    self._deliver(sim, t)
+                    sim.monitor.update(t, truth)
+                    sim.plant.step(dt, self.applied)
             except Exception as exc:  # a bug: log it, keep the clock going
-                self.faults.internal("lockstep tick", exc)
-                await asyncio.sleep(0)
+                with guard:
+                    self.faults.internal("lockstep tick", exc)
             k += 1
         return ticks is not None and k >= ticks
+
+    async def run_lockstep(self, stop: asyncio.Event) -> bool:
+        """The lockstep loop on a thread of its own (:meth:`run_lockstep_blocking`) while the
+        event loop serves the rest; ``stop`` halts it. True when ``--duration`` ended it."""
+        relay = asyncio.ensure_future(self._halt_on_stop(stop))
+        try:
+            return await asyncio.to_thread(self.run_lockstep_blocking)
+        finally:
+            relay.cancel()
+            self.halt.set()  # (cancelled: the thread ends at its next look)
+            self.inputs.wake.set()
+
+    async def _halt_on_stop(self, stop: asyncio.Event) -> None:
+        await stop.wait()
+        self.halt.set()
+        self.inputs.wake.set()
 
     # -- realtime ------------------------------------------------------------------------------
 
@@ -436,10 +475,11 @@ class PlantNode:
 
     def publish_status(self) -> None:
         """Publish the status; never raises."""
-        try:
-            self._publish(self.status_key, encode(self.status()), rt.QOS_TELEMETRY)
-        except Exception as exc:
-            self.faults.internal("status", exc)
+        with self.guard:
+            try:
+                self._publish(self.status_key, encode(self.status()), rt.QOS_TELEMETRY)
+            except Exception as exc:
+                self.faults.internal("status", exc)
 
     async def status_loop(self, stop: asyncio.Event) -> None:
         """Publish the status at 5 Hz until ``stop``."""
@@ -479,7 +519,7 @@ class PlantNode:
     async def _wake_on_stop(self, stop: asyncio.Event) -> None:
         """Wake the waits (answers, fleet) at once on SIGINT/SIGTERM."""
         await stop.wait()
-        self.inputs.changed.set()
+        self.inputs.touch()
 
 
 def _claim_fields(

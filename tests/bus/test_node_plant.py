@@ -7,6 +7,7 @@ lockstep) ``leader`` messages published from the test (bus inputs, not fake proc
 
 from __future__ import annotations
 
+import signal
 import statistics
 import threading
 import time
@@ -318,3 +319,33 @@ def test_lockstep_equals_the_simulator_when_a_scripted_reshape_drops_a_robot() -
     last = dict(zip(ids, res.log.slot_of[-1].tolist(), strict=True))
     assert last[rear] == -1 and sorted(last.values()) == [-1, 0, 1]  # the rearmost left
     assert res.firmware_status[rear]["mode"] == "hold"  # no setpoint: it holds where it is
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_lockstep_plant_waiting_on_its_tick_thread_exits_within_a_second_of_a_signal(
+    spawn: Spawner, router: RouterHandle, client: zenoh.Session, sig: int
+) -> None:
+    """The lockstep loop is a thread of its own (PlantNode.run_lockstep_blocking), asleep
+    until the tick's last answer: a signal still ends the process within a second, mid-wait,
+    with exit status 0; the answers that did come were handled on Zenoh's thread (its
+    status counts them) and the tick thread went on only with all of them."""
+    pubs = rt.Publishers(client)
+    tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, r)) for r in ("r1", "r2", "r3")]
+    tokens.append(rt.declare_token(client, keys.alive_coordinator_key(FLEET, "test")))
+    clocks = Recorder(client, keys.clock_key(FLEET), decoder_of(Clock))
+    status = Recorder(client, STATUS_KEY, msgpack.unpackb)
+    child = spawn(
+        "plant", "--scenario", "paper-exp2", "--lockstep", "--wait-robots",
+        "--lockstep-timeout", "60", "--endpoint", router.endpoint, ready="plant ready",
+    )  # fmt: skip
+    clocks.wait_for(lambda _r, _k, c: c.tick == 0, 5.0)
+    for rid in ("r1", "r2"):  # r3 and the leader never answer tick 0: the plant waits
+        wheels = wheels_msg(1.0, t=0.0, seq=1, tick=0)
+        pubs.put(keys.wheels_key(FLEET, rid), wheels, rt.QOS_CRITICAL)
+    _, _, seen = status.wait_for(lambda _r, _k, s: s["rx"]["wheels"] == 2, 3.0)
+    assert seen["tick"] == 0 and seen["state"] == "running"
+    assert max(c.tick for _, _, c in clocks.snapshot()) == 0
+    took = child.stop(sig)
+    assert took < 1.0, child.describe()
+    assert child.proc.returncode == 0, child.describe()
+    del tokens
