@@ -23,7 +23,11 @@ Prints, for each design, the speed at 50 Hz (sim seconds per wall second) and th
 milliseconds a tick of each process kind over the timed ticks: what the real lockstep
 (``bench/bench_lockstep.py``) could reach if its processes did no more than this.
 
-Usage: ``python bench/bench_lockstep_floor.py [--ticks 3000] [--robots 3] [--work-us 50]``.
+Each design runs with Zenoh's default threads and with one Zenoh thread a process (what ``formation
+up --lockstep`` gives its children: ``runtime.transport.LOCKSTEP_ZENOH_RUNTIME``).
+
+Usage: ``python bench/bench_lockstep_floor.py [--ticks 3000] [--robots 3] [--work-us 50]
+[--zenoh-runtime both|default|one-thread]``.
 Prints; asserts nothing.
 """
 
@@ -32,6 +36,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import os
 import subprocess
 import sys
 import threading
@@ -41,6 +46,7 @@ import zenoh
 from common import cpu_s, free_port, running, stop_process
 
 import runtime as rt
+from runtime.transport import LOCKSTEP_ZENOH_RUNTIME, ZENOH_RUNTIME_ENV
 
 DESIGNS = ("loop", "agents", "plant", "pump")
 READY = "floor child ready"
@@ -275,6 +281,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--robots", type=int, default=3)
     p.add_argument("--work-us", type=float, default=50.0, help="busy work a process and tick")
     p.add_argument("--designs", nargs="+", choices=DESIGNS, default=list(DESIGNS))
+    p.add_argument(
+        "--zenoh-runtime",
+        choices=("both", "default", "one-thread"),
+        default="both",
+        help="Zenoh's threads in every process: its default, or one thread as `formation up "
+        "--lockstep` gives its children (runtime.transport.LOCKSTEP_ZENOH_RUNTIME); both: each",
+    )
     args = p.parse_args(argv)
     if args.ticks < 1 or args.robots < 1 or args.work_us < 0:
         p.error("need --ticks >= 1, --robots >= 1, --work-us >= 0")
@@ -282,15 +295,23 @@ def main(argv: list[str] | None = None) -> int:
         f"lockstep floor: {args.robots} robots, {args.work_us:g} us of work a process and tick, "
         f"{args.ticks} timed ticks at 50 Hz (router, plant, coordinator, one process per robot)"
     )
-    for design in args.designs:
-        r = measure(design, args.robots, args.work_us, args.ticks)
-        total = r["plant"] + r["coordinator"] + r["agents"] + r["router"]
-        print(
-            f"  {design:<7} {r['speed']:5.1f}x real time ({r['wall_us']:.0f} us a tick); CPU ms a "
-            f"tick: plant {r['plant']:.2f}, coordinator {r['coordinator']:.2f}, agents (sum) "
-            f"{r['agents']:.2f}, router {r['router']:.2f}; total {total:.2f}",
-            flush=True,
-        )
+    runtimes = ("default", "one-thread") if args.zenoh_runtime == "both" else (args.zenoh_runtime,)
+    for runtime in runtimes:
+        # the children inherit it (common.running); Zenoh reads it at a process's first open
+        if runtime == "one-thread":
+            os.environ[ZENOH_RUNTIME_ENV] = LOCKSTEP_ZENOH_RUNTIME
+        else:
+            os.environ.pop(ZENOH_RUNTIME_ENV, None)
+        print(f" Zenoh runtime: {runtime}")
+        for design in args.designs:
+            r = measure(design, args.robots, args.work_us, args.ticks)
+            total = r["plant"] + r["coordinator"] + r["agents"] + r["router"]
+            print(
+                f"  {design:<7} {r['speed']:5.1f}x real time ({r['wall_us']:.0f} us a tick); CPU "
+                f"ms a tick: plant {r['plant']:.2f}, coordinator {r['coordinator']:.2f}, agents "
+                f"(sum) {r['agents']:.2f}, router {r['router']:.2f}; total {total:.2f}",
+                flush=True,
+            )
     return 0
 
 

@@ -37,6 +37,7 @@ from bus_schemas.session import DEFAULT_ENDPOINT, KEEP_ALIVES_PER_LEASE, MAX_MES
 
 __all__ = [
     "DEFAULT_ENDPOINT",
+    "LOCKSTEP_ZENOH_RUNTIME",
     "MAX_MESSAGE_BYTES",
     "QOS_CONTROL",
     "QOS_CRITICAL",
@@ -62,6 +63,25 @@ _MIN_LEASE_MS: Final = 100
 _RETRY_PERIOD_S: Final = 0.1
 _CONNECT_RETRY: Final = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
 """Client reconnection to its router after the link was lost (see :func:`make_config`)."""
+
+
+ZENOH_RUNTIME_ENV: Final = "ZENOH_RUNTIME"
+LOCKSTEP_ZENOH_RUNTIME: Final = (
+    "(app: (worker_threads: 1), acc: (handover: app), tx: (handover: app), "
+    "rx: (handover: app), net: (handover: app))"
+)
+"""The value of Zenoh's ``ZENOH_RUNTIME`` environment variable (read once, when the process
+opens its first session) that ``formation up --lockstep`` gives its children: every one of
+Zenoh's runtimes (receive, transmit, accept, network, application) handed over to one worker
+thread, instead of its default of nine threads. A lockstep tick is a chain of small bursts
+between seven processes on a few cores, and each hand-over between Zenoh's threads (a sample
+read on one, its callback on another, a put flushed by a third) is a wake-up the scheduler must
+find a core for: one thread removes them (docs/benchmarks.md "One Zenoh thread a lockstep
+process": 103 -> 43 context switches a tick, the traffic's floor 19 -> 25x). The price: a
+callback on Zenoh's thread that blocks stops the process's whole Zenoh (its puts' flushing
+too), so no handler may wait for a lock held across a put (the plant's tick thread puts after
+it lets go of its guard); and keep-alives share that thread, which lockstep does not mind (a
+lost token is a fault event only there). Realtime nodes keep Zenoh's default."""
 
 
 class TransportError(ConnectionError):

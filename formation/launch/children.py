@@ -29,8 +29,12 @@ ABORT_PATIENCE_S: Final = 0.5
 # ---------------------------------------------------------------------------------------------
 
 
-def child_env() -> dict[str, str]:
+def child_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The environment of a child: this process's, the repository on the path, ``extra`` for
+    what the user did not set (``ZENOH_RUNTIME`` in lockstep: ProcessTable)."""
     env = dict(os.environ)
+    for key, value in (extra or {}).items():
+        env.setdefault(key, value)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO_ROOT), env.get("PYTHONPATH")) if p)
     env["PYTHONUNBUFFERED"] = "1"
     # a child stuck past its stop bound gets SIGABRT before SIGKILL: faulthandler writes every

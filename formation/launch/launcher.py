@@ -38,6 +38,7 @@ from formation.launch.stop_request import Interrupted, StopRequest
 from formation.launch.supervisor import Supervisor
 from formation.outputs.live_table import RunDisplay
 from runtime.files import os_error_text, write_atomic
+from runtime.transport import LOCKSTEP_ZENOH_RUNTIME, ZENOH_RUNTIME_ENV
 
 __all__ = ["LAUNCHER_NICE", "lower_priority", "run_up"]
 
@@ -70,7 +71,9 @@ class _Launcher:
         self.cfg = cfg
         self.plan = plan
         self.scn = plan.scenario
-        self.table = ProcessTable(plan.out_dir / "logs")
+        # lockstep: Zenoh on one thread in every child (runtime.transport.LOCKSTEP_ZENOH_RUNTIME)
+        env = {ZENOH_RUNTIME_ENV: LOCKSTEP_ZENOH_RUNTIME} if cfg.lockstep else {}
+        self.table = ProcessTable(plan.out_dir / "logs", env)
         self.intake = RunIntake(cfg, self.scn)
         self.view = RunDisplay(
             self.intake.collector,

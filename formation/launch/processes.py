@@ -9,7 +9,7 @@ respawn, and answers who is running."""
 from __future__ import annotations
 
 import signal
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from formation.launch.children import Child, child_env
@@ -18,10 +18,12 @@ __all__ = ["ProcessTable"]
 
 
 class ProcessTable:
-    """The run's children, their logs in ``log_dir``."""
+    """The run's children, their logs in ``log_dir``; ``env``: variables every child gets unless
+    the user's environment sets them (children.child_env)."""
 
-    def __init__(self, log_dir: Path) -> None:
+    def __init__(self, log_dir: Path, env: Mapping[str, str] | None = None) -> None:
         self.log_dir = log_dir
+        self.env = dict(env or {})
         self.router: Child | None = None
         self.nodes: list[Child] = []
         self.retired: list[Child] = []  # dead children replaced by a respawn
@@ -30,7 +32,7 @@ class ProcessTable:
     async def start_router(self, args: Sequence[str]) -> Child:
         """Spawn the router as the leader of the run's new process group."""
         router = Child("router", args, "router listening on ", self.log_dir)
-        await router.spawn(child_env(), process_group=0)
+        await router.spawn(child_env(self.env), process_group=0)
         assert router.pid is not None
         self.router, self.group = router, router.pid
         return router
@@ -40,7 +42,7 @@ class ProcessTable:
         assert self.group is not None
         child = Child(name, args, ready, self.log_dir)
         self.nodes.append(child)
-        await child.spawn(child_env(), process_group=self.group)
+        await child.spawn(child_env(self.env), process_group=self.group)
         return child
 
     async def replace(self, old: Child, args: Sequence[str]) -> Child:
@@ -52,7 +54,7 @@ class ProcessTable:
         # (the fork hazard of the field notes is a forked child *using* it); it joins the run's
         # process group (which outlives its first leader, the first router, while any member
         # lives).
-        await child.spawn(child_env(), process_group=self.group)
+        await child.spawn(child_env(self.env), process_group=self.group)
         self.retired.append(old)
         if old is self.router:
             self.router = child

@@ -163,8 +163,11 @@ class PlantNode:
             offline=lambda: self.scripted.offline,
             guard=self.guard,
         )
+        # lockstep: what the tick thread publishes under the guard waits here and is put after
+        # it lets go (PlantNode._emit)
+        self._outbox: list[tuple[str, bytes, rt.QoS]] | None = None
         self.outputs = PlantOutputs(
-            self.ids, self.fleet, publish, batch=batch, poses=poses, lockstep=lockstep
+            self.ids, self.fleet, self._emit, batch=batch, poses=poses, lockstep=lockstep
         )
 
     # -- bookkeeping ---------------------------------------------------------------------------
@@ -263,6 +266,23 @@ class PlantNode:
 
     # -- lockstep ------------------------------------------------------------------------------
 
+    def _emit(self, key: str, payload: bytes, qos: rt.QoS) -> None:
+        """Publish now, or (the lockstep tick thread, holding the guard) once it let go of it:
+        a lockstep put blocks while Zenoh's queue is full, and the thread that empties the
+        queue may be the one waiting for the guard in an input handler (``formation up
+        --lockstep`` runs Zenoh on one thread, ``runtime.transport.LOCKSTEP_ZENOH_RUNTIME``)."""
+        outbox = self._outbox
+        if outbox is None:
+            self._publish(key, payload, qos)
+        else:
+            outbox.append((key, payload, qos))
+
+    def _flush(self, outbox: list[tuple[str, bytes, rt.QoS]]) -> None:
+        """Put what the tick thread emitted under the guard, in order (without the guard)."""
+        for key, payload, qos in outbox:
+            self._publish(key, payload, qos)
+        outbox.clear()
+
     def _publish_clock(self, k: int, t_s: float) -> None:
         enc = self.clock_enc
         if enc is None:
@@ -282,13 +302,14 @@ class PlantNode:
             enc_wr=wr,
             enc_wl=wl,
         )
-        self._publish(self.clock_key, encode(msg), rt.QOS_CRITICAL)
+        self._emit(self.clock_key, encode(msg), rt.QOS_CRITICAL)
 
     def _wait_answers(self, k: int, t_s: float) -> bool:
         """Until tick ``k``'s answers are in (or the timeout: counted, lost agents dropped),
         announcing the clock again every :data:`REANNOUNCE_S`; False when halted. The tick
         thread sleeps without the guard; :attr:`PlantInputs.wake` wakes it."""
         inputs, guard, wake = self.inputs, self.guard, self.inputs.wake
+        outbox: list[tuple[str, bytes, rt.QoS]] = []
         start = time.monotonic()
         deadline = start + self.lockstep_timeout_s
         next_announce = start + REANNOUNCE_S
@@ -312,7 +333,12 @@ class PlantNode:
                 return True
             if now >= next_announce:
                 with guard:
-                    self._publish_clock(k, t_s)
+                    self._outbox = outbox
+                    try:
+                        self._publish_clock(k, t_s)
+                    finally:
+                        self._outbox = None
+                self._flush(outbox)
                 next_announce = now + REANNOUNCE_S
             wake.wait(min(deadline, next_announce) - now)
             wake.clear()  # (then answered() again: a wake after the wait is not lost)
@@ -326,9 +352,11 @@ class PlantNode:
         dt = self.scenario.dt_s
         ticks = None if self.duration_s is None else round(self.duration_s / dt) + 1
         k = 0
+        outbox: list[tuple[str, bytes, rt.QoS]] = []
         while not self.halt.is_set() and (ticks is None or k < ticks):
             try:
                 with guard:
+                    self._outbox = outbox  # (truth, frames, clock: put after the guard)
                     t = tick_time(k, dt)
                     self.tick = k
                     self.sim_t = t
@@ -338,6 +366,8 @@ class PlantNode:
                     self.clock_tracking = self.inputs.tracking_answers(k - 1)
                     self.clock_claims = self.inputs.claim_answers(k - 1)
                     self._publish_clock(k, t)
+                    self._outbox = None
+                self._flush(outbox)
                 if not self._wait_answers(k, t):
                     break
                 with guard:
@@ -349,6 +379,8 @@ class PlantNode:
                     sim.plant.step(dt, self.applied)
             except Exception as exc:  # a bug: log it, keep the clock going
                 with guard:
+                    self._outbox = None
+                    outbox.clear()
                     self.faults.internal("lockstep tick", exc)
             k += 1
         return ticks is not None and k >= ticks
