@@ -24,6 +24,7 @@ import argparse
 import asyncio
 import contextlib
 import json
+import os
 import re
 import threading
 import time
@@ -73,15 +74,15 @@ LOCKSTEP_ZENOH_RUNTIME: Final = (
 """The value of Zenoh's ``ZENOH_RUNTIME`` environment variable (read once, when the process
 opens its first session) that ``formation up --lockstep`` gives its children: every one of
 Zenoh's runtimes (receive, transmit, accept, network, application) handed over to one worker
-thread, instead of its default of nine threads. A lockstep tick is a chain of small bursts
-between seven processes on a few cores, and each hand-over between Zenoh's threads (a sample
-read on one, its callback on another, a put flushed by a third) is a wake-up the scheduler must
-find a core for: one thread removes them (docs/benchmarks.md "One Zenoh thread a lockstep
-process": 103 -> 43 context switches a tick, the traffic's floor 19 -> 25x). The price: a
-callback on Zenoh's thread that blocks stops the process's whole Zenoh (its puts' flushing
-too), so no handler may wait for a lock held across a put (the plant's tick thread puts after
-it lets go of its guard); and keep-alives share that thread, which lockstep does not mind (a
-lost token is a fault event only there). Realtime nodes keep Zenoh's default."""
+thread (a process shows two Zenoh threads, ``app-0`` and ``app-1``, instead of its default
+nine). A lockstep tick is a chain of small bursts between seven processes on a few cores, and
+each hand-over between Zenoh's threads (a sample read on one, its callback on another, a put
+flushed by a third) is a wake-up the scheduler must find a core for (docs/benchmarks.md "One
+Zenoh thread a lockstep process": 106 -> 51 context switches a tick). The price: a callback on
+Zenoh's thread that blocks stops the process's whole Zenoh (its puts' flushing too), so no
+handler may wait for a lock held across a put (the plant's tick thread puts after it lets go
+of its guard); and keep-alives share that thread, which lockstep does not mind (a lost token is
+a fault event only there). Realtime nodes keep Zenoh's default."""
 
 
 class TransportError(ConnectionError):
@@ -420,8 +421,29 @@ def _open_error(settings: ZenohSettings, waited_s: float, exc: BaseException) ->
     )
 
 
+def _runtime_error(value: str, why: str) -> TransportError:
+    return TransportError(
+        f"Zenoh cannot start its threads: the environment's {ZENOH_RUNTIME_ENV}={value[:200]!r} "
+        f"{why} (unset it, or give Zenoh's RON, e.g. {LOCKSTEP_ZENOH_RUNTIME!r})"
+    )
+
+
 def _open_once(settings: ZenohSettings) -> zenoh.Session:
-    return _register(zenoh.open(make_config(settings)))
+    """One ``zenoh.open``. A ``ZENOH_RUNTIME`` that Zenoh cannot parse makes it panic (a
+    ``PanicException``, which is no ``Exception``): refused here before, when it is blank or no
+    RON map at all, and otherwise turned into a :class:`TransportError` naming it."""
+    value = os.environ.get(ZENOH_RUNTIME_ENV)
+    if value is not None and not value.strip().startswith("("):
+        raise _runtime_error(value, "is not a runtime configuration")
+    config = make_config(settings)
+    try:
+        return _register(zenoh.open(config))
+    except zenoh.ZError:
+        raise
+    except BaseException as exc:
+        if type(exc).__name__ != "PanicException" or value is None:
+            raise
+        raise _runtime_error(value, f"made Zenoh fail: {zenoh_error_text(exc)[:200]}") from None
 
 
 def _retries(settings: ZenohSettings) -> bool:

@@ -13,12 +13,13 @@ import os
 import signal
 import threading
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 import zenoh
 from support.async_wait import wait_until
 from support.routers import RouterHandle
-from support.spawn import Child, Spawner
+from support.spawn import Child, Spawner, free_port
 
 import runtime as rt
 from runtime.lifecycle import stop_trace
@@ -85,6 +86,23 @@ def test_router_reports_a_port_in_use(spawn: Spawner, router: RouterHandle) -> N
     err = second.stderr()
     assert "address already in use" in err and router.endpoint in err, err
     assert len(err.splitlines()) == 1 and ".rs" not in err, err  # one line, no Rust paths
+
+
+@pytest.mark.zenoh
+@pytest.mark.parametrize("value", ["", "  ", "(bogus: 1)"], ids=["empty", "blank", "bad-field"])
+def test_a_zenoh_runtime_zenoh_cannot_parse_is_one_line_naming_it(
+    spawn: Spawner, value: str
+) -> None:
+    """``ZENOH_RUNTIME`` (Zenoh's threads; ``formation up --lockstep`` sets it for its children)
+    is read at the first open, and one Zenoh cannot parse makes it panic: a router (any node)
+    exits 2 with a line naming the variable and its value instead of a Python traceback."""
+    port = free_port()
+    child = spawn("router", "--listen", f"tcp/127.0.0.1:{port}", env={"ZENOH_RUNTIME": value})
+    assert child.proc.wait(timeout=10) == 2, child.describe()
+    err = child.stderr()
+    lines = [ln for ln in err.splitlines() if ln.startswith("formation router:")]
+    assert len(lines) == 1, err
+    assert f"ZENOH_RUNTIME={value!r}" in lines[0] and "Traceback" not in err, err
 
 
 async def node_exit(
@@ -333,3 +351,33 @@ def test_a_session_close_blocked_by_a_stopped_router_is_given_up_and_logged(
         router.proc.send_signal(signal.SIGCONT)
     assert node.proc.returncode == 0, node.describe()
     assert "stuck: Zenoh session close still blocked after 0.3 s" in node.stderr(), node.describe()
+
+
+@pytest.mark.zenoh
+async def test_a_lockstep_run_gives_its_children_one_zenoh_thread(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``formation up --lockstep``'s process table hands every child ``ZENOH_RUNTIME`` =
+    ``LOCKSTEP_ZENOH_RUNTIME`` (runtime/transport.py): the real router it starts runs Zenoh
+    without its receive, transmit, network and accept threads; a value the user set wins."""
+    from formation.launch.children import child_env
+    from formation.launch.processes import ProcessTable
+    from runtime.transport import LOCKSTEP_ZENOH_RUNTIME, ZENOH_RUNTIME_ENV
+
+    monkeypatch.delenv(ZENOH_RUNTIME_ENV, raising=False)
+    table = ProcessTable(tmp_path, {ZENOH_RUNTIME_ENV: LOCKSTEP_ZENOH_RUNTIME})
+    router = await table.start_router(["router", "--listen", f"tcp/127.0.0.1:{free_port()}"])
+    try:
+        await router.wait_ready(15.0)
+        environ = Path(f"/proc/{router.pid}/environ").read_bytes().split(b"\0")
+        assert f"{ZENOH_RUNTIME_ENV}={LOCKSTEP_ZENOH_RUNTIME}".encode() in environ
+        names = {p.read_text().strip() for p in Path(f"/proc/{router.pid}/task").glob("*/comm")}
+        assert "app-0" in names, names
+        assert not [n for n in names if n.startswith(("rx-", "tx-", "net-", "acc-"))], names
+    finally:
+        router.signal(signal.SIGTERM)
+        assert router.proc is not None
+        await asyncio.wait_for(router.proc.wait(), 5.0)
+        await router.close()
+    monkeypatch.setenv(ZENOH_RUNTIME_ENV, "(app: (worker_threads: 2))")
+    assert child_env(table.env)[ZENOH_RUNTIME_ENV] == "(app: (worker_threads: 2))"
