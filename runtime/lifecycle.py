@@ -426,8 +426,10 @@ class NodeIO:
     def subscribe_on_thread(self, key_expr: str, handler: Callable[[Received], object]) -> None:
         """Call ``handler`` on Zenoh's network thread for every sample of ``key_expr``, in the
         order the session received them (:func:`runtime.bridge.subscribe_on_thread`): no wake
-        of the loop. The handler must hold the node's guard itself and never block (a
-        lockstep plant's answers, each a few microseconds)."""
+        of the loop (a lockstep plant's inputs, each a few microseconds). The handler takes
+        the node's guard itself and must never wait for a lock another thread holds across a
+        put: with one Zenoh thread (``runtime.transport.LOCKSTEP_ZENOH_RUNTIME``) that put
+        may be waiting for this very thread."""
         self._keep.append(subscribe_on_thread(self.session, key_expr, handler))
 
     def tick_pump(

@@ -44,6 +44,7 @@ __all__ = [
     "QOS_CRITICAL",
     "QOS_TELEMETRY",
     "SESSION_CLOSE_S",
+    "ZENOH_RUNTIME_ENV",
     "Publishers",
     "QoS",
     "TransportError",
