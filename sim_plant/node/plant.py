@@ -28,6 +28,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -277,11 +278,19 @@ class PlantNode:
         else:
             outbox.append((key, payload, qos))
 
-    def _flush(self, outbox: list[tuple[str, bytes, rt.QoS]]) -> None:
-        """Put what the tick thread emitted under the guard, in order (without the guard)."""
+    @contextlib.contextmanager
+    def _guarded(self) -> Iterator[None]:
+        """The tick thread's work under the guard; what it emits then is put, in order, once
+        the guard is let go (dropped if the work raised)."""
+        outbox: list[tuple[str, bytes, rt.QoS]] = []
+        with self.guard:
+            self._outbox = outbox
+            try:
+                yield
+            finally:
+                self._outbox = None
         for key, payload, qos in outbox:
             self._publish(key, payload, qos)
-        outbox.clear()
 
     def _publish_clock(self, k: int, t_s: float) -> None:
         enc = self.clock_enc
@@ -309,7 +318,6 @@ class PlantNode:
         announcing the clock again every :data:`REANNOUNCE_S`; False when halted. The tick
         thread sleeps without the guard; :attr:`PlantInputs.wake` wakes it."""
         inputs, guard, wake = self.inputs, self.guard, self.inputs.wake
-        outbox: list[tuple[str, bytes, rt.QoS]] = []
         start = time.monotonic()
         deadline = start + self.lockstep_timeout_s
         next_announce = start + REANNOUNCE_S
@@ -332,13 +340,8 @@ class PlantNode:
                     inputs.drop_lost(missing)
                 return True
             if now >= next_announce:
-                with guard:
-                    self._outbox = outbox
-                    try:
-                        self._publish_clock(k, t_s)
-                    finally:
-                        self._outbox = None
-                self._flush(outbox)
+                with self._guarded():
+                    self._publish_clock(k, t_s)
                 next_announce = now + REANNOUNCE_S
             wake.wait(min(deadline, next_announce) - now)
             wake.clear()  # (then answered() again: a wake after the wait is not lost)
@@ -352,11 +355,9 @@ class PlantNode:
         dt = self.scenario.dt_s
         ticks = None if self.duration_s is None else round(self.duration_s / dt) + 1
         k = 0
-        outbox: list[tuple[str, bytes, rt.QoS]] = []
         while not self.halt.is_set() and (ticks is None or k < ticks):
             try:
-                with guard:
-                    self._outbox = outbox  # (truth, frames, clock: put after the guard)
+                with self._guarded():  # (truth, frames, clock: put after the guard)
                     t = tick_time(k, dt)
                     self.tick = k
                     self.sim_t = t
@@ -366,8 +367,6 @@ class PlantNode:
                     self.clock_tracking = self.inputs.tracking_answers(k - 1)
                     self.clock_claims = self.inputs.claim_answers(k - 1)
                     self._publish_clock(k, t)
-                    self._outbox = None
-                self._flush(outbox)
                 if not self._wait_answers(k, t):
                     break
                 with guard:
@@ -379,8 +378,6 @@ class PlantNode:
                     sim.plant.step(dt, self.applied)
             except Exception as exc:  # a bug: log it, keep the clock going
                 with guard:
-                    self._outbox = None
-                    outbox.clear()
                     self.faults.internal("lockstep tick", exc)
             k += 1
         return ticks is not None and k >= ticks
@@ -388,18 +385,13 @@ class PlantNode:
     async def run_lockstep(self, stop: asyncio.Event) -> bool:
         """The lockstep loop on a thread of its own (:meth:`run_lockstep_blocking`) while the
         event loop serves the rest; ``stop`` halts it. True when ``--duration`` ended it."""
-        relay = asyncio.ensure_future(self._halt_on_stop(stop))
+        relay = asyncio.ensure_future(self._wake_on_stop(stop))
         try:
             return await asyncio.to_thread(self.run_lockstep_blocking)
         finally:
             relay.cancel()
             self.halt.set()  # (cancelled: the thread ends at its next look)
             self.inputs.wake.set()
-
-    async def _halt_on_stop(self, stop: asyncio.Event) -> None:
-        await stop.wait()
-        self.halt.set()
-        self.inputs.wake.set()
 
     # -- realtime ------------------------------------------------------------------------------
 
@@ -549,8 +541,9 @@ class PlantNode:
             relay.cancel()
 
     async def _wake_on_stop(self, stop: asyncio.Event) -> None:
-        """Wake the waits (answers, fleet) at once on SIGINT/SIGTERM."""
+        """On SIGINT/SIGTERM: halt the lockstep thread, wake the waits (answers, fleet)."""
         await stop.wait()
+        self.halt.set()
         self.inputs.touch()
 
 
