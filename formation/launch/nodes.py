@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from bus_schemas.session import LEASE_MS
-from formation.launch.plan import LaunchError, Plan, UpConfig
+from formation.launch.plan import PLANT_STATS, LaunchError, Plan, UpConfig
 
 NodeCommand = tuple[str, list[str], str]
 """(child name, ``formation`` arguments, ready-line prefix)."""
@@ -72,7 +72,7 @@ def node_commands(
     ]  # fmt: skip
     # the plant's control-loop latency statistics (realtime: pose frame -> wheel command
     # computed from it, docs/scale.md), written when it exits (bench/bench_up.py reads them)
-    plant += ["--stats-out", str(plan.out_dir.resolve() / "plant_stats.json")]
+    plant += ["--stats-out", str(plan.out_dir.resolve() / PLANT_STATS)]
     batch = ["--batch"] if plan.hosts > 0 else []
     plant += batch
     coord = [

@@ -17,6 +17,9 @@ from bus_schemas import keys
 from bus_schemas.session import DEFAULT_ENDPOINT, LEASE_MS
 from scenario import FleetShape, fleet_shape, scenario_with_robots, to_toml
 
+PLANT_STATS: Final = "plant_stats.json"
+"""The plant's ``--stats-out`` file in the run's folder: its status and latency statistics as it
+exits (formation.launch.nodes; read by formation.launch.results.plant_account)."""
 PER_ROBOT_PROCESSES_PER_CORE: Final = 4
 """Automatic agent hosts: one ``formation agent`` process per robot while the fleet has at most
 this many robots per core of the machine (``os.cpu_count()``); beyond, agent hosts. One agent

@@ -5,14 +5,16 @@ child has stopped: the exit status, the run's metadata (:func:`run_meta`) and th
 
 from __future__ import annotations
 
+import json
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any, Final
 
 from formation.launch.children import Child
 from formation.launch.intake import RunIntake
 from formation.launch.journal import RunJournal
-from formation.launch.plan import Plan, UpConfig, UpResult
+from formation.launch.plan import PLANT_STATS, Plan, UpConfig, UpResult
 from formation.outputs.files import save_npz_atomic, write_metrics
 from formation.outputs.runlog import RunLog
 from runtime.files import os_error_text
@@ -193,4 +195,41 @@ def finish_run(
         events=journal.events,
         children=children,
     )
-    return write_results(collector.build(meta), cfg, plan, result, run_wall, journal.warn)
+    log = collector.build(meta)
+    if cfg.lockstep:
+        plant = plant_account(plan.out_dir / PLANT_STATS, log.meta.get("plant"))
+        if plant is not None:
+            log.meta["plant"] = plant
+        warn_inexact(plant, journal.warn)
+    return write_results(log, cfg, plan, result, run_wall, journal.warn)
+
+
+def plant_account(stats: Path, seen: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """``metrics.json``'s ``meta.plant``: the plant's own last word (``stats``, the
+    ``--stats-out`` file it writes as it exits, ``source`` ``"plant_stats.json"``) over what
+    its status on the bus said (``seen``, formation.record.collector_plant: 5 Hz, so the last
+    fifth of a second may be missing; ``source`` ``"status"``). Timeouts: the larger count."""
+    try:
+        data = json.loads(stats.read_text())
+    except (OSError, ValueError):
+        data = None
+    if not isinstance(data, dict) or not isinstance(data.get("timeouts"), int):
+        return None if seen is None else dict(seen)
+    out = {k: data.get(k) for k in ("mode", "state", "tick", "rejected", "internal_errors")}
+    out["timeouts"] = max(data["timeouts"], int((seen or {}).get("timeouts") or 0))
+    out["source"] = PLANT_STATS
+    return out
+
+
+def warn_inexact(plant: Mapping[str, Any] | None, warn: Callable[[str], None]) -> None:
+    """A lockstep run whose plant went on without every answer (``meta.plant.timeouts``, from
+    the plant's status: formation.record.collector_plant) says so on one line, even with
+    ``--quiet``: from that tick on it is not ``formation sim``'s run."""
+    n = 0 if plant is None else int(plant.get("timeouts") or 0)
+    if n:
+        warn(
+            f"lockstep: the plant went on {n} time{'s' if n != 1 else ''} without every answer "
+            "(a node more than the plant's --lockstep-timeout late: a starved machine, a "
+            "stopped or hung node, a flood); this run is not formation sim's from then on "
+            "(logs/plant.log names the late nodes)"
+        )

@@ -22,7 +22,7 @@ from typing import Any, Final
 from formation.launch.children import Child, tail_of
 from formation.launch.intake import RunIntake
 from formation.launch.journal import RunJournal
-from formation.launch.plan import LaunchError, Plan, UpConfig
+from formation.launch.plan import PLANT_STATS, LaunchError, Plan, UpConfig
 from formation.launch.processes import ProcessTable
 from formation.launch.stop_request import Interrupted, StopRequest
 from runtime.lifecycle import OUTPUT_ERROR_EXIT
@@ -118,7 +118,7 @@ class Supervisor:
         if child.name == "plant" and rc in (0, OUTPUT_ERROR_EXIT):
             if rc == OUTPUT_ERROR_EXIT:  # it ran its duration; its file is lost
                 self.journal.fail(
-                    f"{self.plan.out_dir / 'plant_stats.json'} not written: the plant "
+                    f"{self.plan.out_dir / PLANT_STATS} not written: the plant "
                     f"could not write it (status {rc}; {child.log_path})"
                 )
             return True

@@ -13,9 +13,9 @@ What it listens to (the bus contract, docs/bus.md): ``robot/<id>/truth`` (rows),
 live view, and the safety filter counters ``filter`` / ``min_clearance_m`` of each robot's newest
 status: ``RunLog.filter_counts``, ``filter_source`` ``"status"``), ``clock`` and each
 coordinator's status (its run-time plans: ``RunLog.replans`` and ``meta["planner"]``,
-:mod:`formation.record.collector_plans`). Every payload
-is decoded with the strict ``bus_schemas`` decoder; a bad one is counted (``rejected``) and
-otherwise ignored.
+:mod:`formation.record.collector_plans`) and the plant's status (its lockstep timeouts:
+``meta["plant"]``, :mod:`formation.record.collector_plant`). Every payload is decoded with
+the strict ``bus_schemas`` decoder; a bad one is counted (``rejected``) and otherwise ignored.
 
 Rows
 ----
@@ -45,7 +45,9 @@ Parts
 each stream's decoding, batched and per-robot alike),
 :class:`~formation.record.collector_history.RunHistory` (the rows' sources and the memory bound),
 :class:`~formation.record.collector_robots.RobotStates` (each robot's latest state, liveliness),
-:class:`~formation.record.collector_faults.FaultNotices` (the scripted faults); the log is
+:class:`~formation.record.collector_faults.FaultNotices` (the scripted faults),
+:class:`~formation.record.collector_plans.PlanNotices` (the coordinator's run-time plans),
+:class:`~formation.record.collector_plant.PlantReports` (the plant's status); the log is
 written by :mod:`formation.record.collector_build`, the live view by
 :mod:`formation.record.collector_live`.
 """
@@ -56,7 +58,7 @@ import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
-from bus_schemas import Assignment, Clock, CoordinatorStatus, Fault, Leader, keys
+from bus_schemas import Assignment, Clock, CoordinatorStatus, Fault, Leader, PlantStatus, keys
 from formation.outputs.live_table import LiveView
 from formation.outputs.runlog import MODE_CODES, RunLog
 from formation.record.collector_build import fill_rows, reshape_intervals, row_keys
@@ -73,6 +75,7 @@ from formation.record.collector_faults import FaultNotices
 from formation.record.collector_history import RunHistory
 from formation.record.collector_live import live_view
 from formation.record.collector_plans import PlanNotices
+from formation.record.collector_plant import PlantReports
 from formation.record.collector_robots import RobotStates
 from scenario import Scenario
 
@@ -95,6 +98,7 @@ def key_patterns(fleet: str) -> list[str]:
         keys.setpoints_key(fleet),
         keys.fault_key(fleet),
         keys.all_coordinator_status_pattern(fleet),
+        keys.plant_status_key(fleet),
     ]
 
 
@@ -159,6 +163,7 @@ class RunCollector:
         self.robots = RobotStates(self.robot_ids, self.fleet)
         self.faults = FaultNotices()
         self.plans = PlanNotices()
+        self.plant = PlantReports()
         self._apply: dict[type[Any], Callable[[Any], bool]] = {
             TruthFrame: self._on_truth,
             WheelPowers: self._on_wheels,
@@ -169,6 +174,7 @@ class RunCollector:
             Clock: self._on_clock,
             Fault: self._on_fault,
             CoordinatorStatus: self._on_coordinator_status,
+            PlantStatus: self.plant.add,
         }
 
     @classmethod
@@ -409,6 +415,9 @@ class RunCollector:
         planner = self.plans.counts()
         if planner is not None:
             log.meta["planner"] = planner
+        plant = self.plant.summary()
+        if plant is not None:
+            log.meta["plant"] = plant
         return log
 
     def _origin_time(self, origin: float | None) -> Callable[[float], float]:

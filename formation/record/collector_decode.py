@@ -22,6 +22,7 @@ from bus_schemas import (
     DecodeError,
     Fault,
     Leader,
+    PlantStatus,
     SetpointBatch,
     Slot,
     Status,
@@ -56,6 +57,7 @@ LEAVES: Final = frozenset(
         keys.TRUTHS, keys.HOST_WHEELS, keys.HOST_STATUS, keys.SETPOINTS,
         keys.FAULT,  # the scripted faults' notices: metrics.json "faults"
         keys.COORDINATOR_STATUS,  # its run-time plans (issue 27): metrics.json "plan"
+        keys.PLANT_STATUS,  # its lockstep timeouts: metrics.json "meta.plant"
     }
 )  # fmt: skip
 
@@ -120,6 +122,7 @@ Observation = (
     | Clock
     | Fault
     | CoordinatorStatus
+    | PlantStatus
 )
 
 
@@ -281,6 +284,7 @@ _DECODERS: Final[Mapping[str, _Decoder]] = {
     keys.CLOCK: _message(Clock, "clock"),
     keys.FAULT: _message(Fault, "fault"),
     keys.COORDINATOR_STATUS: _message(CoordinatorStatus, "coordinator status"),
+    keys.PLANT_STATUS: _message(PlantStatus, "plant status"),
 }
 assert frozenset(_DECODERS) == LEAVES
 

@@ -10,6 +10,7 @@ Reproduced deterministically: r2's agent is SIGSTOPped mid-run until its token i
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import threading
@@ -81,7 +82,8 @@ def agent_cmdline(pid: int) -> str:
 
 def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -> None:
     base = up_process(tmp_path / "pause0", *ARGS)
-    unpaused = lockstep_result(finish_process(base, tmp_path / "pause0"))
+    base_m = finish_process(base, tmp_path / "pause0")
+    unpaused = lockstep_result(base_m)
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     run = up_process(tmp_path / "pause1", *ARGS, endpoint=endpoint)
@@ -107,5 +109,41 @@ def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -
         if pid is not None:
             os.kill(pid, signal.SIGCONT)
         watch.close()
-    paused = lockstep_result(finish_process(run, tmp_path / "pause1"))
-    assert paused == unpaused
+    paused_m = finish_process(run, tmp_path / "pause1")
+    assert lockstep_result(paused_m) == unpaused
+    # the plant's own account, in the record: it waited for every answer of both runs
+    for m in (base_m, paused_m):
+        assert m["meta"]["plant"]["timeouts"] == 0 and m["meta"]["plant"]["state"] == "done"
+
+
+def test_a_pause_past_the_lockstep_timeout_is_said_in_the_result(tmp_path: Path) -> None:
+    """r2's agent stopped for longer than the plant's lockstep timeout (2 s): the plant goes on
+    without r2's answer, so the run is no longer the simulator's, and the run says so: the
+    plant's timeouts in ``metrics.json``'s ``meta.plant`` and one warning line."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run = up_process(tmp_path / "pause2", "--lockstep", "--duration", "8", endpoint=endpoint)
+    watch = Watch(endpoint, "pause2")
+    pid: int | None = None
+    try:
+        watch.wait("r2's status and tick 100", lambda: watch.pid and watch.tick >= 100)
+        pid = watch.pid
+        assert pid is not None
+        cmd = agent_cmdline(pid)
+        assert "agent" in cmd and "r2" in cmd and "pause2" in cmd, cmd
+        os.kill(pid, signal.SIGSTOP)
+        stopped_at = watch.tick
+        # after its timeout the plant steps on without r2's answer
+        watch.wait("a tick without r2", lambda: watch.tick > stopped_at + 1, 30.0)
+        os.kill(pid, signal.SIGCONT)
+        pid = None
+    finally:
+        if pid is not None:
+            os.kill(pid, signal.SIGCONT)
+        watch.close()
+    _, stderr = run.communicate(timeout=200)
+    assert run.returncode == 0, stderr[-2000:]
+    m = json.loads((tmp_path / "pause2" / "metrics.json").read_text())
+    assert m["meta"]["plant"]["timeouts"] >= 1, m["meta"]["plant"]
+    assert m["meta"]["plant"]["state"] == "done"
+    said = [line for line in stderr.splitlines() if "without every answer" in line]
+    assert len(said) == 1 and "not formation sim's" in said[0], stderr[-2000:]
