@@ -72,6 +72,17 @@ class Watch:
             if not self.cond.wait_for(pred, timeout_s):
                 raise AssertionError(f"{what} not within {timeout_s} s")
 
+    def stop_r2(self, fleet: str, tick: int) -> tuple[int, int]:
+        """Once r2's status and ``tick`` were seen: SIGSTOP r2's agent (checked to be this
+        fleet's); its pid and the tick it was stopped at."""
+        self.wait(f"r2's status and tick {tick}", lambda: self.pid and self.tick >= tick)
+        pid = self.pid
+        assert pid is not None
+        cmd = agent_cmdline(pid)
+        assert "agent" in cmd and "r2" in cmd and fleet in cmd, cmd  # ours, r2's agent
+        os.kill(pid, signal.SIGSTOP)
+        return pid, self.tick
+
     def close(self) -> None:
         self.session.close()
 
@@ -90,14 +101,8 @@ def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -
     watch = Watch(endpoint, "pause1")
     pid: int | None = None
     try:
-        watch.wait("r2's status and tick 150", lambda: watch.pid and watch.tick >= 150)
-        pid = watch.pid
-        assert pid is not None
-        cmd = agent_cmdline(pid)
-        assert "agent" in cmd and "r2" in cmd and "pause1" in cmd, cmd  # ours, r2's agent
         tokens_before = len(watch.token)
-        os.kill(pid, signal.SIGSTOP)
-        stopped_at = watch.tick
+        pid, stopped_at = watch.stop_r2("pause1", 150)
         # the lease expires: r2's token vanishes while the plant waits for r2's answer
         watch.wait("r2's token gone", lambda: "delete" in watch.token[tokens_before:], 10.0)
         assert watch.tick <= stopped_at + 1  # the plant waits: no tick went on without r2
@@ -125,13 +130,7 @@ def test_a_pause_past_the_lockstep_timeout_is_said_in_the_result(tmp_path: Path)
     watch = Watch(endpoint, "pause2")
     pid: int | None = None
     try:
-        watch.wait("r2's status and tick 100", lambda: watch.pid and watch.tick >= 100)
-        pid = watch.pid
-        assert pid is not None
-        cmd = agent_cmdline(pid)
-        assert "agent" in cmd and "r2" in cmd and "pause2" in cmd, cmd
-        os.kill(pid, signal.SIGSTOP)
-        stopped_at = watch.tick
+        pid, stopped_at = watch.stop_r2("pause2", 100)
         # after its timeout the plant steps on without r2's answer
         watch.wait("a tick without r2", lambda: watch.tick > stopped_at + 1, 30.0)
         os.kill(pid, signal.SIGCONT)
