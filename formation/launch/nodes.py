@@ -73,6 +73,8 @@ def node_commands(
     # the plant's control-loop latency statistics (realtime: pose frame -> wheel command
     # computed from it, docs/scale.md), written when it exits (bench/bench_up.py reads them)
     plant += ["--stats-out", str(plan.out_dir.resolve() / PLANT_STATS)]
+    if cfg.lockstep_timeout_s is not None:
+        plant += ["--lockstep-timeout", repr(cfg.lockstep_timeout_s)]
     batch = ["--batch"] if plan.hosts > 0 else []
     plant += batch
     coord = [

@@ -73,6 +73,7 @@ class UpConfig:
     spares: int = 0  # idle hot spares beyond the slots (robots = slots + spares)
     duration_s: float | None = None
     lockstep: bool = False
+    lockstep_timeout_s: float | None = None  # the plant's --lockstep-timeout (None: its 2 s)
     endpoint: str = DEFAULT_ENDPOINT
     fleet: str = keys.DEFAULT_FLEET
     out: Path | None = None

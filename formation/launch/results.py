@@ -231,5 +231,5 @@ def warn_inexact(plant: Mapping[str, Any] | None, warn: Callable[[str], None]) -
             f"lockstep: the plant went on {n} time{'s' if n != 1 else ''} without every answer "
             "(a node more than the plant's --lockstep-timeout late: a starved machine, a "
             "stopped or hung node, a flood); this run is not formation sim's from then on "
-            "(logs/plant.log names the late nodes)"
+            "(logs/plant.log names the late nodes; a longer --lockstep-timeout waits them out)"
         )

@@ -2,10 +2,11 @@
 
 Usage::
 
-    formation up [--scenario NAME|FILE] [--robots N] [--spares K] [--duration S] [--lockstep]
-                 [--endpoint tcp/127.0.0.1:7447] [--fleet F] [--out DIR] [--seed N]
-                 [--no-figures] [--quiet] [--record FILE.mcap] [--foxglove [PORT]]
-                 [--standby] [--respawn S] [--lease-ms MS] [--hosts H] [--secure]
+    formation up [--scenario NAME|FILE] [--robots N] [--spares K] [--duration S]
+                 [--lockstep [--lockstep-timeout S]] [--endpoint tcp/127.0.0.1:7447]
+                 [--fleet F] [--out DIR] [--seed N] [--no-figures] [--quiet]
+                 [--record FILE.mcap] [--foxglove [PORT]] [--standby] [--respawn S]
+                 [--lease-ms MS] [--hosts H] [--secure]
 
 Theory of operation
 -------------------
@@ -160,6 +161,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--lockstep", action="store_true", help="sim time advances when every process answered"
     )
     p.add_argument(
+        "--lockstep-timeout",
+        type=positive_float,
+        default=None,
+        metavar="S",
+        help="lockstep: wall seconds the plant waits for a live node's answer before it goes "
+        "on without it, which makes the run differ from formation sim's and is reported "
+        "(default 2; raise it on a loaded machine; docs/runtime.md)",
+    )
+    p.add_argument(
         "--endpoint", default=DEFAULT_ENDPOINT, help=f"router endpoint (default {DEFAULT_ENDPOINT})"
     )
     p.add_argument("--fleet", default=keys.DEFAULT_FLEET, help="fleet name in the keys")
@@ -257,6 +267,7 @@ def config_from_args(ns: argparse.Namespace) -> UpConfig:
         spares=ns.spares,
         duration_s=ns.duration,
         lockstep=ns.lockstep,
+        lockstep_timeout_s=ns.lockstep_timeout,
         endpoint=ns.endpoint,
         fleet=ns.fleet,
         out=ns.out,
@@ -282,6 +293,9 @@ def main(argv: list[str]) -> int:
     cfg = config_from_args(build_parser().parse_args(argv))
     if cfg.hosts is not None and not 0 <= cfg.hosts <= 256:
         print(f"formation up: --hosts: expected 0..256, got {cfg.hosts}", file=sys.stderr)
+        return 2
+    if cfg.lockstep_timeout_s is not None and not cfg.lockstep:
+        print("formation up: --lockstep-timeout needs --lockstep", file=sys.stderr)
         return 2
     if cfg.camera == "rendered" and cfg.lockstep:
         print("formation up: --camera rendered runs in realtime only", file=sys.stderr)

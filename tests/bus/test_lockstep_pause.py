@@ -122,11 +122,13 @@ def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -
 
 
 def test_a_pause_past_the_lockstep_timeout_is_said_in_the_result(tmp_path: Path) -> None:
-    """r2's agent stopped for longer than the plant's lockstep timeout (2 s): the plant goes on
-    without r2's answer, so the run is no longer the simulator's, and the run says so: the
-    plant's timeouts in ``metrics.json``'s ``meta.plant`` and one warning line."""
+    """r2's agent stopped for longer than the plant's lockstep timeout (``formation up
+    --lockstep-timeout 1``): the plant goes on without r2's answer, so the run is no longer the
+    simulator's, and the run says so: the plant's timeouts in ``metrics.json``'s ``meta.plant``
+    and one warning line."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    run = up_process(tmp_path / "pause2", "--lockstep", "--duration", "8", endpoint=endpoint)
+    args = ("--lockstep", "--lockstep-timeout", "1", "--duration", "8")
+    run = up_process(tmp_path / "pause2", *args, endpoint=endpoint)
     watch = Watch(endpoint, "pause2")
     pid: int | None = None
     try:
@@ -146,3 +148,5 @@ def test_a_pause_past_the_lockstep_timeout_is_said_in_the_result(tmp_path: Path)
     assert m["meta"]["plant"]["state"] == "done"
     said = [line for line in stderr.splitlines() if "without every answer" in line]
     assert len(said) == 1 and "not formation sim's" in said[0], stderr[-2000:]
+    plant_log = (tmp_path / "pause2" / "logs" / "plant.log").read_text()
+    assert "no answer from r2 within 1 s" in plant_log  # the launcher's option reached it

@@ -114,6 +114,8 @@ MISTAKES: list[tuple[tuple[str, ...], tuple[str, ...]]] = [
     (("up", "--robots", "0"), ("--robots",)),
     (("up", "--hosts", "999"), ("--hosts",)),
     (("up", "--ready-timeout", "-1"), ("--ready-timeout",)),
+    (("up", "--lockstep", "--lockstep-timeout", "0"), ("--lockstep-timeout",)),
+    (("up", "--lockstep-timeout", "30"), ("--lockstep-timeout", "--lockstep")),
     (("up", "--scenario", "{badphi}"), ("phi",)),
     (("up", "--scenario", "nosuch"), ("nosuch",)),
     (("up", "--bogus"), ("--bogus",)),
