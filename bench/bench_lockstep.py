@@ -148,7 +148,12 @@ def run_lockstep(
         f"{sim_s / run_wall:.1f}x real time  (whole command {wall:.1f} s: start-up "
         f"{meta['wall_s'] - run_wall - (meta['stop_s'] or 0):.1f} s, stop {meta['stop_s']:.2f} s)"
     )
-    print(f"    ticks {m['run']['ticks']} truth frames; final leader {m['run']['final_leader']}")
+    timeouts = (meta.get("plant") or {}).get("timeouts")
+    exact = "the plant's account missing" if timeouts is None else f"{timeouts} plant timeouts"
+    print(
+        f"    ticks {m['run']['ticks']} truth frames; final leader {m['run']['final_leader']}; "
+        f"{exact}{'' if not timeouts else ' (NOT the simulator run: not comparable)'}"
+    )
     row = ", ".join(f"{k} {v[0]:.1f}" for k, v in sorted(by_name.items(), key=lambda kv: -kv[1][0]))
     print(f"    CPU seconds (2 cores, {2 * wall:.0f} core-s available): {row}")
     return by_name
