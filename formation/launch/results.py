@@ -17,6 +17,7 @@ from formation.launch.journal import RunJournal
 from formation.launch.plan import PLANT_STATS, Plan, UpConfig, UpResult
 from formation.outputs.files import save_npz_atomic, write_metrics
 from formation.outputs.runlog import RunLog
+from formation.record.collector_plant import inexact_line
 from runtime.files import os_error_text
 
 EXIT_INTERRUPTED: Final = 130
@@ -200,7 +201,9 @@ def finish_run(
         plant = plant_account(plan.out_dir / PLANT_STATS, log.meta.get("plant"))
         if plant is not None:
             log.meta["plant"] = plant
-        warn_inexact(plant, journal.warn)
+        inexact = inexact_line(plant)
+        if inexact is not None:  # one line, even with --quiet
+            journal.warn(inexact)
     return write_results(log, cfg, plan, result, run_wall, journal.warn)
 
 
@@ -219,17 +222,3 @@ def plant_account(stats: Path, seen: Mapping[str, Any] | None) -> dict[str, Any]
     out["timeouts"] = max(data["timeouts"], int((seen or {}).get("timeouts") or 0))
     out["source"] = PLANT_STATS
     return out
-
-
-def warn_inexact(plant: Mapping[str, Any] | None, warn: Callable[[str], None]) -> None:
-    """A lockstep run whose plant went on without every answer (``meta.plant.timeouts``, from
-    the plant's status: formation.record.collector_plant) says so on one line, even with
-    ``--quiet``: from that tick on it is not ``formation sim``'s run."""
-    n = 0 if plant is None else int(plant.get("timeouts") or 0)
-    if n:
-        warn(
-            f"lockstep: the plant went on {n} time{'s' if n != 1 else ''} without every answer "
-            "(a node more than the plant's --lockstep-timeout late: a starved machine, a "
-            "stopped or hung node, a flood); this run is not formation sim's from then on "
-            "(logs/plant.log names the late nodes; a longer --lockstep-timeout waits them out)"
-        )

@@ -13,11 +13,12 @@ line (docs/runtime.md, "When a lockstep run is not exact")."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from bus_schemas import PlantStatus
 
-__all__ = ["PlantReports"]
+__all__ = ["PlantReports", "inexact_line"]
 
 
 class PlantReports:
@@ -54,3 +55,18 @@ class PlantReports:
             "internal_errors": st.internal_errors,
             "source": "status",
         }
+
+
+def inexact_line(plant: Mapping[str, Any] | None) -> str | None:
+    """The one line that says a lockstep run's plant went on without every answer (``plant``:
+    ``meta.plant``, :meth:`PlantReports.summary` or the plant's own file), or None when it
+    waited for all of them (or nothing is known)."""
+    n = 0 if plant is None else int(plant.get("timeouts") or 0)
+    if not n:
+        return None
+    return (
+        f"lockstep: the plant went on {n} time{'s' if n != 1 else ''} without every answer "
+        "(a node more than the plant's --lockstep-timeout late: a starved machine, a stopped "
+        "or hung node, a flood); this run is not formation sim's from then on (logs/plant.log "
+        "names the late nodes; a longer --lockstep-timeout waits them out)"
+    )

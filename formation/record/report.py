@@ -59,6 +59,7 @@ from formation.outputs import metrics as metrics_mod
 from formation.outputs.plan_view import PlanView, add_plan
 from formation.outputs.recovery import fault_recovery
 from formation.outputs.runlog import RunLog
+from formation.record.collector_plant import inexact_line
 from formation.record.latency import LatencySample
 from formation.record.replay import (
     LivenessChange,
@@ -607,6 +608,10 @@ def main(argv: list[str]) -> int:
             return 1
         report.metrics["simulator_comparison"] = cmp
     write(report, out, figures=not args.no_figures)
+    meta = report.metrics["meta"]
+    inexact = inexact_line(meta.get("plant")) if meta.get("mode") == "lockstep" else None
+    if inexact is not None:  # the recorded plant status says so
+        print(f"formation report: {inexact}", file=sys.stderr)
     if not args.quiet:
         print(summary(report.metrics))
         if cmp is not None:

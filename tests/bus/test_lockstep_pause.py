@@ -24,6 +24,7 @@ from support.spawn import free_port
 from support.up_runs import finish_process, lockstep_result, up_process
 
 import runtime as rt
+from formation.record import report as report_mod
 
 pytestmark = [pytest.mark.slow, pytest.mark.zenoh, pytest.mark.shares_cpu]
 
@@ -121,13 +122,16 @@ def test_a_lease_expiry_in_lockstep_does_not_change_the_result(tmp_path: Path) -
         assert m["meta"]["plant"]["timeouts"] == 0 and m["meta"]["plant"]["state"] == "done"
 
 
-def test_a_pause_past_the_lockstep_timeout_is_said_in_the_result(tmp_path: Path) -> None:
+def test_a_pause_past_the_lockstep_timeout_is_said_in_the_result(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """r2's agent stopped for longer than the plant's lockstep timeout (``formation up
     --lockstep-timeout 1``): the plant goes on without r2's answer, so the run is no longer the
     simulator's, and the run says so: the plant's timeouts in ``metrics.json``'s ``meta.plant``
-    and one warning line."""
+    and one warning line, and so does ``formation report`` of the run's recording."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = ("--lockstep", "--lockstep-timeout", "1", "--duration", "8")
+    mcap = tmp_path / "pause2.mcap"
+    args = ("--lockstep", "--lockstep-timeout", "1", "--duration", "8", "--record", str(mcap))
     run = up_process(tmp_path / "pause2", *args, endpoint=endpoint)
     watch = Watch(endpoint, "pause2")
     pid: int | None = None
@@ -150,3 +154,11 @@ def test_a_pause_past_the_lockstep_timeout_is_said_in_the_result(tmp_path: Path)
     assert len(said) == 1 and "not formation sim's" in said[0], stderr[-2000:]
     plant_log = (tmp_path / "pause2" / "logs" / "plant.log").read_text()
     assert "no answer from r2 within 1 s" in plant_log  # the launcher's option reached it
+
+    capsys.readouterr()
+    out = tmp_path / "report"
+    assert report_mod.main([str(mcap), "--out", str(out), "--no-figures", "--quiet"]) == 0
+    said = [line for line in capsys.readouterr().err.splitlines() if "without every answer" in line]
+    assert len(said) == 1 and said[0].startswith("formation report: lockstep: the plant went on")
+    rep = json.loads((out / "metrics.json").read_text())
+    assert rep["meta"]["plant"]["timeouts"] >= 1 and rep["meta"]["plant"]["source"] == "status"

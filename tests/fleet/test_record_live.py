@@ -285,6 +285,10 @@ def test_report_of_a_recorded_lockstep_run_equals_the_live_collectors_metrics(
     assert rep["latency"]["rx_latency_ms"]["n"] > 0
     assert 0.0 < rep["latency"]["rx_latency_ms"]["p50"] < 100.0
     assert rep["leader_loss"] == []  # the run was not disturbed
+    # the plant waited for every answer: its own file says so live, its status in the recording
+    assert live["meta"]["plant"]["timeouts"] == 0 and rep["meta"]["plant"]["timeouts"] == 0
+    assert live["meta"]["plant"]["source"] == "plant_stats.json"
+    assert rep["meta"]["plant"]["source"] == "status"
 
     # The file itself: a channel per key, schemas present, counts > 0, JSON decodes.
     with open(tmp_path / "run.mcap", "rb") as f:

@@ -10,8 +10,9 @@ from pathlib import Path
 from support.bus_samples import SAMPLES
 
 from bus_schemas import PlantStatus, Truth, encode, keys, to_map
-from formation.launch.results import plant_account, warn_inexact
+from formation.launch.results import plant_account
 from formation.record.collector import RunCollector, key_patterns
+from formation.record.collector_plant import inexact_line
 
 FLEET = keys.DEFAULT_FLEET
 STATUS = SAMPLES[PlantStatus]
@@ -64,16 +65,12 @@ def test_a_respawned_plant_counting_from_zero_keeps_the_timeouts_seen() -> None:
 
 
 def test_a_lockstep_run_with_timeouts_says_so_on_one_line() -> None:
-    said: list[str] = []
-    warn_inexact(None, said.append)
-    warn_inexact({"timeouts": 0}, said.append)
-    assert said == []
-    warn_inexact({"timeouts": 1}, said.append)
-    warn_inexact({"timeouts": 81}, said.append)
-    assert len(said) == 2 and all("\n" not in s for s in said)
-    assert said[0].startswith("lockstep: the plant went on 1 time without every answer")
-    assert said[1].startswith("lockstep: the plant went on 81 times without every answer")
-    assert "not formation sim's" in said[1] and "--lockstep-timeout" in said[1]
+    assert inexact_line(None) is None and inexact_line({"timeouts": 0}) is None
+    one, many = inexact_line({"timeouts": 1}), inexact_line({"timeouts": 81})
+    assert one is not None and many is not None and "\n" not in one + many
+    assert one.startswith("lockstep: the plant went on 1 time without every answer")
+    assert many.startswith("lockstep: the plant went on 81 times without every answer")
+    assert "not formation sim's" in many and "--lockstep-timeout" in many
 
 
 def test_the_plants_own_last_word_is_put_over_its_status(tmp_path: Path) -> None:
