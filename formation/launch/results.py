@@ -209,16 +209,17 @@ def finish_run(
 
 def plant_account(stats: Path, seen: Mapping[str, Any] | None) -> dict[str, Any] | None:
     """``metrics.json``'s ``meta.plant``: the plant's own last word (``stats``, the
-    ``--stats-out`` file it writes as it exits, ``source`` ``"plant_stats.json"``) over what
+    ``--stats-out`` file it writes as it exits, ``source`` ``"plant_stats.json"``), else what
     its status on the bus said (``seen``, formation.record.collector_plant: 5 Hz, so the last
-    fifth of a second may be missing; ``source`` ``"status"``). Timeouts: the larger count."""
+    fifth of a second may be missing, and on a bus without ``--secure`` anyone can forge it;
+    ``source`` ``"status"``). A lockstep plant is never respawned: its file covers the run."""
     try:
         data = json.loads(stats.read_text())
     except (OSError, ValueError):
         data = None
     if not isinstance(data, dict) or not isinstance(data.get("timeouts"), int):
         return None if seen is None else dict(seen)
-    out = {k: data.get(k) for k in ("mode", "state", "tick", "rejected", "internal_errors")}
-    out["timeouts"] = max(data["timeouts"], int((seen or {}).get("timeouts") or 0))
+    fields = ("mode", "state", "tick", "timeouts", "rejected", "internal_errors")
+    out = {k: data.get(k) for k in fields}
     out["source"] = PLANT_STATS
     return out

@@ -90,4 +90,5 @@ def test_the_plants_own_last_word_is_put_over_its_status(tmp_path: Path) -> None
         "internal_errors": 0, "source": "plant_stats.json",
     }  # fmt: skip
     stats.write_text(json.dumps({**to_map(STATUS), "timeouts": 0}))
-    assert plant_account(stats, seen)["timeouts"] == 1  # the larger count
+    account = plant_account(stats, seen)  # the file is the plant's word; a status can be forged
+    assert account is not None and account["timeouts"] == 0
