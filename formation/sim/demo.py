@@ -127,6 +127,18 @@ def _comparison_text(ma: dict[str, Any], mb: dict[str, Any], cmp: dict[str, Any]
         f"at the {cmp['common']} instants both logged ({cmp['rows_a']} truth frames over "
         f"Zenoh, {cmp['rows_b']} simulator ticks): {verdict}"
     )
+    plant = ma.get("meta", {}).get("plant")
+    timeouts = None if plant is None else plant.get("timeouts")
+    if timeouts is None:
+        lines.append("the plant's account of the lockstep run is missing (meta.plant)")
+    elif timeouts:
+        lines.append(
+            f"the plant went on {timeouts} time(s) without every answer (a starved machine): "
+            "the two runs are not expected to be identical; `formation demo` again on a "
+            'quieter machine (docs/runtime.md, "When a lockstep run is not exact")'
+        )
+    else:
+        lines.append("the plant waited for every answer of every tick (meta.plant.timeouts 0)")
     return "\n".join(lines)
 
 
