@@ -212,8 +212,11 @@ class FleetStatus:
                 self.tick = msg.tick
             elif isinstance(msg, CoordinatorStatus):
                 self.node_status[f"coordinator/{msg.name}"] = f"{msg.role}, epoch {msg.epoch}"
-            elif isinstance(msg, PlantStatus):
-                self.node_status["plant"] = msg.state
+            elif isinstance(msg, PlantStatus):  # a lockstep plant that went on says how often
+                late = msg.mode == "lockstep" and msg.timeouts > 0
+                self.node_status["plant"] = (
+                    f"{msg.state}, {msg.timeouts} lockstep timeouts" if late else msg.state
+                )
             elif isinstance(msg, CameraStatus):
                 info = keys.parse_key(item.key)
                 if info is not None and info.name is not None:

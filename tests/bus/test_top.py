@@ -156,6 +156,9 @@ def test_fleet_status_rates_roles_errors_and_liveliness() -> None:
     fs.observe(put(keys.plant_status_key(FLEET), PLANT_STATUS, now))
     fs.observe(put(keys.coordinator_status_key(FLEET, "main"), COORDINATOR_STATUS, now))
     assert "coordinator/main up (active, epoch 2), plant up (running), leader r1" in fs.header()
+    late = dataclasses.replace(PLANT_STATUS, seq=2, mode="lockstep", timeouts=3)  # went on
+    fs.observe(put(keys.plant_status_key(FLEET), late, now))
+    assert "plant up (running, 3 lockstep timeouts)" in fs.header()
     text = fs.render(now)
     assert "1 rejected here" in text
     assert re.search(r"^r10\s+LOST", text, re.M)
