@@ -43,6 +43,7 @@ BENCHES: dict[str, tuple[list[str], list[str]]] = {
     "bench_decode": ([], ["--fuzz", "20000"]),
     "bench_exit": (["--repeat", "5", "--hogs", "4"], ["--repeat", "1"]),
     "bench_token_burst": ([], ["--repeat", "1", "--robots", "100", "--lost", "50"]),
+    "bench_flood": ([], ["--keys", "pose", "--seconds", "2"]),
 }
 
 
