@@ -439,9 +439,7 @@ def _open_once(settings: ZenohSettings) -> zenoh.Session:
     config = make_config(settings)
     try:
         return _register(zenoh.open(config))
-    except zenoh.ZError:
-        raise
-    except BaseException as exc:
+    except BaseException as exc:  # (a ZError, or anything else, goes up as it is)
         if type(exc).__name__ != "PanicException" or value is None:
             raise
         raise _runtime_error(value, f"made Zenoh fail: {zenoh_error_text(exc)[:200]}") from None

@@ -38,6 +38,7 @@ import numpy as np
 
 import scenario as scenario_mod
 from formation.record import report as report_mod
+from formation.record.collector_plant import inexact_line
 from formation.sim.command import run_and_write, summary
 
 SCENARIO = "paper-exp2"
@@ -128,15 +129,11 @@ def _comparison_text(ma: dict[str, Any], mb: dict[str, Any], cmp: dict[str, Any]
         f"Zenoh, {cmp['rows_b']} simulator ticks): {verdict}"
     )
     plant = ma.get("meta", {}).get("plant")
-    timeouts = None if plant is None else plant.get("timeouts")
-    if timeouts is None:
+    inexact = inexact_line(plant)
+    if plant is None:
         lines.append("the plant's account of the lockstep run is missing (meta.plant)")
-    elif timeouts:
-        lines.append(
-            f"the plant went on {timeouts} time(s) without every answer (a starved machine): "
-            "the two runs are not expected to be identical; `formation demo` again on a "
-            'quieter machine (docs/runtime.md, "When a lockstep run is not exact")'
-        )
+    elif inexact is not None:  # the line formation up printed: the runs need not be identical
+        lines.append(f"{inexact}; the two runs are not expected to be identical")
     else:
         lines.append("the plant waited for every answer of every tick (meta.plant.timeouts 0)")
     return "\n".join(lines)
