@@ -62,7 +62,9 @@ class PoseBatch(_PoseFrame):
     """Poses of many robots measured at one instant `stamp`, as parallel arrays (one frame).
 
     `t` is when the frame was published. A fleet larger than the list bound is sent as several
-    frames with the same `stamp`.
+    frames with the same `stamp`. Every node of a lockstep run reads its frames in this form
+    (each agent takes its own entry as its pose); the plant puts each robot's `pose` there only
+    while someone subscribes to it.
     """
 
     stamp: float = field(
@@ -82,8 +84,10 @@ class PoseBatch(_PoseFrame):
 class TruthBatch(_PoseFrame):
     """True poses of many simulated robots at one instant `stamp`, as parallel arrays.
 
-    The batched form of `robot/<id>/truth` for large fleets; a fleet larger than the list bound
-    (or than :data:`BATCH_CHUNK`) is sent as several messages with the same `stamp`.
+    The batched form of `robot/<id>/truth`, for large fleets (`--batch`) and in every lockstep
+    run (a lockstep plant puts each robot's own key only while someone subscribes to it); a
+    fleet larger than the list bound (or than :data:`BATCH_CHUNK`) is sent as several messages
+    with the same `stamp`.
     """
 
     stamp: float = field(

@@ -195,7 +195,7 @@ class FleetRun:
         feed = self.collector.feed
         self._subs = [
             rt.subscribe(self.session, p, loop, lambda rx: feed(rx.key, rx.payload))
-            for p in key_patterns(self.fleet)
+            for p in key_patterns(self.fleet, lockstep=self.lockstep)
         ]
         rt.watch_liveliness(
             self.session, keys.alive_pattern(self.fleet), loop, self.collector.feed_alive

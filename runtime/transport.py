@@ -537,6 +537,8 @@ class Publishers:
         self._session = session
         self._default = default_qos
         self._pubs: dict[str, tuple[zenoh.Publisher, QoS]] = {}
+        self._matching: dict[str, list[bool]] = {}  # key -> [anyone subscribed] (matching)
+        self._listeners: list[zenoh.MatchingListener] = []
 
     def get(self, key: str, qos: QoS | None = None) -> zenoh.Publisher:
         """The publisher of ``key``, declared with ``qos`` (or the default) on first use."""
@@ -559,8 +561,36 @@ class Publishers:
         """Publish ``payload`` on ``key`` (raises ``zenoh.ZError`` once the session is closed)."""
         self.get(key, qos).put(payload)
 
+    def matching(self, key: str, qos: QoS | None = None) -> bool:
+        """Whether a subscriber anywhere matches ``key`` now: a form of a message that nobody
+        reads need not be put. The first call declares the publisher and a Zenoh matching
+        listener on it; from then on the answer is a lookup, kept current by the listener's
+        callback on Zenoh's thread (so a thread that holds a lock an input handler waits for
+        may ask: no call into Zenoh). True when Zenoh cannot say (put rather than lose a
+        reader). Call it once per key before such a thread runs (the lockstep plant does)."""
+        state = self._matching.get(key)
+        if state is None:
+            state = self._matching[key] = [True]
+            pub = self.get(key, qos)
+
+            def on_change(status: zenoh.MatchingStatus, state: list[bool] = state) -> None:
+                state[0] = bool(status.matching)
+
+            try:
+                self._listeners.append(pub.declare_matching_listener(on_change))
+                status = pub.matching_status  # (a MatchingStatus; the stubs say bool)
+                state[0] = bool(getattr(status, "matching", status))
+            except zenoh.ZError:
+                state[0] = True
+        return state[0]
+
     def undeclare_all(self) -> None:
-        """Undeclare every cached publisher (no-op for those of a closed session)."""
+        """Undeclare every cached publisher and matching listener (no-op for those of a closed
+        session)."""
+        for listener in self._listeners:
+            listener.undeclare()
+        self._listeners.clear()
+        self._matching.clear()
         for pub, _ in self._pubs.values():
             pub.undeclare()
         self._pubs.clear()

@@ -343,7 +343,8 @@ class CoordinatorNode:
         return None
 
     def on_poses(self, rx: rt.Received) -> None:
-        """A batched pose frame (``--batch``): each entry as if it came on its robot's key."""
+        """A batched pose frame (``--batch``, and every lockstep run: the plant publishes its
+        frames as batches there): each entry as if it came on its robot's key."""
         try:
             self.rx["poses"] += 1
             msg = decode(rx.payload, PoseBatch)

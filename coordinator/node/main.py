@@ -219,6 +219,7 @@ async def _run(
     lazy = not lockstep
     if batch:
         io.pubs.get(node.setpoints_key, node.sp_qos)
+    if batch or lockstep:  # (every lockstep node reads the plant's frames as batches)
         io.subscribe(node.poses_key, node.on_poses, wake=lazy)
     else:
         io.subscribe(node.poses_pattern, node.on_pose, wake=lazy)

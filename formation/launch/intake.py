@@ -91,7 +91,7 @@ class RunIntake:
         # loop, so on two cores the launcher takes less from the lockstep it is watching and
         # from the control loop of a realtime fleet (each agent host's batch of wheels used to
         # wake it once, in the middle of the host's next batch).
-        patterns = key_patterns(self.cfg.fleet)
+        patterns = key_patterns(self.cfg.fleet, lockstep=self.cfg.lockstep)
         self._inbox = rt.Inbox("queue", maxlen=FIFO_CAPACITY * len(patterns), wake=False)
         self._subscribers = [rt.subscribe(self.session, p, loop, self._inbox) for p in patterns]
         rt.watch_liveliness(

@@ -44,8 +44,10 @@ from bus_schemas import (
     Assignment,
     Leader,
     Message,
+    PoseBatch,
     Slot,
     Status,
+    TruthBatch,
     keys,
 )
 from bus_schemas import Pose as BusPose
@@ -280,6 +282,15 @@ class SceneModel:
             self.leader = msg
         elif isinstance(msg, Assignment):
             self.assignment = dict(msg.robots)
+        elif isinstance(msg, PoseBatch):  # (a lockstep plant's and agent hosts' frames)
+            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
+                r = self._robot(rid)
+                r.xytheta, r.from_pose = (x, y, th), True
+        elif isinstance(msg, TruthBatch):
+            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
+                r = self._robot(rid)
+                if not r.from_pose:
+                    r.xytheta = (x, y, th)
         else:
             parsed = keys.parse_robot_key(key)
             if parsed is None:

@@ -82,10 +82,12 @@ from scenario import Scenario
 __all__ = ["RunCollector", "key_patterns", "slot_ids_of"]
 
 
-def key_patterns(fleet: str) -> list[str]:
-    """The key expressions a collector of ``fleet`` must subscribe to."""
+def key_patterns(fleet: str, *, lockstep: bool = False) -> list[str]:
+    """The key expressions a collector of ``fleet`` must subscribe to. A lockstep run's truth
+    is the ``truths`` batch only: its plant puts each robot's ``truth`` only while someone
+    subscribes to it (sim_plant.node.outputs), so a lockstep collector leaves those keys out."""
     return [
-        keys.all_truth_pattern(fleet),
+        *(() if lockstep else (keys.all_truth_pattern(fleet),)),
         keys.leader_key(fleet),
         keys.all_slots_pattern(fleet),
         keys.assignment_key(fleet),

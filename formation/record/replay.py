@@ -22,7 +22,9 @@ from bus_schemas import (
     Clock,
     DecodeError,
     Pose,
+    PoseBatch,
     Truth,
+    TruthBatch,
     Wheels,
     decode,
     encode,
@@ -255,10 +257,15 @@ def make_collector(
     if scn is not None:
         return RunCollector.for_scenario(scn, fleet=fleet, lockstep=lockstep)
     robots: set[str] = set()
+    truths_key = keys.truths_key(fleet)
     for ev in rec.events:
         parsed = keys.parse_robot_key(ev.key)
         if parsed is not None and parsed[2] == keys.TRUTH and parsed[0] == fleet:
             robots.add(parsed[1])
+        elif ev.key == truths_key and ev.payload is not None:  # batched (lockstep, --batch)
+            batch = decode(ev.payload, TruthBatch)
+            if not isinstance(batch, DecodeError):
+                robots.update(batch.robots)
     if not robots:
         raise ReportError(f"{rec.path}: no truth of fleet {fleet!r} in the recording")
     dt = _dt_from_clock(rec) if lockstep else None
@@ -281,6 +288,8 @@ def replay(rec: Recording, collector: RunCollector, lockstep: bool) -> Replay:  
     fleet = collector.fleet
     clock_key = keys.clock_key(fleet)
     assignment_key = keys.assignment_key(fleet)
+    truths_key = keys.truths_key(fleet)
+    poses_key = keys.poses_key(fleet)
     tracker = LatencyTracker()
     if lockstep:
         tracker.on_clock()
@@ -342,4 +351,17 @@ def replay(rec: Recording, collector: RunCollector, lockstep: bool) -> Replay:  
             assignment = decode(ev.payload, Assignment)
             if not isinstance(assignment, DecodeError):
                 leader = assignment.leader
+        elif ev.key == truths_key:  # the batched truth (lockstep, --batch): as each robot's
+            tb = decode(ev.payload, TruthBatch)
+            if not isinstance(tb, DecodeError):
+                out.truth_t.setdefault(tb.stamp, set()).update(tb.robots)
+                if last_truth is None or tb.stamp >= last_truth[0]:
+                    last_truth = (tb.stamp, ev.log_ns)
+        elif lockstep and ev.key == poses_key:  # every lockstep node reads the frames as batches
+            pb = decode(ev.payload, PoseBatch)
+            if not isinstance(pb, DecodeError):
+                rx_s = rec.mono_s(ev.log_ns)
+                rx = ev.log_ns / 1e9 if rx_s is None else rx_s
+                for rid in pb.robots:
+                    tracker.on_pose(rid, pb.stamp, rx)
     return out

@@ -28,6 +28,7 @@ from bus_schemas import (
     VERSION,
     DecodeError,
     Message,
+    PoseBatch,
     Status,
     Wheels,
     keys,
@@ -337,6 +338,11 @@ class Recorder:
     def _derive(self, key: str, msg: Message, rx_ns: int, log_ns: int) -> None:
         if isinstance(msg, Clock):
             self.latency.on_clock()
+            return
+        if isinstance(msg, PoseBatch):
+            if self.latency.lockstep:  # every lockstep node reads the frames as batches
+                for rid in msg.robots:
+                    self.latency.on_pose(rid, msg.stamp, rx_ns / 1e9)
             return
         robot = keys.parse_robot_key(key)
         if robot is None:

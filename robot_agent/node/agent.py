@@ -290,7 +290,8 @@ class AgentNode:
 
     def on_poses(self, rx: rt.Received) -> None:
         """Batched poses: the other robots' poses and capture times, for repulsion and the
-        safety filter (``robot_agent.core.neighbours``)."""
+        safety filter (``robot_agent.core.neighbours``); in lockstep also this robot's own pose,
+        as :meth:`on_pose` takes it (every lockstep node reads the plant's frames as batches)."""
         try:
             self.rx["poses"] += 1
             msg = decode(rx.payload, PoseBatch)
@@ -304,10 +305,22 @@ class AgentNode:
             else:
                 cap = self.clocks.capture_to_local(rx.key, msg.t, msg.stamp, rx.rx_s)
                 rx_s = now = rx.rx_s
+            own: tuple[float, float, float] | None = None
             for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
                 if rid != me:
                     store(rid, x, y, th, cap, rx_s, now)
+                elif self.lockstep:
+                    own = (x, y, th)
             self.neighbour_table.end_frame()
+            if own is not None:  # lockstep: its own pose comes with the frame
+                if self.check_resume(rx.rx_s):
+                    self.faults.reject(
+                        "poses", "own pose received during the resume quarantine", "quarantine"
+                    )
+                    return
+                self.pose = FwPose(own[0], own[1], own[2], msg.stamp)
+                self.pose_capture_s = msg.stamp  # sim time: one clock for every node
+                self._pose_pending = True
         except Exception as exc:
             self.faults.internal("on_poses", exc)
 

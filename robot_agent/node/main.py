@@ -388,7 +388,8 @@ async def _node(
         pump.side(node.setpoint_key, node.on_setpoint)
         pump.side(node.poses_key, node.on_poses)
         pump.side(node.movers_key, node.on_movers)
-        pump.side(node.pose_key, node.on_pose)
+        # (no robot/<id>/pose: a lockstep plant puts it only while someone subscribes to it,
+        # and the agent takes its own pose from the frame, AgentNode.on_poses)
         pump.start(node.clock_key, node.on_clock)
     else:
         io.subscribe(node.setpoint_key, node.on_setpoint)

@@ -129,11 +129,17 @@ async def _node(
         batch=ns.batch,
         poses=not ns.no_poses,
         log=io.log,
+        wanted=io.pubs.matching,
     )
     outputs, inputs = node.outputs, node.inputs
     io.pubs.get(outputs.poses_key, outputs.data_qos)
     for key in () if ns.batch else outputs.pose_keys:
         io.pubs.get(key, outputs.data_qos)
+    if ns.lockstep and not ns.batch:  # each robot's truth and pose while anyone reads them:
+        for key in outputs.truth_keys:  # their matching listeners, before the tick thread asks
+            io.pubs.matching(key, outputs.truth_qos)
+        for key in outputs.pose_keys:
+            io.pubs.matching(key, outputs.data_qos)
     if ns.lockstep:
         io.pubs.get(node.clock_key, rt.QOS_CRITICAL)
     io.watch_liveliness(node.alive_robots_pattern, inputs.on_alive_robot)

@@ -1,5 +1,6 @@
 """The plant process's outputs: truth, the emulated camera's frames (``poses`` batches, then
-each robot's ``pose``) and, in realtime, the bookkeeping of each published frame that gives the
+each robot's ``pose``; lockstep: each robot's ``truth`` and ``pose`` only while someone
+subscribes to it) and, in realtime, the bookkeeping of each published frame that gives the
 control-loop latency (frame published -> command received) and the frames' lateness.
 
 :class:`PlantOutputs` is a part the plant (:class:`sim_plant.node.plant.PlantNode`) builds and
@@ -13,7 +14,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Final
 
 import numpy as np
@@ -60,7 +61,14 @@ class PlantOutputs:
         publish: ``publish(key, payload, qos)``.
         batch: truth as TruthBatch and frames as PoseBatch only (agent hosts, ``--batch``).
         poses: publish camera frames (False: a real tracker publishes the poses).
-        lockstep: every output must arrive and keep its order (QoS); no latency bookkeeping.
+        lockstep: every output must arrive and keep its order (QoS); no latency bookkeeping;
+            and truth and frames as the batches (:attr:`batched`), which every node of a
+            lockstep run reads (the agents take their own pose from the frame); each robot's
+            ``truth`` and ``pose`` only while ``wanted(key, qos)`` says a subscriber matches it
+            (a recorder, a bridge, an outsider): a tick then puts two messages where it put
+            2n + 2 (docs/benchmarks.md, "Lockstep on the batched plant outputs").
+        wanted: ``wanted(key, qos)``, whether anyone subscribes to ``key`` now
+            (``runtime.Publishers.matching``); None: nobody (lockstep only).
     """
 
     def __init__(
@@ -72,10 +80,13 @@ class PlantOutputs:
         batch: bool,
         poses: bool,
         lockstep: bool,
+        wanted: Callable[[str, rt.QoS], bool] | None = None,
     ) -> None:
         self.ids = list(ids)
+        self._wanted = wanted
         self._publish = publish
         self.batch = batch
+        self.batched = batch or lockstep  # truth and frames as batches only
         self.poses = poses
         self.lockstep = lockstep
         self.poses_key = keys.poses_key(fleet)
@@ -114,18 +125,22 @@ class PlantOutputs:
 
     def publish_truth(self, t_s: float, truth: npt.NDArray[np.float64]) -> None:
         t = max(t_s, 0.0)
-        if self.batch:
+        if self.batched:
             self._publish_truth_batch(t, truth)
+        if self.batch:
             return
         for i, row in enumerate(truth.tolist()):
             key = self.truth_keys[i]
+            if self.lockstep and not self._read(key, self.truth_qos):
+                continue
             msg = Truth(
                 t=t, seq=self.next_seq(key), x=row[0], y=row[1], theta=row[2], robot=self.ids[i]
             )
             self._publish(key, encode(msg), self.truth_qos)
 
     def _publish_truth_batch(self, t: float, truth: npt.NDArray[np.float64]) -> None:
-        """``--batch``: truth as TruthBatch chunks on ``truths`` instead of one key per robot."""
+        """``--batch`` and lockstep: truth as TruthBatch chunks on ``truths`` instead of one key
+        per robot."""
         rows = truth.tolist()
         for start in range(0, len(rows), BATCH_CHUNK):
             chunk = rows[start : start + BATCH_CHUNK]
@@ -170,6 +185,8 @@ class PlantOutputs:
             return  # agent hosts and a --batch coordinator read the batches only
         for i, _, x, y, theta in rows:
             key = self.pose_keys[i]
+            if self.lockstep and not self._read(key, self.data_qos):
+                continue  # (every lockstep node reads the batch)
             msg = Pose(
                 t=stamp,
                 seq=self.next_seq(key),
@@ -180,6 +197,10 @@ class PlantOutputs:
                 pub_t=max(t_s, 0.0),
             )
             self._publish(key, encode(msg), self.data_qos)
+
+    def _read(self, key: str, qos: rt.QoS) -> bool:
+        """Lockstep: whether a subscriber matches a per-robot ``key`` now."""
+        return self._wanted is not None and self._wanted(key, qos)
 
     def _frame_published(self, stamp: float, due_s: float) -> None:
         """Realtime bookkeeping of a published frame (latency and lateness, see status)."""

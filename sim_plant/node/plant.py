@@ -28,7 +28,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Final
 
@@ -104,6 +104,7 @@ class PlantNode:
         batch: bool = False,
         log: rt.NodeLog | None = None,
         poses: bool = True,
+        wanted: Callable[[str, rt.QoS], bool] | None = None,
     ) -> None:
         self.scenario = scenario
         self.batch = batch
@@ -167,8 +168,15 @@ class PlantNode:
         # lockstep: what the tick thread publishes under the guard waits here and is put after
         # it lets go (PlantNode._emit)
         self._outbox: list[tuple[str, bytes, rt.QoS]] | None = None
+        # (lockstep: each robot's truth and pose only while ``wanted`` says someone reads it)
         self.outputs = PlantOutputs(
-            self.ids, self.fleet, self._emit, batch=batch, poses=poses, lockstep=lockstep
+            self.ids,
+            self.fleet,
+            self._emit,
+            batch=batch,
+            poses=poses,
+            lockstep=lockstep,
+            wanted=wanted,
         )
 
     # -- bookkeeping ---------------------------------------------------------------------------

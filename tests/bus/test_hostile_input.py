@@ -40,7 +40,6 @@ from bus_schemas import (
     Estop,
     Leader,
     Message,
-    Pose,
     PoseBatch,
     Status,
     Wheels,
@@ -157,11 +156,14 @@ def test_agent_survives_counts_and_keeps_answering(
     child = spawn(
         "agent", "--id", "r1", "--lockstep", "--endpoint", router.endpoint, ready="agent r1"
     )
-    k_pose, k_sp = keys.pose_key(FLEET, "r1"), keys.setpoint_key(FLEET, "r1")
+    # a lockstep agent takes its own pose from the plant's frames (`poses`, its own entry): the
+    # plant puts each robot's `pose` only while someone subscribes to it
+    k_sp = keys.setpoint_key(FLEET, "r1")
     k_batch, k_estop, k_clock = keys.poses_key(FLEET), keys.estop_key(FLEET), keys.clock_key(FLEET)
-    pose = Pose(t=0.0, seq=1, x=0.0, y=0.0, theta=0.0, robot="r1")
     sp = setpoint_msg("r1", 0.45, 0.0, t=0.0)
-    batch = PoseBatch(t=0.0, seq=1, robots=("r2",), x=(0.5,), y=(0.5,), theta=(0.0,), stamp=0.0)
+    batch = PoseBatch(
+        t=0.0, seq=1, robots=("r1", "r2"), x=(0.0, 0.5), y=(0.0, 0.5), theta=(0.0, 0.0), stamp=0.0
+    )
     release = Estop(t=0.0, engage=False, robot=None)
 
     def clock(k: int) -> bytes:
@@ -169,7 +171,6 @@ def test_agent_survives_counts_and_keeps_answering(
 
     def valid_once() -> None:
         for key, payload in (
-            (k_pose, encode(pose)),
             (k_sp, _ticked(sp, 0)),
             (k_batch, encode(batch)),
             (k_estop, encode(release)),
@@ -177,23 +178,13 @@ def test_agent_survives_counts_and_keeps_answering(
         ):
             pubs.put(key, payload, rt.QOS_CRITICAL)
 
-    warm_up(status, lambda s: s.rx, ("pose", "setpoint", "poses", "estop", "clock"), valid_once)
+    warm_up(status, lambda s: s.rx, ("setpoint", "poses", "estop", "clock"), valid_once)
     status.clear()
     _, _, before = status.wait_for(lambda *_: True)
     assert before.rejected == 0
 
-    misaddressed = encode(Pose(t=0.0, seq=2, x=0.0, y=0.0, theta=0.0, robot="r2"))
     no_tick = encode(sp)  # lockstep setpoints must carry their tick
     must = {
-        "pose": hostile(
-            pose,
-            "x",
-            {"theta": 1e300},
-            [
-                ("misaddressed", misaddressed),
-                ("far away", forged(encode(pose), t=1e300, x=1e300, y=-1e300)),
-            ],
-        ),
         "setpoint": hostile(
             sp,
             "slot",
@@ -207,15 +198,31 @@ def test_agent_survives_counts_and_keeps_answering(
             batch,
             "robots",
             {"robots": ["r2"] * 2000},
-            [("far stamp", forged(encode(batch), stamp=1e300))],
+            [
+                ("far stamp", forged(encode(batch), stamp=1e300)),
+                ("own pose far away", forged(encode(batch), x=[1e300, 0.5], y=[-1e300, 0.5])),
+            ],
         ),
         "estop": hostile(release, "engage", {"robot": "r" * 1000}),
         "clock": hostile(Clock(t=0.0, seq=1, tick=0), "tick", {"tick": -1}),
     }
     absurd = {  # valid for the decoder (at the plausibility bounds); the firmware must cope
-        "pose": [("far away", encode(Pose(t=TIME_MAX_S, seq=3, x=POS, y=-POS, theta=0.0)))],
         "setpoint": [("fast", _ticked(setpoint_msg("r1", POS, 0.0, t=TIME_MAX_S), 2**63))],
         "poses": [
+            (
+                "own pose far away",
+                encode(
+                    PoseBatch(
+                        t=0.0,
+                        seq=3,
+                        robots=("r1",),
+                        x=(POS,),
+                        y=(-POS,),
+                        theta=(0.0,),
+                        stamp=TIME_MAX_S,
+                    )
+                ),
+            ),
             (
                 "far neighbour",
                 encode(
@@ -229,13 +236,12 @@ def test_agent_survives_counts_and_keeps_answering(
                         stamp=TIME_MAX_S,
                     )
                 ),
-            )
+            ),
         ],
         "estop": [],
         "clock": [],
     }
     key_of = {
-        "pose": k_pose,
         "setpoint": k_sp,
         "poses": k_batch,
         "estop": k_estop,
@@ -276,29 +282,40 @@ def test_coordinator_survives_counts_and_keeps_answering(
         router.endpoint,
         ready="coordinator ready",
     )
-    k_pose, k_clock = keys.pose_key(FLEET, "r1"), keys.clock_key(FLEET)
-    pose = Pose(t=0.0, seq=1, x=0.4, y=0.0, theta=0.0, robot="r1")
+    # a lockstep coordinator reads the plant's frames as `poses` batches (the plant puts each
+    # robot's `pose` only while someone subscribes to it): those are its pose input here
+    k_poses, k_clock = keys.poses_key(FLEET), keys.clock_key(FLEET)
+    frame = PoseBatch(t=0.0, seq=1, robots=("r1",), x=(0.4,), y=(0.0,), theta=(0.0,), stamp=0.0)
 
     def valid_once() -> None:
-        pubs.put(k_pose, encode(pose), rt.QOS_CRITICAL)
+        pubs.put(k_poses, encode(frame), rt.QOS_CRITICAL)
         pubs.put(k_clock, encode(Clock(t=0.0, seq=1, tick=0)), rt.QOS_CRITICAL)
 
-    warm_up(status, lambda s: s["rx"], ("pose", "clock"), valid_once)
+    warm_up(status, lambda s: s["rx"], ("poses", "clock"), valid_once)
     status.clear()
     _, _, before = status.wait_for(lambda *_: True)
     assert before["rejected"] == 0
 
-    other = encode(Pose(t=0.0, seq=2, x=0.0, y=0.0, theta=0.0, robot="r2"))
-    must_pose = hostile(pose, "x", {"theta": 1e300}, [("other robot's pose", other)])
+    base = to_map(frame)
+    must_poses = hostile(
+        frame,
+        "stamp",
+        {"stamp": 1e300},
+        [
+            ("bad robot id", pack({**base, "robots": ["R1"]})),
+            ("lengths differ", pack({**base, "x": [0.4, 0.5]})),
+            ("far", forged(encode(frame), x=[1e300], y=[1e300])),
+        ],
+    )
     must_clock = hostile(Clock(t=0.0, seq=1, tick=0), "tick", {"tick": -1})
-    bad_id_key = f"formation/{FLEET}/robot/R1/pose"  # matches robot/*/pose, not a robot id
-    sent_pose = publish_all(pubs, k_pose, must_pose)
-    sent_pose += publish_all(pubs, bad_id_key, [("bad id", encode(pose))])
-    sent_pose += publish_all(pubs, k_pose, [("far", forged(encode(pose), x=1e300, y=1e300))])
+    sent_poses = publish_all(pubs, k_poses, must_poses)
     sent_clock = publish_all(pubs, k_clock, must_clock)
-    want = {"pose": before["rx"]["pose"] + sent_pose, "clock": before["rx"]["clock"] + sent_clock}
+    want = {
+        "poses": before["rx"]["poses"] + sent_poses,
+        "clock": before["rx"]["clock"] + sent_clock,
+    }
     after = wait_counts(status, lambda s: s["rx"], want)
-    assert after["rejected"] - before["rejected"] >= len(must_pose) + len(must_clock) + 1
+    assert after["rejected"] - before["rejected"] >= len(must_poses) + len(must_clock)
     assert after["internal_errors"] == 0
     assert_alive(child)
 

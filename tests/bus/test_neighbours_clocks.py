@@ -86,6 +86,31 @@ def test_lockstep_agent_ages_neighbours_on_sim_time_and_takes_cooperative_from_t
     assert node.neighbour_table.neighbours(0.06 + NEIGHBOUR_STALE_S + 0.02) == []
 
 
+def test_a_lockstep_agent_takes_its_own_pose_from_the_batch_as_from_its_pose_key() -> None:
+    """A lockstep agent reads the plant's frames as ``poses`` batches: its own entry is its
+    pose, exactly as ``robot/<id>/pose`` would have given it (same fields, same capture time,
+    pending until the clock); a realtime agent keeps its own entry out (its pose key rules)."""
+    rows = {"r1": (0.25, -0.5, 0.3), "r2": (0.5, 0, 0.1)}
+    from_batch = AgentNode("r1", FLEET, AgentConfig(), _sink, lockstep=True)
+    from_batch.on_poses(rt.Received(keys.poses_key(FLEET), _batch(0.06, 0.02, rows), 1.0))
+    from_key = AgentNode("r1", FLEET, AgentConfig(), _sink, lockstep=True)
+    pose = Pose(t=0.02, seq=1, x=0.25, y=-0.5, theta=0.3, robot="r1", pub_t=0.06)
+    from_key.on_pose(rt.Received(keys.pose_key(FLEET, "r1"), encode(pose), 1.0))
+    assert from_batch.pose == from_key.pose and from_batch.pose is not None
+    assert (from_batch.pose.x, from_batch.pose.y, from_batch.pose.theta) == rows["r1"]
+    assert from_batch.pose_capture_s == from_key.pose_capture_s == 0.02
+    assert from_batch._pose_pending and from_key._pose_pending
+    assert from_batch.faults.rejected == 0
+    # without its own entry the batch leaves the pose alone
+    other = AgentNode("r3", FLEET, AgentConfig(), _sink, lockstep=True)
+    other.on_poses(rt.Received(keys.poses_key(FLEET), _batch(0.06, 0.02, rows), 1.0))
+    assert other.pose is None and not other._pose_pending
+    # realtime: the own entry of a batch is not the robot's pose
+    rt_node = AgentNode("r1", FLEET, AgentConfig(), _sink, loop_mode="fixed")
+    rt_node.on_poses(rt.Received(keys.poses_key(FLEET), _batch(0.06, 0.02, rows), 1.0))
+    assert rt_node.pose is None
+
+
 def test_realtime_cooperative_comes_from_fresh_status_of_agents_and_hosts() -> None:
     node = AgentNode("r1", FLEET, AgentConfig(), _sink, loop_mode="fixed")
     t0 = 1000.0

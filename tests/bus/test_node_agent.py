@@ -24,7 +24,7 @@ from support.routers import RouterHandle
 from support.spawn import REPO_ROOT, Spawner, child_env
 
 import runtime as rt
-from bus_schemas import Estop, Pose, Status, Wheels, encode, keys, new_estop_id
+from bus_schemas import Estop, Pose, PoseBatch, Status, Wheels, encode, keys, new_estop_id
 from robot_agent.core.params import AgentConfig
 from robot_agent.node.main import main as agent_main
 
@@ -210,8 +210,11 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
     while True:
         if k > 0:
             setpoint(k - 1, 0.45, 0.0)  # the firmware reads the pose only with a setpoint
-        pose = Pose(t=k * dt, seq=k + 1, x=0.0, y=0.0, theta=0.0, robot="r1")
-        pubs.put(keys.pose_key(FLEET, "r1"), encode(pose), rt.QOS_CRITICAL)
+        # (a lockstep agent takes its own pose from the plant's frame)
+        frame = PoseBatch(
+            t=k * dt, seq=k + 1, robots=("r1",), x=(0.0,), y=(0.0,), theta=(0.0,), stamp=k * dt
+        )
+        pubs.put(keys.poses_key(FLEET), encode(frame), rt.QOS_CRITICAL)
         clock(k)
         time.sleep(0.02)
         if [w for _, _, w in wheels.snapshot() if w.pose_t is not None and w.pose_t == w.t]:

@@ -19,7 +19,7 @@ from support.routers import RouterHandle
 from support.spawn import Spawner
 
 import runtime as rt
-from bus_schemas import Assignment, Clock, Leader, Pose, Setpoint, Slot, encode, keys
+from bus_schemas import Assignment, Clock, Leader, PoseBatch, Setpoint, Slot, encode, keys
 
 
 @pytest.fixture
@@ -113,10 +113,14 @@ def test_lockstep_answers_each_clock_with_the_leader_last(
 
     k = 0
     deadline = time.monotonic() + 5.0
-    while True:  # poses then clock k, until the answer covers every robot
-        for rid, (x, y, th) in START.items():
-            msg = Pose(t=k * dt, seq=k + 1, x=x, y=y, theta=th, robot=rid)
-            pubs.put(keys.pose_key(FLEET, rid), encode(msg), rt.QOS_CRITICAL)
+    while True:  # the frame then clock k, until the answer covers every robot
+        rows = list(START.items())  # (a lockstep coordinator reads the plant's frames)
+        frame = PoseBatch(
+            t=k * dt, seq=k + 1, robots=tuple(r for r, _ in rows),
+            x=tuple(p[0] for _, p in rows), y=tuple(p[1] for _, p in rows),
+            theta=tuple(p[2] for _, p in rows), stamp=k * dt,
+        )  # fmt: skip
+        pubs.put(keys.poses_key(FLEET), encode(frame), rt.QOS_CRITICAL)
         pubs.put(clock_key, encode(Clock(t=k * dt, seq=k + 1, tick=k)), rt.QOS_CRITICAL)
         time.sleep(0.03)
         got = [key for key, m in answer(k) if key.endswith("/setpoint")] if k > 0 else []

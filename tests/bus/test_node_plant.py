@@ -30,6 +30,7 @@ from bus_schemas import (
     Pose,
     PoseBatch,
     Truth,
+    TruthBatch,
     Wheels,
     encode,
     keys,
@@ -158,7 +159,11 @@ def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
     pubs = rt.Publishers(client)
     tokens = [rt.declare_token(client, keys.alive_robot_key(FLEET, "r2"))]
     clocks = Recorder(client, keys.clock_key(FLEET), decoder_of(Clock))
-    truth = Recorder(client, keys.all_truth_pattern(FLEET), decoder_of(Truth))
+    truths = Recorder(client, keys.truths_key(FLEET), decoder_of(TruthBatch))
+    frames = Recorder(client, keys.poses_key(FLEET), decoder_of(PoseBatch))
+    # a lockstep plant puts truth and frames as batches, and a robot's own `truth` and `pose`
+    # only while someone subscribes to them: r1's truth from the start, r2's from tick 5
+    r1_truth = Recorder(client, keys.truth_key(FLEET, "r1"), decoder_of(Truth))
     status = Recorder(client, STATUS_KEY, msgpack.unpackb)
     dt = SCENARIO.dt_s
     child = spawn(
@@ -210,18 +215,35 @@ def test_lockstep_waits_for_the_fleet_and_advances_only_on_every_answer(
     t_wait = time.monotonic()  # nobody answers tick 1: the plant goes on after 0.5 s
     elapsed = clock(2, timeout_s=3.0) - t_wait
     assert 0.45 <= elapsed <= 1.3
+    r2_truth: Recorder | None = None
     for k in range(2, 16):
         answer(k, ("r1", "r2", "r3"))
         if k < 15:
             clock(k + 1)
+        if k == 5:
+            r2_truth = Recorder(client, keys.truth_key(FLEET, "r2"), decoder_of(Truth))
     child.proc.wait(timeout=5.0)
     assert child.proc.returncode == 0, child.describe()
     _, _, done = status.wait_for(lambda _r, _k, s: s["state"] == "done")
     assert done["timeouts"] == 1 and done["tick"] == 15 and done["rejected"] == 0
     x0 = SCENARIO.initial
-    assert latest_truth(truth, "r1").x > x0[0][0] + 0.01  # r1 drove
-    r2 = latest_truth(truth, "r2")
-    assert (r2.x, r2.y) == (x0[1][0], x0[1][1])  # r2's wheels stayed at zero
+    batches = [m for _, _, m in truths.snapshot()]
+    assert [b.stamp for b in batches] == [k * dt for k in range(16)]  # truth at every tick
+    end = batches[-1]
+    last = {rid: (x, y) for rid, x, y in zip(end.robots, end.x, end.y, strict=True)}
+    assert last["r1"][0] > x0[0][0] + 0.01  # r1 drove
+    assert last["r2"] == (x0[1][0], x0[1][1])  # r2's wheels stayed at zero
+    assert frames.snapshot() and all(
+        set(m.robots) == {"r1", "r2", "r3"} for _, _, m in frames.snapshot()
+    )
+    # r1's own truth, subscribed from the start: every tick, the batch's values
+    keyed = [(m.t, m.x, m.y, m.theta) for _, _, m in r1_truth.snapshot()]
+    i = end.robots.index("r1")
+    assert keyed == [(b.stamp, b.x[i], b.y[i], b.theta[i]) for b in batches]
+    # r2's, subscribed at tick 6: its first message is its key's first (nothing put before)
+    assert r2_truth is not None
+    late = [m for _, _, m in r2_truth.snapshot()]
+    assert late and late[0].seq == 1 and late[0].t > 5 * dt
     del tokens
 
 

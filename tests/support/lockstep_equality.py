@@ -91,10 +91,9 @@ def lockstep_equals_simulate(
             ):
                 routes.append((key.__eq__, handler))
     routes.append((lambda k: k == plant.leader_key, plant.inputs.on_leader))
-    if hosts:
-        routes.append((lambda k: k == plant.outputs.poses_key, coord.on_poses))
-    else:
-        routes.append((lambda k: k.endswith("/pose"), coord.on_pose))
+    # every lockstep node reads the plant's frames as batches (the agents take their own pose
+    # from them): the coordinator reads the batches, as `formation coordinator --lockstep` does
+    routes.append((lambda k: k == plant.outputs.poses_key, coord.on_poses))
     routes.append((lambda k: k == coord.clock_key, coord.on_clock))
     for rid in plant.ids:
         plant.inputs.on_alive_robot(keys.alive_robot_key(FLEET, rid), True)
