@@ -339,6 +339,32 @@ async def test_pub_sub_round_trip_through_the_asyncio_bridge(
 
 
 @pytest.mark.zenoh
+async def test_matching_follows_the_subscribers_of_a_key_through_a_router(
+    session: Callable[..., zenoh.Session],
+) -> None:
+    """``Publishers.matching`` (what a lockstep plant asks before it puts a robot's own truth
+    and pose): False while nobody subscribes, True once a subscriber on another session
+    matches the key (a wildcard too), False again when it is gone; a lookup after the first
+    call, kept by Zenoh's matching listener."""
+    pub_session, sub_session = session(), session()
+    pubs = rt.Publishers(pub_session)
+    key, other = "test/match/robot/r1/truth", "test/match/robot/r2/truth"
+    assert pubs.matching(key, rt.QOS_TELEMETRY) is False
+    assert pubs.matching(other, rt.QOS_TELEMETRY) is False
+    sub = sub_session.declare_subscriber("test/match/robot/r1/*", lambda _s: None)
+    await wait_until(lambda: pubs.matching(key))
+    assert pubs.matching(other) is False  # another robot's key: nobody reads it
+    wide = sub_session.declare_subscriber("test/match/**", lambda _s: None)
+    await wait_until(lambda: pubs.matching(other))
+    sub.undeclare()
+    wide.undeclare()
+    await wait_until(lambda: not pubs.matching(key) and not pubs.matching(other))
+    assert len(pubs) == 2  # one publisher a key, declared by the first call
+    pubs.undeclare_all()
+    assert len(pubs) == 0
+
+
+@pytest.mark.zenoh
 async def test_a_sample_without_wake_is_handled_before_the_next_waking_one_over_zenoh(
     session: Callable[..., zenoh.Session],
 ) -> None:
