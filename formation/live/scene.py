@@ -274,6 +274,14 @@ class SceneModel:
             r = self.robots[rid] = _Robot()
         return r
 
+    def _place(self, rid: str, xytheta: tuple[float, float, float], measured: bool) -> None:
+        """Robot ``rid`` at ``xytheta``: a measured pose always, truth until a pose came."""
+        r = self._robot(rid)
+        if measured:
+            r.xytheta, r.from_pose = xytheta, True
+        elif not r.from_pose:
+            r.xytheta = xytheta
+
     def update(self, key: str, msg: Message) -> None:
         """Take one decoded bus message of ``key``."""
         if isinstance(msg, Slot):
@@ -282,24 +290,17 @@ class SceneModel:
             self.leader = msg
         elif isinstance(msg, Assignment):
             self.assignment = dict(msg.robots)
-        elif isinstance(msg, PoseBatch):  # (a lockstep plant's and agent hosts' frames)
+        elif isinstance(msg, PoseBatch | TruthBatch):  # (a lockstep run's, agent hosts' frames)
+            measured = isinstance(msg, PoseBatch)
             for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
-                r = self._robot(rid)
-                r.xytheta, r.from_pose = (x, y, th), True
-        elif isinstance(msg, TruthBatch):
-            for rid, x, y, th in zip(msg.robots, msg.x, msg.y, msg.theta, strict=True):
-                r = self._robot(rid)
-                if not r.from_pose:
-                    r.xytheta = (x, y, th)
+                self._place(rid, (x, y, th), measured)
         else:
             parsed = keys.parse_robot_key(key)
             if parsed is None:
                 return
             r = self._robot(parsed[1])
-            if isinstance(msg, BusPose):
-                r.xytheta, r.from_pose = (msg.x, msg.y, msg.theta), True
-            elif isinstance(msg, BusTruth) and not r.from_pose:
-                r.xytheta = (msg.x, msg.y, msg.theta)
+            if isinstance(msg, BusPose | BusTruth):
+                self._place(parsed[1], (msg.x, msg.y, msg.theta), isinstance(msg, BusPose))
             elif isinstance(msg, Status):
                 r.mode, r.slot_status, r.role = msg.mode, msg.slot, msg.role
 

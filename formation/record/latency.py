@@ -8,6 +8,7 @@ The bus tap itself (every key and liveliness token of a fleet, handed to one wor
 from __future__ import annotations
 
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from bus_schemas import (
@@ -58,6 +59,15 @@ class LatencyTracker:
         seen.setdefault(t, rx_s)  # the first arrival counts
         while len(seen) > self.window:
             seen.popitem(last=False)
+
+    def on_frame(self, robots: Iterable[str], t: float, rx_s: float) -> None:
+        """A ``poses`` frame of ``robots`` captured at ``t`` arrived at ``rx_s``: each robot's
+        pose in lockstep, where every node reads the frames (the plant puts each robot's own
+        ``pose`` only while someone subscribes to it); ignored in realtime, where an agent's
+        pose is its own key's (:meth:`on_pose`)."""
+        if self.lockstep:
+            for robot in robots:
+                self.on_pose(robot, t, rx_s)
 
     def on_wheels(self, robot: str, msg: Wheels, rx_s: float) -> LatencySample | None:
         """The latency of a wheel command, or None if it used no pose."""

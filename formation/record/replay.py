@@ -357,11 +357,9 @@ def replay(rec: Recording, collector: RunCollector, lockstep: bool) -> Replay:  
                 out.truth_t.setdefault(tb.stamp, set()).update(tb.robots)
                 if last_truth is None or tb.stamp >= last_truth[0]:
                     last_truth = (tb.stamp, ev.log_ns)
-        elif lockstep and ev.key == poses_key:  # every lockstep node reads the frames as batches
+        elif lockstep and ev.key == poses_key:  # (the tracker's poses in lockstep)
             pb = decode(ev.payload, PoseBatch)
             if not isinstance(pb, DecodeError):
                 rx_s = rec.mono_s(ev.log_ns)
-                rx = ev.log_ns / 1e9 if rx_s is None else rx_s
-                for rid in pb.robots:
-                    tracker.on_pose(rid, pb.stamp, rx)
+                tracker.on_frame(pb.robots, pb.stamp, ev.log_ns / 1e9 if rx_s is None else rx_s)
     return out

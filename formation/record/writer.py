@@ -340,9 +340,7 @@ class Recorder:
             self.latency.on_clock()
             return
         if isinstance(msg, PoseBatch):
-            if self.latency.lockstep:  # every lockstep node reads the frames as batches
-                for rid in msg.robots:
-                    self.latency.on_pose(rid, msg.stamp, rx_ns / 1e9)
+            self.latency.on_frame(msg.robots, msg.stamp, rx_ns / 1e9)
             return
         robot = keys.parse_robot_key(key)
         if robot is None:

@@ -275,18 +275,29 @@ class AgentNode:
                     "pose", f"robot {msg.robot!r} on {self.robot_id}'s key", "misaddressed"
                 )
                 return
-            self.pose = FwPose(msg.x, msg.y, msg.theta, msg.t)
-            if self.lockstep:
-                self.pose_capture_s = msg.t  # sim time: one clock for every node
-                self._pose_pending = True
+            pose = FwPose(msg.x, msg.y, msg.theta, msg.t)
+            if self.lockstep:  # sim time: one clock for every node
+                self.take_pose(pose, msg.t, None)
                 return
-            self.pose_rx_s = rx.rx_s
             pub_t = msg.t if msg.pub_t is None else msg.pub_t
-            self.pose_capture_s = self.clocks.capture_to_local(rx.key, pub_t, msg.t, rx.rx_s)
+            capture_s = self.clocks.capture_to_local(rx.key, pub_t, msg.t, rx.rx_s)
+            self.take_pose(pose, capture_s, rx.rx_s)
             if self.loop_mode == "on-pose":
                 self.step(time.monotonic())
         except Exception as exc:
             self.faults.internal("on_pose", exc)
+
+    def take_pose(self, pose: FwPose, capture_s: float, rx_s: float | None) -> None:
+        """This robot's own measured pose, captured at ``capture_s`` (this node's clock; sim
+        time in lockstep) and received at ``rx_s``; ``rx_s`` None: lockstep, pending until the
+        next clock. The one writer of the pose (:meth:`on_pose`, :meth:`on_poses`, an agent
+        host's frame)."""
+        self.pose = pose
+        self.pose_capture_s = capture_s
+        if rx_s is None:
+            self._pose_pending = True
+        else:
+            self.pose_rx_s = rx_s
 
     def on_poses(self, rx: rt.Received) -> None:
         """Batched poses: the other robots' poses and capture times, for repulsion and the
@@ -318,9 +329,7 @@ class AgentNode:
                         "poses", "own pose received during the resume quarantine", "quarantine"
                     )
                     return
-                self.pose = FwPose(own[0], own[1], own[2], msg.stamp)
-                self.pose_capture_s = msg.stamp  # sim time: one clock for every node
-                self._pose_pending = True
+                self.take_pose(FwPose(own[0], own[1], own[2], msg.stamp), msg.stamp, None)
         except Exception as exc:
             self.faults.internal("on_poses", exc)
 

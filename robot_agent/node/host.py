@@ -345,12 +345,8 @@ class HostNode:
                 node = nodes.get(rid)
                 if node is not None:
                     node.rx["pose"] += 1
-                    node.pose = FwPose(x, y, th, stamp)
-                    node.pose_capture_s = cap
-                    if rx_s is None:
-                        node._pose_pending = True
-                    else:
-                        node.pose_rx_s = rx_s
+                    node.take_pose(FwPose(x, y, th, stamp), cap, rx_s)
+                    if rx_s is not None:
                         mine.append(node)
             self.grid.invalidate()
             self.neighbour_table.end_frame()

@@ -86,7 +86,7 @@ class PlantOutputs:
         self._wanted = wanted
         self._publish = publish
         self.batch = batch
-        self.batched = batch or lockstep  # truth and frames as batches only
+        self.batched = batch or lockstep  # truth as TruthBatch (frames are batched always)
         self.poses = poses
         self.lockstep = lockstep
         self.poses_key = keys.poses_key(fleet)
