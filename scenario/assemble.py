@@ -13,21 +13,16 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from coordinator.core.coordinator import CoordinatorCore
 from coordinator.core.leader import LeaderConfig
-from coordinator.core.path_check import PathConflict, slot_path_conflicts
 from coordinator.core.planning.limits import SlotLimits
 from coordinator.core.planning.replan import PlanSetup
 from coordinator.core.planning.trajectory import DEFAULT_CLEARANCE_M, min_separation_m
 from robot_agent.core.params import CircleObstacle
-from scenario.load import Disturbance, Scenario
-from sim_plant.core.accounting import SeparationMonitor
-from sim_plant.core.plant import Plant
-from sim_plant.core.sensors import Camera, CommandLink
+from scenario.assemble_plant import apply_scheduled, plant_models
+from scenario.load import Scenario
 
-__all__ = ["apply_scheduled", "coordinator_core", "path_conflicts", "plan_setup", "plant_models"]
+__all__ = ["apply_scheduled", "coordinator_core", "plan_setup", "plant_models"]
 
 
 def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:
@@ -90,79 +85,3 @@ def _arena(scenario: Scenario) -> tuple[float, float, float, float] | None:
     """The scenario's arena as (x_min, y_min, x_max, y_max) (m), or None."""
     a = scenario.agent.world.arena
     return None if a is None else (a.x_min, a.y_min, a.x_max, a.y_max)
-
-
-PATH_CHECK_HORIZON_S = 3600.0
-"""The slot-path conflict check samples the first hour of a run at most (36,000 instants): the
-scenario of a real fleet's file runs "for ever" (``scenario.fleet.RUN_FOREVER_S``) and a check
-of all of it would take hours before the coordinator started."""
-
-
-def path_conflicts(scenario: Scenario, duration_s: float | None = None) -> list[PathConflict]:
-    """The slots whose paths cross an obstacle of ``scenario.agent.world`` or leave its arena
-    over ``duration_s`` (default: the scenario's; at most :data:`PATH_CHECK_HORIZON_S`); what
-    the coordinator warns about."""
-    geom = scenario.agent.geometry
-    duration = scenario.duration_s if duration_s is None else duration_s
-    return slot_path_conflicts(
-        scenario.trajectory,
-        scenario.formation,
-        scenario.agent.world,
-        min(duration, PATH_CHECK_HORIZON_S),
-        body_radius_m=geom.body_radius_m,
-        ref_offset_m=geom.ref_offset_m,
-    )
-
-
-def plant_models(
-    scenario: Scenario, rng: np.random.Generator, t0_s: float = 0.0
-) -> tuple[Plant, Camera, CommandLink[Any], SeparationMonitor]:
-    """Plant, camera, command link and separation monitor of ``scenario`` starting at ``t0_s``.
-
-    The camera and then the link draw from ``rng``: build them in this one place so a seed gives
-    the same noise in every runtime.
-    """
-    geom = scenario.agent.geometry
-    plant = Plant(
-        np.array(scenario.initial, dtype=float),
-        geom,
-        motor_tau_s=scenario.plant.motor_tau_s,
-        t0_s=t0_s,
-    )
-    cam = scenario.camera
-    camera = Camera(
-        len(scenario.robot_ids),
-        rate_hz=cam.rate_hz,
-        pos_std_m=cam.pos_std_m,
-        theta_std_rad=cam.theta_std_rad,
-        latency_s=cam.latency_s,
-        rng=rng,
-        t0_s=t0_s,
-    )
-    lk = scenario.link
-    link: CommandLink[Any] = CommandLink(
-        latency_s=lk.latency_s, jitter_s=lk.jitter_s, loss_prob=lk.loss_prob, rng=rng
-    )
-    return plant, camera, link, SeparationMonitor(geom.body_radius_m)
-
-
-def apply_scheduled(
-    plant: Plant, i: int, d: Disturbance, camera: Camera | None = None, t0_s: float = 0.0
-) -> None:
-    """Start scheduled disturbance ``d`` on robot ``i``: a drag, a camera loss (robot ``i``
-    out of ``camera``'s view for ``duration_s``; scenario times are relative to ``t0_s``), or a
-    teleport to ``(x, y)`` (each defaulting to the current truth plus ``dx``/``dy``) and
-    ``theta``."""
-    if d.kind == "drag":
-        plant.drag(i, d.dx, d.dy, d.duration_s)
-    elif d.kind == "camera_loss":
-        if camera is not None:
-            camera.occlude(i, t0_s + d.t_s, t0_s + d.t_s + d.duration_s)
-    else:
-        x_i, y_i, _ = plant.truth_rows()[i]
-        plant.teleport(
-            i,
-            d.x if d.x is not None else x_i + d.dx,
-            d.y if d.y is not None else y_i + d.dy,
-            d.theta,
-        )

@@ -15,9 +15,32 @@ safety filter keeps the robots safe, but the formation will not be what was aske
 
 from __future__ import annotations
 
+from coordinator.core.path_check import PathConflict, slot_path_conflicts
 from scenario.load import Scenario
 
-__all__ = ["FEASIBILITY_HORIZON_S", "preflight_warnings"]
+__all__ = ["FEASIBILITY_HORIZON_S", "PATH_CHECK_HORIZON_S", "path_conflicts", "preflight_warnings"]
+
+PATH_CHECK_HORIZON_S = 3600.0
+"""The slot-path conflict check samples the first hour of a run at most (36,000 instants): the
+scenario of a real fleet's file runs "for ever" (``scenario.fleet.RUN_FOREVER_S``) and a check
+of all of it would take hours before the coordinator started."""
+
+
+def path_conflicts(scenario: Scenario, duration_s: float | None = None) -> list[PathConflict]:
+    """The slots whose paths cross an obstacle of ``scenario.agent.world`` or leave its arena
+    over ``duration_s`` (default: the scenario's; at most :data:`PATH_CHECK_HORIZON_S`); what
+    the coordinator warns about."""
+    geom = scenario.agent.geometry
+    duration = scenario.duration_s if duration_s is None else duration_s
+    return slot_path_conflicts(
+        scenario.trajectory,
+        scenario.formation,
+        scenario.agent.world,
+        min(duration, PATH_CHECK_HORIZON_S),
+        body_radius_m=geom.body_radius_m,
+        ref_offset_m=geom.ref_offset_m,
+    )
+
 
 FEASIBILITY_HORIZON_S = 3600.0
 """The slot-feasibility check samples the first hour of a run at most (72,000 instants, about a
@@ -31,7 +54,6 @@ def preflight_warnings(scn: Scenario, duration_s: float | None = None) -> list[s
     from coordinator.core.formation import FormationSpec
     from coordinator.core.planning.feasibility import slot_feasibility, trajectory_of
     from coordinator.core.planning.limits import SlotLimits
-    from scenario.assemble import path_conflicts
 
     duration = scn.duration_s if duration_s is None else duration_s
     out = [c.message() for c in path_conflicts(scn, duration)]

@@ -4,64 +4,12 @@ Pure (numpy/scipy, no I/O, no clock): time is always passed in. See docs/archite
 
 The per-tick modules may run compiled (mypyc) when a build of exactly these sources exists:
 ``_accel.activate`` decides before anything of the core is imported (see ``_accel.py``).
+
+Import what you use from its module (``coordinator.core.formation``, ``.assignment``,
+``.trajectory``, ...): the package itself imports nothing else, so a process that needs only the
+formation's geometry (a launcher, a plant) does not pay for scipy's optimizer and the planner.
 """
 
 from . import _accel
 
 _accel.activate(__name__, __path__)
-
-from coordinator.core.assignment import (
-    RoleAssigner,
-    SlotLike,
-    assign_greedy,
-    assign_optimal,
-    assignment_cost,
-    natural_key,
-)
-from coordinator.core.formation import (
-    FORMATION_KINDS,
-    LEADER_SLOT,
-    ROLES,
-    FormationSpec,
-    SlotSpec,
-    SlotState,
-    slot_arrays,
-    slot_states,
-)
-from coordinator.core.trajectory import (
-    TRAJECTORY_KINDS,
-    Circle,
-    FigureEight,
-    LeaderState,
-    StraightLine,
-    Trajectory,
-    Waypoints,
-    make_trajectory,
-    wrap_angle,
-)
-
-__all__ = [
-    "FORMATION_KINDS",
-    "LEADER_SLOT",
-    "ROLES",
-    "TRAJECTORY_KINDS",
-    "Circle",
-    "FigureEight",
-    "FormationSpec",
-    "LeaderState",
-    "RoleAssigner",
-    "SlotLike",
-    "SlotSpec",
-    "SlotState",
-    "StraightLine",
-    "Trajectory",
-    "Waypoints",
-    "assign_greedy",
-    "assign_optimal",
-    "assignment_cost",
-    "make_trajectory",
-    "natural_key",
-    "slot_arrays",
-    "slot_states",
-    "wrap_angle",
-]

@@ -58,7 +58,8 @@ from robot_agent.core.estop import EstopLatch
 from robot_agent.core.lockstep import Arrivals, Replay
 from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
 from scenario import Scenario
-from scenario.assemble import coordinator_core, path_conflicts
+from scenario.assemble import coordinator_core
+from scenario.preflight import path_conflicts
 
 __all__ = ["CoordinatorNode"]
 

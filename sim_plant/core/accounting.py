@@ -33,8 +33,6 @@ from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
-from scipy.spatial.distance import pdist
 
 __all__ = [
     "PAIR_BLOCK_ELEMENTS",
@@ -133,6 +131,12 @@ def contacts_and_min_distance(
     n = xy.shape[0]
     if n < 2:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0), math.inf
+    # scipy.spatial here, not at the top: a plant or a launcher of a few robots never gets here
+    # (up to PY_MAX_N the pairs are plain Python), and its import is a quarter of a second of
+    # every such process's start
+    from scipy.spatial import cKDTree
+    from scipy.spatial.distance import pdist
+
     if n <= brute_force_max_n:
         d = pdist(xy)  # condensed: pairs (0,1), (0,2), ..., (1,2), ... = upper triangle order
         close = d < contact_dist_m

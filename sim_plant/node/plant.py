@@ -48,7 +48,7 @@ from bus_schemas import (
 from robot_agent.core.lockstep import tick_time
 from runtime.timers import STATUS_PERIOD_S  # every node reports at the one rate
 from scenario import Scenario
-from scenario.assemble import apply_scheduled, plant_models
+from scenario.assemble_plant import apply_scheduled, plant_models
 from sim_plant.core.accounting import SeparationMonitor
 from sim_plant.core.encoders import WheelEncoders
 from sim_plant.core.plant import Plant

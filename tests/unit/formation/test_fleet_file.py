@@ -184,8 +184,7 @@ def test_a_plan_in_a_fleet_file_says_where_the_leader_starts(tmp_path: Path) -> 
 def test_the_obstacles_of_a_fleet_file_are_the_coordinators_too() -> None:
     """The fleet's arena and obstacles reach the scenario the coordinator runs: its path check
     warns about a slot crossing a pillar (over the first hour of a run that lasts for ever)."""
-    from scenario.assemble import PATH_CHECK_HORIZON_S
-    from scenario.preflight import preflight_warnings
+    from scenario.preflight import PATH_CHECK_HORIZON_S, preflight_warnings
 
     data = example()
     data["obstacle"] = [{"kind": "circle", "x": 0.0, "y": 0.2, "radius_m": 0.05}]

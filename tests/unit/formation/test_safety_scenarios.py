@@ -25,7 +25,7 @@ from formation.outputs import metrics
 from formation.outputs.runlog import RunLog
 from formation.sim import simulate
 from robot_agent.core.params import Arena, CircleObstacle, SegmentObstacle, WorldMap
-from scenario.assemble import path_conflicts
+from scenario.preflight import path_conflicts
 
 BODY_RADIUS_M = 0.075
 TOUCH = 2 * BODY_RADIUS_M
