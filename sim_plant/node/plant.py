@@ -10,8 +10,9 @@ A thin asyncio shell over :class:`sim_plant.core.plant.Plant`,
 :class:`sim_plant.core.sensors.Camera`,
 :class:`sim_plant.core.sensors.CommandLink` and
 :class:`sim_plant.core.accounting.SeparationMonitor`, built
-from the scenario by ``scenario.assemble`` (the assembly ``formation/sim/simulate.py`` uses: one
-``numpy.random.default_rng(seed)`` shared by camera and link, the same order of random draws), so
+from the scenario by ``scenario.assemble_plant`` (the assembly ``formation/sim/simulate.py``
+uses: one ``numpy.random.default_rng(seed)`` shared by camera and link, the same order of random
+draws), so
 a lockstep run over the bus reproduces the in-process run. It prints exactly one line
 ``plant ready`` once its session is open, its subscriptions and its liveliness token
 ``formation/<fleet>/alive/plant`` are declared, and exits 0 within a second of SIGINT/SIGTERM,
