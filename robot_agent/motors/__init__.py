@@ -19,7 +19,7 @@ from typing import Any
 from robot_agent.motors.base import BusMotorBackend, MotorBackend, MotorStatus
 from robot_agent.motors.roboclaw import RoboClawBackend
 from robot_agent.motors.roboclaw_config import RoboClawConfig
-from robot_agent.motors.ros2 import Ros2Backend, Ros2MotorConfig
+from robot_agent.motors.ros2_config import Ros2MotorConfig
 
 __all__ = [
     "BACKENDS",
@@ -56,6 +56,14 @@ class BackendKind:
     make: Callable[[Any, BackendContext], MotorBackend]
 
 
+def _ros2_backend(settings: Ros2MotorConfig, context: BackendContext) -> MotorBackend:
+    """The ``ros2`` driver, imported here: only a robot that drives a ROS 2 base loads it and
+    the ROS 2 message definitions."""
+    from robot_agent.motors.ros2 import Ros2Backend
+
+    return Ros2Backend(settings, context.geometry, subscribe=context.subscribe)
+
+
 BACKENDS: dict[str, BackendKind] = {
     "bus": BackendKind(
         "simulation: the wheel command published on the bus is all there is",
@@ -70,9 +78,7 @@ BACKENDS: dict[str, BackendKind] = {
     "ros2": BackendKind(
         "a ROS 2 base (TurtleBot3, Create 3, ...) over rmw_zenoh: cmd_vel out, odom in",
         Ros2MotorConfig,
-        lambda settings, context: Ros2Backend(
-            settings, context.geometry, subscribe=context.subscribe
-        ),
+        lambda settings, context: _ros2_backend(settings, context),
     ),
 }
 
