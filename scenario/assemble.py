@@ -1,12 +1,13 @@
-"""A scenario turned into the cores of one run: the one assembly both runtimes use.
+"""A scenario turned into the coordinator's core: the one assembly both runtimes use.
 
-``formation/sim/simulate.py`` (in-process) and the process shells
-(``coordinator/node/coordinator.py``,
-``sim_plant/node/plant.py``) build their cores here, so the two runtimes run the same experiment by
-construction: the same trajectory, formation and assigner, the same plant, camera and command
-link drawing from one seeded generator in the same order, and the same rule for a scheduled
-disturbance. Imports the numeric cores, so it is not re-exported by ``scenario/__init__`` (an
-agent loads scenarios without numpy).
+``formation/sim/simulate.py`` (in-process) and the coordinator's process shell
+(``coordinator/node/coordinator.py``) build the coordinator's core here, so the two runtimes run
+the same experiment by construction: the same trajectory, formation and assigner, and the same
+run-time planning setup. The plant's side (plant, camera and command link drawing from one
+seeded generator in the same order, the rule for a scheduled disturbance) is
+``scenario.assemble_plant``, apart so that a plant process does not import the coordinator's
+cores. Imports the numeric cores, so it is not re-exported by ``scenario/__init__`` (an agent
+loads scenarios without numpy).
 """
 
 from __future__ import annotations
@@ -19,10 +20,9 @@ from coordinator.core.planning.limits import SlotLimits
 from coordinator.core.planning.replan import PlanSetup
 from coordinator.core.planning.trajectory import DEFAULT_CLEARANCE_M, min_separation_m
 from robot_agent.core.params import CircleObstacle
-from scenario.assemble_plant import apply_scheduled, plant_models
 from scenario.load import Scenario
 
-__all__ = ["apply_scheduled", "coordinator_core", "plan_setup", "plant_models"]
+__all__ = ["coordinator_core", "plan_setup"]
 
 
 def coordinator_core(scenario: Scenario, t0_s: float = 0.0) -> CoordinatorCore:

@@ -1,9 +1,9 @@
-"""The plant's side of a scenario's assembly (``scenario.assemble`` holds the coordinator's and
-re-exports these): the plant, camera, command link and separation monitor drawn from one seeded
-generator in one order, and the rule for a scheduled disturbance. Both runtimes build them here
-(``formation/sim/simulate.py``, ``sim_plant/node/plant.py``). A module of its own so that a plant
-process does not import the coordinator's cores (scipy's optimizer and the planner: about half a
-second of a plant's start)."""
+"""The plant's side of a scenario's assembly (``scenario.assemble`` holds the coordinator's): the
+plant, camera, command link and separation monitor drawn from one seeded generator in one order,
+and the rule for a scheduled disturbance. Both runtimes build them here
+(``formation/sim/simulate.py``, ``sim_plant/node/plant.py``), so a seed gives the same noise in
+both. A module of its own so that a plant process does not import the coordinator's cores
+(scipy's optimizer and the planner: about half a second of a plant's start)."""
 
 from __future__ import annotations
 

@@ -43,7 +43,8 @@ from robot_agent.core.firmware import Firmware, Mode, Pose, Setpoint, WheelComma
 from robot_agent.core.lockstep import SETPOINT_DELAY_TICKS, SetpointWindow, tick_time
 from robot_agent.core.neighbours import is_current, neighbour
 from scenario import Scenario
-from scenario.assemble import apply_scheduled, coordinator_core, plant_models
+from scenario.assemble import coordinator_core
+from scenario.assemble_plant import apply_scheduled, plant_models
 from sim_plant.core.encoders import WheelEncoders
 
 __all__ = ["Experiment", "Observation"]

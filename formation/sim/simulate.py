@@ -58,7 +58,8 @@ from robot_agent.core.neighbour_select import select_min_entries
 from robot_agent.core.neighbours import ClaimRing, mover, neighbours_at
 from robot_agent.core.safety_filter import Neighbour
 from scenario import Scenario
-from scenario.assemble import apply_scheduled, coordinator_core, plant_models
+from scenario.assemble import coordinator_core
+from scenario.assemble_plant import apply_scheduled, plant_models
 from scenario.faults import FaultAction, FaultScheduler, FleetFaults, fleet_view
 from scenario.preflight import path_conflicts
 from sim_plant.core.encoders import WheelEncoders

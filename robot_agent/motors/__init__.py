@@ -78,7 +78,7 @@ BACKENDS: dict[str, BackendKind] = {
     "ros2": BackendKind(
         "a ROS 2 base (TurtleBot3, Create 3, ...) over rmw_zenoh: cmd_vel out, odom in",
         Ros2MotorConfig,
-        lambda settings, context: _ros2_backend(settings, context),
+        _ros2_backend,
     ),
 }
 
