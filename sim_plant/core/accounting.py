@@ -30,6 +30,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -86,6 +87,17 @@ def _positions(truth: npt.ArrayLike) -> FloatArray:
     return xy
 
 
+@lru_cache(maxsize=1)
+def _spatial() -> tuple[Any, Any]:
+    """scipy's ``cKDTree`` and ``pdist``, imported on the first call and kept: a plant or a
+    launcher of a few robots never needs them (up to :data:`PY_MAX_N` the pairs are plain
+    Python), and their import is a quarter of a second of every such process's start."""
+    from scipy.spatial import cKDTree
+    from scipy.spatial.distance import pdist
+
+    return cKDTree, pdist
+
+
 @lru_cache(maxsize=8)
 def _upper_pairs(n: int) -> IntArray:
     """``(n (n - 1) / 2, 2)`` index pairs ``i < j`` in the order of ``pdist``'s condensed form."""
@@ -131,12 +143,7 @@ def contacts_and_min_distance(
     n = xy.shape[0]
     if n < 2:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0), math.inf
-    # scipy.spatial here, not at the top: a plant or a launcher of a few robots never gets here
-    # (up to PY_MAX_N the pairs are plain Python), and its import is a quarter of a second of
-    # every such process's start
-    from scipy.spatial import cKDTree
-    from scipy.spatial.distance import pdist
-
+    cKDTree, pdist = _spatial()
     if n <= brute_force_max_n:
         d = pdist(xy)  # condensed: pairs (0,1), (0,2), ..., (1,2), ... = upper triangle order
         close = d < contact_dist_m
