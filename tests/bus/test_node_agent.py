@@ -203,9 +203,11 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
         msg = setpoint_msg("r1", x, y, t=tick * dt, seq=tick + 1)
         pubs.put(keys.setpoint_key(FLEET, "r1"), _ticked(msg, tick), rt.QOS_CRITICAL)
 
-    # Warm up with clocks 0, 1, ... until an answer shows the pose and setpoint arrived before
-    # the clock (the test session knows the agent's subscriptions by then); K: next free tick.
-    deadline = time.monotonic() + 5.0
+    # Warm up with clocks 0, 1, ... until the answer to clock k shows that clock's frame arrived
+    # before it (the test session knows the agent's subscriptions by then); K: next free tick.
+    # The answer to tick k itself: an earlier one (tick 0's pose_t equals its t too) says
+    # nothing of frame k, and on a loaded machine it may be the one that has just come in.
+    deadline = time.monotonic() + 10.0
     k = 0
     while True:
         if k > 0:
@@ -216,8 +218,11 @@ def test_lockstep_steps_on_the_clock_with_the_setpoint_of_the_previous_tick(
         )
         pubs.put(keys.poses_key(FLEET), encode(frame), rt.QOS_CRITICAL)
         clock(k)
-        time.sleep(0.02)
-        if [w for _, _, w in wheels.snapshot() if w.pose_t is not None and w.pose_t == w.t]:
+        try:
+            _, _, w = wheels.wait_for(lambda _r, _k, w, k=k: w.tick == k, timeout_s=0.5)
+        except AssertionError:  # not answered yet: the next clock
+            w = None
+        if isinstance(w, Wheels) and w.pose_t == k * dt:
             break
         assert time.monotonic() < deadline, "no answer to a clock"
         k += 1
