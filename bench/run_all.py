@@ -36,6 +36,7 @@ BENCHES: dict[str, tuple[list[str], list[str]]] = {
     "bench_latency": ([], ["--robots", "3", "--window", "5"]),
     "bench_lockstep": ([], ["--duration", "20", "--robots", "3"]),
     "bench_lockstep_floor": ([], ["--ticks", "300"]),
+    "bench_lockstep_handlers": ([], ["--duration", "6"]),
     "bench_startup": ([], ["--repeat", "1"]),
     "bench_scale": ([], ["--quick"]),
     "bench_up": ([], ["--repeat", "1", "--duration", "8"]),
