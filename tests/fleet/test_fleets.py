@@ -211,6 +211,7 @@ def test_ctrl_c_of_formation_up_writes_figures_of_the_partial_run(
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.alone  # rates (pose, wheels, status) and nothing rejected: a realtime bound
 @pytest.mark.zenoh
 @pytest.mark.slow
 def test_top_shows_every_robot_of_a_real_agent_host_fleet(spawn: Spawner, tmp_path: Path) -> None:
