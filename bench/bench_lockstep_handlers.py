@@ -31,7 +31,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from common import REPO_ROOT, free_port
@@ -107,48 +106,19 @@ SITECUSTOMIZE = (
 
 
 def hot(duration_s: float) -> dict[str, list[float]]:
-    """The handlers' own CPU per call, the nodes wired in this process (in-memory bus; the
-    plant's loop on this thread)."""
-    import runtime as rt
-    from bus_schemas import keys
-    from coordinator.node.coordinator import CoordinatorNode
-    from robot_agent.node.agent import AgentNode
+    """The handlers' own CPU per call, the nodes wired in this process (the in-memory bus of
+    ``tests/support/lockstep_equality.py``; the plant's loop on this thread)."""
+    sys.path.insert(0, str(REPO_ROOT / "tests"))
+    from support.lockstep_equality import wire_in_memory
+
     from scenario import load
-    from sim_plant.node.plant import PlantNode
 
     ns: dict[str, object] = {}
     exec(compile(WRAPPERS, "bench_lockstep_handlers", "exec"), ns)
     ns["install"]()  # type: ignore[operator]
-    fleet = "hot"
-    scn = load("paper-exp2")
-    routes: list = []
-
-    def publish(key: str, payload: bytes, qos: rt.QoS) -> None:
-        for match, handler in routes:
-            if match(key):
-                handler(rt.Received(key, payload, time.monotonic()))
-
-    plant = PlantNode(scn, fleet, publish, lockstep=True, duration_s=duration_s)
-    coord = CoordinatorNode(scn, "main", fleet, publish, lockstep=True)
-    agents = [AgentNode(r, fleet, scn.agent, publish, lockstep=True) for r in plant.ids]
-    routes.append((lambda k: k.endswith("/wheels"), plant.inputs.on_wheels))
-    for a in agents:
-        for key, handler in (
-            (a.setpoint_key, a.on_setpoint),
-            (a.poses_key, a.on_poses),
-            (a.pose_key, a.on_pose),
-            (a.clock_key, a.on_clock),
-        ):
-            routes.append((key.__eq__, handler))
-    routes.append((lambda k: k == plant.leader_key, plant.inputs.on_leader))
-    routes.append((lambda k: k == plant.outputs.poses_key, coord.on_poses))
-    routes.append((lambda k: k == coord.clock_key, coord.on_clock))
     with contextlib.redirect_stderr(io.StringIO()):  # the nodes' log lines
-        for rid in plant.ids:
-            plant.inputs.on_alive_robot(keys.alive_robot_key(fleet, rid), True)
-            coord.on_alive(keys.alive_robot_key(fleet, rid), True)
-        plant.inputs.on_alive_coordinator(keys.alive_coordinator_key(fleet, "main"), True)
-        assert plant.run_lockstep_blocking() is True
+        wired = wire_in_memory(load("paper-exp2"), duration_s, fleet="hot")
+        assert wired.plant.run_lockstep_blocking() is True
     return ns["STATS"]  # type: ignore[return-value]
 
 
