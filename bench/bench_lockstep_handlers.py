@@ -49,7 +49,7 @@ def _dump():
         role = next((a for a in sys.argv[1:] if not a.startswith("-")), "?")
         path = os.path.join(_OUT, f"{role}-{os.getpid()}.json")
         with open(path + ".tmp", "w") as f:
-            json.dump({"role": role, "stats": STATS}, f)
+            json.dump(STATS, f)
         os.replace(path + ".tmp", path)
 
 
@@ -148,7 +148,7 @@ def in_run(duration_s: float) -> tuple[dict[str, list[float]], float]:
         speed = meta["run"]["duration_s"] / meta["meta"]["run_wall_s"]
         total: dict[str, list[float]] = {}
         for f in stats_dir.glob("*.json"):
-            for label, (calls, cpu) in json.loads(f.read_text())["stats"].items():
+            for label, (calls, cpu) in json.loads(f.read_text()).items():
                 entry = total.setdefault(label, [0, 0.0])
                 entry[0] += calls
                 entry[1] += cpu

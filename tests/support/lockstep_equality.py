@@ -28,12 +28,12 @@ SCENARIO = load("paper-exp2")
 
 @dataclass
 class InMemoryFleet:
-    """The nodes :func:`wire_in_memory` wired: ``agents`` (one per robot) or ``host``."""
+    """The nodes :func:`wire_in_memory` wired (``agents``: one per robot; empty with an agent
+    host, which only the plant and the coordinator talk to)."""
 
     plant: Any
     coord: Any
     agents: list[Any] = field(default_factory=list)
-    host: Any = None
 
 
 def wire_in_memory(
@@ -68,7 +68,6 @@ def wire_in_memory(
     wired = InMemoryFleet(plant, coord)
     if hosts:
         host = HostNode("h1", plant.ids, fleet, scenario.agent, publish, lockstep=True)
-        wired.host = host
         routes.append(
             (lambda k: k.endswith("/wheels") and "/host/" in k, plant.inputs.on_host_wheels)
         )
